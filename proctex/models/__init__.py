@@ -1,0 +1,34 @@
+"""The built-in library of part-based procedural models and the model registry."""
+
+from __future__ import annotations
+
+from ..shape import ProceduralModel
+
+_REGISTRY: dict[str, type[ProceduralModel]] = {}
+
+
+def register(cls: type[ProceduralModel]) -> type[ProceduralModel]:
+    """Class decorator adding a built-in model to the registry under ``cls.name``."""
+    if not cls.name or cls.name in _REGISTRY:
+        raise ValueError(f"model name {cls.name!r} is empty or already registered")
+    cls.builtin = True
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+def list_models() -> list[str]:
+    """Names of the built-in models, sorted."""
+    _load_all()
+    return sorted(_REGISTRY)
+
+
+def get_model(name: str) -> ProceduralModel:
+    """A fresh instance of the built-in model ``name`` (``ValueError`` naming the known ones)."""
+    _load_all()
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown model {name!r}; built-in models are {sorted(_REGISTRY)}")
+    return _REGISTRY[name]()
+
+
+def _load_all() -> None:
+    from . import vessels, furniture, utensils  # noqa: F401  (registration side effect)

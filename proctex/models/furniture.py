@@ -1,0 +1,1 @@
+"""Furniture: desk, sofa, chair, stair, table."""

@@ -1,0 +1,304 @@
+"""Watertight mesh primitives with canonical coordinates, for the built-in procedural models.
+
+Every primitive returns a :class:`Part`: ``vertices (n, 3) float64``, ``faces (m, 3) int64`` with
+outward-facing winding, and ``canonical (n, 3) float64``. Canonical coordinates are a continuous
+embedding of the part's parameter domain that does not depend on the model's parameters, so the same
+canonical point means the same surface point across a family (DESIGN §6):
+
+- boxes: the normalised position inside the box, in ``[0, 1]^3``;
+- ring surfaces (surfaces of revolution, swept tubes): a point on the unit sphere,
+  ``(sin(pi s) cos(phi), sin(pi s) sin(phi), cos(pi s))`` with ``s`` in ``[0, 1]`` the profile
+  parameter chosen by the caller (0 and 1 are the poles) and ``phi`` the angle around the axis.
+
+Transforms keep the canonical coordinates; a mirror flips the winding so normals stay outward.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+
+@dataclass
+class Part:
+    """One connected, closed surface.
+
+    Attributes:
+        vertices: (n, 3) float64 positions.
+        faces: (m, 3) int64 vertex indices, counter-clockwise seen from outside.
+        canonical: (n, 3) float64 canonical coordinates (see module docstring).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    canonical: np.ndarray
+
+    def copy(self) -> "Part":
+        return Part(self.vertices.copy(), self.faces.copy(), self.canonical.copy())
+
+
+def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Signed volume enclosed by a closed triangle mesh (positive when normals face outward)."""
+    a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def _orient_outward(part: Part) -> Part:
+    if signed_volume(part.vertices, part.faces) < 0:
+        part.faces = part.faces[:, ::-1].copy()
+    return part
+
+
+# ---------------------------------------------------------------------------------------------- boxes
+def box(
+    size: Sequence[float],
+    center: Sequence[float] = (0.0, 0.0, 0.0),
+    divisions: Sequence[int] = (1, 1, 1),
+    warp: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+) -> Part:
+    """Closed, subdivided axis-aligned box.
+
+    Args:
+        size: (3,) edge lengths (> 0).
+        center: (3,) centre.
+        divisions: (3,) number of segments along x, y, z (>= 1).
+        warp: optional ``f(local, canonical) -> local`` applied to the centred positions
+            ``local (n, 3)`` before translation; used to taper, bevel or bend a box while keeping
+            its canonical coordinates.
+
+    Returns:
+        Part with canonical = normalised position in the box, in [0, 1]^3.
+    """
+    size = np.asarray(size, dtype=float)
+    div = np.asarray(divisions, dtype=int)
+    if size.shape != (3,) or np.any(size <= 0) or not np.all(np.isfinite(size)):
+        raise ValueError(f"box size must be three positive finite numbers, got {size}")
+    if div.shape != (3,) or np.any(div < 1):
+        raise ValueError(f"box divisions must be three integers >= 1, got {divisions}")
+    nx, ny, nz = div
+    # Vertex id for every lattice point on the boundary of the (nx+1, ny+1, nz+1) grid.
+    ids = -np.ones((nx + 1, ny + 1, nz + 1), dtype=np.int64)
+    i, j, k = np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), np.arange(nz + 1), indexing="ij")
+    on = (i == 0) | (i == nx) | (j == 0) | (j == ny) | (k == 0) | (k == nz)
+    ids[on] = np.arange(int(on.sum()))
+    lattice = np.stack([i[on], j[on], k[on]], axis=1)
+    canonical = lattice / div
+    faces = []
+
+    def quads(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> None:
+        faces.append(np.stack([a, b, c], axis=-1).reshape(-1, 3))
+        faces.append(np.stack([a, c, d], axis=-1).reshape(-1, 3))
+
+    for axis in range(3):
+        u, v = [ax for ax in range(3) if ax != axis]
+        for side in (0, div[axis]):
+            sl = [slice(None)] * 3
+            sl[axis] = side
+            g = ids[tuple(sl)]  # 2D grid over (u, v)
+            a, b, c, d = g[:-1, :-1], g[1:, :-1], g[1:, 1:], g[:-1, 1:]
+            quads(a, b, c, d)
+    f = np.concatenate(faces).astype(np.int64)
+    local = (canonical - 0.5) * size
+    if warp is not None:
+        local = np.asarray(warp(local.copy(), canonical.copy()), dtype=float)
+    part = Part(local + np.asarray(center, dtype=float), f, canonical.astype(float))
+    # Each side was emitted with one winding; fix per side is unnecessary: the two sides of an axis
+    # have opposite orientation in (u, v), so flip the faces whose normals point inward.
+    return _fix_box_winding(part, size, np.asarray(center, dtype=float), local)
+
+
+def _fix_box_winding(part: Part, size: np.ndarray, center: np.ndarray, local: np.ndarray) -> Part:
+    # Decide orientation per face from the unwarped lattice (always a convex box), then keep it.
+    unwarped = (part.canonical - 0.5) * size
+    tri = unwarped[part.faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    outward = np.einsum("ij,ij->i", n, tri.mean(axis=1)) > 0
+    part.faces = np.where(outward[:, None], part.faces, part.faces[:, ::-1])
+    return part
+
+
+# ------------------------------------------------------------------------------------ ring surfaces
+def sphere_canonical(s: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Canonical embedding of (profile parameter, angle) on the unit sphere: (..., 3) float64."""
+    s = np.asarray(s, dtype=float)
+    phi = np.asarray(phi, dtype=float)
+    return np.stack([np.sin(np.pi * s) * np.cos(phi), np.sin(np.pi * s) * np.sin(phi), np.cos(np.pi * s)], axis=-1)
+
+
+def ring_surface(
+    rings: np.ndarray,
+    s: np.ndarray,
+    start_pole: np.ndarray | None,
+    end_pole: np.ndarray | None,
+    phi: np.ndarray | None = None,
+) -> Part:
+    """Closed surface from ``K`` rings of ``N`` points plus two pole vertices.
+
+    Args:
+        rings: (K, N, 3) float64 ring positions; consecutive rings are joined by quads and every
+            ring is closed around.
+        s: (K,) profile parameters of the rings, strictly inside (0, 1); poles get 0 and 1.
+        start_pole, end_pole: (3,) positions of the pole vertices closing the ends. Both are
+            required: parts are closed surfaces.
+        phi: (N,) angles of the ring points (default: uniform in [0, 2 pi)).
+    """
+    rings = np.asarray(rings, dtype=float)
+    if rings.ndim != 3 or rings.shape[2] != 3 or rings.shape[0] < 1 or rings.shape[1] < 3:
+        raise ValueError(f"rings must be (K >= 1, N >= 3, 3), got {rings.shape}")
+    if start_pole is None or end_pole is None:
+        raise ValueError("ring_surface needs both poles to close the surface")
+    K, N, _ = rings.shape
+    s = np.asarray(s, dtype=float)
+    if s.shape != (K,) or np.any(s <= 0) or np.any(s >= 1) or np.any(np.diff(s) <= 0):
+        raise ValueError("s must be (K,) strictly increasing inside (0, 1)")
+    if phi is None:
+        phi = np.arange(N) * (2 * np.pi / N)
+    vertices = np.concatenate([np.asarray(start_pole, float)[None], rings.reshape(-1, 3), np.asarray(end_pole, float)[None]])
+    canonical = np.concatenate(
+        [
+            sphere_canonical(0.0, 0.0)[None],
+            sphere_canonical(np.repeat(s, N), np.tile(phi, K)),
+            sphere_canonical(1.0, 0.0)[None],
+        ]
+    )
+    ring_id = lambda k, n: 1 + k * N + (n % N)  # noqa: E731
+    n = np.arange(N)
+    faces = [np.stack([np.zeros(N, int), ring_id(0, n + 1), ring_id(0, n)], axis=1)]
+    for k in range(K - 1):
+        a, b, c, d = ring_id(k, n), ring_id(k, n + 1), ring_id(k + 1, n + 1), ring_id(k + 1, n)
+        faces.append(np.stack([a, b, c], axis=1))
+        faces.append(np.stack([a, c, d], axis=1))
+    last = 1 + K * N
+    faces.append(np.stack([ring_id(K - 1, n), ring_id(K - 1, n + 1), np.full(N, last)], axis=1))
+    part = Part(vertices, np.concatenate(faces).astype(np.int64), canonical)
+    return _orient_outward(part)
+
+
+def revolve(
+    radius: np.ndarray,
+    height: np.ndarray,
+    s: np.ndarray | None = None,
+    n_theta: int = 32,
+    z_bottom: float | None = None,
+    z_top: float | None = None,
+    radial: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    center: Sequence[float] = (0.0, 0.0, 0.0),
+) -> Part:
+    """Surface of revolution about the z axis, closed by poles on the axis.
+
+    Args:
+        radius: (K,) profile radii (> 0) from bottom to top (the profile may go back down, as for a
+            thin-walled vessel: outside up, over the lip, inside down).
+        height: (K,) profile z values.
+        s: (K,) canonical profile parameters inside (0, 1) (default: uniform).
+        n_theta: points per ring.
+        z_bottom, z_top: z of the bottom and top poles (default: first and last profile z).
+        radial: optional ``f(theta (N,), s (K,)) -> (K, N)`` radius multiplier (ribs, lobes).
+        center: translation applied at the end.
+    """
+    radius = np.asarray(radius, dtype=float)
+    height = np.asarray(height, dtype=float)
+    K = len(radius)
+    if radius.shape != (K,) or height.shape != (K,) or K < 1:
+        raise ValueError("radius and height must be equal-length 1-D arrays")
+    if np.any(radius <= 0):
+        raise ValueError("profile radii must be positive (poles are added automatically)")
+    if s is None:
+        s = (np.arange(K) + 1.0) / (K + 1.0)
+    theta = np.arange(n_theta) * (2 * np.pi / n_theta)
+    mult = np.ones((K, n_theta)) if radial is None else np.asarray(radial(theta, np.asarray(s, float)), float)
+    r = radius[:, None] * mult
+    rings = np.stack([r * np.cos(theta)[None], r * np.sin(theta)[None], np.repeat(height[:, None], n_theta, 1)], axis=-1)
+    c = np.asarray(center, dtype=float)
+    zb = height[0] if z_bottom is None else z_bottom
+    zt = height[-1] if z_top is None else z_top
+    return ring_surface(rings + c, s, c + [0, 0, zb], c + [0, 0, zt], phi=theta)
+
+
+def _frames(path: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rotation-minimising frames (tangent, normal, binormal), each (K, 3), along a polyline."""
+    t = np.gradient(path, axis=0)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    n0 = up - np.dot(up, t[0]) * t[0]
+    if np.linalg.norm(n0) < 1e-8:
+        alt = np.array([1.0, 0.0, 0.0]) if abs(t[0, 0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        n0 = alt - np.dot(alt, t[0]) * t[0]
+    normals = [n0 / np.linalg.norm(n0)]
+    for k in range(1, len(path)):
+        n = normals[-1] - np.dot(normals[-1], t[k]) * t[k]
+        normals.append(n / np.linalg.norm(n))
+    nrm = np.array(normals)
+    return t, nrm, np.cross(t, nrm)
+
+
+def tube(
+    path: np.ndarray,
+    radius: np.ndarray | float,
+    n_sides: int = 12,
+    s: np.ndarray | None = None,
+    up: Sequence[float] = (0.0, 0.0, 1.0),
+    cap_offset: float = 0.0,
+    scale_xy: Sequence[float] = (1.0, 1.0),
+) -> Part:
+    """Closed tube swept along a polyline, with pole caps at both ends.
+
+    Args:
+        path: (K, 3) centre line, K >= 2.
+        radius: scalar or (K,) radii.
+        n_sides: points per ring.
+        s: (K,) canonical parameters inside (0, 1) (default uniform).
+        up: hint for the frame's normal at the start, so the angle origin is stable across
+            parameter settings.
+        cap_offset: how far beyond the end rings the poles sit (0: flat caps).
+        scale_xy: (2,) ellipse factors of the cross-section along (normal, binormal).
+    """
+    path = np.asarray(path, dtype=float)
+    K = len(path)
+    if path.ndim != 2 or path.shape[1] != 3 or K < 2:
+        raise ValueError(f"path must be (K >= 2, 3), got {path.shape}")
+    rad = np.broadcast_to(np.asarray(radius, dtype=float), (K,))
+    if np.any(rad <= 0):
+        raise ValueError("tube radii must be positive")
+    if s is None:
+        s = (np.arange(K) + 1.0) / (K + 1.0)
+    t, nrm, bin_ = _frames(path, np.asarray(up, dtype=float))
+    phi = np.arange(n_sides) * (2 * np.pi / n_sides)
+    cx = np.cos(phi)[None, :, None] * scale_xy[0]
+    cy = np.sin(phi)[None, :, None] * scale_xy[1]
+    rings = path[:, None] + rad[:, None, None] * (cx * nrm[:, None] + cy * bin_[:, None])
+    start = path[0] - t[0] * cap_offset * rad[0]
+    end = path[-1] + t[-1] * cap_offset * rad[-1]
+    return ring_surface(rings, s, start, end, phi=phi)
+
+
+# ---------------------------------------------------------------------------------------- transforms
+def rotation(axis: str | Sequence[float], angle: float) -> np.ndarray:
+    """(3, 3) rotation matrix about ``'x'``, ``'y'``, ``'z'`` or a given axis vector (radians)."""
+    if isinstance(axis, str):
+        axis = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)}[axis]
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def transform(part: Part, R: np.ndarray | None = None, t: Sequence[float] | None = None, scale: float | Sequence[float] = 1.0) -> Part:
+    """New part with vertices ``R @ (scale * v) + t``; canonical coordinates are kept."""
+    v = part.vertices * np.asarray(scale, dtype=float)
+    if R is not None:
+        v = v @ np.asarray(R, dtype=float).T
+    if t is not None:
+        v = v + np.asarray(t, dtype=float)
+    out = Part(v, part.faces.copy(), part.canonical.copy())
+    if np.prod(np.sign(np.broadcast_to(np.asarray(scale, float), (3,)))) * (np.linalg.det(R) if R is not None else 1) < 0:
+        out.faces = out.faces[:, ::-1].copy()
+    return out
+
+
+def mirror(part: Part, axis: int = 0, plane: float = 0.0) -> Part:
+    """Reflection of a part across the plane ``x[axis] = plane``; winding flipped, canonical kept."""
+    v = part.vertices.copy()
+    v[:, axis] = 2 * plane - v[:, axis]
+    return Part(v, part.faces[:, ::-1].copy(), part.canonical.copy())

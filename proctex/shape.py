@@ -1,0 +1,154 @@
+"""The shape record and the procedural-model interface.
+
+A procedural model is a black box ``params -> mesh`` (DESIGN §1). Built-in models additionally
+return, per vertex, canonical coordinates and a semantic part label, our ground truth for
+correspondence (DESIGN §6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from .params import ParamSpace
+from .primitives import Part
+
+
+@dataclass
+class Shape:
+    """A triangle mesh whose connected components (by shared vertex index) are its parts.
+
+    Attributes:
+        vertices: (n, 3) float64.
+        faces: (m, 3) int64.
+        canonical: (n, 3) float64 canonical coordinates, or None (shapes not from a built-in model).
+        labels: (n,) int32 index into ``label_names`` per vertex, or None.
+        label_names: semantic part labels ("leg", "seat", ...).
+        params: the validated parameters the shape was generated from ({} when unknown).
+        source: where it came from (model name or file path), informational.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    canonical: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    label_names: tuple[str, ...] = ()
+    params: dict[str, Any] = field(default_factory=dict)
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float64)
+        self.faces = np.ascontiguousarray(self.faces, dtype=np.int64)
+        if self.vertices.ndim != 2 or self.vertices.shape[1] != 3:
+            raise ValueError(f"vertices must be (n, 3), got {self.vertices.shape}")
+        if self.faces.ndim != 2 or self.faces.shape[1] != 3:
+            raise ValueError(f"faces must be (m, 3), got {self.faces.shape}")
+        n = len(self.vertices)
+        if self.faces.size and (self.faces.min() < 0 or self.faces.max() >= n):
+            raise ValueError(f"face indices must be in [0, {n}), got range [{self.faces.min()}, {self.faces.max()}]")
+        if self.canonical is not None:
+            self.canonical = np.ascontiguousarray(self.canonical, dtype=np.float64)
+            if self.canonical.shape != (n, 3):
+                raise ValueError(f"canonical must be ({n}, 3), got {self.canonical.shape}")
+        if self.labels is not None:
+            self.labels = np.ascontiguousarray(self.labels, dtype=np.int32)
+            if self.labels.shape != (n,):
+                raise ValueError(f"labels must be ({n},), got {self.labels.shape}")
+            if n and (self.labels.min() < 0 or self.labels.max() >= len(self.label_names)):
+                raise ValueError("labels index outside label_names")
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.vertices)
+
+    @property
+    def n_faces(self) -> int:
+        return len(self.faces)
+
+    def vertex_label_names(self) -> np.ndarray:
+        """(n,) object array of label strings (requires labels)."""
+        if self.labels is None:
+            raise ValueError("shape has no semantic labels")
+        return np.asarray(self.label_names, dtype=object)[self.labels]
+
+
+class ShapeBuilder:
+    """Accumulates labelled parts into one :class:`Shape`."""
+
+    def __init__(self) -> None:
+        self._parts: list[tuple[Part, str]] = []
+
+    def add(self, part: Part, label: str) -> "ShapeBuilder":
+        if not label:
+            raise ValueError("every part needs a semantic label")
+        self._parts.append((part, label))
+        return self
+
+    @property
+    def n_parts(self) -> int:
+        return len(self._parts)
+
+    def build(self, params: Mapping[str, Any] | None = None, source: str = "") -> Shape:
+        if not self._parts:
+            raise ValueError("a shape needs at least one part")
+        names: list[str] = []
+        for _, label in self._parts:
+            if label not in names:
+                names.append(label)
+        verts, faces, canon, labels = [], [], [], []
+        offset = 0
+        for part, label in self._parts:
+            verts.append(part.vertices)
+            faces.append(part.faces + offset)
+            canon.append(part.canonical)
+            labels.append(np.full(len(part.vertices), names.index(label), dtype=np.int32))
+            offset += len(part.vertices)
+        return Shape(
+            np.concatenate(verts),
+            np.concatenate(faces),
+            np.concatenate(canon),
+            np.concatenate(labels),
+            tuple(names),
+            dict(params or {}),
+            source,
+        )
+
+
+class ProceduralModel:
+    """A named family: parameter specs + ``generate(params) -> Shape``.
+
+    Subclasses set ``name``, ``description``, ``space`` and implement ``_build(params)`` returning a
+    :class:`Shape` (usually via :class:`ShapeBuilder`). Built-in models also implement
+    ``expected_counts(params) -> (parts, groups)``: the number of connected components and of part
+    groups (repeated or mirrored parts share a group) that the parameters imply.
+
+    ``generate`` is deterministic: equal parameters give identical arrays.
+    """
+
+    name: str = ""
+    description: str = ""
+    space: ParamSpace = ParamSpace(())
+    builtin: bool = False
+
+    def generate(self, params: Mapping[str, Any] | None = None) -> Shape:
+        """Validate ``params`` (missing ones take defaults) and build the shape."""
+        p = self.space.validate(params)
+        shape = self._build(p)
+        if not isinstance(shape, Shape):
+            raise ValueError(f"model {self.name!r} returned {type(shape).__name__}, expected Shape")
+        shape.params = p
+        shape.source = self.name
+        if not np.all(np.isfinite(shape.vertices)):
+            raise ValueError(f"model {self.name!r} produced non-finite vertices for {p}")
+        return shape
+
+    def _build(self, params: dict[str, Any]) -> Shape:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def expected_counts(self, params: Mapping[str, Any] | None = None) -> tuple[int, int]:
+        raise NotImplementedError(f"model {self.name!r} does not declare expected counts")
+
+    def describe(self) -> dict[str, Any]:
+        return {"name": self.name, "description": self.description, "builtin": self.builtin, "params": self.space.to_list()}
