@@ -1,0 +1,218 @@
+"""Surface geometry: triangle areas and normals, area-weighted sampling, exact closest points.
+
+:class:`SurfaceIndex` answers nearest-surface-point queries exactly: a KD-tree over face centroids
+proposes candidates, exact point–triangle distances decide, and a bound on the triangle size proves
+no other face can be closer (falling back to a ball query for the few points where it cannot).
+:func:`closest_point_bruteforce` is the slow, obviously correct reference.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) float64 areas of the triangles ``faces (m, 3)`` over ``vertices (n, 3)``."""
+    tri = vertices[faces]
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m, 3) float64 unit normals (zero vectors for zero-area faces)."""
+    tri = vertices[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+
+def sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, n: int, seed: int | np.random.Generator = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Area-weighted uniform samples on a triangle mesh.
+
+    Returns:
+        ``(points (n, 3) float64, face index (n,) int64, barycentric (n, 3) float64)``. When the
+        surface has zero area, faces are drawn uniformly instead.
+    """
+    if len(faces) == 0:
+        raise ValueError("cannot sample a surface with no faces")
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    area = triangle_areas(vertices, faces)
+    total = area.sum()
+    p = area / total if total > 0 else None
+    fi = rng.choice(len(faces), size=n, p=p)
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
+    tri = vertices[faces[fi]]
+    pts = np.einsum("ij,ijk->ik", bary, tri)
+    return pts, fi.astype(np.int64), bary
+
+
+def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact closest points on triangles (Ericson, Real-Time Collision Detection §5.1.5), vectorised.
+
+    Args:
+        p, a, b, c: (k, 3) float64 query points and triangle corners (row-wise pairs).
+
+    Returns:
+        ``(closest (k, 3), barycentric (k, 3))``; degenerate triangles are handled (their closest
+        point lies on an edge or corner).
+    """
+    ab, ac, ap = b - a, c - a, p - a
+    d1 = np.einsum("ij,ij->i", ab, ap)
+    d2 = np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3 = np.einsum("ij,ij->i", ab, bp)
+    d4 = np.einsum("ij,ij->i", ac, bp)
+    cp = p - c
+    d5 = np.einsum("ij,ij->i", ab, cp)
+    d6 = np.einsum("ij,ij->i", ac, cp)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    k = len(p)
+    bary = np.zeros((k, 3))
+    done = np.zeros(k, dtype=bool)
+
+    def settle(mask: np.ndarray, w: np.ndarray) -> None:
+        m = mask & ~done
+        bary[m] = w[m]
+        done[m] = True
+
+    ones, zeros = np.ones(k), np.zeros(k)
+    # Vertex regions.
+    settle((d1 <= 0) & (d2 <= 0), np.stack([ones, zeros, zeros], 1))
+    settle((d3 >= 0) & (d4 <= d3), np.stack([zeros, ones, zeros], 1))
+    settle((d6 >= 0) & (d5 <= d6), np.stack([zeros, zeros, ones], 1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # Edge regions.
+        v = np.where(d1 - d3 != 0, d1 / (d1 - d3), 0.0)
+        settle((vc <= 0) & (d1 >= 0) & (d3 <= 0), np.stack([1 - v, v, zeros], 1))
+        w = np.where(d2 - d6 != 0, d2 / (d2 - d6), 0.0)
+        settle((vb <= 0) & (d2 >= 0) & (d6 <= 0), np.stack([1 - w, zeros, w], 1))
+        denom_bc = (d4 - d3) + (d5 - d6)
+        w = np.where(denom_bc != 0, (d4 - d3) / denom_bc, 0.0)
+        settle((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), np.stack([zeros, 1 - w, w], 1))
+        # Face region.
+        denom = va + vb + vc
+        ok = denom != 0
+        vv = np.where(ok, vb / np.where(ok, denom, 1), 0.0)
+        ww = np.where(ok, vc / np.where(ok, denom, 1), 0.0)
+        settle(ok, np.stack([1 - vv - ww, vv, ww], 1))
+    # Fully degenerate leftovers (all corners equal): the corner itself.
+    settle(np.ones(k, dtype=bool), np.stack([ones, zeros, zeros], 1))
+    closest = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
+    return closest, bary
+
+
+@dataclass
+class ClosestPoints:
+    """Nearest surface points. ``points (k, 3)``, ``faces (k,) int64``, ``bary (k, 3)``, ``distance (k,)``."""
+
+    points: np.ndarray
+    faces: np.ndarray
+    bary: np.ndarray
+    distance: np.ndarray
+
+
+def closest_point_bruteforce(vertices: np.ndarray, faces: np.ndarray, query: np.ndarray) -> ClosestPoints:
+    """Reference: test every query against every triangle (O(k m) memory in chunks)."""
+    query = np.asarray(query, dtype=float)
+    a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    m = len(faces)
+    out_p, out_f, out_b, out_d = [], [], [], []
+    for q in query:
+        cp, bary = closest_point_on_triangles(np.repeat(q[None], m, 0), a, b, c)
+        d = np.linalg.norm(cp - q, axis=1)
+        i = int(np.argmin(d))
+        out_p.append(cp[i]), out_f.append(i), out_b.append(bary[i]), out_d.append(d[i])
+    return ClosestPoints(np.array(out_p).reshape(-1, 3), np.array(out_f, np.int64), np.array(out_b).reshape(-1, 3), np.array(out_d))
+
+
+def _subtriangle_centroids(n: int) -> np.ndarray:
+    """(n*n, 3) barycentric centroids of the sub-triangles of a triangle split n times per edge."""
+    out = []
+    for i in range(n):
+        for j in range(n - i):
+            # Upward sub-triangle (i, j), (i+1, j), (i, j+1) and, when it exists, the downward one.
+            out.append(((3 * i + 1) / (3 * n), (3 * j + 1) / (3 * n)))
+            if i + j < n - 1:
+                out.append(((3 * i + 2) / (3 * n), (3 * j + 2) / (3 * n)))
+    uv = np.array(out)
+    return np.stack([1 - uv.sum(1), uv[:, 0], uv[:, 1]], axis=1)
+
+
+class SurfaceIndex:
+    """Exact nearest-point queries on a triangle mesh.
+
+    Every triangle is represented by proxy points (its centroid, or the centroids of a regular
+    subdivision for large triangles) in a KD-tree. A query checks the faces of its ``k`` nearest
+    proxies exactly; the result is proven nearest when the k-th proxy is farther than the best
+    distance plus the largest proxy radius, otherwise ``k`` grows for those points.
+
+    Args:
+        vertices: (n, 3) float64; faces: (m, 3) int64 (m >= 1).
+        k: proxies checked per query in the first round.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, k: int = 8) -> None:
+        self.vertices = np.asarray(vertices, dtype=np.float64)
+        self.faces = np.asarray(faces, dtype=np.int64)
+        if self.faces.ndim != 2 or self.faces.shape[1] != 3 or len(self.faces) == 0:
+            raise ValueError(f"SurfaceIndex needs (m >= 1, 3) faces, got {self.faces.shape}")
+        tri = self.vertices[self.faces]
+        self._a, self._b, self._c = tri[:, 0], tri[:, 1], tri[:, 2]
+        centroids = tri.mean(axis=1)
+        radius = np.linalg.norm(tri - centroids[:, None], axis=2).max(axis=1)
+        target = max(float(np.median(radius)), 1e-12)
+        levels = np.clip(np.ceil(radius / target).astype(np.int64), 1, 64)
+        proxies, owner, proxy_r = [], [], [0.0]
+        for n in np.unique(levels):
+            fi = np.flatnonzero(levels == n)
+            w = _subtriangle_centroids(int(n))
+            pts = np.einsum("sk,fkd->fsd", w, tri[fi])
+            proxies.append(pts.reshape(-1, 3))
+            owner.append(np.repeat(fi, len(w)))
+            proxy_r.append(float(radius[fi].max()) / n)
+        self.proxy_owner = np.concatenate(owner)
+        self.max_radius = max(proxy_r)
+        self.tree = cKDTree(np.concatenate(proxies))
+        self.n_proxies = len(self.proxy_owner)
+        self.k = int(min(k, self.n_proxies))
+
+    def _query_k(self, pts: np.ndarray, k: int) -> tuple[ClosestPoints, np.ndarray]:
+        """Best face among the ``k`` nearest proxies, and whether it is provably the nearest."""
+        q = len(pts)
+        cd, cand = self.tree.query(pts, k=k)
+        cand = self.proxy_owner[cand.reshape(q, k)]
+        cd = cd.reshape(q, k)
+        rep = np.repeat(pts, k, axis=0)
+        flat = cand.reshape(-1)
+        cp, bary = closest_point_on_triangles(rep, self._a[flat], self._b[flat], self._c[flat])
+        d = np.linalg.norm(cp - rep, axis=1).reshape(q, k)
+        best = np.argmin(d, axis=1)
+        rows = np.arange(q)
+        res = ClosestPoints(cp.reshape(q, k, 3)[rows, best], cand[rows, best].astype(np.int64), bary.reshape(q, k, 3)[rows, best], d[rows, best])
+        sure = (cd[:, -1] >= res.distance + self.max_radius) | (k >= self.n_proxies)
+        return res, sure
+
+    def query(self, points: np.ndarray) -> ClosestPoints:
+        """Closest surface points of ``points (q, 3)`` (exact)."""
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"query points must be (q, 3), got {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("query points contain NaN or inf")
+        res, sure = self._query_k(pts, self.k)
+        k = self.k
+        todo = np.flatnonzero(~sure)
+        while len(todo):
+            k = min(4 * k, self.n_proxies)
+            sub, sub_sure = self._query_k(pts[todo], k)
+            res.points[todo], res.faces[todo], res.bary[todo], res.distance[todo] = sub.points, sub.faces, sub.bary, sub.distance
+            todo = todo[~sub_sure]
+        return res
