@@ -202,12 +202,54 @@ def position_ids(vertices: np.ndarray, tol: float) -> np.ndarray:
     return _union_find(n, pairs[:, 0], pairs[:, 1])
 
 
-def stitch_split_edges(vertices: np.ndarray, faces: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
-    """Weld map for vertices split along manifold seams.
+def _pair_around_edge(vertices: np.ndarray, faces: np.ndarray, he_face: np.ndarray, pa: int, pb: int) -> list[tuple[int, int]]:
+    """Pair the faces meeting at one non-manifold geometric edge so each pair encloses one solid.
 
-    A boundary half-edge (an index edge used by one face) is stitched to another when exactly two
-    boundary half-edges — and no interior edge — coincide in position. Their endpoint vertices are
-    welded.
+    Faces are ordered by their angle around the edge; from each face we turn towards its inside
+    (against its normal) and pair it with the first face whose inside faces back. Coincident faces
+    of two touching solids have opposite normals, so each pairs with its own solid.
+
+    Args:
+        vertices, faces: the mesh; he_face: (h,) faces of the coincident half-edges;
+        pa, pb: two vertex indices giving the edge's end positions.
+
+    Returns:
+        list of pairs of positions into ``he_face``.
+    """
+    a, b = vertices[pa], vertices[pb]
+    e = b - a
+    e = e / max(np.linalg.norm(e), 1e-300)
+    tri = vertices[faces[he_face]]
+    # Direction from the edge into each face (via its centroid), perpendicular to the edge.
+    w = tri.mean(axis=1) - a
+    w -= np.outer(w @ e, e)
+    w /= np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-300)
+    u0 = w[0]
+    v0 = np.cross(e, u0)
+    theta = np.arctan2(w @ v0, w @ u0) % (2 * np.pi)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    ccw_inside = np.einsum("ij,ij->i", -n, np.cross(e, w)) > 0
+    pairs, taken = [], set()
+    for i in np.argsort(theta, kind="stable"):
+        if i in taken or not ccw_inside[i]:
+            continue
+        offset = (theta - theta[i]) % (2 * np.pi)
+        offset[offset <= 1e-9] = 2 * np.pi  # a coincident face lies a full turn away
+        ok = [j for j in np.argsort(offset, kind="stable") if j != i and j not in taken and not ccw_inside[j]]
+        if ok:
+            pairs.append((int(i), int(ok[0])))
+            taken.update((int(i), int(ok[0])))
+    return pairs
+
+
+def stitch_split_edges(vertices: np.ndarray, faces: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
+    """Weld map for vertices split along seams (or a triangle soup).
+
+    Only *boundary* half-edges (index edges used by one face) are stitched. Where exactly two
+    half-edges coincide in position they pair up; where more coincide (solids touching along an
+    edge), all faces there are paired around the edge by angle and orientation
+    (:func:`_pair_around_edge`) and the pairs of two boundary half-edges are stitched. Stitched
+    edges weld their endpoint vertices.
 
     Args:
         vertices: (n, 3) float64; faces: (m, 3) int64.
@@ -220,34 +262,37 @@ def stitch_split_edges(vertices: np.ndarray, faces: np.ndarray, tol: float) -> t
     pid = position_ids(vertices, tol)
     he_a = faces.reshape(-1)
     he_b = np.roll(faces, -1, axis=1).reshape(-1)
-    # Index edges and their use counts.
+    he_f = np.repeat(np.arange(len(faces)), 3)
     lo, hi = np.minimum(he_a, he_b), np.maximum(he_a, he_b)
-    idx_key = lo * n + hi
-    _, inv, counts = np.unique(idx_key, return_inverse=True, return_counts=True)
+    _, inv, counts = np.unique(lo * n + hi, return_inverse=True, return_counts=True)
     boundary = counts[inv] == 1
-    # Positional edge keys for every half-edge.
     pa, pb = pid[he_a], pid[he_b]
     pos_key = np.minimum(pa, pb) * n + np.maximum(pa, pb)
-    # Geometric edges that are also interior index edges somewhere are never stitched.
-    interior_pos = np.unique(pos_key[~boundary])
-    cand = boundary & ~np.isin(pos_key, interior_pos) & (pa != pb)
-    keys = pos_key[cand]
-    a_c, b_c = he_a[cand], he_b[cand]
-    uniq, inv_c, cnt_c = np.unique(keys, return_inverse=True, return_counts=True)
-    pair_mask = cnt_c[inv_c] == 2
-    if not np.any(pair_mask):
+    # Every half-edge at a geometric edge that has at least one boundary half-edge takes part in
+    # the pairing; interior ones only so that a closed part touching there keeps its own faces.
+    involved = np.flatnonzero(np.isin(pos_key, np.unique(pos_key[boundary])) & (pa != pb))
+    order = involved[np.argsort(pos_key[involved], kind="stable")]
+    keys = pos_key[order]
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    sizes = np.diff(np.r_[starts, len(keys)])
+    pairs: list[tuple[int, int]] = [(int(order[s]), int(order[s + 1])) for s in starts[sizes == 2]]
+    for s, k in zip(starts[sizes > 2], sizes[sizes > 2]):
+        hes = order[s : s + k]
+        for i, j in _pair_around_edge(vertices, faces, he_f[hes], int(he_a[hes[0]]), int(he_b[hes[0]])):
+            pairs.append((int(hes[i]), int(hes[j])))
+    pairs = [(i, j) for i, j in pairs if boundary[i] and boundary[j]]
+    if not pairs:
         return np.arange(n, dtype=np.int64), 0
-    order = np.argsort(inv_c[pair_mask], kind="stable")
-    a_p, b_p = a_c[pair_mask][order].reshape(-1, 2), b_c[pair_mask][order].reshape(-1, 2)
-    # Match endpoints by position: (a0,b0) against (a1,b1) or (b1,a1).
-    same = pid[a_p[:, 0]] == pid[a_p[:, 1]]
-    u = np.concatenate([a_p[:, 0], b_p[:, 0]])
-    v = np.concatenate([np.where(same, a_p[:, 1], b_p[:, 1]), np.where(same, b_p[:, 1], a_p[:, 1])])
+    h = np.array(pairs, dtype=np.int64)
+    # Match endpoints by position: (a0, b0) against (a1, b1) or (b1, a1).
+    a0, b0, a1, b1 = he_a[h[:, 0]], he_b[h[:, 0]], he_a[h[:, 1]], he_b[h[:, 1]]
+    same = pid[a0] == pid[a1]
+    u = np.concatenate([a0, b0])
+    v = np.concatenate([np.where(same, a1, b1), np.where(same, b1, a1)])
     labels = _union_find(n, u, v)
-    # Representative = smallest vertex index of each label.
     rep = np.full(labels.max() + 1, n, dtype=np.int64)
     np.minimum.at(rep, labels, np.arange(n))
-    return rep[labels], len(a_p)
+    return rep[labels], len(h)
 
 
 def weld_all(vertices: np.ndarray, tol: float) -> np.ndarray:

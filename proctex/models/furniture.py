@@ -189,6 +189,7 @@ class Desk(ProceduralModel):
 # ---------------------------------------------------------------------------------------------- sofa
 SOFA_LEG_HEIGHT = 0.1
 SOFA_BACK_THICKNESS = 0.08
+SOFA_BASE_RECESS = 0.06  # the base sits this far behind the front of the seat cushions
 
 
 def sloped_arm(size: Sequence[float], center: Sequence[float], drop: float) -> P.Part:
@@ -220,8 +221,8 @@ class Sofa(ProceduralModel):
     space = ParamSpace(
         (
             integer("seats", 1, 3, 3, "count", "number of seat (and back) cushions"),
-            continuous("seat_width", 0.5, 0.8, 0.62, "m", "width of one seat cushion"),
-            continuous("depth", 0.8, 1.05, 0.9, "m", "overall depth"),
+            continuous("seat_width", 0.5, 0.7, 0.6, "m", "width of one seat cushion"),
+            continuous("depth", 0.85, 1.05, 0.92, "m", "overall depth"),
             continuous("seat_height", 0.4, 0.5, 0.44, "m", "height of the seat cushions' top"),
             continuous("back_height", 0.75, 1.0, 0.85, "m", "height of the back panel"),
             continuous("cushion_thickness", 0.11, 0.2, 0.15, "m", "seat cushion thickness"),
@@ -242,31 +243,31 @@ class Sofa(ProceduralModel):
         y_back = d / 2 - SOFA_BACK_THICKNESS  # front face of the back panel
         base_top = seat_h - ct
         sb = ShapeBuilder()
-        sb.add(slab((-inner / 2, -d / 2, SOFA_LEG_HEIGHT), (inner / 2, y_back, base_top), (2 * n, 4, 2)), "base")
+        # The base runs under the arms, stopping 1 cm short of their outer faces.
+        base_lo = (-w / 2 + 0.01, -d / 2 + SOFA_BASE_RECESS, SOFA_LEG_HEIGHT)
+        sb.add(slab(base_lo, (w / 2 - 0.01, y_back, base_top), (2 * n + 2, 4, 2)), "base")
         back = rounded_box(
-            (w, SOFA_BACK_THICKNESS, back_h - SOFA_LEG_HEIGHT),
+            (inner, SOFA_BACK_THICKNESS, back_h - SOFA_LEG_HEIGHT),
             (0.0, y_back + SOFA_BACK_THICKNESS / 2, (back_h + SOFA_LEG_HEIGHT) / 2),
-            (4 * n + 4, 5, 6),
+            (4 * n, 5, 6),
             round_lo=(0.0, 0.02, 0.0),
             round_hi=(0.0, 0.02, 0.03),
         )
         sb.add(back, "back")
+        xs = [(i - (n - 1) / 2) * sw for i in range(n)]
         # Back cushions are always thicker than seat cushions, so the two never look alike.
         bct = 1.25 * ct + 0.02
         seat_depth = y_back - 0.6 * bct + d / 2
         cushion = rounded_box((sw - 0.01, seat_depth, ct), (0.0, 0.0, 0.0), (10, 8, 5), (0.03,) * 3, (0.03,) * 3)
-        xs = [(i - (n - 1) / 2) * sw for i in range(n)]
         for part in translated(cushion, [(x, -d / 2 + seat_depth / 2, base_top + ct / 2) for x in xs]):
             sb.add(part, "seat_cushion")
         bch = back_h - seat_h - 0.02
         back_cushion = rounded_box((sw - 0.01, bct, bch), (0.0, 0.0, 0.0), (10, 5, 8), (0.04,) * 3, (0.04,) * 3)
-        tilt = P.rotation("x", -np.radians(10.0))
-        back_cushion = P.transform(back_cushion, R=tilt, t=(0.0, 0.0, 0.0))
+        back_cushion = P.transform(back_cushion, R=P.rotation("x", -np.radians(10.0)))
         yc, zc = y_back - bct / 2 - 0.02, seat_h + bch / 2 - 0.01
         for part in translated(back_cushion, [(x, yc, zc) for x in xs]):
             sb.add(part, "back_cushion")
-        arm_depth = y_back + d / 2
-        right = sloped_arm((aw, arm_depth, arm_h - SOFA_LEG_HEIGHT), (inner / 2 + aw / 2, -d / 2 + arm_depth / 2, (arm_h + SOFA_LEG_HEIGHT) / 2), 0.05)
+        right = sloped_arm((aw, d, arm_h - SOFA_LEG_HEIGHT), (inner / 2 + aw / 2, 0.0, (arm_h + SOFA_LEG_HEIGHT) / 2), 0.05)
         sb.add(right, "armrest").add(P.mirror(right, axis=0), "armrest")
         leg = tapered_cylinder(SOFA_LEG_HEIGHT + 0.005, 0.028, 0.018)
         lx, ly = w / 2 - 0.07, d / 2 - 0.07
@@ -365,7 +366,7 @@ class Chair(ProceduralModel):
     def _add_back(sb: ShapeBuilder, p, lx: float, ly: float) -> None:
         """Two back posts above the back legs and the slats between them, tilted back together."""
         sh, st, bh, lt, n = p["seat_height"], p["seat_thickness"], p["back_height"], p["leg_thickness"], p["slats"]
-        pt = 0.8 * lt  # posts are always slimmer than legs
+        pt = 0.75 * lt  # posts are always slimmer than legs
         tilt = P.rotation("x", -CHAIR_TILT)
         pivot = np.array([0.0, ly, sh - st])
         post = slab((-pt / 2, -pt / 2, 0.0), (pt / 2, pt / 2, st + bh), (1, 1, 6))

@@ -74,20 +74,52 @@ class Vase(ProceduralModel):
 def _bent_path(length: float, bend: float, n: int) -> np.ndarray:
     """(n, 3) float64 centre line starting at the origin along +z and bending towards +x.
 
-    The path is a circular arc of arc length ``length`` turning by ``bend`` radians in total.
+    The path is a circular arc of arc length ``length`` turning by ``bend`` (non-zero) radians in
+    total.
     """
     l = np.linspace(0.0, length, n)
-    if abs(bend) < 1e-9:
-        return np.stack([np.zeros(n), np.zeros(n), l], axis=1)
     k = bend / length
     return np.stack([(1.0 - np.cos(k * l)) / k, np.zeros(n), np.sin(k * l) / k], axis=1)
 
 
-def _tilted_placement(azimuth: float, tilt: float, distance: float) -> tuple[np.ndarray, np.ndarray]:
+def _tilted_placement(azimuth: float, tilt: float, distance: float, foot_radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Rotation (3, 3) and translation (3,) that lean a part standing at the origin outward by
-    ``tilt`` radians and move it ``distance`` from the z axis at angle ``azimuth``."""
+    ``tilt`` radians and move it ``distance`` from the z axis at angle ``azimuth``.
+
+    The part is lifted so that the rim of its flat foot (radius ``foot_radius``) rests on z=0.
+    """
     R = P.rotation("z", azimuth) @ P.rotation("y", tilt)
-    return R, np.array([distance * np.cos(azimuth), distance * np.sin(azimuth), 0.0])
+    lift = foot_radius * np.sin(abs(tilt))
+    return R, np.array([distance * np.cos(azimuth), distance * np.sin(azimuth), lift])
+
+
+def _coil_tube(path: np.ndarray, radius: np.ndarray, n_sides: int, cap_offset: float) -> P.Part:
+    """Closed tube along a coil around the z axis, like :func:`primitives.tube`, but with the
+    cross-section angle origin (canonical phi = 0) always on the side facing away from the axis.
+
+    ``primitives.tube`` uses rotation-minimising frames, whose twist accumulates with the path's
+    torsion, so on a helix whose shape depends on the parameters the same canonical angle would
+    land on different sides of the tube across the family.
+
+    Args:
+        path: (K, 3) centre line, never on the z axis nor tangent to the radial direction.
+        radius: (K,) tube radii.
+        n_sides: points per ring.
+        cap_offset: how far beyond the end rings the poles sit, in end radii (negative: recessed).
+    """
+    tangent = np.gradient(path, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    outward = path * [1.0, 1.0, 0.0]
+    normal = outward - np.einsum("ij,ij->i", outward, tangent)[:, None] * tangent
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    binormal = np.cross(tangent, normal)
+    phi = np.arange(n_sides) * (2 * np.pi / n_sides)
+    offsets = np.cos(phi)[None, :, None] * normal[:, None] + np.sin(phi)[None, :, None] * binormal[:, None]
+    rings = path[:, None] + radius[:, None, None] * offsets
+    s = (np.arange(len(path)) + 1.0) / (len(path) + 1.0)
+    start = path[0] - tangent[0] * cap_offset * radius[0]
+    end = path[-1] + tangent[-1] * cap_offset * radius[-1]
+    return P.ring_surface(rings, s, start, end, phi=phi)
 
 
 # ----------------------------------------------------------------------------------------------- mug
@@ -259,10 +291,14 @@ def _mushroom_cap(radius: float, dome: float, n_theta: int = 48) -> P.Part:
     return P.revolve(r, z, s, n_theta=n_theta, z_bottom=rise, z_top=rim + dome * radius)
 
 
+MUSHROOM_FOOT = 1.35  # foot radius of a mushroom stem relative to its nominal radius
+
+
 def _mushroom_stem(height: float, radius: float, n_theta: int = 24) -> P.Part:
-    """Closed stem standing on z=0 with a bulbous foot, slightly narrower at the top."""
+    """Closed stem standing on z=0 with a bulbous foot (radius ``MUSHROOM_FOOT * radius``),
+    slightly narrower at the top."""
     t = np.linspace(0.0, 1.0, 14)
-    r = radius * (1.0 + 0.35 * np.exp(-((t / 0.15) ** 2))) * (1.0 - 0.2 * t)
+    r = radius * (1.0 + (MUSHROOM_FOOT - 1.0) * np.exp(-((t / 0.15) ** 2))) * (1.0 - 0.2 * t)
     return P.revolve(r, height * t, n_theta=n_theta)
 
 
@@ -307,10 +343,11 @@ class Mushroom(ProceduralModel):
             _mushroom_cap(small_cap_radius, self.small_dome),
             t=(0.0, 0.0, _cap_seat(small_stem_height, small_cap_radius, self.small_dome)),
         )
-        small_stem = _mushroom_stem(small_stem_height, 1.5 * k * p["stem_radius"])
+        small_stem_radius = 1.5 * k * p["stem_radius"]
+        small_stem = _mushroom_stem(small_stem_height, small_stem_radius)
         distance = p["stem_radius"] + 0.9 * small_cap_radius + 0.35 * p["cap_radius"]
         for azimuth in self.small_slots[: p["n_small"]]:
-            R, t = _tilted_placement(azimuth, self.small_tilt, distance)
+            R, t = _tilted_placement(azimuth, self.small_tilt, distance, MUSHROOM_FOOT * small_stem_radius)
             builder.add(P.transform(small_cap, R, t), "small_cap").add(P.transform(small_stem, R, t), "small_stem")
         return builder.build(p)
 
@@ -333,10 +370,9 @@ def _cake_tier(radius: float, height: float, n_theta: int = 72) -> P.Part:
     s = np.concatenate(
         [0.2 * np.arange(1, 4) / 4, 0.2 + 0.4 * side_t, 0.6 + 0.2 * np.arange(1, 5) / 5, 0.8 + 0.2 * np.arange(4) / 4]
     )
-    # Frosting scallops: a ripple on the top edge and the upper rim of the side.
-    bump = np.exp(-(((s - 0.62) / 0.06) ** 2))
-
     def scallops(theta: np.ndarray, s_: np.ndarray) -> np.ndarray:
+        """Frosting ripple (K, N) on the top edge and the upper rim of the side."""
+        bump = np.exp(-(((s_ - 0.62) / 0.06) ** 2))
         return 1.0 + 0.012 * bump[:, None] * np.cos(24 * theta)[None, :]
 
     return P.revolve(r, z, s, n_theta=n_theta, radial=scallops)
@@ -386,13 +422,12 @@ class Cake(ProceduralModel):
     def _build(self, p) -> Shape:
         builder = ShapeBuilder().add(_plate(p["radius"] + p["plate_margin"], self.plate_thickness), "plate")
         z = 0.6 * self.plate_thickness  # the plate's well
-        radius = p["radius"]
-        for i in range(p["tiers"]):
+        radii = p["radius"] * p["shrink"] ** np.arange(p["tiers"])
+        for i, radius in enumerate(radii):
             builder.add(P.transform(_cake_tier(radius, p["tier_height"]), t=(0.0, 0.0, z)), f"tier{i}")
             z += p["tier_height"]
-            radius *= p["shrink"] if i < p["tiers"] - 1 else 1.0
         candle = _candle(self.candle_radius, p["candle_height"])
-        ring = 0.6 * radius
+        ring = 0.6 * radii[-1]
         for k in range(p["candles"]):
             phi = 2 * np.pi * k / p["candles"]
             builder.add(P.transform(candle, t=(ring * np.cos(phi), ring * np.sin(phi), z - self.candle_sink)), "candle")
@@ -409,7 +444,7 @@ class Shell(ProceduralModel):
             continuous("length", 0.04, 0.15, 0.08, "m", "largest dimension of the shell"),
             continuous("turns", 2.5, 5.5, 4.0, "turns", "number of whorls"),
             continuous("growth", 1.5, 2.6, 1.9, "", "whorl radius ratio per turn"),
-            continuous("spire", 0.3, 1.6, 0.9, "", "height gained per unit of whorl radius (0: flat coil)"),
+            continuous("spire", 0.3, 1.6, 0.9, "", "height of the spire per unit of whorl radius"),
             continuous("aperture", 0.45, 0.75, 0.6, "", "tube radius relative to the whorl radius"),
             continuous("ribbing", 0.0, 0.08, 0.04, "", "relative height of the growth ribs"),
         )
@@ -424,7 +459,7 @@ class Shell(ProceduralModel):
     def _spiral(self, p) -> tuple[np.ndarray, np.ndarray]:
         """Centre line (K, 3) and tube radii (K,) in units of the last whorl radius.
 
-        The apex is at the top, the whorls grow downward and the last few rings flare into a lip.
+        The apex is on the coil (z) axis, the whorls grow downward and the last rings flare into a lip.
         """
         u = np.linspace(0.0, 1.0, self.n_rings)
         angle = 2 * np.pi * p["turns"] * u
@@ -440,7 +475,7 @@ class Shell(ProceduralModel):
         hi = (path + radius[:, None]).max(axis=0)
         scale = p["length"] / float((hi - lo).max())
         # The recessed end cap reads as the opening.
-        part = P.tube(scale * path, scale * radius, n_sides=20, up=(0.0, 0.0, 1.0), cap_offset=-0.6)
+        part = _coil_tube(scale * path, scale * radius, n_sides=20, cap_offset=-0.6)
         # Stand the shell on z=0; the coil axis is the z axis.
         part = P.transform(part, t=(0.0, 0.0, -part.vertices[:, 2].min()))
         return ShapeBuilder().add(part, "shell").build(p)

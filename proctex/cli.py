@@ -1,0 +1,263 @@
+"""The ``proctex`` command line.
+
+Every command validates its input and answers bad input with ``error: ...`` on stderr and exit
+status 2, without writing partial output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .meshio import load_mesh, save_mesh, save_params
+from .models import get_model, list_models
+from .parts import Grouping, analyse, match_groups
+from .progress import track
+from .sources import FolderSource, resolve_model, resolve_shape
+from .shape import Shape
+
+
+def _print_json(data: Any) -> None:
+    print(json.dumps(data, indent=2))
+
+
+# -------------------------------------------------------------------------------------- commands
+def cmd_models(args: argparse.Namespace) -> int:
+    models = [get_model(n).describe() for n in list_models()]
+    if args.json:
+        _print_json({"models": models})
+        return 0
+    for m in models:
+        print(f"{m['name']}: {m['description']}")
+        for p in m["params"]:
+            rng = p["options"] if p["kind"] == "choice" else f"[{p['low']}, {p['high']}]"
+            unit = f" {p['unit']}" if p.get("unit") else ""
+            print(f"    {p['name']:<18} {p['kind']:<10} {rng}{unit}  default {p['default']}")
+    return 0
+
+
+def cmd_sample(args: argparse.Namespace) -> int:
+    model = resolve_model(args.model)
+    if args.n < 1:
+        raise ValueError(f"--n must be >= 1, got {args.n}")
+    samples = model.space.sample(args.n, seed=args.seed, method=args.method)
+    shapes = [model.generate(p) for p in track(samples, "generate", len(samples), args.quiet)]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for i, (p, shape) in enumerate(zip(samples, shapes)):
+        save_mesh(shape, out / f"{i}.{args.format}")
+        save_params(p, out / f"{i}.json")
+    if not args.quiet:
+        print(f"wrote {len(samples)} samples of {model.name} to {out}", file=sys.stderr)
+    return 0
+
+
+def segment_summary(grouping: Grouping) -> dict[str, Any]:
+    d = grouping.to_dict()
+    d["n_parts"] = len(d["parts"])
+    d["n_groups"] = len(d["groups"])
+    return d
+
+
+def cmd_segment(args: argparse.Namespace) -> int:
+    if os.path.exists(args.mesh) and not args.mesh.endswith(".json"):
+        shape, report = load_mesh(args.mesh, connectivity=args.connectivity)
+        load_info = report.to_dict()
+    else:
+        shape, load_info = resolve_shape(args.mesh), None
+    grouping = analyse(shape, tol=args.tol, seed=args.seed)
+    summary = segment_summary(grouping)
+    if load_info is not None:
+        summary["load"] = load_info
+    if args.json:
+        _print_json(summary)
+        return 0
+    print(f"{args.mesh}: {shape.n_vertices} vertices, {shape.n_faces} faces, {summary['n_parts']} parts, {summary['n_groups']} groups")
+    for note in (load_info or {}).get("notes", []):
+        print(f"  note: {note}")
+    for p in summary["parts"]:
+        flags = " degenerate" if p["degenerate"] else (" tiny" if p["tiny"] else "")
+        print(f"  part {p['index']:>3}: {p['faces']:>6} faces  area {p['area']:.4g}  group {p['group']}{flags}")
+    for g in summary["groups"]:
+        mirrored = f"  mirrored {g['mirrored']}" if g["mirrored"] else ""
+        print(f"  group {g['index']:>3}: parts {g['parts']}{mirrored}{'  (degenerate)' if g['degenerate'] else ''}")
+    return 0
+
+
+def cmd_match(args: argparse.Namespace) -> int:
+    shape, template = resolve_shape(args.shape), resolve_shape(args.template)
+    gs, gt = analyse(shape, seed=args.seed), analyse(template, seed=args.seed)
+    match = match_groups(shape, gs, template, gt, seed=args.seed)
+    result = match.to_dict()
+    if args.json:
+        _print_json(result)
+        return 0
+    for m in result["matched"]:
+        print(f"shape group {m['shape_group']} -> template group {m['template_group']}  cost {m['cost']:.3f} ({m['method']})")
+    print(f"added: {result['added']}  missing: {result['missing']}")
+    return 0
+
+
+def cmd_template(args: argparse.Namespace) -> int:
+    if os.path.isdir(args.source):
+        src = FolderSource(args.source)
+        i = src.template_index()
+        result = {"source": args.source, "template": src.samples[i].id, "mesh": src.samples[i].mesh_path, "params": src.params(i)}
+    else:
+        from .params import select_template
+
+        model = resolve_model(args.source)
+        samples = model.space.sample(args.n, seed=args.seed, method=args.method)
+        i = select_template(model.space, samples)
+        result = {"source": model.name, "template": i, "params": samples[i]}
+    if args.json:
+        _print_json(result)
+    else:
+        print(f"template: {result['template']}  params: {json.dumps(result['params'])}")
+    return 0
+
+
+def cmd_gallery(args: argparse.Namespace) -> int:
+    from PIL import Image
+
+    from .preview import face_label_colors, grid_image, render_faces
+
+    names = args.models or list_models()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in track(names, "gallery", len(names), args.quiet):
+        model = get_model(name)
+        settings = [model.space.defaults()] + model.space.sample(2, seed=args.seed, method="lhs")
+        row = []
+        for p in settings:
+            s = model.generate(p)
+            row.append(render_faces(s.vertices, s.faces, face_label_colors(s), size=args.size, azimuth=-60, elevation=25))
+        Image.fromarray(grid_image([row])).save(out / f"{name}.png")
+    if not args.quiet:
+        print(f"wrote {len(names)} previews to {out}", file=sys.stderr)
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Current end-to-end path: sample a model, pick the template, segment, group, match groups."""
+    from .params import select_template
+
+    t0 = time.perf_counter()
+    model = get_model(args.model)
+    samples = model.space.sample(args.n, seed=args.seed, method="lhs")
+    shapes: list[Shape] = [model.generate(p) for p in track(samples, "sample", len(samples), args.quiet)]
+    ti = select_template(model.space, samples)
+    groupings = [analyse(s, seed=args.seed) for s in track(shapes, "segment+group", len(shapes), args.quiet)]
+    template, tg = shapes[ti], groupings[ti]
+    matches = [
+        match_groups(s, g, template, tg, seed=args.seed)
+        for s, g in track(list(zip(shapes, groupings)), "match groups", len(shapes), args.quiet)
+    ]
+    print(f"model {model.name}: {len(shapes)} samples (seed {args.seed}), template = sample {ti}")
+    print(f"template params: {json.dumps(samples[ti])}")
+    print("template groups:")
+    for g in tg.groups:
+        print(f"  group {g.index}: {g.label or '?':<14} parts {g.members}{' (mirrored)' if any(m.mirrored for m in g.maps) else ''}")
+    print(f"{'sample':>6} {'verts':>7} {'faces':>7} {'parts':>5} {'groups':>6}  matched/added/missing")
+    for i, (s, g, m) in enumerate(zip(shapes, groupings, matches)):
+        print(f"{i:>6} {s.n_vertices:>7} {s.n_faces:>7} {len(g.parts):>5} {len(g.groups):>6}  {len(m.pairs)}/{len(m.added)}/{len(m.missing)}")
+    if args.out:
+        from PIL import Image
+
+        from .preview import PALETTE, grid_image, render_faces
+
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        row = []
+        for s, g, m in list(zip(shapes, groupings, matches))[: args.preview]:
+            mapping = m.mapping()
+            # Colour each part by the template group it matched (grey: added).
+            color_of_group = np.array([PALETTE[mapping[k] % len(PALETTE)] if k in mapping else [0.5, 0.5, 0.5] for k in range(len(g.groups))])
+            fc = color_of_group[g.part_group[g.segmentation.face_part]]
+            row.append(render_faces(s.vertices, s.faces, fc, size=192, azimuth=-60, elevation=25))
+        Image.fromarray(grid_image([row])).save(out / "groups.png")
+        print(f"wrote {out / 'groups.png'} (parts coloured by matched template group)")
+    print(f"done in {time.perf_counter() - t0:.1f}s")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------ main
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="proctex", description="Consistent texturing of procedural shape families.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("models", help="list built-in models and their parameter specs")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_models)
+
+    p = sub.add_parser("sample", help="sample a model into a folder of meshes + JSON parameters")
+    p.add_argument("model", help="built-in model name or a generator config (.json/.toml)")
+    p.add_argument("--n", type=int, required=True)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True)
+    p.add_argument("--method", choices=["random", "lhs"], default="random")
+    p.add_argument("--format", choices=["obj", "ply", "glb", "stl"], default="obj")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_sample)
+
+    p = sub.add_parser("segment", help="parts and part groups of a mesh (file, MODEL or MODEL:{json})")
+    p.add_argument("mesh")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--connectivity", choices=["auto", "index", "stitch", "weld"], default="auto")
+    p.add_argument("--tol", type=float, default=0.01, help="grouping tolerance relative to part size")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_segment)
+
+    p = sub.add_parser("match", help="match the part groups of a shape to a template's")
+    p.add_argument("shape")
+    p.add_argument("template")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_match)
+
+    p = sub.add_parser("template", help="pick the template of a folder of samples or of a model's samples")
+    p.add_argument("source", help="folder of samples, model name or generator config")
+    p.add_argument("--n", type=int, default=32)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--method", choices=["random", "lhs"], default="random")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_template)
+
+    p = sub.add_parser("gallery", help="render every built-in model at three parameter settings (PNG)")
+    p.add_argument("--out", default="out/gallery")
+    p.add_argument("--models", nargs="*")
+    p.add_argument("--size", type=int, default=256)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_gallery)
+
+    p = sub.add_parser("demo", help="sample a model, pick a template, segment, group and match (current end-to-end path)")
+    p.add_argument("--model", default="sofa")
+    p.add_argument("--n", type=int, default=12)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="out/demo")
+    p.add_argument("--preview", type=int, default=6, help="number of samples in the preview image")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

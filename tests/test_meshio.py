@@ -1,0 +1,201 @@
+import numpy as np
+import pytest
+
+from proctex.meshio import clean_mesh, load_mesh, read_obj, save_mesh, triangulate
+from proctex.parts import connected_parts, segment
+from proctex.shape import Shape
+
+from .meshes import cube, soup, two_cubes_touching
+
+
+def n_parts(shape):
+    return connected_parts(shape.faces, shape.n_vertices)[2]
+
+
+def write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def obj_with_seams():
+    """A cube whose OBJ uses vt/vn indices that differ per face corner (UV and normal seams)."""
+    v, f = cube()
+    lines = [f"v {x} {y} {z}" for x, y, z in v]
+    lines += [f"vt {u} {w}" for u in (0, 1) for w in (0, 1)]
+    lines += ["vn 1 0 0", "vn 0 1 0", "vn 0 0 1"]
+    for i, (a, b, c) in enumerate(f + 1):
+        t = i % 4 + 1
+        lines.append(f"f {a}/{t}/{i % 3 + 1} {b}/{(t % 4) + 1}/{i % 3 + 1} {c}/{((t + 1) % 4) + 1}/{i % 3 + 1}")
+    return "\n".join(lines) + "\n"
+
+
+def test_obj_with_uv_normal_seams_keeps_parts_whole(tmp_path):
+    p = write(tmp_path, "seams.obj", obj_with_seams())
+    shape, report = load_mesh(p)
+    assert shape.n_vertices == 8 and shape.n_faces == 12
+    assert n_parts(shape) == 1
+
+
+def test_trimesh_splits_seams_but_we_do_not(tmp_path):
+    # The naive loader splits this OBJ along its seams; our loader must not depend on that.
+    import trimesh
+
+    p = write(tmp_path, "seams.obj", obj_with_seams())
+    naive = trimesh.load(p, process=False)
+    assert len(naive.vertices) > 8
+    shape, _ = load_mesh(p)
+    assert n_parts(shape) == 1
+
+
+def test_touching_parts_stay_apart(tmp_path):
+    v, f = two_cubes_touching()
+    p = tmp_path / "touch.obj"
+    save_mesh(Shape(v, f), p)
+    for mode in ("auto", "index", "stitch"):
+        shape, _ = load_mesh(p, connectivity=mode)
+        assert n_parts(shape) == 2, mode
+        assert shape.n_vertices == 16
+    # A full positional weld merges them: that is why it is not the default.
+    shape, _ = load_mesh(p, connectivity="weld")
+    assert n_parts(shape) == 1
+
+
+def test_soup_of_touching_cubes_comes_out_as_its_parts(tmp_path):
+    v, f = two_cubes_touching()
+    sv, sf = soup(v, f)
+    p = tmp_path / "soup.obj"
+    save_mesh(Shape(sv, sf), p)
+    shape, report = load_mesh(p)
+    assert n_parts(shape) == 2
+    assert shape.n_vertices == 16 and shape.n_faces == 24
+    assert report.stitched_edges == 36  # 18 undirected edges per cube
+
+
+def test_stl_round_trip_recovers_parts(tmp_path):
+    v, f = two_cubes_touching()
+    p = tmp_path / "touch.stl"
+    save_mesh(Shape(v, f), p)
+    shape, _ = load_mesh(p)
+    assert n_parts(shape) == 2 and shape.n_vertices == 16
+
+
+@pytest.mark.parametrize("ext", ["obj", "ply", "glb", "stl"])
+def test_round_trip_every_format(tmp_path, ext):
+    from proctex.models import get_model
+
+    shape = get_model("desk").generate({"drawers": 2})
+    p = tmp_path / f"desk.{ext}"
+    save_mesh(shape, p)
+    back, _ = load_mesh(p)
+    assert n_parts(back) == n_parts(shape)
+    assert back.n_faces == shape.n_faces
+    seg_a, seg_b = segment(shape), segment(back)
+    assert sorted(p.n_faces for p in seg_a.parts) == sorted(p.n_faces for p in seg_b.parts)
+    if ext in ("obj", "ply", "glb"):
+        np.testing.assert_allclose(back.vertices, shape.vertices, atol=1e-6)
+
+
+def test_gltf_split_vertices_are_stitched(tmp_path):
+    # A glTF primitive with per-face vertices (as exporters do along UV seams) next to a touching cube.
+    import trimesh
+
+    v, f = two_cubes_touching()
+    sv, sf = soup(v[:8], f[:12])
+    verts = np.concatenate([sv, v[8:]])
+    faces = np.concatenate([sf, f[12:] - 8 + len(sv)])
+    p = tmp_path / "split.glb"
+    trimesh.Trimesh(verts, faces, process=False).export(p)
+    shape, report = load_mesh(p)
+    assert report.format == "glb"
+    assert n_parts(shape) == 2
+
+
+def test_polygons_are_triangulated(tmp_path):
+    text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 1.5 0\nf 1 2 3 5 4\nf 1 2 3\n"
+    shape, report = load_mesh(write(tmp_path, "poly.obj", text))
+    assert report.triangulated_polygons == 1
+    assert shape.n_faces == 4
+    faces, n = triangulate([[0, 1, 2, 3], [4, 5, 6], [7, 8, 9, 10, 11]])
+    np.testing.assert_array_equal(faces, [[0, 1, 2], [0, 2, 3], [4, 5, 6], [7, 8, 9], [7, 9, 10], [7, 10, 11]])
+    assert n == 2
+
+
+def test_negative_indices_and_unreferenced_vertices(tmp_path):
+    text = "v 9 9 9\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 5 5 5\n"
+    shape, report = load_mesh(write(tmp_path, "neg.obj", text))
+    assert shape.n_vertices == 3 and shape.n_faces == 1
+    assert report.dropped_unreferenced_vertices == 2
+    np.testing.assert_array_equal(report.vertex_map, [-1, 0, 1, 2, -1])
+
+
+def test_nan_vertices_drop_their_faces_or_error(tmp_path):
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv nan 0 0\nv 1 1 inf\nf 1 2 3\nf 2 4 3\nf 1 5 2\n"
+    p = write(tmp_path, "nan.obj", text)
+    shape, report = load_mesh(p)
+    assert shape.n_faces == 1 and report.dropped_nonfinite_faces == 2
+    assert np.all(np.isfinite(shape.vertices))
+    with pytest.raises(ValueError, match="NaN"):
+        load_mesh(p, nonfinite="error")
+
+
+def test_repeated_index_faces_are_dropped(tmp_path):
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 1 2\n"
+    shape, report = load_mesh(write(tmp_path, "rep.obj", text))
+    assert shape.n_faces == 1 and report.dropped_repeated_index_faces == 1
+
+
+@pytest.mark.parametrize(
+    "name,text,match",
+    [
+        ("empty.obj", "", "empty"),
+        ("novert.obj", "# nothing\n", "no vertices"),
+        ("noface.obj", "v 0 0 0\nv 1 0 0\n", "no faces"),
+        ("range.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "references vertex 6"),
+        ("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "index 0"),
+        ("badnum.obj", "v 0 zero 0\n", "bad vertex"),
+        ("short.obj", "v 0 0\n", "3 coordinates"),
+        ("badface.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "bad face index"),
+        ("alldeg.obj", "v 0 0 0\nv 1 0 0\nf 1 1 2\n", "no valid faces"),
+    ],
+)
+def test_bad_files_give_clear_errors(tmp_path, name, text, match):
+    p = write(tmp_path, name, text)
+    with pytest.raises(ValueError, match=match):
+        load_mesh(p)
+
+
+def test_unsupported_and_missing(tmp_path):
+    with pytest.raises(ValueError, match="unsupported"):
+        load_mesh(write(tmp_path, "x.fbx", "junk"))
+    with pytest.raises(ValueError, match="no such file"):
+        load_mesh(tmp_path / "missing.obj")
+    with pytest.raises(ValueError, match="cannot read"):
+        load_mesh(write(tmp_path, "junk.glb", "this is not a glb"))
+
+
+def test_empty_stl_is_an_error(tmp_path):
+    p = tmp_path / "e.stl"
+    p.write_text("solid empty\nendsolid empty\n")
+    with pytest.raises(ValueError):
+        load_mesh(p)
+
+
+def test_clean_mesh_on_arrays_matches_file_path():
+    v, f = two_cubes_touching()
+    sv, sf = soup(v, f)
+    out_v, out_f, rep = clean_mesh(sv, sf)
+    assert connected_parts(out_f, len(out_v))[2] == 2
+    assert rep.connectivity == "stitch"
+
+
+def test_read_obj_ignores_other_statements():
+    v, polys = read_obj("o thing\ng grp\nusemtl m\nv 0 0 0 1.0\nv 1 0 0\nv 0 1 0\nvt 0 0\nl 1 2\nf 1/1 2/1 3/1\n")
+    assert v.shape == (3, 3) and polys == [[0, 1, 2]]
+
+
+def test_sofa_loads_with_nine_parts(sofa_dir):
+    shape, report = load_mesh(sofa_dir / "train" / "0.obj")
+    assert shape.n_vertices == 3538 and shape.n_faces == 7056
+    assert n_parts(shape) == 9
+    assert report.stitched_edges == 0  # a well-indexed file is left exactly as it is
