@@ -103,13 +103,14 @@ def icp_to_surface(
     reflection = bool(np.linalg.det(R) < 0)
     prev = np.inf
     err = np.inf
+    exact = 1e-10 * float(np.linalg.norm(src.max(0) - src.min(0)))  # "zero" at the data's scale
     converged = False
     it = 0
     for it in range(1, max_iter + 1):
         moved = apply(src, R, t, s)
         cp = target.query(moved)
         err = float(cp.distance.mean())
-        if err < 1e-12 or (np.isfinite(prev) and prev - err <= tol * prev):
+        if err <= exact or (np.isfinite(prev) and prev - err <= tol * prev):
             converged = True
             break
         prev = err

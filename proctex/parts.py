@@ -459,41 +459,32 @@ class GroupMatch:
         }
 
 
-def _shape_frame(shape: Shape) -> tuple[np.ndarray, float]:
+def _shape_box(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
     pts = shape.vertices[np.unique(shape.faces)]
-    c = (pts.min(0) + pts.max(0)) / 2
-    return c, max(float(np.abs(pts - c).max()), 1e-300)
+    return pts.min(0), pts.max(0)
 
 
 def _group_descriptor(shape: Shape, grouping: Grouping, g: PartGroup, n_samples: int, seed: int) -> dict[str, Any]:
-    """Shape-relative position, size and normalised surface of a group's representative."""
-    c, r = _shape_frame(shape)
+    """World placement (member centres, extents) and normalised surface of a group's representative."""
     part = grouping.parts[g.representative]
     v, f = part_mesh(shape, part)
     ext = (v.max(0) - v.min(0)) / 2
     scale = np.maximum(ext, 1e-3 * max(part.radius, 1e-300))  # per-axis normalisation, no division by 0
     vn = (v - part.center) / scale
-    members = [grouping.parts[i] for i in g.members]
-    positions = np.array([(p.center - c) / r for p in members])
     samples, _, _ = sample_surface(vn, f, n_samples, seed=seed)
     return {
-        "part": part,
         "topo_key": len(v).to_bytes(8, "little") + np.sort(f, axis=1).tobytes(),
         "vertices_n": vn,
-        "faces": f,
         "samples": samples,
         "index": SurfaceIndex(vn, f),
-        "size": ext / r,
-        "position": positions.mean(0),
-        "spread": np.abs(positions - positions.mean(0)).mean(0),
+        "extent": ext,
+        "centers": np.array([grouping.parts[i].center for i in g.members]),
         "degenerate": g.degenerate,
     }
 
 
-def _pair_cost(a: dict[str, Any], b: dict[str, Any], w_rot: float, w_pos: float, w_size: float) -> tuple[float, str]:
-    """Matching cost of shape group descriptor ``a`` against template group descriptor ``b``."""
-    if a["degenerate"] != b["degenerate"]:
-        return np.inf, "none"
+def _shape_term(a: dict[str, Any], b: dict[str, Any], w_rot: float) -> tuple[float, str]:
+    """Surface distance of two representatives in per-axis normalised frames plus a rotation penalty."""
     if a["topo_key"] == b["topo_key"]:
         R, t, _ = umeyama(a["vertices_n"], b["vertices_n"])
         surf = float(np.linalg.norm(apply(a["vertices_n"], R, t) - b["vertices_n"], axis=1).mean())
@@ -504,9 +495,38 @@ def _pair_cost(a: dict[str, Any], b: dict[str, Any], w_rot: float, w_pos: float,
         back = a["index"].query((b["samples"] - res.t) @ res.R).distance.mean()
         surf = float(0.5 * (res.error + back))
         method = "icp"
-    pos = float(np.linalg.norm(a["position"] - b["position"]) + np.linalg.norm(a["spread"] - b["spread"]))
-    size = float(np.abs(np.log((a["size"] + 1e-3) / (b["size"] + 1e-3))).sum())
-    return surf + w_rot * rotation_angle(R) + w_pos * pos + w_size * size, method
+    penalty = 1.0 if a["degenerate"] != b["degenerate"] else 0.0
+    return surf + w_rot * rotation_angle(R) + penalty, method
+
+
+def _placement(d: dict[str, Any], scale: np.ndarray, shift: np.ndarray, center: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean position, spread and size of a group after ``x -> scale x + shift``, in a (center, radius) frame."""
+    pos = (d["centers"] * scale + shift - center) / radius
+    mean = pos.mean(0)
+    return mean, np.abs(pos - mean).mean(0), d["extent"] * np.abs(scale) / radius
+
+
+def _fit_axis_map(src: np.ndarray, dst: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis weighted least squares ``dst ≈ scale * src + shift``; src, dst (k, 3), w (k,)."""
+    scale, shift = np.ones(3), np.zeros(3)
+    for k in range(3):
+        A = np.stack([src[:, k], np.ones(len(src))], axis=1) * np.sqrt(w)[:, None]
+        sol, *_ = np.linalg.lstsq(A, dst[:, k] * np.sqrt(w), rcond=None)
+        scale[k], shift[k] = sol
+    return scale, shift
+
+
+def _solve_assignment(cost: np.ndarray, threshold: float) -> list[tuple[int, int]]:
+    """Min-cost matching where any row or column may stay unmatched at cost ``threshold``."""
+    na, nb = cost.shape
+    big = threshold * 10 + 1.0
+    padded = np.full((na + nb, nb + na), big)
+    padded[:na, :nb] = np.where(np.isfinite(cost), np.minimum(cost, big), big)
+    padded[:na, nb:] = np.where(np.eye(na) > 0, threshold, big)
+    padded[na:, :nb] = np.where(np.eye(nb) > 0, threshold, big)
+    padded[na:, nb:] = 0.0
+    rows, cols = linear_sum_assignment(padded)
+    return sorted((int(r), int(c)) for r, c in zip(rows, cols) if r < na and c < nb and cost[r, c] < threshold)
 
 
 def match_groups(
@@ -519,6 +539,7 @@ def match_groups(
     w_pos: float = 2.0,
     w_size: float = 0.5,
     n_samples: int = 300,
+    rounds: int = 3,
     seed: int = 0,
 ) -> GroupMatch:
     """Match a shape's part groups to the template's as one assignment problem.
@@ -526,38 +547,54 @@ def match_groups(
     The cost of a pair sums: the mean surface distance after ICP (or a vertex fit when the
     topologies are equal) of the representatives in per-axis normalised part frames, ``w_rot`` ×
     the ICP rotation angle (families keep their orientation), ``w_pos`` × the distance between the
-    groups' mean positions (and spreads) in the shapes' normalised frames, and ``w_size`` × the
-    summed |log| ratios of their extents. Pairs costing more than ``threshold`` are left unmatched
-    (the shape group is *added*, the template group *missing*).
+    groups' mean positions (and spreads), and ``w_size`` × the summed |log| ratios of their
+    extents. Positions and sizes are compared in the template's frame: the shape is first mapped
+    by per-axis scale and shift taking its bounding box onto the template's, then, for up to
+    ``rounds`` rounds, by the per-axis map fitted to the groups matched so far (so a part that
+    appears or vanishes at the edge of the shape does not shift everything else). Pairs costing
+    more than ``threshold`` are left unmatched (the shape group is *added*, the template group
+    *missing*).
     """
     da = [_group_descriptor(shape, grouping, g, n_samples, seed) for g in grouping.groups]
     db = [_group_descriptor(template, template_grouping, g, n_samples, seed) for g in template_grouping.groups]
-    cost = np.full((len(da), len(db)), np.inf)
+    shape_term = np.zeros((len(da), len(db)))
     methods = np.full((len(da), len(db)), "none", dtype=object)
     for i, a in enumerate(da):
         for j, b in enumerate(db):
-            cost[i, j], methods[i, j] = _pair_cost(a, b, w_rot, w_pos, w_size)
-    # Pad with "unmatched" options at the threshold so every group may stay unmatched.
+            shape_term[i, j], methods[i, j] = _shape_term(a, b, w_rot)
+    s_lo, s_hi = _shape_box(shape)
+    t_lo, t_hi = _shape_box(template)
+    t_center = (t_lo + t_hi) / 2
+    t_radius = max(float((t_hi - t_lo).max()) / 2, 1e-300)
+    box_src, box_dst = np.stack([s_lo, s_hi]), np.stack([t_lo, t_hi])
+    scale, shift = _fit_axis_map(box_src, box_dst, np.ones(2))
+    tb = [_placement(b, np.ones(3), np.zeros(3), t_center, t_radius) for b in db]
+    pairs: list[tuple[int, int]] = []
+    for _ in range(max(rounds, 1)):
+        sa = [_placement(a, scale, shift, t_center, t_radius) for a in da]
+        cost = shape_term.copy()
+        for i, (pa, sp_a, sz_a) in enumerate(sa):
+            for j, (pb, sp_b, sz_b) in enumerate(tb):
+                pos = np.linalg.norm(pa - pb) + np.linalg.norm(sp_a - sp_b)
+                size = np.abs(np.log((sz_a + 1e-3) / (sz_b + 1e-3))).sum()
+                cost[i, j] += w_pos * pos + w_size * size
+        new_pairs = _solve_assignment(cost, threshold)
+        if new_pairs == pairs or not new_pairs:
+            pairs = new_pairs or pairs
+            break
+        pairs = new_pairs
+        # Refit the shape -> template map on the matched groups (box corners as a weak prior).
+        src = np.concatenate([box_src] + [da[i]["centers"].mean(0, keepdims=True) for i, _ in pairs])
+        dst = np.concatenate([box_dst] + [db[j]["centers"].mean(0, keepdims=True) for _, j in pairs])
+        scale, shift = _fit_axis_map(src, dst, np.r_[np.ones(2), np.full(len(pairs), 2.0)])
     na, nb = cost.shape
-    big = threshold * 10 + 1.0
-    padded = np.full((na + nb, nb + na), big)
-    padded[:na, :nb] = np.where(np.isfinite(cost), cost, big)
-    padded[:na, nb:] = np.where(np.eye(na) > 0, threshold, big)
-    padded[na:, :nb] = np.where(np.eye(nb) > 0, threshold, big)
-    padded[na:, nb:] = 0.0
-    rows, cols = linear_sum_assignment(padded)
-    pairs, meth = [], []
-    for r_, c_ in zip(rows, cols):
-        if r_ < na and c_ < nb and cost[r_, c_] < threshold:
-            pairs.append((int(r_), int(c_)))
-            meth.append(str(methods[r_, c_]))
     matched_a = {a for a, _ in pairs}
     matched_b = {b for _, b in pairs}
     return GroupMatch(
-        pairs=sorted(pairs),
+        pairs=pairs,
         added=[i for i in range(na) if i not in matched_a],
         missing=[j for j in range(nb) if j not in matched_b],
         cost=cost,
-        methods=[m for _, m in sorted(zip(pairs, meth))],
+        methods=[str(methods[a, b]) for a, b in pairs],
         threshold=threshold,
     )

@@ -103,20 +103,16 @@ def box(
     local = (canonical - 0.5) * size
     if warp is not None:
         local = np.asarray(warp(local.copy(), canonical.copy()), dtype=float)
-    part = Part(local + np.asarray(center, dtype=float), f, canonical.astype(float))
-    # Each side was emitted with one winding; fix per side is unnecessary: the two sides of an axis
-    # have opposite orientation in (u, v), so flip the faces whose normals point inward.
-    return _fix_box_winding(part, size, np.asarray(center, dtype=float), local)
-
-
-def _fix_box_winding(part: Part, size: np.ndarray, center: np.ndarray, local: np.ndarray) -> Part:
-    # Decide orientation per face from the unwarped lattice (always a convex box), then keep it.
-    unwarped = (part.canonical - 0.5) * size
-    tri = unwarped[part.faces]
+    if not np.all(np.isfinite(local)) or local.shape != canonical.shape:
+        raise ValueError("box warp must return finite (n, 3) positions")
+    # Orient every face outward on the unwarped (convex) lattice, then check the warp kept it.
+    unwarped = (canonical - 0.5) * size
+    tri = unwarped[f]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     outward = np.einsum("ij,ij->i", n, tri.mean(axis=1)) > 0
-    part.faces = np.where(outward[:, None], part.faces, part.faces[:, ::-1])
-    return part
+    f = np.where(outward[:, None], f, f[:, ::-1])
+    part = Part(local + np.asarray(center, dtype=float), f, canonical.astype(float))
+    return _orient_outward(part)
 
 
 # ------------------------------------------------------------------------------------ ring surfaces

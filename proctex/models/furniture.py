@@ -21,7 +21,9 @@ Warp = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 # ------------------------------------------------------------------------------------------- helpers
-def slab(lo: Sequence[float], hi: Sequence[float], divisions: Sequence[int] = (1, 1, 1), warp: Warp | None = None) -> P.Part:
+def slab(
+    lo: Sequence[float], hi: Sequence[float], divisions: Sequence[int] = (1, 1, 1), warp: Warp | None = None
+) -> P.Part:
     """Box spanning the axis-aligned extents ``lo`` to ``hi`` (each (3,) metres)."""
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
     return P.box(hi - lo, (lo + hi) / 2, divisions, warp)
@@ -175,7 +177,9 @@ class Desk(ProceduralModel):
         z1 = h - t
         z0 = z1 - n * DRAWER_PITCH - 0.04
         sb.add(slab((x0, y0, z0), (x1, d / 2 - DESK_INSET - 0.01, z1), (4, 4, 2 * n)), "pedestal")
-        front = slab((-PEDESTAL_WIDTH / 2 + 0.01, -DRAWER_FRONT, -DRAWER_PITCH / 2 + 0.006), (PEDESTAL_WIDTH / 2 - 0.01, 0.0, DRAWER_PITCH / 2 - 0.006), (4, 1, 2))
+        # A drawer front with its back face centred at the origin; 1.2 cm gaps between fronts.
+        half_w, half_h = PEDESTAL_WIDTH / 2 - 0.01, DRAWER_PITCH / 2 - 0.006
+        front = slab((-half_w, -DRAWER_FRONT, -half_h), (half_w, 0.0, half_h), (4, 1, 2))
         knob_part = knob(0.014)
         xc = (x0 + x1) / 2
         y_front = y0 + 0.001  # fronts overlap the carcass by 1 mm
@@ -237,7 +241,8 @@ class Sofa(ProceduralModel):
 
     def _build(self, p) -> Shape:
         n, sw, d = p["seats"], p["seat_width"], p["depth"]
-        seat_h, back_h, ct, arm_h, aw = p["seat_height"], p["back_height"], p["cushion_thickness"], p["arm_height"], p["arm_width"]
+        seat_h, back_h, ct = p["seat_height"], p["back_height"], p["cushion_thickness"]
+        arm_h, aw = p["arm_height"], p["arm_width"]
         inner = n * sw
         w = inner + 2 * aw
         y_back = d / 2 - SOFA_BACK_THICKNESS  # front face of the back panel
@@ -267,7 +272,8 @@ class Sofa(ProceduralModel):
         yc, zc = y_back - bct / 2 - 0.02, seat_h + bch / 2 - 0.01
         for part in translated(back_cushion, [(x, yc, zc) for x in xs]):
             sb.add(part, "back_cushion")
-        right = sloped_arm((aw, d, arm_h - SOFA_LEG_HEIGHT), (inner / 2 + aw / 2, 0.0, (arm_h + SOFA_LEG_HEIGHT) / 2), 0.05)
+        arm_center = (inner / 2 + aw / 2, 0.0, (arm_h + SOFA_LEG_HEIGHT) / 2)
+        right = sloped_arm((aw, d, arm_h - SOFA_LEG_HEIGHT), arm_center, drop=0.05)
         sb.add(right, "armrest").add(P.mirror(right, axis=0), "armrest")
         leg = tapered_cylinder(SOFA_LEG_HEIGHT + 0.005, 0.028, 0.018)
         lx, ly = w / 2 - 0.07, d / 2 - 0.07
@@ -295,23 +301,24 @@ def bent_arm(length: float, drop: float, center_x: float, y_back: float, z_top: 
     The bar's outer (+x) top edge is rounded, which breaks its only mirror symmetry; the straight
     parts have different lengths, so no diagonal mirror appears either.
     """
-    straight_h, straight_v = length - ARM_BEND, drop - ARM_BEND
+    straight_v = drop - ARM_BEND
     arc = np.pi / 2 * ARM_BEND
-    total = straight_v + arc + straight_h
-    zc = z_top - ARM_THICKNESS / 2  # centre line height of the horizontal part
-    y_front = y_back - length
+    total = straight_v + arc + length - ARM_BEND
+    # Centre of the bend's arc in (y, z); the foot of the centre line is at (y_back - length, zc - drop).
+    zc = z_top - ARM_THICKNESS / 2
+    bend_y, bend_z = y_back - length + ARM_BEND, zc - ARM_BEND
 
     def bend(local: np.ndarray, canonical: np.ndarray) -> np.ndarray:
-        # Arc length from the foot (canonical y = 0) up the vertical part, round the bend, back.
+        # Arc length u from the foot (canonical y = 0) up the vertical part, round the bend, back.
         u = canonical[:, 1] * total
         theta = np.pi - np.clip((u - straight_v) / arc, 0.0, 1.0) * np.pi / 2  # pi: down, pi/2: level
-        cy = np.where(u < straight_v, y_front, np.where(u > straight_v + arc, y_front + ARM_BEND + (u - straight_v - arc), y_front + ARM_BEND + ARM_BEND * np.cos(theta)))
-        cz = np.where(u < straight_v, zc - drop + u, np.where(u > straight_v + arc, zc, zc - ARM_BEND + ARM_BEND * np.sin(theta)))
-        offset = local[:, 2]  # along the outward normal (cos theta, sin theta) in (y, z)
+        normal = np.stack([np.cos(theta), np.sin(theta)], axis=1)  # outward normal in (y, z)
+        center = np.array([bend_y, bend_z]) + ARM_BEND * normal
+        center[:, 1] += np.minimum(u - straight_v, 0.0)  # down the vertical part
+        center[:, 0] += np.maximum(u - straight_v - arc, 0.0)  # back along the horizontal part
         out = np.empty_like(local)
         out[:, 0] = local[:, 0] + center_x
-        out[:, 1] = cy + offset * np.cos(theta)
-        out[:, 2] = cz + offset * np.sin(theta)
+        out[:, 1:] = center + local[:, 2:3] * normal
         return out
 
     r = 0.4 * ARM_THICKNESS
@@ -342,10 +349,12 @@ class Chair(ProceduralModel):
         return 7 + p["slats"] + arms, 4 + (1 if arms else 0)
 
     def _build(self, p) -> Shape:
-        sw, sd, sh, st, lt = p["seat_width"], p["seat_depth"], p["seat_height"], p["seat_thickness"], p["leg_thickness"]
+        sw, sd, sh = p["seat_width"], p["seat_depth"], p["seat_height"]
+        st, lt = p["seat_thickness"], p["leg_thickness"]
         sb = ShapeBuilder()
         r = 0.3 * st
-        sb.add(rounded_box((sw, sd, st), (0.0, 0.0, sh - st / 2), (8, 8, 3), (r, r, 0.0), (r, r, r), edge_segments=1), "seat")
+        seat = rounded_box((sw, sd, st), (0.0, 0.0, sh - st / 2), (8, 8, 3), (r, r, 0.0), (r, r, r), edge_segments=1)
+        sb.add(seat, "seat")
 
         def taper(local: np.ndarray, canonical: np.ndarray) -> np.ndarray:
             local[:, :2] *= (0.75 + 0.25 * canonical[:, 2])[:, None]
@@ -357,8 +366,9 @@ class Chair(ProceduralModel):
             sb.add(part, "leg")
         self._add_back(sb, p, lx, ly)
         if p["arms"]:
-            reach = 2 * ly + np.tan(CHAIR_TILT) * p["arm_height"]  # to the tilted post at arm height
-            right = bent_arm(reach, p["arm_height"] - ARM_THICKNESS / 2 + 0.005, lx, ly + np.tan(CHAIR_TILT) * p["arm_height"], sh + p["arm_height"])
+            ah = p["arm_height"]
+            y_back = ly + np.tan(CHAIR_TILT) * ah  # the tilted back post at arm height
+            right = bent_arm(y_back + ly, ah - ARM_THICKNESS / 2 + 0.005, lx, y_back, sh + ah)
             sb.add(right, "armrest").add(P.mirror(right, axis=0), "armrest")
         return sb.build(p)
 

@@ -74,7 +74,8 @@ class Fork(ProceduralModel):
             local[:, 1] += y_butt + length / 2
             return local
 
-        return rounded_box((width, length, thickness), (0.0, 0.0, 0.0), (5, 24, 3), (r, 0.0, r), (r, 0.0, r), edge_segments=1, warp=shape)
+        rounding = (r, 0.0, r)  # round the four long edges
+        return rounded_box((width, length, thickness), (0.0, 0.0, 0.0), (5, 24, 3), rounding, rounding, 1, shape)
 
     @staticmethod
     def _head(neck_width: float, head_width: float, y_neck: float) -> P.Part:

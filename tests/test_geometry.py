@@ -1,0 +1,102 @@
+import numpy as np
+import pytest
+
+from proctex.align import icp_to_surface, rotation_angle, umeyama, apply
+from proctex.geometry import SurfaceIndex, closest_point_bruteforce, closest_point_on_triangles, sample_surface, triangle_areas
+from proctex.models import get_model
+
+
+def random_rotation(rng):
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def test_closest_point_on_triangle_regions():
+    a, b, c = np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.array([[0.0, 1, 0]])
+    cases = {
+        (0.2, 0.2, 1.0): (0.2, 0.2, 0.0),  # face
+        (-1.0, -1.0, 0.0): (0.0, 0.0, 0.0),  # vertex a
+        (0.5, -1.0, 0.0): (0.5, 0.0, 0.0),  # edge ab
+        (1.0, 1.0, 0.0): (0.5, 0.5, 0.0),  # edge bc
+        (3.0, -0.5, 0.0): (1.0, 0.0, 0.0),  # vertex b
+    }
+    for q, want in cases.items():
+        cp, bary = closest_point_on_triangles(np.array([q]), a, b, c)
+        np.testing.assert_allclose(cp[0], want, atol=1e-12)
+        np.testing.assert_allclose(bary.sum(), 1.0)
+
+
+def test_degenerate_triangle():
+    a = np.array([[0.0, 0, 0]])
+    cp, _ = closest_point_on_triangles(np.array([[0.5, 1.0, 0.0]]), a, np.array([[1.0, 0, 0]]), np.array([[2.0, 0, 0]]))
+    np.testing.assert_allclose(cp[0], [0.5, 0, 0], atol=1e-12)
+    cp, _ = closest_point_on_triangles(np.array([[0.5, 1.0, 0.0]]), a, a, a)
+    np.testing.assert_allclose(cp[0], [0, 0, 0])
+
+
+@pytest.mark.parametrize("model,spread", [("sofa", 0.05), ("mug", 0.01), ("fork", 0.5)])
+def test_surface_index_matches_bruteforce(model, spread):
+    shape = get_model(model).generate()
+    rng = np.random.default_rng(0)
+    pts, _, _ = sample_surface(shape.vertices, shape.faces, 150, seed=1)
+    q = pts + rng.normal(0, spread, pts.shape)
+    fast = SurfaceIndex(shape.vertices, shape.faces).query(q)
+    slow = closest_point_bruteforce(shape.vertices, shape.faces, q)
+    np.testing.assert_allclose(fast.distance, slow.distance, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(fast.points - q, axis=1), fast.distance, atol=1e-12)
+    tri = shape.vertices[shape.faces[fast.faces]]
+    np.testing.assert_allclose(np.einsum("ij,ijk->ik", fast.bary, tri), fast.points, atol=1e-12)
+
+
+def test_surface_index_rejects_bad_queries():
+    shape = get_model("vase").generate()
+    idx = SurfaceIndex(shape.vertices, shape.faces)
+    with pytest.raises(ValueError, match="NaN"):
+        idx.query(np.array([[np.nan, 0, 0]]))
+    with pytest.raises(ValueError, match=r"\(q, 3\)"):
+        idx.query(np.zeros((3, 2)))
+
+
+def test_sampling_is_area_weighted_and_seeded():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [10, 0, 0], [12, 0, 0], [10, 2, 0]], float)
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    pts, fi, bary = sample_surface(v, f, 20000, seed=0)
+    assert abs((fi == 1).mean() - 0.8) < 0.02  # areas 0.5 and 2
+    np.testing.assert_array_equal(sample_surface(v, f, 10, seed=5)[0], sample_surface(v, f, 10, seed=5)[0])
+    assert np.all(bary >= 0) and np.allclose(bary.sum(1), 1)
+    np.testing.assert_allclose(triangle_areas(v, f), [0.5, 2.0])
+
+
+@pytest.mark.parametrize("reflect", [False, True])
+def test_umeyama_recovers_known_similarity(reflect):
+    rng = np.random.default_rng(1)
+    src = rng.normal(size=(50, 3))
+    R = random_rotation(rng)
+    if reflect:
+        R = R @ np.diag([1, 1, -1])
+    t, s = rng.normal(size=3), 1.7
+    dst = s * src @ R.T + t
+    R2, t2, s2 = umeyama(src, dst, scale=True, reflection=reflect)
+    np.testing.assert_allclose(R2, R, atol=1e-10)
+    np.testing.assert_allclose(t2, t, atol=1e-10)
+    assert abs(s2 - s) < 1e-10
+    R3, _, _ = umeyama(src, dst, scale=True, reflection=None)
+    np.testing.assert_allclose(R3, R, atol=1e-10)
+
+
+def test_icp_recovers_small_rigid_motion():
+    shape = get_model("chair").generate()  # no rotational symmetry
+    idx = SurfaceIndex(shape.vertices, shape.faces)
+    rng = np.random.default_rng(2)
+    pts, _, _ = sample_surface(shape.vertices, shape.faces, 500, seed=3)
+    angle = 0.15
+    from proctex.primitives import rotation
+
+    R = rotation([1, 2, 3], angle)
+    t = np.array([0.02, -0.01, 0.015])
+    moved = pts @ R.T + t
+    res = icp_to_surface(moved, idx, max_iter=100)
+    assert res.converged and res.error < 1e-6
+    np.testing.assert_allclose(apply(moved, res.R, res.t), pts, atol=1e-5)
+    assert abs(rotation_angle(res.R) - angle) < 1e-4

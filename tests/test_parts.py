@@ -1,0 +1,186 @@
+import json
+
+import numpy as np
+import pytest
+
+from proctex import primitives as P
+from proctex.meshio import load_mesh
+from proctex.parts import analyse, connected_parts, match_groups, segment, symmetry_planes
+from proctex.shape import Shape, ShapeBuilder
+
+
+def chiral_block():
+    """A box with one corner pulled in: no mirror symmetry of its own."""
+
+    def warp(local, canon):
+        local[:, 0] -= 0.3 * canon[:, 2] * canon[:, 1]  # shear x by height and depth
+        local[:, 2] -= 0.2 * canon[:, 0] * (1 - canon[:, 1])
+        return local
+
+    return P.box((1.0, 0.6, 0.8), divisions=(2, 2, 2), warp=warp)
+
+
+def table_like(n_legs=4, mirrored=True, jitter=0.0):
+    """Top + n identical legs + (optionally) a chiral block and its mirror image + a degenerate part."""
+    b = ShapeBuilder()
+    b.add(P.box((2.0, 1.0, 0.1), center=(0, 0, 1.0), divisions=(4, 2, 1)), "top")
+    leg = P.box((0.1, 0.1, 0.9), divisions=(1, 1, 3))
+    for k in range(n_legs):
+        a = 2 * np.pi * k / n_legs
+        b.add(P.transform(leg, R=P.rotation("z", a), t=(0.7 * np.cos(a), 0.35 * np.sin(a), 0.45)), "leg")
+    if mirrored:
+        blk = P.transform(chiral_block(), t=(1.5, 0, 0.5))
+        b.add(blk, "block")
+        b.add(P.mirror(blk, axis=0, plane=0.0), "block")
+    flat = P.box((0.3, 0.3, 0.3), center=(0, 0, 2))
+    flat.vertices[:] = flat.vertices[0]  # collapsed: every triangle has zero area
+    b.add(flat, "degenerate")
+    shape = b.build()
+    if jitter:
+        solid = shape.vertex_label_names() != "degenerate"
+        shape.vertices[solid] += np.random.default_rng(0).normal(0, jitter, (solid.sum(), 3))
+    return shape
+
+
+def test_connected_parts_by_index_not_position():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 0], [1, 0, 0], [0, -1, 0], [5, 5, 5]], float)
+    f = np.array([[0, 1, 2], [3, 5, 4]])  # coincident vertices, different indices
+    face_part, vertex_part, n = connected_parts(f, len(v))
+    assert n == 2
+    np.testing.assert_array_equal(face_part, [0, 1])
+    assert vertex_part[6] == -1
+
+
+def test_exact_part_and_group_counts_on_hand_built_shape():
+    shape = table_like(n_legs=4)
+    g = analyse(shape)
+    assert len(g.parts) == 1 + 4 + 2 + 1
+    by_label = {}
+    for p in g.parts:
+        by_label.setdefault(p.label, set()).add(int(g.part_group[p.index]))
+    assert all(len(groups) == 1 for groups in by_label.values())  # each label is one group
+    assert len(g.groups) == 4
+    deg = [p for p in g.parts if p.degenerate]
+    assert len(deg) == 1 and deg[0].label == "degenerate" and deg[0].area == 0
+    legs = g.groups[g.part_group[1]]
+    assert legs.members == [1, 2, 3, 4]
+    # Every member map really carries the member onto the representative.
+    for mm in legs.maps:
+        member = shape.vertices[g.parts[mm.part].vertices]
+        rep = shape.vertices[g.parts[legs.representative].vertices]
+        moved = member @ mm.R.T + mm.t
+        d = np.linalg.norm(moved[:, None] - rep[None], axis=2).min(1)
+        assert d.max() < 1e-9
+    blocks = g.groups[g.part_group[5]]
+    assert blocks.members == [5, 6]
+    assert blocks.maps[1].mirrored and not blocks.maps[0].mirrored
+
+
+def test_mirrored_part_needs_a_reflection():
+    blk = chiral_block()
+    mir = P.mirror(blk, axis=0)
+    from proctex.align import umeyama, apply
+
+    R, t, _ = umeyama(mir.vertices, blk.vertices, reflection=False)
+    assert np.abs(apply(mir.vertices, R, t) - blk.vertices).max() > 0.05  # no rotation does it
+
+
+def test_grouping_by_icp_when_topology_differs():
+    """Same leg geometry, different triangulation: the ICP path must group them."""
+    b = ShapeBuilder()
+    b.add(P.box((0.1, 0.1, 0.9), center=(0, 0, 0), divisions=(1, 1, 3)), "leg")
+    b.add(P.box((0.1, 0.1, 0.9), center=(1, 0, 0), divisions=(2, 2, 5)), "leg")
+    b.add(P.box((0.1, 0.1, 1.2), center=(2, 0, 0), divisions=(1, 1, 3)), "longer")
+    g = analyse(b.build())
+    assert g.part_group.tolist() == [0, 0, 1]
+    assert g.groups[0].maps[1].method == "icp"
+
+
+def test_tolerance_is_relative_to_size():
+    # Scaling the whole shape by 1000 or 0.001 must not change the grouping.
+    base = table_like()
+    ref = analyse(base).part_group
+    for s in (1e-3, 1e3):
+        scaled = Shape(base.vertices * s, base.faces, labels=base.labels, label_names=base.label_names)
+        np.testing.assert_array_equal(analyse(scaled).part_group, ref)
+
+
+def test_symmetry_plane_detected():
+    planes = symmetry_planes(table_like(n_legs=4))
+    normals = np.array([p.normal for p in planes])
+    assert np.any(np.abs(normals @ [1, 0, 0]) > 0.999)
+
+
+def test_match_groups_reports_added_and_missing():
+    template = table_like(n_legs=4, mirrored=True)
+    shape = table_like(n_legs=4, mirrored=False)
+    tg, sg = analyse(template), analyse(shape)
+    m = match_groups(shape, sg, template, tg)
+    label = lambda g, i: g.groups[i].label  # noqa: E731
+    assert all(label(sg, a) == label(tg, b) for a, b in m.pairs)
+    assert [label(tg, j) for j in m.missing] == ["block"]
+    assert m.added == []
+    m2 = match_groups(template, tg, shape, sg)
+    assert [label(tg, i) for i in m2.added] == ["block"] and m2.missing == []
+
+
+def test_match_groups_survives_part_count_change_and_noise():
+    template = analyse(table_like(n_legs=4))
+    shape_shape = table_like(n_legs=6, jitter=1e-4)
+    sg = analyse(shape_shape)
+    m = match_groups(shape_shape, sg, table_like(n_legs=4), template)
+    assert len(m.pairs) == 4 and not m.added and not m.missing
+    assert all(sg.groups[a].label == template.groups[b].label for a, b in m.pairs)
+
+
+def test_segment_rejects_empty():
+    with pytest.raises(ValueError):
+        segment(Shape(np.zeros((3, 3)), np.zeros((0, 3), int)))
+
+
+# ------------------------------------------------------------------------------------------- sofa
+SOFA_GROUPS = [[0, 1], [2], [3], [4], [5], [6], [7], [8]]
+
+
+def test_sofa_segmentation(sofa_dir):
+    shape, _ = load_mesh(sofa_dir / "train" / "0.obj")
+    g = analyse(shape)
+    d = g.to_dict()
+    assert len(d["parts"]) == 9
+    assert [p["degenerate"] for p in d["parts"]] == [False, False, False, True, True, False, False, True, True]
+    # Armrests (0, 1) are one group, mirrored across x = 0; the rest are singletons.
+    assert [grp["parts"] for grp in d["groups"]] == SOFA_GROUPS
+    # The armrests are each symmetric, so the right one is a translated copy of the left.
+    mm = g.groups[0].maps[1]
+    np.testing.assert_allclose(mm.R, np.eye(3), atol=1e-3)
+    assert abs(mm.t[0] - 2 * g.parts[0].center[0]) < 1e-3 and mm.error < 1e-3
+    assert [p["faces"] for p in d["parts"]] == [432, 432, 432, 576, 576, 1728, 1728, 576, 576]
+    json.dumps(d)
+
+
+def sofa_group_labels(shape, grouping):
+    """Name each sofa group by where it is: the data is y-up, x wide, back at -z."""
+    names = {}
+    for g in grouping.groups:
+        p = grouping.parts[g.representative]
+        if g.degenerate:
+            names[g.index] = f"flat@{'back' if p.center[2] < -0.2 else 'seat'}{'-hi' if p.center[1] > 0.45 and p.center[2] < -0.2 else ''}"
+        elif len(g.members) == 2:
+            names[g.index] = "armrests"
+        elif p.center[1] < 0.2:
+            names[g.index] = "base"
+        elif p.center[2] < -0.2:
+            names[g.index] = "back"
+        else:
+            names[g.index] = "seat"
+    return names
+
+
+def test_sofa_group_matching_sample(sofa_dir):
+    template, _ = load_mesh(sofa_dir / "train" / "0.obj")
+    tg = analyse(template)
+    for name in ("inference/7.obj", "train/13.obj"):
+        shape, _ = load_mesh(sofa_dir / name)
+        sg = analyse(shape)
+        m = match_groups(shape, sg, template, tg)
+        assert m.pairs == [(i, i) for i in range(8)] and not m.added and not m.missing
