@@ -499,11 +499,22 @@ def _shape_term(a: dict[str, Any], b: dict[str, Any], w_rot: float) -> tuple[flo
     return surf + w_rot * rotation_angle(R) + penalty, method
 
 
-def _placement(d: dict[str, Any], scale: np.ndarray, shift: np.ndarray, center: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean position, spread and size of a group after ``x -> scale x + shift``, in a (center, radius) frame."""
-    pos = (d["centers"] * scale + shift - center) / radius
-    mean = pos.mean(0)
-    return mean, np.abs(pos - mean).mean(0), d["extent"] * np.abs(scale) / radius
+def _placed(d: dict[str, Any], scale: np.ndarray, shift: np.ndarray, center: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Member centres (k, 3) and size (3,) of a group after ``x -> scale x + shift``, in a (center, radius) frame."""
+    return (d["centers"] * scale + shift - center) / radius, d["extent"] * np.abs(scale) / radius
+
+
+def _set_offsets(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each member of the smaller of two centre sets (k, 3) paired with its nearest in the other.
+
+    Returns index arrays ``(ia, ib)`` into ``a`` and ``b``. Repeated parts vary in number across a
+    family (4 or 6 legs), so a group is placed like another when each member of the smaller group
+    has a counterpart nearby.
+    """
+    if len(a) <= len(b):
+        return np.arange(len(a)), cKDTree(b).query(a)[1]
+    ib, ia = np.arange(len(b)), cKDTree(a).query(b)[1]
+    return ia, ib
 
 
 def _fit_axis_map(src: np.ndarray, dst: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -546,9 +557,9 @@ def match_groups(
 
     The cost of a pair sums: the mean surface distance after ICP (or a vertex fit when the
     topologies are equal) of the representatives in per-axis normalised part frames, ``w_rot`` ×
-    the ICP rotation angle (families keep their orientation), ``w_pos`` × the distance between the
-    groups' mean positions (and spreads), and ``w_size`` × the summed |log| ratios of their
-    extents. Positions and sizes are compared in the template's frame: the shape is first mapped
+    the ICP rotation angle (families keep their orientation), ``w_pos`` × the mean distance from
+    each member of the smaller group to the nearest member of the other (repeated parts vary in
+    number), and ``w_size`` × the summed |log| ratios of their extents. Positions and sizes are compared in the template's frame: the shape is first mapped
     by per-axis scale and shift taking its bounding box onto the template's, then, for up to
     ``rounds`` rounds, by the per-axis map fitted to the groups matched so far (so a part that
     appears or vanishes at the edge of the shape does not shift everything else). Pairs costing
@@ -568,14 +579,15 @@ def match_groups(
     t_radius = max(float((t_hi - t_lo).max()) / 2, 1e-300)
     box_src, box_dst = np.stack([s_lo, s_hi]), np.stack([t_lo, t_hi])
     scale, shift = _fit_axis_map(box_src, box_dst, np.ones(2))
-    tb = [_placement(b, np.ones(3), np.zeros(3), t_center, t_radius) for b in db]
+    tb = [_placed(b, np.ones(3), np.zeros(3), t_center, t_radius) for b in db]
     pairs: list[tuple[int, int]] = []
     for _ in range(max(rounds, 1)):
-        sa = [_placement(a, scale, shift, t_center, t_radius) for a in da]
+        sa = [_placed(a, scale, shift, t_center, t_radius) for a in da]
         cost = shape_term.copy()
-        for i, (pa, sp_a, sz_a) in enumerate(sa):
-            for j, (pb, sp_b, sz_b) in enumerate(tb):
-                pos = np.linalg.norm(pa - pb) + np.linalg.norm(sp_a - sp_b)
+        for i, (ca, sz_a) in enumerate(sa):
+            for j, (cb, sz_b) in enumerate(tb):
+                ia, ib = _set_offsets(ca, cb)
+                pos = np.linalg.norm(ca[ia] - cb[ib], axis=1).mean()
                 size = np.abs(np.log((sz_a + 1e-3) / (sz_b + 1e-3))).sum()
                 cost[i, j] += w_pos * pos + w_size * size
         new_pairs = _solve_assignment(cost, threshold)
@@ -583,10 +595,14 @@ def match_groups(
             pairs = new_pairs or pairs
             break
         pairs = new_pairs
-        # Refit the shape -> template map on the matched groups (box corners as a weak prior).
-        src = np.concatenate([box_src] + [da[i]["centers"].mean(0, keepdims=True) for i, _ in pairs])
-        dst = np.concatenate([box_dst] + [db[j]["centers"].mean(0, keepdims=True) for _, j in pairs])
-        scale, shift = _fit_axis_map(src, dst, np.r_[np.ones(2), np.full(len(pairs), 2.0)])
+        # Refit the shape -> template map on the matched members (box corners as a weak prior).
+        src, dst = [box_src], [box_dst]
+        for i, j in pairs:
+            ia, ib = _set_offsets(sa[i][0], tb[j][0])
+            src.append(da[i]["centers"][ia])
+            dst.append(db[j]["centers"][ib])
+        n_pts = sum(len(x) for x in src[1:])
+        scale, shift = _fit_axis_map(np.concatenate(src), np.concatenate(dst), np.r_[np.ones(2), np.full(n_pts, 2.0)])
     na, nb = cost.shape
     matched_a = {a for a, _ in pairs}
     matched_b = {b for _, b in pairs}

@@ -298,3 +298,14 @@ def mirror(part: Part, axis: int = 0, plane: float = 0.0) -> Part:
     v = part.vertices.copy()
     v[:, axis] = 2 * plane - v[:, axis]
     return Part(v, part.faces[:, ::-1].copy(), part.canonical.copy())
+
+
+def with_box_canonical(part: Part) -> Part:
+    """The part with canonical = normalised position in its bounding box, in [0, 1]^3.
+
+    For parts that a family builds with different primitives (a round or a rectangular table
+    top), so their canonical coordinates stay comparable with a box's.
+    """
+    lo, hi = part.vertices.min(axis=0), part.vertices.max(axis=0)
+    canon = (part.vertices - lo) / np.maximum(hi - lo, 1e-300)
+    return Part(part.vertices.copy(), part.faces.copy(), canon)

@@ -9,6 +9,7 @@ import trimesh
 from scipy.sparse.csgraph import connected_components
 
 from proctex.models import get_model, list_models
+from proctex.models.vessels import tier_label
 from proctex.primitives import sphere_canonical
 
 MODELS = ["mug", "pumpkin", "mushroom", "cake", "shell"]
@@ -155,7 +156,7 @@ def test_cake_counts_follow_tiers_and_candles():
         assert n_groups == 1 + tiers + (candles > 0)
         assert len(split_parts(shape)) == n_parts
         assert sorted(shape.label_names) == sorted(
-            ["plate", *(f"tier{i}" for i in range(tiers))] + (["candle"] if candles else [])
+            ["plate", *(tier_label(i, tiers) for i in range(tiers))] + (["candle"] if candles else [])
         )
 
 
@@ -206,7 +207,7 @@ def test_cake_tier_top_centre_anchor():
     model = get_model("cake")
     for params in model.space.sample(10, seed=10):
         shape = model.generate(params)
-        (ids, _), = parts_by_label(shape)["tier0"]
+        (ids, _), = parts_by_label(shape)[tier_label(0, params["tiers"])]
         centre = nearest_canonical(shape, ids, 1.0, 0.0)
         np.testing.assert_allclose(centre[:2], [0.0, 0.0], atol=1e-9)
         assert centre[2] == pytest.approx(shape.vertices[ids, 2].max())

@@ -498,7 +498,8 @@ class Table(ProceduralModel):
         a, b, power = self._rim(p)
         sb = ShapeBuilder()
         if p["top_shape"] == "round":
-            sb.add(self._round_top(a, h, t), "top")
+            # Box-frame canonical coordinates, comparable with the rectangular top's.
+            sb.add(P.with_box_canonical(self._round_top(a, h, t)), "top")
         else:
             sb.add(slab((-a, -b, h - t), (a, b, h), (10, 8, 1)), "top")
         n = p["legs"]

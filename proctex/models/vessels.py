@@ -396,6 +396,15 @@ def _candle(radius: float, height: float) -> P.Part:
     return P.revolve(r, z, n_theta=16, z_top=height + 0.8 * radius + flame)
 
 
+def tier_label(i: int, tiers: int) -> str:
+    """Semantic label of tier ``i`` (0 = bottom) of ``tiers``: its role, not its index, so a
+    2-tier and a 3-tier cake agree on what the bottom and top tiers are. The top tier carries
+    the candles; a single tier is a top tier."""
+    if i == tiers - 1:
+        return "tier_top"
+    return "tier_bottom" if i == 0 else "tier_middle"
+
+
 @register
 class Cake(ProceduralModel):
     name = "cake"
@@ -424,7 +433,7 @@ class Cake(ProceduralModel):
         z = 0.6 * self.plate_thickness  # the plate's well
         radii = p["radius"] * p["shrink"] ** np.arange(p["tiers"])
         for i, radius in enumerate(radii):
-            builder.add(P.transform(_cake_tier(radius, p["tier_height"]), t=(0.0, 0.0, z)), f"tier{i}")
+            builder.add(P.transform(_cake_tier(radius, p["tier_height"]), t=(0.0, 0.0, z)), tier_label(i, p["tiers"]))
             z += p["tier_height"]
         candle = _candle(self.candle_radius, p["candle_height"])
         ring = 0.6 * radii[-1]
@@ -460,9 +469,11 @@ class Shell(ProceduralModel):
         """Centre line (K, 3) and tube radii (K,) in units of the last whorl radius.
 
         The apex is on the coil (z) axis, the whorls grow downward and the last rings flare into a lip.
+        Angles count back from the aperture, so the opening faces the same way for any number of
+        turns and the body whorl keeps its place.
         """
         u = np.linspace(0.0, 1.0, self.n_rings)
-        angle = 2 * np.pi * p["turns"] * u
+        angle = 2 * np.pi * p["turns"] * (u - 1.0)
         rho = p["growth"] ** (p["turns"] * (u - 1.0))
         path = np.stack([rho * np.cos(angle), rho * np.sin(angle), -p["spire"] * rho], axis=1)
         ribs = 1.0 + p["ribbing"] * np.cos(self.ribs_per_turn * angle) ** 8
