@@ -155,25 +155,14 @@ def test_sofa_segmentation(sofa_dir):
     np.testing.assert_allclose(mm.R, np.eye(3), atol=1e-3)
     assert abs(mm.t[0] - 2 * g.parts[0].center[0]) < 1e-3 and mm.error < 1e-3
     assert [p["faces"] for p in d["parts"]] == [432, 432, 432, 576, 576, 1728, 1728, 576, 576]
+    # What the parts are (inspected in the data: y up, x across, the back towards -z):
+    c = np.array([p.center for p in g.parts])
+    lo = np.array([shape.vertices[p.vertices].min(0) for p in g.parts])
+    hi = np.array([shape.vertices[p.vertices].max(0) for p in g.parts])
+    assert hi[0, 0] == pytest.approx(shape.vertices[:, 0].max()) and lo[1, 0] == pytest.approx(shape.vertices[:, 0].min())  # armrests
+    assert np.argmin(c[:, 1]) == 2  # the base is the lowest part
+    assert c[5, 2] < -0.2 < c[6, 2] and hi[5, 1] == pytest.approx(shape.vertices[:, 1].max())  # back cushion, seat cushion
     json.dumps(d)
-
-
-def sofa_group_labels(shape, grouping):
-    """Name each sofa group by where it is: the data is y-up, x wide, back at -z."""
-    names = {}
-    for g in grouping.groups:
-        p = grouping.parts[g.representative]
-        if g.degenerate:
-            names[g.index] = f"flat@{'back' if p.center[2] < -0.2 else 'seat'}{'-hi' if p.center[1] > 0.45 and p.center[2] < -0.2 else ''}"
-        elif len(g.members) == 2:
-            names[g.index] = "armrests"
-        elif p.center[1] < 0.2:
-            names[g.index] = "base"
-        elif p.center[2] < -0.2:
-            names[g.index] = "back"
-        else:
-            names[g.index] = "seat"
-    return names
 
 
 def test_sofa_group_matching_sample(sofa_dir):
