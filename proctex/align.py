@@ -116,3 +116,33 @@ def icp_to_surface(
         prev = err
         R, t, s = umeyama(src, cp.points, scale=scale, reflection=reflection)
     return ICPResult(R, t, s, err, it, converged)
+
+
+def icp_points(
+    src: np.ndarray,
+    dst: np.ndarray,
+    dst_tree: cKDTree | None = None,
+    R0: np.ndarray | None = None,
+    t0: np.ndarray | None = None,
+    max_iter: int = 30,
+    tol: float = 1e-6,
+) -> ICPResult:
+    """Point-to-point ICP of ``src (k, 3)`` onto the point set ``dst (l, 3)`` (nearest neighbours).
+
+    Cheaper and coarser than :func:`icp_to_surface` (its error floor is the sampling spacing of
+    ``dst``); keeps the handedness of ``R0``. ``error`` is the mean nearest-neighbour distance.
+    """
+    tree = dst_tree if dst_tree is not None else cKDTree(dst)
+    R = np.eye(3) if R0 is None else np.asarray(R0, dtype=float)
+    t = np.zeros(3) if t0 is None else np.asarray(t0, dtype=float)
+    reflection = bool(np.linalg.det(R) < 0)
+    prev, err, converged, it = np.inf, np.inf, False, 0
+    for it in range(1, max_iter + 1):
+        d, j = tree.query(apply(src, R, t))
+        err = float(d.mean())
+        if np.isfinite(prev) and prev - err <= tol * max(prev, 1e-300):
+            converged = True
+            break
+        prev = err
+        R, t, _ = umeyama(src, dst[j], reflection=reflection)
+    return ICPResult(R, t, 1.0, err, it, converged)

@@ -27,7 +27,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .align import apply, icp_to_surface, rotation_angle, umeyama
+from .align import apply, icp_points, icp_to_surface, rotation_angle, umeyama
 from .geometry import SurfaceIndex, sample_surface, triangle_areas
 from .shape import Shape
 
@@ -465,7 +465,7 @@ def _shape_box(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _group_descriptor(shape: Shape, grouping: Grouping, g: PartGroup, n_samples: int, seed: int) -> dict[str, Any]:
-    """World placement (member centres, extents) and normalised surface of a group's representative."""
+    """World placement (member centres, extents) and normalised surface samples of a group's representative."""
     part = grouping.parts[g.representative]
     v, f = part_mesh(shape, part)
     ext = (v.max(0) - v.min(0)) / 2
@@ -476,7 +476,7 @@ def _group_descriptor(shape: Shape, grouping: Grouping, g: PartGroup, n_samples:
         "topo_key": len(v).to_bytes(8, "little") + np.sort(f, axis=1).tobytes(),
         "vertices_n": vn,
         "samples": samples,
-        "index": SurfaceIndex(vn, f),
+        "tree": cKDTree(samples),
         "extent": ext,
         "centers": np.array([grouping.parts[i].center for i in g.members]),
         "degenerate": g.degenerate,
@@ -484,15 +484,20 @@ def _group_descriptor(shape: Shape, grouping: Grouping, g: PartGroup, n_samples:
 
 
 def _shape_term(a: dict[str, Any], b: dict[str, Any], w_rot: float) -> tuple[float, str]:
-    """Surface distance of two representatives in per-axis normalised frames plus a rotation penalty."""
+    """Distance of two representatives in per-axis normalised frames plus a rotation penalty.
+
+    Equal topology: mean vertex distance after a rigid fit. Otherwise point-to-point ICP between
+    surface samples and the symmetric mean nearest-sample distance (its floor is the sample
+    spacing, small against the differences between distinct parts).
+    """
     if a["topo_key"] == b["topo_key"]:
         R, t, _ = umeyama(a["vertices_n"], b["vertices_n"])
         surf = float(np.linalg.norm(apply(a["vertices_n"], R, t) - b["vertices_n"], axis=1).mean())
         method = "topology"
     else:
-        res = icp_to_surface(a["samples"], b["index"], max_iter=20)
+        res = icp_points(a["samples"], b["samples"], b["tree"], max_iter=20)
         R = res.R
-        back = a["index"].query((b["samples"] - res.t) @ res.R).distance.mean()
+        back = a["tree"].query((b["samples"] - res.t) @ res.R)[0].mean()
         surf = float(0.5 * (res.error + back))
         method = "icp"
     penalty = 1.0 if a["degenerate"] != b["degenerate"] else 0.0
