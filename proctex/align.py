@@ -101,20 +101,26 @@ def icp_to_surface(
     t = np.zeros(3) if t0 is None else np.asarray(t0, dtype=float)
     s = 1.0
     reflection = bool(np.linalg.det(R) < 0)
-    prev = np.inf
-    err = np.inf
     exact = 1e-10 * float(np.linalg.norm(src.max(0) - src.min(0)))  # "zero" at the data's scale
     converged = False
     it = 0
+    cp = target.query(apply(src, R, t, s))
+    err = float(cp.distance.mean())
     for it in range(1, max_iter + 1):
-        moved = apply(src, R, t, s)
-        cp = target.query(moved)
-        err = float(cp.distance.mean())
-        if err <= exact or (np.isfinite(prev) and prev - err <= tol * prev):
+        if err <= exact:
             converged = True
             break
-        prev = err
-        R, t, s = umeyama(src, cp.points, scale=scale, reflection=reflection)
+        R_new, t_new, s_new = umeyama(src, cp.points, scale=scale, reflection=reflection)
+        cp_new = target.query(apply(src, R_new, t_new, s_new))
+        err_new = float(cp_new.distance.mean())
+        if err_new > err:  # a refit never increases the error in exact arithmetic; stop if it does
+            converged = True
+            break
+        prev, err, cp = err, err_new, cp_new
+        R, t, s = R_new, t_new, s_new
+        if prev - err <= tol * prev:
+            converged = True
+            break
     return ICPResult(R, t, s, err, it, converged)
 
 
@@ -136,13 +142,18 @@ def icp_points(
     R = np.eye(3) if R0 is None else np.asarray(R0, dtype=float)
     t = np.zeros(3) if t0 is None else np.asarray(t0, dtype=float)
     reflection = bool(np.linalg.det(R) < 0)
-    prev, err, converged, it = np.inf, np.inf, False, 0
+    converged, it = False, 0
+    d, j = tree.query(apply(src, R, t))
+    err = float(d.mean())
     for it in range(1, max_iter + 1):
-        d, j = tree.query(apply(src, R, t))
-        err = float(d.mean())
-        if np.isfinite(prev) and prev - err <= tol * max(prev, 1e-300):
+        R_new, t_new, _ = umeyama(src, dst[j], reflection=reflection)
+        d_new, j_new = tree.query(apply(src, R_new, t_new))
+        err_new = float(d_new.mean())
+        if err_new > err:
             converged = True
             break
-        prev = err
-        R, t, _ = umeyama(src, dst[j], reflection=reflection)
+        prev, err, j, R, t = err, err_new, j_new, R_new, t_new
+        if prev - err <= tol * max(prev, 1e-300):
+            converged = True
+            break
     return ICPResult(R, t, 1.0, err, it, converged)

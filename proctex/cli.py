@@ -67,7 +67,7 @@ def segment_summary(grouping: Grouping) -> dict[str, Any]:
 
 
 def cmd_segment(args: argparse.Namespace) -> int:
-    if os.path.exists(args.mesh) and not args.mesh.endswith(".json"):
+    if os.path.isfile(args.mesh):
         shape, report = load_mesh(args.mesh, connectivity=args.connectivity)
         load_info = report.to_dict()
     else:

@@ -205,6 +205,8 @@ def revolve(
         s = (np.arange(K) + 1.0) / (K + 1.0)
     theta = np.arange(n_theta) * (2 * np.pi / n_theta)
     mult = np.ones((K, n_theta)) if radial is None else np.asarray(radial(theta, np.asarray(s, float)), float)
+    if mult.shape != (K, n_theta) or not np.all(np.isfinite(mult)) or np.any(mult <= 0):
+        raise ValueError(f"radial must return positive finite ({K}, {n_theta}) multipliers, got shape {mult.shape}")
     r = radius[:, None] * mult
     rings = np.stack([r * np.cos(theta)[None], r * np.sin(theta)[None], np.repeat(height[:, None], n_theta, 1)], axis=-1)
     c = np.asarray(center, dtype=float)
@@ -246,7 +248,9 @@ def tube(
         n_sides: points per ring.
         s: (K,) canonical parameters inside (0, 1) (default uniform).
         up: hint for the frame's normal at the start, so the angle origin is stable across
-            parameter settings.
+            parameter settings. Frames are rotation-minimising: on a path that winds in 3D (a
+            helix) the angle origin twists by an amount that depends on the path, so for such
+            paths build the rings with a fixed reference direction and :func:`ring_surface`.
         cap_offset: how far beyond the end rings the poles sit (0: flat caps).
         scale_xy: (2,) ellipse factors of the cross-section along (normal, binormal).
     """

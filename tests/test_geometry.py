@@ -100,3 +100,18 @@ def test_icp_recovers_small_rigid_motion():
     assert res.converged and res.error < 1e-6
     np.testing.assert_allclose(apply(moved, res.R, res.t), pts, atol=1e-5)
     assert abs(rotation_angle(res.R) - angle) < 1e-4
+
+
+def test_point_icp_and_chamfer():
+    from proctex.align import chamfer, icp_points
+    from proctex.primitives import rotation
+
+    shape = get_model("chair").generate()
+    pts, _, _ = sample_surface(shape.vertices, shape.faces, 2000, seed=0)
+    R = rotation([0, 0, 1], 0.1)
+    moved = pts @ R.T + [0.01, 0.0, -0.01]
+    assert chamfer(pts, pts) == 0.0
+    before = chamfer(moved, pts)
+    res = icp_points(moved, pts)
+    assert res.converged and res.error < 1e-9  # the same points: exact recovery
+    assert chamfer(apply(moved, res.R, res.t), pts) < 1e-9 < before
