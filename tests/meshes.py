@@ -21,3 +21,38 @@ def two_cubes_touching():
 def soup(vertices, faces):
     """Every face gets its own three vertices (no shared index at all)."""
     return vertices[faces].reshape(-1, 3), np.arange(len(faces) * 3).reshape(-1, 3)
+
+
+def split_parts(shape):
+    """Independent reference for connected components by shared vertex index.
+
+    Returns a list of (vertex ids (k,) int64, local faces (m, 3) int64).
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    f = shape.faces
+    n = shape.n_vertices
+    adjacency = sp.coo_matrix((np.ones(2 * len(f)), (np.repeat(f[:, 0], 2), f[:, 1:].ravel())), shape=(n, n))
+    n_comp, comp = connected_components(adjacency, directed=False)
+    parts = []
+    for c in range(n_comp):
+        ids = np.flatnonzero(comp == c)
+        if not np.any(comp[f[:, 0]] == c):
+            continue  # an unreferenced vertex is not a part
+        local = -np.ones(n, dtype=np.int64)
+        local[ids] = np.arange(len(ids))
+        parts.append((ids, local[f[comp[f[:, 0]] == c]]))
+    return parts
+
+
+def part_label(shape, ids):
+    """The single semantic label of a part's vertices (fails if a part mixes labels)."""
+    names = {shape.label_names[i] for i in shape.labels[ids]}
+    assert len(names) == 1, f"one part carries several labels: {names}"
+    return names.pop()
+
+
+def labelled_parts(shape):
+    """(vertex ids, local faces, label) per part."""
+    return [(ids, faces, part_label(shape, ids)) for ids, faces in split_parts(shape)]

@@ -7,8 +7,8 @@ import itertools
 import numpy as np
 import pytest
 import trimesh
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+
+from .meshes import labelled_parts
 from scipy.spatial import cKDTree
 
 from proctex.models import get_model, list_models
@@ -17,25 +17,6 @@ MODELS = ("desk", "sofa", "chair", "stair", "table", "fork")
 
 
 # ------------------------------------------------------------------------------------------- helpers
-def split_parts(shape) -> list[tuple[np.ndarray, np.ndarray, str]]:
-    """Connected components by shared vertex index: (vertex ids (k,), local faces (m, 3), label)."""
-    n = shape.n_vertices
-    f = shape.faces
-    rows = np.concatenate([f[:, 0], f[:, 1]])
-    cols = np.concatenate([f[:, 1], f[:, 2]])
-    adjacency = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
-    count, comp = connected_components(adjacency, directed=False)
-    parts = []
-    for c in range(count):
-        vid = np.flatnonzero(comp == c)
-        remap = -np.ones(n, dtype=np.int64)
-        remap[vid] = np.arange(len(vid))
-        labels = set(shape.labels[vid].tolist())
-        assert len(labels) == 1, "a part mixes semantic labels"
-        parts.append((vid, remap[f[comp[f[:, 0]] == c]], shape.label_names[labels.pop()]))
-    return parts
-
-
 def kabsch_residual(a: np.ndarray, b: np.ndarray, proper: bool) -> float:
     """RMS residual of the best rotation (``proper``) or best reflection mapping rows of a onto b."""
     a = a - a.mean(axis=0)
@@ -103,7 +84,7 @@ def test_counts_match_components(name):
         shape = model.generate(p)
         assert np.all(np.isfinite(shape.vertices)) and np.all(np.isfinite(shape.canonical))
         assert shape.n_faces < 20000
-        parts = split_parts(shape)
+        parts = labelled_parts(shape)
         n_parts, n_groups = model.expected_counts(p)
         assert len(parts) == n_parts, p
         assert len({label for _, _, label in parts}) == n_groups == len(shape.label_names), p
@@ -114,7 +95,7 @@ def test_parts_are_closed_and_outward(name):
     model = get_model(name)
     for p in samples(name, 8):
         shape = model.generate(p)
-        for vid, faces, label in split_parts(shape):
+        for vid, faces, label in labelled_parts(shape):
             mesh = trimesh.Trimesh(shape.vertices[vid], faces, process=False)
             assert mesh.is_watertight, (label, p)
             assert mesh.is_winding_consistent, (label, p)
@@ -135,7 +116,7 @@ def test_same_label_parts_congruent(name):
     for p in samples(name, 10):
         shape = model.generate(p)
         by_label: dict[str, list] = {}
-        for vid, faces, label in split_parts(shape):
+        for vid, faces, label in labelled_parts(shape):
             by_label.setdefault(label, []).append((shape.vertices[vid], faces))
         for label, parts in by_label.items():
             v0, f0 = parts[0]
@@ -153,7 +134,7 @@ def test_different_labels_differ_in_size(name):
     for p in model.space.sample(40, seed=1, method="lhs"):
         shape = model.generate(p)
         firsts: dict[str, np.ndarray] = {}
-        for vid, _, label in split_parts(shape):
+        for vid, _, label in labelled_parts(shape):
             firsts.setdefault(label, principal_extents(shape.vertices[vid]))
         for (la, ea), (lb, eb) in itertools.combinations(firsts.items(), 2):
             assert np.max(np.abs(ea - eb) / np.maximum(ea, eb)) > 0.1, (la, lb, p)
@@ -182,8 +163,8 @@ def test_topology_varies(name, param, low, high):
     assert a.n_faces != b.n_faces
     if name != "table" or param != "top_shape":
         assert model.expected_counts({param: low})[0] < model.expected_counts({param: high})[0]
-    assert len(split_parts(a)) == model.expected_counts({param: low})[0]
-    assert len(split_parts(b)) == model.expected_counts({param: high})[0]
+    assert len(labelled_parts(a)) == model.expected_counts({param: low})[0]
+    assert len(labelled_parts(b)) == model.expected_counts({param: high})[0]
 
 
 def test_expected_counts_formulas():
@@ -207,7 +188,7 @@ def test_armrests_are_mirror_images_not_rotations(name):
         if name == "chair" and not p["arms"]:
             continue
         shape = model.generate(p)
-        arms = [shape.vertices[vid] for vid, _, label in split_parts(shape) if label == "armrest"]
+        arms = [shape.vertices[vid] for vid, _, label in labelled_parts(shape) if label == "armrest"]
         assert len(arms) == 2
         left, right = arms
         size = np.linalg.norm(np.ptp(left, axis=0))
@@ -223,7 +204,7 @@ def test_armrests_are_mirror_images_not_rotations(name):
 
 def first_part_with(shape, label: str, canonical: tuple[float, float, float]) -> np.ndarray:
     """(3,) position of the vertex with the given canonical coordinates on the first ``label`` part."""
-    vid, _, _ = next(part for part in split_parts(shape) if part[2] == label)
+    vid, _, _ = next(part for part in labelled_parts(shape) if part[2] == label)
     hit = vid[np.all(np.isclose(shape.canonical[vid], canonical), axis=1)]
     assert len(hit) == 1
     return shape.vertices[hit[0]]
@@ -256,7 +237,7 @@ def test_fork_tines_touch_head():
     model = get_model("fork")
     for p in samples("fork", 5):
         shape = model.generate(p)
-        parts = split_parts(shape)
+        parts = labelled_parts(shape)
         head = next(shape.vertices[vid] for vid, _, label in parts if label == "head")
         lo, hi = head.min(axis=0), head.max(axis=0)
         for vid, _, label in parts:

@@ -4,36 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
+
 import trimesh
-from scipy.sparse.csgraph import connected_components
+from .meshes import part_label, split_parts
 
 from proctex.models import get_model, list_models
 from proctex.models.vessels import tier_label
 from proctex.primitives import sphere_canonical
 
 MODELS = ["mug", "pumpkin", "mushroom", "cake", "shell"]
-
-
-def split_parts(shape) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Connected components by shared vertex index: a list of (vertex ids (n,), faces (m, 3) local)."""
-    f = shape.faces
-    n = shape.n_vertices
-    adjacency = sp.coo_matrix((np.ones(2 * len(f)), (np.repeat(f[:, 0], 2), f[:, 1:].ravel())), shape=(n, n))
-    n_comp, comp = connected_components(adjacency, directed=False)
-    parts = []
-    for c in range(n_comp):
-        ids = np.flatnonzero(comp == c)
-        local = -np.ones(n, dtype=np.int64)
-        local[ids] = np.arange(len(ids))
-        parts.append((ids, local[f[comp[f[:, 0]] == c]]))
-    return parts
-
-
-def part_label(shape, ids: np.ndarray) -> str:
-    names = {shape.label_names[i] for i in shape.labels[ids]}
-    assert len(names) == 1, f"one part carries several labels: {names}"
-    return names.pop()
 
 
 def rigid_signature(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
