@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.proctex-installed
 # torch first, pinned: 2.13.0 is the local CPU wheel (a newer one pulls gigabytes of CUDA packages).
 TORCH  := torch==2.13.0
 
-.PHONY: setup demo test test-all gallery clean
+.PHONY: setup demo test test-fast gallery clean
 
 $(STAMP): pyproject.toml Makefile
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "ProcTex needs Python >= 3.11")'
@@ -22,8 +22,10 @@ demo: setup
 	$(VENV)/bin/proctex demo --out out/demo
 
 test: setup
+	$(PY) -m pytest -q
+
+test-fast: setup
 	$(PY) -m pytest -q -m "not slow"
-	$(PY) -m pytest -q -m slow
 
 gallery: setup
 	$(VENV)/bin/proctex gallery --out out/gallery
