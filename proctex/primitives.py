@@ -115,6 +115,78 @@ def box(
     return _orient_outward(part)
 
 
+def _graded_axis(c: np.ndarray, half: float, band_lo: float, band_hi: float, n: int, m: int) -> np.ndarray:
+    """Positions (k,) along one box axis for lattice canonical coordinates ``c`` (k,) in [0, 1].
+
+    The first / last ``m`` of the ``n`` lattice intervals cover the rounding bands ``band_lo`` /
+    ``band_hi`` (0: no band, uniform spacing there), so rounded edges get ``m`` segments whatever
+    the box size.
+    """
+    knots_c, knots_x = [0.0], [-half]
+    if band_lo > 0:
+        knots_c.append(m / n)
+        knots_x.append(-half + band_lo)
+    if band_hi > 0:
+        knots_c.append(1.0 - m / n)
+        knots_x.append(half - band_hi)
+    knots_c.append(1.0)
+    knots_x.append(half)
+    return np.interp(c, knots_c, knots_x)
+
+
+def rounded_box(
+    size: Sequence[float],
+    center: Sequence[float] = (0.0, 0.0, 0.0),
+    divisions: Sequence[int] = (4, 4, 4),
+    round_lo: Sequence[float] = (0.0, 0.0, 0.0),
+    round_hi: Sequence[float] = (0.0, 0.0, 0.0),
+    edge_segments: int = 2,
+    warp: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+) -> Part:
+    """Box whose chosen sides have rounded edges, optionally warped afterwards.
+
+    Args:
+        size: (3,) edge lengths.
+        center: (3,) centre (applied after ``warp``).
+        divisions: (3,) lattice segments; an axis with rounding on one side needs at least
+            ``edge_segments + 1``, on both sides ``2 * edge_segments + 1``.
+        round_lo, round_hi: (3,) rounding radius of the edges bounding the low / high face along
+            each axis (0 keeps that face sharp). An edge is rounded where both faces meeting there
+            have a radius, e.g. ``round_hi = (r, 0, r)`` rounds only the (+x, +z) edge.
+        edge_segments: lattice segments across each rounding band.
+        warp: optional ``f(local (n, 3), canonical (n, 3)) -> local`` applied after rounding.
+
+    The rounding maps each corner region of the box onto a quarter disc (or ball octant) by
+    scaling the offset ``d`` from the inner box by ``max|d_i| / |d|``, which fixes the flat faces
+    and keeps the map one-to-one, so canonical coordinates stay the box's.
+    """
+    size = np.asarray(size, dtype=float)
+    half = size / 2
+    lo, hi = np.asarray(round_lo, dtype=float), np.asarray(round_hi, dtype=float)
+    div = np.asarray(divisions, dtype=int)
+    need = 1 + edge_segments * ((lo > 0).astype(int) + (hi > 0).astype(int))
+    if np.any(div < need) or np.any(lo + hi >= size):
+        raise ValueError(f"rounded_box: divisions {div} or radii lo={lo} hi={hi} do not fit size {size}")
+
+    def _round(local: np.ndarray, canonical: np.ndarray) -> np.ndarray:
+        pos = np.stack(
+            [_graded_axis(canonical[:, a], half[a], lo[a], hi[a], div[a], edge_segments) for a in range(3)], axis=1
+        )
+        inner = np.clip(pos, -half + lo, half - hi)
+        d = pos - inner
+        norm = np.linalg.norm(d, axis=1, keepdims=True)
+        scale = np.divide(np.abs(d).max(axis=1, keepdims=True), norm, out=np.ones_like(norm), where=norm > 0)
+        out = inner + d * scale
+        return out if warp is None else warp(out, canonical)
+
+    return box(size, center, div, _round)
+
+
+def translated(part: Part, offsets: Sequence[Sequence[float]]) -> list[Part]:
+    """Copies of ``part`` translated by each (3,) offset."""
+    return [transform(part, t=o) for o in offsets]
+
+
 # ------------------------------------------------------------------------------------ ring surfaces
 def sphere_canonical(s: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """Canonical embedding of (profile parameter, angle) on the unit sphere: (..., 3) float64."""

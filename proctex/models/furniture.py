@@ -29,78 +29,6 @@ def slab(
     return P.box(hi - lo, (lo + hi) / 2, divisions, warp)
 
 
-def _graded_axis(c: np.ndarray, half: float, band_lo: float, band_hi: float, n: int, m: int) -> np.ndarray:
-    """Positions (k,) along one box axis for lattice canonical coordinates ``c`` (k,) in [0, 1].
-
-    The first / last ``m`` of the ``n`` lattice intervals cover the rounding bands ``band_lo`` /
-    ``band_hi`` (0: no band, uniform spacing there), so rounded edges get ``m`` segments whatever
-    the box size.
-    """
-    knots_c, knots_x = [0.0], [-half]
-    if band_lo > 0:
-        knots_c.append(m / n)
-        knots_x.append(-half + band_lo)
-    if band_hi > 0:
-        knots_c.append(1.0 - m / n)
-        knots_x.append(half - band_hi)
-    knots_c.append(1.0)
-    knots_x.append(half)
-    return np.interp(c, knots_c, knots_x)
-
-
-def rounded_box(
-    size: Sequence[float],
-    center: Sequence[float] = (0.0, 0.0, 0.0),
-    divisions: Sequence[int] = (4, 4, 4),
-    round_lo: Sequence[float] = (0.0, 0.0, 0.0),
-    round_hi: Sequence[float] = (0.0, 0.0, 0.0),
-    edge_segments: int = 2,
-    warp: Warp | None = None,
-) -> P.Part:
-    """Box whose chosen sides have rounded edges, optionally warped afterwards.
-
-    Args:
-        size: (3,) edge lengths.
-        center: (3,) centre (applied after ``warp``).
-        divisions: (3,) lattice segments; an axis with rounding on one side needs at least
-            ``edge_segments + 1``, on both sides ``2 * edge_segments + 1``.
-        round_lo, round_hi: (3,) rounding radius of the edges bounding the low / high face along
-            each axis (0 keeps that face sharp). An edge is rounded where both faces meeting there
-            have a radius, e.g. ``round_hi = (r, 0, r)`` rounds only the (+x, +z) edge.
-        edge_segments: lattice segments across each rounding band.
-        warp: optional ``f(local (n, 3), canonical (n, 3)) -> local`` applied after rounding.
-
-    The rounding maps each corner region of the box onto a quarter disc (or ball octant) by
-    scaling the offset ``d`` from the inner box by ``max|d_i| / |d|``, which fixes the flat faces
-    and keeps the map one-to-one, so canonical coordinates stay the box's.
-    """
-    size = np.asarray(size, dtype=float)
-    half = size / 2
-    lo, hi = np.asarray(round_lo, dtype=float), np.asarray(round_hi, dtype=float)
-    div = np.asarray(divisions, dtype=int)
-    need = 1 + edge_segments * ((lo > 0).astype(int) + (hi > 0).astype(int))
-    if np.any(div < need) or np.any(lo + hi >= size):
-        raise ValueError(f"rounded_box: divisions {div} or radii lo={lo} hi={hi} do not fit size {size}")
-
-    def _round(local: np.ndarray, canonical: np.ndarray) -> np.ndarray:
-        pos = np.stack(
-            [_graded_axis(canonical[:, a], half[a], lo[a], hi[a], div[a], edge_segments) for a in range(3)], axis=1
-        )
-        inner = np.clip(pos, -half + lo, half - hi)
-        d = pos - inner
-        norm = np.linalg.norm(d, axis=1, keepdims=True)
-        scale = np.divide(np.abs(d).max(axis=1, keepdims=True), norm, out=np.ones_like(norm), where=norm > 0)
-        out = inner + d * scale
-        return out if warp is None else warp(out, canonical)
-
-    return P.box(size, center, div, _round)
-
-
-def translated(part: P.Part, offsets: Sequence[Sequence[float]]) -> list[P.Part]:
-    """Copies of ``part`` translated by each (3,) offset."""
-    return [P.transform(part, t=o) for o in offsets]
-
-
 def about_pivot(part: P.Part, R: np.ndarray, pivot: Sequence[float]) -> P.Part:
     """``part`` rotated by the (3, 3) matrix ``R`` about the point ``pivot`` (3,)."""
     pivot = np.asarray(pivot, dtype=float)
@@ -161,7 +89,7 @@ class Desk(ProceduralModel):
         sb = ShapeBuilder().add(slab((-w / 2, -d / 2, h - t), (w / 2, d / 2, h), (8, 4, 1)), "top")
         leg_part = slab((-leg / 2, -leg / 2, 0.0), (leg / 2, leg / 2, h - t), (1, 1, 6))
         lx, ly = w / 2 - DESK_INSET - leg / 2, d / 2 - DESK_INSET - leg / 2
-        for part in translated(leg_part, [(sx * lx, sy * ly, 0.0) for sy in (-1, 1) for sx in (-1, 1)]):
+        for part in P.translated(leg_part, [(sx * lx, sy * ly, 0.0) for sy in (-1, 1) for sx in (-1, 1)]):
             sb.add(part, "leg")
         if p["drawers"] > 0:
             self._add_pedestal(sb, p)
@@ -184,9 +112,9 @@ class Desk(ProceduralModel):
         xc = (x0 + x1) / 2
         y_front = y0 + 0.001  # fronts overlap the carcass by 1 mm
         centers = [(xc, y_front, z1 - 0.02 - (i + 0.5) * DRAWER_PITCH) for i in range(n)]
-        for part in translated(front, centers):
+        for part in P.translated(front, centers):
             sb.add(part, "drawer")
-        for part in translated(knob_part, [(x, y - DRAWER_FRONT + 0.002, z) for x, y, z in centers]):
+        for part in P.translated(knob_part, [(x, y - DRAWER_FRONT + 0.002, z) for x, y, z in centers]):
             sb.add(part, "knob")
 
 
@@ -215,7 +143,7 @@ def sloped_arm(size: Sequence[float], center: Sequence[float], drop: float) -> P
         local[:, 2] -= drop * (1.0 - canonical[:, 1]) * up
         return local
 
-    return rounded_box(size, center, (5, 8, 8), round_hi=(r, 0.0, r), edge_segments=3, warp=slope)
+    return P.rounded_box(size, center, (5, 8, 8), round_hi=(r, 0.0, r), edge_segments=3, warp=slope)
 
 
 @register
@@ -251,7 +179,7 @@ class Sofa(ProceduralModel):
         # The base runs under the arms, stopping 1 cm short of their outer faces.
         base_lo = (-w / 2 + 0.01, -d / 2 + SOFA_BASE_RECESS, SOFA_LEG_HEIGHT)
         sb.add(slab(base_lo, (w / 2 - 0.01, y_back, base_top), (2 * n + 2, 4, 2)), "base")
-        back = rounded_box(
+        back = P.rounded_box(
             (inner, SOFA_BACK_THICKNESS, back_h - SOFA_LEG_HEIGHT),
             (0.0, y_back + SOFA_BACK_THICKNESS / 2, (back_h + SOFA_LEG_HEIGHT) / 2),
             (4 * n, 5, 6),
@@ -263,21 +191,21 @@ class Sofa(ProceduralModel):
         # Back cushions are always thicker than seat cushions, so the two never look alike.
         bct = 1.25 * ct + 0.02
         seat_depth = y_back - 0.6 * bct + d / 2
-        cushion = rounded_box((sw - 0.01, seat_depth, ct), (0.0, 0.0, 0.0), (10, 8, 5), (0.03,) * 3, (0.03,) * 3)
-        for part in translated(cushion, [(x, -d / 2 + seat_depth / 2, base_top + ct / 2) for x in xs]):
+        cushion = P.rounded_box((sw - 0.01, seat_depth, ct), (0.0, 0.0, 0.0), (10, 8, 5), (0.03,) * 3, (0.03,) * 3)
+        for part in P.translated(cushion, [(x, -d / 2 + seat_depth / 2, base_top + ct / 2) for x in xs]):
             sb.add(part, "seat_cushion")
         bch = back_h - seat_h - 0.02
-        back_cushion = rounded_box((sw - 0.01, bct, bch), (0.0, 0.0, 0.0), (10, 5, 8), (0.04,) * 3, (0.04,) * 3)
+        back_cushion = P.rounded_box((sw - 0.01, bct, bch), (0.0, 0.0, 0.0), (10, 5, 8), (0.04,) * 3, (0.04,) * 3)
         back_cushion = P.transform(back_cushion, R=P.rotation("x", -np.radians(10.0)))
         yc, zc = y_back - bct / 2 - 0.02, seat_h + bch / 2 - 0.01
-        for part in translated(back_cushion, [(x, yc, zc) for x in xs]):
+        for part in P.translated(back_cushion, [(x, yc, zc) for x in xs]):
             sb.add(part, "back_cushion")
         arm_center = (inner / 2 + aw / 2, 0.0, (arm_h + SOFA_LEG_HEIGHT) / 2)
         right = sloped_arm((aw, d, arm_h - SOFA_LEG_HEIGHT), arm_center, drop=0.05)
         sb.add(right, "armrest").add(P.mirror(right, axis=0), "armrest")
         leg = tapered_cylinder(SOFA_LEG_HEIGHT + 0.005, 0.028, 0.018)
         lx, ly = w / 2 - 0.07, d / 2 - 0.07
-        for part in translated(leg, [(sx * lx, sy * ly, 0.0) for sy in (-1, 1) for sx in (-1, 1)]):
+        for part in P.translated(leg, [(sx * lx, sy * ly, 0.0) for sy in (-1, 1) for sx in (-1, 1)]):
             sb.add(part, "leg")
         return sb.build(p)
 
@@ -322,7 +250,7 @@ def bent_arm(length: float, drop: float, center_x: float, y_back: float, z_top: 
         return out
 
     r = 0.4 * ARM_THICKNESS
-    return rounded_box((ARM_WIDTH, total, ARM_THICKNESS), (0.0, 0.0, 0.0), (4, 40, 4), round_hi=(r, 0.0, r), warp=bend)
+    return P.rounded_box((ARM_WIDTH, total, ARM_THICKNESS), (0.0, 0.0, 0.0), (4, 40, 4), round_hi=(r, 0.0, r), warp=bend)
 
 
 @register
@@ -353,7 +281,7 @@ class Chair(ProceduralModel):
         st, lt = p["seat_thickness"], p["leg_thickness"]
         sb = ShapeBuilder()
         r = 0.3 * st
-        seat = rounded_box((sw, sd, st), (0.0, 0.0, sh - st / 2), (8, 8, 3), (r, r, 0.0), (r, r, r), edge_segments=1)
+        seat = P.rounded_box((sw, sd, st), (0.0, 0.0, sh - st / 2), (8, 8, 3), (r, r, 0.0), (r, r, r), edge_segments=1)
         sb.add(seat, "seat")
 
         def taper(local: np.ndarray, canonical: np.ndarray) -> np.ndarray:
@@ -362,7 +290,7 @@ class Chair(ProceduralModel):
 
         leg = slab((-lt / 2, -lt / 2, 0.0), (lt / 2, lt / 2, sh - st), (1, 1, 4), warp=taper)
         lx, ly = sw / 2 - lt / 2 - 0.01, sd / 2 - lt / 2 - 0.01
-        for part in translated(leg, [(sx * lx, sy * ly, 0.0) for sy in (-1, 1) for sx in (-1, 1)]):
+        for part in P.translated(leg, [(sx * lx, sy * ly, 0.0) for sy in (-1, 1) for sx in (-1, 1)]):
             sb.add(part, "leg")
         self._add_back(sb, p, lx, ly)
         if p["arms"]:
@@ -423,11 +351,11 @@ class Stair(ProceduralModel):
         sb = ShapeBuilder()
         tread = slab((-w / 2, -NOSING, -tt), (w / 2, run, 0.0), (8, 3, 1))
         riser = slab((-w / 2, 0.0, 0.0), (w / 2, RISER_THICKNESS, rise - tt), (8, 1, 2))
-        for part in translated(tread, [(0.0, y0 + i * run, (i + 1) * rise) for i in range(n)]):
+        for part in P.translated(tread, [(0.0, y0 + i * run, (i + 1) * rise) for i in range(n)]):
             sb.add(part, "step")
-        for part in translated(riser, [(0.0, y0 + i * run, i * rise) for i in range(n)]):
+        for part in P.translated(riser, [(0.0, y0 + i * run, i * rise) for i in range(n)]):
             sb.add(part, "riser")
-        for part in translated(self._stringer(p), [(sx * (w + STRINGER_THICKNESS) / 2, 0.0, 0.0) for sx in (-1, 1)]):
+        for part in P.translated(self._stringer(p), [(sx * (w + STRINGER_THICKNESS) / 2, 0.0, 0.0) for sx in (-1, 1)]):
             sb.add(part, "stringer")
         if p["handrail"]:
             self._add_handrail(sb, p, y0)
@@ -458,7 +386,7 @@ class Stair(ProceduralModel):
         x = w / 2 - POST_SIZE
         post = slab((-POST_SIZE / 2, -POST_SIZE / 2, 0.0), (POST_SIZE / 2, POST_SIZE / 2, POST_HEIGHT), (1, 1, 6))
         tops = np.array([(x, y0 + (i + 0.5) * run, (i + 1) * rise + POST_HEIGHT) for i in range(n)])
-        for part in translated(post, tops - [0.0, 0.0, POST_HEIGHT]):
+        for part in P.translated(post, tops - [0.0, 0.0, POST_HEIGHT]):
             sb.add(part, "post")
         direction = (tops[-1] - tops[0]) / np.linalg.norm(tops[-1] - tops[0])
         start, end = tops[0] - 0.1 * direction, tops[-1] + 0.1 * direction
@@ -506,7 +434,7 @@ class Table(ProceduralModel):
         theta = -np.pi / 2 + np.pi / n + 2 * np.pi * np.arange(n) / n
         rho = superellipse_radius(theta, a - LEG_INSET, b - LEG_INSET, power)
         leg = tapered_cylinder(h - t + 0.002, p["leg_radius"], 0.7 * p["leg_radius"], n_theta=16, n_rings=8)
-        for part in translated(leg, np.stack([rho * np.cos(theta), rho * np.sin(theta), np.zeros(n)], axis=1)):
+        for part in P.translated(leg, np.stack([rho * np.cos(theta), rho * np.sin(theta), np.zeros(n)], axis=1)):
             sb.add(part, "leg")
         if p["apron"]:
             sb.add(self._apron(a - LEG_INSET, b - LEG_INSET, power, h - t), "apron")

@@ -12,7 +12,6 @@ from .. import primitives as P
 from ..params import ParamSpace, continuous, integer
 from ..shape import ProceduralModel, Shape, ShapeBuilder
 from . import register
-from .furniture import rounded_box, translated
 
 HEAD_LENGTH = 0.028
 HEAD_THICKNESS = 0.0022
@@ -52,7 +51,7 @@ class Fork(ProceduralModel):
         tine_w = min(0.0035, 0.6 * pitch)
         tine = self._tine(tine_w, tine_len + TINE_OVERLAP)
         xs = (np.arange(n) - (n - 1) / 2) * pitch
-        for part in translated(tine, [(x, y_head - TINE_OVERLAP, 0.0) for x in xs]):
+        for part in P.translated(tine, [(x, y_head - TINE_OVERLAP, 0.0) for x in xs]):
             sb.add(part, "tine")
         return sb.build(p)
 
@@ -75,7 +74,7 @@ class Fork(ProceduralModel):
             return local
 
         rounding = (r, 0.0, r)  # round the four long edges
-        return rounded_box((width, length, thickness), (0.0, 0.0, 0.0), (5, 24, 3), rounding, rounding, 1, shape)
+        return P.rounded_box((width, length, thickness), (0.0, 0.0, 0.0), (5, 24, 3), rounding, rounding, 1, shape)
 
     @staticmethod
     def _head(neck_width: float, head_width: float, y_neck: float) -> P.Part:
