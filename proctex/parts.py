@@ -179,8 +179,7 @@ def _part_geom(shape: Shape, part: PartInfo, n_samples: int, seed: int) -> _Part
     v, f = part_mesh(shape, part)
     key = np.sort(f, axis=1)
     samples, _, _ = sample_surface(v, f, n_samples, seed=seed)
-    pts = np.concatenate([samples, v]) if part.degenerate else samples
-    cov = np.cov((pts - pts.mean(0)).T) if len(pts) > 1 else np.zeros((3, 3))
+    cov = np.cov((samples - samples.mean(0)).T)
     evals, evecs = np.linalg.eigh(cov)
     order = np.argsort(evals)[::-1]
     return _PartGeom(
