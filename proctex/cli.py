@@ -18,6 +18,7 @@ import numpy as np
 
 from .meshio import load_mesh, save_mesh, save_params
 from .models import get_model, list_models
+from .params import select_template
 from .parts import Grouping, analyse, match_groups
 from .progress import track
 from .sources import FolderSource, resolve_model, resolve_shape
@@ -111,8 +112,6 @@ def cmd_template(args: argparse.Namespace) -> int:
         i = src.template_index()
         result = {"source": args.source, "template": src.samples[i].id, "mesh": src.samples[i].mesh_path, "params": src.params(i)}
     else:
-        from .params import select_template
-
         model = resolve_model(args.source)
         samples = model.space.sample(args.n, seed=args.seed, method=args.method)
         i = select_template(model.space, samples)
@@ -147,8 +146,6 @@ def cmd_gallery(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """Current end-to-end path: sample a model, pick the template, segment, group, match groups."""
-    from .params import select_template
-
     t0 = time.perf_counter()
     model = get_model(args.model)
     samples = model.space.sample(args.n, seed=args.seed, method="lhs")
