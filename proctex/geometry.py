@@ -28,6 +28,17 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(n, 3) float64 unit area-weighted vertex normals (zero for unreferenced vertices)."""
+    tri = vertices[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 * area
+    out = np.zeros((len(vertices), 3))
+    for k in range(3):
+        np.add.at(out, faces[:, k], n)
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
+
+
 def sample_surface(
     vertices: np.ndarray, faces: np.ndarray, n: int, seed: int | np.random.Generator = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -183,6 +194,7 @@ class SurfaceIndex:
         self.tree = cKDTree(np.concatenate(proxies))
         self.n_proxies = len(self.proxy_owner)
         self.k = int(min(k, self.n_proxies))
+        self.normals = face_normals(self.vertices, self.faces)
 
     def _query_k(self, pts: np.ndarray, k: int) -> tuple[ClosestPoints, np.ndarray]:
         """Best face among the ``k`` nearest proxies, and whether it is provably the nearest."""
@@ -216,3 +228,59 @@ class SurfaceIndex:
             res.points[todo], res.faces[todo], res.bary[todo], res.distance[todo] = sub.points, sub.faces, sub.bary, sub.distance
             todo = todo[~sub_sure]
         return res
+
+    def query_oriented(self, points: np.ndarray, normals: np.ndarray, min_dot: float = 0.0, k: int = 16) -> tuple[ClosestPoints, np.ndarray]:
+        """Nearest surface points whose face normal agrees with the query normal.
+
+        A face is admissible for a query when ``dot(face normal, query normal) > min_dot``; among the
+        faces of the nearest proxies (``k``, then 4k, 16k, ... until every query has an admissible
+        candidate or all faces were tried) the closest admissible one wins. This keeps the inside
+        of a thin wall from matching its outside. Queries with no admissible face anywhere get
+        their plain nearest point.
+
+        Args:
+            points: (q, 3) float64; normals: (q, 3) float64 unit query normals.
+
+        Returns:
+            ``(ClosestPoints, oriented (q,) bool)``: ``oriented`` is False where no admissible face
+            existed. The result is the nearest admissible face among the candidates examined, which
+            equals the true nearest admissible face unless a closer one hides beyond them.
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        nrm = np.asarray(normals, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or nrm.shape != pts.shape:
+            raise ValueError(f"points and normals must both be (q, 3), got {pts.shape} and {nrm.shape}")
+        if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(nrm))):
+            raise ValueError("query points or normals contain NaN or inf")
+        q = len(pts)
+        out = ClosestPoints(np.zeros((q, 3)), np.zeros(q, np.int64), np.zeros((q, 3)), np.full(q, np.inf))
+        oriented = np.zeros(q, dtype=bool)
+        todo = np.arange(q)
+        k = int(min(k, self.n_proxies))
+        while len(todo):
+            p = pts[todo]
+            _, cand = self.tree.query(p, k=k)
+            cand = self.proxy_owner[cand.reshape(len(todo), k)]
+            flat = cand.reshape(-1)
+            rep = np.repeat(p, k, axis=0)
+            cp, bary = closest_point_on_triangles(rep, self._a[flat], self._b[flat], self._c[flat])
+            d = np.linalg.norm(cp - rep, axis=1).reshape(len(todo), k)
+            ok = (np.einsum("qkd,qd->qk", self.normals[cand], nrm[todo]) > min_dot)
+            d = np.where(ok, d, np.inf)
+            best = np.argmin(d, axis=1)
+            rows = np.arange(len(todo))
+            found = ok[rows, best]
+            sel = todo[found]
+            out.points[sel] = cp.reshape(len(todo), k, 3)[rows, best][found]
+            out.faces[sel] = cand[rows, best][found]
+            out.bary[sel] = bary.reshape(len(todo), k, 3)[rows, best][found]
+            out.distance[sel] = d[rows, best][found]
+            oriented[sel] = True
+            todo = todo[~found]
+            if k >= self.n_proxies:
+                break
+            k = min(4 * k, self.n_proxies)
+        if len(todo):
+            plain = self.query(pts[todo])
+            out.points[todo], out.faces[todo], out.bary[todo], out.distance[todo] = plain.points, plain.faces, plain.bary, plain.distance
+        return out, oriented

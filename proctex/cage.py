@@ -1,0 +1,270 @@
+"""Per-pair cage deformation (the modified neural cage of ProcTex, optimised per pair).
+
+The source part, already similarity-aligned into the template part's normalised frame, is enclosed by
+a subdivided, slightly inflated axis-aligned box cage. Every source sample is written once in mean
+value coordinates of that cage (:mod:`proctex.mvc`); moving the cage vertices moves the samples
+smoothly (``x' = W @ C'``). Adam moves the cage vertices to minimise
+
+- a Chamfer term between deformed source samples and template samples (both directions, matches
+  restricted to agreeing normals);
+- a point-to-surface term: squared distance from every deformed sample to its closest template
+  point among faces whose normal agrees (KD-tree candidates, exact point-triangle distance;
+  :meth:`proctex.geometry.SurfaceIndex.query_oriented`). With the match held fixed, the gradient of
+  the squared distance is exact;
+- a normal term: ``1 - cos`` between the normals of the *deformed source triangles* and the
+  template's interpolated vertex normals at the matched points, so a thin wall cannot map its
+  inside onto its outside;
+- a penalty on negative mean value coordinates of deformed samples with respect to the deformed
+  cage (a folded cage produces them);
+- a Laplacian smoothness term on the cage displacement and, optionally, mirror symmetry of the
+  cage across the template's symmetry planes.
+
+The learning rate decays exponentially; the loop stops early when the loss stops improving.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from .geometry import SurfaceIndex
+from .mvc import mean_value_coordinates
+from .primitives import box
+
+
+@dataclass
+class CageConfig:
+    """Settings of the cage solver (lengths in the template part's normalised frame, radius 1).
+
+    Attributes:
+        level: cage subdivision; the box has ``2**level`` segments per axis.
+        margin: inflation of the bounding box, as a share of its largest side.
+        iterations: maximum Adam steps; lr: initial learning rate; lr_final: the rate reached
+            (exponential decay) at ``iterations``.
+        patience, tol: stop when the loss has not improved by a relative ``tol`` for ``patience``
+            steps (the run is then *converged*).
+        w_*: loss weights. mvc_points, mvc_every: size and period of the negative-MVC penalty's
+            sample. symmetry: mirror-symmetric cage across the given planes.
+        min_dot: normal agreement required of a match (cosine).
+        device, dtype: where the optimisation runs (CUDA when asked for and present).
+    """
+
+    level: int = 1
+    margin: float = 0.1
+    iterations: int = 300
+    lr: float = 0.02
+    lr_final: float = 0.002
+    patience: int = 25
+    tol: float = 1e-3
+    w_chamfer: float = 1.0
+    w_surface: float = 1.0
+    w_normal: float = 0.02
+    w_mvc: float = 0.1
+    w_smooth: float = 0.1
+    w_symmetry: float = 1.0
+    mvc_points: int = 64
+    mvc_every: int = 10
+    symmetry: bool = False
+    min_dot: float = 0.0
+    device: str = "cpu"
+    dtype: str = "float64"
+
+    def validate(self) -> "CageConfig":
+        if not 0 <= int(self.level) <= 4:
+            raise ValueError(f"cage level must be in 0..4, got {self.level}")
+        if not self.margin >= 0 or not np.isfinite(self.margin):
+            raise ValueError(f"cage margin must be >= 0, got {self.margin}")
+        if int(self.iterations) < 1 or not self.lr > 0 or not self.lr_final > 0:
+            raise ValueError("cage iterations must be >= 1 and learning rates > 0")
+        if self.dtype not in ("float32", "float64"):
+            raise ValueError(f"dtype must be float32 or float64, got {self.dtype!r}")
+        return self
+
+
+@dataclass
+class CageResult:
+    """Outcome of :func:`solve_cage` (normalised template frame).
+
+    Attributes:
+        points: (n, 3) deformed source samples; normals: (n, 3) their deformed triangle normals.
+        cage0, cage: (V, 3) initial and optimised cage vertices; cage_faces: (F, 3).
+        iterations: steps taken; converged: stopped by the early-stopping rule (not the limit).
+        loss: final total loss; history: total loss per step; terms: final value of each term.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    cage0: np.ndarray
+    cage: np.ndarray
+    cage_faces: np.ndarray
+    iterations: int
+    converged: bool
+    loss: float
+    history: list[float] = field(default_factory=list)
+    terms: dict[str, float] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def init_cage(points: np.ndarray, level: int = 1, margin: float = 0.1, symmetric_axes: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """Subdivided, inflated axis-aligned bounding box of ``points (n, 3)``.
+
+    ``symmetric_axes``: axes across whose plane through the origin the box is made symmetric.
+    Returns ``(vertices (V, 3) float64, faces (F, 3) int64)``, closed and outward-oriented.
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0 or not np.all(np.isfinite(pts)):
+        raise ValueError("cage points must be a non-empty finite (n, 3) array")
+    lo, hi = pts.min(0), pts.max(0)
+    for a in symmetric_axes:
+        m = max(abs(lo[a]), abs(hi[a]))
+        lo[a], hi[a] = -m, m
+    pad = margin * float((hi - lo).max()) + 1e-3 * max(float((hi - lo).max()), 1e-9)
+    lo, hi = lo - pad, hi + pad
+    n = 2 ** int(level)
+    part = box(hi - lo, (hi + lo) / 2, (n, n, n))
+    return part.vertices, part.faces
+
+
+def _laplacian(n_vertices: int, faces: np.ndarray) -> torch.Tensor:
+    """Dense uniform graph Laplacian ``I - D^-1 A`` of the cage's edge graph."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    A = np.zeros((n_vertices, n_vertices))
+    A[e[:, 0], e[:, 1]] = 1
+    A[e[:, 1], e[:, 0]] = 1
+    L = np.eye(n_vertices) - A / A.sum(1, keepdims=True)
+    return torch.as_tensor(L)
+
+
+def _mirror_pairs(cage: np.ndarray, axis: int) -> np.ndarray | None:
+    mirrored = cage.copy()
+    mirrored[:, axis] *= -1
+    d, j = cKDTree(cage).query(mirrored)
+    return j if float(d.max()) < 1e-9 * max(float(np.abs(cage).max()), 1.0) else None
+
+
+def _tri_normals(tri: torch.Tensor) -> torch.Tensor:
+    n = torch.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], dim=1)
+    return n / torch.sqrt((n * n).sum(1, keepdim=True) + 1e-30)
+
+
+def _oriented_nn(tree: cKDTree, pts: np.ndarray, pts_normals: np.ndarray, query: np.ndarray, query_normals: np.ndarray, k: int = 8) -> np.ndarray:
+    """Index into ``pts`` of each query's nearest point with an agreeing normal (else plain nearest)."""
+    k = min(k, len(pts))
+    _, j = tree.query(query, k=k)
+    j = j.reshape(len(query), k)
+    ok = np.einsum("qkd,qd->qk", pts_normals[j], query_normals) > 0
+    first = np.where(ok.any(1), np.argmax(ok, axis=1), 0)
+    return j[np.arange(len(query)), first]
+
+
+def solve_cage(
+    points: np.ndarray,
+    tri_vertices: np.ndarray,
+    tri_faces: np.ndarray,
+    tri_index: np.ndarray,
+    template: SurfaceIndex,
+    template_vertex_normals: np.ndarray,
+    template_samples: np.ndarray,
+    template_sample_normals: np.ndarray,
+    config: CageConfig | None = None,
+    symmetry_axes: tuple[int, ...] = (),
+    seed: int = 0,
+) -> CageResult:
+    """Optimise a cage deforming the source samples onto the template surface.
+
+    Args:
+        points: (n, 3) float64 aligned source samples (normalised template frame).
+        tri_vertices: (k, 3) float64 aligned source vertices; tri_faces: (f, 3) int64 the source
+            triangles the samples lie on (into ``tri_vertices``).
+        tri_index: (n,) int64 triangle of each sample (into ``tri_faces``).
+        template: exact-distance index of the template part (same frame).
+        template_vertex_normals: (Vt, 3) unit vertex normals of the template part.
+        template_samples, template_sample_normals: (m, 3) uniform template samples and normals.
+        config: solver settings. symmetry_axes: template mirror planes ``x[axis] = 0`` (used when
+            ``config.symmetry``). seed: seed of the penalty's subsamples.
+    """
+    cfg = (config or CageConfig()).validate()
+    t0 = time.perf_counter()
+    device = torch.device(cfg.device if (cfg.device != "cuda" or torch.cuda.is_available()) else "cpu")
+    dtype = torch.float64 if cfg.dtype == "float64" else torch.float32
+    rng = np.random.default_rng(seed)
+    axes = tuple(symmetry_axes) if cfg.symmetry else ()
+    cage0, cage_faces = init_cage(np.concatenate([points, tri_vertices]), cfg.level, cfg.margin, axes)
+    # Every sample and every triangle corner in mean value coordinates of the initial cage.
+    W_pts = mean_value_coordinates(points, cage0, cage_faces).to(device, dtype)
+    W_tri = mean_value_coordinates(tri_vertices, cage0, cage_faces).to(device, dtype)
+    tf = torch.as_tensor(np.asarray(tri_faces, dtype=np.int64), device=device)
+    tidx = torch.as_tensor(np.asarray(tri_index, dtype=np.int64), device=device)
+    faces_t = torch.as_tensor(cage_faces, device=device)
+    C0 = torch.as_tensor(cage0, device=device, dtype=dtype)
+    offset = torch.zeros_like(C0, requires_grad=True)
+    L = _laplacian(len(cage0), cage_faces).to(device, dtype)
+    pairs = [(a, p) for a in axes if (p := _mirror_pairs(cage0, a)) is not None]
+    T = torch.as_tensor(template_samples, device=device, dtype=dtype)
+    t_tree = cKDTree(template_samples)
+    vn = np.asarray(template_vertex_normals, dtype=float)
+    tfaces = template.faces
+
+    opt = torch.optim.Adam([offset], lr=cfg.lr)
+    gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(cfg.iterations, 1))
+    sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma=gamma)
+    best, since, history = np.inf, 0, []
+    converged = False
+    terms: dict[str, float] = {}
+    mvc_term = torch.zeros((), device=device, dtype=dtype)
+    it = 0
+    for it in range(1, cfg.iterations + 1):
+        C = C0 + offset
+        x = W_pts @ C
+        nrm = _tri_normals((W_tri @ C)[tf])[tidx]
+        xd, nd = x.detach().cpu().numpy(), nrm.detach().cpu().numpy()
+        # Point-to-surface matches with agreeing normals (gradient of |x - q|^2 exact for fixed q).
+        cp, _ = template.query_oriented(xd, nd, cfg.min_dot)
+        q = torch.as_tensor(cp.points, device=device, dtype=dtype)
+        bary = cp.bary
+        qn = np.einsum("qk,qkd->qd", bary, vn[tfaces[cp.faces]])
+        qn /= np.maximum(np.linalg.norm(qn, axis=1, keepdims=True), 1e-12)
+        surface = ((x - q) ** 2).sum(1).mean()
+        normal = (1.0 - (nrm * torch.as_tensor(qn, device=device, dtype=dtype)).sum(1)).mean()
+        # Chamfer between point sets, both directions, matches with agreeing normals.
+        fwd = _oriented_nn(t_tree, template_samples, template_sample_normals, xd, nd)
+        bwd = _oriented_nn(cKDTree(xd), xd, nd, template_samples, template_sample_normals)
+        chamfer = ((x - T[fwd]) ** 2).sum(1).mean() + ((T - x[bwd]) ** 2).sum(1).mean()
+        smooth = ((L @ offset) ** 2).sum(1).mean()
+        loss = cfg.w_surface * surface + cfg.w_chamfer * chamfer + cfg.w_normal * normal + cfg.w_smooth * smooth
+        if pairs:
+            sym = sum(((C[p] * torch.as_tensor([-1.0 if i == a else 1.0 for i in range(3)], device=device, dtype=dtype) - C) ** 2).sum(1).mean() for a, p in pairs)
+            loss = loss + cfg.w_symmetry * sym
+        if cfg.w_mvc > 0 and (it - 1) % max(cfg.mvc_every, 1) == 0:
+            sub = rng.choice(len(points), size=min(cfg.mvc_points, len(points)), replace=False)
+            Wd = mean_value_coordinates(x[torch.as_tensor(sub, device=device)], C, faces_t)
+            mvc_term = torch.relu(-Wd).sum(1).mean()
+            loss = loss + cfg.w_mvc * mvc_term
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        value = float(loss.detach())
+        history.append(value)
+        terms = {"surface": float(surface.detach()), "chamfer": float(chamfer.detach()), "normal": float(normal.detach()),
+                 "smooth": float(smooth.detach()), "negative_mvc": float(mvc_term.detach())}
+        if value < best * (1 - cfg.tol):
+            best, since = value, 0
+        else:
+            since += 1
+            if since >= cfg.patience:
+                converged = True
+                break
+    with torch.no_grad():
+        C = C0 + offset
+        x = (W_pts @ C).cpu().numpy()
+        nrm = _tri_normals((W_tri @ C)[tf])[tidx].cpu().numpy()
+    return CageResult(
+        points=x, normals=nrm, cage0=cage0, cage=C.cpu().numpy().astype(np.float64), cage_faces=cage_faces,
+        iterations=it, converged=converged, loss=history[-1] if history else float("nan"), history=history,
+        terms=terms, seconds=time.perf_counter() - t0,
+    )
