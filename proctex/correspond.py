@@ -343,11 +343,13 @@ def correspond_shapes(
     grouping: Grouping | None = None,
     template_grouping: Grouping | None = None,
     on_group: Callable[[GroupCorrespondence], None] | None = None,
+    **options: Any,
 ) -> ShapeCorrespondence:
     """Match part groups and solve every matched, non-degenerate group pair.
 
     Ground-truth errors are computed when both shapes carry canonical coordinates (built-in models).
-    ``on_group`` is called after each solved pair (progress reporting).
+    ``on_group`` is called after each solved pair (progress reporting); other keyword ``options``
+    go to :func:`correspond_parts` (e.g. ``cpd_beta``).
     """
     if method not in METHODS:
         raise ValueError(f"unknown correspondence method {method!r}; expected one of {', '.join(METHODS)}")
@@ -366,7 +368,7 @@ def correspond_shapes(
         tp = gb.representative
         sv, sf = part_mesh(shape, grouping.parts[sp])
         tv, tf = part_mesh(template, template_grouping.parts[tp])
-        res = correspond_parts(sv, sf, tv, tf, method=method, n_points=n_points, seed=seed + 7919 * gi, cage=cage)
+        res = correspond_parts(sv, sf, tv, tf, method=method, n_points=n_points, seed=seed + 7919 * gi, cage=cage, **options)
         gt = None
         if shape.canonical is not None and template.canonical is not None:
             sc = shape.canonical[grouping.parts[sp].vertices]

@@ -232,19 +232,19 @@ class SurfaceIndex:
     def query_oriented(self, points: np.ndarray, normals: np.ndarray, min_dot: float = 0.0, k: int = 16) -> tuple[ClosestPoints, np.ndarray]:
         """Nearest surface points whose face normal agrees with the query normal.
 
-        A face is admissible for a query when ``dot(face normal, query normal) > min_dot``; among the
-        faces of the nearest proxies (``k``, then 4k, 16k, ... until every query has an admissible
-        candidate or all faces were tried) the closest admissible one wins. This keeps the inside
-        of a thin wall from matching its outside. Queries with no admissible face anywhere get
-        their plain nearest point.
+        A face is admissible for a query when ``dot(face normal, query normal) > min_dot``. The
+        faces of the nearest proxies are checked (``k``, then 4k, 16k, ... for the queries not yet
+        settled); a query is settled when its closest admissible face is provably the nearest
+        admissible one (the same proxy-radius bound as :meth:`query`). This keeps the inside of a
+        thin wall from matching its outside. Queries with no admissible face anywhere get their
+        plain nearest point.
 
         Args:
             points: (q, 3) float64; normals: (q, 3) float64 unit query normals.
 
         Returns:
             ``(ClosestPoints, oriented (q,) bool)``: ``oriented`` is False where no admissible face
-            existed. The result is the nearest admissible face among the candidates examined, which
-            equals the true nearest admissible face unless a closer one hides beyond them.
+            existed (exact otherwise).
         """
         pts = np.asarray(points, dtype=np.float64)
         nrm = np.asarray(normals, dtype=np.float64)
@@ -259,7 +259,8 @@ class SurfaceIndex:
         k = int(min(k, self.n_proxies))
         while len(todo):
             p = pts[todo]
-            _, cand = self.tree.query(p, k=k)
+            cd, cand = self.tree.query(p, k=k)
+            cd = cd.reshape(len(todo), k)
             cand = self.proxy_owner[cand.reshape(len(todo), k)]
             flat = cand.reshape(-1)
             rep = np.repeat(p, k, axis=0)
@@ -269,7 +270,8 @@ class SurfaceIndex:
             d = np.where(ok, d, np.inf)
             best = np.argmin(d, axis=1)
             rows = np.arange(len(todo))
-            found = ok[rows, best]
+            # Settled: an admissible face whose distance no unexamined face can beat.
+            found = ok[rows, best] & ((cd[:, -1] >= d[rows, best] + self.max_radius) | (k >= self.n_proxies))
             sel = todo[found]
             out.points[sel] = cp.reshape(len(todo), k, 3)[rows, best][found]
             out.faces[sel] = cand[rows, best][found]

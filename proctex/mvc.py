@@ -63,8 +63,9 @@ def mean_value_coordinates_reference(
             idx = [int(tri[0]), int(tri[1]), int(tri[2])]
             theta, c, s = [0.0] * 3, [0.0] * 3, [0.0] * 3
             for i in range(3):
-                l = float(np.linalg.norm(u[idx[(i + 1) % 3]] - u[idx[(i - 1) % 3]]))
-                theta[i] = 2.0 * math.asin(min(l / 2.0, 1.0))
+                a, b = u[idx[(i + 1) % 3]], u[idx[(i - 1) % 3]]
+                # The angle 2 asin(|a - b| / 2), computed as atan2 to stay accurate near pi.
+                theta[i] = math.atan2(float(np.linalg.norm(np.cross(a, b))), float(np.dot(a, b)))
             h = sum(theta) / 2.0
             if math.pi - h < eps:
                 # x lies on this triangle: 2D barycentric coordinates.
@@ -104,16 +105,17 @@ def _mvc_chunk(x: torch.Tensor, cv: torch.Tensor, cf: torch.Tensor, eps: float) 
     uf = u[:, cf]  # (n, F, 3, 3): unit vectors to the triangle corners
     df = d_safe[:, cf]  # (n, F, 3)
     nxt, prv = [1, 2, 0], [2, 0, 1]
-    chord = uf[:, :, nxt] - uf[:, :, prv]
-    l = torch.sqrt((chord * chord).sum(-1) + 1e-300)
-    theta = 2.0 * torch.asin(torch.clamp(l / 2.0, max=1.0 - 1e-15))
+    a, b = uf[:, :, nxt], uf[:, :, prv]
+    cr = torch.cross(a, b, dim=-1)
+    # theta_i = 2 asin(|a - b| / 2) of the paper, as atan2: accurate near pi (points on a face).
+    theta = torch.atan2(torch.sqrt((cr * cr).sum(-1) + 1e-300), (a * b).sum(-1))
     h = theta.sum(-1) / 2.0  # (n, F)
     on_face = (math.pi - h) < eps
     sin_t = torch.sin(theta)
     den = sin_t[..., nxt] * sin_t[..., prv]
     bad_den = den.abs() < eps
     c = 2.0 * torch.sin(h)[..., None] * torch.sin(h[..., None] - theta) / torch.where(bad_den, torch.ones_like(den), den) - 1.0
-    sign = torch.sign(torch.linalg.det(uf))
+    sign = torch.sign((uf[:, :, 0] * torch.cross(uf[:, :, 1], uf[:, :, 2], dim=-1)).sum(-1))
     sign = torch.where(sign == 0, torch.ones_like(sign), sign)
     s = sign[..., None] * torch.sqrt(torch.clamp(1.0 - c * c, min=0.0) + 1e-300)
     skip = (s.abs() <= eps).any(-1) | bad_den.any(-1) | on_face  # (n, F)
