@@ -16,8 +16,9 @@ smoothly (``x' = W @ C'``). Adam moves the cage vertices to minimise
   inside onto its outside;
 - a penalty on negative mean value coordinates of deformed samples with respect to the deformed
   cage (a folded cage produces them);
-- a Laplacian smoothness term on the cage displacement and, optionally, mirror symmetry of the
-  cage across the template's symmetry planes.
+- a smoothness term on the cage displacement (second differences along the cage lattice, zero for
+  any affine deformation) and, optionally, mirror symmetry of the cage across the template's
+  symmetry planes.
 
 The learning rate decays exponentially; the loop stops early when the loss stops improving.
 """
@@ -129,14 +130,24 @@ def init_cage(points: np.ndarray, level: int = 1, margin: float = 0.1, symmetric
     return part.vertices, part.faces
 
 
-def _laplacian(n_vertices: int, faces: np.ndarray) -> torch.Tensor:
-    """Dense uniform graph Laplacian ``I - D^-1 A`` of the cage's edge graph."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    A = np.zeros((n_vertices, n_vertices))
-    A[e[:, 0], e[:, 1]] = 1
-    A[e[:, 1], e[:, 0]] = 1
-    L = np.eye(n_vertices) - A / A.sum(1, keepdims=True)
-    return torch.as_tensor(L)
+def lattice_triples(cage: np.ndarray, level: int) -> np.ndarray:
+    """(t, 3) int64 vertex triples ``(prev, mid, next)`` of consecutive cage lattice points along an axis.
+
+    The second difference ``D[prev] - 2 D[mid] + D[next]`` of a displacement ``D`` vanishes for every
+    affine displacement, so penalising it smooths the cage without resisting stretch or shear.
+    """
+    n = 2 ** int(level)
+    lo, hi = cage.min(0), cage.max(0)
+    ijk = np.rint((cage - lo) / (hi - lo) * n).astype(np.int64)
+    index = {tuple(p): i for i, p in enumerate(ijk)}
+    out = []
+    for i, p in enumerate(ijk):
+        for a in range(3):
+            step = np.eye(3, dtype=np.int64)[a]
+            prev, nxt = index.get(tuple(p - step)), index.get(tuple(p + step))
+            if prev is not None and nxt is not None:
+                out.append((prev, i, nxt))
+    return np.array(out, dtype=np.int64).reshape(-1, 3)
 
 
 def _mirror_pairs(cage: np.ndarray, axis: int) -> np.ndarray | None:
@@ -202,7 +213,7 @@ def solve_cage(
     faces_t = torch.as_tensor(cage_faces, device=device)
     C0 = torch.as_tensor(cage0, device=device, dtype=dtype)
     offset = torch.zeros_like(C0, requires_grad=True)
-    L = _laplacian(len(cage0), cage_faces).to(device, dtype)
+    triples = torch.as_tensor(lattice_triples(cage0, cfg.level), device=device)
     pairs = [(a, p) for a in axes if (p := _mirror_pairs(cage0, a)) is not None]
     T = torch.as_tensor(template_samples, device=device, dtype=dtype)
     t_tree = cKDTree(template_samples)
@@ -223,7 +234,7 @@ def solve_cage(
         nrm = _tri_normals((W_tri @ C)[tf])[tidx]
         xd, nd = x.detach().cpu().numpy(), nrm.detach().cpu().numpy()
         # Point-to-surface matches with agreeing normals (gradient of |x - q|^2 exact for fixed q).
-        cp, _ = template.query_oriented(xd, nd, cfg.min_dot)
+        cp, _ = template.query_oriented(xd, nd, cfg.min_dot, k=8, exact=False)
         q = torch.as_tensor(cp.points, device=device, dtype=dtype)
         bary = cp.bary
         qn = np.einsum("qk,qkd->qd", bary, vn[tfaces[cp.faces]])
@@ -234,7 +245,7 @@ def solve_cage(
         fwd = _oriented_nn(t_tree, template_samples, template_sample_normals, xd, nd)
         bwd = _oriented_nn(cKDTree(xd), xd, nd, template_samples, template_sample_normals)
         chamfer = ((x - T[fwd]) ** 2).sum(1).mean() + ((T - x[bwd]) ** 2).sum(1).mean()
-        smooth = ((L @ offset) ** 2).sum(1).mean()
+        smooth = ((offset[triples[:, 0]] - 2 * offset[triples[:, 1]] + offset[triples[:, 2]]) ** 2).sum(1).mean() if len(triples) else torch.zeros((), device=device, dtype=dtype)
         loss = cfg.w_surface * surface + cfg.w_chamfer * chamfer + cfg.w_normal * normal + cfg.w_smooth * smooth
         if pairs:
             sym = sum(((C[p] * torch.as_tensor([-1.0 if i == a else 1.0 for i in range(3)], device=device, dtype=dtype) - C) ** 2).sum(1).mean() for a, p in pairs)

@@ -106,6 +106,40 @@ def cmd_match(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_correspond(args: argparse.Namespace) -> int:
+    from .cage import CageConfig
+    from .correspond import correspond_shapes
+
+    if args.points < 1:
+        raise ValueError(f"--points must be >= 1, got {args.points}")
+    cage = CageConfig(level=args.level, iterations=args.iterations, device=args.device).validate()
+    shape, template = resolve_shape(args.shape), resolve_shape(args.template)
+    gs, gt = analyse(shape, seed=args.seed), analyse(template, seed=args.seed)
+
+    def report(g: Any) -> None:
+        if args.json or args.quiet:
+            return
+        d = g.to_dict()
+        line = f"group {d['group']:2d} <- shape group {d['shape_group']:2d}  {d['seconds']:6.2f}s  residual {d['residual']:.5f}  {'converged' if d['converged'] else 'not converged'} ({d['iterations']} it)"
+        if d["gt_error"]:
+            e = d["gt_error"]
+            line += f"  gt mean {e['mean']:.4f} p95 {e['p95']:.4f} max {e['max']:.4f} flipped {100 * e['flipped']:.1f}%"
+        print(line, flush=True)
+
+    result = correspond_shapes(shape, template, method=args.method, n_points=args.points, seed=args.seed, cage=cage, grouping=gs, template_grouping=gt, on_group=report)
+    data = result.to_dict()
+    if args.json:
+        _print_json(data)
+        return 0
+    for s in data["skipped"]:
+        print(f"group {s['group']:2d} skipped: {s['reason']}")
+    m = data["match"]
+    if m["added"] or m["missing"]:
+        print(f"unmatched shape groups: {m['added']}  template groups absent from the shape: {m['missing']}")
+    print(f"{args.method}: {len(data['groups'])} group pairs in {data['seconds']:.2f}s")
+    return 0
+
+
 def cmd_template(args: argparse.Namespace) -> int:
     if os.path.isdir(args.source):
         src = FolderSource(args.source)
@@ -218,6 +252,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_match)
+
+    p = sub.add_parser("correspond", help="dense correspondence of every matched part group of a shape onto the template")
+    p.add_argument("shape", help="mesh file, MODEL or MODEL:{json}")
+    p.add_argument("template", help="mesh file, MODEL or MODEL:{json}")
+    p.add_argument("--method", choices=["cage", "nearest", "cpd"], default="cage")
+    p.add_argument("--points", type=int, default=2000, help="source surface samples per group pair")
+    p.add_argument("--level", type=int, default=1, help="cage subdivision level (2**level segments per axis)")
+    p.add_argument("--iterations", type=int, default=300, help="maximum cage optimisation steps")
+    p.add_argument("--device", default="cpu", help="torch device for the cage solver (cpu or cuda)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_correspond)
 
     p = sub.add_parser("template", help="pick the template of a folder of samples or of a model's samples")
     p.add_argument("source", help="folder of samples, model name or generator config")

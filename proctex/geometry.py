@@ -86,36 +86,36 @@ def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
     vb = d5 * d2 - d1 * d6
     vc = d1 * d4 - d3 * d2
     k = len(p)
-    bary = np.zeros((k, 3))
-    done = np.zeros(k, dtype=bool)
-
-    def settle(mask: np.ndarray, w: np.ndarray) -> None:
-        m = mask & ~done
-        bary[m] = w[m]
-        done[m] = True
-
     ones, zeros = np.ones(k), np.zeros(k)
-    # Vertex regions.
-    settle((d1 <= 0) & (d2 <= 0), np.stack([ones, zeros, zeros], 1))
-    settle((d3 >= 0) & (d4 <= d3), np.stack([zeros, ones, zeros], 1))
-    settle((d6 >= 0) & (d5 <= d6), np.stack([zeros, zeros, ones], 1))
     with np.errstate(divide="ignore", invalid="ignore"):
-        # Edge regions.
-        v = np.where(d1 - d3 != 0, d1 / (d1 - d3), 0.0)
-        settle((vc <= 0) & (d1 >= 0) & (d3 <= 0), np.stack([1 - v, v, zeros], 1))
-        w = np.where(d2 - d6 != 0, d2 / (d2 - d6), 0.0)
-        settle((vb <= 0) & (d2 >= 0) & (d6 <= 0), np.stack([1 - w, zeros, w], 1))
+        v_ab = np.where(d1 - d3 != 0, d1 / (d1 - d3), 0.0)
+        w_ac = np.where(d2 - d6 != 0, d2 / (d2 - d6), 0.0)
         denom_bc = (d4 - d3) + (d5 - d6)
-        w = np.where(denom_bc != 0, (d4 - d3) / denom_bc, 0.0)
-        settle((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), np.stack([zeros, 1 - w, w], 1))
-        # Face region.
+        w_bc = np.where(denom_bc != 0, (d4 - d3) / denom_bc, 0.0)
         denom = va + vb + vc
         ok = denom != 0
         vv = np.where(ok, vb / np.where(ok, denom, 1), 0.0)
         ww = np.where(ok, vc / np.where(ok, denom, 1), 0.0)
-        settle(ok, np.stack([1 - vv - ww, vv, ww], 1))
-    # Fully degenerate leftovers (all corners equal): the corner itself.
-    settle(np.ones(k, dtype=bool), np.stack([ones, zeros, zeros], 1))
+    # Regions in priority order: corners, edges, the face, and (all corners equal) corner a.
+    conditions = [
+        (d1 <= 0) & (d2 <= 0),
+        (d3 >= 0) & (d4 <= d3),
+        (d6 >= 0) & (d5 <= d6),
+        (vc <= 0) & (d1 >= 0) & (d3 <= 0),
+        (vb <= 0) & (d2 >= 0) & (d6 <= 0),
+        (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0),
+        ok,
+    ]
+    choices = [
+        (ones, zeros, zeros),
+        (zeros, ones, zeros),
+        (zeros, zeros, ones),
+        (1 - v_ab, v_ab, zeros),
+        (1 - w_ac, zeros, w_ac),
+        (zeros, 1 - w_bc, w_bc),
+        (1 - vv - ww, vv, ww),
+    ]
+    bary = np.stack([np.select(conditions, [c[j] for c in choices], default=(1.0 if j == 0 else 0.0)) for j in range(3)], axis=1)
     closest = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
     return closest, bary
 
@@ -229,7 +229,9 @@ class SurfaceIndex:
             todo = todo[~sub_sure]
         return res
 
-    def query_oriented(self, points: np.ndarray, normals: np.ndarray, min_dot: float = 0.0, k: int = 16) -> tuple[ClosestPoints, np.ndarray]:
+    def query_oriented(
+        self, points: np.ndarray, normals: np.ndarray, min_dot: float = 0.0, k: int = 16, exact: bool = True
+    ) -> tuple[ClosestPoints, np.ndarray]:
         """Nearest surface points whose face normal agrees with the query normal.
 
         A face is admissible for a query when ``dot(face normal, query normal) > min_dot``. The
@@ -244,7 +246,8 @@ class SurfaceIndex:
 
         Returns:
             ``(ClosestPoints, oriented (q,) bool)``: ``oriented`` is False where no admissible face
-            existed (exact otherwise).
+            existed (exact otherwise). With ``exact=False`` a query settles on the closest admissible
+            face among the first candidates that contain one (cheaper; used inside optimisation loops).
         """
         pts = np.asarray(points, dtype=np.float64)
         nrm = np.asarray(normals, dtype=np.float64)
@@ -271,7 +274,8 @@ class SurfaceIndex:
             best = np.argmin(d, axis=1)
             rows = np.arange(len(todo))
             # Settled: an admissible face whose distance no unexamined face can beat.
-            found = ok[rows, best] & ((cd[:, -1] >= d[rows, best] + self.max_radius) | (k >= self.n_proxies))
+            sure = (cd[:, -1] >= d[rows, best] + self.max_radius) | (k >= self.n_proxies) if exact else np.ones(len(todo), dtype=bool)
+            found = ok[rows, best] & sure
             sel = todo[found]
             out.points[sel] = cp.reshape(len(todo), k, 3)[rows, best][found]
             out.faces[sel] = cand[rows, best][found]

@@ -1,0 +1,242 @@
+"""Dense correspondence: oriented closest points, CPD, the cage solver, baselines and ground truth."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from proctex.cage import CageConfig, init_cage
+from proctex.cli import main
+from proctex.correspond import METHODS, correspond_parts, correspond_shapes
+from proctex.cpd import cpd_nonrigid
+from proctex.geometry import SurfaceIndex, closest_point_bruteforce, face_normals, sample_surface, vertex_normals
+from proctex.metrics import gt_correspondence_error, interpolate
+from proctex.models import get_model
+from proctex.parts import analyse, part_mesh
+from proctex.primitives import box, revolve
+from proctex.shape import Shape
+
+
+def _bent(v: np.ndarray) -> np.ndarray:
+    """Non-uniform scale plus a bend: a smooth, non-affine deformation."""
+    out = v * np.array([1.35, 0.8, 1.1])
+    out[:, 2] += 0.25 * out[:, 0] ** 2
+    out[:, 1] += 0.1 * np.sin(1.5 * out[:, 0])
+    return out
+
+
+def _identity_gt(res, tv, tf):
+    """Error of a correspondence whose truth is 'same face, same barycentric coordinates'."""
+    truth = interpolate(tv, tf, res.source_faces, res.source_bary)
+    radius = np.abs(tv - (tv.min(0) + tv.max(0)) / 2).max()
+    return np.linalg.norm(res.points - truth, axis=1) / radius
+
+
+# ------------------------------------------------------------------------------ geometry helpers
+def test_oriented_query_is_the_nearest_admissible_face():
+    mug = get_model("mug").generate()
+    g = analyse(mug)
+    v, f = part_mesh(mug, g.parts[g.groups[0].representative])  # the thin-walled body
+    rng = np.random.default_rng(0)
+    lo, hi = v.min(0), v.max(0)
+    q = rng.uniform(lo, hi, size=(40, 3))
+    n = rng.normal(size=(40, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    hit, oriented = SurfaceIndex(v, f).query_oriented(q, n)
+    assert oriented.all()
+    fn = face_normals(v, f)
+    for i in range(len(q)):
+        admissible = np.flatnonzero(fn @ n[i] > 0)
+        ref = closest_point_bruteforce(v, f[admissible], q[i : i + 1])
+        assert hit.distance[i] == pytest.approx(ref.distance[0], abs=1e-12)
+        assert fn[hit.faces[i]] @ n[i] > 0
+
+
+def test_oriented_query_crosses_a_thin_wall():
+    slab = box((1.0, 1.0, 0.01), divisions=(8, 8, 1))
+    index = SurfaceIndex(slab.vertices, slab.faces)
+    q = np.array([[0.1, 0.2, 0.02]])  # just above the top face
+    plain = index.query(q)
+    down, oriented = index.query_oriented(q, np.array([[0.0, 0.0, -1.0]]))
+    assert plain.points[0, 2] == pytest.approx(0.005)
+    assert down.points[0, 2] == pytest.approx(-0.005) and oriented[0]
+    np.testing.assert_allclose(down.points[0, :2], [0.1, 0.2], atol=1e-12)
+
+
+def test_vertex_normals_of_an_octahedron_point_outward():
+    v = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    f = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    np.testing.assert_allclose(vertex_normals(v, f), v, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------------------- CPD
+def test_cpd_matches_pycpd():
+    pycpd = pytest.importorskip("pycpd")
+    b = box((2.0, 1.0, 0.5), divisions=(3, 2, 2))
+    X, _, _ = sample_surface(b.vertices, b.faces, 300, seed=1)
+    Y = _bent(sample_surface(b.vertices, b.faces, 150, seed=2)[0] * 0.9)
+    ours = cpd_nonrigid(Y, X, beta=1.5, lam=3.0, max_iter=40, tol=0.0)
+    reg = pycpd.DeformableRegistration(X=X, Y=Y, alpha=3.0, beta=1.5, max_iterations=40, tolerance=0.0)
+    TY, _ = reg.register()
+    np.testing.assert_allclose(ours.transform(Y), TY, atol=1e-6)
+
+
+def test_cpd_rejects_bad_input():
+    with pytest.raises(ValueError, match="NaN"):
+        cpd_nonrigid(np.full((4, 3), np.nan), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="beta"):
+        cpd_nonrigid(np.zeros((4, 3)), np.ones((4, 3)), beta=0)
+
+
+# -------------------------------------------------------------------------------- cage solver
+def test_init_cage_encloses_and_is_symmetric():
+    pts = np.random.default_rng(0).uniform([-0.5, -0.2, 0.1], [0.9, 0.3, 0.4], size=(100, 3))
+    v, f = init_cage(pts, level=2, margin=0.1, symmetric_axes=(0,))
+    assert len(v) == 6 * 16 + 2  # (n+1)^3 - (n-1)^3 lattice boundary points, n = 4
+    assert np.all(v.min(0) < pts.min(0)) and np.all(v.max(0) > pts.max(0))
+    assert v[:, 0].max() == pytest.approx(-v[:, 0].min())
+    assert len(f) == 6 * 2 * 16
+
+
+def test_similarity_prealignment_is_recovered_and_kept():
+    b = box((1.0, 0.6, 0.3), divisions=(6, 4, 2))
+    a = np.radians(12)
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    src = 2.5 * b.vertices @ R.T + [3.0, -1.0, 0.5]
+    res = correspond_parts(src, b.faces, b.vertices, b.faces, method="nearest", n_points=400)
+    err = _identity_gt(res, b.vertices, b.faces)
+    assert err.max() < 1e-3
+    np.testing.assert_allclose(res.alignment.apply(res.source_points), res.points, atol=2e-3)
+    assert res.alignment.s == pytest.approx(1 / 2.5, rel=1e-3)
+
+
+@pytest.fixture(scope="module")
+def bent_pair():
+    """A finely divided box and its smoothly deformed copy (same mesh, known correspondence)."""
+    b = box((1.0, 0.5, 0.4), divisions=(12, 6, 5))
+    return _bent(b.vertices), b.faces, b.vertices, b.faces
+
+
+def test_cage_recovers_a_smooth_deformation(bent_pair):
+    sv, sf, tv, tf = bent_pair
+    cage = correspond_parts(sv, sf, tv, tf, method="cage", n_points=800, seed=1)
+    near = correspond_parts(sv, sf, tv, tf, method="nearest", n_points=800, seed=1)
+    e_cage, e_near = _identity_gt(cage, tv, tf), _identity_gt(near, tv, tf)
+    assert e_cage.mean() < 0.03, e_cage.mean()
+    assert e_cage.mean() < 0.5 * e_near.mean()
+    assert cage.residual < 0.01 and cage.converged
+    assert cage.details["history"][-1] < cage.details["history"][0]
+    # The result is on the template surface: faces and barycentric coordinates reproduce the points.
+    np.testing.assert_allclose(interpolate(tv, tf, cage.faces, cage.bary), cage.points, atol=1e-12)
+    assert np.all(cage.bary >= -1e-12) and np.allclose(cage.bary.sum(1), 1)
+
+
+def test_cage_is_deterministic(bent_pair):
+    sv, sf, tv, tf = bent_pair
+    cfg = CageConfig(iterations=20)
+    a = correspond_parts(sv, sf, tv, tf, n_points=200, seed=3, cage=cfg)
+    b = correspond_parts(sv, sf, tv, tf, n_points=200, seed=3, cage=cfg)
+    np.testing.assert_array_equal(a.points, b.points)
+
+
+def test_cage_keeps_thin_walls_oriented():
+    model = get_model("mug")
+    shape = model.generate({"radius": 0.05, "wall": 0.006, "taper": 0.12, "height": 0.08})
+    template = model.generate()
+    res = {m: correspond_shapes(shape, template, method=m, n_points=800) for m in ("cage", "nearest")}
+    body = {m: next(g for g in r.groups if g.template_group == 0) for m, r in res.items()}
+    assert body["cage"].gt.flipped < 0.01
+    assert body["nearest"].gt.flipped > 0.1  # the plain baseline maps insides onto outsides
+    assert body["cage"].gt.mean < 0.5 * body["nearest"].gt.mean
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cage_on_cuda_matches_cpu(bent_pair):
+    sv, sf, tv, tf = bent_pair
+    cpu = correspond_parts(sv, sf, tv, tf, n_points=300, cage=CageConfig(iterations=30))
+    gpu = correspond_parts(sv, sf, tv, tf, n_points=300, cage=CageConfig(iterations=30, device="cuda"))
+    np.testing.assert_allclose(gpu.points, cpu.points, atol=1e-6)
+
+
+# --------------------------------------------------------------------------------- bad input
+def test_bad_parts_are_rejected_clearly(bent_pair):
+    sv, sf, tv, tf = bent_pair
+    with pytest.raises(ValueError, match="empty"):
+        correspond_parts(sv, sf[:0], tv, tf)
+    flat = sv.copy()
+    flat[:, :] = flat[:, :1]  # every vertex on a line: zero area
+    with pytest.raises(ValueError, match="degenerate"):
+        correspond_parts(flat, sf, tv, tf)
+    bad = tv.copy()
+    bad[3] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        correspond_parts(sv, sf, bad, tf)
+    with pytest.raises(ValueError, match="unknown correspondence method"):
+        correspond_parts(sv, sf, tv, tf, method="magic")
+    with pytest.raises(ValueError, match="n_points"):
+        correspond_parts(sv, sf, tv, tf, n_points=0)
+    with pytest.raises(ValueError, match="cage level"):
+        correspond_parts(sv, sf, tv, tf, cage=CageConfig(level=9))
+
+
+# ------------------------------------------------------------------------------ ground truth
+def test_gt_error_is_zero_for_the_truth_and_flags_flips():
+    vase = get_model("vase").generate()
+    g = analyse(vase)
+    part = g.parts[g.groups[0].representative]
+    v, f = part_mesh(vase, part)
+    can = vase.canonical[part.vertices]
+    pts, fi, bary = sample_surface(v, f, 500, seed=0)
+    exact = gt_correspondence_error(interpolate(can, f, fi, bary), pts, fi, v, f, can)
+    assert exact.mean < 1e-3 and exact.flipped == 0.0
+    # Map every point to the opposite side of the body: mostly flipped normals.
+    c = (v.min(0) + v.max(0)) / 2
+    opposite = SurfaceIndex(v, f).query(2 * c - pts)
+    wrong = gt_correspondence_error(interpolate(can, f, fi, bary), opposite.points, opposite.faces, v, f, can)
+    assert wrong.mean > 0.5 and wrong.flipped > 0.5
+
+
+def test_correspond_shapes_builtin_all_methods():
+    model = get_model("table")
+    template = model.generate()
+    shape = model.generate(model.space.sample(1, seed=4)[0])
+    for method in METHODS:
+        res = correspond_shapes(shape, template, method=method, n_points=300, cage=CageConfig(iterations=60))
+        assert len(res.groups) == len(res.match.pairs) >= 2
+        for g in res.groups:
+            assert g.gt is not None and np.isfinite(g.gt.mean) and g.gt.n == 300
+            d = g.to_dict()
+            assert {"group", "seconds", "residual", "gt_error"} <= set(d)
+
+
+def test_correspond_shapes_on_sofa_data_skips_degenerate_parts(sofa_dir):
+    from proctex.sources import FolderSource
+
+    src = FolderSource(sofa_dir)
+    template = src.load(src.template_index())
+    shape = src.load(src.indices("train")[3])
+    res = correspond_shapes(shape, template, method="cage", n_points=300, cage=CageConfig(iterations=40))
+    assert len(res.groups) == 4  # armrests, base, back and seat cushion
+    assert len(res.skipped) == 4  # the four degenerate (zero-area) parts
+    assert all(g.gt is None and g.result.residual < 0.05 for g in res.groups)
+
+
+# ------------------------------------------------------------------------------------- CLI
+def test_cli_correspond_json(capsys):
+    code = main(["correspond", 'fork:{"tines": 3}', "fork", "--method", "nearest", "--points", "200", "--json"])
+    assert code == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["groups"] and all(set(g) >= {"group", "seconds", "residual", "gt_error"} for g in data["groups"])
+    assert all(set(g["gt_error"]) >= {"mean", "p95", "max"} for g in data["groups"])
+
+
+def test_cli_correspond_text_and_errors(capsys, tmp_path):
+    assert main(["correspond", "stair", "stair", "--method", "cage", "--points", "100", "--iterations", "10"]) == 0
+    out = capsys.readouterr().out
+    assert "group" in out and "gt mean" in out
+    assert main(["correspond", "nope", "stair"]) == 2
+    assert "neither a mesh file nor a built-in model" in capsys.readouterr().err
+    assert main(["correspond", "stair", "stair", "--points", "0"]) == 2
+    assert main(["correspond", "stair", "stair", "--level", "7"]) == 2
+    assert "cage level" in capsys.readouterr().err
