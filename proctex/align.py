@@ -90,28 +90,30 @@ def icp_to_surface(
     scale: bool = False,
     max_iter: int = 50,
     tol: float = 1e-7,
+    exact: bool = True,
 ) -> ICPResult:
     """Point-to-surface ICP: align ``src (k, 3)`` to a target surface.
 
-    Each iteration matches every transformed source point to its exact closest point on the
-    target surface and refits the transform with :func:`umeyama`, keeping the handedness of the
-    initial ``R0`` (a reflection stays a reflection).
+    Each iteration matches every transformed source point to its closest point on the target
+    surface (exact, or with ``exact=False`` the best of the index's first candidates) and refits
+    the transform with :func:`umeyama`, keeping the handedness of the initial ``R0`` (a reflection
+    stays a reflection).
     """
     R = np.eye(3) if R0 is None else np.asarray(R0, dtype=float)
     t = np.zeros(3) if t0 is None else np.asarray(t0, dtype=float)
     s = 1.0
     reflection = bool(np.linalg.det(R) < 0)
-    exact = 1e-10 * float(np.linalg.norm(src.max(0) - src.min(0)))  # "zero" at the data's scale
+    zero = 1e-10 * float(np.linalg.norm(src.max(0) - src.min(0)))  # "zero" at the data's scale
     converged = False
     it = 0
-    cp = target.query(apply(src, R, t, s))
+    cp = target.query(apply(src, R, t, s), exact=exact)
     err = float(cp.distance.mean())
     for it in range(1, max_iter + 1):
-        if err <= exact:
+        if err <= zero:
             converged = True
             break
         R_new, t_new, s_new = umeyama(src, cp.points, scale=scale, reflection=reflection)
-        cp_new = target.query(apply(src, R_new, t_new, s_new))
+        cp_new = target.query(apply(src, R_new, t_new, s_new), exact=exact)
         err_new = float(cp_new.distance.mean())
         if err_new > err:  # a refit never increases the error in exact arithmetic; stop if it does
             converged = True

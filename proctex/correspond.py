@@ -32,7 +32,7 @@ from .cage import CageConfig, solve_cage
 from .cpd import cpd_nonrigid
 from .geometry import SurfaceIndex, face_normals, sample_surface, triangle_areas, vertex_normals
 from .metrics import GTError, gt_correspondence_error, interpolate, part_radius
-from .parts import Grouping, GroupMatch, PartGroup, analyse, match_groups, part_mesh
+from .parts import Grouping, GroupMatch, PartGroup, analyse, match_groups, part_mesh, symmetry_planes
 from .shape import Shape
 
 METHODS = ("cage", "nearest", "cpd")
@@ -169,8 +169,19 @@ def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.n
     tpl_n = (tpl_v - tc) / tr
     index = SurfaceIndex(tpl_n, tpl_f)
     sub = (samples[rng.choice(len(samples), size=min(icp_points, len(samples)), replace=False)] - sc) / sr
-    icp = icp_to_surface(sub, index, scale=True, max_iter=100, tol=1e-7)
+    icp = icp_to_surface(sub, index, scale=True, max_iter=100, tol=1e-7, exact=False)
     return _Prepared(src_v, src_f, tpl_v, tpl_f, sc, sr, tc, tr, samples, sf, sb, index, tpl_n, icp.R, icp.t, icp.s, icp.error)
+
+
+def template_symmetry_axes(vertices: np.ndarray, faces: np.ndarray, tol: float = 0.01, seed: int = 0) -> tuple[int, ...]:
+    """Axes ``a`` whose plane ``x[a] = 0`` mirrors a part given in its normalised frame."""
+    planes = symmetry_planes(Shape(vertices, faces), tol=tol, seed=seed)
+    axes = []
+    for p in planes:
+        a = int(np.argmax(np.abs(p.normal)))
+        if abs(p.normal[a]) > 0.999 and abs(p.offset) < tol:
+            axes.append(a)
+    return tuple(sorted(set(axes)))
 
 
 def _chamfer(a: np.ndarray, b: np.ndarray) -> float:
@@ -259,8 +270,12 @@ def correspond_parts(
         tri_local = tri_local[:, ::-1]
     tpl_vn = vertex_normals(prep.tpl_norm_v, prep.tpl_f)
     tpl_sn = face_normals(prep.tpl_norm_v, prep.tpl_f)[tpl_sf]
-    res = solve_cage(aligned, tv, tri_local, inverse.reshape(-1), prep.index, tpl_vn, tpl_s, tpl_sn, cage, seed=seed)
-    details = {f"loss_{k}": v for k, v in res.terms.items()}
+    axes = template_symmetry_axes(prep.tpl_norm_v, prep.tpl_f, seed=seed) if (cage and cage.symmetry) else ()
+    res = solve_cage(aligned, tv, tri_local, inverse.reshape(-1), prep.index, tpl_vn, tpl_s, tpl_sn, cage, symmetry_axes=axes, seed=seed)
+    details: dict[str, Any] = {f"loss_{k}": v for k, v in res.terms.items()}
+    details["symmetry_axes"] = list(axes)
+    details["cage"] = res.cage
+    details["cage0"] = res.cage0
     details["loss"] = res.loss
     details["history"] = res.history
     return _finish(prep, method, res.points, res.normals, t0, res.converged, res.iterations, tpl_s, details)

@@ -212,14 +212,20 @@ class SurfaceIndex:
         sure = (cd[:, -1] >= res.distance + self.max_radius) | (k >= self.n_proxies)
         return res, sure
 
-    def query(self, points: np.ndarray) -> ClosestPoints:
-        """Closest surface points of ``points (q, 3)`` (exact)."""
+    def query(self, points: np.ndarray, exact: bool = True) -> ClosestPoints:
+        """Closest surface points of ``points (q, 3)``.
+
+        Exact by default; ``exact=False`` keeps the best of the first ``k`` candidates (cheaper, and
+        right for points near the surface; used inside iterative loops).
+        """
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"query points must be (q, 3), got {pts.shape}")
         if not np.all(np.isfinite(pts)):
             raise ValueError("query points contain NaN or inf")
         res, sure = self._query_k(pts, self.k)
+        if not exact:
+            return res
         k = self.k
         todo = np.flatnonzero(~sure)
         while len(todo):
