@@ -94,7 +94,8 @@ class CageResult:
         points: (n, 3) deformed source samples; normals: (n, 3) their deformed triangle normals.
         cage0, cage: (V, 3) initial and optimised cage vertices; cage_faces: (F, 3).
         iterations: steps taken; converged: stopped by the early-stopping rule (not the limit).
-        loss: final total loss; history: total loss per step; terms: final value of each term.
+        loss: final loss; history: loss per step (without the periodic negative-MVC penalty);
+        terms: final value of each term.
     """
 
     points: np.ndarray
@@ -215,6 +216,7 @@ def solve_cage(
     offset = torch.zeros_like(C0, requires_grad=True)
     triples = torch.as_tensor(lattice_triples(cage0, cfg.level), device=device)
     pairs = [(a, p) for a in axes if (p := _mirror_pairs(cage0, a)) is not None]
+    flips = {a: torch.as_tensor([-1.0 if i == a else 1.0 for i in range(3)], device=device, dtype=dtype) for a, _ in pairs}
     T = torch.as_tensor(template_samples, device=device, dtype=dtype)
     t_tree = cKDTree(template_samples)
     vn = np.asarray(template_vertex_normals, dtype=float)
@@ -248,8 +250,10 @@ def solve_cage(
         smooth = ((offset[triples[:, 0]] - 2 * offset[triples[:, 1]] + offset[triples[:, 2]]) ** 2).sum(1).mean() if len(triples) else torch.zeros((), device=device, dtype=dtype)
         loss = cfg.w_surface * surface + cfg.w_chamfer * chamfer + cfg.w_normal * normal + cfg.w_smooth * smooth
         if pairs:
-            sym = sum(((C[p] * torch.as_tensor([-1.0 if i == a else 1.0 for i in range(3)], device=device, dtype=dtype) - C) ** 2).sum(1).mean() for a, p in pairs)
+            sym = sum(((C[p] * flips[a] - C) ** 2).sum(1).mean() for a, p in pairs)
             loss = loss + cfg.w_symmetry * sym
+        # Early stopping watches the terms computed every step (the MVC penalty is periodic).
+        value = float(loss.detach())
         if cfg.w_mvc > 0 and (it - 1) % max(cfg.mvc_every, 1) == 0:
             sub = rng.choice(len(points), size=min(cfg.mvc_points, len(points)), replace=False)
             Wd = mean_value_coordinates(x[torch.as_tensor(sub, device=device)], C, faces_t)
@@ -259,7 +263,6 @@ def solve_cage(
         loss.backward()
         opt.step()
         sched.step()
-        value = float(loss.detach())
         history.append(value)
         terms = {"surface": float(surface.detach()), "chamfer": float(chamfer.detach()), "normal": float(normal.detach()),
                  "smooth": float(smooth.detach()), "negative_mvc": float(mvc_term.detach())}

@@ -179,7 +179,8 @@ def cmd_gallery(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Current end-to-end path: sample a model, pick the template, segment, group, match groups."""
+    """Current end-to-end path: sample a model, pick the template, segment, group, match groups,
+    and solve the cage correspondence of one sample onto the template."""
     t0 = time.perf_counter()
     model = get_model(args.model)
     samples = model.space.sample(args.n, seed=args.seed, method="lhs")
@@ -199,6 +200,20 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(f"{'sample':>6} {'verts':>7} {'faces':>7} {'parts':>5} {'groups':>6}  matched/added/missing")
     for i, (s, g, m) in enumerate(zip(shapes, groupings, matches)):
         print(f"{i:>6} {s.n_vertices:>7} {s.n_faces:>7} {len(g.parts):>5} {len(g.groups):>6}  {len(m.pairs)}/{len(m.added)}/{len(m.missing)}")
+    # Dense correspondence (cage solver) of one sample onto the template, scored against the truth.
+    corr = None
+    if args.correspond_points > 0 and len(shapes) > 1:
+        from .correspond import correspond_shapes
+
+        si = next(i for i in range(len(shapes)) if i != ti)
+        print(f"cage correspondence, sample {si} -> template ({args.correspond_points} points per group):")
+        corr = correspond_shapes(
+            shapes[si], template, method="cage", n_points=args.correspond_points, seed=args.seed, grouping=groupings[si], template_grouping=tg
+        )
+        for gc in corr.groups:
+            e = gc.gt
+            gt_txt = f"  gt error mean {e.mean:.4f} p95 {e.p95:.4f} flipped {100 * e.flipped:.1f}%" if e else ""
+            print(f"  group {gc.template_group}: {gc.result.seconds:.1f}s residual {gc.result.residual:.4f}{gt_txt}")
     if args.out:
         from PIL import Image
 
@@ -215,6 +230,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
             row.append(render_faces(s.vertices, s.faces, fc, size=192, azimuth=-60, elevation=25))
         Image.fromarray(grid_image([row])).save(out / "groups.png")
         print(f"wrote {out / 'groups.png'} (parts coloured by matched template group)")
+        if corr is not None:
+            tmp = out / "correspondence.json.tmp"
+            tmp.write_text(json.dumps(corr.to_dict(), indent=1))
+            os.replace(tmp, out / "correspondence.json")
+            print(f"wrote {out / 'correspondence.json'}")
     print(f"done in {time.perf_counter() - t0:.1f}s")
     return 0
 
@@ -282,12 +302,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_gallery)
 
-    p = sub.add_parser("demo", help="sample a model, pick a template, segment, group and match (current end-to-end path)")
+    p = sub.add_parser("demo", help="sample a model, pick a template, segment, group, match and correspond (current end-to-end path)")
     p.add_argument("--model", default="sofa")
     p.add_argument("--n", type=int, default=12)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="out/demo")
     p.add_argument("--preview", type=int, default=6, help="number of samples in the preview image")
+    p.add_argument("--correspond-points", type=int, default=1000, help="cage correspondence of one sample (0: skip)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_demo)
     return parser

@@ -256,3 +256,14 @@ def test_symmetry_option_keeps_the_cage_mirror_symmetric():
     assert cKDTree(cage).query(mirrored)[0].max() < 0.02  # symmetric up to the penalty's slack
     free = correspond_parts(src_v, src.faces, tpl.vertices, tpl.faces, n_points=300, cage=CageConfig(iterations=60))
     assert cKDTree(free.details["cage"]).query(free.details["cage"] * [-1, 1, 1])[0].max() > 0.02
+
+
+def test_demo_runs_end_to_end(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--n", "4", "--out", str(out), "--correspond-points", "200", "--preview", "2", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "template = sample" in text and "cage correspondence" in text
+    data = json.loads((out / "correspondence.json").read_text())
+    assert data["method"] == "cage" and data["groups"]
+    assert all(g["gt_error"] is not None and g["gt_error"]["mean"] < 0.2 for g in data["groups"])
+    assert (out / "groups.png").is_file()
