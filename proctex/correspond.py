@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .align import apply, icp_to_surface
+from .align import apply, chamfer, icp_to_surface
 from .cage import CageConfig, solve_cage
 from .cpd import cpd_nonrigid
 from .geometry import SurfaceIndex, face_normals, sample_surface, triangle_areas, vertex_normals
@@ -184,12 +184,6 @@ def template_symmetry_axes(vertices: np.ndarray, faces: np.ndarray, tol: float =
     return tuple(sorted(set(axes)))
 
 
-def _chamfer(a: np.ndarray, b: np.ndarray) -> float:
-    from .align import chamfer
-
-    return chamfer(a, b)
-
-
 def _finish(prep: _Prepared, method: str, moved: np.ndarray, normals: np.ndarray | None, t0: float, converged: bool, iterations: int,
             template_samples: np.ndarray, details: dict[str, Any]) -> PartCorrespondence:
     if normals is not None:
@@ -206,7 +200,7 @@ def _finish(prep: _Prepared, method: str, moved: np.ndarray, normals: np.ndarray
         bary=hit.bary,
         points=prep.to_world(hit.points),
         residual=float(hit.distance.mean()),
-        chamfer=_chamfer(moved, template_samples),
+        chamfer=chamfer(moved, template_samples),
         converged=bool(converged),
         iterations=int(iterations),
         seconds=time.perf_counter() - t0,
