@@ -69,7 +69,8 @@ class PartCorrespondence:
         converged, iterations: of the optimisation (the baselines report their own loop).
         seconds: wall time of the solve (pre-alignment included).
         alignment: the similarity pre-alignment.
-        oriented: share of samples projected onto a face with an agreeing normal.
+        oriented: share of samples projected onto a face whose normal agrees with the sample's
+            (deformed normal for the cage, pre-aligned normal for the baselines).
         details: method-specific figures (loss terms, ICP error, CPD variance).
     """
 
@@ -190,7 +191,9 @@ def _finish(prep: _Prepared, method: str, moved: np.ndarray, normals: np.ndarray
         hit, oriented = prep.index.query_oriented(moved, normals)
     else:
         hit = prep.index.query(moved)
-        oriented = np.ones(len(moved), dtype=bool)
+        # Baselines do not use normals; report how many matches agree with the aligned source normal.
+        aligned_normals = face_normals(prep.src_v, prep.src_f)[prep.sample_faces] @ prep.R.T
+        oriented = np.einsum("kd,kd->k", prep.index.normals[hit.faces], aligned_normals) > 0
     return PartCorrespondence(
         method=method,
         source_points=prep.samples,
