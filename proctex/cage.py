@@ -33,6 +33,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from .geometry import SurfaceIndex
+from .metrics import interpolate
 from .mvc import mean_value_coordinates
 from .primitives import box
 
@@ -238,8 +239,7 @@ def solve_cage(
         # Point-to-surface matches with agreeing normals (gradient of |x - q|^2 exact for fixed q).
         cp, _ = template.query_oriented(xd, nd, cfg.min_dot, k=8, exact=False)
         q = torch.as_tensor(cp.points, device=device, dtype=dtype)
-        bary = cp.bary
-        qn = np.einsum("qk,qkd->qd", bary, vn[tfaces[cp.faces]])
+        qn = interpolate(vn, tfaces, cp.faces, cp.bary)
         qn /= np.maximum(np.linalg.norm(qn, axis=1, keepdims=True), 1e-12)
         surface = ((x - q) ** 2).sum(1).mean()
         normal = (1.0 - (nrm * torch.as_tensor(qn, device=device, dtype=dtype)).sum(1)).mean()

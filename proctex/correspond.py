@@ -30,8 +30,8 @@ import numpy as np
 from .align import apply, chamfer, icp_to_surface
 from .cage import CageConfig, solve_cage
 from .cpd import cpd_nonrigid
-from .geometry import SurfaceIndex, face_normals, sample_surface, triangle_areas, vertex_normals
-from .metrics import GTError, gt_correspondence_error, interpolate, part_radius
+from .geometry import SurfaceIndex, face_normals, normalised_frame, sample_surface, triangle_areas, vertex_normals
+from .metrics import GTError, gt_correspondence_error, interpolate
 from .parts import Grouping, GroupMatch, PartGroup, analyse, match_groups, part_mesh, symmetry_planes
 from .shape import Shape
 
@@ -105,8 +105,9 @@ class PartCorrespondence:
         }
 
 
-def check_part(vertices: np.ndarray, faces: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
-    """Validate a part mesh; returns ``(vertices (j, 3) float64, faces (k, 3) int64)``."""
+def check_part(vertices: np.ndarray, faces: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Validate a part mesh; returns ``(vertices (j, 3) float64, faces (k, 3) int64, centre, radius)``
+    with the part's normalised frame."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
@@ -118,18 +119,16 @@ def check_part(vertices: np.ndarray, faces: np.ndarray, what: str) -> tuple[np.n
     if not np.all(np.isfinite(v[np.unique(f)])):
         raise ValueError(f"{what}: vertices contain NaN or inf")
     area = triangle_areas(v, f).sum()
-    _, radius = part_radius(v[np.unique(f)])
+    center, radius = normalised_frame(v[np.unique(f)])
     if not area > 1e-12 * max(radius, 1e-300) ** 2 or radius <= 0:
         raise ValueError(f"{what}: the part is degenerate (zero surface area); it has no surface to texture")
-    return v, f
+    return v, f, center, radius
 
 
 @dataclass
 class _Prepared:
     src_v: np.ndarray
     src_f: np.ndarray
-    tpl_v: np.ndarray
-    tpl_f: np.ndarray
     src_center: np.ndarray
     src_radius: float
     tpl_center: np.ndarray
@@ -137,8 +136,7 @@ class _Prepared:
     samples: np.ndarray  # (n, 3) world source samples
     sample_faces: np.ndarray
     sample_bary: np.ndarray
-    index: SurfaceIndex  # template, normalised frame
-    tpl_norm_v: np.ndarray
+    index: SurfaceIndex  # template, normalised frame (its vertices, faces and face normals)
     R: np.ndarray  # pre-alignment in normalised frames
     t: np.ndarray
     s: float
@@ -159,19 +157,16 @@ class _Prepared:
 
 def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.ndarray, n_points: int, seed: int, icp_points: int = 500) -> _Prepared:
     """Validate, sample the source, and pre-align it to the template (similarity ICP)."""
-    src_v, src_f = check_part(src_v, src_f, "source part")
-    tpl_v, tpl_f = check_part(tpl_v, tpl_f, "template part")
+    src_v, src_f, sc, sr = check_part(src_v, src_f, "source part")
+    tpl_v, tpl_f, tc, tr = check_part(tpl_v, tpl_f, "template part")
     if int(n_points) < 1:
         raise ValueError(f"n_points must be >= 1, got {n_points}")
     rng = np.random.default_rng(seed)
     samples, sf, sb = sample_surface(src_v, src_f, int(n_points), seed=rng)
-    sc, sr = part_radius(src_v[np.unique(src_f)])
-    tc, tr = part_radius(tpl_v[np.unique(tpl_f)])
-    tpl_n = (tpl_v - tc) / tr
-    index = SurfaceIndex(tpl_n, tpl_f)
+    index = SurfaceIndex((tpl_v - tc) / tr, tpl_f)
     sub = (samples[rng.choice(len(samples), size=min(icp_points, len(samples)), replace=False)] - sc) / sr
     icp = icp_to_surface(sub, index, scale=True, max_iter=100, tol=1e-7, exact=False)
-    return _Prepared(src_v, src_f, tpl_v, tpl_f, sc, sr, tc, tr, samples, sf, sb, index, tpl_n, icp.R, icp.t, icp.s, icp.error)
+    return _Prepared(src_v, src_f, sc, sr, tc, tr, samples, sf, sb, index, icp.R, icp.t, icp.s, icp.error)
 
 
 def template_symmetry_axes(vertices: np.ndarray, faces: np.ndarray, tol: float = 0.01, seed: int = 0) -> tuple[int, ...]:
@@ -247,7 +242,7 @@ def correspond_parts(
     t0 = time.perf_counter()
     prep = prepare(src_vertices, src_faces, tpl_vertices, tpl_faces, n_points, seed)
     rng = np.random.default_rng(seed + 1)
-    tpl_s, tpl_sf, _ = sample_surface(prep.tpl_norm_v, prep.tpl_f, template_points, seed=rng)
+    tpl_s, tpl_sf, _ = sample_surface(prep.index.vertices, prep.index.faces, template_points, seed=rng)
     aligned = prep.aligned(prep.samples)
     if method == "nearest":
         return _finish(prep, method, aligned, None, t0, True, 0, tpl_s, {})
@@ -265,9 +260,9 @@ def correspond_parts(
     tv = prep.aligned(prep.src_v[verts])
     if prep.s * np.linalg.det(prep.R) < 0:
         tri_local = tri_local[:, ::-1]
-    tpl_vn = vertex_normals(prep.tpl_norm_v, prep.tpl_f)
-    tpl_sn = face_normals(prep.tpl_norm_v, prep.tpl_f)[tpl_sf]
-    axes = template_symmetry_axes(prep.tpl_norm_v, prep.tpl_f, seed=seed) if (cage and cage.symmetry) else ()
+    tpl_vn = vertex_normals(prep.index.vertices, prep.index.faces)
+    tpl_sn = prep.index.normals[tpl_sf]
+    axes = template_symmetry_axes(prep.index.vertices, prep.index.faces, seed=seed) if (cage and cage.symmetry) else ()
     res = solve_cage(aligned, tv, tri_local, inverse.reshape(-1), prep.index, tpl_vn, tpl_s, tpl_sn, cage, symmetry_axes=axes, seed=seed)
     details: dict[str, Any] = {f"loss_{k}": v for k, v in res.terms.items()}
     details["symmetry_axes"] = list(axes)

@@ -14,6 +14,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
+def normalised_frame(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(centre (3,), L∞ radius)`` of ``points (n, 3)``: the normalised part frame of DESIGN §6."""
+    lo, hi = points.min(0), points.max(0)
+    center = (lo + hi) / 2
+    return center, float(np.abs(points - center).max())
+
+
 def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(m,) float64 areas of the triangles ``faces (m, 3)`` over ``vertices (n, 3)``."""
     tri = vertices[faces]
@@ -196,19 +203,26 @@ class SurfaceIndex:
         self.k = int(min(k, self.n_proxies))
         self.normals = face_normals(self.vertices, self.faces)
 
-    def _query_k(self, pts: np.ndarray, k: int) -> tuple[ClosestPoints, np.ndarray]:
-        """Best face among the ``k`` nearest proxies, and whether it is provably the nearest."""
+    def _candidates(self, pts: np.ndarray, k: int) -> tuple[np.ndarray, ...]:
+        """Exact closest points on the faces of the ``k`` nearest proxies of each query.
+
+        Returns ``(proxy distance (q, k), face (q, k), point (q, k, 3), bary (q, k, 3), distance (q, k))``.
+        """
         q = len(pts)
         cd, cand = self.tree.query(pts, k=k)
         cand = self.proxy_owner[cand.reshape(q, k)]
-        cd = cd.reshape(q, k)
         rep = np.repeat(pts, k, axis=0)
         flat = cand.reshape(-1)
         cp, bary = closest_point_on_triangles(rep, self._a[flat], self._b[flat], self._c[flat])
         d = np.linalg.norm(cp - rep, axis=1).reshape(q, k)
+        return cd.reshape(q, k), cand, cp.reshape(q, k, 3), bary.reshape(q, k, 3), d
+
+    def _query_k(self, pts: np.ndarray, k: int) -> tuple[ClosestPoints, np.ndarray]:
+        """Best face among the ``k`` nearest proxies, and whether it is provably the nearest."""
+        cd, cand, cp, bary, d = self._candidates(pts, k)
         best = np.argmin(d, axis=1)
-        rows = np.arange(q)
-        res = ClosestPoints(cp.reshape(q, k, 3)[rows, best], cand[rows, best].astype(np.int64), bary.reshape(q, k, 3)[rows, best], d[rows, best])
+        rows = np.arange(len(pts))
+        res = ClosestPoints(cp[rows, best], cand[rows, best].astype(np.int64), bary[rows, best], d[rows, best])
         sure = (cd[:, -1] >= res.distance + self.max_radius) | (k >= self.n_proxies)
         return res, sure
 
@@ -267,14 +281,7 @@ class SurfaceIndex:
         todo = np.arange(q)
         k = int(min(k, self.n_proxies))
         while len(todo):
-            p = pts[todo]
-            cd, cand = self.tree.query(p, k=k)
-            cd = cd.reshape(len(todo), k)
-            cand = self.proxy_owner[cand.reshape(len(todo), k)]
-            flat = cand.reshape(-1)
-            rep = np.repeat(p, k, axis=0)
-            cp, bary = closest_point_on_triangles(rep, self._a[flat], self._b[flat], self._c[flat])
-            d = np.linalg.norm(cp - rep, axis=1).reshape(len(todo), k)
+            cd, cand, cp, bary, d = self._candidates(pts[todo], k)
             ok = (np.einsum("qkd,qd->qk", self.normals[cand], nrm[todo]) > min_dot)
             d = np.where(ok, d, np.inf)
             best = np.argmin(d, axis=1)
@@ -283,9 +290,9 @@ class SurfaceIndex:
             sure = (cd[:, -1] >= d[rows, best] + self.max_radius) | (k >= self.n_proxies) if exact else np.ones(len(todo), dtype=bool)
             found = ok[rows, best] & sure
             sel = todo[found]
-            out.points[sel] = cp.reshape(len(todo), k, 3)[rows, best][found]
+            out.points[sel] = cp[rows, best][found]
             out.faces[sel] = cand[rows, best][found]
-            out.bary[sel] = bary.reshape(len(todo), k, 3)[rows, best][found]
+            out.bary[sel] = bary[rows, best][found]
             out.distance[sel] = d[rows, best][found]
             oriented[sel] = True
             todo = todo[~found]

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .geometry import SurfaceIndex, face_normals
+from .geometry import SurfaceIndex, face_normals, normalised_frame
 
 
 @dataclass
@@ -32,13 +32,6 @@ class GTError:
 
     def to_dict(self) -> dict[str, Any]:
         return {"mean": self.mean, "p95": self.p95, "max": self.max, "flipped": self.flipped, "n": self.n}
-
-
-def part_radius(vertices: np.ndarray) -> tuple[np.ndarray, float]:
-    """``(centre (3,), L∞ radius)`` of a point set's bounding box (the normalised frame)."""
-    lo, hi = vertices.min(0), vertices.max(0)
-    center = (lo + hi) / 2
-    return center, float(np.abs(vertices - center).max())
 
 
 def interpolate(values: np.ndarray, faces: np.ndarray, face_index: np.ndarray, bary: np.ndarray) -> np.ndarray:
@@ -76,7 +69,7 @@ def gt_correspondence_error(
     if src.shape != pred.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) == 0:
         raise ValueError(f"need matching non-empty (k, 3) canonical and predicted points, got {src.shape} and {pred.shape}")
     true_pts, true_faces, _ = canonical_lookup(template_vertices, template_faces, template_canonical, src)
-    _, radius = part_radius(template_vertices[np.unique(template_faces)])
+    _, radius = normalised_frame(template_vertices[np.unique(template_faces)])
     err = np.linalg.norm(pred - true_pts, axis=1) / max(radius, 1e-300)
     fn = face_normals(template_vertices, template_faces)
     flipped = float(np.mean(np.einsum("kd,kd->k", fn[np.asarray(predicted_faces)], fn[true_faces]) < 0))

@@ -28,7 +28,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .align import apply, icp_points, icp_to_surface, rotation_angle, umeyama
-from .geometry import SurfaceIndex, sample_surface, triangle_areas
+from .geometry import SurfaceIndex, normalised_frame, sample_surface, triangle_areas
 from .shape import Shape
 
 
@@ -131,9 +131,7 @@ def segment(shape: Shape, degenerate_eps: float = 1e-12, tiny_share: float = 1e-
     vert_splits = np.split(vert_order[n_unref:], np.cumsum(np.bincount(vertex_part[vertex_part >= 0], minlength=count))[:-1])
     parts = []
     for i in range(count):
-        pts = v[vert_splits[i]]
-        lo, hi = pts.min(0), pts.max(0)
-        center = (lo + hi) / 2
+        center, radius = normalised_frame(v[vert_splits[i]])
         degenerate = bool(part_max_tri[i] <= tri_eps)
         label = ""
         if shape.labels is not None:
@@ -147,7 +145,7 @@ def segment(shape: Shape, degenerate_eps: float = 1e-12, tiny_share: float = 1e-
                 degenerate=degenerate,
                 tiny=bool(not degenerate and part_area[i] < tiny_share * total),
                 center=center,
-                radius=float(np.abs(pts - center).max()),
+                radius=radius,
                 label=label,
             )
         )
@@ -218,9 +216,8 @@ def symmetry_planes(shape: Shape, tol: float = 0.01, n_samples: int = 1000, seed
     rng = np.random.default_rng(seed)
     pts, _, _ = sample_surface(v, f, n_samples, seed=rng)
     dense, _, _ = sample_surface(v, f, 4 * n_samples, seed=rng)
-    used = v[np.unique(f)]
-    center = (used.min(0) + used.max(0)) / 2
-    radius = max(float(np.abs(used - center).max()), 1e-12)
+    center, radius = normalised_frame(v[np.unique(f)])
+    radius = max(radius, 1e-12)
     _, evecs = np.linalg.eigh(np.cov((pts - pts.mean(0)).T))
     candidates = list(np.eye(3)) + [evecs[:, i] for i in range(3)]
     tree = cKDTree(dense)
