@@ -1,0 +1,350 @@
+"""Textured mesh export: GLB (glTF 2.0 binary) and OBJ + MTL + PNG.
+
+A *textured shape* is
+
+- ``vertices``: (n, 3) float64 positions;
+- ``faces``: (m, 3) int64 vertex indices, m >= 1;
+- ``corner_uv``: (m, 3, 2) float64 per face-corner UV in the OpenGL/OBJ convention: u to the right,
+  v **up**, (0, 0) is the bottom-left corner of the image;
+- ``face_group``: (m,) int64, the texture used by each face, in [0, G), or -1 for a face without
+  texture (it gets a plain grey material);
+- ``textures``: G images, each (H, W, 3) or (H, W, 4) uint8 with row 0 at the **top**, so texel
+  (i, j) has its centre at u = (j + 0.5) / W, v = 1 - (i + 0.5) / H;
+- ``names``: optional G group names (material names).
+
+glTF puts the texcoord origin at the top-left with v pointing down, so the GLB stores (u, 1 - v);
+OBJ ``vt`` lines use the convention above unchanged. Positions, normals and texcoords are stored as
+float32 (GLB) or printed with 9 significant digits (OBJ, float32-exact).
+
+Texture wrap mode is CLAMP_TO_EDGE: each group texture is a UV atlas whose charts lie inside
+[0, 1]^2, so REPEAT would let bilinear filtering and coarse mip levels blend texels from the opposite
+image border into charts touching an edge. Alpha channels are written to the images but materials
+stay ``OPAQUE`` (atlas backgrounds are often transparent and must not make the surface see-through).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pygltflib as gl
+from PIL import Image
+
+ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
+GREY = [0.5, 0.5, 0.5, 1.0]
+ROUGHNESS = 0.8
+UNTEXTURED_NAME = "untextured"
+
+
+# --------------------------------------------------------------------------- validation
+
+def _check_shape(vertices, faces, corner_uv, face_group, textures, names):
+    """Validate and normalise inputs; returns (V float64, F int64, UV float64, G int64, texs, names)."""
+    V = np.asarray(vertices)
+    if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] == 0 or V.dtype.kind not in "iuf":
+        raise ValueError(f"vertices: expected a non-empty (n, 3) float array, got {V.dtype} {V.shape}")
+    V = V.astype(np.float64)
+    if not np.isfinite(V).all():
+        raise ValueError("vertices: contains NaN or inf")
+    F = np.asarray(faces)
+    if F.ndim != 2 or F.shape[1] != 3 or F.shape[0] == 0 or F.dtype.kind not in "iu":
+        raise ValueError(f"faces: expected a non-empty (m, 3) integer array, got {F.dtype} {F.shape}")
+    F = F.astype(np.int64)
+    if F.min() < 0 or F.max() >= len(V):
+        raise ValueError(f"faces: indices must be in [0, {len(V)}), got [{F.min()}, {F.max()}]")
+    m = len(F)
+    UV = np.asarray(corner_uv)
+    if UV.shape != (m, 3, 2) or UV.dtype.kind not in "iuf":
+        raise ValueError(f"corner_uv: expected a ({m}, 3, 2) float array, got {UV.dtype} {UV.shape}")
+    UV = UV.astype(np.float64)
+    if not np.isfinite(UV).all():
+        raise ValueError("corner_uv: contains NaN or inf")
+    if isinstance(textures, np.ndarray) or not isinstance(textures, Sequence):
+        raise ValueError(f"textures: expected a list of images, got {type(textures).__name__}")
+    texs = []
+    for g, t in enumerate(textures):
+        t = np.asarray(t)
+        if t.dtype != np.uint8 or t.ndim != 3 or t.shape[2] not in (3, 4) or min(t.shape[:2]) == 0:
+            raise ValueError(f"textures[{g}]: expected a (H, W, 3|4) uint8 image, got {t.dtype} {t.shape}")
+        texs.append(np.ascontiguousarray(t))
+    G = np.asarray(face_group)
+    if G.shape != (m,) or G.dtype.kind not in "iu":
+        raise ValueError(f"face_group: expected a ({m},) integer array, got {G.dtype} {G.shape}")
+    G = G.astype(np.int64)
+    if G.min() < -1 or G.max() >= len(texs):
+        raise ValueError(f"face_group: values must be -1 or in [0, {len(texs)}), "
+                         f"got [{G.min()}, {G.max()}]")
+    if names is None:
+        names = [f"group_{g}" for g in range(len(texs))]
+    else:
+        names = [names] if isinstance(names, str) else list(names)
+        if len(names) != len(texs) or not all(isinstance(s, str) for s in names):
+            raise ValueError(f"names: expected {len(texs)} strings (one per texture), got {names!r}")
+    return V, F, UV, G, texs, names
+
+
+def _groups(face_group: np.ndarray, n_groups: int) -> list[tuple[int, np.ndarray]]:
+    """[(group, face indices)] for each non-empty group, the untextured group -1 last."""
+    order = np.argsort(face_group, kind="stable")
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(face_group + 1, minlength=n_groups + 1))])
+    out = [(g - 1, order[bounds[g]:bounds[g + 1]]) for g in range(n_groups + 1)]
+    out = [x for x in out if len(x[1])]
+    return out[1:] + out[:1] if out[0][0] == -1 else out
+
+
+# --------------------------------------------------------------------------- geometry
+
+def _split_vertices(faces: np.ndarray, st: np.ndarray | None):
+    """Split vertices per unique (vertex index, texcoord) pair.
+
+    faces: (k, 3) int64; st: (k, 3, 2) float32 stored texcoords or None.
+    Returns (vid (s,) int64 source vertex per split vertex, st_split (s, 2) float32 or None,
+    indices (k, 3) uint32).
+    """
+    vid = faces.reshape(-1)
+    if st is None:
+        keys, inv = np.unique(vid, return_inverse=True)
+        return keys, None, inv.reshape(-1, 3).astype(np.uint32)
+    st = np.ascontiguousarray(st.reshape(-1, 2) + np.float32(0))  # -0.0 -> +0.0
+    st_keys, st_inv = np.unique(st.view(np.int64).ravel(), return_inverse=True)
+    n_st = len(st_keys)
+    keys, inv = np.unique(vid * n_st + st_inv.ravel(), return_inverse=True)
+    st_split = st_keys[keys % n_st].view(np.float32).reshape(-1, 2)
+    return keys // n_st, st_split, inv.reshape(-1, 3).astype(np.uint32)
+
+
+def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, vid: np.ndarray,
+                    indices: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (s, 3) float32 for the split vertices of one primitive.
+
+    Normals are accumulated per *source* vertex over the primitive's faces, so texture seams do not
+    become shading seams. Vertices whose faces are all degenerate (or cancel) get +z.
+    """
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 * area
+    _, local = np.unique(vid, return_inverse=True)  # vid is sorted: local id per split vertex
+    corner_local = local.ravel()[indices.astype(np.int64)].ravel()
+    n_local = int(corner_local.max()) + 1
+    acc = np.stack([np.bincount(corner_local, weights=np.repeat(fn[:, k], 3), minlength=n_local)
+                    for k in range(3)], axis=1)
+    length = np.linalg.norm(acc, axis=1)
+    ok = length > 0
+    acc[ok] /= length[ok, None]
+    acc[~ok] = (0.0, 0.0, 1.0)
+    return acc[local.ravel()].astype(np.float32)
+
+
+# --------------------------------------------------------------------------- GLB
+
+class _Blob:
+    """Binary buffer with 4-byte aligned bufferViews."""
+
+    def __init__(self, gltf: gl.GLTF2):
+        self.gltf, self.parts, self.offset = gltf, [], 0
+
+    def view(self, data: bytes, target: int | None = None) -> int:
+        self.gltf.bufferViews.append(gl.BufferView(buffer=0, byteOffset=self.offset,
+                                                   byteLength=len(data), target=target))
+        pad = -len(data) % 4
+        self.parts += [data, b"\0" * pad]
+        self.offset += len(data) + pad
+        return len(self.gltf.bufferViews) - 1
+
+    def accessor(self, array: np.ndarray, kind: str, target: int, minmax: bool = False) -> int:
+        ctype = gl.UNSIGNED_INT if array.dtype == np.uint32 else gl.FLOAT
+        acc = gl.Accessor(bufferView=self.view(array.tobytes(), target), componentType=ctype,
+                          count=len(array), type=kind, min=None, max=None, byteOffset=None)
+        if minmax:
+            acc.min, acc.max = array.min(axis=0).tolist(), array.max(axis=0).tolist()
+        self.gltf.accessors.append(acc)
+        return len(self.gltf.accessors) - 1
+
+
+def _png(image: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
+              double_sided: bool = True) -> bytes:
+    """Encode a textured shape as a GLB (glTF 2.0 binary) file.
+
+    Args: see the module docstring (vertices (n, 3) float64, faces (m, 3) int64, corner_uv
+    (m, 3, 2) float64 with v up, face_group (m,) int64 in [-1, G), G uint8 textures (H, W, 3|4),
+    optional G names); ``double_sided`` sets the materials' doubleSided flag.
+
+    The file holds one node and one mesh with one triangle primitive per non-empty group (faces of
+    group -1 form a last primitive with a grey untextured material). Each primitive has its own
+    vertices, split per unique (vertex, texcoord) pair, with POSITION (min/max), area-weighted smooth
+    NORMAL, TEXCOORD_0 = (u, 1 - v) and uint32 indices. Each group has a material named after it
+    (baseColorTexture, metallic 0, roughness 0.8) and a PNG image embedded in the buffer; all
+    textures share one LINEAR / LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE sampler. Textures of empty
+    groups are left out. Raises ValueError on malformed input.
+    """
+    V, F, UV, FG, texs, names = _check_shape(vertices, faces, corner_uv, face_group, textures, names)
+    gltf = gl.GLTF2(asset=gl.Asset(generator="proctex.export", version="2.0"), scene=0,
+                    scenes=[gl.Scene(nodes=[0])], nodes=[gl.Node(mesh=0)], buffers=[gl.Buffer()])
+    blob = _Blob(gltf)
+    primitives = []
+    for g, idx in _groups(FG, len(texs)):
+        f = F[idx]
+        st = None
+        if g >= 0:
+            st = np.empty((len(idx), 3, 2), np.float32)
+            st[..., 0] = UV[idx, :, 0]
+            st[..., 1] = 1.0 - UV[idx, :, 1]
+        vid, st_split, indices = _split_vertices(f, st)
+        attrs = gl.Attributes(
+            POSITION=blob.accessor(V[vid].astype(np.float32), gl.VEC3, ARRAY_BUFFER, minmax=True),
+            NORMAL=blob.accessor(_smooth_normals(V, f, vid, indices), gl.VEC3, ARRAY_BUFFER))
+        pbr = gl.PbrMetallicRoughness(metallicFactor=0.0, roughnessFactor=ROUGHNESS)
+        if g >= 0:
+            attrs.TEXCOORD_0 = blob.accessor(st_split, gl.VEC2, ARRAY_BUFFER)
+            gltf.images.append(gl.Image(bufferView=blob.view(_png(texs[g])), mimeType="image/png",
+                                        name=names[g]))
+            gltf.textures.append(gl.Texture(sampler=0, source=len(gltf.images) - 1))
+            pbr.baseColorTexture = gl.TextureInfo(index=len(gltf.textures) - 1)
+            name = names[g]
+        else:
+            pbr.baseColorFactor = list(GREY)
+            name = UNTEXTURED_NAME
+        gltf.materials.append(gl.Material(pbrMetallicRoughness=pbr, doubleSided=bool(double_sided),
+                                          name=name, emissiveFactor=None))
+        primitives.append(gl.Primitive(
+            attributes=attrs, material=len(gltf.materials) - 1, mode=gl.TRIANGLES,
+            indices=blob.accessor(indices.reshape(-1), gl.SCALAR, ELEMENT_ARRAY_BUFFER)))
+    if gltf.textures:
+        gltf.samplers = [gl.Sampler(magFilter=gl.LINEAR, minFilter=gl.LINEAR_MIPMAP_LINEAR,
+                                    wrapS=gl.CLAMP_TO_EDGE, wrapT=gl.CLAMP_TO_EDGE)]
+    gltf.meshes = [gl.Mesh(primitives=primitives)]
+    gltf.set_binary_blob(b"".join(blob.parts))
+    return b"".join(gltf.save_to_bytes())
+
+
+# --------------------------------------------------------------------------- files
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    """Write ``data`` to a temp file next to ``path`` and rename it over ``path``."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_glb(path, vertices, faces, corner_uv, face_group, textures, names=None,
+              double_sided: bool = True) -> str:
+    """Write :func:`glb_bytes` to ``path`` atomically (temp file + ``os.replace``); returns the path."""
+    data = glb_bytes(vertices, faces, corner_uv, face_group, textures, names, double_sided)
+    _atomic_write(Path(path), data)
+    return str(path)
+
+
+def _obj_material_names(names: list[str]) -> list[str]:
+    """OBJ material names: no whitespace, unique, distinct from the untextured material."""
+    out, seen = [], {UNTEXTURED_NAME}
+    for g, s in enumerate(names):
+        s = re.sub(r"\s+", "_", s.strip()) or f"group_{g}"
+        if s in seen:
+            s = f"{s}_{g}"
+        seen.add(s)
+        out.append(s)
+    return out
+
+
+def write_obj(path, vertices, faces, corner_uv, face_group, textures, names=None) -> list[str]:
+    """Write ``<stem>.obj``, ``<stem>.mtl`` and ``<stem>_<g>.png`` per non-empty group g.
+
+    ``path`` must end in ``.obj``. Inputs are as in :func:`glb_bytes`. ``vt`` lines use the OBJ
+    convention (v up, equal to ``corner_uv``); faces are ``f v/vt`` grouped by ``usemtl``; faces of
+    group -1 use a grey material without a texture map. Material names are the group names with
+    whitespace replaced by ``_`` (made unique). Every file is written atomically, the PNGs and MTL
+    before the OBJ. Returns the written paths: [obj, mtl, png...].
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".obj":
+        raise ValueError(f"path: expected a file name ending in .obj, got {str(path)!r}")
+    V, F, UV, FG, texs, names = _check_shape(vertices, faces, corner_uv, face_group, textures, names)
+    mat_names = _obj_material_names(names)
+    stem = path.with_suffix("")
+    mtl_path = stem.with_suffix(".mtl")
+    uv_unique, uv_inv = np.unique(UV.reshape(-1, 2), axis=0, return_inverse=True)
+    fv = np.stack([F + 1, uv_inv.reshape(-1, 3) + 1], axis=2).reshape(-1, 6)
+
+    written, mtl, body = [], [], io.StringIO()
+    for g, idx in _groups(FG, len(texs)):
+        name = mat_names[g] if g >= 0 else UNTEXTURED_NAME
+        kd = "1 1 1" if g >= 0 else " ".join(map(str, GREY[:3]))
+        mtl.append(f"newmtl {name}\nKa 1 1 1\nKd {kd}\nKs 0 0 0\nd 1\nillum 1\n")
+        if g >= 0:
+            png = stem.parent / f"{stem.name}_{g}.png"
+            _atomic_write(png, _png(texs[g]))
+            written.append(str(png))
+            mtl.append(f"map_Kd {png.name}\n")
+        mtl.append("\n")
+        body.write(f"usemtl {name}\n")
+        np.savetxt(body, fv[idx], fmt="f %d/%d %d/%d %d/%d")
+    _atomic_write(mtl_path, "".join(mtl).encode())
+
+    text = io.StringIO()
+    text.write(f"# proctex.export\nmtllib {mtl_path.name}\n")
+    np.savetxt(text, V, fmt="v %.9g %.9g %.9g")
+    np.savetxt(text, uv_unique, fmt="vt %.9g %.9g")
+    text.write(body.getvalue())
+    _atomic_write(path, text.getvalue().encode())
+    return [str(path), str(mtl_path)] + written
+
+
+# --------------------------------------------------------------------------- validator
+
+def _validator_dir() -> Path:
+    return Path(sys.prefix) / "node" / "node_modules" / "gltf-validator"
+
+
+def validator_available() -> bool:
+    """True when ``node`` is on PATH and the gltf-validator npm package is inside the venv."""
+    return shutil.which("node") is not None and (_validator_dir() / "package.json").is_file()
+
+
+_VALIDATE_JS = """
+const validator = require(%s);
+const data = require('fs').readFileSync(0);
+validator.validateBytes(new Uint8Array(data), {uri: %s, maxIssues: 1000})
+  .then(r => process.stdout.write(JSON.stringify(r)),
+        e => { process.stderr.write(String(e)); process.exit(2); });
+"""
+
+
+def validate_glb(path_or_bytes, timeout: float = 120.0) -> dict:
+    """Run the Khronos glTF validator on a GLB file path or GLB bytes; returns its report dict.
+
+    The report has ``issues`` with ``numErrors``, ``numWarnings``, ``numInfos``, ``numHints`` and
+    ``messages`` (each with ``code``, ``message``, ``severity`` 0=error..3=hint, ``pointer``).
+    Raises RuntimeError when node or the validator is missing or the validator cannot run.
+    """
+    if not validator_available():
+        raise RuntimeError(f"glTF validator unavailable: need node on PATH and {_validator_dir()}")
+    if isinstance(path_or_bytes, (bytes, bytearray, memoryview)):
+        data, uri = bytes(path_or_bytes), "asset.glb"
+    else:
+        data, uri = Path(path_or_bytes).read_bytes(), Path(path_or_bytes).name
+    script = _VALIDATE_JS % (json.dumps(str(_validator_dir())), json.dumps(uri))
+    proc = subprocess.run(["node", "-e", script], input=data, capture_output=True, timeout=timeout)
+    if proc.returncode != 0:
+        raise RuntimeError(f"glTF validator failed (rc {proc.returncode}): "
+                           f"{proc.stderr.decode(errors='replace')[-2000:]}")
+    return json.loads(proc.stdout)
