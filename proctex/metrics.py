@@ -74,3 +74,58 @@ def gt_correspondence_error(
     fn = face_normals(template_vertices, template_faces)
     flipped = float(np.mean(np.einsum("kd,kd->k", fn[np.asarray(predicted_faces)], fn[true_faces]) < 0))
     return GTError(float(err.mean()), float(np.percentile(err, 95)), float(err.max()), flipped, len(err))
+
+
+# ---------------------------------------------------------------------------------------- coverage
+@dataclass
+class Coverage:
+    """Coverage of a textured shape (DESIGN §6): ``share`` of visible pixels that read an unpainted
+    texel (any of the four a bilinear lookup touches), out of ``pixels`` visible pixels in ``views``."""
+
+    share: float
+    unpainted_pixels: int
+    pixels: int
+    views: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"share": self.share, "unpainted_pixels": self.unpainted_pixels, "pixels": self.pixels, "views": self.views}
+
+
+def coverage(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    corner_uv: np.ndarray,
+    face_group: np.ndarray,
+    painted: list[np.ndarray],
+    up: str = "z",
+    size: int = 512,
+    backend: str = "auto",
+) -> Coverage:
+    """Share of visible surface pixels (six canonical views) landing on unpainted texels.
+
+    Args:
+        vertices (n, 3), faces (m, 3), corner_uv (m, 3, 2), face_group (m,) int64: the textured mesh.
+        painted: per group an (H, W) bool mask of texels holding colour.
+        up: the shape's up axis; size: view size.
+    """
+    from .render import Tracer, bounding_sphere, canonical_cameras, pixel_uv, render_buffers
+    from .uv import bilinear_texels
+
+    fg = np.asarray(face_group, dtype=np.int64)
+    tracer = Tracer(vertices, faces, backend)
+    c, r = bounding_sphere(vertices)
+    bad = total = 0
+    cams = canonical_cameras(c, r, up, size)
+    for cam in cams:
+        b = render_buffers(tracer, cam, face_group=fg)
+        m = b.mask
+        g = b.group[m]
+        uv = pixel_uv(b, corner_uv)[m]
+        total += int(m.sum())
+        bad += int((g < 0).sum())  # faces without any texture count as unpainted
+        for gi, mask in enumerate(painted):
+            sel = g == gi
+            if sel.any():
+                idx = bilinear_texels(uv[sel], mask.shape[0], mask.shape[1])
+                bad += int((~mask.ravel()[idx]).any(axis=1).sum())
+    return Coverage(bad / total if total else 0.0, bad, total, len(cams))

@@ -20,12 +20,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from .geometry import SurfaceIndex, face_normals, triangle_areas
+from .geometry import SurfaceIndex, face_normals, normalised_frame, triangle_areas
 from .parts import Grouping, MemberMap, PartInfo
 from .raster import rasterise
 from .shape import Shape
 
-AREA_EPS = 1e-14
+AREA_EPS = 1e-12  # zero area, relative to the part's normalised frame
 
 
 # ------------------------------------------------------------------------------------------ atlas
@@ -109,7 +109,12 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int = 1024, padd
         raise ValueError(f"resolution must be >= 8 and padding >= 0, got {resolution}, {padding}")
     t0 = time.perf_counter()
     notes: list[str] = []
-    good = triangle_areas(v, f) > AREA_EPS * max(float(np.abs(v).max()), 1.0) ** 2
+    # xatlas works in float32 with absolute epsilons: unwrap in the part's normalised frame
+    # (UVs do not depend on scale), so 0.15-unit and 300-unit parts unwrap alike.
+    used = np.unique(f)
+    center, radius = normalised_frame(v[used])
+    v = (v - center) / (radius if radius > 0 else 1.0)
+    good = triangle_areas(v, f) > AREA_EPS
     if not good.any():
         uv = planar_uv(v, f)
         return Atlas(uv, "planar", 1, resolution, padding, time.perf_counter() - t0, ["all triangles have zero area: planar UVs"])

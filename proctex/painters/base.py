@@ -39,6 +39,8 @@ class ViewRequest:
         view_index: index of this view in the camera path; n_views: length of the path.
         seed: seed for this view (derived from the loop's seed and the view index).
         camera: the camera (``proctex.render.Camera``), for painters that need intrinsics.
+        part: (H, W) int64 part id per pixel, -1 on background (or None).
+        extra: anything else the loop knows (``group_labels``: {group id: label}).
     """
 
     prompt: str
@@ -55,6 +57,7 @@ class ViewRequest:
     n_views: int = 1
     seed: int = 0
     camera: Any = None
+    part: np.ndarray | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property

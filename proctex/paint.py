@@ -1,0 +1,582 @@
+"""Texturing the template: one UV texture per part group (DESIGN §5).
+
+Two ways to fill the group textures:
+
+- :func:`paint_surface` evaluates a *surface painter* (colour from 3D point and normal) at every
+  covered texel's surface point, then pads the seams. Seamless by construction.
+- :func:`paint_views` is the InTex-style multi-view loop for a *view painter*
+  (:class:`proctex.painters.base.ViewPainter`): for each camera it renders the current texture, a
+  generate / refine / keep trimap from the view cosines seen so far, depth, normals and group ids; it
+  asks the painter for the view; it back-projects into each group texture by pulling, for every texel
+  of every group member, the painted pixel its surface point projects to — only where that pixel sees
+  the same part (the component that wins the depth test) at the same place. Views blend by
+  ``cos^power`` weights. Texels no view saw are filled from the nearest seen texels *on the surface*
+  (same group, inverse-distance weights in 3D, so the fill is continuous across UV seams), then seams
+  are padded.
+
+Points handed to painters are in the shape's normalised frame (bounding-box centre, L∞ radius), so a
+prompt looks the same on a 3-unit sofa and a 0.15-unit one.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .geometry import normalised_frame
+from .painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest
+from .parts import Grouping, PartGroup
+from .render import Buffers, Camera, Tracer, bounding_sphere, canonical_cameras, orbit_path, render_buffers, textured_albedo
+from .shape import Shape
+from .uv import ShapeUV, TexelMap, pad_seams, sample_texture, shape_uv, texel_coords, texel_map
+
+UNPAINTED = 0.5  # grey shown where nothing is painted yet
+
+
+# ------------------------------------------------------------------------------------- results
+@dataclass
+class GroupTexture:
+    """The texture of one part group.
+
+    Attributes:
+        group: group id; label: its semantic label ("" when unknown); prompt: the prompt it was painted with.
+        image: (H, W, 3) float32 in [0, 1].
+        painted: (H, W) bool texels holding colour (covered texels plus the padded gutter).
+        texels: the texel map of the group's representative.
+        seen: share of covered texels painted directly (views: seen by a view; surface painter: 1).
+    """
+
+    group: int
+    label: str
+    prompt: str
+    image: np.ndarray
+    painted: np.ndarray
+    texels: TexelMap
+    seen: float = 1.0
+
+    def uint8(self) -> np.ndarray:
+        """(H, W, 3) uint8 image."""
+        return (np.clip(self.image, 0, 1) * 255).round().astype(np.uint8)
+
+
+@dataclass
+class TemplateTexture:
+    """A textured template: its UV layout and one texture per group, with how it was made."""
+
+    shape: Shape
+    grouping: Grouping
+    uv: ShapeUV
+    groups: list[GroupTexture]
+    method: str
+    seconds: float
+    notes: list[str] = field(default_factory=list)
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def images(self) -> list[np.ndarray]:
+        return [g.image for g in self.groups]
+
+    @property
+    def painted_masks(self) -> list[np.ndarray]:
+        return [g.painted for g in self.groups]
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready description (no arrays)."""
+        return {
+            "method": self.method,
+            "seconds": round(self.seconds, 3),
+            "texture_size": [int(self.groups[0].image.shape[0]), int(self.groups[0].image.shape[1])] if self.groups else [],
+            "groups": [
+                {
+                    "group": g.group,
+                    "label": g.label,
+                    "prompt": g.prompt,
+                    "parts": [int(p) for p in self.grouping.groups[g.group].members],
+                    "atlas": self.uv.atlases[g.group].method,
+                    "charts": self.uv.atlases[g.group].charts,
+                    "covered_texels": int(len(g.texels.face)),
+                    "seen": round(float(g.seen), 4),
+                }
+                for g in self.groups
+            ],
+            "notes": list(self.notes),
+            **self.stats,
+        }
+
+
+# ------------------------------------------------------------------------------------- prompts
+def resolve_group_prompts(grouping: Grouping, prompt: str, group_prompts: Mapping[str, str] | None = None) -> dict[int, str]:
+    """Prompt per group id: ``group_prompts`` keyed by group label or group index (as a string)
+    overrides the global ``prompt``. Unknown keys raise ``ValueError`` listing the valid ones."""
+    if not isinstance(prompt, str):
+        raise ValueError(f"prompt must be a string, got {type(prompt).__name__}")
+    out = {g.index: prompt for g in grouping.groups}
+    if not group_prompts:
+        return out
+    if not isinstance(group_prompts, Mapping):
+        raise ValueError("group prompts must be a mapping {group label or index: prompt}")
+    valid = {str(g.index): [g.index] for g in grouping.groups}
+    for g in grouping.groups:
+        if g.label:
+            valid.setdefault(g.label, []).append(g.index)
+    for key, text in group_prompts.items():
+        if str(key) not in valid:
+            names = sorted(valid, key=lambda k: (k.isdigit(), int(k) if k.isdigit() else 0, k))
+            raise ValueError(f"unknown group {key!r} in group prompts; this shape's groups are: {', '.join(names)}")
+        if not isinstance(text, str):
+            raise ValueError(f"group prompt for {key!r} must be a string")
+    # Labels first, then explicit indices (more specific) win.
+    for key, text in group_prompts.items():
+        if not str(key).isdigit():
+            for gi in valid[str(key)]:
+                out[gi] = text
+    for key, text in group_prompts.items():
+        if str(key).isdigit():
+            out[int(key)] = text
+    return out
+
+
+def shape_frame(shape: Shape) -> tuple[np.ndarray, float]:
+    """The shape's normalised frame ``(centre (3,), L∞ radius)`` (radius 1 for a single point)."""
+    center, radius = normalised_frame(shape.vertices)
+    return center, (radius if radius > 0 else 1.0)
+
+
+def group_texels(shape: Shape, grouping: Grouping, uv: ShapeUV, size: int) -> list[TexelMap]:
+    """Texel map of each group's representative part, in group order."""
+    maps = []
+    for g in grouping.groups:
+        rep = grouping.parts[g.representative]
+        maps.append(texel_map(shape.vertices, shape.faces[rep.faces], uv.corner_uv[rep.faces], size))
+    return maps
+
+
+# ----------------------------------------------------------------------------- surface painter
+def paint_surface(
+    shape: Shape,
+    grouping: Grouping,
+    painter: Any,
+    size: int = 1024,
+    uv: ShapeUV | None = None,
+    gutter: int = 8,
+    prompts: Mapping[int, str] | None = None,
+) -> TemplateTexture:
+    """Paint every group texture with a surface painter.
+
+    Args:
+        shape, grouping: the template and its parts/groups.
+        painter: has ``paint(points (n, 3), normals (n, 3), group=int, label=str) -> (n, 3)`` (e.g.
+            :class:`proctex.painters.SurfacePainter`); points are in the shape's normalised frame.
+        size: texture size (square); uv: a precomputed layout (else unwrapped here at ``size``).
+        gutter: seam padding in texels.
+        prompts: prompt per group for the record (defaults to what the painter reports, if anything).
+
+    Returns:
+        :class:`TemplateTexture` (method "surface").
+    """
+    if size < 8:
+        raise ValueError(f"texture size must be >= 8, got {size}")
+    t0 = time.perf_counter()
+    uv = uv if uv is not None else shape_uv(shape, grouping, resolution=size)
+    center, scale = shape_frame(shape)
+    t1 = time.perf_counter()
+    maps = group_texels(shape, grouping, uv, size)
+    timings: dict[str, float] = {"uv": t1 - t0, "texels": time.perf_counter() - t1}
+    out = []
+    t_paint = 0.0
+    for g, texels in zip(grouping.groups, maps):
+        t1 = time.perf_counter()
+        colors = np.asarray(painter.paint((texels.points - center) / scale, texels.normals, group=g.index, label=g.label), dtype=np.float32)
+        if colors.shape != (len(texels.face), 3) or not np.isfinite(colors).all():
+            raise ValueError(f"painter returned {colors.shape} (finite required), expected ({len(texels.face)}, 3)")
+        image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
+        image[texels.ij[:, 0], texels.ij[:, 1]] = np.clip(colors, 0, 1)
+        image, painted = pad_seams(image, texels.mask, gutter)
+        t_paint += time.perf_counter() - t1
+        prompt = (prompts or {}).get(g.index, _painter_prompt(painter, g))
+        out.append(GroupTexture(g.index, g.label, prompt, image, painted, texels))
+    timings["paint"] = t_paint
+    notes = list(painter.notes()) if hasattr(painter, "notes") else []
+    for a in uv.atlases:
+        notes.extend(a.notes)
+    return TemplateTexture(shape, grouping, uv, out, "surface", time.perf_counter() - t0, notes, {"timings": timings})
+
+
+def _painter_prompt(painter: Any, g: PartGroup) -> str:
+    if hasattr(painter, "prompt_for"):
+        return str(painter.prompt_for(g.index, g.label))
+    return str(getattr(painter, "prompt", ""))
+
+
+# -------------------------------------------------------------------------------- view painting
+@dataclass
+class _Member:
+    part: int
+    R: np.ndarray
+    t: np.ndarray
+
+
+@dataclass
+class _GroupState:
+    """Running blend of one group texture over the covered texels (t of them)."""
+
+    group: PartGroup
+    texels: TexelMap
+    members: list[_Member]
+    accum: np.ndarray  # (t, 3) sum of w * colour
+    weight: np.ndarray  # (t,) sum of w
+    best: np.ndarray  # (t,) best view cosine so far (0: never painted)
+    cache: dict = field(default_factory=dict)  # images of the current state (cleared on update)
+
+    def image(self, size: int) -> np.ndarray:
+        if "image" not in self.cache:
+            self.cache["image"] = self._image(size)
+        return self.cache["image"]
+
+    def best_image(self, size: int) -> np.ndarray:
+        if "best" not in self.cache:
+            self.cache["best"] = self._best_image(size)
+        return self.cache["best"]
+
+    def _image(self, size: int, gutter: int = 2) -> np.ndarray:
+        """(size, size, 3) float32 current texture (unpainted texels grey, seams padded)."""
+        img = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
+        seen = self.weight > 0
+        ij = self.texels.ij[seen]
+        img[ij[:, 0], ij[:, 1]] = self.accum[seen] / self.weight[seen, None]
+        m = np.zeros((size, size), dtype=bool)
+        m[ij[:, 0], ij[:, 1]] = True
+        return pad_seams(img, m, gutter)[0]
+
+    def _best_image(self, size: int) -> np.ndarray:
+        """(size, size, 1) float32 best cosine per texel, padded so lookups near chart edges see it."""
+        img = np.zeros((size, size, 1), dtype=np.float32)
+        img[self.texels.ij[:, 0], self.texels.ij[:, 1], 0] = self.best
+        return pad_seams(img, self.texels.mask, 2)[0]
+
+
+def _states(shape: Shape, grouping: Grouping, uv: ShapeUV, size: int) -> list[_GroupState]:
+    states = []
+    for g, texels in zip(grouping.groups, group_texels(shape, grouping, uv, size)):
+        members = [_Member(m.part, np.asarray(m.R, float), np.asarray(m.t, float)) for m in g.maps]
+        n = len(texels.face)
+        states.append(_GroupState(g, texels, members, np.zeros((n, 3)), np.zeros(n), np.zeros(n)))
+    return states
+
+
+def trimap(buffers: Buffers, uv: ShapeUV, best_images: Sequence[np.ndarray], margin: float) -> np.ndarray:
+    """(H, W) uint8 BACKGROUND / KEEP / REFINE / GENERATE per pixel of a view.
+
+    A pixel is GENERATE where its texel was never painted, REFINE where this view sees it more
+    frontally than any earlier view by more than ``margin`` in cosine, else KEEP.
+    """
+    from .render import pixel_uv
+
+    out = np.full(buffers.face.shape, BACKGROUND, dtype=np.uint8)
+    m = buffers.mask
+    puv = pixel_uv(buffers, uv.corner_uv)[m]
+    grp = buffers.group[m]
+    best = np.zeros(len(puv))
+    for g, img in enumerate(best_images):
+        sel = grp == g
+        if sel.any():
+            best[sel] = sample_texture(img, puv[sel], bilinear=False)[:, 0]
+    cos = buffers.cos[m]
+    state = np.where(best <= 0, GENERATE, np.where(cos > best + margin, REFINE, KEEP)).astype(np.uint8)
+    out[m] = state
+    return out
+
+
+def _pull(
+    state: _GroupState,
+    buffers: Buffers,
+    tri: np.ndarray,
+    view: np.ndarray,
+    margin: float,
+    power: float,
+    plane_tol: float,
+    members: Sequence[_Member] | None = None,
+) -> int:
+    """Back-project one painted view into one group texture; returns the number of texels updated."""
+    cam = buffers.camera
+    H, W = buffers.face.shape
+    eye = np.asarray(cam.eye)
+    footprint = 2 * cam.tan_half / H
+    updated = 0
+    part_img = buffers.part.ravel()
+    tri_f = tri.ravel()
+    pts_f = buffers.points.reshape(-1, 3)
+    nrm_f = buffers.normal.reshape(-1, 3)
+    plane_f = np.einsum("ij,ij->i", pts_f, nrm_f)  # each pixel's tangent plane: n . x = plane
+    view_f = view.reshape(-1, 3)
+    cos_f = buffers.cos.ravel()
+    for mem in members if members is not None else state.members:
+        x = (state.texels.points - mem.t) @ mem.R  # member-space points (x_rep = R x + t)
+        xy, z = cam.project(x)
+        ok = (xy[:, 0] >= 0.5) & (xy[:, 0] < W - 0.5) & (xy[:, 1] >= 0.5) & (xy[:, 1] < H - 0.5)  # NaN -> False
+        idx = np.flatnonzero(ok)
+        px, py = xy[idx, 0] - 0.5, xy[idx, 1] - 0.5
+        i0 = py.astype(np.int64)  # >= 0, so truncation is floor
+        j0 = px.astype(np.int64)
+        base = i0 * W + j0
+        near = (np.take(part_img, base) == mem.part) | (np.take(part_img, base + 1) == mem.part)
+        near |= (np.take(part_img, base + W) == mem.part) | (np.take(part_img, base + W + 1) == mem.part)
+        if not near.any():
+            continue
+        idx, px, py, i0, j0, base = idx[near], px[near], py[near], i0[near], j0[near], base[near]
+        x = np.take(x, idx, axis=0)
+        dist = np.sqrt(np.einsum("ij,ij->i", x - eye, x - eye))
+        fy, fx = py - i0, px - j0
+        tol = plane_tol * footprint * dist
+        col = np.zeros((len(idx), 3))
+        wsum = np.zeros(len(idx))
+        cos = np.zeros(len(idx))
+        for off, wb in ((0, (1 - fy) * (1 - fx)), (1, (1 - fy) * fx), (W, fy * (1 - fx)), (W + 1, fy * fx)):
+            lin = base + off
+            # np.take: several times faster than fancy indexing for these gathers.
+            valid = (np.take(part_img, lin) == mem.part) & (np.take(tri_f, lin) >= REFINE)
+            valid &= np.abs(np.einsum("ij,ij->i", x, np.take(nrm_f, lin, axis=0)) - np.take(plane_f, lin)) <= tol
+            w = np.where(valid, wb + 1e-6, 0.0)
+            col += w[:, None] * np.take(view_f, lin, axis=0)
+            cos += w * np.take(cos_f, lin)
+            wsum += w
+        hit = wsum > 0
+        if not hit.any():
+            continue
+        t_idx = idx[hit]
+        c = col[hit] / wsum[hit, None]
+        cs = cos[hit] / wsum[hit]
+        best = state.best[t_idx]
+        upd = (best <= 0) | (cs > best + margin)
+        t_idx, c, cs = t_idx[upd], c[upd], cs[upd]
+        # A texel shared by several members seen in the same view accumulates each of them.
+        w = np.maximum(cs, 1e-3) ** power
+        np.add.at(state.accum, t_idx, w[:, None] * c)
+        np.add.at(state.weight, t_idx, w)
+        np.maximum.at(state.best, t_idx, cs)
+        updated += len(t_idx)
+        state.cache.clear()
+    return updated
+
+
+def _request(
+    buffers: Buffers, tri: np.ndarray, rgb: np.ndarray, prompt: str, prompts: dict[int, str],
+    center: np.ndarray, scale: float, k: int, n: int, seed: int, labels: Mapping[int, str],
+) -> ViewRequest:
+    return ViewRequest(
+        prompt=prompt,
+        group_prompts=dict(prompts),
+        rgb=rgb.astype(np.float32),
+        trimap=tri,
+        depth=buffers.depth.astype(np.float32),
+        normal=buffers.normal.astype(np.float32),
+        points=buffers.points.astype(np.float32),
+        group=buffers.group,
+        center=center,
+        scale=scale,
+        view_index=k,
+        n_views=n,
+        seed=int(seed) * 1000003 + k,
+        camera=buffers.camera,
+        part=buffers.part,
+        extra={"group_labels": dict(labels)},
+    )
+
+
+def _check_view(image: Any, H: int, W: int) -> np.ndarray:
+    img = np.asarray(image, dtype=np.float64)
+    if img.shape != (H, W, 3):
+        raise ValueError(f"view painter returned {img.shape}, expected ({H}, {W}, 3)")
+    if not np.isfinite(img).all():
+        raise ValueError("view painter returned NaN or inf")
+    return np.clip(img, 0, 1)
+
+
+def fill_unseen(points: np.ndarray, colors: np.ndarray, seen: np.ndarray, k: int = 8) -> np.ndarray:
+    """Colours for unseen texels from the ``k`` nearest seen texels on the surface (inverse distance).
+
+    Args:
+        points: (t, 3) texel surface points; colors: (t, 3) (only seen rows are read);
+        seen: (t,) bool. Returns (t, 3) with unseen rows filled (unchanged when nothing is seen).
+    """
+    out = np.array(colors, dtype=np.float64, copy=True)
+    if seen.all() or not seen.any():
+        return out
+    src = np.flatnonzero(seen)
+    kk = min(k, len(src))
+    d, j = cKDTree(points[src]).query(points[~seen], k=kk)
+    d, j = d.reshape(len(d), kk), j.reshape(len(j), kk)
+    w = 1.0 / np.maximum(d, 1e-12) ** 2
+    out[~seen] = np.einsum("ij,ijk->ik", w, out[src][j]) / w.sum(axis=1, keepdims=True)
+    return out
+
+
+def paint_views(
+    shape: Shape,
+    grouping: Grouping,
+    painter: ViewPainter,
+    prompt: str = "",
+    group_prompts: Mapping[str, str] | None = None,
+    cameras: Sequence[Camera] | None = None,
+    n_views: int = 11,
+    view_size: int = 512,
+    size: int = 1024,
+    up: str = "z",
+    uv: ShapeUV | None = None,
+    seed: int = 0,
+    margin: float = 0.1,
+    power: float = 4.0,
+    plane_tol: float = 1.0,
+    gutter: int = 8,
+    complete_hidden: bool = True,
+    backend: str = "auto",
+    on_view: Callable[[int, int, dict[str, Any]], None] | None = None,
+) -> TemplateTexture:
+    """The multi-view paint loop (module docstring). Returns a :class:`TemplateTexture` (method "views").
+
+    Args:
+        painter: a :class:`ViewPainter`.
+        prompt, group_prompts: the global prompt and overrides keyed by group label or index.
+        cameras: the camera path (default: :func:`proctex.render.orbit_path` with ``n_views`` views of
+            ``view_size`` pixels around the shape, ``up`` being its up axis).
+        size: texture size; uv: a precomputed layout.
+        margin: cosine gain needed to refine an already painted texel; power: blend weight ``cos^power``.
+        plane_tol: how far (in pixel footprints) a texel may lie off the seen surface and still be painted.
+        complete_hidden: paint groups with texels no path view saw from six views of the group's
+            representative alone (inner parts hidden by others).
+        on_view: progress callback ``(k, n, stats)``.
+    """
+    if not isinstance(painter, ViewPainter):
+        raise ValueError("painter must implement paint_view(request) -> (H, W, 3) image")
+    if size < 8:
+        raise ValueError(f"texture size must be >= 8, got {size}")
+    t0 = time.perf_counter()
+    prompts = resolve_group_prompts(grouping, prompt, group_prompts)
+    labels = {g.index: g.label for g in grouping.groups}
+    uv = uv if uv is not None else shape_uv(shape, grouping, resolution=size)
+    center, scale = shape_frame(shape)
+    c, r = bounding_sphere(shape.vertices)
+    cams = list(cameras) if cameras is not None else orbit_path(c, r, up, n_views, view_size)
+    if not cams:
+        raise ValueError("no cameras")
+    states = _states(shape, grouping, uv, size)
+    tracer = Tracer(shape.vertices, shape.faces, backend)
+    face_part = grouping.segmentation.face_part
+    view_stats = []
+    for k, cam in enumerate(cams):
+        tv = time.perf_counter()
+        buffers = render_buffers(tracer, cam, face_part, uv.face_group)
+        rgb = textured_albedo(buffers, uv.corner_uv, uv.face_group, [s.image(size) for s in states], default=(UNPAINTED,) * 3)
+        tri = trimap(buffers, uv, [s.best_image(size) for s in states], margin)
+        request = _request(buffers, tri, rgb, prompt, prompts, center, scale, k, len(cams), seed, labels)
+        tp = time.perf_counter()
+        view = _check_view(painter.paint_view(request), cam.height, cam.width)
+        tb = time.perf_counter()
+        updated = sum(_pull(s, buffers, tri, view, margin, power, plane_tol) for s in states)
+        stats = {
+            "view": k, "camera": cam.name, "generate": int((tri == GENERATE).sum()), "refine": int((tri == REFINE).sum()),
+            "keep": int((tri == KEEP).sum()), "texels_updated": int(updated),
+            "render_s": round(tp - tv, 3), "painter_s": round(tb - tp, 3), "backproject_s": round(time.perf_counter() - tb, 3),
+        }
+        view_stats.append(stats)
+        if on_view is not None:
+            on_view(k, len(cams), stats)
+    seen_path = {s.group.index: float((s.weight > 0).mean()) if len(s.weight) else 1.0 for s in states}
+    hidden_views = 0
+    if complete_hidden:
+        hidden_views = _complete_hidden(
+            shape, grouping, uv, states, painter, prompt, prompts, labels, center, scale, up, view_size, size, seed, margin, power, plane_tol, backend
+        )
+    notes: list[str] = []
+    groups = []
+    for s in states:
+        seen = s.weight > 0
+        colors = np.full((len(seen), 3), UNPAINTED)
+        colors[seen] = s.accum[seen] / s.weight[seen, None]
+        if not seen.any() and len(seen):
+            notes.append(f"group {s.group.index}: no view saw it (zero area?): filled grey")
+        colors = fill_unseen(s.texels.points, colors, seen)
+        image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
+        image[s.texels.ij[:, 0], s.texels.ij[:, 1]] = colors
+        image, painted = pad_seams(image, s.texels.mask, gutter)
+        groups.append(GroupTexture(s.group.index, s.group.label, prompts[s.group.index], image, painted, s.texels, float(seen.mean()) if len(seen) else 1.0))
+    for a in uv.atlases:
+        notes.extend(a.notes)
+    stats = {"views": view_stats, "seen_by_path": seen_path, "hidden_views": hidden_views}
+    return TemplateTexture(shape, grouping, uv, groups, "views", time.perf_counter() - t0, notes, stats)
+
+
+def _complete_hidden(
+    shape, grouping, uv, states, painter, prompt, prompts, labels, center, scale, up, view_size, size, seed, margin, power, plane_tol, backend,
+    min_unseen: float = 0.05,
+) -> int:
+    """Paint groups the path left partly unseen from six views of their representative alone."""
+    from .render import canonical_cameras as _six
+
+    n = 0
+    for s in states:
+        if not len(s.weight) or s.group.degenerate or (s.weight <= 0).mean() < min_unseen:
+            continue
+        rep = grouping.parts[s.group.representative]
+        faces = shape.faces[rep.faces]
+        tracer = Tracer(shape.vertices, faces, backend)
+        face_part = np.full(len(faces), rep.index, dtype=np.int64)
+        face_group = np.full(len(faces), s.group.index, dtype=np.int64)
+        c, r = bounding_sphere(shape.vertices[rep.vertices])
+        sub_uv = ShapeUV(uv.corner_uv[rep.faces], face_group, uv.atlases, uv.resolution)
+        rep_member = [m for m in s.members if m.part == rep.index]
+        for cam in _six(c, r, up, view_size):
+            buffers = render_buffers(tracer, cam, face_part, face_group)
+            images = [st.image(size) if st is s else np.zeros((1, 1, 3), np.float32) for st in states]
+            best = [st.best_image(size) if st is s else np.zeros((1, 1, 1), np.float32) for st in states]
+            rgb = textured_albedo(buffers, sub_uv.corner_uv, face_group, images, default=(UNPAINTED,) * 3)
+            tri = trimap(buffers, sub_uv, best, margin)
+            request = _request(buffers, tri, rgb, prompt, prompts, center, scale, 1000 + n, 6, seed, labels)
+            view = _check_view(painter.paint_view(request), cam.height, cam.width)
+            _pull(s, buffers, tri, view, margin, power, plane_tol, rep_member)
+            n += 1
+    return n
+
+
+# ------------------------------------------------------------------------- a solid view painter
+class SolidViewPainter:
+    """A view painter that paints each pixel with a surface painter at the pixel's 3D point.
+
+    It is what a perfectly view-consistent image generator would produce; the multi-view loop must
+    reproduce :func:`paint_surface`'s texture with it on seen texels (the loop's correctness test).
+    Given the grouping, pixels of a group member are painted at the corresponding point of the
+    group's representative (``x_rep = R x + t``), as the shared texture requires.
+    """
+
+    def __init__(self, surface_painter: Any, grouping: Grouping | None = None) -> None:
+        self.surface = surface_painter
+        self.maps = {}
+        if grouping is not None:
+            self.maps = {m.part: (np.asarray(m.R, float), np.asarray(m.t, float)) for g in grouping.groups for m in g.maps}
+
+    def paint_view(self, request: ViewRequest) -> np.ndarray:
+        out = np.array(request.rgb, dtype=np.float32, copy=True)
+        m = request.foreground
+        pts = request.points[m].astype(np.float64)
+        nrm = request.normal[m].astype(np.float64)
+        if self.maps and request.part is not None:
+            part = request.part[m]
+            for p in np.unique(part):
+                if int(p) in self.maps:
+                    R, t = self.maps[int(p)]
+                    sel = part == p
+                    pts[sel] = pts[sel] @ R.T + t
+                    nrm[sel] = nrm[sel] @ R.T
+        pts = (pts - request.center) / request.scale
+        grp = request.group[m]
+        labels = request.extra.get("group_labels", {})
+        colors = np.zeros((len(pts), 3), dtype=np.float32)
+        for g in np.unique(grp):
+            sel = grp == g
+            colors[sel] = self.surface.paint(pts[sel], nrm[sel], group=int(g), label=labels.get(int(g), ""))
+        out[m] = colors
+        return out
