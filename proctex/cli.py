@@ -140,6 +140,72 @@ def cmd_correspond(args: argparse.Namespace) -> int:
     return 0
 
 
+def _group_prompts(arg: str | None) -> dict[str, str] | None:
+    """``--group-prompts``: inline JSON or the path of a JSON file, ``{"group label or index": prompt}``."""
+    if not arg:
+        return None
+    text = Path(arg).read_text() if os.path.isfile(arg) else arg
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--group-prompts is not valid JSON ({exc}); expected e.g. '{{\"seat\": \"red velvet\"}}'") from exc
+    if not isinstance(data, dict) or not all(isinstance(v, str) for v in data.values()):
+        raise ValueError('--group-prompts must be a JSON object of strings, e.g. {"seat": "red velvet", "2": "oak"}')
+    return {str(k): v for k, v in data.items()}
+
+
+def cmd_paint(args: argparse.Namespace) -> int:
+    from .paint import SolidViewPainter, paint_surface, paint_views, resolve_group_prompts, write_textured
+    from .painters import SurfacePainter
+    from .render import default_up
+
+    if args.size < 8 or args.size > 8192:
+        raise ValueError(f"--size must be in [8, 8192], got {args.size}")
+    if args.views < 3 or args.view_size < 16:
+        raise ValueError("--views must be >= 3 and --view-size >= 16")
+    if args.painter == "diffusion" and not args.model_dir:
+        raise ValueError("--painter diffusion needs --model-dir (a local diffusers model folder)")
+    group_prompts = _group_prompts(args.group_prompts)
+    shape = resolve_shape(args.mesh)
+    up = default_up(shape.source) if args.up == "auto" else args.up
+    grouping = analyse(shape, seed=args.seed)
+    prompts = resolve_group_prompts(grouping, args.prompt, group_prompts)  # validates the keys
+    per_group = {str(k): v for k, v in prompts.items()}
+    surface = SurfacePainter(args.prompt, per_group, seed=args.seed)
+    t0 = time.perf_counter()
+    if args.painter == "surface":
+        tex = paint_surface(shape, grouping, surface, size=args.size, prompts=prompts)
+    else:
+        if args.painter == "views":
+            painter: Any = SolidViewPainter(surface, grouping)
+        else:
+            from .painters.diffusion import DiffusionViewPainter
+
+            painter = DiffusionViewPainter(args.model_dir, device=args.device, steps=args.steps)
+
+        def progress(k: int, n: int, st: dict[str, Any]) -> None:
+            if not args.quiet:
+                print(f"view {k + 1}/{n} {st['camera']}: generate {st['generate']} refine {st['refine']} keep {st['keep']} px, "
+                      f"{st['texels_updated']} texels ({st['painter_s'] + st['backproject_s'] + st['render_s']:.2f}s)", flush=True)
+
+        tex = paint_views(shape, grouping, painter, args.prompt, group_prompts, n_views=args.views, view_size=args.view_size,
+                          size=args.size, up=up, seed=args.seed, on_view=progress)
+    seconds = time.perf_counter() - t0
+    summary = write_textured(tex, args.out, up=up, obj=args.obj)
+    summary["paint_seconds"] = round(seconds, 3)
+    if args.json:
+        _print_json(summary)
+        return 0
+    if not args.quiet:
+        for note in tex.notes:
+            print(f"note: {note}")
+        for g in summary["groups"]:
+            print(f"group {g['group']} {g['label'] or '':<12} {g['prompt']!r}  {g['covered_texels']} texels  seen {100 * g['seen']:.1f}%")
+        print(f"coverage (unpainted visible pixels): {100 * summary['coverage']['share']:.3f}%")
+    print(f"painted {len(tex.groups)} groups ({args.painter}, {args.size}px) in {seconds:.2f}s -> {args.out}")
+    return 0
+
+
 def cmd_template(args: argparse.Namespace) -> int:
     if os.path.isdir(args.source):
         src = FolderSource(args.source)
@@ -285,6 +351,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_correspond)
+
+    p = sub.add_parser("paint", help="texture a template from a prompt: per-group PNGs, textured GLB, six-view preview")
+    p.add_argument("mesh", help="mesh file, MODEL or MODEL:{json}")
+    p.add_argument("--prompt", required=True, help='e.g. "dark walnut" or "red velvet with white polka dots"')
+    p.add_argument("--group-prompts", help='JSON (inline or a file) overriding the prompt per group label or index, e.g. {"seat": "red velvet"}')
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True)
+    p.add_argument("--size", type=int, default=1024, help="texture size per group")
+    p.add_argument("--painter", choices=["surface", "views", "diffusion"], default="surface",
+                   help="surface: solid materials at texels; views: the multi-view loop with the solid materials; diffusion: the multi-view loop with a local diffusers model")
+    p.add_argument("--views", type=int, default=11, help="camera path length for view painters")
+    p.add_argument("--view-size", type=int, default=512)
+    p.add_argument("--model-dir", help="local diffusers model folder (diffusion painter)")
+    p.add_argument("--steps", type=int, default=30, help="diffusion steps")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--up", choices=["auto", "x", "y", "z"], default="auto", help="up axis (auto: y for OBJ/glTF files, else z)")
+    p.add_argument("--obj", action="store_true", help="also write OBJ + MTL")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_paint)
 
     p = sub.add_parser("template", help="pick the template of a folder of samples or of a model's samples")
     p.add_argument("source", help="folder of samples, model name or generator config")

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -48,6 +49,7 @@ class GroupTexture:
         painted: (H, W) bool texels holding colour (covered texels plus the padded gutter).
         texels: the texel map of the group's representative.
         seen: share of covered texels painted directly (views: seen by a view; surface painter: 1).
+        direct: (t,) bool per covered texel: painted directly (None: all of them).
     """
 
     group: int
@@ -57,6 +59,7 @@ class GroupTexture:
     painted: np.ndarray
     texels: TexelMap
     seen: float = 1.0
+    direct: np.ndarray | None = None
 
     def uint8(self) -> np.ndarray:
         """(H, W, 3) uint8 image."""
@@ -201,8 +204,8 @@ def paint_surface(
         out.append(GroupTexture(g.index, g.label, prompt, image, painted, texels))
     timings["paint"] = t_paint
     notes = list(painter.notes()) if hasattr(painter, "notes") else []
-    for a in uv.atlases:
-        notes.extend(a.notes)
+    for gi, a in enumerate(uv.atlases):
+        notes.extend(f"group {gi}: {n}" for n in a.notes)
     return TemplateTexture(shape, grouping, uv, out, "surface", time.perf_counter() - t0, notes, {"timings": timings})
 
 
@@ -503,9 +506,10 @@ def paint_views(
         image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
         image[s.texels.ij[:, 0], s.texels.ij[:, 1]] = colors
         image, painted = pad_seams(image, s.texels.mask, gutter)
-        groups.append(GroupTexture(s.group.index, s.group.label, prompts[s.group.index], image, painted, s.texels, float(seen.mean()) if len(seen) else 1.0))
-    for a in uv.atlases:
-        notes.extend(a.notes)
+        share = float(seen.mean()) if len(seen) else 1.0
+        groups.append(GroupTexture(s.group.index, s.group.label, prompts[s.group.index], image, painted, s.texels, share, seen))
+    for gi, a in enumerate(uv.atlases):
+        notes.extend(f"group {gi}: {n}" for n in a.notes)
     stats = {"views": view_stats, "seen_by_path": seen_path, "hidden_views": hidden_views}
     return TemplateTexture(shape, grouping, uv, groups, "views", time.perf_counter() - t0, notes, stats)
 
@@ -580,3 +584,62 @@ class SolidViewPainter:
             colors[sel] = self.surface.paint(pts[sel], nrm[sel], group=int(g), label=labels.get(int(g), ""))
         out[m] = colors
         return out
+
+
+# ------------------------------------------------------------------------------------- outputs
+def preview_views(tex: TemplateTexture, up: str = "z", size: int = 256, backend: str = "auto") -> list[np.ndarray]:
+    """The six canonical views of the textured template, shaded: list of (size, size, 3) uint8."""
+    from .render import shade
+
+    shape = tex.shape
+    tracer = Tracer(shape.vertices, shape.faces, backend)
+    c, r = bounding_sphere(shape.vertices)
+    images = []
+    for cam in canonical_cameras(c, r, up, size):
+        b = render_buffers(tracer, cam, face_group=tex.uv.face_group)
+        images.append(shade(b, textured_albedo(b, tex.uv.corner_uv, tex.uv.face_group, tex.images)))
+    return images
+
+
+def group_file_name(g: GroupTexture) -> str:
+    """``group_<index>[_<label>].png`` (label made file-name safe)."""
+    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in g.label)
+    return f"group_{g.group}{'_' + safe if safe else ''}.png"
+
+
+def write_textured(tex: TemplateTexture, out: str | Path, up: str = "z", obj: bool = False, preview_size: int = 256) -> dict[str, Any]:
+    """Write the per-group PNGs, ``textured.glb``, ``preview.png`` (six views) and ``paint.json``.
+
+    Every file is written atomically; returns the summary written to ``paint.json`` (with the
+    coverage of the result and the written paths).
+    """
+    import json
+    import os
+
+    from .export import write_glb, write_obj
+    from .metrics import coverage
+    from .preview import grid_image
+    from .render import save_png
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for g in tex.groups:
+        save_png(out / group_file_name(g), g.uint8())
+        written.append(str(out / group_file_name(g)))
+    names = [g.label or f"group_{g.group}" for g in tex.groups]
+    textures = [g.uint8() for g in tex.groups]
+    shape = tex.shape
+    write_glb(out / "textured.glb", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names)
+    written.append(str(out / "textured.glb"))
+    if obj:
+        written += write_obj(out / "textured.obj", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names)
+    views = preview_views(tex, up, preview_size)
+    save_png(out / "preview.png", grid_image([views[:3], views[3:]]))
+    written.append(str(out / "preview.png"))
+    cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.painted_masks, up=up)
+    summary = {**tex.summary(), "up": up, "coverage": cov.to_dict(), "files": written + [str(out / "paint.json")]}
+    tmp = out / f"paint.json.tmp{os.getpid()}"
+    tmp.write_text(json.dumps(summary, indent=1))
+    os.replace(tmp, out / "paint.json")
+    return summary

@@ -1,0 +1,275 @@
+"""Template texturing: surface painting, the multi-view paint loop, coverage, outputs and the CLI."""
+
+import json
+
+import numpy as np
+import pytest
+
+from proctex.cli import main
+from proctex.meshio import load_mesh
+from proctex.metrics import coverage
+from proctex.models import get_model, list_models
+from proctex.paint import (
+    SolidViewPainter,
+    fill_unseen,
+    paint_surface,
+    paint_views,
+    resolve_group_prompts,
+    trimap,
+    write_textured,
+)
+from proctex.painters import GENERATE, KEEP, SurfacePainter
+from proctex.parts import analyse
+from proctex.render import Tracer, bounding_sphere, orbit_path, render_buffers
+from proctex.uv import sample_texture
+
+
+class Analytic:
+    """A smooth surface painter with a closed form (for exact checks)."""
+
+    def paint(self, points, normals, group=None, label=""):
+        return (0.5 + 0.4 * np.sin(5 * points + np.array([0.0, 1.0, 2.0]) * (1 + (group or 0)))).astype(np.float32)
+
+
+def psnr(a, b):
+    mse = float(((np.asarray(a, float) - np.asarray(b, float)) ** 2).mean())
+    return 10 * np.log10(1 / max(mse, 1e-12))
+
+
+@pytest.fixture(scope="module")
+def sofa(sofa_dir):
+    shape, _ = load_mesh(sofa_dir / "train" / "0.obj")
+    return shape, analyse(shape)
+
+
+@pytest.fixture(scope="module")
+def chair():
+    shape = get_model("chair").generate()
+    return shape, analyse(shape)
+
+
+# --------------------------------------------------------------------------------------- prompts
+def test_group_prompts_resolve_by_label_then_index(chair):
+    shape, g = chair
+    labels = {x.label for x in g.groups}
+    assert "leg" in labels
+    leg = next(x.index for x in g.groups if x.label == "leg")
+    other = next(x.index for x in g.groups if x.label != "leg")
+    p = resolve_group_prompts(g, "oak", {"leg": "steel", str(other): "red velvet"})
+    assert p[leg] == "steel" and p[other] == "red velvet"
+    assert all(v == "oak" for k, v in p.items() if k not in (leg, other))
+    p = resolve_group_prompts(g, "oak", {"leg": "steel", str(leg): "gold"})
+    assert p[leg] == "gold"  # an explicit index beats the label
+    with pytest.raises(ValueError, match="unknown group 'cushion'.*leg"):
+        resolve_group_prompts(g, "oak", {"cushion": "silk"})
+    with pytest.raises(ValueError):
+        resolve_group_prompts(g, 3, None)
+
+
+# --------------------------------------------------------------------------------- surface paint
+def test_surface_paint_puts_the_painter_colour_on_every_covered_texel(chair):
+    shape, g = chair
+    tex = paint_surface(shape, g, Analytic(), size=128)
+    assert len(tex.groups) == len(g.groups)
+    from proctex.paint import shape_frame
+
+    center, scale = shape_frame(shape)
+    for gt in tex.groups:
+        got = gt.image[gt.texels.ij[:, 0], gt.texels.ij[:, 1]]
+        want = Analytic().paint((gt.texels.points - center) / scale, gt.texels.normals, group=gt.group)
+        assert np.allclose(got, want, atol=1e-6)
+        assert gt.painted[gt.texels.ij[:, 0], gt.texels.ij[:, 1]].all()
+        assert gt.image.dtype == np.float32 and np.isfinite(gt.image).all()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list_models())
+def test_coverage_is_zero_on_every_builtin_template(name):
+    shape = get_model(name).generate()
+    g = analyse(shape)
+    tex = paint_surface(shape, g, SurfacePainter("speckled green ceramic", seed=1), size=256)
+    cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.painted_masks, size=256)
+    assert cov.pixels > 1000 and cov.share == 0.0, cov
+    tv = paint_views(shape, g, SolidViewPainter(SurfacePainter("oak"), g), "oak", n_views=6, view_size=128, size=128, uv=None)
+    cov = coverage(shape.vertices, shape.faces, tv.uv.corner_uv, tv.uv.face_group, tv.painted_masks, size=256)
+    assert cov.share == 0.0, cov
+
+
+def test_coverage_is_zero_on_a_sofa_sample_and_counts_holes(sofa):
+    shape, g = sofa
+    tex = paint_surface(shape, g, SurfacePainter("red velvet"), size=256)
+    cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.painted_masks, up="y", size=256)
+    assert cov.pixels > 10000 and cov.share == 0.0
+    # Knock out the painted texels of one group: the metric sees it.
+    holes = [m.copy() for m in tex.painted_masks]
+    holes[1][:] = False
+    cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, holes, up="y", size=256)
+    assert cov.share > 0.01
+
+
+# ------------------------------------------------------------------------------ multi-view loop
+@pytest.mark.parametrize("prompt", ["oak wood", "red velvet", "white marble"])
+def test_view_loop_reproduces_the_surface_painter(chair, prompt):
+    shape, g = chair
+    surface = SurfacePainter(prompt, seed=3)
+    ref = paint_surface(shape, g, surface, size=256)
+    tv = paint_views(shape, g, SolidViewPainter(surface, g), prompt, view_size=384, size=256, uv=ref.uv, complete_hidden=False)
+    for a, b in zip(ref.groups, tv.groups):
+        # Only texels a view actually painted (fill_unseen invents the others).
+        ij = a.texels.ij[b.direct]
+        assert b.direct.mean() > 0.8
+        assert psnr(a.image[ij[:, 0], ij[:, 1]], b.image[ij[:, 0], ij[:, 1]]) >= 30, (prompt, a.group)
+
+
+def test_view_loop_trimap_generates_then_keeps(chair):
+    shape, g = chair
+    surface = SurfacePainter("gold")
+    c, r = bounding_sphere(shape.vertices)
+    cam = orbit_path(c, r, "z", 11, 96)[0]
+    calls = []
+
+    class Recorder(SolidViewPainter):
+        def paint_view(self, request):
+            calls.append(request.trimap.copy())
+            assert request.rgb.shape == (96, 96, 3) and request.group.shape == (96, 96)
+            assert request.depth[request.trimap == 0].min() == np.inf
+            return super().paint_view(request)
+
+    paint_views(shape, g, Recorder(surface, g), "gold", cameras=[cam, cam], size=128, complete_hidden=False)
+    first, second = calls
+    fg = first > 0
+    assert (first[fg] == GENERATE).all()
+    assert (second[fg] == KEEP).mean() > 0.97  # the same view again: nothing to do
+
+
+def test_view_loop_rejects_bad_painters(chair):
+    shape, g = chair
+
+    class Wrong:
+        def paint_view(self, request):
+            return np.zeros((3, 3, 3))
+
+    with pytest.raises(ValueError, match="expected"):
+        paint_views(shape, g, Wrong(), n_views=3, view_size=32, size=32)
+    with pytest.raises(ValueError, match="paint_view"):
+        paint_views(shape, g, object(), n_views=3, view_size=32, size=32)
+
+
+def test_fill_unseen_interpolates_on_the_surface():
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0.5, 0, 0], [10, 0, 0]], float)
+    col = np.array([[1, 0, 0], [0, 0, 1], [9, 9, 9], [9, 9, 9]], float)
+    seen = np.array([True, True, False, False])
+    out = fill_unseen(pts, col, seen, k=2)
+    assert np.allclose(out[2], [0.5, 0, 0.5])
+    w = np.array([1 / 10**2, 1 / 9**2])  # inverse squared distances to the two seen texels
+    assert np.allclose(out[3], (w[0] * col[0] + w[1] * col[1]) / w.sum())
+    assert np.array_equal(out[:2], col[:2])
+
+
+def test_diffusion_painter_runs_the_whole_loop(tmp_path, chair):
+    pytest.importorskip("diffusers")
+    import torch
+
+    from proctex.painters.diffusion import DiffusionViewPainter, build_tiny_pipeline
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        shape, g = chair
+        painter = DiffusionViewPainter(build_tiny_pipeline(tmp_path / "tiny"), steps=2)
+        tv = paint_views(shape, g, painter, "a wooden chair", n_views=4, view_size=64, size=64, complete_hidden=False)
+    finally:
+        torch.set_num_threads(threads)
+    cov = coverage(shape.vertices, shape.faces, tv.uv.corner_uv, tv.uv.face_group, tv.painted_masks, size=128)
+    assert cov.share == 0.0
+    for gt in tv.groups:
+        assert np.isfinite(gt.image).all() and gt.image.min() >= 0 and gt.image.max() <= 1
+    assert sum(v["texels_updated"] for v in tv.stats["views"]) > 0
+
+
+# --------------------------------------------------------------------------------------- outputs
+def _glb_colour_at(path, point, material, expect_tol=2e-3):
+    """Colour of the loaded GLB at a surface point of the primitive with ``material``: find the face,
+    interpolate its UVs, sample its texture. (Touching parts share surface, hence the material.)"""
+    import trimesh
+
+    from proctex.geometry import SurfaceIndex
+
+    scene = trimesh.load(path, force="scene")
+    best = None
+    for geom in scene.geometry.values():
+        if geom.visual.material.name != material:
+            continue
+        idx = SurfaceIndex(np.asarray(geom.vertices), np.asarray(geom.faces))
+        res = idx.query(point[None])
+        if best is None or res.distance[0] < best[0]:
+            best = (res.distance[0], geom, res)
+    d, geom, res = best
+    assert d < expect_tol
+    uv = np.einsum("j,jk->k", res.bary[0], np.asarray(geom.visual.uv)[geom.faces[res.faces[0]]])
+    img = np.asarray(geom.visual.material.baseColorTexture.convert("RGB"))
+    return sample_texture(img, uv[None])[0], geom
+
+
+def test_write_textured_glb_has_the_right_colours_at_known_points(tmp_path, sofa):
+    shape, g = sofa
+    tex = paint_surface(shape, g, SurfacePainter("blue and white striped fabric"), size=128)
+    summary = write_textured(tex, tmp_path, up="y", obj=True)
+    for name in ["textured.glb", "textured.obj", "textured.mtl", "preview.png", "paint.json"]:
+        assert (tmp_path / name).is_file()
+    assert summary["coverage"]["share"] == 0.0
+    rng = np.random.default_rng(0)
+    for gt in tex.groups:
+        if g.groups[gt.group].degenerate:
+            continue
+        rep_uv = tex.uv.corner_uv[g.parts[g.groups[gt.group].representative].faces]
+        interior = np.flatnonzero(gt.texels.bary.min(axis=1) > 0.05)  # away from chart seams
+        for k in rng.choice(interior, 5, replace=False):
+            got, _ = _glb_colour_at(tmp_path / "textured.glb", gt.texels.points[k], gt.label or f"group_{gt.group}")
+            uv = gt.texels.bary[k] @ rep_uv[gt.texels.face[k]]
+            want = sample_texture(gt.uint8(), uv[None])[0]
+            assert np.abs(got - want).max() < 1.5 / 255
+    from proctex.export import validate_glb, validator_available
+
+    if validator_available():
+        report = validate_glb(tmp_path / "textured.glb")
+        assert report["issues"]["numErrors"] == 0
+
+
+# ------------------------------------------------------------------------------------------- CLI
+def test_cli_paint_writes_everything(tmp_path, capsys):
+    out = tmp_path / "mug"
+    rc = main(["paint", "mug", "--prompt", "glazed blue ceramic", "--group-prompts", '{"handle": "gold"}', "--size", "128", "--out", str(out), "--json"])
+    assert rc == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["coverage"]["share"] == 0.0
+    prompts = {gr["label"]: gr["prompt"] for gr in data["groups"]}
+    assert prompts["handle"] == "gold" and prompts["body"] == "glazed blue ceramic"
+    pngs = sorted(p.name for p in out.glob("group_*.png"))
+    assert len(pngs) == len(data["groups"])
+    assert (out / "textured.glb").is_file() and (out / "preview.png").is_file()
+
+
+def test_cli_paint_views_painter(tmp_path, capsys):
+    rc = main(["paint", "vase", "--prompt", "white marble", "--painter", "views", "--views", "4", "--view-size", "96", "--size", "64", "--out", str(tmp_path / "v"), "--quiet"])
+    assert rc == 0
+    assert "painted" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["paint", "nosuchmodel", "--prompt", "x"], "neither a mesh file nor a built-in model"),
+        (["paint", "mug", "--prompt", "x", "--group-prompts", "{bad json"], "not valid JSON"),
+        (["paint", "mug", "--prompt", "x", "--group-prompts", '{"cushion": "silk"}'], "unknown group"),
+        (["paint", "mug", "--prompt", "x", "--group-prompts", '["a"]'], "JSON object"),
+        (["paint", "mug", "--prompt", "x", "--size", "4"], "--size"),
+        (["paint", "mug", "--prompt", "x", "--painter", "diffusion"], "--model-dir"),
+        (["paint", "mug", "--prompt", "x", "--painter", "diffusion", "--model-dir", "/nonexistent"], "nonexistent"),
+    ],
+)
+def test_cli_paint_bad_input(tmp_path, capsys, argv, message):
+    out = tmp_path / "o"
+    assert main(argv + ["--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
