@@ -280,6 +280,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
             e = gc.gt
             gt_txt = f"  gt error mean {e.mean:.4f} p95 {e.p95:.4f} flipped {100 * e.flipped:.1f}%" if e else ""
             print(f"  group {gc.template_group}: {gc.result.seconds:.1f}s residual {gc.result.residual:.4f}{gt_txt}")
+    tex = None
+    if args.prompt:
+        from .paint import paint_surface, resolve_group_prompts
+        from .painters import SurfacePainter
+
+        known = {g.label for g in tg.groups} | {str(g.index) for g in tg.groups}
+        wanted = _group_prompts(args.group_prompts) or {}
+        prompts = resolve_group_prompts(tg, args.prompt, {k: v for k, v in wanted.items() if k in known})
+        tex = paint_surface(template, tg, SurfacePainter(args.prompt, {str(k): v for k, v in prompts.items()}, seed=args.seed), size=args.texture_size, prompts=prompts)
+        print(f"painted the template ({len(tex.groups)} groups, {args.texture_size}px, surface painter) in {tex.seconds:.1f}s: " + ", ".join(
+            f"{g.label or g.group}={g.prompt!r}" for g in tex.groups))
     if args.out:
         from PIL import Image
 
@@ -296,6 +307,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
             row.append(render_faces(s.vertices, s.faces, fc, size=192, azimuth=-60, elevation=25))
         Image.fromarray(grid_image([row])).save(out / "groups.png")
         print(f"wrote {out / 'groups.png'} (parts coloured by matched template group)")
+        if tex is not None:
+            from .paint import write_textured
+
+            summary = write_textured(tex, out / "template", up="z")
+            print(f"wrote {out / 'template'} (group textures, textured.glb, preview.png; coverage {100 * summary['coverage']['share']:.2f}%)")
         if corr is not None:
             tmp = out / "correspondence.json.tmp"
             tmp.write_text(json.dumps(corr.to_dict(), indent=1))
@@ -395,6 +411,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/demo")
     p.add_argument("--preview", type=int, default=6, help="number of samples in the preview image")
     p.add_argument("--correspond-points", type=int, default=1000, help="cage correspondence of one sample (0: skip)")
+    p.add_argument("--prompt", default="dark walnut", help="paint the template with the surface painter ('' to skip)")
+    p.add_argument("--group-prompts", default='{"seat_cushion": "red velvet", "back_cushion": "red velvet", "back": "red velvet", "armrest": "red velvet"}',
+                   help="per-group prompts (JSON; labels the model lacks are ignored)")
+    p.add_argument("--texture-size", type=int, default=512)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_demo)
     return parser
