@@ -210,8 +210,8 @@ def paint_surface(
 
 
 def _painter_prompt(painter: Any, g: PartGroup) -> str:
-    if hasattr(painter, "prompt_for"):
-        return str(painter.prompt_for(g.index, g.label))
+    if hasattr(painter, "spec_for"):  # SurfacePainter: the prompt that applies to this group
+        return str(painter.spec_for(g.index, g.label).prompt)
     return str(getattr(painter, "prompt", ""))
 
 
@@ -519,8 +519,6 @@ def _complete_hidden(
     min_unseen: float = 0.05,
 ) -> int:
     """Paint groups the path left partly unseen from six views of their representative alone."""
-    from .render import canonical_cameras as _six
-
     n = 0
     for s in states:
         if not len(s.weight) or s.group.degenerate or (s.weight <= 0).mean() < min_unseen:
@@ -533,7 +531,7 @@ def _complete_hidden(
         c, r = bounding_sphere(shape.vertices[rep.vertices])
         sub_uv = ShapeUV(uv.corner_uv[rep.faces], face_group, uv.atlases, uv.resolution)
         rep_member = [m for m in s.members if m.part == rep.index]
-        for cam in _six(c, r, up, view_size):
+        for cam in canonical_cameras(c, r, up, view_size):
             buffers = render_buffers(tracer, cam, face_part, face_group)
             images = [st.image(size) if st is s else np.zeros((1, 1, 3), np.float32) for st in states]
             best = [st.best_image(size) if st is s else np.zeros((1, 1, 1), np.float32) for st in states]

@@ -91,13 +91,13 @@ def planar_uv(vertices: np.ndarray, faces: np.ndarray, margin: float = 0.05) -> 
     return q[f]
 
 
-def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int = 1024, padding: int = 4, seed: int = 0) -> Atlas:
+def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int = 1024, padding: int = 4) -> Atlas:
     """UV atlas of one part with xatlas (planar fallback when xatlas fails or returns NaN).
 
     Args:
         vertices: (n, 3) float64; faces: (k, 3) int64 (at least one face).
         resolution: texture size the charts are packed for; padding: texels kept between charts.
-        seed: unused by xatlas itself (deterministic); kept for a uniform interface.
+        (xatlas is deterministic: no seed.)
 
     Returns:
         :class:`Atlas` with finite ``corner_uv`` in [0, 1].

@@ -465,3 +465,14 @@ def test_paint_validates_input():
         SurfacePainter("oak", {"legs": 3})  # type: ignore[dict-item]
     with pytest.raises(ValueError):
         SurfacePainter("oak", seed=1.5)  # type: ignore[arg-type]
+
+
+def test_pattern_background_after_on():
+    """'yellow dots on white': white background (first pattern colour), yellow dots."""
+    a = parse_prompt("yellow polka dots on white")
+    b = parse_prompt("white with yellow polka dots")
+    assert a.pattern == b.pattern == "dots"
+    assert np.allclose(a.pattern_colors, b.pattern_colors)
+    assert min(a.pattern_colors[0]) > 0.95  # white first
+    c = parse_prompt("white flowers on navy")
+    assert max(c.pattern_colors[0]) < 0.3  # navy background

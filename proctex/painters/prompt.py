@@ -573,6 +573,12 @@ def parse_prompt(prompt: str) -> MaterialSpec:
     if pattern and not sc.materials and pattern in _TEXTILE_PATTERNS:
         kind = variant = "fabric"
         default_main, default_accent = _DEFAULT_COLORS[variant]
+    if pattern and "on" in words and len(user) > 1:
+        # "yellow dots on white": colours after "on" are the background, which comes first.
+        on = words.index("on")
+        after = [rgb for pos, _, rgb in sc.colors if pos > on]
+        if after and len(after) < len(user):
+            user = after + [rgb for pos, _, rgb in sc.colors if pos <= on]
     main = user[0] if user else default_main
     mod_words = " ".join(m for m, _ in sc.material_mods)
     if not user:
