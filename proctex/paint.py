@@ -294,6 +294,100 @@ def trimap(buffers: Buffers, uv: ShapeUV, best_images: Sequence[np.ndarray], mar
     return out
 
 
+def backproject(
+    points: np.ndarray, part: int, buffers: Buffers, trimap_: np.ndarray, view: np.ndarray, plane_tol: float = 1.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pull painted colours onto surface points of one part (the per-component depth test).
+
+    Each point is projected into the view; of the four pixels around it, those that see ``part``,
+    were painted (trimap REFINE or GENERATE) and whose tangent plane passes within
+    ``plane_tol`` pixel footprints of the point count; the colour and view cosine are their bilinear
+    average (weights renormalised over the valid pixels).
+
+    Args:
+        points: (t, 3) float64 world points of the part; part: its part id.
+        buffers: the view's buffers; trimap_: (H, W) uint8; view: (H, W, 3) painted image.
+
+    Returns:
+        idx (k,) int64 indices of the points that got a colour, colours (k, 3), cos (k,).
+    """
+    cam = buffers.camera
+    H, W = buffers.face.shape
+    eye = np.asarray(cam.eye)
+    footprint = 2 * cam.tan_half / H
+    part_img = buffers.part.ravel()
+    xy, _ = cam.project(points)
+    ok = (xy[:, 0] >= 0.5) & (xy[:, 0] < W - 0.5) & (xy[:, 1] >= 0.5) & (xy[:, 1] < H - 0.5)  # NaN -> False
+    idx = np.flatnonzero(ok)
+    px, py = xy[idx, 0] - 0.5, xy[idx, 1] - 0.5
+    i0 = py.astype(np.int64)  # >= 0, so truncation is floor
+    j0 = px.astype(np.int64)
+    base = i0 * W + j0
+    # np.take: several times faster than fancy indexing for these gathers.
+    near = (np.take(part_img, base) == part) | (np.take(part_img, base + 1) == part)
+    near |= (np.take(part_img, base + W) == part) | (np.take(part_img, base + W + 1) == part)
+    idx, px, py, i0, j0, base = idx[near], px[near], py[near], i0[near], j0[near], base[near]
+    if len(idx) == 0:
+        return idx, np.zeros((0, 3)), np.zeros(0)
+    tri_f = trimap_.ravel()
+    nrm_f = buffers.normal.reshape(-1, 3)
+    plane_f = np.einsum("ij,ij->i", buffers.points.reshape(-1, 3), nrm_f)  # tangent plane n . x = plane
+    view_f = np.asarray(view, dtype=np.float64).reshape(-1, 3)
+    cos_f = buffers.cos.ravel()
+    x = np.take(points, idx, axis=0)
+    tol = plane_tol * footprint * np.sqrt(np.einsum("ij,ij->i", x - eye, x - eye))
+    fy, fx = py - i0, px - j0
+    col = np.zeros((len(idx), 3))
+    wsum = np.zeros(len(idx))
+    cos = np.zeros(len(idx))
+    for off, wb in ((0, (1 - fy) * (1 - fx)), (1, (1 - fy) * fx), (W, fy * (1 - fx)), (W + 1, fy * fx)):
+        lin = base + off
+        valid = (np.take(part_img, lin) == part) & (np.take(tri_f, lin) >= REFINE)
+        valid &= np.abs(np.einsum("ij,ij->i", x, np.take(nrm_f, lin, axis=0)) - np.take(plane_f, lin)) <= tol
+        w = np.where(valid, wb + 1e-6, 0.0)
+        col += w[:, None] * np.take(view_f, lin, axis=0)
+        cos += w * np.take(cos_f, lin)
+        wsum += w
+    hit = wsum > 0
+    return idx[hit], col[hit] / wsum[hit, None], cos[hit] / wsum[hit]
+
+
+def backproject_reference(
+    points: np.ndarray, part: int, buffers: Buffers, trimap_: np.ndarray, view: np.ndarray, plane_tol: float = 1.0
+) -> dict[int, tuple[np.ndarray, float]]:
+    """Slow :func:`backproject`: one point at a time. Returns ``{index: (colour (3,), cos)}``."""
+    cam = buffers.camera
+    H, W = buffers.face.shape
+    right, up, fwd = cam.basis()
+    out = {}
+    for k, p in enumerate(np.asarray(points, dtype=np.float64)):
+        d = p - np.asarray(cam.eye)
+        z = d @ fwd
+        if z <= 0:
+            continue
+        x = ((d @ right) / (z * cam.tan_half * W / H) + 1) / 2 * W - 0.5
+        y = (1 - (d @ up) / (z * cam.tan_half)) / 2 * H - 0.5
+        if not (0 <= x < W - 1 and 0 <= y < H - 1):
+            continue
+        i, j = int(np.floor(y)), int(np.floor(x))
+        tol = plane_tol * 2 * cam.tan_half / H * np.linalg.norm(d)
+        acc, wsum, cs = np.zeros(3), 0.0, 0.0
+        for di in (0, 1):
+            for dj in (0, 1):
+                ii, jj = i + di, j + dj
+                if buffers.part[ii, jj] != part or trimap_[ii, jj] < REFINE:
+                    continue
+                if abs((p - buffers.points[ii, jj]) @ buffers.normal[ii, jj]) > tol:
+                    continue
+                w = (y - i if di else 1 - (y - i)) * (x - j if dj else 1 - (x - j)) + 1e-6
+                acc += w * view[ii, jj]
+                cs += w * buffers.cos[ii, jj]
+                wsum += w
+        if wsum > 0:
+            out[k] = (acc / wsum, cs / wsum)
+    return out
+
+
 def _pull(
     state: _GroupState,
     buffers: Buffers,
@@ -304,57 +398,15 @@ def _pull(
     plane_tol: float,
     members: Sequence[_Member] | None = None,
 ) -> int:
-    """Back-project one painted view into one group texture; returns the number of texels updated."""
-    cam = buffers.camera
-    H, W = buffers.face.shape
-    eye = np.asarray(cam.eye)
-    footprint = 2 * cam.tan_half / H
+    """Back-project one painted view into one group texture (every member); returns texels updated."""
     updated = 0
-    part_img = buffers.part.ravel()
-    tri_f = tri.ravel()
-    pts_f = buffers.points.reshape(-1, 3)
-    nrm_f = buffers.normal.reshape(-1, 3)
-    plane_f = np.einsum("ij,ij->i", pts_f, nrm_f)  # each pixel's tangent plane: n . x = plane
-    view_f = view.reshape(-1, 3)
-    cos_f = buffers.cos.ravel()
     for mem in members if members is not None else state.members:
         x = (state.texels.points - mem.t) @ mem.R  # member-space points (x_rep = R x + t)
-        xy, z = cam.project(x)
-        ok = (xy[:, 0] >= 0.5) & (xy[:, 0] < W - 0.5) & (xy[:, 1] >= 0.5) & (xy[:, 1] < H - 0.5)  # NaN -> False
-        idx = np.flatnonzero(ok)
-        px, py = xy[idx, 0] - 0.5, xy[idx, 1] - 0.5
-        i0 = py.astype(np.int64)  # >= 0, so truncation is floor
-        j0 = px.astype(np.int64)
-        base = i0 * W + j0
-        near = (np.take(part_img, base) == mem.part) | (np.take(part_img, base + 1) == mem.part)
-        near |= (np.take(part_img, base + W) == mem.part) | (np.take(part_img, base + W + 1) == mem.part)
-        if not near.any():
+        t_idx, c, cs = backproject(x, mem.part, buffers, tri, view, plane_tol)
+        if len(t_idx) == 0:
             continue
-        idx, px, py, i0, j0, base = idx[near], px[near], py[near], i0[near], j0[near], base[near]
-        x = np.take(x, idx, axis=0)
-        dist = np.sqrt(np.einsum("ij,ij->i", x - eye, x - eye))
-        fy, fx = py - i0, px - j0
-        tol = plane_tol * footprint * dist
-        col = np.zeros((len(idx), 3))
-        wsum = np.zeros(len(idx))
-        cos = np.zeros(len(idx))
-        for off, wb in ((0, (1 - fy) * (1 - fx)), (1, (1 - fy) * fx), (W, fy * (1 - fx)), (W + 1, fy * fx)):
-            lin = base + off
-            # np.take: several times faster than fancy indexing for these gathers.
-            valid = (np.take(part_img, lin) == mem.part) & (np.take(tri_f, lin) >= REFINE)
-            valid &= np.abs(np.einsum("ij,ij->i", x, np.take(nrm_f, lin, axis=0)) - np.take(plane_f, lin)) <= tol
-            w = np.where(valid, wb + 1e-6, 0.0)
-            col += w[:, None] * np.take(view_f, lin, axis=0)
-            cos += w * np.take(cos_f, lin)
-            wsum += w
-        hit = wsum > 0
-        if not hit.any():
-            continue
-        t_idx = idx[hit]
-        c = col[hit] / wsum[hit, None]
-        cs = cos[hit] / wsum[hit]
-        best = state.best[t_idx]
-        upd = (best <= 0) | (cs > best + margin)
+        # Generate where never painted, refine where this view is more frontal by ``margin``.
+        upd = (state.best[t_idx] <= 0) | (cs > state.best[t_idx] + margin)
         t_idx, c, cs = t_idx[upd], c[upd], cs[upd]
         # A texel shared by several members seen in the same view accumulates each of them.
         w = np.maximum(cs, 1e-3) ** power

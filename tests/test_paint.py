@@ -273,3 +273,26 @@ def test_cli_paint_bad_input(tmp_path, capsys, argv, message):
     assert main(argv + ["--out", str(out)]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_backproject_matches_the_reference(chair):
+    from proctex.paint import backproject, backproject_reference
+
+    shape, g = chair
+    c, r = bounding_sphere(shape.vertices)
+    cam = orbit_path(c, r, "z", 11, 48)[2]
+    b = render_buffers(Tracer(shape.vertices, shape.faces), cam, g.segmentation.face_part)
+    rng = np.random.default_rng(0)
+    view = rng.uniform(0, 1, (48, 48, 3))
+    tri = np.where(b.mask, rng.choice([1, 2, 3], size=b.mask.shape), 0).astype(np.uint8)
+    total = 0
+    for part in g.parts[:4]:
+        pts = shape.vertices[part.vertices]
+        pts = np.vstack([pts, (pts[:-1] + pts[1:]) / 2])
+        idx, col, cos = backproject(pts, part.index, b, tri, view)
+        ref = backproject_reference(pts, part.index, b, tri, view)
+        assert set(idx.tolist()) == set(ref)
+        for k, cc, cs in zip(idx, col, cos):
+            assert np.allclose(cc, ref[k][0]) and np.isclose(cs, ref[k][1])
+        total += len(ref)
+    assert total > 20
