@@ -2,13 +2,15 @@
 
     .venv/bin/python tests/bench/contact_sheet.py --out out/contact_sheet.png
 
-Rows are prompts, columns are models (built-in names, or mesh files such as a sofa sample). It uses
+Prompts run across (in blocks of ``--columns``), models down (built-in names, or mesh files such as a
+sofa sample). It uses
 the offline surface painter, so it runs anywhere in about a minute.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -60,26 +62,33 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=192, help="view size")
     ap.add_argument("--texture", type=int, default=512, help="texture size per group")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--columns", type=int, default=6, help="prompts per row block")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     shapes = []
     for m in args.models:
         s = resolve_shape(m)
         shapes.append((m, s, analyse(s), default_up(s.source)))
-    label_w, pad = 230, 4
-    W = label_w + len(shapes) * (args.size + pad) + pad
-    H = len(args.prompts) * (args.size + pad) + pad + 24
-    sheet = Image.new("RGB", (W, H), "white")
+    # Blocks of ``--columns`` prompts: a header row of prompt names, then one row per model.
+    cols, pad, head, label_w = args.columns, 4, 28, 90
+    blocks = [args.prompts[i : i + cols] for i in range(0, len(args.prompts), cols)]
+    cell = args.size + pad
+    block_h = head + len(shapes) * cell
+    sheet = Image.new("RGB", (label_w + cols * cell + pad, len(blocks) * block_h + pad), "white")
     draw = ImageDraw.Draw(sheet)
-    for j, (name, *_rest) in enumerate(shapes):
-        draw.text((label_w + j * (args.size + pad) + pad + 4, 6), Path(name).name, fill="black")
-    for i, prompt in enumerate(args.prompts):
-        y = 24 + i * (args.size + pad) + pad
-        draw.text((8, y + args.size // 2 - 6), prompt, fill="black")
-        for j, (_, shape, grouping, up) in enumerate(shapes):
-            img = render_one(shape, grouping, prompt, args.seed, args.size, args.texture, up)
-            sheet.paste(Image.fromarray(img), (label_w + j * (args.size + pad) + pad, y))
-        print(f"{i + 1}/{len(args.prompts)} {prompt}", flush=True)
+    done = 0
+    for b, prompts in enumerate(blocks):
+        y0 = b * block_h + pad
+        for j, prompt in enumerate(prompts):
+            draw.text((label_w + j * cell + 4, y0 + 8), prompt, fill="black")
+        for m, (name, shape, grouping, up) in enumerate(shapes):
+            y = y0 + head + m * cell
+            draw.text((6, y + args.size // 2 - 6), f"{Path(name).parent.name}/{Path(name).stem}" if os.path.exists(name) else name, fill="black")
+            for j, prompt in enumerate(prompts):
+                img = render_one(shape, grouping, prompt, args.seed, args.size, args.texture, up)
+                sheet.paste(Image.fromarray(img), (label_w + j * cell, y))
+        done += len(prompts)
+        print(f"{done}/{len(args.prompts)} prompts", flush=True)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_png(out, np.asarray(sheet))
