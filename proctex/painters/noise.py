@@ -147,18 +147,27 @@ def _lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
     return b
 
 
+def _lattice(x: np.ndarray, y: np.ndarray, z: np.ndarray, seed: int):
+    """Lattice cells of points and their per-axis hash terms: ``(key, (fx, fy, fz), (hx, hy, hz))``.
+
+    ``f*`` are the cell corners (float32 floors); ``h* = cell * prime`` as uint32 (int32 -> uint32 view:
+    negative cells wrap, which is what the modular hash wants), with ``hx`` already keyed by the seed.
+    """
+    key = _U32(seed_key(seed))
+    fx, fy, fz = np.floor(x), np.floor(y), np.floor(z)
+    hx = fx.astype(np.int32).view(np.uint32) * _U32(_PX)
+    hy = fy.astype(np.int32).view(np.uint32) * _U32(_PY)
+    hz = fz.astype(np.int32).view(np.uint32) * _U32(_PZ)
+    hx ^= key
+    return key, (fx, fy, fz), (hx, hy, hz)
+
+
 def perlin_xyz(x: np.ndarray, y: np.ndarray, z: np.ndarray, seed: int = 0) -> np.ndarray:
     """Gradient noise at (x, y, z), each ``(n,) float32`` (lattice units). Returns ``(n,) float32``.
 
     Zero at every lattice point, C2-continuous, range about [-1, 1], std about 0.2.
     """
-    key = _U32(seed_key(seed))
-    fx, fy, fz = np.floor(x), np.floor(y), np.floor(z)
-    # int32 -> uint32 view: negative cells wrap, which is what the modular hash wants.
-    hx0 = fx.astype(np.int32).view(np.uint32) * _U32(_PX)
-    hy0 = fy.astype(np.int32).view(np.uint32) * _U32(_PY)
-    hz0 = fz.astype(np.int32).view(np.uint32) * _U32(_PZ)
-    hx0 ^= key
+    key, (fx, fy, fz), (hx0, hy0, hz0) = _lattice(x, y, z, seed)
     hx1 = (hx0 ^ key) + _U32(_PX)  # (ix + 1) * PX, then re-keyed below
     hx1 ^= key
     hy1 = hy0 + _U32(_PY)
@@ -344,12 +353,7 @@ def worley_xyz(x, y, z, seed: int = 0, jitter: float = 1.0) -> tuple[np.ndarray,
         ``(f1, f2, cell)``, each ``(n,) float32``: distance to the nearest and second-nearest feature
         point and a random value in [0, 1) identifying the nearest point's cell (constant per cell).
     """
-    key = _U32(seed_key(seed))
-    fx, fy, fz = np.floor(x), np.floor(y), np.floor(z)
-    hx = fx.astype(np.int32).view(np.uint32) * _U32(_PX)
-    hy = fy.astype(np.int32).view(np.uint32) * _U32(_PY)
-    hz = fz.astype(np.int32).view(np.uint32) * _U32(_PZ)
-    hx ^= key
+    key, (fx, fy, fz), (hx, hy, hz) = _lattice(x, y, z, seed)
     rx, ry, rz = x - fx, y - fy, z - fz
     jit = np.float32(jitter * _INV1023)
     off = np.float32(0.5 * (1.0 - jitter))
