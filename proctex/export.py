@@ -8,7 +8,7 @@ A *textured shape* is
   v **up**, (0, 0) is the bottom-left corner of the image;
 - ``face_group``: (m,) int64, the texture used by each face, in [0, G), or -1 for a face without
   texture (it gets a plain grey material);
-- ``textures``: G images, each (H, W, 3) or (H, W, 4) uint8 with row 0 at the **top**, so texel
+- ``textures``: G images, each (H, W, 3) or (H, W, 4) uint8 (or the bytes of an already encoded PNG, so a server can reuse them) with row 0 at the **top**, so texel
   (i, j) has its centre at u = (j + 0.5) / W, v = 1 - (i + 0.5) / H;
 - ``names``: optional G group names (material names).
 
@@ -72,6 +72,11 @@ def _check_shape(vertices, faces, corner_uv, face_group, textures, names):
         raise ValueError(f"textures: expected a list of images, got {type(textures).__name__}")
     texs = []
     for g, t in enumerate(textures):
+        if isinstance(t, (bytes, bytearray)):  # an already encoded PNG (reused across requests)
+            if not bytes(t[:8]) == b"\x89PNG\r\n\x1a\n":
+                raise ValueError(f"textures[{g}]: bytes given, but not a PNG file")
+            texs.append(bytes(t))
+            continue
         t = np.asarray(t)
         if t.dtype != np.uint8 or t.ndim != 3 or t.shape[2] not in (3, 4) or min(t.shape[:2]) == 0:
             raise ValueError(f"textures[{g}]: expected a (H, W, 3|4) uint8 image, got {t.dtype} {t.shape}")
@@ -169,7 +174,9 @@ class _Blob:
         return len(self.gltf.accessors) - 1
 
 
-def _png(image: np.ndarray) -> bytes:
+def _png(image: np.ndarray | bytes) -> bytes:
+    if isinstance(image, bytes):
+        return image
     buf = io.BytesIO()
     Image.fromarray(image).save(buf, format="PNG")
     return buf.getvalue()

@@ -1,0 +1,133 @@
+"""The family store (DESIGN §3): a folder or a ``pyarrow.fs`` URI that fully describes a family.
+
+Every write is atomic: the bytes go to a temporary name next to the target, which is then renamed
+(``pyarrow.fs.FileSystem.move``), so a crash never leaves a half-written file under the real name.
+Readers only ever see complete files. Tables are Parquet, arrays ``.npz`` (no pickles), documents JSON.
+
+Layout used by the workflows (all paths relative to the root)::
+
+    family.json            config, stage states, package versions
+    samples.parquet        one row per sampled shape
+    meshes/<id>.obj        sampled meshes
+    template/              template mesh, grouping, UVs, textures, textured.glb
+    pairs.parquet          one row per (shape, group) correspondence job
+    correspondences/       one Parquet table of (source point, template point) per pair
+    models/                one ProcCorrNet per group
+    metrics.json           evaluation
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import uuid
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.fs as pafs
+import pyarrow.parquet as pq
+
+
+class FamilyStore:
+    """Atomic reads and writes under a root folder or URI (``s3://bucket/prefix``, ``file:///...``)."""
+
+    def __init__(self, root: str | os.PathLike) -> None:
+        uri = os.fspath(root)
+        if not uri:
+            raise ValueError("family store root must not be empty")
+        if "://" in uri:
+            try:
+                self.fs, self.base = pafs.FileSystem.from_uri(uri)
+            except (pa.ArrowInvalid, OSError) as exc:
+                raise ValueError(f"cannot open family store {uri!r}: {exc}") from exc
+        else:
+            self.fs, self.base = pafs.LocalFileSystem(), os.path.abspath(uri)
+        self.uri = uri
+
+    def __repr__(self) -> str:
+        return f"FamilyStore({self.uri!r})"
+
+    # ------------------------------------------------------------------------------------- paths
+    def path(self, rel: str) -> str:
+        """Absolute path (in the store's file system) of a relative name; refuses escapes."""
+        rel = str(rel).replace("\\", "/")
+        parts = [p for p in rel.split("/") if p not in ("", ".")]
+        if not parts or any(p == ".." for p in parts):
+            raise ValueError(f"bad store path {rel!r}")
+        return "/".join([self.base.rstrip("/")] + parts)
+
+    def exists(self, rel: str) -> bool:
+        return self.fs.get_file_info(self.path(rel)).type != pafs.FileType.NotFound
+
+    def listdir(self, rel: str) -> list[str]:
+        """Names directly under a folder (empty if missing), sorted."""
+        info = self.fs.get_file_info(pafs.FileSelector(self.path(rel), allow_not_found=True))
+        return sorted(os.path.basename(i.path) for i in info if ".tmp-" not in os.path.basename(i.path))
+
+    def delete(self, rel: str) -> None:
+        p = self.path(rel)
+        t = self.fs.get_file_info(p).type
+        if t == pafs.FileType.Directory:
+            self.fs.delete_dir(p)
+        elif t == pafs.FileType.File:
+            self.fs.delete_file(p)
+
+    # ------------------------------------------------------------------------------------- bytes
+    def write_bytes(self, rel: str, data: bytes) -> str:
+        """Write atomically (temporary name, then rename); returns the full path."""
+        final = self.path(rel)
+        parent = final.rsplit("/", 1)[0]
+        self.fs.create_dir(parent, recursive=True)
+        tmp = f"{final}.tmp-{uuid.uuid4().hex[:12]}"
+        try:
+            with self.fs.open_output_stream(tmp) as fh:
+                fh.write(data)
+            self.fs.move(tmp, final)
+        except BaseException:
+            if self.fs.get_file_info(tmp).type == pafs.FileType.File:
+                self.fs.delete_file(tmp)
+            raise
+        return final
+
+    def read_bytes(self, rel: str) -> bytes:
+        p = self.path(rel)
+        if not self.exists(rel):
+            raise ValueError(f"{self.uri}: {rel} not found")
+        with self.fs.open_input_stream(p) as fh:
+            return fh.read()
+
+    # ---------------------------------------------------------------------------------- formats
+    def write_json(self, rel: str, data: Any) -> str:
+        return self.write_bytes(rel, (json.dumps(data, indent=1, sort_keys=False) + "\n").encode())
+
+    def read_json(self, rel: str) -> Any:
+        try:
+            return json.loads(self.read_bytes(rel))
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{self.uri}: {rel} is not valid JSON ({exc})") from exc
+
+    def write_table(self, rel: str, table: pa.Table | dict[str, Any]) -> str:
+        """Write a Parquet table (a ``pa.Table`` or a dict of columns)."""
+        if not isinstance(table, pa.Table):
+            table = pa.table(table)
+        buf = pa.BufferOutputStream()
+        pq.write_table(table, buf)
+        return self.write_bytes(rel, buf.getvalue().to_pybytes())
+
+    def read_table(self, rel: str) -> pa.Table:
+        return pq.read_table(pa.BufferReader(self.read_bytes(rel)))
+
+    def write_arrays(self, rel: str, **arrays: np.ndarray) -> str:
+        """Write numeric arrays as ``.npz`` (no object arrays: loading never unpickles)."""
+        for k, a in arrays.items():
+            if np.asarray(a).dtype == object:
+                raise ValueError(f"array {k!r} has dtype object; only numeric arrays are stored")
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        return self.write_bytes(rel, buf.getvalue())
+
+    def read_arrays(self, rel: str) -> dict[str, np.ndarray]:
+        with np.load(io.BytesIO(self.read_bytes(rel)), allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}

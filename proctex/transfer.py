@@ -1,0 +1,379 @@
+"""Texture transfer: any shape of the family textured from the template's group textures.
+
+The run-time path (DESIGN §1, step 3), per shape:
+
+1. **Segment** into parts (connected components by shared vertex index: milliseconds).
+2. **Assign** every part to a template *slot* (a template part, hence a group and the member map
+   of that part onto its group's representative) by a Hungarian assignment on placement descriptors
+   (centre and extents relative to the shape's bounding box). Parts left over (a group the template
+   does not have, or more copies than the template has) go to the group whose parts look most alike
+   (normalised extents), aligned by ICP.
+3. **Map** each part, in its normalised frame (and mirrored into the representative's side by the
+   slot's member map), onto the template representative's normalised frame with a *mapper* (a
+   ProcCorrNet, the cage solver, or a baseline), at its vertices only.
+4. **UVs**: each face takes the template face nearest to its mapped centroid (fast spatial index)
+   and gives its three corners UVs through that face's affine UV map, so a face never straddles two
+   charts. The shape then reads the template's own texture images: colours are consistent across the
+   family by construction, and nothing is unwrapped or encoded per request.
+5. Optionally **bake** (:func:`bake`): give the shape its own atlas and textures, colouring every
+   covered texel from its mapped point (vertex predictions interpolated inside the face, then
+   projected onto the template surface) through the template UV and texture.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Protocol, Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .geometry import SurfaceIndex, normalised_frame, sample_surface, triangle_areas
+from .parts import Grouping, Segmentation, part_mesh, segment
+from .shape import Shape
+from .uv import pad_seams, sample_texture, texel_map, unwrap
+
+
+# --------------------------------------------------------------------------------- template side
+@dataclass
+class GroupAssets:
+    """What transfer needs of one template group (its representative part, in its normalised frame).
+
+    ``vertices (k, 3)`` normalised, ``faces (f, 3)`` local, ``corner_uv (f, 3, 2)``, ``center (3,)``,
+    ``radius``, ``index`` a :class:`SurfaceIndex` over the normalised mesh.
+    """
+
+    group: int
+    label: str
+    rep: int
+    vertices: np.ndarray
+    faces: np.ndarray
+    corner_uv: np.ndarray
+    center: np.ndarray
+    radius: float
+    index: SurfaceIndex
+    degenerate: bool
+
+
+@dataclass
+class Slot:
+    """A template part as a place a shape part can take: its group and member map (linear part)."""
+
+    part: int
+    group: int
+    R: np.ndarray  # (3, 3): x_rep = R x_member + t
+    center: np.ndarray  # (3,) part centre relative to the shape box, in [0, 1]^3
+    extents: np.ndarray  # (3,) part box extents relative to the shape box size
+
+
+@dataclass
+class TemplateAssets:
+    """The template prepared for transfer: groups, slots, textures (arrays and encoded PNGs)."""
+
+    shape: Shape
+    grouping: Grouping
+    groups: list[GroupAssets]
+    slots: list[Slot]
+    textures: list[np.ndarray]  # (H, W, 3) uint8 per group
+    png: list[bytes]
+    names: list[str]
+
+
+def _box(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    return lo, np.maximum(hi - lo, 1e-12)
+
+
+def _placement(vertices: np.ndarray, lo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    plo, phi = vertices.min(axis=0), vertices.max(axis=0)
+    return ((plo + phi) / 2 - lo) / size, (phi - plo) / size
+
+
+def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, textures: Sequence[np.ndarray], names: Sequence[str] | None = None) -> TemplateAssets:
+    """Build :class:`TemplateAssets` from a textured template.
+
+    Args:
+        shape, grouping: the template; corner_uv: (m, 3, 2) its UVs; textures: per group (H, W, 3)
+        uint8 (or float in [0, 1]) images; names: per group material names.
+    """
+    from .export import _png
+
+    if len(textures) != len(grouping.groups):
+        raise ValueError(f"need one texture per group ({len(grouping.groups)}), got {len(textures)}")
+    texs = [np.ascontiguousarray(t if np.asarray(t).dtype == np.uint8 else (np.clip(t, 0, 1) * 255).round().astype(np.uint8))[..., :3] for t in textures]
+    groups = []
+    for g in grouping.groups:
+        rep = grouping.parts[g.representative]
+        v, f = part_mesh(shape, rep)
+        c, r = normalised_frame(v)
+        r = r if r > 0 else 1.0
+        vn = (v - c) / r
+        groups.append(GroupAssets(g.index, g.label, rep.index, vn, f, np.asarray(corner_uv)[rep.faces], c, r, SurfaceIndex(vn, f), g.degenerate))
+    lo, size = _box(shape.vertices)
+    slots = []
+    for g in grouping.groups:
+        if g.degenerate:
+            continue
+        for member, mmap in zip(g.members, g.maps):
+            part = grouping.parts[member]
+            centre, extents = _placement(shape.vertices[part.vertices], lo, size)
+            slots.append(Slot(member, g.index, np.asarray(mmap.R, float), centre, extents))
+    names = list(names) if names is not None else [g.label or f"group_{g.index}" for g in grouping.groups]
+    return TemplateAssets(shape, grouping, groups, slots, texs, [_png(t) for t in texs], names)
+
+
+# ----------------------------------------------------------------------------------- assignment
+@dataclass
+class PartAssignment:
+    """Where one shape part goes: ``group`` (-1: none), the ``slot`` part of the template it took
+    (-1: an extra part matched by shape), ``R`` (3, 3) the linear map into the representative's side,
+    ``cost`` of the assignment and ``how`` ("slot", "extra" or "degenerate")."""
+
+    part: int
+    group: int
+    slot: int
+    R: np.ndarray
+    cost: float
+    how: str
+
+
+def assign_parts(shape: Shape, seg: Segmentation, assets: TemplateAssets, w_extent: float = 1.0, extra_cost: float = 0.6) -> list[PartAssignment]:
+    """Assign each part of a shape to a template slot (see the module docstring).
+
+    Cost between a part and a slot: distance between their centres plus ``w_extent`` times the mean
+    absolute log-ratio of their extents, both relative to each shape's bounding box. Pairs costing
+    more than ``extra_cost`` are not taken; such parts become extras matched by extents alone.
+    """
+    lo, size = _box(shape.vertices)
+    parts = [p for p in seg.parts if not p.degenerate]
+    out = [PartAssignment(p.index, -1, -1, np.eye(3), 0.0, "degenerate") for p in seg.parts if p.degenerate]
+    if not parts or not assets.slots:
+        return out + [PartAssignment(p.index, -1, -1, np.eye(3), np.inf, "unmatched") for p in parts]
+    desc = [_placement(shape.vertices[p.vertices], lo, size) for p in parts]
+    pc = np.array([d[0] for d in desc])
+    pe = np.array([d[1] for d in desc])
+    sc = np.array([s.center for s in assets.slots])
+    se = np.array([s.extents for s in assets.slots])
+    loge = np.abs(np.log(np.maximum(pe[:, None], 1e-6) / np.maximum(se[None], 1e-6))).mean(axis=2)
+    cost = np.linalg.norm(pc[:, None] - sc[None], axis=2) + w_extent * loge
+    rows, cols = linear_sum_assignment(cost)
+    taken = {}
+    for r, c in zip(rows, cols):
+        if cost[r, c] <= extra_cost:
+            taken[r] = c
+    for i, p in enumerate(parts):
+        if i in taken:
+            s = assets.slots[taken[i]]
+            out.append(PartAssignment(p.index, s.group, s.part, s.R, float(cost[i, taken[i]]), "slot"))
+        else:
+            # An extra part: the slot whose extents (sorted, scale-free) look most alike, no placement.
+            pe_s = np.sort(pe[i])[::-1] / max(pe[i].max(), 1e-12)
+            se_s = np.sort(se, axis=1)[:, ::-1] / np.maximum(se.max(axis=1, keepdims=True), 1e-12)
+            c = np.abs(pe_s[None] - se_s).sum(axis=1)
+            j = int(np.argmin(c))
+            out.append(PartAssignment(p.index, assets.slots[j].group, -1, np.eye(3), float(c[j]), "extra"))
+    return sorted(out, key=lambda a: a.part)
+
+
+# -------------------------------------------------------------------------------------- mappers
+class Mapper(Protocol):
+    """Maps points of a shape part (normalised frame) onto the template representative's normalised frame."""
+
+    def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray: ...
+
+
+class IdentityMapper:
+    """Baseline: the normalised frames are taken to coincide (the nearest-point projection does the rest)."""
+
+    def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray:
+        return np.asarray(query, dtype=np.float64)
+
+
+# ------------------------------------------------------------------------------------- transfer
+@dataclass
+class TransferResult:
+    """UVs of a shape into the template textures.
+
+    Attributes:
+        corner_uv: (m, 3, 2) float64; face_group: (m,) int64 (-1: no texture, e.g. degenerate parts).
+        assignment: one :class:`PartAssignment` per part.
+        points: {part: (j, 3) mapped template points of its vertices (template representative world)}.
+        seconds: total; timings: per stage.
+    """
+
+    corner_uv: np.ndarray
+    face_group: np.ndarray
+    assignment: list[PartAssignment]
+    points: dict[int, np.ndarray] = field(default_factory=dict)
+    seconds: float = 0.0
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def _affine_uv(target: np.ndarray, tri: np.ndarray, tri_uv: np.ndarray) -> np.ndarray:
+    """UVs (k, 2) of points (k, 3) through the affine map of triangles (k, 3, 3) with UVs (k, 3, 2)
+    (barycentrics of the point's projection on the triangle's plane, not clamped)."""
+    a = tri[:, 0]
+    e1, e2 = tri[:, 1] - a, tri[:, 2] - a
+    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    den = d11 * d22 - d12 * d12
+    den = np.where(np.abs(den) > 1e-30, den, np.inf)
+    d = target - a
+    p1, p2 = (d * e1).sum(1), (d * e2).sum(1)
+    l1 = (d22 * p1 - d12 * p2) / den
+    l2 = (d11 * p2 - d12 * p1) / den
+    lam = np.stack([1 - l1 - l2, l1, l2], axis=1)
+    return np.einsum("ij,ijk->ik", lam, tri_uv)
+
+
+def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
+
+    Each face takes the template face nearest to its mapped centroid and that face's affine UV map.
+    Returns (corner_uv, template face per face (k,)).
+    """
+    centroid = mapped[faces].mean(axis=1)
+    near = assets.index.query(centroid, exact=False).faces
+    tri = assets.vertices[assets.faces[near]]
+    tri_uv = assets.corner_uv[near]
+    out = np.empty((len(faces), 3, 2))
+    for k in range(3):
+        out[:, k] = _affine_uv(mapped[faces[:, k]], tri, tri_uv)
+    return np.clip(out, 0.0, 1.0), near
+
+
+def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0) -> TransferResult:
+    """UVs of ``shape`` into the template textures (module docstring, steps 1-4)."""
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    seg = segment(shape)
+    t1 = time.perf_counter()
+    timings["segment"] = t1 - t0
+    assignment = assign_parts(shape, seg, assets)
+    t2 = time.perf_counter()
+    timings["assign"] = t2 - t1
+    corner = np.zeros((shape.n_faces, 3, 2))
+    face_group = np.full(shape.n_faces, -1, dtype=np.int64)
+    points: dict[int, np.ndarray] = {}
+    t_map = t_uv = 0.0
+    for a in assignment:
+        if a.group < 0:
+            continue
+        part = seg.parts[a.part]
+        ga = assets.groups[a.group]
+        v, f = part_mesh(shape, part)
+        c, r = normalised_frame(v)
+        vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T  # into the representative's side
+        ta = time.perf_counter()
+        mapped = np.asarray(mapper.map(a.group, vn, f, vn, seed=seed), dtype=np.float64)
+        if mapped.shape != vn.shape or not np.isfinite(mapped).all():
+            raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
+        tb = time.perf_counter()
+        uv, _ = part_uvs(ga, mapped, f)
+        corner[part.faces] = uv
+        face_group[part.faces] = a.group
+        points[a.part] = mapped * ga.radius + ga.center
+        t_map += tb - ta
+        t_uv += time.perf_counter() - tb
+    timings["map"] = t_map
+    timings["uv"] = t_uv
+    return TransferResult(corner, face_group, assignment, points, time.perf_counter() - t0, timings)
+
+
+def glb(shape: Shape, result: TransferResult, assets: TemplateAssets) -> bytes:
+    """Textured GLB bytes of a transferred shape (reuses the template's encoded PNGs)."""
+    from .export import glb_bytes
+
+    return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png, names=assets.names)
+
+
+# ------------------------------------------------------------------------------------------ bake
+@dataclass
+class Baked:
+    """A shape with its own atlas and textures: ``corner_uv (m, 3, 2)``, ``face_group (m,)``,
+    ``textures`` per group (H, W, 3) uint8 (groups absent from the shape: 1x1 grey), ``painted``
+    masks, ``seconds``."""
+
+    corner_uv: np.ndarray
+    face_group: np.ndarray
+    textures: list[np.ndarray]
+    painted: list[np.ndarray]
+    seconds: float
+
+
+def bake(shape: Shape, result: TransferResult, assets: TemplateAssets, size: int = 512, gutter: int = 4, project: bool = False) -> Baked:
+    """Give a transferred shape its own UV atlas per group and bake the template textures into it.
+
+    Each covered texel reads the template texture (bilinear) at its template UV. By default that UV is
+    the barycentric interpolation of its face's transferred corner UVs (``result.corner_uv``, the
+    face's affine map into one template chart); with ``project=True`` every texel's mapped point (the
+    interpolated mapped vertices) is projected onto the template surface and its UV looked up there,
+    ten times slower (the benchmark compares both). Seams are padded.
+    """
+    t0 = time.perf_counter()
+    seg = segment(shape)
+    corner = np.zeros((shape.n_faces, 3, 2))
+    face_group = np.full(shape.n_faces, -1, dtype=np.int64)
+    textures: list[np.ndarray] = []
+    painted: list[np.ndarray] = []
+    for g, ga in enumerate(assets.groups):
+        parts = [a.part for a in result.assignment if a.group == g and a.part in result.points]
+        if not parts:
+            textures.append(np.full((1, 1, 3), 128, np.uint8))
+            painted.append(np.ones((1, 1), bool))
+            continue
+        faces = np.concatenate([seg.parts[p].faces for p in parts])
+        used = np.unique(shape.faces[faces])
+        local = np.searchsorted(used, shape.faces[faces])
+        atlas = unwrap(shape.vertices[used], local, resolution=size, padding=max(2, gutter // 2))
+        corner[faces] = atlas.corner_uv
+        face_group[faces] = g
+        # Mapped points per used vertex, in the representative's normalised frame.
+        mapped = np.zeros((len(used), 3))
+        for p in parts:
+            ids = np.searchsorted(used, seg.parts[p].vertices)
+            mapped[ids] = (result.points[p] - ga.center) / ga.radius
+        tm = texel_map(shape.vertices[used], local, atlas.corner_uv, size)
+        if project:
+            target = np.einsum("ij,ijk->ik", tm.bary, mapped[local[tm.face]])
+            hit = ga.index.query(target, exact=False)
+            uv = np.einsum("ij,ijk->ik", hit.bary, ga.corner_uv[hit.faces])
+        else:
+            uv = np.einsum("ij,ijk->ik", tm.bary, result.corner_uv[faces[tm.face]])
+        image = np.zeros((size, size, 3))
+        image[tm.ij[:, 0], tm.ij[:, 1]] = sample_texture(assets.textures[g], uv)
+        image, mask = pad_seams(image, tm.mask, gutter)
+        textures.append((np.clip(image, 0, 1) * 255).round().astype(np.uint8))
+        painted.append(mask)
+    return Baked(corner, face_group, textures, painted, time.perf_counter() - t0)
+
+
+def tracked_points(assets: TemplateAssets, n: int = 5000, seed: int = 0) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """Uniform points on the template for the tracked-point variance (DESIGN §6).
+
+    Returns, per non-degenerate group, ``(group, points (k, 3) in the representative's normalised
+    frame, faces (k,), bary (k, 3))``, ``k`` proportional to the group's representative area (``n`` in all).
+    """
+    areas = np.array([0.0 if ga.degenerate else triangle_areas(ga.vertices * ga.radius, ga.faces).sum() for ga in assets.groups])
+    if areas.sum() <= 0:
+        raise ValueError("template has no surface")
+    counts = np.maximum(np.round(n * areas / areas.sum()).astype(int), 0)
+    out = []
+    for ga, k in zip(assets.groups, counts):
+        if k == 0:
+            continue
+        pts, fi, bary = sample_surface(ga.vertices, ga.faces, int(k), seed=seed + ga.group)
+        out.append((ga.group, pts, fi, bary))
+    return out
+
+
+def info(result: TransferResult) -> dict[str, Any]:
+    """JSON-ready summary of a transfer (assignment, timings)."""
+    return {
+        "seconds": round(result.seconds, 4),
+        "timings": {k: round(v, 4) for k, v in result.timings.items()},
+        "parts": [
+            {"part": a.part, "group": a.group, "slot": a.slot, "how": a.how, "cost": (round(a.cost, 4) if np.isfinite(a.cost) else None)}
+            for a in result.assignment
+        ],
+    }

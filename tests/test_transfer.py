@@ -1,0 +1,181 @@
+"""Family store, run-time texture transfer (assignment, UVs, GLB) and baking."""
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from proctex.export import validate_glb, validator_available
+from proctex.metrics import coverage
+from proctex.models import get_model
+from proctex.paint import paint_surface
+from proctex.painters import SurfacePainter
+from proctex.parts import analyse, segment
+from proctex.render import Tracer, bounding_sphere, canonical_cameras, pixel_uv, render_buffers
+from proctex.store import FamilyStore
+from proctex.transfer import IdentityMapper, assign_parts, bake, glb, info, prepare_template, tracked_points, transfer
+from proctex.uv import sample_texture
+
+
+# ------------------------------------------------------------------------------------------ store
+def test_store_round_trips_and_is_atomic(tmp_path):
+    st = FamilyStore(tmp_path / "fam")
+    st.write_json("family.json", {"a": 1})
+    st.write_table("samples.parquet", {"id": ["s0", "s1"], "faces": [10, 20]})
+    st.write_arrays("template/uv.npz", corner_uv=np.arange(12.0).reshape(2, 3, 2), face_group=np.array([0, -1]))
+    st.write_bytes("meshes/s0.obj", b"v 0 0 0\n")
+    assert st.read_json("family.json") == {"a": 1}
+    assert st.read_table("samples.parquet").column("faces").to_pylist() == [10, 20]
+    arr = st.read_arrays("template/uv.npz")
+    assert arr["corner_uv"].shape == (2, 3, 2) and arr["face_group"].tolist() == [0, -1]
+    assert st.listdir("template") == ["uv.npz"] and st.listdir("nothing") == []
+    assert st.exists("meshes/s0.obj") and not st.exists("meshes/s1.obj")
+    # The same store through a file:// URI.
+    st2 = FamilyStore((tmp_path / "fam").as_uri())
+    assert st2.read_json("family.json") == {"a": 1}
+    # Overwrites are whole; no temporary files are left behind.
+    st.write_json("family.json", {"a": 2})
+    assert st.read_json("family.json") == {"a": 2}
+    assert not [p for p in (tmp_path / "fam").rglob("*") if ".tmp-" in p.name]
+
+
+def test_store_refuses_bad_paths_and_objects(tmp_path):
+    st = FamilyStore(tmp_path)
+    for bad in ["", "../x", "a/../../b"]:
+        with pytest.raises(ValueError):
+            st.write_bytes(bad, b"x")
+    with pytest.raises(ValueError):
+        st.write_arrays("x.npz", a=np.array([{"x": 1}], dtype=object))
+    with pytest.raises(ValueError, match="not found"):
+        st.read_bytes("missing.json")
+    (tmp_path / "bad.json").write_text("{nope")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        st.read_json("bad.json")
+
+    class Boom(Exception):
+        pass
+
+    # A failed write leaves neither the target nor a temporary file.
+    real = st.fs.move
+
+    def failing_move(a, b):
+        raise Boom()
+
+    st.fs = type("FS", (), {"__getattr__": lambda self, k: getattr(FamilyStore(tmp_path).fs, k), "move": staticmethod(failing_move)})()
+    with pytest.raises(Boom):
+        st.write_bytes("pairs.parquet", b"data")
+    assert not (tmp_path / "pairs.parquet").exists()
+    assert not [p for p in tmp_path.iterdir() if ".tmp-" in p.name]
+    del real
+
+
+# --------------------------------------------------------------------------------------- transfer
+def _template(name, prompt="red and white checkered fabric", size=128, **params):
+    shape = get_model(name).generate(params or None)
+    grouping = analyse(shape)
+    tex = paint_surface(shape, grouping, SurfacePainter(prompt), size=size)
+    return shape, grouping, tex, prepare_template(shape, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+
+
+@pytest.fixture(scope="module")
+def chair():
+    return _template("chair")
+
+
+def _visible_colours(shape, corner_uv, face_group, textures, up="z", size=96):
+    """(k, 3) colours of the visible pixels of the six canonical views, and the pixels' face ids."""
+    tracer = Tracer(shape.vertices, shape.faces)
+    c, r = bounding_sphere(shape.vertices)
+    cols, faces = [], []
+    for cam in canonical_cameras(c, r, up, size):
+        b = render_buffers(tracer, cam, face_group=face_group)
+        m = b.mask & (b.group >= 0)
+        uv = pixel_uv(b, corner_uv)[m]
+        g = b.group[m]
+        out = np.zeros((len(uv), 3))
+        for gi in np.unique(g):
+            out[g == gi] = sample_texture(textures[gi], uv[g == gi])
+        cols.append(out)
+        faces.append(b.face[m])
+    return np.concatenate(cols), np.concatenate(faces)
+
+
+def test_template_transfers_onto_itself(chair):
+    shape, grouping, tex, assets = chair
+    seg = segment(shape)
+    a = assign_parts(shape, seg, assets)
+    assert all(x.how == "slot" and x.slot == x.part for x in a if not seg.parts[x.part].degenerate)
+    r = transfer(shape, assets, IdentityMapper())
+    assert (r.face_group == tex.uv.face_group).all()
+    # Same colours as the template where it is seen (members through their member maps).
+    mine, _ = _visible_colours(shape, r.corner_uv, r.face_group, assets.textures)
+    ref, _ = _visible_colours(shape, tex.uv.corner_uv, tex.uv.face_group, assets.textures)
+    assert np.abs(mine - ref).mean() < 0.01
+    assert set(info(r)) == {"seconds", "timings", "parts"}
+
+
+@pytest.mark.parametrize(
+    "params, expect",
+    [
+        ({"slats": 6}, "added"),  # more slats than the template: extra parts reuse the slat texture
+        ({"slats": 2, "arms": False}, "removed"),  # fewer slats, no arm rests
+    ],
+)
+def test_added_and_removed_parts_get_textures(chair, params, expect):
+    shape_t, grouping_t, tex, assets = chair
+    shape = get_model("chair").generate(params)
+    seg = segment(shape)
+    r = transfer(shape, assets, IdentityMapper())
+    nondeg = np.array([not seg.parts[p].degenerate for p in seg.face_part])
+    assert (r.face_group[nondeg] >= 0).all()
+    n_t = sum(not p.degenerate for p in grouping_t.parts)
+    n_s = sum(not p.degenerate for p in seg.parts)
+    assert (n_s > n_t) if expect == "added" else (n_s < n_t)
+    if expect == "added":
+        extras = [a for a in r.assignment if a.how == "extra"]
+        assert len(extras) >= n_s - n_t
+        slat_groups = {a.group for a in r.assignment if a.slot >= 0 and grouping_t.parts[a.slot].label == "slat"}
+        assert {a.group for a in extras} <= slat_groups | {a.group for a in r.assignment if a.how == "slot"}
+    cov = coverage(shape.vertices, shape.faces, r.corner_uv, r.face_group, [np.ones(t.shape[:2], bool) for t in assets.textures])
+    assert cov.share == 0.0
+
+
+def test_transfer_glb_is_valid_and_bake_matches(tmp_path, chair):
+    _, _, _, assets = chair
+    shape = get_model("chair").generate({"seat_width": 0.52, "back_height": 0.5})
+    r = transfer(shape, assets, IdentityMapper())
+    data = glb(shape, r, assets)
+    assert data[:4] == b"glTF"
+    if validator_available():
+        assert validate_glb(data)["issues"]["numErrors"] == 0
+    b = bake(shape, r, assets, size=128)
+    assert [t.shape for t in b.textures] == [(128, 128, 3)] * len(assets.groups)
+    cov = coverage(shape.vertices, shape.faces, b.corner_uv, b.face_group, b.painted)
+    assert cov.share == 0.0
+    # The baked shape looks like the UV-transferred one (same colours where seen).
+    c1, f1 = _visible_colours(shape, r.corner_uv, r.face_group, assets.textures)
+    c2, f2 = _visible_colours(shape, b.corner_uv, b.face_group, b.textures)
+    assert (f1 == f2).all()
+    assert np.median(np.abs(c1 - c2).max(axis=1)) < 0.05
+
+
+def test_tracked_points_are_spread_by_area(chair):
+    _, _, _, assets = chair
+    tp = tracked_points(assets, n=1000)
+    assert abs(sum(len(p) for _, p, _, _ in tp) - 1000) <= len(tp)
+    for g, p, f, bary in tp:
+        ga = assets.groups[g]
+        assert np.allclose(np.einsum("ij,ijk->ik", bary, ga.vertices[ga.faces[f]]), p)
+
+
+def test_prepare_template_validates(chair):
+    shape, grouping, tex, _ = chair
+    with pytest.raises(ValueError):
+        prepare_template(shape, grouping, tex.uv.corner_uv, [])
+
+
+def test_store_table_schema_roundtrip(tmp_path):
+    st = FamilyStore(tmp_path)
+    t = pa.table({"sx": pa.array([0.1, 0.2], pa.float32()), "face": pa.array([3, 4], pa.int32())})
+    st.write_table("correspondences/s0__g1.parquet", t)
+    back = st.read_table("correspondences/s0__g1.parquet")
+    assert back.schema == t.schema and back.equals(t)
