@@ -268,9 +268,33 @@ def correspond_parts(
     details["symmetry_axes"] = list(axes)
     details["cage"] = res.cage
     details["cage0"] = res.cage0
+    details["cage_faces"] = res.cage_faces
     details["loss"] = res.loss
     details["history"] = res.history
     return _finish(prep, method, res.points, res.normals, t0, res.converged, res.iterations, tpl_s, details)
+
+
+def deform(result: PartCorrespondence, points: np.ndarray, tpl_center: np.ndarray, tpl_radius: float) -> np.ndarray:
+    """Where a correspondence sends arbitrary source points (world), before projection.
+
+    ``nearest``: the similarity pre-alignment; ``cage``: the pre-alignment, then the optimised cage
+    deformation (mean value coordinates w.r.t. the initial cage, applied to the optimised one).
+    Returns (n, 3) float64 points in the template part's normalised frame (``tpl_center``,
+    ``tpl_radius``: that frame). CPD keeps no transform and is refused.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
+        raise ValueError(f"points must be a finite (n, 3) array, got {pts.shape}")
+    aligned = (result.alignment.apply(pts) - tpl_center) / tpl_radius
+    if result.method == "nearest":
+        return aligned
+    if result.method != "cage":
+        raise ValueError(f"deform needs a cage or nearest correspondence, got {result.method!r}")
+    from .mvc import mean_value_coordinates
+
+    cage0, cage, faces = result.details["cage0"], result.details["cage"], result.details["cage_faces"]
+    W = mean_value_coordinates(aligned, cage0, faces)
+    return (W.cpu().numpy() if hasattr(W, "cpu") else np.asarray(W)) @ np.asarray(cage, dtype=np.float64)
 
 
 # ------------------------------------------------------------------------------------ whole shapes

@@ -377,3 +377,26 @@ def info(result: TransferResult) -> dict[str, Any]:
             for a in result.assignment
         ],
     }
+
+
+class SolverMapper:
+    """Offline mapper: solves the correspondence of each part on the fly (``cage`` or ``nearest``).
+
+    Slow (seconds per part); used to build training pairs and as the pseudo-ground truth.
+    ``last`` keeps the last :class:`proctex.correspond.PartCorrespondence`.
+    """
+
+    def __init__(self, assets: TemplateAssets, method: str = "cage", n_points: int = 2000, cage: Any = None) -> None:
+        if method not in ("cage", "nearest"):
+            raise ValueError(f"SolverMapper method must be cage or nearest, got {method!r}")
+        self.assets, self.method, self.n_points, self.cage = assets, method, n_points, cage
+        self.last = None
+
+    def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray:
+        from .correspond import correspond_parts, deform
+
+        ga = self.assets.groups[group]
+        res = correspond_parts(vertices, faces, ga.vertices, ga.faces, method=self.method, n_points=self.n_points, seed=seed, cage=self.cage)
+        self.last = res
+        # The representative is stored in its normalised frame already: centre 0, radius 1.
+        return deform(res, query, np.zeros(3), 1.0)
