@@ -651,10 +651,10 @@ def preview_views(tex: TemplateTexture, up: str = "z", size: int = 256, backend:
     return images
 
 
-def group_file_name(g: GroupTexture) -> str:
+def group_file_name(group: int, label: str) -> str:
     """``group_<index>[_<label>].png`` (label made file-name safe)."""
-    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in g.label)
-    return f"group_{g.group}{'_' + safe if safe else ''}.png"
+    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in label)
+    return f"group_{group}{'_' + safe if safe else ''}.png"
 
 
 def write_textured(tex: TemplateTexture, out: str | Path, up: str = "z", obj: bool = False, preview_size: int = 256) -> dict[str, Any]:
@@ -675,8 +675,8 @@ def write_textured(tex: TemplateTexture, out: str | Path, up: str = "z", obj: bo
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for g in tex.groups:
-        save_png(out / group_file_name(g), g.uint8())
-        written.append(str(out / group_file_name(g)))
+        save_png(out / group_file_name(g.group, g.label), g.uint8())
+        written.append(str(out / group_file_name(g.group, g.label)))
     names = [g.label or f"group_{g.group}" for g in tex.groups]
     textures = [g.uint8() for g in tex.groups]
     shape = tex.shape

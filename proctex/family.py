@@ -1,0 +1,422 @@
+"""A family as a unit: build it stage by stage into a store, load it back for transfer (DESIGN §3).
+
+Stages, each idempotent (a rerun skips what is complete and redoes what is missing or failed):
+
+1. ``sample``   — sample the procedural model (or read a folder of samples): ``samples.parquet``, ``meshes/``.
+2. ``template`` — the sample nearest the mean parameters: ``template/template.obj``.
+3. ``paint``    — parts, groups, UVs and one texture per group: ``template/``.
+4. ``pairs``    — the cage correspondence of every (train or test shape, template group):
+   ``correspondences/<id>__g<group>.parquet`` and ``pairs.parquet``.
+5. ``train``    — one ProcCorrNet per group: ``models/group_<g>.pt``.
+
+Single process here; the Ray workflows fan the same stage functions out over a cluster.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+import tomllib
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pyarrow as pa
+
+from .meshio import load_mesh, obj_text
+from .parts import Grouping, analyse, part_mesh, segment
+from .shape import Shape
+from .store import FamilyStore
+
+STAGES = ("sample", "template", "paint", "pairs", "train")
+
+
+# ----------------------------------------------------------------------------------------- config
+@dataclass
+class BuildConfig:
+    """Everything a build needs. Exactly one of ``model`` (built-in name), ``folder`` (samples on
+    disk) or ``generator`` (a generator config file) names the family.
+
+    Attributes:
+        prompt, group_prompts: what to paint (group prompts keyed by group label or index).
+        seed: the family seed; sample ``i`` and pair ``(i, g)`` derive theirs from it.
+        n_train, n_test, sampling: how many shapes to sample from a model ("lhs" or "random").
+        params: bounds overrides ``{"name": [low, high]}`` for continuous / integer parameters.
+        texture_size, painter: template texturing ("surface" only for builds so far).
+        up: the shapes' up axis ("auto": y for OBJ/glTF files, z otherwise).
+        corr_points, cage_level, cage_iterations: the cage solver per pair.
+        train: ProcCorrNet settings (``proctex.corrnet.CorrNetConfig`` fields).
+    """
+
+    model: str | None = None
+    folder: str | None = None
+    generator: str | None = None
+    prompt: str = "oak"
+    group_prompts: dict[str, str] = field(default_factory=dict)
+    seed: int = 0
+    n_train: int = 24
+    n_test: int = 8
+    sampling: str = "lhs"
+    params: dict[str, list[float]] = field(default_factory=dict)
+    texture_size: int = 512
+    painter: str = "surface"
+    up: str = "auto"
+    corr_points: int = 2000
+    cage_level: int = 1
+    cage_iterations: int = 300
+    train: dict[str, Any] = field(default_factory=dict)
+
+    def validate(self) -> "BuildConfig":
+        named = [x for x in (self.model, self.folder, self.generator) if x]
+        if len(named) != 1:
+            raise ValueError("name exactly one of model, folder or generator")
+        if not isinstance(self.prompt, str):
+            raise ValueError("prompt must be a string")
+        if self.n_train < 2 or self.n_test < 0:
+            raise ValueError(f"need n_train >= 2 and n_test >= 0, got {self.n_train}, {self.n_test}")
+        if self.sampling not in ("lhs", "random"):
+            raise ValueError(f"sampling must be lhs or random, got {self.sampling!r}")
+        if self.texture_size < 16 or self.painter != "surface":
+            raise ValueError("texture_size must be >= 16 and painter 'surface'")
+        if self.up not in ("auto", "x", "y", "z"):
+            raise ValueError(f"up must be auto, x, y or z, got {self.up!r}")
+        if self.corr_points < 100 or self.cage_iterations < 1 or not 0 <= self.cage_level <= 4:
+            raise ValueError("corr_points >= 100, cage_iterations >= 1 and cage_level in [0, 4] required")
+        return self
+
+    @staticmethod
+    def from_dict(data: dict[str, Any]) -> "BuildConfig":
+        known = {f.name for f in fields(BuildConfig)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown config keys: {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+        return BuildConfig(**data).validate()
+
+    @staticmethod
+    def from_file(path: str | os.PathLike) -> "BuildConfig":
+        """Read a JSON or TOML config (keys as the attributes; relative paths are relative to the file)."""
+        p = Path(path)
+        if not p.is_file():
+            raise ValueError(f"{path}: config file not found")
+        try:
+            data = tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())
+        except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise ValueError(f"{path}: cannot parse config ({exc})") from exc
+        for key in ("folder", "generator"):
+            if data.get(key) and not os.path.isabs(data[key]):
+                data[key] = str((p.parent / data[key]).resolve())
+        return BuildConfig.from_dict(data)
+
+
+# --------------------------------------------------------------------------------------- helpers
+def _versions() -> dict[str, str]:
+    import numpy
+    import scipy
+    import torch
+    import trimesh
+
+    return {"python": platform.python_version(), "numpy": numpy.__version__, "scipy": scipy.__version__, "torch": torch.__version__, "trimesh": trimesh.__version__, "pyarrow": pa.__version__}
+
+
+def _state(store: FamilyStore) -> dict[str, Any]:
+    return store.read_json("family.json") if store.exists("family.json") else {}
+
+
+def _mark(store: FamilyStore, stage: str, **info: Any) -> None:
+    state = _state(store)
+    state.setdefault("stages", {})[stage] = {"state": "done", "finished": time.strftime("%Y-%m-%dT%H:%M:%S"), **info}
+    store.write_json("family.json", state)
+
+
+def stage_done(store: FamilyStore, stage: str) -> bool:
+    return _state(store).get("stages", {}).get(stage, {}).get("state") == "done"
+
+
+def _model(config: BuildConfig):
+    from .sources import load_generator, resolve_model
+
+    model = load_generator(config.generator) if config.generator else resolve_model(config.model)
+    if config.params:
+        model.space = _restricted(model.space, config.params)
+    return model
+
+
+def _restricted(space, bounds: dict[str, list[float]]):
+    from .params import ParamSpace, ParamSpec
+
+    specs = []
+    for s in space.specs:
+        if s.name in bounds:
+            lo, hi = bounds[s.name]
+            if s.kind not in ("continuous", "integer"):
+                raise ValueError(f"bounds given for {s.name!r}, which is a {s.kind} parameter")
+            if not (s.low <= lo <= hi <= s.high):
+                raise ValueError(f"bounds for {s.name!r} must lie within [{s.low}, {s.high}], got [{lo}, {hi}]")
+            d = s.to_dict()
+            d.update(low=lo, high=hi, default=min(max(d["default"], lo), hi))
+            specs.append(ParamSpec.from_dict(d))
+        else:
+            specs.append(s)
+    unknown = set(bounds) - {s.name for s in space.specs}
+    if unknown:
+        raise ValueError(f"bounds for unknown parameters: {', '.join(sorted(unknown))}")
+    return ParamSpace(tuple(specs))
+
+
+# ----------------------------------------------------------------------------------------- stages
+def stage_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
+    """Sample shapes (or read the folder) into ``meshes/`` and ``samples.parquet``."""
+    if stage_done(store, "sample"):
+        log("sample: done already")
+        return
+    rows = []
+    if config.folder:
+        from .sources import FolderSource
+
+        src = FolderSource(config.folder)
+        items = [(s.id.replace("/", "_"), s.split, src.params(i), lambda i=i: src.load(i)) for i, s in enumerate(src.samples)]
+    else:
+        model = _model(config)
+        params = model.space.sample(config.n_train + config.n_test, seed=config.seed, method=config.sampling)
+        items = [(f"s{i:04d}", "train" if i < config.n_train else "test", p, lambda p=p: model.generate(p)) for i, p in enumerate(params)]
+    for sid, split, params, make in items:
+        path = f"meshes/{sid}.obj"
+        shape = make()
+        if not store.exists(path):
+            store.write_bytes(path, obj_text(shape.vertices, shape.faces).encode())
+        seg = segment(shape)
+        rows.append({"id": sid, "split": split, "params": json.dumps(params, sort_keys=True), "mesh": path,
+                     "vertices": shape.n_vertices, "faces": shape.n_faces, "parts": seg.n_parts})
+    store.write_table("samples.parquet", pa.Table.from_pylist(rows))
+    _mark(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows))
+    log(f"sample: {len(rows)} shapes")
+
+
+def samples(store: FamilyStore) -> list[dict[str, Any]]:
+    return store.read_table("samples.parquet").to_pylist()
+
+
+def _read_obj(store: FamilyStore, rel: str) -> Shape:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / "m.obj"
+        p.write_bytes(store.read_bytes(rel))
+        shape, _ = load_mesh(p)
+    shape.source = rel
+    return shape
+
+
+def load_sample(store: FamilyStore, row: dict[str, Any], config: BuildConfig | None = None) -> Shape:
+    """A sample as a :class:`Shape`. Model families regenerate it from its parameters (exact, with
+    labels and canonical coordinates); folder families read the stored mesh."""
+    params = json.loads(row["params"])
+    if config is not None and not config.folder:
+        shape = _model(config).generate(params)
+        shape.source = row["mesh"]
+        return shape
+    shape = _read_obj(store, row["mesh"])
+    shape.params = params
+    return shape
+
+
+def stage_template(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
+    """Pick the train sample nearest the mean parameters."""
+    if stage_done(store, "template"):
+        log("template: done already")
+        return
+    from .params import infer_space, select_template
+
+    rows = [r for r in samples(store) if r["split"] == "train"]
+    params = [json.loads(r["params"]) for r in rows]
+    space = infer_space(params) if config.folder else _model(config).space
+    i = select_template(space, params) if len(space) else 0
+    store.write_bytes("template/template.obj", store.read_bytes(rows[i]["mesh"]))
+    _mark(store, "template", id=rows[i]["id"], params=params[i])
+    log(f"template: {rows[i]['id']}")
+
+
+def up_axis(config: BuildConfig) -> str:
+    if config.up != "auto":
+        return config.up
+    return "y" if config.folder else "z"
+
+
+def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
+    """Parts, groups, UVs and textures of the template into ``template/``."""
+    if stage_done(store, "paint"):
+        log("paint: done already")
+        return
+    import tempfile
+
+    from .paint import paint_surface, resolve_group_prompts, write_textured
+    from .painters import SurfacePainter
+
+    template = load_template_shape(store, config)
+    grouping = analyse(template, seed=config.seed)
+    prompts = resolve_group_prompts(grouping, config.prompt, config.group_prompts)
+    painter = SurfacePainter(config.prompt, {str(k): v for k, v in prompts.items()}, seed=config.seed)
+    tex = paint_surface(template, grouping, painter, size=config.texture_size, prompts=prompts)
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = write_textured(tex, tmp, up=up_axis(config))
+        for name in sorted(os.listdir(tmp)):
+            store.write_bytes(f"template/{name}", (Path(tmp) / name).read_bytes())
+    store.write_arrays("template/uv.npz", corner_uv=tex.uv.corner_uv, face_group=tex.uv.face_group)
+    store.write_json("template/grouping.json", grouping.to_dict())
+    _mark(store, "paint", coverage=summary["coverage"]["share"], groups=len(grouping.groups), seconds=round(tex.seconds, 3))
+    log(f"paint: {len(grouping.groups)} groups, coverage {summary['coverage']['share']}")
+
+
+def load_template_shape(store: FamilyStore, config: BuildConfig | None = None) -> Shape:
+    """The template shape (regenerated from its parameters for model families, see :func:`load_sample`)."""
+    config = config if config is not None else stored_config(store)
+    if not config.folder:
+        params = _state(store)["stages"]["template"]["params"]
+        shape = _model(config).generate(params)
+        shape.source = "template/template.obj"
+        return shape
+    return _read_obj(store, "template/template.obj")
+
+
+def stored_config(store: FamilyStore) -> BuildConfig:
+    state = _state(store)
+    if "config" not in state:
+        raise ValueError(f"{store.uri}: not a ProcTex family (no family.json with a config)")
+    return BuildConfig.from_dict(state["config"])
+
+
+def load_assets(store: FamilyStore, seed: int | None = None):
+    """The template ready for transfer (:class:`proctex.transfer.TemplateAssets`), from the store."""
+    import io
+
+    from PIL import Image
+
+    from .paint import group_file_name
+    from .transfer import prepare_template
+
+    config = stored_config(store)
+    template = load_template_shape(store, config)
+    grouping = analyse(template, seed=config.seed if seed is None else seed)
+    uv = store.read_arrays("template/uv.npz")
+    if len(uv["face_group"]) != template.n_faces:
+        raise ValueError(f"{store.uri}: template UVs do not match the template mesh")
+    summary = store.read_json("template/paint.json")
+    textures, names = [], []
+    for g in summary["groups"]:
+        png = store.read_bytes(f"template/{group_file_name(g['group'], g['label'])}")
+        textures.append(np.asarray(Image.open(io.BytesIO(png)).convert("RGB")))
+        names.append(g["label"] or f"group_{g['group']}")
+    return prepare_template(template, grouping, uv["corner_uv"], textures, names)
+
+
+def choose_part(assignment, group: int) -> Any:
+    """The part of a shape that teaches group ``group``: the one in the representative's slot, else
+    any part assigned to the group (``None`` if none)."""
+    cands = [a for a in assignment if a.group == group]
+    rep_side = [a for a in cands if a.how == "slot" and np.allclose(a.R, np.eye(3))]
+    return (rep_side or cands or [None])[0]
+
+
+def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:
+    """Cage correspondence of one (shape, template group): the training pair and its record."""
+    from .cage import CageConfig
+    from .correspond import correspond_parts
+    from .transfer import assign_parts
+
+    seg = segment(shape)
+    a = choose_part(assign_parts(shape, seg, assets), group)
+    if a is None:
+        return None
+    from .geometry import normalised_frame
+
+    v, f = part_mesh(shape, seg.parts[a.part])
+    c, r = normalised_frame(v)
+    vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T
+    ga = assets.groups[group]
+    cage = CageConfig(level=config.cage_level, iterations=config.cage_iterations).validate()
+    res = correspond_parts(vn, f, ga.vertices, ga.faces, method="cage", n_points=config.corr_points, seed=seed, cage=cage)
+    return {
+        "part": a.part,
+        "src": res.source_points.astype(np.float32),
+        "dst": res.points.astype(np.float32),  # template normalised frame (the representative is stored normalised)
+        "face": res.faces.astype(np.int32),
+        "residual": res.residual,
+        "chamfer": res.chamfer,
+        "converged": res.converged,
+        "iterations": res.iterations,
+        "seconds": res.seconds,
+    }
+
+
+def pair_path(sid: str, group: int) -> str:
+    return f"correspondences/{sid}__g{group}.parquet"
+
+
+def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, splits: tuple[str, ...] = ("train", "test")) -> None:
+    """Cage pairs for every (shape, non-degenerate template group); skips pairs already stored."""
+    assets = load_assets(store)
+    rows = store.read_table("pairs.parquet").to_pylist() if store.exists("pairs.parquet") else []
+    done = {(r["id"], r["group"]) for r in rows if r["status"] == "done"}
+    todo = [(i, r) for i, r in enumerate(samples(store)) if r["split"] in splits]
+    groups = [g.group for g in assets.groups if not g.degenerate]
+    t0, n = time.perf_counter(), 0
+    for i, row in todo:
+        shape = None
+        for g in groups:
+            if (row["id"], g) in done and store.exists(pair_path(row["id"], g)):
+                continue
+            shape = shape or load_sample(store, row, config)
+            seed = config.seed * 1_000_003 + i * 97 + g
+            t = time.perf_counter()
+            try:
+                pair = solve_pair(shape, assets, g, config, seed)
+                status = "done" if pair is not None else "absent"
+                error = ""
+            except (ValueError, RuntimeError) as exc:  # a failed pair is recorded and retried next run
+                pair, status, error = None, "failed", str(exc)
+            if pair is not None:
+                store.write_table(pair_path(row["id"], g), {
+                    "sx": pair["src"][:, 0], "sy": pair["src"][:, 1], "sz": pair["src"][:, 2],
+                    "tx": pair["dst"][:, 0], "ty": pair["dst"][:, 1], "tz": pair["dst"][:, 2], "face": pair["face"],
+                })
+            rows = [r for r in rows if not (r["id"] == row["id"] and r["group"] == g)]
+            attempts = 1 + max([r.get("attempts", 0) for r in rows if r["id"] == row["id"] and r["group"] == g] or [0])
+            rows.append({
+                "id": row["id"], "split": row["split"], "group": g, "status": status, "error": error,
+                "part": -1 if pair is None else int(pair["part"]),
+                "residual": float("nan") if pair is None else float(pair["residual"]),
+                "chamfer": float("nan") if pair is None else float(pair["chamfer"]),
+                "converged": bool(pair and pair["converged"]), "iterations": 0 if pair is None else int(pair["iterations"]),
+                "seconds": time.perf_counter() - t, "attempts": attempts, "path": pair_path(row["id"], g) if pair else "",
+            })
+            store.write_table("pairs.parquet", pa.Table.from_pylist(rows))
+            n += 1
+        log(f"pairs: {row['id']} ({n} solved, {time.perf_counter() - t0:.0f}s)")
+    failed = sum(r["status"] == "failed" for r in rows)
+    if failed:
+        log(f"pairs: {failed} failed (rerun to retry)")
+    else:
+        _mark(store, "pairs", pairs=len(rows))
+
+
+def read_pair(store: FamilyStore, sid: str, group: int) -> tuple[np.ndarray, np.ndarray]:
+    """(src (n, 3), dst (n, 3)) float32 of a stored pair."""
+    t = store.read_table(pair_path(sid, group))
+    src = np.stack([t.column(k).to_numpy() for k in ("sx", "sy", "sz")], axis=1)
+    dst = np.stack([t.column(k).to_numpy() for k in ("tx", "ty", "tz")], axis=1)
+    return src, dst
+
+
+def write_config(store: FamilyStore, config: BuildConfig) -> None:
+    state = _state(store)
+    old = state.get("config")
+    new = asdict(config)
+    if old is not None and old != new:
+        raise ValueError(f"{store.uri} was built with another config; use a new folder (or delete it) to change settings")
+    state["config"] = new
+    state["versions"] = _versions()
+    state.setdefault("stages", {})
+    store.write_json("family.json", state)
