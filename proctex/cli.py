@@ -206,6 +206,91 @@ def cmd_paint(args: argparse.Namespace) -> int:
     return 0
 
 
+def _build_config(args: argparse.Namespace):
+    from .family import BuildConfig
+
+    data: dict[str, Any] = {}
+    if args.config:
+        data = {k: v for k, v in vars(BuildConfig.from_file(args.config)).items()}
+    flags = {
+        "model": args.model, "folder": os.path.abspath(args.folder) if args.folder else None, "prompt": args.prompt,
+        "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed, "n_train": args.n_train, "n_test": args.n_test,
+        "texture_size": args.texture_size, "corr_points": args.points, "cage_iterations": args.iterations, "up": args.up,
+    }
+    if args.model or args.folder:  # a source flag replaces the config's source
+        data.update(model=None, folder=None, generator=None)
+    data.update({k: v for k, v in flags.items() if v is not None})
+    if args.train_iterations is not None:
+        data["train"] = {**data.get("train", {}), "iterations": args.train_iterations}
+    return BuildConfig.from_dict(data)
+
+
+def cmd_build(args: argparse.Namespace) -> int:
+    from .family import STAGES, build
+    from .store import FamilyStore
+
+    config = _build_config(args)
+    stages = tuple(args.stages.split(",")) if args.stages else STAGES
+    state = build(FamilyStore(args.out), config, stages=stages, log=(lambda *_: None) if args.quiet else (lambda m: print(m, flush=True)))
+    done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
+    print(f"family {args.out}: stages done: {', '.join(done)}")
+    return 0
+
+
+def cmd_transfer(args: argparse.Namespace) -> int:
+    from .family import load_assets, load_models, stored_config, _model
+    from .store import FamilyStore
+    from .transfer import IdentityMapper, NetworkMapper, SolverMapper, bake, glb, info, transfer
+
+    store = FamilyStore(args.family)
+    config = stored_config(store)
+    if bool(args.params) == bool(args.mesh):
+        raise ValueError("give exactly one of --params JSON or --mesh FILE")
+    if args.params:
+        if config.folder:
+            raise ValueError("this family comes from a folder of meshes: transfer a --mesh")
+        try:
+            params = json.loads(args.params)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"--params is not valid JSON ({exc})") from exc
+        shape = _model(config).generate(params)
+    else:
+        shape, _ = load_mesh(args.mesh)
+    if not args.out.endswith(".glb"):
+        raise ValueError("--out must name a .glb file")
+    t0 = time.perf_counter()
+    assets = load_assets(store)
+    if args.mapper in ("auto", "net"):
+        models = load_models(store)
+        if not models and args.mapper == "net":
+            raise ValueError(f"{args.family} has no trained models (run the train stage)")
+        mapper: Any = NetworkMapper(models) if models else IdentityMapper()
+    elif args.mapper in ("cage", "nearest"):
+        mapper = SolverMapper(assets, args.mapper, n_points=config.corr_points)
+    else:
+        mapper = IdentityMapper()
+    t1 = time.perf_counter()
+    result = transfer(shape, assets, mapper, seed=args.seed)
+    if args.bake:
+        from .export import glb_bytes
+
+        baked = bake(shape, result, assets, size=args.bake)
+        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=assets.names)
+    else:
+        data = glb(shape, result, assets)
+    from .meshio import _atomic_write_bytes
+
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    _atomic_write_bytes(args.out, data)
+    summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(mapper).__name__, "out": args.out, "bytes": len(data)}
+    if args.json:
+        _print_json(summary)
+    else:
+        print(f"transferred {shape.n_faces} faces with {summary['mapper']} in {result.seconds * 1000:.0f} ms "
+              f"(family loaded in {t1 - t0:.1f}s) -> {args.out}")
+    return 0
+
+
 def cmd_template(args: argparse.Namespace) -> int:
     if os.path.isdir(args.source):
         src = FolderSource(args.source)
@@ -387,6 +472,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_paint)
+
+    p = sub.add_parser("build", help="build a family: sample, template, paint, cage pairs, train (into a store folder)")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--model", help="built-in model name")
+    src.add_argument("--folder", help="folder of samples (mesh + JSON params, train/ and inference/)")
+    p.add_argument("--config", help="JSON or TOML build config (flags override it)")
+    p.add_argument("--prompt")
+    p.add_argument("--group-prompts")
+    p.add_argument("--out", required=True, help="family folder or URI")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--n-train", type=int)
+    p.add_argument("--n-test", type=int)
+    p.add_argument("--texture-size", type=int)
+    p.add_argument("--points", type=int, help="cage correspondence points per pair")
+    p.add_argument("--iterations", type=int, help="cage solver iterations per pair")
+    p.add_argument("--train-iterations", type=int, help="ProcCorrNet training iterations")
+    p.add_argument("--up", choices=["auto", "x", "y", "z"])
+    p.add_argument("--stages", help="comma-separated subset of sample,template,paint,pairs,train")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_build)
+
+    p = sub.add_parser("transfer", help="texture a new shape of a family: textured GLB")
+    p.add_argument("family")
+    p.add_argument("--params", help="parameters (JSON) for the family's model")
+    p.add_argument("--mesh", help="a mesh file of the family")
+    p.add_argument("--out", required=True, help="output .glb")
+    p.add_argument("--mapper", choices=["auto", "net", "cage", "nearest", "identity"], default="auto")
+    p.add_argument("--bake", type=int, default=0, help="bake into the shape's own atlas at this size (0: read the template textures)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_transfer)
 
     p = sub.add_parser("template", help="pick the template of a folder of samples or of a model's samples")
     p.add_argument("source", help="folder of samples, model name or generator config")

@@ -420,3 +420,70 @@ def write_config(store: FamilyStore, config: BuildConfig) -> None:
     state["versions"] = _versions()
     state.setdefault("stages", {})
     store.write_json("family.json", state)
+
+
+def model_path(group: int) -> str:
+    return f"models/group_{group}.pt"
+
+
+def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, val_share: float = 0.15) -> None:
+    """One ProcCorrNet per non-degenerate group on the train pairs (a share held out for early stopping)."""
+    import tempfile
+
+    from .corrnet import CorrNetConfig, save, train
+
+    rows = [r for r in store.read_table("pairs.parquet").to_pylist() if r["status"] == "done" and r["split"] == "train"]
+    groups = sorted({r["group"] for r in rows})
+    cfg = CorrNetConfig(**{**config.train, "seed": config.train.get("seed", config.seed)})
+    cfg.validate()
+    trained = {}
+    for g in groups:
+        if store.exists(model_path(g)):
+            log(f"train: group {g} done already")
+            continue
+        ids = sorted(r["id"] for r in rows if r["group"] == g)
+        rng = np.random.default_rng(config.seed + g)
+        n_val = max(1, int(round(val_share * len(ids)))) if len(ids) > 2 else 0
+        val_ids = set(rng.choice(ids, size=n_val, replace=False).tolist()) if n_val else set()
+        train_pairs = [read_pair(store, i, g) for i in ids if i not in val_ids]
+        val_pairs = [read_pair(store, i, g) for i in ids if i in val_ids] or train_pairs[:1]
+        t = time.perf_counter()
+        result = train(train_pairs, val_pairs, cfg)
+        with tempfile.TemporaryDirectory() as tmp:
+            p = Path(tmp) / "m.pt"
+            save(p, result.model, cfg, {"group": g, "train_ids": [i for i in ids if i not in val_ids], "val_ids": sorted(val_ids), "best_val": result.best_val})
+            store.write_bytes(model_path(g), p.read_bytes())
+        trained[g] = {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2)}
+        log(f"train: group {g}: {len(train_pairs)} train / {len(val_pairs)} val pairs, val {result.best_val}, {trained[g]['seconds']}s")
+    _mark(store, "train", groups=trained)
+
+
+def load_models(store: FamilyStore, device: str = "cpu") -> dict[int, Any]:
+    """{group: ProcCorrNet} of every stored model."""
+    import tempfile
+
+    from .corrnet import load
+
+    models = {}
+    for name in store.listdir("models"):
+        if not (name.startswith("group_") and name.endswith(".pt")):
+            continue
+        g = int(name[len("group_") : -len(".pt")])
+        with tempfile.TemporaryDirectory() as tmp:
+            p = Path(tmp) / name
+            p.write_bytes(store.read_bytes(f"models/{name}"))
+            models[g], _, _ = load(p, device=device)
+    return models
+
+
+def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] = STAGES, log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Run the build stages in order (each skips what is complete)."""
+    unknown = set(stages) - set(STAGES)
+    if unknown:
+        raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(STAGES)}")
+    write_config(store, config)
+    funcs = {"sample": stage_sample, "template": stage_template, "paint": stage_paint, "pairs": stage_pairs, "train": stage_train}
+    for stage in STAGES:
+        if stage in stages:
+            funcs[stage](store, config, log=log)
+    return _state(store)

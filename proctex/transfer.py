@@ -400,3 +400,25 @@ class SolverMapper:
         self.last = res
         # The representative is stored in its normalised frame already: centre 0, radius 1.
         return deform(res, query, np.zeros(3), 1.0)
+
+
+class NetworkMapper:
+    """The run-time mapper: one ProcCorrNet per template group (:mod:`proctex.corrnet`).
+
+    The network's global feature comes from ``context`` uniform surface samples of the part (seeded,
+    so a shape always maps the same way); the per-point head then runs on the query points only.
+    Groups without a network fall back to ``fallback`` (default: :class:`IdentityMapper`).
+    """
+
+    def __init__(self, models: dict[int, Any], context: int = 1024, fallback: Mapper | None = None) -> None:
+        self.models, self.context = dict(models), int(context)
+        self.fallback = fallback or IdentityMapper()
+
+    def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray:
+        from .corrnet import predict
+
+        model = self.models.get(group)
+        if model is None:
+            return self.fallback.map(group, vertices, faces, query, seed)
+        ctx, _, _ = sample_surface(vertices, faces, self.context, seed=seed)
+        return np.asarray(predict(model, ctx, query), dtype=np.float64)
