@@ -470,6 +470,40 @@ def fill_unseen(points: np.ndarray, colors: np.ndarray, seen: np.ndarray, k: int
     return out
 
 
+def fill_texture(
+    texels: TexelMap, colors: np.ndarray, seen: np.ndarray, size: int, method: str = "patchmatch",
+    seed: int = 0, notes: list[str] | None = None, group: int = 0,
+) -> np.ndarray:
+    """A group texture (size, size, 3) float32 from per-texel colours where only ``seen`` ones are painted.
+
+    Unseen covered texels are filled by exemplar PatchMatch restricted to this group's painted texels
+    (``method="patchmatch"``; painted texels are never changed) or on the surface by inverse distance
+    (``"surface"``). Nothing painted: the unpainted grey stays.
+    """
+    image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
+    ij = texels.ij
+    if not seen.any() or seen.all() or method == "surface":
+        image[ij[:, 0], ij[:, 1]] = fill_unseen(texels.points, colors, seen) if seen.any() else colors
+        return image
+    from .inpaint import patchmatch_fill
+
+    image[ij[seen, 0], ij[seen, 1]] = colors[seen]
+    known = np.zeros((size, size), dtype=bool)
+    known[ij[seen, 0], ij[seen, 1]] = True
+    hole = np.zeros((size, size), dtype=bool)
+    hole[ij[~seen, 0], ij[~seen, 1]] = True
+    try:
+        res = patchmatch_fill(image, known, hole, seed=seed)
+        if notes is not None:
+            notes.extend(f"group {group}: {n}" for n in res.notes)
+        return res.image.astype(np.float32)
+    except ValueError as exc:  # no usable source patch (tiny charts): fall back to the surface fill
+        if notes is not None:
+            notes.append(f"group {group}: PatchMatch impossible ({exc}); filled on the surface")
+        image[ij[:, 0], ij[:, 1]] = fill_unseen(texels.points, colors, seen)
+        return image
+
+
 def paint_views(
     shape: Shape,
     grouping: Grouping,
@@ -488,6 +522,7 @@ def paint_views(
     plane_tol: float = 1.0,
     gutter: int = 8,
     complete_hidden: bool = True,
+    fill: str = "patchmatch",
     backend: str = "auto",
     on_view: Callable[[int, int, dict[str, Any]], None] | None = None,
 ) -> TemplateTexture:
@@ -503,10 +538,15 @@ def paint_views(
         plane_tol: how far (in pixel footprints) a texel may lie off the seen surface and still be painted.
         complete_hidden: paint groups with texels no path view saw from six views of the group's
             representative alone (inner parts hidden by others).
+        fill: how texels no view saw are filled: "patchmatch" (exemplar PatchMatch from the group's
+            painted texels, :mod:`proctex.inpaint`) or "surface" (:func:`fill_unseen`, inverse distance
+            on the surface).
         on_view: progress callback ``(k, n, stats)``.
     """
     if not isinstance(painter, ViewPainter):
         raise ValueError("painter must implement paint_view(request) -> (H, W, 3) image")
+    if fill not in ("patchmatch", "surface"):
+        raise ValueError(f"fill must be patchmatch or surface, got {fill!r}")
     if size < 8:
         raise ValueError(f"texture size must be >= 8, got {size}")
     t0 = time.perf_counter()
@@ -554,9 +594,7 @@ def paint_views(
         colors[seen] = s.accum[seen] / s.weight[seen, None]
         if not seen.any() and len(seen):
             notes.append(f"group {s.group.index}: no view saw it (zero area?): filled grey")
-        colors = fill_unseen(s.texels.points, colors, seen)
-        image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
-        image[s.texels.ij[:, 0], s.texels.ij[:, 1]] = colors
+        image = fill_texture(s.texels, colors, seen, size, fill, seed=seed + s.group.index, notes=notes, group=s.group.index)
         image, painted = pad_seams(image, s.texels.mask, gutter)
         share = float(seen.mean()) if len(seen) else 1.0
         groups.append(GroupTexture(s.group.index, s.group.label, prompts[s.group.index], image, painted, s.texels, share, seen))

@@ -296,3 +296,35 @@ def test_backproject_matches_the_reference(chair):
             assert np.allclose(cc, ref[k][0]) and np.isclose(cs, ref[k][1])
         total += len(ref)
     assert total > 20
+
+
+def test_unseen_texels_are_filled_without_repainting_seen_ones(chair):
+    """Dis-occlusion: one view leaves most of the chair unseen; the fill never touches painted texels."""
+    from scipy.spatial import cKDTree
+
+    shape, g = chair
+    surface = SurfacePainter("red and white striped fabric", seed=2)
+    c, r = bounding_sphere(shape.vertices)
+    cams = orbit_path(c, r, "z", 11, 128)[:1]
+    runs = {
+        fill: paint_views(shape, g, SolidViewPainter(surface, g), cameras=cams, size=128, complete_hidden=False, fill=fill)
+        for fill in ("patchmatch", "surface")
+    }
+    some_unseen = False
+    for a, b in zip(runs["patchmatch"].groups, runs["surface"].groups):
+        ij = a.texels.ij
+        assert np.array_equal(a.direct, b.direct)
+        seen, hidden = ij[a.direct], ij[~a.direct]
+        # Painted texels are identical whatever fills the rest.
+        assert np.array_equal(a.image[seen[:, 0], seen[:, 1]], b.image[seen[:, 0], seen[:, 1]])
+        if len(seen) and len(hidden):
+            some_unseen = True
+            filled = a.image[hidden[:, 0], hidden[:, 1]]
+            assert np.isfinite(filled).all()
+            # PatchMatch copies the group's own painted colours (exemplars), not the unpainted grey.
+            d, _ = cKDTree(a.image[seen[:, 0], seen[:, 1]]).query(filled)
+            assert np.quantile(d, 0.9) < 0.1
+    assert some_unseen
+    for tv in runs.values():
+        cov = coverage(shape.vertices, shape.faces, tv.uv.corner_uv, tv.uv.face_group, tv.painted_masks, size=128)
+        assert cov.share == 0.0
