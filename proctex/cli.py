@@ -291,6 +291,36 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pair(text: str | None, what: str, n: int = 2) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError as exc:
+        raise ValueError(f"{what} must be numbers separated by commas, got {text!r}") from exc
+    if len(vals) == 1 and n == 2:
+        vals = vals * 2
+    if len(vals) != n:
+        raise ValueError(f"{what} needs {n} numbers, got {text!r}")
+    return vals
+
+
+def cmd_edit(args: argparse.Namespace) -> int:
+    from .family import edit_group
+    from .store import FamilyStore
+
+    store = FamilyStore(args.family)
+    if args.logo is not None and not os.path.isfile(args.logo):
+        raise ValueError(f"--logo {args.logo}: no such file")
+    record = edit_group(
+        store, args.group, hue=args.hue, saturation=args.saturation, value=args.value, logo=args.logo,
+        at=_pair(args.at, "--at") or (0.5, 0.5), size=_pair(args.size, "--size") or (0.25, 0.25),
+        rotation=args.rotation, opacity=args.opacity, prompt=args.prompt,
+    )
+    print(f"edited group {record['group']}: {', '.join(k for k in record if k != 'group')}; transfers now use it")
+    return 0
+
+
 def cmd_template(args: argparse.Namespace) -> int:
     if os.path.isdir(args.source):
         src = FolderSource(args.source)
@@ -503,6 +533,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_transfer)
+
+    p = sub.add_parser("edit", help="edit one group's template texture (re-paint, HSV shift, logo); applies to every transfer")
+    p.add_argument("family")
+    p.add_argument("--group", required=True, help="group index or label")
+    p.add_argument("--prompt", help="re-paint the group with this prompt")
+    p.add_argument("--hue", type=float, default=0.0, help="hue shift in degrees")
+    p.add_argument("--saturation", type=float, default=1.0, help="saturation scale")
+    p.add_argument("--value", type=float, default=1.0, help="value (brightness) scale")
+    p.add_argument("--logo", help="image file to place on the texture")
+    p.add_argument("--at", help="UV centre of the image, e.g. 0.5,0.5")
+    p.add_argument("--size", help="UV size of the image, e.g. 0.2 or 0.3,0.1")
+    p.add_argument("--rotation", type=float, default=0.0)
+    p.add_argument("--opacity", type=float, default=1.0)
+    p.set_defaults(func=cmd_edit)
 
     p = sub.add_parser("template", help="pick the template of a folder of samples or of a model's samples")
     p.add_argument("source", help="folder of samples, model name or generator config")

@@ -487,3 +487,95 @@ def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] = STA
         if stage in stages:
             funcs[stage](store, config, log=log)
     return _state(store)
+
+
+# ------------------------------------------------------------------------------------------ edits
+def _group_entry(store: FamilyStore, group: int | str) -> dict[str, Any]:
+    summary = store.read_json("template/paint.json")
+    for g in summary["groups"]:
+        if str(g["group"]) == str(group) or (g["label"] and g["label"] == str(group)):
+            return g
+    names = [str(g["group"]) + (f" ({g['label']})" if g["label"] else "") for g in summary["groups"]]
+    raise ValueError(f"unknown group {group!r}; the template's groups are: {', '.join(names)}")
+
+
+def refresh_template_glb(store: FamilyStore) -> None:
+    """Rewrite ``template/textured.glb`` from the stored mesh, UVs and group PNGs."""
+    from .export import glb_bytes
+    from .paint import group_file_name
+
+    config = stored_config(store)
+    template = load_template_shape(store, config)
+    uv = store.read_arrays("template/uv.npz")
+    summary = store.read_json("template/paint.json")
+    pngs = [store.read_bytes(f"template/{group_file_name(g['group'], g['label'])}") for g in summary["groups"]]
+    names = [g["label"] or f"group_{g['group']}" for g in summary["groups"]]
+    store.write_bytes("template/textured.glb", glb_bytes(template.vertices, template.faces, uv["corner_uv"], uv["face_group"], pngs, names=names))
+
+
+def edit_group(
+    store: FamilyStore,
+    group: int | str,
+    hue: float = 0.0,
+    saturation: float = 1.0,
+    value: float = 1.0,
+    logo: str | None = None,
+    at: tuple[float, float] = (0.5, 0.5),
+    size: tuple[float, float] = (0.25, 0.25),
+    rotation: float = 0.0,
+    opacity: float = 1.0,
+    prompt: str | None = None,
+) -> dict[str, Any]:
+    """Edit one group's template texture in the store; every later transfer or bake uses it.
+
+    Operations, applied in this order when several are given: re-paint with a new ``prompt`` (the
+    surface painter, the family's seed), HSV shift (``hue`` degrees, ``saturation`` and ``value``
+    scales), and placing an image file (``logo``) centred at UV ``at`` with UV ``size``, ``rotation``
+    (degrees) and ``opacity``. Returns the edit record appended to ``template/paint.json``.
+    """
+    import io
+
+    from PIL import Image
+
+    from .edit import load_overlay, place_image, shift_hsv
+    from .paint import group_file_name, shape_frame
+    from .painters import SurfacePainter
+    from .uv import pad_seams, texel_map
+
+    entry = _group_entry(store, group)
+    gi = int(entry["group"])
+    rel = f"template/{group_file_name(gi, entry['label'])}"
+    tex = np.asarray(Image.open(io.BytesIO(store.read_bytes(rel))).convert("RGB")).astype(np.float32) / 255
+    record: dict[str, Any] = {"group": gi}
+    if prompt is not None:
+        config = stored_config(store)
+        template = load_template_shape(store, config)
+        grouping = analyse(template, seed=config.seed)
+        uv = store.read_arrays("template/uv.npz")
+        rep = grouping.parts[grouping.groups[gi].representative]
+        tm = texel_map(template.vertices, template.faces[rep.faces], uv["corner_uv"][rep.faces], tex.shape[0], tex.shape[1])
+        center, scale = shape_frame(template)
+        colors = SurfacePainter(prompt, seed=config.seed).paint((tm.points - center) / scale, tm.normals, group=gi, label=entry["label"])
+        fresh = np.full_like(tex, 0.5)
+        fresh[tm.ij[:, 0], tm.ij[:, 1]] = colors
+        tex, _ = pad_seams(fresh, tm.mask, 8)
+        record["prompt"] = prompt
+    if hue or saturation != 1.0 or value != 1.0:
+        tex = shift_hsv(tex, hue_deg=hue, saturation=saturation, value=value)
+        record["hsv"] = [hue, saturation, value]
+    if logo is not None:
+        tex = place_image(tex, load_overlay(logo), at, size, rotation_deg=rotation, opacity=opacity)
+        record["logo"] = {"file": os.path.basename(logo), "at": list(at), "size": list(size), "rotation": rotation, "opacity": opacity}
+    if len(record) == 1:
+        raise ValueError("no edit given (prompt, hue/saturation/value or logo)")
+    buf = io.BytesIO()
+    Image.fromarray((np.clip(tex, 0, 1) * 255).round().astype(np.uint8)).save(buf, format="PNG")
+    store.write_bytes(rel, buf.getvalue())
+    summary = store.read_json("template/paint.json")
+    for g in summary["groups"]:
+        if g["group"] == gi and "prompt" in record:
+            g["prompt"] = record["prompt"]
+    summary.setdefault("edits", []).append(record)
+    store.write_json("template/paint.json", summary)
+    refresh_template_glb(store)
+    return record

@@ -89,3 +89,53 @@ def test_parameter_bounds_restrict_sampling(tmp_path):
         from proctex.family import _model
 
         _model(BuildConfig(model="chair", params={"slats": [0, 9]}))
+
+
+def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
+    import io
+    import shutil
+
+    from PIL import Image
+
+    from proctex.edit import rgb_to_hsv
+    from proctex.family import edit_group
+    from proctex.models import get_model
+    from proctex.transfer import IdentityMapper, glb, transfer
+
+    st0, _ = mug_family
+    shutil.copytree(st0.base, tmp_path / "fam")
+    st = FamilyStore(tmp_path / "fam")
+
+    def png(name):
+        return np.asarray(Image.open(io.BytesIO(st.read_bytes(f"template/{name}"))).convert("RGB")).astype(float) / 255
+
+    body0, handle0 = png("group_0_body.png"), png("group_1_handle.png")
+    edit_group(st, "handle", hue=120)
+    body1, handle1 = png("group_0_body.png"), png("group_1_handle.png")
+    assert np.array_equal(body0, body1)
+    h0, h1 = rgb_to_hsv(handle0)[..., 0], rgb_to_hsv(handle1)[..., 0]
+    sat = rgb_to_hsv(handle0)[..., 1] > 0.2
+    dh = (h1[sat] - h0[sat]) * (360 if h0.max() <= 1 else 1) % 360
+    assert np.median(dh) == pytest.approx(120, abs=3)
+    # A logo at the centre of the body texture.
+    logo = np.zeros((8, 8, 4), np.uint8)
+    logo[..., 2], logo[..., 3] = 255, 255
+    Image.fromarray(logo).save(tmp_path / "logo.png")
+    edit_group(st, 0, logo=str(tmp_path / "logo.png"), at=(0.5, 0.5), size=(0.2, 0.2))
+    body2 = png("group_0_body.png")
+    assert np.allclose(body2[32, 32], [0, 0, 1], atol=1 / 255) and np.array_equal(body2[0, 0], body1[0, 0])
+    # Re-paint the body; every later transfer carries the new textures.
+    edit_group(st, "body", prompt="white marble")
+    assert st.read_json("template/paint.json")["groups"][0]["prompt"] == "white marble"
+    assert len(st.read_json("template/paint.json")["edits"]) == 3
+    from proctex.family import load_assets
+
+    assets = load_assets(st)
+    assert np.allclose(assets.textures[1] / 255, handle1, atol=1 / 255)
+    shape = get_model("mug").generate({"radius": 0.045})
+    data = glb(shape, transfer(shape, assets, IdentityMapper()), assets)
+    assert assets.png[0] in data and assets.png[1] in data
+    with pytest.raises(ValueError, match="unknown group"):
+        edit_group(st, "seat", hue=10)
+    with pytest.raises(ValueError, match="no edit"):
+        edit_group(st, 0)
