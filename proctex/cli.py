@@ -270,12 +270,16 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     else:
         mapper = IdentityMapper()
     t1 = time.perf_counter()
-    result = transfer(shape, assets, mapper, seed=args.seed)
+    from .painters import SurfacePainter
+
+    painter = SurfacePainter(config.prompt, seed=config.seed)  # for parts of groups the template lacks
+    result = transfer(shape, assets, mapper, seed=args.seed, painter=painter)
     if args.bake:
         from .export import glb_bytes
 
         baked = bake(shape, result, assets, size=args.bake)
-        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=assets.names)
+        names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
+        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names)
     else:
         data = glb(shape, result, assets)
     from .meshio import _atomic_write_bytes
@@ -286,6 +290,8 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     if args.json:
         _print_json(summary)
     else:
+        for note in result.notes:
+            print(f"note: {note}")
         print(f"transferred {shape.n_faces} faces with {summary['mapper']} in {result.seconds * 1000:.0f} ms "
               f"(family loaded in {t1 - t0:.1f}s) -> {args.out}")
     return 0

@@ -127,8 +127,9 @@ def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, te
 @dataclass
 class PartAssignment:
     """Where one shape part goes: ``group`` (-1: none), the ``slot`` part of the template it took
-    (-1: an extra part matched by shape), ``R`` (3, 3) the linear map into the representative's side,
-    ``cost`` of the assignment and ``how`` ("slot", "extra" or "degenerate")."""
+    (-1: an extra part matched by ICP), ``R`` (3, 3) and ``t`` (3,) the map of its normalised frame
+    into the representative's (``x -> R x + t``), ``cost`` of the assignment and ``how`` ("slot",
+    "extra", "new" — a group the template does not have — or "degenerate")."""
 
     part: int
     group: int
@@ -136,14 +137,19 @@ class PartAssignment:
     R: np.ndarray
     cost: float
     how: str
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
-def assign_parts(shape: Shape, seg: Segmentation, assets: TemplateAssets, w_extent: float = 1.0, extra_cost: float = 0.6) -> list[PartAssignment]:
+def assign_parts(
+    shape: Shape, seg: Segmentation, assets: TemplateAssets, w_extent: float = 1.0, extra_cost: float = 0.6, extra_tol: float = 0.02
+) -> list[PartAssignment]:
     """Assign each part of a shape to a template slot (see the module docstring).
 
     Cost between a part and a slot: distance between their centres plus ``w_extent`` times the mean
     absolute log-ratio of their extents, both relative to each shape's bounding box. Pairs costing
-    more than ``extra_cost`` are not taken; such parts become extras matched by extents alone.
+    more than ``extra_cost`` are not taken. Such parts are matched to a group by ICP
+    (:func:`match_extra`, "extra") when the alignment error is at most ``extra_tol``; otherwise they
+    form a group of their own ("new"), which :func:`transfer` paints with the family's painter.
     """
     lo, size = _box(shape.vertices)
     parts = [p for p in seg.parts if not p.degenerate]
@@ -167,13 +173,37 @@ def assign_parts(shape: Shape, seg: Segmentation, assets: TemplateAssets, w_exte
             s = assets.slots[taken[i]]
             out.append(PartAssignment(p.index, s.group, s.part, s.R, float(cost[i, taken[i]]), "slot"))
         else:
-            # An extra part: the slot whose extents (sorted, scale-free) look most alike, no placement.
-            pe_s = np.sort(pe[i])[::-1] / max(pe[i].max(), 1e-12)
-            se_s = np.sort(se, axis=1)[:, ::-1] / np.maximum(se.max(axis=1, keepdims=True), 1e-12)
-            c = np.abs(pe_s[None] - se_s).sum(axis=1)
-            j = int(np.argmin(c))
-            out.append(PartAssignment(p.index, assets.slots[j].group, -1, np.eye(3), float(c[j]), "extra"))
+            # A part the template has no place for: the group it matches best by ICP, if any.
+            v, f = part_mesh(shape, p)
+            c, r = normalised_frame(v)
+            g, R, t, err = match_extra((v - c) / (r if r > 0 else 1.0), f, assets)
+            if err <= extra_tol:
+                out.append(PartAssignment(p.index, g, -1, R, err, "extra", t))
+            else:
+                out.append(PartAssignment(p.index, -1, -1, np.eye(3), err, "new"))
     return sorted(out, key=lambda a: a.part)
+
+
+def match_extra(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, n: int = 300, seed: int = 0) -> tuple[int, np.ndarray, np.ndarray, float]:
+    """Best template group for a part (normalised frame) by point-to-surface ICP.
+
+    Tries the eight axis sign flips as starts against every non-degenerate group representative.
+    Returns ``(group, R (3, 3), t (3,), error)``, error = mean distance after alignment (normalised units).
+    """
+    from itertools import product
+
+    from .align import icp_to_surface
+
+    pts, _, _ = sample_surface(vertices, faces, n, seed=seed)
+    best = (-1, np.eye(3), np.zeros(3), np.inf)
+    for ga in assets.groups:
+        if ga.degenerate:
+            continue
+        for signs in product((1.0, -1.0), repeat=3):
+            res = icp_to_surface(pts, ga.index, R0=np.diag(signs), max_iter=30, exact=False)
+            if res.error < best[3]:
+                best = (ga.group, res.R, res.t, float(res.error))
+    return best
 
 
 # -------------------------------------------------------------------------------------- mappers
@@ -200,6 +230,9 @@ class TransferResult:
         assignment: one :class:`PartAssignment` per part.
         points: {part: (j, 3) mapped template points of its vertices (template representative world)}.
         seconds: total; timings: per stage.
+        new_textures: textures painted for parts of groups the template does not have; their faces
+            use group ids ``G, G + 1, ...`` after the template's ``G`` groups.
+        notes: what a user should know (new groups, unpainted parts).
     """
 
     corner_uv: np.ndarray
@@ -208,6 +241,8 @@ class TransferResult:
     points: dict[int, np.ndarray] = field(default_factory=dict)
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
+    new_textures: list[np.ndarray] = field(default_factory=list)  # (H, W, 3) uint8, groups G, G+1, ...
+    notes: list[str] = field(default_factory=list)
 
 
 def _affine_uv(target: np.ndarray, tri: np.ndarray, tri_uv: np.ndarray) -> np.ndarray:
@@ -242,8 +277,13 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray) -> tupl
     return np.clip(out, 0.0, 1.0), near
 
 
-def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0) -> TransferResult:
-    """UVs of ``shape`` into the template textures (module docstring, steps 1-4)."""
+def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256) -> TransferResult:
+    """UVs of ``shape`` into the template textures (module docstring, steps 1-4).
+
+    Parts of a group the template does not have ("new") get a texture of their own, painted by
+    ``painter`` (the family's surface painter; the template's textures are untouched), at
+    ``new_size``; without a painter they stay untextured (group -1) and a note says so.
+    """
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     seg = segment(shape)
@@ -263,7 +303,7 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
         ga = assets.groups[a.group]
         v, f = part_mesh(shape, part)
         c, r = normalised_frame(v)
-        vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T  # into the representative's side
+        vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T + a.t  # into the representative's side
         ta = time.perf_counter()
         mapped = np.asarray(mapper.map(a.group, vn, f, vn, seed=seed), dtype=np.float64)
         if mapped.shape != vn.shape or not np.isfinite(mapped).all():
@@ -277,14 +317,49 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
         t_uv += time.perf_counter() - tb
     timings["map"] = t_map
     timings["uv"] = t_uv
-    return TransferResult(corner, face_group, assignment, points, time.perf_counter() - t0, timings)
+    result = TransferResult(corner, face_group, assignment, points, time.perf_counter() - t0, timings)
+    new = [a.part for a in assignment if a.how == "new"]
+    if new:
+        tn = time.perf_counter()
+        if painter is None:
+            result.notes.append(f"parts {new} match no template group and no painter was given: left untextured")
+        else:
+            faces = np.concatenate([seg.parts[p].faces for p in new])
+            uv, image = paint_new_parts(shape, faces, painter, new_size)
+            result.corner_uv[faces] = uv
+            result.face_group[faces] = len(assets.groups)
+            result.new_textures.append(image)
+            result.notes.append(f"parts {new} match no template group: painted as a new group {len(assets.groups)}")
+        timings["new"] = time.perf_counter() - tn
+        result.seconds = time.perf_counter() - t0
+    return result
+
+
+def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """Atlas and texture for faces of parts no template group fits, painted by a surface painter.
+
+    Points go to the painter in the shape's normalised frame, as when the template was painted.
+    Returns (corner_uv (k, 3, 2), texture (size, size, 3) uint8).
+    """
+    from .paint import UNPAINTED, shape_frame
+
+    used = np.unique(shape.faces[faces])
+    local = np.searchsorted(used, shape.faces[faces])
+    atlas = unwrap(shape.vertices[used], local, resolution=size, padding=2)
+    tm = texel_map(shape.vertices[used], local, atlas.corner_uv, size)
+    center, scale = shape_frame(shape)
+    image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
+    image[tm.ij[:, 0], tm.ij[:, 1]] = painter.paint((tm.points - center) / scale, tm.normals)
+    image, _ = pad_seams(image, tm.mask, 4)
+    return atlas.corner_uv, (np.clip(image, 0, 1) * 255).round().astype(np.uint8)
 
 
 def glb(shape: Shape, result: TransferResult, assets: TemplateAssets) -> bytes:
     """Textured GLB bytes of a transferred shape (reuses the template's encoded PNGs)."""
     from .export import glb_bytes
 
-    return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png, names=assets.names)
+    extra = [f"new_{k}" for k in range(len(result.new_textures))]
+    return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png + list(result.new_textures), names=assets.names + extra)
 
 
 # ------------------------------------------------------------------------------------------ bake
@@ -345,6 +420,12 @@ def bake(shape: Shape, result: TransferResult, assets: TemplateAssets, size: int
         image, mask = pad_seams(image, tm.mask, gutter)
         textures.append((np.clip(image, 0, 1) * 255).round().astype(np.uint8))
         painted.append(mask)
+    for k, image in enumerate(result.new_textures):  # new groups already have their own atlas
+        sel = result.face_group == len(assets.groups) + k
+        corner[sel] = result.corner_uv[sel]
+        face_group[sel] = len(assets.groups) + k
+        textures.append(image)
+        painted.append(np.ones(image.shape[:2], dtype=bool))
     return Baked(corner, face_group, textures, painted, time.perf_counter() - t0)
 
 
@@ -370,6 +451,7 @@ def tracked_points(assets: TemplateAssets, n: int = 5000, seed: int = 0) -> list
 def info(result: TransferResult) -> dict[str, Any]:
     """JSON-ready summary of a transfer (assignment, timings)."""
     return {
+        "notes": list(result.notes),
         "seconds": round(result.seconds, 4),
         "timings": {k: round(v, 4) for k, v in result.timings.items()},
         "parts": [

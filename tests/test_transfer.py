@@ -110,7 +110,7 @@ def test_template_transfers_onto_itself(chair):
     mine, _ = _visible_colours(shape, r.corner_uv, r.face_group, assets.textures)
     ref, _ = _visible_colours(shape, tex.uv.corner_uv, tex.uv.face_group, assets.textures)
     assert np.abs(mine - ref).mean() < 0.01
-    assert set(info(r)) == {"seconds", "timings", "parts"}
+    assert set(info(r)) == {"notes", "seconds", "timings", "parts"}
 
 
 @pytest.mark.parametrize(
@@ -179,3 +179,28 @@ def test_store_table_schema_roundtrip(tmp_path):
     st.write_table("correspondences/s0__g1.parquet", t)
     back = st.read_table("correspondences/s0__g1.parquet")
     assert back.schema == t.schema and back.equals(t)
+
+
+def test_a_group_the_template_lacks_is_painted_without_touching_the_template():
+    shape_t, grouping_t, tex, assets = _template("chair", prompt="oak", arms=False)
+    before = [t.copy() for t in assets.textures]
+    shape = get_model("chair").generate({"arms": True})
+    seg = segment(shape)
+    r = transfer(shape, assets, IdentityMapper(), painter=SurfacePainter("oak"))
+    new = [a for a in r.assignment if a.how == "new"]
+    assert {seg.parts[a.part].label for a in new} == {"armrest"}
+    G = len(assets.groups)
+    assert len(r.new_textures) == 1 and r.new_textures[0].dtype == np.uint8
+    arm_faces = np.concatenate([seg.parts[a.part].faces for a in new])
+    assert (r.face_group[arm_faces] == G).all()
+    assert all(np.array_equal(a, b) for a, b in zip(before, assets.textures))
+    textures = assets.textures + r.new_textures
+    cov = coverage(shape.vertices, shape.faces, r.corner_uv, r.face_group, [np.ones(t.shape[:2], bool) for t in textures])
+    assert cov.share == 0.0
+    if validator_available():
+        assert validate_glb(glb(shape, r, assets))["issues"]["numErrors"] == 0
+    b = bake(shape, r, assets, size=64)
+    assert len(b.textures) == G + 1
+    # Without a painter the new parts stay untextured, with a note.
+    r2 = transfer(shape, assets, IdentityMapper())
+    assert (r2.face_group[arm_faces] == -1).all() and r2.notes
