@@ -504,3 +504,73 @@ class NetworkMapper:
             return self.fallback.map(group, vertices, faces, query, seed)
         ctx, _, _ = sample_surface(vertices, faces, self.context, seed=seed)
         return np.asarray(predict(model, ctx, query), dtype=np.float64)
+
+
+@dataclass
+class TrackedVariance:
+    """Tracked-point texture variance (DESIGN §6): ``value`` = per-channel std over shapes, averaged
+    over channels and points; ``per_group`` the same per group; ``points`` tracked, ``shapes`` used."""
+
+    value: float
+    per_group: dict[int, float]
+    points: int
+    shapes: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"value": self.value, "per_group": {str(k): v for k, v in self.per_group.items()}, "points": self.points, "shapes": self.shapes}
+
+
+def shape_colours_at_template_points(
+    shape: Shape, result: TransferResult, assets: TemplateAssets, tracked, textures: Sequence[np.ndarray] | None = None,
+    corner_uv: np.ndarray | None = None, face_group: np.ndarray | None = None, samples: int = 20000, seed: int = 0,
+) -> dict[int, np.ndarray]:
+    """Colours (k, 3) in [0, 1] that a shape shows at the points corresponding to tracked template points.
+
+    The corresponding shape point of a template point is the dense shape sample whose mapped template
+    point is nearest to it (the inverse of the shape -> template map), taken on the shape part in the
+    representative's slot. Colours come from the shape's own textures (``textures``/``corner_uv``/
+    ``face_group``, e.g. baked) or, by default, the template textures through ``result``'s UVs.
+    """
+    from scipy.spatial import cKDTree
+
+    seg = segment(shape)
+    textures = assets.textures if textures is None else textures
+    corner_uv = result.corner_uv if corner_uv is None else corner_uv
+    face_group = result.face_group if face_group is None else face_group
+    out = {}
+    for g, pts, _, _ in tracked:
+        from .family import choose_part  # the part that stands for the representative
+
+        a = choose_part(result.assignment, g)
+        if a is None or a.part not in result.points:
+            continue
+        part = seg.parts[a.part]
+        v, f = part_mesh(shape, part)
+        sp, sf, sb = sample_surface(v, f, samples, seed=seed)
+        ga = assets.groups[g]
+        mapped = np.einsum("ij,ijk->ik", sb, ((result.points[a.part] - ga.center) / ga.radius)[f[sf]])
+        _, nn = cKDTree(mapped).query(pts)
+        gf = part.faces[sf[nn]]
+        uv = np.einsum("ij,ijk->ik", sb[nn], corner_uv[gf])
+        cols = np.zeros((len(pts), 3))
+        for gi in np.unique(face_group[gf]):
+            sel = face_group[gf] == gi
+            if gi >= 0:
+                cols[sel] = sample_texture(textures[gi], uv[sel])[:, :3]
+        out[g] = cols
+    return out
+
+
+def tracked_variance(colours: Sequence[dict[int, np.ndarray]]) -> TrackedVariance:
+    """Combine per-shape colours at the tracked points (from :func:`shape_colours_at_template_points`)."""
+    groups = sorted(set.intersection(*(set(c) for c in colours))) if colours else []
+    if len(colours) < 2 or not groups:
+        raise ValueError("tracked-point variance needs at least two shapes sharing a group")
+    per_group, all_std = {}, []
+    for g in groups:
+        stack = np.stack([c[g] for c in colours])  # (shapes, k, 3)
+        std = stack.std(axis=0)  # (k, 3)
+        per_group[g] = float(std.mean())
+        all_std.append(std)
+    allv = np.concatenate(all_std)
+    return TrackedVariance(float(allv.mean()), per_group, int(len(allv)), len(colours))

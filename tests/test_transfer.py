@@ -204,3 +204,20 @@ def test_a_group_the_template_lacks_is_painted_without_touching_the_template():
     # Without a painter the new parts stay untextured, with a note.
     r2 = transfer(shape, assets, IdentityMapper())
     assert (r2.face_group[arm_faces] == -1).all() and r2.notes
+
+
+def test_tracked_variance_is_zero_for_identical_shapes_and_grows_with_noise(chair):
+    _, _, _, assets = chair
+    shape = get_model("chair").generate({"seat_width": 0.5})
+    r = transfer(shape, assets, IdentityMapper())
+    tp = tracked_points(assets, n=500)
+    from proctex.transfer import shape_colours_at_template_points, tracked_variance
+
+    c = shape_colours_at_template_points(shape, r, assets, tp)
+    assert tracked_variance([c, c]).value == 0.0
+    rng = np.random.default_rng(0)
+    noisy = {g: np.clip(v + rng.normal(0, 0.1, v.shape), 0, 1) for g, v in c.items()}
+    tv = tracked_variance([c, noisy])
+    assert 0.02 < tv.value < 0.06 and tv.shapes == 2
+    with pytest.raises(ValueError):
+        tracked_variance([c])
