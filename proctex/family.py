@@ -73,6 +73,14 @@ class BuildConfig:
         named = [x for x in (self.model, self.folder, self.generator) if x]
         if len(named) != 1:
             raise ValueError("name exactly one of model, folder or generator")
+        if self.model:
+            from .models import get_model
+
+            get_model(self.model)  # unknown names raise ValueError listing the models
+        if self.folder and not os.path.isdir(self.folder):
+            raise ValueError(f"folder {self.folder!r} not found")
+        if self.generator and not os.path.isfile(self.generator):
+            raise ValueError(f"generator config {self.generator!r} not found")
         if not isinstance(self.prompt, str):
             raise ValueError("prompt must be a string")
         if self.n_train < 2 or self.n_test < 0:

@@ -66,9 +66,11 @@ def test_config_files_and_validation(tmp_path):
     (tmp_path / "fam.toml").write_text('model = "chair"\nprompt = "oak"\nn_train = 4\n[params]\nslats = [2, 4]\n')
     cfg = BuildConfig.from_file(tmp_path / "fam.toml")
     assert cfg.model == "chair" and cfg.params == {"slats": [2, 4]}
+    (tmp_path / "data").mkdir()
     (tmp_path / "f.json").write_text(json.dumps({"folder": "data", "prompt": "x"}))
     assert BuildConfig.from_file(tmp_path / "f.json").folder == str((tmp_path / "data").resolve())
-    for bad in [{"prompt": "x"}, {"model": "mug", "folder": "x"}, {"model": "mug", "n_train": 1}, {"model": "mug", "nonsense": 1}]:
+    for bad in [{"prompt": "x"}, {"model": "mug", "folder": "x"}, {"model": "mug", "n_train": 1}, {"model": "mug", "nonsense": 1},
+                {"model": "nosuch"}, {"folder": str(tmp_path / "missing")}]:
         with pytest.raises(ValueError):
             BuildConfig.from_dict(bad)
     with pytest.raises(ValueError, match="another config"):
@@ -139,3 +141,35 @@ def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
         edit_group(st, "seat", hue=10)
     with pytest.raises(ValueError, match="no edit"):
         edit_group(st, 0)
+
+
+def test_cli_transfer_and_edit(mug_family, tmp_path, capsys):
+    import shutil
+
+    from proctex.cli import main
+
+    st0, _ = mug_family
+    fam = tmp_path / "fam"
+    shutil.copytree(st0.base, fam)
+    out = tmp_path / "t.glb"
+    assert main(["transfer", str(fam), "--params", '{"radius": 0.045}', "--out", str(out), "--mapper", "identity"]) == 0
+    assert out.read_bytes()[:4] == b"glTF"
+    assert main(["transfer", str(fam), "--params", '{"radius": 0.045}', "--out", str(tmp_path / "b.glb"), "--mapper", "nearest", "--bake", "64", "--json"]) == 0
+    assert (tmp_path / "b.glb").is_file()
+    assert main(["edit", str(fam), "--group", "handle", "--hue", "90"]) == 0
+    for argv, message in [
+        (["transfer", str(fam), "--params", '{"radius": 5}', "--out", str(tmp_path / "x.glb")], "radius"),
+        (["transfer", str(fam), "--params", "{bad", "--out", str(tmp_path / "x.glb")], "not valid JSON"),
+        (["transfer", str(fam), "--out", str(tmp_path / "x.glb")], "exactly one"),
+        (["transfer", str(fam), "--params", "{}", "--out", str(tmp_path / "x.obj")], ".glb"),
+        (["transfer", str(tmp_path / "nothing"), "--params", "{}", "--out", str(tmp_path / "x.glb")], "not a ProcTex family"),
+        (["edit", str(fam), "--group", "seat", "--hue", "3"], "unknown group"),
+        (["edit", str(fam), "--group", "0", "--logo", str(tmp_path / "none.png")], "no such file"),
+        (["edit", str(fam), "--group", "0", "--at", "a,b", "--logo", str(out)], "numbers"),
+        (["build", "--model", "nosuch", "--out", str(tmp_path / "nb")], "nosuch"),
+        (["build", "--out", str(tmp_path / "nb2")], "exactly one"),
+    ]:
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        assert message in capsys.readouterr().err, argv
+    assert not (tmp_path / "x.glb").exists() and not (tmp_path / "nb").exists()
