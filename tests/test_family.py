@@ -173,3 +173,28 @@ def test_cli_transfer_and_edit(mug_family, tmp_path, capsys):
         assert main(argv) == 2, argv
         assert message in capsys.readouterr().err, argv
     assert not (tmp_path / "x.glb").exists() and not (tmp_path / "nb").exists()
+
+
+def test_train_stage_and_network_transfer(mug_family, tmp_path):
+    import shutil
+
+    from proctex.family import load_models, stage_train
+    from proctex.models import get_model
+    from proctex.transfer import NetworkMapper, transfer
+
+    st0, cfg0 = mug_family
+    shutil.copytree(st0.base, tmp_path / "fam")
+    st = FamilyStore(tmp_path / "fam")
+    cfg = BuildConfig.from_dict({**st.read_json("family.json")["config"], "train": {"iterations": 30, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2}})
+    stage_train(st, cfg, log=lambda *_: None)
+    assert stage_done(st, "train")
+    models = load_models(st)
+    assert sorted(models) == [0, 1]
+    shape = get_model("mug").generate({"radius": 0.045})
+    assets = load_assets(st)
+    r = transfer(shape, assets, NetworkMapper(models, context=128))
+    assert np.isfinite(r.corner_uv).all() and (r.face_group >= 0).all()
+    # Rerunning skips trained groups.
+    logs = []
+    stage_train(st, cfg, log=logs.append)
+    assert all("done already" in line for line in logs if line.startswith("train: group"))

@@ -1,0 +1,589 @@
+"""ProcCorrNet: one small network per template part group that predicts dense correspondence.
+
+The offline cage solver (:mod:`proctex.correspond`) maps surface samples of a shape's part onto the
+template part. ProcCorrNet learns that map over the family, so that at run time a new shape's part is
+mapped in one forward pass.
+
+Frames (DESIGN §6): inputs are points of the shape's part in *that part's* normalised frame (centre =
+bounding-box centre, divided by the L∞ radius; :func:`proctex.geometry.normalised_frame`), outputs are
+points in the *template part's* normalised frame. Both lie in [-1, 1]³, which is the only input
+normalisation the network needs (the checkpoint records it as ``extra["frame"]``).
+
+Architecture (the paper's):
+
+- local encoder: 4 linear layers ``3 -> 128 -> 128 -> 128 -> 256``, ReLU after each, per point;
+- global feature: max-pool of the local features over a *context* set of points of the part (256-d);
+- decoder: per query point ``[local (256) | global (256)]`` (512-d) through 4 linear layers
+  ``512 -> 256 -> 256 -> 256 -> 3``, ReLU between them, none at the end.
+
+Because the global feature is a function of the point *set*, it is computed once from a fixed-size
+context (``CorrNetConfig.context_points`` surface samples of the part; fewer points are topped up by
+repetition, which leaves a max-pool unchanged) and queries of any number are decoded against it
+(:func:`encode`, :func:`decode`, :func:`predict`). The decoder's first layer is applied as
+``W_local @ local + (W_global @ global + b)`` with the global half computed once per shape (same
+result as the concatenation, :meth:`ProcCorrNet.decode_reference`, at about half the cost).
+
+Training (:func:`train`): Adam on random batches of pairs; each step draws ``shapes_per_batch``
+pairs, for each a context of ``context_points`` samples and ``query_points`` query samples, and
+minimises the loss between the predicted and the cage points at the queries. Validation pairs
+(held-out shapes) drive early stopping; the best validation state is kept. Errors are reported as
+Euclidean distances in the template part's normalised frame (:func:`eval_step`).
+
+Persistence (:func:`save`, :func:`load`): ``torch.save`` of plain types and tensors only, written
+atomically, loaded with ``torch.load(weights_only=True)``.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import pickle
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+FORMAT = "proctex.corrnet/1"
+LOSSES = ("mse", "l2")
+SCHEDULES = ("constant", "cosine", "step")
+QUERY_MODES = ("context", "separate")
+DTYPES = {"float32": torch.float32, "float64": torch.float64}
+#: A pair needs at least this many points to describe a part's surface.
+MIN_PAIR_POINTS = 16
+#: Pair coordinates beyond this magnitude cannot be in a normalised frame ([-1, 1]³).
+FRAME_LIMIT = 1.5
+
+Pair = tuple[np.ndarray, np.ndarray]
+
+
+# ------------------------------------------------------------------------------------------- config
+@dataclass
+class CorrNetConfig:
+    """Every setting of the network and its training.
+
+    Attributes:
+        context_points: N, points the global feature is max-pooled over (training and prediction).
+        query_points: points per shape per step at which the loss is taken; with
+            ``query_mode="context"`` the queries are the first ``query_points`` context points
+            (``query_points <= context_points``), with ``"separate"`` an independent sample of the
+            same shape.
+        query_mode: "context" or "separate" (see ``query_points``).
+        shapes_per_batch: pairs (shapes) per step.
+        iterations: maximum optimisation steps.
+        lr: Adam learning rate; schedule: "constant", "cosine" (to ``lr * lr_final`` at
+            ``iterations``) or "step" (times 0.1 at 60 % and 85 % of ``iterations``);
+            lr_final: the cosine schedule's final factor.
+        weight_decay: Adam's L2 weight decay.
+        loss: "mse" (mean squared distance) or "l2" (mean Euclidean distance).
+        eval_every: steps between validation evaluations; patience: evaluations without a
+            validation improvement (relative ``min_delta``) before stopping (0 = never stop early).
+        local_hidden, feature_dim, decoder_hidden: layer widths (the paper: 128, 256, 256).
+        seed: weights, batch sampling and evaluation contexts.
+        device: "cpu", "cuda", "cuda:<i>" or "auto" (CUDA when present); dtype: "float32" or "float64".
+    """
+
+    context_points: int = 1024
+    query_points: int = 512
+    query_mode: str = "context"
+    shapes_per_batch: int = 8
+    iterations: int = 3000
+    lr: float = 1e-3
+    schedule: str = "cosine"
+    lr_final: float = 0.05
+    weight_decay: float = 0.0
+    loss: str = "mse"
+    eval_every: int = 100
+    patience: int = 10
+    min_delta: float = 1e-3
+    local_hidden: int = 128
+    feature_dim: int = 256
+    decoder_hidden: int = 256
+    residual: bool = False
+    seed: int = 0
+    device: str = "cpu"
+    dtype: str = "float32"
+
+    def validate(self) -> "CorrNetConfig":
+        """Raise ``ValueError`` naming the first bad setting; returns ``self``."""
+        positive = ("context_points", "query_points", "shapes_per_batch", "iterations", "eval_every", "local_hidden", "feature_dim", "decoder_hidden")
+        for name in positive:
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"CorrNetConfig.{name} must be a positive integer, got {v!r}")
+        for name in ("patience", "seed"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 0:
+                raise ValueError(f"CorrNetConfig.{name} must be a non-negative integer, got {v!r}")
+        if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
+            raise ValueError(f"CorrNetConfig.lr must be a positive number, got {self.lr!r}")
+        if not (isinstance(self.lr_final, (int, float)) and 0 <= self.lr_final <= 1):
+            raise ValueError(f"CorrNetConfig.lr_final must be in [0, 1], got {self.lr_final!r}")
+        for name in ("weight_decay", "min_delta"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"CorrNetConfig.{name} must be a finite number >= 0, got {v!r}")
+        if self.query_mode not in QUERY_MODES:
+            raise ValueError(f"CorrNetConfig.query_mode must be one of {QUERY_MODES}, got {self.query_mode!r}")
+        if self.query_mode == "context" and self.query_points > self.context_points:
+            raise ValueError(f"query_mode 'context' needs query_points <= context_points, got {self.query_points} > {self.context_points}")
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"CorrNetConfig.schedule must be one of {SCHEDULES}, got {self.schedule!r}")
+        if self.loss not in LOSSES:
+            raise ValueError(f"CorrNetConfig.loss must be one of {LOSSES}, got {self.loss!r}")
+        if self.dtype not in DTYPES:
+            raise ValueError(f"CorrNetConfig.dtype must be one of {tuple(DTYPES)}, got {self.dtype!r}")
+        resolve_device(self.device)
+        return self
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "CorrNetConfig":
+        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError``."""
+        known = {f.name for f in fields(CorrNetConfig)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown CorrNetConfig settings {unknown}; known: {sorted(known)}")
+        return CorrNetConfig(**d).validate()
+
+
+def resolve_device(device: str) -> torch.device:
+    """``torch.device`` of a config's device string; ``ValueError`` when unknown or unavailable."""
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as e:
+        raise ValueError(f"device must be 'cpu', 'cuda', 'cuda:<i>' or 'auto', got {device!r}") from e
+    if dev.type not in ("cpu", "cuda"):
+        raise ValueError(f"device must be 'cpu', 'cuda', 'cuda:<i>' or 'auto', got {device!r}")
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r} requested but CUDA is not available (use 'cpu' or 'auto')")
+    return dev
+
+
+# -------------------------------------------------------------------------------------------- model
+def _mlp(widths: Sequence[int], last_relu: bool) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(len(widths) - 1):
+        layers.append(nn.Linear(widths[i], widths[i + 1]))
+        if i < len(widths) - 2 or last_relu:
+            layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+class ProcCorrNet(nn.Module):
+    """The paper's network (see the module docstring). Points are the last-but-one axis.
+
+    Args:
+        local_hidden, feature_dim, decoder_hidden: widths (128, 256, 256 in the paper).
+        context_points: N, the context size the network was trained with (used by :func:`predict`).
+    """
+
+    def __init__(self, local_hidden: int = 128, feature_dim: int = 256, decoder_hidden: int = 256, context_points: int = 1024, residual: bool = False) -> None:
+        super().__init__()
+        self.feature_dim = int(feature_dim)
+        self.context_points = int(context_points)
+        self.residual = bool(residual)
+        self.local = _mlp([3, local_hidden, local_hidden, local_hidden, feature_dim], last_relu=True)
+        self.decoder = _mlp([2 * feature_dim, decoder_hidden, decoder_hidden, decoder_hidden, 3], last_relu=False)
+
+    def encode(self, context: torch.Tensor) -> torch.Tensor:
+        """``context (B, N, 3)`` -> global feature ``(B, feature_dim)`` (max over the N points)."""
+        return self.local(context).amax(dim=1)
+
+    def decode_features(self, local: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
+        """``local (B, Q, F)`` and ``global (B, F)`` -> points ``(B, Q, 3)`` (split first layer)."""
+        first: nn.Linear = self.decoder[0]  # type: ignore[assignment]
+        F_ = self.feature_dim
+        h = F.linear(local, first.weight[:, :F_]) + F.linear(global_feature, first.weight[:, F_:], first.bias)[:, None, :]
+        return self.decoder[1:](h)
+
+    def decode(self, query: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
+        """``query (B, Q, 3)`` against ``global (B, F)`` -> template points ``(B, Q, 3)``."""
+        out = self.decode_features(self.local(query), global_feature)
+        return out + query if self.residual else out
+
+    def decode_reference(self, query: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
+        """Slow, literal :meth:`decode`: concatenate ``[local | global]`` (512-d) per point."""
+        local = self.local(query)
+        cat = torch.cat([local, global_feature[:, None, :].expand(-1, local.shape[1], -1)], dim=-1)
+        return self.decoder(cat) + query if self.residual else self.decoder(cat)
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        """``points (B, N, 3)`` -> ``(B, N, 3)``; the context is the input set itself."""
+        local = self.local(points)
+        out = self.decode_features(local, local.amax(dim=1))
+        return out + points if self.residual else out
+
+
+def build_model(config: CorrNetConfig) -> ProcCorrNet:
+    """A freshly initialised network (seeded by ``config.seed``) on the config's device and dtype."""
+    config.validate()
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)
+        model = ProcCorrNet(config.local_hidden, config.feature_dim, config.decoder_hidden, config.context_points, config.residual)
+    return model.to(device=resolve_device(config.device), dtype=DTYPES[config.dtype])
+
+
+def _model_spec(model: ProcCorrNet) -> tuple[torch.device, torch.dtype]:
+    p = next(model.parameters())
+    return p.device, p.dtype
+
+
+# ------------------------------------------------------------------------------------- validation
+def check_points(points: Any, what: str, min_points: int = 1) -> np.ndarray:
+    """``points`` as a finite ``(n, 3)`` float64 array with ``n >= min_points``, else ``ValueError``."""
+    try:
+        a = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{what}: expected an (n, 3) array of numbers") from e
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{what}: expected shape (n, 3), got {a.shape}")
+    if len(a) < min_points:
+        raise ValueError(f"{what}: expected at least {min_points} points, got {len(a)}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{what}: contains NaN or inf")
+    return a
+
+
+def check_pairs(pairs: Any, what: str, allow_empty: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Validate a sequence of ``(src (n, 3), dst (n, 3))`` pairs in normalised frames.
+
+    Returns float32 copies. Raises ``ValueError`` on a wrong structure or shape, mismatched n,
+    ``n < MIN_PAIR_POINTS``, NaN/inf, or coordinates beyond ``FRAME_LIMIT`` (not a normalised frame).
+    """
+    if pairs is None or isinstance(pairs, (str, bytes, np.ndarray)):
+        raise ValueError(f"{what}: expected a sequence of (src, dst) pairs, got {type(pairs).__name__}")
+    pairs = list(pairs)
+    if not pairs and not allow_empty:
+        raise ValueError(f"{what}: no pairs")
+    out = []
+    for i, p in enumerate(pairs):
+        if not isinstance(p, (tuple, list)) or len(p) != 2:
+            raise ValueError(f"{what}[{i}]: expected a (src, dst) pair, got {type(p).__name__}")
+        src = check_points(p[0], f"{what}[{i}] src", MIN_PAIR_POINTS)
+        dst = check_points(p[1], f"{what}[{i}] dst", MIN_PAIR_POINTS)
+        if src.shape != dst.shape:
+            raise ValueError(f"{what}[{i}]: src and dst must have the same shape, got {src.shape} and {dst.shape}")
+        lim = max(np.abs(src).max(), np.abs(dst).max())
+        if lim > FRAME_LIMIT:
+            raise ValueError(f"{what}[{i}]: coordinates up to {lim:.3g}; pairs must be in normalised part frames ([-1, 1]^3)")
+        out.append((src.astype(np.float32), dst.astype(np.float32)))
+    return out
+
+
+# --------------------------------------------------------------------------------------- sampling
+def sample_indices(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
+    """``k`` indices into ``n`` points: without replacement when ``n >= k``; otherwise every point
+    once plus ``k - n`` repeats drawn with replacement (a max-pool sees every point)."""
+    if n >= k:
+        return rng.choice(n, size=k, replace=False)
+    return np.concatenate([rng.permutation(n), rng.integers(0, n, size=k - n)])
+
+
+def sample_batch(
+    pairs: Sequence[Pair], config: CorrNetConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One training batch: ``(context (B, N, 3), query (B, Q, 3), target (B, Q, 3))`` float32.
+
+    ``B = shapes_per_batch`` pairs drawn with replacement; per pair ``N = context_points`` context
+    samples and ``Q = query_points`` queries (the first Q context points, or an independent sample).
+    """
+    B, N, Q = config.shapes_per_batch, config.context_points, config.query_points
+    ctx, qry, tgt = np.empty((B, N, 3), np.float32), np.empty((B, Q, 3), np.float32), np.empty((B, Q, 3), np.float32)
+    for b, j in enumerate(rng.integers(0, len(pairs), size=B)):
+        src, dst = pairs[j]
+        ci = sample_indices(len(src), N, rng)
+        qi = ci[:Q] if config.query_mode == "context" else sample_indices(len(src), Q, rng)
+        ctx[b], qry[b], tgt[b] = src[ci], src[qi], dst[qi]
+    return ctx, qry, tgt
+
+
+def learning_rate(config: CorrNetConfig, step: int) -> float:
+    """Learning rate of ``step`` (0-based) under the config's schedule."""
+    t = min(step / max(config.iterations, 1), 1.0)
+    if config.schedule == "cosine":
+        return config.lr * (config.lr_final + (1 - config.lr_final) * 0.5 * (1 + math.cos(math.pi * t)))
+    if config.schedule == "step":
+        return config.lr * (0.1 ** ((t >= 0.6) + (t >= 0.85)))
+    return config.lr
+
+
+# ---------------------------------------------------------------------------------- train and eval
+def train_step(
+    model: ProcCorrNet,
+    optimiser: torch.optim.Optimizer,
+    src: torch.Tensor,
+    dst: torch.Tensor,
+    context: torch.Tensor | None = None,
+    loss: str = "mse",
+) -> float:
+    """One optimisation step; returns the batch's mean Euclidean distance (before the step).
+
+    Args:
+        src: (B, Q, 3) query points (shape part frame); dst: (B, Q, 3) cage targets (template frame).
+        context: (B, N, 3) points the global feature is pooled over (default: ``src`` itself).
+        loss: "mse" (mean squared distance) or "l2" (mean Euclidean distance).
+    """
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+    if src.ndim != 3 or src.shape[-1] != 3 or dst.shape != src.shape:
+        raise ValueError(f"src and dst must both be (B, Q, 3), got {tuple(src.shape)} and {tuple(dst.shape)}")
+    model.train()
+    pred = model(src) if context is None else model.decode(src, model.encode(context))
+    dist2 = (pred - dst).square().sum(-1)
+    dist = dist2.clamp_min(1e-20).sqrt()  # clamp: finite gradient of the "l2" loss at 0
+    value = dist2.mean() if loss == "mse" else dist.mean()
+    optimiser.zero_grad(set_to_none=True)
+    value.backward()
+    optimiser.step()
+    return float(dist.detach().mean())
+
+
+def _error_summary(per_shape: list[np.ndarray]) -> dict[str, float]:
+    if not per_shape:
+        return {}
+    allv = np.concatenate(per_shape)
+    means = np.array([e.mean() for e in per_shape])
+    return {
+        "mean": float(means.mean()),
+        "p95": float(np.percentile(allv, 95)),
+        "max_point": float(allv.max()),
+        "max_shape_mean": float(means.max()),
+        "shapes": len(per_shape),
+        "points": int(len(allv)),
+    }
+
+
+def eval_step(model: ProcCorrNet, pairs: Sequence[Pair], seed: int = 0, chunk: int = 8192) -> dict[str, float]:
+    """Pseudo-ground-truth error of the network on ``pairs`` (DESIGN §6).
+
+    For every pair the global feature is pooled over ``model.context_points`` samples of ``src``
+    (seeded by ``seed``) and every ``src`` point is predicted; the error is the Euclidean distance to
+    ``dst`` in the template part's normalised frame.
+
+    Returns:
+        ``mean``: mean over shapes of the per-shape mean (pairs of equal n: the mean over points);
+        ``p95`` and ``max_point``: over all points of all shapes; ``max_shape_mean``: the largest
+        per-shape mean; ``shapes``, ``points``. Empty dict for no pairs.
+    """
+    pairs = check_pairs(pairs, "eval pairs", allow_empty=True)
+    rng = np.random.default_rng(seed)
+    errors = []
+    for src, dst in pairs:
+        ctx = src[sample_indices(len(src), model.context_points, rng)]
+        pred = predict(model, ctx, src, chunk=chunk)
+        errors.append(np.linalg.norm(pred - dst, axis=1))
+    return _error_summary(errors)
+
+
+@dataclass
+class TrainResult:
+    """Outcome of :func:`train`.
+
+    Attributes:
+        model: the network in its best validation state (the final state without validation
+            pairs), in eval mode.
+        history: one dict per evaluation: ``iteration``, ``lr``, ``train_error`` (mean Euclidean
+            distance over the steps since the last evaluation), ``seconds`` and ``val_*`` figures.
+        best_val: :func:`eval_step` of the kept state plus its ``iteration`` ({} without validation).
+        iterations: steps run; seconds: wall time; stopped_early: patience ran out.
+    """
+
+    model: ProcCorrNet
+    history: list[dict[str, Any]]
+    best_val: dict[str, Any]
+    iterations: int
+    seconds: float
+    stopped_early: bool
+    config: CorrNetConfig = field(default_factory=CorrNetConfig)
+
+
+def train(
+    train_pairs: Sequence[Pair],
+    val_pairs: Sequence[Pair] | None,
+    config: CorrNetConfig | None = None,
+    on_eval: Callable[[dict[str, Any]], None] | None = None,
+) -> TrainResult:
+    """Train one ProcCorrNet on cage pairs of one template group.
+
+    Args:
+        train_pairs: sequence of ``(src (n, 3), dst (n, 3))`` arrays (see :func:`check_pairs`).
+        val_pairs: held-out pairs for early stopping and model selection (may be empty / None:
+            then the final state is kept and nothing stops early).
+        config: settings (defaults: :class:`CorrNetConfig`).
+        on_eval: called with each history entry (progress reporting).
+
+    Same seed, same data, same device -> identical weights (CPU).
+    """
+    config = (config or CorrNetConfig()).validate()
+    train_pairs = check_pairs(train_pairs, "train pairs")
+    val_pairs = check_pairs(val_pairs or [], "val pairs", allow_empty=True)
+    t0 = time.perf_counter()
+    model = build_model(config)
+    device, dtype = _model_spec(model)
+    optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    rng = np.random.default_rng(config.seed)
+    history: list[dict[str, Any]] = []
+    best_state, best_val, best_mean, bad, stopped, step = None, {}, math.inf, 0, False, 0
+    window: list[float] = []
+    while step < config.iterations:
+        lr = learning_rate(config, step)
+        for g in optimiser.param_groups:
+            g["lr"] = lr
+        ctx, qry, tgt = (torch.as_tensor(a, device=device, dtype=dtype) for a in sample_batch(train_pairs, config, rng))
+        window.append(train_step(model, optimiser, qry, tgt, None if config.query_mode == "context" and qry.shape == ctx.shape else ctx, config.loss))
+        step += 1
+        if step % config.eval_every and step < config.iterations:
+            continue
+        entry: dict[str, Any] = {"iteration": step, "lr": lr, "train_error": float(np.mean(window)), "seconds": time.perf_counter() - t0}
+        window = []
+        if val_pairs:
+            val = eval_step(model, val_pairs, seed=config.seed)
+            entry.update({f"val_{k}": v for k, v in val.items()})
+            if best_state is None or val["mean"] < best_mean * (1 - config.min_delta):
+                best_mean, bad = val["mean"], 0
+                best_state, best_val = copy.deepcopy(model.state_dict()), {**val, "iteration": step}
+            else:
+                bad += 1
+        history.append(entry)
+        if on_eval is not None:
+            on_eval(entry)
+        if config.patience and bad >= config.patience:
+            stopped = True
+            break
+    if best_state is not None:
+        model.load_state_dict(best_state)
+    model.eval()
+    return TrainResult(model, history, best_val, step, time.perf_counter() - t0, stopped, config)
+
+
+# ---------------------------------------------------------------------------------------- predict
+def encode(model: ProcCorrNet, context: torch.Tensor) -> torch.Tensor:
+    """``context (B, N, 3)`` -> global feature ``(B, F)`` (no gradient tracking is changed)."""
+    return model.encode(context)
+
+
+def decode(model: ProcCorrNet, query: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
+    """``query (B, Q, 3)`` against ``global (B, F)`` -> ``(B, Q, 3)``."""
+    return model.decode(query, global_feature)
+
+
+def predict(
+    model: ProcCorrNet,
+    context_points: np.ndarray,
+    query_points: np.ndarray,
+    chunk: int = 8192,
+    seed: int = 0,
+) -> np.ndarray:
+    """Template points for ``query_points`` of one part.
+
+    Args:
+        context_points: (N', 3) surface samples of the part (its normalised frame); resampled to the
+            model's ``context_points`` (seeded by ``seed``; without replacement when N' is larger,
+            every point plus repeats when smaller).
+        query_points: (Q, 3) points of the same part (same frame), e.g. samples plus mesh vertices.
+        chunk: queries decoded per forward pass (memory bound; the result does not depend on it).
+
+    Returns:
+        (Q, 3) float64 points in the template part's normalised frame.
+    """
+    ctx = check_points(context_points, "context points")
+    qry = check_points(query_points, "query points")
+    if not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk must be a positive integer, got {chunk!r}")
+    if len(ctx) != model.context_points:
+        ctx = ctx[sample_indices(len(ctx), model.context_points, np.random.default_rng(seed))]
+    device, dtype = _model_spec(model)
+    was_training = model.training
+    model.eval()
+    out = np.empty((len(qry), 3))
+    with torch.inference_mode():
+        g = model.encode(torch.as_tensor(ctx, device=device, dtype=dtype)[None])
+        for s in range(0, len(qry), chunk):
+            q = torch.as_tensor(qry[s : s + chunk], device=device, dtype=dtype)[None]
+            out[s : s + chunk] = model.decode(q, g)[0].to("cpu", torch.float64).numpy()
+    model.train(was_training)
+    return out
+
+
+# ------------------------------------------------------------------------------------ persistence
+def _check_plain(value: Any, where: str) -> None:
+    """``ValueError`` unless ``value`` is made of dict/list/tuple/str/int/float/bool/None/tensors."""
+    if value is None or isinstance(value, (str, int, float, bool, torch.Tensor)):
+        return
+    if isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _check_plain(v, f"{where}[{i}]")
+        return
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if not isinstance(k, (str, int)):
+                raise ValueError(f"{where}: keys must be str or int, got {type(k).__name__}")
+            _check_plain(v, f"{where}[{k!r}]")
+        return
+    raise ValueError(f"{where}: {type(value).__name__} cannot be stored (plain Python types and tensors only)")
+
+
+def save(path: str | os.PathLike, model: ProcCorrNet, config: CorrNetConfig, extra: dict[str, Any] | None = None) -> None:
+    """Write ``{"format", "state_dict", "config", "extra"}`` with ``torch.save``, atomically.
+
+    ``extra`` (e.g. the group, validation figures, the frame convention) must hold only plain
+    Python types and tensors (``ValueError`` otherwise). Tensors are stored on the CPU.
+    """
+    extra = {} if extra is None else extra
+    if not isinstance(extra, dict):
+        raise ValueError(f"extra must be a dict, got {type(extra).__name__}")
+    _check_plain(extra, "extra")
+    config.validate()
+    payload = {
+        "format": FORMAT,
+        "state_dict": {k: v.detach().to("cpu").clone() for k, v in model.state_dict().items()},
+        "config": config.to_dict(),
+        "extra": extra,
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load(path: str | os.PathLike, device: str = "cpu") -> tuple[ProcCorrNet, CorrNetConfig, dict[str, Any]]:
+    """Read a :func:`save` file with ``torch.load(weights_only=True)``; returns ``(model in eval
+    mode on device, config, extra)``. Files holding anything but plain types and tensors, or not
+    written by :func:`save`, raise ``ValueError``."""
+    dev = resolve_device(device)
+    try:
+        payload = torch.load(Path(path), map_location=dev, weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, AttributeError, TypeError) as e:
+        raise ValueError(f"{path}: not a weights-only ProcCorrNet checkpoint ({e.__class__.__name__}: {str(e).splitlines()[0][:200]})") from e
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT or not {"state_dict", "config", "extra"} <= set(payload):
+        raise ValueError(f"{path}: not a ProcCorrNet checkpoint (format {FORMAT!r})")
+    config = CorrNetConfig.from_dict(dict(payload["config"]))
+    model = ProcCorrNet(config.local_hidden, config.feature_dim, config.decoder_hidden, config.context_points, config.residual)
+    state = payload["state_dict"]
+    dtype = next(iter(state.values())).dtype if state else torch.float32
+    model.to(device=dev, dtype=dtype)
+    try:
+        model.load_state_dict(state, strict=True)
+    except RuntimeError as e:
+        raise ValueError(f"{path}: weights do not fit the configured network: {str(e).splitlines()[0]}") from e
+    model.eval()
+    return model, config, payload["extra"]

@@ -1,0 +1,347 @@
+"""ProcCorrNet: architecture, encode/decode, predict, training (learns a known smooth map), early
+stopping, determinism, config validation and persistence."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+from proctex import corrnet as cn
+from proctex.corrnet import CorrNetConfig, ProcCorrNet
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+SMALL = dict(local_hidden=32, feature_dim=64, decoder_hidden=64)
+
+
+def small_config(**kw) -> CorrNetConfig:
+    base = dict(context_points=128, query_points=128, shapes_per_batch=8, iterations=40, eval_every=10, lr=3e-3, **SMALL)
+    base.update(kw)
+    return CorrNetConfig(**base)
+
+
+# ------------------------------------------------------------------------------ synthetic family
+def cube_surface(n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) points on the surface of [-1, 1]^3 (uniform per face)."""
+    u = rng.uniform(-1, 1, size=(n, 3))
+    axis = rng.integers(0, 3, size=n)
+    u[np.arange(n), axis] = rng.choice([-1.0, 1.0], size=n)
+    return u
+
+
+def warp(u: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """A bent box: extents ``theta[:3]``, bend ``theta[3]`` (a smooth, non-linear map of the cube)."""
+    ax, ay, az, bend = theta
+    return np.stack([ax * u[:, 0], ay * u[:, 1] + bend * u[:, 0] ** 2, az * u[:, 2]], axis=1)
+
+
+def to_frame(p: np.ndarray) -> np.ndarray:
+    lo, hi = p.min(0), p.max(0)
+    c = (lo + hi) / 2
+    return (p - c) / np.abs(p - c).max()
+
+
+TEMPLATE_THETA = np.array([1.0, 0.6, 0.4, 0.2])
+
+
+def family_pairs(n_shapes: int, n_points: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Pairs whose map is known: the same canonical cube point on a random member and the template."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n_shapes):
+        theta = np.array([rng.uniform(0.4, 1.2), rng.uniform(0.3, 1.0), rng.uniform(0.2, 0.8), rng.uniform(-0.3, 0.4)])
+        u = cube_surface(n_points, rng)
+        out.append((to_frame(warp(u, theta)).astype(np.float32), to_frame(warp(u, TEMPLATE_THETA)).astype(np.float32)))
+    return out
+
+
+# ------------------------------------------------------------------------------------ architecture
+def test_shapes_dtypes_and_paper_widths():
+    m = cn.build_model(CorrNetConfig())
+    widths = [(l.in_features, l.out_features) for l in m.local if isinstance(l, torch.nn.Linear)]
+    assert widths == [(3, 128), (128, 128), (128, 128), (128, 256)]
+    widths = [(l.in_features, l.out_features) for l in m.decoder if isinstance(l, torch.nn.Linear)]
+    assert widths == [(512, 256), (256, 256), (256, 256), (256, 3)]
+    x = torch.rand(2, 50, 3)
+    g = m.encode(x)
+    assert g.shape == (2, 256) and g.dtype == torch.float32
+    assert m.decode(torch.rand(2, 7, 3), g).shape == (2, 7, 3)
+    assert m(x).shape == (2, 50, 3)
+    m64 = cn.build_model(CorrNetConfig(dtype="float64"))
+    assert m64(x.double()).dtype == torch.float64
+
+
+@pytest.mark.parametrize("residual", [False, True])
+def test_encode_decode_consistency_and_reference(residual):
+    m = cn.build_model(CorrNetConfig(dtype="float64", residual=residual, **SMALL))
+    x = torch.rand(3, 40, 3, dtype=torch.float64) * 2 - 1
+    q = torch.rand(3, 9, 3, dtype=torch.float64) * 2 - 1
+    g = cn.encode(m, x)
+    torch.testing.assert_close(cn.decode(m, x, g), m(x))
+    torch.testing.assert_close(m.decode(q, g), m.decode_reference(q, g))
+
+
+def test_global_feature_is_permutation_invariant():
+    m = cn.build_model(CorrNetConfig())
+    x = torch.rand(2, 64, 3)
+    perm = torch.randperm(64)
+    torch.testing.assert_close(m.encode(x), m.encode(x[:, perm]))
+    # and the per-point predictions permute with the points
+    torch.testing.assert_close(m(x)[:, perm], m(x[:, perm]))
+
+
+def test_predict_chunking_and_context_resampling():
+    m = cn.build_model(CorrNetConfig(context_points=64, query_points=64))
+    rng = np.random.default_rng(0)
+    ctx = rng.uniform(-1, 1, (300, 3))
+    q = rng.uniform(-1, 1, (1000, 3))
+    a = cn.predict(m, ctx, q, chunk=100000)
+    b = cn.predict(m, ctx, q, chunk=37)
+    assert a.shape == (1000, 3) and a.dtype == np.float64
+    np.testing.assert_allclose(a, b, atol=1e-6)
+    np.testing.assert_array_equal(a, cn.predict(m, ctx, q, chunk=100000))  # deterministic (seeded context)
+    # Fewer context points than N: every point is used, so any cover of them gives the same answer.
+    small = ctx[:20]
+    np.testing.assert_allclose(cn.predict(m, small, q), cn.predict(m, np.resize(small, (64, 3)), q), atol=1e-6)
+
+
+def test_sample_indices():
+    rng = np.random.default_rng(1)
+    i = cn.sample_indices(10, 4, rng)
+    assert len(np.unique(i)) == 4
+    j = cn.sample_indices(5, 12, rng)
+    assert len(j) == 12 and set(j.tolist()) == set(range(5))
+
+
+# -------------------------------------------------------------------------------------- training
+def test_learns_a_known_smooth_map():
+    train_pairs = family_pairs(32, 256, seed=1)
+    val_pairs = family_pairs(4, 256, seed=2)
+    test_pairs = family_pairs(8, 256, seed=3)
+    identity = np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in test_pairs])
+    cfg = small_config(context_points=64, query_points=64, iterations=1000, eval_every=100, lr=1e-2, patience=0)
+    res = cn.train(train_pairs, val_pairs, cfg)
+    err = cn.eval_step(res.model, test_pairs)
+    assert err["mean"] < 0.3 * identity, (err, identity)  # measured: 0.24x
+    assert err["max_point"] >= err["p95"] >= 0 and err["max_shape_mean"] >= err["mean"]
+    assert res.iterations == 1000 and not res.stopped_early
+    assert len(res.history) == 10 and res.history[-1]["train_error"] < 0.5 * res.history[0]["train_error"]
+
+
+def test_separate_queries_and_l2_loss_train():
+    pairs = family_pairs(6, 200, seed=4)
+    cfg = small_config(query_mode="separate", query_points=32, loss="l2", iterations=20, schedule="step")
+    res = cn.train(pairs, pairs[:2], cfg)
+    assert res.iterations == 20 and np.isfinite(res.best_val["mean"])
+
+
+def test_early_stopping_keeps_best_state():
+    pairs = family_pairs(6, 200, seed=5)
+    # min_delta 1.0 demands a 100 % improvement: only the first evaluation is ever "best".
+    cfg = small_config(iterations=100, eval_every=10, patience=2, min_delta=1.0)
+    res = cn.train(pairs[:4], pairs[4:], cfg)
+    assert res.stopped_early and res.iterations == 30 and len(res.history) == 3
+    assert res.best_val["iteration"] == 10
+    assert cn.eval_step(res.model, pairs[4:], seed=cfg.seed)["mean"] == pytest.approx(res.best_val["mean"], rel=1e-6)
+
+
+def test_best_state_is_the_minimum_of_history():
+    pairs = family_pairs(6, 200, seed=6)
+    res = cn.train(pairs[:4], pairs[4:], small_config(iterations=60, eval_every=10, patience=0, lr=2e-2))
+    best = min(res.history, key=lambda h: h["val_mean"])
+    assert res.best_val["iteration"] == best["iteration"]
+    assert cn.eval_step(res.model, pairs[4:])["mean"] == pytest.approx(best["val_mean"], rel=1e-6)
+
+
+def test_training_is_deterministic_per_seed():
+    pairs = family_pairs(5, 150, seed=7)
+    a = cn.train(pairs, None, small_config(iterations=15, seed=3)).model.state_dict()
+    b = cn.train(pairs, None, small_config(iterations=15, seed=3)).model.state_dict()
+    c = cn.train(pairs, None, small_config(iterations=15, seed=4)).model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_train_step_returns_mean_distance():
+    m = cn.build_model(small_config())
+    opt = torch.optim.Adam(m.parameters(), lr=1e-3)
+    src = torch.rand(2, 16, 3)
+    dst = torch.rand(2, 16, 3)
+    with torch.no_grad():
+        expected = float((m(src) - dst).norm(dim=-1).mean())
+    assert cn.train_step(m, opt, src, dst) == pytest.approx(expected, rel=1e-5)
+    with pytest.raises(ValueError, match="loss"):
+        cn.train_step(m, opt, src, dst, loss="huber")
+    with pytest.raises(ValueError, match="B, Q, 3"):
+        cn.train_step(m, opt, src, dst[:, :5])
+
+
+def test_learning_rate_schedules():
+    c = CorrNetConfig(iterations=100, lr=1.0, lr_final=0.1)
+    assert cn.learning_rate(c, 0) == pytest.approx(1.0) and cn.learning_rate(c, 100) == pytest.approx(0.1)
+    s = CorrNetConfig(iterations=100, lr=1.0, schedule="step")
+    assert [cn.learning_rate(s, i) for i in (0, 59, 60, 85)] == pytest.approx([1.0, 1.0, 0.1, 0.01])
+    assert cn.learning_rate(CorrNetConfig(schedule="constant", lr=0.5), 10**6) == 0.5
+
+
+def test_eval_step_figures():
+    m = cn.build_model(small_config())
+    pairs = family_pairs(3, 64, seed=8)
+    e = cn.eval_step(m, pairs)
+    per_shape = []
+    for s, d in pairs:
+        per_shape.append(np.linalg.norm(cn.predict(m, s, s) - d, axis=1))  # 64 < N: the full set is the context
+    assert e["mean"] == pytest.approx(np.mean([p.mean() for p in per_shape]), rel=1e-5)
+    assert e["max_point"] == pytest.approx(max(p.max() for p in per_shape), rel=1e-5)
+    assert e["max_shape_mean"] == pytest.approx(max(p.mean() for p in per_shape), rel=1e-5)
+    assert e["shapes"] == 3 and e["points"] == 192
+    assert cn.eval_step(m, []) == {}
+
+
+# ------------------------------------------------------------------------------------ validation
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(context_points=0), "context_points"),
+        (dict(query_points=2.5), "query_points"),
+        (dict(query_points=2048, context_points=1024), "query_points <= context_points"),
+        (dict(lr=0.0), "lr"),
+        (dict(lr=float("nan")), "lr"),
+        (dict(weight_decay=-1.0), "weight_decay"),
+        (dict(schedule="linear"), "schedule"),
+        (dict(loss="huber"), "loss"),
+        (dict(query_mode="random"), "query_mode"),
+        (dict(dtype="float16"), "dtype"),
+        (dict(device="tpu"), "device"),
+        (dict(patience=-1), "patience"),
+        (dict(shapes_per_batch=True), "shapes_per_batch"),
+        (dict(lr_final=2.0), "lr_final"),
+    ],
+)
+def test_config_validation(kw, match):
+    with pytest.raises(ValueError, match=match):
+        CorrNetConfig(**kw).validate()
+
+
+def test_config_round_trip_and_unknown_keys():
+    c = CorrNetConfig(lr=3e-4, iterations=7)
+    assert CorrNetConfig.from_dict(c.to_dict()) == c
+    with pytest.raises(ValueError, match="unknown"):
+        CorrNetConfig.from_dict({**c.to_dict(), "bogus": 1})
+
+
+def test_cuda_unavailable_is_a_clear_error():
+    if torch.cuda.is_available():
+        pytest.skip("CUDA present")
+    with pytest.raises(ValueError, match="CUDA"):
+        CorrNetConfig(device="cuda").validate()
+    assert cn.resolve_device("auto").type == "cpu"
+
+
+def test_input_validation():
+    m = cn.build_model(small_config())
+    ok = np.zeros((10, 3))
+    with pytest.raises(ValueError, match="NaN"):
+        cn.predict(m, ok, np.full((4, 3), np.nan))
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        cn.predict(m, np.zeros((10, 2)), ok)
+    with pytest.raises(ValueError, match="at least 1"):
+        cn.predict(m, np.zeros((0, 3)), ok)
+    with pytest.raises(ValueError, match="at least 1"):
+        cn.predict(m, ok, np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="chunk"):
+        cn.predict(m, ok, ok, chunk=0)
+    good = family_pairs(2, 32, seed=9)
+    with pytest.raises(ValueError, match="no pairs"):
+        cn.train([], None, small_config())
+    with pytest.raises(ValueError, match="same shape"):
+        cn.train([(good[0][0], good[0][1][:20])], None, small_config())
+    with pytest.raises(ValueError, match="at least 16"):
+        cn.train([(good[0][0][:5], good[0][1][:5])], None, small_config())
+    with pytest.raises(ValueError, match="normalised"):
+        cn.train([(good[0][0] * 10, good[0][1])], None, small_config())
+    with pytest.raises(ValueError, match="NaN"):
+        bad = good[0][0].copy()
+        bad[3, 1] = np.nan
+        cn.train([(bad, good[0][1])], None, small_config())
+    with pytest.raises(ValueError, match="pair"):
+        cn.train([good[0][0]], None, small_config())
+    with pytest.raises(ValueError, match="sequence"):
+        cn.train(good[0][0], None, small_config())
+
+
+# ----------------------------------------------------------------------------------- persistence
+def test_save_load_round_trip(tmp_path):
+    pairs = family_pairs(4, 100, seed=10)
+    cfg = small_config(iterations=10, context_points=64, query_points=64)
+    res = cn.train(pairs, None, cfg)
+    extra = {"group": 3, "frame": "bbox-centre / Linf radius", "val": {"mean": 0.01}, "counts": [1, 2], "t": torch.ones(2)}
+    path = tmp_path / "models" / "group3.pt"
+    cn.save(path, res.model, cfg, extra)
+    assert [p.name for p in path.parent.iterdir()] == ["group3.pt"]  # no temporary left behind
+    model, config, extra2 = cn.load(path)
+    assert config == cfg and extra2["group"] == 3 and extra2["counts"] == [1, 2] and torch.equal(extra2["t"], torch.ones(2))
+    assert not model.training and model.context_points == 64
+    ctx, q = pairs[0][0], np.random.default_rng(0).uniform(-1, 1, (500, 3))
+    np.testing.assert_array_equal(cn.predict(res.model, ctx, q), cn.predict(model, ctx, q))
+    cn.save(path, res.model, cfg)  # overwrite in place
+    assert cn.load(path)[2] == {}
+
+
+class Arbitrary:
+    def __reduce__(self):
+        return (print, ("this must never run",))
+
+
+@pytest.mark.filterwarnings("ignore:Detected pickle protocol")
+def test_load_refuses_pickled_objects(tmp_path):
+    m = cn.build_model(small_config())
+    path = tmp_path / "evil.pt"
+    torch.save({"format": cn.FORMAT, "state_dict": m.state_dict(), "config": small_config().to_dict(), "extra": Arbitrary()}, path)
+    with pytest.raises(ValueError, match="weights-only"):
+        cn.load(path)
+    path.write_bytes(pickle.dumps({"a": Arbitrary()}))
+    with pytest.raises(ValueError):
+        cn.load(path)
+    torch.save({"state_dict": {}}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="not a ProcCorrNet checkpoint"):
+        cn.load(tmp_path / "other.pt")
+
+
+def test_save_rejects_non_plain_extra(tmp_path):
+    m = cn.build_model(small_config())
+    with pytest.raises(ValueError, match="cannot be stored"):
+        cn.save(tmp_path / "x.pt", m, small_config(), {"obj": Arbitrary()})
+    with pytest.raises(ValueError, match="cannot be stored"):
+        cn.save(tmp_path / "x.pt", m, small_config(), {"arr": np.zeros(3)})
+    assert not list(tmp_path.iterdir())
+
+
+def test_load_rejects_mismatched_weights(tmp_path):
+    m = cn.build_model(small_config())
+    cn.save(tmp_path / "x.pt", m, CorrNetConfig())  # paper widths in the config, small weights
+    with pytest.raises(ValueError, match="do not fit"):
+        cn.load(tmp_path / "x.pt")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_train_predict_save_load(tmp_path):
+    pairs = family_pairs(4, 100, seed=11)
+    cfg = small_config(iterations=10, device="cuda")
+    res = cn.train(pairs, pairs[:1], cfg)
+    assert next(res.model.parameters()).is_cuda
+    q = pairs[0][0]
+    p = cn.predict(res.model, q, q)
+    cn.save(tmp_path / "c.pt", res.model, cfg)
+    model, _, _ = cn.load(tmp_path / "c.pt", device="cpu")
+    np.testing.assert_allclose(cn.predict(model, q, q), p, atol=1e-4)
