@@ -493,8 +493,8 @@ class NetworkMapper:
     ``threads``: torch threads during prediction (restored afterwards; None leaves them alone).
     """
 
-    def __init__(self, models: dict[int, Any], context: int = 1024, fallback: Mapper | None = None, threads: int | None = 1) -> None:
-        self.models, self.context = dict(models), int(context)
+    def __init__(self, models: dict[int, Any], context: int | None = None, fallback: Mapper | None = None, threads: int | None = 1) -> None:
+        self.models, self.context = dict(models), context  # None: the context size each network was trained with
         self.fallback = fallback or IdentityMapper()
         # One part is a few thousand points: one thread does it in milliseconds, while two threads
         # on a busy 2-core machine stall at every OpenMP barrier (measured: 30 ms vs 1.1 s per shape).
@@ -506,7 +506,7 @@ class NetworkMapper:
         model = self.models.get(group)
         if model is None:
             return self.fallback.map(group, vertices, faces, query, seed)
-        ctx, _, _ = sample_surface(vertices, faces, self.context, seed=seed)
+        ctx, _, _ = sample_surface(vertices, faces, int(self.context or model.context_points), seed=seed)
         if self.threads is None:
             return np.asarray(predict(model, ctx, query), dtype=np.float64)
         import torch

@@ -119,6 +119,12 @@ def load_or_build(name: str, n_train: int, n_test: int, points: int, seed: int, 
 
 
 # ---------------------------------------------------------------------------------------- evaluate
+SUMMARY_KEYS = (
+    "pgt_mean", "pgt_p95", "pgt_max_point", "pgt_max_shape_mean", "pgt_projected_mean", "identity_pgt_mean",
+    "gt_mean", "gt_p95", "gt_max", "cage_gt_mean", "cage_gt_p95", "cage_gt_max", "train_seconds", "predict_ms", "predict_ms_bf16",
+)
+
+
 def _template_parts(name: str, sofa_dir: Path) -> tuple[object, object]:
     """The model's template shape and its grouping (regenerated; deterministic)."""
     from proctex.parts import analyse
@@ -186,7 +192,8 @@ def gt_errors(model, data: dict, rows: list[int], template, tgrouping, seed: int
 
 
 def predict_timing(model, src, template_vertices, repeats: int = 7) -> dict:
-    """Median ms of :func:`proctex.corrnet.predict` on ``src`` samples plus a part's vertex count."""
+    """Median ms of :func:`proctex.corrnet.predict` on ``src`` samples plus a part's vertex count,
+    in float32 and with bfloat16 autocast."""
     import numpy as np
 
     from proctex.corrnet import predict
@@ -194,13 +201,40 @@ def predict_timing(model, src, template_vertices, repeats: int = 7) -> dict:
 
     c, r = normalised_frame(template_vertices)
     query = np.concatenate([src, (template_vertices - c) / r])
-    predict(model, src, query)
+    out = {"predict_queries": int(len(query))}
+    for key, mode in (("predict_ms", "none"), ("predict_ms_bf16", "bfloat16")):
+        predict(model, src, query, autocast=mode)
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            predict(model, src, query, autocast=mode)
+            times.append(time.perf_counter() - t0)
+        out[key] = 1000 * float(np.median(times))
+    return out
+
+
+def step_timing(config, repeats: int = 20) -> dict:
+    """Median ms of one :func:`proctex.corrnet.train_step` for ``config`` (random data)."""
+    import numpy as np
+    import torch
+
+    from proctex.corrnet import build_model, sample_batch, train_step
+
+    model = build_model(config)
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    rng = np.random.default_rng(0)
+    pairs = [(rng.uniform(-1, 1, (2000, 3)).astype(np.float32), rng.uniform(-1, 1, (2000, 3)).astype(np.float32)) for _ in range(4)]
     times = []
-    for _ in range(repeats):
+    for k in range(repeats + 3):
+        ctx, qry, tgt = (torch.as_tensor(a) for a in sample_batch(pairs, config, rng))
         t0 = time.perf_counter()
-        predict(model, src, query)
-        times.append(time.perf_counter() - t0)
-    return {"predict_queries": int(len(query)), "predict_ms": 1000 * float(np.median(times))}
+        if config.query_mode == "context":
+            train_step(model, opt, ctx, tgt, None, config.loss, config.autocast)
+        else:
+            train_step(model, opt, qry, tgt, ctx, config.loss, config.autocast)
+        if k >= 3:
+            times.append(time.perf_counter() - t0)
+    return {"step_ms": 1000 * float(np.median(times))}
 
 
 def run_group(name: str, data: dict, group: int, config, n_val: int, template, tgrouping, quiet: bool, timing: bool) -> dict:
@@ -273,6 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sofa-dir", default=str(SOFA_DIR))
     ap.add_argument("--cache", default=str(ROOT / "out"))
     ap.add_argument("--data-only", action="store_true")
+    ap.add_argument("--step-timing", action="store_true", help="only time one train step per variant (random data)")
     ap.add_argument("--no-timing", action="store_true")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
@@ -294,6 +329,11 @@ def main(argv: list[str] | None = None) -> int:
         key, _, values = item.partition("=")
         variants += [(f"{key}={v}", {**base, key: _parse_value(v)}) for v in values.split(",")]
     rows: list[dict] = []
+    if args.step_timing:
+        for label, settings in variants:
+            t = step_timing(CorrNetConfig(**settings).validate())
+            print(json.dumps({"variant": label, **t}))
+        return 0
     for name in [m for m in args.models.split(",") if m]:
         ntr, nte = (50, 50) if name == "sofa_data" else (args.train_shapes, args.test_shapes)
         data = load_or_build(name, ntr, nte, args.points, args.seed, Path(args.sofa_dir), Path(args.cache), args.quiet)
@@ -315,15 +355,11 @@ def main(argv: list[str] | None = None) -> int:
             rs = [r for r in rows if r["variant"] == label and r["model"] == name and "pgt_mean" in r]
             if not rs:
                 continue
-            s = {"variant": label, "model": name, "groups": len(rs)}
-            for k in ("pgt_mean", "pgt_p95", "pgt_max_shape_mean", "pgt_projected_mean", "identity_pgt_mean", "gt_mean", "cage_gt_mean", "gt_p95", "cage_gt_p95", "train_seconds", "predict_ms"):
+            s = {"variant": label, "model": name, "groups": len(rs), "over_groups": {}}
+            for k in SUMMARY_KEYS:
                 vals = [r[k] for r in rs if r.get(k) is not None]
                 if vals:
-                    s[k] = float(np.mean(vals))
-            for k in ("pgt_max_point", "pgt_max_shape_mean", "gt_max", "cage_gt_max"):
-                vals = [r[k] for r in rs if r.get(k) is not None]
-                if vals:
-                    s[k.replace("max", "max_over_groups") if k == "pgt_max_shape_mean" else k] = float(np.max(vals))
+                    s["over_groups"][k] = {"mean": float(np.mean(vals)), "max": float(np.max(vals))}
             summary.append(s)
     out = {
         "benchmark": "corrnet",

@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     ap.add_argument("--shapes", type=int, default=10)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2, help="torch threads")
-    ap.add_argument("--context", type=int, default=1024, help="ProcCorrNet context points")
+    ap.add_argument("--context", type=int, default=None, help="ProcCorrNet context points (default: as trained)")
     ap.add_argument("--out")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
