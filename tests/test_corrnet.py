@@ -223,6 +223,7 @@ def test_eval_step_figures():
     assert e["mean"] == pytest.approx(np.mean([p.mean() for p in per_shape]), rel=1e-5)
     assert e["max_point"] == pytest.approx(max(p.max() for p in per_shape), rel=1e-5)
     assert e["max_shape_mean"] == pytest.approx(max(p.mean() for p in per_shape), rel=1e-5)
+    assert e["max"] == e["max_shape_mean"]
     assert e["shapes"] == 3 and e["points"] == 192
     assert cn.eval_step(m, []) == {}
 
@@ -347,6 +348,14 @@ def test_save_rejects_non_plain_extra(tmp_path):
     with pytest.raises(ValueError, match="cannot be stored"):
         cn.save(tmp_path / "x.pt", m, small_config(), {"arr": np.zeros(3)})
     assert not list(tmp_path.iterdir())
+
+
+def test_checkpoint_from_another_device_loads_on_cpu(tmp_path):
+    m = cn.build_model(small_config())
+    payload = {"format": cn.FORMAT, "state_dict": m.state_dict(), "config": small_config(device="cuda").to_dict(), "extra": {}}
+    torch.save(payload, tmp_path / "gpu.pt")
+    model, config, _ = cn.load(tmp_path / "gpu.pt", device="cpu")
+    assert config.device == "cpu" and not next(model.parameters()).is_cuda
 
 
 def test_load_rejects_mismatched_weights(tmp_path):
