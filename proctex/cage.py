@@ -72,6 +72,7 @@ class CageConfig:
     mvc_every: int = 10
     symmetry: bool = False
     min_dot: float = 0.0
+    chamfer: str = "point"
     device: str = "cpu"
     dtype: str = "float64"
 
@@ -246,7 +247,12 @@ def solve_cage(
         # Chamfer between point sets, both directions, matches with agreeing normals.
         fwd = _oriented_nn(t_tree, template_samples, template_sample_normals, xd, nd)
         bwd = _oriented_nn(cKDTree(xd), xd, nd, template_samples, template_sample_normals)
-        chamfer = ((x - T[fwd]) ** 2).sum(1).mean() + ((T - x[bwd]) ** 2).sum(1).mean()
+        if cfg.chamfer == "plane":
+            # Template samples to the tangent planes of their nearest deformed source samples: zero
+            # when the surfaces coincide, whatever the two sample sets (point-to-point is not).
+            chamfer = (((T - x[bwd]) * nrm[bwd]).sum(1) ** 2).mean()
+        else:
+            chamfer = ((x - T[fwd]) ** 2).sum(1).mean() + ((T - x[bwd]) ** 2).sum(1).mean()
         smooth = ((offset[triples[:, 0]] - 2 * offset[triples[:, 1]] + offset[triples[:, 2]]) ** 2).sum(1).mean() if len(triples) else torch.zeros((), device=device, dtype=dtype)
         loss = cfg.w_surface * surface + cfg.w_chamfer * chamfer + cfg.w_normal * normal + cfg.w_smooth * smooth
         if pairs:

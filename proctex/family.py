@@ -8,6 +8,7 @@ Stages, each idempotent (a rerun skips what is complete and redoes what is missi
 4. ``pairs``    — the cage correspondence of every (train or test shape, template group):
    ``correspondences/<id>__g<group>.parquet`` and ``pairs.parquet``.
 5. ``train``    — one ProcCorrNet per group: ``models/group_<g>.pt``.
+6. ``evaluate`` — transfer to the test shapes and measure (:mod:`proctex.evaluate`): ``metrics.json``.
 
 Single process here; the Ray workflows fan the same stage functions out over a cluster.
 """
@@ -31,7 +32,7 @@ from .parts import Grouping, analyse, part_mesh, segment
 from .shape import Shape
 from .store import FamilyStore
 
-STAGES = ("sample", "template", "paint", "pairs", "train")
+STAGES = ("sample", "template", "paint", "pairs", "train", "evaluate")
 
 
 # ----------------------------------------------------------------------------------------- config
@@ -273,6 +274,8 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
         for name in sorted(os.listdir(tmp)):
             store.write_bytes(f"template/{name}", (Path(tmp) / name).read_bytes())
     store.write_arrays("template/uv.npz", corner_uv=tex.uv.corner_uv, face_group=tex.uv.face_group)
+    store.write_arrays("template/painted.npz", **{f"g{k}": m for k, m in enumerate(tex.painted_masks)},
+                       **{f"o{k}": m for k, m in enumerate(tex.observed_masks)})
     store.write_json("template/grouping.json", grouping.to_dict())
     _mark(store, "paint", coverage=summary["coverage"]["share"], groups=len(grouping.groups), seconds=round(tex.seconds, 3))
     log(f"paint: {len(grouping.groups)} groups, coverage {summary['coverage']['share']}")
@@ -317,7 +320,38 @@ def load_assets(store: FamilyStore, seed: int | None = None):
         png = store.read_bytes(f"template/{group_file_name(g['group'], g['label'])}")
         textures.append(np.asarray(Image.open(io.BytesIO(png)).convert("RGB")))
         names.append(g["label"] or f"group_{g['group']}")
-    return prepare_template(template, grouping, uv["corner_uv"], textures, names)
+    assets = prepare_template(template, grouping, uv["corner_uv"], textures, names)
+    assets.painted = template_painted(store, assets)
+    assets.observed = template_observed(store, assets)
+    return assets
+
+
+def template_painted(store: FamilyStore, assets=None) -> list[np.ndarray]:
+    """Per group the (H, W) bool mask of template texels that hold colour (``template/painted.npz``;
+    stores written before it existed: the texels the group's UV charts cover plus an 8-texel gutter)."""
+    if store.exists("template/painted.npz"):
+        arrays = store.read_arrays("template/painted.npz")
+        return [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
+    from .uv import pad_seams, texel_map
+
+    assets = assets if assets is not None else load_assets(store)
+    masks = []
+    for ga, tex in zip(assets.groups, assets.textures):
+        h, w = tex.shape[:2]
+        tm = texel_map(ga.vertices, ga.faces, ga.corner_uv, h, w)
+        _, mask = pad_seams(np.zeros((h, w, 1)), tm.mask, 8)
+        masks.append(mask)
+    return masks
+
+
+def template_observed(store: FamilyStore, assets=None) -> list[np.ndarray]:
+    """Per group the template's "already painted" mask (:attr:`proctex.paint.GroupTexture.observed`);
+    stores without one: :func:`template_painted` (everything painted counts as observed)."""
+    if store.exists("template/painted.npz"):
+        arrays = store.read_arrays("template/painted.npz")
+        if "o0" in arrays:
+            return [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(sum(n.startswith("o") for n in arrays))]
+    return template_painted(store, assets)
 
 
 def choose_part(assignment, group: int) -> Any:
@@ -490,7 +524,9 @@ def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] = STA
     if unknown:
         raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(STAGES)}")
     write_config(store, config)
-    funcs = {"sample": stage_sample, "template": stage_template, "paint": stage_paint, "pairs": stage_pairs, "train": stage_train}
+    from .evaluate import stage_evaluate
+
+    funcs = {"sample": stage_sample, "template": stage_template, "paint": stage_paint, "pairs": stage_pairs, "train": stage_train, "evaluate": stage_evaluate}
     for stage in STAGES:
         if stage in stages:
             funcs[stage](store, config, log=log)
@@ -566,8 +602,13 @@ def edit_group(
         colors = SurfacePainter(prompt, seed=config.seed).paint((tm.points - center) / scale, tm.normals, group=gi, label=entry["label"])
         fresh = np.full_like(tex, 0.5)
         fresh[tm.ij[:, 0], tm.ij[:, 1]] = colors
-        tex, _ = pad_seams(fresh, tm.mask, 8)
+        tex, mask = pad_seams(fresh, tm.mask, 8)
         record["prompt"] = prompt
+        masks = store.read_arrays("template/painted.npz") if store.exists("template/painted.npz") else None
+        if masks is not None:  # the whole group is painted now
+            masks[f"g{gi}"] = mask
+            masks[f"o{gi}"] = mask
+            store.write_arrays("template/painted.npz", **masks)
     if hue or saturation != 1.0 or value != 1.0:
         tex = shift_hsv(tex, hue_deg=hue, saturation=saturation, value=value)
         record["hsv"] = [hue, saturation, value]

@@ -65,6 +65,21 @@ class GroupTexture:
         """(H, W, 3) uint8 image."""
         return (np.clip(self.image, 0, 1) * 255).round().astype(np.uint8)
 
+    @property
+    def observed(self) -> np.ndarray:
+        """(H, W) bool "already painted" mask: texels the painter coloured directly (views: seen by a
+        view; the surface painter: every covered texel), plus the gutter texels padded from them.
+        Texels of ``painted`` outside it hold fill (PatchMatch or surface fill of unseen texels)."""
+        if self.direct is None:
+            return self.painted.copy()
+        from .uv import pad_seams
+
+        flag = np.zeros(self.painted.shape + (1,), dtype=np.float32)
+        ij = self.texels.ij[self.direct]
+        flag[ij[:, 0], ij[:, 1]] = 1.0
+        padded, _ = pad_seams(flag, self.texels.mask, -1)  # every texel takes its nearest covered texel's flag
+        return (padded[..., 0] > 0.5) & self.painted
+
 
 @dataclass
 class TemplateTexture:
@@ -86,6 +101,10 @@ class TemplateTexture:
     @property
     def painted_masks(self) -> list[np.ndarray]:
         return [g.painted for g in self.groups]
+
+    @property
+    def observed_masks(self) -> list[np.ndarray]:
+        return [g.observed for g in self.groups]
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready description (no arrays)."""

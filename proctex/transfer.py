@@ -78,6 +78,10 @@ class TemplateAssets:
     textures: list[np.ndarray]  # (H, W, 3) uint8 per group
     png: list[bytes]
     names: list[str]
+    # Per group (H, W) bool: texels holding colour, and the "already painted" ones (painted by the
+    # painter itself, not filled); None: every texel counts as both.
+    painted: list[np.ndarray] | None = None
+    observed: list[np.ndarray] | None = None
 
 
 def _box(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -233,6 +237,7 @@ class TransferResult:
         new_textures: textures painted for parts of groups the template does not have; their faces
             use group ids ``G, G + 1, ...`` after the template's ``G`` groups.
         notes: what a user should know (new groups, unpainted parts).
+        direct: parts with the representative's own connectivity, which took its UVs unchanged.
     """
 
     corner_uv: np.ndarray
@@ -243,6 +248,7 @@ class TransferResult:
     timings: dict[str, float] = field(default_factory=dict)
     new_textures: list[np.ndarray] = field(default_factory=list)  # (H, W, 3) uint8, groups G, G+1, ...
     notes: list[str] = field(default_factory=list)
+    direct: set[int] = field(default_factory=set)
 
 
 def _affine_uv(target: np.ndarray, tri: np.ndarray, tri_uv: np.ndarray) -> np.ndarray:
@@ -259,6 +265,12 @@ def _affine_uv(target: np.ndarray, tri: np.ndarray, tri_uv: np.ndarray) -> np.nd
     l2 = (d11 * p2 - d12 * p1) / den
     lam = np.stack([1 - l1 - l2, l1, l2], axis=1)
     return np.einsum("ij,ijk->ik", lam, tri_uv)
+
+
+def same_topology(faces: np.ndarray, n_vertices: int, assets: GroupAssets) -> bool:
+    """Whether a part mesh (local ``faces (k, 3)`` over ``n_vertices``) has exactly the connectivity
+    of the group's representative (same vertex count and the same face array)."""
+    return n_vertices == len(assets.vertices) and faces.shape == assets.faces.shape and bool(np.array_equal(faces, assets.faces))
 
 
 def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -295,6 +307,8 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
     corner = np.zeros((shape.n_faces, 3, 2))
     face_group = np.full(shape.n_faces, -1, dtype=np.int64)
     points: dict[int, np.ndarray] = {}
+    direct: set[int] = set()
+    notes: list[str] = []
     t_map = t_uv = 0.0
     for a in assignment:
         if a.group < 0:
@@ -302,14 +316,21 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
         part = seg.parts[a.part]
         ga = assets.groups[a.group]
         v, f = part_mesh(shape, part)
-        c, r = normalised_frame(v)
-        vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T + a.t  # into the representative's side
         ta = time.perf_counter()
-        mapped = np.asarray(mapper.map(a.group, vn, f, vn, seed=seed), dtype=np.float64)
-        if mapped.shape != vn.shape or not np.isfinite(mapped).all():
-            raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
-        tb = time.perf_counter()
-        uv, _ = part_uvs(ga, mapped, f)
+        if same_topology(f, len(v), ga):
+            # Same mesh connectivity as the representative: vertex i is the template's vertex i
+            # (procedural models), so the part takes the template UVs directly, no mapping.
+            direct.add(a.part)
+            mapped, uv = ga.vertices.copy(), ga.corner_uv.copy()
+            tb = time.perf_counter()
+        else:
+            c, r = normalised_frame(v)
+            vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T + a.t  # into the representative's side
+            mapped = np.asarray(mapper.map(a.group, vn, f, vn, seed=seed), dtype=np.float64)
+            if mapped.shape != vn.shape or not np.isfinite(mapped).all():
+                raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
+            tb = time.perf_counter()
+            uv, _ = part_uvs(ga, mapped, f)
         corner[part.faces] = uv
         face_group[part.faces] = a.group
         points[a.part] = mapped * ga.radius + ga.center
@@ -317,7 +338,13 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
         t_uv += time.perf_counter() - tb
     timings["map"] = t_map
     timings["uv"] = t_uv
-    result = TransferResult(corner, face_group, assignment, points, time.perf_counter() - t0, timings)
+    if assets.observed is not None:  # faces reading template texels the painter never painted
+        for g in np.unique(face_group[face_group >= 0]):
+            sel = np.flatnonzero(face_group == g)
+            dis = disoccluded_texels(corner[sel].mean(axis=1), assets.observed[g])
+            if dis.any():
+                notes.append(f"group {g}: {int(dis.sum())} faces show surface the template never showed (dis-occlusion; bake to fill it)")
+    result = TransferResult(corner, face_group, assignment, points, time.perf_counter() - t0, timings, notes=notes, direct=direct)
     new = [a.part for a in assignment if a.how == "new"]
     if new:
         tn = time.perf_counter()
@@ -365,18 +392,45 @@ def glb(shape: Shape, result: TransferResult, assets: TemplateAssets) -> bytes:
 # ------------------------------------------------------------------------------------------ bake
 @dataclass
 class Baked:
-    """A shape with its own atlas and textures: ``corner_uv (m, 3, 2)``, ``face_group (m,)``,
-    ``textures`` per group (H, W, 3) uint8 (groups absent from the shape: 1x1 grey), ``painted``
-    masks, ``seconds``."""
+    """A shape with its own atlas and textures.
+
+    Attributes:
+        corner_uv: (m, 3, 2); face_group: (m,) int64.
+        textures: per group (H, W, 3) uint8 (groups absent from the shape: 1x1 grey).
+        painted: per group (H, W) bool texels holding colour (``covered`` ones and their gutter).
+        covered: per group (H, W) bool texels inside the group's charts.
+        disoccluded: per group (H, W) bool texels whose template lookup touched template texels the
+            painter never painted (surface the template did not show); they were filled by PatchMatch
+            from this group's other texels (``fill="patchmatch"``).
+        direct: per group whether it kept the template's UVs and texture (every part of it has the
+            representative's connectivity: nothing baked).
+        seconds; notes.
+    """
 
     corner_uv: np.ndarray
     face_group: np.ndarray
     textures: list[np.ndarray]
     painted: list[np.ndarray]
     seconds: float
+    covered: list[np.ndarray] = field(default_factory=list)
+    disoccluded: list[np.ndarray] = field(default_factory=list)
+    direct: list[bool] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
 
-def bake(shape: Shape, result: TransferResult, assets: TemplateAssets, size: int = 512, gutter: int = 4, project: bool = False) -> Baked:
+def disoccluded_texels(uv: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """(k,) bool: which template lookups at ``uv (k, 2)`` touch a texel outside ``observed (H, W)``
+    (any of the four texels of the bilinear footprint)."""
+    from .uv import bilinear_texels
+
+    idx = bilinear_texels(np.asarray(uv, dtype=np.float64), observed.shape[0], observed.shape[1])
+    return ~observed.ravel()[idx].all(axis=1)
+
+
+def bake(
+    shape: Shape, result: TransferResult, assets: TemplateAssets, size: int = 512, gutter: int = 4, project: bool = False,
+    fill: str = "patchmatch", seed: int = 0,
+) -> Baked:
     """Give a transferred shape its own UV atlas per group and bake the template textures into it.
 
     Each covered texel reads the template texture (bilinear) at its template UV. By default that UV is
@@ -384,32 +438,55 @@ def bake(shape: Shape, result: TransferResult, assets: TemplateAssets, size: int
     face's affine map into one template chart); with ``project=True`` every texel's mapped point (the
     interpolated mapped vertices) is projected onto the template surface and its UV looked up there,
     ten times slower (the benchmark compares both). Seams are padded.
+
+    Groups whose parts all have the representative's connectivity (``result.direct``) keep the
+    template's UVs and texture (nothing is baked) unless the template's painter left some of the
+    group unpainted. Dis-occlusion: texels whose template lookup touches
+    template texels outside ``assets.observed`` (surface the template never showed its painter) are
+    detected and, with ``fill="patchmatch"``, re-synthesised by exemplar PatchMatch from this group's
+    other texels; no other texel changes (``fill="none"`` keeps the template's colours there).
     """
+    from .inpaint import patchmatch_fill
+
+    if fill not in ("patchmatch", "none"):
+        raise ValueError(f"fill must be patchmatch or none, got {fill!r}")
     t0 = time.perf_counter()
     seg = segment(shape)
     corner = np.zeros((shape.n_faces, 3, 2))
     face_group = np.full(shape.n_faces, -1, dtype=np.int64)
-    textures: list[np.ndarray] = []
-    painted: list[np.ndarray] = []
+    out = Baked(corner, face_group, [], [], 0.0)
     for g, ga in enumerate(assets.groups):
         parts = [a.part for a in result.assignment if a.group == g and a.part in result.points]
+        observed = assets.observed[g] if assets.observed is not None else None
         if not parts:
-            textures.append(np.full((1, 1, 3), 128, np.uint8))
-            painted.append(np.ones((1, 1), bool))
+            out.textures.append(np.full((1, 1, 3), 128, np.uint8))
+            out.painted.append(np.ones((1, 1), bool))
+            out.covered.append(np.ones((1, 1), bool))
+            out.disoccluded.append(np.zeros((1, 1), bool))
+            out.direct.append(False)
             continue
         faces = np.concatenate([seg.parts[p].faces for p in parts])
+        face_group[faces] = g
+        hidden = observed is not None and assets.painted is not None and bool((assets.painted[g] & ~observed).any())
+        if all(p in result.direct for p in parts) and not hidden:
+            corner[faces] = result.corner_uv[faces]
+            out.textures.append(assets.textures[g])
+            out.painted.append(assets.painted[g] if assets.painted is not None else np.ones(assets.textures[g].shape[:2], bool))
+            out.covered.append(out.painted[-1])
+            out.disoccluded.append(np.zeros(assets.textures[g].shape[:2], bool))
+            out.direct.append(True)
+            continue
         used = np.unique(shape.faces[faces])
         local = np.searchsorted(used, shape.faces[faces])
         atlas = unwrap(shape.vertices[used], local, resolution=size, padding=max(2, gutter // 2))
         corner[faces] = atlas.corner_uv
-        face_group[faces] = g
-        # Mapped points per used vertex, in the representative's normalised frame.
-        mapped = np.zeros((len(used), 3))
-        for p in parts:
-            ids = np.searchsorted(used, seg.parts[p].vertices)
-            mapped[ids] = (result.points[p] - ga.center) / ga.radius
         tm = texel_map(shape.vertices[used], local, atlas.corner_uv, size)
         if project:
+            # Mapped points per used vertex, in the representative's normalised frame.
+            mapped = np.zeros((len(used), 3))
+            for p in parts:
+                ids = np.searchsorted(used, seg.parts[p].vertices)
+                mapped[ids] = (result.points[p] - ga.center) / ga.radius
             target = np.einsum("ij,ijk->ik", tm.bary, mapped[local[tm.face]])
             hit = ga.index.query(target, exact=False)
             uv = np.einsum("ij,ijk->ik", hit.bary, ga.corner_uv[hit.faces])
@@ -417,16 +494,34 @@ def bake(shape: Shape, result: TransferResult, assets: TemplateAssets, size: int
             uv = np.einsum("ij,ijk->ik", tm.bary, result.corner_uv[faces[tm.face]])
         image = np.zeros((size, size, 3))
         image[tm.ij[:, 0], tm.ij[:, 1]] = sample_texture(assets.textures[g], uv)
+        hole = np.zeros((size, size), dtype=bool)
+        if observed is not None:
+            dis = disoccluded_texels(uv, observed)
+            hole[tm.ij[dis, 0], tm.ij[dis, 1]] = True
+            if dis.any() and fill == "patchmatch":
+                known = tm.mask & ~hole
+                try:
+                    image = patchmatch_fill(image, known, hole, seed=seed + g).image
+                    out.notes.append(f"group {g}: {int(dis.sum())} dis-occluded texels filled by PatchMatch")
+                except ValueError as exc:  # no usable source patch: keep the template's colours there
+                    out.notes.append(f"group {g}: {int(dis.sum())} dis-occluded texels kept the template's fill ({exc})")
         image, mask = pad_seams(image, tm.mask, gutter)
-        textures.append((np.clip(image, 0, 1) * 255).round().astype(np.uint8))
-        painted.append(mask)
+        out.textures.append((np.clip(image, 0, 1) * 255).round().astype(np.uint8))
+        out.painted.append(mask)
+        out.covered.append(tm.mask)
+        out.disoccluded.append(hole)
+        out.direct.append(False)
     for k, image in enumerate(result.new_textures):  # new groups already have their own atlas
         sel = result.face_group == len(assets.groups) + k
         corner[sel] = result.corner_uv[sel]
         face_group[sel] = len(assets.groups) + k
-        textures.append(image)
-        painted.append(np.ones(image.shape[:2], dtype=bool))
-    return Baked(corner, face_group, textures, painted, time.perf_counter() - t0)
+        out.textures.append(image)
+        out.painted.append(np.ones(image.shape[:2], dtype=bool))
+        out.covered.append(out.painted[-1])
+        out.disoccluded.append(np.zeros(image.shape[:2], dtype=bool))
+        out.direct.append(False)
+    out.seconds = time.perf_counter() - t0
+    return out
 
 
 def tracked_points(assets: TemplateAssets, n: int = 5000, seed: int = 0) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:

@@ -198,3 +198,39 @@ def test_train_stage_and_network_transfer(mug_family, tmp_path):
     logs = []
     stage_train(st, cfg, log=logs.append)
     assert all("done already" in line for line in logs if line.startswith("train: group"))
+
+
+def test_evaluate_stage_on_identical_shapes(tmp_path):
+    """Bounds pinned to the defaults: every sample is the template, so every method must give a
+    tracked-point variance of exactly 0 and full coverage; errors are reported for net and cage."""
+    from proctex.family import build
+    from proctex.models import get_model
+
+    pinned = {s.name: [s.default, s.default] for s in get_model("mug").space.specs}
+    cfg = BuildConfig(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, params=pinned,
+                      train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2}).validate()
+    st = FamilyStore(tmp_path / "fam")
+    logs = []
+    state = build(st, cfg, log=logs.append)
+    assert state["stages"]["evaluate"]["state"] == "done"
+    m = st.read_json("metrics.json")
+    assert m["shapes"] == 2 and m["split"] == "test" and set(m["methods"]) == {"corrnet", "identity"}
+    for name, entry in m["methods"].items():
+        assert entry["tracked_point_variance"] == 0.0 and entry["tracked_point_variance_baked"] == 0.0, name
+        assert entry["coverage"] == 0.0 and entry["coverage_baked"] == 0.0 and entry["shapes_with_holes"] == 0
+        assert len(entry["per_shape"]) == 2 and entry["seconds_per_shape"] > 0
+    net = m["methods"]["corrnet"]
+    assert net["pairs"] == 4 and set(net["per_group"]) == {"0", "1"}
+    assert 0 < net["pgt"]["mean"] <= net["pgt"]["max"] <= net["pgt"]["max_point"]
+    assert net["gt"]["mean"] > 0 and net["cage_gt"]["mean"] >= 0
+    assert any(line.startswith("evaluate corrnet") for line in logs)
+    # Rerun: done already.
+    logs.clear()
+    build(st, cfg, stages=("evaluate",), log=logs.append)
+    assert logs == ["evaluate: done already"]
+    from proctex.evaluate import evaluate
+
+    with pytest.raises(ValueError, match="methods"):
+        evaluate(st, methods=("bogus",))
+    with pytest.raises(ValueError, match="split"):
+        evaluate(st, split="inference")

@@ -221,3 +221,89 @@ def test_tracked_variance_is_zero_for_identical_shapes_and_grows_with_noise(chai
     assert 0.02 < tv.value < 0.06 and tv.shapes == 2
     with pytest.raises(ValueError):
         tracked_variance([c])
+
+
+# ------------------------------------------------------------------ topology shortcut, dis-occlusion
+def test_parts_with_the_template_connectivity_take_its_uvs_unchanged(chair):
+    _, _, _, assets = chair
+    shape = get_model("chair").generate({"seat_width": 0.52, "back_height": 0.5, "leg_thickness": 0.045})
+    seg = segment(shape)
+    r = transfer(shape, assets, IdentityMapper())
+    assert r.direct, "box legs and the seat keep their connectivity when only sizes change"
+    for a in r.assignment:
+        if a.part in r.direct:
+            ga = assets.groups[a.group]
+            assert np.array_equal(r.corner_uv[seg.parts[a.part].faces], ga.corner_uv)
+    b = bake(shape, r, assets, size=64)
+    for g, ga in enumerate(assets.groups):
+        parts = [a.part for a in r.assignment if a.group == g]
+        if parts and all(p in r.direct for p in parts):
+            assert b.direct[g] and b.textures[g] is assets.textures[g]
+        elif parts:
+            assert not b.direct[g] and b.textures[g].shape == (64, 64, 3)
+    assert any(b.direct) and not all(b.direct[g] for g in range(len(assets.groups)) if not assets.groups[g].degenerate)
+
+
+@pytest.fixture(scope="module")
+def cake_views():
+    """A two-tier cake painted from six views of the whole shape only: the top of the bottom tier
+    under the top tier is never seen, so those texels are not "already painted"."""
+    from proctex.paint import SolidViewPainter, paint_views
+
+    tpl = get_model("cake").generate({"candles": 0})
+    grouping = analyse(tpl)
+    tex = paint_views(tpl, grouping, SolidViewPainter(SurfacePainter("red velvet cake"), grouping), size=128, view_size=128,
+                      n_views=6, complete_hidden=False, up="z")
+    assets = prepare_template(tpl, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    assets.painted, assets.observed = tex.painted_masks, tex.observed_masks
+    return tpl, grouping, tex, assets
+
+
+def test_observed_mask_marks_what_no_view_saw(cake_views):
+    tpl, grouping, tex, assets = cake_views
+    bottom = [g for g in tex.groups if g.label == "tier_bottom"][0]
+    obs = bottom.observed
+    assert obs.sum() < bottom.painted.sum() and not (obs & ~bottom.painted).any()
+    # Texels on the bottom tier's top disc well inside the top tier's footprint were never seen.
+    part = grouping.parts[grouping.groups[bottom.group].representative]
+    v = tpl.vertices[part.vertices]
+    top_z, centre = v[:, 2].max(), v[:, :2].mean(axis=0)
+    pts, ij = bottom.texels.points, bottom.texels.ij
+    rad = np.linalg.norm(pts[:, :2] - centre, axis=1)
+    under = (np.abs(pts[:, 2] - top_z) < 1e-6) & (rad < 0.5 * np.ptp(v[:, 0]) * 0.6)
+    assert under.sum() > 20 and not obs[ij[under, 0], ij[under, 1]].any()
+
+
+def test_disocclusion_is_detected_and_filled_without_repainting(cake_views):
+    from proctex.uv import texel_map
+
+    tpl, grouping, tex, assets = cake_views
+    shape = get_model("cake").generate({"candles": 0, "shrink": 0.6})  # a smaller top tier uncovers the bottom tier
+    r = transfer(shape, assets, IdentityMapper())
+    assert any("dis-occlusion" in n for n in r.notes)
+    b = bake(shape, r, assets, size=128, seed=3)
+    b0 = bake(shape, r, assets, size=128, fill="none")
+    g = [ga.group for ga in assets.groups if ga.label == "tier_bottom"][0]
+    hole = b.disoccluded[g]
+    assert hole.any() and not b.direct[g] and np.array_equal(hole, b0.disoccluded[g])
+    # The ring of the bottom tier's top that the smaller top tier uncovers is detected as dis-occluded.
+    seg = segment(shape)
+    part = [seg.parts[a.part] for a in r.assignment if a.group == g][0]
+    v = shape.vertices[part.vertices]
+    top_z, centre, radius = v[:, 2].max(), v[:, :2].mean(axis=0), 0.5 * np.ptp(v[:, 0])
+    tm = texel_map(shape.vertices, shape.faces[part.faces], b.corner_uv[part.faces], 128)
+    rad = np.linalg.norm(tm.points[:, :2] - centre, axis=1)
+    on_top = np.abs(tm.points[:, 2] - top_z) < 1e-6
+    ring = on_top & (rad > 0.605 * radius) & (rad < 0.63 * radius)  # just outside the new top tier (0.6)
+    outer = on_top & (rad > 0.75 * radius) & (rad < 0.9 * radius)  # seen on the template too
+    assert ring.sum() > 10 and hole[tm.ij[ring, 0], tm.ij[ring, 1]].mean() > 0.7
+    assert outer.sum() > 100 and hole[tm.ij[outer, 0], tm.ij[outer, 1]].mean() < 0.05
+    # Filled: the hole changed, nothing painted outside it did, and no texel is left unpainted.
+    inside = (b.textures[g].astype(int) != b0.textures[g]).any(axis=2)
+    keep = b.covered[g] & ~hole
+    assert inside[hole].mean() > 0.5 and not inside[keep].any()
+    assert any("PatchMatch" in n for n in b.notes)
+    assert coverage(shape.vertices, shape.faces, b.corner_uv, b.face_group, b.painted).share == 0.0
+    # Same seed, same fill.
+    again = bake(shape, r, assets, size=128, seed=3)
+    assert all(np.array_equal(x, y) for x, y in zip(again.textures, b.textures))

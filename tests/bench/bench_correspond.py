@@ -31,6 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--level", type=int, default=None, help="cage subdivision level (default: the solver's)")
     ap.add_argument("--sofa-dir", default=str(Path(__file__).resolve().parents[3] / "shared" / "data" / "procedural_sofa"))
     ap.add_argument("--sofa-pairs", type=int, default=3)
+    ap.add_argument("--chamfer", default=None, choices=("point", "plane"), help="cage Chamfer term (default: the solver's)")
     ap.add_argument("--cpd-beta", type=float, default=None)
     ap.add_argument("--cpd-lambda", type=float, default=None)
     ap.add_argument("--threads", type=int, default=1)
@@ -50,6 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     from proctex.sources import FolderSource
 
     cage = CageConfig() if args.level is None else CageConfig(level=args.level)
+    if args.chamfer is not None:
+        cage.chamfer = args.chamfer
     methods = [m for m in args.methods.split(",") if m]
     opts = {}
     if args.cpd_beta is not None:
