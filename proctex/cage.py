@@ -5,8 +5,15 @@ a subdivided, slightly inflated axis-aligned box cage. Every source sample is wr
 value coordinates of that cage (:mod:`proctex.mvc`); moving the cage vertices moves the samples
 smoothly (``x' = W @ C'``). Adam moves the cage vertices to minimise
 
-- a Chamfer term between deformed source samples and template samples (both directions, matches
-  restricted to agreeing normals);
+- a Chamfer term between deformed source samples and template samples, matches restricted to
+  agreeing normals. By default (``chamfer="plane"``) only the template-to-source direction, measured
+  to the tangent plane of the matched deformed sample: zero whenever the surfaces coincide, so two
+  identical parts stay matched vertex for vertex (the point-to-point form of both directions,
+  ``chamfer="point"``, pulls samples towards the other set's samples: 0.006-0.025 of drift on two
+  identical mug parts). Measured on 3 random shapes each of mug, chair, table, desk, vase and sofa
+  (``tests/bench/bench_correspond.py --methods cage --chamfer plane|point``), ground-truth error
+  fell on every model: mug 0.029 -> 0.020, chair 0.0128 -> 0.0103, table 0.043 -> 0.042, desk
+  0.0087 -> 0.0067, vase 0.099 -> 0.064, sofa 0.0121 -> 0.0105, at the same cost;
 - a point-to-surface term: squared distance from every deformed sample to its closest template
   point among faces whose normal agrees (KD-tree candidates, exact point-triangle distance;
   :meth:`proctex.geometry.SurfaceIndex.query_oriented`). With the match held fixed, the gradient of
@@ -52,6 +59,8 @@ class CageConfig:
         w_*: loss weights. mvc_points, mvc_every: size and period of the negative-MVC penalty's
             sample. symmetry: mirror-symmetric cage across the given planes.
         min_dot: normal agreement required of a match (cosine).
+        chamfer: "plane" (template samples to the deformed source's tangent planes) or "point"
+            (point-to-point, both directions); see the module docstring.
         device, dtype: where the optimisation runs (CUDA when asked for and present).
     """
 
@@ -72,7 +81,7 @@ class CageConfig:
     mvc_every: int = 10
     symmetry: bool = False
     min_dot: float = 0.0
-    chamfer: str = "point"
+    chamfer: str = "plane"
     device: str = "cpu"
     dtype: str = "float64"
 
@@ -83,6 +92,8 @@ class CageConfig:
             raise ValueError(f"cage margin must be >= 0, got {self.margin}")
         if int(self.iterations) < 1 or not self.lr > 0 or not self.lr_final > 0:
             raise ValueError("cage iterations must be >= 1 and learning rates > 0")
+        if self.chamfer not in ("plane", "point"):
+            raise ValueError(f"chamfer must be plane or point, got {self.chamfer!r}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be float32 or float64, got {self.dtype!r}")
         return self
