@@ -90,21 +90,26 @@ def pair_errors(store: FamilyStore, config, rows: list[dict[str, Any]], seed: in
         pred = predict(model, ctx, src)
         err = np.linalg.norm(pred - dst, axis=1)
         rec = {"id": p["id"], "group": g, "pgt_mean": float(err.mean()), "pgt_max_point": float(err.max())}
-        if not config.folder:  # built-in model: canonical coordinates give the ground truth
-            if p["id"] not in shape_cache:
-                shape = load_sample(store, by_id[p["id"]], config)
-                seg = segment(shape)
-                shape_cache = {p["id"]: (shape, seg, assign_parts(shape, seg, assets))}
-            shape, seg, assignment = shape_cache[p["id"]]
-            a = choose_part(assignment, g)
+        if p["id"] not in shape_cache:
+            shape = load_sample(store, by_id[p["id"]], config)
+            seg = segment(shape)
+            shape_cache = {p["id"]: (shape, seg, assign_parts(shape, seg, assets))}
+        shape, seg, assignment = shape_cache[p["id"]]
+        a = choose_part(assignment, g)
+        if a is not None and a.part == p["part"]:
+            part = seg.parts[a.part]
+            v, f = part_mesh(shape, part)
+            c, r = normalised_frame(v)
+            vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T
+            hit = SurfaceIndex(vn, f).query(src)
+            # The run-time shortcut: predict at the part's vertices only and interpolate inside faces.
+            at_vertices = interpolate(predict(model, ctx, vn), f, hit.faces, hit.bary)
+            rec["pgt_vertex_mean"] = float(np.linalg.norm(at_vertices - dst, axis=1).mean())
+            rec["shortcut_gap"] = float(np.linalg.norm(at_vertices - pred, axis=1).mean())
             ga = assets.groups[g]
             rep = tgrouping.parts[ga.rep]
-            if a is not None and a.part == p["part"] and shape.canonical is not None and template.canonical is not None:
-                part = seg.parts[a.part]
-                v, f = part_mesh(shape, part)
-                c, r = normalised_frame(v)
-                vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T
-                hit = SurfaceIndex(vn, f).query(src)
+            if not config.folder and shape.canonical is not None and template.canonical is not None:
+                # Built-in model: canonical coordinates give the ground truth.
                 src_can = interpolate(shape.canonical[part.vertices], f, hit.faces, hit.bary)
                 tcan = template.canonical[rep.vertices]
                 proj = ga.index.query(pred)
@@ -118,6 +123,11 @@ def pair_errors(store: FamilyStore, config, rows: list[dict[str, Any]], seed: in
         return out
     means = [r["pgt_mean"] for r in per_pair]
     out["pgt"] = {"mean": float(np.mean(means)), "max": float(np.max(means)), "max_point": float(max(r["pgt_max_point"] for r in per_pair))}
+    located = [r for r in per_pair if "pgt_vertex_mean" in r]
+    if located:  # the vertex shortcut against per-point prediction, on the same pairs
+        out["pgt_vertex_shortcut"] = {"mean": float(np.mean([r["pgt_vertex_mean"] for r in located])), "max": float(np.max([r["pgt_vertex_mean"] for r in located])),
+                                      "per_point_mean": float(np.mean([r["pgt_mean"] for r in located])), "gap": float(np.mean([r["shortcut_gap"] for r in located])),
+                                      "pairs": len(located)}
     gt = [r for r in per_pair if "gt_mean" in r]
     if gt:
         out["gt"] = {"mean": float(np.mean([r["gt_mean"] for r in gt])), "p95": float(np.mean([r["gt_p95"] for r in gt])), "max": float(max(r["gt_max"] for r in gt))}

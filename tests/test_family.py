@@ -223,6 +223,7 @@ def test_evaluate_stage_on_identical_shapes(tmp_path):
     assert net["pairs"] == 4 and set(net["per_group"]) == {"0", "1"}
     assert 0 < net["pgt"]["mean"] <= net["pgt"]["max"] <= net["pgt"]["max_point"]
     assert net["gt"]["mean"] > 0 and net["cage_gt"]["mean"] >= 0
+    assert net["pgt_vertex_shortcut"]["pairs"] == 4 and net["pgt_vertex_shortcut"]["gap"] >= 0
     assert any(line.startswith("evaluate corrnet") for line in logs)
     # Rerun: done already.
     logs.clear()
