@@ -216,6 +216,7 @@ def _build_config(args: argparse.Namespace):
         "model": args.model, "folder": os.path.abspath(args.folder) if args.folder else None, "prompt": args.prompt,
         "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed, "n_train": args.n_train, "n_test": args.n_test,
         "texture_size": args.texture_size, "corr_points": args.points, "cage_iterations": args.iterations, "up": args.up,
+        "painter": args.painter, "model_dir": os.path.abspath(args.model_dir) if args.model_dir else None,
     }
     if args.model or args.folder:  # a source flag replaces the config's source
         data.update(model=None, folder=None, generator=None)
@@ -525,7 +526,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, help="cage solver iterations per pair")
     p.add_argument("--train-iterations", type=int, help="ProcCorrNet training iterations")
     p.add_argument("--up", choices=["auto", "x", "y", "z"])
-    p.add_argument("--stages", help="comma-separated subset of sample,template,paint,pairs,train")
+    p.add_argument("--painter", choices=["surface", "views", "diffusion"], help="template painter (default surface)")
+    p.add_argument("--model-dir", help="local diffusers model folder (--painter diffusion)")
+    p.add_argument("--stages", help="comma-separated subset of sample,template,paint,pairs,train,evaluate")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_build)
 

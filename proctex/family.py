@@ -46,7 +46,14 @@ class BuildConfig:
         seed: the family seed; sample ``i`` and pair ``(i, g)`` derive theirs from it.
         n_train, n_test, sampling: how many shapes to sample from a model ("lhs" or "random").
         params: bounds overrides ``{"name": [low, high]}`` for continuous / integer parameters.
-        texture_size, painter: template texturing ("surface" only for builds so far).
+        texture_size, painter: template texturing: "surface" (the solid surface painter), "views"
+            (the multi-view loop with the offline view painter) or "diffusion" (the multi-view loop
+            with a local diffusers model in ``model_dir``).
+        views, view_size, paint_hidden, fill: the multi-view loop (cameras on the orbit, their size,
+            whether parts hidden from the orbit get views of their own, and how unseen texels are
+            filled: "patchmatch" or "surface"). Texels no view saw stay out of the template's
+            "already painted" mask, so transfer can detect dis-occlusion.
+        model_dir, device, steps: the diffusion painter.
         up: the shapes' up axis ("auto": y for OBJ/glTF files, z otherwise).
         corr_points, cage_level, cage_iterations: the cage solver per pair.
         train: ProcCorrNet settings (``proctex.corrnet.CorrNetConfig`` fields).
@@ -64,6 +71,13 @@ class BuildConfig:
     params: dict[str, list[float]] = field(default_factory=dict)
     texture_size: int = 512
     painter: str = "surface"
+    views: int = 11
+    view_size: int = 512
+    paint_hidden: bool = True
+    fill: str = "patchmatch"
+    model_dir: str | None = None
+    device: str = "cpu"
+    steps: int = 20
     up: str = "auto"
     corr_points: int = 2000
     cage_level: int = 1
@@ -88,8 +102,16 @@ class BuildConfig:
             raise ValueError(f"need n_train >= 2 and n_test >= 0, got {self.n_train}, {self.n_test}")
         if self.sampling not in ("lhs", "random"):
             raise ValueError(f"sampling must be lhs or random, got {self.sampling!r}")
-        if self.texture_size < 16 or self.painter != "surface":
-            raise ValueError("texture_size must be >= 16 and painter 'surface'")
+        if self.texture_size < 16:
+            raise ValueError(f"texture_size must be >= 16, got {self.texture_size}")
+        if self.painter not in ("surface", "views", "diffusion"):
+            raise ValueError(f"painter must be surface, views or diffusion, got {self.painter!r}")
+        if self.views < 3 or self.view_size < 16 or self.steps < 1:
+            raise ValueError("views must be >= 3, view_size >= 16 and steps >= 1")
+        if self.fill not in ("patchmatch", "surface"):
+            raise ValueError(f"fill must be patchmatch or surface, got {self.fill!r}")
+        if self.painter == "diffusion" and not (self.model_dir and os.path.isdir(self.model_dir)):
+            raise ValueError(f"painter 'diffusion' needs model_dir, a local diffusers model folder (got {self.model_dir!r})")
         if self.up not in ("auto", "x", "y", "z"):
             raise ValueError(f"up must be auto, x, y or z, got {self.up!r}")
         if self.corr_points < 100 or self.cage_iterations < 1 or not 0 <= self.cage_level <= 4:
@@ -114,7 +136,7 @@ class BuildConfig:
             data = tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())
         except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
             raise ValueError(f"{path}: cannot parse config ({exc})") from exc
-        for key in ("folder", "generator"):
+        for key in ("folder", "generator", "model_dir"):
             if data.get(key) and not os.path.isabs(data[key]):
                 data[key] = str((p.parent / data[key]).resolve())
         return BuildConfig.from_dict(data)
@@ -268,7 +290,21 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     grouping = analyse(template, seed=config.seed)
     prompts = resolve_group_prompts(grouping, config.prompt, config.group_prompts)
     painter = SurfacePainter(config.prompt, {str(k): v for k, v in prompts.items()}, seed=config.seed)
-    tex = paint_surface(template, grouping, painter, size=config.texture_size, prompts=prompts)
+    if config.painter == "surface":
+        tex = paint_surface(template, grouping, painter, size=config.texture_size, prompts=prompts)
+    else:
+        from .paint import SolidViewPainter, paint_views
+
+        if config.painter == "views":
+            view_painter: Any = SolidViewPainter(painter, grouping)
+        else:
+            from .painters.diffusion import DiffusionViewPainter
+
+            view_painter = DiffusionViewPainter(config.model_dir, device=config.device, steps=config.steps)
+        tex = paint_views(template, grouping, view_painter, config.prompt, config.group_prompts, n_views=config.views,
+                          view_size=config.view_size, size=config.texture_size, up=up_axis(config), seed=config.seed,
+                          complete_hidden=config.paint_hidden, fill=config.fill,
+                          on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
     with tempfile.TemporaryDirectory() as tmp:
         summary = write_textured(tex, tmp, up=up_axis(config))
         for name in sorted(os.listdir(tmp)):

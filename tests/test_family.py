@@ -235,3 +235,37 @@ def test_evaluate_stage_on_identical_shapes(tmp_path):
         evaluate(st, methods=("bogus",))
     with pytest.raises(ValueError, match="split"):
         evaluate(st, split="inference")
+
+
+def test_view_painted_family_keeps_its_already_painted_mask(tmp_path):
+    """A template painted from views of the whole shape only stores which texels no view saw;
+    transfer then finds the dis-occluded surface of a shape and the bake fills it."""
+    from proctex.transfer import IdentityMapper, bake, transfer
+
+    cfg = BuildConfig(model="cake", n_train=2, n_test=0, texture_size=64, painter="views", views=6, view_size=96,
+                      paint_hidden=False, params={"candles": [0, 0], "tiers": [2, 2], "shrink": [0.7, 0.72]}, prompt="red velvet cake").validate()
+    st = FamilyStore(tmp_path / "cake")
+    write_config(st, cfg)
+    for stage in (stage_sample, stage_template, stage_paint):
+        stage(st, cfg, log=lambda *_: None)
+    masks = st.read_arrays("template/painted.npz")
+    assert {f"g{k}" for k in range(3)} | {f"o{k}" for k in range(3)} == set(masks)
+    assets = load_assets(st)
+    for g in range(3):
+        assert not (assets.observed[g] & ~assets.painted[g]).any()
+    assert sum(int((p & ~o).sum()) for p, o in zip(assets.painted, assets.observed)) > 0
+    from proctex.models import get_model
+
+    shape = get_model("cake").generate({"candles": 0, "shrink": 0.6, "tiers": 2})
+    r = transfer(shape, assets, IdentityMapper())
+    b = bake(shape, r, assets, size=64)
+    assert any(d.any() for d in b.disoccluded) and any("PatchMatch" in n for n in b.notes)
+
+
+def test_build_config_painter_checks(tmp_path):
+    with pytest.raises(ValueError, match="model_dir"):
+        BuildConfig(model="mug", painter="diffusion").validate()
+    with pytest.raises(ValueError, match="painter"):
+        BuildConfig(model="mug", painter="crayon").validate()
+    with pytest.raises(ValueError, match="fill"):
+        BuildConfig(model="mug", painter="views", fill="blur").validate()
