@@ -273,11 +273,14 @@ def same_topology(faces: np.ndarray, n_vertices: int, assets: GroupAssets) -> bo
     return n_vertices == len(assets.vertices) and faces.shape == assets.faces.shape and bool(np.array_equal(faces, assets.faces))
 
 
-def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, painted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
 
     Each face takes the template face nearest to its mapped centroid and that face's affine UV map.
-    Returns (corner_uv, template face per face (k,)).
+    With ``painted`` (the group texture's (H, W) bool mask of texels holding colour), a face whose
+    affine UVs would read unpainted texels (a large face extrapolated beyond its template chart)
+    instead takes, per corner, the closest point of that template triangle: its UVs then stay in the
+    chart (squeezed, but coloured). Returns (corner_uv, template face per face (k,)).
     """
     centroid = mapped[faces].mean(axis=1)
     near = assets.index.query(centroid, exact=False).faces
@@ -286,7 +289,23 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray) -> tupl
     out = np.empty((len(faces), 3, 2))
     for k in range(3):
         out[:, k] = _affine_uv(mapped[faces[:, k]], tri, tri_uv)
-    return np.clip(out, 0.0, 1.0), near
+    out = np.clip(out, 0.0, 1.0)
+    if painted is not None and len(faces):
+        from .uv import bilinear_texels
+
+        h, w = painted.shape
+        probe = np.concatenate([out.reshape(-1, 2), out.mean(axis=1)])  # corners and centroids
+        bad = ~painted.ravel()[bilinear_texels(probe, h, w)].all(axis=1)
+        bad = bad[: 3 * len(faces)].reshape(-1, 3).any(axis=1) | bad[3 * len(faces):]
+        if bad.any():
+            from .geometry import closest_point_on_triangles
+
+            fi = np.flatnonzero(bad)
+            t = tri[fi]
+            for k in range(3):
+                _, bary = closest_point_on_triangles(mapped[faces[fi, k]], t[:, 0], t[:, 1], t[:, 2])
+                out[fi, k] = np.einsum("ij,ijk->ik", bary, tri_uv[fi])
+    return out, near
 
 
 def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256) -> TransferResult:
@@ -330,7 +349,7 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
             if mapped.shape != vn.shape or not np.isfinite(mapped).all():
                 raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
             tb = time.perf_counter()
-            uv, _ = part_uvs(ga, mapped, f)
+            uv, _ = part_uvs(ga, mapped, f, None if assets.painted is None else assets.painted[a.group])
         corner[part.faces] = uv
         face_group[part.faces] = a.group
         points[a.part] = mapped * ga.radius + ga.center

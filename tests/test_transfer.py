@@ -307,3 +307,30 @@ def test_disocclusion_is_detected_and_filled_without_repainting(cake_views):
     # Same seed, same fill.
     again = bake(shape, r, assets, size=128, seed=3)
     assert all(np.array_equal(x, y) for x, y in zip(again.textures, b.textures))
+
+
+def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
+    """A big shape face mapped onto a small template chart: its affine UVs leave the chart and read
+    unpainted texels; with the painted mask the corners snap onto the template triangle instead."""
+    from proctex.geometry import SurfaceIndex
+    from proctex.transfer import GroupAssets, part_uvs
+    from proctex.uv import bilinear_texels
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    quad = np.array([[0.4, 0.4], [0.6, 0.4], [0.6, 0.6], [0.4, 0.6]])  # the chart: a 0.2-wide square
+    ga = GroupAssets(0, "", 0, v, f, quad[f], np.zeros(3), 1.0, SurfaceIndex(v, f), False)
+    painted = np.zeros((64, 64), bool)
+    painted[int(0.4 * 64) - 2 : int(0.6 * 64) + 2, int(0.4 * 64) - 2 : int(0.6 * 64) + 2] = True
+    mapped = np.array([[-2.0, -2.0, 0.0], [3.0, 0.2, 0.0], [0.5, 3.0, 0.0]])  # one face, far beyond the quad
+    faces = np.array([[0, 1, 2]])
+    raw, _ = part_uvs(ga, mapped, faces)
+    fixed, near = part_uvs(ga, mapped, faces, painted)
+    touches = lambda uv: painted.ravel()[bilinear_texels(uv.reshape(-1, 2), 64, 64)].all(axis=1)
+    assert not touches(raw).all() and touches(fixed).all()
+    assert ((fixed >= 0.4 - 1e-9) & (fixed <= 0.6 + 1e-9)).all()
+    # Faces already inside their chart keep their affine UVs exactly.
+    inside = np.array([[0.2, 0.2, 0.0], [0.8, 0.2, 0.0], [0.8, 0.8, 0.0]])
+    a, _ = part_uvs(ga, inside, faces)
+    b, _ = part_uvs(ga, inside, faces, painted)
+    assert np.array_equal(a, b)
