@@ -155,8 +155,7 @@ def _group_prompts(arg: str | None) -> dict[str, str] | None:
 
 
 def cmd_paint(args: argparse.Namespace) -> int:
-    from .paint import SolidViewPainter, paint_surface, paint_views, resolve_group_prompts, write_textured
-    from .painters import SurfacePainter
+    from .paint import paint_template, resolve_group_prompts, write_textured
     from .render import default_up
 
     if args.size < 8 or args.size > 8192:
@@ -169,27 +168,17 @@ def cmd_paint(args: argparse.Namespace) -> int:
     shape = resolve_shape(args.mesh)
     up = default_up(shape.source) if args.up == "auto" else args.up
     grouping = analyse(shape, seed=args.seed)
-    prompts = resolve_group_prompts(grouping, args.prompt, group_prompts)  # validates the keys
-    per_group = {str(k): v for k, v in prompts.items()}
-    surface = SurfacePainter(args.prompt, per_group, seed=args.seed)
+    resolve_group_prompts(grouping, args.prompt, group_prompts)  # validates the keys before any work
+
+    def progress(k: int, n: int, st: dict[str, Any]) -> None:
+        if not args.quiet:
+            print(f"view {k + 1}/{n} {st['camera']}: generate {st['generate']} refine {st['refine']} keep {st['keep']} px, "
+                  f"{st['texels_updated']} texels ({st['painter_s'] + st['backproject_s'] + st['render_s']:.2f}s)", flush=True)
+
     t0 = time.perf_counter()
-    if args.painter == "surface":
-        tex = paint_surface(shape, grouping, surface, size=args.size, prompts=prompts)
-    else:
-        if args.painter == "views":
-            painter: Any = SolidViewPainter(surface, grouping)
-        else:
-            from .painters.diffusion import DiffusionViewPainter
-
-            painter = DiffusionViewPainter(args.model_dir, device=args.device, steps=args.steps)
-
-        def progress(k: int, n: int, st: dict[str, Any]) -> None:
-            if not args.quiet:
-                print(f"view {k + 1}/{n} {st['camera']}: generate {st['generate']} refine {st['refine']} keep {st['keep']} px, "
-                      f"{st['texels_updated']} texels ({st['painter_s'] + st['backproject_s'] + st['render_s']:.2f}s)", flush=True)
-
-        tex = paint_views(shape, grouping, painter, args.prompt, group_prompts, n_views=args.views, view_size=args.view_size,
-                          size=args.size, up=up, seed=args.seed, on_view=progress)
+    tex = paint_template(shape, grouping, args.prompt, group_prompts, painter=args.painter, size=args.size, seed=args.seed, up=up,
+                         views=args.views, view_size=args.view_size, model_dir=args.model_dir, device=args.device, steps=args.steps,
+                         on_view=progress)
     seconds = time.perf_counter() - t0
     summary = write_textured(tex, args.out, up=up, obj=args.obj)
     summary["paint_seconds"] = round(seconds, 3)

@@ -28,7 +28,7 @@ import numpy as np
 import pyarrow as pa
 
 from .meshio import load_mesh, obj_text
-from .parts import Grouping, analyse, part_mesh, segment
+from .parts import analyse, part_mesh, segment
 from .shape import Shape
 from .store import FamilyStore
 
@@ -283,28 +283,14 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
         return
     import tempfile
 
-    from .paint import paint_surface, resolve_group_prompts, write_textured
-    from .painters import SurfacePainter
+    from .paint import paint_template, write_textured
 
     template = load_template_shape(store, config)
     grouping = analyse(template, seed=config.seed)
-    prompts = resolve_group_prompts(grouping, config.prompt, config.group_prompts)
-    painter = SurfacePainter(config.prompt, {str(k): v for k, v in prompts.items()}, seed=config.seed)
-    if config.painter == "surface":
-        tex = paint_surface(template, grouping, painter, size=config.texture_size, prompts=prompts)
-    else:
-        from .paint import SolidViewPainter, paint_views
-
-        if config.painter == "views":
-            view_painter: Any = SolidViewPainter(painter, grouping)
-        else:
-            from .painters.diffusion import DiffusionViewPainter
-
-            view_painter = DiffusionViewPainter(config.model_dir, device=config.device, steps=config.steps)
-        tex = paint_views(template, grouping, view_painter, config.prompt, config.group_prompts, n_views=config.views,
-                          view_size=config.view_size, size=config.texture_size, up=up_axis(config), seed=config.seed,
-                          complete_hidden=config.paint_hidden, fill=config.fill,
-                          on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
+    tex = paint_template(template, grouping, config.prompt, config.group_prompts, painter=config.painter, size=config.texture_size,
+                         seed=config.seed, up=up_axis(config), views=config.views, view_size=config.view_size,
+                         complete_hidden=config.paint_hidden, fill=config.fill, model_dir=config.model_dir, device=config.device,
+                         steps=config.steps, on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
     with tempfile.TemporaryDirectory() as tmp:
         summary = write_textured(tex, tmp, up=up_axis(config))
         for name in sorted(os.listdir(tmp)):

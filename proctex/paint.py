@@ -33,7 +33,7 @@ from .painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, View
 from .parts import Grouping, PartGroup
 from .render import Buffers, Camera, Tracer, bounding_sphere, canonical_cameras, orbit_path, render_buffers, textured_albedo
 from .shape import Shape
-from .uv import ShapeUV, TexelMap, pad_seams, sample_texture, shape_uv, texel_coords, texel_map
+from .uv import ShapeUV, TexelMap, pad_seams, sample_texture, shape_uv, texel_map
 
 UNPAINTED = 0.5  # grey shown where nothing is painted yet
 
@@ -651,6 +651,45 @@ def _complete_hidden(
             _pull(s, buffers, tri, view, margin, power, plane_tol, rep_member)
             n += 1
     return n
+
+
+def paint_template(
+    shape: Shape,
+    grouping: Grouping,
+    prompt: str,
+    group_prompts: Mapping[str, str] | None = None,
+    painter: str = "surface",
+    size: int = 1024,
+    seed: int = 0,
+    up: str = "z",
+    views: int = 11,
+    view_size: int = 512,
+    complete_hidden: bool = True,
+    fill: str = "patchmatch",
+    model_dir: str | None = None,
+    device: str = "cpu",
+    steps: int = 20,
+    on_view: Callable[[int, int, dict[str, Any]], None] | None = None,
+) -> TemplateTexture:
+    """Texture a template with one of the painters: ``"surface"`` (:func:`paint_surface`),
+    ``"views"`` (the multi-view loop with :class:`SolidViewPainter`) or ``"diffusion"`` (the loop with
+    a local diffusers model in ``model_dir``); the remaining arguments go to :func:`paint_views`."""
+    from .painters import SurfacePainter
+
+    prompts = resolve_group_prompts(grouping, prompt, group_prompts)  # validates the keys
+    surface = SurfacePainter(prompt, {str(k): v for k, v in prompts.items()}, seed=seed)
+    if painter == "surface":
+        return paint_surface(shape, grouping, surface, size=size, prompts=prompts)
+    if painter == "views":
+        view_painter: Any = SolidViewPainter(surface, grouping)
+    elif painter == "diffusion":
+        from .painters.diffusion import DiffusionViewPainter
+
+        view_painter = DiffusionViewPainter(model_dir, device=device, steps=steps)
+    else:
+        raise ValueError(f"painter must be surface, views or diffusion, got {painter!r}")
+    return paint_views(shape, grouping, view_painter, prompt, group_prompts, n_views=views, view_size=view_size, size=size,
+                       up=up, seed=seed, complete_hidden=complete_hidden, fill=fill, on_view=on_view)
 
 
 # ------------------------------------------------------------------------- a solid view painter
