@@ -216,7 +216,7 @@ def test_evaluate_stage_on_identical_shapes(tmp_path):
     m = st.read_json("metrics.json")
     assert m["shapes"] == 2 and m["split"] == "test" and set(m["methods"]) == {"corrnet", "identity"}
     for name, entry in m["methods"].items():
-        assert entry["tracked_point_variance"] == 0.0 and entry["tracked_point_variance_baked"] == 0.0, name
+        assert entry["tracked_point_variance"] == 0.0 and entry["tracked_point_variance_realtime"] == 0.0, name
         assert entry["coverage"] == 0.0 and entry["coverage_baked"] == 0.0 and entry["shapes_with_holes"] == 0
         assert len(entry["per_shape"]) == 2 and entry["seconds_per_shape"] > 0
     net = m["methods"]["corrnet"]
