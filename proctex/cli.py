@@ -317,6 +317,32 @@ def cmd_edit(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_eval(args: argparse.Namespace) -> int:
+    from .evaluate import METHODS, evaluate, markdown_table
+    from .family import stored_config
+    from .store import FamilyStore
+
+    store = FamilyStore(args.family)
+    stored_config(store)  # a clear error when the folder is not a family
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise ValueError(f"--methods must name some of {', '.join(METHODS)}, got {args.methods!r}")
+    if args.limit is not None and args.limit < 2:
+        raise ValueError(f"--limit must be >= 2, got {args.limit}")
+    if not store.exists("models") and "corrnet" in methods:
+        raise ValueError(f"{args.family}: no trained models (run the train stage, or evaluate --methods identity)")
+    split = {"test": "test", "train": "train"}[args.shapes]
+    log = (lambda *_: None) if (args.quiet or args.json) else (lambda m: print(m, flush=True))
+    metrics = evaluate(store, methods=methods, split=split, limit=args.limit, log=log)
+    store.write_json("metrics.json", metrics)
+    if args.json:
+        _print_json({k: v for k, v in metrics.items()})
+    else:
+        print(markdown_table(metrics))
+    return 0
+
+
 def cmd_template(args: argparse.Namespace) -> int:
     if os.path.isdir(args.source):
         src = FolderSource(args.source)
@@ -545,6 +571,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rotation", type=float, default=0.0)
     p.add_argument("--opacity", type=float, default=1.0)
     p.set_defaults(func=cmd_edit)
+
+    p = sub.add_parser("eval", help="measure a built family on its unseen shapes (metrics.json + a table)")
+    p.add_argument("family")
+    p.add_argument("--shapes", choices=["test", "train"], default="test")
+    p.add_argument("--methods", default="corrnet,identity", help="comma-separated: corrnet, identity, nearest")
+    p.add_argument("--limit", type=int, help="evaluate only the first N shapes")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("template", help="pick the template of a folder of samples or of a model's samples")
     p.add_argument("source", help="folder of samples, model name or generator config")

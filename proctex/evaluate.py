@@ -201,8 +201,8 @@ def evaluate(
             c2 = coverage(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.painted, up=up, size=view_size).share
             cov.append(c1)
             cov_baked.append(c2)
-            cols.append(shape_colours_at_template_points(shape, result, assets, points, seed=seed))
-            cols_baked.append(shape_colours_at_template_points(shape, result, assets, points, baked.textures, baked.corner_uv, baked.face_group, seed=seed))
+            cols.append(shape_colours_at_template_points(shape, result, assets, points))
+            cols_baked.append(shape_colours_at_template_points(shape, result, assets, points, baked.textures, baked.corner_uv, baked.face_group))
             per_shape.append({"id": row["id"], "seconds": secs[-1], "bake_seconds": bake_secs[-1], "coverage": c1, "coverage_baked": c2,
                               "parts": len(result.assignment), "notes": list(result.notes)})
         tv = tracked_variance(cols)
@@ -228,6 +228,26 @@ def evaluate(
             f"(real-time UVs {tv.value:.4f}), coverage max {max(cov):.4f} (baked {max(cov_baked):.4f}), "
             f"{1000 * float(np.median(secs)):.0f} ms per shape")
     return metrics
+
+
+def markdown_table(metrics: dict[str, Any]) -> str:
+    """A Markdown table of :func:`evaluate`'s metrics, one row per method."""
+    def f(x: Any, nd: int = 4) -> str:
+        return "-" if x is None else f"{x:.{nd}f}"
+
+    lines = [f"{metrics['shapes']} {metrics['split']} shapes", "",
+             "| method | tracked-point variance (baked / real-time) | coverage (max) | pseudo-GT error mean / max | GT error mean (cage) | ms per shape |",
+             "|---|---|---|---|---|---|"]
+    for name, m in metrics["methods"].items():
+        pgt = m.get("pgt") or {}
+        gt = m.get("gt")
+        lines.append(
+            f"| {name} | {f(m['tracked_point_variance'])} / {f(m['tracked_point_variance_realtime'])} | {f(m['coverage'])} | "
+            f"{f(pgt.get('mean'))} / {f(pgt.get('max'))} | "
+            + (f"{f(gt['mean'])} ({f(m['cage_gt']['mean'])})" if gt else "-")
+            + f" | {1000 * m['seconds_per_shape']:.0f} |"
+        )
+    return "\n".join(lines)
 
 
 def stage_evaluate(store: FamilyStore, config, log: Callable[[str], None] = print, methods: Sequence[str] = ("corrnet", "identity")) -> None:

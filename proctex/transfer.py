@@ -649,16 +649,18 @@ class TrackedVariance:
 
 def shape_colours_at_template_points(
     shape: Shape, result: TransferResult, assets: TemplateAssets, tracked, textures: Sequence[np.ndarray] | None = None,
-    corner_uv: np.ndarray | None = None, face_group: np.ndarray | None = None, samples: int = 20000, seed: int = 0,
+    corner_uv: np.ndarray | None = None, face_group: np.ndarray | None = None,
 ) -> dict[int, np.ndarray]:
     """Colours (k, 3) in [0, 1] that a shape shows at the points corresponding to tracked template points.
 
-    The corresponding shape point of a template point is the dense shape sample whose mapped template
-    point is nearest to it (the inverse of the shape -> template map), taken on the shape part in the
-    representative's slot. Colours come from the shape's own textures (``textures``/``corner_uv``/
-    ``face_group``, e.g. baked) or, by default, the template textures through ``result``'s UVs.
+    The transfer maps the shape part (in the representative's slot) piecewise linearly: its vertices
+    go to ``result.points``, each face affinely. The corresponding shape point of a template point is
+    found by inverting that map exactly: the closest point of the *mapped* part mesh gives a face and
+    barycentric coordinates, which are the shape point's. Colours come from the shape's own textures
+    (``textures``/``corner_uv``/``face_group``, e.g. baked) or, by default, the template textures
+    through ``result``'s UVs.
     """
-    from scipy.spatial import cKDTree
+    from .family import choose_part  # the part that stands for the representative
 
     seg = segment(shape)
     textures = assets.textures if textures is None else textures
@@ -666,19 +668,16 @@ def shape_colours_at_template_points(
     face_group = result.face_group if face_group is None else face_group
     out = {}
     for g, pts, _, _ in tracked:
-        from .family import choose_part  # the part that stands for the representative
-
         a = choose_part(result.assignment, g)
         if a is None or a.part not in result.points:
             continue
         part = seg.parts[a.part]
-        v, f = part_mesh(shape, part)
-        sp, sf, sb = sample_surface(v, f, samples, seed=seed)
+        _, f = part_mesh(shape, part)
         ga = assets.groups[g]
-        mapped = np.einsum("ij,ijk->ik", sb, ((result.points[a.part] - ga.center) / ga.radius)[f[sf]])
-        _, nn = cKDTree(mapped).query(pts)
-        gf = part.faces[sf[nn]]
-        uv = np.einsum("ij,ijk->ik", sb[nn], corner_uv[gf])
+        mapped = (result.points[a.part] - ga.center) / ga.radius
+        hit = SurfaceIndex(mapped, f).query(pts)
+        gf = part.faces[hit.faces]
+        uv = np.einsum("ij,ijk->ik", hit.bary, corner_uv[gf])
         cols = np.zeros((len(pts), 3))
         for gi in np.unique(face_group[gf]):
             sel = face_group[gf] == gi

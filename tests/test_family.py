@@ -237,6 +237,34 @@ def test_evaluate_stage_on_identical_shapes(tmp_path):
         evaluate(st, split="inference")
 
 
+def test_cli_eval(mug_family, tmp_path, capsys):
+    import shutil
+
+    from proctex.cli import main
+
+    st0, _ = mug_family
+    fam = tmp_path / "fam"
+    shutil.copytree(st0.base, fam)
+    capsys.readouterr()
+    # The fixture family has one test shape; its train split has two.
+    assert main(["eval", str(fam), "--shapes", "train", "--methods", "identity", "--json"]) == 0
+    m = json.loads(capsys.readouterr().out)
+    assert m["shapes"] == 2 and list(m["methods"]) == ["identity"] and "tracked_point_variance" in m["methods"]["identity"]
+    assert FamilyStore(fam).read_json("metrics.json") == m
+    assert main(["eval", str(fam), "--shapes", "train", "--methods", "identity", "--quiet"]) == 0
+    assert "| identity |" in capsys.readouterr().out
+    for argv, message in [
+        (["eval", str(tmp_path / "nothing")], "not a ProcTex family"),
+        (["eval", str(fam), "--methods", "magic"], "--methods"),
+        (["eval", str(fam), "--methods", "corrnet"], "no trained models"),
+        (["eval", str(fam), "--methods", "identity"], "at least two test shapes"),
+        (["eval", str(fam), "--limit", "1"], "--limit"),
+    ]:
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        assert message in capsys.readouterr().err, argv
+
+
 def test_view_painted_family_keeps_its_already_painted_mask(tmp_path):
     """A template painted from views of the whole shape only stores which texels no view saw;
     transfer then finds the dis-occluded surface of a shape and the bake fills it."""

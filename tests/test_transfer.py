@@ -223,6 +223,22 @@ def test_tracked_variance_is_zero_for_identical_shapes_and_grows_with_noise(chai
         tracked_variance([c])
 
 
+def test_tracked_points_invert_the_map_exactly_on_the_template(chair):
+    """On the template itself every part keeps its own connectivity, so the map is the identity on
+    the representative: the colour found at each tracked point is the template's own colour there."""
+    from proctex.transfer import shape_colours_at_template_points
+
+    shape, _, _, assets = chair
+    r = transfer(shape, assets, IdentityMapper())
+    tp = tracked_points(assets, n=2000, seed=4)
+    cols = shape_colours_at_template_points(shape, r, assets, tp)
+    assert sorted(cols) == [g for g, _, _, _ in tp]
+    for g, pts, fi, bary in tp:
+        ga = assets.groups[g]
+        truth = sample_texture(assets.textures[g], np.einsum("ij,ijk->ik", bary, ga.corner_uv[fi]))[:, :3]
+        assert np.mean(np.abs(cols[g] - truth).max(axis=1) < 1e-6) > 0.98  # all but points on UV seams
+
+
 # ------------------------------------------------------------------ topology shortcut, dis-occlusion
 def test_parts_with_the_template_connectivity_take_its_uvs_unchanged(chair):
     _, _, _, assets = chair
