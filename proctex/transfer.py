@@ -82,6 +82,7 @@ class TemplateAssets:
     # painter itself, not filled); None: every texel counts as both.
     painted: list[np.ndarray] | None = None
     observed: list[np.ndarray] | None = None
+    charts: list[np.ndarray] | None = None  # chart ids of ``painted`` (see :func:`template_charts`)
 
 
 def _box(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -273,14 +274,33 @@ def same_topology(faces: np.ndarray, n_vertices: int, assets: GroupAssets) -> bo
     return n_vertices == len(assets.vertices) and faces.shape == assets.faces.shape and bool(np.array_equal(faces, assets.faces))
 
 
-def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, painted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def chart_labels(painted: np.ndarray) -> np.ndarray:
+    """(H, W) int32 chart id per texel of a group texture: 8-connected components of its painted
+    texels (1, 2, ...), 0 where nothing is painted."""
+    from scipy import ndimage
+
+    labels, _ = ndimage.label(np.asarray(painted, dtype=bool), structure=np.ones((3, 3), dtype=bool))
+    return labels.astype(np.int32)
+
+
+def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
+    """Per group :func:`chart_labels` of the template's painted masks (computed once, kept on the
+    assets); None when the assets carry no painted masks."""
+    if assets.painted is None:
+        return None
+    if assets.charts is None or len(assets.charts) != len(assets.painted):
+        assets.charts = [chart_labels(m) for m in assets.painted]
+    return assets.charts
+
+
+def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
 
     Each face takes the template face nearest to its mapped centroid and that face's affine UV map.
-    With ``painted`` (the group texture's (H, W) bool mask of texels holding colour), a face whose
-    affine UVs would read unpainted texels (a large face extrapolated beyond its template chart)
-    instead takes, per corner, the closest point of that template triangle: its UVs then stay in the
-    chart (squeezed, but coloured). Returns (corner_uv, template face per face (k,)).
+    With ``charts`` (the group texture's :func:`chart_labels`), a face whose
+    affine UVs would leave the chart of its template triangle (a large face extrapolated beyond it:
+    a corner or the centre reading unpainted texels or another chart) instead takes, per corner, the
+    closest point of that template triangle: its UVs then stay in the chart (squeezed, but coloured). Returns (corner_uv, template face per face (k,)).
     """
     centroid = mapped[faces].mean(axis=1)
     near = assets.index.query(centroid, exact=False).faces
@@ -290,12 +310,15 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, painted
     for k in range(3):
         out[:, k] = _affine_uv(mapped[faces[:, k]], tri, tri_uv)
     out = np.clip(out, 0.0, 1.0)
-    if painted is not None and len(faces):
+    if charts is not None and len(faces):
         from .uv import bilinear_texels
 
-        h, w = painted.shape
+        h, w = charts.shape
+        target = charts.ravel()[bilinear_texels(tri_uv.mean(axis=1), h, w)].max(axis=1)  # the template triangle's chart
         probe = np.concatenate([out.reshape(-1, 2), out.mean(axis=1)])  # corners and centroids
-        bad = ~painted.ravel()[bilinear_texels(probe, h, w)].all(axis=1)
+        lab = charts.ravel()[bilinear_texels(probe, h, w)]
+        owner = np.concatenate([np.repeat(target, 3), target])
+        bad = ~(lab == owner[:, None]).all(axis=1)
         bad = bad[: 3 * len(faces)].reshape(-1, 3).any(axis=1) | bad[3 * len(faces):]
         if bad.any():
             from .geometry import closest_point_on_triangles
@@ -349,7 +372,8 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
             if mapped.shape != vn.shape or not np.isfinite(mapped).all():
                 raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
             tb = time.perf_counter()
-            uv, _ = part_uvs(ga, mapped, f, None if assets.painted is None else assets.painted[a.group])
+            charts = template_charts(assets)
+            uv, _ = part_uvs(ga, mapped, f, None if charts is None else charts[a.group])
         corner[part.faces] = uv
         face_group[part.faces] = a.group
         points[a.part] = mapped * ga.radius + ga.center

@@ -329,7 +329,7 @@ def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
     """A big shape face mapped onto a small template chart: its affine UVs leave the chart and read
     unpainted texels; with the painted mask the corners snap onto the template triangle instead."""
     from proctex.geometry import SurfaceIndex
-    from proctex.transfer import GroupAssets, part_uvs
+    from proctex.transfer import GroupAssets, chart_labels, part_uvs
     from proctex.uv import bilinear_texels
 
     v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
@@ -341,12 +341,34 @@ def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
     mapped = np.array([[-2.0, -2.0, 0.0], [3.0, 0.2, 0.0], [0.5, 3.0, 0.0]])  # one face, far beyond the quad
     faces = np.array([[0, 1, 2]])
     raw, _ = part_uvs(ga, mapped, faces)
-    fixed, near = part_uvs(ga, mapped, faces, painted)
+    fixed, near = part_uvs(ga, mapped, faces, chart_labels(painted))
     touches = lambda uv: painted.ravel()[bilinear_texels(uv.reshape(-1, 2), 64, 64)].all(axis=1)
     assert not touches(raw).all() and touches(fixed).all()
     assert ((fixed >= 0.4 - 1e-9) & (fixed <= 0.6 + 1e-9)).all()
     # Faces already inside their chart keep their affine UVs exactly.
     inside = np.array([[0.2, 0.2, 0.0], [0.8, 0.2, 0.0], [0.8, 0.8, 0.0]])
     a, _ = part_uvs(ga, inside, faces)
-    b, _ = part_uvs(ga, inside, faces, painted)
+    b, _ = part_uvs(ga, inside, faces, chart_labels(painted))
     assert np.array_equal(a, b)
+
+
+def test_a_face_extrapolated_into_another_chart_is_pulled_back():
+    from proctex.geometry import SurfaceIndex
+    from proctex.transfer import GroupAssets, chart_labels, part_uvs
+
+    sq = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    v = np.concatenate([sq, sq + [5.0, 0, 0]])
+    f = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    uv_a = np.array([[0.1, 0.1], [0.3, 0.1], [0.3, 0.3], [0.1, 0.3]])
+    uv = np.concatenate([uv_a[[0, 1, 2]][None], uv_a[[0, 2, 3]][None], (uv_a + [0.5, 0])[[0, 1, 2]][None], (uv_a + [0.5, 0])[[0, 2, 3]][None]])
+    ga = GroupAssets(0, "", 0, v, f, uv, np.zeros(3), 1.0, SurfaceIndex(v, f), False)
+    painted = np.zeros((100, 100), bool)
+    painted[68:92, 8:32] = True  # chart A (rows are 1 - v)
+    painted[68:92, 58:82] = True  # chart B
+    labels = chart_labels(painted)
+    assert labels.max() == 2
+    mapped = np.array([[0.2, 0.2, 0.0], [0.6, 0.2, 0.0], [3.0, 0.5, 0.0]])  # centroid over A, one corner lands in B's UVs
+    raw, _ = part_uvs(ga, mapped, np.array([[0, 1, 2]]))
+    assert 0.55 < raw[0, 2, 0] < 0.85  # painted, but the other chart
+    fixed, _ = part_uvs(ga, mapped, np.array([[0, 1, 2]]), labels)
+    assert (fixed[..., 0] <= 0.3 + 1e-9).all() and (fixed[..., 0] >= 0.1 - 1e-9).all()
