@@ -198,31 +198,71 @@ def _restricted(space, bounds: dict[str, list[float]]):
 
 
 # ----------------------------------------------------------------------------------------- stages
+@dataclass
+class SampleJob:
+    """One sample of the family: its position in the sample list, id, split and parameters."""
+
+    index: int
+    id: str
+    split: str
+    params: dict[str, Any]
+
+
+def sample_jobs(config: BuildConfig) -> list[SampleJob]:
+    """Every sample of the family (the folder's, or ``n_train + n_test`` drawn from the model with the
+    family seed), in order."""
+    if config.folder:
+        src = _folder(config.folder)
+        return [SampleJob(i, s.id.replace("/", "_"), s.split, src.params(i)) for i, s in enumerate(src.samples)]
+    model = _model(config)
+    params = model.space.sample(config.n_train + config.n_test, seed=config.seed, method=config.sampling)
+    return [SampleJob(i, f"s{i:04d}", "train" if i < config.n_train else "test", p) for i, p in enumerate(params)]
+
+
+_FOLDERS: dict[str, Any] = {}
+
+
+def _folder(path: str):
+    from .sources import FolderSource
+
+    if path not in _FOLDERS:
+        _FOLDERS[path] = FolderSource(path)
+    return _FOLDERS[path]
+
+
+def sample_record_path(sid: str) -> str:
+    return f"meshes/{sid}.json"
+
+
+def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> dict[str, Any]:
+    """Make one sample, write its mesh and its record (the mesh first: a record means both are
+    complete); returns the record, a row of ``samples.parquet``. Idempotent."""
+    rel = sample_record_path(job.id)
+    if store.exists(rel):
+        return store.read_json(rel)
+    shape = _folder(config.folder).load(job.index) if config.folder else _model(config).generate(job.params)
+    path = f"meshes/{job.id}.obj"
+    store.write_bytes(path, obj_text(shape.vertices, shape.faces).encode())
+    seg = segment(shape)
+    row = {"id": job.id, "split": job.split, "params": json.dumps(job.params, sort_keys=True), "mesh": path,
+           "vertices": shape.n_vertices, "faces": shape.n_faces, "parts": seg.n_parts}
+    store.write_json(rel, row)
+    return row
+
+
+def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]]) -> None:
+    """Write ``samples.parquet`` (rows in sample order) and mark the stage done."""
+    store.write_table("samples.parquet", pa.Table.from_pylist(rows))
+    _mark(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows))
+
+
 def stage_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
     """Sample shapes (or read the folder) into ``meshes/`` and ``samples.parquet``."""
     if stage_done(store, "sample"):
         log("sample: done already")
         return
-    rows = []
-    if config.folder:
-        from .sources import FolderSource
-
-        src = FolderSource(config.folder)
-        items = [(s.id.replace("/", "_"), s.split, src.params(i), lambda i=i: src.load(i)) for i, s in enumerate(src.samples)]
-    else:
-        model = _model(config)
-        params = model.space.sample(config.n_train + config.n_test, seed=config.seed, method=config.sampling)
-        items = [(f"s{i:04d}", "train" if i < config.n_train else "test", p, lambda p=p: model.generate(p)) for i, p in enumerate(params)]
-    for sid, split, params, make in items:
-        path = f"meshes/{sid}.obj"
-        shape = make()
-        if not store.exists(path):
-            store.write_bytes(path, obj_text(shape.vertices, shape.faces).encode())
-        seg = segment(shape)
-        rows.append({"id": sid, "split": split, "params": json.dumps(params, sort_keys=True), "mesh": path,
-                     "vertices": shape.n_vertices, "faces": shape.n_faces, "parts": seg.n_parts})
-    store.write_table("samples.parquet", pa.Table.from_pylist(rows))
-    _mark(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows))
+    rows = [run_sample_job(store, config, job) for job in sample_jobs(config)]
+    finish_sample_stage(store, rows)
     log(f"sample: {len(rows)} shapes")
 
 
@@ -419,51 +459,134 @@ def pair_path(sid: str, group: int) -> str:
     return f"correspondences/{sid}__g{group}.parquet"
 
 
-def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, splits: tuple[str, ...] = ("train", "test")) -> None:
-    """Cage pairs for every (shape, non-degenerate template group); skips pairs already stored."""
-    assets = load_assets(store)
-    rows = store.read_table("pairs.parquet").to_pylist() if store.exists("pairs.parquet") else []
-    done = {(r["id"], r["group"]) for r in rows if r["status"] == "done"}
-    todo = [(i, r) for i, r in enumerate(samples(store)) if r["split"] in splits]
+@dataclass
+class PairJob:
+    """One cage correspondence to solve: sample ``index`` (its ``samples.parquet`` row) and template ``group``."""
+
+    index: int
+    row: dict[str, Any]
+    group: int
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return (self.row["id"], self.group)
+
+
+def pair_seed(config: BuildConfig, index: int, group: int) -> int:
+    """The seed of pair (sample ``index``, ``group``): a function of the family seed and the pair only,
+    so any process, in any order, solves a pair the same way."""
+    return config.seed * 1_000_003 + index * 97 + group
+
+
+def pair_record_path(sid: str, group: int) -> str:
+    return f"correspondences/{sid}__g{group}.json"
+
+
+def pair_jobs(store: FamilyStore, config: BuildConfig, assets=None, splits: tuple[str, ...] = ("train", "test")) -> list[PairJob]:
+    """Every (shape of ``splits``, non-degenerate template group) pair, in sample order."""
+    assets = assets if assets is not None else load_assets(store)
     groups = [g.group for g in assets.groups if not g.degenerate]
-    t0, n = time.perf_counter(), 0
-    for i, row in todo:
-        shape = None
-        for g in groups:
-            if (row["id"], g) in done and store.exists(pair_path(row["id"], g)):
-                continue
-            shape = shape or load_sample(store, row, config)
-            seed = config.seed * 1_000_003 + i * 97 + g
-            t = time.perf_counter()
-            try:
-                pair = solve_pair(shape, assets, g, config, seed)
-                status = "done" if pair is not None else "absent"
-                error = ""
-            except (ValueError, RuntimeError) as exc:  # a failed pair is recorded and retried next run
-                pair, status, error = None, "failed", str(exc)
-            if pair is not None:
-                store.write_table(pair_path(row["id"], g), {
-                    "sx": pair["src"][:, 0], "sy": pair["src"][:, 1], "sz": pair["src"][:, 2],
-                    "tx": pair["dst"][:, 0], "ty": pair["dst"][:, 1], "tz": pair["dst"][:, 2], "face": pair["face"],
-                })
-            rows = [r for r in rows if not (r["id"] == row["id"] and r["group"] == g)]
-            attempts = 1 + max([r.get("attempts", 0) for r in rows if r["id"] == row["id"] and r["group"] == g] or [0])
-            rows.append({
-                "id": row["id"], "split": row["split"], "group": g, "status": status, "error": error,
-                "part": -1 if pair is None else int(pair["part"]),
-                "residual": float("nan") if pair is None else float(pair["residual"]),
-                "chamfer": float("nan") if pair is None else float(pair["chamfer"]),
-                "converged": bool(pair and pair["converged"]), "iterations": 0 if pair is None else int(pair["iterations"]),
-                "seconds": time.perf_counter() - t, "attempts": attempts, "path": pair_path(row["id"], g) if pair else "",
-            })
-            store.write_table("pairs.parquet", pa.Table.from_pylist(rows))
-            n += 1
-        log(f"pairs: {row['id']} ({n} solved, {time.perf_counter() - t0:.0f}s)")
-    failed = sum(r["status"] == "failed" for r in rows)
-    if failed:
-        log(f"pairs: {failed} failed (rerun to retry)")
+    return [PairJob(i, r, g) for i, r in enumerate(samples(store)) if r["split"] in splits for g in groups]
+
+
+def pair_records(store: FamilyStore, jobs: list[PairJob]) -> dict[tuple[str, int], dict[str, Any]]:
+    """The stored record of each job that has one (done, absent or failed). Stores written before
+    per-pair records existed: the rows of ``pairs.parquet`` whose data file exists."""
+    index = {}
+    if store.exists("pairs.parquet"):
+        index = {(r["id"], r["group"]): r for r in store.read_table("pairs.parquet").to_pylist()}
+    out = {}
+    for job in jobs:
+        rel = pair_record_path(*job.key)
+        if store.exists(rel):
+            out[job.key] = store.read_json(rel)
+        elif job.key in index and (index[job.key]["status"] == "absent" or (index[job.key]["status"] == "done" and store.exists(pair_path(*job.key)))):
+            out[job.key] = index[job.key]
+    return out
+
+
+def pair_complete(record: dict[str, Any] | None) -> bool:
+    """A pair needs no more work: solved, or the shape lacks the group."""
+    return record is not None and record.get("status") in ("done", "absent")
+
+
+def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, shape: Shape | None = None) -> dict[str, Any]:
+    """Solve one pair and store it: the correspondence Parquet file first, then its JSON record, both
+    atomic, so a record always describes complete data. A pair already complete is returned as is;
+    a failure (``ValueError``/``RuntimeError``) is recorded as "failed" (retried by the next run).
+    Returns the record (a row of ``pairs.parquet``)."""
+    rel = pair_record_path(*job.key)
+    old = store.read_json(rel) if store.exists(rel) else None
+    if pair_complete(old):
+        return old
+    sid, g = job.key
+    t = time.perf_counter()
+    try:
+        shape = shape if shape is not None else load_sample(store, job.row, config)
+        pair = solve_pair(shape, assets, g, config, pair_seed(config, job.index, g))
+        status = "done" if pair is not None else "absent"
+        error = ""
+    except (ValueError, RuntimeError) as exc:
+        pair, status, error = None, "failed", str(exc)
+    if pair is not None:
+        store.write_table(pair_path(sid, g), {
+            "sx": pair["src"][:, 0], "sy": pair["src"][:, 1], "sz": pair["src"][:, 2],
+            "tx": pair["dst"][:, 0], "ty": pair["dst"][:, 1], "tz": pair["dst"][:, 2], "face": pair["face"],
+        })
+    record = {
+        "id": sid, "split": job.row["split"], "group": g, "status": status, "error": error,
+        "part": -1 if pair is None else int(pair["part"]),
+        "residual": None if pair is None else float(pair["residual"]),
+        "chamfer": None if pair is None else float(pair["chamfer"]),
+        "converged": bool(pair and pair["converged"]), "iterations": 0 if pair is None else int(pair["iterations"]),
+        "seconds": time.perf_counter() - t, "attempts": 1 + (old or {}).get("attempts", 0),
+        "path": pair_path(sid, g) if pair else "",
+    }
+    store.write_json(rel, record)
+    return record
+
+
+def write_pairs_index(store: FamilyStore, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]]) -> None:
+    """``pairs.parquet``: one row per job that has a record, in job order (NaN for missing figures)."""
+    rows = []
+    for job in jobs:
+        r = records.get(job.key)
+        if r is not None:
+            rows.append({**r, "residual": float("nan") if r["residual"] is None else r["residual"],
+                         "chamfer": float("nan") if r["chamfer"] is None else r["chamfer"]})
+    store.write_table("pairs.parquet", pa.Table.from_pylist(rows))
+
+
+def finish_pairs_stage(store: FamilyStore, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]], log: Callable[[str], None] = print) -> None:
+    """Write the index; mark the stage done when every job is complete."""
+    write_pairs_index(store, jobs, records)
+    failed = sum(r["status"] == "failed" for r in records.values())
+    missing = sum(job.key not in records for job in jobs)
+    if failed or missing:
+        log(f"pairs: {failed} failed, {missing} not run (rerun to retry)")
     else:
-        _mark(store, "pairs", pairs=len(rows))
+        _mark(store, "pairs", pairs=len(records))
+
+
+def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, splits: tuple[str, ...] = ("train", "test")) -> None:
+    """Cage pairs for every (shape, non-degenerate template group); skips pairs already complete."""
+    assets = load_assets(store)
+    jobs = pair_jobs(store, config, assets, splits)
+    records = pair_records(store, jobs)
+    todo = [j for j in jobs if not pair_complete(records.get(j.key))]
+    if not todo and stage_done(store, "pairs"):
+        log("pairs: done already")
+        return
+    t0, n, shape, shape_id = time.perf_counter(), 0, None, None
+    for k, job in enumerate(todo):
+        if shape_id != job.row["id"]:
+            shape, shape_id = load_sample(store, job.row, config), job.row["id"]
+        records[job.key] = run_pair_job(store, config, assets, job, shape)
+        n += 1
+        if k + 1 == len(todo) or todo[k + 1].row["id"] != shape_id:
+            write_pairs_index(store, jobs, records)
+            log(f"pairs: {shape_id} ({n}/{len(todo)} solved, {time.perf_counter() - t0:.0f}s)")
+    finish_pairs_stage(store, jobs, records, log)
 
 
 def read_pair(store: FamilyStore, sid: str, group: int) -> tuple[np.ndarray, np.ndarray]:
