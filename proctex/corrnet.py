@@ -319,14 +319,15 @@ def sample_indices(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def sample_batch(
-    pairs: Sequence[Pair], config: CorrNetConfig, rng: np.random.Generator
+    pairs: Sequence[Pair], config: CorrNetConfig, rng: np.random.Generator, size: int | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One training batch: ``(context (B, N, 3), query (B, Q, 3), target (B, Q, 3))`` float32.
 
-    ``B = shapes_per_batch`` pairs drawn with replacement; per pair ``N = context_points`` context
-    samples and ``Q = query_points`` queries (the first Q context points, or an independent sample).
+    ``B = size or shapes_per_batch`` pairs drawn with replacement; per pair ``N = context_points``
+    context samples and ``Q = query_points`` queries (the first Q context points, or an independent
+    sample).
     """
-    B, N, Q = config.shapes_per_batch, config.context_points, config.query_points
+    B, N, Q = size or config.shapes_per_batch, config.context_points, config.query_points
     ctx, qry, tgt = np.empty((B, N, 3), np.float32), np.empty((B, Q, 3), np.float32), np.empty((B, Q, 3), np.float32)
     for b, j in enumerate(rng.integers(0, len(pairs), size=B)):
         src, dst = pairs[j]
@@ -362,6 +363,7 @@ def train_step(
     context: torch.Tensor | None = None,
     loss: str = "mse",
     autocast: str = "none",
+    grad_hook: Callable[[ProcCorrNet], None] | None = None,
 ) -> float:
     """One optimisation step; returns the batch's mean Euclidean distance (before the step).
 
@@ -372,6 +374,8 @@ def train_step(
             ``dst`` is (B, Q, 3) as well.
         loss: "mse" (mean squared distance) or "l2" (mean Euclidean distance).
         autocast: "none" or "bfloat16" (matrix products in bfloat16, loss in float32).
+        grad_hook: called with the model between the backward pass and the update (data-parallel
+            training averages the gradients across workers there).
     """
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
@@ -386,6 +390,8 @@ def train_step(
     value = dist2.mean() if loss == "mse" else dist.mean()
     optimiser.zero_grad(set_to_none=True)
     value.backward()
+    if grad_hook is not None:
+        grad_hook(model)
     optimiser.step()
     return float(dist.detach().mean())
 
@@ -458,6 +464,9 @@ def train(
     val_pairs: Sequence[Pair] | None,
     config: CorrNetConfig | None = None,
     on_eval: Callable[[dict[str, Any]], None] | None = None,
+    rank: int = 0,
+    world: int = 1,
+    grad_hook: Callable[[ProcCorrNet], None] | None = None,
 ) -> TrainResult:
     """Train one ProcCorrNet on cage pairs of one template group.
 
@@ -467,9 +476,15 @@ def train(
             then the final state is kept and nothing stops early).
         config: settings (defaults: :class:`CorrNetConfig`).
         on_eval: called with each history entry (progress reporting).
+        rank, world, grad_hook: data-parallel training. Each of ``world`` workers draws its own
+            ``ceil(shapes_per_batch / world)`` shapes per step (seeded by the seed and its rank) and
+            ``grad_hook`` averages the gradients across workers, so all workers keep identical
+            weights and take identical early-stopping decisions (validation is the same everywhere).
 
-    Same seed, same data, same device -> identical weights (CPU).
+    Same seed, same data, same device -> identical weights (CPU); ``world=1`` is the single-process run.
     """
+    if not (isinstance(world, int) and world >= 1 and isinstance(rank, int) and 0 <= rank < world):
+        raise ValueError(f"need 0 <= rank < world, got rank {rank!r}, world {world!r}")
     config = (config or CorrNetConfig()).validate()
     train_pairs = check_pairs(train_pairs, "train pairs")
     val_pairs = check_pairs(val_pairs or [], "val pairs", allow_empty=True)
@@ -477,7 +492,8 @@ def train(
     model = build_model(config)
     device, dtype = _model_spec(model)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    rng = np.random.default_rng(config.seed)
+    rng = np.random.default_rng(config.seed if world == 1 else [config.seed, rank])
+    per_rank = -(-config.shapes_per_batch // world)
     history: list[dict[str, Any]] = []
     best_state, best_val, best_mean, bad, stopped, step = None, {}, math.inf, 0, False, 0
     window: list[float] = []
@@ -485,11 +501,11 @@ def train(
         lr = learning_rate(config, step)
         for g in optimiser.param_groups:
             g["lr"] = lr
-        ctx, qry, tgt = (torch.as_tensor(a, device=device, dtype=dtype) for a in sample_batch(train_pairs, config, rng))
+        ctx, qry, tgt = (torch.as_tensor(a, device=device, dtype=dtype) for a in sample_batch(train_pairs, config, rng, per_rank))
         if config.query_mode == "context":  # queries = the first Q context points: one encoder pass
-            window.append(train_step(model, optimiser, ctx, tgt, None, config.loss, config.autocast))
+            window.append(train_step(model, optimiser, ctx, tgt, None, config.loss, config.autocast, grad_hook))
         else:
-            window.append(train_step(model, optimiser, qry, tgt, ctx, config.loss, config.autocast))
+            window.append(train_step(model, optimiser, qry, tgt, ctx, config.loss, config.autocast, grad_hook))
         step += 1
         if step % config.eval_every and step < config.iterations:
             continue
