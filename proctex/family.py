@@ -613,35 +613,63 @@ def model_path(group: int) -> str:
     return f"models/group_{group}.pt"
 
 
-def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, val_share: float = 0.15) -> None:
-    """One ProcCorrNet per non-degenerate group on the train pairs (a share held out for early stopping)."""
+def corrnet_config(config: BuildConfig):
+    """The ProcCorrNet settings of a build (``config.train`` over the defaults, the family seed)."""
+    from .corrnet import CorrNetConfig
+
+    return CorrNetConfig(**{**config.train, "seed": config.train.get("seed", config.seed)}).validate()
+
+
+def trainable_groups(store: FamilyStore) -> list[int]:
+    """Groups with at least one solved train pair."""
+    rows = store.read_table("pairs.parquet").to_pylist() if store.exists("pairs.parquet") else []
+    return sorted({r["group"] for r in rows if r["status"] == "done" and r["split"] == "train"})
+
+
+def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val_share: float = 0.15) -> dict[str, Any]:
+    """Train and validation pairs of one group: a seeded ``val_share`` of its train shapes is held
+    out for early stopping. Returns ``{"train": [(src, dst)], "val": [...], "train_ids", "val_ids"}``."""
+    rows = [r for r in store.read_table("pairs.parquet").to_pylist() if r["status"] == "done" and r["split"] == "train" and r["group"] == group]
+    ids = sorted(r["id"] for r in rows)
+    if not ids:
+        raise ValueError(f"group {group} has no solved train pairs")
+    rng = np.random.default_rng(config.seed + group)
+    n_val = max(1, int(round(val_share * len(ids)))) if len(ids) > 2 else 0
+    val_ids = set(rng.choice(ids, size=n_val, replace=False).tolist()) if n_val else set()
+    train_ids = [i for i in ids if i not in val_ids]
+    train_pairs = [read_pair(store, i, group) for i in train_ids]
+    val_pairs = [read_pair(store, i, group) for i in sorted(val_ids)] or train_pairs[:1]
+    return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": sorted(val_ids)}
+
+
+def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str, Any]) -> None:
+    """Write a trained group network to ``models/group_<g>.pt`` (atomically)."""
     import tempfile
 
-    from .corrnet import CorrNetConfig, save, train
+    from .corrnet import save
 
-    rows = [r for r in store.read_table("pairs.parquet").to_pylist() if r["status"] == "done" and r["split"] == "train"]
-    groups = sorted({r["group"] for r in rows})
-    cfg = CorrNetConfig(**{**config.train, "seed": config.train.get("seed", config.seed)})
-    cfg.validate()
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / "m.pt"
+        save(p, result.model, cfg, {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val})
+        store.write_bytes(model_path(group), p.read_bytes())
+
+
+def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, val_share: float = 0.15) -> None:
+    """One ProcCorrNet per non-degenerate group on the train pairs (a share held out for early stopping)."""
+    from .corrnet import train
+
+    cfg = corrnet_config(config)
     trained = {}
-    for g in groups:
+    for g in trainable_groups(store):
         if store.exists(model_path(g)):
             log(f"train: group {g} done already")
             continue
-        ids = sorted(r["id"] for r in rows if r["group"] == g)
-        rng = np.random.default_rng(config.seed + g)
-        n_val = max(1, int(round(val_share * len(ids)))) if len(ids) > 2 else 0
-        val_ids = set(rng.choice(ids, size=n_val, replace=False).tolist()) if n_val else set()
-        train_pairs = [read_pair(store, i, g) for i in ids if i not in val_ids]
-        val_pairs = [read_pair(store, i, g) for i in ids if i in val_ids] or train_pairs[:1]
+        data = group_training_data(store, config, g, val_share)
         t = time.perf_counter()
-        result = train(train_pairs, val_pairs, cfg)
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / "m.pt"
-            save(p, result.model, cfg, {"group": g, "train_ids": [i for i in ids if i not in val_ids], "val_ids": sorted(val_ids), "best_val": result.best_val})
-            store.write_bytes(model_path(g), p.read_bytes())
+        result = train(data["train"], data["val"], cfg)
+        save_group_model(store, g, result, cfg, data)
         trained[g] = {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2)}
-        log(f"train: group {g}: {len(train_pairs)} train / {len(val_pairs)} val pairs, val {result.best_val}, {trained[g]['seconds']}s")
+        log(f"train: group {g}: {len(data['train'])} train / {len(data['val'])} val pairs, val {result.best_val}, {trained[g]['seconds']}s")
     _mark(store, "train", groups=trained)
 
 
