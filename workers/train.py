@@ -1,0 +1,109 @@
+"""Ray Train: one ProcCorrNet per part group, fitted data-parallel by a ``TorchTrainer`` on CPU workers.
+
+Every worker runs the same pure training loop as the single-process build
+(:func:`proctex.corrnet.train`) on the group's pairs from the store, drawing its own share of each
+batch; a gradient hook averages the gradients across workers (gloo ``all_reduce``), so the workers
+keep identical weights and stop together. Rank 0 writes the network to the store
+(``models/group_<g>.pt``) and reports it as the run's checkpoint (under ``train_runs/`` in the
+store). Groups are trained one after another, each with all the workers: more workers than groups
+shorten every group's run instead of idling.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import asdict
+import time
+from typing import Any, Callable
+
+
+from proctex.family import (
+    BuildConfig,
+    corrnet_config,
+    group_training_data,
+    model_path,
+    save_group_model,
+    trainable_groups,
+)
+from proctex.store import FamilyStore
+
+
+def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
+    """``train_loop_per_worker`` of the trainer (runs inside each Ray Train worker): the groups of
+    ``loop_config["groups"]`` one after another, all workers on each group."""
+    import ray.train
+    import torch
+    import torch.distributed as dist
+    from ray.train import Checkpoint
+
+    from proctex.corrnet import train
+
+    torch.set_num_threads(int(loop_config.get("threads", 1)))
+    ctx = ray.train.get_context()
+    rank, world = ctx.get_world_rank(), ctx.get_world_size()
+    store = FamilyStore(loop_config["store"])
+    config = BuildConfig.from_dict(loop_config["config"])
+    cfg = corrnet_config(config)
+
+    def average(model: torch.nn.Module) -> None:
+        if world > 1:
+            for p in model.parameters():
+                if p.grad is not None:
+                    dist.all_reduce(p.grad)
+                    p.grad /= world
+
+    out = {}
+    for group in loop_config["groups"]:
+        group = int(group)
+        data = group_training_data(store, config, group)
+        t0 = time.perf_counter()
+        result = train(data["train"], data["val"], cfg, rank=rank, world=world, grad_hook=average)
+        metrics = {"group": group, "best_val": float(result.best_val["mean"]) if result.best_val else float("nan"),
+                   "iterations": result.iterations, "seconds": time.perf_counter() - t0, "workers": world}
+        with tempfile.TemporaryDirectory() as tmp:
+            if rank == 0:
+                save_group_model(store, group, result, cfg, data)
+                with open(os.path.join(tmp, "group.pt"), "wb") as fh:
+                    fh.write(store.read_bytes(model_path(group)))
+            # A barrier: every worker reports once per group; rank 0's network is the checkpoint.
+            ray.train.report(metrics, checkpoint=Checkpoint.from_directory(tmp) if rank == 0 else None, checkpoint_dir_name=f"group_{group}")
+        out[str(group)] = metrics
+    return out
+
+
+def train_groups(
+    store_uri: str,
+    config: BuildConfig,
+    num_workers: int = 2,
+    cpus_per_worker: float = 1.0,
+    groups: list[int] | None = None,
+    log: Callable[[str], None] = print,
+) -> dict[int, dict[str, Any]]:
+    """Fit the networks of every trainable group that has none yet with one ``TorchTrainer`` of
+    ``num_workers`` CPU workers (Ray must be initialised). Returns ``{group: metrics}``."""
+    from ray.train import RunConfig, ScalingConfig
+    from ray.train.torch import TorchTrainer
+
+    if num_workers < 1:
+        raise ValueError(f"num_workers must be >= 1, got {num_workers}")
+    store = FamilyStore(store_uri)
+    todo = [g for g in (groups if groups is not None else trainable_groups(store)) if not store.exists(model_path(g))]
+    if not todo:
+        return {}
+    storage = store.path("train_runs")
+    store.fs.create_dir(storage, recursive=True)
+    t0 = time.perf_counter()
+    trainer = TorchTrainer(
+        train_group_loop,
+        train_loop_config={"store": store_uri, "config": asdict(config), "groups": todo},
+        scaling_config=ScalingConfig(num_workers=num_workers, use_gpu=False, resources_per_worker={"CPU": cpus_per_worker}),
+        # A fresh run name: Ray Train resumes silently from an existing run of the same name.
+        run_config=RunConfig(name=f"corrnet_{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}", storage_path=storage, storage_filesystem=store.fs),
+    )
+    result = trainer.fit()
+    out = {int(g): m for g, m in (result.return_value or {}).items()}
+    for g, m in out.items():
+        log(f"train: group {g} on {num_workers} Ray Train workers: val {m['best_val']:.4f}, {m['iterations']} iterations, {m['seconds']:.1f}s")
+    log(f"train: {len(todo)} groups in {time.perf_counter() - t0:.1f}s")
+    return out
