@@ -199,8 +199,11 @@ def _build_config(args: argparse.Namespace):
     from .family import BuildConfig
 
     data: dict[str, Any] = {}
-    if args.config:
-        data = {k: v for k, v in vars(BuildConfig.from_file(args.config)).items()}
+    if args.config and args.config_file:
+        raise ValueError("give the config file once (positional CONFIG or --config)")
+    config_file = args.config or args.config_file
+    if config_file:
+        data = {k: v for k, v in vars(BuildConfig.from_file(config_file)).items()}
     flags = {
         "model": args.model, "folder": os.path.abspath(args.folder) if args.folder else None, "prompt": args.prompt,
         "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed, "n_train": args.n_train, "n_test": args.n_test,
@@ -220,6 +223,8 @@ def cmd_build(args: argparse.Namespace) -> int:
     from .store import FamilyStore
 
     config = _build_config(args)
+    if args.ray is not None:
+        raise ValueError("--ray runs through the Ray layer: use the installed `proctex` command (workflows.cli)")
     stages = tuple(args.stages.split(",")) if args.stages else STAGES
     state = build(FamilyStore(args.out), config, stages=stages, log=(lambda *_: None) if args.quiet else (lambda m: print(m, flush=True)))
     done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
@@ -462,6 +467,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="proctex", description="Consistent texturing of procedural shape families.")
     sub = parser.add_subparsers(dest="command", required=True)
+    parser.subcommands = sub.choices  # type: ignore[attr-defined]  # the Ray layer (workflows.cli) extends them
 
     p = sub.add_parser("models", help="list built-in models and their parameter specs")
     p.add_argument("--json", action="store_true")
@@ -529,7 +535,12 @@ def build_parser() -> argparse.ArgumentParser:
     src = p.add_mutually_exclusive_group()
     src.add_argument("--model", help="built-in model name")
     src.add_argument("--folder", help="folder of samples (mesh + JSON params, train/ and inference/)")
+    p.add_argument("config_file", nargs="?", metavar="CONFIG", help="JSON or TOML build config (same as --config)")
     p.add_argument("--config", help="JSON or TOML build config (flags override it)")
+    p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+                   help="run on Ray: a private local instance, or the cluster at ADDRESS ('auto', 'host:port')")
+    p.add_argument("--train-workers", type=int, help="Ray Train workers per group network (--ray; default min(2, CPUs))")
+    p.add_argument("--max-in-flight", type=int, help="Ray tasks submitted at a time (--ray; default 2 x CPUs)")
     p.add_argument("--prompt")
     p.add_argument("--group-prompts")
     p.add_argument("--out", required=True, help="family folder or URI")

@@ -61,9 +61,10 @@ class FamilyStore:
     def exists(self, rel: str) -> bool:
         return self.fs.get_file_info(self.path(rel)).type != pafs.FileType.NotFound
 
-    def listdir(self, rel: str) -> list[str]:
-        """Names directly under a folder (empty if missing), sorted."""
-        info = self.fs.get_file_info(pafs.FileSelector(self.path(rel), allow_not_found=True))
+    def listdir(self, rel: str = "") -> list[str]:
+        """Names directly under a folder (``""``: the root; empty if missing), sorted."""
+        where = self.base.rstrip("/") if rel in ("", ".") else self.path(rel)
+        info = self.fs.get_file_info(pafs.FileSelector(where, allow_not_found=True))
         return sorted(os.path.basename(i.path) for i in info if ".tmp-" not in os.path.basename(i.path))
 
     def delete(self, rel: str) -> None:

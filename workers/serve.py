@@ -1,0 +1,58 @@
+"""Ray Serve deployment of the transfer service: the FastAPI app of :mod:`workers.http` as ingress.
+
+Each replica keeps a :class:`proctex.service.Catalog` of the families under the store root (loaded
+on first use, reloaded when a family's build stamp changes). Transfers run in a worker thread of the
+replica, so one replica overlaps request parsing, encoding and I/O with the CPU-bound transfer.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ray import serve
+
+from proctex.service import Catalog, Limits
+from workers.http import create_app
+
+@serve.deployment(name="ProcTexTransfer", ray_actor_options={"num_cpus": 0}, max_ongoing_requests=16, health_check_period_s=10)
+@serve.ingress()
+class TransferService:
+    """One replica: the catalog of families under ``root`` (preloaded) behind the FastAPI app, which
+    is built in the replica after the constructor (``__serve_build_asgi_app__``), bound to it."""
+
+    def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, int] | None = None, preload: bool = True) -> None:
+        self.catalog = Catalog(root, Limits(**(limits or {})), check_every)
+        if preload:
+            for name in self.catalog.names():
+                try:
+                    self.catalog.get(name)
+                except ValueError:
+                    pass  # not built yet: reported per request
+
+    def __serve_build_asgi_app__(self):
+        return create_app(lambda: self.catalog)
+
+
+def build_app(args: dict[str, Any]) -> Any:
+    """Serve application builder (``serve run workers.serve:build_app root=...``, Serve config files,
+    KubeRay ``RayService``).
+
+    Args (all strings accepted, as from the command line): ``root`` (store root folder or URI,
+    required); ``replicas`` (fixed count) or ``min_replicas``/``max_replicas``/``target_ongoing_requests``
+    (autoscaling); ``max_ongoing_requests``; ``num_cpus`` per replica; ``check_every`` seconds;
+    ``max_bytes``/``max_vertices``/``max_faces`` request limits; ``preload``.
+    """
+    if not args.get("root"):
+        raise ValueError("build_app needs args['root'], the family store root")
+    options: dict[str, Any] = {"max_ongoing_requests": int(args.get("max_ongoing_requests", 16)),
+                               "ray_actor_options": {"num_cpus": float(args.get("num_cpus", 0))}}
+    if "min_replicas" in args or "max_replicas" in args:
+        options["autoscaling_config"] = {
+            "min_replicas": int(args.get("min_replicas", 1)), "max_replicas": int(args.get("max_replicas", 2)),
+            "target_ongoing_requests": float(args.get("target_ongoing_requests", 4)),
+        }
+    else:
+        options["num_replicas"] = int(args.get("replicas", 1))
+    limits = {k: int(args[k]) for k in ("max_bytes", "max_vertices", "max_faces") if k in args}
+    preload = str(args.get("preload", "true")).lower() not in ("0", "false", "no")
+    return TransferService.options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)), limits, preload)

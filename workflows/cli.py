@@ -1,0 +1,91 @@
+"""The ``proctex`` command with the Ray layer: every ``proctex.cli`` command, plus ``build --ray``
+(the workflow of :mod:`workflows.build`) and ``serve`` (the Ray Serve application of
+:mod:`workers.serve`). ``proctex.cli`` itself never imports Ray."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from proctex import cli as core
+
+
+def cmd_build(args: argparse.Namespace) -> int:
+    if args.ray is None:
+        return core.cmd_build(args)
+    from proctex.family import STAGES
+
+    from .build import build_on_ray
+
+    config = core._build_config(args)
+    stages = tuple(args.stages.split(",")) if args.stages else STAGES
+    address = None if args.ray == "local" else args.ray
+    log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
+    state = build_on_ray(args.out, config, address=address, stages=stages, max_in_flight=args.max_in_flight,
+                         train_workers=args.train_workers, log=log, quiet=args.quiet)
+    done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
+    walls = ", ".join(f"{k} {v:.1f}s" for k, v in state["wall_seconds"].items())
+    print(f"family {args.out}: stages done: {', '.join(done)} (on Ray: {walls})")
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import ray
+    from ray import serve
+
+    from proctex.service import Catalog
+    from workers.serve import build_app
+
+    if args.port < 1 or args.port > 65535:
+        raise ValueError(f"--port must be in 1..65535, got {args.port}")
+    names = Catalog(args.store).names()
+    if not names:
+        raise ValueError(f"{args.store}: no families found (sub-folders with a family.json)")
+    app_args = {"root": core.os.path.abspath(args.store) if "://" not in args.store else args.store}
+    if args.autoscale:
+        lo, hi = (int(x) for x in args.autoscale.split(","))
+        app_args.update(min_replicas=lo, max_replicas=hi)
+    else:
+        app_args["replicas"] = args.replicas
+    if args.address:
+        ray.init(address=args.address, log_to_driver=False)
+    else:
+        ray.init(address="local", include_dashboard=False, log_to_driver=False)
+    serve.start(http_options={"host": args.host, "port": args.port})
+    serve.run(build_app(app_args), name="proctex", route_prefix="/")
+    print(f"serving {', '.join(names)} on http://{args.host}:{args.port} (OpenAPI: /docs); Ctrl-C stops", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        serve.shutdown()
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = core.build_parser()
+    parser.subcommands["build"].set_defaults(func=cmd_build)  # type: ignore[attr-defined]
+    sub = parser._subparsers._group_actions[0]  # the subcommands action  # noqa: SLF001
+    p = sub.add_parser("serve", help="serve the families under STORE over HTTP (Ray Serve)")
+    p.add_argument("store", help="folder or URI holding family folders")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--replicas", type=int, default=1)
+    p.add_argument("--autoscale", help="MIN,MAX replicas (autoscaling instead of a fixed count)")
+    p.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
+    p.set_defaults(func=cmd_serve)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
