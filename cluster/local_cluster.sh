@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# A multi-node Ray cluster on one machine: a head node and N worker nodes, each its own raylet.
+#
+#   cluster/local_cluster.sh start [WORKERS] [CPUS_PER_NODE]   # default 1 worker node, 1 CPU each
+#   cluster/local_cluster.sh status
+#   cluster/local_cluster.sh stop
+#
+# Environment: RAY_PORT (6379), DASHBOARD_PORT (8265: the Jobs API), RAY (the ray executable,
+# default .venv/bin/ray), RAY_TMP (temp dir, default /tmp/ray). Prints the address to export:
+#   export RAY_ADDRESS=http://127.0.0.1:8265   # for `ray job submit` / JobSubmissionClient
+#   ray.init(address="127.0.0.1:6379")         # for drivers on this machine (proctex build --ray 127.0.0.1:6379)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+RAY=${RAY:-.venv/bin/ray}
+RAY_PORT=${RAY_PORT:-6379}
+DASHBOARD_PORT=${DASHBOARD_PORT:-8265}
+RAY_TMP=${RAY_TMP:-/tmp/ray}
+export RAY_USAGE_STATS_ENABLED=0
+
+start() {
+  local workers=${1:-1} cpus=${2:-1}
+  "$RAY" start --head --port="$RAY_PORT" --num-cpus="$cpus" --include-dashboard=true \
+    --dashboard-host=127.0.0.1 --dashboard-port="$DASHBOARD_PORT" --temp-dir="$RAY_TMP" --disable-usage-stats >/dev/null
+  for ((i = 0; i < workers; i++)); do
+    # A second raylet on the same host: its own dashboard-agent port (the default 52365 is the head's).
+    "$RAY" start --address="127.0.0.1:$RAY_PORT" --num-cpus="$cpus" --dashboard-agent-listen-port=0 \
+      --min-worker-port=0 --max-worker-port=0 --disable-usage-stats >/dev/null
+  done
+  echo "ray cluster: head 127.0.0.1:$RAY_PORT + $workers worker node(s), $cpus CPU(s) each"
+  echo "jobs API / dashboard: http://127.0.0.1:$DASHBOARD_PORT"
+}
+
+case "${1:-}" in
+  start) shift; start "$@" ;;
+  status) "$RAY" status --address="127.0.0.1:$RAY_PORT" ;;
+  stop) "$RAY" stop --force >/dev/null 2>&1 || true; echo "ray cluster stopped" ;;
+  *) echo "usage: $0 start [WORKERS] [CPUS_PER_NODE] | status | stop" >&2; exit 2 ;;
+esac
