@@ -1,0 +1,217 @@
+"""The Ray layer on a 2-CPU local Ray: the distributed build equals the single-process one, survives
+a killed worker and a killed driver (resuming without redoing work), and Ray Serve answers a bounded
+concurrent load without errors."""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from proctex.family import BuildConfig, build, pair_record_path, read_pair, samples
+from proctex.store import FamilyStore
+
+ray = pytest.importorskip("ray")
+pytestmark = [pytest.mark.ray, pytest.mark.slow]
+
+ROOT = Path(__file__).resolve().parents[1]
+CFG = dict(model="mug", n_train=3, n_test=2, corr_points=200, cage_iterations=40, texture_size=32, prompt="blue ceramic",
+           train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2})
+
+
+def config() -> BuildConfig:
+    return BuildConfig.from_dict(json.loads(json.dumps(CFG)))
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    from workflows.build import init_ray
+
+    init_ray(None, num_cpus=2)
+    yield
+    from ray import serve
+
+    serve.shutdown()
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The single-process build of the same config (no evaluation)."""
+    st = FamilyStore(tmp_path_factory.mktemp("ref") / "mug")
+    build(st, config(), stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
+    return st
+
+
+def _same_pairs(a: FamilyStore, b: FamilyStore) -> int:
+    rows_a = {(r["id"], r["group"]): r for r in a.read_table("pairs.parquet").to_pylist()}
+    rows_b = {(r["id"], r["group"]): r for r in b.read_table("pairs.parquet").to_pylist()}
+    assert set(rows_a) == set(rows_b) and all(r["status"] == "done" for r in rows_b.values())
+    for sid, g in rows_a:
+        (sa, da), (sb, db) = read_pair(a, sid, g), read_pair(b, sid, g)
+        assert np.array_equal(sa, sb), (sid, g)
+        assert np.allclose(da, db, atol=1e-5), (sid, g, np.abs(da - db).max())
+    return len(rows_a)
+
+
+def test_ray_build_equals_the_single_process_build(local_ray, reference, tmp_path):
+    from proctex.corrnet import load
+    from workflows.build import build_on_ray
+
+    state = build_on_ray(str(tmp_path / "mug"), config(), stages=("sample", "template", "paint", "pairs", "train"),
+                         train_workers=1, log=lambda *_: None, quiet=True)
+    st = FamilyStore(tmp_path / "mug")
+    assert {k for k, v in state["stages"].items() if v["state"] == "done"} == {"sample", "template", "paint", "pairs", "train"}
+    assert set(state["wall_seconds"]) == {"sample", "template", "paint", "pairs", "train"}
+    assert samples(st) == samples(reference)
+    assert _same_pairs(reference, st) == 10
+    for g in (0, 1):
+        ma, _, _ = load(Path(reference.path(f"models/group_{g}.pt")))
+        mb, _, _ = load(Path(st.path(f"models/group_{g}.pt")))
+        sa, sb = ma.state_dict(), mb.state_dict()
+        assert all(torch_allclose(sa[k], sb[k]) for k in sa), g
+    assert st.listdir("train_runs"), "Ray Train checkpoints live in the store"
+
+
+def torch_allclose(a, b) -> bool:
+    import torch
+
+    return bool(torch.allclose(a, b, atol=1e-4, rtol=1e-3))
+
+
+def _pids_running(title: bytes) -> list[int]:
+    out = []
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                if title in (p / "cmdline").read_bytes():
+                    out.append(int(p.name))
+            except OSError:
+                pass
+    return out
+
+
+def test_a_worker_killed_during_the_cage_fan_out_does_not_stop_the_build(local_ray, reference, tmp_path):
+    from workflows.build import build_on_ray, ray_stage_pairs
+
+    st_root = str(tmp_path / "mug")
+    build_on_ray(st_root, config(), stages=("sample", "template", "paint"), log=lambda *_: None, quiet=True)
+    killed: list[int] = []
+    stop = threading.Event()
+
+    def killer():
+        while not stop.is_set() and not killed:
+            pids = _pids_running(b"ray::pair_batch")
+            if pids:
+                time.sleep(0.3)  # let it get into a solve
+                os.kill(pids[0], signal.SIGKILL)
+                killed.append(pids[0])
+            time.sleep(0.02)
+
+    t = threading.Thread(target=killer)
+    t.start()
+    try:
+        info = ray_stage_pairs(FamilyStore(st_root), config(), log=lambda *_: None, quiet=True)
+    finally:
+        stop.set()
+        t.join()
+    assert killed, "no pair task was seen running"
+    assert info["solved"] == 10
+    st = FamilyStore(st_root)
+    assert st.read_json("family.json")["stages"]["pairs"]["state"] == "done"
+    assert _same_pairs(reference, st) == 10
+
+
+def test_a_killed_driver_resumes_without_redoing_work(local_ray, reference, tmp_path):
+    from workflows.build import build_on_ray
+
+    cfg_file = tmp_path / "family.json"
+    cfg_file.write_text(json.dumps(CFG))
+    out = tmp_path / "mug"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "build", str(cfg_file), "--out", str(out), "--ray", "--quiet",
+                             "--stages", "sample,template,paint,pairs"], cwd=ROOT, env=env, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    st = FamilyStore(out)
+    deadline = time.time() + 240
+    done_before: dict[str, int] = {}
+    while time.time() < deadline and proc.poll() is None:
+        recs = [p for p in (out / "correspondences").glob("*.json")] if (out / "correspondences").exists() else []
+        if len(recs) >= 3:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the build finished before it could be killed"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    recs = sorted((out / "correspondences").glob("*.json"))
+    assert 3 <= len(recs) < 10
+    for r in recs:
+        done_before[r.name] = r.stat().st_mtime_ns
+    # Rerun (same config): only the missing pairs are solved.
+    build_on_ray(str(out), BuildConfig.from_file(cfg_file), stages=("sample", "template", "paint", "pairs"), log=lambda *_: None, quiet=True)
+    for name, mtime in done_before.items():
+        assert (out / "correspondences" / name).stat().st_mtime_ns == mtime, f"{name} was redone"
+        assert json.loads((out / "correspondences" / name).read_text())["attempts"] == 1
+    assert _same_pairs(reference, st) == 10
+    assert not list(out.rglob("*.tmp-*")), "no partial files are left behind"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_serve_answers_every_route_and_a_concurrent_load(local_ray, reference, tmp_path):
+    import shutil
+    import urllib.error
+    import urllib.request
+
+    from ray import serve
+
+    from workers.serve import build_app
+
+    root = tmp_path / "families"
+    shutil.copytree(reference.base, root / "mug")
+    port = _free_port()
+    serve.start(http_options={"host": "127.0.0.1", "port": port})
+    serve.run(build_app({"root": str(root), "replicas": "1", "max_ongoing_requests": "8"}), name="proctex-test", route_prefix="/")
+    base = f"http://127.0.0.1:{port}"
+
+    def get(path):
+        with urllib.request.urlopen(base + path, timeout=60) as r:
+            return r.status, json.loads(r.read())
+
+    def post(path, body: bytes, ctype="application/json"):
+        req = urllib.request.Request(base + path, data=body, headers={"content-type": ctype}, method="POST")
+        try:
+            with urllib.request.urlopen(req, timeout=120) as r:
+                return r.status, r.read()
+        except urllib.error.HTTPError as e:
+            return e.code, e.read()
+
+    try:
+        assert get("/healthz")[1]["status"] == "ok"
+        assert get("/v1/families")[1] == {"families": ["mug"]}
+        assert get("/v1/families/mug")[1]["groups"][1]["network"] is True
+        code, body = post("/v1/families/mug/transfer", b'{"params": {"radius": 0.06}}')
+        assert code == 422 and "radius" in json.loads(body)["error"]
+        code, body = post("/v1/families/none/transfer", b'{"params": {}}')
+        assert code == 404
+        rng = np.random.default_rng(0)
+        bodies = [json.dumps({"params": {"radius": float(rng.uniform(0.03, 0.05)), "height": float(rng.uniform(0.07, 0.13))}}).encode() for _ in range(200)]
+        with ThreadPoolExecutor(8) as pool:
+            results = list(pool.map(lambda b: post("/v1/families/mug/transfer", b), bodies))
+        codes = [c for c, _ in results]
+        assert codes.count(200) == 200, {c: codes.count(c) for c in set(codes)}
+        assert all(b[:4] == b"glTF" for _, b in results)
+    finally:
+        serve.delete("proctex-test")
