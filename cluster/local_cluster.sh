@@ -16,15 +16,24 @@ RAY_PORT=${RAY_PORT:-6379}
 DASHBOARD_PORT=${DASHBOARD_PORT:-8265}
 RAY_TMP=${RAY_TMP:-/tmp/ray}
 export RAY_USAGE_STATS_ENABLED=0
+# Every node of this one-machine cluster listens on 127.0.0.1 only; Ray's token authentication is
+# off unless RAY_AUTH_MODE=token is exported (then every node and client reads ~/.ray/auth_token).
+export RAY_AUTH_MODE=${RAY_AUTH_MODE:-disabled}
 
 start() {
   local workers=${1:-1} cpus=${2:-1}
-  "$RAY" start --head --port="$RAY_PORT" --num-cpus="$cpus" --include-dashboard=true \
+  "$RAY" start --head --node-ip-address=127.0.0.1 --port="$RAY_PORT" --num-cpus="$cpus" --include-dashboard=true \
     --dashboard-host=127.0.0.1 --dashboard-port="$DASHBOARD_PORT" --temp-dir="$RAY_TMP" --disable-usage-stats >/dev/null
   for ((i = 0; i < workers; i++)); do
     # A second raylet on the same host: its own dashboard-agent port (the default 52365 is the head's).
-    "$RAY" start --address="127.0.0.1:$RAY_PORT" --num-cpus="$cpus" --dashboard-agent-listen-port=0 \
+    "$RAY" start --address="127.0.0.1:$RAY_PORT" --node-ip-address=127.0.0.1 --num-cpus="$cpus" --dashboard-agent-listen-port=0 \
       --min-worker-port=0 --max-worker-port=0 --disable-usage-stats >/dev/null
+  done
+  # Wait until every node has registered its CPUs with the head.
+  local want=$((cpus * (workers + 1)))
+  for ((t = 0; t < 60; t++)); do
+    "$RAY" status --address="127.0.0.1:$RAY_PORT" 2>/dev/null | grep -q "/${want}.0 CPU" && break
+    sleep 1
   done
   echo "ray cluster: head 127.0.0.1:$RAY_PORT + $workers worker node(s), $cpus CPU(s) each"
   echo "jobs API / dashboard: http://127.0.0.1:$DASHBOARD_PORT"

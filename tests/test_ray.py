@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.family import BuildConfig, build, pair_record_path, read_pair, samples
+from proctex.family import BuildConfig, build, read_pair, samples
 from proctex.store import FamilyStore
 
 ray = pytest.importorskip("ray")

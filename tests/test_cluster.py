@@ -1,0 +1,102 @@
+"""cluster/: the manifests parse and name import paths and entrypoints that exist; the local
+multi-node script starts a head + worker cluster that runs a build submitted through the Ray Jobs API."""
+
+import importlib
+import json
+import os
+import subprocess
+import time
+import tomllib
+from pathlib import Path
+
+import pytest
+
+yaml = pytest.importorskip("yaml")
+ROOT = Path(__file__).resolve().parents[1]
+CLUSTER = ROOT / "cluster"
+
+
+def _import_path(path: str):
+    module, _, attr = path.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def test_manifests_parse_and_name_what_exists():
+    from ray.serve.schema import ServeDeploySchema
+
+    serve_cfg = yaml.safe_load((CLUSTER / "serve.yaml").read_text())
+    ServeDeploySchema.model_validate(serve_cfg)
+    for app in serve_cfg["applications"]:
+        assert callable(_import_path(app["import_path"]))
+    docs = {d["kind"]: d for f in (CLUSTER / "kuberay").glob("*.yaml") for d in yaml.safe_load_all(f.read_text())}
+    assert set(docs) == {"RayJob", "RayService"}
+    assert all(d["apiVersion"] == "ray.io/v1" for d in docs.values())
+    service = docs["RayService"]["spec"]
+    inner = yaml.safe_load(service["serveConfigV2"])
+    ServeDeploySchema.model_validate(inner)
+    for app in inner["applications"]:
+        app_builder = _import_path(app["import_path"])
+        assert callable(app_builder)
+        app_builder({k: v for k, v in app["args"].items()})  # the builder accepts its args (binds, does not run)
+    for spec in (docs["RayJob"]["spec"]["rayClusterSpec"], service["rayClusterConfig"]):
+        assert spec["headGroupSpec"]["template"]["spec"]["containers"] and spec["workerGroupSpecs"][0]["groupName"]
+    entry = docs["RayJob"]["spec"]["entrypoint"].split()
+    assert entry[:3] == ["python", "-m", "workflows.cli"] and entry[3] == "build" and "--ray" in entry
+    importlib.import_module("workflows.cli").build_parser().parse_args(entry[3:])
+    # The job's config file is in this folder and is a valid build config.
+    from proctex.family import BuildConfig
+
+    assert entry[4].endswith("cluster/family.toml")
+    BuildConfig.from_dict(tomllib.loads((CLUSTER / "family.toml").read_text()))
+    launcher = yaml.safe_load((CLUSTER / "cluster.yaml").read_text())
+    assert {"cluster_name", "provider", "head_node_type", "available_node_types"} <= set(launcher)
+    assert launcher["head_node_type"] in launcher["available_node_types"]
+    from ray.autoscaler._private.commands import prepare_config
+    from ray.autoscaler._private.util import validate_config
+
+    validate_config(prepare_config(launcher))  # Ray's own schema, with the provider's defaults filled in
+
+
+def test_local_cluster_script_usage():
+    r = subprocess.run(["bash", str(CLUSTER / "local_cluster.sh")], capture_output=True, text=True)
+    assert r.returncode == 2 and "usage" in r.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
+    from ray.job_submission import JobStatus, JobSubmissionClient
+
+    import tempfile
+
+    short_tmp = tempfile.mkdtemp(prefix="rayc", dir="/tmp")  # Ray's socket paths must stay short
+    env = {**os.environ, "RAY_PORT": "6391", "DASHBOARD_PORT": "8276", "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp}
+    if not Path(env["RAY"]).exists():
+        pytest.skip("no .venv/bin/ray")
+    script = str(CLUSTER / "local_cluster.sh")
+    start = subprocess.run(["bash", script, "start", "1", "1"], env=env, capture_output=True, text=True, timeout=180)
+    try:
+        assert start.returncode == 0, start.stderr
+        status = subprocess.run(["bash", script, "status"], env=env, capture_output=True, text=True, timeout=60).stdout
+        assert "2.0 CPU" in status or "0.0/2.0 CPU" in status, status
+        cfg = tmp_path / "family.json"
+        cfg.write_text(json.dumps({"model": "mug", "n_train": 3, "n_test": 0, "corr_points": 200, "cage_iterations": 20, "texture_size": 32,
+                                   "train": {"iterations": 10, "eval_every": 5, "context_points": 64, "query_points": 32, "shapes_per_batch": 2}}))
+        out = tmp_path / "mug"
+        client = JobSubmissionClient("http://127.0.0.1:8276")
+        job = client.submit_job(entrypoint=f"{ROOT / '.venv' / 'bin' / 'python'} -m workflows.cli build {cfg} --out {out} --ray auto --train-workers 2 --quiet",
+                                runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})
+        deadline = time.time() + 420
+        while time.time() < deadline and not client.get_job_status(job).is_terminal():
+            time.sleep(2)
+        logs = client.get_job_logs(job)
+        assert client.get_job_status(job) == JobStatus.SUCCEEDED, logs[-3000:]
+        state = json.loads((out / "family.json").read_text())
+        assert all(state["stages"][s]["state"] == "done" for s in ("sample", "template", "paint", "pairs", "train"))
+        assert sorted(p.name for p in (out / "models").iterdir()) == ["group_0.pt", "group_1.pt"]
+        assert "on Ray" in logs
+    finally:
+        subprocess.run(["bash", script, "stop"], env=env, capture_output=True, timeout=120)
+        import shutil
+
+        shutil.rmtree(short_tmp, ignore_errors=True)
