@@ -149,3 +149,37 @@ def test_folder_families_take_meshes_only(tmp_path, sofa_dir):
     data, summary = svc.transfer(svc.shape_from_mesh((sofa_dir / "inference" / "4.obj").read_bytes(), "4.obj"))
     _glb_ok(data)
     assert summary["faces"] > 1000
+
+
+def test_ray_commands_reject_bad_input_before_starting_anything(tmp_path, capsys, root):
+    from proctex.cli import main as core_main
+    from workflows.cli import main
+
+    for argv, message in [
+        (["serve", str(tmp_path / "empty")], "no families found"),
+        (["serve", str(root), "--port", "0"], "--port"),
+        (["build", "--model", "mug", "--out", str(tmp_path / "b"), "--ray", "--n-train", "1"], "n_train"),
+        (["build", "--model", "nosuch", "--out", str(tmp_path / "b"), "--ray"], "nosuch"),
+        (["build", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "b"), "--ray"], "not found"),
+    ]:
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        assert message in capsys.readouterr().err, argv
+    assert not (tmp_path / "b").exists()
+    # The Ray-free command names the one to use.
+    assert core_main(["build", "--model", "mug", "--out", str(tmp_path / "c"), "--ray"]) == 2
+    assert "workflows.cli" in capsys.readouterr().err and not (tmp_path / "c").exists()
+
+
+def test_the_core_never_imports_ray():
+    import pkgutil
+    import subprocess
+    import sys
+
+    import proctex
+
+    mods = [m.name for m in pkgutil.walk_packages(proctex.__path__, "proctex.") if "diffusion" not in m.name]
+    code = "import importlib, sys\n" + "".join(f"importlib.import_module({m!r})\n" for m in mods) + "print('ray' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "False"
