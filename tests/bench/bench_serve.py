@@ -1,0 +1,120 @@
+"""Benchmark: the Ray Serve transfer endpoint over HTTP on 127.0.0.1.
+
+Starts a private local Ray with Serve over a store root, warms the family up, then for each
+concurrency level sends requests from that many client threads: sofa meshes (multipart uploads of
+the inference split) for a folder family, random parameter settings for a model family. Reports
+latency p50 / p90 / p99 and requests per second per level (saturation = the best level), as JSON.
+
+    .venv/bin/python tests/bench/bench_serve.py --root out/families --family sofa --out out/bench_serve.json
+    .venv/bin/python tests/bench/bench_serve.py --root out/families --family chair --requests 200 --concurrency 1,2,4,8
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import socket
+import statistics
+import sys
+import time
+import urllib.error
+import urllib.request
+import uuid
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+SOFA = ROOT.parent / "shared" / "data" / "procedural_sofa"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _multipart(name: str, data: bytes) -> tuple[bytes, str]:
+    boundary = uuid.uuid4().hex
+    body = (f"--{boundary}\r\nContent-Disposition: form-data; name=\"mesh\"; filename=\"{name}\"\r\n"
+            "Content-Type: application/octet-stream\r\n\r\n").encode() + data + f"\r\n--{boundary}--\r\n".encode()
+    return body, f"multipart/form-data; boundary={boundary}"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--root", required=True, help="store root holding family folders")
+    ap.add_argument("--family", required=True)
+    ap.add_argument("--requests", type=int, default=120, help="requests per concurrency level")
+    ap.add_argument("--concurrency", default="1,2,4,8")
+    ap.add_argument("--replicas", type=int, default=1)
+    ap.add_argument("--sofa", default=str(SOFA))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default="")
+    args = ap.parse_args(argv)
+
+    import ray
+    from ray import serve
+
+    from proctex.service import Catalog
+    from workers.serve import build_app
+
+    svc = Catalog(args.root).get(args.family)
+    rng = np.random.default_rng(args.seed)
+    if svc.model is None:
+        meshes = sorted(Path(args.sofa, "inference").glob("*.obj"))
+        payloads = [_multipart(p.name, p.read_bytes()) for p in meshes]
+    else:
+        space = svc.model.space
+        payloads = [(json.dumps({"params": p}).encode(), "application/json") for p in space.sample(64, seed=args.seed)]
+    ray.init(address="local", include_dashboard=False, log_to_driver=False)
+    port = _free_port()
+    serve.start(http_options={"host": "127.0.0.1", "port": port})
+    serve.run(build_app({"root": str(Path(args.root).resolve()), "replicas": args.replicas, "max_ongoing_requests": 16}), name="bench", route_prefix="/")
+    url = f"http://127.0.0.1:{port}/v1/families/{args.family}/transfer"
+
+    def call(i: int) -> tuple[float, int]:
+        body, ctype = payloads[i % len(payloads)]
+        req = urllib.request.Request(url, data=body, headers={"content-type": ctype}, method="POST")
+        t = time.perf_counter()
+        try:
+            with urllib.request.urlopen(req, timeout=120) as r:
+                r.read()
+                code = r.status
+        except urllib.error.HTTPError as e:
+            code = e.code
+        return time.perf_counter() - t, code
+
+    for i in range(8):  # warm-up
+        call(i)
+    levels = []
+    for c in (int(x) for x in args.concurrency.split(",")):
+        order = rng.permutation(args.requests)
+        t0 = time.perf_counter()
+        with ThreadPoolExecutor(c) as pool:
+            res = list(pool.map(call, order))
+        wall = time.perf_counter() - t0
+        lat = np.array([r[0] for r in res])
+        errors = sum(r[1] != 200 for r in res)
+        levels.append({"concurrency": c, "requests": args.requests, "errors": int(errors), "rps": args.requests / wall,
+                       "p50_ms": 1000 * float(np.percentile(lat, 50)), "p90_ms": 1000 * float(np.percentile(lat, 90)),
+                       "p99_ms": 1000 * float(np.percentile(lat, 99)), "mean_ms": 1000 * statistics.fmean(lat)})
+        print(f"concurrency {c}: p50 {levels[-1]['p50_ms']:.0f} ms, p99 {levels[-1]['p99_ms']:.0f} ms, "
+              f"{levels[-1]['rps']:.1f} req/s, {errors} errors", flush=True)
+    serve.shutdown()
+    ray.shutdown()
+    best = max(levels, key=lambda lv: lv["rps"])
+    report = {"benchmark": "serve", "family": args.family, "replicas": args.replicas, "levels": levels,
+              "saturation_rps": best["rps"], "p50_ms_at_1": levels[0]["p50_ms"], "p99_ms_at_1": levels[0]["p99_ms"],
+              "machine": {"python": platform.python_version(), "cpus": __import__("os").cpu_count(), "ray": ray.__version__},
+              "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(report, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
