@@ -297,10 +297,12 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
 
     Each face takes the template face nearest to its mapped centroid and that face's affine UV map.
-    With ``charts`` (the group texture's :func:`chart_labels`), a face whose
-    affine UVs would leave the chart of its template triangle (a large face extrapolated beyond it:
-    a corner or the centre reading unpainted texels or another chart) instead takes, per corner, the
-    closest point of that template triangle: its UVs then stay in the chart (squeezed, but coloured). Returns (corner_uv, template face per face (k,)).
+    With ``charts`` (the group texture's :func:`chart_labels`), a face whose affine UVs would leave
+    the chart of its template triangle (a large face extrapolated beyond it: a corner or the centre
+    reading unpainted texels or another chart) instead takes, per corner, the closest point of that
+    template triangle: its UVs then stay in the chart (squeezed, but coloured).
+
+    Returns (corner_uv, template face per face (k,)).
     """
     centroid = mapped[faces].mean(axis=1)
     near = assets.index.query(centroid, exact=False).faces
