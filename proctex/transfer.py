@@ -178,10 +178,13 @@ def assign_parts(
             s = assets.slots[taken[i]]
             out.append(PartAssignment(p.index, s.group, s.part, s.R, float(cost[i, taken[i]]), "slot"))
         else:
-            # A part the template has no place for: the group it matches best by ICP, if any.
+            # A part the template has no place for: the group it matches best by ICP, if any. Groups
+            # whose representative has this part's exact connectivity are the only candidates when
+            # there are any (an extra slat is a copy of the slat primitive): one ICP, not one per group.
             v, f = part_mesh(shape, p)
             c, r = normalised_frame(v)
-            g, R, t, err = match_extra((v - c) / (r if r > 0 else 1.0), f, assets)
+            same = [ga.group for ga in assets.groups if not ga.degenerate and same_topology(f, len(v), ga)]
+            g, R, t, err = match_extra((v - c) / (r if r > 0 else 1.0), f, assets, groups=same or None)
             if err <= extra_tol:
                 out.append(PartAssignment(p.index, g, -1, R, err, "extra", t))
             else:
@@ -189,10 +192,13 @@ def assign_parts(
     return sorted(out, key=lambda a: a.part)
 
 
-def match_extra(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, n: int = 300, seed: int = 0) -> tuple[int, np.ndarray, np.ndarray, float]:
+def match_extra(
+    vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, n: int = 300, seed: int = 0, groups: Sequence[int] | None = None
+) -> tuple[int, np.ndarray, np.ndarray, float]:
     """Best template group for a part (normalised frame) by point-to-surface ICP.
 
-    Tries the eight axis sign flips as starts against every non-degenerate group representative.
+    Tries the eight axis sign flips as starts against every non-degenerate group representative
+    (or those of ``groups``).
     Returns ``(group, R (3, 3), t (3,), error)``, error = mean distance after alignment (normalised units).
     """
     from itertools import product
@@ -202,7 +208,7 @@ def match_extra(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets,
     pts, _, _ = sample_surface(vertices, faces, n, seed=seed)
     best = (-1, np.eye(3), np.zeros(3), np.inf)
     for ga in assets.groups:
-        if ga.degenerate:
+        if ga.degenerate or (groups is not None and ga.group not in groups):
             continue
         for signs in product((1.0, -1.0), repeat=3):
             res = icp_to_surface(pts, ga.index, R0=np.diag(signs), max_iter=30, exact=False)
