@@ -39,6 +39,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     if args.port < 1 or args.port > 65535:
         raise ValueError(f"--port must be in 1..65535, got {args.port}")
+    if args.replicas < 0:
+        raise ValueError(f"--replicas must be >= 0 (0: one per CPU), got {args.replicas}")
     names = Catalog(args.store).names()
     if not names:
         raise ValueError(f"{args.store}: no families found (sub-folders with a family.json)")
@@ -47,7 +49,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         lo, hi = (int(x) for x in args.autoscale.split(","))
         app_args.update(min_replicas=lo, max_replicas=hi)
     else:
-        app_args["replicas"] = args.replicas
+        # Transfers are CPU-bound and serialised per replica: one replica per core pays (sofa on
+        # 2 cores: 9.9 req/s with one replica, 16.4 with two); batching requests does not (bench_batching.py).
+        app_args["replicas"] = args.replicas or max(1, min(4, core.os.cpu_count() or 1))
     if args.address:
         ray.init(address=args.address, log_to_driver=False)
     else:
@@ -71,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("store", help="folder or URI holding family folders")
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)
-    p.add_argument("--replicas", type=int, default=1)
+    p.add_argument("--replicas", type=int, default=0, help="fixed replica count (default: one per CPU, at most 4)")
     p.add_argument("--autoscale", help="MIN,MAX replicas (autoscaling instead of a fixed count)")
     p.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
     p.set_defaults(func=cmd_serve)
