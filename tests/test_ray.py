@@ -66,7 +66,8 @@ def test_ray_build_equals_the_single_process_build(local_ray, reference, tmp_pat
     from proctex.corrnet import load
     from workflows.build import build_on_ray
 
-    state = build_on_ray(str(tmp_path / "mug"), config(), stages=("sample", "template", "paint", "pairs", "train"),
+    # The store as a URI (any pyarrow.fs URI works the same way; file:// needs no credentials).
+    state = build_on_ray((tmp_path / "mug").as_uri(), config(), stages=("sample", "template", "paint", "pairs", "train"),
                          train_workers=1, log=lambda *_: None, quiet=True)
     st = FamilyStore(tmp_path / "mug")
     assert {k for k, v in state["stages"].items() if v["state"] == "done"} == {"sample", "template", "paint", "pairs", "train"}

@@ -29,9 +29,20 @@ from proctex.family import (
 from proctex.store import FamilyStore
 
 
+def teams(world: int, groups: list[int]) -> list[tuple[list[int], list[int]]]:
+    """Split ``world`` workers into ``min(world, len(groups))`` teams: ``[(ranks, groups)]``. Team
+    ``t`` holds ranks ``r % T == t`` and groups ``i % T == t``; each team fits its groups one after
+    another, data-parallel across its ranks. So with fewer workers than groups the groups run in
+    parallel, and extra workers join a team instead of idling."""
+    if world < 1:
+        raise ValueError(f"need at least one worker, got {world}")
+    T = max(1, min(world, len(groups)))
+    return [([r for r in range(world) if r % T == t], [g for i, g in enumerate(groups) if i % T == t]) for t in range(T)]
+
+
 def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
-    """``train_loop_per_worker`` of the trainer (runs inside each Ray Train worker): the groups of
-    ``loop_config["groups"]`` one after another, all workers on each group."""
+    """``train_loop_per_worker`` of the trainer (runs inside each Ray Train worker): this worker's
+    team (:func:`teams`) fits its groups, averaging gradients within the team."""
     import ray.train
     import torch
     import torch.distributed as dist
@@ -45,30 +56,40 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
     store = FamilyStore(loop_config["store"])
     config = BuildConfig.from_dict(loop_config["config"])
     cfg = corrnet_config(config)
+    plan = teams(world, [int(g) for g in loop_config["groups"]])
+    # Every rank creates every team's process group, in the same order (torch.distributed requires it).
+    handles = [dist.new_group(ranks) if world > 1 and len(ranks) > 1 else None for ranks, _ in plan]
+    t = next(i for i, (ranks, _) in enumerate(plan) if rank in ranks)
+    ranks, my_groups = plan[t]
+    team_rank, team_size, pg = ranks.index(rank), len(ranks), handles[t]
 
     def average(model: torch.nn.Module) -> None:
-        if world > 1:
+        if team_size > 1:
             for p in model.parameters():
                 if p.grad is not None:
-                    dist.all_reduce(p.grad)
-                    p.grad /= world
+                    dist.all_reduce(p.grad, group=pg)
+                    p.grad /= team_size
 
     out = {}
-    for group in loop_config["groups"]:
-        group = int(group)
-        data = group_training_data(store, config, group)
-        t0 = time.perf_counter()
-        result = train(data["train"], data["val"], cfg, rank=rank, world=world, grad_hook=average)
-        metrics = {"group": group, "best_val": float(result.best_val["mean"]) if result.best_val else float("nan"),
-                   "iterations": result.iterations, "seconds": time.perf_counter() - t0, "workers": world}
-        with tempfile.TemporaryDirectory() as tmp:
-            if rank == 0:
+    with tempfile.TemporaryDirectory() as tmp:
+        for group in my_groups:
+            data = group_training_data(store, config, group)
+            t0 = time.perf_counter()
+            result = train(data["train"], data["val"], cfg, rank=team_rank, world=team_size, grad_hook=average)
+            if team_rank == 0:
                 save_group_model(store, group, result, cfg, data)
-                with open(os.path.join(tmp, "group.pt"), "wb") as fh:
+                with open(os.path.join(tmp, f"group_{group}.pt"), "wb") as fh:
                     fh.write(store.read_bytes(model_path(group)))
-            # A barrier: every worker reports once per group; rank 0's network is the checkpoint.
-            ray.train.report(metrics, checkpoint=Checkpoint.from_directory(tmp) if rank == 0 else None, checkpoint_dir_name=f"group_{group}")
-        out[str(group)] = metrics
+            out[str(group)] = {"group": group, "best_val": float(result.best_val["mean"]) if result.best_val else float("nan"),
+                               "iterations": result.iterations, "seconds": time.perf_counter() - t0, "workers": team_size}
+        # One report per worker (a barrier); the team leaders' networks form the run's checkpoint.
+        has = team_rank == 0 and bool(my_groups)
+        ray.train.report({"groups": sorted(out)}, checkpoint=Checkpoint.from_directory(tmp) if has else None)
+    if world > 1:
+        gathered: list[Any] = [None] * world
+        dist.all_gather_object(gathered, out)
+        merged = {k: v for part in gathered for k, v in part.items()}
+        return merged
     return out
 
 
@@ -104,6 +125,6 @@ def train_groups(
     result = trainer.fit()
     out = {int(g): m for g, m in (result.return_value or {}).items()}
     for g, m in out.items():
-        log(f"train: group {g} on {num_workers} Ray Train workers: val {m['best_val']:.4f}, {m['iterations']} iterations, {m['seconds']:.1f}s")
+        log(f"train: group {g} on {m['workers']} of {num_workers} Ray Train workers: val {m['best_val']:.4f}, {m['iterations']} iterations, {m['seconds']:.1f}s")
     log(f"train: {len(todo)} groups in {time.perf_counter() - t0:.1f}s")
     return out
