@@ -14,6 +14,7 @@ from ray import serve
 from proctex.service import Catalog, Limits
 from workers.http import create_app
 
+
 @serve.deployment(name="ProcTexTransfer", ray_actor_options={"num_cpus": 0}, max_ongoing_requests=16, health_check_period_s=10)
 @serve.ingress()
 class TransferService:
