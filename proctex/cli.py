@@ -467,7 +467,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="proctex", description="Consistent texturing of procedural shape families.")
     sub = parser.add_subparsers(dest="command", required=True)
-    parser.subcommands = sub.choices  # type: ignore[attr-defined]  # the Ray layer (workflows.cli) extends them
+    parser.subparsers = sub  # type: ignore[attr-defined]  # the Ray layer (workflows.cli) extends them
 
     p = sub.add_parser("models", help="list built-in models and their parameter specs")
     p.add_argument("--json", action="store_true")

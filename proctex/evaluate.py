@@ -85,7 +85,7 @@ def pair_errors(store: FamilyStore, config, rows: list[dict[str, Any]], seed: in
     for p in pairs:
         g = p["group"]
         model = models[g]
-        src, dst = read_pair(store, p["id"], g)
+        src, dst, face = read_pair(store, p["id"], g, faces=True)
         src, dst = src.astype(np.float64), dst.astype(np.float64)
         ctx = src[sample_indices(len(src), model.context_points, rng)]
         pred = predict(model, ctx, src)
@@ -115,7 +115,6 @@ def pair_errors(store: FamilyStore, config, rows: list[dict[str, Any]], seed: in
                 tcan = template.canonical[rep.vertices]
                 proj = ga.index.query(pred)
                 net = gt_correspondence_error(src_can, proj.points, proj.faces, ga.vertices, ga.faces, tcan)
-                face = store.read_table(f"correspondences/{p['id']}__g{g}.parquet").column("face").to_numpy()
                 cage = gt_correspondence_error(src_can, dst, face, ga.vertices, ga.faces, tcan)
                 rec.update(gt_mean=net.mean, gt_p95=net.p95, gt_max=net.max, cage_gt_mean=cage.mean, cage_gt_p95=cage.p95, cage_gt_max=cage.max)
         per_pair.append(rec)
@@ -166,7 +165,7 @@ def evaluate(
         limit: evaluate at most this many shapes (the first ones).
         bake_size: baked texture size; view_size: coverage render size; tracked: tracked points.
     """
-    from .family import load_assets, load_sample, samples, stored_config, template_painted, up_axis
+    from .family import load_assets, load_sample, samples, stored_config, up_axis
     from .metrics import coverage
     from .transfer import bake, glb, shape_colours_at_template_points, tracked_points, tracked_variance, transfer
 
@@ -180,7 +179,7 @@ def evaluate(
     if len(rows) < 2:
         raise ValueError(f"{store.uri}: evaluation needs at least two {split} shapes, found {len(rows)}")
     assets = load_assets(store)
-    painted = template_painted(store, assets)
+    painted = assets.painted
     up = up_axis(config)
     points = tracked_points(assets, n=tracked, seed=seed)
     shapes = [load_sample(store, r, config) for r in rows]

@@ -383,17 +383,23 @@ def load_assets(store: FamilyStore, seed: int | None = None):
         textures.append(np.asarray(Image.open(io.BytesIO(png)).convert("RGB")))
         names.append(g["label"] or f"group_{g['group']}")
     assets = prepare_template(template, grouping, uv["corner_uv"], textures, names)
-    assets.painted = template_painted(store, assets)
-    assets.observed = template_observed(store, assets)
+    assets.painted, assets.observed = template_masks(store, assets)
     return assets
 
 
-def template_painted(store: FamilyStore, assets=None) -> list[np.ndarray]:
-    """Per group the (H, W) bool mask of template texels that hold colour (``template/painted.npz``;
-    stores written before it existed: the texels the group's UV charts cover plus an 8-texel gutter)."""
+def template_masks(store: FamilyStore, assets=None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per group the (H, W) bool masks of the template textures: ``(painted, observed)``.
+
+    ``painted``: texels that hold colour; ``observed``: the "already painted" ones, coloured by the
+    painter itself (:attr:`proctex.paint.GroupTexture.observed`), not filled. Both come from
+    ``template/painted.npz``; stores written before it existed get the texels the group's UV charts
+    cover plus an 8-texel gutter, for both.
+    """
     if store.exists("template/painted.npz"):
         arrays = store.read_arrays("template/painted.npz")
-        return [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
+        painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
+        observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
+        return painted, observed
     from .uv import pad_seams, texel_map
 
     assets = assets if assets is not None else load_assets(store)
@@ -403,17 +409,7 @@ def template_painted(store: FamilyStore, assets=None) -> list[np.ndarray]:
         tm = texel_map(ga.vertices, ga.faces, ga.corner_uv, h, w)
         _, mask = pad_seams(np.zeros((h, w, 1)), tm.mask, 8)
         masks.append(mask)
-    return masks
-
-
-def template_observed(store: FamilyStore, assets=None) -> list[np.ndarray]:
-    """Per group the template's "already painted" mask (:attr:`proctex.paint.GroupTexture.observed`);
-    stores without one: :func:`template_painted` (everything painted counts as observed)."""
-    if store.exists("template/painted.npz"):
-        arrays = store.read_arrays("template/painted.npz")
-        if "o0" in arrays:
-            return [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(sum(n.startswith("o") for n in arrays))]
-    return template_painted(store, assets)
+    return masks, masks
 
 
 def choose_part(assignment, group: int) -> Any:
@@ -589,12 +585,13 @@ def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     finish_pairs_stage(store, jobs, records, log)
 
 
-def read_pair(store: FamilyStore, sid: str, group: int) -> tuple[np.ndarray, np.ndarray]:
-    """(src (n, 3), dst (n, 3)) float32 of a stored pair."""
+def read_pair(store: FamilyStore, sid: str, group: int, faces: bool = False):
+    """(src (n, 3), dst (n, 3)) float32 of a stored pair; with ``faces``, also the (n,) template
+    face of each target."""
     t = store.read_table(pair_path(sid, group))
     src = np.stack([t.column(k).to_numpy() for k in ("sx", "sy", "sz")], axis=1)
     dst = np.stack([t.column(k).to_numpy() for k in ("tx", "ty", "tz")], axis=1)
-    return src, dst
+    return (src, dst, t.column("face").to_numpy()) if faces else (src, dst)
 
 
 def write_config(store: FamilyStore, config: BuildConfig) -> None:
@@ -617,7 +614,7 @@ def corrnet_config(config: BuildConfig):
     """The ProcCorrNet settings of a build (``config.train`` over the defaults, the family seed)."""
     from .corrnet import CorrNetConfig
 
-    return CorrNetConfig(**{**config.train, "seed": config.train.get("seed", config.seed)}).validate()
+    return CorrNetConfig.from_dict({**config.train, "seed": config.train.get("seed", config.seed)})
 
 
 def trainable_groups(store: FamilyStore) -> list[int]:

@@ -12,9 +12,7 @@ Requests are validated here with ``ValueError`` subclasses that a server maps to
 
 from __future__ import annotations
 
-import io
 import json
-import os
 import tempfile
 import threading
 import time
@@ -210,27 +208,3 @@ class Catalog:
             self._cache[name] = (service, now)
             self.loads += 1
             return service
-
-    def parse_params(self, body: bytes | str) -> dict[str, Any]:
-        try:
-            data = json.loads(body)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise BadInput(f"request body is not valid JSON ({exc})") from exc
-        if not isinstance(data, dict) or "params" not in data:
-            raise BadInput('expected a JSON object like {"params": {"name": value, ...}}')
-        return data
-
-
-def read_upload(stream: io.BufferedIOBase, limit: int) -> bytes:
-    """Read at most ``limit`` bytes; :class:`TooLarge` beyond."""
-    data = stream.read(limit + 1)
-    if len(data) > limit:
-        raise TooLarge(f"upload over the limit of {limit} bytes")
-    return data
-
-
-def env_limits() -> Limits:
-    """Limits from ``PROCTEX_MAX_BYTES`` / ``PROCTEX_MAX_VERTICES`` / ``PROCTEX_MAX_FACES`` (defaults otherwise)."""
-    d = Limits()
-    return Limits(int(os.environ.get("PROCTEX_MAX_BYTES", d.max_bytes)), int(os.environ.get("PROCTEX_MAX_VERTICES", d.max_vertices)),
-                  int(os.environ.get("PROCTEX_MAX_FACES", d.max_faces)))

@@ -297,3 +297,7 @@ def test_build_config_painter_checks(tmp_path):
         BuildConfig(model="mug", painter="crayon").validate()
     with pytest.raises(ValueError, match="fill"):
         BuildConfig(model="mug", painter="views", fill="blur").validate()
+    from proctex.family import corrnet_config
+
+    with pytest.raises(ValueError, match="iteratons"):
+        corrnet_config(BuildConfig(model="mug", train={"iteratons": 5}))

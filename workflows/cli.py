@@ -69,8 +69,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = core.build_parser()
-    parser.subcommands["build"].set_defaults(func=cmd_build)  # type: ignore[attr-defined]
-    sub = parser._subparsers._group_actions[0]  # the subcommands action  # noqa: SLF001
+    sub = parser.subparsers  # type: ignore[attr-defined]
+    sub.choices["build"].set_defaults(func=cmd_build)
     p = sub.add_parser("serve", help="serve the families under STORE over HTTP (Ray Serve)")
     p.add_argument("store", help="folder or URI holding family folders")
     p.add_argument("--host", default="127.0.0.1")
