@@ -372,3 +372,23 @@ def save_png(path: str | os.PathLike, image: np.ndarray) -> None:
     tmp = f"{path}.tmp{os.getpid()}.png"
     Image.fromarray(img).save(tmp)
     os.replace(tmp, path)
+
+
+def render_textured(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    corner_uv: np.ndarray,
+    face_group: np.ndarray,
+    textures: list[np.ndarray],
+    camera: Camera,
+    tracer: Tracer | None = None,
+    background=(1.0, 1.0, 1.0),
+) -> np.ndarray:
+    """(H, W, 3) uint8 shaded image of a textured mesh seen by ``camera``.
+
+    ``vertices (n, 3)``, ``faces (m, 3)``, ``corner_uv (m, 3, 2)``, ``face_group (m,)`` indexing
+    ``textures`` (each (H, W, 3|4) uint8 or float). ``tracer``: reuse one built for this mesh.
+    """
+    tracer = tracer if tracer is not None else Tracer(vertices, faces)
+    b = render_buffers(tracer, camera, face_group=np.asarray(face_group))
+    return shade(b, textured_albedo(b, corner_uv, face_group, textures), background=background)
