@@ -165,6 +165,7 @@ def cmd_paint(args: argparse.Namespace) -> int:
     if args.painter == "diffusion" and not args.model_dir:
         raise ValueError("--painter diffusion needs --model-dir (a local diffusers model folder)")
     group_prompts = _group_prompts(args.group_prompts)
+    _check_preview_path(args.preview)
     shape = resolve_shape(args.mesh)
     up = default_up(shape.source) if args.up == "auto" else args.up
     grouping = analyse(shape, seed=args.seed)
@@ -182,6 +183,14 @@ def cmd_paint(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - t0
     summary = write_textured(tex, args.out, up=up, obj=args.obj)
     summary["paint_seconds"] = round(seconds, 3)
+    if args.preview:
+        from .render import render_three_quarter, save_png
+
+        image = render_three_quarter(tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group,
+                                     [g.uint8() for g in tex.groups], up=up, size=512)
+        Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
+        save_png(args.preview, image)
+        summary["preview"] = args.preview
     if args.json:
         _print_json(summary)
         return 0
@@ -192,7 +201,15 @@ def cmd_paint(args: argparse.Namespace) -> int:
             print(f"group {g['group']} {g['label'] or '':<12} {g['prompt']!r}  {g['covered_texels']} texels  seen {100 * g['seen']:.1f}%")
         print(f"coverage (unpainted visible pixels): {100 * summary['coverage']['share']:.3f}%")
     print(f"painted {len(tex.groups)} groups ({args.painter}, {args.size}px) in {seconds:.2f}s -> {args.out}")
+    if args.preview:
+        print(f"wrote {args.preview} (3/4 view, 512x512)")
     return 0
+
+
+def _check_preview_path(preview: str | None) -> None:
+    """``--preview`` must name a .png file (checked before any work)."""
+    if preview is not None and Path(preview).suffix.lower() != ".png":
+        raise ValueError(f"--preview must name a .png file, got {preview!r}")
 
 
 def _build_config(args: argparse.Namespace):
@@ -253,6 +270,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
         shape, _ = load_mesh(args.mesh)
     if not args.out.endswith(".glb"):
         raise ValueError("--out must name a .glb file")
+    _check_preview_path(args.preview)
     t0 = time.perf_counter()
     assets = load_assets(store)
     if args.mapper in ("auto", "net"):
@@ -275,13 +293,23 @@ def cmd_transfer(args: argparse.Namespace) -> int:
         baked = bake(shape, result, assets, size=args.bake)
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
         data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names)
+        textured = (baked.corner_uv, baked.face_group, list(baked.textures))
     else:
         data = glb(shape, result, assets)
+        textured = (result.corner_uv, result.face_group, list(assets.textures) + list(result.new_textures))
     from .meshio import _atomic_write_bytes
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     _atomic_write_bytes(args.out, data)
     summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(mapper).__name__, "out": args.out, "bytes": len(data)}
+    if args.preview:
+        from .family import up_axis
+        from .render import render_three_quarter, save_png
+
+        image = render_three_quarter(shape.vertices, shape.faces, *textured, up=up_axis(config), size=512)
+        Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
+        save_png(args.preview, image)
+        summary["preview"] = args.preview
     if args.json:
         _print_json(summary)
     else:
@@ -289,6 +317,59 @@ def cmd_transfer(args: argparse.Namespace) -> int:
             print(f"note: {note}")
         print(f"transferred {shape.n_faces} faces with {summary['mapper']} in {result.seconds * 1000:.0f} ms "
               f"(family loaded in {t1 - t0:.1f}s) -> {args.out}")
+        if args.preview:
+            print(f"wrote {args.preview} (3/4 view, 512x512)")
+    return 0
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from .export import read_textured_glb
+    from .render import (
+        Tracer, default_up, grid_columns, render_grid, render_six_views, render_three_quarter, save_gif, save_png,
+        turntable_frames,
+    )
+
+    if not os.path.isfile(args.file):
+        raise ValueError(f"{args.file}: no such file")
+    if not 16 <= args.size <= 4096:
+        raise ValueError(f"--size must be in [16, 4096], got {args.size}")
+    if not 1 <= args.frames <= 360:
+        raise ValueError(f"--frames must be in [1, 360], got {args.frames}")
+    if not 0 < args.fps <= 100:
+        raise ValueError(f"--fps must be in (0, 100], got {args.fps}")
+    out = args.out or str(Path(args.file).with_suffix(".png"))
+    suffix = Path(out).suffix.lower()
+    if suffix not in (".png", ".gif"):
+        raise ValueError(f"--out must name a .png (or, with --views turntable, a .gif) file, got {out!r}")
+    if suffix == ".gif" and args.views != "turntable":
+        raise ValueError("an animated .gif needs --views turntable")
+    if os.path.abspath(out) == os.path.abspath(args.file):
+        raise ValueError(f"--out {out!r} would overwrite the input")
+    mesh = read_textured_glb(args.file)
+    up = default_up(args.file) if args.up == "auto" else args.up
+    arrays = (mesh.vertices, mesh.faces, mesh.corner_uv, mesh.face_group, mesh.textures)
+    tracer = Tracer(mesh.vertices, mesh.faces)
+    if args.views == "front":
+        image, what = render_three_quarter(*arrays, up=up, size=args.size, tracer=tracer), "3/4 view"
+    elif args.views == "six":
+        images, names = render_six_views(*arrays, up=up, size=args.size, tracer=tracer)
+        image, what = render_grid(images, 3, labels=names), "six views"
+    else:
+        frames = turntable_frames(*arrays, up=up, n=args.frames, size=args.size, tracer=tracer)
+        image, what = None, f"turntable, {args.frames} frames"
+        if suffix != ".gif":
+            image = render_grid(frames, grid_columns(len(frames)))
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    if image is None:
+        save_gif(out, frames, fps=args.fps)
+        what += f" at {args.fps:g} fps, {args.size}x{args.size}"
+    else:
+        save_png(out, image)
+        what += f", {image.shape[1]}x{image.shape[0]}"
+    for note in mesh.notes:
+        print(f"note: {note}")
+    print(f"{args.file}: {len(mesh.faces)} faces, {len(mesh.textures)} materials, up {up}")
+    print(f"wrote {out} ({what})")
     return 0
 
 
@@ -386,80 +467,34 @@ def cmd_gallery(args: argparse.Namespace) -> int:
     return 0
 
 
+def demo_arguments(args: argparse.Namespace) -> dict[str, Any]:
+    """Validated keyword arguments of :func:`proctex.demo.run_demo` from the ``demo`` flags."""
+    if args.n_train < 2 or args.n_test < 0:
+        raise ValueError(f"--n-train must be >= 2 and --n-test >= 0, got {args.n_train}, {args.n_test}")
+    if args.rows < 0 or args.per_row < 1 or args.frames < 1:
+        raise ValueError("--rows must be >= 0, --per-row >= 1 and --frames >= 1")
+    return {"model": args.model, "prompt": args.prompt, "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed,
+            "n_train": args.n_train, "n_test": args.n_test, "rows": args.rows, "per_row": args.per_row, "frames": args.frames,
+            "fresh": args.fresh, "quiet": args.quiet}
+
+
+def print_demo_outputs(result: Any) -> None:
+    s = result.summary
+    fam = Path(result.out) / "families" / s["model"]
+    print(f"demo done in {s['total_seconds']:.0f}s ({len(result.variants)} variants, median transfer "
+          f"{1000 * s['transfer_median_seconds']:.0f} ms). Look at:")
+    for what, where in (("report", result.report), ("contact sheet", result.contact_sheet), ("turntable", result.turntable),
+                        ("variants", f"{Path(result.out) / 'variants'}/ ({len(result.variants)} GLBs)"), ("family store", fam),
+                        ("studio", f"proctex serve {fam.parent}  ->  http://127.0.0.1:8000/")):
+        print(f"  {what:<14}{where}")
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Current end-to-end path: sample a model, pick the template, segment, group, match groups,
-    and solve the cage correspondence of one sample onto the template."""
-    t0 = time.perf_counter()
-    model = get_model(args.model)
-    samples = model.space.sample(args.n, seed=args.seed, method="lhs")
-    shapes: list[Shape] = [model.generate(p) for p in track(samples, "sample", len(samples), args.quiet)]
-    ti = select_template(model.space, samples)
-    groupings = [analyse(s, seed=args.seed) for s in track(shapes, "segment+group", len(shapes), args.quiet)]
-    template, tg = shapes[ti], groupings[ti]
-    matches = [
-        match_groups(s, g, template, tg, seed=args.seed)
-        for s, g in track(list(zip(shapes, groupings)), "match groups", len(shapes), args.quiet)
-    ]
-    print(f"model {model.name}: {len(shapes)} samples (seed {args.seed}), template = sample {ti}")
-    print(f"template params: {json.dumps(samples[ti])}")
-    print("template groups:")
-    for g in tg.groups:
-        print(f"  group {g.index}: {g.label or '?':<14} parts {g.members}{' (mirrored)' if any(m.mirrored for m in g.maps) else ''}")
-    print(f"{'sample':>6} {'verts':>7} {'faces':>7} {'parts':>5} {'groups':>6}  matched/added/missing")
-    for i, (s, g, m) in enumerate(zip(shapes, groupings, matches)):
-        print(f"{i:>6} {s.n_vertices:>7} {s.n_faces:>7} {len(g.parts):>5} {len(g.groups):>6}  {len(m.pairs)}/{len(m.added)}/{len(m.missing)}")
-    # Dense correspondence (cage solver) of one sample onto the template, scored against the truth.
-    corr = None
-    if args.correspond_points > 0 and len(shapes) > 1:
-        from .correspond import correspond_shapes
+    """The main job in this process (the installed ``proctex demo`` builds on a local Ray instead)."""
+    from .demo import run_demo
 
-        si = next(i for i in range(len(shapes)) if i != ti)
-        print(f"cage correspondence, sample {si} -> template ({args.correspond_points} points per group):")
-        corr = correspond_shapes(
-            shapes[si], template, method="cage", n_points=args.correspond_points, seed=args.seed, grouping=groupings[si], template_grouping=tg
-        )
-        for gc in corr.groups:
-            e = gc.gt
-            gt_txt = f"  gt error mean {e.mean:.4f} p95 {e.p95:.4f} flipped {100 * e.flipped:.1f}%" if e else ""
-            print(f"  group {gc.template_group}: {gc.result.seconds:.1f}s residual {gc.result.residual:.4f}{gt_txt}")
-    tex = None
-    if args.prompt:
-        from .paint import paint_surface, resolve_group_prompts
-        from .painters import SurfacePainter
-
-        known = {g.label for g in tg.groups} | {str(g.index) for g in tg.groups}
-        wanted = _group_prompts(args.group_prompts) or {}
-        prompts = resolve_group_prompts(tg, args.prompt, {k: v for k, v in wanted.items() if k in known})
-        tex = paint_surface(template, tg, SurfacePainter(args.prompt, {str(k): v for k, v in prompts.items()}, seed=args.seed), size=args.texture_size, prompts=prompts)
-        print(f"painted the template ({len(tex.groups)} groups, {args.texture_size}px, surface painter) in {tex.seconds:.1f}s: " + ", ".join(
-            f"{g.label or g.group}={g.prompt!r}" for g in tex.groups))
-    if args.out:
-        from PIL import Image
-
-        from .preview import PALETTE, grid_image, render_faces
-
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        row = []
-        for s, g, m in list(zip(shapes, groupings, matches))[: args.preview]:
-            mapping = m.mapping()
-            # Colour each part by the template group it matched (grey: added).
-            color_of_group = np.array([PALETTE[mapping[k] % len(PALETTE)] if k in mapping else [0.5, 0.5, 0.5] for k in range(len(g.groups))])
-            fc = color_of_group[g.part_group[g.segmentation.face_part]]
-            row.append(render_faces(s.vertices, s.faces, fc, size=192, azimuth=-60, elevation=25))
-        Image.fromarray(grid_image([row])).save(out / "groups.png")
-        print(f"wrote {out / 'groups.png'} (parts coloured by matched template group)")
-        if tex is not None:
-            from .paint import write_textured
-
-            summary = write_textured(tex, out / "template", up="z")
-            print(f"wrote {out / 'template'} (group textures, textured.glb, preview.png; coverage {100 * summary['coverage']['share']:.2f}%)")
-        if corr is not None:
-            tmp = out / "correspondence.json.tmp"
-            tmp.write_text(json.dumps(corr.to_dict(), indent=1))
-            os.replace(tmp, out / "correspondence.json")
-            print(f"wrote {out / 'correspondence.json'}")
-    print(f"done in {time.perf_counter() - t0:.1f}s")
+    log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
+    print_demo_outputs(run_demo(args.out, log=log, **demo_arguments(args)))
     return 0
 
 
@@ -527,6 +562,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="cpu")
     p.add_argument("--up", choices=["auto", "x", "y", "z"], default="auto", help="up axis (auto: y for OBJ/glTF files, else z)")
     p.add_argument("--obj", action="store_true", help="also write OBJ + MTL")
+    p.add_argument("--preview", metavar="PNG", help="also write a 512px 3/4 view of the painted template to this .png")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_paint)
@@ -565,9 +601,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output .glb")
     p.add_argument("--mapper", choices=["auto", "net", "cage", "nearest", "identity"], default="auto")
     p.add_argument("--bake", type=int, default=0, help="bake into the shape's own atlas at this size (0: read the template textures)")
+    p.add_argument("--preview", metavar="PNG", help="also write a 512px 3/4 view of the textured shape to this .png")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_transfer)
+
+    p = sub.add_parser("render", help="render a textured GLB (e.g. a transfer result) to a PNG, or a turntable GIF")
+    p.add_argument("file", metavar="FILE.glb", help="textured .glb (or .gltf) file")
+    p.add_argument("--out", help="output .png (or .gif with --views turntable); default: FILE with a .png suffix")
+    p.add_argument("--size", type=int, default=512, help="pixels per view (square)")
+    p.add_argument("--views", choices=["front", "six", "turntable"], default="front",
+                   help="front: one 3/4 view; six: the six canonical views (3x2, labelled); turntable: --frames views around the up axis")
+    p.add_argument("--frames", type=int, default=24, help="turntable frames")
+    p.add_argument("--fps", type=float, default=12.0, help="turntable GIF frame rate")
+    p.add_argument("--up", choices=["auto", "x", "y", "z"], default="auto", help="up axis (auto: y for glTF/OBJ files, else z)")
+    p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("edit", help="edit one group's template texture (re-paint, HSV shift, logo); applies to every transfer")
     p.add_argument("family")
@@ -608,17 +656,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_gallery)
 
-    p = sub.add_parser("demo", help="sample a model, pick a template, segment, group, match and correspond (current end-to-end path)")
-    p.add_argument("--model", default="sofa")
-    p.add_argument("--n", type=int, default=12)
+    p = sub.add_parser("demo", help="the main job: build a family, transfer a sweep of unseen settings, GLBs, contact sheet, turntable, HTML report")
+    p.add_argument("--model", default="sofa", help="built-in model (default sofa)")
+    p.add_argument("--prompt", default="a patchwork bohemian sofa", help="what to paint")
+    p.add_argument("--group-prompts", help='JSON overriding the prompt per group label or index, e.g. {"leg": "black steel"}')
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="out/demo")
-    p.add_argument("--preview", type=int, default=6, help="number of samples in the preview image")
-    p.add_argument("--correspond-points", type=int, default=1000, help="cage correspondence of one sample (0: skip)")
-    p.add_argument("--prompt", default="dark walnut", help="paint the template with the surface painter ('' to skip)")
-    p.add_argument("--group-prompts", default='{"seat_cushion": "red velvet", "back_cushion": "red velvet", "back": "red velvet", "armrest": "red velvet"}',
-                   help="per-group prompts (JSON; labels the model lacks are ignored)")
-    p.add_argument("--texture-size", type=int, default=512)
+    p.add_argument("--n-train", type=int, default=10, help="training shapes of the family")
+    p.add_argument("--n-test", type=int, default=3, help="unseen shapes for the metrics")
+    p.add_argument("--rows", type=int, default=3, help="parameters swept on the contact sheet (plus one row of random settings)")
+    p.add_argument("--per-row", type=int, default=5, help="variants per row")
+    p.add_argument("--frames", type=int, default=48, help="turntable frames")
+    p.add_argument("--fresh", action="store_true", help="delete an earlier demo family in --out and rebuild")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_demo)
     return parser

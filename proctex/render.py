@@ -392,3 +392,133 @@ def render_textured(
     tracer = tracer if tracer is not None else Tracer(vertices, faces)
     b = render_buffers(tracer, camera, face_group=np.asarray(face_group))
     return shade(b, textured_albedo(b, corner_uv, face_group, textures), background=background)
+
+
+# ---------------------------------------------------------------------------------------- views of textured meshes
+THREE_QUARTER = (-35.0, 25.0)  # azimuth, elevation (degrees) of the default 3/4 view
+
+
+def three_quarter_camera(vertices: np.ndarray, up="z", size: int = 512, azimuth: float = THREE_QUARTER[0],
+                         elevation: float = THREE_QUARTER[1], fov_deg: float = 40.0) -> Camera:
+    """A (size x size) 3/4 view camera framing the bounding sphere of ``vertices`` (n, 3).
+
+    ``up``: 'x' | 'y' | 'z' (optionally signed) or a (3,) vector; azimuth from the front, elevation
+    above the horizon, in degrees.
+    """
+    c, r = bounding_sphere(vertices)
+    return orbit_camera(c, r, up, azimuth, elevation, size, fov_deg, "three_quarter")
+
+
+def render_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
+                 textures: list[np.ndarray], cameras: list[Camera], tracer: Tracer | None = None,
+                 background=(1.0, 1.0, 1.0)) -> list[np.ndarray]:
+    """Shaded textured images, one (H, W, 3) uint8 per camera (inputs as in :func:`render_textured`).
+
+    One :class:`Tracer` is built for all cameras (or ``tracer`` is reused).
+    """
+    tracer = tracer if tracer is not None else Tracer(vertices, faces)
+    return [render_textured(vertices, faces, corner_uv, face_group, textures, cam, tracer, background) for cam in cameras]
+
+
+def render_three_quarter(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
+                         textures: list[np.ndarray], up="z", size: int = 512, tracer: Tracer | None = None) -> np.ndarray:
+    """(size, size, 3) uint8 image of the textured mesh from the 3/4 view (:func:`three_quarter_camera`)."""
+    cam = three_quarter_camera(vertices, up, size)
+    return render_views(vertices, faces, corner_uv, face_group, textures, [cam], tracer)[0]
+
+
+def render_six_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
+                     textures: list[np.ndarray], up="z", size: int = 512,
+                     tracer: Tracer | None = None) -> tuple[list[np.ndarray], list[str]]:
+    """The six canonical views (:func:`canonical_cameras`): six (size, size, 3) uint8 images and their names."""
+    c, r = bounding_sphere(vertices)
+    cams = canonical_cameras(c, r, up, size)
+    return render_views(vertices, faces, corner_uv, face_group, textures, cams, tracer), [cam.name for cam in cams]
+
+
+def turntable_frames(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
+                     textures: list[np.ndarray], up="z", n: int = 24, size: int = 512, elevation: float = 20.0,
+                     tracer: Tracer | None = None) -> list[np.ndarray]:
+    """``n`` (size, size, 3) uint8 frames around ``up`` (:func:`turntable`), starting at the front."""
+    c, r = bounding_sphere(vertices)
+    cams = turntable(c, r, up, n, elevation, size)
+    return render_views(vertices, faces, corner_uv, face_group, textures, cams, tracer)
+
+
+def _font(height: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=height)
+    except TypeError:  # Pillow < 10.1: fixed-size bitmap font
+        return ImageFont.load_default()
+
+
+def render_grid(images: list[np.ndarray], cols: int, labels: list[str] | None = None, pad: int = 4,
+                background: int = 255) -> np.ndarray:
+    """Tile equally sized (h, w, 3) uint8 images row-major into ``cols`` columns with ``pad`` pixels between.
+
+    ``labels``: one caption per image, drawn centred in a band above each tile (PIL default font).
+    Returns (rows * (band + h + pad) + pad, cols * (w + pad) + pad, 3) uint8, with
+    ``rows = ceil(len(images) / cols)``; missing tiles of the last row stay background.
+    """
+    if not images:
+        raise ValueError("render_grid needs at least one image")
+    if cols < 1:
+        raise ValueError(f"cols must be >= 1, got {cols}")
+    h, w = np.asarray(images[0]).shape[:2]
+    for k, im in enumerate(images):
+        im = np.asarray(im)
+        if im.dtype != np.uint8 or im.shape != (h, w, 3):
+            raise ValueError(f"images[{k}]: expected a ({h}, {w}, 3) uint8 image, got {im.dtype} {im.shape}")
+    if labels is not None and len(labels) != len(images):
+        raise ValueError(f"need one label per image ({len(images)}), got {len(labels)}")
+    band = max(10, min(h // 12, 28)) if labels is not None else 0
+    rows = -(-len(images) // cols)
+    out = np.full((rows * (band + h + pad) + pad, cols * (w + pad) + pad, 3), background, np.uint8)
+    for k, im in enumerate(images):
+        y, x = pad + (k // cols) * (band + h + pad) + band, pad + (k % cols) * (w + pad)
+        out[y:y + h, x:x + w] = im
+    if labels is not None:
+        from PIL import Image, ImageDraw
+
+        pil = Image.fromarray(out)
+        draw, font = ImageDraw.Draw(pil), _font(max(8, int(band * 0.8)))
+        for k, text in enumerate(labels):
+            cx = pad + (k % cols) * (w + pad) + w / 2
+            cy = pad + (k // cols) * (band + h + pad) + band / 2
+            draw.text((cx, cy), str(text), fill=(40, 40, 40), font=font, anchor="mm")
+        out = np.asarray(pil).copy()
+    return out
+
+
+def grid_columns(n: int) -> int:
+    """A pleasant number of columns for ``n`` tiles (about 3:2 landscape): 6 -> 3, 24 -> 6."""
+    return int(min(n, max(1, round(np.sqrt(n * 1.5)))))
+
+
+def save_gif(path: str | os.PathLike, frames: list[np.ndarray], fps: float = 12.0, loop: int = 0) -> None:
+    """Write equally sized (H, W, 3) uint8 frames as an animated GIF (``loop`` 0: forever), atomically."""
+    from PIL import Image
+
+    if not frames:
+        raise ValueError("save_gif needs at least one frame")
+    if not 0 < fps <= 100:
+        raise ValueError(f"fps must be in (0, 100], got {fps}")
+    shape = np.asarray(frames[0]).shape
+    ims = []
+    for k, f in enumerate(frames):
+        f = np.asarray(f)
+        if f.dtype != np.uint8 or f.ndim != 3 or f.shape[2] != 3 or f.shape != shape:
+            raise ValueError(f"frames[{k}]: expected a {shape} uint8 (H, W, 3) image, got {f.dtype} {f.shape}")
+        ims.append(Image.fromarray(f))
+    path = os.fspath(path)
+    tmp = f"{path}.tmp{os.getpid()}.gif"
+    try:
+        ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:], duration=max(10, round(1000 / fps)),
+                    loop=loop, disposal=1)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise

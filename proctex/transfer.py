@@ -184,12 +184,43 @@ def assign_parts(
             v, f = part_mesh(shape, p)
             c, r = normalised_frame(v)
             same = [ga.group for ga in assets.groups if not ga.degenerate and same_topology(f, len(v), ga)]
+            copy = copy_of_group(v, same, assets, cost[i], extra_tol)
+            if copy is not None:  # another copy of a template primitive (a third cushion): its group, template UVs
+                out.append(PartAssignment(p.index, copy, -1, np.eye(3), float(cost[i][[k for k, s in enumerate(assets.slots) if s.group == copy]].min()), "extra"))
+                continue
             g, R, t, err = match_extra((v - c) / (r if r > 0 else 1.0), f, assets, groups=same or None)
             if err <= extra_tol:
                 out.append(PartAssignment(p.index, g, -1, R, err, "extra", t))
             else:
                 out.append(PartAssignment(p.index, -1, -1, np.eye(3), err, "new"))
     return sorted(out, key=lambda a: a.part)
+
+
+def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: TemplateAssets, slot_cost: np.ndarray, tol: float = 0.02) -> int | None:
+    """The group a part is another copy of, when it has the exact connectivity of group
+    representatives (``candidates``): vertex ``i`` is then the representative's vertex ``i`` of the
+    same primitive, stretched. Candidates whose representative maps onto the part by an affine map
+    (relative residual at most ``tol``) qualify; of those, the group with the cheapest slot
+    (``slot_cost (n_slots,)``, placement in the shape's box) wins, so a third seat cushion joins the
+    seat cushions even when back cushions share its connectivity. ``None`` when none qualifies.
+
+    ``vertices (k, 3)``: the part's vertices in the shape's frame.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    best, best_cost = None, np.inf
+    size = max(float(np.linalg.norm(np.ptp(v, axis=0))), 1e-12)
+    for g in candidates:
+        ga = assets.groups[g]
+        X = np.hstack([ga.vertices, np.ones((len(ga.vertices), 1))])
+        A, *_ = np.linalg.lstsq(X, v, rcond=None)
+        resid = float(np.sqrt(((X @ A - v) ** 2).sum(axis=1).mean())) / size
+        if resid > tol:
+            continue
+        slots = [k for k, s in enumerate(assets.slots) if s.group == g]
+        c = float(np.min(slot_cost[slots])) if slots else np.inf
+        if c < best_cost:
+            best, best_cost = g, c
+    return best
 
 
 def match_extra(

@@ -372,3 +372,19 @@ def test_a_face_extrapolated_into_another_chart_is_pulled_back():
     assert 0.55 < raw[0, 2, 0] < 0.85  # painted, but the other chart
     fixed, _ = part_uvs(ga, mapped, np.array([[0, 1, 2]]), labels)
     assert (fixed[..., 0] <= 0.3 + 1e-9).all() and (fixed[..., 0] >= 0.1 - 1e-9).all()
+
+
+def test_extra_copies_of_a_primitive_join_its_group_by_placement():
+    """A three-seat sofa on a two-seat template: the middle seat and back cushions have the exact
+    connectivity of both cushion groups (boxes of one tessellation, stretched differently), which a
+    rigid ICP cannot align; the affine copy test plus placement puts each in its own group."""
+    _, _, _, assets = _template("sofa", seats=2, size=64)
+    shape = get_model("sofa").generate({"seats": 3})
+    parts = analyse(shape).parts
+    r = transfer(shape, assets, IdentityMapper())
+    assert not [a for a in r.assignment if a.how == "new"] and not r.notes
+    extras = [a for a in r.assignment if a.how == "extra"]
+    assert sorted(parts[a.part].label for a in extras) == ["back_cushion", "seat_cushion"]
+    for a in extras:  # each joins the group of its own kind, with the template's own UVs
+        assert assets.groups[a.group].label == parts[a.part].label
+        assert a.part in r.direct

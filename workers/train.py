@@ -93,6 +93,33 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _fit_with_progress(trainer: Any, store: FamilyStore, groups: list[int], quiet: bool = False, every: float = 2.0) -> Any:
+    """``trainer.fit()`` with a progress line per finished network (the driver watches the store for
+    ``models/group_<g>.pt``, which team leaders write as each group finishes)."""
+    import threading
+
+    from proctex.progress import Progress
+
+    bar = Progress("train", len(groups), quiet=quiet, interval=0.0)
+    stop = threading.Event()
+
+    def watch() -> None:
+        seen: set[int] = set()
+        while not stop.wait(every):
+            done = {g for g in groups if g not in seen and store.exists(model_path(g))}
+            if done:
+                seen |= done
+                bar.update(len(done))
+
+    thread = threading.Thread(target=watch, name="train-progress", daemon=True)
+    thread.start()
+    try:
+        return trainer.fit()
+    finally:
+        stop.set()
+        thread.join()
+
+
 def train_groups(
     store_uri: str,
     config: BuildConfig,
@@ -100,6 +127,7 @@ def train_groups(
     cpus_per_worker: float = 1.0,
     groups: list[int] | None = None,
     log: Callable[[str], None] = print,
+    quiet: bool = False,
 ) -> dict[int, dict[str, Any]]:
     """Fit the networks of every trainable group that has none yet with one ``TorchTrainer`` of
     ``num_workers`` CPU workers (Ray must be initialised). Returns ``{group: metrics}``."""
@@ -112,6 +140,7 @@ def train_groups(
     todo = [g for g in (groups if groups is not None else trainable_groups(store)) if not store.exists(model_path(g))]
     if not todo:
         return {}
+    log(f"train: {len(todo)} group networks on {num_workers} Ray Train workers")
     storage = store.path("train_runs")
     store.fs.create_dir(storage, recursive=True)
     t0 = time.perf_counter()
@@ -122,7 +151,7 @@ def train_groups(
         # A fresh run name: Ray Train resumes silently from an existing run of the same name.
         run_config=RunConfig(name=f"corrnet_{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}", storage_path=storage, storage_filesystem=store.fs),
     )
-    result = trainer.fit()
+    result = _fit_with_progress(trainer, store, todo, quiet=quiet)
     out = {int(g): m for g, m in (result.return_value or {}).items()}
     for g, m in out.items():
         log(f"train: group {g} on {m['workers']} of {num_workers} Ray Train workers: val {m['best_val']:.4f}, {m['iterations']} iterations, {m['seconds']:.1f}s")

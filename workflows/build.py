@@ -140,10 +140,11 @@ def ray_stage_pairs(store: FamilyStore, config: BuildConfig, max_in_flight: int 
     return {"solved": len(todo), "pids": sorted(pids), "seconds": time.perf_counter() - t0}
 
 
-def ray_stage_train(store: FamilyStore, config: BuildConfig, num_workers: int | None = None, log: Callable[[str], None] = print) -> None:
+def ray_stage_train(store: FamilyStore, config: BuildConfig, num_workers: int | None = None, log: Callable[[str], None] = print,
+                    quiet: bool = False) -> None:
     from workers.train import train_groups
 
-    trained = train_groups(store.uri, config, num_workers=num_workers or min(2, cluster_cpus()), log=log)
+    trained = train_groups(store.uri, config, num_workers=num_workers or min(2, cluster_cpus()), log=log, quiet=quiet)
     _mark(store, "train", groups={str(g): m for g, m in trained.items()}, ray=True)
 
 
@@ -180,7 +181,7 @@ def build_on_ray(
         elif stage == "pairs":
             ray_stage_pairs(store, config, max_in_flight=max_in_flight, log=log, quiet=quiet)
         elif stage == "train":
-            ray_stage_train(store, config, num_workers=train_workers, log=log)
+            ray_stage_train(store, config, num_workers=train_workers, log=log, quiet=quiet)
         elif stage == "evaluate":
             from proctex.evaluate import stage_evaluate
 

@@ -67,10 +67,27 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The main job with the build on Ray (a private local instance unless --address), or in this
+    process with --no-ray."""
+    if args.no_ray:
+        return core.cmd_demo(args)
+    from .demo import run_demo_on_ray
+
+    kwargs = core.demo_arguments(args)  # bad flags fail before Ray starts
+    log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
+    core.print_demo_outputs(run_demo_on_ray(args.out, address=args.address, log=log, **kwargs))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = core.build_parser()
     sub = parser.subparsers  # type: ignore[attr-defined]
     sub.choices["build"].set_defaults(func=cmd_build)
+    demo = sub.choices["demo"]
+    demo.add_argument("--no-ray", action="store_true", help="build in this process instead of on Ray")
+    demo.add_argument("--address", help="build on an existing Ray cluster (default: a private local one)")
+    demo.set_defaults(func=cmd_demo)
     p = sub.add_parser("serve", help="serve the families under STORE over HTTP (Ray Serve)")
     p.add_argument("store", help="folder or URI holding family folders")
     p.add_argument("--host", default="127.0.0.1")
