@@ -250,7 +250,7 @@ def cmd_build(args: argparse.Namespace) -> int:
 
 
 def cmd_transfer(args: argparse.Namespace) -> int:
-    from .family import load_assets, load_models, stored_config, _model
+    from .family import load_assets, load_models, stored_config, up_axis, _model
     from .store import FamilyStore
     from .transfer import IdentityMapper, NetworkMapper, SolverMapper, bake, glb, info, transfer
 
@@ -292,10 +292,10 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
         baked = bake(shape, result, assets, size=args.bake)
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
-        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names)
+        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up_axis(config))
         textured = (baked.corner_uv, baked.face_group, list(baked.textures))
     else:
-        data = glb(shape, result, assets)
+        data = glb(shape, result, assets, up=up_axis(config))
         textured = (result.corner_uv, result.face_group, list(assets.textures) + list(result.new_textures))
     from .meshio import _atomic_write_bytes
 
@@ -303,7 +303,6 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     _atomic_write_bytes(args.out, data)
     summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(mapper).__name__, "out": args.out, "bytes": len(data)}
     if args.preview:
-        from .family import up_axis
         from .render import render_three_quarter, save_png
 
         image = render_three_quarter(shape.vertices, shape.faces, *textured, up=up_axis(config), size=512)

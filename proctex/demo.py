@@ -330,7 +330,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
             shape = model.generate(params)
             result = transfer(shape, svc.assets, svc.mapper, seed=seed, painter=svc.painter)
             rel = f"variants/{r.name}_{k}.glb"
-            _atomic_write_bytes(str(out / rel), glb(shape, result, svc.assets))
+            _atomic_write_bytes(str(out / rel), glb(shape, result, svc.assets, up=up))
             variants.append({"row": r.name, "index": k, "params": params, "glb": rel, "seconds": round(result.seconds, 4),
                              "faces": int(shape.n_faces), "notes": result.notes})
             rendered.append((shape, result))

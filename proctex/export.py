@@ -28,6 +28,7 @@ import base64
 import binascii
 import io
 import json
+import math
 import os
 import re
 import shutil
@@ -186,13 +187,20 @@ def _png(image: np.ndarray | bytes) -> bytes:
     return buf.getvalue()
 
 
+#: Node rotations (glTF quaternions x, y, z, w) that stand a shape with the given up axis upright in
+#: glTF's +Y-up world; the vertex data stays in the shape's own frame.
+UP_ROTATIONS = {"y": None, "z": [-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)], "x": [0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)]}
+
+
 def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
-              double_sided: bool = True) -> bytes:
+              double_sided: bool = True, up: str = "y") -> bytes:
     """Encode a textured shape as a GLB (glTF 2.0 binary) file.
 
     Args: see the module docstring (vertices (n, 3) float64, faces (m, 3) int64, corner_uv
     (m, 3, 2) float64 with v up, face_group (m,) int64 in [-1, G), G uint8 textures (H, W, 3|4),
-    optional G names); ``double_sided`` sets the materials' doubleSided flag.
+    optional G names); ``double_sided`` sets the materials' doubleSided flag; ``up`` is the
+    shape's up axis ("x", "y" or "z"): glTF is +Y up, so a z-up or x-up shape gets a node rotation
+    (:data:`UP_ROTATIONS`) and stands upright in every viewer, with its vertex data unchanged.
 
     The file holds one node and one mesh with one triangle primitive per non-empty group (faces of
     group -1 form a last primitive with a grey untextured material). Each primitive has its own
@@ -203,8 +211,10 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
     groups are left out. Raises ValueError on malformed input.
     """
     V, F, UV, FG, texs, names = _check_shape(vertices, faces, corner_uv, face_group, textures, names)
+    if up not in UP_ROTATIONS:
+        raise ValueError(f"up must be x, y or z, got {up!r}")
     gltf = gl.GLTF2(asset=gl.Asset(generator="proctex.export", version="2.0"), scene=0,
-                    scenes=[gl.Scene(nodes=[0])], nodes=[gl.Node(mesh=0)], buffers=[gl.Buffer()])
+                    scenes=[gl.Scene(nodes=[0])], nodes=[gl.Node(mesh=0, rotation=UP_ROTATIONS[up])], buffers=[gl.Buffer()])
     blob = _Blob(gltf)
     primitives = []
     for g, idx in _groups(FG, len(texs)):
@@ -258,9 +268,9 @@ def _atomic_write(path: Path, data: bytes) -> None:
 
 
 def write_glb(path, vertices, faces, corner_uv, face_group, textures, names=None,
-              double_sided: bool = True) -> str:
+              double_sided: bool = True, up: str = "y") -> str:
     """Write :func:`glb_bytes` to ``path`` atomically (temp file + ``os.replace``); returns the path."""
-    data = glb_bytes(vertices, faces, corner_uv, face_group, textures, names, double_sided)
+    data = glb_bytes(vertices, faces, corner_uv, face_group, textures, names, double_sided, up=up)
     _atomic_write(Path(path), data)
     return str(path)
 

@@ -776,7 +776,7 @@ def write_textured(tex: TemplateTexture, out: str | Path, up: str = "z", obj: bo
     names = [g.label or f"group_{g.group}" for g in tex.groups]
     textures = [g.uint8() for g in tex.groups]
     shape = tex.shape
-    write_glb(out / "textured.glb", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names)
+    write_glb(out / "textured.glb", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names, up=up)
     written.append(str(out / "textured.glb"))
     if obj:
         written += write_obj(out / "textured.obj", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names)

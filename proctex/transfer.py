@@ -463,12 +463,13 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
     return atlas.corner_uv, (np.clip(image, 0, 1) * 255).round().astype(np.uint8)
 
 
-def glb(shape: Shape, result: TransferResult, assets: TemplateAssets) -> bytes:
-    """Textured GLB bytes of a transferred shape (reuses the template's encoded PNGs)."""
+def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = "y") -> bytes:
+    """Textured GLB bytes of a transferred shape (reuses the template's encoded PNGs); ``up``: the
+    shape's up axis (the GLB stands it upright, see :func:`proctex.export.glb_bytes`)."""
     from .export import glb_bytes
 
     extra = [f"new_{k}" for k in range(len(result.new_textures))]
-    return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png + list(result.new_textures), names=assets.names + extra)
+    return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png + list(result.new_textures), names=assets.names + extra, up=up)
 
 
 # ------------------------------------------------------------------------------------------ bake

@@ -329,9 +329,9 @@ def test_cli_transfer_preview(mug_family, tmp_path, capsys):
     assert summary["preview"] == str(png) and summary["out"] == str(out)
     img = np.asarray(Image.open(png))
     assert img.shape == (512, 512, 3) and object_pixels(img).mean() > 0.1 and red_share(img) > 0.15
-    # The preview shows what the GLB holds (family up axis: z for a model family).
+    # The preview shows what the GLB holds: a z-up model family, stood upright in glTF's y-up world.
     m = read_textured_glb(out)
-    again = render_three_quarter(m.vertices, m.faces, m.corner_uv, m.face_group, m.textures, "z", 512)
+    again = render_three_quarter(m.vertices, m.faces, m.corner_uv, m.face_group, m.textures, "y", 512)
     assert (np.abs(again.astype(int) - img).max(axis=-1) > 0).mean() <= 0.002
 
     baked, bpng = tmp_path / "b.glb", tmp_path / "b.png"
@@ -341,7 +341,7 @@ def test_cli_transfer_preview(mug_family, tmp_path, capsys):
     bimg = np.asarray(Image.open(bpng))
     assert bimg.shape == (512, 512, 3) and red_share(bimg) > 0.15
     m = read_textured_glb(baked)
-    again = render_three_quarter(m.vertices, m.faces, m.corner_uv, m.face_group, m.textures, "z", 512)
+    again = render_three_quarter(m.vertices, m.faces, m.corner_uv, m.face_group, m.textures, "y", 512)
     assert (np.abs(again.astype(int) - bimg).max(axis=-1) > 0).mean() <= 0.002
 
     assert main(["transfer", str(mug_family), "--params", "{}", "--out", str(tmp_path / "x.glb"), "--preview", str(tmp_path / "x.jpg")]) == 2
@@ -358,8 +358,24 @@ def test_cli_paint_preview(tmp_path, capsys):
     assert (out / "preview.png").is_file() and (out / "textured.glb").is_file()  # unchanged behaviour
     img = np.asarray(Image.open(png))
     assert img.shape == (512, 512, 3) and red_share(img) > 0.15
-    m = read_textured_glb(out / "textured.glb")
-    again = render_three_quarter(m.vertices, m.faces, m.corner_uv, m.face_group, m.textures, "z", 512)
+    m = read_textured_glb(out / "textured.glb")  # the z-up mug stands upright in glTF's y-up world
+    again = render_three_quarter(m.vertices, m.faces, m.corner_uv, m.face_group, m.textures, "y", 512)
     assert (np.abs(again.astype(int) - img).max(axis=-1) > 0).mean() <= 0.002
     assert main(["paint", "mug", "--prompt", "x", "--out", str(tmp_path / "q"), "--preview", str(tmp_path / "q.gif")]) == 2
     assert "--preview must name a .png" in capsys.readouterr().err and not (tmp_path / "q").exists()
+
+
+@pytest.mark.parametrize("up, axis", [("z", 2), ("x", 0), ("y", 1)])
+def test_glb_stands_the_shape_upright_in_gltf_y_up(mug, up, axis):
+    """A z-up (or x-up) shape gets a node rotation taking its up axis to glTF's +Y; the vertex data
+    is unchanged, so a reader applying node transforms sees the shape's up axis as +Y."""
+    V, F, UV, G, tex = mug
+    data = glb_bytes(V, F, UV, G, tex, up=up)
+    gltf = gl.GLTF2.load_from_bytes(data)
+    raw = read_textured_glb(glb_bytes(V, F, UV, G, tex))
+    m = read_textured_glb(data)
+    assert np.allclose(m.vertices[m.faces][..., 1], raw.vertices[raw.faces][..., axis], atol=1e-6)
+    assert (gltf.nodes[0].rotation is None) == (up == "y")
+    assert np.allclose(np.linalg.norm(m.vertices[m.faces], axis=-1), np.linalg.norm(raw.vertices[raw.faces], axis=-1), atol=1e-6)
+    with pytest.raises(ValueError, match="up must be"):
+        glb_bytes(V, F, UV, G, tex, up="w")
