@@ -431,12 +431,13 @@ Builder = Callable[[str, dict[str, Any]], dict[str, float]]
 def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO_PROMPT, group_prompts: dict[str, str] | None = None,
              seed: int = 0, n_train: int = 10, n_test: int = 3, rows: int = 3, per_row: int = 5, frames: int = 48,
              fresh: bool = False, builder: Builder | None = None, ray: bool = False, log: Callable[[str], None] = print,
-             quiet: bool = False) -> DemoResult:
+             quiet: bool = False, overrides: dict[str, Any] | None = None) -> DemoResult:
     """The main job: build a family of ``model`` painted with ``prompt`` into ``out/families/<model>``
     (``builder(root, config) -> stage seconds``; default: in this process), then :func:`finish_demo`.
 
     ``fresh`` deletes an earlier demo family in ``out`` first; otherwise a finished one is reused
-    (every stage skips) and one built with other settings is an error.
+    (every stage skips) and one built with other settings is an error. ``overrides``: build config
+    fields replacing :func:`demo_config`'s (e.g. fewer iterations in tests).
     """
     import shutil
 
@@ -444,7 +445,7 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
 
     if not prompt or not prompt.strip():
         raise ValueError("the prompt must not be empty")
-    config = demo_config(model, prompt, seed=seed, n_train=n_train, n_test=n_test, group_prompts=group_prompts)
+    config = {**demo_config(model, prompt, seed=seed, n_train=n_train, n_test=n_test, group_prompts=group_prompts), **(overrides or {})}
     checked = asdict(BuildConfig.from_dict(config))  # validates the model name and settings before any work
     out = Path(out)
     root = out / "families" / model

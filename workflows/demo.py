@@ -21,11 +21,13 @@ def ray_builder(log: Callable[[str], None] = print, quiet: bool = False, address
 
 
 def run_demo_on_ray(out: str, address: str | None = None, log: Callable[[str], None] = print, quiet: bool = False, **kwargs: Any) -> DemoResult:
-    """:func:`proctex.demo.run_demo` with the build on Ray (a private local instance by default)."""
+    """:func:`proctex.demo.run_demo` with the build on Ray (a private local instance by default; one
+    this call started is shut down at the end, one already running is left as it was)."""
     import ray
 
+    started = not ray.is_initialized()
     try:
         return run_demo(out, builder=ray_builder(log, quiet, address), ray=True, log=log, quiet=quiet, **kwargs)
     finally:
-        if ray.is_initialized():
+        if started and ray.is_initialized():
             ray.shutdown()
