@@ -216,3 +216,19 @@ def test_serve_answers_every_route_and_a_concurrent_load(local_ray, reference, t
         assert all(b[:4] == b"glTF" for _, b in results)
     finally:
         serve.delete("proctex-test")
+
+
+def test_the_demo_builds_on_ray_and_leaves_a_running_ray_as_it_was(local_ray, tmp_path):
+    """``proctex demo`` (the main job) on the module's local Ray: the family is built by the Ray
+    stages, every output is written, and the caller's Ray instance keeps running."""
+    from workflows.demo import run_demo_on_ray
+
+    tiny = {k: v for k, v in CFG.items() if k in ("corr_points", "cage_iterations", "texture_size", "train")}
+    result = run_demo_on_ray(str(tmp_path / "demo"), model="mug", prompt="blue ceramic", n_train=3, n_test=2, rows=1, per_row=2,
+                             frames=3, log=lambda *_: None, quiet=True, overrides=tiny)
+    s = result.summary
+    assert s["ray"] is True and ray.is_initialized()
+    state = json.loads((tmp_path / "demo" / "families" / "mug" / "family.json").read_text())
+    assert state["stages"]["train"].get("ray") is True  # trained by Ray Train
+    for path in (result.report, result.contact_sheet, result.turntable, *result.variants):
+        assert Path(path).is_file() and Path(path).stat().st_size > 0
