@@ -5,25 +5,46 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.proctex-installed
 # torch first, pinned: 2.13.0 is the local CPU wheel (a newer one pulls gigabytes of CUDA packages).
 TORCH  := torch==2.13.0
+# The web studio (served at / by the transfer service): npm project, bundled into $(STUDIO)/dist.
+STUDIO     := workers/studio
+STUDIO_OUT := $(STUDIO)/dist/index.html
+STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: setup demo test test-fast gallery clean
+.PHONY: setup demo test test-fast gallery clean studio browser
 
 # The Khronos glTF validator (npm) goes into the venv too; GLB tests use it where npm exists.
-$(STAMP): pyproject.toml Makefile
+# Where npm exists, the studio's locked packages are installed (npm ci) and bundled too.
+$(STAMP): pyproject.toml Makefile $(STUDIO)/package.json $(STUDIO)/package-lock.json
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "ProcTex needs Python >= 3.11")'
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet $(TORCH)
 	$(PY) -m pip install --quiet -e ".[dev,viz,embree,diffusion]"
 	if command -v npm >/dev/null 2>&1; then npm install --silent --no-audit --no-fund --prefix $(VENV)/node gltf-validator@2.0.0-dev.3.10; fi
+	if command -v npm >/dev/null 2>&1; then npm ci --loglevel=error --no-audit --no-fund --prefix $(STUDIO) && npm run --silent --prefix $(STUDIO) build; \
+	else echo "npm not found: the web studio is not built (the service's / page says so)"; fi
 	touch $(STAMP)
 
-setup: $(STAMP)
+# Rebundle the studio when its sources change after setup.
+$(STUDIO_OUT): $(STUDIO_SRC)
+	if command -v npm >/dev/null 2>&1; then test -d $(STUDIO)/node_modules || npm ci --loglevel=error --no-audit --no-fund --prefix $(STUDIO); \
+	npm run --silent --prefix $(STUDIO) build; fi
+
+studio: $(STAMP) $(STUDIO_OUT)
+
+setup: $(STAMP) $(STUDIO_OUT)
+
+# Debian's Chromium for the studio's browser test (tests/test_studio.py; Playwright drives it, no browser download).
+browser:
+	@if command -v chromium >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; \
+	elif command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; \
+	else echo "chromium is missing and cannot be installed here (not root, no sudo): the studio browser test will skip"; fi
 
 demo: setup
 	$(VENV)/bin/proctex demo --out out/demo
 
-test: setup
+test: setup browser
 	$(PY) -m pytest -q
 
 test-fast: setup
@@ -33,4 +54,4 @@ gallery: setup
 	$(VENV)/bin/proctex gallery --out out/gallery
 
 clean:
-	rm -rf out .pytest_cache
+	rm -rf out .pytest_cache $(STUDIO)/dist

@@ -147,10 +147,15 @@ def shift_hsv(
     hue = _finite("hue_deg", hue_deg)
     sat = _finite("saturation", saturation, lo=0.0)
     val = _finite("value", value, lo=0.0)
-    hsv = rgb_to_hsv(work[m][:, :3])
+    whole = bool(m.all())  # the common case (no mask): no gathering and scattering of texels
+    hsv = rgb_to_hsv(work[..., :3].reshape(-1, 3) if whole else work[m][:, :3])
     hsv[:, 0] = (hsv[:, 0] + hue / 360.0) % 1.0
     hsv[:, 1] = np.clip(hsv[:, 1] * sat, 0.0, 1.0)
     hsv[:, 2] = np.clip(hsv[:, 2] * val, 0.0, 1.0)
+    if whole:
+        work[..., :3] = hsv_to_rgb(hsv).reshape(work.shape[:2] + (3,))
+        vals = np.clip(work, 0.0, 1.0)
+        return np.rint(vals * 255.0).astype(np.uint8) if orig.dtype == np.uint8 else vals.astype(orig.dtype)
     work = work.copy()
     sub = work[m]
     sub[:, :3] = hsv_to_rgb(hsv)

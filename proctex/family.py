@@ -724,7 +724,79 @@ def refresh_template_glb(store: FamilyStore) -> None:
     summary = store.read_json("template/paint.json")
     pngs = [store.read_bytes(f"template/{group_file_name(g['group'], g['label'])}") for g in summary["groups"]]
     names = [g["label"] or f"group_{g['group']}" for g in summary["groups"]]
-    store.write_bytes("template/textured.glb", glb_bytes(template.vertices, template.faces, uv["corner_uv"], uv["face_group"], pngs, names=names))
+    store.write_bytes("template/textured.glb", glb_bytes(template.vertices, template.faces, uv["corner_uv"], uv["face_group"], pngs, names=names,
+                                                         up=up_axis(config)))
+
+
+def edit_texture(
+    texture: np.ndarray,
+    group: int,
+    label: str | None = None,
+    hue: float = 0.0,
+    saturation: float = 1.0,
+    value: float = 1.0,
+    prompt: str | None = None,
+    template: Shape | None = None,
+    rep_faces: np.ndarray | None = None,
+    rep_corner_uv: np.ndarray | None = None,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray | None, dict[str, Any]]:
+    """One group texture after an edit: re-painted with ``prompt`` first (the surface painter,
+    ``seed``), then HSV-shifted (``hue`` degrees, ``saturation`` and ``value`` scales). Pure: the
+    store is not touched (:func:`edit_group` persists, the service previews with it).
+
+    Args:
+        texture: (H, W, 3) uint8 or float in [0, 1], the group's current texture.
+        group, label: the group (the painter takes them as hints).
+        template, rep_faces, rep_corner_uv: needed for a re-paint only: the template shape, the face
+            ids of the group's representative part and their (f, 3, 2) UVs.
+
+    Returns:
+        ``(texture, painted, record)``: (H, W, 3) float32 in [0, 1]; the (H, W) bool mask of the texels
+        the re-paint coloured (None without a prompt); the edit record (``group``, ``prompt``,
+        ``hsv`` as given, without the operations that were no-ops).
+    """
+    from .edit import shift_hsv
+
+    t = np.asarray(texture)
+    tex = (t.astype(np.float32) / 255) if t.dtype == np.uint8 else t.astype(np.float32)
+    tex = np.ascontiguousarray(tex[..., :3])
+    record: dict[str, Any] = {"group": int(group)}
+    painted = None
+    if prompt is not None:
+        from .paint import shape_frame
+        from .painters import SurfacePainter
+        from .uv import pad_seams, texel_map
+
+        if template is None or rep_faces is None or rep_corner_uv is None:
+            raise ValueError("a re-paint needs the template, its representative faces and their UVs")
+        faces = template.faces[np.asarray(rep_faces)]
+        tm = texel_map(template.vertices, faces, np.asarray(rep_corner_uv), tex.shape[0], tex.shape[1])
+        center, scale = shape_frame(template)
+        colors = SurfacePainter(prompt, seed=seed).paint((tm.points - center) / scale, tm.normals, group=int(group), label=label)
+        fresh = np.full_like(tex, 0.5)
+        fresh[tm.ij[:, 0], tm.ij[:, 1]] = colors
+        tex, painted = pad_seams(fresh, tm.mask, 8)
+        tex = np.asarray(tex, dtype=np.float32)
+        record["prompt"] = prompt
+    if hue or saturation != 1.0 or value != 1.0:
+        tex = shift_hsv(np.clip(tex, 0, 1), hue_deg=hue, saturation=saturation, value=value)
+        record["hsv"] = [hue, saturation, value]
+    return tex, painted, record
+
+
+def texture_png(texture: np.ndarray) -> bytes:
+    """PNG bytes of an (H, W, 3) float texture in [0, 1] (rounded to 8 bits) or a uint8 one."""
+    import io
+
+    from PIL import Image
+
+    t = np.asarray(texture)
+    if t.dtype != np.uint8:
+        t = (np.clip(t, 0, 1) * 255).round().astype(np.uint8)
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(t)).save(buf, format="PNG")
+    return buf.getvalue()
 
 
 def edit_group(
@@ -744,52 +816,42 @@ def edit_group(
 
     Operations, applied in this order when several are given: re-paint with a new ``prompt`` (the
     surface painter, the family's seed), HSV shift (``hue`` degrees, ``saturation`` and ``value``
-    scales), and placing an image file (``logo``) centred at UV ``at`` with UV ``size``, ``rotation``
-    (degrees) and ``opacity``. Returns the edit record appended to ``template/paint.json``.
+    scales) — both by :func:`edit_texture` —, and placing an image file (``logo``) centred at UV
+    ``at`` with UV ``size``, ``rotation`` (degrees) and ``opacity``. Returns the edit record appended
+    to ``template/paint.json``.
     """
     import io
 
     from PIL import Image
 
-    from .edit import load_overlay, place_image, shift_hsv
-    from .paint import group_file_name, shape_frame
-    from .painters import SurfacePainter
-    from .uv import pad_seams, texel_map
+    from .edit import load_overlay, place_image
+    from .paint import group_file_name
 
     entry = _group_entry(store, group)
     gi = int(entry["group"])
     rel = f"template/{group_file_name(gi, entry['label'])}"
-    tex = np.asarray(Image.open(io.BytesIO(store.read_bytes(rel))).convert("RGB")).astype(np.float32) / 255
-    record: dict[str, Any] = {"group": gi}
-    if prompt is not None:
-        config = stored_config(store)
+    tex = np.asarray(Image.open(io.BytesIO(store.read_bytes(rel))).convert("RGB"))
+    template = rep_faces = rep_uv = None
+    config = stored_config(store)
+    if prompt is not None:  # the re-paint needs the template's geometry
         template = load_template_shape(store, config)
         grouping = analyse(template, seed=config.seed)
-        uv = store.read_arrays("template/uv.npz")
-        rep = grouping.parts[grouping.groups[gi].representative]
-        tm = texel_map(template.vertices, template.faces[rep.faces], uv["corner_uv"][rep.faces], tex.shape[0], tex.shape[1])
-        center, scale = shape_frame(template)
-        colors = SurfacePainter(prompt, seed=config.seed).paint((tm.points - center) / scale, tm.normals, group=gi, label=entry["label"])
-        fresh = np.full_like(tex, 0.5)
-        fresh[tm.ij[:, 0], tm.ij[:, 1]] = colors
-        tex, mask = pad_seams(fresh, tm.mask, 8)
-        record["prompt"] = prompt
+        rep_faces = grouping.parts[grouping.groups[gi].representative].faces
+        rep_uv = store.read_arrays("template/uv.npz")["corner_uv"][rep_faces]
+    tex, painted, record = edit_texture(tex, gi, entry["label"], hue, saturation, value, prompt,
+                                        template=template, rep_faces=rep_faces, rep_corner_uv=rep_uv, seed=config.seed)
+    if painted is not None:
         masks = store.read_arrays("template/painted.npz") if store.exists("template/painted.npz") else None
         if masks is not None:  # the whole group is painted now
-            masks[f"g{gi}"] = mask
-            masks[f"o{gi}"] = mask
+            masks[f"g{gi}"] = painted
+            masks[f"o{gi}"] = painted
             store.write_arrays("template/painted.npz", **masks)
-    if hue or saturation != 1.0 or value != 1.0:
-        tex = shift_hsv(tex, hue_deg=hue, saturation=saturation, value=value)
-        record["hsv"] = [hue, saturation, value]
     if logo is not None:
         tex = place_image(tex, load_overlay(logo), at, size, rotation_deg=rotation, opacity=opacity)
         record["logo"] = {"file": os.path.basename(logo), "at": list(at), "size": list(size), "rotation": rotation, "opacity": opacity}
     if len(record) == 1:
         raise ValueError("no edit given (prompt, hue/saturation/value or logo)")
-    buf = io.BytesIO()
-    Image.fromarray((np.clip(tex, 0, 1) * 255).round().astype(np.uint8)).save(buf, format="PNG")
-    store.write_bytes(rel, buf.getvalue())
+    store.write_bytes(rel, texture_png(tex))
     summary = store.read_json("template/paint.json")
     for g in summary["groups"]:
         if g["group"] == gi and "prompt" in record:

@@ -8,15 +8,23 @@ stamp changes (a rebuild or an edit). Both are plain Python: the Ray Serve deplo
 
 Requests are validated here with ``ValueError`` subclasses that a server maps to HTTP codes:
 :class:`NotFound` (404), :class:`BadInput` (422) and :class:`TooLarge` (413).
+
+Non-destructive edits (:class:`GroupEdit`): a transfer can take, per template group, a re-paint
+prompt and an HSV shift applied to a copy of the group's texture (:func:`proctex.family.edit_texture`,
+the code :func:`proctex.family.edit_group` persists with); edited textures are kept in a small LRU
+cache per service so that a client dragging a hue slider costs one HSV shift per new value.
 """
 
 from __future__ import annotations
 
+import io
 import json
+import math
 import tempfile
 import threading
 import time
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -37,14 +45,80 @@ class TooLarge(ValueError):
 
 @dataclass
 class Limits:
-    """Request limits: body bytes, mesh vertices and faces."""
+    """Request limits: body bytes, mesh vertices and faces, characters of an edit prompt."""
 
     max_bytes: int = 32 * 2**20
     max_vertices: int = 500_000
     max_faces: int = 1_000_000
+    max_prompt: int = 200
 
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
+
+
+# ------------------------------------------------------------------------------------------- edits
+EDIT_FIELDS = ("hue", "saturation", "value", "prompt")
+HUE_RANGE = (-360.0, 360.0)
+SCALE_RANGE = (0.0, 4.0)  # saturation and value scales
+THUMB_SIZES = (8, 1024)
+
+
+@dataclass(frozen=True)
+class GroupEdit:
+    """A non-destructive edit of one group texture: re-paint with ``prompt`` (None: keep the
+    texture), then rotate the hue by ``hue`` degrees and scale saturation and value."""
+
+    hue: float = 0.0
+    saturation: float = 1.0
+    value: float = 1.0
+    prompt: str | None = None
+
+    @property
+    def identity(self) -> bool:
+        return self.prompt is None and self.hue == 0.0 and self.saturation == 1.0 and self.value == 1.0
+
+
+def _number(name: str, raw: Any, default: float, lo: float, hi: float) -> float:
+    if raw is None or raw == "":
+        return default
+    if isinstance(raw, bool) or not isinstance(raw, (int, float, str)):
+        raise BadInput(f"{name} must be a number, got {raw!r}")
+    try:
+        v = float(raw)
+    except ValueError:
+        raise BadInput(f"{name} must be a number, got {raw!r}") from None
+    if not math.isfinite(v):
+        raise BadInput(f"{name} must be a finite number, got {raw!r}")
+    if not lo <= v <= hi:
+        raise BadInput(f"{name} must be in [{lo:g}, {hi:g}], got {v:g}")
+    return v
+
+
+def parse_edit(raw: Any, max_prompt: int = 200, extra: tuple[str, ...] = ()) -> GroupEdit:
+    """A :class:`GroupEdit` from a JSON object or query parameters (strings accepted); raises
+    :class:`BadInput` with a clear message. Keys in ``extra`` are allowed and ignored."""
+    if not isinstance(raw, dict):
+        raise BadInput(f"an edit must be a JSON object with some of {', '.join(EDIT_FIELDS)}, got {type(raw).__name__}")
+    unknown = sorted(set(raw) - set(EDIT_FIELDS) - set(extra))
+    if unknown:
+        raise BadInput(f"unknown edit field(s) {', '.join(map(repr, unknown))}; known: {', '.join(EDIT_FIELDS)}")
+    prompt = raw.get("prompt")
+    if prompt is not None:
+        if not isinstance(prompt, str):
+            raise BadInput(f"prompt must be a string, got {type(prompt).__name__}")
+        prompt = " ".join(prompt.split())  # one line, single spaces
+        if len(prompt) > max_prompt:
+            raise BadInput(f"prompt of {len(prompt)} characters is over the limit of {max_prompt}")
+        prompt = prompt or None
+    return GroupEdit(
+        hue=_number("hue", raw.get("hue"), 0.0, *HUE_RANGE),
+        saturation=_number("saturation", raw.get("saturation"), 1.0, *SCALE_RANGE),
+        value=_number("value", raw.get("value"), 1.0, *SCALE_RANGE),
+        prompt=prompt,
+    )
+
+
+_EDIT_LOCK = threading.Lock()  # persisted edits rewrite store files: one at a time per process
 
 
 def build_stamp(store: FamilyStore) -> str:
@@ -63,7 +137,7 @@ class FamilyService:
     """One built family, loaded for transfer."""
 
     def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None) -> None:
-        from .family import _model, load_assets, load_models, stored_config
+        from .family import _model, load_assets, load_models, stored_config, up_axis
         from .painters import SurfacePainter
         from .transfer import IdentityMapper, NetworkMapper
 
@@ -74,12 +148,19 @@ class FamilyService:
         self.stamp = build_stamp(store)
         self.config = stored_config(store)
         self.model = None if self.config.folder else _model(self.config)
+        self.up = up_axis(self.config)  # GLBs stand the shape upright in glTF's +Y-up world
         self.assets = load_assets(store)
         self.models = load_models(store)
         self.mapper: Any = NetworkMapper(self.models) if self.models else IdentityMapper()
         self.painter = SurfacePainter(self.config.prompt, seed=self.config.seed)
         self.load_seconds = time.perf_counter() - t0
         self.lock = threading.Lock()  # transfers share the torch models and the painter
+        # Edited group textures: (group, GroupEdit) -> (uint8 texture, PNG); re-paints: (group, prompt) -> float texture.
+        self.edit_cache_size = 32
+        self._edited: OrderedDict[tuple[int, GroupEdit], tuple[Any, bytes]] = OrderedDict()
+        self._repaints: OrderedDict[tuple[int, str], Any] = OrderedDict()
+        self._edit_lock = threading.Lock()
+        self.edit_stats = {"hits": 0, "misses": 0, "repaints": 0}
 
     # --------------------------------------------------------------------------------- describe
     def describe(self) -> dict[str, Any]:
@@ -99,16 +180,20 @@ class FamilyService:
             "name": self.name,
             "source": {"model": self.config.model, "folder": bool(self.config.folder), "generator": bool(self.config.generator)},
             "inputs": ["params", "mesh"] if self.model is not None else ["mesh"],
+            "up": self.up,
             "parameters": [s.to_dict() for s in space.specs],
             "prompt": self.config.prompt,
             "group_prompts": dict(self.config.group_prompts),
             "groups": [{"group": g.group, "label": g.label, "degenerate": g.degenerate, "network": g.group in self.models,
-                        "prompt": next((p.get("prompt") for p in paint.get("groups", []) if p.get("group") == g.group), None)}
+                        "prompt": next((p.get("prompt") for p in paint.get("groups", []) if p.get("group") == g.group), None),
+                        "texture_size": list(self.assets.textures[g.group].shape[:2])}
                        for g in self.assets.groups],
+            "edits": len(paint.get("edits", [])),
             "stages": {k: v.get("state") for k, v in state.get("stages", {}).items()},
             "stamp": self.stamp,
             "metrics": None if metrics is None else {k: {kk: vv for kk, vv in v.items() if kk != "per_shape"} for k, v in metrics.get("methods", {}).items()},
-            "limits": {"max_bytes": self.limits.max_bytes, "max_vertices": self.limits.max_vertices, "max_faces": self.limits.max_faces},
+            "limits": {"max_bytes": self.limits.max_bytes, "max_vertices": self.limits.max_vertices, "max_faces": self.limits.max_faces,
+                       "max_prompt": self.limits.max_prompt},
         }
 
     # --------------------------------------------------------------------------------- transfer
@@ -145,19 +230,145 @@ class FamilyService:
                            f"{self.limits.max_vertices} and {self.limits.max_faces}")
         return shape
 
-    def transfer(self, shape, seed: int = 0) -> tuple[bytes, dict[str, Any]]:
-        """Textured GLB bytes of ``shape`` and a summary (timings, notes)."""
+    def transfer(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None) -> tuple[bytes, dict[str, Any]]:
+        """Textured GLB bytes of ``shape`` and a summary (timings, notes).
+
+        ``edits`` ({group index: :class:`GroupEdit`}, see :meth:`parse_edits`) use edited copies of
+        those group textures in this GLB only; the family is unchanged."""
         from .transfer import glb, info, transfer
 
         t0 = time.perf_counter()
+        assets = self.assets
+        if edits:
+            png = list(assets.png)
+            for g, edit in edits.items():
+                png[g] = self.edited_texture(g, edit)[1]
+            assets = replace(assets, png=png)
+        t_edit = time.perf_counter() - t0
         with self.lock:
             try:
                 result = transfer(shape, self.assets, self.mapper, seed=seed, painter=self.painter)
             except ValueError as exc:
                 raise BadInput(f"cannot texture this shape: {exc}") from exc
-            data = glb(shape, result, self.assets)
+            data = glb(shape, result, assets, up=self.up)
         summary = {**info(result), "seconds": round(time.perf_counter() - t0, 4), "faces": shape.n_faces, "vertices": shape.n_vertices, "bytes": len(data)}
+        if edits:
+            summary["edits"] = {"groups": sorted(edits), "seconds": round(t_edit, 4)}
         return data, summary
+
+    # ------------------------------------------------------------------------------------ edits
+    def group_index(self, key: Any, missing: type[ValueError] = BadInput) -> int:
+        """The index of a template group given by index (int or digits) or label; ``missing`` is
+        raised for an unknown one."""
+        for g in self.assets.groups:
+            if (isinstance(key, int) and not isinstance(key, bool) and key == g.group) or (isinstance(key, str) and key in (str(g.group), g.label or "\0")):
+                return g.group
+        names = ", ".join(f"{g.group}" + (f" ({g.label})" if g.label else "") for g in self.assets.groups)
+        raise missing(f"unknown group {key!r} of family {self.name!r}; groups: {names}")
+
+    def parse_edits(self, raw: Any) -> dict[int, GroupEdit]:
+        """``{"<group index or label>": {"hue": deg, "saturation": s, "value": v, "prompt": text}}`` ->
+        {group index: GroupEdit}, no-op edits left out; raises :class:`BadInput`."""
+        if raw is None:
+            return {}
+        if not isinstance(raw, dict):
+            raise BadInput('edits must be a JSON object {"<group index or label>": {"hue": ..., "saturation": ..., "value": ..., "prompt": ...}}')
+        if len(raw) > len(self.assets.groups):
+            raise BadInput(f"{len(raw)} edits for {len(self.assets.groups)} groups")
+        out: dict[int, GroupEdit] = {}
+        for key, value in raw.items():
+            g = self.group_index(key)
+            if g in out:
+                raise BadInput(f"group {g} is edited twice (by index and by label)")
+            try:
+                out[g] = parse_edit(value, self.limits.max_prompt)
+            except BadInput as exc:
+                raise BadInput(f"edit of group {key!r}: {exc}") from None
+        return {g: e for g, e in out.items() if not e.identity}
+
+    def _repainted(self, group: int, prompt: str):
+        """The group's texture re-painted with ``prompt`` (float, before any HSV shift; cached)."""
+        from .family import edit_texture
+
+        key = (group, prompt)
+        with self._edit_lock:
+            if key in self._repaints:
+                self._repaints.move_to_end(key)
+                return self._repaints[key]
+        ga = self.assets.groups[group]
+        tex, _, _ = edit_texture(self.assets.textures[group], group, ga.label, prompt=prompt, template=self.assets.shape,
+                                 rep_faces=self.assets.grouping.parts[ga.rep].faces, rep_corner_uv=ga.corner_uv, seed=self.config.seed)
+        with self._edit_lock:
+            self.edit_stats["repaints"] += 1
+            self._repaints[key] = tex
+            while len(self._repaints) > max(1, self.edit_cache_size // 4):
+                self._repaints.popitem(last=False)
+        return tex
+
+    def edited_texture(self, group: int, edit: GroupEdit) -> tuple[Any, bytes]:
+        """``(uint8 (H, W, 3) texture, PNG bytes)`` of template group ``group`` after ``edit``, the same
+        texture :func:`proctex.family.edit_group` would store (an identity edit: the template's own)."""
+        import numpy as np
+
+        from .family import edit_texture, texture_png
+
+        if edit.identity:
+            return self.assets.textures[group], self.assets.png[group]
+        key = (group, edit)
+        with self._edit_lock:
+            hit = self._edited.get(key)
+            if hit is not None:
+                self._edited.move_to_end(key)
+                self.edit_stats["hits"] += 1
+                return hit
+        base = self.assets.textures[group] if edit.prompt is None else self._repainted(group, edit.prompt)
+        tex, _, _ = edit_texture(base, group, self.assets.groups[group].label, edit.hue, edit.saturation, edit.value)
+        tex8 = (np.clip(tex, 0, 1) * 255).round().astype(np.uint8)
+        out = (tex8, texture_png(tex8))
+        with self._edit_lock:
+            self.edit_stats["misses"] += 1
+            self._edited[key] = out
+            while len(self._edited) > self.edit_cache_size:
+                self._edited.popitem(last=False)
+        return out
+
+    def thumbnail(self, group: int, edit: GroupEdit, size: Any = 128) -> bytes:
+        """PNG of the (edited) group texture scaled to at most ``size`` pixels a side."""
+        from PIL import Image
+
+        try:
+            n = int(size) if not isinstance(size, bool) else None
+        except (TypeError, ValueError):
+            n = None
+        if n is None or not THUMB_SIZES[0] <= n <= THUMB_SIZES[1]:
+            raise BadInput(f"size must be an integer in [{THUMB_SIZES[0]}, {THUMB_SIZES[1]}], got {size!r}")
+        tex, png = self.edited_texture(group, edit)
+        h, w = tex.shape[:2]
+        if max(h, w) <= n:  # never enlarged
+            return png
+        scale = n / max(h, w)
+        img = Image.fromarray(tex).resize((max(1, round(w * scale)), max(1, round(h * scale))), Image.LANCZOS)
+        buf = io.BytesIO()
+        img.save(buf, format="PNG")
+        return buf.getvalue()
+
+    def persist_edit(self, raw: Any) -> dict[str, Any]:
+        """Store an edit into the family (:func:`proctex.family.edit_group`): ``{"group": index or
+        label, "hue", "saturation", "value", "prompt"}``. Returns the edit record; this service is
+        stale afterwards (the catalog reloads the family on its new build stamp)."""
+        from .family import edit_group
+
+        if not isinstance(raw, dict) or "group" not in raw:
+            raise BadInput('send {"group": <index or label>, "hue": deg, "saturation": s, "value": v, "prompt": text}')
+        g = self.group_index(raw["group"])
+        edit = parse_edit(raw, self.limits.max_prompt, extra=("group",))
+        if edit.identity:
+            raise BadInput("no edit given: send a prompt or a hue, saturation or value change")
+        with _EDIT_LOCK:
+            try:
+                return edit_group(self.store, g, hue=edit.hue, saturation=edit.saturation, value=edit.value, prompt=edit.prompt)
+            except ValueError as exc:
+                raise BadInput(str(exc)) from exc
 
 
 class Catalog:
@@ -188,6 +399,13 @@ class Catalog:
         if not name or "/" in name or name.startswith(".") or not self._is_family(name):
             raise NotFound(f"unknown family {name!r}; families: {', '.join(self.names()) or '(none)'}")
         return FamilyStore(self.root.uri.rstrip("/") + "/" + name)
+
+    def invalidate(self, name: str) -> None:
+        """Check family ``name``'s build stamp on its next :meth:`get` (after an edit here)."""
+        with self._lock:
+            cached = self._cache.get(name)
+            if cached is not None:
+                self._cache[name] = (cached[0], -math.inf)
 
     def get(self, name: str) -> FamilyService:
         """The service of family ``name`` (loaded or reloaded as needed)."""

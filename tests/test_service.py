@@ -84,6 +84,8 @@ def test_routes(client, root):
         ({"files": {"mesh": ("m.obj", b"")}}, 422, "empty"),
         ({"files": {"mesh": ("m.xyz", b"v 0 0 0")}}, 422, "unsupported mesh type"),
         ({"files": {"other": ("m.obj", b"v 0 0 0")}}, 422, "'mesh'"),
+        ({"files": {"mesh": ("m.obj", b"v 0 0 0")}, "data": {"edits": "{nope"}}, 422, "'edits' field must be JSON"),
+        ({"files": {"mesh": ("m.obj", b"v 0 0 0")}, "data": {"edits": '{"lid": {"hue": 5}}'}}, 422, "unknown group 'lid'"),
         ({"files": {"mesh": ("m.obj", b"v 0 0 0\n" * 300_000)}}, 413, "limit"),
         ({"content": b"x" * 3_000_000, "headers": {"content-type": "application/json"}}, 413, "limit"),
     ],
@@ -183,3 +185,230 @@ def test_the_core_never_imports_ray():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "False"
+
+
+# ------------------------------------------------------------------------------- studio routes
+def test_the_studio_page_and_its_assets_are_served_safely(root, tmp_path):
+    cat = Catalog(str(root), check_every=0)
+    dist = tmp_path / "studio" / "dist"
+    (tmp_path / "secret.txt").write_text("outside the bundle")
+    (dist / "sub").mkdir(parents=True)
+    (dist / "index.html").write_text("<!doctype html><title>ProcTex studio</title><canvas id=canvas></canvas>")
+    (dist / "main.js").write_text("console.log('studio')")
+    (dist / "style.css").write_text("body {}")
+    (dist / "sub" / "a.txt").write_text("nested")
+    (dist / ".env").write_text("hidden")
+    c = TestClient(create_app(lambda: cat, studio_dir=dist))
+    r = c.get("/")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/html") and "ProcTex studio" in r.text
+    r = c.get("/studio/main.js")
+    assert r.status_code == 200 and "javascript" in r.headers["content-type"] and r.text == "console.log('studio')"
+    assert c.get("/studio/style.css").headers["content-type"].startswith("text/css")
+    assert c.get("/studio/sub/a.txt").text == "nested"
+    for path in ("/studio/nope.js", "/studio/", "/studio/sub", "/studio/.env", "/studio/../secret.txt", "/studio/%2e%2e/secret.txt",
+                 "/studio/..%2fsecret.txt", "/studio/sub/../../secret.txt", "/studio/%2Fetc%2Fpasswd", "/studio//etc/passwd"):
+        r = c.get(path)
+        assert r.status_code == 404, (path, r.status_code, r.text[:100])
+        assert "outside" not in r.text and "root:" not in r.text
+        if r.headers["content-type"].startswith("application/json"):
+            assert "error" in r.json()
+    assert "no studio asset" in c.get("/studio/nope.js").json()["error"]
+    # Not built: a clear page naming the command that builds it; the API still works.
+    c2 = TestClient(create_app(lambda: cat, studio_dir=tmp_path / "missing"))
+    r = c2.get("/")
+    assert r.status_code == 503 and "make setup" in r.text and r.headers["content-type"].startswith("text/html")
+    assert c2.get("/studio/main.js").status_code == 404
+    assert c2.get("/v1/families").json() == {"families": ["mug"]}
+
+
+def _png_array(data: bytes) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
+
+
+def _glb_parts(data: bytes):
+    """(geometry arrays per primitive, {image name: PNG bytes}) of a GLB."""
+    import pygltflib
+
+    g = pygltflib.GLTF2().load_from_bytes(data)
+    blob = g.binary_blob()
+
+    def view(i):
+        bv = g.bufferViews[i]
+        return blob[bv.byteOffset or 0 : (bv.byteOffset or 0) + bv.byteLength]
+
+    geometry = []
+    for prim in g.meshes[0].primitives:
+        for acc in (prim.attributes.POSITION, prim.attributes.TEXCOORD_0, prim.indices):
+            geometry.append(None if acc is None else view(g.accessors[acc].bufferView))
+    return geometry, {im.name: view(im.bufferView) for im in g.images}
+
+
+def test_transfers_take_non_destructive_edits(client, root):
+    from proctex.edit import rgb_to_hsv
+
+    c, cat = client
+    st = FamilyStore(root / "mug")
+    stored = {0: st.read_bytes("template/group_0_body.png"), 1: st.read_bytes("template/group_1_handle.png")}
+    # Thumbnails: no edit and a zero hue shift give the stored texture itself (32 px: never enlarged).
+    t0 = c.get("/v1/families/mug/groups/body/texture.png")
+    assert t0.status_code == 200 and t0.headers["content-type"] == "image/png" and t0.content == stored[0]
+    assert c.get("/v1/families/mug/groups/0/texture.png?hue=0&saturation=1&value=1").content == stored[0]
+    assert _png_array(c.get("/v1/families/mug/groups/0/texture.png?size=16").content).shape == (16, 16, 3)
+    t180 = c.get("/v1/families/mug/groups/body/texture.png?hue=180")
+    a0, a180 = _png_array(stored[0]) / 255, _png_array(t180.content) / 255
+    hsv0, hsv180 = rgb_to_hsv(a0), rgb_to_hsv(a180)
+    sat = hsv0[..., 1] > 0.2
+    assert sat.mean() > 0.5 and np.median((hsv180[..., 0][sat] - hsv0[..., 0][sat]) * 360 % 360) == pytest.approx(180, abs=2)
+    assert np.abs(hsv180[..., 2] - hsv0[..., 2]).max() <= 1.5 / 255  # value is kept
+    # The GLB: the body's embedded texture is the edited one, the handle's and the geometry are unchanged.
+    body = {"params": {"radius": 0.045}}
+    plain = c.post("/v1/families/mug/transfer", json=body).content
+    zero = c.post("/v1/families/mug/transfer", json={**body, "edits": {"body": {"hue": 0}}}).content
+    assert zero == plain
+    r = c.post("/v1/families/mug/transfer", json={**body, "edits": {"body": {"hue": 180}}})
+    assert r.status_code == 200, r.text
+    _glb_ok(r.content)
+    geo0, img0 = _glb_parts(plain)
+    geo1, img1 = _glb_parts(r.content)
+    assert geo1 == geo0 and set(img1) == {"body", "handle"}
+    assert img0 == {"body": stored[0], "handle": stored[1]}
+    assert img1["handle"] == stored[1] and img1["body"] == t180.content
+    # Index or label, JSON or multipart: the same GLB; a repeated edit comes from the cache.
+    svc = cat.get("mug")
+    hits = svc.edit_stats["hits"]
+    assert c.post("/v1/families/mug/transfer", json={**body, "edits": {"0": {"hue": 180}}}).content == r.content
+    assert svc.edit_stats["hits"] > hits
+    from proctex.meshio import obj_text
+    from proctex.models import get_model
+
+    shape = get_model("mug").generate({"radius": 0.045})
+    files = {"mesh": ("m.obj", obj_text(shape.vertices, shape.faces).encode())}
+    rm = c.post("/v1/families/mug/transfer", files=files, data={"edits": json.dumps({"handle": {"hue": 90, "saturation": 0.5}})})
+    assert rm.status_code == 200, rm.text
+    _, imgm = _glb_parts(rm.content)
+    assert imgm["body"] == stored[0] and imgm["handle"] == c.get("/v1/families/mug/groups/1/texture.png?hue=90&saturation=0.5").content
+    # A re-paint with a prompt, then the hue shift, as the thumbnail shows it.
+    rp = c.post("/v1/families/mug/transfer", json={**body, "edits": {"handle": {"prompt": "green plastic", "hue": 30}}})
+    thumb = c.get("/v1/families/mug/groups/handle/texture.png", params={"prompt": "green plastic", "hue": "30"}).content
+    assert _glb_parts(rp.content)[1]["handle"] == thumb and thumb != stored[1]
+
+
+@pytest.mark.parametrize(
+    "edits, message",
+    [
+        ({"seat": {"hue": 10}}, "unknown group 'seat'"),
+        ({"7": {"hue": 10}}, "unknown group '7'"),
+        ({"body": {"hue": float("nan")}}, "hue must be a finite number"),
+        ({"body": {"hue": float("inf")}}, "hue must be a finite number"),
+        ({"body": {"hue": 400}}, "hue must be in [-360, 360]"),
+        ({"body": {"saturation": -0.5}}, "saturation must be in [0, 4]"),
+        ({"body": {"value": 9}}, "value must be in [0, 4]"),
+        ({"body": {"value": "bright"}}, "value must be a number"),
+        ({"body": {"hue": True}}, "hue must be a number"),
+        ({"body": {"prompt": "x" * 201}}, "over the limit of 200"),
+        ({"body": {"prompt": 5}}, "prompt must be a string"),
+        ({"body": {"hu": 5}}, "unknown edit field(s) 'hu'"),
+        ({"body": 180}, "an edit must be a JSON object"),
+        ({"body": {"hue": 10}, "0": {"hue": 20}}, "edited twice"),
+        ([{"hue": 10}], "bad JSON body"),
+    ],
+)
+def test_bad_edits_get_clear_json_errors(client, edits, message):
+    c, _ = client
+    body = json.dumps({"params": {}, "edits": edits})  # json.dumps writes NaN / Infinity, which the server reads
+    r = c.post("/v1/families/mug/transfer", content=body.encode(), headers={"content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert message in r.json()["error"]
+
+
+def test_bad_texture_requests_get_clear_json_errors(client):
+    c, _ = client
+    for path, status, message in [
+        ("/v1/families/mug/groups/seat/texture.png", 404, "unknown group 'seat'"),
+        ("/v1/families/mug/groups/2/texture.png", 404, "unknown group '2'"),
+        ("/v1/families/nope/groups/0/texture.png", 404, "unknown family"),
+        ("/v1/families/mug/groups/0/texture.png?size=0", 422, "size must be an integer in [8, 1024]"),
+        ("/v1/families/mug/groups/0/texture.png?size=big", 422, "size must be an integer"),
+        ("/v1/families/mug/groups/0/texture.png?size=4096", 422, "size must be an integer"),
+        ("/v1/families/mug/groups/0/texture.png?hue=nan", 422, "hue must be a finite number"),
+        ("/v1/families/mug/groups/0/texture.png?hue=-inf", 422, "hue must be a finite number"),
+        ("/v1/families/mug/groups/0/texture.png?saturation=-1", 422, "saturation must be in [0, 4]"),
+        ("/v1/families/mug/groups/0/texture.png?value=x", 422, "value must be a number"),
+        ("/v1/families/mug/groups/0/texture.png?prompt=" + "y" * 300, 422, "over the limit"),
+    ]:
+        r = c.get(path)
+        assert r.status_code == status, (path, r.text)
+        assert message in r.json()["error"], (path, r.json())
+
+
+def test_edits_persist_into_the_family(root, tmp_path):
+    base = tmp_path / "root"
+    shutil.copytree(root / "mug", base / "mug")
+    cat = Catalog(str(base), check_every=60)  # a long check period: the edit route invalidates the cache itself
+    c = TestClient(create_app(lambda: cat))
+    st = FamilyStore(base / "mug")
+    body = {"params": {"height": 0.1}}
+    preview = c.post("/v1/families/mug/transfer", json={**body, "edits": {"body": {"hue": 180}}}).content
+    preview_handle = c.get("/v1/families/mug/groups/handle/texture.png?prompt=red%20brick").content
+    before = c.post("/v1/families/mug/transfer", json=body).content
+    stamp = c.get("/v1/families/mug").json()["stamp"]
+    # Bad edits change nothing.
+    for payload, status, message in [
+        ({"group": "seat", "hue": 10}, 422, "unknown group"),
+        ({"group": 0}, 422, "no edit given"),
+        ({"group": 0, "hue": 0, "saturation": 1}, 422, "no edit given"),
+        ({"hue": 10}, 422, '"group"'),
+        ({"group": 0, "hue": float("nan")}, 422, "finite"),
+        ({"group": 0, "saturation": 7}, 422, "saturation must be in [0, 4]"),
+        ({"group": 0, "prompt": "z" * 500}, 422, "over the limit"),
+        ({"group": 0, "logo": "/etc/passwd"}, 422, "unknown edit field(s) 'logo'"),
+        ([1, 2], 422, "JSON object"),
+    ]:
+        r = c.post("/v1/families/mug/edits", content=json.dumps(payload).encode(), headers={"content-type": "application/json"})
+        assert r.status_code == status and message in r.json()["error"], (payload, r.text)
+    r = c.post("/v1/families/mug/edits", content=b"{oops", headers={"content-type": "application/json"})
+    assert r.status_code == 422 and "bad JSON body" in r.json()["error"]
+    assert c.post("/v1/families/nope/edits", json={"group": 0, "hue": 5}).status_code == 404
+    assert "edits" not in st.read_json("template/paint.json") and c.get("/v1/families/mug").json()["stamp"] == stamp
+    assert c.post("/v1/families/mug/transfer", json=body).content == before
+    # A hue shift: every later transfer carries it, exactly as its preview showed.
+    r = c.post("/v1/families/mug/edits", json={"group": "body", "hue": 180})
+    assert r.status_code == 200, r.text
+    out = r.json()
+    assert out["edit"] == {"group": 0, "hsv": [180.0, 1.0, 1.0]} and out["family"] == "mug" and out["stamp"] != stamp
+    after = c.post("/v1/families/mug/transfer", json=body).content
+    assert after != before and after == preview
+    d = c.get("/v1/families/mug").json()
+    assert d["stamp"] == out["stamp"] and d["edits"] == 1
+    # A re-paint of the handle by prompt, the same texture as its thumbnail preview.
+    r = c.post("/v1/families/mug/edits", json={"group": 1, "prompt": "red brick"})
+    assert r.status_code == 200 and r.json()["edit"] == {"group": 1, "prompt": "red brick"}
+    assert st.read_bytes("template/group_1_handle.png") == preview_handle
+    assert c.get("/v1/families/mug/groups/1/texture.png").content == preview_handle
+    d = c.get("/v1/families/mug").json()
+    assert d["groups"][1]["prompt"] == "red brick" and d["edits"] == 2 and cat.loads == 3
+    _, imgs = _glb_parts(c.post("/v1/families/mug/transfer", json=body).content)
+    assert imgs["handle"] == preview_handle
+
+
+def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
+    """The pure texture edit and the persisted one are the same code: equal results."""
+    from proctex.family import edit_texture, texture_png
+
+    shutil.copytree(root / "mug", tmp_path / "mug")
+    st = FamilyStore(tmp_path / "mug")
+    svc = FamilyService(st, "mug")
+    before = _png_array(st.read_bytes("template/group_1_handle.png"))
+    tex, painted, record = edit_texture(before, 1, "handle", hue=-40, saturation=1.5, value=0.8)
+    assert painted is None and record == {"group": 1, "hsv": [-40, 1.5, 0.8]} and tex.dtype == np.float32
+    same, _, rec0 = edit_texture(before, 1, "handle")
+    assert rec0 == {"group": 1} and np.array_equal((same * 255).round().astype(np.uint8), before)
+    with pytest.raises(ValueError, match="re-paint needs"):
+        edit_texture(before, 1, "handle", prompt="gold")
+    edit_group(st, "handle", hue=-40, saturation=1.5, value=0.8)
+    assert st.read_bytes("template/group_1_handle.png") == texture_png(tex)
+    from proctex.service import GroupEdit
+
+    assert svc.edited_texture(1, GroupEdit(-40, 1.5, 0.8))[1] == texture_png(tex)

@@ -2,31 +2,59 @@
 
 Routes:
 
+- ``GET /``: the web studio (``workers/studio/dist/index.html``; 503 with a note naming
+  ``make setup`` when the bundle has not been built). ``GET /studio/<file>``: its bundled assets.
 - ``GET /healthz``: liveness and the loaded families.
 - ``GET /v1/families``: the families under the store root.
 - ``GET /v1/families/{name}``: parameter specs, groups, prompts, build state, metrics.
 - ``POST /v1/families/{name}/transfer``: a textured GLB (``model/gltf-binary``) for either a JSON
-  body ``{"params": {...}, "seed": 0}`` (families of a procedural model) or a multipart upload with
-  a ``mesh`` file field (``.obj .ply .stl .glb .gltf``). Timing and notes come back in the headers
-  ``X-ProcTex-Seconds`` and ``X-ProcTex-Notes``.
+  body ``{"params": {...}, "seed": 0, "edits": {...}}`` (families of a procedural model) or a
+  multipart upload with a ``mesh`` file field (``.obj .ply .stl .glb .gltf``) and optional ``seed``
+  and ``edits`` (JSON text) fields. ``edits`` = ``{"<group index or label>": {"hue": degrees,
+  "saturation": scale, "value": scale, "prompt": text}}`` textures this GLB with edited copies of
+  the template's group textures (re-paint first, then the HSV shift; the family is unchanged).
+  Timing and notes come back in the headers ``X-ProcTex-Seconds`` and ``X-ProcTex-Notes``.
+- ``GET /v1/families/{name}/groups/{group}/texture.png?size=128&hue=&saturation=&value=&prompt=``:
+  the group's texture (edited as given) as a PNG at most ``size`` pixels a side.
+- ``POST /v1/families/{name}/edits``: ``{"group": index or label, "hue", "saturation", "value",
+  "prompt"}`` stored into the family (:func:`proctex.family.edit_group`); returns
+  ``{"family", "edit": record, "stamp": new build stamp}``. Later transfers use it.
 
-Errors are JSON ``{"error": message}``: unknown family 404, body over the size limit 413, bad JSON,
-parameters out of bounds, unknown parameters or an unreadable mesh 422.
+Errors are JSON ``{"error": message}``: unknown family (or group in a path) 404, body over the size
+limit 413, bad JSON, parameters out of bounds, unknown parameters, an unreadable mesh or a bad edit
+(unknown group, non-finite numbers, hue outside [-360, 360], saturation or value outside [0, 4],
+prompt too long) 422.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import mimetypes
+import os
+import re
+from pathlib import Path
 from typing import Any, Callable
 
 from fastapi import FastAPI, Request
-from fastapi.responses import JSONResponse, Response
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from pydantic import BaseModel, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from proctex.service import BadInput, Catalog, NotFound, TooLarge
+from proctex.service import BadInput, Catalog, NotFound, TooLarge, build_stamp, parse_edit
 
 GLB_MEDIA_TYPE = "model/gltf-binary"
+STUDIO_DIST = Path(__file__).resolve().parent / "studio" / "dist"
+_ASSET_NAME = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*(/[A-Za-z0-9_-][A-Za-z0-9._-]*)*$")
+NOT_BUILT = """<!doctype html><html><head><meta charset="utf-8"><title>ProcTex studio not built</title></head>
+<body style="font-family: sans-serif; max-width: 40em; margin: 3em auto">
+<h1>ProcTex studio: not built</h1>
+<p>The web studio's bundle is missing (<code>{dist}</code>). Build it with <code>make setup</code>
+(it runs <code>npm ci --prefix workers/studio</code> and <code>npm run --prefix workers/studio build</code>;
+needs Node.js and npm), then reload this page.</p>
+<p>The JSON API works without it: <a href="/docs">/docs</a>, <a href="/v1/families">/v1/families</a>.</p>
+</body></html>"""
 
 
 class TransferRequest(BaseModel):
@@ -34,6 +62,8 @@ class TransferRequest(BaseModel):
 
     params: dict[str, Any] = Field(default_factory=dict, description="parameter values (missing ones take their defaults)")
     seed: int = Field(0, description="seed of the network's context samples and of painting new parts")
+    edits: dict[str, Any] | None = Field(None, description='non-destructive edits: {"<group index or label>": '
+                                         '{"hue": degrees, "saturation": scale, "value": scale, "prompt": text}}')
 
 
 def _error(status: int, message: str) -> JSONResponse:
@@ -48,15 +78,16 @@ def error_response(exc: Exception) -> JSONResponse:
     return _error(422, str(exc))
 
 
-async def read_transfer_request(request: Request, max_bytes: int) -> tuple[str, Any, int]:
-    """``("params", dict, seed)`` or ``("mesh", (bytes, filename), seed)`` from a request."""
+async def read_transfer_request(request: Request, max_bytes: int) -> tuple[str, Any, int, Any]:
+    """``("params", dict, seed, edits)`` or ``("mesh", (bytes, filename), seed, edits)`` from a
+    request (``edits``: the raw JSON value or None; see :meth:`FamilyService.parse_edits`)."""
     length = request.headers.get("content-length")
     if length is not None and length.isdigit() and int(length) > max_bytes:
         raise TooLarge(f"request body of {length} bytes is over the limit of {max_bytes}")
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if ctype == "multipart/form-data":
         try:
-            form = await request.form(max_files=1, max_fields=4)
+            form = await request.form(max_files=1, max_fields=5)
         except Exception as exc:  # malformed multipart
             raise BadInput(f"cannot read the multipart body: {exc}") from exc
         upload = form.get("mesh")
@@ -70,7 +101,14 @@ async def read_transfer_request(request: Request, max_bytes: int) -> tuple[str, 
             seed_value = int(seed) if isinstance(seed, str) else 0
         except ValueError as exc:
             raise BadInput(f"seed must be an integer, got {seed!r}") from exc
-        return "mesh", (data, upload.filename or "mesh.obj"), seed_value
+        edits_text = form.get("edits")
+        edits = None
+        if isinstance(edits_text, str) and edits_text.strip():
+            try:
+                edits = json.loads(edits_text)
+            except ValueError as exc:
+                raise BadInput(f"the 'edits' field must be JSON text: {exc}") from exc
+        return "mesh", (data, upload.filename or "mesh.obj"), seed_value, edits
     body = await request.body()
     if len(body) > max_bytes:
         raise TooLarge(f"request body over the limit of {max_bytes} bytes")
@@ -81,15 +119,31 @@ async def read_transfer_request(request: Request, max_bytes: int) -> tuple[str, 
     except Exception as exc:  # pydantic ValidationError or JSON errors
         raise BadInput(f"bad JSON body: {str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__}; "
                        'expected {"params": {"name": value, ...}, "seed": 0}') from exc
-    return "params", req.params, req.seed
+    return "params", req.params, req.seed, req.edits
 
 
-def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], Any]], Any] | None = None) -> FastAPI:
+async def read_json_object(request: Request, max_bytes: int = 65536) -> dict[str, Any]:
+    body = await request.body()
+    if len(body) > max_bytes:
+        raise TooLarge(f"request body over the limit of {max_bytes} bytes")
+    try:
+        data = json.loads(body or b"null")
+    except ValueError as exc:
+        raise BadInput(f"bad JSON body: {exc}") from exc
+    if not isinstance(data, dict):
+        raise BadInput("the body must be a JSON object")
+    return data
+
+
+def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], Any]], Any] | None = None,
+               studio_dir: str | Path | None = None) -> FastAPI:
     """The FastAPI application over a :class:`Catalog`.
 
     ``run(fn)`` executes the blocking transfer (default: a worker thread), so the event loop keeps
-    serving other requests.
+    serving other requests. ``studio_dir``: the built studio bundle (default: ``$PROCTEX_STUDIO_DIR``,
+    else ``workers/studio/dist`` beside this file).
     """
+    dist = Path(studio_dir or os.environ.get("PROCTEX_STUDIO_DIR") or STUDIO_DIST)
     app = FastAPI(
         title="ProcTex transfer service",
         version="1",
@@ -101,6 +155,37 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             return await run(fn)
         return await asyncio.to_thread(fn)
 
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(request: Request, exc: RequestValidationError):
+        parts = ["/".join(str(x) for x in e.get("loc", ())) + ": " + str(e.get("msg", "")) for e in exc.errors()]
+        return _error(422, "; ".join(parts) or "bad request")
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, exc: StarletteHTTPException):
+        message = exc.detail if isinstance(exc.detail, str) else json.dumps(exc.detail)
+        if exc.status_code == 404:
+            message = f"no route {request.url.path!r}; see /docs"
+        return JSONResponse({"error": message}, status_code=exc.status_code, headers=getattr(exc, "headers", None))
+
+    # ------------------------------------------------------------------------------ the studio
+    @app.get("/", response_class=HTMLResponse, include_in_schema=False)
+    def studio_index():
+        index = dist / "index.html"
+        if not index.is_file():
+            return HTMLResponse(NOT_BUILT.format(dist=dist), status_code=503)
+        return FileResponse(index, media_type="text/html", headers={"Cache-Control": "no-cache"})
+
+    @app.get("/studio/{path:path}", include_in_schema=False)
+    def studio_asset(path: str):
+        if _ASSET_NAME.match(path) and ".." not in path.split("/"):
+            root = dist.resolve()
+            target = (root / path).resolve()
+            if target.is_relative_to(root) and target.is_file():
+                media = mimetypes.guess_type(target.name)[0] or "application/octet-stream"
+                return FileResponse(target, media_type=media, headers={"Cache-Control": "no-cache"})
+        return _error(404, f"no studio asset {path!r}")
+
+    # ------------------------------------------------------------------------------------ API
     @app.get("/healthz")
     def healthz() -> dict[str, Any]:
         cat = get_catalog()
@@ -135,11 +220,12 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         try:
             cat = get_catalog()
             svc = await blocking(lambda: cat.get(name))
-            kind, payload, seed = await read_transfer_request(request, svc.limits.max_bytes)
+            kind, payload, seed, raw_edits = await read_transfer_request(request, svc.limits.max_bytes)
+            edits = svc.parse_edits(raw_edits)
 
             def work():
                 shape = svc.shape_from_params(payload) if kind == "params" else svc.shape_from_mesh(*payload)
-                return svc.transfer(shape, seed=seed)
+                return svc.transfer(shape, seed=seed, edits=edits)
 
             data, summary = await blocking(work)
         except (NotFound, BadInput, TooLarge) as exc:
@@ -147,5 +233,43 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         headers = {"X-ProcTex-Seconds": str(summary["seconds"]), "X-ProcTex-Notes": json.dumps(summary["notes"])[:2000],
                    "Content-Disposition": f'inline; filename="{name}.glb"'}
         return Response(content=data, media_type=GLB_MEDIA_TYPE, headers=headers)
+
+    @app.get(
+        "/v1/families/{name}/groups/{group}/texture.png",
+        response_class=Response,
+        responses={200: {"content": {"image/png": {}}, "description": "the (edited) group texture"},
+                   404: {"description": "unknown family or group"}, 422: {"description": "bad edit or size"}},
+    )
+    async def group_texture(name: str, group: str, size: str = "128", hue: str | None = None, saturation: str | None = None,
+                            value: str | None = None, prompt: str | None = None):
+        """The group's template texture, edited as the query says (no edit: the stored one)."""
+        try:
+            svc = await blocking(lambda: get_catalog().get(name))
+            g = svc.group_index(group, missing=NotFound)
+            edit = parse_edit({"hue": hue, "saturation": saturation, "value": value, "prompt": prompt}, svc.limits.max_prompt)
+            data = await blocking(lambda: svc.thumbnail(g, edit, size))
+        except (NotFound, BadInput, TooLarge) as exc:
+            return error_response(exc)
+        return Response(content=data, media_type="image/png", headers={"Cache-Control": "no-cache", "X-ProcTex-Stamp": svc.stamp})
+
+    @app.post(
+        "/v1/families/{name}/edits",
+        responses={404: {"description": "unknown family"}, 422: {"description": "bad edit"}},
+        openapi_extra={"requestBody": {"required": True, "content": {"application/json": {"schema": {
+            "type": "object", "required": ["group"], "properties": {
+                "group": {"type": ["integer", "string"]}, "hue": {"type": "number"}, "saturation": {"type": "number"},
+                "value": {"type": "number"}, "prompt": {"type": "string"}}}}}}},
+    )
+    async def persist_edit(name: str, request: Request):
+        """Store an edit of one group texture in the family; every later transfer uses it."""
+        try:
+            cat = get_catalog()
+            svc = await blocking(lambda: cat.get(name))
+            body = await read_json_object(request)
+            record, stamp = await blocking(lambda: (svc.persist_edit(body), build_stamp(svc.store)))
+        except (NotFound, BadInput, TooLarge) as exc:
+            return error_response(exc)
+        cat.invalidate(name)
+        return {"family": name, "edit": record, "stamp": stamp}
 
     return app

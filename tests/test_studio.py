@@ -1,0 +1,284 @@
+"""The web studio end to end: the FastAPI app served by uvicorn on 127.0.0.1, the bundled page in
+Debian's headless Chromium (WebGL through SwiftShader), driven like a person would: first shape,
+a parameter slider, a hue shift and a re-paint of a part, saving an edit into the family, and the
+GLB download. Screenshots of every step go to ``artifacts/studio/``.
+
+Needs ``/usr/bin/chromium`` and the studio bundle (``make setup`` builds it; ``make test`` installs
+Chromium too); skipped with the reason otherwise.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import shutil
+import socket
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from proctex.family import BuildConfig, stage_paint, stage_sample, stage_template, write_config
+from proctex.service import Catalog
+from proctex.store import FamilyStore
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[1]
+DIST = REPO / "workers" / "studio" / "dist"
+ARTIFACTS = REPO / "artifacts" / "studio"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                 "--ignore-gpu-blocklist", "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--no-first-run"]
+BACKGROUND = np.array([0x16, 0x19, 0x1E])
+
+
+def _requirements() -> str | None:
+    if not Path(CHROMIUM).is_file():
+        return f"Debian's chromium is not installed ({CHROMIUM}); `make test` installs it"
+    if not (DIST / "index.html").is_file() or not (DIST / "main.js").is_file():
+        return f"the studio bundle is not built ({DIST}); `make setup` builds it (npm ci + npm run build)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "playwright (Python) is not installed; it is in the dev extras"
+    return None
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """A painted mug family served by uvicorn in a background thread: ``(base URL, store root)``."""
+    reason = _requirements()
+    if reason:
+        pytest.skip(reason)
+    import uvicorn
+
+    from workers.http import create_app
+
+    root = tmp_path_factory.mktemp("studio")
+    cfg = BuildConfig(model="mug", n_train=2, n_test=0, texture_size=64, prompt="blue ceramic").validate()
+    st = FamilyStore(root / "mug")
+    write_config(st, cfg)
+    for stage in (stage_sample, stage_template, stage_paint):
+        stage(st, cfg, log=lambda *_: None)
+    cat = Catalog(str(root), check_every=0)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    srv = uvicorn.Server(uvicorn.Config(create_app(lambda: cat), host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not srv.started:
+        assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{port}", root
+    srv.should_exit = True
+    thread.join(10)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+        yield b
+        b.close()
+
+
+def _canvas(page) -> np.ndarray:
+    """(H, W, 3) uint8 pixels of the WebGL canvas (preserveDrawingBuffer keeps them readable)."""
+    from PIL import Image
+
+    url = page.evaluate("document.getElementById('canvas').toDataURL('image/png')")
+    return np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB"))
+
+
+def _foreground(px: np.ndarray) -> np.ndarray:
+    return np.abs(px.astype(int) - BACKGROUND).sum(axis=-1) > 24
+
+
+def _wait_for_shape(page, at_least: int, timeout: float = 60_000) -> None:
+    page.wait_for_function(
+        "n => document.body.dataset.state === 'idle' && document.body.dataset.busy === '0' && +document.body.dataset.requests >= n",
+        arg=at_least, timeout=timeout)
+
+
+def _requests(page) -> int:
+    return int(page.evaluate("document.body.dataset.requests"))
+
+
+def _set_range(page, selector: str, value) -> None:
+    page.eval_on_selector(selector, "(el, v) => { el.value = String(v); el.dispatchEvent(new Event('input', {bubbles: true}));"
+                                    " el.dispatchEvent(new Event('change', {bubbles: true})); }", value)
+
+
+def _mean_colour(px: np.ndarray) -> np.ndarray:
+    return px[_foreground(px)].astype(float).mean(axis=0)
+
+
+def test_the_studio_textures_a_family_interactively(server, browser):
+    base, root = server
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    context = browser.new_context(viewport={"width": 1280, "height": 800}, accept_downloads=True)
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    page.on("response", lambda r: errors.append(f"{r.status} {r.url}") if r.status >= 400 else None)
+    try:
+        page.goto(base + "/")
+        # 1. The first shape: WebGL draws a textured mug.
+        _wait_for_shape(page, 1)
+        page.screenshot(path=str(ARTIFACTS / "01-first-shape.png"))
+        px0 = _canvas(page)
+        fg = _foreground(px0)
+        assert fg.mean() > 0.05, f"canvas nearly blank: {fg.mean():.3f} of the pixels differ from the background"
+        assert len(np.unique(px0[fg] // 16, axis=0)) > 10, "the shape is drawn in a single colour"
+        assert page.evaluate("document.getElementById('family').value") == "mug"
+        names = page.eval_on_selector_all("#params input, #params select", "els => els.map(e => e.name)")
+        assert names[:2] == ["height", "radius"] and len(names) == 7
+        assert page.eval_on_selector_all(".group img", "imgs => imgs.map(i => i.complete && i.naturalWidth)") == [64, 64]
+        first_ms = page.evaluate("window.studio.lastLatencyMs")
+
+        # 2. A slider moves, five times in quick succession: debounced into (about) one request, the last value wins.
+        n = _requests(page)
+        for v in (0.031, 0.035, 0.04, 0.045, 0.05):
+            _set_range(page, "input[name=radius]", v)
+        assert page.evaluate("document.body.dataset.busy") == "1" and page.evaluate("document.body.dataset.state") == "loading"
+        _wait_for_shape(page, n + 1)
+        assert _requests(page) <= n + 2
+        assert page.evaluate("window.studio.lastParams.radius") == pytest.approx(0.05)
+        assert page.eval_on_selector("input[name=radius] ~ output, .param:has(input[name=radius]) output", "o => o.textContent") == "0.0500"
+        page.screenshot(path=str(ARTIFACTS / "02-radius-slider.png"))
+        px1 = _canvas(page)
+        assert (np.abs(px1.astype(int) - px0).sum(axis=-1) > 30).mean() > 0.01, "the canvas did not change with the radius"
+        slider_ms = page.evaluate("window.studio.lastLatencyMs")
+        server_s = page.evaluate("window.studio.lastServerSeconds")
+        assert server_s > 0
+        # A drag: a value every 100 ms for 1.2 s; the view follows during the drag, the last value wins.
+        n = _requests(page)
+        during = page.evaluate("""async () => {
+            const el = document.querySelector('input[name=height]');
+            const seen = [];
+            for (let k = 0; k <= 12; k++) {
+                el.value = String(0.07 + k * 0.005);
+                el.dispatchEvent(new Event('input', {bubbles: true}));
+                await new Promise(r => setTimeout(r, 100));
+                seen.push(+document.body.dataset.requests);
+            }
+            return seen;
+        }""")
+        _wait_for_shape(page, n + 1)
+        assert page.evaluate("window.studio.lastParams.height") == pytest.approx(0.13)
+        assert during[-1] - n >= 2, f"the view did not follow the drag: completed transfers during it {during}"
+        drag_requests = _requests(page) - n
+        page.screenshot(path=str(ARTIFACTS / "02b-height-drag.png"))
+
+        # 3. A hue shift of 180 degrees on the body: blue turns orange.
+        n = _requests(page)
+        _set_range(page, ".group[data-group='0'] input[type=range]", 180)
+        _wait_for_shape(page, n + 1)
+        page.wait_for_function("() => [...document.querySelectorAll('.group img')].every(i => i.complete && i.naturalWidth > 0)"
+                               " && document.querySelector(\".group[data-group='0'] img\").src.includes('hue=180')")
+        page.screenshot(path=str(ARTIFACTS / "03-hue-180-body.png"))
+        px2 = _canvas(page)
+        c1, c2 = _mean_colour(px1), _mean_colour(px2)
+        assert c1[2] > c1[0] and c2[0] > c2[2], f"mean colour {c1} -> {c2}: no blue -> orange shift"
+        assert page.evaluate("window.studio.lastEdits") == {"0": {"hue": 180}}
+        hue_ms = page.evaluate("window.studio.lastLatencyMs")
+
+        # 4. Re-paint the handle with a new prompt.
+        n = _requests(page)
+        page.fill(".group[data-group='1'] input[type=text]", "bright green plastic")
+        page.click(".group[data-group='1'] button.repaint")
+        _wait_for_shape(page, n + 1)
+        page.screenshot(path=str(ARTIFACTS / "04-repaint-handle.png"))
+        px3 = _canvas(page)
+        assert (np.abs(px3.astype(int) - px2).sum(axis=-1) > 30).mean() > 0.002, "the re-paint did not show"
+        assert page.evaluate("window.studio.lastEdits")["1"] == {"prompt": "bright green plastic"}
+
+        # 5. Download the shape on screen.
+        with page.expect_download() as info:
+            page.click("#download")
+        download = info.value
+        assert download.suggested_filename == "mug.glb"
+        path = ARTIFACTS / "mug.glb"
+        download.save_as(str(path))
+        data = path.read_bytes()
+        assert data == bytes(page.evaluate("Array.from(window.studio.lastGlbBytes)"))
+        import pygltflib
+        import trimesh
+
+        gltf = pygltflib.GLTF2().load_from_bytes(data)
+        assert len(gltf.images) == 2 and len(gltf.textures) == 2
+        scene = trimesh.load(io.BytesIO(data), file_type="glb")
+        assert len(scene.geometry) >= 1 and all(getattr(g.visual, "uv", None) is not None for g in scene.geometry.values())
+
+        # 6. Save the body's hue shift into the family: later transfers carry it, the view stays the same.
+        n = _requests(page)
+        page.click(".group[data-group='0'] button.save")
+        _wait_for_shape(page, n + 1)
+        page.wait_for_function("document.querySelector(\".group[data-group='0'] input[type=range]\").value === '0'")
+        with urllib.request.urlopen(base + "/v1/families/mug") as r:
+            assert json.loads(r.read())["edits"] == 1
+        page.screenshot(path=str(ARTIFACTS / "05-saved-body-edit.png"))
+        px4 = _canvas(page)
+        assert (np.abs(px4.astype(int) - px3).sum(axis=-1) > 30).mean() < 0.002, "the saved edit looks different from its preview"
+        assert page.evaluate("window.studio.lastEdits") == {"1": {"prompt": "bright green plastic"}}
+        assert not errors, errors
+    finally:
+        context.close()
+    seconds = time.perf_counter() - t_start
+    (ARTIFACTS / "timings.json").write_text(json.dumps({"first_ms": first_ms, "slider_ms": slider_ms, "hue_ms": hue_ms, "drag_requests": drag_requests,
+                                                        "server_seconds": server_s, "browser_seconds": round(seconds, 2)}, indent=1))
+
+
+def test_the_studio_uploads_a_mesh_for_families_of_meshes(server, browser, sofa_dir):
+    """A family from a folder of meshes takes meshes only: after choosing it in the family select,
+    the page shows a file field instead of sliders, and an uploaded mesh comes back textured."""
+    from proctex.family import finish_sample_stage, run_sample_job, sample_jobs
+
+    base, root = server
+    st = FamilyStore(root / "sofa")
+    cfg = BuildConfig(folder=str(sofa_dir), texture_size=64, prompt="green velvet").validate()
+    write_config(st, cfg)
+    jobs = [j for j in sample_jobs(cfg) if j.split == "train"][:3]  # three samples make a painted template
+    finish_sample_stage(st, [run_sample_job(st, cfg, j) for j in jobs])
+    stage_template(st, cfg, log=lambda *_: None)
+    stage_paint(st, cfg, log=lambda *_: None)
+    context = browser.new_context(viewport={"width": 1000, "height": 700})
+    page = context.new_page()
+    try:
+        page.goto(base + "/")
+        _wait_for_shape(page, 1)
+        # A failing transfer shows the server's message and the error state; the next one clears it.
+        page.route("**/transfer", lambda route: route.fulfill(status=422, json={"error": "radius must be in [0.03, 0.05]"}))
+        _set_range(page, "input[name=radius]", 0.033)
+        page.wait_for_function("document.body.dataset.state === 'error' && document.body.dataset.busy === '0'")
+        assert page.inner_text("#error") == "radius must be in [0.03, 0.05]" and page.evaluate("document.body.dataset.requests") == "1"
+        page.screenshot(path=str(ARTIFACTS / "07-error.png"))
+        page.unroute("**/transfer")
+        _set_range(page, "input[name=radius]", 0.034)
+        _wait_for_shape(page, 2)
+        assert not page.is_visible("#error")
+        assert page.eval_on_selector_all("#family option", "os => os.map(o => o.value)") == ["mug", "sofa"]
+        page.select_option("#family", "sofa")
+        page.wait_for_function("document.body.dataset.state === 'idle' && window.studio.family.name === 'sofa'")
+        assert page.is_visible("#mesh") and not page.query_selector_all("#params input, #params select")
+        assert page.evaluate("document.body.dataset.requests") == "2"  # nothing to show before an upload
+        page.set_input_files("#mesh", str(sofa_dir / "inference" / "4.obj"))
+        _wait_for_shape(page, 3)
+        page.screenshot(path=str(ARTIFACTS / "06-sofa-mesh-upload.png"))
+        assert _foreground(_canvas(page)).mean() > 0.05
+        assert page.get_attribute("#download", "download") == "sofa.glb"
+        assert "?family=sofa" in page.url
+    finally:
+        context.close()

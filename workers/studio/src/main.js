@@ -1,0 +1,474 @@
+// ProcTex studio: pick a family, move its parameters, edit part textures, see the textured shape.
+// Talks to the API of workers/http.py on the same origin. Test hooks: document.body.dataset.state
+// ("loading" | "idle" | "error"), .busy ("1" while a request is pending), .requests (completed
+// transfers) and window.studio.
+import * as THREE from 'three';
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const DEBOUNCE_MS = 120;
+const $ = (id) => document.getElementById(id);
+const body = document.body;
+
+const studio = {
+  family: null, // the family's description (GET /v1/families/{name})
+  params: {}, // current parameter values
+  edits: {}, // {group index: {hue, prompt}} not yet saved to the family
+  mesh: null, // an uploaded File (families of meshes)
+  seq: 0, // sequence number of the latest transfer request
+  controller: null,
+  timer: null,
+  requests: 0,
+  lastGlbBytes: null, // Uint8Array of the shape on screen
+  lastParams: null,
+  lastEdits: null,
+  lastLatencyMs: null,
+  lastServerSeconds: null,
+  glbUrl: null,
+};
+window.studio = studio;
+
+// ------------------------------------------------------------------------------------ 3D view
+const canvas = $('canvas');
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+renderer.outputColorSpace = THREE.SRGBColorSpace;
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0x16191e);
+scene.add(new THREE.HemisphereLight(0xffffff, 0x444455, 1.6));
+const sun = new THREE.DirectionalLight(0xffffff, 1.6);
+sun.position.set(2, 3, 2.5);
+scene.add(sun);
+const camera = new THREE.PerspectiveCamera(40, 1, 0.001, 1000);
+camera.position.set(1, 0.8, 1.4);
+const controls = new OrbitControls(camera, canvas);
+controls.addEventListener('change', render);
+const loader = new GLTFLoader();
+let model = null;
+let framed = false;
+
+function render() {
+  renderer.render(scene, camera);
+}
+
+function resize() {
+  const { clientWidth: w, clientHeight: h } = canvas.parentElement;
+  if (!w || !h) return;
+  renderer.setSize(w, h, false);
+  camera.aspect = w / h;
+  camera.updateProjectionMatrix();
+  render();
+}
+new ResizeObserver(resize).observe(canvas.parentElement);
+
+function dispose(object) {
+  object.traverse((o) => {
+    if (o.geometry) o.geometry.dispose();
+    for (const m of [].concat(o.material || [])) {
+      if (m.map) m.map.dispose();
+      m.dispose();
+    }
+  });
+}
+
+// Look at the whole object from the front-right-above, whatever the canvas' aspect.
+function frame(object) {
+  object.updateMatrixWorld(true);
+  const sphere = new THREE.Box3().setFromObject(object).getBoundingSphere(new THREE.Sphere());
+  const radius = sphere.radius || 1;
+  const vfov = THREE.MathUtils.degToRad(camera.fov);
+  const hfov = 2 * Math.atan(Math.tan(vfov / 2) * camera.aspect);
+  const distance = (radius / Math.sin(Math.min(vfov, hfov) / 2)) * 1.05;
+  controls.target.copy(sphere.center);
+  camera.position.copy(sphere.center).add(new THREE.Vector3(0.55, 0.4, 0.75).normalize().multiplyScalar(distance));
+  camera.near = distance / 100;
+  camera.far = distance * 100;
+  camera.updateProjectionMatrix();
+  controls.update();
+}
+
+function clearModel() {
+  if (model) {
+    scene.remove(model);
+    dispose(model);
+    model = null;
+  }
+  framed = false;
+  render();
+}
+
+// Parse a GLB and put it on screen unless `current()` says it is stale by then.
+function showGlb(buffer, current) {
+  return new Promise((resolve, reject) => {
+    loader.parse(buffer, '', (gltf) => {
+      const next = gltf.scene;
+      if (!current()) {
+        dispose(next);
+        resolve();
+        return;
+      }
+      // The service's GLBs are already +Y up (a z-up family gets a node rotation in the file).
+      if (model) {
+        scene.remove(model);
+        dispose(model);
+      }
+      model = next;
+      scene.add(model);
+      if (!framed) {
+        frame(model);
+        framed = true;
+      }
+      render();
+      resolve();
+    }, reject);
+  });
+}
+
+// ------------------------------------------------------------------------------------ requests
+async function api(path, options = {}) {
+  const response = await fetch(path, options);
+  if (!response.ok) {
+    let message = `${response.status} ${response.statusText}`;
+    try {
+      message = (await response.json()).error || message;
+    } catch (_) { /* not JSON */ }
+    throw new Error(message);
+  }
+  return response;
+}
+
+function setBusy(on) {
+  body.dataset.busy = on ? '1' : '0';
+  $('busy').hidden = !on;
+}
+
+function showError(message) {
+  if (message) body.dataset.state = 'error';
+  $('error').textContent = message;
+  $('error').hidden = !message;
+}
+
+function editsBody() {
+  const out = {};
+  for (const [g, e] of Object.entries(studio.edits)) {
+    const edit = {};
+    if (e.hue) edit.hue = e.hue;
+    if (e.prompt) edit.prompt = e.prompt;
+    if (Object.keys(edit).length) out[g] = edit;
+  }
+  return out;
+}
+
+// Changes are batched: the first change of a burst starts a ~120 ms timer and the request takes the
+// values of the moment it fires, so a dragged slider sends a request every ~120 ms and the view
+// follows. The latest request wins: it aborts the one in flight, and a response whose sequence
+// number is not the latest is dropped.
+function scheduleTransfer(delay = DEBOUNCE_MS) {
+  body.dataset.state = 'loading';
+  setBusy(true);
+  if (studio.timer !== null && delay > 0) return; // the pending request will take the new values
+  clearTimeout(studio.timer);
+  studio.timer = setTimeout(() => {
+    studio.timer = null;
+    transfer();
+  }, delay);
+}
+
+function cancelInFlight() {
+  studio.seq += 1;
+  if (studio.controller) studio.controller.abort();
+  studio.controller = null;
+}
+
+function settled(seq) {
+  // The latest request is done and no other is scheduled.
+  return seq === studio.seq && studio.timer === null;
+}
+
+function transferRequest(fam, params, edits, signal) {
+  const options = { method: 'POST', signal };
+  if (fam.inputs.includes('params')) {
+    options.headers = { 'content-type': 'application/json' };
+    options.body = JSON.stringify({ params, seed: 0, edits });
+  } else {
+    options.body = new FormData();
+    options.body.append('mesh', studio.mesh, studio.mesh.name);
+    options.body.append('edits', JSON.stringify(edits));
+  }
+  return api(`/v1/families/${encodeURIComponent(fam.name)}/transfer`, options);
+}
+
+async function transfer() {
+  const fam = studio.family;
+  cancelInFlight();
+  const seq = studio.seq;
+  if (!fam || (!fam.inputs.includes('params') && !studio.mesh)) {
+    // nothing to show yet (a family of meshes before an upload)
+    setBusy(false);
+    body.dataset.state = 'idle';
+    return;
+  }
+  const controller = new AbortController();
+  studio.controller = controller;
+  const params = fam.inputs.includes('params') ? { ...studio.params } : { mesh: studio.mesh.name };
+  const edits = editsBody();
+  const t0 = performance.now();
+  try {
+    const response = await transferRequest(fam, params, edits, controller.signal);
+    const buffer = await response.arrayBuffer();
+    if (seq !== studio.seq) return; // a newer request owns the view
+    const ms = performance.now() - t0;
+    await showGlb(buffer, () => seq === studio.seq);
+    if (seq !== studio.seq) return;
+    studio.controller = null;
+    studio.lastGlbBytes = new Uint8Array(buffer);
+    studio.lastParams = params;
+    studio.lastEdits = edits;
+    studio.lastLatencyMs = ms;
+    studio.lastServerSeconds = parseFloat(response.headers.get('X-ProcTex-Seconds'));
+    updateDownload(buffer);
+    showStats(ms, studio.lastServerSeconds, buffer.byteLength, params, edits, response.headers.get('X-ProcTex-Notes'));
+    studio.requests += 1;
+    body.dataset.requests = String(studio.requests);
+    showError('');
+    if (settled(seq)) body.dataset.state = 'idle';
+  } catch (err) {
+    if (err.name === 'AbortError' || seq !== studio.seq) return;
+    showError(err.message);
+  } finally {
+    if (settled(seq)) setBusy(false);
+  }
+}
+
+function resetDownload() {
+  if (studio.glbUrl) URL.revokeObjectURL(studio.glbUrl);
+  studio.glbUrl = null;
+  const link = $('download');
+  link.removeAttribute('href');
+  link.classList.add('disabled');
+  link.setAttribute('aria-disabled', 'true');
+}
+
+function updateDownload(buffer) {
+  if (studio.glbUrl) URL.revokeObjectURL(studio.glbUrl);
+  studio.glbUrl = URL.createObjectURL(new Blob([buffer], { type: 'model/gltf-binary' }));
+  const link = $('download');
+  link.href = studio.glbUrl;
+  link.download = `${studio.family.name}.glb`;
+  link.classList.remove('disabled');
+  link.removeAttribute('aria-disabled');
+}
+
+function showStats(ms, seconds, bytes, params, edits, notes) {
+  $('latency').textContent = `${ms.toFixed(0)} ms round trip`;
+  $('server').textContent = Number.isFinite(seconds) ? `${(seconds * 1000).toFixed(0)} ms (X-ProcTex-Seconds)` : '–';
+  $('bytes').textContent = `${(bytes / 1024).toFixed(0)} KiB`;
+  const shown = { ...params };
+  if (Object.keys(edits).length) shown.edits = edits;
+  $('current').textContent = JSON.stringify(shown, null, 1);
+  const list = $('notes');
+  list.replaceChildren();
+  for (const note of notes ? JSON.parse(notes) : []) {
+    const li = document.createElement('li');
+    li.textContent = note;
+    list.append(li);
+  }
+}
+
+// ------------------------------------------------------------------------------- parameters
+function decimals(step) {
+  const s = String(step);
+  return s.includes('e-') ? Number(s.split('e-')[1]) : (s.split('.')[1] || '').length;
+}
+
+function niceStep(spec) {
+  if (spec.kind === 'integer') return 1;
+  const raw = (spec.high - spec.low) / 200 || 0.001;
+  const p = 10 ** Math.floor(Math.log10(raw));
+  return [1, 2, 5, 10].map((m) => m * p).find((s) => s >= raw);
+}
+
+function paramControl(spec) {
+  const row = document.createElement('div');
+  row.className = 'param';
+  const label = document.createElement('label');
+  const name = document.createElement('span');
+  name.textContent = spec.name + (spec.unit ? ` (${spec.unit})` : '');
+  if (spec.description) row.title = spec.description;
+  const out = document.createElement('output');
+  label.append(name, out);
+  let input;
+  if (spec.kind === 'choice') {
+    input = document.createElement('select');
+    for (const option of spec.options) input.add(new Option(String(option), String(option)));
+    input.value = String(spec.default);
+    studio.params[spec.name] = spec.default;
+    out.textContent = input.value;
+    input.addEventListener('change', () => {
+      const option = spec.options.find((o) => String(o) === input.value);
+      studio.params[spec.name] = option;
+      out.textContent = input.value;
+      scheduleTransfer();
+    });
+  } else {
+    const step = niceStep(spec);
+    const digits = decimals(step);
+    input = document.createElement('input');
+    input.type = 'range';
+    input.min = spec.low;
+    input.max = spec.high;
+    input.step = step;
+    input.value = spec.default;
+    const update = () => {
+      const v = spec.kind === 'integer' ? Math.round(Number(input.value)) : Number(input.value);
+      studio.params[spec.name] = v;
+      out.textContent = v.toFixed(digits);
+    };
+    update();
+    input.addEventListener('input', () => {
+      update();
+      scheduleTransfer();
+    });
+  }
+  input.name = spec.name;
+  input.setAttribute('aria-label', spec.name);
+  row.append(label, input);
+  return row;
+}
+
+// ------------------------------------------------------------------------------------- parts
+function thumbUrl(g, size = 128) {
+  const fam = studio.family;
+  const q = new URLSearchParams({ size: String(size), stamp: fam.stamp });
+  const e = studio.edits[g] || {};
+  if (e.hue) q.set('hue', String(e.hue));
+  if (e.prompt) q.set('prompt', e.prompt);
+  return `/v1/families/${encodeURIComponent(fam.name)}/groups/${g}/texture.png?${q}`;
+}
+
+function groupPanel(group) {
+  const g = group.group;
+  const box = document.createElement('div');
+  box.className = 'group';
+  box.dataset.group = String(g);
+  box.innerHTML = `
+    <header><img alt="texture"><div><b></b><div class="muted prompt"></div></div></header>
+    <label>hue <output>0°</output><input type="range" min="-180" max="180" step="1" value="0" aria-label="hue"></label>
+    <div class="row"><input type="text" placeholder="new prompt" aria-label="prompt"><button class="secondary repaint">re-paint</button></div>
+    <div class="row"><button class="save" disabled>save to family</button><button class="secondary reset" disabled>reset</button></div>`;
+  const img = box.querySelector('img');
+  const hue = box.querySelector('input[type=range]');
+  const hueOut = box.querySelector('output');
+  const prompt = box.querySelector('input[type=text]');
+  prompt.maxLength = studio.family.limits.max_prompt;
+  const save = box.querySelector('.save');
+  const reset = box.querySelector('.reset');
+  box.querySelector('b').textContent = group.label || `group ${g}`;
+  box.querySelector('.prompt').textContent = group.prompt || studio.family.prompt || '';
+  let thumbTimer = null;
+  const changed = () => {
+    const e = studio.edits[g] || {};
+    const dirty = Boolean(e.hue || e.prompt);
+    save.disabled = !dirty;
+    reset.disabled = !dirty;
+    clearTimeout(thumbTimer);
+    thumbTimer = setTimeout(() => { img.src = thumbUrl(g); }, DEBOUNCE_MS);
+    scheduleTransfer();
+  };
+  const pending = studio.edits[g] || {}; // kept across a reload of the family (after a save)
+  hue.value = String(pending.hue || 0);
+  hueOut.textContent = `${hue.value}°`;
+  prompt.value = pending.prompt || '';
+  save.disabled = reset.disabled = !(pending.hue || pending.prompt);
+  img.src = thumbUrl(g);
+  hue.addEventListener('input', () => {
+    studio.edits[g] = { ...studio.edits[g], hue: Number(hue.value) };
+    hueOut.textContent = `${hue.value}°`;
+    changed();
+  });
+  const repaint = () => {
+    studio.edits[g] = { ...studio.edits[g], prompt: prompt.value.trim() };
+    changed();
+  };
+  box.querySelector('.repaint').addEventListener('click', repaint);
+  prompt.addEventListener('keydown', (ev) => { if (ev.key === 'Enter') repaint(); });
+  reset.addEventListener('click', () => {
+    delete studio.edits[g];
+    hue.value = '0';
+    hueOut.textContent = '0°';
+    prompt.value = '';
+    changed();
+  });
+  save.addEventListener('click', async () => {
+    const edit = { group: g, ...editsBody()[g] };
+    save.disabled = true;
+    try {
+      await api(`/v1/families/${encodeURIComponent(studio.family.name)}/edits`, {
+        method: 'POST', headers: { 'content-type': 'application/json' }, body: JSON.stringify(edit),
+      });
+      delete studio.edits[g]; // part of the family now
+      await loadFamily(studio.family.name, { keepView: true });
+    } catch (err) {
+      showError(`save failed: ${err.message}`);
+      save.disabled = false;
+    }
+  });
+  return box;
+}
+
+// ---------------------------------------------------------------------------------- families
+async function loadFamily(name, { keepView = false } = {}) {
+  body.dataset.state = 'loading';
+  const fam = await (await api(`/v1/families/${encodeURIComponent(name)}`)).json();
+  const previous = studio.family && studio.family.name === name ? studio.params : {};
+  studio.family = fam;
+  if (!keepView) {
+    cancelInFlight(); // nothing of the previous family may land on this one
+    studio.edits = {};
+    studio.mesh = null;
+    $('mesh').value = '';
+    clearModel();
+    resetDownload();
+  }
+  studio.params = {};
+  $('prompt').textContent = fam.prompt ? `“${fam.prompt}”` : '';
+  const usesParams = fam.inputs.includes('params');
+  const params = $('params');
+  params.replaceChildren();
+  if (usesParams) {
+    for (const spec of fam.parameters) {
+      if (keepView && spec.name in previous) spec.default = previous[spec.name];
+      params.append(paramControl(spec));
+    }
+  }
+  $('upload').hidden = usesParams;
+  $('groups').replaceChildren(...fam.groups.map(groupPanel));
+  const url = new URL(window.location);
+  url.searchParams.set('family', name);
+  window.history.replaceState(null, '', url);
+  scheduleTransfer(0);
+}
+
+async function start() {
+  try {
+    const { families } = await (await api('/v1/families')).json();
+    const select = $('family');
+    for (const name of families) select.add(new Option(name, name));
+    if (!families.length) throw new Error('no built families under the store root');
+    const wanted = new URL(window.location).searchParams.get('family');
+    select.value = families.includes(wanted) ? wanted : families[0];
+    select.addEventListener('change', () => loadFamily(select.value).catch((e) => showError(e.message)));
+    $('mesh').addEventListener('change', (ev) => {
+      studio.mesh = ev.target.files[0] || null;
+      framed = false;
+      scheduleTransfer(0);
+    });
+    resize();
+    await loadFamily(select.value);
+  } catch (err) {
+    showError(err.message);
+  }
+}
+
+studio.schedule = scheduleTransfer;
+start();
