@@ -25,6 +25,7 @@ import pytest
 from proctex.family import BuildConfig, stage_paint, stage_sample, stage_template, write_config
 from proctex.service import Catalog
 from proctex.store import FamilyStore
+from workflows.screenshot import CHROMIUM_ARGS
 
 pytestmark = pytest.mark.slow
 
@@ -32,9 +33,6 @@ REPO = Path(__file__).resolve().parents[1]
 DIST = REPO / "workers" / "studio" / "dist"
 ARTIFACTS = REPO / "artifacts" / "studio"
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                 "--ignore-gpu-blocklist", "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--no-first-run"]
 BACKGROUND = np.array([0x16, 0x19, 0x1E])
 
 
@@ -282,3 +280,34 @@ def test_the_studio_uploads_a_mesh_for_families_of_meshes(server, browser, sofa_
         assert "?family=sofa" in page.url
     finally:
         context.close()
+
+
+def test_the_screenshot_command_shoots_the_studio_with_parameters(server, tmp_path):
+    """``proctex screenshot URL --params`` (a process of its own, as a user runs it) sets a slider,
+    waits for that shape and writes the PNG; bad input is an error and writes nothing."""
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    def run(*argv):
+        return subprocess.run([sys.executable, "-m", "workflows.cli", "screenshot", *argv], cwd=REPO, capture_output=True, text=True, timeout=180)
+
+    base, _ = server
+    out = tmp_path / "shot.png"
+    done = run(f"{base}/?family=mug", "--out", str(out), "--params", '{"radius": 0.05}', "--size", "900x600")
+    assert done.returncode == 0, done.stderr
+    assert "family mug" in done.stdout
+    img = np.asarray(Image.open(out).convert("RGB"))
+    assert img.shape == (600, 900, 3)
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 50  # a rendered, textured page, not a blank one
+    shutil.copy(out, ARTIFACTS / "08-screenshot-command.png")
+    for argv, message in (
+        ([base, "--out", str(tmp_path / "a.jpg")], "must name a .png"),
+        ([base, "--out", str(tmp_path / "b.png"), "--size", "big"], "WIDTHxHEIGHT"),
+        ([base, "--out", str(tmp_path / "c.png"), "--params", '{"nope": 1}'], "no control for parameter 'nope'"),
+        (["ftp://x", "--out", str(tmp_path / "d.png")], "http://"),
+    ):
+        done = run(*argv)
+        assert done.returncode == 2 and message in done.stderr, (argv, done.stderr)
+    assert not [p for p in tmp_path.iterdir() if p.name != "shot.png"]

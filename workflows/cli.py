@@ -80,6 +80,27 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_screenshot(args: argparse.Namespace) -> int:
+    from .screenshot import studio_screenshot
+
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+    except ValueError as exc:
+        raise ValueError(f"--size must be WIDTHxHEIGHT, e.g. 1280x800, got {args.size!r}") from exc
+    params = None
+    if args.params:
+        try:
+            params = core.json.loads(args.params)
+        except core.json.JSONDecodeError as exc:
+            raise ValueError(f"--params is not valid JSON ({exc})") from exc
+        if not isinstance(params, dict):
+            raise ValueError('--params must be a JSON object, e.g. {"seats": 2}')
+    info = studio_screenshot(args.url, args.out, params=params, width=w, height=h, timeout=args.timeout)
+    print(f"wrote {args.out} ({w}x{h}): family {info['family']}, {info['requests']} transfers, last "
+          f"{info['client_ms']:.0f} ms round trip ({1000 * info['server_seconds']:.0f} ms in the service)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = core.build_parser()
     sub = parser.subparsers  # type: ignore[attr-defined]
@@ -96,6 +117,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--autoscale", help="MIN,MAX replicas (autoscaling instead of a fixed count)")
     p.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
     p.set_defaults(func=cmd_serve)
+    p = sub.add_parser("screenshot", help="a PNG of the web studio at URL (headless Chromium), e.g. http://127.0.0.1:8000/?family=sofa")
+    p.add_argument("url", help="the studio's URL; ?family=NAME picks a family")
+    p.add_argument("--out", default="studio.png", help="PNG file")
+    p.add_argument("--params", help='slider values to set first (JSON), e.g. {"seats": 2}')
+    p.add_argument("--size", default="1280x800", help="window size WIDTHxHEIGHT")
+    p.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for each shape")
+    p.set_defaults(func=cmd_screenshot)
     return parser
 
 
