@@ -221,19 +221,20 @@ def report_html(summary: dict[str, Any]) -> str:
           e(g["network"])] for g in s["groups"]],
     )
     stage_rows = [[e(k), f"{v:.1f}"] for k, v in s["stage_seconds"].items()]
-    stages = _table(["stage", "seconds"], stage_rows + [["<b>total</b>", f"<b>{s['total_seconds']:.1f}</b>"]])
+    stages = _table(["stage", "seconds"], stage_rows + [["<b>total wall time</b>", f"<b>{s['total_seconds']:.1f}</b>"]])
     metrics = "<p>No evaluation (fewer than two test shapes).</p>"
     if s.get("metrics"):
         mrows = []
         for name, m in s["metrics"]["methods"].items():
             pgt = m.get("pgt") or {}
-            gt = m.get("gt") or {}
+            gt, cage = m.get("gt") or {}, m.get("cage_gt") or {}
+            gt_text = _num(gt.get("mean")) + (f" ({_num(cage.get('mean'))})" if cage.get("mean") is not None else "")
             mrows.append([e(name), _num(m.get("tracked_point_variance")), _num(m.get("tracked_point_variance_realtime")),
-                          _num(m.get("coverage")), _num(pgt.get("mean")), _num(pgt.get("max")), _num(gt.get("mean")),
+                          _num(m.get("coverage")), _num(pgt.get("mean")), _num(pgt.get("max")), gt_text,
                           f"{1000 * m['seconds_per_shape']:.0f}"])
         metrics = (f"<p>{s['metrics']['shapes']} unseen test shapes.</p>"
                    + _table(["method", "tracked-point variance (baked)", "(real-time)", "coverage", "pseudo-GT error mean", "max",
-                             "GT error mean", "ms per shape"], mrows))
+                             "GT error mean (cage solver)", "ms per shape"], mrows))
     variants = _table(
         ["row", "parameters", "transfer ms", "faces", "GLB"],
         [[e(v["row"]), "<code>" + e(json.dumps(v["params"])) + "</code>", f"{1000 * v['seconds']:.0f}", str(v["faces"]),
