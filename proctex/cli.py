@@ -14,15 +14,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from .meshio import load_mesh, save_mesh, save_params
 from .models import get_model, list_models
 from .params import select_template
 from .parts import Grouping, analyse, match_groups
 from .progress import track
 from .sources import FolderSource, resolve_model, resolve_shape
-from .shape import Shape
 
 
 def _print_json(data: Any) -> None:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import html
 import json
-import math
 import os
 import time
 from dataclasses import asdict, dataclass, field
@@ -272,6 +271,50 @@ median {1000 * s['transfer_median_seconds']:.0f} ms each.</p>
 """
 
 
+def render_sheet(sweep: list[SweepRow], rendered: list[tuple[Any, Any]], textures: list[np.ndarray], up: str, size: int,
+                 title: str = "", quiet: bool = False) -> np.ndarray:
+    """The contact sheet of transferred variants ``rendered`` [(Shape, TransferResult)], in the order
+    of ``sweep``'s rows: one camera fitted to every variant (sizes compare truthfully), crops shared."""
+    from .render import bounding_sphere, orbit_camera, render_textured
+
+    center, radius = bounding_sphere(np.concatenate([s.vertices for s, _ in rendered]))
+    cam = orbit_camera(center, radius, up, -35.0, 22.0, size, fov_deg=32.0)
+    bar = Progress("render", len(rendered), quiet=quiet)
+    images = []
+    for shape, result in rendered:
+        images.append(render_textured(shape.vertices, shape.faces, result.corner_uv, result.face_group,
+                                      list(textures) + list(result.new_textures), cam))
+        bar.update()
+    images = crop_to_content(images)
+    grid, caps, titles, i = [], [], [], 0
+    for r in sweep:
+        grid.append(images[i : i + len(r.settings)])
+        caps.append([caption(p, None if r.name == "random" else r.name) for p in r.settings])
+        titles.append("random unseen settings" if r.name == "random" else f"sweep of {r.name}")
+        i += len(r.settings)
+    return contact_sheet(grid, caps, titles, title=title)
+
+
+def render_turntable(model: Any, base: dict[str, Any], names: Sequence[str], svc: Any, up: str, frames: int, size: int,
+                     seed: int = 0, quiet: bool = False) -> list[np.ndarray]:
+    """Frames of the sweep's turntable: the camera circles once while ``names`` follow
+    :func:`turntable_path`; every frame is a real-time transfer by ``svc`` (a ``FamilyService``)."""
+    from .render import Tracer, bounding_sphere, orbit_camera, render_textured
+    from .transfer import transfer
+
+    shapes = [model.generate(p) for p in turntable_path(model.space, base, names, frames)]
+    center, radius = bounding_sphere(np.concatenate([s.vertices for s in shapes]))
+    bar = Progress("turntable", frames, quiet=quiet)
+    out = []
+    for f, shape in enumerate(shapes):
+        result = transfer(shape, svc.assets, svc.mapper, seed=seed, painter=svc.painter)
+        cam = orbit_camera(center, radius, up, -35.0 + 360.0 * f / frames, 20.0, size, fov_deg=32.0)
+        out.append(render_textured(shape.vertices, shape.faces, result.corner_uv, result.face_group,
+                                   svc.assets.textures + list(result.new_textures), cam, tracer=Tracer(shape.vertices, shape.faces)))
+        bar.update()
+    return out
+
+
 # ------------------------------------------------------------------------------------------ driver
 @dataclass
 class DemoResult:
@@ -302,7 +345,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     """
     from .family import _model, load_models, stored_config, up_axis
     from .meshio import _atomic_write_bytes
-    from .render import Tracer, bounding_sphere, orbit_camera, render_textured, save_gif, save_png
+    from .render import save_gif, save_png
     from .service import FamilyService
     from .store import FamilyStore
     from .transfer import glb, transfer
@@ -338,40 +381,11 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
             bar.update()
     _atomic_text(out / "variants.json", json.dumps(variants, indent=1))
 
-    # One camera for the whole sheet, fitted to every variant (sizes compare truthfully).
-    allv = np.concatenate([s.vertices for s, _ in rendered])
-    center, radius = bounding_sphere(allv)
-    cam = orbit_camera(center, radius, up, -35.0, 22.0, size, fov_deg=32.0)
-    bar = Progress("render", len(rendered), quiet=quiet)
-    images = []
-    for shape, result in rendered:
-        images.append(render_textured(shape.vertices, shape.faces, result.corner_uv, result.face_group,
-                                      svc.assets.textures + list(result.new_textures), cam))
-        bar.update()
-    images = crop_to_content(images)
-    grid, caps, titles, i = [], [], [], 0
-    for r in sweep:
-        grid.append(images[i : i + len(r.settings)])
-        caps.append([caption(p, None if r.name == "random" else r.name) for p in r.settings])
-        titles.append("random unseen settings" if r.name == "random" else f"sweep of {r.name}")
-        i += len(r.settings)
-    sheet = contact_sheet(grid, caps, titles, title=f"{config.model or 'family'}: \"{config.prompt}\"")
+    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{config.model or 'family'}: \"{config.prompt}\"", quiet=quiet)
     save_png(out / "contact_sheet.png", sheet)
-
-    # Turntable: the camera circles while the two most visible parameters sweep their ranges.
     swept = [r.name for r in sweep if r.name != "random"][:2]
-    path = turntable_path(model.space, base, swept, frames)
-    shapes = [model.generate(p) for p in path]
-    c2, r2 = bounding_sphere(np.concatenate([s.vertices for s in shapes]))
-    bar = Progress("turntable", frames, quiet=quiet)
-    gif_frames = []
-    for f, shape in enumerate(shapes):
-        result = transfer(shape, svc.assets, svc.mapper, seed=seed, painter=svc.painter)
-        camf = orbit_camera(c2, r2, up, -35.0 + 360.0 * f / frames, 20.0, gif_size, fov_deg=32.0)
-        gif_frames.append(render_textured(shape.vertices, shape.faces, result.corner_uv, result.face_group,
-                                          svc.assets.textures + list(result.new_textures), camf, tracer=Tracer(shape.vertices, shape.faces)))
-        bar.update()
-    save_gif(out / "turntable.gif", gif_frames, fps=12)
+    spin = render_turntable(model, base, swept, svc, up, frames, gif_size, seed=seed, quiet=quiet)
+    save_gif(out / "turntable.gif", spin, fps=12)
 
     # The report.
     paint = store.read_json("template/paint.json")
@@ -380,7 +394,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     models = load_models(store)
     from .paint import group_file_name
 
-    fam_rel = os.path.relpath(store.base, out) if not str(store.uri).startswith(("s3://", "gs://")) else store.uri
+    fam_rel = os.path.relpath(store.base, out)
     groups = []
     for g in paint["groups"]:
         gi = g["group"]
@@ -399,7 +413,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
         "seed": config.seed, "n_train": config.n_train, "n_test": config.n_test, "ray": ray,
         "groups": groups, "metrics": None if metrics is None else {"shapes": metrics["shapes"], "methods": {
             k: {kk: vv for kk, vv in m.items() if kk not in ("per_shape", "per_group")} for k, m in metrics["methods"].items()}},
-        "stage_seconds": {k: round(v, 2) for k, v in stage_all.items()}, "total_seconds": round(time.perf_counter() - started if started is not None else sum(stage_all.values()), 2),
+        "stage_seconds": {k: round(v, 2) for k, v in stage_all.items()},
+        "total_seconds": round(time.perf_counter() - started if started is not None else sum(stage_all.values()), 2),
         "variants": variants, "transfer_median_seconds": float(np.median(secs)), "contact_sheet": "contact_sheet.png",
         "turntable": "turntable.gif", "sweep": [{"row": r.name, "n": len(r.settings)} for r in sweep],
         "effects": {k: round(v, 4) for k, v in effects.items()}, "notes": notes,
@@ -411,7 +426,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
                       [str(out / v["glb"]) for v in variants], summary)
 
 
-def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str], None] = print, quiet: bool = False) -> dict[str, float]:
+def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str], None] = print) -> dict[str, float]:
     """Build a family in this process, stage by stage; returns wall seconds per stage."""
     from .family import STAGES, BuildConfig, build
     from .store import FamilyStore
@@ -459,6 +474,6 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
     root.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     log(f"demo: building the {model!r} family painted with {prompt!r} into {root}")
-    walls = (builder or (lambda r, c: build_in_process(r, c, log=log, quiet=quiet)))(str(root), config)
+    walls = (builder or (lambda r, c: build_in_process(r, c, log=log)))(str(root), config)
     log(f"demo: family built in {time.perf_counter() - t0:.1f}s")
     return finish_demo(out, str(root), walls, ray=ray, rows=rows, per_row=per_row, frames=frames, seed=seed, log=log, quiet=quiet, started=t0)
