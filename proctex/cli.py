@@ -399,30 +399,81 @@ def cmd_edit(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_eval(args: argparse.Namespace) -> int:
-    from .evaluate import METHODS, evaluate, markdown_table
-    from .family import stored_config
-    from .store import FamilyStore
+def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Validated keyword arguments of :func:`proctex.evaluate.evaluate` from the eval flags."""
+    from .evaluate import METHODS
 
-    store = FamilyStore(args.family)
-    stored_config(store)  # a clear error when the folder is not a family
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
         raise ValueError(f"--methods must name some of {', '.join(METHODS)}, got {args.methods!r}")
     if args.limit is not None and args.limit < 2:
         raise ValueError(f"--limit must be >= 2, got {args.limit}")
-    if not store.exists("models") and "corrnet" in methods:
-        raise ValueError(f"{args.family}: no trained models (run the train stage, or evaluate --methods identity)")
-    split = {"test": "test", "train": "train"}[args.shapes]
+    if args.workers < 0:
+        raise ValueError(f"--workers must be >= 0 (0: one per CPU, at most 4), got {args.workers}")
+    if args.lpips and not os.path.isfile(args.lpips):
+        raise ValueError(f"--lpips {args.lpips!r}: no such weights file")
+    return {"methods": methods, "split": args.shapes, "limit": args.limit, "lpips": args.lpips,
+            "workers": args.workers or max(1, min(4, os.cpu_count() or 1)), "quiet": args.quiet or args.json}
+
+
+def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> int:
+    """Evaluate, write ``metrics.json`` into the store, print the table (or the JSON)."""
+    from .evaluate import evaluate, markdown_table
+
+    if not store.exists("models") and {"corrnet", "corrnet_all"} & set(options["methods"]):
+        raise ValueError(f"{store.uri}: no trained models (run the train stage, or evaluate without corrnet)")
     log = (lambda *_: None) if (args.quiet or args.json) else (lambda m: print(m, flush=True))
-    metrics = evaluate(store, methods=methods, split=split, limit=args.limit, log=log)
+    metrics = evaluate(store, log=log, **options)
     store.write_json("metrics.json", metrics)
     if args.json:
-        _print_json({k: v for k, v in metrics.items()})
+        _print_json(metrics)
     else:
         print(markdown_table(metrics))
     return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from .family import stored_config
+    from .store import FamilyStore
+
+    store = FamilyStore(args.family)
+    stored_config(store)  # a clear error when the folder is not a family
+    return run_eval(store, args, _eval_options(args))
+
+
+def cmd_eval_folder(args: argparse.Namespace) -> int:
+    """Build a family from a folder of samples (train/ and inference/), then evaluate it."""
+    from .family import BuildConfig, build
+    from .store import FamilyStore
+
+    if not os.path.isdir(args.folder):
+        raise ValueError(f"{args.folder}: no such folder")
+    options = _eval_options(args)
+    config = BuildConfig.from_dict({"folder": os.path.abspath(args.folder), "prompt": args.prompt,
+                                    "group_prompts": _group_prompts(args.group_prompts) or {}, "seed": args.seed})
+    out = args.out or os.path.join("out", "families", Path(os.path.abspath(args.folder)).name)
+    log = (lambda *_: None) if (args.quiet or args.json) else (lambda m: print(m, flush=True))
+    builder = getattr(args, "builder", None)  # the Ray layer passes one (workflows.cli)
+    stages = ("sample", "template", "paint", "pairs", "train")
+    if builder is not None:
+        builder(out, config, stages, log)
+    else:
+        build(FamilyStore(out), config, stages=stages, log=log)
+    return run_eval(FamilyStore(out), args, options)
+
+
+def _add_eval_flags(p: argparse.ArgumentParser) -> None:
+    from .evaluate import DEFAULT_METHODS
+
+    p.add_argument("--shapes", choices=["test", "train"], default="test")
+    p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
+                   help="comma-separated: corrnet (the run-time path), corrnet_all (the network on every part), cage, nearest, cpd, identity")
+    p.add_argument("--limit", type=int, help="evaluate only the first N shapes")
+    p.add_argument("--lpips", help="a local LPIPS (AlexNet) weights file: adds LPIPS to SSIM and PSNR")
+    p.add_argument("--workers", type=int, default=0, help="processes evaluating shapes in parallel (0: one per CPU, at most 4)")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quiet", action="store_true")
 
 
 def cmd_template(args: argparse.Namespace) -> int:
@@ -627,14 +678,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--opacity", type=float, default=1.0)
     p.set_defaults(func=cmd_edit)
 
-    p = sub.add_parser("eval", help="measure a built family on its unseen shapes (metrics.json + a table)")
+    p = sub.add_parser("eval", help="measure a built family on its unseen shapes, methods side by side (metrics.json + a table)")
     p.add_argument("family")
-    p.add_argument("--shapes", choices=["test", "train"], default="test")
-    p.add_argument("--methods", default="corrnet,identity", help="comma-separated: corrnet, identity, nearest")
-    p.add_argument("--limit", type=int, help="evaluate only the first N shapes")
-    p.add_argument("--json", action="store_true")
-    p.add_argument("--quiet", action="store_true")
+    _add_eval_flags(p)
     p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("eval-folder", help="build a family from a folder of samples (train/, inference/), then evaluate it")
+    p.add_argument("folder")
+    p.add_argument("--prompt", required=True)
+    p.add_argument("--group-prompts")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", help="family folder (default out/families/<folder name>; a finished build there is reused)")
+    _add_eval_flags(p)
+    p.set_defaults(func=cmd_eval_folder)
 
     p = sub.add_parser("template", help="pick the template of a folder of samples or of a model's samples")
     p.add_argument("source", help="folder of samples, model name or generator config")

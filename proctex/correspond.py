@@ -251,7 +251,7 @@ def correspond_parts(
         tsub = rng.choice(len(tpl_s), size=min(cpd_points * 2, len(tpl_s)), replace=False)
         fit = cpd_nonrigid(aligned[sub], tpl_s[tsub], beta=cpd_beta, lam=cpd_lambda, device=(cage.device if cage else "cpu"))
         moved = fit.transform(aligned)
-        return _finish(prep, method, moved, None, t0, fit.converged, fit.iterations, tpl_s, {"sigma2": fit.sigma2})
+        return _finish(prep, method, moved, None, t0, fit.converged, fit.iterations, tpl_s, {"sigma2": fit.sigma2, "field": fit})
     # cage
     used, inverse = np.unique(prep.sample_faces, return_inverse=True)
     tri = prep.src_f[used]
@@ -278,9 +278,10 @@ def deform(result: PartCorrespondence, points: np.ndarray, tpl_center: np.ndarra
     """Where a correspondence sends arbitrary source points (world), before projection.
 
     ``nearest``: the similarity pre-alignment; ``cage``: the pre-alignment, then the optimised cage
-    deformation (mean value coordinates w.r.t. the initial cage, applied to the optimised one).
+    deformation (mean value coordinates w.r.t. the initial cage, applied to the optimised one);
+    ``cpd``: the pre-alignment, then the fitted CPD displacement field (defined everywhere).
     Returns (n, 3) float64 points in the template part's normalised frame (``tpl_center``,
-    ``tpl_radius``: that frame). CPD keeps no transform and is refused.
+    ``tpl_radius``: that frame).
     """
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
@@ -288,8 +289,12 @@ def deform(result: PartCorrespondence, points: np.ndarray, tpl_center: np.ndarra
     aligned = (result.alignment.apply(pts) - tpl_center) / tpl_radius
     if result.method == "nearest":
         return aligned
+    if result.method == "cpd":
+        if "field" not in result.details:
+            raise ValueError("this CPD correspondence carries no fitted field")
+        return result.details["field"].transform(aligned)
     if result.method != "cage":
-        raise ValueError(f"deform needs a cage or nearest correspondence, got {result.method!r}")
+        raise ValueError(f"deform needs a cage, nearest or cpd correspondence, got {result.method!r}")
     from .mvc import mean_value_coordinates
 
     cage0, cage, faces = result.details["cage0"], result.details["cage"], result.details["cage_faces"]

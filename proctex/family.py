@@ -598,6 +598,8 @@ def write_config(store: FamilyStore, config: BuildConfig) -> None:
     state = _state(store)
     old = state.get("config")
     new = asdict(config)
+    if old is not None:  # settings added since that build count at their defaults
+        old = {**asdict(BuildConfig()), **old}
     if old is not None and old != new:
         raise ValueError(f"{store.uri} was built with another config; use a new folder (or delete it) to change settings")
     state["config"] = new

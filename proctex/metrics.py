@@ -129,3 +129,46 @@ def coverage(
                 idx = bilinear_texels(uv[sel], mask.shape[0], mask.shape[1])
                 bad += int((~mask.ravel()[idx]).any(axis=1).sum())
     return Coverage(bad / total if total else 0.0, bad, total, len(cams))
+
+
+# ------------------------------------------------------------------------------------ view similarity
+#: PSNR of identical images is infinite; reported values are capped here (dB) so JSON stays finite.
+PSNR_CAP = 100.0
+
+
+@dataclass
+class ViewSimilarity:
+    """Similarity of two sets of renders from the same views: ``ssim`` and ``psnr`` (dB, capped at
+    :data:`PSNR_CAP`) averaged over views, ``lpips`` (None without a model), and per view."""
+
+    ssim: float
+    psnr: float
+    lpips: float | None
+    per_view: list[dict[str, float]]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"ssim": self.ssim, "psnr": self.psnr, "lpips": self.lpips, "per_view": self.per_view}
+
+
+def view_similarity(reference: list[np.ndarray], images: list[np.ndarray], lpips: Any = None) -> ViewSimilarity:
+    """SSIM and PSNR (scikit-image; RGB, data range 255) between ``reference[k]`` and ``images[k]``,
+    each (H, W, 3) uint8 of the same view, averaged over views; LPIPS too when ``lpips`` (a
+    :class:`proctex.lpips.LPIPS`) is given. Identical sets give SSIM 1, PSNR :data:`PSNR_CAP`, LPIPS 0.
+    """
+    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+    if len(reference) != len(images) or not images:
+        raise ValueError(f"need equally many (>= 1) reference and compared views, got {len(reference)} and {len(images)}")
+    per_view = []
+    for a, b in zip(reference, images):
+        a, b = np.asarray(a), np.asarray(b)
+        if a.shape != b.shape or a.ndim != 3 or a.shape[2] != 3 or a.dtype != np.uint8 or b.dtype != np.uint8:
+            raise ValueError(f"views must be equally sized (H, W, 3) uint8 images, got {a.shape} {a.dtype} and {b.shape} {b.dtype}")
+        ssim = float(structural_similarity(a, b, channel_axis=2, data_range=255))
+        psnr = PSNR_CAP if np.array_equal(a, b) else min(PSNR_CAP, float(peak_signal_noise_ratio(a, b, data_range=255)))
+        view = {"ssim": ssim, "psnr": psnr}
+        if lpips is not None:
+            view["lpips"] = float(lpips.distance(a, b))
+        per_view.append(view)
+    mean = lambda k: float(np.mean([v[k] for v in per_view]))  # noqa: E731
+    return ViewSimilarity(mean("ssim"), mean("psnr"), mean("lpips") if lpips is not None else None, per_view)

@@ -370,8 +370,12 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     return out, near
 
 
-def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256) -> TransferResult:
+def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256,
+             shortcut: bool = True) -> TransferResult:
     """UVs of ``shape`` into the template textures (module docstring, steps 1-4).
+
+    ``shortcut``: parts with their representative's exact connectivity take its UVs directly (exact
+    for procedural models); off, every part goes through ``mapper`` (to compare mappers).
 
     Parts of a group the template does not have ("new") get a texture of their own, painted by
     ``painter`` (the family's surface painter; the template's textures are untouched), at
@@ -398,7 +402,7 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
         ga = assets.groups[a.group]
         v, f = part_mesh(shape, part)
         ta = time.perf_counter()
-        if same_topology(f, len(v), ga):
+        if shortcut and same_topology(f, len(v), ga):
             # Same mesh connectivity as the representative: vertex i is the template's vertex i
             # (procedural models), so the part takes the template UVs directly, no mapping.
             direct.add(a.part)
@@ -643,15 +647,16 @@ def info(result: TransferResult) -> dict[str, Any]:
 
 
 class SolverMapper:
-    """Offline mapper: solves the correspondence of each part on the fly (``cage`` or ``nearest``).
+    """Offline mapper: solves the correspondence of each part on the fly (``cage``, ``nearest`` or
+    ``cpd``).
 
     Slow (seconds per part); used to build training pairs and as the pseudo-ground truth.
     ``last`` keeps the last :class:`proctex.correspond.PartCorrespondence`.
     """
 
     def __init__(self, assets: TemplateAssets, method: str = "cage", n_points: int = 2000, cage: Any = None) -> None:
-        if method not in ("cage", "nearest"):
-            raise ValueError(f"SolverMapper method must be cage or nearest, got {method!r}")
+        if method not in ("cage", "nearest", "cpd"):
+            raise ValueError(f"SolverMapper method must be cage, nearest or cpd, got {method!r}")
         self.assets, self.method, self.n_points, self.cage = assets, method, n_points, cage
         self.last = None
 

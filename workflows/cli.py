@@ -101,6 +101,20 @@ def cmd_screenshot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_eval_folder(args: argparse.Namespace) -> int:
+    """``eval-folder`` with the build on Ray when ``--ray`` is given."""
+    if args.ray is not None:
+        from .build import build_on_ray
+
+        address = None if args.ray == "local" else args.ray
+
+        def builder(out, config, stages, log):
+            build_on_ray(out, config, address=address, stages=stages, log=log, quiet=args.quiet or args.json)
+
+        args.builder = builder
+    return core.cmd_eval_folder(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = core.build_parser()
     sub = parser.subparsers  # type: ignore[attr-defined]
@@ -109,6 +123,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--no-ray", action="store_true", help="build in this process instead of on Ray")
     demo.add_argument("--address", help="build on an existing Ray cluster (default: a private local one)")
     demo.set_defaults(func=cmd_demo)
+    ev = sub.choices["eval-folder"]
+    ev.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS", help="build on Ray (a private local instance, or ADDRESS)")
+    ev.set_defaults(func=cmd_eval_folder)
     p = sub.add_parser("serve", help="serve the families under STORE over HTTP (Ray Serve)")
     p.add_argument("store", help="folder or URI holding family folders")
     p.add_argument("--host", default="127.0.0.1")
