@@ -450,8 +450,13 @@ def cmd_eval_folder(args: argparse.Namespace) -> int:
     if not os.path.isdir(args.folder):
         raise ValueError(f"{args.folder}: no such folder")
     options = _eval_options(args)
-    config = BuildConfig.from_dict({"folder": os.path.abspath(args.folder), "prompt": args.prompt,
-                                    "group_prompts": _group_prompts(args.group_prompts) or {}, "seed": args.seed})
+    data: dict[str, Any] = BuildConfig.read_settings(args.config) if args.config else {}
+    data.update(model=None, generator=None, folder=os.path.abspath(args.folder), prompt=args.prompt)
+    if args.group_prompts:
+        data["group_prompts"] = _group_prompts(args.group_prompts)
+    if args.seed is not None:
+        data["seed"] = args.seed
+    config = BuildConfig.from_dict(data)
     out = args.out or os.path.join("out", "families", Path(os.path.abspath(args.folder)).name)
     log = (lambda *_: None) if (args.quiet or args.json) else (lambda m: print(m, flush=True))
     builder = getattr(args, "builder", None)  # the Ray layer passes one (workflows.cli)
@@ -687,7 +692,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("folder")
     p.add_argument("--prompt", required=True)
     p.add_argument("--group-prompts")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--config", help="JSON or TOML build settings (corr_points, train, ...); the folder and prompt come from the flags")
     p.add_argument("--out", help="family folder (default out/families/<folder name>; a finished build there is reused)")
     _add_eval_flags(p)
     p.set_defaults(func=cmd_eval_folder)

@@ -127,8 +127,9 @@ class BuildConfig:
         return BuildConfig(**data).validate()
 
     @staticmethod
-    def from_file(path: str | os.PathLike) -> "BuildConfig":
-        """Read a JSON or TOML config (keys as the attributes; relative paths are relative to the file)."""
+    def read_settings(path: str | os.PathLike) -> dict[str, Any]:
+        """The settings of a JSON or TOML config file, unvalidated (relative paths made relative to
+        the file); a missing or unparsable file is a ``ValueError``."""
         p = Path(path)
         if not p.is_file():
             raise ValueError(f"{path}: config file not found")
@@ -136,10 +137,17 @@ class BuildConfig:
             data = tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())
         except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
             raise ValueError(f"{path}: cannot parse config ({exc})") from exc
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: a config must be an object of settings")
         for key in ("folder", "generator", "model_dir"):
             if data.get(key) and not os.path.isabs(data[key]):
                 data[key] = str((p.parent / data[key]).resolve())
-        return BuildConfig.from_dict(data)
+        return data
+
+    @staticmethod
+    def from_file(path: str | os.PathLike) -> "BuildConfig":
+        """Read a JSON or TOML config (keys as the attributes; relative paths are relative to the file)."""
+        return BuildConfig.from_dict(BuildConfig.read_settings(path))
 
 
 # --------------------------------------------------------------------------------------- helpers

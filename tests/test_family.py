@@ -220,7 +220,7 @@ def test_evaluate_stage_on_identical_shapes(tmp_path):
         assert entry["coverage"] == 0.0 and entry["coverage_baked"] == 0.0 and entry["shapes_with_holes"] == 0
         assert len(entry["per_shape"]) == 2 and entry["seconds_per_shape"] > 0
     net = m["methods"]["corrnet"]
-    assert net["pairs"] == 4 and set(net["per_group"]) == {"0", "1"}
+    assert m["pairs"] == 4 and net["pgt"]["pairs"] == 4 and set(net["per_group"]) == {"0", "1"}
     assert 0 < net["pgt"]["mean"] <= net["pgt"]["max"] <= net["pgt"]["max_point"]
     assert net["gt"]["mean"] > 0 and net["cage_gt"]["mean"] >= 0
     assert net["pgt_vertex_shortcut"]["pairs"] == 4 and net["pgt_vertex_shortcut"]["gap"] >= 0

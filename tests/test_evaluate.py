@@ -1,0 +1,198 @@
+"""Evaluation metrics on cases with known answers, and the methods side by side (DESIGN §6)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from proctex.family import BuildConfig, build
+from proctex.metrics import PSNR_CAP, view_similarity
+from proctex.models import get_model
+from proctex.store import FamilyStore
+
+TINY_TRAIN = {"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2}
+
+
+# ------------------------------------------------------------------------------------ view similarity
+def test_view_similarity_of_identical_views_is_perfect_and_drops_with_damage():
+    rng = np.random.default_rng(0)
+    views = [rng.integers(0, 256, (48, 48, 3), dtype=np.uint8) for _ in range(6)]
+    same = view_similarity(views, [v.copy() for v in views])
+    assert same.ssim == pytest.approx(1.0) and same.psnr == PSNR_CAP and same.lpips is None
+    noisy = [np.clip(v.astype(int) + rng.integers(-40, 41, v.shape), 0, 255).astype(np.uint8) for v in views]
+    worse = view_similarity(views, noisy)
+    assert worse.ssim < 0.99 and 10 < worse.psnr < 30 and len(worse.per_view) == 6
+    # PSNR by hand on one view: 10 log10(255^2 / MSE).
+    mse = ((views[0].astype(float) - noisy[0]) ** 2).mean()
+    assert worse.per_view[0]["psnr"] == pytest.approx(10 * np.log10(255**2 / mse))
+    with pytest.raises(ValueError):
+        view_similarity(views, views[:5])
+    with pytest.raises(ValueError):
+        view_similarity([views[0]], [views[0][:10]])
+
+
+def _random_lpips_file(path):
+    from proctex.lpips import LPIPS
+
+    torch.manual_seed(0)
+    state = {}
+    for k, v in LPIPS().state_dict().items():
+        if k.startswith("features."):
+            state[k] = torch.randn_like(v) * 0.05
+        elif k.startswith("lins."):
+            state[f"lin{k.split('.')[1]}.model.1.weight"] = torch.rand_like(v)
+    torch.save(state, path)
+    return state
+
+
+def test_lpips_from_a_local_file_is_a_distance(tmp_path):
+    from proctex.lpips import LPIPS
+
+    _random_lpips_file(tmp_path / "alex.pt")
+    model = LPIPS.load(tmp_path / "alex.pt")
+    rng = np.random.default_rng(1)
+    a = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    b = np.roll(a, 5, axis=0)
+    assert model.distance(a, a) == 0.0
+    assert model.distance(a, b) == pytest.approx(model.distance(b, a)) and model.distance(a, b) > 0
+    sim = view_similarity([a, b], [a, b], lpips=model)
+    assert sim.lpips == 0.0
+    with pytest.raises(ValueError, match="not found"):
+        LPIPS.load(tmp_path / "missing.pt")
+    state = torch.load(tmp_path / "alex.pt")
+    del state["lin2.model.1.weight"]
+    torch.save(state, tmp_path / "broken.pt")
+    with pytest.raises(ValueError, match="lin2"):
+        LPIPS.load(tmp_path / "broken.pt")
+    with pytest.raises(ValueError, match="32 px"):
+        model.distance(a[:8, :8], a[:8, :8])
+
+
+# ------------------------------------------------------------------------------------ correspondence
+def test_cpd_field_applies_to_any_point_and_reproduces_its_samples():
+    from proctex.correspond import correspond_parts, deform
+    from proctex.geometry import SurfaceIndex, normalised_frame
+    from proctex.parts import part_mesh, segment
+
+    shape = get_model("mug").generate({"radius": 0.045})
+    tpl = get_model("mug").generate()
+    v, f = part_mesh(shape, segment(shape).parts[0])
+    tv, tf = part_mesh(tpl, segment(tpl).parts[0])
+    c, r = normalised_frame(tv)
+    tvn = (tv - c) / r
+    res = correspond_parts(v, f, tvn, tf, method="cpd", n_points=300, seed=0)
+    moved = deform(res, res.source_points, np.zeros(3), 1.0)
+    assert np.allclose(SurfaceIndex(tvn, tf).query(moved).points, res.points, atol=1e-9)
+
+
+def test_a_wrong_correspondence_gives_large_errors():
+    """Known answers: the true map has zero ground-truth error; the same points mirrored (a
+    deliberately wrong correspondence) are off by about the part's size."""
+    from proctex.geometry import SurfaceIndex, normalised_frame
+    from proctex.metrics import gt_correspondence_error
+    from proctex.parts import part_mesh, segment
+
+    shape = get_model("mug").generate()
+    part = segment(shape).parts[0]
+    v, f = part_mesh(shape, part)
+    c, r = normalised_frame(v)
+    vn = (v - c) / r
+    can = shape.canonical[part.vertices]
+    index = SurfaceIndex(vn, f)
+    pts = vn[:: max(1, len(vn) // 300)]
+    hit = index.query(pts)
+    src_can = np.einsum("kj,kjd->kd", hit.bary, can[f[hit.faces]])
+    right = gt_correspondence_error(src_can, hit.points, hit.faces, vn, f, can)
+    wrong_hit = index.query(pts * np.array([-1.0, -1.0, 1.0]))
+    wrong = gt_correspondence_error(src_can, wrong_hit.points, wrong_hit.faces, vn, f, can)
+    assert right.mean < 1e-6 and wrong.mean > 0.5
+
+
+# ------------------------------------------------------------------------------------ side by side
+@pytest.fixture(scope="module")
+def pinned_family(tmp_path_factory):
+    """Bounds pinned to the defaults: every sample is the template."""
+    pinned = {s.name: [s.default, s.default] for s in get_model("mug").space.specs}
+    cfg = BuildConfig(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, params=pinned,
+                      prompt="red and white checkered fabric", train=TINY_TRAIN).validate()
+    st = FamilyStore(tmp_path_factory.mktemp("pinned") / "mug")
+    build(st, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
+    return st
+
+
+@pytest.mark.slow
+def test_methods_side_by_side_on_identical_shapes(pinned_family, tmp_path):
+    """On shapes identical to the template the run-time path is exact: tracked-point variance 0,
+    SSIM 1 and PSNR at its cap, no unpainted pixel; every other method maps every part, close to
+    but not exactly the identity. The JSON has every field the issue names."""
+    from proctex.evaluate import evaluate
+
+    _random_lpips_file(tmp_path / "alex.pt")
+
+    m = evaluate(pinned_family, methods=("corrnet", "corrnet_all", "cage", "nearest", "cpd"), lpips=str(tmp_path / "alex.pt"),
+                 view_size=96, tracked=500, bake_size=128, log=lambda *_: None, quiet=True)
+    json.dumps(m, allow_nan=False)  # finite, valid JSON
+    assert list(m["methods"]) == ["corrnet", "corrnet_all", "cage", "nearest", "cpd"]
+    for name, e in m["methods"].items():
+        for key in ("tracked_point_variance", "coverage", "ssim", "psnr", "seconds_per_shape", "lpips"):
+            assert isinstance(e[key], float), (name, key)
+        assert e["coverage"] == 0.0 and 0 < e["ssim"] <= 1.0 + 1e-9
+    net = m["methods"]["corrnet"]
+    assert net["tracked_point_variance"] == 0.0 and net["ssim"] == pytest.approx(1.0) and net["psnr"] == PSNR_CAP
+    assert net["lpips"] == 0.0 and net["mapped_parts"] == 0
+    for name in ("corrnet_all", "cage", "nearest", "cpd"):
+        e = m["methods"][name]
+        assert e["mapped_parts"] > 0 and e["ssim"] > 0.8, name
+    # Ground truth for every method on the same stored pairs; the cage is the pseudo-ground truth.
+    assert m["methods"]["cage"]["pgt"]["mean"] == 0.0
+    for name in ("corrnet", "cage", "nearest", "cpd"):
+        assert m["methods"][name]["gt"]["mean"] >= 0 and m["methods"][name]["gt"]["pairs"] == 4, name
+    assert m["methods"]["nearest"]["pgt"]["mean"] > 0 and m["methods"]["corrnet_all"]["gt"] == net["gt"]
+
+
+@pytest.mark.slow
+def test_eval_cli_and_eval_folder(pinned_family, tmp_path, capsys):
+    import shutil
+
+    from proctex.cli import main
+
+    fam = tmp_path / "fam"
+    shutil.copytree(pinned_family.base, fam)
+    assert main(["eval", str(fam), "--methods", "corrnet,nearest", "--workers", "2", "--json", "--limit", "2"]) == 0
+    m = json.loads(capsys.readouterr().out)
+    assert list(m["methods"]) == ["corrnet", "nearest"] and FamilyStore(fam).read_json("metrics.json") == m
+    assert main(["eval", str(fam), "--methods", "corrnet", "--workers", "1"]) == 0
+    assert "| corrnet |" in capsys.readouterr().out
+    for argv, message in [
+        (["eval", str(fam), "--methods", "corrnet,magic"], "--methods"),
+        (["eval", str(fam), "--lpips", str(tmp_path / "none.pt")], "no such weights file"),
+        (["eval", str(fam), "--workers", "-1"], "--workers"),
+        (["eval-folder", str(tmp_path / "nowhere"), "--prompt", "x"], "no such folder"),
+    ]:
+        assert main(argv) == 2, argv
+        assert message in capsys.readouterr().err, argv
+
+
+@pytest.mark.slow
+def test_eval_folder_builds_then_evaluates(tmp_path, capsys):
+    """A folder of samples in the sofa layout (train/, inference/): built, then evaluated."""
+    from proctex.cli import main
+    from proctex.meshio import save_mesh, save_params
+
+    model = get_model("mug")
+    for split, n, seed in (("train", 3, 0), ("inference", 2, 1)):
+        (tmp_path / "data" / split).mkdir(parents=True)
+        for i, p in enumerate(model.space.sample(n, seed=seed)):
+            save_mesh(model.generate(p), tmp_path / "data" / split / f"{i}.obj")
+            save_params(p, tmp_path / "data" / split / f"{i}.json")
+    out = tmp_path / "fam"
+    (tmp_path / "tiny.json").write_text(json.dumps({"corr_points": 200, "cage_iterations": 20, "texture_size": 64, "train": TINY_TRAIN}))
+    assert main(["eval-folder", str(tmp_path / "data"), "--prompt", "blue ceramic", "--out", str(out), "--methods", "corrnet,nearest",
+                 "--config", str(tmp_path / "tiny.json"), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "| corrnet |" in text and "| nearest |" in text and "2 test shapes" in text
+    state = json.loads((out / "family.json").read_text())
+    assert all(state["stages"][s]["state"] == "done" for s in ("sample", "template", "paint", "pairs", "train"))
