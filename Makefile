@@ -10,7 +10,7 @@ STUDIO     := workers/studio
 STUDIO_OUT := $(STUDIO)/dist/index.html
 STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: setup demo test test-fast gallery clean studio browser
+.PHONY: setup demo test test-fast bench gallery clean studio browser
 
 # The Khronos glTF validator (npm) goes into the venv too; GLB tests use it where npm exists.
 # Where npm exists, the studio's locked packages are installed (npm ci) and bundled too.
@@ -46,6 +46,10 @@ demo: setup
 
 test: setup browser
 	$(PY) -m pytest -q
+
+# The benchmark suite (not part of make test): JSON per benchmark and a summary table in out/bench.
+bench: setup
+	$(PY) tests/bench/run_all.py --out out/bench
 
 test-fast: setup
 	$(PY) -m pytest -q -m "not slow"

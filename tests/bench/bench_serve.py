@@ -99,6 +99,7 @@ def main(argv=None) -> int:
         lat = np.array([r[0] for r in res])
         errors = sum(r[1] != 200 for r in res)
         levels.append({"concurrency": c, "requests": args.requests, "errors": int(errors), "rps": args.requests / wall,
+                       "p10_ms": 1000 * float(np.percentile(lat, 10)), "p25_ms": 1000 * float(np.percentile(lat, 25)), "p75_ms": 1000 * float(np.percentile(lat, 75)),
                        "p50_ms": 1000 * float(np.percentile(lat, 50)), "p90_ms": 1000 * float(np.percentile(lat, 90)),
                        "p99_ms": 1000 * float(np.percentile(lat, 99)), "mean_ms": 1000 * statistics.fmean(lat)})
         print(f"concurrency {c}: p50 {levels[-1]['p50_ms']:.0f} ms, p99 {levels[-1]['p99_ms']:.0f} ms, "
