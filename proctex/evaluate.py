@@ -1,8 +1,13 @@
-"""Evaluate a built family on its unseen shapes (DESIGN §6): the ``evaluate`` build stage.
+"""Evaluate a built family on its unseen shapes (DESIGN §6): ``proctex eval`` and the ``evaluate``
+build stage.
 
-For every test shape (the folder's inference split, or the model's held-out samples) and every
-mapper (``corrnet`` = the family's ProcCorrNets, the run-time path; ``identity`` and ``nearest`` as
-baselines):
+Methods, side by side on the same shapes: ``corrnet`` (ProcTex's run-time path: parts with the
+template representative's exact connectivity take its UVs, the family's ProcCorrNets map the rest),
+``corrnet_all`` (the networks on every part), ``cage`` (the cage solver per part at transfer time:
+the pseudo-ground truth), ``nearest`` (nearest surface point after similarity alignment), ``cpd``
+(non-rigid Coherent Point Drift) and ``identity``. Every method but ``corrnet`` maps every part.
+
+Per test shape (the folder's inference split, or the model's held-out samples) and method:
 
 - **transfer** (:func:`proctex.transfer.transfer`) and GLB encoding, timed per shape;
 - **bake** (:func:`proctex.transfer.bake`) into the shape's own atlas;
@@ -10,17 +15,20 @@ baselines):
   through the transferred UVs) and the baked one;
 - the colours the shape shows at points tracked from the template, for the **tracked-point
   texture variance** across shapes (from the baked textures, as DESIGN §6 defines it, and through
-  the real-time UVs).
+  the real-time UVs);
+- **view similarity**: SSIM and PSNR (and LPIPS with a local weights file) between the template's
+  and the shape's renders from the six canonical views.
 
-For ProcCorrNet also, on the stored cage pairs of the test shapes (``pairs`` stage):
+On the stored cage pairs of the test shapes (``pairs`` stage), :func:`pair_errors`:
 
-- **pseudo-ground-truth error** (network prediction vs cage correspondence in the template part's
+- **pseudo-ground-truth error** (prediction vs cage correspondence in the template part's
   normalised frame): ``mean`` over (shape, group) pairs of the pair's mean point error, ``max`` the
   largest pair mean (the paper's "max"), ``max_point`` the largest point error;
-- for built-in models (canonical coordinates), the **ground-truth error** of the network (its
-  prediction projected onto the template surface) next to the cage solver's, on the same points.
+- for built-in models (canonical coordinates), the **ground-truth error** of every method on the
+  same source points.
 
-Results go to ``metrics.json`` in the store, in the shape ``{"methods": {"corrnet": {...}, ...}}``.
+Shapes can be evaluated in parallel processes (``workers``). Results go to ``metrics.json`` in the
+store, in the shape ``{"methods": {"corrnet": {...}, "cage": {...}, ...}}``.
 """
 
 from __future__ import annotations
