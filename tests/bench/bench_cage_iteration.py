@@ -36,6 +36,8 @@ def run(args) -> dict:
                                                    repeats=args.repeats)
     a, b = results[f"solve, {lo} iterations"], results[f"solve, {hi} iterations"]
     per = {q: max(b[q] - a[q], 0.0) / (hi - lo) for q in ("median", "p10", "p90", "min", "max", "mean")}
+    per["p10"], per["p90"] = sorted((per["p10"], per["p90"]))  # differences of percentiles need not stay ordered
+    per["min"], per["max"] = sorted((per["min"], per["max"]))
     per.update(spread=float(np.hypot(a["spread"] * a["median"], b["spread"] * b["median"]) / (b["median"] - a["median"])) if b["median"] > a["median"] else 0.0,
                repeats=args.repeats)
     results["one iteration (difference / iterations)"] = per
