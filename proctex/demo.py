@@ -343,7 +343,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     ``report.html`` and ``demo.json``. ``stage_seconds``: the build's wall time per stage;
     ``started``: ``time.perf_counter()`` when the whole job began (for its total wall time).
     """
-    from .family import _model, load_models, stored_config, up_axis
+    from .family import _model, stored_config, up_axis
     from .meshio import _atomic_write_bytes
     from .render import save_gif, save_png
     from .service import FamilyService
@@ -360,7 +360,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     model = _model(config)
     svc = FamilyService(store)
     up = up_axis(config)
-    template_params = store.read_json("family.json").get("stages", {}).get("template", {}).get("params")
+    state = store.read_json("family.json")
+    template_params = state.get("stages", {}).get("template", {}).get("params")
     base = model.space.validate(template_params if isinstance(template_params, dict) else model.space.defaults())
     effects = parameter_effects(model.space, base, model.generate)
     sweep = sweep_settings(model.space, base, effects, rows=rows, per_row=per_row, seed=seed)
@@ -389,9 +390,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
 
     # The report.
     paint = store.read_json("template/paint.json")
-    state = store.read_json("family.json")
     trained = state.get("stages", {}).get("train", {}).get("groups", {})
-    models = load_models(store)
     from .paint import group_file_name
 
     fam_rel = os.path.relpath(store.base, out)
@@ -399,7 +398,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     for g in paint["groups"]:
         gi = g["group"]
         info = trained.get(str(gi)) if isinstance(trained, dict) else None
-        net = "trained" if gi in models else "none (same connectivity everywhere: template UVs)"
+        net = "trained" if gi in svc.models else "none (same connectivity everywhere: template UVs)"
         if isinstance(info, dict) and info.get("iterations"):
             net = f"trained, {info['iterations']} iterations"
         groups.append({"group": gi, "label": g.get("label"), "prompt": g.get("prompt"),

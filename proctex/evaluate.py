@@ -81,14 +81,14 @@ def _cage_config(config) -> Any:
 
 
 def pair_errors(store: FamilyStore, config, rows: list[dict[str, Any]], methods: Sequence[str] = ("corrnet",), seed: int = 0,
-                log: Callable[[str], None] = print) -> dict[str, Any]:
+                log: Callable[[str], None] = print, assets=None) -> dict[str, Any]:
     """Errors on the stored cage pairs of ``rows`` (test samples).
 
     ProcCorrNet (``corrnet`` in ``methods``): pseudo-ground-truth error (prediction vs cage), the
     vertex shortcut's error and gap, per group. For built-in models (canonical coordinates) the
     ground-truth error of every method in ``methods`` on the same source points: the network, the
     stored cage solution, and ``nearest`` / ``cpd`` solved on the pair's part (their
-    pseudo-ground-truth error too).
+    pseudo-ground-truth error too). ``assets``: the family's loaded template assets, if at hand.
 
     Returns ``{"pairs", "pgt", "pgt_vertex_shortcut", "gt", "cage_gt", "per_group", "methods": {m: {"pgt", "gt"}}}``
     (the unprefixed keys are ProcCorrNet's).
@@ -104,7 +104,7 @@ def pair_errors(store: FamilyStore, config, rows: list[dict[str, Any]], methods:
     pairs = [r for r in store.read_table("pairs.parquet").to_pylist() if r["status"] == "done"] if store.exists("pairs.parquet") else []
     ids = {r["id"] for r in rows}
     pairs = [p for p in pairs if p["id"] in ids]
-    assets = load_assets(store)
+    assets = assets if assets is not None else load_assets(store)
     template = load_template_shape(store, config)
     tgrouping = analyse(template, seed=config.seed)
     by_id = {r["id"]: r for r in rows}
@@ -323,16 +323,18 @@ def evaluate(
 
         LPIPS.load(lpips)  # a bad weights file fails before any work
     settings = {"bake_size": bake_size, "view_size": view_size, "tracked": tracked, "seed": seed, "lpips": lpips}
-    pairs = pair_errors(store, config, rows, methods=list(dict.fromkeys(["corrnet" if m == "corrnet_all" else m for m in methods])), seed=seed, log=log)
+
     metrics: dict[str, Any] = {"split": split, "shapes": len(rows), "ids": [r["id"] for r in rows], "lpips_weights": lpips,
                                "shortcut": sorted(SHORTCUT), "methods": {}}
+    ctx = _Context(store.uri, settings) if workers == 1 else None
+    pairs = pair_errors(store, config, rows, methods=list(dict.fromkeys(["corrnet" if m == "corrnet_all" else m for m in methods])), seed=seed,
+                        log=log, assets=ctx.assets if ctx else None)
     pool = None
     if workers > 1:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
         pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_init_worker, initargs=(store.uri, settings))
-    ctx = None if pool else _Context(store.uri, settings)
     try:
         for name in methods:
             t0 = time.perf_counter()

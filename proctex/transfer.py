@@ -186,7 +186,7 @@ def assign_parts(
             same = [ga.group for ga in assets.groups if not ga.degenerate and same_topology(f, len(v), ga)]
             copy = copy_of_group(v, same, assets, cost[i], extra_tol)
             if copy is not None:  # another copy of a template primitive (a third cushion): its group, template UVs
-                out.append(PartAssignment(p.index, copy, -1, np.eye(3), float(cost[i][[k for k, s in enumerate(assets.slots) if s.group == copy]].min()), "extra"))
+                out.append(PartAssignment(p.index, copy[0], -1, np.eye(3), copy[1], "extra"))
                 continue
             g, R, t, err = match_extra((v - c) / (r if r > 0 else 1.0), f, assets, groups=same or None)
             if err <= extra_tol:
@@ -196,13 +196,15 @@ def assign_parts(
     return sorted(out, key=lambda a: a.part)
 
 
-def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: TemplateAssets, slot_cost: np.ndarray, tol: float = 0.02) -> int | None:
+def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: TemplateAssets, slot_cost: np.ndarray,
+                  tol: float = 0.02) -> tuple[int, float] | None:
     """The group a part is another copy of, when it has the exact connectivity of group
     representatives (``candidates``): vertex ``i`` is then the representative's vertex ``i`` of the
     same primitive, stretched. Candidates whose representative maps onto the part by an affine map
     (relative residual at most ``tol``) qualify; of those, the group with the cheapest slot
     (``slot_cost (n_slots,)``, placement in the shape's box) wins, so a third seat cushion joins the
-    seat cushions even when back cushions share its connectivity. ``None`` when none qualifies.
+    seat cushions even when back cushions share its connectivity. Returns ``(group, its cheapest
+    slot cost)``, or ``None`` when none qualifies.
 
     ``vertices (k, 3)``: the part's vertices in the shape's frame.
     """
@@ -220,7 +222,7 @@ def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: Templ
         c = float(np.min(slot_cost[slots])) if slots else np.inf
         if c < best_cost:
             best, best_cost = g, c
-    return best
+    return None if best is None else (best, best_cost)
 
 
 def match_extra(

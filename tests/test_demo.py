@@ -132,9 +132,12 @@ def test_demo_writes_every_output(demo_run):
 @pytest.mark.slow
 def test_a_second_run_reuses_the_family_and_other_settings_need_fresh(demo_run):
     out, first = demo_run
+    logs: list[str] = []
     again = run_demo(out, model="mug", prompt="blue and white striped ceramic", n_train=3, n_test=2, rows=1, per_row=2,
-                     frames=2, log=lambda *_: None, quiet=True, overrides=TINY)
-    assert all(v < 1.0 for k, v in again.summary["stage_seconds"].items() if k in ("pairs", "train"))  # skipped
+                     frames=2, log=logs.append, quiet=True, overrides=TINY)
+    for stage in ("sample", "template", "paint", "pairs", "evaluate"):  # every stage skipped, nothing redone
+        assert f"{stage}: done already" in logs, (stage, logs)
+    assert len(again.variants) == 2 + 2
     with pytest.raises(ValueError, match="--fresh"):
         run_demo(out, model="mug", prompt="red velvet", n_train=3, n_test=2, quiet=True, log=lambda *_: None, overrides=TINY)
 

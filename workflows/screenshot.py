@@ -7,7 +7,6 @@ transfer (``document.body.dataset.state == "idle"`` with at least one completed 
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 from pathlib import Path
@@ -87,4 +86,4 @@ def studio_screenshot(url: str, out: str | os.PathLike, params: dict[str, Any] |
                                              server_seconds: window.studio.lastServerSeconds})""")
         finally:
             browser.close()
-    return json.loads(json.dumps(info))
+    return dict(info)

@@ -13,6 +13,7 @@ import sys
 import torch
 
 from fixtures import shapes, template
+import harness
 from harness import report, timeit
 from proctex.corrnet import CorrNetConfig, build_model
 from proctex.transfer import NetworkMapper, bake, glb, transfer
@@ -46,14 +47,12 @@ def run(args) -> dict:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, repeats=2)
     ap.add_argument("--model", default="chair")
     ap.add_argument("--shapes", type=int, default=4)
     ap.add_argument("--texture", type=int, default=512)
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--shortcut", action="store_true", help="let same-connectivity parts take the template UVs (the run-time path)")
-    ap.add_argument("--repeats", type=int, default=2, help="passes over the shapes")
-    ap.add_argument("--out")
     return ap
 
 

@@ -12,6 +12,7 @@ import sys
 import numpy as np
 import torch
 
+import harness
 from harness import report, timeit
 from proctex.cage import CageConfig
 from proctex.correspond import correspond_parts
@@ -45,14 +46,12 @@ def run(args) -> dict:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, repeats=5)
     ap.add_argument("--points", type=int, default=2000)
     ap.add_argument("--level", type=int, default=1)
     ap.add_argument("--short", type=int, default=10)
     ap.add_argument("--long", type=int, default=60)
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--out")
     return ap
 
 

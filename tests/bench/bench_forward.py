@@ -12,6 +12,7 @@ import sys
 import numpy as np
 import torch
 
+import harness
 from harness import report, timeit
 from proctex.corrnet import CorrNetConfig, build_model, predict
 
@@ -32,12 +33,10 @@ def run(args) -> dict:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, repeats=9)
     ap.add_argument("--context", type=int, default=512)
     ap.add_argument("--queries", default="2000,20000")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--repeats", type=int, default=9)
-    ap.add_argument("--out")
     return ap
 
 

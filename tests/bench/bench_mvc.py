@@ -12,6 +12,7 @@ import sys
 import numpy as np
 import torch
 
+import harness
 from harness import report, timeit
 from proctex.cage import init_cage
 from proctex.mvc import mean_value_coordinates
@@ -31,12 +32,10 @@ def run(args) -> dict:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, repeats=7)
     ap.add_argument("--points", type=int, default=2000)
     ap.add_argument("--levels", default="0,1,2")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--out")
     return ap
 
 

@@ -11,6 +11,7 @@ import sys
 
 import numpy as np
 
+import harness
 from harness import report, timeit
 from proctex.geometry import SurfaceIndex, sample_surface
 from proctex.models import get_model
@@ -30,11 +31,9 @@ def run(args) -> dict:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, repeats=7)
     ap.add_argument("--model", default="sofa")
     ap.add_argument("--points", type=int, default=10000)
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--out")
     return ap
 
 

@@ -9,6 +9,7 @@ import argparse
 import sys
 
 from fixtures import template
+import harness
 from harness import report, timeit
 from proctex.uv import texel_map
 
@@ -23,11 +24,9 @@ def run(args) -> dict:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = harness.parser(__doc__, repeats=7)
     ap.add_argument("--model", default="chair")
     ap.add_argument("--sizes", default="512,1024")
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--out")
     return ap
 
 

@@ -7,6 +7,7 @@ Every ``bench_*.py`` built on it takes ``--repeats`` and ``--out`` and returns i
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
@@ -100,3 +101,11 @@ def summary_table(reports: list[dict[str, Any]]) -> str:
 
 def median_of(values: list[float]) -> float:
     return float(statistics.median(values))
+
+
+def parser(doc: str, repeats: int) -> argparse.ArgumentParser:
+    """An argument parser titled by the script's docstring, with the suite's ``--repeats`` and ``--out``."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=repeats)
+    ap.add_argument("--out", help="JSON report")
+    return ap
