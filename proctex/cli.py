@@ -223,6 +223,7 @@ def _build_config(args: argparse.Namespace):
         "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed, "n_train": args.n_train, "n_test": args.n_test,
         "texture_size": args.texture_size, "corr_points": args.points, "cage_iterations": args.iterations, "up": args.up,
         "painter": args.painter, "model_dir": os.path.abspath(args.model_dir) if args.model_dir else None,
+        "tessellation": args.tessellation, "truth": args.truth,
     }
     if args.model or args.folder:  # a source flag replaces the config's source
         data.update(model=None, folder=None, generator=None)
@@ -407,13 +408,15 @@ def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
         raise ValueError(f"--methods must name some of {', '.join(METHODS)}, got {args.methods!r}")
-    if args.limit is not None and args.limit < 2:
-        raise ValueError(f"--limit must be >= 2, got {args.limit}")
+    if args.limit is not None and args.limit < 1:
+        raise ValueError(f"--limit must be >= 1, got {args.limit}")
     if args.workers < 0:
         raise ValueError(f"--workers must be >= 0 (0: one per CPU, at most 4), got {args.workers}")
     if args.lpips and not os.path.isfile(args.lpips):
         raise ValueError(f"--lpips {args.lpips!r}: no such weights file")
-    return {"methods": methods, "split": args.shapes, "limit": args.limit, "lpips": args.lpips,
+    if args.tracked < 10 or args.tracked > 1_000_000:
+        raise ValueError(f"--tracked must be in [10, 1000000], got {args.tracked}")
+    return {"methods": methods, "split": args.shapes, "limit": args.limit, "lpips": args.lpips, "truth": args.truth, "tracked": args.tracked,
             "workers": args.workers or max(1, min(4, os.cpu_count() or 1)), "quiet": args.quiet or args.json}
 
 
@@ -470,6 +473,7 @@ def cmd_eval_folder(args: argparse.Namespace) -> int:
 
 def _add_eval_flags(p: argparse.ArgumentParser) -> None:
     from .evaluate import DEFAULT_METHODS
+    from .fidelity import TRUTHS
 
     p.add_argument("--shapes", choices=["test", "train"], default="test")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
@@ -477,6 +481,10 @@ def _add_eval_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit", type=int, help="evaluate only the first N shapes")
     p.add_argument("--lpips", help="a local LPIPS (AlexNet) weights file: adds LPIPS to SSIM and PSNR")
     p.add_argument("--workers", type=int, default=0, help="processes evaluating shapes in parallel (0: one per CPU, at most 4)")
+    p.add_argument("--truth", choices=list(TRUTHS), default="auto",
+                   help="ground truth: auto (the config's; canonical coordinates for built-in models), vertex-index (the samples share one "
+                        "vertex order), canonical, or none (points tracked by the cage solver, no GT error)")
+    p.add_argument("--tracked", type=int, default=5000, help="tracked template points and truth samples per shape (vertex-index: every vertex)")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
 
@@ -642,6 +650,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--up", choices=["auto", "x", "y", "z"])
     p.add_argument("--painter", choices=["surface", "views", "diffusion"], help="template painter (default surface)")
     p.add_argument("--model-dir", help="local diffusers model folder (--painter diffusion)")
+    p.add_argument("--tessellation", choices=["adaptive", "fixed"],
+                   help="built-in models: segments follow part sizes (adaptive, the default) or fixed counts")
+    p.add_argument("--truth", choices=["auto", "canonical", "vertex-index", "none"],
+                   help="what the evaluation takes as ground truth (vertex-index: the samples share one vertex order)")
     p.add_argument("--stages", help="comma-separated subset of sample,template,paint,pairs,train,evaluate")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_build)

@@ -225,15 +225,15 @@ def report_html(summary: dict[str, Any]) -> str:
     if s.get("metrics"):
         mrows = []
         for name, m in s["metrics"]["methods"].items():
-            pgt = m.get("pgt") or {}
-            gt, cage = m.get("gt") or {}, m.get("cage_gt") or {}
-            gt_text = _num(gt.get("mean")) + (f" ({_num(cage.get('mean'))})" if cage.get("mean") is not None else "")
+            pgt, gt = m.get("pgt_error") or {}, m.get("gt_error") or {}
+            ms = "–" if m.get("seconds_per_shape") is None else f"{1000 * m['seconds_per_shape']:.0f}"
             mrows.append([e(name), _num(m.get("tracked_point_variance")), _num(m.get("tracked_point_variance_realtime")),
-                          _num(m.get("coverage")), _num(pgt.get("mean")), _num(pgt.get("max")), gt_text,
-                          f"{1000 * m['seconds_per_shape']:.0f}"])
-        metrics = (f"<p>{s['metrics']['shapes']} unseen test shapes.</p>"
-                   + _table(["method", "tracked-point variance (baked)", "(real-time)", "coverage", "pseudo-GT error mean", "max",
-                             "GT error mean (cage solver)", "ms per shape"], mrows))
+                          _num(gt.get("mean")), _num(gt.get("max")), _num(pgt.get("mean")), _num(pgt.get("max")),
+                          _num(m.get("coverage")), f"{m.get('mapped_share', 0.0):.0%}" if name.startswith("corrnet") else "–", ms])
+        metrics = (f"<p>{s['metrics']['shapes']} unseen test shapes; points tracked by {e(str(s['metrics'].get('tracker')))} "
+                   f"(never by the method's own map); errors in the template part's normalised frame, max over all points.</p>"
+                   + _table(["method", "tracked-point variance (baked)", "(real-time)", "GT error mean", "GT max", "pseudo-GT error mean", "max",
+                             "coverage", "networks on parts", "ms per shape"], mrows))
     variants = _table(
         ["row", "parameters", "transfer ms", "faces", "GLB"],
         [[e(v["row"]), "<code>" + e(json.dumps(v["params"])) + "</code>", f"{1000 * v['seconds']:.0f}", str(v["faces"]),
@@ -410,7 +410,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     summary = {
         "model": config.model or "generator", "prompt": config.prompt, "family": fam_rel, "serve_root": os.path.dirname(fam_rel) or ".",
         "seed": config.seed, "n_train": config.n_train, "n_test": config.n_test, "ray": ray,
-        "groups": groups, "metrics": None if metrics is None else {"shapes": metrics["shapes"], "methods": {
+        "groups": groups, "metrics": None if metrics is None else {"shapes": metrics["shapes"], "tracker": metrics.get("tracker"), "methods": {
             k: {kk: vv for kk, vv in m.items() if kk not in ("per_shape", "per_group")} for k, m in metrics["methods"].items()}},
         "stage_seconds": {k: round(v, 2) for k, v in stage_all.items()},
         "total_seconds": round(time.perf_counter() - started if started is not None else sum(stage_all.values()), 2),

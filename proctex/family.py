@@ -57,6 +57,15 @@ class BuildConfig:
         up: the shapes' up axis ("auto": y for OBJ/glTF files, z otherwise).
         corr_points, cage_level, cage_iterations: the cage solver per pair.
         train: ProcCorrNet settings (``proctex.corrnet.CorrNetConfig`` fields).
+        tessellation: built-in models only: "adaptive" (segments follow each part's size, so most
+            parameter changes change a part's connectivity, as real procedural exports do: the
+            networks are exercised) or "fixed" (every part keeps its connectivity: the
+            same-connectivity shortcut textures it). Stores built before the setting existed are
+            "fixed".
+        truth: what the evaluation takes as ground truth (:data:`proctex.fidelity.TRUTHS`): "auto"
+            (canonical coordinates for built-in models, none otherwise), "vertex-index" (the
+            samples share one vertex order: vertex *i* is the same point in every sample; checked
+            when evaluating), "canonical" or "none" (the cage solver tracks points; no GT error).
     """
 
     model: str | None = None
@@ -83,6 +92,8 @@ class BuildConfig:
     cage_level: int = 1
     cage_iterations: int = 300
     train: dict[str, Any] = field(default_factory=dict)
+    tessellation: str = "adaptive"
+    truth: str = "auto"
 
     def validate(self) -> "BuildConfig":
         named = [x for x in (self.model, self.folder, self.generator) if x]
@@ -114,6 +125,14 @@ class BuildConfig:
             raise ValueError(f"painter 'diffusion' needs model_dir, a local diffusers model folder (got {self.model_dir!r})")
         if self.up not in ("auto", "x", "y", "z"):
             raise ValueError(f"up must be auto, x, y or z, got {self.up!r}")
+        if self.tessellation not in ("adaptive", "fixed"):
+            raise ValueError(f"tessellation must be adaptive or fixed, got {self.tessellation!r}")
+        from .fidelity import TRUTHS
+
+        if self.truth not in TRUTHS:
+            raise ValueError(f"truth must be one of {', '.join(TRUTHS)}, got {self.truth!r}")
+        if self.truth == "canonical" and not self.model:
+            raise ValueError("truth 'canonical' needs a built-in model (canonical coordinates)")
         if self.corr_points < 100 or self.cage_iterations < 1 or not 0 <= self.cage_level <= 4:
             raise ValueError("corr_points >= 100, cage_iterations >= 1 and cage_level in [0, 4] required")
         return self
@@ -175,9 +194,10 @@ def stage_done(store: FamilyStore, stage: str) -> bool:
 
 
 def _model(config: BuildConfig):
-    from .sources import load_generator, resolve_model
+    from .models import get_model
+    from .sources import load_generator
 
-    model = load_generator(config.generator) if config.generator else resolve_model(config.model)
+    model = load_generator(config.generator) if config.generator else get_model(config.model, tessellation=config.tessellation)
     if config.params:
         model.space = _restricted(model.space, config.params)
     return model
@@ -362,11 +382,20 @@ def load_template_shape(store: FamilyStore, config: BuildConfig | None = None) -
     return _read_obj(store, "template/template.obj")
 
 
+#: Settings whose default changed after stores without them were written: their value then.
+LEGACY_SETTINGS = {"tessellation": "fixed"}
+
+
+def _with_legacy(settings: dict[str, Any]) -> dict[str, Any]:
+    """A stored config's settings with the values older stores were built with filled in."""
+    return {**LEGACY_SETTINGS, **settings}
+
+
 def stored_config(store: FamilyStore) -> BuildConfig:
     state = _state(store)
     if "config" not in state:
         raise ValueError(f"{store.uri}: not a ProcTex family (no family.json with a config)")
-    return BuildConfig.from_dict(state["config"])
+    return BuildConfig.from_dict(_with_legacy(state["config"]))
 
 
 def load_assets(store: FamilyStore, seed: int | None = None):
@@ -420,29 +449,18 @@ def template_masks(store: FamilyStore, assets=None) -> tuple[list[np.ndarray], l
     return masks, masks
 
 
-def choose_part(assignment, group: int) -> Any:
-    """The part of a shape that teaches group ``group``: the one in the representative's slot, else
-    any part assigned to the group (``None`` if none)."""
-    cands = [a for a in assignment if a.group == group]
-    rep_side = [a for a in cands if a.how == "slot" and np.allclose(a.R, np.eye(3))]
-    return (rep_side or cands or [None])[0]
-
-
 def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:
     """Cage correspondence of one (shape, template group): the training pair and its record."""
     from .cage import CageConfig
     from .correspond import correspond_parts
-    from .transfer import assign_parts
+    from .transfer import assign_parts, choose_part, representative_frame
 
     seg = segment(shape)
     a = choose_part(assign_parts(shape, seg, assets), group)
     if a is None:
         return None
-    from .geometry import normalised_frame
-
     v, f = part_mesh(shape, seg.parts[a.part])
-    c, r = normalised_frame(v)
-    vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T
+    vn = representative_frame(v, a)
     ga = assets.groups[group]
     cage = CageConfig(level=config.cage_level, iterations=config.cage_iterations).validate()
     res = correspond_parts(vn, f, ga.vertices, ga.faces, method="cage", n_points=config.corr_points, seed=seed, cage=cage)
@@ -606,8 +624,8 @@ def write_config(store: FamilyStore, config: BuildConfig) -> None:
     state = _state(store)
     old = state.get("config")
     new = asdict(config)
-    if old is not None:  # settings added since that build count at their defaults
-        old = {**asdict(BuildConfig()), **old}
+    if old is not None:  # settings added since that build count at their defaults (or their value then)
+        old = {**asdict(BuildConfig()), **_with_legacy(old)}
     if old is not None and old != new:
         raise ValueError(f"{store.uri} was built with another config; use a new folder (or delete it) to change settings")
     state["config"] = new

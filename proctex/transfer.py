@@ -29,7 +29,7 @@ from typing import Any, Protocol, Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .geometry import SurfaceIndex, normalised_frame, sample_surface, triangle_areas
+from .geometry import SurfaceIndex, normalised_frame, sample_surface
 from .parts import Grouping, Segmentation, part_mesh, segment
 from .shape import Shape
 from .uv import pad_seams, sample_texture, texel_map, unwrap
@@ -145,6 +145,25 @@ class PartAssignment:
     t: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
+def representative_frame(vertices: np.ndarray, assignment: PartAssignment) -> np.ndarray:
+    """A part's vertices ``(k, 3)`` (shape frame) in its group representative's normalised frame:
+    the part's own normalised frame (bounding-box centre, L∞ radius), then the assignment's map
+    ``x -> R x + t`` onto the representative's side. The one place this frame is computed: the
+    build's cage pairs, the run-time transfer and the evaluation all use it."""
+    v = np.asarray(vertices, dtype=np.float64)
+    c, r = normalised_frame(v)
+    return (v - c) / (r if r > 0 else 1.0) @ np.asarray(assignment.R, dtype=np.float64).T + np.asarray(assignment.t, dtype=np.float64)
+
+
+def choose_part(assignment: Sequence[PartAssignment], group: int) -> PartAssignment | None:
+    """The part of a shape that stands for group ``group``'s representative (it teaches the group's
+    network and carries the cage tracker): the one in the representative's own slot (a slot of the
+    group with an identity member map), else any part assigned to the group; ``None`` if none."""
+    cands = [a for a in assignment if a.group == group]
+    rep_side = [a for a in cands if a.how == "slot" and np.allclose(a.R, np.eye(3))]
+    return (rep_side or cands or [None])[0]
+
+
 def assign_parts(
     shape: Shape, seg: Segmentation, assets: TemplateAssets, w_extent: float = 1.0, extra_cost: float = 0.6, extra_tol: float = 0.02
 ) -> list[PartAssignment]:
@@ -168,10 +187,14 @@ def assign_parts(
     se = np.array([s.extents for s in assets.slots])
     loge = np.abs(np.log(np.maximum(pe[:, None], 1e-6) / np.maximum(se[None], 1e-6))).mean(axis=2)
     cost = np.linalg.norm(pc[:, None] - sc[None], axis=2) + w_extent * loge
-    rows, cols = linear_sum_assignment(cost)
+    # One "no slot" column per part at the threshold cost: a part takes a slot only where that beats
+    # leaving it out, so an extra part (an armrest the template lacks) can never win a slot from
+    # the part that belongs there and then be dropped for costing too much.
+    stay_out = np.full((len(parts), len(parts)), extra_cost + 1e-9)
+    rows, cols = linear_sum_assignment(np.hstack([cost, stay_out]))
     taken = {}
     for r, c in zip(rows, cols):
-        if cost[r, c] <= extra_cost:
+        if c < cost.shape[1] and cost[r, c] <= extra_cost:
             taken[r] = c
     for i, p in enumerate(parts):
         if i in taken:
@@ -411,8 +434,7 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
             mapped, uv = ga.vertices.copy(), ga.corner_uv.copy()
             tb = time.perf_counter()
         else:
-            c, r = normalised_frame(v)
-            vn = (v - c) / (r if r > 0 else 1.0) @ a.R.T + a.t  # into the representative's side
+            vn = representative_frame(v, a)
             mapped = np.asarray(mapper.map(a.group, vn, f, vn, seed=seed), dtype=np.float64)
             if mapped.shape != vn.shape or not np.isfinite(mapped).all():
                 raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
@@ -616,25 +638,6 @@ def bake(
     return out
 
 
-def tracked_points(assets: TemplateAssets, n: int = 5000, seed: int = 0) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
-    """Uniform points on the template for the tracked-point variance (DESIGN §6).
-
-    Returns, per non-degenerate group, ``(group, points (k, 3) in the representative's normalised
-    frame, faces (k,), bary (k, 3))``, ``k`` proportional to the group's representative area (``n`` in all).
-    """
-    areas = np.array([0.0 if ga.degenerate else triangle_areas(ga.vertices * ga.radius, ga.faces).sum() for ga in assets.groups])
-    if areas.sum() <= 0:
-        raise ValueError("template has no surface")
-    counts = np.maximum(np.round(n * areas / areas.sum()).astype(int), 0)
-    out = []
-    for ga, k in zip(assets.groups, counts):
-        if k == 0:
-            continue
-        pts, fi, bary = sample_surface(ga.vertices, ga.faces, int(k), seed=seed + ga.group)
-        out.append((ga.group, pts, fi, bary))
-    return out
-
-
 def info(result: TransferResult) -> dict[str, Any]:
     """JSON-ready summary of a transfer (assignment, timings)."""
     return {
@@ -705,72 +708,3 @@ class NetworkMapper:
             return np.asarray(predict(model, ctx, query), dtype=np.float64)
         finally:
             torch.set_num_threads(before)
-
-
-@dataclass
-class TrackedVariance:
-    """Tracked-point texture variance (DESIGN §6): ``value`` = per-channel std over shapes, averaged
-    over channels and points; ``per_group`` the same per group; ``points`` tracked, ``shapes`` used."""
-
-    value: float
-    per_group: dict[int, float]
-    points: int
-    shapes: int
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"value": self.value, "per_group": {str(k): v for k, v in self.per_group.items()}, "points": self.points, "shapes": self.shapes}
-
-
-def shape_colours_at_template_points(
-    shape: Shape, result: TransferResult, assets: TemplateAssets, tracked, textures: Sequence[np.ndarray] | None = None,
-    corner_uv: np.ndarray | None = None, face_group: np.ndarray | None = None,
-) -> dict[int, np.ndarray]:
-    """Colours (k, 3) in [0, 1] that a shape shows at the points corresponding to tracked template points.
-
-    The transfer maps the shape part (in the representative's slot) piecewise linearly: its vertices
-    go to ``result.points``, each face affinely. The corresponding shape point of a template point is
-    found by inverting that map exactly: the closest point of the *mapped* part mesh gives a face and
-    barycentric coordinates, which are the shape point's. Colours come from the shape's own textures
-    (``textures``/``corner_uv``/``face_group``, e.g. baked) or, by default, the template textures
-    through ``result``'s UVs.
-    """
-    from .family import choose_part  # the part that stands for the representative
-
-    seg = segment(shape)
-    textures = assets.textures if textures is None else textures
-    corner_uv = result.corner_uv if corner_uv is None else corner_uv
-    face_group = result.face_group if face_group is None else face_group
-    out = {}
-    for g, pts, _, _ in tracked:
-        a = choose_part(result.assignment, g)
-        if a is None or a.part not in result.points:
-            continue
-        part = seg.parts[a.part]
-        _, f = part_mesh(shape, part)
-        ga = assets.groups[g]
-        mapped = (result.points[a.part] - ga.center) / ga.radius
-        hit = SurfaceIndex(mapped, f).query(pts)
-        gf = part.faces[hit.faces]
-        uv = np.einsum("ij,ijk->ik", hit.bary, corner_uv[gf])
-        cols = np.zeros((len(pts), 3))
-        for gi in np.unique(face_group[gf]):
-            sel = face_group[gf] == gi
-            if gi >= 0:
-                cols[sel] = sample_texture(textures[gi], uv[sel])[:, :3]
-        out[g] = cols
-    return out
-
-
-def tracked_variance(colours: Sequence[dict[int, np.ndarray]]) -> TrackedVariance:
-    """Combine per-shape colours at the tracked points (from :func:`shape_colours_at_template_points`)."""
-    groups = sorted(set.intersection(*(set(c) for c in colours))) if colours else []
-    if len(colours) < 2 or not groups:
-        raise ValueError("tracked-point variance needs at least two shapes sharing a group")
-    per_group, all_std = {}, []
-    for g in groups:
-        stack = np.stack([c[g] for c in colours])  # (shapes, k, 3)
-        std = stack.std(axis=0)  # (k, 3)
-        per_group[g] = float(std.mean())
-        all_std.append(std)
-    allv = np.concatenate(all_std)
-    return TrackedVariance(float(allv.mean()), per_group, int(len(allv)), len(colours))

@@ -12,7 +12,7 @@ from proctex.painters import SurfacePainter
 from proctex.parts import analyse, segment
 from proctex.render import Tracer, bounding_sphere, canonical_cameras, pixel_uv, render_buffers
 from proctex.store import FamilyStore
-from proctex.transfer import IdentityMapper, assign_parts, bake, glb, info, prepare_template, tracked_points, transfer
+from proctex.transfer import IdentityMapper, assign_parts, bake, glb, info, prepare_template, transfer
 from proctex.uv import sample_texture
 
 
@@ -158,15 +158,6 @@ def test_transfer_glb_is_valid_and_bake_matches(tmp_path, chair):
     assert np.median(np.abs(c1 - c2).max(axis=1)) < 0.05
 
 
-def test_tracked_points_are_spread_by_area(chair):
-    _, _, _, assets = chair
-    tp = tracked_points(assets, n=1000)
-    assert abs(sum(len(p) for _, p, _, _ in tp) - 1000) <= len(tp)
-    for g, p, f, bary in tp:
-        ga = assets.groups[g]
-        assert np.allclose(np.einsum("ij,ijk->ik", bary, ga.vertices[ga.faces[f]]), p)
-
-
 def test_prepare_template_validates(chair):
     shape, grouping, tex, _ = chair
     with pytest.raises(ValueError):
@@ -206,40 +197,6 @@ def test_a_group_the_template_lacks_is_painted_without_touching_the_template():
     assert (r2.face_group[arm_faces] == -1).all() and r2.notes
 
 
-def test_tracked_variance_is_zero_for_identical_shapes_and_grows_with_noise(chair):
-    _, _, _, assets = chair
-    shape = get_model("chair").generate({"seat_width": 0.5})
-    r = transfer(shape, assets, IdentityMapper())
-    tp = tracked_points(assets, n=500)
-    from proctex.transfer import shape_colours_at_template_points, tracked_variance
-
-    c = shape_colours_at_template_points(shape, r, assets, tp)
-    assert tracked_variance([c, c]).value == 0.0
-    rng = np.random.default_rng(0)
-    noisy = {g: np.clip(v + rng.normal(0, 0.1, v.shape), 0, 1) for g, v in c.items()}
-    tv = tracked_variance([c, noisy])
-    assert 0.02 < tv.value < 0.06 and tv.shapes == 2
-    with pytest.raises(ValueError):
-        tracked_variance([c])
-
-
-def test_tracked_points_invert_the_map_exactly_on_the_template(chair):
-    """On the template itself every part keeps its own connectivity, so the map is the identity on
-    the representative: the colour found at each tracked point is the template's own colour there."""
-    from proctex.transfer import shape_colours_at_template_points
-
-    shape, _, _, assets = chair
-    r = transfer(shape, assets, IdentityMapper())
-    tp = tracked_points(assets, n=2000, seed=4)
-    cols = shape_colours_at_template_points(shape, r, assets, tp)
-    assert sorted(cols) == [g for g, _, _, _ in tp]
-    for g, pts, fi, bary in tp:
-        ga = assets.groups[g]
-        truth = sample_texture(assets.textures[g], np.einsum("ij,ijk->ik", bary, ga.corner_uv[fi]))[:, :3]
-        assert np.mean(np.abs(cols[g] - truth).max(axis=1) < 1e-6) > 0.98  # all but points on UV seams
-
-
-# ------------------------------------------------------------------ topology shortcut, dis-occlusion
 def test_parts_with_the_template_connectivity_take_its_uvs_unchanged(chair):
     _, _, _, assets = chair
     shape = get_model("chair").generate({"seat_width": 0.52, "back_height": 0.5, "leg_thickness": 0.045})
