@@ -51,11 +51,171 @@ def _orient_outward(part: Part) -> Part:
     return part
 
 
+# ------------------------------------------------------------------------------------ resolution
+def segment_count(length: float, edge: float, minimum: int = 1) -> int:
+    """Segments along ``length`` (m) for a target ``edge`` length (m): ``max(minimum, round(length / edge))``.
+
+    Raises ``ValueError`` unless ``length >= 0``, ``edge > 0`` (both finite) and ``minimum >= 1``.
+    """
+    length, edge = float(length), float(edge)
+    if not (np.isfinite(length) and length >= 0 and np.isfinite(edge) and edge > 0) or int(minimum) < 1:
+        raise ValueError(f"segment_count needs length >= 0, edge > 0 and minimum >= 1, got {length}, {edge}, {minimum}")
+    return max(int(minimum), int(round(length / edge)))
+
+
+def _box_edges(size: np.ndarray, edge: float, rings_per_width: float = 2.0) -> np.ndarray:
+    """Target edge (m) per axis (3,) of a box of ``size`` (3,): ``edge``, except along the longest
+    axis, where it is capped at the middle dimension over ``rings_per_width`` (> 0), so a bar gets
+    at least that many rings per width along its length (bending, tapering and curling warps stay
+    smooth) and its ring count follows its thickness as well as its length."""
+    if not rings_per_width > 0:
+        raise ValueError(f"rings_per_width must be > 0, got {rings_per_width}")
+    edges = np.full(3, float(edge))
+    order = np.argsort(size, kind="stable")
+    edges[order[2]] = min(float(edge), float(size[order[1]]) / rings_per_width)
+    return edges
+
+
+def box_divisions(
+    size: Sequence[float], edge: float, minimum: Sequence[int] | int = 1, rings_per_width: float = 2.0
+) -> tuple[int, int, int]:
+    """Segments (3,) of a box of ``size`` (3,) for a target ``edge`` length (m): ``max(minimum,
+    round(size / edge))`` per axis, with the edge along the longest axis capped at the middle
+    dimension over ``rings_per_width`` (see :func:`_box_edges`)."""
+    size = np.asarray(size, dtype=float)
+    if size.shape != (3,) or np.any(size <= 0) or not np.all(np.isfinite(size)):
+        raise ValueError(f"box size must be three positive finite numbers, got {size}")
+    mins = np.broadcast_to(np.asarray(minimum, dtype=int), (3,))
+    edges = _box_edges(size, edge, rings_per_width)
+    return tuple(segment_count(size[a], edges[a], int(mins[a])) for a in range(3))  # type: ignore[return-value]
+
+
+def ring_points(radius: float, edge: float, minimum: int = 8, multiple: int = 1) -> int:
+    """Points per ring of a circle of ``radius`` (m) for a target ``edge`` (m): a multiple of
+    ``multiple``, at least ``minimum``."""
+    if int(multiple) < 1:
+        raise ValueError(f"multiple must be >= 1, got {multiple}")
+    n = segment_count(2 * np.pi * float(radius) / int(multiple), edge, max(1, -(-int(minimum) // int(multiple))))
+    return n * int(multiple)
+
+
+def revolve_resolution(radius: float, edge: float, minimum: int = 8, multiple: int = 1) -> tuple[int, float]:
+    """Points per ring (see :func:`ring_points`) of a surface of revolution whose widest ring has
+    ``radius`` (m), and the spacing (m) to use along its profile: ``edge`` capped by the ring's own
+    edge length, so thin parts get roughly square quads."""
+    n = ring_points(radius, edge, minimum, multiple)
+    return n, min(float(edge), 2 * np.pi * float(radius) / n)
+
+
+def split_spans(knots: Sequence[float], counts: Sequence[int]) -> np.ndarray:
+    """Values (sum(counts) + 1,) float64: interval ``[knots[i], knots[i + 1]]`` cut into ``counts[i]``
+    equal pieces; every knot is hit exactly. ``knots`` (k + 1,) strictly increasing, ``counts`` (k,) >= 1."""
+    knots = np.asarray(knots, dtype=float)
+    counts = np.asarray(counts, dtype=int)
+    if knots.ndim != 1 or len(knots) < 2 or counts.shape != (len(knots) - 1,) or np.any(counts < 1):
+        raise ValueError(f"split_spans needs k + 1 knots and k counts >= 1, got {knots} and {counts}")
+    if np.any(np.diff(knots) <= 0):
+        raise ValueError(f"knots must be strictly increasing, got {knots}")
+    pieces = [knots[i] + (knots[i + 1] - knots[i]) * np.arange(c) / c for i, c in enumerate(counts)]
+    return np.concatenate(pieces + [knots[-1:]])
+
+
+def resample(points: np.ndarray, s: np.ndarray, s_new: np.ndarray) -> np.ndarray:
+    """Piecewise-linear interpolation of ``points`` (K, d) given at increasing parameters ``s`` (K,)
+    at ``s_new`` (n,): (n, d) float64."""
+    points = np.asarray(points, dtype=float)
+    s = np.asarray(s, dtype=float)
+    if points.ndim != 2 or s.shape != (len(points),) or np.any(np.diff(s) <= 0):
+        raise ValueError("resample needs (K, d) points at strictly increasing (K,) parameters")
+    return np.stack([np.interp(s_new, s, points[:, j]) for j in range(points.shape[1])], axis=1)
+
+
+def uniform_s(n_fixed: int, u: np.ndarray) -> np.ndarray:
+    """Profile parameters (k,) of the default convention ``s_k = (k + 1) / (K + 1)`` for ``K =
+    n_fixed`` rings at ``u = k / (K - 1)``, at any curve parameters ``u`` (k,) in [0, 1].
+
+    A curve sampled at ``K`` uniform ``u`` in fixed mode keeps the same canonical parametrisation
+    when it is sampled at any other ``u``.
+    """
+    if int(n_fixed) < 2:
+        raise ValueError(f"n_fixed must be >= 2, got {n_fixed}")
+    return (np.asarray(u, dtype=float) * (n_fixed - 1) + 1.0) / (n_fixed + 1.0)
+
+
+def polyline_length(points: np.ndarray) -> float:
+    """Length (m) of the polyline through ``points`` (k, d)."""
+    points = np.asarray(points, dtype=float)
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum()) if len(points) > 1 else 0.0
+
+
+def curve_parameters(
+    curve: Callable[[np.ndarray], np.ndarray],
+    knots: Sequence[float],
+    edge: float,
+    minimum: Sequence[int] | int = 1,
+    dense: int = 64,
+) -> np.ndarray:
+    """Curve parameters (k,) float64 for an adaptive sampling of ``curve``.
+
+    Each interval ``[knots[i], knots[i + 1]]`` is cut into ``max(minimum[i], round(length / edge))``
+    equal parameter steps, its length measured on ``dense`` samples; the knots themselves are kept.
+
+    Args:
+        curve: ``f(u (n,)) -> points (n, d)``.
+        knots: (k + 1,) strictly increasing curve parameters (corners, ends).
+    """
+    knots = np.asarray(knots, dtype=float)
+    mins = np.broadcast_to(np.asarray(minimum, dtype=int), (len(knots) - 1,))
+    counts = [
+        segment_count(polyline_length(curve(np.linspace(a, b, dense))), edge, int(m))
+        for a, b, m in zip(knots[:-1], knots[1:], mins)
+    ]
+    return split_spans(knots, counts)
+
+
+def subdivide_profile(
+    radius: np.ndarray, height: np.ndarray, s: np.ndarray, z_bottom: float, z_top: float, edge: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Profile with every span cut into ``max(1, round(length / edge))`` equal pieces.
+
+    The spans are pole -> first ring, ring -> ring and last ring -> pole, with the poles on the axis
+    at ``z_bottom`` / ``z_top`` (s = 0 / 1). The input rings are kept; new rings and their ``s`` are
+    linear interpolations, so the surface and its canonical parametrisation are unchanged.
+
+    Args:
+        radius, height, s: (K,) float64 profile (as for :func:`revolve`).
+    Returns:
+        ``(radius, height, s)``, each (K',) float64 with K' >= K.
+    """
+    radius, height, s = (np.asarray(a, dtype=float) for a in (radius, height, s))
+    pts = np.concatenate([[[0.0, z_bottom]], np.stack([radius, height], axis=1), [[0.0, z_top]]])
+    knots = np.concatenate([[0.0], s, [1.0]])
+    lengths = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    counts = [segment_count(length, edge, 1) for length in lengths]
+    s_new = split_spans(knots, counts)[1:-1]
+    out = resample(pts, knots, s_new)
+    return out[:, 0], out[:, 1], s_new
+
+
 # ---------------------------------------------------------------------------------------------- boxes
+def _axis_lattice(divisions: int | Sequence[float], axis: int) -> np.ndarray:
+    """Canonical lattice values (k + 1,) float64 of one box axis: ``k`` uniform segments for an
+    integer, else the given values (sorted, from 0 to 1)."""
+    if np.ndim(divisions) == 0:
+        n = int(divisions)
+        if n < 1 or n != divisions:
+            raise ValueError(f"box divisions along axis {axis} must be an integer >= 1, got {divisions}")
+        return np.arange(n + 1) / n
+    c = np.asarray(divisions, dtype=float)
+    if c.ndim != 1 or len(c) < 2 or c[0] != 0.0 or c[-1] != 1.0 or np.any(np.diff(c) <= 0):
+        raise ValueError(f"box lattice along axis {axis} must increase strictly from 0 to 1, got {divisions}")
+    return c
+
+
 def box(
     size: Sequence[float],
     center: Sequence[float] = (0.0, 0.0, 0.0),
-    divisions: Sequence[int] = (1, 1, 1),
+    divisions: Sequence[int | Sequence[float]] = (1, 1, 1),
     warp: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> Part:
     """Closed, subdivided axis-aligned box.
@@ -63,7 +223,8 @@ def box(
     Args:
         size: (3,) edge lengths (> 0).
         center: (3,) centre.
-        divisions: (3,) number of segments along x, y, z (>= 1).
+        divisions: per axis (x, y, z) either a number of uniform segments (>= 1) or the canonical
+            lattice values (k + 1,) in [0, 1], strictly increasing from 0 to 1.
         warp: optional ``f(local, canonical) -> local`` applied to the centred positions
             ``local (n, 3)`` before translation; used to taper, bevel or bend a box while keeping
             its canonical coordinates.
@@ -72,19 +233,19 @@ def box(
         Part with canonical = normalised position in the box, in [0, 1]^3.
     """
     size = np.asarray(size, dtype=float)
-    div = np.asarray(divisions, dtype=int)
     if size.shape != (3,) or np.any(size <= 0) or not np.all(np.isfinite(size)):
         raise ValueError(f"box size must be three positive finite numbers, got {size}")
-    if div.shape != (3,) or np.any(div < 1):
-        raise ValueError(f"box divisions must be three integers >= 1, got {divisions}")
+    if isinstance(divisions, (str, bytes)) or len(divisions) != 3:
+        raise ValueError(f"box divisions must be given for three axes, got {divisions}")
+    axes = [_axis_lattice(d, a) for a, d in enumerate(divisions)]
+    div = np.array([len(c) - 1 for c in axes])
     nx, ny, nz = div
     # Vertex id for every lattice point on the boundary of the (nx+1, ny+1, nz+1) grid.
     ids = -np.ones((nx + 1, ny + 1, nz + 1), dtype=np.int64)
     i, j, k = np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), np.arange(nz + 1), indexing="ij")
     on = (i == 0) | (i == nx) | (j == 0) | (j == ny) | (k == 0) | (k == nz)
     ids[on] = np.arange(int(on.sum()))
-    lattice = np.stack([i[on], j[on], k[on]], axis=1)
-    canonical = lattice / div
+    canonical = np.stack([axes[0][i[on]], axes[1][j[on]], axes[2][k[on]]], axis=1)
     faces = []
 
     def quads(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> None:
@@ -115,19 +276,18 @@ def box(
     return _orient_outward(part)
 
 
-def _graded_axis(c: np.ndarray, half: float, band_lo: float, band_hi: float, n: int, m: int) -> np.ndarray:
+def _graded_axis(c: np.ndarray, half: float, band_lo: float, band_hi: float, knot_lo: float, knot_hi: float) -> np.ndarray:
     """Positions (k,) along one box axis for lattice canonical coordinates ``c`` (k,) in [0, 1].
 
-    The first / last ``m`` of the ``n`` lattice intervals cover the rounding bands ``band_lo`` /
-    ``band_hi`` (0: no band, uniform spacing there), so rounded edges get ``m`` segments whatever
-    the box size.
+    Canonical ``[0, knot_lo]`` / ``[knot_hi, 1]`` cover the rounding bands ``band_lo`` / ``band_hi``
+    (0: no band, uniform spacing there); the rest of the axis is linear in between.
     """
     knots_c, knots_x = [0.0], [-half]
     if band_lo > 0:
-        knots_c.append(m / n)
+        knots_c.append(knot_lo)
         knots_x.append(-half + band_lo)
     if band_hi > 0:
-        knots_c.append(1.0 - m / n)
+        knots_c.append(knot_hi)
         knots_x.append(half - band_hi)
     knots_c.append(1.0)
     knots_x.append(half)
@@ -142,6 +302,7 @@ def rounded_box(
     round_hi: Sequence[float] = (0.0, 0.0, 0.0),
     edge_segments: int = 2,
     warp: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    middle: Sequence[int] | None = None,
 ) -> Part:
     """Box whose chosen sides have rounded edges, optionally warped afterwards.
 
@@ -149,12 +310,17 @@ def rounded_box(
         size: (3,) edge lengths.
         center: (3,) centre (applied after ``warp``).
         divisions: (3,) lattice segments; an axis with rounding on one side needs at least
-            ``edge_segments + 1``, on both sides ``2 * edge_segments + 1``.
+            ``edge_segments + 1``, on both sides ``2 * edge_segments + 1``. A rounding band covers
+            the canonical extent ``edge_segments / divisions`` of its axis.
         round_lo, round_hi: (3,) rounding radius of the edges bounding the low / high face along
             each axis (0 keeps that face sharp). An edge is rounded where both faces meeting there
             have a radius, e.g. ``round_hi = (r, 0, r)`` rounds only the (+x, +z) edge.
         edge_segments: lattice segments across each rounding band.
         warp: optional ``f(local (n, 3), canonical (n, 3)) -> local`` applied after rounding.
+        middle: optional (3,) segments (>= 1) between the rounding bands (adaptive tessellation).
+            The bands keep their canonical extent and ``edge_segments`` segments, so the canonical
+            coordinates mean the same surface points whatever ``middle`` is. ``None``: the
+            ``divisions`` lattice.
 
     The rounding maps each corner region of the box onto a quarter disc (or ball octant) by
     scaling the offset ``d`` from the inner box by ``max|d_i| / |d|``, which fixes the flat faces
@@ -167,10 +333,12 @@ def rounded_box(
     need = 1 + edge_segments * ((lo > 0).astype(int) + (hi > 0).astype(int))
     if np.any(div < need) or np.any(lo + hi >= size):
         raise ValueError(f"rounded_box: divisions {div} or radii lo={lo} hi={hi} do not fit size {size}")
+    knot_lo = [edge_segments / div[a] for a in range(3)]
+    knot_hi = [1.0 - edge_segments / div[a] for a in range(3)]
 
     def _round(local: np.ndarray, canonical: np.ndarray) -> np.ndarray:
         pos = np.stack(
-            [_graded_axis(canonical[:, a], half[a], lo[a], hi[a], div[a], edge_segments) for a in range(3)], axis=1
+            [_graded_axis(canonical[:, a], half[a], lo[a], hi[a], knot_lo[a], knot_hi[a]) for a in range(3)], axis=1
         )
         inner = np.clip(pos, -half + lo, half - hi)
         d = pos - inner
@@ -179,7 +347,43 @@ def rounded_box(
         out = inner + d * scale
         return out if warp is None else warp(out, canonical)
 
-    return box(size, center, div, _round)
+    if middle is None:
+        return box(size, center, div, _round)
+    mid = np.asarray(middle, dtype=int)
+    if mid.shape != (3,) or np.any(mid < 1):
+        raise ValueError(f"rounded_box: middle must be three integers >= 1, got {middle}")
+    lattice = []
+    for a in range(3):
+        knots, counts = [0.0], []
+        if lo[a] > 0:
+            knots.append(knot_lo[a])
+            counts.append(edge_segments)
+        if hi[a] > 0:
+            knots.append(knot_hi[a])
+            counts.append(int(mid[a]))
+        knots.append(1.0)
+        counts.append(edge_segments if hi[a] > 0 else int(mid[a]))
+        lattice.append(split_spans(knots, counts))
+    return box(size, center, lattice, _round)
+
+
+def rounded_box_middle(
+    size: Sequence[float],
+    round_lo: Sequence[float],
+    round_hi: Sequence[float],
+    edge: float,
+    minimum: Sequence[int] | int = 1,
+    rings_per_width: float = 2.0,
+) -> tuple[int, int, int]:
+    """Adaptive ``middle`` segments (3,) of a :func:`rounded_box`: the flat length between the
+    rounding bands of each axis over the target ``edge`` (per axis as in :func:`box_divisions`)."""
+    size = np.asarray(size, dtype=float)
+    flat = size - np.asarray(round_lo, dtype=float) - np.asarray(round_hi, dtype=float)
+    if np.any(flat <= 0):
+        raise ValueError(f"rounding radii lo={round_lo} hi={round_hi} do not fit size {size}")
+    mins = np.broadcast_to(np.asarray(minimum, dtype=int), (3,))
+    edges = _box_edges(size, edge, rings_per_width)
+    return tuple(segment_count(flat[a], edges[a], int(mins[a])) for a in range(3))  # type: ignore[return-value]
 
 
 def translated(part: Part, offsets: Sequence[Sequence[float]]) -> list[Part]:
@@ -311,6 +515,7 @@ def tube(
     up: Sequence[float] = (0.0, 0.0, 1.0),
     cap_offset: float = 0.0,
     scale_xy: Sequence[float] = (1.0, 1.0),
+    normals: np.ndarray | None = None,
 ) -> Part:
     """Closed tube swept along a polyline, with pole caps at both ends.
 
@@ -325,6 +530,8 @@ def tube(
             paths build the rings with a fixed reference direction and :func:`ring_surface`.
         cap_offset: how far beyond the end rings the poles sit (0: flat caps).
         scale_xy: (2,) ellipse factors of the cross-section along (normal, binormal).
+        normals: optional (K, 3) directions of the cross-sections' angle origin (made orthogonal
+            to the tangent), e.g. from :func:`resampled_normals`; default: the frames above.
     """
     path = np.asarray(path, dtype=float)
     K = len(path)
@@ -336,6 +543,13 @@ def tube(
     if s is None:
         s = (np.arange(K) + 1.0) / (K + 1.0)
     t, nrm, bin_ = _frames(path, np.asarray(up, dtype=float))
+    if normals is not None:
+        nrm = np.asarray(normals, dtype=float)
+        if nrm.shape != path.shape:
+            raise ValueError(f"normals must be {path.shape}, got {nrm.shape}")
+        nrm = nrm - np.einsum("ij,ij->i", nrm, t)[:, None] * t
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        bin_ = np.cross(t, nrm)
     phi = np.arange(n_sides) * (2 * np.pi / n_sides)
     cx = np.cos(phi)[None, :, None] * scale_xy[0]
     cy = np.sin(phi)[None, :, None] * scale_xy[1]
@@ -343,6 +557,19 @@ def tube(
     start = path[0] - t[0] * cap_offset * rad[0]
     end = path[-1] + t[-1] * cap_offset * rad[-1]
     return ring_surface(rings, s, start, end, phi=phi)
+
+
+def resampled_normals(reference_path: np.ndarray, u: np.ndarray, up: Sequence[float] = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """Rotation-minimising frame normals (k, 3) of a tube's ``reference_path`` (K, 3), sampled at
+    uniform curve parameters, interpolated at the curve parameters ``u`` (k,) in [0, 1].
+
+    On a path that winds in 3D the discrete frames' twist depends on the sampling; taking the
+    angle origin from one fixed reference sampling keeps canonical angles on the same side of the
+    tube whatever the tessellation.
+    """
+    reference_path = np.asarray(reference_path, dtype=float)
+    _, nrm, _ = _frames(reference_path, np.asarray(up, dtype=float))
+    return resample(nrm, np.linspace(0.0, 1.0, len(reference_path)), np.asarray(u, dtype=float))
 
 
 # ---------------------------------------------------------------------------------------- transforms

@@ -116,6 +116,16 @@ class ShapeBuilder:
         )
 
 
+TESSELLATIONS = ("fixed", "adaptive")
+
+
+def check_tessellation(tessellation: Any) -> str:
+    """``tessellation`` if it is ``"fixed"`` or ``"adaptive"``, else ``ValueError`` naming the two."""
+    if not isinstance(tessellation, str) or tessellation not in TESSELLATIONS:
+        raise ValueError(f"tessellation must be one of {list(TESSELLATIONS)}, got {tessellation!r}")
+    return tessellation
+
+
 class ProceduralModel:
     """A named family: parameter specs + ``generate(params) -> Shape``.
 
@@ -124,6 +134,12 @@ class ProceduralModel:
     ``expected_counts(params) -> (parts, groups)``: the number of connected components and of part
     groups (repeated or mirrored parts share a group) that the parameters imply.
 
+    ``tessellation`` (not a parameter of the family, a property of the generator) is ``"fixed"``
+    (every part keeps its mesh connectivity whatever the parameters) or ``"adaptive"`` (segment
+    counts follow the parts' sizes, ``max(minimum, round(length / edge_length))``, like a real
+    exporter's resolution setting). Both give the same surfaces and the same canonical coordinates
+    for the same parameters, up to the piecewise-linear chord error.
+
     ``generate`` is deterministic: equal parameters give identical arrays.
     """
 
@@ -131,6 +147,25 @@ class ProceduralModel:
     description: str = ""
     space: ParamSpace = ParamSpace(())
     builtin: bool = False
+    tessellation: str = "fixed"
+    edge_length: float = 0.0  # target edge length (m) of the adaptive tessellation; built-in models set it
+
+    def __init__(self, tessellation: str = "fixed") -> None:
+        self.tessellation = check_tessellation(tessellation)
+
+    @property
+    def adaptive(self) -> bool:
+        """Whether segment counts follow the parts' sizes."""
+        return self.tessellation == "adaptive"
+
+    @property
+    def target_edge(self) -> float | None:
+        """``edge_length`` (m) in adaptive mode, ``None`` in fixed mode (the builders' convention)."""
+        if not self.adaptive:
+            return None
+        if not self.edge_length > 0:
+            raise ValueError(f"model {self.name!r} has no edge_length for adaptive tessellation")
+        return float(self.edge_length)
 
     def generate(self, params: Mapping[str, Any] | None = None) -> Shape:
         """Validate ``params`` (missing ones take defaults) and build the shape."""
@@ -151,4 +186,10 @@ class ProceduralModel:
         raise NotImplementedError(f"model {self.name!r} does not declare expected counts")
 
     def describe(self) -> dict[str, Any]:
-        return {"name": self.name, "description": self.description, "builtin": self.builtin, "params": self.space.to_list()}
+        return {
+            "name": self.name,
+            "description": self.description,
+            "builtin": self.builtin,
+            "tessellation": self.tessellation,
+            "params": self.space.to_list(),
+        }

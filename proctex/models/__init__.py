@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..shape import ProceduralModel
+from ..shape import ProceduralModel, check_tessellation
 
 _REGISTRY: dict[str, type[ProceduralModel]] = {}
 
@@ -22,12 +22,17 @@ def list_models() -> list[str]:
     return sorted(_REGISTRY)
 
 
-def get_model(name: str) -> ProceduralModel:
-    """A fresh instance of the built-in model ``name`` (``ValueError`` naming the known ones)."""
+def get_model(name: str, tessellation: str = "fixed") -> ProceduralModel:
+    """A fresh instance of the built-in model ``name`` (``ValueError`` naming the known ones).
+
+    ``tessellation``: ``"fixed"`` (every part keeps its connectivity whatever the parameters) or
+    ``"adaptive"`` (segment counts follow the parts' sizes); anything else is a ``ValueError``.
+    """
+    check_tessellation(tessellation)
     _load_all()
     if name not in _REGISTRY:
         raise ValueError(f"unknown model {name!r}; built-in models are {sorted(_REGISTRY)}")
-    return _REGISTRY[name]()
+    return _REGISTRY[name](tessellation=tessellation)
 
 
 def _load_all() -> None:

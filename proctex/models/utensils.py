@@ -18,12 +18,14 @@ HEAD_THICKNESS = 0.0022
 TINE_THICKNESS = 0.0018
 NECK = 0.45  # neck width as a fraction of the handle width
 TINE_OVERLAP = 0.002  # how far each tine reaches back into the head
+TINE_RINGS = 3.0  # adaptive: rings per width along a tine (it tapers and curls)
 
 
 @register
 class Fork(ProceduralModel):
     name = "fork"
     description = "Table fork: tapered, bent handle, flat head plate and 2-5 thin pointed tines touching it."
+    edge_length = 0.0035  # target edge length (m) of the adaptive tessellation
     space = ParamSpace(
         (
             continuous("length", 0.16, 0.22, 0.19, "m", "overall length"),
@@ -44,22 +46,24 @@ class Fork(ProceduralModel):
         y_butt = -length / 2
         y_neck = length / 2 - tine_len - HEAD_LENGTH
         y_head = y_neck + HEAD_LENGTH  # where the tines start
+        e = self.target_edge
         sb = ShapeBuilder()
-        sb.add(self._handle(p["handle_width"], y_butt, y_neck, p["handle_rise"]), "handle")
-        sb.add(self._head(NECK * p["handle_width"], p["head_width"], y_neck), "head")
+        sb.add(self._handle(p["handle_width"], y_butt, y_neck, p["handle_rise"], e), "handle")
+        sb.add(self._head(NECK * p["handle_width"], p["head_width"], y_neck, e), "head")
         pitch = p["head_width"] / n
         tine_w = min(0.0035, 0.6 * pitch)
-        tine = self._tine(tine_w, tine_len + TINE_OVERLAP)
+        tine = self._tine(tine_w, tine_len + TINE_OVERLAP, e)
         xs = (np.arange(n) - (n - 1) / 2) * pitch
         for part in P.translated(tine, [(x, y_head - TINE_OVERLAP, 0.0) for x in xs]):
             sb.add(part, "tine")
         return sb.build(p)
 
     @staticmethod
-    def _handle(width: float, y_butt: float, y_neck: float, rise: float) -> P.Part:
+    def _handle(width: float, y_butt: float, y_neck: float, rise: float, e: float | None = None) -> P.Part:
         """Handle from the butt to the neck: narrows and thins towards the neck, butt bent up by ``rise``.
 
-        Overlaps the head by 3 mm at the neck; bottom of the neck end at z = 0.
+        Overlaps the head by 3 mm at the neck; bottom of the neck end at z = 0. ``e``: target edge
+        length (m) of the adaptive tessellation, None for the fixed one.
         """
         length = y_neck - y_butt + 0.003
         thickness = 0.004
@@ -74,11 +78,14 @@ class Fork(ProceduralModel):
             return local
 
         rounding = (r, 0.0, r)  # round the four long edges
-        return P.rounded_box((width, length, thickness), (0.0, 0.0, 0.0), (5, 24, 3), rounding, rounding, 1, shape)
+        size = (width, length, thickness)
+        middle = None if e is None else P.rounded_box_middle(size, rounding, rounding, e)
+        return P.rounded_box(size, (0.0, 0.0, 0.0), (5, 24, 3), rounding, rounding, 1, shape, middle)
 
     @staticmethod
-    def _head(neck_width: float, head_width: float, y_neck: float) -> P.Part:
-        """Flat trapezoidal plate widening from ``neck_width`` to ``head_width`` over HEAD_LENGTH."""
+    def _head(neck_width: float, head_width: float, y_neck: float, e: float | None = None) -> P.Part:
+        """Flat trapezoidal plate widening from ``neck_width`` to ``head_width`` over HEAD_LENGTH
+        (``e``: adaptive target edge length, m, or None)."""
 
         def widen(local: np.ndarray, canonical: np.ndarray) -> np.ndarray:
             flare = canonical[:, 1] ** 0.7
@@ -86,11 +93,13 @@ class Fork(ProceduralModel):
             return local
 
         size = (head_width, HEAD_LENGTH, HEAD_THICKNESS)
-        return P.box(size, (0.0, y_neck + HEAD_LENGTH / 2, HEAD_THICKNESS / 2), (6, 6, 1), widen)
+        div = (6, 6, 1) if e is None else P.box_divisions(size, e)
+        return P.box(size, (0.0, y_neck + HEAD_LENGTH / 2, HEAD_THICKNESS / 2), div, widen)
 
     @staticmethod
-    def _tine(width: float, length: float) -> P.Part:
-        """Thin tine with its base centred at the origin, running to +y, tapering to a point, tip curled up."""
+    def _tine(width: float, length: float, e: float | None = None) -> P.Part:
+        """Thin tine with its base centred at the origin, running to +y, tapering to a point, tip
+        curled up (``e``: adaptive target edge length, m, or None)."""
 
         def point(local: np.ndarray, canonical: np.ndarray) -> np.ndarray:
             along = canonical[:, 1]
@@ -100,4 +109,6 @@ class Fork(ProceduralModel):
             local[:, 2] += TINE_THICKNESS / 2 + 0.06 * length * along**2
             return local
 
-        return P.box((width, length, TINE_THICKNESS), (0.0, 0.0, 0.0), (1, 8, 1), point)
+        size = (width, length, TINE_THICKNESS)
+        div = (1, 8, 1) if e is None else P.box_divisions(size, e, rings_per_width=TINE_RINGS)
+        return P.box(size, (0.0, 0.0, 0.0), div, point)
