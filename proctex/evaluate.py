@@ -95,14 +95,15 @@ def resolve_truth(config, truth: str = "auto") -> str | None:
     return t
 
 
-def stored_pairs(store: FamilyStore, sid: str) -> list[dict[str, Any]]:
-    """The solved cage pairs of sample ``sid``: ``[{"group", "part", "src", "dst"}]``."""
+def stored_pairs(store: FamilyStore, sid: str, index: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+    """The solved cage pairs of sample ``sid``: ``[{"group", "part", "src", "dst"}]``; ``index``: the
+    rows of ``pairs.parquet`` when already read."""
     from .family import read_pair
 
-    if not store.exists("pairs.parquet"):
-        return []
+    if index is None:
+        index = store.read_table("pairs.parquet").to_pylist() if store.exists("pairs.parquet") else []
     out = []
-    for r in store.read_table("pairs.parquet").to_pylist():
+    for r in index:
         if r["id"] == sid and r["status"] == "done":
             src, dst = read_pair(store, sid, r["group"])
             out.append({"group": r["group"], "part": r["part"], "src": src, "dst": dst})
@@ -143,6 +144,7 @@ class _Context:
         self.reference, _ = render_six_views(self.template.vertices, self.template.faces, tpl.corner_uv, tpl.face_group,
                                              self.assets.textures, self.up, settings["view_size"])
         self.mappers: dict[str, Any] = {}
+        self.pairs_index = self.store.read_table("pairs.parquet").to_pylist() if self.store.exists("pairs.parquet") else []
 
     def mapper(self, name: str) -> Any:
         if name not in self.mappers:
@@ -232,7 +234,7 @@ def evaluate_shape(ctx: _Context, job: tuple[int, dict[str, Any]]) -> dict[str, 
     seg = segment(shape)
     loc = ctx.locate(shape, seg, index)
     samples = truth_samples(shape, seg, ctx.truth_kind, n=ctx.settings["tracked"], seed=ctx.settings["seed"] + index) if ctx.truth_kind else None
-    pairs = stored_pairs(ctx.store, row["id"])
+    pairs = stored_pairs(ctx.store, row["id"], ctx.pairs_index)
     return {m: evaluate_method(ctx, m, shape, seg, loc, samples, pairs, row["id"]) for m in ctx.settings["methods"]}
 
 
@@ -362,8 +364,9 @@ def evaluate(
         from .family import load_template_shape
 
         n = load_template_shape(store, config).n_vertices
-        for _, r in jobs:
-            check_vertex_index(load_sample(store, r, config), n, name=f"sample {r['id']}")
+        bad = next((r for _, r in jobs if r["vertices"] != n), None)  # the sample stage records vertex counts
+        if bad is not None:
+            check_vertex_index(load_sample(store, bad, config), n, name=f"sample {bad['id']}")
     if lpips:
         from .lpips import LPIPS
 
