@@ -368,7 +368,7 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
                        **{f"o{k}": m for k, m in enumerate(tex.observed_masks)})
     store.write_json("template/grouping.json", grouping.to_dict())
     _mark(store, "paint", coverage=summary["coverage"]["share"], groups=len(grouping.groups), seconds=round(tex.seconds, 3))
-    log(f"paint: {len(grouping.groups)} groups, coverage {summary['coverage']['share']}")
+    log(f"paint: {len(grouping.groups)} groups, unpainted visible pixels {100 * summary['coverage']['share']:.3f}%")
 
 
 def load_template_shape(store: FamilyStore, config: BuildConfig | None = None) -> Shape:

@@ -1,0 +1,137 @@
+"""Fidelity of the built-in families, measured honestly: build each family (adaptive tessellation,
+so parts change connectivity and the networks run) and evaluate its unseen test shapes with points
+tracked by canonical coordinates, never by the evaluated method's own map.
+
+One JSON (every method's metrics per family) and a Markdown table: per family, ProcCorrNet (the
+run-time path) next to the identity and nearest-point mappers, with the share of parts the networks
+handled and whether the network beat both baselines on tracked-point variance and GT error.
+
+    .venv/bin/python tests/bench/bench_fidelity.py --models vase,mug,chair,table,mushroom,cake \
+        --root out/fidelity --out out/fidelity/fidelity.json
+
+A finished family in ``--root`` is reused (its stored config must match); ``--fresh`` rebuilds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from proctex.evaluate import evaluate, markdown_table  # noqa: E402
+from proctex.family import BuildConfig, build  # noqa: E402
+from proctex.store import FamilyStore  # noqa: E402
+
+PROMPTS = {"vase": "blue and white porcelain with floral patterns", "mug": "blue and white striped ceramic",
+           "chair": "weathered oak wood with a red cushion", "table": "polished walnut wood", "mushroom": "red cap with white spots",
+           "cake": "strawberry cream layer cake", "desk": "white oak with brass handles", "sofa": "a patchwork bohemian sofa",
+           "stair": "worn stone steps", "pumpkin": "orange ribbed pumpkin", "fork": "brushed steel", "shell": "pink spiral seashell"}
+COMPARED = ("corrnet", "identity", "nearest")
+
+
+def family_config(model: str, n_train: int, n_test: int, cage_iterations: int, train_iterations: int, seed: int) -> dict[str, Any]:
+    return {"model": model, "prompt": PROMPTS.get(model, "painted wood"), "n_train": n_train, "n_test": n_test, "seed": seed,
+            "cage_iterations": cage_iterations, "train": {"iterations": train_iterations}, "tessellation": "adaptive"}
+
+
+def run_family(root: Path, config: dict[str, Any], methods: list[str], workers: int, tracked: int, fresh: bool) -> dict[str, Any]:
+    """Build (or reuse) one family and evaluate its test shapes; metrics plus build seconds."""
+    if fresh and root.exists():
+        shutil.rmtree(root)
+    store = FamilyStore(str(root))
+    t0 = time.perf_counter()
+    build(store, BuildConfig.from_dict(config), log=lambda m: print(f"  {m}", flush=True))
+    built = time.perf_counter() - t0
+    metrics = evaluate(store, methods=methods, workers=workers, tracked=tracked, quiet=True, log=lambda m: print(f"  {m}", flush=True))
+    return {"config": config, "build_seconds": round(built, 1), "metrics": metrics}
+
+
+def verdict(methods: dict[str, Any]) -> str:
+    """Whether ProcCorrNet beat identity and nearest on both baked variance and GT mean error."""
+    net = methods["corrnet"]
+    lost = []
+    for base in ("identity", "nearest"):
+        if base not in methods:
+            continue
+        b = methods[base]
+        if net["tracked_point_variance"] >= b["tracked_point_variance"]:
+            lost.append(f"variance vs {base}")
+        if net.get("gt_error") and b.get("gt_error") and net["gt_error"]["mean"] >= b["gt_error"]["mean"]:
+            lost.append(f"GT vs {base}")
+    return "beats both" if not lost else "loses: " + ", ".join(lost)
+
+
+def summary_table(results: dict[str, dict[str, Any]]) -> str:
+    """Markdown: per family, variance (baked) and GT mean / max for corrnet, identity and nearest."""
+    head = "| family | test shapes | networks on parts | " + " | ".join(
+        f"{m}: variance / GT mean / GT max" for m in COMPARED) + " | corrnet ms | verdict |"
+    lines = [head, "|" + "---|" * (5 + len(COMPARED))]
+    for name, r in results.items():
+        ms = r["metrics"]["methods"]
+        cells = []
+        for m in COMPARED:
+            e = ms.get(m)
+            if e is None:
+                cells.append("-")
+                continue
+            gt = e.get("gt_error") or {}
+            cells.append(f"{e['tracked_point_variance']:.3f} / {gt.get('mean', float('nan')):.3f} / {gt.get('max', float('nan')):.3f}")
+        net = ms["corrnet"]
+        sec = net.get("seconds_per_shape")
+        lines.append(f"| {name} | {r['metrics']['shapes']} | {net['mapped_share']:.0%} | " + " | ".join(cells)
+                     + f" | {'-' if sec is None else f'{1000 * sec:.0f}'} | {verdict(ms)} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--models", default="vase,mug,chair,table,mushroom,cake")
+    ap.add_argument("--root", default="out/fidelity", help="families are built in ROOT/<model>")
+    ap.add_argument("--out", default=None, help="JSON report (default ROOT/fidelity.json)")
+    ap.add_argument("--n-train", type=int, default=12)
+    ap.add_argument("--n-test", type=int, default=6)
+    ap.add_argument("--cage-iterations", type=int, default=150)
+    ap.add_argument("--train-iterations", type=int, default=1000)
+    ap.add_argument("--methods", default="corrnet,corrnet_all,cage,nearest,identity,cpd")
+    ap.add_argument("--tracked", type=int, default=5000)
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--fresh", action="store_true")
+    args = ap.parse_args(argv)
+    models = [m.strip() for m in args.models.split(",") if m.strip()]
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if "corrnet" not in methods:
+        raise SystemExit("--methods must include corrnet")
+    out = Path(args.out or Path(args.root) / "fidelity.json")
+    results: dict[str, Any] = {}
+    if out.exists() and not args.fresh:  # resume: families already measured with the same settings are kept
+        old = json.loads(out.read_text())
+        results = {k: v for k, v in old.get("families", {}).items() if k in models}
+    for model in models:
+        cfg = family_config(model, args.n_train, args.n_test, args.cage_iterations, args.train_iterations, args.seed)
+        if model in results and results[model]["config"] == cfg and list(results[model]["metrics"]["methods"]) == methods:
+            print(f"{model}: measured already", flush=True)
+            continue
+        print(f"{model}:", flush=True)
+        results[model] = run_family(Path(args.root) / model, cfg, methods, args.workers, args.tracked, args.fresh)
+        print(markdown_table(results[model]["metrics"]), flush=True)
+        rep = {"benchmark": "fidelity", "params": vars(args), "families": results}
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(f"{out}.tmp{os.getpid()}")
+        tmp.write_text(json.dumps(rep, indent=1, default=str))
+        os.replace(tmp, out)
+    table = summary_table({m: results[m] for m in models if m in results})
+    print(table)
+    Path(out.with_suffix(".md")).write_text(table + "\n")
+    return results
+
+
+if __name__ == "__main__":
+    main()
