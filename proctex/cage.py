@@ -19,15 +19,23 @@ smoothly (``x' = W @ C'``). Adam moves the cage vertices to minimise
   :meth:`proctex.geometry.SurfaceIndex.query_oriented`). With the match held fixed, the gradient of
   the squared distance is exact;
 - a normal term: ``1 - cos`` between the normals of the *deformed source triangles* and the
-  template's interpolated vertex normals at the matched points, so a thin wall cannot map its
-  inside onto its outside;
+  matched template face normals (``normal_target="face"``; interpolated vertex normals with
+  ``"vertex"``), so a thin wall cannot map its inside onto its outside;
+- a rest term: the mean squared cage displacement (``w_rest``), the least motion that fits;
 - a penalty on negative mean value coordinates of deformed samples with respect to the deformed
   cage (a folded cage produces them);
 - a smoothness term on the cage displacement (second differences along the cage lattice, zero for
   any affine deformation) and, optionally, mirror symmetry of the cage across the template's
   symmetry planes.
 
-The learning rate decays exponentially; the loop stops early when the loss stops improving.
+The learning rate decays exponentially; the loop stops early when the loss stops improving, and
+the iterate with the lowest loss is returned (``keep_best``).
+
+Adam's steps do not shrink with the gradient, so any term that is not exactly zero at a perfect
+start moves it by about the learning rate: the vertex-normal target (never zero on a coarse
+template) and the absence of a rest term drifted an exact box-to-box start by 0.01 and a vase by
+0.03 (ground-truth error, ``tests/bench/bench_correspond.py``). Face normals, the rest term and the
+best iterate keep such a start (the defaults).
 """
 
 from __future__ import annotations
@@ -44,6 +52,9 @@ from .metrics import interpolate
 from .mvc import mean_value_coordinates
 from .primitives import box
 
+#: Pre-alignments of a source part (:attr:`CageConfig.prealign`).
+PREALIGNS = ("icp", "box", "auto")
+
 
 @dataclass
 class CageConfig:
@@ -59,6 +70,18 @@ class CageConfig:
         w_*: loss weights. mvc_points, mvc_every: size and period of the negative-MVC penalty's
             sample. symmetry: mirror-symmetric cage across the given planes.
         min_dot: normal agreement required of a match (cosine).
+        w_rest: weight of the mean squared cage displacement: the least motion that fits the
+            template, so a surface the coarse cage cannot bulge is not fitted by sliding samples
+            along it (a vase profile), and a start that already fits stays put.
+        normal_target: what the normal term compares the deformed triangles with: "face" (the
+            matched template face's normal: zero when the surfaces coincide) or "vertex" (its
+            interpolated vertex normals: smooth, but never zero across a coarse or sharp template,
+            so Adam drifts a perfect start away).
+        keep_best: return the iterate with the lowest loss rather than the last one.
+        prealign: the source part's pre-alignment into the template part's frame (used by
+            :func:`proctex.correspond.correspond_parts`): "icp" (similarity ICP from the
+            identity), "box" (per-axis scale of the normalised bounding boxes) or "auto" (the one
+            with the smaller symmetric Chamfer distance).
         chamfer: "plane" (template samples to the deformed source's tangent planes) or "point"
             (point-to-point, both directions); see the module docstring.
         device, dtype: where the optimisation runs (CUDA when asked for and present).
@@ -82,6 +105,10 @@ class CageConfig:
     symmetry: bool = False
     min_dot: float = 0.0
     chamfer: str = "plane"
+    w_rest: float = 0.1
+    normal_target: str = "face"
+    keep_best: bool = True
+    prealign: str = "auto"
     device: str = "cpu"
     dtype: str = "float64"
 
@@ -94,6 +121,16 @@ class CageConfig:
             raise ValueError("cage iterations must be >= 1 and learning rates > 0")
         if self.chamfer not in ("plane", "point"):
             raise ValueError(f"chamfer must be plane or point, got {self.chamfer!r}")
+        if self.normal_target not in ("face", "vertex"):
+            raise ValueError(f"normal_target must be face or vertex, got {self.normal_target!r}")
+        if self.prealign not in PREALIGNS:
+            raise ValueError(f"prealign must be one of {', '.join(PREALIGNS)}, got {self.prealign!r}")
+        weights = {k: getattr(self, k) for k in ("w_chamfer", "w_surface", "w_normal", "w_mvc", "w_smooth", "w_symmetry", "w_rest")}
+        bad = [k for k, v in weights.items() if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0)]
+        if bad:
+            raise ValueError(f"cage weights must be finite numbers >= 0: {', '.join(bad)}")
+        if not isinstance(self.keep_best, bool):
+            raise ValueError(f"keep_best must be a bool, got {self.keep_best!r}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be float32 or float64, got {self.dtype!r}")
         return self
@@ -239,6 +276,7 @@ def solve_cage(
     gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(cfg.iterations, 1))
     sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma=gamma)
     best, since, history = np.inf, 0, []
+    best_value, best_offset = np.inf, offset.detach().clone()
     converged = False
     terms: dict[str, float] = {}
     mvc_term = torch.zeros((), device=device, dtype=dtype)
@@ -251,8 +289,11 @@ def solve_cage(
         # Point-to-surface matches with agreeing normals (gradient of |x - q|^2 exact for fixed q).
         cp, _ = template.query_oriented(xd, nd, cfg.min_dot, k=8, exact=False)
         q = torch.as_tensor(cp.points, device=device, dtype=dtype)
-        qn = interpolate(vn, tfaces, cp.faces, cp.bary)
-        qn /= np.maximum(np.linalg.norm(qn, axis=1, keepdims=True), 1e-12)
+        if cfg.normal_target == "face":
+            qn = template.normals[cp.faces]
+        else:
+            qn = interpolate(vn, tfaces, cp.faces, cp.bary)
+            qn /= np.maximum(np.linalg.norm(qn, axis=1, keepdims=True), 1e-12)
         surface = ((x - q) ** 2).sum(1).mean()
         normal = (1.0 - (nrm * torch.as_tensor(qn, device=device, dtype=dtype)).sum(1)).mean()
         # Chamfer between point sets, both directions, matches with agreeing normals.
@@ -265,12 +306,15 @@ def solve_cage(
         else:
             chamfer = ((x - T[fwd]) ** 2).sum(1).mean() + ((T - x[bwd]) ** 2).sum(1).mean()
         smooth = ((offset[triples[:, 0]] - 2 * offset[triples[:, 1]] + offset[triples[:, 2]]) ** 2).sum(1).mean() if len(triples) else torch.zeros((), device=device, dtype=dtype)
-        loss = cfg.w_surface * surface + cfg.w_chamfer * chamfer + cfg.w_normal * normal + cfg.w_smooth * smooth
+        rest = (offset ** 2).sum(1).mean()
+        loss = cfg.w_surface * surface + cfg.w_chamfer * chamfer + cfg.w_normal * normal + cfg.w_smooth * smooth + cfg.w_rest * rest
         if pairs:
             sym = sum(((C[p] * flips[a] - C) ** 2).sum(1).mean() for a, p in pairs)
             loss = loss + cfg.w_symmetry * sym
         # Early stopping watches the terms computed every step (the MVC penalty is periodic).
         value = float(loss.detach())
+        if value < best_value:  # the state this loss belongs to (before the step below)
+            best_value, best_offset = value, offset.detach().clone()
         if cfg.w_mvc > 0 and (it - 1) % max(cfg.mvc_every, 1) == 0:
             sub = rng.choice(len(points), size=min(cfg.mvc_points, len(points)), replace=False)
             Wd = mean_value_coordinates(x[torch.as_tensor(sub, device=device)], C, faces_t)
@@ -282,7 +326,7 @@ def solve_cage(
         sched.step()
         history.append(value)
         terms = {"surface": float(surface.detach()), "chamfer": float(chamfer.detach()), "normal": float(normal.detach()),
-                 "smooth": float(smooth.detach()), "negative_mvc": float(mvc_term.detach())}
+                 "smooth": float(smooth.detach()), "rest": float(rest.detach()), "negative_mvc": float(mvc_term.detach())}
         if value < best * (1 - cfg.tol):
             best, since = value, 0
         else:
@@ -291,11 +335,11 @@ def solve_cage(
                 converged = True
                 break
     with torch.no_grad():
-        C = C0 + offset
+        C = C0 + (best_offset if cfg.keep_best else offset)
         x = (W_pts @ C).cpu().numpy()
         nrm = _tri_normals((W_tri @ C)[tf])[tidx].cpu().numpy()
     return CageResult(
         points=x, normals=nrm, cage0=cage0, cage=C.cpu().numpy().astype(np.float64), cage_faces=cage_faces,
-        iterations=it, converged=converged, loss=history[-1] if history else float("nan"), history=history,
+        iterations=it, converged=converged, loss=(best_value if cfg.keep_best else history[-1]) if history else float("nan"), history=history,
         terms=terms, seconds=time.perf_counter() - t0,
     )

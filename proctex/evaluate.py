@@ -55,11 +55,7 @@ def _summary(values: Sequence[float]) -> dict[str, float]:
 
 
 def _cage_config(config) -> Any:
-    if config is None:
-        return None
-    from .cage import CageConfig
-
-    return CageConfig(level=config.cage_level, iterations=config.cage_iterations).validate()  # as the build's pairs
+    return None if config is None else config.cage_config()  # as the build's pairs
 
 
 def _mapper(name: str, store: FamilyStore, assets, config=None) -> Any:

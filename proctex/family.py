@@ -55,7 +55,8 @@ class BuildConfig:
             "already painted" mask, so transfer can detect dis-occlusion.
         model_dir, device, steps: the diffusion painter.
         up: the shapes' up axis ("auto": y for OBJ/glTF files, z otherwise).
-        corr_points, cage_level, cage_iterations: the cage solver per pair.
+        corr_points, cage_level, cage_iterations: the cage solver per pair; cage: other
+            :class:`proctex.cage.CageConfig` settings (e.g. ``{"w_rest": 0.3}``).
         train: ProcCorrNet settings (``proctex.corrnet.CorrNetConfig`` fields).
         tessellation: built-in models only: "adaptive" (segments follow each part's size, so most
             parameter changes change a part's connectivity, as real procedural exports do: the
@@ -92,6 +93,7 @@ class BuildConfig:
     cage_level: int = 1
     cage_iterations: int = 300
     train: dict[str, Any] = field(default_factory=dict)
+    cage: dict[str, Any] = field(default_factory=dict)
     tessellation: str = "adaptive"
     truth: str = "auto"
 
@@ -135,7 +137,29 @@ class BuildConfig:
             raise ValueError("truth 'canonical' needs a built-in model (canonical coordinates)")
         if self.corr_points < 100 or self.cage_iterations < 1 or not 0 <= self.cage_level <= 4:
             raise ValueError("corr_points >= 100, cage_iterations >= 1 and cage_level in [0, 4] required")
+        self.cage_config()
         return self
+
+    def cage_config(self):
+        """The cage solver's settings of this build (:class:`proctex.cage.CageConfig`):
+        ``cage_level``, ``cage_iterations`` and the ``cage`` overrides; ``ValueError`` on bad ones."""
+        from dataclasses import fields as dc_fields
+
+        from .cage import CageConfig
+
+        if not isinstance(self.cage, dict):
+            raise ValueError(f"cage must be an object of cage solver settings, got {type(self.cage).__name__}")
+        clash = sorted(set(self.cage) & {"level", "iterations"})
+        if clash:
+            raise ValueError(f"set the cage's {', '.join(clash)} with cage_level / cage_iterations, not in cage")
+        known = {f.name for f in dc_fields(CageConfig)}
+        unknown = sorted(set(self.cage) - known)
+        if unknown:
+            raise ValueError(f"unknown cage settings {unknown}; known: {sorted(known - {'level', 'iterations'})}")
+        try:
+            return CageConfig(level=self.cage_level, iterations=self.cage_iterations, **self.cage).validate()
+        except TypeError as exc:
+            raise ValueError(f"bad cage settings: {exc}") from exc
 
     @staticmethod
     def from_dict(data: dict[str, Any]) -> "BuildConfig":
@@ -383,7 +407,9 @@ def load_template_shape(store: FamilyStore, config: BuildConfig | None = None) -
 
 
 #: Settings whose default changed after stores without them were written: their value then.
-LEGACY_SETTINGS = {"tessellation": "fixed"}
+LEGACY_SETTINGS = {"tessellation": "fixed",
+                   # the cage solver before the box pre-alignment, face normals, rest term and best iterate
+                   "cage": {"prealign": "icp", "normal_target": "vertex", "keep_best": False, "w_rest": 0.0}}
 
 
 def _with_legacy(settings: dict[str, Any]) -> dict[str, Any]:
@@ -451,7 +477,6 @@ def template_masks(store: FamilyStore, assets=None) -> tuple[list[np.ndarray], l
 
 def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:
     """Cage correspondence of one (shape, template group): the training pair and its record."""
-    from .cage import CageConfig
     from .correspond import correspond_parts
     from .transfer import assign_parts, choose_part, representative_frame
 
@@ -462,7 +487,7 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int)
     v, f = part_mesh(shape, seg.parts[a.part])
     vn = representative_frame(v, a)
     ga = assets.groups[group]
-    cage = CageConfig(level=config.cage_level, iterations=config.cage_iterations).validate()
+    cage = config.cage_config()
     res = correspond_parts(vn, f, ga.vertices, ga.faces, method="cage", n_points=config.corr_points, seed=seed, cage=cage)
     return {
         "part": a.part,

@@ -306,3 +306,34 @@ def test_build_config_painter_checks(tmp_path):
 
     with pytest.raises(ValueError, match="iteratons"):
         corrnet_config(BuildConfig(model="mug", train={"iteratons": 5}))
+
+
+def test_cage_settings_reach_the_solver_and_bad_ones_are_refused():
+    from proctex.family import BuildConfig
+
+    cfg = BuildConfig.from_dict({"model": "mug", "cage_level": 2, "cage_iterations": 40, "cage": {"w_rest": 0.3, "prealign": "box"}})
+    cage = cfg.cage_config()
+    assert (cage.level, cage.iterations, cage.w_rest, cage.prealign) == (2, 40, 0.3, "box")
+    assert BuildConfig.from_dict({"model": "mug"}).cage_config().prealign == "auto"
+    for bad, msg in (({"level": 2}, "cage_level"), ({"nope": 1}, "unknown cage"), ({"w_rest": -1.0}, "weights"),
+                     ({"normal_target": "edge"}, "normal_target"), ("w_rest=1", "object")):
+        with pytest.raises(ValueError, match=msg):
+            BuildConfig.from_dict({"model": "mug", "cage": bad})
+
+
+def test_a_store_built_before_the_cage_settings_keeps_its_old_solver(tmp_path):
+    """A family.json without ``cage`` was solved by the old cage (ICP start, vertex normals, no rest
+    term, last iterate): resuming its pairs must use that solver, not the new defaults."""
+    from dataclasses import asdict
+
+    from proctex.family import BuildConfig, stored_config, write_config
+
+    store = FamilyStore(str(tmp_path / "old"))
+    settings = asdict(BuildConfig.from_dict({"model": "mug"}))
+    del settings["cage"]
+    store.write_json("family.json", {"config": settings, "stages": {}})
+    cage = stored_config(store).cage_config()
+    assert (cage.prealign, cage.normal_target, cage.keep_best, cage.w_rest) == ("icp", "vertex", False, 0.0)
+    with pytest.raises(ValueError, match="another config"):  # resuming with the new defaults is refused
+        write_config(store, BuildConfig.from_dict({"model": "mug"}))
+    write_config(store, stored_config(store))  # and with its own settings accepted

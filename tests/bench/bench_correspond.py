@@ -34,6 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--chamfer", default=None, choices=("point", "plane"), help="cage Chamfer term (default: the solver's)")
     ap.add_argument("--cpd-beta", type=float, default=None)
     ap.add_argument("--cpd-lambda", type=float, default=None)
+    ap.add_argument("--cage-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a CageConfig field, e.g. w_rest=0.5 (repeatable)")
+    ap.add_argument("--tessellation", default="fixed", choices=("fixed", "adaptive"))
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="")
@@ -53,6 +56,13 @@ def main(argv: list[str] | None = None) -> int:
     cage = CageConfig() if args.level is None else CageConfig(level=args.level)
     if args.chamfer is not None:
         cage.chamfer = args.chamfer
+    for item in args.cage_set:
+        key, _, value = item.partition("=")
+        if not hasattr(cage, key):
+            raise SystemExit(f"--cage-set: CageConfig has no field {key!r}")
+        kind = type(getattr(cage, key))
+        setattr(cage, key, value.lower() in ("1", "true", "yes") if kind is bool else kind(value))
+    cage.validate()
     methods = [m for m in args.methods.split(",") if m]
     opts = {}
     if args.cpd_beta is not None:
@@ -70,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{model:9s} {shape_id:6s} {method:8s} g{row['group']:<2d} {row['seconds']:6.2f}s res {row['residual']:.4f} {gt_s}", file=sys.stderr, flush=True)
 
     for name in [m for m in args.models.split(",") if m]:
-        model = get_model(name)
+        model = get_model(name, tessellation=args.tessellation)
         template = model.generate()
         tg = analyse(template)
         for k, params in enumerate(model.space.sample(args.shapes, seed=args.seed + 17)):
