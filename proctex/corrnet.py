@@ -60,6 +60,9 @@ FORMAT = "proctex.corrnet/1"
 LOSSES = ("mse", "l2")
 SCHEDULES = ("constant", "cosine", "step")
 QUERY_MODES = ("context", "separate")
+FRAMES = ("uniform", "box")
+#: Smallest half extent of a box frame axis (normalised units): flat parts keep their thin axis.
+MIN_EXTENT = 0.05
 AUTOCASTS = ("none", "bfloat16")
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
 #: A pair needs at least this many points to describe a part's surface.
@@ -93,6 +96,11 @@ class CorrNetConfig:
             validation improvement (relative ``min_delta``) before stopping (0 = never stop early).
         local_hidden, feature_dim, decoder_hidden: layer widths (the paper: 128, 256, 256).
         residual: predict the displacement (output = query + decoder), see the module docstring.
+        frame: "uniform" (points in the parts' normalised frames, as the paper) or "box" (each
+            axis divided by the part's half extent, read from the context, and the output
+            multiplied by the template part's half extents: with ``residual`` the zero
+            displacement is then the map of one bounding box onto the other, the map most
+            procedural parameter changes make).
         seed: weights, batch sampling and evaluation contexts.
         device: "cpu", "cuda", "cuda:<i>" or "auto" (CUDA when present); dtype: "float32" or "float64".
         autocast: "none" or "bfloat16" (matrix products in bfloat16; about 2.3x faster training and
@@ -125,6 +133,7 @@ class CorrNetConfig:
     feature_dim: int = 256
     decoder_hidden: int = 256
     residual: bool = True
+    frame: str = "box"
     seed: int = 0
     device: str = "cpu"
     dtype: str = "float32"
@@ -163,6 +172,8 @@ class CorrNetConfig:
             raise ValueError(f"CorrNetConfig.autocast must be one of {AUTOCASTS}, got {self.autocast!r}")
         if self.autocast != "none" and self.dtype != "float32":
             raise ValueError(f"autocast {self.autocast!r} needs dtype 'float32', got {self.dtype!r}")
+        if self.frame not in FRAMES:
+            raise ValueError(f"CorrNetConfig.frame must be one of {FRAMES}, got {self.frame!r}")
         if not isinstance(self.residual, bool):
             raise ValueError(f"CorrNetConfig.residual must be a bool, got {self.residual!r}")
         resolve_device(self.device)
@@ -214,40 +225,67 @@ class ProcCorrNet(nn.Module):
         context_points: N, the context size the network was trained with (used by :func:`predict`).
     """
 
-    def __init__(self, local_hidden: int = 128, feature_dim: int = 256, decoder_hidden: int = 256, context_points: int = 512, residual: bool = True) -> None:
+    def __init__(self, local_hidden: int = 128, feature_dim: int = 256, decoder_hidden: int = 256, context_points: int = 512, residual: bool = True,
+                 frame: str = "uniform") -> None:
         super().__init__()
+        if frame not in FRAMES:
+            raise ValueError(f"frame must be one of {FRAMES}, got {frame!r}")
         self.feature_dim = int(feature_dim)
         self.context_points = int(context_points)
         self.residual = bool(residual)
+        self.frame = frame
         self.local = _mlp([3, local_hidden, local_hidden, local_hidden, feature_dim], last_relu=True)
         self.decoder = _mlp([2 * feature_dim, decoder_hidden, decoder_hidden, decoder_hidden, 3], last_relu=False)
+        # The template part's half extents (box frame; set by :func:`train` from the targets).
+        self.register_buffer("template_extent", torch.ones(3), persistent=frame == "box")
+
+    def extent(self, context: torch.Tensor) -> torch.Tensor:
+        """Half extents ``(B, 1, 3)`` of a context ``(B, N, 3)`` in its normalised frame (box frame;
+        at least :data:`MIN_EXTENT`)."""
+        return context.detach().abs().amax(dim=1, keepdim=True).clamp_min(MIN_EXTENT)
 
     def encode(self, context: torch.Tensor) -> torch.Tensor:
-        """``context (B, N, 3)`` -> global feature ``(B, feature_dim)`` (max over the N points)."""
+        """``context (B, N, 3)`` -> global feature ``(B, feature_dim)`` (max over the N points); in
+        the box frame ``(B, feature_dim + 3)``: the pooled feature, then the context's half extents."""
+        if self.frame == "box":
+            e = self.extent(context)
+            return torch.cat([self.local(context / e).amax(dim=1), e[:, 0]], dim=-1)
         return self.local(context).amax(dim=1)
 
     def head(self, local: torch.Tensor, global_feature: torch.Tensor, query: torch.Tensor) -> torch.Tensor:
-        """Decoder on precomputed ``local (B, Q, F)`` features of ``query (B, Q, 3)`` against
-        ``global (B, F)`` -> ``(B, Q, 3)``. The first layer is split: the global half once per shape."""
+        """Decoder on precomputed ``local (B, Q, F)`` features of ``query (B, Q, 3)`` (box frame:
+        already divided by the extents) against the pooled ``global (B, F)`` -> ``(B, Q, 3)``. The
+        first layer is split: the global half once per shape."""
         first: nn.Linear = self.decoder[0]  # type: ignore[assignment]
         F_ = self.feature_dim
         h = F.linear(local, first.weight[:, :F_]) + F.linear(global_feature, first.weight[:, F_:], first.bias)[:, None, :]
         out = self.decoder[1:](h)
-        return out + query if self.residual else out
+        out = out + query if self.residual else out
+        return out * self.template_extent if self.frame == "box" else out
+
+    def _split(self, query: torch.Tensor, global_feature: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        if self.frame == "box":
+            return query / global_feature[:, None, self.feature_dim:], global_feature[:, : self.feature_dim]
+        return query, global_feature
 
     def decode(self, query: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
-        """``query (B, Q, 3)`` against ``global (B, F)`` -> template points ``(B, Q, 3)``."""
-        return self.head(self.local(query), global_feature, query)
+        """``query (B, Q, 3)`` against ``global`` (from :meth:`encode`) -> template points ``(B, Q, 3)``."""
+        q, g = self._split(query, global_feature)
+        return self.head(self.local(q), g, q)
 
     def decode_reference(self, query: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
         """Slow, literal :meth:`decode`: concatenate ``[local | global]`` (512-d) per point."""
-        local = self.local(query)
-        out = self.decoder(torch.cat([local, global_feature[:, None, :].expand(-1, local.shape[1], -1)], dim=-1))
-        return out + query if self.residual else out
+        q, g = self._split(query, global_feature)
+        local = self.local(q)
+        out = self.decoder(torch.cat([local, g[:, None, :].expand(-1, local.shape[1], -1)], dim=-1))
+        out = out + q if self.residual else out
+        return out * self.template_extent if self.frame == "box" else out
 
     def forward(self, points: torch.Tensor, n_query: int | None = None) -> torch.Tensor:
         """``points (B, N, 3)`` are the context; returns ``(B, Q, 3)`` for the first ``Q = n_query``
         (default N) of them, sharing their local features with the encoder."""
+        if self.frame == "box":
+            points = points / self.extent(points)
         local = self.local(points)
         q = points.shape[1] if n_query is None else int(n_query)
         return self.head(local[:, :q], local.amax(dim=1), points[:, :q])
@@ -258,7 +296,7 @@ def build_model(config: CorrNetConfig) -> ProcCorrNet:
     config.validate()
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
-        model = ProcCorrNet(config.local_hidden, config.feature_dim, config.decoder_hidden, config.context_points, config.residual)
+        model = ProcCorrNet(config.local_hidden, config.feature_dim, config.decoder_hidden, config.context_points, config.residual, config.frame)
     return model.to(device=resolve_device(config.device), dtype=DTYPES[config.dtype])
 
 
@@ -491,6 +529,9 @@ def train(
     t0 = time.perf_counter()
     model = build_model(config)
     device, dtype = _model_spec(model)
+    if config.frame == "box":  # the template part's half extents, from every target point
+        extent = np.max([np.abs(dst).max(axis=0) for _, dst in train_pairs], axis=0)
+        model.template_extent.copy_(torch.as_tensor(np.maximum(extent, MIN_EXTENT), dtype=dtype))
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     rng = np.random.default_rng(config.seed if world == 1 else [config.seed, rank])
     per_rank = -(-config.shapes_per_batch // world)
@@ -650,8 +691,9 @@ def load(path: str | os.PathLike, device: str = "cpu") -> tuple[ProcCorrNet, Cor
     if not isinstance(payload, dict) or payload.get("format") != FORMAT or not {"state_dict", "config", "extra"} <= set(payload):
         raise ValueError(f"{path}: not a ProcCorrNet checkpoint (format {FORMAT!r})")
     # The config names where the model now lives (a model trained on CUDA loads on a CPU machine).
-    config = CorrNetConfig.from_dict({**dict(payload["config"]), "device": device})
-    model = ProcCorrNet(config.local_hidden, config.feature_dim, config.decoder_hidden, config.context_points, config.residual)
+    # Checkpoints written before the box frame existed used the uniform one.
+    config = CorrNetConfig.from_dict({"frame": "uniform", **dict(payload["config"]), "device": device})
+    model = ProcCorrNet(config.local_hidden, config.feature_dim, config.decoder_hidden, config.context_points, config.residual, config.frame)
     state = payload["state_dict"]
     dtype = next(iter(state.values())).dtype if state else torch.float32
     model.to(device=dev, dtype=dtype)

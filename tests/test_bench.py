@@ -42,3 +42,35 @@ def test_each_benchmark_writes_its_report(tmp_path, script, argv):
     assert rep["results"] and rep["machine"]["cpus"] >= 1 and "torch" in rep["versions"]
     for r in rep["results"].values():
         assert r["median"] >= 0 and r["repeats"] >= 1
+
+
+def test_fidelity_benchmark_builds_evaluates_and_resumes(tmp_path):
+    """The smallest honest family run: a mug built with the adaptive tessellation, evaluated with
+    canonical truth; the JSON holds every method, the table a verdict, and a second run with the
+    same settings measures nothing again."""
+    argv = [sys.executable, str(BENCH / "bench_fidelity.py"), "--models", "mug", "--root", str(tmp_path / "fam"), "--n-train", "3",
+            "--n-test", "1", "--cage-iterations", "5", "--train-iterations", "20", "--methods", "corrnet,identity,nearest",
+            "--tracked", "200", "--set", 'train={"eval_every": 10}']
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    rep = json.loads((tmp_path / "fam" / "fidelity.json").read_text())
+    mug = rep["families"]["mug"]
+    assert mug["config"]["train"] == {"iterations": 20, "eval_every": 10} and mug["config"]["tessellation"] == "adaptive"
+    methods = mug["metrics"]["methods"]
+    assert set(methods) == {"corrnet", "identity", "nearest"} and mug["metrics"]["tracker"] == "canonical"
+    assert all(m["gt_error"]["max"] >= m["gt_error"]["mean"] > 0 for m in methods.values())
+    table = (tmp_path / "fam" / "fidelity.md").read_text()
+    assert "| mug | 1 |" in table and ("beats both" in table or "loses:" in table)
+    again = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and "measured already" in again.stdout
+
+
+def test_fidelity_verdict_names_each_loss():
+    from bench_fidelity import verdict
+
+    def m(var, gt):
+        return {"tracked_point_variance": var, "gt_error": {"mean": gt}}
+
+    assert verdict({"corrnet": m(0.1, 0.01), "identity": m(0.2, 0.02), "nearest": m(0.3, 0.03)}) == "beats both"
+    assert verdict({"corrnet": m(0.1, 0.05), "identity": m(0.2, 0.02), "nearest": m(0.05, 0.03)}) == \
+        "loses: GT vs identity, variance vs nearest, GT vs nearest"

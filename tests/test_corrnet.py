@@ -74,16 +74,19 @@ def test_shapes_dtypes_and_paper_widths():
     assert widths == [(512, 256), (256, 256), (256, 256), (256, 3)]
     x = torch.rand(2, 50, 3)
     g = m.encode(x)
-    assert g.shape == (2, 256) and g.dtype == torch.float32
+    assert g.shape == (2, 256 + 3) and g.dtype == torch.float32  # the box frame carries the context's half extents
+    torch.testing.assert_close(g[:, 256:], x.abs().amax(dim=1))
+    assert cn.build_model(CorrNetConfig(frame="uniform")).encode(x).shape == (2, 256)
     assert m.decode(torch.rand(2, 7, 3), g).shape == (2, 7, 3)
     assert m(x).shape == (2, 50, 3)
     m64 = cn.build_model(CorrNetConfig(dtype="float64"))
     assert m64(x.double()).dtype == torch.float64
 
 
-@pytest.mark.parametrize("residual", [False, True])
-def test_encode_decode_consistency_and_reference(residual):
-    m = cn.build_model(CorrNetConfig(dtype="float64", residual=residual, **SMALL))
+@pytest.mark.parametrize("residual,frame", [(False, "uniform"), (True, "uniform"), (False, "box"), (True, "box")])
+def test_encode_decode_consistency_and_reference(residual, frame):
+    m = cn.build_model(CorrNetConfig(dtype="float64", residual=residual, frame=frame, **SMALL))
+    m.template_extent.copy_(torch.tensor([0.9, 0.5, 1.0], dtype=torch.float64))
     x = torch.rand(3, 40, 3, dtype=torch.float64) * 2 - 1
     q = torch.rand(3, 9, 3, dtype=torch.float64) * 2 - 1
     g = cn.encode(m, x)
@@ -417,3 +420,61 @@ def test_data_parallel_workers_keep_identical_weights(tmp_path):
     assert a["val"] < 0.8 * identity
     with pytest.raises(ValueError, match="rank"):
         cn.train(pairs[:2], None, small_config(iterations=1), rank=2, world=2)
+
+
+# ------------------------------------------------------------------------------------- box frame
+def _stretch_pairs(n_shapes: int, seed: int, n_points: int = 400) -> list:
+    """Boxes stretched per axis (no bend): the template point of a shape point is the same cube
+    point, i.e. one bounding box mapped onto the other."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n_shapes):
+        theta = np.array([rng.uniform(0.4, 1.2), rng.uniform(0.3, 1.0), rng.uniform(0.2, 0.8), 0.0])
+        u = cube_surface(n_points, rng)
+        out.append((to_frame(warp(u, theta)).astype(np.float32), to_frame(warp(u, [1.0, 0.6, 0.4, 0.0])).astype(np.float32)))
+    return out
+
+
+def test_box_frame_residual_network_reproduces_the_box_map_exactly():
+    """With its last layer zeroed, the residual box-frame network is exactly the map taking the
+    part's bounding box (read from the context) onto the template's: a per-axis scale."""
+    m = cn.build_model(CorrNetConfig(dtype="float64", **SMALL))
+    last = m.decoder[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+        m.template_extent.copy_(torch.tensor([1.0, 0.6, 0.4], dtype=torch.float64))
+    src, dst = _stretch_pairs(1, seed=3)[0]
+    pred = cn.predict(m, src, src)
+    np.testing.assert_allclose(pred, dst, atol=1e-6)  # cube faces reach the box: extents exact
+
+
+def test_box_frame_learns_stretches_better_than_the_uniform_frame():
+    train_pairs, val_pairs = _stretch_pairs(24, seed=0), _stretch_pairs(4, seed=1)
+    errors = {}
+    for frame in ("uniform", "box"):
+        res = cn.train(train_pairs, val_pairs, small_config(frame=frame, iterations=150, patience=0))
+        errors[frame] = res.best_val["mean"]
+        np.testing.assert_allclose(res.model.template_extent.numpy() if frame == "box" else [1.0, 1.0, 1.0],
+                                   [1.0, 0.6, 0.4] if frame == "box" else [1.0, 1.0, 1.0], atol=1e-6)
+    assert errors["box"] < 0.5 * errors["uniform"], errors
+
+
+def test_checkpoints_from_before_the_box_frame_load_as_uniform(tmp_path):
+    m = cn.build_model(CorrNetConfig(frame="uniform", **SMALL))
+    cn.save(tmp_path / "m.pt", m, CorrNetConfig(frame="uniform", **SMALL))
+    payload = torch.load(tmp_path / "m.pt", weights_only=True)
+    del payload["config"]["frame"]  # as written before the setting existed
+    torch.save(payload, tmp_path / "old.pt")
+    old, cfg, _ = cn.load(tmp_path / "old.pt")
+    assert cfg.frame == "uniform" and old.frame == "uniform"
+    x = np.random.default_rng(0).uniform(-1, 1, (64, 3))
+    np.testing.assert_allclose(cn.predict(old, x, x), cn.predict(m, x, x), atol=1e-6)
+    box = cn.build_model(CorrNetConfig(**SMALL))
+    box.template_extent.copy_(torch.tensor([0.5, 1.0, 0.25]))
+    cn.save(tmp_path / "box.pt", box, CorrNetConfig(**SMALL))
+    again, cfg, _ = cn.load(tmp_path / "box.pt")  # the template extents travel with the weights
+    assert cfg.frame == "box"
+    np.testing.assert_allclose(again.template_extent.numpy(), [0.5, 1.0, 0.25])
+    with pytest.raises(ValueError, match="frame"):
+        CorrNetConfig(frame="polar").validate()

@@ -36,9 +36,28 @@ PROMPTS = {"vase": "blue and white porcelain with floral patterns", "mug": "blue
 COMPARED = ("corrnet", "identity", "nearest")
 
 
-def family_config(model: str, n_train: int, n_test: int, cage_iterations: int, train_iterations: int, seed: int) -> dict[str, Any]:
-    return {"model": model, "prompt": PROMPTS.get(model, "painted wood"), "n_train": n_train, "n_test": n_test, "seed": seed,
-            "cage_iterations": cage_iterations, "train": {"iterations": train_iterations}, "tessellation": "adaptive"}
+def family_config(model: str, n_train: int, n_test: int, cage_iterations: int, train_iterations: int, seed: int,
+                  overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The build config of one family; ``overrides``: top-level settings, ``train`` and ``cage`` merged."""
+    cfg = {"model": model, "prompt": PROMPTS.get(model, "painted wood"), "n_train": n_train, "n_test": n_test, "seed": seed,
+           "cage_iterations": cage_iterations, "train": {"iterations": train_iterations}, "tessellation": "adaptive"}
+    for key, value in (overrides or {}).items():
+        cfg[key] = {**cfg.get(key, {}), **value} if isinstance(value, dict) and isinstance(cfg.get(key), dict) else value
+    return cfg
+
+
+def parse_sets(items: list[str]) -> dict[str, Any]:
+    """``KEY=JSON`` items (``train={"frame": "uniform"}``, ``n_train=24``) as a dict."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"--set needs KEY=JSON, got {item!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
 
 
 def run_family(root: Path, config: dict[str, Any], methods: list[str], workers: int, tracked: int, fresh: bool) -> dict[str, Any]:
@@ -103,6 +122,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--tracked", type=int, default=5000)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=JSON",
+                    help='build config setting, e.g. train=\'{"frame": "uniform"}\' or cage=\'{"w_rest": 0.3}\' (repeatable)')
     ap.add_argument("--fresh", action="store_true")
     args = ap.parse_args(argv)
     models = [m.strip() for m in args.models.split(",") if m.strip()]
@@ -115,7 +136,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         old = json.loads(out.read_text())
         results = {k: v for k, v in old.get("families", {}).items() if k in models}
     for model in models:
-        cfg = family_config(model, args.n_train, args.n_test, args.cage_iterations, args.train_iterations, args.seed)
+        cfg = family_config(model, args.n_train, args.n_test, args.cage_iterations, args.train_iterations, args.seed, parse_sets(args.set))
         if model in results and results[model]["config"] == cfg and list(results[model]["metrics"]["methods"]) == methods:
             print(f"{model}: measured already", flush=True)
             continue
