@@ -14,9 +14,9 @@ then point-to-surface ICP with a uniform scale (Umeyama on the ICP matches) from
 (families keep their orientation), or the per-axis scale of the two bounding boxes ("box"), or
 whichever of the two leaves the smaller Chamfer distance ("auto", the cage's default). Procedural
 parts are mostly stretched versions of each other, which the box map takes exactly and a
-similarity cannot: on the table and chair boxes the box start alone has ground-truth error
-0.0000-0.005 against 0.03-0.16 for ICP, and on vases 0.015-0.020 against 0.07-0.17
-(``tests/bench/bench_correspond.py``). The baselines keep ICP (a plain data transfer). The
+similarity cannot: the nearest point after the box start alone has ground-truth error 0.0000-0.005
+on the chair and table parts (up to 0.16 after ICP) and 0.015-0.020 on three vases, where the old
+cage ended at 0.044-0.067 (``tests/bench/bench_correspond.py --tessellation adaptive``). The baselines keep ICP (a plain data transfer). The
 transform is kept in the result.
 
 :func:`correspond_shapes` matches part groups (:func:`proctex.parts.match_groups`) and solves every
