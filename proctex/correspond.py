@@ -16,8 +16,8 @@ whichever of the two leaves the smaller Chamfer distance ("auto", the cage's def
 parts are mostly stretched versions of each other, which the box map takes exactly and a
 similarity cannot: the nearest point after the box start alone has ground-truth error 0.0000-0.005
 on the chair and table parts (up to 0.16 after ICP) and 0.015-0.020 on three vases, where the old
-cage ended at 0.044-0.067 (``tests/bench/bench_correspond.py --tessellation adaptive``). The baselines keep ICP (a plain data transfer). The
-transform is kept in the result.
+cage ended at 0.044-0.067 (``tests/bench/bench_correspond.py --tessellation adaptive``). The
+baselines keep ICP (a plain data transfer). The transform is kept in the result.
 
 :func:`correspond_shapes` matches part groups (:func:`proctex.parts.match_groups`) and solves every
 matched group pair between the shape member that lies where the template's representative lies and
