@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import sys
 import time
@@ -24,6 +23,9 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from harness import write_json  # noqa: E402
 
 from proctex.evaluate import evaluate, markdown_table  # noqa: E402
 from proctex.family import BuildConfig, build  # noqa: E402
@@ -143,11 +145,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         print(f"{model}:", flush=True)
         results[model] = run_family(Path(args.root) / model, cfg, methods, args.workers, args.tracked, args.fresh)
         print(markdown_table(results[model]["metrics"]), flush=True)
-        rep = {"benchmark": "fidelity", "params": vars(args), "families": results}
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(f"{out}.tmp{os.getpid()}")
-        tmp.write_text(json.dumps(rep, indent=1, default=str))
-        os.replace(tmp, out)
+        write_json(out, {"benchmark": "fidelity", "params": vars(args), "families": results})
     table = summary_table({m: results[m] for m in models if m in results})
     print(table)
     Path(out.with_suffix(".md")).write_text(table + "\n")

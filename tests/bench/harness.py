@@ -74,11 +74,16 @@ def report(name: str, params: dict[str, Any], results: dict[str, dict[str, float
         print(f"{name} {key}: median {fmt(r['median'])} (p10 {fmt(r['p10'])}, p90 {fmt(r['p90'])}, spread {100 * r['spread']:.0f}%, "
               f"{r['repeats']} runs)", flush=True)
     if out:
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(f"{out}.tmp{os.getpid()}")
-        tmp.write_text(json.dumps(rep, indent=1))
-        os.replace(tmp, out)
+        write_json(out, rep)
     return rep
+
+
+def write_json(out: str | os.PathLike, data: Any) -> None:
+    """Write ``data`` as indented JSON to ``out`` atomically (folders created)."""
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(f"{out}.tmp{os.getpid()}")
+    tmp.write_text(json.dumps(data, indent=1, default=str))
+    os.replace(tmp, out)
 
 
 def fmt(seconds: float) -> str:
