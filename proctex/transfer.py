@@ -6,8 +6,10 @@ The run-time path (DESIGN §1, step 3), per shape:
 2. **Assign** every part to a template *slot* (a template part, hence a group and the member map
    of that part onto its group's representative) by a Hungarian assignment on placement descriptors
    (centre and extents relative to the shape's bounding box). Parts left over (a group the template
-   does not have, or more copies than the template has) go to the group whose parts look most alike
-   (normalised extents), aligned by ICP.
+   does not have, or more copies than the template has) join a group they are another copy of:
+   the same connectivity up to an affine map, else the same primitive once both bounding boxes are
+   scaled to a cube (:func:`match_box`: a wider tier, a longer leg), else a rigid ICP fit; parts
+   matching none form a new group.
 3. **Map** each part, in its normalised frame (and mirrored into the representative's side by the
    slot's member map), onto the template representative's normalised frame with a *mapper* (a
    ProcCorrNet, the cage solver, or a baseline), at its vertices only.
@@ -165,7 +167,8 @@ def choose_part(assignment: Sequence[PartAssignment], group: int) -> PartAssignm
 
 
 def assign_parts(
-    shape: Shape, seg: Segmentation, assets: TemplateAssets, w_extent: float = 1.0, extra_cost: float = 0.6, extra_tol: float = 0.02
+    shape: Shape, seg: Segmentation, assets: TemplateAssets, w_extent: float = 1.0, extra_cost: float = 0.6, extra_tol: float = 0.02,
+    box_cost: float = 1.2,
 ) -> list[PartAssignment]:
     """Assign each part of a shape to a template slot (see the module docstring).
 
@@ -211,7 +214,12 @@ def assign_parts(
             if copy is not None:  # another copy of a template primitive (a third cushion): its group, template UVs
                 out.append(PartAssignment(p.index, copy[0], -1, np.eye(3), copy[1], "extra"))
                 continue
-            g, R, t, err = match_extra((v - c) / (r if r > 0 else 1.0), f, assets, groups=same or None)
+            u = (v - c) / (r if r > 0 else 1.0)
+            box = match_box(u, f, assets, cost[i], extra_cost=box_cost)
+            if box is not None:  # the same primitive in other proportions (a wider tier, a longer leg)
+                out.append(PartAssignment(p.index, box.group, -1, box.A, box.score, "extra"))
+                continue
+            g, R, t, err = match_extra(u, f, assets, groups=same or None)
             if err <= extra_tol:
                 out.append(PartAssignment(p.index, g, -1, R, err, "extra", t))
             else:
@@ -246,6 +254,84 @@ def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: Templ
         if c < best_cost:
             best, best_cost = g, c
     return None if best is None else (best, best_cost)
+
+
+@dataclass
+class BoxMatch:
+    """A part matched to a group as the same primitive in other proportions (:func:`match_box`).
+
+    ``A (3, 3)``: the linear map of the part's normalised frame onto the representative's (a signed
+    axis permutation between per-axis scalings, both boxes centred on the origin); ``chamfer``:
+    symmetric Chamfer distance of the two surfaces once each box is scaled to the cube [-1, 1]^3;
+    ``proportion``: mean absolute log-ratio of the two boxes' half extents after the permutation;
+    ``placement``: the cheapest placement cost of a slot of the group; ``score`` the sum."""
+
+    group: int
+    A: np.ndarray
+    chamfer: float
+    proportion: float
+    placement: float
+    score: float
+
+
+def _half_extents(points: np.ndarray, min_extent: float) -> np.ndarray:
+    return np.maximum(np.ptp(points, axis=0) / 2, min_extent)
+
+
+def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, slot_cost: np.ndarray | None = None, n: int = 300,
+              seed: int = 0, min_extent: float = 0.05, chamfer_tol: float = 0.25, proportion_tol: float = 0.7,
+              extra_cost: float = 1.2) -> BoxMatch | None:
+    """The group a left-over part is another instance of, up to per-axis scale: a cake tier wider
+    than the template's, a leg of another length, a stem of another height. Rigid ICP cannot align
+    those; scaling each part's bounding box to the cube [-1, 1]^3 can.
+
+    For every non-degenerate group and every signed axis permutation (48), the part's box-scaled
+    surface samples are compared with the representative's by symmetric Chamfer distance (90th
+    percentiles, so a missing piece counts). Boxes are
+    alike in every box frame, so the proportions of the boxes (after the permutation) and the
+    placement of the group's slots in the shape (``slot_cost (n_slots,)``, as
+    :func:`assign_parts` computes it; ``None``: not used) decide between groups of one primitive
+    (a slat and a post are both boxes). A match needs Chamfer at most ``chamfer_tol``, proportion
+    error at most ``proportion_tol`` and placement cost at most ``extra_cost``; the lowest sum wins.
+
+    ``vertices (k, 3)``: the part in its normalised frame; ``faces (f, 3)`` local. Axes thinner than
+    ``min_extent`` (normalised units) count as that thick. Returns ``None`` when no group qualifies.
+    """
+    from itertools import permutations, product
+
+    v = np.asarray(vertices, dtype=np.float64)
+    hp = _half_extents(v, min_extent)
+    pts = sample_surface(v / hp, faces, n, seed=seed)[0]
+    part_index = SurfaceIndex(v / hp, np.asarray(faces))
+    best: BoxMatch | None = None
+    for ga in assets.groups:
+        if ga.degenerate:
+            continue
+        slots = [k for k, s in enumerate(assets.slots) if s.group == ga.group]
+        place = 0.0 if slot_cost is None else (float(np.min(np.asarray(slot_cost)[slots])) if slots else np.inf)
+        if place > extra_cost:
+            continue
+        hr = _half_extents(ga.vertices, min_extent)
+        rep = sample_surface(ga.vertices / hr, ga.faces, n, seed=seed)[0]
+        rep_index = SurfaceIndex(ga.vertices / hr, ga.faces)
+        for perm in permutations(range(3)):
+            prop = float(np.abs(np.log(hp[list(perm)] / hr)).mean())
+            if prop > proportion_tol:
+                continue
+            for signs in product((1.0, -1.0), repeat=3):
+                P = np.zeros((3, 3))
+                P[range(3), perm] = signs  # (P b)_i = s_i b_perm(i)
+                # Point-to-surface both ways (P is orthogonal: the template's samples go back by P^T),
+                # 90th percentiles: a part missing a piece of the other (a ring against a disc) shows.
+                ch = 0.5 * float(np.percentile(rep_index.query(pts @ P.T, exact=False).distance, 90)
+                                 + np.percentile(part_index.query(rep @ P, exact=False).distance, 90))
+                if ch > chamfer_tol:
+                    continue
+                score = ch + prop + place
+                if best is None or score < best.score:
+                    A = np.diag(hr) @ P @ np.diag(1.0 / hp)
+                    best = BoxMatch(ga.group, A, ch, prop, place, score)
+    return best
 
 
 def match_extra(

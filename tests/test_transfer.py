@@ -345,3 +345,41 @@ def test_extra_copies_of_a_primitive_join_its_group_by_placement():
     for a in extras:  # each joins the group of its own kind, with the template's own UVs
         assert assets.groups[a.group].label == parts[a.part].label
         assert a.part in r.direct
+
+
+def test_stretched_copies_join_their_group_by_box_shape():
+    """A three-tier cake on a one-tier template under adaptive tessellation: the extra tiers and
+    candles have neither the template's connectivity nor its proportions (rigid ICP leaves them
+    out); matched in box-scaled frames they join the tier and candle groups, and the map ``A``
+    takes each one's bounding box exactly onto its representative's."""
+    from proctex.geometry import normalised_frame
+    from proctex.parts import part_mesh
+    from proctex.transfer import match_box
+
+    model = get_model("cake", tessellation="adaptive")
+    shape_t = model.generate({"tiers": 1, "candles": 3})
+    shape = model.generate({"tiers": 3, "candles": 6, "radius": 0.15, "shrink": 0.62})
+    grouping = analyse(shape_t)
+    tex = paint_surface(shape_t, grouping, SurfacePainter("cream"), size=64)
+    assets = prepare_template(shape_t, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    seg = segment(shape)
+    label_group = {assets.groups[g.index].label: g.index for g in grouping.groups}
+    r = transfer(shape, assets, IdentityMapper())
+    assert not [a for a in r.assignment if a.how == "new"]
+    for a in r.assignment:
+        if a.how == "degenerate":
+            continue
+        label = seg.parts[a.part].label
+        want = label_group["candle"] if label == "candle" else (label_group["plate"] if label == "plate" else label_group["tier_top"])
+        assert a.group == want, (label, a)
+        if a.how == "extra" and label != "candle":
+            v, f = part_mesh(shape, seg.parts[a.part])
+            c, rad = normalised_frame(v)
+            mapped = (v - c) / rad @ a.R.T + a.t
+            ga = assets.groups[a.group]
+            np.testing.assert_allclose(np.abs(mapped).max(axis=0), np.abs(ga.vertices).max(axis=0), atol=1e-9)
+    # Parts unlike every group (a ball, a cone against a plate, tiers and candles) match none.
+    import trimesh
+
+    for other in (trimesh.creation.icosphere(subdivisions=2), trimesh.creation.cone(1.0, 2.0)):
+        assert match_box(np.asarray(other.vertices), np.asarray(other.faces), assets) is None
