@@ -446,9 +446,11 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
 
     Each face takes the template face nearest to its mapped centroid and that face's affine UV map.
     With ``charts`` (the group texture's :func:`chart_labels`), a face whose affine UVs would leave
-    the chart of its template triangle (a large face extrapolated beyond it: a corner or the centre
-    reading unpainted texels or another chart) instead takes, per corner, the closest point of that
-    template triangle: its UVs then stay in the chart (squeezed, but coloured).
+    the chart of its template triangle (a large face extrapolated beyond it: a corner, the centre or
+    an edge midpoint reading unpainted texels or another chart) instead takes, per corner, the
+    closest point of that template triangle: its UVs then stay in the chart (squeezed, but
+    coloured). A face still reading outside the chart takes the colour at the template triangle's
+    centre (all three corners there), so real-time coverage has no unpainted pixel.
 
     Returns (corner_uv, template face per face (k,)).
     """
@@ -465,11 +467,7 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
 
         h, w = charts.shape
         target = charts.ravel()[bilinear_texels(tri_uv.mean(axis=1), h, w)].max(axis=1)  # the template triangle's chart
-        probe = np.concatenate([out.reshape(-1, 2), out.mean(axis=1)])  # corners and centroids
-        lab = charts.ravel()[bilinear_texels(probe, h, w)]
-        owner = np.concatenate([np.repeat(target, 3), target])
-        bad = ~(lab == owner[:, None]).all(axis=1)
-        bad = bad[: 3 * len(faces)].reshape(-1, 3).any(axis=1) | bad[3 * len(faces):]
+        bad = ~_inside_chart(out, charts, target)
         if bad.any():
             from .geometry import closest_point_on_triangles
 
@@ -478,7 +476,24 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
             for k in range(3):
                 _, bary = closest_point_on_triangles(mapped[faces[fi, k]], t[:, 0], t[:, 1], t[:, 2])
                 out[fi, k] = np.einsum("ij,ijk->ik", bary, tri_uv[fi])
+            # Still reading outside the chart somewhere inside (corners, centroid or edge midpoints
+            # on unpainted texels: a sliver template triangle on the chart's rim): the face takes
+            # the colour at its template triangle's centre, so no visible pixel is unpainted.
+            still = ~_inside_chart(out[fi], charts, target[fi])
+            out[fi[still]] = tri_uv[fi[still]].mean(axis=1)[:, None]
     return out, near
+
+
+def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray, chart: np.ndarray) -> np.ndarray:
+    """(k,) bool: the corners, centroid and edge midpoints of faces with UVs ``corner_uv (k, 3, 2)``
+    all read (bilinearly) texels of chart ``chart (k,)`` of ``charts (H, W)``."""
+    from .uv import bilinear_texels
+
+    mid = (corner_uv + corner_uv[:, [1, 2, 0]]) / 2
+    probe = np.concatenate([corner_uv, corner_uv.mean(axis=1, keepdims=True), mid], axis=1)  # (k, 7, 2)
+    h, w = charts.shape
+    lab = charts.ravel()[bilinear_texels(probe.reshape(-1, 2), h, w)]  # (k * 7, 4)
+    return (lab == np.repeat(chart, probe.shape[1])[:, None]).reshape(len(corner_uv), -1).all(axis=1)
 
 
 def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256,

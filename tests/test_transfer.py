@@ -331,6 +331,29 @@ def test_a_face_extrapolated_into_another_chart_is_pulled_back():
     assert (fixed[..., 0] <= 0.3 + 1e-9).all() and (fixed[..., 0] >= 0.1 - 1e-9).all()
 
 
+def test_a_face_whose_inside_crosses_unpainted_texels_takes_its_template_colour():
+    """An L-shaped chart: a template face whose corners and centre are painted but whose long edge
+    crosses the missing quadrant would show unpainted texels inside; it reads the colour at its
+    template triangle's centre instead (every probe painted), and without charts it is left alone."""
+    from proctex.geometry import SurfaceIndex
+    from proctex.transfer import GroupAssets, _inside_chart, chart_labels, part_uvs
+    from proctex.uv import bilinear_texels
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    f = np.array([[0, 1, 2]])
+    uv = np.array([[[0.1, 0.1], [0.95, 0.3], [0.3, 0.95]]])
+    ga = GroupAssets(0, "", 0, v, f, uv, np.zeros(3), 1.0, SurfaceIndex(v, f), False)
+    painted = np.ones((100, 100), bool)
+    painted[:45, 55:] = False  # the quadrant u > 0.55, v > 0.55 (rows are 1 - v)
+    charts = chart_labels(painted)
+    assert charts.max() == 1 and not _inside_chart(uv, charts, np.array([1]))[0]
+    raw, _ = part_uvs(ga, v, f)
+    np.testing.assert_allclose(raw, uv)
+    fixed, _ = part_uvs(ga, v, f, charts)
+    np.testing.assert_allclose(fixed, np.repeat(uv.mean(axis=1, keepdims=True), 3, axis=1))
+    assert painted.ravel()[bilinear_texels(fixed.reshape(-1, 2), 100, 100)].all()
+
+
 def test_extra_copies_of_a_primitive_join_its_group_by_placement():
     """A three-seat sofa on a two-seat template: the middle seat and back cushions have the exact
     connectivity of both cushion groups (boxes of one tessellation, stretched differently), which a
