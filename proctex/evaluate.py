@@ -203,8 +203,8 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
         "gt": None, "gt_groups": None, "sim": sim,
     }
     if samples is not None:
-        e, g = gt_errors(shape, seg, samples, result, assets, ctx.truth)
-        out["gt"], out["gt_groups"] = e.astype(np.float32), g.astype(np.int32)
+        e, g, fl = gt_errors(shape, seg, samples, result, assets, ctx.truth, flips=True)
+        out["gt"], out["gt_groups"], out["gt_flipped"] = e.astype(np.float32), g.astype(np.int32), fl.astype(np.float32)
     e, g, means = pgt_errors(shape, seg, result, assets, pairs)
     out["pgt"], out["pgt_groups"], out["pgt_pairs"] = e.astype(np.float32), g.astype(np.int32), means
     active = [a for a in result.assignment if a.how != "degenerate"]
@@ -298,6 +298,16 @@ def summarise_method(ctx_points, tracker: str, template_colours: np.ndarray, out
         groups = [o["gt_groups"] for o in outs if o["gt_groups"] is not None]
         if groups and entry["gt_error"]:
             entry["gt_error"]["per_group"] = _per_group(np.concatenate([o["gt"] for o in outs if o["gt_groups"] is not None]), np.concatenate(groups))
+        flips = [o["gt_flipped"] for o in outs if o.get("gt_flipped") is not None]
+        if flips and entry["gt_error"]:
+            # Share of measured points landing on a template face that faces away from the true one
+            # (the other side of a thin wall), overall and per group.
+            fl, fg = np.concatenate(flips), np.concatenate([o["gt_groups"] for o in outs if o.get("gt_flipped") is not None])
+            ok = ~np.isnan(fl)
+            entry["gt_error"]["flipped"] = float(fl[ok].mean()) if ok.any() else None
+            for key, pg in entry["gt_error"].get("per_group", {}).items():
+                sel = ok & (fg == int(key))
+                pg["flipped"] = float(fl[sel].mean()) if sel.any() else None
     pg = [o["pgt"] for o in outs if len(o["pgt"])]
     if pg:
         means = [m for o in outs for m in o["pgt_pairs"]]

@@ -38,7 +38,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .geometry import SurfaceIndex, sample_surface
+from .geometry import SurfaceIndex, face_normals, sample_surface
 from .metrics import interpolate
 from .parts import Grouping, Segmentation, part_mesh
 from .shape import Shape
@@ -424,22 +424,26 @@ def truth_samples(shape: Shape, seg: Segmentation, kind: str, n: int = 5000, see
     return Samples(seg.face_part[face], face, bary, canonical=interpolate(shape.canonical, shape.faces, face, bary))
 
 
-def _mapped_points(shape: Shape, seg: Segmentation, result, assets, part: int, face: np.ndarray, bary: np.ndarray, group: int) -> np.ndarray:
+def _mapped_points(shape: Shape, seg: Segmentation, result, assets, part: int, face: np.ndarray, bary: np.ndarray, group: int):
     """A transfer's template points (k, 3) for shape points on ``part`` (global faces and
     barycentrics): its mapped vertices interpolated, in group ``group``'s representative's
-    normalised frame, projected onto the representative."""
+    normalised frame, projected onto the representative; and the representative's faces (k,) they
+    land on."""
     p = seg.parts[part]
     ga = assets.groups[group]
     local = np.searchsorted(p.vertices, shape.faces[face])
     mapped = (np.asarray(result.points[part]) - ga.center) / ga.radius
     pts = np.einsum("kj,kjd->kd", bary, mapped[local])
-    return ga.index.query(pts).points
+    hit = ga.index.query(pts)
+    return hit.points, hit.faces
 
 
-def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets, truth: TemplateTruth) -> tuple[np.ndarray, np.ndarray]:
+def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets, truth: TemplateTruth, flips: bool = False):
     """Ground-truth errors (k,) of a transfer (:class:`proctex.transfer.TransferResult`) at
     ``samples``, in the normalised frame of the representative the method chose, and the group
-    (k,) each point was measured in (-1: failed or no truth).
+    (k,) each point was measured in (-1: failed or no truth). With ``flips``, also (k,) float:
+    1 where the point landed on a template face facing away from its true face (the other side of
+    a thin wall: a mug's inside for its outside), 0 where not, NaN where not measured.
 
     A point fails (:data:`FAIL_ERROR`) when the method left its part untextured or mapped it into a
     group the truth does not allow (canonical: no template part of that label in the group;
@@ -454,6 +458,7 @@ def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets,
     else:
         has_truth = np.isin(labels[samples.part], list(truth.label_groups))
     errors = np.where(has_truth, FAIL_ERROR, np.nan)
+    flipped = np.full(len(samples.face), np.nan)
     groups = np.full(len(samples.face), -1, dtype=np.int64)
     method_group = {a.part: a.group for a in result.assignment}
     for part in np.unique(samples.part[has_truth]):
@@ -466,16 +471,21 @@ def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets,
                 continue
             hit = truth.rep_canonical[g].query(samples.canonical[sel])
             ga = assets.groups[g]
-            true = interpolate(ga.vertices, ga.faces, hit.faces, hit.bary)
+            true, true_faces = interpolate(ga.vertices, ga.faces, hit.faces, hit.bary), hit.faces
         else:
             sel = sel[truth.vertex_group[samples.vertex[sel]] == g]
             if not len(sel):
                 continue
             true = truth.vertex_point[samples.vertex[sel]]
-        pred = _mapped_points(shape, seg, result, assets, int(part), samples.face[sel], samples.bary[sel], g)
+            true_faces = assets.groups[g].index.query(true).faces if flips else None
+        pred, pred_faces = _mapped_points(shape, seg, result, assets, int(part), samples.face[sel], samples.bary[sel], g)
         errors[sel] = np.linalg.norm(pred - true, axis=1)
         groups[sel] = g
-    return errors, groups
+        if flips:
+            ga = assets.groups[g]
+            fn = face_normals(ga.vertices, ga.faces)
+            flipped[sel] = (np.einsum("kd,kd->k", fn[pred_faces], fn[true_faces]) < 0).astype(np.float64)
+    return (errors, groups, flipped) if flips else (errors, groups)
 
 
 def pgt_errors(shape: Shape, seg: Segmentation, result, assets, pairs: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, list[float]]:
@@ -500,7 +510,7 @@ def pgt_errors(shape: Shape, seg: Segmentation, result, assets, pairs: Sequence[
             p = seg.parts[part]
             v, f = part_mesh(shape, p)
             hit = SurfaceIndex(representative_frame(v, a), f).query(src)
-            pred = _mapped_points(shape, seg, result, assets, part, p.faces[hit.faces], hit.bary, g)
+            pred, _ = _mapped_points(shape, seg, result, assets, part, p.faces[hit.faces], hit.bary, g)
             e = np.linalg.norm(pred - dst, axis=1)
         errs.append(e)
         grps.append(np.full(len(e), g, dtype=np.int64))

@@ -65,6 +65,20 @@ def test_fidelity_benchmark_builds_evaluates_and_resumes(tmp_path):
     assert again.returncode == 0 and "measured already" in again.stdout
 
 
+def test_fidelity_goals_name_each_miss():
+    from bench_fidelity import goals
+
+    def m(var, gt_mean, gt_max, cov=0.0):
+        return {"tracked_point_variance": var, "tracked_point_variance_realtime": var, "coverage": cov, "coverage_baked": 0.0,
+                "gt_error": {"mean": gt_mean, "max": gt_max, "flipped": 0.0}}
+
+    ok = goals("mug", {"corrnet": m(0.04, 0.005, 0.01), "identity": m(0.1, 0.02, 0.1), "nearest": m(0.1, 0.03, 0.2)})
+    assert ok["missed"] == [] and ok["ratio_nearest_baked"] == pytest.approx(0.4)
+    bad = goals("mug", {"corrnet": m(0.06, 0.012, 0.01, cov=0.001), "identity": m(0.1, 0.02, 0.1), "nearest": m(0.1, 0.03, 0.2)})
+    assert bad["missed"] == ["GT mean 2.0x paper", "variance 0.60x nearest (baked)", "variance 0.60x nearest (real time)", "coverage"]
+    assert goals("table", {"corrnet": m(0.01, 0.5, 2.0)})["missed"] == []  # no paper row, no baselines: nothing to miss
+
+
 def test_fidelity_verdict_names_each_loss():
     from bench_fidelity import verdict
 

@@ -89,6 +89,58 @@ def verdict(methods: dict[str, Any]) -> str:
     return "beats both" if not lost else "loses: " + ", ".join(lost)
 
 
+#: The paper's ProcCorrNet GT error (mean, max) per category, in the template part's normalised
+#: frame (issue 16's targets); families it did not measure have none.
+PAPER = {"sofa": (0.011, 0.025), "fork": (0.006, 0.010), "mushroom": (0.010, 0.019), "mug": (0.006, 0.014),
+         "vase": (0.006, 0.014), "chair": (0.009, 0.032), "desk": (0.009, 0.020), "stair": (0.014, 0.018),
+         "cake": (0.017, 0.026), "shell": (0.003, 0.012), "pumpkin": (0.014, 0.071)}
+
+
+def goals(name: str, methods: dict[str, Any]) -> dict[str, Any]:
+    """Issue 16's goals for one family's corrnet entry: GT mean and max against the paper, variance
+    ratios to nearest (goal <= 0.5) and identity (goal <= 0.7), real-time and baked, coverage (goal
+    0), flipped-normal share; ``missed`` names every goal not met."""
+    net = methods["corrnet"]
+    gt = net.get("gt_error") or {}
+    out: dict[str, Any] = {"gt_mean": gt.get("mean"), "gt_max": gt.get("max"), "flipped": gt.get("flipped"),
+                           "coverage": net.get("coverage"), "coverage_baked": net.get("coverage_baked"), "paper": PAPER.get(name)}
+    missed = []
+    if out["paper"] and gt:
+        if gt["mean"] > out["paper"][0]:
+            missed.append(f"GT mean {gt['mean'] / out['paper'][0]:.1f}x paper")
+        if gt["max"] > out["paper"][1]:
+            missed.append(f"GT max {gt['max'] / out['paper'][1]:.1f}x paper")
+    for base, limit in (("nearest", 0.5), ("identity", 0.7)):
+        if base not in methods:
+            continue
+        for key, tag in (("tracked_point_variance", "baked"), ("tracked_point_variance_realtime", "real time")):
+            ratio = net[key] / max(methods[base][key], 1e-12)
+            out[f"ratio_{base}_{tag.replace(' ', '')}"] = ratio
+            if ratio > limit:
+                missed.append(f"variance {ratio:.2f}x {base} ({tag})")
+    if (out["coverage"] or 0) > 0 or (out["coverage_baked"] or 0) > 0:
+        missed.append("coverage")
+    out["missed"] = missed
+    return out
+
+
+def goals_table(results: dict[str, dict[str, Any]]) -> str:
+    """Markdown: issue 16's goals per family (:func:`goals`)."""
+    lines = ["| family | GT mean (paper) | GT max (paper) | variance / nearest, baked / real time | variance / identity, baked / real time"
+             " | coverage real time / baked | flipped | goals missed |", "|" + "---|" * 8]
+    f = lambda x, d=3: "-" if x is None else f"{x:.{d}f}"  # noqa: E731
+    for name, r in results.items():
+        g = goals(name, r["metrics"]["methods"])
+        p = g["paper"] or (None, None)
+        flipped = "-" if g["flipped"] is None else f"{g['flipped']:.2%}"
+        lines.append(f"| {name} | {f(g['gt_mean'])} ({f(p[0])}) | {f(g['gt_max'])} ({f(p[1])}) "
+                     f"| {f(g.get('ratio_nearest_baked'), 2)} / {f(g.get('ratio_nearest_realtime'), 2)} "
+                     f"| {f(g.get('ratio_identity_baked'), 2)} / {f(g.get('ratio_identity_realtime'), 2)} "
+                     f"| {f(g['coverage'], 4)} / {f(g['coverage_baked'], 4)} | {flipped} "
+                     f"| {', '.join(g['missed']) or 'none'} |")
+    return "\n".join(lines)
+
+
 def summary_table(results: dict[str, dict[str, Any]]) -> str:
     """Markdown: per family, variance (baked) and GT mean / max for corrnet, identity and nearest."""
     head = "| family | test shapes | networks on parts | " + " | ".join(
@@ -146,7 +198,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         results[model] = run_family(Path(args.root) / model, cfg, methods, args.workers, args.tracked, args.fresh)
         print(markdown_table(results[model]["metrics"]), flush=True)
         write_json(out, {"benchmark": "fidelity", "params": vars(args), "families": results})
-    table = summary_table({m: results[m] for m in models if m in results})
+    done = {m: results[m] for m in models if m in results}
+    table = summary_table(done) + "\n\nIssue 16's goals:\n\n" + goals_table(done)
     print(table)
     Path(out.with_suffix(".md")).write_text(table + "\n")
     return results
