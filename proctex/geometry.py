@@ -226,21 +226,22 @@ class SurfaceIndex:
         sure = (cd[:, -1] >= res.distance + self.max_radius) | (k >= self.n_proxies)
         return res, sure
 
-    def query(self, points: np.ndarray, exact: bool = True) -> ClosestPoints:
+    def query(self, points: np.ndarray, exact: bool = True, k: int | None = None) -> ClosestPoints:
         """Closest surface points of ``points (q, 3)``.
 
-        Exact by default; ``exact=False`` keeps the best of the first ``k`` candidates (cheaper, and
-        right for points near the surface; used inside iterative loops).
+        Exact by default; ``exact=False`` keeps the best of the first ``k`` candidates (the index's
+        own ``k`` unless given; cheaper, and right for points near the surface; used inside
+        iterative loops and at run time).
         """
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"query points must be (q, 3), got {pts.shape}")
         if not np.all(np.isfinite(pts)):
             raise ValueError("query points contain NaN or inf")
-        res, sure = self._query_k(pts, self.k)
+        k = self.k if k is None else int(min(max(int(k), 1), self.n_proxies))
+        res, sure = self._query_k(pts, k)
         if not exact:
             return res
-        k = self.k
         todo = np.flatnonzero(~sure)
         while len(todo):
             k = min(4 * k, self.n_proxies)

@@ -95,11 +95,44 @@ def _parse_obj_index(token: str, n_vertices: int, path: str, lineno: int) -> int
     raise ValueError(f"{path}:{lineno}: face index 0 is invalid in OBJ (indices start at 1)")
 
 
-def read_obj(data: str, path: str = "<obj>") -> tuple[np.ndarray, list[list[int]]]:
+def _read_obj_triangles(data: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """The common OBJ in one pass of numpy parsing: every ``v`` line three coordinates, every ``f``
+    line three positive indices (``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn``). ``None`` for anything
+    else (quads, relative indices, extra columns, a malformed token), which the line-by-line reader
+    then parses with its precise errors."""
+    import re
+    import warnings
+
+    if re.search(r"^[vf](?![ tnp])", data, re.MULTILINE):
+        return None  # a "v"/"f" line with a tab or nothing after it, or a tag this path does not know
+    lines = data.splitlines()
+    vs = [ln[2:] for ln in lines if ln[:2] == "v "]
+    fs = [ln[2:] for ln in lines if ln[:2] == "f "]
+    ft = " ".join(fs)
+    if "/" in ft:
+        ft = re.sub(r"/\S*", "", ft)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy warns (not raises) on a token it cannot read
+        try:
+            v = np.fromstring(" ".join(vs), sep=" ") if vs else np.zeros(0)
+            f = np.fromstring(ft, sep=" ", dtype=np.int64) if fs else np.zeros(0, np.int64)
+        except (ValueError, DeprecationWarning):
+            return None
+    if len(v) != 3 * len(vs) or len(f) != 3 * len(fs) or (len(f) and f.min() < 1):
+        return None
+    return v.reshape(-1, 3), f.reshape(-1, 3) - 1
+
+
+def read_obj(data: str, path: str = "<obj>") -> tuple[np.ndarray, list[list[int]] | np.ndarray]:
     """Parse OBJ text into ``(vertices (n, 3) float64, polygons)`` using ``v`` indices only.
 
     Negative (relative) indices are resolved; lines other than ``v`` and ``f`` are ignored.
+    Triangle-only files with plain vertices take a vectorised path (polygons then an (m, 3) int64
+    array); anything else is read line by line (a list of index lists).
     """
+    fast = _read_obj_triangles(data)
+    if fast is not None:
+        return fast
     verts: list[tuple[float, float, float]] = []
     polys: list[list[int]] = []
     for lineno, line in enumerate(data.splitlines(), start=1):
@@ -410,7 +443,7 @@ def load_mesh(
             vertices, polygons = read_obj(fh.read(), path)
         if len(vertices) == 0:
             raise ValueError(f"{path}: the file has no vertices")
-        if not polygons:
+        if len(polygons) == 0:
             raise ValueError(f"{path}: the file has no faces")
         faces: Any = polygons
     else:

@@ -441,6 +441,11 @@ def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
     return assets.charts
 
 
+#: Template faces checked per shape face at run time (the nearest proxies of its mapped centroid):
+#: mapped centroids lie on or near the template surface, where the first few are right.
+UV_CANDIDATES = 4
+
+
 def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
 
@@ -455,7 +460,7 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     Returns (corner_uv, template face per face (k,)).
     """
     centroid = mapped[faces].mean(axis=1)
-    near = assets.index.query(centroid, exact=False).faces
+    near = assets.index.query(centroid, exact=False, k=UV_CANDIDATES).faces
     tri = assets.vertices[assets.faces[near]]
     tri_uv = assets.corner_uv[near]
     out = np.empty((len(faces), 3, 2))

@@ -199,3 +199,22 @@ def test_sofa_loads_with_nine_parts(sofa_dir):
     assert shape.n_vertices == 3538 and shape.n_faces == 7056
     assert n_parts(shape) == 9
     assert report.stitched_edges == 0  # a well-indexed file is left exactly as it is
+
+
+def test_vectorised_obj_reader_agrees_with_the_line_reader():
+    """Triangle files take the numpy path; it gives the line-by-line reader's exact arrays, and
+    anything it does not handle (quads, relative indices, tabs, bad tokens) goes to that reader."""
+    from proctex.meshio import _read_obj_triangles, read_obj
+
+    text = "# c\nv 0 0 0\nv 1.5 0 0\nv 0 1 -2e-3\nv 1 1 0\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1\nf 2//1 4//1 3//1\n"
+    fast = _read_obj_triangles(text)
+    assert fast is not None
+    v, f = fast
+    np.testing.assert_array_equal(v, [[0, 0, 0], [1.5, 0, 0], [0, 1, -2e-3], [1, 1, 0]])
+    np.testing.assert_array_equal(f, [[0, 1, 2], [1, 3, 2]])
+    for other in ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4 3\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",
+                  "v\t0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 1\nf 1 2 3\n"):
+        assert _read_obj_triangles(other) is None
+    assert np.asarray(read_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n")[1]).tolist() == [[0, 1, 2]]
+    with pytest.raises(ValueError, match="bad face index"):
+        read_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n")
