@@ -451,8 +451,8 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
 
     Each face takes the template face nearest to its mapped centroid and that face's affine UV map.
     With ``charts`` (the group texture's :func:`chart_labels`), a face whose affine UVs would leave
-    the chart of its template triangle (a large face extrapolated beyond it: a corner, the centre or
-    an edge midpoint reading unpainted texels or another chart) instead takes, per corner, the
+    the chart of its template triangle (a large face extrapolated beyond it: any point of it, probed
+    every few texels, reading unpainted texels or another chart) instead takes, per corner, the
     closest point of that template triangle: its UVs then stay in the chart (squeezed, but
     coloured). A face still reading outside the chart takes the colour at the template triangle's
     centre (all three corners there), so real-time coverage has no unpainted pixel.
@@ -489,16 +489,37 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     return out, near
 
 
-def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray, chart: np.ndarray) -> np.ndarray:
-    """(k,) bool: the corners, centroid and edge midpoints of faces with UVs ``corner_uv (k, 3, 2)``
-    all read (bilinearly) texels of chart ``chart (k,)`` of ``charts (H, W)``."""
+def _bary_grid(n: int) -> np.ndarray:
+    """((n + 1)(n + 2) / 2, 3) barycentric points of a triangle split ``n`` times per edge
+    (corners and edge points included)."""
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    i, j = i[keep], j[keep]
+    return np.stack([n - i - j, i, j], axis=1) / n
+
+
+def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray, chart: np.ndarray, spacing: float = 3.0, max_split: int = 16) -> np.ndarray:
+    """(k,) bool: faces with UVs ``corner_uv (k, 3, 2)`` read (bilinearly) only texels of chart
+    ``chart (k,)`` of ``charts (H, W)``, probed on a barycentric grid about ``spacing`` texels apart
+    (corners and edge midpoints always; at most ``max_split`` steps per edge), so a long UV edge
+    crossing a gap between two islands of one chart is caught."""
     from .uv import bilinear_texels
 
-    mid = (corner_uv + corner_uv[:, [1, 2, 0]]) / 2
-    probe = np.concatenate([corner_uv, corner_uv.mean(axis=1, keepdims=True), mid], axis=1)  # (k, 7, 2)
     h, w = charts.shape
-    lab = charts.ravel()[bilinear_texels(probe.reshape(-1, 2), h, w)]  # (k * 7, 4)
-    return (lab == np.repeat(chart, probe.shape[1])[:, None]).reshape(len(corner_uv), -1).all(axis=1)
+    k = len(corner_uv)
+    ok = np.ones(k, dtype=bool)
+    if not k:
+        return ok
+    px = corner_uv * np.array([w, h])
+    edge = np.linalg.norm(px - px[:, [1, 2, 0]], axis=2).max(axis=1)
+    split = np.clip(np.ceil(edge / spacing), 2, max_split).astype(np.int64)
+    for n in np.unique(split):
+        sel = np.flatnonzero(split == n)
+        grid = _bary_grid(int(n))  # (p, 3)
+        probe = np.einsum("pj,kjd->kpd", grid, corner_uv[sel])  # (s, p, 2)
+        lab = charts.ravel()[bilinear_texels(probe.reshape(-1, 2), h, w)]  # (s * p, 4)
+        ok[sel] = (lab == np.repeat(chart[sel], len(grid))[:, None]).reshape(len(sel), -1).all(axis=1)
+    return ok
 
 
 def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256,

@@ -352,6 +352,13 @@ def test_a_face_whose_inside_crosses_unpainted_texels_takes_its_template_colour(
     fixed, _ = part_uvs(ga, v, f, charts)
     np.testing.assert_allclose(fixed, np.repeat(uv.mean(axis=1, keepdims=True), 3, axis=1))
     assert painted.ravel()[bilinear_texels(fixed.reshape(-1, 2), 100, 100)].all()
+    # One chart whose islands meet only at the top: a face with its corners, centre and edge
+    # midpoints painted still crosses the gap between them, and is caught.
+    gap = np.ones((100, 100), bool)
+    gap[10:, 30:36] = False
+    long_face = np.array([[[0.1, 0.1], [0.9, 0.1], [0.9, 0.9]]])
+    assert chart_labels(gap).max() == 1 and not _inside_chart(long_face, chart_labels(gap), np.array([1]))[0]
+    assert _inside_chart(np.array([[[0.5, 0.1], [0.9, 0.1], [0.9, 0.9]]]), chart_labels(gap), np.array([1]))[0]
 
 
 def test_extra_copies_of_a_primitive_join_its_group_by_placement():
