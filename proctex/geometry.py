@@ -250,6 +250,37 @@ class SurfaceIndex:
             todo = todo[~sub_sure]
         return res
 
+    def query_facing(self, points: np.ndarray, normals: np.ndarray, k: int = 8, majority: bool = True) -> ClosestPoints:
+        """Nearest surface points among the faces of the first ``k`` proxies, preferring faces whose
+        normal agrees with the query's (``dot > 0``); a query with no such face among them (or a
+        zero normal) gets its plain nearest candidate. Bounded work, unlike
+        :meth:`query_oriented`, which widens the search until a facing face is found: for a point
+        on or near the surface that knows its side (a mapped triangle's normal), on a thin wall.
+
+        ``majority``: the queries are one surface (a mapped part) whose winding may be the reverse
+        of this mesh's (a mirrored member, an inside-out export): when their normals, weighted by
+        length, mostly oppose the normals of their plain nearest faces, all are reversed first.
+
+        Args: points (q, 3), normals (q, 3) (any length; zero rows mean "no side").
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        nrm = np.asarray(normals, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or nrm.shape != pts.shape:
+            raise ValueError(f"points and normals must both be (q, 3), got {pts.shape} and {nrm.shape}")
+        if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(nrm))):
+            raise ValueError("query points or normals contain NaN or inf")
+        k = int(min(max(int(k), 1), self.n_proxies))
+        _, cand, cp, bary, d = self._candidates(pts, k)
+        dots = np.einsum("qkd,qd->qk", self.normals[cand], nrm)
+        if majority and len(pts) and dots[np.arange(len(pts)), np.argmin(d, axis=1)].sum() < 0:
+            dots = -dots
+        facing = dots > 0
+        best = np.argmin(np.where(facing, d, np.inf), axis=1)
+        none = ~facing.any(axis=1)
+        best[none] = np.argmin(d[none], axis=1)
+        rows = np.arange(len(pts))
+        return ClosestPoints(cp[rows, best], cand[rows, best].astype(np.int64), bary[rows, best], d[rows, best])
+
     def query_oriented(
         self, points: np.ndarray, normals: np.ndarray, min_dot: float = 0.0, k: int = 16, exact: bool = True
     ) -> tuple[ClosestPoints, np.ndarray]:

@@ -441,15 +441,18 @@ def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
     return assets.charts
 
 
-#: Template faces checked per shape face at run time (the nearest proxies of its mapped centroid):
-#: mapped centroids lie on or near the template surface, where the first few are right.
-UV_CANDIDATES = 4
+#: Template faces checked per shape face at run time (the nearest proxies of its mapped centroid,
+#: the nearest one facing the mapped face's way wins): mapped centroids lie on or near the template
+#: surface, where the first few hold both sides of a thin wall.
+UV_CANDIDATES = 8
 
 
 def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
 
-    Each face takes the template face nearest to its mapped centroid and that face's affine UV map.
+    Each face takes the template face nearest to its mapped centroid among those facing the mapped
+    face's way (:meth:`SurfaceIndex.query_facing`: a thin wall's inside never reads its outside) and
+    that face's affine UV map.
     With ``charts`` (the group texture's :func:`chart_labels`), a face whose affine UVs would leave
     the chart of its template triangle (a large face extrapolated beyond it: any point of it, probed
     every few texels, reading unpainted texels or another chart) instead takes, per corner, the
@@ -459,8 +462,11 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
 
     Returns (corner_uv, template face per face (k,)).
     """
-    centroid = mapped[faces].mean(axis=1)
-    near = assets.index.query(centroid, exact=False, k=UV_CANDIDATES).faces
+    tri_mapped = mapped[faces]
+    centroid = tri_mapped.mean(axis=1)
+    # The template face on the mapped face's own side: a thin wall's inside never reads its outside.
+    normal = np.cross(tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
+    near = assets.index.query_facing(centroid, normal, k=UV_CANDIDATES).faces
     tri = assets.vertices[assets.faces[near]]
     tri_uv = assets.corner_uv[near]
     out = np.empty((len(faces), 3, 2))

@@ -115,3 +115,25 @@ def test_point_icp_and_chamfer():
     res = icp_points(moved, pts)
     assert res.converged and res.error < 1e-9  # the same points: exact recovery
     assert chamfer(apply(moved, res.R, res.t), pts) < 1e-9 < before
+
+
+def test_query_facing_keeps_each_side_of_a_thin_wall():
+    """A slab 0.02 thick: points of its top (some nearer the bottom), with the top's normal, land on
+    the top (plain nearest takes the bottom for those); the same points with reversed normals as a
+    whole (a mirrored part) still land on the top by majority, and on the bottom without it."""
+    import trimesh
+
+    from proctex.geometry import SurfaceIndex
+
+    slab = trimesh.creation.box((1.0, 1.0, 0.02))
+    slab = slab.subdivide().subdivide()
+    idx = SurfaceIndex(np.asarray(slab.vertices), np.asarray(slab.faces))
+    rng = np.random.default_rng(0)
+    z = np.r_[np.full(150, 0.006), np.full(50, -0.004)]  # points of the top; the last 50 nearer the bottom
+    pts = np.column_stack([rng.uniform(-0.4, 0.4, 200), rng.uniform(-0.4, 0.4, 200), z])
+    up = np.tile([0.0, 0.0, 1.0], (200, 1))
+    assert (idx.query(pts).points[150:, 2] < 0).all()
+    np.testing.assert_allclose(idx.query_facing(pts, up).points[:, 2], 0.01)
+    np.testing.assert_allclose(idx.query_facing(pts, -up).points[:, 2], 0.01)  # reversed as a whole: majority
+    np.testing.assert_allclose(idx.query_facing(pts, -up, majority=False).points[:, 2], -0.01)
+    np.testing.assert_allclose(idx.query_facing(pts, np.zeros_like(pts)).points, idx.query(pts).points)
