@@ -149,11 +149,25 @@ def test_mug_canonical_anchor_is_outer_top_rim():
         np.testing.assert_allclose(rim, [top_radius, 0.0, params["height"]], atol=1e-9)
 
 
-@pytest.mark.parametrize("name", ["mug", "shell"])
-def test_canonical_coordinates_do_not_depend_on_params(name):
-    model = get_model(name)
+def test_canonical_coordinates_do_not_depend_on_params():
+    model = get_model("mug")
     a, b = (model.generate(p) for p in model.space.sample(2, seed=7))
     np.testing.assert_array_equal(a.canonical, b.canonical)
+
+
+def test_shell_canonical_counts_whorls_back_from_the_aperture():
+    """Shells grow or lose whorls at the apex (the body whorl keeps its place), so the canonical
+    profile parameter counts turns back from the lip: it depends on ``turns`` only, and the ring
+    one turn behind the lip has the same canonical value on a 3-turn and a 5-turn shell."""
+    model = get_model("shell")
+    p, q = model.space.sample(2, seed=7)
+    a = model.generate({**p, "turns": 4.0})
+    b = model.generate({**q, "turns": 4.0})
+    np.testing.assert_array_equal(a.canonical, b.canonical)
+    s3 = model._canonical_s({"turns": 3.0}, np.array([1.0 - 1.0 / 3.0, 1.0]))
+    s5 = model._canonical_s({"turns": 5.0}, np.array([1.0 - 1.0 / 5.0, 1.0]))
+    np.testing.assert_allclose(s3, s5)
+    assert 0.0 < s3[0] < s3[1] < 1.0
 
 
 def test_pumpkin_canonical_anchors():

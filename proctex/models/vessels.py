@@ -733,6 +733,7 @@ class Shell(ProceduralModel):
         )
     )
     n_rings = 300
+    canonical_turns = 5.5  # the most turns the space allows: canonical s runs over this many whorls
     ribs_per_turn = 9
     edge_length = 0.0025  # target edge length (m) of the adaptive tessellation
 
@@ -757,13 +758,21 @@ class Shell(ProceduralModel):
         lip = 1.0 + 0.2 * np.clip((u - 0.97) / 0.03, 0.0, 1.0) ** 2
         return path, p["aperture"] * rho * ribs * lip
 
+    def _canonical_s(self, p, u: np.ndarray) -> np.ndarray:
+        """Canonical profile parameters (K,) of the rings at curve parameters ``u`` (K,): whorls
+        counted back from the aperture, ``1 - turns (1 - u) / max turns`` in the fixed rings'
+        convention (:func:`primitives.uniform_s`). Shells with more or fewer turns grow or lose
+        whorls at the apex, so a point one turn behind the lip is the same point on every shell (a
+        fraction of the whole coil would pair a short shell's body whorl with a long one's spire)."""
+        return P.uniform_s(self.n_rings, 1.0 - p["turns"] * (1.0 - np.asarray(u, dtype=float)) / self.canonical_turns)
+
     def _build(self, p) -> Shape:
         path, radius = self._spiral(p)
         lo = (path - radius[:, None]).min(axis=0)
         hi = (path + radius[:, None]).max(axis=0)
         scale = p["length"] / float((hi - lo).max())
         # The recessed end cap reads as the opening.
-        part = _coil_tube(scale * path, scale * radius, n_sides=20, cap_offset=-0.6)
+        part = _coil_tube(scale * path, scale * radius, n_sides=20, cap_offset=-0.6, s=self._canonical_s(p, np.linspace(0.0, 1.0, self.n_rings)))
         # Stand the shell on z=0; the coil axis is the z axis.
         lift = -part.vertices[:, 2].min()
         e = self.target_edge
@@ -774,7 +783,6 @@ class Shell(ProceduralModel):
             length = scale * P.polyline_length(path)
             u = np.linspace(0.0, 1.0, P.segment_count(length, along, 60) + 1)
             path_a, radius_a = self._spiral(p, u)
-            s = P.uniform_s(self.n_rings, u)
-            part = _coil_tube(scale * path_a, scale * radius_a, n_sides=n_sides, cap_offset=-0.6, s=s)
+            part = _coil_tube(scale * path_a, scale * radius_a, n_sides=n_sides, cap_offset=-0.6, s=self._canonical_s(p, u))
         part = P.transform(part, t=(0.0, 0.0, lift))
         return ShapeBuilder().add(part, "shell").build(p)
