@@ -427,18 +427,20 @@ def truth_samples(shape: Shape, seg: Segmentation, kind: str, n: int = 5000, see
 def _mapped_points(shape: Shape, seg: Segmentation, result, assets, part: int, face: np.ndarray, bary: np.ndarray, group: int):
     """A transfer's template points (k, 3) for shape points on ``part`` (global faces and
     barycentrics): its mapped vertices interpolated, in group ``group``'s representative's
-    normalised frame, projected onto the representative on the side its mapped triangle faces (as
+    normalised frame, projected onto the representative on the side its face is on (as
     :func:`proctex.transfer.part_uvs` reads the texture); and the representative's faces (k,) they
     land on."""
+    from .transfer import _side_normals, representative_frame
+
     p = seg.parts[part]
     ga = assets.groups[group]
     local = np.searchsorted(p.vertices, shape.faces[face])
     mapped = (np.asarray(result.points[part]) - ga.center) / ga.radius
-    tri = mapped[local]  # (k, 3, 3): the mapped triangle of each point's face
-    pts = np.einsum("kj,kjd->kd", bary, tri)
-    # Projected on the mapped triangle's side, as the transfer reads the texture (part_uvs).
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    hit = ga.index.query_facing(pts, normal, k=16)
+    pts = np.einsum("kj,kjd->kd", bary, mapped[local])
+    # Projected on the side the point's face is on, as the transfer reads the texture (part_uvs).
+    a = next((x for x in result.assignment if x.part == part), None)
+    src = representative_frame(shape.vertices[p.vertices], a) if a is not None else mapped
+    hit = ga.index.query_facing(pts, _side_normals(src, local), k=16)
     return hit.points, hit.faces
 
 

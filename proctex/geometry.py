@@ -250,16 +250,17 @@ class SurfaceIndex:
             todo = todo[~sub_sure]
         return res
 
-    def query_facing(self, points: np.ndarray, normals: np.ndarray, k: int = 8, majority: bool = True) -> ClosestPoints:
-        """Nearest surface points among the faces of the first ``k`` proxies, preferring faces whose
-        normal agrees with the query's (``dot > 0``); a query with no such face among them (or a
-        zero normal) gets its plain nearest candidate. Bounded work, unlike
-        :meth:`query_oriented`, which widens the search until a facing face is found: for a point
-        on or near the surface that knows its side (a mapped triangle's normal), on a thin wall.
+    def query_facing(self, points: np.ndarray, normals: np.ndarray, k: int = 8, majority: bool = True, max_k: int = 1024) -> ClosestPoints:
+        """Nearest surface points on faces whose normal agrees with the query's (``dot > 0``), for
+        points on or near the surface that know their side (a face of a mapped part): on a thin
+        wall, a point slightly nearer the inside than the outside still lands outside.
 
-        ``majority``: the queries are one surface (a mapped part) whose winding may be the reverse
-        of this mesh's (a mirrored member, an inside-out export): when their normals, weighted by
-        length, mostly oppose the normals of their plain nearest faces, all are reversed first.
+        The faces of the first ``k`` proxies are checked, then 4x as many for the queries without a
+        facing face among them, up to ``max_k`` (bounded work, unlike :meth:`query_oriented`);
+        queries still without one, or with a zero normal, get their plain nearest candidate.
+        ``majority``: the queries are one surface whose winding may be the reverse of this mesh's
+        (a mirrored member, an inside-out export): when their normals, weighted by length, mostly
+        oppose the normals of their nearest faces, all are reversed first.
 
         Args: points (q, 3), normals (q, 3) (any length; zero rows mean "no side").
         """
@@ -269,17 +270,30 @@ class SurfaceIndex:
             raise ValueError(f"points and normals must both be (q, 3), got {pts.shape} and {nrm.shape}")
         if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(nrm))):
             raise ValueError("query points or normals contain NaN or inf")
+        q = len(pts)
         k = int(min(max(int(k), 1), self.n_proxies))
         _, cand, cp, bary, d = self._candidates(pts, k)
+        rows = np.arange(q)
         dots = np.einsum("qkd,qd->qk", self.normals[cand], nrm)
-        if majority and len(pts) and dots[np.arange(len(pts)), np.argmin(d, axis=1)].sum() < 0:
-            dots = -dots
+        if majority and q and dots[rows, np.argmin(d, axis=1)].sum() < 0:
+            nrm, dots = -nrm, -dots
         facing = dots > 0
         best = np.argmin(np.where(facing, d, np.inf), axis=1)
         none = ~facing.any(axis=1)
         best[none] = np.argmin(d[none], axis=1)
-        rows = np.arange(len(pts))
-        return ClosestPoints(cp[rows, best], cand[rows, best].astype(np.int64), bary[rows, best], d[rows, best])
+        out = ClosestPoints(cp[rows, best], cand[rows, best].astype(np.int64), bary[rows, best], d[rows, best])
+        todo = np.flatnonzero(none & (np.abs(nrm).sum(axis=1) > 0))
+        while len(todo) and k < min(max_k, self.n_proxies):
+            k = min(4 * k, max_k, self.n_proxies)
+            _, cand, cp, bary, d = self._candidates(pts[todo], k)
+            facing = np.einsum("qkd,qd->qk", self.normals[cand], nrm[todo]) > 0
+            found = facing.any(axis=1)
+            b = np.argmin(np.where(facing, d, np.inf), axis=1)
+            r = np.arange(len(todo))[found]
+            sel = todo[found]
+            out.points[sel], out.faces[sel], out.bary[sel], out.distance[sel] = cp[r, b[found]], cand[r, b[found]], bary[r, b[found]], d[r, b[found]]
+            todo = todo[~found]
+        return out
 
     def query_oriented(
         self, points: np.ndarray, normals: np.ndarray, min_dot: float = 0.0, k: int = 16, exact: bool = True

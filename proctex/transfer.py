@@ -447,12 +447,14 @@ def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
 UV_CANDIDATES = 8
 
 
-def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | None = None,
+             normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
 
-    Each face takes the template face nearest to its mapped centroid among those facing the mapped
-    face's way (:meth:`SurfaceIndex.query_facing`: a thin wall's inside never reads its outside) and
-    that face's affine UV map.
+    Each face takes the template face nearest to its mapped centroid among those facing its way
+    (:meth:`SurfaceIndex.query_facing`: a thin wall's inside never reads its outside; ``normals
+    (k, 3)``: the faces' normals in the representative's frame, default those of the mapped
+    triangles) and that face's affine UV map.
     With ``charts`` (the group texture's :func:`chart_labels`), a face whose affine UVs would leave
     the chart of its template triangle (a large face extrapolated beyond it: any point of it, probed
     every few texels, reading unpainted texels or another chart) instead takes, per corner, the
@@ -464,8 +466,11 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     """
     tri_mapped = mapped[faces]
     centroid = tri_mapped.mean(axis=1)
-    # The template face on the mapped face's own side: a thin wall's inside never reads its outside.
-    normal = np.cross(tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
+    # The template face on the face's own side: a thin wall's inside never reads its outside. The
+    # side comes from the part's own faces in the representative's frame (``normals``), which a
+    # mapper's small errors cannot fold over; else from the mapped triangles.
+    normal = np.asarray(normals, dtype=np.float64) if normals is not None else np.cross(
+        tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
     near = assets.index.query_facing(centroid, normal, k=UV_CANDIDATES).faces
     tri = assets.vertices[assets.faces[near]]
     tri_uv = assets.corner_uv[near]
@@ -493,6 +498,13 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
             still = ~_inside_chart(out[fi], charts, target[fi])
             out[fi[still]] = tri_uv[fi[still]].mean(axis=1)[:, None]
     return out, near
+
+
+def _side_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k, 3) area-weighted normals of a part's faces (``vertices (j, 3)`` in the representative's
+    frame): which side of a thin wall each face is on (:func:`part_uvs`)."""
+    tri = np.asarray(vertices, dtype=np.float64)[faces]
+    return np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
 
 
 def _bary_grid(n: int) -> np.ndarray:
@@ -573,7 +585,7 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
                 raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
             tb = time.perf_counter()
             charts = template_charts(assets)
-            uv, _ = part_uvs(ga, mapped, f, None if charts is None else charts[a.group])
+            uv, _ = part_uvs(ga, mapped, f, None if charts is None else charts[a.group], normals=_side_normals(vn, f))
         corner[part.faces] = uv
         face_group[part.faces] = a.group
         points[a.part] = mapped * ga.radius + ga.center

@@ -137,3 +137,7 @@ def test_query_facing_keeps_each_side_of_a_thin_wall():
     np.testing.assert_allclose(idx.query_facing(pts, -up).points[:, 2], 0.01)  # reversed as a whole: majority
     np.testing.assert_allclose(idx.query_facing(pts, -up, majority=False).points[:, 2], -0.01)
     np.testing.assert_allclose(idx.query_facing(pts, np.zeros_like(pts)).points, idx.query(pts).points)
+    # One candidate at first: those nearer the bottom widen the search until a facing face is found.
+    np.testing.assert_allclose(idx.query_facing(pts, up, k=1).points[:, 2], 0.01)
+    # ... but never beyond max_k: with one proxy allowed, each keeps its one candidate.
+    np.testing.assert_allclose(idx.query_facing(pts, up, k=1, max_k=1).points, idx.query(pts, exact=False, k=1).points)
