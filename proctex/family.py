@@ -709,18 +709,25 @@ def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     from .corrnet import train
 
     cfg = corrnet_config(config)
-    trained = {}
+    # A resumed build keeps the record of the groups trained before.
+    before = _state(store).get("stages", {}).get("train", {}).get("groups", {})
+    trained: dict[Any, Any] = {}
+    fresh = False
     for g in trainable_groups(store):
         if store.exists(model_path(g)):
             log(f"train: group {g} done already")
+            if str(g) in before:
+                trained[g] = before[str(g)]
             continue
         data = group_training_data(store, config, g, val_share)
         t = time.perf_counter()
         result = train(data["train"], data["val"], cfg)
         save_group_model(store, g, result, cfg, data)
         trained[g] = {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2)}
+        fresh = True
         log(f"train: group {g}: {len(data['train'])} train / {len(data['val'])} val pairs, val {result.best_val}, {trained[g]['seconds']}s")
-    _mark(store, "train", groups=trained)
+    if fresh or not stage_done(store, "train"):
+        _mark(store, "train", groups=trained)
 
 
 def load_models(store: FamilyStore, device: str = "cpu") -> dict[int, Any]:

@@ -61,8 +61,16 @@ def test_fidelity_benchmark_builds_evaluates_and_resumes(tmp_path):
     assert all(m["gt_error"]["max"] >= m["gt_error"]["mean"] > 0 for m in methods.values())
     table = (tmp_path / "fam" / "fidelity.md").read_text()
     assert "| mug | 1 |" in table and ("beats both" in table or "loses:" in table)
+    assert "Issue 16's goals" in table and "| mug | " in table.split("Issue 16's goals")[1]
     again = subprocess.run(argv, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0 and "measured already" in again.stdout
+    # --reevaluate measures again on the same build (no stage runs twice; the build time is kept).
+    store_before = (tmp_path / "fam" / "mug" / "family.json").read_text()
+    third = subprocess.run(argv + ["--reevaluate"], capture_output=True, text=True, timeout=600)
+    assert third.returncode == 0 and "measured already" not in third.stdout and "evaluate" in third.stdout, third.stderr[-2000:]
+    rep3 = json.loads((tmp_path / "fam" / "fidelity.json").read_text())
+    assert rep3["families"]["mug"]["build_seconds"] == mug["build_seconds"]
+    assert json.loads((tmp_path / "fam" / "mug" / "family.json").read_text())["stages"] == json.loads(store_before)["stages"]
 
 
 def test_fidelity_goals_name_each_miss():
