@@ -211,7 +211,7 @@ def assign_parts(
             c, r = normalised_frame(v)
             same = [ga.group for ga in assets.groups if not ga.degenerate and same_topology(f, len(v), ga)]
             copy = copy_of_group(v, same, assets, cost[i], extra_tol)
-            if copy is not None:  # another copy of a template primitive (a third cushion): its group, template UVs
+            if copy is not None and copy[1] <= box_cost:  # another copy of a template primitive (a third cushion): its group, template UVs
                 out.append(PartAssignment(p.index, copy[0], -1, np.eye(3), copy[1], "extra"))
                 continue
             u = (v - c) / (r if r > 0 else 1.0)
@@ -279,7 +279,7 @@ def _half_extents(points: np.ndarray, min_extent: float) -> np.ndarray:
 
 
 def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, slot_cost: np.ndarray | None = None, n: int = 300,
-              seed: int = 0, min_extent: float = 0.05, chamfer_tol: float = 0.25, proportion_tol: float = 0.7,
+              seed: int = 0, min_extent: float = 1e-3, chamfer_tol: float = 0.25, proportion_tol: float = 0.7,
               extra_cost: float = 1.2) -> BoxMatch | None:
     """The group a left-over part is another instance of, up to per-axis scale: a cake tier wider
     than the template's, a leg of another length, a stem of another height. Rigid ICP cannot align
@@ -295,7 +295,8 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
     error at most ``proportion_tol`` and placement cost at most ``extra_cost``; the lowest sum wins.
 
     ``vertices (k, 3)``: the part in its normalised frame; ``faces (f, 3)`` local. Axes thinner than
-    ``min_extent`` (normalised units) count as that thick. Returns ``None`` when no group qualifies.
+    ``min_extent`` (normalised units: a flat part) count as that thick; thin axes are scaled like
+    the others, so a thin slab matches a thin slab of another thickness. Returns ``None`` when no group qualifies.
     """
     from itertools import permutations, product
 

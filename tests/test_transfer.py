@@ -413,3 +413,33 @@ def test_stretched_copies_join_their_group_by_box_shape():
 
     for other in (trimesh.creation.icosphere(subdivisions=2), trimesh.creation.cone(1.0, 2.0)):
         assert match_box(np.asarray(other.vertices), np.asarray(other.faces), assets) is None
+
+
+def test_thin_slabs_of_other_thicknesses_match_their_group():
+    """A stair's extra tread thicker than the template's (both thin: under 5% of their width) is
+    the same primitive once every axis is scaled to the box, thin ones included; the same slab
+    placed far from every tread slot (placement cost over ``extra_cost``) does not join them."""
+    import trimesh
+
+    from proctex.shape import Shape
+    from proctex.transfer import match_box
+
+    def slab(extents, at):
+        m = trimesh.creation.box(extents)
+        m.apply_translation(at)
+        return np.asarray(m.vertices), np.asarray(m.faces)
+
+    parts = [slab((1.0, 0.3, 0.02), (0, 0, 0)), slab((0.05, 0.05, 1.0), (2.0, 0, 0))]  # a tread, a post
+    v = np.concatenate([parts[0][0], parts[1][0]])
+    f = np.concatenate([parts[0][1], parts[1][1] + len(parts[0][0])])
+    shape_t = Shape(v, f)
+    grouping = analyse(shape_t)
+    tex = paint_surface(shape_t, grouping, SurfacePainter("oak"), size=32)
+    assets = prepare_template(shape_t, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    tread = next(ga.group for ga in assets.groups if np.ptp(ga.vertices, axis=0)[2] < 0.1)
+    thick, tf = slab((1.0, 0.45, 0.07), (0, 0, 0))
+    c = (thick.max(0) + thick.min(0)) / 2
+    m = match_box((thick - c) / np.abs(thick - c).max(), tf, assets)
+    assert m is not None and m.group == tread and m.chamfer < 0.01
+    far = np.full(len(assets.slots), 2.0)  # every slot costs more than extra_cost: not taken
+    assert match_box((thick - c) / np.abs(thick - c).max(), tf, assets, slot_cost=far) is None
