@@ -280,7 +280,7 @@ def _half_extents(points: np.ndarray, min_extent: float) -> np.ndarray:
 
 def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, slot_cost: np.ndarray | None = None, n: int = 300,
               seed: int = 0, min_extent: float = 1e-3, chamfer_tol: float = 0.25, proportion_tol: float = 0.7,
-              extra_cost: float = 1.2) -> BoxMatch | None:
+              extra_cost: float = 1.2, turn_cost: float = 0.03) -> BoxMatch | None:
     """The group a left-over part is another instance of, up to per-axis scale: a cake tier wider
     than the template's, a leg of another length, a stem of another height. Rigid ICP cannot align
     those; scaling each part's bounding box to the cube [-1, 1]^3 can.
@@ -292,7 +292,9 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
     placement of the group's slots in the shape (``slot_cost (n_slots,)``, as
     :func:`assign_parts` computes it; ``None``: not used) decide between groups of one primitive
     (a slat and a post are both boxes). A match needs Chamfer at most ``chamfer_tol``, proportion
-    error at most ``proportion_tol`` and placement cost at most ``extra_cost``; the lowest sum wins.
+    error at most ``proportion_tol`` and placement cost at most ``extra_cost``; the lowest sum wins,
+    plus ``turn_cost`` per axis the permutation moves away from the part's own orientation (a
+    symmetric part fits flipped as well as not: it keeps its orientation).
 
     ``vertices (k, 3)``: the part in its normalised frame; ``faces (f, 3)`` local. Axes thinner than
     ``min_extent`` (normalised units: a flat part) count as that thick; thin axes are scaled like
@@ -328,7 +330,10 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
                                  + np.percentile(part_index.query(rep @ P, exact=False).distance, 90))
                 if ch > chamfer_tol:
                     continue
-                score = ch + prop + place
+                # Symmetric parts (a box, a cylinder) fit several ways equally well: the one
+                # nearest the part's own orientation wins (``turn`` is 0 for the identity).
+                score = ch + prop + place + turn_cost * (3.0 - float(np.trace(P))) / 2
+
                 if best is None or score < best.score:
                     A = np.diag(hr) @ P @ np.diag(1.0 / hp)
                     best = BoxMatch(ga.group, A, ch, prop, place, score)

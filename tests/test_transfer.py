@@ -441,5 +441,7 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
     c = (thick.max(0) + thick.min(0)) / 2
     m = match_box((thick - c) / np.abs(thick - c).max(), tf, assets)
     assert m is not None and m.group == tread and m.chamfer < 0.01
+    # A box fits flipped as well as not: it keeps its own orientation (a positive diagonal map).
+    assert np.allclose(m.A, np.diag(np.diag(m.A))) and (np.diag(m.A) > 0).all()
     far = np.full(len(assets.slots), 2.0)  # every slot costs more than extra_cost: not taken
     assert match_box((thick - c) / np.abs(thick - c).max(), tf, assets, slot_cost=far) is None
