@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     results: dict[str, Any] = {}
     if out.exists() and not args.fresh:  # resume: families already measured with the same settings are kept
         old = json.loads(out.read_text())
-        results = {k: v for k, v in old.get("families", {}).items() if k in models}
+        results = dict(old.get("families", {}))  # families not asked for this time stay in the report
     for model in models:
         cfg = family_config(model, args.n_train, args.n_test, args.cage_iterations, args.train_iterations, args.seed, parse_sets(args.set))
         same = model in results and results[model]["config"] == cfg and list(results[model]["metrics"]["methods"]) == methods
