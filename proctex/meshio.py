@@ -118,7 +118,7 @@ def _read_obj_triangles(data: str) -> tuple[np.ndarray, np.ndarray] | None:
             f = np.fromstring(ft, sep=" ", dtype=np.int64) if fs else np.zeros(0, np.int64)
         except (ValueError, DeprecationWarning):
             return None
-    if len(v) != 3 * len(vs) or len(f) != 3 * len(fs) or (len(f) and f.min() < 1):
+    if len(v) != 3 * len(vs) or len(f) != 3 * len(fs) or (len(f) and (f.min() < 1 or f.max() >= 2**62)):  # 2**62: saturated
         return None
     return v.reshape(-1, 3), f.reshape(-1, 3) - 1
 

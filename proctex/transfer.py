@@ -298,7 +298,8 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
 
     ``vertices (k, 3)``: the part in its normalised frame; ``faces (f, 3)`` local. Axes thinner than
     ``min_extent`` (normalised units: a flat part) count as that thick; thin axes are scaled like
-    the others, so a thin slab matches a thin slab of another thickness. Returns ``None`` when no group qualifies.
+    the others, so a thin slab matches a thin slab of another thickness. Returns ``None`` when no
+    group qualifies.
     """
     from itertools import permutations, product
 
@@ -331,9 +332,8 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
                 if ch > chamfer_tol:
                     continue
                 # Symmetric parts (a box, a cylinder) fit several ways equally well: the one
-                # nearest the part's own orientation wins (``turn`` is 0 for the identity).
+                # nearest the part's own orientation wins (no turn cost for the identity).
                 score = ch + prop + place + turn_cost * (3.0 - float(np.trace(P))) / 2
-
                 if best is None or score < best.score:
                     A = np.diag(hr) @ P @ np.diag(1.0 / hp)
                     best = BoxMatch(ga.group, A, ch, prop, place, score)
@@ -447,9 +447,8 @@ def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
     return assets.charts
 
 
-#: Template faces checked per shape face at run time (the nearest proxies of its mapped centroid,
-#: the nearest one facing the mapped face's way wins): mapped centroids lie on or near the template
-#: surface, where the first few hold both sides of a thin wall.
+#: Template faces checked first per shape face at run time (the nearest proxies of its mapped
+#: centroid; the nearest one facing the face's own way wins, the search widening when none does).
 UV_CANDIDATES = 8
 
 
@@ -498,9 +497,9 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
             for k in range(3):
                 _, bary = closest_point_on_triangles(mapped[faces[fi, k]], t[:, 0], t[:, 1], t[:, 2])
                 out[fi, k] = np.einsum("ij,ijk->ik", bary, tri_uv[fi])
-            # Still reading outside the chart somewhere inside (corners, centroid or edge midpoints
-            # on unpainted texels: a sliver template triangle on the chart's rim): the face takes
-            # the colour at its template triangle's centre, so no visible pixel is unpainted.
+            # Still reading outside the chart somewhere (a probe on unpainted texels: a sliver
+            # template triangle on the chart's rim): the face takes the colour at its template
+            # triangle's centre, so no visible pixel is unpainted.
             still = ~_inside_chart(out[fi], charts, target[fi])
             out[fi[still]] = tri_uv[fi[still]].mean(axis=1)[:, None]
     return out, near
