@@ -88,6 +88,8 @@ def _parse_obj_index(token: str, n_vertices: int, path: str, lineno: int) -> int
         idx = int(head)
     except ValueError:
         raise ValueError(f"{path}:{lineno}: bad face index {token!r}") from None
+    if abs(idx) >= 2**62:
+        raise ValueError(f"{path}:{lineno}: face index {token!r} is out of range")
     if idx > 0:
         return idx - 1
     if idx < 0:

@@ -218,3 +218,5 @@ def test_vectorised_obj_reader_agrees_with_the_line_reader():
     assert np.asarray(read_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n")[1]).tolist() == [[0, 1, 2]]
     with pytest.raises(ValueError, match="bad face index"):
         read_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n")
+    with pytest.raises(ValueError, match="out of range"):  # saturates int64: the line reader says where
+        read_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n")
