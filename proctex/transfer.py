@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any, Protocol, Sequence
 
 import numpy as np
@@ -85,6 +86,7 @@ class TemplateAssets:
     painted: list[np.ndarray] | None = None
     observed: list[np.ndarray] | None = None
     charts: list[np.ndarray] | None = None  # chart ids of ``painted`` (see :func:`template_charts`)
+    rooms: list[np.ndarray] | None = None  # per texel, distance to the nearest texel outside its chart (:func:`chart_rooms`)
 
 
 def _box(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -449,11 +451,26 @@ def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
 
 #: Template faces checked first per shape face at run time (the nearest proxies of its mapped
 #: centroid; the nearest one facing the face's own way wins, the search widening when none does).
-UV_CANDIDATES = 8
+UV_CANDIDATES = 4
+
+
+def chart_rooms(assets: TemplateAssets) -> list[np.ndarray] | None:
+    """Per group (H, W) float32: each texel's distance (texels) to the nearest texel outside its
+    chart (unpainted, so also to any other chart), computed once and kept on the assets; None
+    without painted masks. A face whose probes all have room for the face's size cannot leave its
+    chart between them (:func:`_inside_chart`)."""
+    from scipy import ndimage
+
+    charts = template_charts(assets)
+    if charts is None:
+        return None
+    if assets.rooms is None or len(assets.rooms) != len(charts):
+        assets.rooms = [ndimage.distance_transform_edt(c > 0).astype(np.float32) for c in charts]
+    return assets.rooms
 
 
 def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | None = None,
-             normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+             normals: np.ndarray | None = None, room: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
 
     Each face takes the template face nearest to its mapped centroid among those facing its way
@@ -488,7 +505,7 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
 
         h, w = charts.shape
         target = charts.ravel()[bilinear_texels(tri_uv.mean(axis=1), h, w)].max(axis=1)  # the template triangle's chart
-        bad = ~_inside_chart(out, charts, target)
+        bad = ~_inside_chart(out, charts, target, room=room)
         if bad.any():
             from .geometry import closest_point_on_triangles
 
@@ -512,20 +529,28 @@ def _side_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
 
 
+@lru_cache(maxsize=64)
 def _bary_grid(n: int) -> np.ndarray:
     """((n + 1)(n + 2) / 2, 3) barycentric points of a triangle split ``n`` times per edge
     (corners and edge points included)."""
     i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
     keep = i + j <= n
     i, j = i[keep], j[keep]
-    return np.stack([n - i - j, i, j], axis=1) / n
+    grid = np.stack([n - i - j, i, j], axis=1) / n
+    grid.flags.writeable = False  # cached: shared by every call
+    return grid
 
 
-def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray, chart: np.ndarray, spacing: float = 3.0, max_split: int = 16) -> np.ndarray:
+def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray, chart: np.ndarray, spacing: float = 3.0, max_split: int = 16,
+                  room: np.ndarray | None = None) -> np.ndarray:
     """(k,) bool: faces with UVs ``corner_uv (k, 3, 2)`` read (bilinearly) only texels of chart
     ``chart (k,)`` of ``charts (H, W)``, probed on a barycentric grid about ``spacing`` texels apart
     (corners and edge midpoints always; at most ``max_split`` steps per edge), so a long UV edge
-    crossing a gap between two islands of one chart is caught."""
+    crossing a gap between two islands of one chart is caught.
+
+    With ``room`` (:func:`chart_rooms`), a face whose corners, edge midpoints and centre all read
+    its chart with room for half its longest edge around each (every point of a triangle lies
+    within that of one of them) passes without the grid."""
     from .uv import bilinear_texels
 
     h, w = charts.shape
@@ -536,10 +561,17 @@ def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray, chart: np.ndarray, 
     px = corner_uv * np.array([w, h])
     edge = np.linalg.norm(px - px[:, [1, 2, 0]], axis=2).max(axis=1)
     split = np.clip(np.ceil(edge / spacing), 2, max_split).astype(np.int64)
-    for n in np.unique(split):
+    if room is not None:
+        grid = np.vstack([_bary_grid(2), np.full((1, 3), 1.0 / 3.0)])  # corners, midpoints, centre
+        idx = bilinear_texels(np.matmul(grid[None], corner_uv).reshape(-1, 2), h, w)  # (k * 7, 4)
+        same = (charts.ravel()[idx] == np.repeat(chart, len(grid))[:, None]).reshape(k, -1).all(axis=1)
+        space = room.ravel()[idx].reshape(k, -1).min(axis=1)
+        ok[~same] = False
+        split[~same | (space >= edge / 2 + 2.0)] = 0  # settled: no grid
+    for n in np.unique(split[split > 0]):
         sel = np.flatnonzero(split == n)
         grid = _bary_grid(int(n))  # (p, 3)
-        probe = np.einsum("pj,kjd->kpd", grid, corner_uv[sel])  # (s, p, 2)
+        probe = np.matmul(grid[None], corner_uv[sel])  # (s, p, 2)
         lab = charts.ravel()[bilinear_texels(probe.reshape(-1, 2), h, w)]  # (s * p, 4)
         ok[sel] = (lab == np.repeat(chart[sel], len(grid))[:, None]).reshape(len(sel), -1).all(axis=1)
     return ok
@@ -589,8 +621,9 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
             if mapped.shape != vn.shape or not np.isfinite(mapped).all():
                 raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
             tb = time.perf_counter()
-            charts = template_charts(assets)
-            uv, _ = part_uvs(ga, mapped, f, None if charts is None else charts[a.group], normals=_side_normals(vn, f))
+            charts, rooms = template_charts(assets), chart_rooms(assets)
+            uv, _ = part_uvs(ga, mapped, f, None if charts is None else charts[a.group], normals=_side_normals(vn, f),
+                             room=None if rooms is None else rooms[a.group])
         corner[part.faces] = uv
         face_group[part.faces] = a.group
         points[a.part] = mapped * ga.radius + ga.center

@@ -445,3 +445,26 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
     assert np.allclose(m.A, np.diag(np.diag(m.A))) and (np.diag(m.A) > 0).all()
     far = np.full(len(assets.slots), 2.0)  # every slot costs more than extra_cost: not taken
     assert match_box((thick - c) / np.abs(thick - c).max(), tf, assets, slot_cost=far) is None
+
+
+def test_chart_room_shortcut_never_passes_a_face_the_dense_check_fails():
+    """The distance-to-the-chart's-edge shortcut settles faces without the probe grid; on random
+    faces over a chart with holes and a gap, every face it passes also passes a probe every texel."""
+    from scipy import ndimage
+
+    from proctex.transfer import _inside_chart, chart_labels
+
+    rng = np.random.default_rng(3)
+    painted = np.ones((128, 128), bool)
+    painted[20:, 60:63] = False  # a gap inside one chart
+    painted[80:90, 10:20] = False  # a hole
+    painted[:4], painted[:, :4] = False, False
+    charts = chart_labels(painted)
+    room = ndimage.distance_transform_edt(charts > 0).astype(np.float32)
+    centre = rng.uniform(0.05, 0.95, (400, 1, 2))
+    uv = np.clip(centre + rng.normal(0, 0.06, (400, 3, 2)), 0, 1)
+    chart = np.ones(400, dtype=np.int32)
+    fast = _inside_chart(uv, charts, chart, room=room)
+    dense = _inside_chart(uv, charts, chart, spacing=1.0, max_split=200)
+    assert fast.any() and (~fast).any()
+    assert not (fast & ~dense).any()
