@@ -452,6 +452,9 @@ def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
 #: Template faces checked first per shape face at run time (the nearest proxies of its mapped
 #: centroid; the nearest one facing the face's own way wins, the search widening when none does).
 UV_CANDIDATES = 4
+#: ... and at most this many when none faces it (a thin wall's other side is among the nearest; a
+#: face mapped far from any facing face keeps its plain nearest one instead of a wide search).
+UV_MAX_CANDIDATES = 16
 
 
 def chart_rooms(assets: TemplateAssets) -> list[np.ndarray] | None:
@@ -493,7 +496,7 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     # mapper's small errors cannot fold over; else from the mapped triangles.
     normal = np.asarray(normals, dtype=np.float64) if normals is not None else np.cross(
         tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
-    near = assets.index.query_facing(centroid, normal, k=UV_CANDIDATES).faces
+    near = assets.index.query_facing(centroid, normal, k=UV_CANDIDATES, max_k=UV_MAX_CANDIDATES).faces
     tri = assets.vertices[assets.faces[near]]
     tri_uv = assets.corner_uv[near]
     out = np.empty((len(faces), 3, 2))
