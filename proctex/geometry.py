@@ -164,6 +164,17 @@ def _subtriangle_centroids(n: int) -> np.ndarray:
     return np.stack([1 - uv.sum(1), uv[:, 0], uv[:, 1]], axis=1)
 
 
+def _points_and_normals(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(points (q, 3), normals (q, 3))`` as float64, or ``ValueError`` (shapes, NaN or inf)."""
+    pts = np.asarray(points, dtype=np.float64)
+    nrm = np.asarray(normals, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or nrm.shape != pts.shape:
+        raise ValueError(f"points and normals must both be (q, 3), got {pts.shape} and {nrm.shape}")
+    if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(nrm))):
+        raise ValueError("query points or normals contain NaN or inf")
+    return pts, nrm
+
+
 class SurfaceIndex:
     """Exact nearest-point queries on a triangle mesh.
 
@@ -264,12 +275,7 @@ class SurfaceIndex:
 
         Args: points (q, 3), normals (q, 3) (any length; zero rows mean "no side").
         """
-        pts = np.asarray(points, dtype=np.float64)
-        nrm = np.asarray(normals, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3 or nrm.shape != pts.shape:
-            raise ValueError(f"points and normals must both be (q, 3), got {pts.shape} and {nrm.shape}")
-        if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(nrm))):
-            raise ValueError("query points or normals contain NaN or inf")
+        pts, nrm = _points_and_normals(points, normals)
         q = len(pts)
         k = int(min(max(int(k), 1), self.n_proxies))
         _, cand, cp, bary, d = self._candidates(pts, k)
@@ -315,12 +321,7 @@ class SurfaceIndex:
             existed (exact otherwise). With ``exact=False`` a query settles on the closest admissible
             face among the first candidates that contain one (cheaper; used inside optimisation loops).
         """
-        pts = np.asarray(points, dtype=np.float64)
-        nrm = np.asarray(normals, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3 or nrm.shape != pts.shape:
-            raise ValueError(f"points and normals must both be (q, 3), got {pts.shape} and {nrm.shape}")
-        if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(nrm))):
-            raise ValueError("query points or normals contain NaN or inf")
+        pts, nrm = _points_and_normals(points, normals)
         q = len(pts)
         out = ClosestPoints(np.zeros((q, 3)), np.zeros(q, np.int64), np.zeros((q, 3)), np.full(q, np.inf))
         oriented = np.zeros(q, dtype=bool)

@@ -137,6 +137,10 @@ def test_query_facing_keeps_each_side_of_a_thin_wall():
     np.testing.assert_allclose(idx.query_facing(pts, -up).points[:, 2], 0.01)  # reversed as a whole: majority
     np.testing.assert_allclose(idx.query_facing(pts, -up, majority=False).points[:, 2], -0.01)
     np.testing.assert_allclose(idx.query_facing(pts, np.zeros_like(pts)).points, idx.query(pts).points)
+    with pytest.raises(ValueError, match="NaN"):
+        idx.query_facing(pts, np.full_like(pts, np.nan))
+    with pytest.raises(ValueError, match="both be"):
+        idx.query_facing(pts, up[:3])
     # One candidate at first: those nearer the bottom widen the search until a facing face is found.
     np.testing.assert_allclose(idx.query_facing(pts, up, k=1).points[:, 2], 0.01)
     # ... but never beyond max_k: with one proxy allowed, each keeps its one candidate.
