@@ -392,6 +392,32 @@ def learning_rate(config: CorrNetConfig, step: int) -> float:
 
 
 # ---------------------------------------------------------------------------------- train and eval
+def native_bfloat16(device: torch.device | str = "cpu") -> bool:
+    """Whether ``device`` runs bfloat16 matrix products natively (CPUs with AVX512-BF16 or AMX;
+    CUDA devices reporting bfloat16 support), so autocast there is faster rather than emulated."""
+    device = torch.device(device)
+    try:
+        if device.type == "cpu":
+            return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
+        if device.type == "cuda":
+            return bool(torch.cuda.is_bf16_supported())
+    except (AttributeError, RuntimeError):  # a torch without the probe: assume not
+        return False
+    return False
+
+
+def resolve_autocast(mode: str, device: torch.device | str = "cpu") -> str:
+    """``mode`` of :func:`predict` as one of :data:`AUTOCASTS`: ``"auto"`` is ``"bfloat16"`` on a
+    CPU with native bfloat16 (:func:`native_bfloat16`; there the networks are most of a transfer's
+    time), else ``"none"`` (GPUs run float32 well inside the budget)."""
+    if mode == "auto":
+        device = torch.device(device)
+        return "bfloat16" if device.type == "cpu" and native_bfloat16(device) else "none"
+    if mode not in AUTOCASTS:
+        raise ValueError(f"autocast must be one of {AUTOCASTS + ('auto',)}, got {mode!r}")
+    return mode
+
+
 def _autocast(device: torch.device, mode: str) -> torch.autocast:
     """bfloat16 autocast context on ``device`` when ``mode == "bfloat16"`` (disabled otherwise)."""
     if mode not in AUTOCASTS:
@@ -606,8 +632,9 @@ def predict(
         query_points: (Q, 3) points of the same part (same frame), e.g. samples plus mesh vertices.
         chunk: queries decoded per forward pass (memory bound; the result does not depend on it).
         autocast: "bfloat16" runs the matrix products in bfloat16 (float32 models only): on CPUs
-            with AMX / AVX512-BF16 about 5x faster, at a cost of ~1e-4 in the output with
-            ``residual`` networks; slower on CPUs without native bfloat16.
+            with AMX / AVX512-BF16 about 2x to 5x faster, at a cost of ~1e-3 at most in the output
+            with ``residual`` networks; slower on CPUs without native bfloat16. "auto": bfloat16
+            for float32 models on devices with native bfloat16 (:func:`resolve_autocast`), else none.
 
     Returns:
         (Q, 3) float64 points in the template part's normalised frame.
@@ -619,6 +646,8 @@ def predict(
     if len(ctx) != model.context_points:
         ctx = ctx[sample_indices(len(ctx), model.context_points, np.random.default_rng(seed))]
     device, dtype = _model_spec(model)
+    if autocast == "auto":
+        autocast = resolve_autocast(autocast, device) if dtype == torch.float32 else "none"
     was_training = model.training
     model.eval()
     out = np.empty((len(qry), 3))

@@ -423,6 +423,34 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, bilinear: bool = True) -
     return (top * (1 - fr) + bot * fr) * scale
 
 
+def bilinear_corner(uv: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(n,) int64 row-major index of the first (top-left, clamped) of the four texels a bilinear
+    lookup at each UV reads: with a map reduced over each texel's 2x2 block
+    (:func:`bilinear_blocks`), one read answers for all four (:func:`bilinear_texels`)."""
+    r, c = texel_coords(uv, height, width)
+    i0 = np.clip(np.floor(r), 0, height - 1).astype(np.int64)
+    j0 = np.clip(np.floor(c), 0, width - 1).astype(np.int64)
+    return i0 * width + j0
+
+
+def bilinear_blocks(grid: np.ndarray, reduce: str) -> np.ndarray:
+    """(H, W) map of ``grid (H, W)`` over each texel's bilinear 2x2 block (the texel, its right and
+    lower neighbours and the diagonal one, clamped at the last row and column, as
+    :func:`bilinear_texels`): ``reduce`` "min", or "same" (the value where all four are equal,
+    -1 where they differ; for non-negative labels)."""
+    g = np.asarray(grid)
+    if g.ndim != 2 or g.size == 0:
+        raise ValueError(f"grid must be a non-empty (H, W) array, got {g.shape}")
+    down = np.concatenate([g[1:], g[-1:]], axis=0)
+    blocks = (g, np.concatenate([g[:, 1:], g[:, -1:]], axis=1), down, np.concatenate([down[:, 1:], down[:, -1:]], axis=1))
+    if reduce == "min":
+        return np.minimum.reduce(blocks)
+    if reduce == "same":
+        same = (blocks[0] == blocks[1]) & (blocks[0] == blocks[2]) & (blocks[0] == blocks[3])
+        return np.where(same, g, -1).astype(g.dtype)
+    raise ValueError(f"reduce must be 'min' or 'same', got {reduce!r}")
+
+
 def bilinear_texels(uv: np.ndarray, height: int, width: int) -> np.ndarray:
     """(n, 4) int64 row-major indices of the texels a bilinear lookup at each UV reads (clamped)."""
     r, c = texel_coords(uv, height, width)

@@ -129,6 +129,20 @@ def test_bfloat16_autocast_predict_and_train():
     assert np.abs(full - half).max() < 5e-3  # bfloat16 products; the residual add stays float32
     with pytest.raises(ValueError, match="float32"):
         cn.predict(cn.build_model(small_config(dtype="float64")), src, src, autocast="bfloat16")
+    # "auto" is bfloat16 exactly where the CPU has it natively, float32 elsewhere; a float64 model
+    # keeps float64 (no error).
+    auto = cn.predict(res.model, src, src, autocast="auto")
+    np.testing.assert_array_equal(auto, half if cn.native_bfloat16("cpu") else full)
+    assert cn.resolve_autocast("auto", "cpu") == ("bfloat16" if cn.native_bfloat16("cpu") else "none")
+    assert cn.resolve_autocast("none", "cpu") == "none" and cn.resolve_autocast("bfloat16", "cpu") == "bfloat16"
+    wide = cn.build_model(small_config(dtype="float64"))
+    np.testing.assert_array_equal(cn.predict(wide, src, src, autocast="auto"), cn.predict(wide, src, src))
+    with pytest.raises(ValueError, match="autocast"):
+        cn.resolve_autocast("half", "cpu")
+    from proctex.transfer import NetworkMapper
+
+    with pytest.raises(ValueError, match="autocast"):
+        NetworkMapper({}, autocast="fp8")
 
 
 def test_sample_indices():

@@ -452,7 +452,7 @@ def test_chart_room_shortcut_never_passes_a_face_the_dense_check_fails():
     faces over a chart with holes and a gap, every face it passes also passes a probe every texel."""
     from scipy import ndimage
 
-    from proctex.transfer import _inside_chart, chart_labels
+    from proctex.transfer import _inside_chart, chart_labels, chart_lookup
 
     rng = np.random.default_rng(3)
     painted = np.ones((128, 128), bool)
@@ -460,11 +460,37 @@ def test_chart_room_shortcut_never_passes_a_face_the_dense_check_fails():
     painted[80:90, 10:20] = False  # a hole
     painted[:4], painted[:, :4] = False, False
     charts = chart_labels(painted)
+    look = chart_lookup(charts)
     room = ndimage.distance_transform_edt(charts > 0).astype(np.float32)
+    assert np.array_equal(look.block_room.reshape(charts.shape)[:-1, :-1], np.minimum.reduce(
+        [room[:-1, :-1], room[1:, :-1], room[:-1, 1:], room[1:, 1:]]))
     centre = rng.uniform(0.05, 0.95, (400, 1, 2))
     uv = np.clip(centre + rng.normal(0, 0.06, (400, 3, 2)), 0, 1)
     chart = np.ones(400, dtype=np.int32)
-    fast = _inside_chart(uv, charts, chart, room=room)
-    dense = _inside_chart(uv, charts, chart, spacing=1.0, max_split=200)
+    fast = _inside_chart(uv, look, chart)
+    dense = _inside_chart(uv, charts, chart, spacing=1.0, max_split=200, room=False)
     assert fast.any() and (~fast).any()
     assert not (fast & ~dense).any()
+
+
+def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
+    """One read of a 2x2-block map at :func:`bilinear_corner` equals reducing over the four
+    :func:`bilinear_texels`, at the clamped rim and outside [0, 1] too."""
+    from proctex.uv import bilinear_blocks, bilinear_corner, bilinear_texels
+
+    rng = np.random.default_rng(0)
+    labels = rng.integers(0, 3, (7, 5)).astype(np.int32)
+    labels[2:5, 1:4] = 2  # a block of one label
+    values = rng.uniform(0, 10, (7, 5))
+    uv = np.vstack([rng.uniform(-0.1, 1.1, (500, 2)), [[0, 0], [1, 1], [0, 1], [1, 0], [0.5, 0.5]]])
+    four = bilinear_texels(uv, 7, 5)
+    one = bilinear_corner(uv, 7, 5)
+    lab4 = labels.ravel()[four]
+    expect = np.where((lab4 == lab4[:, :1]).all(axis=1), lab4[:, 0], -1)
+    assert np.array_equal(bilinear_blocks(labels, "same").ravel()[one], expect)
+    assert (expect >= 0).any() and (expect == -1).any()
+    assert np.array_equal(bilinear_blocks(values, "min").ravel()[one], values.ravel()[four].min(axis=1))
+    with pytest.raises(ValueError, match="reduce"):
+        bilinear_blocks(labels, "max")
+    with pytest.raises(ValueError, match="non-empty"):
+        bilinear_blocks(np.zeros((0, 3)), "min")

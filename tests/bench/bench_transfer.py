@@ -6,8 +6,9 @@ Per inference shape (median over shapes and repeats): read + clean the OBJ, segm
 to template slots, ProcCorrNet per part (context samples + vertices), per-face UVs into the template
 textures, GLB assembly (the template PNGs are encoded once, not per request). Without ``--family``
 the template is painted here and the networks are freshly initialised (same cost as trained ones).
-Also times the same path with the identity mapper (no network) as the in-run baseline, and baking
-into the shape's own 512² atlas for comparison.
+Also times, in the same run, the networks in float32 (``--autocast`` picks the measured mapper's:
+"auto" is bfloat16 on CPUs with native bfloat16) and the identity mapper (no network) as baselines,
+and baking into the shape's own 512² atlas for comparison.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2, help="torch threads")
     ap.add_argument("--context", type=int, default=None, help="ProcCorrNet context points (default: as trained)")
+    ap.add_argument("--autocast", default="auto", help="NetworkMapper autocast (auto: bfloat16 on CPUs with native bfloat16)")
     ap.add_argument("--out")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -60,7 +62,8 @@ def main(argv=None) -> int:
         tex = paint_surface(template, grouping, SurfacePainter("red velvet", {"1": "dark walnut"}), size=args.texture)
         assets = prepare_template(template, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
         models = {g.group: build_model(CorrNetConfig(seed=g.group)).eval() for g in assets.groups if not g.degenerate}
-    mapper = NetworkMapper(models, context=args.context)
+    mapper = NetworkMapper(models, context=args.context, autocast=args.autocast)
+    exact = NetworkMapper(models, context=args.context, autocast="none")  # float32 networks, in the same run
     paths = [src.samples[i].mesh_path for i in src.indices("test")[: args.shapes]]
 
     def once(path, m):
@@ -75,7 +78,7 @@ def main(argv=None) -> int:
 
     for p in paths[:2]:  # warm up (imports, torch kernels)
         once(p, mapper)
-    totals, base, stages, sizes = [], [], {}, []
+    totals, base, fp32, stages, sizes = [], [], [], {}, []
     for _ in range(args.repeats):
         for p in paths:
             t, parts, n, _, _ = once(p, mapper)
@@ -84,10 +87,12 @@ def main(argv=None) -> int:
             for k, v in parts.items():
                 stages.setdefault(k, []).append(v)
             base.append(once(p, IdentityMapper())[0])
+            fp32.append(once(p, exact)[0])
     med = statistics.median(totals)
     result = {
         "shapes": len(paths), "repeats": args.repeats, "threads": args.threads, "texture": args.texture,
         "median_s": med, "p90_s": float(np.quantile(totals, 0.9)), "identity_median_s": statistics.median(base),
+        "float32_median_s": statistics.median(fp32), "autocast": args.autocast,
         "network_share": 1 - statistics.median(base) / med, "stages_median_s": {k: statistics.median(v) for k, v in stages.items()},
         "glb_bytes_median": int(statistics.median(sizes)), "trained": bool(args.family),
     }
@@ -95,8 +100,9 @@ def main(argv=None) -> int:
     t = time.perf_counter()
     bake(shape, r, assets, size=args.texture)
     result["bake_s"] = time.perf_counter() - t
-    print(f"transfer, sofa mesh file -> GLB bytes ({args.texture}² textures, {args.threads} threads): median {1000 * med:.0f} ms, "
-          f"p90 {1000 * result['p90_s']:.0f} ms; identity mapper {1000 * result['identity_median_s']:.0f} ms; "
+    print(f"transfer, sofa mesh file -> GLB bytes ({args.texture}² textures, {args.threads} threads, autocast {args.autocast}): median {1000 * med:.0f} ms, "
+          f"p90 {1000 * result['p90_s']:.0f} ms; float32 networks {1000 * result['float32_median_s']:.0f} ms; "
+          f"identity mapper {1000 * result['identity_median_s']:.0f} ms; "
           f"bake into own atlas {result['bake_s']:.2f} s")
     print("stages (median ms): " + ", ".join(f"{k} {1000 * v:.1f}" for k, v in result["stages_median_s"].items()))
     if args.out:
