@@ -282,7 +282,7 @@ def _half_extents(points: np.ndarray, min_extent: float) -> np.ndarray:
 
 def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, slot_cost: np.ndarray | None = None, n: int = 300,
               seed: int = 0, min_extent: float = 1e-3, chamfer_tol: float = 0.25, proportion_tol: float = 0.7,
-              extra_cost: float = 1.2, turn_cost: float = 0.03) -> BoxMatch | None:
+              extra_cost: float = 1.2, turn_cost: float = 0.25) -> BoxMatch | None:
     """The group a left-over part is another instance of, up to per-axis scale: a cake tier wider
     than the template's, a leg of another length, a stem of another height. Rigid ICP cannot align
     those; scaling each part's bounding box to the cube [-1, 1]^3 can.
@@ -295,8 +295,11 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
     :func:`assign_parts` computes it; ``None``: not used) decide between groups of one primitive
     (a slat and a post are both boxes). A match needs Chamfer at most ``chamfer_tol``, proportion
     error at most ``proportion_tol`` and placement cost at most ``extra_cost``; the lowest sum wins,
-    plus ``turn_cost`` per axis the permutation moves away from the part's own orientation (a
-    symmetric part fits flipped as well as not: it keeps its orientation).
+    plus ``turn_cost`` per axis the permutation moves away from the part's own orientation. A
+    symmetric part fits turned as well as not, and a procedural parameter stretches a part along
+    its own axes rather than turning it: a desk pedestal with four drawers instead of one is the
+    same box, taller, not the template's box on its side (whose proportions would be a little
+    closer). So a turn must buy more than ``turn_cost`` (per axis moved) of Chamfer and proportion.
 
     ``vertices (k, 3)``: the part in its normalised frame; ``faces (f, 3)`` local. Axes thinner than
     ``min_extent`` (normalised units: a flat part) count as that thick; thin axes are scaled like

@@ -415,6 +415,39 @@ def test_stretched_copies_join_their_group_by_box_shape():
         assert match_box(np.asarray(other.vertices), np.asarray(other.faces), assets) is None
 
 
+def test_a_stretched_box_keeps_its_axes_when_a_turn_would_fit_its_proportions_a_little_better():
+    """A desk's pedestal grows from one drawer to four: the box is 3.4x taller. Laid on its side,
+    the template's pedestal would have slightly closer proportions, but a procedural parameter
+    stretches a part, it does not turn it: the map is a positive diagonal scaling."""
+    import trimesh
+
+    from proctex.shape import Shape
+    from proctex.transfer import match_box
+
+    def box(extents, at):
+        m = trimesh.creation.box(extents)
+        m.apply_translation(at)
+        return np.asarray(m.vertices), np.asarray(m.faces)
+
+    parts = [box((0.4, 0.6, 0.19), (0, 0, 0)), box((1.4, 0.65, 0.03), (0, 0, 0.5))]  # a pedestal, a top
+    v = np.concatenate([parts[0][0], parts[1][0]])
+    f = np.concatenate([parts[0][1], parts[1][1] + len(parts[0][0])])
+    shape_t = Shape(v, f)
+    grouping = analyse(shape_t)
+    tex = paint_surface(shape_t, grouping, SurfacePainter("oak"), size=32)
+    assets = prepare_template(shape_t, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    pedestal = next(ga.group for ga in assets.groups if np.ptp(ga.vertices, axis=0)[2] > 0.5)
+    tall, tf = box((0.4, 0.655, 0.64), (0, 0, 0))
+    u = tall / np.abs(tall).max()
+    m = match_box(u, tf, assets)
+    assert m is not None and m.group == pedestal
+    assert np.allclose(m.A, np.diag(np.diag(m.A))) and (np.diag(m.A) > 0).all()
+    # The old tie-break (a turn nearly free) lays it on its side: the test can fail.
+    turned = match_box(u, tf, assets, turn_cost=0.03)
+    assert turned is not None and not np.allclose(turned.A, np.diag(np.diag(turned.A)))
+    np.testing.assert_allclose(np.abs(u @ m.A.T).max(axis=0), np.abs(assets.groups[pedestal].vertices).max(axis=0), atol=1e-9)
+
+
 def test_thin_slabs_of_other_thicknesses_match_their_group():
     """A stair's extra tread thicker than the template's (both thin: under 5% of their width) is
     the same primitive once every axis is scaled to the box, thin ones included; the same slab
