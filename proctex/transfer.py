@@ -176,9 +176,12 @@ def assign_parts(
 
     Cost between a part and a slot: distance between their centres plus ``w_extent`` times the mean
     absolute log-ratio of their extents, both relative to each shape's bounding box. Pairs costing
-    more than ``extra_cost`` are not taken. Such parts are matched to a group by ICP
-    (:func:`match_extra`, "extra") when the alignment error is at most ``extra_tol``; otherwise they
-    form a group of their own ("new"), which :func:`transfer` paints with the family's painter.
+    more than ``extra_cost`` are not taken. Such a part ("extra") joins, in this order: the group of
+    a part of the same shape it is a rigid copy of (:func:`copy_of_sibling`), the group whose
+    representative has its connectivity (:func:`copy_of_group`), the group whose representative is
+    the same primitive in other proportions (:func:`match_box`), the group it fits by ICP
+    (:func:`match_extra`, alignment error at most ``extra_tol``); otherwise it forms a group of its
+    own ("new"), which :func:`transfer` paints with the family's painter.
     """
     lo, size = _box(shape.vertices)
     parts = [p for p in seg.parts if not p.degenerate]
@@ -201,15 +204,22 @@ def assign_parts(
     for r, c in zip(rows, cols):
         if c < cost.shape[1] and cost[r, c] <= extra_cost:
             taken[r] = c
+    slotted: list[tuple[PartAssignment, np.ndarray, np.ndarray]] = []  # (assignment, vertices, local faces)
     for i, p in enumerate(parts):
         if i in taken:
             s = assets.slots[taken[i]]
             out.append(PartAssignment(p.index, s.group, s.part, s.R, float(cost[i, taken[i]]), "slot"))
-        else:
+            slotted.append((out[-1], *part_mesh(shape, p)))
+    for i, p in enumerate(parts):
+        if i not in taken:
             # A part the template has no place for: the group it matches best by ICP, if any. Groups
             # whose representative has this part's exact connectivity are the only candidates when
             # there are any (an extra slat is a copy of the slat primitive): one ICP, not one per group.
             v, f = part_mesh(shape, p)
+            twin = copy_of_sibling(p.index, v, f, slotted, extra_tol)
+            if twin is not None:  # a rigid copy of a part that took a slot (a third small mushroom): its map, composed
+                out.append(twin)
+                continue
             c, r = normalised_frame(v)
             same = [ga.group for ga in assets.groups if not ga.degenerate and same_topology(f, len(v), ga)]
             copy = copy_of_group(v, same, assets, cost[i], extra_tol)
@@ -227,6 +237,39 @@ def assign_parts(
             else:
                 out.append(PartAssignment(p.index, -1, -1, np.eye(3), err, "new"))
     return sorted(out, key=lambda a: a.part)
+
+
+def copy_of_sibling(part: int, vertices: np.ndarray, faces: np.ndarray, slotted: Sequence[tuple[PartAssignment, np.ndarray, np.ndarray]],
+                    tol: float = 0.02) -> PartAssignment | None:
+    """A part that is a rigid copy of a part of the same shape that took a slot: a procedural model
+    instances one mesh several times (a third small mushroom turned about the main stem, a sixth
+    candle), so within one shape the copies share their connectivity and vertex order, and the
+    rigid motion between them is known exactly (Kabsch with scale on the vertices, in both parts'
+    normalised frames). The copy then takes the sibling's group and its map, composed with that
+    motion: its true turn, not a guess among the box's axis permutations.
+
+    ``part``: the part's index; ``vertices (k, 3)`` (shape frame) and local ``faces``; ``slotted``:
+    ``(assignment, vertices, faces)`` of the parts that took slots. A sibling qualifies when its
+    faces are identical and the fit's RMS residual is at most ``tol`` (normalised units); the best
+    fit wins. Returns an "extra" :class:`PartAssignment`, or ``None``.
+    """
+    from .align import umeyama
+
+    v = np.asarray(vertices, dtype=np.float64)
+    c, r = normalised_frame(v)
+    u = (v - c) / (r if r > 0 else 1.0)
+    best: tuple[float, PartAssignment] | None = None
+    for a, sv, sf in slotted:
+        if len(sv) != len(v) or sf.shape != faces.shape or not np.array_equal(sf, faces):
+            continue
+        sc, sr = normalised_frame(sv)
+        w = (sv - sc) / (sr if sr > 0 else 1.0)
+        R, t, s = umeyama(u, w, scale=True, reflection=False)
+        resid = float(np.sqrt(((s * u @ R.T + t - w) ** 2).sum(axis=1).mean()))
+        if resid <= tol and (best is None or resid < best[0]):
+            M = np.asarray(a.R, dtype=np.float64)
+            best = (resid, PartAssignment(part, a.group, -1, s * M @ R, resid, "extra", M @ t + np.asarray(a.t, dtype=np.float64)))
+    return None if best is None else best[1]
 
 
 def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: TemplateAssets, slot_cost: np.ndarray,

@@ -415,6 +415,61 @@ def test_stretched_copies_join_their_group_by_box_shape():
         assert match_box(np.asarray(other.vertices), np.asarray(other.faces), assets) is None
 
 
+def test_a_third_copy_turned_about_the_centre_takes_its_siblings_map_composed_with_the_turn():
+    """A cluster of identical leaning buttons around a post (the mushroom family): the template has
+    two, a shape three. The third finds no slot; as a rigid copy of a part of the same shape that
+    took one, it joins that part's group with the exact turn between them, so every copy lands on
+    the representative vertex by vertex (the box's axis permutations could not turn it by 229
+    degrees: they laid it on the wrong side)."""
+    import trimesh
+
+    from proctex.shape import Shape
+    from proctex.transfer import copy_of_sibling, representative_frame
+
+    button = trimesh.creation.cone(0.25, 0.5, sections=12)
+    button.apply_transform(trimesh.transformations.rotation_matrix(0.3, [0, 1, 0]))  # leans outwards (+x)
+    button.apply_translation([1.0, 0.0, 0.0])
+    post = trimesh.creation.cylinder(0.3, 2.0, sections=10)
+
+    def cluster(azimuths):
+        meshes = [post]
+        for a in azimuths:
+            m = button.copy()
+            m.apply_transform(trimesh.transformations.rotation_matrix(a, [0, 0, 1]))
+            meshes.append(m)
+        v = np.concatenate([np.asarray(m.vertices) for m in meshes])
+        offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+        f = np.concatenate([np.asarray(m.faces) + o for m, o in zip(meshes, offsets)])
+        return Shape(v, f)
+
+    template = cluster([0.3, 2.45])
+    grouping = analyse(template)
+    tex = paint_surface(template, grouping, SurfacePainter("porcelain"), size=32)
+    assets = prepare_template(template, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    shape = cluster([0.3, 2.45, 4.3])
+    seg = segment(shape)
+    assignment = {a.part: a for a in assign_parts(shape, seg, assets)}
+    buttons = [p for p in seg.parts if len(p.vertices) == len(button.vertices)]
+    assert len(buttons) == 3
+    how = sorted(assignment[p.index].how for p in buttons)
+    assert how == ["extra", "slot", "slot"]
+    groups = {assignment[p.index].group for p in buttons}
+    assert len(groups) == 1
+    frames = [representative_frame(shape.vertices[p.vertices], assignment[p.index]) for p in buttons]
+    for other in frames[1:]:
+        np.testing.assert_allclose(other, frames[0], atol=1e-9)
+    # A part that is no rigid copy (stretched) is not a sibling; nor is one of another connectivity.
+    extra = next(p for p in buttons if assignment[p.index].how == "extra")
+    v = shape.vertices[extra.vertices]
+    f = np.searchsorted(extra.vertices, shape.faces[extra.faces])
+    slotted = [(assignment[p.index], shape.vertices[p.vertices], np.searchsorted(p.vertices, shape.faces[p.faces]))
+               for p in buttons if assignment[p.index].how == "slot"]
+    assert copy_of_sibling(extra.index, v * [1.0, 1.0, 1.6], f, slotted) is None
+    assert copy_of_sibling(extra.index, v, f[:, ::-1], slotted) is None
+    twin = copy_of_sibling(extra.index, v, f, slotted)
+    assert twin is not None and twin.part == extra.index and twin.cost < 1e-9
+
+
 def test_a_stretched_box_keeps_its_axes_when_a_turn_would_fit_its_proportions_a_little_better():
     """A desk's pedestal grows from one drawer to four: the box is 3.4x taller. Laid on its side,
     the template's pedestal would have slightly closer proportions, but a procedural parameter
