@@ -509,10 +509,10 @@ class ChartLookup:
 
     ``labels (H, W)``: :func:`chart_labels`. ``block_label (H*W,)``: per texel, the chart all four
     texels of its bilinear 2x2 block share, -1 where they differ (so one read answers for a whole
-    bilinear lookup, :func:`proctex.uv.bilinear_blocks`). ``block_room (H*W,)``: the least, over the
-    block, of each texel's distance (texels) to the nearest texel outside its chart (unpainted, so
-    also to any other chart): a face whose probes all have room for the face's size cannot leave
-    its chart between them.
+    bilinear lookup, :func:`proctex.uv.bilinear_blocks`). ``block_room (H*W,)``: per texel ``T``,
+    the largest ``r`` such that the texels at offsets ``-r .. r + 1`` (rows and columns) from ``T``
+    all lie in its chart: every point within ``r`` texels (in each coordinate) of a lookup whose
+    first texel is ``T`` reads only that chart (0 when ``T``'s own block leaves it).
     """
 
     labels: np.ndarray
@@ -527,8 +527,12 @@ def chart_lookup(labels: np.ndarray) -> ChartLookup:
     from .uv import bilinear_blocks
 
     labels = np.asarray(labels, dtype=np.int32)
-    room = ndimage.distance_transform_edt(labels > 0).astype(np.float32)
-    return ChartLookup(labels, bilinear_blocks(labels, "same").ravel(), bilinear_blocks(room, "min").ravel())
+    # Chessboard distance of each texel to the nearest texel outside its chart (unpainted, so also
+    # to any other chart); a block [-r, r + 1]^2 around T lies in the chart when the least of it
+    # over T's 2x2 block is at least r + 1.
+    cheb = ndimage.distance_transform_cdt(labels > 0, metric="chessboard").astype(np.int32)
+    room = np.maximum(bilinear_blocks(cheb, "min") - 1, 0)
+    return ChartLookup(labels, bilinear_blocks(labels, "same").ravel(), room.ravel())
 
 
 def chart_lookups(assets: TemplateAssets) -> list[ChartLookup] | None:
@@ -592,7 +596,7 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
             # Still reading outside the chart somewhere (a probe on unpainted texels: a sliver
             # template triangle on the chart's rim): the face takes the colour at its template
             # triangle's centre, so no visible pixel is unpainted.
-            still = ~_inside_chart(out[fi], look, target[fi], room=False)
+            still = ~_inside_chart(out[fi], look, target[fi])
             out[fi[still]] = tri_uv[fi[still]].mean(axis=1)[:, None]
     return out, near
 
@@ -616,41 +620,54 @@ def _bary_grid(n: int) -> np.ndarray:
     return grid
 
 
-def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray | ChartLookup, chart: np.ndarray, spacing: float = 3.0, max_split: int = 16,
-                  room: bool = True) -> np.ndarray:
-    """(k,) bool: faces with UVs ``corner_uv (k, 3, 2)`` read (bilinearly) only texels of chart
-    ``chart (k,)`` of ``charts`` (:func:`chart_labels` (H, W), or their :func:`chart_lookup`),
-    probed on a barycentric grid about ``spacing`` texels apart (corners and edge midpoints always;
-    at most ``max_split`` steps per edge), so a long UV edge crossing a gap between two islands of
-    one chart is caught.
+def _subdivide(tri: np.ndarray) -> np.ndarray:
+    """(4n, 3, 2) midpoint subdivision of triangles ``tri (n, 3, 2)``: child ``4i + c`` of triangle ``i``."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+    out = np.empty((len(tri), 4, 3, tri.shape[2]))
+    for child, corners in enumerate(((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))):
+        for k, corner in enumerate(corners):
+            out[:, child, k] = corner
+    return out.reshape(-1, 3, tri.shape[2])
 
-    With ``room``, a face whose corners, edge midpoints and centre all read its chart with room for
-    half its longest edge around each (every point of a triangle lies within that of one of them)
-    passes without the grid. Each probe is one read of the 2x2-block maps of :class:`ChartLookup`."""
+
+def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray | ChartLookup, chart: np.ndarray, leaf: float = 2.0, max_level: int = 12) -> np.ndarray:
+    """(k,) bool: faces with UVs ``corner_uv (k, 3, 2)`` that read (bilinearly) only texels of
+    chart ``chart (k,)`` of ``charts`` (:func:`chart_labels` (H, W), or their :func:`chart_lookup`)
+    anywhere on the face. Sound: a face reported inside is inside; one within a texel or two of its
+    chart's rim may be reported outside though every read is inside.
+
+    Every point of a triangle lies within half its longest edge ``e`` of one of its corners, edge
+    midpoints and centre. So a (sub-)triangle passes when each of those 7 probes reads its chart
+    with room ``ceil(e / 2)`` around it (:attr:`ChartLookup.block_room`), fails when a probe reads
+    another chart or an unpainted texel, and is otherwise split in four, down to triangles no
+    longer than ``leaf`` (<= 2) texels, which fail (within a texel of the rim: not proven). The
+    work grows with the length of rim a face runs along, not with its area; a face not settled
+    after ``max_level`` splits is reported outside."""
     from .uv import bilinear_corner
 
+    if not 0 < leaf <= 2.0:
+        raise ValueError(f"leaf must be in (0, 2] texels, got {leaf}")
     look = charts if isinstance(charts, ChartLookup) else chart_lookup(charts)
     h, w = look.labels.shape
     k = len(corner_uv)
     ok = np.ones(k, dtype=bool)
-    if not k:
-        return ok
-    px = corner_uv * np.array([w, h])
-    edge = np.linalg.norm(px - px[:, [1, 2, 0]], axis=2).max(axis=1)
-    split = np.clip(np.ceil(edge / spacing), 2, max_split).astype(np.int64)
-    if room:
-        grid = np.vstack([_bary_grid(2), np.full((1, 3), 1.0 / 3.0)])  # corners, midpoints, centre
-        idx = bilinear_corner(np.matmul(grid[None], corner_uv).reshape(-1, 2), h, w).reshape(k, -1)  # (k, 7)
-        same = (look.block_label[idx] == chart[:, None]).all(axis=1)
-        space = look.block_room[idx].min(axis=1)
-        ok[~same] = False
-        split[~same | (space >= edge / 2 + 2.0)] = 0  # settled: no grid
-    for n in np.unique(split[split > 0]):
-        sel = np.flatnonzero(split == n)
-        grid = _bary_grid(int(n))  # (p, 3)
-        probe = np.matmul(grid[None], corner_uv[sel])  # (s, p, 2)
-        lab = look.block_label[bilinear_corner(probe.reshape(-1, 2), h, w)].reshape(len(sel), -1)
-        ok[sel] = (lab == chart[sel, None]).all(axis=1)
+    grid = np.vstack([_bary_grid(2), np.full((1, 3), 1.0 / 3.0)])  # corners, midpoints, centre
+    tri, owner = np.asarray(corner_uv, dtype=np.float64), np.arange(k)
+    d = (tri - tri[:, [1, 2, 0]]) * np.array([w, h])
+    edge = np.sqrt(np.einsum("kij,kij->ki", d, d).max(axis=1))  # texels; halved by every split
+    for _ in range(int(max_level) + 1):
+        if not len(tri):
+            break
+        idx = bilinear_corner(np.matmul(grid[None], tri).reshape(-1, 2), h, w).reshape(len(tri), -1)  # (n, 7)
+        inside = (look.block_label[idx] == np.asarray(chart)[owner][:, None]).all(axis=1)
+        ok[owner[~inside]] = False
+        settled = look.block_room[idx].min(axis=1) >= np.ceil(edge / 2)
+        open_ = inside & ~settled & ok[owner]
+        ok[owner[open_ & (edge <= leaf)]] = False  # at the rim: not proven
+        split = open_ & (edge > leaf)
+        tri, owner, edge = _subdivide(tri[split]), np.repeat(owner[split], 4), np.repeat(edge[split] / 2, 4)
+    ok[owner] = False  # not settled within max_level splits
     return ok
 
 

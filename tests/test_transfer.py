@@ -535,30 +535,77 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
     assert match_box((thick - c) / np.abs(thick - c).max(), tf, assets, slot_cost=far) is None
 
 
-def test_chart_room_shortcut_never_passes_a_face_the_dense_check_fails():
-    """The distance-to-the-chart's-edge shortcut settles faces without the probe grid; on random
-    faces over a chart with holes and a gap, every face it passes also passes a probe every texel."""
+def _reads_only_chart_reference(uv: np.ndarray, charts: np.ndarray, chart: np.ndarray, step: float = 0.2) -> np.ndarray:
+    """Slow reference of the run-time coverage check: every face sampled every ``step`` texels,
+    each sample's four bilinear texels read."""
+    from proctex.transfer import _bary_grid
+    from proctex.uv import bilinear_texels
+
+    h, w = charts.shape
+    out = np.empty(len(uv), dtype=bool)
+    for i, tri in enumerate(uv):
+        px = tri * [w, h]
+        n = max(int(np.ceil(np.linalg.norm(px - px[[1, 2, 0]], axis=1).max() / step)), 1)
+        pts = _bary_grid(n) @ tri
+        out[i] = (charts.ravel()[bilinear_texels(pts, h, w)] == chart[i]).all()
+    return out
+
+
+def test_run_time_coverage_check_never_passes_a_face_that_reads_outside_its_chart():
+    """Sound, against a fine-sampled reference, on random faces over a chart with holes and a
+    gap: the check never passes a face that reads a texel outside its chart anywhere. Probing every 3 texels with plain bilinear reads (the
+    check before) passes some that do (a vase showed a few unpainted pixels): the test can fail."""
     from scipy import ndimage
 
-    from proctex.transfer import _inside_chart, chart_labels, chart_lookup
+    from proctex.transfer import _bary_grid, _inside_chart, chart_labels, chart_lookup
+    from proctex.uv import bilinear_texels
 
     rng = np.random.default_rng(3)
     painted = np.ones((128, 128), bool)
     painted[20:, 60:63] = False  # a gap inside one chart
     painted[80:90, 10:20] = False  # a hole
+    painted[40, 30] = painted[100, 100] = False  # single unpainted texels
     painted[:4], painted[:, :4] = False, False
     charts = chart_labels(painted)
     look = chart_lookup(charts)
-    room = ndimage.distance_transform_edt(charts > 0).astype(np.float32)
-    assert np.array_equal(look.block_room.reshape(charts.shape)[:-1, :-1], np.minimum.reduce(
-        [room[:-1, :-1], room[1:, :-1], room[:-1, 1:], room[1:, 1:]]))
+    # block_room: the largest r whose block of offsets -r .. r + 1 around a texel lies in its chart.
+    room = look.block_room.reshape(charts.shape)
+
+    def block_inside(i, j, r):
+        rows, cols = np.clip(np.arange(i - r, i + r + 2), 0, 127), np.clip(np.arange(j - r, j + r + 2), 0, 127)
+        return bool((charts[np.ix_(rows, cols)] == 1).all())
+
+    for i, j in rng.integers(4, 124, (300, 2)):
+        r = int(room[i, j])
+        assert (r == 0 and not block_inside(i, j, 0)) or block_inside(i, j, r)
+        if 4 + r + 2 <= min(i, j) and max(i, j) + r + 3 < 128:  # away from the clamped border
+            assert not block_inside(i, j, r + 1)
     centre = rng.uniform(0.05, 0.95, (400, 1, 2))
-    uv = np.clip(centre + rng.normal(0, 0.06, (400, 3, 2)), 0, 1)
+    uv = np.clip(centre + rng.normal(0, 0.03, (400, 3, 2)), 0, 1)
+    # A face whose long edge runs through the unpainted texel (40, 30) (texel coordinates: row,
+    # column), between probes 3 texels apart.
+    rc = np.array([[40.0, 25.5], [40.0, 37.5], [46.0, 31.5]])
+    uv[0] = np.stack([(rc[:, 1] + 0.5) / 128, 1 - (rc[:, 0] + 0.5) / 128], axis=1)
     chart = np.ones(400, dtype=np.int32)
+    truth = _reads_only_chart_reference(uv, charts, chart)
+    assert not truth[0]
     fast = _inside_chart(uv, look, chart)
-    dense = _inside_chart(uv, charts, chart, spacing=1.0, max_split=200, room=False)
-    assert fast.any() and (~fast).any()
-    assert not (fast & ~dense).any()
+    assert fast.any() and (~truth).any()
+    assert not (fast & ~truth).any()
+    np.testing.assert_array_equal(_inside_chart(uv, charts, chart), fast)  # labels or their lookup
+    assert (fast == truth).mean() > 0.9  # conservative, not useless
+    # The old check: plain bilinear reads every 3 texels.
+    h, w = charts.shape
+
+    def coarse(tri):
+        px = tri * [w, h]
+        n = int(np.clip(np.ceil(np.linalg.norm(px - px[[1, 2, 0]], axis=1).max() / 3.0), 2, 16))
+        return (charts.ravel()[bilinear_texels(_bary_grid(n) @ tri, h, w)] == 1).all()
+
+    old = np.array([coarse(t) for t in uv])
+    assert (old & ~truth).any()
+    with pytest.raises(ValueError, match="leaf"):
+        _inside_chart(uv, look, chart, leaf=3.0)
 
 
 def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
@@ -568,7 +615,7 @@ def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
 
     rng = np.random.default_rng(0)
     labels = rng.integers(0, 3, (7, 5)).astype(np.int32)
-    labels[2:5, 1:4] = 2  # a block of one label
+    labels[1:6, 0:4] = 2  # a block of one label
     values = rng.uniform(0, 10, (7, 5))
     uv = np.vstack([rng.uniform(-0.1, 1.1, (500, 2)), [[0, 0], [1, 1], [0, 1], [1, 0], [0.5, 0.5]]])
     four = bilinear_texels(uv, 7, 5)
@@ -578,6 +625,15 @@ def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
     assert np.array_equal(bilinear_blocks(labels, "same").ravel()[one], expect)
     assert (expect >= 0).any() and (expect == -1).any()
     assert np.array_equal(bilinear_blocks(values, "min").ravel()[one], values.ravel()[four].min(axis=1))
+    # The 4x4 block (rows and columns -1..+2, clamped) against a loop.
+    wide = bilinear_blocks(labels, "same", 1, 2)
+    for i in range(7):
+        for j in range(5):
+            block = labels[np.clip(np.arange(i - 1, i + 3), 0, 6)][:, np.clip(np.arange(j - 1, j + 3), 0, 4)]
+            assert wide[i, j] == (labels[i, j] if (block == labels[i, j]).all() else -1)
+    assert (wide >= 0).any()
+    with pytest.raises(ValueError, match="offsets"):
+        bilinear_blocks(labels, "min", 9, 0)
     with pytest.raises(ValueError, match="reduce"):
         bilinear_blocks(labels, "max")
     with pytest.raises(ValueError, match="non-empty"):
