@@ -433,33 +433,22 @@ def bilinear_corner(uv: np.ndarray, height: int, width: int) -> np.ndarray:
     return i0 * width + j0
 
 
-def bilinear_blocks(grid: np.ndarray, reduce: str, before: int = 0, after: int = 1) -> np.ndarray:
-    """(H, W) map of ``grid (H, W)`` over each texel's block of rows and columns ``-before`` to
-    ``+after`` around it (clamped at the borders). The default block is the 2x2 a bilinear lookup
-    reads (the texel, its right and lower neighbours and the diagonal one, as
-    :func:`bilinear_texels`); ``before=1, after=2`` is the 4x4 holding the bilinear reads of every
-    point within one texel of the lookup. ``reduce``: "min", or "same" (the value where the whole
-    block agrees, -1 where it differs; for non-negative labels)."""
+def bilinear_blocks(grid: np.ndarray, reduce: str) -> np.ndarray:
+    """(H, W) map of ``grid (H, W)`` over each texel's bilinear 2x2 block (the texel, its right and
+    lower neighbours and the diagonal one, clamped at the last row and column, as
+    :func:`bilinear_texels`): ``reduce`` "min", or "same" (the value where all four are equal,
+    -1 where they differ; for non-negative labels)."""
     g = np.asarray(grid)
     if g.ndim != 2 or g.size == 0:
         raise ValueError(f"grid must be a non-empty (H, W) array, got {g.shape}")
-    if reduce not in ("min", "same"):
-        raise ValueError(f"reduce must be 'min' or 'same', got {reduce!r}")
-    if not (0 <= int(before) <= 8 and 0 <= int(after) <= 8):
-        raise ValueError(f"block offsets must be in 0..8, got {before}, {after}")
-    h, w = g.shape
-    rows = [np.clip(np.arange(h) + d, 0, h - 1) for d in range(-int(before), int(after) + 1)]
-    cols = [np.clip(np.arange(w) + d, 0, w - 1) for d in range(-int(before), int(after) + 1)]
-    out = g.copy()
-    same = np.ones(g.shape, dtype=bool)
-    for r in rows:
-        for c in cols:
-            shifted = g[r][:, c]
-            if reduce == "min":
-                np.minimum(out, shifted, out=out)
-            else:
-                same &= shifted == g
-    return out if reduce == "min" else np.where(same, g, -1).astype(g.dtype)
+    down = np.concatenate([g[1:], g[-1:]], axis=0)
+    blocks = (g, np.concatenate([g[:, 1:], g[:, -1:]], axis=1), down, np.concatenate([down[:, 1:], down[:, -1:]], axis=1))
+    if reduce == "min":
+        return np.minimum.reduce(blocks)
+    if reduce == "same":
+        same = (blocks[0] == blocks[1]) & (blocks[0] == blocks[2]) & (blocks[0] == blocks[3])
+        return np.where(same, g, -1).astype(g.dtype)
+    raise ValueError(f"reduce must be 'min' or 'same', got {reduce!r}")
 
 
 def bilinear_texels(uv: np.ndarray, height: int, width: int) -> np.ndarray:
