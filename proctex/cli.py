@@ -234,7 +234,8 @@ def _build_config(args: argparse.Namespace):
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    from .family import STAGES, build
+    from .family import STAGES
+    from .pipeline import build
     from .store import FamilyStore
 
     config = _build_config(args)
@@ -250,7 +251,7 @@ def cmd_build(args: argparse.Namespace) -> int:
 def cmd_transfer(args: argparse.Namespace) -> int:
     from .family import load_assets, load_models, stored_config, up_axis, _model
     from .store import FamilyStore
-    from .transfer import IdentityMapper, NetworkMapper, SolverMapper, bake, glb, info, transfer
+    from .transfer import bake, glb, info, make_mapper, transfer
 
     store = FamilyStore(args.family)
     config = stored_config(store)
@@ -271,15 +272,10 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     _check_preview_path(args.preview)
     t0 = time.perf_counter()
     assets = load_assets(store)
-    if args.mapper in ("auto", "net"):
-        models = load_models(store)
-        if not models and args.mapper == "net":
-            raise ValueError(f"{args.family} has no trained models (run the train stage)")
-        mapper: Any = NetworkMapper(models) if models else IdentityMapper()
-    elif args.mapper in ("cage", "nearest"):
-        mapper = SolverMapper(assets, args.mapper, n_points=config.corr_points)
-    else:
-        mapper = IdentityMapper()
+    models = load_models(store) if args.mapper in ("auto", "net") else None
+    if args.mapper == "net" and not models:
+        raise ValueError(f"{args.family} has no trained models (run the train stage)")
+    mapper = make_mapper(args.mapper, assets, models, corr_points=config.corr_points, cage=config.cage_config())
     t1 = time.perf_counter()
     from .painters import SurfacePainter
 
@@ -295,10 +291,10 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     else:
         data = glb(shape, result, assets, up=up_axis(config))
         textured = (result.corner_uv, result.face_group, list(assets.textures) + list(result.new_textures))
-    from .meshio import _atomic_write_bytes
+    from .fileio import atomic_write
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write_bytes(args.out, data)
+    atomic_write(args.out, data)
     summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(mapper).__name__, "out": args.out, "bytes": len(data)}
     if args.preview:
         from .render import render_three_quarter, save_png
@@ -447,7 +443,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_eval_folder(args: argparse.Namespace) -> int:
     """Build a family from a folder of samples (train/ and inference/), then evaluate it."""
-    from .family import BuildConfig, build
+    from .family import BuildConfig
+    from .pipeline import build
     from .store import FamilyStore
 
     if not os.path.isdir(args.folder):

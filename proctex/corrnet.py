@@ -32,7 +32,7 @@ context (``CorrNetConfig.context_points`` surface samples of the part; fewer poi
 repetition, which leaves a max-pool unchanged) and queries of any number are decoded against it
 (:func:`encode`, :func:`decode`, :func:`predict`). The decoder's first layer is applied as
 ``W_local @ local + (W_global @ global + b)`` with the global half computed once per shape (same
-result as the concatenation, :meth:`ProcCorrNet.decode_reference`, at about half the cost).
+result as the concatenation, :func:`proctex._reference.corrnet.decode_reference`, at about half the cost).
 
 Training (:func:`train`): Adam on random batches of pairs; each step draws ``shapes_per_batch``
 pairs, for each a context of ``context_points`` samples and ``query_points`` query samples, and
@@ -50,7 +50,6 @@ import copy
 import math
 import os
 import pickle
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -278,14 +277,6 @@ class ProcCorrNet(nn.Module):
         """``query (B, Q, 3)`` against ``global`` (from :meth:`encode`) -> template points ``(B, Q, 3)``."""
         q, g = self._split(query, global_feature)
         return self.head(self.local(q), g, q)
-
-    def decode_reference(self, query: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
-        """Slow, literal :meth:`decode`: concatenate ``[local | global]`` (512-d) per point."""
-        q, g = self._split(query, global_feature)
-        local = self.local(q)
-        out = self.decoder(torch.cat([local, g[:, None, :].expand(-1, local.shape[1], -1)], dim=-1))
-        out = out + q if self.residual else out
-        return out * self.template_extent if self.frame == "box" else out
 
     def forward(self, points: torch.Tensor, n_query: int | None = None) -> torch.Tensor:
         """``points (B, N, 3)`` are the context; returns ``(B, Q, 3)`` for the first ``Q = n_query``
@@ -680,12 +671,14 @@ def _check_plain(value: Any, where: str) -> None:
     raise ValueError(f"{where}: {type(value).__name__} cannot be stored (plain Python types and tensors only)")
 
 
-def save(path: str | os.PathLike, model: ProcCorrNet, config: CorrNetConfig, extra: dict[str, Any] | None = None) -> None:
-    """Write ``{"format", "state_dict", "config", "extra"}`` with ``torch.save``, atomically.
+def to_bytes(model: ProcCorrNet, config: CorrNetConfig, extra: dict[str, Any] | None = None) -> bytes:
+    """A checkpoint: ``{"format", "state_dict", "config", "extra"}`` through ``torch.save``, as bytes.
 
     ``extra`` (e.g. the group, validation figures, the frame convention) must hold only plain
     Python types and tensors (``ValueError`` otherwise). Tensors are stored on the CPU.
     """
+    import io
+
     extra = {} if extra is None else extra
     if not isinstance(extra, dict):
         raise ValueError(f"extra must be a dict, got {type(extra).__name__}")
@@ -697,34 +690,27 @@ def save(path: str | os.PathLike, model: ProcCorrNet, config: CorrNetConfig, ext
         "config": config.to_dict(),
         "extra": extra,
     }
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(payload, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    return buf.getvalue()
 
 
-def load(path: str | os.PathLike, device: str = "cpu") -> tuple[ProcCorrNet, CorrNetConfig, dict[str, Any]]:
-    """Read a :func:`save` file with ``torch.load(weights_only=True)``.
+def from_bytes(data: bytes, device: str = "cpu", where: str = "checkpoint") -> tuple[ProcCorrNet, CorrNetConfig, dict[str, Any]]:
+    """Read :func:`to_bytes` with ``torch.load(weights_only=True)``.
 
     Returns ``(model in eval mode on device, config (its ``device`` set to the given one), extra)``.
-    Files holding anything but plain types and tensors, or not written by :func:`save`, raise
-    ``ValueError``.
+    Data holding anything but plain types and tensors, or not written by :func:`to_bytes`, raise
+    ``ValueError`` (naming ``where``).
     """
+    import io
+
     dev = resolve_device(device)
     try:
-        payload = torch.load(Path(path), map_location=dev, weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, AttributeError, TypeError) as e:
-        raise ValueError(f"{path}: not a weights-only ProcCorrNet checkpoint ({e.__class__.__name__}: {str(e).splitlines()[0][:200]})") from e
+        payload = torch.load(io.BytesIO(bytes(data)), map_location=dev, weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, AttributeError, TypeError, EOFError, ValueError, OSError) as e:  # truncated or foreign bytes
+        raise ValueError(f"{where}: not a weights-only ProcCorrNet checkpoint ({e.__class__.__name__}: {(str(e).splitlines() or [''])[0][:200]})") from e
     if not isinstance(payload, dict) or payload.get("format") != FORMAT or not {"state_dict", "config", "extra"} <= set(payload):
-        raise ValueError(f"{path}: not a ProcCorrNet checkpoint (format {FORMAT!r})")
+        raise ValueError(f"{where}: not a ProcCorrNet checkpoint (format {FORMAT!r})")
     # The config names where the model now lives (a model trained on CUDA loads on a CPU machine).
     # Checkpoints written before the box frame existed used the uniform one.
     config = CorrNetConfig.from_dict({"frame": "uniform", **dict(payload["config"]), "device": device})
@@ -735,6 +721,25 @@ def load(path: str | os.PathLike, device: str = "cpu") -> tuple[ProcCorrNet, Cor
     try:
         model.load_state_dict(state, strict=True)
     except RuntimeError as e:
-        raise ValueError(f"{path}: weights do not fit the configured network: {str(e).splitlines()[0]}") from e
+        raise ValueError(f"{where}: weights do not fit the configured network: {str(e).splitlines()[0]}") from e
     model.eval()
     return model, config, payload["extra"]
+
+
+def save(path: str | os.PathLike, model: ProcCorrNet, config: CorrNetConfig, extra: dict[str, Any] | None = None) -> None:
+    """Write :func:`to_bytes` to ``path`` atomically (its folder is created)."""
+    from .fileio import atomic_write
+
+    data = to_bytes(model, config, extra)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, data)
+
+
+def load(path: str | os.PathLike, device: str = "cpu") -> tuple[ProcCorrNet, CorrNetConfig, dict[str, Any]]:
+    """Read a :func:`save` file (:func:`from_bytes`; ``ValueError`` naming the path)."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read the checkpoint ({e.__class__.__name__})") from e
+    return from_bytes(data, device=device, where=str(path))

@@ -2,7 +2,7 @@
 rendered into a contact sheet, a turntable GIF of the sweep, a GLB per variant and an HTML report.
 
 Pure functions plus :func:`finish_demo`, which runs them over a built family store. The build itself
-is the caller's (``proctex.family.build`` in one process, ``workflows.build.build_on_ray`` on Ray);
+is the caller's (``proctex.pipeline.build`` in one process, ``workflows.build.build_on_ray`` on Ray);
 ``proctex`` never imports Ray.
 """
 
@@ -18,6 +18,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .fileio import atomic_write
 from .params import ParamSpace, ParamSpec
 from .progress import Progress
 
@@ -328,12 +329,6 @@ class DemoResult:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, float], ray: bool = False, rows: int = 3,
                 per_row: int = 5, frames: int = 48, size: int = 320, gif_size: int = 320, seed: int = 0,
                 log: Callable[[str], None] = print, quiet: bool = False, started: float | None = None) -> DemoResult:
@@ -344,7 +339,6 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     ``started``: ``time.perf_counter()`` when the whole job began (for its total wall time).
     """
     from .family import _model, stored_config, up_axis
-    from .meshio import _atomic_write_bytes
     from .render import save_gif, save_png
     from .service import FamilyService
     from .store import FamilyStore
@@ -375,12 +369,12 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
             shape = model.generate(params)
             result = transfer(shape, svc.assets, svc.mapper, seed=seed, painter=svc.painter)
             rel = f"variants/{r.name}_{k}.glb"
-            _atomic_write_bytes(str(out / rel), glb(shape, result, svc.assets, up=up))
+            atomic_write(out / rel, glb(shape, result, svc.assets, up=up))
             variants.append({"row": r.name, "index": k, "params": params, "glb": rel, "seconds": round(result.seconds, 4),
                              "faces": int(shape.n_faces), "notes": result.notes})
             rendered.append((shape, result))
             bar.update()
-    _atomic_text(out / "variants.json", json.dumps(variants, indent=1))
+    atomic_write(out / "variants.json", json.dumps(variants, indent=1))
 
     sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{config.model or 'family'}: \"{config.prompt}\"", quiet=quiet)
     save_png(out / "contact_sheet.png", sheet)
@@ -418,8 +412,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
         "turntable": "turntable.gif", "sweep": [{"row": r.name, "n": len(r.settings)} for r in sweep],
         "effects": {k: round(v, 4) for k, v in effects.items()}, "notes": notes,
     }
-    _atomic_text(out / "demo.json", json.dumps(summary, indent=1, default=str))
-    _atomic_text(out / "report.html", report_html(summary))
+    atomic_write(out / "demo.json", json.dumps(summary, indent=1, default=str))
+    atomic_write(out / "report.html", report_html(summary))
     log(f"demo: {len(variants)} variants, median transfer {1000 * summary['transfer_median_seconds']:.0f} ms, outputs in {out}")
     return DemoResult(str(out), str(out / "report.html"), str(out / "contact_sheet.png"), str(out / "turntable.gif"),
                       [str(out / v["glb"]) for v in variants], summary)
@@ -427,7 +421,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
 
 def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str], None] = print) -> dict[str, float]:
     """Build a family in this process, stage by stage; returns wall seconds per stage."""
-    from .family import STAGES, BuildConfig, build
+    from .family import STAGES, BuildConfig
+    from .pipeline import build
     from .store import FamilyStore
 
     config = BuildConfig.from_dict(config_dict)

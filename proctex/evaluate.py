@@ -60,18 +60,15 @@ def _cage_config(config) -> Any:
 
 def _mapper(name: str, store: FamilyStore, assets, config=None) -> Any:
     from .family import load_models
-    from .transfer import IdentityMapper, NetworkMapper, SolverMapper
+    from .transfer import MAPPER_ALIASES, make_mapper
 
-    if name in ("corrnet", "corrnet_all"):
-        models = load_models(store)
-        if not models:
-            raise ValueError(f"{store.uri}: no trained models (run the train stage)")
-        return NetworkMapper(models)
-    if name == "identity":
-        return IdentityMapper()
-    if name in ("cage", "nearest", "cpd"):  # solved per part at transfer time, as the build solves its pairs
-        return SolverMapper(assets, name, n_points=config.corr_points if config is not None else 2000, cage=_cage_config(config))
-    raise ValueError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
+    if name not in METHODS:
+        raise ValueError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
+    models = load_models(store) if MAPPER_ALIASES.get(name, name) == "corrnet" else None
+    if models is not None and not models:
+        raise ValueError(f"{store.uri}: no trained models (run the train stage)")
+    # Solved per part at transfer time, as the build solves its pairs.
+    return make_mapper(name, assets, models, corr_points=config.corr_points if config is not None else 2000, cage=_cage_config(config))
 
 
 def resolve_truth(config, truth: str = "auto") -> str | None:

@@ -29,12 +29,10 @@ import binascii
 import io
 import json
 import math
-import os
 import re
 import shutil
 import subprocess
 import sys
-import tempfile
 import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +41,8 @@ from typing import Sequence
 import numpy as np
 import pygltflib as gl
 from PIL import Image
+
+from .fileio import atomic_write, encode_png
 
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 GREY = [0.5, 0.5, 0.5, 1.0]
@@ -180,11 +180,8 @@ class _Blob:
 
 
 def _png(image: np.ndarray | bytes) -> bytes:
-    if isinstance(image, bytes):
-        return image
-    buf = io.BytesIO()
-    Image.fromarray(image).save(buf, format="PNG")
-    return buf.getvalue()
+    """PNG bytes of a texture, or the bytes themselves when already encoded."""
+    return image if isinstance(image, bytes) else encode_png(image)
 
 
 #: Node rotations (glTF quaternions x, y, z, w) that stand a shape with the given up axis upright in
@@ -254,24 +251,11 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
 
 # --------------------------------------------------------------------------- files
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temp file next to ``path`` and rename it over ``path``."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_glb(path, vertices, faces, corner_uv, face_group, textures, names=None,
               double_sided: bool = True, up: str = "y") -> str:
     """Write :func:`glb_bytes` to ``path`` atomically (temp file + ``os.replace``); returns the path."""
     data = glb_bytes(vertices, faces, corner_uv, face_group, textures, names, double_sided, up=up)
-    _atomic_write(Path(path), data)
+    atomic_write(Path(path), data)
     return str(path)
 
 
@@ -313,20 +297,20 @@ def write_obj(path, vertices, faces, corner_uv, face_group, textures, names=None
         mtl.append(f"newmtl {name}\nKa 1 1 1\nKd {kd}\nKs 0 0 0\nd 1\nillum 1\n")
         if g >= 0:
             png = stem.parent / f"{stem.name}_{g}.png"
-            _atomic_write(png, _png(texs[g]))
+            atomic_write(png, _png(texs[g]))
             written.append(str(png))
             mtl.append(f"map_Kd {png.name}\n")
         mtl.append("\n")
         body.write(f"usemtl {name}\n")
         np.savetxt(body, fv[idx], fmt="f %d/%d %d/%d %d/%d")
-    _atomic_write(mtl_path, "".join(mtl).encode())
+    atomic_write(mtl_path, "".join(mtl).encode())
 
     text = io.StringIO()
     text.write(f"# proctex.export\nmtllib {mtl_path.name}\n")
     np.savetxt(text, V, fmt="v %.9g %.9g %.9g")
     np.savetxt(text, uv_unique, fmt="vt %.9g %.9g")
     text.write(body.getvalue())
-    _atomic_write(path, text.getvalue().encode())
+    atomic_write(path, text.getvalue().encode())
     return [str(path), str(mtl_path)] + written
 
 

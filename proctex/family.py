@@ -27,7 +27,8 @@ from typing import Any, Callable
 import numpy as np
 import pyarrow as pa
 
-from .meshio import load_mesh, obj_text
+from .fileio import encode_png
+from .meshio import load_mesh_bytes, obj_text
 from .parts import analyse, part_mesh, segment
 from .shape import Shape
 from .store import FamilyStore
@@ -323,13 +324,7 @@ def samples(store: FamilyStore) -> list[dict[str, Any]]:
 
 
 def _read_obj(store: FamilyStore, rel: str) -> Shape:
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        p = Path(tmp) / "m.obj"
-        p.write_bytes(store.read_bytes(rel))
-        shape, _ = load_mesh(p)
-    shape.source = rel
+    shape, _ = load_mesh_bytes(store.read_bytes(rel), rel)
     return shape
 
 
@@ -694,14 +689,10 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
 
 def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str, Any]) -> None:
     """Write a trained group network to ``models/group_<g>.pt`` (atomically)."""
-    import tempfile
+    from .corrnet import to_bytes
 
-    from .corrnet import save
-
-    with tempfile.TemporaryDirectory() as tmp:
-        p = Path(tmp) / "m.pt"
-        save(p, result.model, cfg, {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val})
-        store.write_bytes(model_path(group), p.read_bytes())
+    extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val}
+    store.write_bytes(model_path(group), to_bytes(result.model, cfg, extra))
 
 
 def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, val_share: float = 0.15) -> None:
@@ -732,35 +723,15 @@ def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
 
 def load_models(store: FamilyStore, device: str = "cpu") -> dict[int, Any]:
     """{group: ProcCorrNet} of every stored model."""
-    import tempfile
-
-    from .corrnet import load
+    from .corrnet import from_bytes
 
     models = {}
     for name in store.listdir("models"):
         if not (name.startswith("group_") and name.endswith(".pt")):
             continue
         g = int(name[len("group_") : -len(".pt")])
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / name
-            p.write_bytes(store.read_bytes(f"models/{name}"))
-            models[g], _, _ = load(p, device=device)
+        models[g], _, _ = from_bytes(store.read_bytes(f"models/{name}"), device=device, where=store.path(f"models/{name}"))
     return models
-
-
-def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] = STAGES, log: Callable[[str], None] = print) -> dict[str, Any]:
-    """Run the build stages in order (each skips what is complete)."""
-    unknown = set(stages) - set(STAGES)
-    if unknown:
-        raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(STAGES)}")
-    write_config(store, config)
-    from .evaluate import stage_evaluate
-
-    funcs = {"sample": stage_sample, "template": stage_template, "paint": stage_paint, "pairs": stage_pairs, "train": stage_train, "evaluate": stage_evaluate}
-    for stage in STAGES:
-        if stage in stages:
-            funcs[stage](store, config, log=log)
-    return _state(store)
 
 
 # ------------------------------------------------------------------------------------------ edits
@@ -845,20 +816,6 @@ def edit_texture(
     return tex, painted, record
 
 
-def texture_png(texture: np.ndarray) -> bytes:
-    """PNG bytes of an (H, W, 3) float texture in [0, 1] (rounded to 8 bits) or a uint8 one."""
-    import io
-
-    from PIL import Image
-
-    t = np.asarray(texture)
-    if t.dtype != np.uint8:
-        t = (np.clip(t, 0, 1) * 255).round().astype(np.uint8)
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(t)).save(buf, format="PNG")
-    return buf.getvalue()
-
-
 def edit_group(
     store: FamilyStore,
     group: int | str,
@@ -911,7 +868,7 @@ def edit_group(
         record["logo"] = {"file": os.path.basename(logo), "at": list(at), "size": list(size), "rotation": rotation, "opacity": opacity}
     if len(record) == 1:
         raise ValueError("no edit given (prompt, hue/saturation/value or logo)")
-    store.write_bytes(rel, texture_png(tex))
+    store.write_bytes(rel, encode_png(tex))
     summary = store.read_json("template/paint.json")
     for g in summary["groups"]:
         if g["group"] == gi and "prompt" in record:

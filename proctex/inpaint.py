@@ -17,7 +17,7 @@ Algorithm (Barnes et al. 2009 for the search, Wexler et al. 2007 for the fill):
   the hole) carry weight 0. Where a weighted target texel meets a source-patch texel that is not source
   of the source centre's chart, the pair costs a fixed ``penalty`` (the largest possible squared colour
   difference, ``C * span**2``). The distance is the weighted mean per texel, so costs are comparable
-  across patches (:func:`patch_distance_reference` spells it out).
+  across patches (:func:`proctex._reference.inpaint.patch_distance_reference` spells it out).
 - **Valid source patches** (chart borders). A source centre must itself be in ``source`` and at least
   ``min_source_share`` of its ``patch x patch`` window (texels outside the image count as missing) must
   be source of its chart. The default 0.75 admits patches that straddle a chart border by up to a
@@ -51,7 +51,7 @@ Algorithm (Barnes et al. 2009 for the search, Wexler et al. 2007 for the fill):
 Cost: 512 x 512 RGB with a 20 % hole, defaults, ~1.4 s on one core.
 
 Everything random draws from ``numpy.random.default_rng(seed)``: results are deterministic per seed.
-:func:`nnf_reference` and :func:`patch_distance_reference` are the slow, obviously correct references for
+:mod:`proctex._reference.inpaint` holds the slow, obviously correct references for
 the search and the distance.
 """
 
@@ -106,7 +106,7 @@ class PatchMatchResult:
 
 @dataclass
 class NNFResult:
-    """Result of :func:`patchmatch_nnf` / :func:`nnf_reference`.
+    """Result of :func:`patchmatch_nnf` (and of its reference, :mod:`proctex._reference.inpaint`).
 
     Attributes:
         nnf: (n, 2) int64 (row, col) of the matched source centre per target, targets in row-major order.
@@ -169,8 +169,10 @@ def _penalty(work: np.ndarray, source: np.ndarray) -> float:
 
 
 def chart_labels(mask: np.ndarray) -> np.ndarray:
-    """(H, W) int32 chart ids: 8-connected components of ``mask`` numbered from 1, 0 outside it."""
-    lab, _ = ndimage.label(np.asarray(mask, dtype=bool), structure=np.ones((3, 3), bool))
+    """(H, W) int32 chart ids of a texture: 8-connected components of ``mask`` (its painted or
+    covered texels) numbered from 1, 0 outside it. The one definition: the run-time coverage check
+    (:mod:`proctex.transfer`) uses it too."""
+    lab, _ = ndimage.label(np.asarray(mask, dtype=bool), structure=np.ones((3, 3), dtype=bool))
     return lab.astype(np.int32)
 
 
@@ -668,81 +670,3 @@ def patchmatch_nnf(
 
 
 # ------------------------------------------------------------------------------------ references
-def patch_distance_reference(
-    image: np.ndarray,
-    valid: np.ndarray,
-    source: np.ndarray,
-    labels: np.ndarray,
-    target_rc: tuple[int, int],
-    source_rc: tuple[int, int],
-    patch: int,
-    penalty: float,
-) -> float:
-    """Slow, explicit patch distance (module docstring): a loop over the window.
-
-    A target texel counts if it is inside the image, valid and of the target centre's chart; it costs its
-    squared colour difference to the source texel at the same offset if that one is inside the image,
-    source and of the source centre's chart, else ``penalty``. Returns the mean per counted texel.
-    """
-    img = np.asarray(image)
-    img = img / 255.0 if img.dtype == np.uint8 else img.astype(np.float64)
-    H, W = valid.shape
-    r = patch // 2
-    lt = labels[target_rc[0], target_rc[1]]
-    ls = labels[source_rc[0], source_rc[1]]
-    num = 0.0
-    den = 0.0
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            ti, tj = target_rc[0] + dy, target_rc[1] + dx
-            if not (0 <= ti < H and 0 <= tj < W) or not valid[ti, tj] or labels[ti, tj] != lt:
-                continue
-            si, sj = source_rc[0] + dy, source_rc[1] + dx
-            den += 1.0
-            if 0 <= si < H and 0 <= sj < W and source[si, sj] and labels[si, sj] == ls:
-                num += float(((img[ti, tj] - img[si, sj]) ** 2).sum())
-            else:
-                num += penalty
-    return num / den if den > 0 else 0.0
-
-
-def nnf_reference(
-    image: np.ndarray,
-    valid: np.ndarray,
-    source: np.ndarray,
-    targets: np.ndarray,
-    patch: int = 7,
-    min_source_share: float = DEFAULT_MIN_SOURCE_SHARE,
-    charts: np.ndarray | None = None,
-) -> NNFResult:
-    """Brute-force NNF: every target against every valid centre with :func:`patch_distance_reference`.
-
-    Valid centres are counted explicitly too (a source texel with >= ``min_source_share`` of its window
-    source of its own chart). Ties go to the first centre in row-major order. Only for tiny images.
-    """
-    work, valid, source, targets, patch, share, labels = _prepare_nnf_inputs(image, valid, source, targets, patch, min_source_share, charts)
-    penalty = _penalty(work, source)
-    H, W = valid.shape
-    r = patch // 2
-    centres = []
-    for i, j in np.argwhere(source):
-        n = sum(
-            1
-            for a in range(i - r, i + r + 1)
-            for b in range(j - r, j + r + 1)
-            if 0 <= a < H and 0 <= b < W and source[a, b] and labels[a, b] == labels[i, j]
-        )
-        if n >= share * patch * patch - 1e-9:
-            centres.append((i, j))
-    tg = np.argwhere(targets)
-    nnf = np.zeros((len(tg), 2), np.int64)
-    cost = np.zeros(len(tg))
-    for k, (ti, tj) in enumerate(tg):
-        best, arg = np.inf, None
-        for si, sj in centres:
-            d = patch_distance_reference(work, valid, source, labels, (ti, tj), (si, sj), patch, penalty)
-            if d < best:
-                best, arg = d, (si, sj)
-        nnf[k] = arg
-        cost[k] = best
-    return NNFResult(nnf, cost, 0)

@@ -34,6 +34,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from .fileio import atomic_write
 from .shape import Shape
 
 FORMATS = {".obj": "obj", ".ply": "ply", ".stl": "stl", ".glb": "glb", ".gltf": "gltf"}
@@ -156,12 +157,13 @@ def read_obj(data: str, path: str = "<obj>") -> tuple[np.ndarray, list[list[int]
     return np.array(verts, dtype=np.float64).reshape(-1, 3), polys
 
 
-def _read_with_trimesh(path: str, fmt: str) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Vertices and triangle blocks via trimesh, without any processing (no merging/reordering)."""
+def _read_with_trimesh(data: bytes, fmt: str, path: str) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Vertices and triangle blocks of a file's bytes via trimesh, without any processing (no
+    merging/reordering); ``path`` names it in errors."""
     import trimesh
 
     try:
-        loaded = trimesh.load(path, file_type=fmt, process=False, force=None)
+        loaded = trimesh.load(io.BytesIO(data), file_type=fmt, process=False, force=None)
     except Exception as exc:  # trimesh raises many types for malformed files
         raise ValueError(f"{path}: cannot read {fmt.upper()} file: {exc}") from exc
     if isinstance(loaded, trimesh.Scene):
@@ -434,27 +436,41 @@ def load_mesh(
     missing, empty, malformed or unsupported files.
     """
     path = str(path)
-    fmt = detect_format(path)
+    detect_format(path)
     if not os.path.isfile(path):
         raise ValueError(f"{path}: no such file")
-    if os.path.getsize(path) == 0:
-        raise ValueError(f"{path}: the file is empty")
-    report = LoadReport(path=path, format=fmt, connectivity=connectivity)
+    with open(path, "rb") as fh:
+        data = fh.read()
+    return load_mesh_bytes(data, path, connectivity, nonfinite)
+
+
+def load_mesh_bytes(
+    data: bytes,
+    name: str,
+    connectivity: str = "auto",
+    nonfinite: str = "drop",
+) -> tuple[Shape, LoadReport]:
+    """:func:`load_mesh` of a file's bytes (an upload, a store object): the format comes from
+    ``name``'s extension, which also names the mesh in errors and as the shape's source."""
+    name = str(name)
+    fmt = detect_format(name)
+    if not len(data):
+        raise ValueError(f"{name}: the file is empty")
+    report = LoadReport(path=name, format=fmt, connectivity=connectivity)
     if fmt == "obj":
-        with open(path, "r", encoding="utf-8", errors="replace") as fh:
-            vertices, polygons = read_obj(fh.read(), path)
+        vertices, polygons = read_obj(bytes(data).decode("utf-8", errors="replace"), name)
         if len(vertices) == 0:
-            raise ValueError(f"{path}: the file has no vertices")
+            raise ValueError(f"{name}: the file has no vertices")
         if len(polygons) == 0:
-            raise ValueError(f"{path}: the file has no faces")
+            raise ValueError(f"{name}: the file has no faces")
         faces: Any = polygons
     else:
-        vertices, blocks = _read_with_trimesh(path, fmt)
+        vertices, blocks = _read_with_trimesh(bytes(data), fmt, name)
         if len(vertices) == 0 or not blocks or sum(len(b) for b in blocks) == 0:
-            raise ValueError(f"{path}: the file has no triangles")
+            raise ValueError(f"{name}: the file has no triangles")
         faces = np.concatenate(blocks)
     v, f, report = clean_mesh(vertices, faces, connectivity, nonfinite, report=report)
-    return Shape(v, f, source=path), report
+    return Shape(v, f, source=name), report
 
 
 def read_params(path: str | os.PathLike) -> dict[str, Any]:
@@ -467,13 +483,6 @@ def read_params(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ValueError(f"{path}: parameters must be a JSON object, got {type(data).__name__}")
     return data
-
-
-def _atomic_write_bytes(path: str, data: bytes) -> None:
-    tmp = f"{path}.tmp-{os.getpid()}"
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-    os.replace(tmp, path)
 
 
 def obj_text(vertices: np.ndarray, faces: np.ndarray) -> str:
@@ -504,8 +513,8 @@ def save_mesh(shape: Shape, path: str | os.PathLike) -> None:
         data = mesh.export(file_type=file_type)
         if isinstance(data, str):
             data = data.encode()
-    _atomic_write_bytes(path, data)
+    atomic_write(path, data)
 
 
 def save_params(params: dict[str, Any], path: str | os.PathLike) -> None:
-    _atomic_write_bytes(str(path), (json.dumps(params, indent=2) + "\n").encode())
+    atomic_write(path, json.dumps(params, indent=2) + "\n")

@@ -28,6 +28,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .fileio import atomic_write
 from .geometry import normalised_frame
 from .painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest
 from .parts import Grouping, PartGroup
@@ -369,42 +370,6 @@ def backproject(
         wsum += w
     hit = wsum > 0
     return idx[hit], col[hit] / wsum[hit, None], cos[hit] / wsum[hit]
-
-
-def backproject_reference(
-    points: np.ndarray, part: int, buffers: Buffers, trimap_: np.ndarray, view: np.ndarray, plane_tol: float = 1.0
-) -> dict[int, tuple[np.ndarray, float]]:
-    """Slow :func:`backproject`: one point at a time. Returns ``{index: (colour (3,), cos)}``."""
-    cam = buffers.camera
-    H, W = buffers.face.shape
-    right, up, fwd = cam.basis()
-    out = {}
-    for k, p in enumerate(np.asarray(points, dtype=np.float64)):
-        d = p - np.asarray(cam.eye)
-        z = d @ fwd
-        if z <= 0:
-            continue
-        x = ((d @ right) / (z * cam.tan_half * W / H) + 1) / 2 * W - 0.5
-        y = (1 - (d @ up) / (z * cam.tan_half)) / 2 * H - 0.5
-        if not (0 <= x < W - 1 and 0 <= y < H - 1):
-            continue
-        i, j = int(np.floor(y)), int(np.floor(x))
-        tol = plane_tol * 2 * cam.tan_half / H * np.linalg.norm(d)
-        acc, wsum, cs = np.zeros(3), 0.0, 0.0
-        for di in (0, 1):
-            for dj in (0, 1):
-                ii, jj = i + di, j + dj
-                if buffers.part[ii, jj] != part or trimap_[ii, jj] < REFINE:
-                    continue
-                if abs((p - buffers.points[ii, jj]) @ buffers.normal[ii, jj]) > tol:
-                    continue
-                w = (y - i if di else 1 - (y - i)) * (x - j if dj else 1 - (x - j)) + 1e-6
-                acc += w * view[ii, jj]
-                cs += w * buffers.cos[ii, jj]
-                wsum += w
-        if wsum > 0:
-            out[k] = (acc / wsum, cs / wsum)
-    return out
 
 
 def _pull(
@@ -760,7 +725,6 @@ def write_textured(tex: TemplateTexture, out: str | Path, up: str = "z", obj: bo
     coverage of the result and the written paths).
     """
     import json
-    import os
 
     from .export import write_glb, write_obj
     from .metrics import coverage
@@ -785,7 +749,5 @@ def write_textured(tex: TemplateTexture, out: str | Path, up: str = "z", obj: bo
     written.append(str(out / "preview.png"))
     cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.painted_masks, up=up)
     summary = {**tex.summary(), "up": up, "coverage": cov.to_dict(), "files": written + [str(out / "paint.json")]}
-    tmp = out / f"paint.json.tmp{os.getpid()}"
-    tmp.write_text(json.dumps(summary, indent=1))
-    os.replace(tmp, out / "paint.json")
+    atomic_write(out / "paint.json", json.dumps(summary, indent=1))
     return summary

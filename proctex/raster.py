@@ -8,7 +8,7 @@ up to ``eps`` in barycentric units).
 The fast path works in spans: barycentrics are affine in the pixel position, so for every (triangle,
 row) pair the columns with all three barycentrics >= -eps form one interval, computed in closed form;
 only pixels inside triangles are ever enumerated (``np.repeat`` in chunks of bounded size). With depth,
-the nearest fragment per pixel wins (``np.lexsort``). :func:`rasterise_reference` is the obvious double loop.
+the nearest fragment per pixel wins (``np.lexsort``). :func:`proctex._reference.raster.rasterise_reference` is the obvious double loop.
 """
 
 from __future__ import annotations
@@ -123,30 +123,3 @@ def rasterise(
     return face.reshape(H, W), bary.reshape(H, W, 3)
 
 
-def rasterise_reference(
-    xy: np.ndarray, height: int, width: int, depth: np.ndarray | None = None, eps: float = 1e-9
-) -> tuple[np.ndarray, np.ndarray]:
-    """Slow, obviously correct :func:`rasterise`: every pixel against every triangle."""
-    xy, depth = _check(xy, height, width, depth)
-    face = np.full((height, width), -1, dtype=np.int64)
-    bary = np.zeros((height, width, 3))
-    best = np.full((height, width), np.inf)
-    for f, (a, b, c) in enumerate(xy):
-        det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])
-        if abs(det) < 1e-14:
-            continue
-        for i in range(height):
-            for j in range(width):
-                p = np.array([j + 0.5, i + 0.5])
-                l1 = ((p[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (p[1] - a[1])) / det
-                l2 = ((b[0] - a[0]) * (p[1] - a[1]) - (p[0] - a[0]) * (b[1] - a[1])) / det
-                lam = np.array([1 - l1 - l2, l1, l2])
-                if (lam < -eps).any():
-                    continue
-                z = float(lam @ depth[f]) if depth is not None else 0.0
-                if depth is not None and z >= best[i, j]:
-                    continue
-                best[i, j] = z
-                face[i, j] = f
-                bary[i, j] = lam
-    return face, bary

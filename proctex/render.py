@@ -361,17 +361,9 @@ def shade(buffers: Buffers, albedo: np.ndarray, background=(1.0, 1.0, 1.0), ambi
 
 def save_png(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write an (H, W, 3|4) uint8 (or float in [0, 1]) image as PNG, atomically."""
-    from PIL import Image
+    from .fileio import atomic_write, encode_png
 
-    img = np.asarray(image)
-    if img.dtype != np.uint8:
-        img = (np.clip(img, 0, 1) * 255).round().astype(np.uint8)
-    if img.ndim != 3 or img.shape[2] not in (3, 4):
-        raise ValueError(f"image must be (H, W, 3|4), got {img.shape}")
-    path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}.png"
-    Image.fromarray(img).save(tmp)
-    os.replace(tmp, path)
+    atomic_write(path, encode_png(image))
 
 
 def render_textured(
@@ -512,13 +504,10 @@ def save_gif(path: str | os.PathLike, frames: list[np.ndarray], fps: float = 12.
         if f.dtype != np.uint8 or f.ndim != 3 or f.shape[2] != 3 or f.shape != shape:
             raise ValueError(f"frames[{k}]: expected a {shape} uint8 (H, W, 3) image, got {f.dtype} {f.shape}")
         ims.append(Image.fromarray(f))
-    path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}.gif"
-    try:
-        ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:], duration=max(10, round(1000 / fps)),
-                    loop=loop, disposal=1)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    import io
+
+    from .fileio import atomic_write
+
+    buf = io.BytesIO()
+    ims[0].save(buf, format="GIF", save_all=True, append_images=ims[1:], duration=max(10, round(1000 / fps)), loop=loop, disposal=1)
+    atomic_write(path, buf.getvalue())

@@ -20,7 +20,6 @@ from __future__ import annotations
 import io
 import json
 import math
-import tempfile
 import threading
 import time
 from collections import OrderedDict
@@ -139,7 +138,7 @@ class FamilyService:
     def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None) -> None:
         from .family import _model, load_assets, load_models, stored_config, up_axis
         from .painters import SurfacePainter
-        from .transfer import IdentityMapper, NetworkMapper
+        from .transfer import make_mapper
 
         t0 = time.perf_counter()
         self.store = store
@@ -151,7 +150,7 @@ class FamilyService:
         self.up = up_axis(self.config)  # GLBs stand the shape upright in glTF's +Y-up world
         self.assets = load_assets(store)
         self.models = load_models(store)
-        self.mapper: Any = NetworkMapper(self.models) if self.models else IdentityMapper()
+        self.mapper: Any = make_mapper("auto", self.assets, self.models)
         self.painter = SurfacePainter(self.config.prompt, seed=self.config.seed)
         self.load_seconds = time.perf_counter() - t0
         self.lock = threading.Lock()  # transfers share the torch models and the painter
@@ -208,7 +207,7 @@ class FamilyService:
             raise BadInput(str(exc)) from exc
 
     def shape_from_mesh(self, data: bytes, filename: str = "mesh.obj"):
-        from .meshio import load_mesh
+        from .meshio import load_mesh_bytes
 
         if len(data) > self.limits.max_bytes:
             raise TooLarge(f"mesh of {len(data)} bytes is over the limit of {self.limits.max_bytes}")
@@ -217,14 +216,12 @@ class FamilyService:
             raise BadInput(f"unsupported mesh type {suffix!r}; send one of {', '.join(MESH_SUFFIXES)}")
         if not data:
             raise BadInput("empty mesh upload")
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / f"upload{suffix}"
-            p.write_bytes(data)
-            try:
-                shape, _ = load_mesh(p)
-            except Exception as exc:  # ValueError, or a parser crashing on garbage: the client's bad mesh
-                text = str(exc).replace(str(p), Path(filename or "mesh").name)[:300]
-                raise BadInput(f"cannot read the mesh: {text if isinstance(exc, ValueError) else exc.__class__.__name__ + ': ' + text}") from exc
+        name = f"upload{suffix}"
+        try:
+            shape, _ = load_mesh_bytes(data, name)
+        except Exception as exc:  # ValueError, or a parser crashing on garbage: the client's bad mesh
+            text = str(exc).replace(name, Path(filename or "mesh").name)[:300]
+            raise BadInput(f"cannot read the mesh: {text if isinstance(exc, ValueError) else exc.__class__.__name__ + ': ' + text}") from exc
         if shape.n_vertices > self.limits.max_vertices or shape.n_faces > self.limits.max_faces:
             raise TooLarge(f"mesh has {shape.n_vertices} vertices and {shape.n_faces} faces; limits are "
                            f"{self.limits.max_vertices} and {self.limits.max_faces}")
@@ -310,7 +307,8 @@ class FamilyService:
         texture :func:`proctex.family.edit_group` would store (an identity edit: the template's own)."""
         import numpy as np
 
-        from .family import edit_texture, texture_png
+        from .family import edit_texture
+        from .fileio import encode_png
 
         if edit.identity:
             return self.assets.textures[group], self.assets.png[group]
@@ -324,7 +322,7 @@ class FamilyService:
         base = self.assets.textures[group] if edit.prompt is None else self._repainted(group, edit.prompt)
         tex, _, _ = edit_texture(base, group, self.assets.groups[group].label, edit.hue, edit.saturation, edit.value)
         tex8 = (np.clip(tex, 0, 1) * 255).round().astype(np.uint8)
-        out = (tex8, texture_png(tex8))
+        out = (tex8, encode_png(tex8))
         with self._edit_lock:
             self.edit_stats["misses"] += 1
             self._edited[key] = out

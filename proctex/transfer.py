@@ -33,6 +33,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from .geometry import SurfaceIndex, normalised_frame, sample_surface
+from .inpaint import chart_labels
 from .parts import Grouping, Segmentation, part_mesh, segment
 from .shape import Shape
 from .uv import pad_seams, sample_texture, texel_map, unwrap
@@ -474,15 +475,6 @@ def same_topology(faces: np.ndarray, n_vertices: int, assets: GroupAssets) -> bo
     """Whether a part mesh (local ``faces (k, 3)`` over ``n_vertices``) has exactly the connectivity
     of the group's representative (same vertex count and the same face array)."""
     return n_vertices == len(assets.vertices) and faces.shape == assets.faces.shape and bool(np.array_equal(faces, assets.faces))
-
-
-def chart_labels(painted: np.ndarray) -> np.ndarray:
-    """(H, W) int32 chart id per texel of a group texture: 8-connected components of its painted
-    texels (1, 2, ...), 0 where nothing is painted."""
-    from scipy import ndimage
-
-    labels, _ = ndimage.label(np.asarray(painted, dtype=bool), structure=np.ones((3, 3), dtype=bool))
-    return labels.astype(np.int32)
 
 
 def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
@@ -993,3 +985,32 @@ class NetworkMapper:
             return np.asarray(predict(model, ctx, query, autocast=self.autocast), dtype=np.float64)
         finally:
             torch.set_num_threads(before)
+
+
+#: Mapper names :func:`make_mapper` knows, and the aliases it accepts for them.
+MAPPERS = ("auto", "corrnet", "identity", "cage", "nearest", "cpd")
+MAPPER_ALIASES = {"net": "corrnet", "corrnet_all": "corrnet"}
+
+
+def make_mapper(name: str, assets: TemplateAssets, models: dict[int, Any] | None = None, corr_points: int = 2000, cage: Any = None,
+                autocast: str = "auto") -> Mapper:
+    """The one place a mapper is chosen by name (the CLI, the service and the evaluation use it).
+
+    ``"auto"``: the family's networks (``models``, group -> ProcCorrNet) when there are any, else
+    the identity; ``"corrnet"`` (aliases ``"net"``, ``"corrnet_all"``): the networks, a
+    ``ValueError`` without them; ``"identity"``; ``"cage"``, ``"nearest"``, ``"cpd"``: solved per
+    part at transfer time on ``corr_points`` samples with the family's ``cage`` settings, as the
+    build solves its pairs. ``autocast``: the networks' (:class:`NetworkMapper`).
+    """
+    key = MAPPER_ALIASES.get(name, name)
+    if key not in MAPPERS:
+        raise ValueError(f"unknown mapper {name!r}; known: {', '.join(MAPPERS + tuple(MAPPER_ALIASES))}")
+    if key == "auto":
+        return NetworkMapper(models, autocast=autocast) if models else IdentityMapper()
+    if key == "corrnet":
+        if not models:
+            raise ValueError("no trained models (run the train stage)")
+        return NetworkMapper(models, autocast=autocast)
+    if key == "identity":
+        return IdentityMapper()
+    return SolverMapper(assets, key, n_points=int(corr_points), cage=cage)

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from proctex import corrnet as cn
+from proctex._reference.corrnet import decode_reference
 from proctex.corrnet import CorrNetConfig, ProcCorrNet
 
 
@@ -92,7 +93,7 @@ def test_encode_decode_consistency_and_reference(residual, frame):
     g = cn.encode(m, x)
     torch.testing.assert_close(cn.decode(m, x, g), m(x))
     torch.testing.assert_close(cn.decode(m, x[:, :7], g), m(x, 7))
-    torch.testing.assert_close(m.decode(q, g), m.decode_reference(q, g))
+    torch.testing.assert_close(m.decode(q, g), decode_reference(m, q, g))
 
 
 def test_global_feature_is_permutation_invariant():
@@ -336,6 +337,16 @@ def test_save_load_round_trip(tmp_path):
     np.testing.assert_array_equal(cn.predict(res.model, ctx, q), cn.predict(model, ctx, q))
     cn.save(path, res.model, cfg)  # overwrite in place
     assert cn.load(path)[2] == {}
+    # The same checkpoint as bytes (the family store's way: no temporary files).
+    data = cn.to_bytes(res.model, cfg, extra)
+    model3, config3, extra3 = cn.from_bytes(data, where="store://models/group_3.pt")
+    assert config3 == cfg and extra3["group"] == 3
+    np.testing.assert_array_equal(cn.predict(res.model, ctx, q), cn.predict(model3, ctx, q))
+    for bad in (b"", b"not a checkpoint", data[: len(data) // 2]):
+        with pytest.raises(ValueError, match="store://models/group_3.pt"):
+            cn.from_bytes(bad, where="store://models/group_3.pt")
+    with pytest.raises(ValueError, match="cannot read"):
+        cn.load(tmp_path / "missing.pt")
 
 
 class Arbitrary:

@@ -4,14 +4,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from proctex._reference.edit import place_image_reference, shift_hsv_reference
 from proctex.edit import (
     hsv_to_rgb,
     load_overlay,
     place_image,
-    place_image_reference,
     rgb_to_hsv,
     shift_hsv,
-    shift_hsv_reference,
 )
 
 

@@ -203,7 +203,7 @@ def test_train_stage_and_network_transfer(mug_family, tmp_path):
 def test_evaluate_stage_on_identical_shapes(tmp_path):
     """Bounds pinned to the defaults: every sample is the template, so every method must give a
     tracked-point variance of exactly 0 and full coverage; errors are reported for net and cage."""
-    from proctex.family import build
+    from proctex.pipeline import build
     from proctex.models import get_model
 
     pinned = {s.name: [s.default, s.default] for s in get_model("mug").space.specs}

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from proctex.family import BuildConfig, build, load_assets, load_sample, samples
+from proctex.family import BuildConfig, load_assets, load_sample, samples
+from proctex.pipeline import build
 from proctex.fidelity import (
     FAIL_ERROR, Location, colours_at, error_summary, gt_errors, incident_faces, locate_by_map, locate_canonical,
     locate_vertex_index, match_parts_by_label, template_truth, tracked_points, tracked_variance, truth_samples,

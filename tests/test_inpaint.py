@@ -4,10 +4,9 @@ import numpy as np
 import pytest
 
 import proctex.inpaint as ip
+from proctex._reference.inpaint import nnf_reference, patch_distance_reference
 from proctex.inpaint import (
     chart_labels,
-    nnf_reference,
-    patch_distance_reference,
     patchmatch_fill,
     patchmatch_nnf,
 )

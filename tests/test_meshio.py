@@ -88,6 +88,13 @@ def test_round_trip_every_format(tmp_path, ext):
     p = tmp_path / f"desk.{ext}"
     save_mesh(shape, p)
     back, _ = load_mesh(p)
+    # The same bytes without a file (an upload, a store object): the same mesh.
+    from proctex.meshio import load_mesh_bytes
+
+    same, report = load_mesh_bytes(p.read_bytes(), f"upload.{ext}")
+    np.testing.assert_array_equal(same.vertices, back.vertices)
+    np.testing.assert_array_equal(same.faces, back.faces)
+    assert same.source == f"upload.{ext}" and report.path == f"upload.{ext}"
     assert n_parts(back) == n_parts(shape)
     assert back.n_faces == shape.n_faces
     seg_a, seg_b = segment(shape), segment(back)
@@ -172,6 +179,14 @@ def test_unsupported_and_missing(tmp_path):
         load_mesh(tmp_path / "missing.obj")
     with pytest.raises(ValueError, match="cannot read"):
         load_mesh(write(tmp_path, "junk.glb", "this is not a glb"))
+    from proctex.meshio import load_mesh_bytes
+
+    with pytest.raises(ValueError, match="x.obj: the file is empty"):
+        load_mesh_bytes(b"", "x.obj")
+    with pytest.raises(ValueError, match="unsupported"):
+        load_mesh_bytes(b"v 0 0 0\n", "x.fbx")
+    with pytest.raises(ValueError, match="y.glb: cannot read"):
+        load_mesh_bytes(b"this is not a glb", "y.glb")
 
 
 def test_empty_stl_is_an_error(tmp_path):

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from proctex.mvc import mean_value_coordinates, mean_value_coordinates_reference
+from proctex._reference.mvc import mean_value_coordinates_reference
+from proctex.mvc import mean_value_coordinates
 from proctex.primitives import box
 
 

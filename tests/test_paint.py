@@ -276,7 +276,8 @@ def test_cli_paint_bad_input(tmp_path, capsys, argv, message):
 
 
 def test_backproject_matches_the_reference(chair):
-    from proctex.paint import backproject, backproject_reference
+    from proctex._reference.paint import backproject_reference
+    from proctex.paint import backproject
 
     shape, g = chair
     c, r = bounding_sphere(shape.vertices)

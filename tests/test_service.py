@@ -395,7 +395,8 @@ def test_edits_persist_into_the_family(root, tmp_path):
 
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     """The pure texture edit and the persisted one are the same code: equal results."""
-    from proctex.family import edit_texture, texture_png
+    from proctex.family import edit_texture
+    from proctex.fileio import encode_png
 
     shutil.copytree(root / "mug", tmp_path / "mug")
     st = FamilyStore(tmp_path / "mug")
@@ -408,7 +409,7 @@ def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     with pytest.raises(ValueError, match="re-paint needs"):
         edit_texture(before, 1, "handle", prompt="gold")
     edit_group(st, "handle", hue=-40, saturation=1.5, value=0.8)
-    assert st.read_bytes("template/group_1_handle.png") == texture_png(tex)
+    assert st.read_bytes("template/group_1_handle.png") == encode_png(tex)
     from proctex.service import GroupEdit
 
-    assert svc.edited_texture(1, GroupEdit(-40, 1.5, 0.8))[1] == texture_png(tex)
+    assert svc.edited_texture(1, GroupEdit(-40, 1.5, 0.8))[1] == encode_png(tex)

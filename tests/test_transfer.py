@@ -553,10 +553,9 @@ def _reads_only_chart_reference(uv: np.ndarray, charts: np.ndarray, chart: np.nd
 
 def test_run_time_coverage_check_never_passes_a_face_that_reads_outside_its_chart():
     """Sound, against a fine-sampled reference, on random faces over a chart with holes and a
-    gap: the check never passes a face that reads a texel outside its chart anywhere. Probing every 3 texels with plain bilinear reads (the
-    check before) passes some that do (a vase showed a few unpainted pixels): the test can fail."""
-    from scipy import ndimage
-
+    gap: the check never passes a face that reads a texel outside its chart anywhere. Probing every
+    3 texels with plain bilinear reads (the check before) passes some that do (a vase showed a few
+    unpainted pixels): the test can fail."""
     from proctex.transfer import _bary_grid, _inside_chart, chart_labels, chart_lookup
     from proctex.uv import bilinear_texels
 
@@ -629,3 +628,23 @@ def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
         bilinear_blocks(labels, "max")
     with pytest.raises(ValueError, match="non-empty"):
         bilinear_blocks(np.zeros((0, 3)), "min")
+
+
+def test_make_mapper_is_the_one_place_a_mapper_is_chosen_by_name():
+    from proctex.transfer import IdentityMapper, NetworkMapper, SolverMapper, make_mapper
+
+    assets = object()  # only the solver mappers keep it
+    nets = {0: object()}
+    assert isinstance(make_mapper("auto", assets, nets), NetworkMapper)
+    assert isinstance(make_mapper("auto", assets, {}), IdentityMapper) and isinstance(make_mapper("auto", assets), IdentityMapper)
+    for name in ("corrnet", "net", "corrnet_all"):
+        m = make_mapper(name, assets, nets, autocast="none")
+        assert isinstance(m, NetworkMapper) and m.autocast == "none"
+        with pytest.raises(ValueError, match="no trained models"):
+            make_mapper(name, assets, {})
+    assert isinstance(make_mapper("identity", assets, nets), IdentityMapper)
+    for name in ("cage", "nearest", "cpd"):
+        m = make_mapper(name, assets, corr_points=123, cage="settings")
+        assert isinstance(m, SolverMapper) and (m.method, m.n_points, m.cage, m.assets) == (name, 123, "settings", assets)
+    with pytest.raises(ValueError, match="unknown mapper 'magic'"):
+        make_mapper("magic", assets)

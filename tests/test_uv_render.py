@@ -4,10 +4,12 @@ import numpy as np
 import pytest
 
 from proctex import primitives as P
+from proctex._reference.raster import rasterise_reference
+from proctex._reference.uv import texel_map_reference
 from proctex.geometry import SurfaceIndex, triangle_areas
 from proctex.models import get_model
 from proctex.parts import analyse
-from proctex.raster import rasterise, rasterise_reference
+from proctex.raster import rasterise
 from proctex.render import (
     Camera,
     Tracer,
@@ -27,7 +29,6 @@ from proctex.uv import (
     sample_texture,
     shape_uv,
     texel_map,
-    texel_map_reference,
     unwrap,
     uv_to_pixel,
 )

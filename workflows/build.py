@@ -1,4 +1,4 @@
-"""The family build on Ray: the same stages as ``proctex.family.build``, fanned out over a cluster.
+"""The family build on Ray: the same stages as ``proctex.pipeline.build``, fanned out over a cluster.
 
 - ``sample``: batches of samples as Ray tasks (:func:`workers.tasks.sample_batch`);
 - ``template`` and ``paint``: on the driver (one shape; seconds);

@@ -3,17 +3,10 @@
 from __future__ import annotations
 
 from ..shape import ProceduralModel, check_tessellation
+from .registry import REGISTRY as _REGISTRY
+from .registry import register
 
-_REGISTRY: dict[str, type[ProceduralModel]] = {}
-
-
-def register(cls: type[ProceduralModel]) -> type[ProceduralModel]:
-    """Class decorator adding a built-in model to the registry under ``cls.name``."""
-    if not cls.name or cls.name in _REGISTRY:
-        raise ValueError(f"model name {cls.name!r} is empty or already registered")
-    cls.builtin = True
-    _REGISTRY[cls.name] = cls
-    return cls
+__all__ = ["get_model", "list_models", "register"]
 
 
 def list_models() -> list[str]:

@@ -18,7 +18,7 @@ import numpy as np
 from .. import primitives as P
 from ..params import ParamSpace, choice, continuous, integer
 from ..shape import ProceduralModel, Shape, ShapeBuilder
-from . import register
+from .registry import register
 
 Warp = Callable[[np.ndarray, np.ndarray], np.ndarray]
 

@@ -11,7 +11,7 @@ import numpy as np
 from .. import primitives as P
 from ..params import ParamSpace, continuous, integer
 from ..shape import ProceduralModel, Shape, ShapeBuilder
-from . import register
+from .registry import register
 
 HEAD_LENGTH = 0.028
 HEAD_THICKNESS = 0.0022

@@ -15,7 +15,7 @@ import numpy as np
 from .. import primitives as P
 from ..params import ParamSpace, choice, continuous, integer
 from ..shape import ProceduralModel, Shape, ShapeBuilder
-from . import register
+from .registry import register
 
 
 def vessel_profile(outer_r: np.ndarray, z: np.ndarray, wall: float, floor: float, n_lip: int = 4):

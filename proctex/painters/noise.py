@@ -10,7 +10,7 @@ chunks and agree. Two layers:
   multiplied by the frequency). They are what the painters call on cache-sized chunks: contiguous
   float32 arrays keep numpy in its SIMD loops.
 
-Each fast function has a slow reference (``*_reference``: plain Python loops over points and lattice
+Each fast function has a slow reference (:mod:`proctex._reference.noise`: plain Python loops over points and lattice
 corners, float64) that the tests compare against.
 
 Lattice hashing is arithmetic (no permutation-table gathers, which cost 5–20x an add in numpy): the
@@ -32,22 +32,16 @@ __all__ = [
     "derive_seed",
     "perlin",
     "perlin_xyz",
-    "perlin_reference",
     "fbm",
     "fbm_xyz",
-    "fbm_reference",
     "turbulence",
     "turbulence_xyz",
-    "turbulence_reference",
     "ridged",
     "ridged_xyz",
-    "ridged_reference",
     "worley",
     "worley_xyz",
-    "worley_reference",
     "domain_warp",
     "domain_warp_xyz",
-    "domain_warp_reference",
     "cell_hash",
     "hash_unit",
     "split_points",
@@ -232,13 +226,6 @@ def _perlin_scalar(x: float, y: float, z: float, key: int) -> float:
     return total
 
 
-def perlin_reference(points: np.ndarray, freq: float | Sequence[float] = 1.0, seed: int = 0) -> np.ndarray:
-    """Slow reference of :func:`perlin`: loops over points and the 8 lattice corners. ``(n,) float64``."""
-    x, y, z = split_points(points, freq)
-    key = seed_key(seed)
-    return np.array([_perlin_scalar(float(a), float(b), float(c), key) for a, b, c in zip(x, y, z)])
-
-
 # --------------------------------------------------------------------------------------------------
 # Fractal sums
 # --------------------------------------------------------------------------------------------------
@@ -298,41 +285,6 @@ def turbulence(points, freq=1.0, octaves: int = 4, lacunarity: float = 2.0, gain
 def ridged(points, freq=1.0, octaves: int = 4, lacunarity: float = 2.0, gain: float = 0.5, seed: int = 0) -> np.ndarray:
     """:func:`ridged_xyz` of ``points (n, 3)`` scaled by ``freq``. ``(n,) float32``."""
     return ridged_xyz(*split_points(points, freq), octaves=octaves, lacunarity=lacunarity, gain=gain, seed=seed)
-
-
-def _fractal_reference(points, freq, octaves, lacunarity, gain, seed, kind):
-    x, y, z = split_points(points, freq)
-    out = np.zeros(len(x))
-    for i in range(len(x)):
-        total, amp, norm, f = 0.0, 1.0, 0.0, 1.0
-        for k in range(octaves):
-            ff = np.float32(f)  # the fast path scales in float32: do the same to land in the same cell
-            n = _perlin_scalar(float(x[i] * ff), float(y[i] * ff), float(z[i] * ff), seed_key(_octave_seed(seed, k)))
-            if kind == "turbulence":
-                n = abs(n)
-            elif kind == "ridged":
-                n = (1.0 - abs(n)) ** 2
-            total += amp * n
-            norm += amp
-            amp *= gain
-            f *= lacunarity
-        out[i] = total / norm
-    return out
-
-
-def fbm_reference(points, freq=1.0, octaves=4, lacunarity=2.0, gain=0.5, seed=0) -> np.ndarray:
-    """Slow reference of :func:`fbm`. ``(n,) float64``."""
-    return _fractal_reference(points, freq, octaves, lacunarity, gain, seed, "fbm")
-
-
-def turbulence_reference(points, freq=1.0, octaves=4, lacunarity=2.0, gain=0.5, seed=0) -> np.ndarray:
-    """Slow reference of :func:`turbulence`. ``(n,) float64``."""
-    return _fractal_reference(points, freq, octaves, lacunarity, gain, seed, "turbulence")
-
-
-def ridged_reference(points, freq=1.0, octaves=4, lacunarity=2.0, gain=0.5, seed=0) -> np.ndarray:
-    """Slow reference of :func:`ridged`. ``(n,) float64``."""
-    return _fractal_reference(points, freq, octaves, lacunarity, gain, seed, "ridged")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -402,32 +354,6 @@ def worley(points, freq=1.0, seed: int = 0, jitter: float = 1.0) -> tuple[np.nda
     return worley_xyz(*split_points(points, freq), seed=seed, jitter=jitter)
 
 
-def worley_reference(points, freq=1.0, seed: int = 0, jitter: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Slow reference of :func:`worley`: every point, every one of the 27 cells, sorted distances."""
-    x, y, z = split_points(points, freq)
-    key = seed_key(seed)
-    off = 0.5 * (1.0 - jitter)
-    f1s, f2s, cells = [], [], []
-    for px, py, pz in zip(x.astype(float), y.astype(float), z.astype(float)):
-        ix, iy, iz = math.floor(px), math.floor(py), math.floor(pz)
-        found = []
-        for a in (-1, 0, 1):
-            for b in (-1, 0, 1):
-                for c in (-1, 0, 1):
-                    h = _hash_cell(ix + a, iy + b, iz + c, key)
-                    fp = (
-                        ix + a + off + (h & 1023) * _INV1023 * jitter,
-                        iy + b + off + ((h >> 10) & 1023) * _INV1023 * jitter,
-                        iz + c + off + (h >> 22) * _INV1023 * jitter,
-                    )
-                    found.append((math.dist((px, py, pz), fp), h))
-        found.sort(key=lambda t: t[0])
-        f1s.append(found[0][0])
-        f2s.append(found[1][0])
-        cells.append((found[0][1] >> 8) / float(1 << 24))
-    return np.array(f1s), np.array(f2s), np.array(cells)
-
-
 # --------------------------------------------------------------------------------------------------
 # Domain warping
 # --------------------------------------------------------------------------------------------------
@@ -448,15 +374,6 @@ def domain_warp(points, freq=1.0, amount: float = 0.5, octaves: int = 2, seed: i
     """Warp ``points (n, 3)`` (scaled by ``freq``) by :func:`domain_warp_xyz`. Returns ``(n, 3) float32``
     in the scaled (lattice) units."""
     return np.stack(domain_warp_xyz(*split_points(points, freq), amount=amount, octaves=octaves, seed=seed), axis=1)
-
-
-def domain_warp_reference(points, freq=1.0, amount: float = 0.5, octaves: int = 2, seed: int = 0) -> np.ndarray:
-    """Slow reference of :func:`domain_warp`. ``(n, 3) float64``."""
-    p = np.stack(split_points(points, freq), axis=1)
-    out = p.astype(float).copy()
-    for k in range(3):
-        out[:, k] += amount * fbm_reference(p, 1.0, octaves=octaves, seed=derive_seed(seed, f"warp{k}"))
-    return out
 
 
 # --------------------------------------------------------------------------------------------------

@@ -28,7 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import write_json  # noqa: E402
 
 from proctex.evaluate import evaluate, markdown_table  # noqa: E402
-from proctex.family import BuildConfig, build  # noqa: E402
+from proctex.family import BuildConfig  # noqa: E402
+from proctex.pipeline import build  # noqa: E402
 from proctex.store import FamilyStore  # noqa: E402
 
 PROMPTS = {"vase": "blue and white porcelain with floral patterns", "mug": "blue and white striped ceramic",

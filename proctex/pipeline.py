@@ -1,0 +1,39 @@
+"""The in-process family build: the stage table and the loop that runs it.
+
+The stages themselves live below this module (:mod:`proctex.family` for sample, template, paint,
+pairs and train; :mod:`proctex.evaluate` for evaluate), so neither imports the other's stages back:
+the table is assembled here, at the top, and handed to the loop. ``workflows/build.py`` runs the same
+stages on Ray.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Mapping
+
+from .evaluate import stage_evaluate
+from .family import STAGES, BuildConfig, _state, stage_paint, stage_pairs, stage_sample, stage_template, stage_train, write_config
+from .store import FamilyStore
+
+#: Stage name -> ``runner(store, config, log=...)``, in :data:`proctex.family.STAGES` order.
+STAGE_RUNNERS: Mapping[str, Callable[..., None]] = {
+    "sample": stage_sample,
+    "template": stage_template,
+    "paint": stage_paint,
+    "pairs": stage_pairs,
+    "train": stage_train,
+    "evaluate": stage_evaluate,
+}
+
+
+def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] = STAGES, log: Callable[[str], None] = print,
+          runners: Mapping[str, Callable[..., None]] = STAGE_RUNNERS) -> dict[str, Any]:
+    """Run the build ``stages`` in order with ``runners`` (each skips what is complete); returns the
+    family state. ``ValueError`` for a stage name the table does not know."""
+    unknown = set(stages) - set(runners)
+    if unknown:
+        raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(runners)}")
+    write_config(store, config)
+    for stage in STAGES:
+        if stage in stages:
+            runners[stage](store, config, log=log)
+    return _state(store)

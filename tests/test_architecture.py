@@ -1,0 +1,132 @@
+"""The house rules the code must keep: ``proctex`` imports no module of its own in a circle (at
+module level or inside functions) and never imports Ray (DESIGN §2: Ray lives in ``workers/`` and
+``workflows/``)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1] / "proctex"
+
+
+def module_name(path: Path, root: Path = ROOT) -> str:
+    rel = path.relative_to(root.parent).with_suffix("")
+    parts = list(rel.parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph(root: Path = ROOT) -> tuple[dict[str, set[str]], dict[str, set[str]]]:
+    """``(edges, external)``: per module of the package at ``root`` the package modules it imports
+    anywhere in its body (functions included; ``from . import x`` counts as importing ``x``, not
+    the package), and the top-level names of the outside packages it imports."""
+    modules = {module_name(p, root): p for p in root.rglob("*.py")}
+    edges: dict[str, set[str]] = {m: set() for m in modules}
+    external: dict[str, set[str]] = {m: set() for m in modules}
+
+    def resolve(name: str) -> str | None:
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    for mod, path in modules.items():
+        package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    target = node.module or ""
+                if target.split(".")[0] != root.name:
+                    external[mod].add(target.split(".")[0])
+                    continue
+                subs = [f"{target}.{a.name}" for a in node.names if f"{target}.{a.name}" in modules]
+                found = subs if len(subs) == len(node.names) else subs + [resolve(target)]
+            elif isinstance(node, ast.Import):
+                found = []
+                for a in node.names:
+                    if a.name.split(".")[0] == root.name:
+                        found.append(resolve(a.name))
+                    else:
+                        external[mod].add(a.name.split(".")[0])
+            else:
+                continue
+            edges[mod].update(f for f in found if f and f != mod)
+    return edges, external
+
+
+def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(edges.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_cycle_finder_finds_a_circle_through_a_function_level_import(tmp_path):
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from .b import f\n")
+    (pkg / "b.py").write_text("def f():\n    from .sub import c\n")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "sub" / "c.py").write_text("import numpy\nfrom .. import a\n")
+    (pkg / "d.py").write_text("from . import b\nfrom .sub import c\n")
+    edges, external = import_graph(pkg)
+    assert edges["pkg.d"] == {"pkg.b", "pkg.sub.c"}  # not the packages themselves
+    assert cycles(edges) == [["pkg.a", "pkg.b", "pkg.sub.c"]]
+    assert external["pkg.sub.c"] == {"numpy"}
+    (pkg / "sub" / "c.py").write_text("import numpy\n")
+    assert cycles(import_graph(pkg)[0]) == []
+
+
+def test_proctex_has_no_import_circle():
+    found = cycles(import_graph()[0])
+    assert not found, "import circles in proctex (function-level imports count): " + "; ".join(" <-> ".join(c) for c in found)
+
+
+def test_proctex_never_imports_ray():
+    _, external = import_graph()
+    offenders = sorted(m for m, names in external.items() if "ray" in names)
+    assert not offenders, f"proctex modules importing ray: {offenders}"
+
+
+def test_the_library_never_imports_its_slow_references():
+    """The ``*_reference`` implementations are for the tests (``proctex/_reference``): the shipped
+    modules read as the product and never call them."""
+    edges, _ = import_graph()
+    offenders = sorted(m for m, targets in edges.items() if not m.startswith("proctex._reference")
+                       and any(t.startswith("proctex._reference") for t in targets))
+    assert not offenders, f"shipped modules importing proctex._reference: {offenders}"
+    shipped = [p for p in ROOT.rglob("*.py") if "_reference" not in p.parts]
+    defined = [f"{module_name(p)}.{n.name}" for p in shipped for n in ast.walk(ast.parse(p.read_text()))
+               if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.name.endswith("_reference")]
+    assert not defined, f"reference implementations in shipped modules: {defined}"
