@@ -419,12 +419,13 @@ def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
 def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> int:
     """Evaluate, write ``metrics.json`` into the store, print the table (or the JSON)."""
     from .evaluate import evaluate, markdown_table
+    from .store import StoreLayout
 
-    if not store.exists("models") and {"corrnet", "corrnet_all"} & set(options["methods"]):
+    if not store.exists(StoreLayout.MODELS) and {"corrnet", "corrnet_all"} & set(options["methods"]):
         raise ValueError(f"{store.uri}: no trained models (run the train stage, or evaluate without corrnet)")
     log = (lambda *_: None) if (args.quiet or args.json) else (lambda m: print(m, flush=True))
     metrics = evaluate(store, log=log, **options)
-    store.write_json("metrics.json", metrics)
+    store.write_json(StoreLayout.METRICS, metrics)
     if args.json:
         _print_json(metrics)
     else:

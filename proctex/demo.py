@@ -341,7 +341,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     from .family import _model, stored_config, up_axis
     from .render import save_gif, save_png
     from .service import FamilyService
-    from .store import FamilyStore
+    from .store import FamilyStore, StoreLayout
     from .transfer import glb, transfer
 
     t_start = time.perf_counter()
@@ -354,7 +354,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     model = _model(config)
     svc = FamilyService(store)
     up = up_axis(config)
-    state = store.read_json("family.json")
+    state = store.read_json(StoreLayout.STATE)
     template_params = state.get("stages", {}).get("template", {}).get("params")
     base = model.space.validate(template_params if isinstance(template_params, dict) else model.space.defaults())
     effects = parameter_effects(model.space, base, model.generate)
@@ -383,9 +383,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     save_gif(out / "turntable.gif", spin, fps=12)
 
     # The report.
-    paint = store.read_json("template/paint.json")
+    paint = store.read_json(StoreLayout.PAINT)
     trained = state.get("stages", {}).get("train", {}).get("groups", {})
-    from .paint import group_file_name
 
     fam_rel = os.path.relpath(store.base, out)
     groups = []
@@ -396,8 +395,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
         if isinstance(info, dict) and info.get("iterations"):
             net = f"trained, {info['iterations']} iterations"
         groups.append({"group": gi, "label": g.get("label"), "prompt": g.get("prompt"),
-                       "texture": f"{fam_rel}/template/{group_file_name(gi, g.get('label'))}", "network": net})
-    metrics = store.read_json("metrics.json") if store.exists("metrics.json") else None
+                       "texture": f"{fam_rel}/{StoreLayout.texture(gi, g.get('label') or '')}", "network": net})
+    metrics = store.read_json(StoreLayout.METRICS) if store.exists(StoreLayout.METRICS) else None
     secs = [v["seconds"] for v in variants]
     stage_all = {**{k: float(v) for k, v in stage_seconds.items()}, "sweep + renders + report": time.perf_counter() - t_start}
     notes = sorted({n for v in variants for n in v["notes"]})
@@ -452,6 +451,7 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
     import shutil
 
     from .family import BuildConfig
+    from .store import StoreLayout
 
     if not prompt or not prompt.strip():
         raise ValueError("the prompt must not be empty")
@@ -461,8 +461,8 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
     root = out / "families" / model
     if fresh and root.exists():
         shutil.rmtree(root)
-    if root.exists() and (root / "family.json").exists():
-        old = json.loads((root / "family.json").read_text()).get("config")
+    if root.exists() and (root / StoreLayout.STATE).exists():
+        old = json.loads((root / StoreLayout.STATE).read_text()).get("config")
         if old is not None and old != checked:
             raise ValueError(f"{root} holds a family built with other settings; pass --fresh to rebuild it, or choose another --out")
     root.parent.mkdir(parents=True, exist_ok=True)

@@ -36,7 +36,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .store import FamilyStore
+from .store import FamilyStore, StoreLayout
 
 METHODS = ("corrnet", "corrnet_all", "cage", "nearest", "cpd", "identity")
 #: What ``proctex eval`` compares by default: every method.
@@ -94,7 +94,7 @@ def stored_pairs(store: FamilyStore, sid: str, index: list[dict[str, Any]] | Non
     from .family import read_pair
 
     if index is None:
-        index = store.read_table("pairs.parquet").to_pylist() if store.exists("pairs.parquet") else []
+        index = store.read_table(StoreLayout.PAIRS).to_pylist() if store.exists(StoreLayout.PAIRS) else []
     out = []
     for r in index:
         if r["id"] == sid and r["status"] == "done":
@@ -123,7 +123,7 @@ class _Context:
         self.tracker = self.truth_kind or "cage"
         self.points = tracked_points(self.template, self.assets.grouping, self.tracker, n=settings["tracked"], seed=settings["seed"])
         self.truth = template_truth(self.template, self.assets.grouping, self.assets, self.truth_kind) if self.truth_kind else None
-        uv = self.store.read_arrays("template/uv.npz")
+        uv = self.store.read_arrays(StoreLayout.UV)
         self.template_colours = colours_at(Location(self.points.face, self.points.bary), uv["corner_uv"], uv["face_group"], self.assets.textures)
         if not np.isfinite(self.template_colours).all():
             raise ValueError(f"{uri}: the template itself is untextured at some tracked points (template/uv.npz)")
@@ -137,7 +137,7 @@ class _Context:
         self.reference, _ = render_six_views(self.template.vertices, self.template.faces, tpl.corner_uv, tpl.face_group,
                                              self.assets.textures, self.up, settings["view_size"])
         self.mappers: dict[str, Any] = {}
-        self.pairs_index = self.store.read_table("pairs.parquet").to_pylist() if self.store.exists("pairs.parquet") else []
+        self.pairs_index = self.store.read_table(StoreLayout.PAIRS).to_pylist() if self.store.exists(StoreLayout.PAIRS) else []
 
     def mapper(self, name: str) -> Any:
         if name not in self.mappers:
@@ -448,7 +448,7 @@ def stage_evaluate(store: FamilyStore, config, log: Callable[[str], None] = prin
         log("evaluate: fewer than two test shapes, skipped")
         return
     metrics = evaluate(store, methods=methods, log=log, quiet=True)
-    store.write_json("metrics.json", metrics)
+    store.write_json(StoreLayout.METRICS, metrics)
     net = metrics["methods"]["corrnet"]
     _mark(store, "evaluate", shapes=metrics["shapes"], tracker=metrics["tracker"], tracked_point_variance=net["tracked_point_variance"],
           tracked_point_variance_realtime=net["tracked_point_variance_realtime"], coverage=net["coverage"], gt_error=net["gt_error"],

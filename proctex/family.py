@@ -31,7 +31,7 @@ from .fileio import encode_png
 from .meshio import load_mesh_bytes, obj_text
 from .parts import analyse, part_mesh, segment
 from .shape import Shape
-from .store import FamilyStore
+from .store import FamilyStore, StoreLayout
 
 STAGES = ("sample", "template", "paint", "pairs", "train", "evaluate")
 
@@ -205,13 +205,13 @@ def _versions() -> dict[str, str]:
 
 
 def _state(store: FamilyStore) -> dict[str, Any]:
-    return store.read_json("family.json") if store.exists("family.json") else {}
+    return store.read_json(StoreLayout.STATE) if store.exists(StoreLayout.STATE) else {}
 
 
 def _mark(store: FamilyStore, stage: str, **info: Any) -> None:
     state = _state(store)
     state.setdefault("stages", {})[stage] = {"state": "done", "finished": time.strftime("%Y-%m-%dT%H:%M:%S"), **info}
-    store.write_json("family.json", state)
+    store.write_json(StoreLayout.STATE, state)
 
 
 def stage_done(store: FamilyStore, stage: str) -> bool:
@@ -282,19 +282,14 @@ def _folder(path: str):
         _FOLDERS[path] = FolderSource(path)
     return _FOLDERS[path]
 
-
-def sample_record_path(sid: str) -> str:
-    return f"meshes/{sid}.json"
-
-
 def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> dict[str, Any]:
     """Make one sample, write its mesh and its record (the mesh first: a record means both are
     complete); returns the record, a row of ``samples.parquet``. Idempotent."""
-    rel = sample_record_path(job.id)
+    rel = StoreLayout.sample_record(job.id)
     if store.exists(rel):
         return store.read_json(rel)
     shape = _folder(config.folder).load(job.index) if config.folder else _model(config).generate(job.params)
-    path = f"meshes/{job.id}.obj"
+    path = StoreLayout.mesh(job.id)
     store.write_bytes(path, obj_text(shape.vertices, shape.faces).encode())
     seg = segment(shape)
     row = {"id": job.id, "split": job.split, "params": json.dumps(job.params, sort_keys=True), "mesh": path,
@@ -305,7 +300,7 @@ def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> d
 
 def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]]) -> None:
     """Write ``samples.parquet`` (rows in sample order) and mark the stage done."""
-    store.write_table("samples.parquet", pa.Table.from_pylist(rows))
+    store.write_table(StoreLayout.SAMPLES, pa.Table.from_pylist(rows))
     _mark(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows))
 
 
@@ -320,7 +315,7 @@ def stage_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], N
 
 
 def samples(store: FamilyStore) -> list[dict[str, Any]]:
-    return store.read_table("samples.parquet").to_pylist()
+    return store.read_table(StoreLayout.SAMPLES).to_pylist()
 
 
 def _read_obj(store: FamilyStore, rel: str) -> Shape:
@@ -352,7 +347,7 @@ def stage_template(store: FamilyStore, config: BuildConfig, log: Callable[[str],
     params = [json.loads(r["params"]) for r in rows]
     space = infer_space(params) if config.folder else _model(config).space
     i = select_template(space, params) if len(space) else 0
-    store.write_bytes("template/template.obj", store.read_bytes(rows[i]["mesh"]))
+    store.write_bytes(StoreLayout.TEMPLATE_MESH, store.read_bytes(rows[i]["mesh"]))
     _mark(store, "template", id=rows[i]["id"], params=params[i])
     log(f"template: {rows[i]['id']}")
 
@@ -381,11 +376,11 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     with tempfile.TemporaryDirectory() as tmp:
         summary = write_textured(tex, tmp, up=up_axis(config))
         for name in sorted(os.listdir(tmp)):
-            store.write_bytes(f"template/{name}", (Path(tmp) / name).read_bytes())
-    store.write_arrays("template/uv.npz", corner_uv=tex.uv.corner_uv, face_group=tex.uv.face_group)
-    store.write_arrays("template/painted.npz", **{f"g{k}": m for k, m in enumerate(tex.painted_masks)},
+            store.write_bytes(StoreLayout.template_file(name), (Path(tmp) / name).read_bytes())
+    store.write_arrays(StoreLayout.UV, corner_uv=tex.uv.corner_uv, face_group=tex.uv.face_group)
+    store.write_arrays(StoreLayout.PAINTED, **{f"g{k}": m for k, m in enumerate(tex.painted_masks)},
                        **{f"o{k}": m for k, m in enumerate(tex.observed_masks)})
-    store.write_json("template/grouping.json", grouping.to_dict())
+    store.write_json(StoreLayout.GROUPING, grouping.to_dict())
     _mark(store, "paint", coverage=summary["coverage"]["share"], groups=len(grouping.groups), seconds=round(tex.seconds, 3))
     log(f"paint: {len(grouping.groups)} groups, unpainted visible pixels {100 * summary['coverage']['share']:.3f}%")
 
@@ -396,9 +391,9 @@ def load_template_shape(store: FamilyStore, config: BuildConfig | None = None) -
     if not config.folder:
         params = _state(store)["stages"]["template"]["params"]
         shape = _model(config).generate(params)
-        shape.source = "template/template.obj"
+        shape.source = StoreLayout.TEMPLATE_MESH
         return shape
-    return _read_obj(store, "template/template.obj")
+    return _read_obj(store, StoreLayout.TEMPLATE_MESH)
 
 
 #: Settings whose default changed after stores without them were written: their value then.
@@ -425,19 +420,18 @@ def load_assets(store: FamilyStore, seed: int | None = None):
 
     from PIL import Image
 
-    from .paint import group_file_name
     from .transfer import prepare_template
 
     config = stored_config(store)
     template = load_template_shape(store, config)
     grouping = analyse(template, seed=config.seed if seed is None else seed)
-    uv = store.read_arrays("template/uv.npz")
+    uv = store.read_arrays(StoreLayout.UV)
     if len(uv["face_group"]) != template.n_faces:
         raise ValueError(f"{store.uri}: template UVs do not match the template mesh")
-    summary = store.read_json("template/paint.json")
+    summary = store.read_json(StoreLayout.PAINT)
     textures, names = [], []
     for g in summary["groups"]:
-        png = store.read_bytes(f"template/{group_file_name(g['group'], g['label'])}")
+        png = store.read_bytes(StoreLayout.texture(g["group"], g["label"]))
         textures.append(np.asarray(Image.open(io.BytesIO(png)).convert("RGB")))
         names.append(g["label"] or f"group_{g['group']}")
     assets = prepare_template(template, grouping, uv["corner_uv"], textures, names)
@@ -453,8 +447,8 @@ def template_masks(store: FamilyStore, assets=None) -> tuple[list[np.ndarray], l
     ``template/painted.npz``; stores written before it existed get the texels the group's UV charts
     cover plus an 8-texel gutter, for both.
     """
-    if store.exists("template/painted.npz"):
-        arrays = store.read_arrays("template/painted.npz")
+    if store.exists(StoreLayout.PAINTED):
+        arrays = store.read_arrays(StoreLayout.PAINTED)
         painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
         observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
         return painted, observed
@@ -496,11 +490,6 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int)
         "seconds": res.seconds,
     }
 
-
-def pair_path(sid: str, group: int) -> str:
-    return f"correspondences/{sid}__g{group}.parquet"
-
-
 @dataclass
 class PairJob:
     """One cage correspondence to solve: sample ``index`` (its ``samples.parquet`` row) and template ``group``."""
@@ -519,11 +508,6 @@ def pair_seed(config: BuildConfig, index: int, group: int) -> int:
     so any process, in any order, solves a pair the same way."""
     return config.seed * 1_000_003 + index * 97 + group
 
-
-def pair_record_path(sid: str, group: int) -> str:
-    return f"correspondences/{sid}__g{group}.json"
-
-
 def pair_jobs(store: FamilyStore, config: BuildConfig, assets=None, splits: tuple[str, ...] = ("train", "test")) -> list[PairJob]:
     """Every (shape of ``splits``, non-degenerate template group) pair, in sample order."""
     assets = assets if assets is not None else load_assets(store)
@@ -535,14 +519,14 @@ def pair_records(store: FamilyStore, jobs: list[PairJob]) -> dict[tuple[str, int
     """The stored record of each job that has one (done, absent or failed). Stores written before
     per-pair records existed: the rows of ``pairs.parquet`` whose data file exists."""
     index = {}
-    if store.exists("pairs.parquet"):
-        index = {(r["id"], r["group"]): r for r in store.read_table("pairs.parquet").to_pylist()}
+    if store.exists(StoreLayout.PAIRS):
+        index = {(r["id"], r["group"]): r for r in store.read_table(StoreLayout.PAIRS).to_pylist()}
     out = {}
     for job in jobs:
-        rel = pair_record_path(*job.key)
+        rel = StoreLayout.pair_record(*job.key)
         if store.exists(rel):
             out[job.key] = store.read_json(rel)
-        elif job.key in index and (index[job.key]["status"] == "absent" or (index[job.key]["status"] == "done" and store.exists(pair_path(*job.key)))):
+        elif job.key in index and (index[job.key]["status"] == "absent" or (index[job.key]["status"] == "done" and store.exists(StoreLayout.pair(*job.key)))):
             out[job.key] = index[job.key]
     return out
 
@@ -557,7 +541,7 @@ def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, 
     atomic, so a record always describes complete data. A pair already complete is returned as is;
     a failure (``ValueError``/``RuntimeError``) is recorded as "failed" (retried by the next run).
     Returns the record (a row of ``pairs.parquet``)."""
-    rel = pair_record_path(*job.key)
+    rel = StoreLayout.pair_record(*job.key)
     old = store.read_json(rel) if store.exists(rel) else None
     if pair_complete(old):
         return old
@@ -571,7 +555,7 @@ def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, 
     except (ValueError, RuntimeError) as exc:
         pair, status, error = None, "failed", str(exc)
     if pair is not None:
-        store.write_table(pair_path(sid, g), {
+        store.write_table(StoreLayout.pair(sid, g), {
             "sx": pair["src"][:, 0], "sy": pair["src"][:, 1], "sz": pair["src"][:, 2],
             "tx": pair["dst"][:, 0], "ty": pair["dst"][:, 1], "tz": pair["dst"][:, 2], "face": pair["face"],
         })
@@ -582,7 +566,7 @@ def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, 
         "chamfer": None if pair is None else float(pair["chamfer"]),
         "converged": bool(pair and pair["converged"]), "iterations": 0 if pair is None else int(pair["iterations"]),
         "seconds": time.perf_counter() - t, "attempts": 1 + (old or {}).get("attempts", 0),
-        "path": pair_path(sid, g) if pair else "",
+        "path": StoreLayout.pair(sid, g) if pair else "",
     }
     store.write_json(rel, record)
     return record
@@ -596,7 +580,7 @@ def write_pairs_index(store: FamilyStore, jobs: list[PairJob], records: dict[tup
         if r is not None:
             rows.append({**r, "residual": float("nan") if r["residual"] is None else r["residual"],
                          "chamfer": float("nan") if r["chamfer"] is None else r["chamfer"]})
-    store.write_table("pairs.parquet", pa.Table.from_pylist(rows))
+    store.write_table(StoreLayout.PAIRS, pa.Table.from_pylist(rows))
 
 
 def finish_pairs_stage(store: FamilyStore, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]], log: Callable[[str], None] = print) -> None:
@@ -634,7 +618,7 @@ def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
 def read_pair(store: FamilyStore, sid: str, group: int, faces: bool = False):
     """(src (n, 3), dst (n, 3)) float32 of a stored pair; with ``faces``, also the (n,) template
     face of each target."""
-    t = store.read_table(pair_path(sid, group))
+    t = store.read_table(StoreLayout.pair(sid, group))
     src = np.stack([t.column(k).to_numpy() for k in ("sx", "sy", "sz")], axis=1)
     dst = np.stack([t.column(k).to_numpy() for k in ("tx", "ty", "tz")], axis=1)
     return (src, dst, t.column("face").to_numpy()) if faces else (src, dst)
@@ -651,12 +635,7 @@ def write_config(store: FamilyStore, config: BuildConfig) -> None:
     state["config"] = new
     state["versions"] = _versions()
     state.setdefault("stages", {})
-    store.write_json("family.json", state)
-
-
-def model_path(group: int) -> str:
-    return f"models/group_{group}.pt"
-
+    store.write_json(StoreLayout.STATE, state)
 
 def corrnet_config(config: BuildConfig):
     """The ProcCorrNet settings of a build (``config.train`` over the defaults, the family seed)."""
@@ -667,14 +646,14 @@ def corrnet_config(config: BuildConfig):
 
 def trainable_groups(store: FamilyStore) -> list[int]:
     """Groups with at least one solved train pair."""
-    rows = store.read_table("pairs.parquet").to_pylist() if store.exists("pairs.parquet") else []
+    rows = store.read_table(StoreLayout.PAIRS).to_pylist() if store.exists(StoreLayout.PAIRS) else []
     return sorted({r["group"] for r in rows if r["status"] == "done" and r["split"] == "train"})
 
 
 def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val_share: float = 0.15) -> dict[str, Any]:
     """Train and validation pairs of one group: a seeded ``val_share`` of its train shapes is held
     out for early stopping. Returns ``{"train": [(src, dst)], "val": [...], "train_ids", "val_ids"}``."""
-    rows = [r for r in store.read_table("pairs.parquet").to_pylist() if r["status"] == "done" and r["split"] == "train" and r["group"] == group]
+    rows = [r for r in store.read_table(StoreLayout.PAIRS).to_pylist() if r["status"] == "done" and r["split"] == "train" and r["group"] == group]
     ids = sorted(r["id"] for r in rows)
     if not ids:
         raise ValueError(f"group {group} has no solved train pairs")
@@ -692,7 +671,7 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
     from .corrnet import to_bytes
 
     extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val}
-    store.write_bytes(model_path(group), to_bytes(result.model, cfg, extra))
+    store.write_bytes(StoreLayout.model(group), to_bytes(result.model, cfg, extra))
 
 
 def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, val_share: float = 0.15) -> None:
@@ -705,7 +684,7 @@ def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     trained: dict[Any, Any] = {}
     fresh = False
     for g in trainable_groups(store):
-        if store.exists(model_path(g)):
+        if store.exists(StoreLayout.model(g)):
             log(f"train: group {g} done already")
             if str(g) in before:
                 trained[g] = before[str(g)]
@@ -726,17 +705,17 @@ def load_models(store: FamilyStore, device: str = "cpu") -> dict[int, Any]:
     from .corrnet import from_bytes
 
     models = {}
-    for name in store.listdir("models"):
-        if not (name.startswith("group_") and name.endswith(".pt")):
+    for name in store.listdir(StoreLayout.MODELS):
+        g = StoreLayout.model_group(name)
+        if g is None:
             continue
-        g = int(name[len("group_") : -len(".pt")])
-        models[g], _, _ = from_bytes(store.read_bytes(f"models/{name}"), device=device, where=store.path(f"models/{name}"))
+        models[g], _, _ = from_bytes(store.read_bytes(StoreLayout.model(g)), device=device, where=store.path(StoreLayout.model(g)))
     return models
 
 
 # ------------------------------------------------------------------------------------------ edits
 def _group_entry(store: FamilyStore, group: int | str) -> dict[str, Any]:
-    summary = store.read_json("template/paint.json")
+    summary = store.read_json(StoreLayout.PAINT)
     for g in summary["groups"]:
         if str(g["group"]) == str(group) or (g["label"] and g["label"] == str(group)):
             return g
@@ -747,15 +726,13 @@ def _group_entry(store: FamilyStore, group: int | str) -> dict[str, Any]:
 def refresh_template_glb(store: FamilyStore) -> None:
     """Rewrite ``template/textured.glb`` from the stored mesh, UVs and group PNGs."""
     from .export import glb_bytes
-    from .paint import group_file_name
-
     config = stored_config(store)
     template = load_template_shape(store, config)
-    uv = store.read_arrays("template/uv.npz")
-    summary = store.read_json("template/paint.json")
-    pngs = [store.read_bytes(f"template/{group_file_name(g['group'], g['label'])}") for g in summary["groups"]]
+    uv = store.read_arrays(StoreLayout.UV)
+    summary = store.read_json(StoreLayout.PAINT)
+    pngs = [store.read_bytes(StoreLayout.texture(g["group"], g["label"])) for g in summary["groups"]]
     names = [g["label"] or f"group_{g['group']}" for g in summary["groups"]]
-    store.write_bytes("template/textured.glb", glb_bytes(template.vertices, template.faces, uv["corner_uv"], uv["face_group"], pngs, names=names,
+    store.write_bytes(StoreLayout.TEMPLATE_GLB, glb_bytes(template.vertices, template.faces, uv["corner_uv"], uv["face_group"], pngs, names=names,
                                                          up=up_axis(config)))
 
 
@@ -842,11 +819,9 @@ def edit_group(
     from PIL import Image
 
     from .edit import load_overlay, place_image
-    from .paint import group_file_name
-
     entry = _group_entry(store, group)
     gi = int(entry["group"])
-    rel = f"template/{group_file_name(gi, entry['label'])}"
+    rel = StoreLayout.texture(gi, entry["label"])
     tex = np.asarray(Image.open(io.BytesIO(store.read_bytes(rel))).convert("RGB"))
     template = rep_faces = rep_uv = None
     config = stored_config(store)
@@ -854,26 +829,26 @@ def edit_group(
         template = load_template_shape(store, config)
         grouping = analyse(template, seed=config.seed)
         rep_faces = grouping.parts[grouping.groups[gi].representative].faces
-        rep_uv = store.read_arrays("template/uv.npz")["corner_uv"][rep_faces]
+        rep_uv = store.read_arrays(StoreLayout.UV)["corner_uv"][rep_faces]
     tex, painted, record = edit_texture(tex, gi, entry["label"], hue, saturation, value, prompt,
                                         template=template, rep_faces=rep_faces, rep_corner_uv=rep_uv, seed=config.seed)
     if painted is not None:
-        masks = store.read_arrays("template/painted.npz") if store.exists("template/painted.npz") else None
+        masks = store.read_arrays(StoreLayout.PAINTED) if store.exists(StoreLayout.PAINTED) else None
         if masks is not None:  # the whole group is painted now
             masks[f"g{gi}"] = painted
             masks[f"o{gi}"] = painted
-            store.write_arrays("template/painted.npz", **masks)
+            store.write_arrays(StoreLayout.PAINTED, **masks)
     if logo is not None:
         tex = place_image(tex, load_overlay(logo), at, size, rotation_deg=rotation, opacity=opacity)
         record["logo"] = {"file": os.path.basename(logo), "at": list(at), "size": list(size), "rotation": rotation, "opacity": opacity}
     if len(record) == 1:
         raise ValueError("no edit given (prompt, hue/saturation/value or logo)")
     store.write_bytes(rel, encode_png(tex))
-    summary = store.read_json("template/paint.json")
+    summary = store.read_json(StoreLayout.PAINT)
     for g in summary["groups"]:
         if g["group"] == gi and "prompt" in record:
             g["prompt"] = record["prompt"]
     summary.setdefault("edits", []).append(record)
-    store.write_json("template/paint.json", summary)
+    store.write_json(StoreLayout.PAINT, summary)
     refresh_template_glb(store)
     return record

@@ -34,6 +34,7 @@ from .painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, View
 from .parts import Grouping, PartGroup
 from .render import Buffers, Camera, Tracer, bounding_sphere, canonical_cameras, orbit_path, render_buffers, textured_albedo
 from .shape import Shape
+from .store import StoreLayout, group_file_name
 from .uv import ShapeUV, TexelMap, pad_seams, sample_texture, shape_uv, texel_map
 
 UNPAINTED = 0.5  # grey shown where nothing is painted yet
@@ -712,12 +713,6 @@ def preview_views(tex: TemplateTexture, up: str = "z", size: int = 256, backend:
     return images
 
 
-def group_file_name(group: int, label: str) -> str:
-    """``group_<index>[_<label>].png`` (label made file-name safe)."""
-    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in label)
-    return f"group_{group}{'_' + safe if safe else ''}.png"
-
-
 def write_textured(tex: TemplateTexture, out: str | Path, up: str = "z", obj: bool = False, preview_size: int = 256) -> dict[str, Any]:
     """Write the per-group PNGs, ``textured.glb``, ``preview.png`` (six views) and ``paint.json``.
 
@@ -748,6 +743,6 @@ def write_textured(tex: TemplateTexture, out: str | Path, up: str = "z", obj: bo
     save_png(out / "preview.png", grid_image([views[:3], views[3:]]))
     written.append(str(out / "preview.png"))
     cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.painted_masks, up=up)
-    summary = {**tex.summary(), "up": up, "coverage": cov.to_dict(), "files": written + [str(out / "paint.json")]}
-    atomic_write(out / "paint.json", json.dumps(summary, indent=1))
+    summary = {**tex.summary(), "up": up, "coverage": cov.to_dict(), "files": written + [str(out / StoreLayout.PAINT_NAME)]}
+    atomic_write(out / StoreLayout.PAINT_NAME, json.dumps(summary, indent=1))
     return summary

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from .store import FamilyStore
+from .store import FamilyStore, StoreLayout
 
 
 class NotFound(ValueError):
@@ -123,8 +123,8 @@ _EDIT_LOCK = threading.Lock()  # persisted edits rewrite store files: one at a t
 def build_stamp(store: FamilyStore) -> str:
     """What identifies a family's current build: the stage records and the template's paint record
     (edits append to it). Changes whenever the family is rebuilt or edited."""
-    state = store.read_json("family.json") if store.exists("family.json") else {}
-    paint = store.read_bytes("template/paint.json") if store.exists("template/paint.json") else b""
+    state = store.read_json(StoreLayout.STATE) if store.exists(StoreLayout.STATE) else {}
+    paint = store.read_bytes(StoreLayout.PAINT) if store.exists(StoreLayout.PAINT) else b""
     import hashlib
 
     h = hashlib.sha256(json.dumps(state.get("stages", {}), sort_keys=True).encode())
@@ -172,9 +172,9 @@ class FamilyService:
             from .family import samples
 
             space = infer_space([json.loads(r["params"]) for r in samples(self.store)])
-        paint = self.store.read_json("template/paint.json") if self.store.exists("template/paint.json") else {}
-        state = self.store.read_json("family.json")
-        metrics = self.store.read_json("metrics.json") if self.store.exists("metrics.json") else None
+        paint = self.store.read_json(StoreLayout.PAINT) if self.store.exists(StoreLayout.PAINT) else {}
+        state = self.store.read_json(StoreLayout.STATE)
+        metrics = self.store.read_json(StoreLayout.METRICS) if self.store.exists(StoreLayout.METRICS) else None
         return {
             "name": self.name,
             "source": {"model": self.config.model, "folder": bool(self.config.folder), "generator": bool(self.config.generator)},
@@ -391,7 +391,7 @@ class Catalog:
             return []
 
     def _is_family(self, name: str) -> bool:
-        return not name.startswith(".") and self.root.exists(f"{name}/family.json")
+        return not name.startswith(".") and self.root.exists(f"{name}/{StoreLayout.STATE}")
 
     def store(self, name: str) -> FamilyStore:
         if not name or "/" in name or name.startswith(".") or not self._is_family(name):

@@ -4,11 +4,11 @@ Every write is atomic: the bytes go to a temporary name next to the target, whic
 (``pyarrow.fs.FileSystem.move``), so a crash never leaves a half-written file under the real name.
 Readers only ever see complete files. Tables are Parquet, arrays ``.npz`` (no pickles), documents JSON.
 
-Layout used by the workflows (all paths relative to the root)::
+Layout (all paths relative to the root; :class:`StoreLayout` is the one place that spells them)::
 
     family.json            config, stage states, package versions
     samples.parquet        one row per sampled shape
-    meshes/<id>.obj        sampled meshes
+    meshes/<id>.obj        sampled meshes (and <id>.json, each sample job's record)
     template/              template mesh, grouping, UVs, textures, textured.glb
     pairs.parquet          one row per (shape, group) correspondence job
     correspondences/       one Parquet table of (source point, template point) per pair
@@ -28,6 +28,71 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.fs as pafs
 import pyarrow.parquet as pq
+
+
+def group_file_name(group: int, label: str) -> str:
+    """``group_<index>[_<label>].png`` (label made file-name safe): a group texture's file name."""
+    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in label)
+    return f"group_{group}{'_' + safe if safe else ''}.png"
+
+
+class StoreLayout:
+    """Every path of a family store (relative to its root), and nothing else spells them."""
+
+    STATE = "family.json"
+    SAMPLES = "samples.parquet"
+    PAIRS = "pairs.parquet"
+    METRICS = "metrics.json"
+    MODELS = "models"
+    TEMPLATE = "template"
+    TEMPLATE_MESH = "template/template.obj"
+    TEMPLATE_GLB = "template/textured.glb"
+    PAINT_NAME = "paint.json"  # the painter's summary, in the folder it writes (the template folder here)
+    PAINT = f"template/{PAINT_NAME}"
+    UV = "template/uv.npz"
+    PAINTED = "template/painted.npz"
+    GROUPING = "template/grouping.json"
+
+    @staticmethod
+    def mesh(sid: str) -> str:
+        """A sampled mesh."""
+        return f"meshes/{sid}.obj"
+
+    @staticmethod
+    def sample_record(sid: str) -> str:
+        """A sample job's record (written after its mesh)."""
+        return f"meshes/{sid}.json"
+
+    @staticmethod
+    def pair(sid: str, group: int) -> str:
+        """A cage pair's table of (source point, template point)."""
+        return f"correspondences/{sid}__g{group}.parquet"
+
+    @staticmethod
+    def pair_record(sid: str, group: int) -> str:
+        """A pair job's record (written after its table)."""
+        return f"correspondences/{sid}__g{group}.json"
+
+    @staticmethod
+    def model(group: int) -> str:
+        """A group's ProcCorrNet checkpoint."""
+        return f"models/group_{group}.pt"
+
+    @staticmethod
+    def model_group(name: str) -> int | None:
+        """The group of a file name in ``models/`` (``group_<g>.pt``), None for anything else."""
+        stem = name[len("group_") : -len(".pt")] if name.startswith("group_") and name.endswith(".pt") else ""
+        return int(stem) if stem.isdigit() else None
+
+    @staticmethod
+    def template_file(name: str) -> str:
+        """A file of the template folder (the painter's outputs)."""
+        return f"{StoreLayout.TEMPLATE}/{name}"
+
+    @staticmethod
+    def texture(group: int, label: str) -> str:
+        """A group's texture (:func:`group_file_name`)."""
+        return StoreLayout.template_file(group_file_name(group, label))
 
 
 class FamilyStore:

@@ -130,3 +130,43 @@ def test_the_library_never_imports_its_slow_references():
     defined = [f"{module_name(p)}.{n.name}" for p in shipped for n in ast.walk(ast.parse(p.read_text()))
                if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.name.endswith("_reference")]
     assert not defined, f"reference implementations in shipped modules: {defined}"
+
+
+STORE_NAMES = ("family.json", "samples.parquet", "pairs.parquet", "metrics.json", "template/", "models/", "meshes/", "correspondences/",
+               "paint.json", "uv.npz", "painted.npz", "grouping.json")
+
+
+def store_literals(paths) -> list[str]:
+    """``file:line: text`` of every string constant (f-strings included) in ``paths`` that spells a
+    family-store path (:data:`STORE_NAMES`)."""
+    found = []
+    for p in paths:
+        tree = ast.parse(p.read_text())
+        prose = {id(n.value) for n in ast.walk(tree) if isinstance(n, ast.Expr) and isinstance(n.value, ast.Constant)}  # docstrings
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in prose
+                    and not any(c.isspace() for c in node.value)  # messages and help texts may name files
+                    and any(n in node.value for n in STORE_NAMES)):
+                found.append(f"{p.name}:{node.lineno}: {node.value!r}")
+    return found
+
+
+def test_only_the_store_layout_spells_store_paths(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text('x = f"models/group_{3}.pt"\ny = "samples.parquet"\n"""Docstring naming family.json."""\nraise ValueError("no family.json here")\n')
+    assert len(store_literals([bad])) == 2  # the check can fail
+    repo = ROOT.parent
+    files = [p for d in ("proctex", "workers", "workflows") for p in (repo / d).rglob("*.py")
+             if p.name != "store.py" and "node_modules" not in p.parts]
+    assert not store_literals(files), "store paths spelled outside proctex/store.py's StoreLayout:\n" + "\n".join(store_literals(files))
+
+
+def test_store_layout_names():
+    from proctex.store import StoreLayout, group_file_name
+
+    assert StoreLayout.model(7) == "models/group_7.pt" and StoreLayout.model_group("group_7.pt") == 7
+    for name in ("group_x.pt", "other.pt", "group_7.pth", "group_-1.pt", "group_.pt"):
+        assert StoreLayout.model_group(name) is None
+    assert StoreLayout.pair("s0001", 2) == "correspondences/s0001__g2.parquet" and StoreLayout.pair_record("s0001", 2).endswith(".json")
+    assert group_file_name(3, "seat cushion/../x") == "group_3_seat_cushion____x.png" and group_file_name(0, "") == "group_0.png"
+    assert StoreLayout.texture(3, "leg") == "template/group_3_leg.png"

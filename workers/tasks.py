@@ -17,7 +17,7 @@ from typing import Any
 import ray
 
 from proctex.family import BuildConfig, PairJob, SampleJob, load_assets, run_pair_job, run_sample_job
-from proctex.store import FamilyStore
+from proctex.store import FamilyStore, StoreLayout
 
 #: Ray retries a task whose worker died this many times (a job's own errors are recorded instead).
 MAX_RETRIES = 3
@@ -34,7 +34,7 @@ def _single_thread() -> None:
 
 
 def _assets(store: FamilyStore) -> Any:
-    stamp = str(store.read_json("family.json").get("stages", {}).get("paint", {}).get("finished", ""))
+    stamp = str(store.read_json(StoreLayout.STATE).get("stages", {}).get("paint", {}).get("finished", ""))
     key = (store.uri, stamp)
     if key not in _ASSETS:
         _ASSETS.clear()

@@ -22,11 +22,10 @@ from proctex.family import (
     BuildConfig,
     corrnet_config,
     group_training_data,
-    model_path,
     save_group_model,
     trainable_groups,
 )
-from proctex.store import FamilyStore
+from proctex.store import FamilyStore, StoreLayout
 
 
 def teams(world: int, groups: list[int]) -> list[tuple[list[int], list[int]]]:
@@ -79,7 +78,7 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
             if team_rank == 0:
                 save_group_model(store, group, result, cfg, data)
                 with open(os.path.join(tmp, f"group_{group}.pt"), "wb") as fh:
-                    fh.write(store.read_bytes(model_path(group)))
+                    fh.write(store.read_bytes(StoreLayout.model(group)))
             out[str(group)] = {"group": group, "best_val": float(result.best_val["mean"]) if result.best_val else float("nan"),
                                "iterations": result.iterations, "seconds": time.perf_counter() - t0, "workers": team_size}
         # One report per worker (a barrier); the team leaders' networks form the run's checkpoint.
@@ -106,7 +105,7 @@ def _fit_with_progress(trainer: Any, store: FamilyStore, groups: list[int], quie
     def watch() -> None:
         seen: set[int] = set()
         while not stop.wait(every):
-            done = {g for g in groups if g not in seen and store.exists(model_path(g))}
+            done = {g for g in groups if g not in seen and store.exists(StoreLayout.model(g))}
             if done:
                 seen |= done
                 bar.update(len(done))
@@ -137,7 +136,7 @@ def train_groups(
     if num_workers < 1:
         raise ValueError(f"num_workers must be >= 1, got {num_workers}")
     store = FamilyStore(store_uri)
-    todo = [g for g in (groups if groups is not None else trainable_groups(store)) if not store.exists(model_path(g))]
+    todo = [g for g in (groups if groups is not None else trainable_groups(store)) if not store.exists(StoreLayout.model(g))]
     if not todo:
         return {}
     log(f"train: {len(todo)} group networks on {num_workers} Ray Train workers")
