@@ -373,14 +373,18 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
                          seed=config.seed, up=up_axis(config), views=config.views, view_size=config.view_size,
                          complete_hidden=config.paint_hidden, fill=config.fill, model_dir=config.model_dir, device=config.device,
                          steps=config.steps, on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
+    from .template import Template
+
+    labels = [g.label for g in tex.groups]
+    record = Template(template, grouping, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups],
+                      [g.label or f"group_{g.group}" for g in tex.groups], labels, tex.painted_masks, tex.observed_masks)
     with tempfile.TemporaryDirectory() as tmp:
         summary = write_textured(tex, tmp, up=up_axis(config))
+        textures = {StoreLayout.texture(g, label) for g, label in enumerate(labels)}  # the record writes those
         for name in sorted(os.listdir(tmp)):
-            store.write_bytes(StoreLayout.template_file(name), (Path(tmp) / name).read_bytes())
-    store.write_arrays(StoreLayout.UV, corner_uv=tex.uv.corner_uv, face_group=tex.uv.face_group)
-    store.write_arrays(StoreLayout.PAINTED, **{f"g{k}": m for k, m in enumerate(tex.painted_masks)},
-                       **{f"o{k}": m for k, m in enumerate(tex.observed_masks)})
-    store.write_json(StoreLayout.GROUPING, grouping.to_dict())
+            if StoreLayout.template_file(name) not in textures:
+                store.write_bytes(StoreLayout.template_file(name), (Path(tmp) / name).read_bytes())
+    record.save(store)
     _mark(store, "paint", coverage=summary["coverage"]["share"], groups=len(grouping.groups), seconds=round(tex.seconds, 3))
     log(f"paint: {len(grouping.groups)} groups, unpainted visible pixels {100 * summary['coverage']['share']:.3f}%")
 
@@ -414,54 +418,17 @@ def stored_config(store: FamilyStore) -> BuildConfig:
     return BuildConfig.from_dict(_with_legacy(state["config"]))
 
 
-def load_assets(store: FamilyStore, seed: int | None = None):
+def load_template(store: FamilyStore, config: BuildConfig | None = None):
+    """The stored :class:`proctex.template.Template` (its mesh regenerated for model families)."""
+    from .template import Template
+
+    config = config if config is not None else stored_config(store)
+    return Template.load(store, load_template_shape(store, config), seed=config.seed)
+
+
+def load_assets(store: FamilyStore):
     """The template ready for transfer (:class:`proctex.transfer.TemplateAssets`), from the store."""
-    import io
-
-    from PIL import Image
-
-    from .transfer import prepare_template
-
-    config = stored_config(store)
-    template = load_template_shape(store, config)
-    grouping = analyse(template, seed=config.seed if seed is None else seed)
-    uv = store.read_arrays(StoreLayout.UV)
-    if len(uv["face_group"]) != template.n_faces:
-        raise ValueError(f"{store.uri}: template UVs do not match the template mesh")
-    summary = store.read_json(StoreLayout.PAINT)
-    textures, names = [], []
-    for g in summary["groups"]:
-        png = store.read_bytes(StoreLayout.texture(g["group"], g["label"]))
-        textures.append(np.asarray(Image.open(io.BytesIO(png)).convert("RGB")))
-        names.append(g["label"] or f"group_{g['group']}")
-    assets = prepare_template(template, grouping, uv["corner_uv"], textures, names)
-    assets.painted, assets.observed = template_masks(store, assets)
-    return assets
-
-
-def template_masks(store: FamilyStore, assets=None) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Per group the (H, W) bool masks of the template textures: ``(painted, observed)``.
-
-    ``painted``: texels that hold colour; ``observed``: the "already painted" ones, coloured by the
-    painter itself (:attr:`proctex.paint.GroupTexture.observed`), not filled. Both come from
-    ``template/painted.npz``; stores written before it existed get the texels the group's UV charts
-    cover plus an 8-texel gutter, for both.
-    """
-    if store.exists(StoreLayout.PAINTED):
-        arrays = store.read_arrays(StoreLayout.PAINTED)
-        painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
-        observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
-        return painted, observed
-    from .uv import pad_seams, texel_map
-
-    assets = assets if assets is not None else load_assets(store)
-    masks = []
-    for ga, tex in zip(assets.groups, assets.textures):
-        h, w = tex.shape[:2]
-        tm = texel_map(ga.vertices, ga.faces, ga.corner_uv, h, w)
-        _, mask = pad_seams(np.zeros((h, w, 1)), tm.mask, 8)
-        masks.append(mask)
-    return masks, masks
+    return load_template(store).assets()
 
 
 def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:

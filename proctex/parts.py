@@ -313,12 +313,43 @@ class Grouping:
                 "mirrored": [int(m.part) for m in g.maps if m.mirrored],
                 "methods": [m.method for m in g.maps],
                 "errors": [float(m.error) for m in g.maps],
+                "maps": [{"part": int(m.part), "R": np.asarray(m.R, dtype=float).tolist(), "t": np.asarray(m.t, dtype=float).tolist(),
+                          "method": m.method, "error": float(m.error)} for m in g.maps],
                 **({"label": g.label} if g.label else {}),
             }
             for g in self.groups
         ]
-        planes = [{"normal": [float(x) for x in s.normal], "offset": s.offset, "error": s.error} for s in self.symmetry]
+        planes = [{"normal": [float(x) for x in s.normal], "offset": float(s.offset), "error": float(s.error)} for s in self.symmetry]
         return {"parts": parts, "groups": groups, "symmetry_planes": planes}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], segmentation: Segmentation) -> "Grouping":
+        """The grouping :meth:`to_dict` wrote, on ``segmentation`` (the same shape's :func:`segment`):
+        groups, member maps and symmetry planes as they were, not analysed again. ``ValueError``
+        when the record has no member maps (written before they were stored) or does not fit the
+        segmentation."""
+        try:
+            groups = []
+            for g in data["groups"]:
+                if "maps" not in g:
+                    raise ValueError("the stored grouping has no member maps (written by an older version)")
+                maps = [MemberMap(int(m["part"]), np.asarray(m["R"], dtype=np.float64).reshape(3, 3), np.asarray(m["t"], dtype=np.float64).reshape(3),
+                                  str(m["method"]), float(m["error"])) for m in g["maps"]]
+                groups.append(PartGroup(int(g["index"]), [int(i) for i in g["parts"]], maps, bool(g["degenerate"]), str(g.get("label", ""))))
+            planes = [SymmetryPlane(np.asarray(q["normal"], dtype=np.float64).reshape(3), float(q["offset"]), float(q["error"]))
+                      for q in data.get("symmetry_planes", [])]
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"malformed stored grouping ({exc.__class__.__name__}: {exc})") from exc
+        n = segmentation.n_parts
+        members = sorted(i for g in groups for i in g.members)
+        if members != list(range(n)) or [g.index for g in groups] != list(range(len(groups))):
+            raise ValueError(f"the stored grouping does not fit the shape: {n} parts, groups cover {members[:10]}")
+        if any([m.part for m in g.maps] != g.members for g in groups):
+            raise ValueError("the stored grouping's member maps do not follow its members")
+        part_group = np.empty(n, dtype=np.int64)
+        for g in groups:
+            part_group[g.members] = g.index
+        return cls(segmentation, groups, part_group, planes)
 
 
 def _compatible(a: _PartGeom, b: _PartGeom, rel: float) -> bool:

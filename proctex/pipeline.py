@@ -8,6 +8,7 @@ stages on Ray.
 
 from __future__ import annotations
 
+import time
 from typing import Any, Callable, Mapping
 
 from .evaluate import stage_evaluate
@@ -25,15 +26,21 @@ STAGE_RUNNERS: Mapping[str, Callable[..., None]] = {
 }
 
 
-def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] = STAGES, log: Callable[[str], None] = print,
+def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | list[str] = STAGES, log: Callable[[str], None] = print,
           runners: Mapping[str, Callable[..., None]] = STAGE_RUNNERS) -> dict[str, Any]:
-    """Run the build ``stages`` in order with ``runners`` (each skips what is complete); returns the
-    family state. ``ValueError`` for a stage name the table does not know."""
+    """Run the build ``stages`` in :data:`proctex.family.STAGES` order with ``runners`` (stage ->
+    ``runner(store, config, log=...)``; each skips what is complete). The one stage loop: the Ray
+    build hands it a table whose fanned-out stages run on Ray (``workflows/build.py``). Returns the
+    family state with ``wall_seconds`` per stage run. ``ValueError`` for a stage name the table does
+    not know."""
     unknown = set(stages) - set(runners)
     if unknown:
         raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(runners)}")
     write_config(store, config)
+    walls: dict[str, float] = {}
     for stage in STAGES:
         if stage in stages:
+            t = time.perf_counter()
             runners[stage](store, config, log=log)
-    return _state(store)
+            walls[stage] = round(time.perf_counter() - t, 2)
+    return {**_state(store), "wall_seconds": walls}

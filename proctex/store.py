@@ -22,6 +22,7 @@ import io
 import json
 import os
 import uuid
+import zipfile
 from typing import Any
 
 import numpy as np
@@ -183,7 +184,12 @@ class FamilyStore:
         return self.write_bytes(rel, buf.getvalue().to_pybytes())
 
     def read_table(self, rel: str) -> pa.Table:
-        return pq.read_table(pa.BufferReader(self.read_bytes(rel)))
+        """A Parquet table; ``ValueError`` naming the file when it is damaged."""
+        data = self.read_bytes(rel)
+        try:
+            return pq.read_table(pa.BufferReader(data))
+        except (pa.ArrowException, OSError) as exc:
+            raise ValueError(f"{self.uri}: {rel} is not a readable Parquet table ({exc.__class__.__name__})") from exc
 
     def write_arrays(self, rel: str, **arrays: np.ndarray) -> str:
         """Write numeric arrays as ``.npz`` (no object arrays: loading never unpickles)."""
@@ -195,5 +201,10 @@ class FamilyStore:
         return self.write_bytes(rel, buf.getvalue())
 
     def read_arrays(self, rel: str) -> dict[str, np.ndarray]:
-        with np.load(io.BytesIO(self.read_bytes(rel)), allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+        """Arrays of an ``.npz`` (never unpickled); ``ValueError`` naming the file when it is damaged."""
+        data = self.read_bytes(rel)
+        try:
+            with np.load(io.BytesIO(data), allow_pickle=False) as z:
+                return {k: z[k] for k in z.files}
+        except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+            raise ValueError(f"{self.uri}: {rel} is not a readable array file ({exc.__class__.__name__})") from exc

@@ -51,6 +51,48 @@ def test_build_writes_the_store(mug_family):
     assert assets.names == ["body", "handle"] and assets.textures[0].shape == (64, 64, 3)
 
 
+def test_the_template_record_reads_its_grouping_back_and_round_trips(mug_family, tmp_path, monkeypatch):
+    """The stored grouping is read, not analysed again (analysis is switched off here); the record
+    saves and loads to the same arrays; a store whose grouping predates the member maps is
+    analysed as before."""
+    import proctex.template as tm
+    from proctex.family import load_template, load_template_shape
+    from proctex.parts import analyse
+    from proctex.store import StoreLayout
+
+    st, cfg = mug_family
+    fresh = analyse(load_template_shape(st, cfg), seed=cfg.seed)
+
+    def no_analysis(*a, **k):
+        raise AssertionError("the template was analysed again")
+
+    with monkeypatch.context() as m:
+        m.setattr(tm, "analyse", no_analysis)
+        rec = load_template(st, cfg)
+    assert [g.members for g in rec.grouping.groups] == [g.members for g in fresh.groups]
+    for a, b in zip(rec.grouping.groups, fresh.groups):
+        for ma, mb in zip(a.maps, b.maps):
+            np.testing.assert_allclose(ma.R, mb.R, atol=1e-12)
+            np.testing.assert_allclose(ma.t, mb.t, atol=1e-12)
+    other = FamilyStore(tmp_path / "copy")
+    other.write_json(StoreLayout.PAINT, st.read_json(StoreLayout.PAINT))
+    rec.save(other)
+    back = tm.Template.load(other, rec.shape)
+    np.testing.assert_array_equal(back.corner_uv, rec.corner_uv)
+    np.testing.assert_array_equal(back.face_group, rec.face_group)
+    assert all(np.array_equal(a, b) for a, b in zip(back.textures, rec.textures)) and back.names == rec.names == ["body", "handle"]
+    assert all(np.array_equal(a, b) for a, b in zip(back.painted, rec.painted))
+    # An older record (no member maps): analysed again, the same groups.
+    old = other.read_json(StoreLayout.GROUPING)
+    for g in old["groups"]:
+        del g["maps"]
+    other.write_json(StoreLayout.GROUPING, old)
+    assert [g.members for g in tm.Template.load(other, rec.shape, seed=cfg.seed).grouping.groups] == [g.members for g in fresh.groups]
+    other.write_bytes(StoreLayout.UV, st.read_bytes(StoreLayout.UV)[:100])
+    with pytest.raises(ValueError, match="uv.npz"):
+        tm.Template.load(other, rec.shape)
+
+
 def test_rerun_skips_completed_work(mug_family):
     st, cfg = mug_family
     before = {p.name: p.stat().st_mtime_ns for p in Path(st.base).rglob("*.parquet")}

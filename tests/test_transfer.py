@@ -36,6 +36,11 @@ def test_store_round_trips_and_is_atomic(tmp_path):
     st.write_json("family.json", {"a": 2})
     assert st.read_json("family.json") == {"a": 2}
     assert not [p for p in (tmp_path / "fam").rglob("*") if ".tmp-" in p.name]
+    # Damaged files are clear errors naming the file.
+    for rel, reader in (("family.json", st.read_json), ("samples.parquet", st.read_table), ("template/uv.npz", st.read_arrays)):
+        st.write_bytes(rel, st.read_bytes(rel)[: max(1, len(st.read_bytes(rel)) // 2)] + b"\x00garbage")
+        with pytest.raises(ValueError, match=rel.replace(".", r"\.")):
+            reader(rel)
 
 
 def test_store_refuses_bad_paths_and_objects(tmp_path):

@@ -23,7 +23,6 @@ from typing import Any, Callable, Sequence
 from proctex.family import (
     STAGES,
     BuildConfig,
-    _state,
     finish_pairs_stage,
     finish_sample_stage,
     load_assets,
@@ -32,12 +31,10 @@ from proctex.family import (
     pair_records,
     sample_jobs,
     stage_done,
-    stage_paint,
-    stage_template,
-    write_config,
     write_pairs_index,
     _mark,
 )
+from proctex.pipeline import STAGE_RUNNERS, build
 from proctex.progress import Progress
 from proctex.store import FamilyStore
 
@@ -159,34 +156,18 @@ def build_on_ray(
     log: Callable[[str], None] = print,
     quiet: bool = False,
 ) -> dict[str, Any]:
-    """Run the build stages on Ray (module docstring); returns the family state with per-stage wall times."""
+    """Run the build stages on Ray (module docstring): :func:`proctex.pipeline.build`'s loop with the
+    sample, pairs and train stages fanned out; returns the family state with per-stage wall times."""
     unknown = set(stages) - set(STAGES)
     if unknown:
         raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(STAGES)}")
     store = FamilyStore(store_uri(root))
-    write_config(store, config)
     init_ray(address, num_cpus)
     log(f"ray: {cluster_cpus()} CPUs")
-    walls: dict[str, float] = {}
-    for stage in STAGES:
-        if stage not in stages:
-            continue
-        t = time.perf_counter()
-        if stage == "sample":
-            ray_stage_sample(store, config, max_in_flight=max_in_flight, log=log, quiet=quiet)
-        elif stage == "template":
-            stage_template(store, config, log=log)
-        elif stage == "paint":
-            stage_paint(store, config, log=log)
-        elif stage == "pairs":
-            ray_stage_pairs(store, config, max_in_flight=max_in_flight, log=log, quiet=quiet)
-        elif stage == "train":
-            ray_stage_train(store, config, num_workers=train_workers, log=log, quiet=quiet)
-        elif stage == "evaluate":
-            from proctex.evaluate import stage_evaluate
-
-            stage_evaluate(store, config, log=log)
-        walls[stage] = round(time.perf_counter() - t, 2)
-    state = _state(store)
-    state["wall_seconds"] = walls
-    return state
+    runners = {
+        **STAGE_RUNNERS,
+        "sample": lambda st, cfg, log: ray_stage_sample(st, cfg, max_in_flight=max_in_flight, log=log, quiet=quiet),
+        "pairs": lambda st, cfg, log: ray_stage_pairs(st, cfg, max_in_flight=max_in_flight, log=log, quiet=quiet),
+        "train": lambda st, cfg, log: ray_stage_train(st, cfg, num_workers=train_workers, log=log, quiet=quiet),
+    }
+    return build(store, config, stages=tuple(stages), log=log, runners=runners)

@@ -1,0 +1,107 @@
+"""The family's textured template as stored (:class:`Template`): its shape, parts and groups, UVs,
+group textures and painted masks, with :meth:`Template.save` and :meth:`Template.load` on a family
+store. The stored grouping is read back as it was painted, not analysed again."""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .parts import Grouping, analyse, segment
+from .shape import Shape
+from .store import FamilyStore, StoreLayout
+
+
+@dataclass
+class Template:
+    """A textured template.
+
+    Attributes:
+        shape: the template mesh; grouping: its parts and groups (:class:`proctex.parts.Grouping`).
+        corner_uv: (m, 3, 2) float64 per-face corner UVs; face_group: (m,) int64 group per face.
+        textures: per group an (H, W, 3) uint8 texture; names: per group its label (or
+            ``group_<g>``); labels: per group the label the texture file is named by ("" for none).
+        painted, observed: per group (H, W) bool masks (texels holding colour; texels the painter
+            itself coloured), or None for stores written before they were kept.
+    """
+
+    shape: Shape
+    grouping: Grouping
+    corner_uv: np.ndarray
+    face_group: np.ndarray
+    textures: list[np.ndarray]
+    names: list[str]
+    labels: list[str]
+    painted: list[np.ndarray] | None = None
+    observed: list[np.ndarray] | None = None
+
+    def save(self, store: FamilyStore) -> None:
+        """Write the grouping, UVs, masks and group textures (PNG) into ``store`` (atomically, file
+        by file). The painter's own outputs (summary, preview, textured GLB) are the paint stage's."""
+        from .fileio import encode_png
+
+        store.write_json(StoreLayout.GROUPING, self.grouping.to_dict())
+        store.write_arrays(StoreLayout.UV, corner_uv=self.corner_uv, face_group=self.face_group)
+        if self.painted is not None:
+            observed = self.observed if self.observed is not None else self.painted
+            store.write_arrays(StoreLayout.PAINTED, **{f"g{k}": m for k, m in enumerate(self.painted)},
+                               **{f"o{k}": m for k, m in enumerate(observed)})
+        for g, (tex, label) in enumerate(zip(self.textures, self.labels)):
+            store.write_bytes(StoreLayout.texture(g, label), encode_png(tex))
+
+    @classmethod
+    def load(cls, store: FamilyStore, shape: Shape, seed: int = 0) -> "Template":
+        """The template stored in ``store`` on its mesh ``shape``. Stores written before the member
+        maps were stored get their grouping analysed again (``seed``, as the paint stage did)."""
+        from PIL import Image
+
+        grouping = None
+        if store.exists(StoreLayout.GROUPING):
+            try:
+                grouping = Grouping.from_dict(store.read_json(StoreLayout.GROUPING), segment(shape))
+            except ValueError:
+                grouping = None  # an older record: analysed below
+        if grouping is None:
+            grouping = analyse(shape, seed=seed)
+        uv = store.read_arrays(StoreLayout.UV)
+        if len(uv["face_group"]) != shape.n_faces or uv["corner_uv"].shape != (shape.n_faces, 3, 2):
+            raise ValueError(f"{store.uri}: template UVs do not match the template mesh")
+        summary = store.read_json(StoreLayout.PAINT)
+        textures, names, labels = [], [], []
+        for g in summary["groups"]:
+            png = store.read_bytes(StoreLayout.texture(g["group"], g["label"]))
+            textures.append(np.asarray(Image.open(io.BytesIO(png)).convert("RGB")))
+            labels.append(g["label"] or "")
+            names.append(g["label"] or f"group_{g['group']}")
+        if len(textures) != len(grouping.groups):
+            raise ValueError(f"{store.uri}: {len(textures)} group textures for {len(grouping.groups)} groups")
+        painted = observed = None
+        if store.exists(StoreLayout.PAINTED):
+            arrays = store.read_arrays(StoreLayout.PAINTED)
+            painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
+            observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
+        return cls(shape, grouping, np.asarray(uv["corner_uv"], dtype=np.float64), np.asarray(uv["face_group"], dtype=np.int64),
+                   textures, names, labels, painted, observed)
+
+    def assets(self) -> Any:
+        """:class:`proctex.transfer.TemplateAssets` for transfer. Without stored masks, the texels
+        each group's UV charts cover plus an 8-texel gutter count as painted and observed."""
+        from .transfer import prepare_template
+
+        assets = prepare_template(self.shape, self.grouping, self.corner_uv, self.textures, self.names)
+        if self.painted is not None:
+            assets.painted, assets.observed = self.painted, self.observed
+        else:
+            from .uv import pad_seams, texel_map
+
+            masks = []
+            for ga, tex in zip(assets.groups, assets.textures):
+                h, w = tex.shape[:2]
+                tm = texel_map(ga.vertices, ga.faces, ga.corner_uv, h, w)
+                _, mask = pad_seams(np.zeros((h, w, 1)), tm.mask, 8)
+                masks.append(mask)
+            assets.painted, assets.observed = masks, masks
+        return assets
