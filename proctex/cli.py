@@ -251,7 +251,8 @@ def cmd_build(args: argparse.Namespace) -> int:
 def cmd_transfer(args: argparse.Namespace) -> int:
     from .family import load_assets, load_models, stored_config, up_axis, _model
     from .store import FamilyStore
-    from .transfer import bake, glb, info, make_mapper, transfer
+    from .mappers import make_mapper
+    from .transfer import bake, glb, info, transfer
 
     store = FamilyStore(args.family)
     config = stored_config(store)

@@ -60,7 +60,7 @@ def _cage_config(config) -> Any:
 
 def _mapper(name: str, store: FamilyStore, assets, config=None) -> Any:
     from .family import load_models
-    from .transfer import MAPPER_ALIASES, make_mapper
+    from .mappers import MAPPER_ALIASES, make_mapper
 
     if name not in METHODS:
         raise ValueError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
@@ -111,7 +111,8 @@ class _Context:
         from .family import load_assets, stored_config, up_axis
         from .fidelity import colours_at, Location, template_truth, tracked_points
         from .render import render_six_views
-        from .transfer import IdentityMapper, transfer
+        from .mappers import IdentityMapper
+        from .transfer import transfer
 
         self.store = FamilyStore(uri)
         self.config = stored_config(self.store)
@@ -148,7 +149,8 @@ class _Context:
         """Where the tracked points lie on ``shape`` (sample ``index``), by the family's tracker."""
         from .fidelity import locate_by_map, locate_canonical, locate_vertex_index
         from .family import pair_seed
-        from .transfer import SolverMapper, assign_parts
+        from .assign import assign_parts
+        from .mappers import SolverMapper
 
         if self.tracker == "canonical":
             return locate_canonical(self.points, self.template, self.assets.grouping.segmentation, shape, seg)

@@ -427,14 +427,14 @@ def load_template(store: FamilyStore, config: BuildConfig | None = None):
 
 
 def load_assets(store: FamilyStore):
-    """The template ready for transfer (:class:`proctex.transfer.TemplateAssets`), from the store."""
+    """The template ready for transfer (:class:`proctex.assets.TemplateAssets`), from the store."""
     return load_template(store).assets()
 
 
 def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:
     """Cage correspondence of one (shape, template group): the training pair and its record."""
     from .correspond import correspond_parts
-    from .transfer import assign_parts, choose_part, representative_frame
+    from .assign import assign_parts, choose_part, representative_frame
 
     seg = segment(shape)
     a = choose_part(assign_parts(shape, seg, assets), group)

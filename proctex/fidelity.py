@@ -238,11 +238,11 @@ def locate_by_map(tracked: TrackedPoints, template: Shape, shape: Shape, seg: Se
                   seed: int | dict[int, int] = 0) -> Location:
     """Locate tracked points of group representatives through a correspondence map (the cage
     tracker): per group, the shape part standing for the representative
-    (:func:`proctex.transfer.choose_part`) is mapped into the representative's normalised frame by
-    ``mapper`` (:class:`proctex.transfer.Mapper`) and the map is inverted exactly: the closest
+    (:func:`proctex.assign.choose_part`) is mapped into the representative's normalised frame by
+    ``mapper`` (:class:`proctex.mappers.Mapper`) and the map is inverted exactly: the closest
     point of the mapped part mesh gives the face and barycentrics of the shape point. ``seed``: the
     mapper's seed, or one per group (the cage tracker solves each pair with the build's seed)."""
-    from .transfer import choose_part, representative_frame
+    from .assign import choose_part, representative_frame
 
     loc = Location.empty(len(tracked))
     points = interpolate(template.vertices, template.faces, tracked.face, tracked.bary)
@@ -362,7 +362,7 @@ class TemplateTruth:
 
 def template_truth(template: Shape, grouping: Grouping, assets, kind: str) -> TemplateTruth:
     """:class:`TemplateTruth` of ``kind`` ("canonical" or "vertex-index") from the template, its
-    grouping and its transfer assets (:class:`proctex.transfer.TemplateAssets`)."""
+    grouping and its transfer assets (:class:`proctex.assets.TemplateAssets`)."""
     seg = grouping.segmentation
     if kind == "canonical":
         if template.canonical is None or template.labels is None:
@@ -428,9 +428,10 @@ def _mapped_points(shape: Shape, seg: Segmentation, result, assets, part: int, f
     """A transfer's template points (k, 3) for shape points on ``part`` (global faces and
     barycentrics): its mapped vertices interpolated, in group ``group``'s representative's
     normalised frame, projected onto the representative on the side its face is on (as
-    :func:`proctex.transfer.part_uvs` reads the texture); and the representative's faces (k,) they
+    :func:`proctex.uvlookup.part_uvs` reads the texture); and the representative's faces (k,) they
     land on."""
-    from .transfer import _side_normals, representative_frame
+    from .assign import representative_frame
+    from .uvlookup import _side_normals
 
     p = seg.parts[part]
     ga = assets.groups[group]
@@ -498,11 +499,11 @@ def pgt_errors(shape: Shape, seg: Segmentation, result, assets, pairs: Sequence[
     """Pseudo-ground-truth errors of a transfer against the stored cage pairs of this shape.
 
     ``pairs``: per pair ``{"group", "part", "src" (n, 3), "dst" (n, 3)}`` (source samples in the
-    representative's normalised frame, as :func:`proctex.transfer.representative_frame` puts the
+    representative's normalised frame, as :func:`proctex.assign.representative_frame` puts the
     part, and their cage template points). Returns ``(errors (N,), groups (N,), per-pair means)``;
     a pair whose part the method dropped or put in another group fails every point.
     """
-    from .transfer import representative_frame
+    from .assign import representative_frame
 
     by_part = {a.part: a for a in result.assignment}
     errs, grps, means = [], [], []

@@ -138,7 +138,7 @@ class FamilyService:
     def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None) -> None:
         from .family import _model, load_assets, load_models, stored_config, up_axis
         from .painters import SurfacePainter
-        from .transfer import make_mapper
+        from .mappers import make_mapper
 
         t0 = time.perf_counter()
         self.store = store

@@ -87,9 +87,9 @@ class Template:
                    textures, names, labels, painted, observed)
 
     def assets(self) -> Any:
-        """:class:`proctex.transfer.TemplateAssets` for transfer. Without stored masks, the texels
+        """:class:`proctex.assets.TemplateAssets` for transfer. Without stored masks, the texels
         each group's UV charts cover plus an 8-texel gutter count as painted and observed."""
-        from .transfer import prepare_template
+        from .assets import prepare_template
 
         assets = prepare_template(self.shape, self.grouping, self.corner_uv, self.textures, self.names)
         if self.painted is not None:

@@ -31,7 +31,12 @@ def import_graph(root: Path = ROOT) -> tuple[dict[str, set[str]], dict[str, set[
 
     for mod, path in modules.items():
         package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        tree = ast.parse(path.read_text(), str(path))
+        typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
+                       for n in ast.walk(block)}  # imports for annotations only: not run
+        for node in ast.walk(tree):
+            if id(node) in typing_only:
+                continue
             if isinstance(node, ast.ImportFrom):
                 if node.level:
                     base = package.split(".")[: len(package.split(".")) - node.level + 1]
@@ -100,8 +105,11 @@ def test_the_cycle_finder_finds_a_circle_through_a_function_level_import(tmp_pat
     (pkg / "sub" / "__init__.py").write_text("")
     (pkg / "sub" / "c.py").write_text("import numpy\nfrom .. import a\n")
     (pkg / "d.py").write_text("from . import b\nfrom .sub import c\n")
+    (pkg / "e.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .f import F\n")
+    (pkg / "f.py").write_text("from .e import x\n")
     edges, external = import_graph(pkg)
     assert edges["pkg.d"] == {"pkg.b", "pkg.sub.c"}  # not the packages themselves
+    assert edges["pkg.e"] == set() and edges["pkg.f"] == {"pkg.e"}  # TYPE_CHECKING imports never run
     assert cycles(edges) == [["pkg.a", "pkg.b", "pkg.sub.c"]]
     assert external["pkg.sub.c"] == {"numpy"}
     (pkg / "sub" / "c.py").write_text("import numpy\n")

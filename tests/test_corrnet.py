@@ -140,7 +140,7 @@ def test_bfloat16_autocast_predict_and_train():
     np.testing.assert_array_equal(cn.predict(wide, src, src, autocast="auto"), cn.predict(wide, src, src))
     with pytest.raises(ValueError, match="autocast"):
         cn.resolve_autocast("half", "cpu")
-    from proctex.transfer import NetworkMapper
+    from proctex.mappers import NetworkMapper
 
     with pytest.raises(ValueError, match="autocast"):
         NetworkMapper({}, autocast="fp8")

@@ -144,7 +144,8 @@ def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
     from proctex.edit import rgb_to_hsv
     from proctex.family import edit_group
     from proctex.models import get_model
-    from proctex.transfer import IdentityMapper, glb, transfer
+    from proctex.mappers import IdentityMapper
+    from proctex.transfer import glb, transfer
 
     st0, _ = mug_family
     shutil.copytree(st0.base, tmp_path / "fam")
@@ -222,7 +223,8 @@ def test_train_stage_and_network_transfer(mug_family, tmp_path):
 
     from proctex.family import load_models, stage_train
     from proctex.models import get_model
-    from proctex.transfer import NetworkMapper, transfer
+    from proctex.mappers import NetworkMapper
+    from proctex.transfer import transfer
 
     st0, cfg0 = mug_family
     shutil.copytree(st0.base, tmp_path / "fam")
@@ -315,7 +317,8 @@ def test_cli_eval(mug_family, tmp_path, capsys):
 def test_view_painted_family_keeps_its_already_painted_mask(tmp_path):
     """A template painted from views of the whole shape only stores which texels no view saw;
     transfer then finds the dis-occluded surface of a shape and the bake fills it."""
-    from proctex.transfer import IdentityMapper, bake, transfer
+    from proctex.mappers import IdentityMapper
+    from proctex.transfer import bake, transfer
 
     cfg = BuildConfig(model="cake", n_train=2, n_test=0, texture_size=64, painter="views", views=6, view_size=96,
                       paint_hidden=False, params={"candles": [0, 0], "tiers": [2, 2], "shrink": [0.7, 0.72]}, prompt="red velvet cake").validate()

@@ -48,7 +48,9 @@ def test_baking_a_sofa_leaves_no_visible_texel_unpainted(sofa):
     from proctex.metrics import coverage
     from proctex.paint import paint_surface
     from proctex.painters import SurfacePainter
-    from proctex.transfer import IdentityMapper, bake, prepare_template, transfer
+    from proctex.assets import prepare_template
+    from proctex.mappers import IdentityMapper
+    from proctex.transfer import bake, transfer
 
     src, ti, template, tg = sofa
     tex = paint_surface(template, tg, SurfacePainter("a patchwork bohemian sofa"), size=256)

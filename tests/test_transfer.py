@@ -12,7 +12,10 @@ from proctex.painters import SurfacePainter
 from proctex.parts import analyse, segment
 from proctex.render import Tracer, bounding_sphere, canonical_cameras, pixel_uv, render_buffers
 from proctex.store import FamilyStore
-from proctex.transfer import IdentityMapper, assign_parts, bake, glb, info, prepare_template, transfer
+from proctex.assets import prepare_template
+from proctex.assign import assign_parts
+from proctex.mappers import IdentityMapper
+from proctex.transfer import bake, glb, info, transfer
 from proctex.uv import sample_texture
 
 
@@ -291,7 +294,9 @@ def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
     """A big shape face mapped onto a small template chart: its affine UVs leave the chart and read
     unpainted texels; with the painted mask the corners snap onto the template triangle instead."""
     from proctex.geometry import SurfaceIndex
-    from proctex.transfer import GroupAssets, chart_labels, part_uvs
+    from proctex.assets import GroupAssets
+    from proctex.inpaint import chart_labels
+    from proctex.uvlookup import part_uvs
     from proctex.uv import bilinear_texels
 
     v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
@@ -316,7 +321,9 @@ def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
 
 def test_a_face_extrapolated_into_another_chart_is_pulled_back():
     from proctex.geometry import SurfaceIndex
-    from proctex.transfer import GroupAssets, chart_labels, part_uvs
+    from proctex.assets import GroupAssets
+    from proctex.inpaint import chart_labels
+    from proctex.uvlookup import part_uvs
 
     sq = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
     v = np.concatenate([sq, sq + [5.0, 0, 0]])
@@ -341,7 +348,9 @@ def test_a_face_whose_inside_crosses_unpainted_texels_takes_its_template_colour(
     crosses the missing quadrant would show unpainted texels inside; it reads the colour at its
     template triangle's centre instead (every probe painted), and without charts it is left alone."""
     from proctex.geometry import SurfaceIndex
-    from proctex.transfer import GroupAssets, _inside_chart, chart_labels, part_uvs
+    from proctex.assets import GroupAssets
+    from proctex.inpaint import chart_labels
+    from proctex.uvlookup import _inside_chart, part_uvs
     from proctex.uv import bilinear_texels
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
@@ -389,7 +398,7 @@ def test_stretched_copies_join_their_group_by_box_shape():
     takes each one's bounding box exactly onto its representative's."""
     from proctex.geometry import normalised_frame
     from proctex.parts import part_mesh
-    from proctex.transfer import match_box
+    from proctex.assign import match_box
 
     model = get_model("cake", tessellation="adaptive")
     shape_t = model.generate({"tiers": 1, "candles": 3})
@@ -429,7 +438,7 @@ def test_a_third_copy_turned_about_the_centre_takes_its_siblings_map_composed_wi
     import trimesh
 
     from proctex.shape import Shape
-    from proctex.transfer import copy_of_sibling, representative_frame
+    from proctex.assign import copy_of_sibling, representative_frame
 
     button = trimesh.creation.cone(0.25, 0.5, sections=12)
     button.apply_transform(trimesh.transformations.rotation_matrix(0.3, [0, 1, 0]))  # leans outwards (+x)
@@ -482,7 +491,7 @@ def test_a_stretched_box_keeps_its_axes_when_a_turn_would_fit_its_proportions_a_
     import trimesh
 
     from proctex.shape import Shape
-    from proctex.transfer import match_box
+    from proctex.assign import match_box
 
     def box(extents, at):
         m = trimesh.creation.box(extents)
@@ -515,7 +524,7 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
     import trimesh
 
     from proctex.shape import Shape
-    from proctex.transfer import match_box
+    from proctex.assign import match_box
 
     def slab(extents, at):
         m = trimesh.creation.box(extents)
@@ -543,7 +552,7 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
 def _reads_only_chart_reference(uv: np.ndarray, charts: np.ndarray, chart: np.ndarray, step: float = 0.2) -> np.ndarray:
     """Slow reference of the run-time coverage check: every face sampled every ``step`` texels,
     each sample's four bilinear texels read."""
-    from proctex.transfer import _bary_grid
+    from proctex.uvlookup import _bary_grid
     from proctex.uv import bilinear_texels
 
     h, w = charts.shape
@@ -561,7 +570,8 @@ def test_run_time_coverage_check_never_passes_a_face_that_reads_outside_its_char
     gap: the check never passes a face that reads a texel outside its chart anywhere. Probing every
     3 texels with plain bilinear reads (the check before) passes some that do (a vase showed a few
     unpainted pixels): the test can fail."""
-    from proctex.transfer import _bary_grid, _inside_chart, chart_labels, chart_lookup
+    from proctex.inpaint import chart_labels
+    from proctex.uvlookup import _bary_grid, _inside_chart, chart_lookup
     from proctex.uv import bilinear_texels
 
     rng = np.random.default_rng(3)
@@ -636,7 +646,7 @@ def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
 
 
 def test_make_mapper_is_the_one_place_a_mapper_is_chosen_by_name():
-    from proctex.transfer import IdentityMapper, NetworkMapper, SolverMapper, make_mapper
+    from proctex.mappers import IdentityMapper, NetworkMapper, SolverMapper, make_mapper
 
     assets = object()  # only the solver mappers keep it
     nets = {0: object()}

@@ -16,7 +16,8 @@ from fixtures import shapes, template
 import harness
 from harness import report, timeit
 from proctex.corrnet import CorrNetConfig, build_model
-from proctex.transfer import NetworkMapper, bake, glb, transfer
+from proctex.mappers import NetworkMapper
+from proctex.transfer import bake, glb, transfer
 
 
 def run(args) -> dict:

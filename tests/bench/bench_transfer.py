@@ -27,7 +27,9 @@ from proctex.paint import paint_surface
 from proctex.painters import SurfacePainter
 from proctex.parts import analyse
 from proctex.sources import FolderSource
-from proctex.transfer import IdentityMapper, NetworkMapper, bake, glb, prepare_template, transfer
+from proctex.assets import prepare_template
+from proctex.mappers import IdentityMapper, NetworkMapper
+from proctex.transfer import bake, glb, transfer
 
 SOFA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "procedural_sofa"
 

@@ -8,7 +8,7 @@ from proctex.models import get_model
 from proctex.paint import paint_surface
 from proctex.painters import SurfacePainter
 from proctex.parts import analyse
-from proctex.transfer import prepare_template
+from proctex.assets import prepare_template
 
 
 @lru_cache(maxsize=4)

@@ -1,0 +1,116 @@
+"""The template prepared for transfer (:class:`TemplateAssets`): per group its representative in
+its normalised frame with UVs, a surface index and its texture, and the slots (template parts) a
+shape's parts are assigned to (:mod:`proctex.assign`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+
+from .geometry import SurfaceIndex, normalised_frame
+from .parts import Grouping, part_mesh
+from .shape import Shape
+
+if TYPE_CHECKING:  # annotations only: the lookups are built above this module
+    from .uvlookup import ChartLookup
+
+
+@dataclass
+class GroupAssets:
+    """What transfer needs of one template group (its representative part, in its normalised frame).
+
+    ``vertices (k, 3)`` normalised, ``faces (f, 3)`` local, ``corner_uv (f, 3, 2)``, ``center (3,)``,
+    ``radius``, ``index`` a :class:`SurfaceIndex` over the normalised mesh.
+    """
+
+    group: int
+    label: str
+    rep: int
+    vertices: np.ndarray
+    faces: np.ndarray
+    corner_uv: np.ndarray
+    center: np.ndarray
+    radius: float
+    index: SurfaceIndex
+    degenerate: bool
+
+
+@dataclass
+class Slot:
+    """A template part as a place a shape part can take: its group and member map (linear part)."""
+
+    part: int
+    group: int
+    R: np.ndarray  # (3, 3): x_rep = R x_member + t
+    center: np.ndarray  # (3,) part centre relative to the shape box, in [0, 1]^3
+    extents: np.ndarray  # (3,) part box extents relative to the shape box size
+
+
+@dataclass
+class TemplateAssets:
+    """The template prepared for transfer: groups, slots, textures (arrays and encoded PNGs)."""
+
+    shape: Shape
+    grouping: Grouping
+    groups: list[GroupAssets]
+    slots: list[Slot]
+    textures: list[np.ndarray]  # (H, W, 3) uint8 per group
+    png: list[bytes]
+    names: list[str]
+    # Per group (H, W) bool: texels holding colour, and the "already painted" ones (painted by the
+    # painter itself, not filled); None: every texel counts as both.
+    painted: list[np.ndarray] | None = None
+    observed: list[np.ndarray] | None = None
+    charts: list[np.ndarray] | None = None  # chart ids of ``painted`` (see :func:`template_charts`)
+    lookups: list[ChartLookup] | None = None  # per group, chart and room maps for the run-time coverage check (:func:`chart_lookups`)
+
+
+def _box(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    return lo, np.maximum(hi - lo, 1e-12)
+
+
+def _placement(vertices: np.ndarray, lo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    plo, phi = vertices.min(axis=0), vertices.max(axis=0)
+    return ((plo + phi) / 2 - lo) / size, (phi - plo) / size
+
+
+def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, textures: Sequence[np.ndarray], names: Sequence[str] | None = None) -> TemplateAssets:
+    """Build :class:`TemplateAssets` from a textured template.
+
+    Args:
+        shape, grouping: the template; corner_uv: (m, 3, 2) its UVs; textures: per group (H, W, 3)
+        uint8 (or float in [0, 1]) images; names: per group material names.
+    """
+    from .export import _png
+
+    if len(textures) != len(grouping.groups):
+        raise ValueError(f"need one texture per group ({len(grouping.groups)}), got {len(textures)}")
+    texs = [np.ascontiguousarray(t if np.asarray(t).dtype == np.uint8 else (np.clip(t, 0, 1) * 255).round().astype(np.uint8))[..., :3] for t in textures]
+    groups = []
+    for g in grouping.groups:
+        rep = grouping.parts[g.representative]
+        v, f = part_mesh(shape, rep)
+        c, r = normalised_frame(v)
+        r = r if r > 0 else 1.0
+        vn = (v - c) / r
+        groups.append(GroupAssets(g.index, g.label, rep.index, vn, f, np.asarray(corner_uv)[rep.faces], c, r, SurfaceIndex(vn, f), g.degenerate))
+    lo, size = _box(shape.vertices)
+    slots = []
+    for g in grouping.groups:
+        if g.degenerate:
+            continue
+        for member, mmap in zip(g.members, g.maps):
+            part = grouping.parts[member]
+            centre, extents = _placement(shape.vertices[part.vertices], lo, size)
+            slots.append(Slot(member, g.index, np.asarray(mmap.R, float), centre, extents))
+    names = list(names) if names is not None else [g.label or f"group_{g.index}" for g in grouping.groups]
+    return TemplateAssets(shape, grouping, groups, slots, texs, [_png(t) for t in texs], names)
+
+
+def same_topology(faces: np.ndarray, n_vertices: int, assets: GroupAssets) -> bool:
+    """Whether a part mesh (local ``faces (k, 3)`` over ``n_vertices``) has exactly the connectivity
+    of the group's representative (same vertex count and the same face array)."""
+    return n_vertices == len(assets.vertices) and faces.shape == assets.faces.shape and bool(np.array_equal(faces, assets.faces))
