@@ -282,6 +282,7 @@ def _folder(path: str):
         _FOLDERS[path] = FolderSource(path)
     return _FOLDERS[path]
 
+
 def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> dict[str, Any]:
     """Make one sample, write its mesh and its record (the mesh first: a record means both are
     complete); returns the record, a row of ``samples.parquet``. Idempotent."""
@@ -457,6 +458,7 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int)
         "seconds": res.seconds,
     }
 
+
 @dataclass
 class PairJob:
     """One cage correspondence to solve: sample ``index`` (its ``samples.parquet`` row) and template ``group``."""
@@ -474,6 +476,7 @@ def pair_seed(config: BuildConfig, index: int, group: int) -> int:
     """The seed of pair (sample ``index``, ``group``): a function of the family seed and the pair only,
     so any process, in any order, solves a pair the same way."""
     return config.seed * 1_000_003 + index * 97 + group
+
 
 def pair_jobs(store: FamilyStore, config: BuildConfig, assets=None, splits: tuple[str, ...] = ("train", "test")) -> list[PairJob]:
     """Every (shape of ``splits``, non-degenerate template group) pair, in sample order."""
@@ -603,6 +606,7 @@ def write_config(store: FamilyStore, config: BuildConfig) -> None:
     state["versions"] = _versions()
     state.setdefault("stages", {})
     store.write_json(StoreLayout.STATE, state)
+
 
 def corrnet_config(config: BuildConfig):
     """The ProcCorrNet settings of a build (``config.train`` over the defaults, the family seed)."""

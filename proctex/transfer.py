@@ -43,8 +43,6 @@ from .uv import pad_seams, sample_texture, texel_map, unwrap
 from .uvlookup import _side_normals, chart_lookups, part_uvs
 
 
-
-
 # ------------------------------------------------------------------------------------- transfer
 @dataclass
 class TransferResult:
