@@ -210,7 +210,7 @@ def _check_preview_path(preview: str | None) -> None:
 
 
 def _build_config(args: argparse.Namespace):
-    from .family import BuildConfig
+    from .config import BuildConfig
 
     data: dict[str, Any] = {}
     if args.config and args.config_file:
@@ -249,7 +249,7 @@ def cmd_build(args: argparse.Namespace) -> int:
 
 
 def cmd_transfer(args: argparse.Namespace) -> int:
-    from .family import load_assets, load_models, stored_config, up_axis, _model
+    from .family import load_assets, load_models, stored_config
     from .store import FamilyStore
     from .mappers import make_mapper
     from .transfer import bake, glb, info, transfer
@@ -265,7 +265,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
             params = json.loads(args.params)
         except json.JSONDecodeError as exc:
             raise ValueError(f"--params is not valid JSON ({exc})") from exc
-        shape = _model(config).generate(params)
+        shape = config.procedural_model().generate(params)
     else:
         shape, _ = load_mesh(args.mesh)
     if not args.out.endswith(".glb"):
@@ -287,10 +287,10 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
         baked = bake(shape, result, assets, size=args.bake)
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
-        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up_axis(config))
+        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=config.up_axis())
         textured = (baked.corner_uv, baked.face_group, list(baked.textures))
     else:
-        data = glb(shape, result, assets, up=up_axis(config))
+        data = glb(shape, result, assets, up=config.up_axis())
         textured = (result.corner_uv, result.face_group, list(assets.textures) + list(result.new_textures))
     from .fileio import atomic_write
 
@@ -300,7 +300,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     if args.preview:
         from .render import render_three_quarter, save_png
 
-        image = render_three_quarter(shape.vertices, shape.faces, *textured, up=up_axis(config), size=512)
+        image = render_three_quarter(shape.vertices, shape.faces, *textured, up=config.up_axis(), size=512)
         Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
         save_png(args.preview, image)
         summary["preview"] = args.preview
@@ -382,7 +382,7 @@ def _pair(text: str | None, what: str, n: int = 2) -> tuple[float, ...] | None:
 
 
 def cmd_edit(args: argparse.Namespace) -> int:
-    from .family import edit_group
+    from .family_edits import edit_group
     from .store import FamilyStore
 
     store = FamilyStore(args.family)
@@ -445,7 +445,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_eval_folder(args: argparse.Namespace) -> int:
     """Build a family from a folder of samples (train/ and inference/), then evaluate it."""
-    from .family import BuildConfig
+    from .config import BuildConfig
     from .pipeline import build
     from .store import FamilyStore
 

@@ -338,7 +338,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     ``report.html`` and ``demo.json``. ``stage_seconds``: the build's wall time per stage;
     ``started``: ``time.perf_counter()`` when the whole job began (for its total wall time).
     """
-    from .family import _model, stored_config, up_axis
+    from .family import stored_config
     from .render import save_gif, save_png
     from .service import FamilyService
     from .store import FamilyStore, StoreLayout
@@ -351,9 +351,9 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     config = stored_config(store)
     if config.model is None and config.generator is None:
         raise ValueError("the demo sweeps parameters: build the family from a model or generator, not a folder")
-    model = _model(config)
+    model = config.procedural_model()
     svc = FamilyService(store)
-    up = up_axis(config)
+    up = config.up_axis()
     state = store.read_json(StoreLayout.STATE)
     template_params = state.get("stages", {}).get("template", {}).get("params")
     base = model.space.validate(template_params if isinstance(template_params, dict) else model.space.defaults())
@@ -420,7 +420,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
 
 def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str], None] = print) -> dict[str, float]:
     """Build a family in this process, stage by stage; returns wall seconds per stage."""
-    from .family import STAGES, BuildConfig
+    from .config import BuildConfig
+    from .family import STAGES
     from .pipeline import build
     from .store import FamilyStore
 
@@ -450,7 +451,7 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
     """
     import shutil
 
-    from .family import BuildConfig
+    from .config import BuildConfig
     from .store import StoreLayout
 
     if not prompt or not prompt.strip():

@@ -108,7 +108,7 @@ class _Context:
     colours, the truth, the template's reference views, mappers by name, settings."""
 
     def __init__(self, uri: str, settings: dict[str, Any]) -> None:
-        from .family import load_assets, stored_config, up_axis
+        from .family import load_assets, stored_config
         from .fidelity import colours_at, Location, template_truth, tracked_points
         from .render import render_six_views
         from .mappers import IdentityMapper
@@ -119,7 +119,7 @@ class _Context:
         self.settings = settings
         self.assets = load_assets(self.store)
         self.template = self.assets.shape
-        self.up = up_axis(self.config)
+        self.up = self.config.up_axis()
         self.truth_kind = settings["truth"]
         self.tracker = self.truth_kind or "cage"
         self.points = tracked_points(self.template, self.assets.grouping, self.tracker, n=settings["tracked"], seed=settings["seed"])

@@ -12,7 +12,8 @@ import time
 from typing import Any, Callable, Mapping
 
 from .evaluate import stage_evaluate
-from .family import STAGES, BuildConfig, _state, stage_paint, stage_pairs, stage_sample, stage_template, stage_train, write_config
+from .config import BuildConfig
+from .family import STAGES, _state, stage_paint, stage_pairs, stage_sample, stage_template, stage_train, write_config
 from .store import FamilyStore
 
 #: Stage name -> ``runner(store, config, log=...)``, in :data:`proctex.family.STAGES` order.

@@ -136,7 +136,7 @@ class FamilyService:
     """One built family, loaded for transfer."""
 
     def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None) -> None:
-        from .family import _model, load_assets, load_models, stored_config, up_axis
+        from .family import load_assets, load_models, stored_config
         from .painters import SurfacePainter
         from .mappers import make_mapper
 
@@ -146,8 +146,8 @@ class FamilyService:
         self.limits = limits or Limits()
         self.stamp = build_stamp(store)
         self.config = stored_config(store)
-        self.model = None if self.config.folder else _model(self.config)
-        self.up = up_axis(self.config)  # GLBs stand the shape upright in glTF's +Y-up world
+        self.model = None if self.config.folder else self.config.procedural_model()
+        self.up = self.config.up_axis()  # GLBs stand the shape upright in glTF's +Y-up world
         self.assets = load_assets(store)
         self.models = load_models(store)
         self.mapper: Any = make_mapper("auto", self.assets, self.models)
@@ -285,7 +285,7 @@ class FamilyService:
 
     def _repainted(self, group: int, prompt: str):
         """The group's texture re-painted with ``prompt`` (float, before any HSV shift; cached)."""
-        from .family import edit_texture
+        from .family_edits import edit_texture
 
         key = (group, prompt)
         with self._edit_lock:
@@ -307,7 +307,7 @@ class FamilyService:
         texture :func:`proctex.family.edit_group` would store (an identity edit: the template's own)."""
         import numpy as np
 
-        from .family import edit_texture
+        from .family_edits import edit_texture
         from .fileio import encode_png
 
         if edit.identity:
@@ -354,7 +354,7 @@ class FamilyService:
         """Store an edit into the family (:func:`proctex.family.edit_group`): ``{"group": index or
         label, "hue", "saturation", "value", "prompt"}``. Returns the edit record; this service is
         stale afterwards (the catalog reloads the family on its new build stamp)."""
-        from .family import edit_group
+        from .family_edits import edit_group
 
         if not isinstance(raw, dict) or "group" not in raw:
             raise BadInput('send {"group": <index or label>, "hue": deg, "saturation": s, "value": v, "prompt": text}')

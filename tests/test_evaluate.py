@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from proctex.family import BuildConfig
+from proctex.config import BuildConfig
 from proctex.pipeline import build
 from proctex.metrics import PSNR_CAP, view_similarity
 from proctex.models import get_model

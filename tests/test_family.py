@@ -6,17 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.family import (
-    BuildConfig,
-    load_assets,
-    read_pair,
-    stage_done,
-    stage_paint,
-    stage_pairs,
-    stage_sample,
-    stage_template,
-    write_config,
-)
+from proctex.config import BuildConfig
+from proctex.family import load_assets, read_pair, stage_done, stage_paint, stage_pairs, stage_sample, stage_template, write_config
 from proctex.store import FamilyStore
 
 
@@ -130,9 +121,7 @@ def test_parameter_bounds_restrict_sampling(tmp_path):
         p = json.loads(r["params"])
         assert 2 <= p["slats"] <= 3 and 0.4 <= p["seat_width"] <= 0.42
     with pytest.raises(ValueError, match="within"):
-        from proctex.family import _model
-
-        _model(BuildConfig(model="chair", params={"slats": [0, 9]}))
+        BuildConfig(model="chair", params={"slats": [0, 9]}).procedural_model()
 
 
 def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
@@ -142,7 +131,7 @@ def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
     from PIL import Image
 
     from proctex.edit import rgb_to_hsv
-    from proctex.family import edit_group
+    from proctex.family_edits import edit_group
     from proctex.models import get_model
     from proctex.mappers import IdentityMapper
     from proctex.transfer import glb, transfer
@@ -347,14 +336,13 @@ def test_build_config_painter_checks(tmp_path):
         BuildConfig(model="mug", painter="crayon").validate()
     with pytest.raises(ValueError, match="fill"):
         BuildConfig(model="mug", painter="views", fill="blur").validate()
-    from proctex.family import corrnet_config
 
     with pytest.raises(ValueError, match="iteratons"):
-        corrnet_config(BuildConfig(model="mug", train={"iteratons": 5}))
+        BuildConfig(model="mug", train={"iteratons": 5}).corrnet_config()
 
 
 def test_cage_settings_reach_the_solver_and_bad_ones_are_refused():
-    from proctex.family import BuildConfig
+    from proctex.config import BuildConfig
 
     cfg = BuildConfig.from_dict({"model": "mug", "cage_level": 2, "cage_iterations": 40, "cage": {"w_rest": 0.3, "prealign": "box"}})
     cage = cfg.cage_config()
@@ -371,7 +359,8 @@ def test_a_store_built_before_the_cage_settings_keeps_its_old_solver(tmp_path):
     term, last iterate): resuming its pairs must use that solver, not the new defaults."""
     from dataclasses import asdict
 
-    from proctex.family import BuildConfig, stored_config, write_config
+    from proctex.config import BuildConfig
+    from proctex.family import stored_config, write_config
 
     store = FamilyStore(str(tmp_path / "old"))
     settings = asdict(BuildConfig.from_dict({"model": "mug"}))

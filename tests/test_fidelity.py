@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from proctex.family import BuildConfig, load_assets, load_sample, samples
+from proctex.config import BuildConfig
+from proctex.family import load_assets, load_sample, samples
 from proctex.pipeline import build
 from proctex.fidelity import (
     FAIL_ERROR, Location, colours_at, error_summary, gt_errors, incident_faces, locate_by_map, locate_canonical,

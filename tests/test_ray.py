@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.family import BuildConfig, read_pair, samples
+from proctex.config import BuildConfig
+from proctex.family import read_pair, samples
 from proctex.pipeline import build
 from proctex.store import FamilyStore
 

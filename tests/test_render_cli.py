@@ -308,7 +308,8 @@ def test_cli_render_bad_input(argv, message, mug_glb, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def mug_family(tmp_path_factory):
     """A small built mug family (sample, template, paint; no correspondences needed by --mapper identity/nearest)."""
-    from proctex.family import BuildConfig, stage_paint, stage_sample, stage_template, write_config
+    from proctex.config import BuildConfig
+    from proctex.family import stage_paint, stage_sample, stage_template, write_config
     from proctex.store import FamilyStore
 
     root = tmp_path_factory.mktemp("fam") / "mug"

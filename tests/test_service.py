@@ -8,7 +8,9 @@ import shutil
 import numpy as np
 import pytest
 
-from proctex.family import BuildConfig, edit_group, stage_paint, stage_sample, stage_template, write_config
+from proctex.config import BuildConfig
+from proctex.family import stage_paint, stage_sample, stage_template, write_config
+from proctex.family_edits import edit_group
 from proctex.service import Catalog, FamilyService, Limits, NotFound, build_stamp
 from proctex.store import FamilyStore
 
@@ -137,7 +139,7 @@ def test_folder_families_take_meshes_only(tmp_path, sofa_dir):
     cfg = BuildConfig(folder=str(sofa_dir), texture_size=32).validate()
     write_config(st, cfg)
     # Three samples are enough for a painted template.
-    from proctex.family import run_sample_job, sample_jobs, finish_sample_stage
+    from proctex.family import finish_sample_stage, run_sample_job, sample_jobs
 
     jobs = [j for j in sample_jobs(cfg) if j.split == "train"][:3]
     finish_sample_stage(st, [run_sample_job(st, cfg, j) for j in jobs])
@@ -395,7 +397,7 @@ def test_edits_persist_into_the_family(root, tmp_path):
 
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     """The pure texture edit and the persisted one are the same code: equal results."""
-    from proctex.family import edit_texture
+    from proctex.family_edits import edit_texture
     from proctex.fileio import encode_png
 
     shutil.copytree(root / "mug", tmp_path / "mug")

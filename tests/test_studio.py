@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.family import BuildConfig, stage_paint, stage_sample, stage_template, write_config
+from proctex.config import BuildConfig
+from proctex.family import stage_paint, stage_sample, stage_template, write_config
 from proctex.service import Catalog
 from proctex.store import FamilyStore
 from workflows.screenshot import CHROMIUM_ARGS

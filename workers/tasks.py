@@ -16,7 +16,8 @@ from typing import Any
 
 import ray
 
-from proctex.family import BuildConfig, PairJob, SampleJob, load_assets, run_pair_job, run_sample_job
+from proctex.config import BuildConfig
+from proctex.family import PairJob, SampleJob, load_assets, run_pair_job, run_sample_job
 from proctex.store import FamilyStore, StoreLayout
 
 #: Ray retries a task whose worker died this many times (a job's own errors are recorded instead).

@@ -18,13 +18,12 @@ import time
 from typing import Any, Callable
 
 
-from proctex.family import (
-    BuildConfig,
-    corrnet_config,
-    group_training_data,
-    save_group_model,
-    trainable_groups,
-)
+from proctex.config import BuildConfig
+
+
+from proctex.family import group_training_data, save_group_model, trainable_groups
+
+
 from proctex.store import FamilyStore, StoreLayout
 
 
@@ -54,7 +53,7 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
     rank, world = ctx.get_world_rank(), ctx.get_world_size()
     store = FamilyStore(loop_config["store"])
     config = BuildConfig.from_dict(loop_config["config"])
-    cfg = corrnet_config(config)
+    cfg = config.corrnet_config()
     plan = teams(world, [int(g) for g in loop_config["groups"]])
     # Every rank creates every team's process group, in the same order (torch.distributed requires it).
     handles = [dist.new_group(ranks) if world > 1 and len(ranks) > 1 else None for ranks, _ in plan]

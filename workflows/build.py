@@ -20,20 +20,8 @@ import time
 from dataclasses import asdict
 from typing import Any, Callable, Sequence
 
-from proctex.family import (
-    STAGES,
-    BuildConfig,
-    finish_pairs_stage,
-    finish_sample_stage,
-    load_assets,
-    pair_complete,
-    pair_jobs,
-    pair_records,
-    sample_jobs,
-    stage_done,
-    write_pairs_index,
-    _mark,
-)
+from proctex.config import BuildConfig
+from proctex.family import STAGES, _mark, finish_pairs_stage, finish_sample_stage, load_assets, pair_complete, pair_jobs, pair_records, sample_jobs, stage_done, write_pairs_index
 from proctex.pipeline import STAGE_RUNNERS, build
 from proctex.progress import Progress
 from proctex.store import FamilyStore

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import write_json  # noqa: E402
 
 from proctex.evaluate import evaluate, markdown_table  # noqa: E402
-from proctex.family import BuildConfig  # noqa: E402
+from proctex.config import BuildConfig  # noqa: E402
 from proctex.pipeline import build  # noqa: E402
 from proctex.store import FamilyStore  # noqa: E402
 

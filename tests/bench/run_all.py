@@ -38,7 +38,7 @@ def serve_report(out: Path, requests: int) -> dict:
     """A Serve request over HTTP: a tiny mug family built here, then ``bench_serve.py`` on it."""
     import bench_serve
 
-    from proctex.family import BuildConfig
+    from proctex.config import BuildConfig
     from proctex.pipeline import build
     from proctex.store import FamilyStore
 

@@ -1,0 +1,154 @@
+"""Edits of a built family's template textures (re-paint, HSV shift, an image placed at a UV spot):
+they change the store, so every later transfer shows them."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from .family import load_template_shape, stored_config
+from .fileio import encode_png
+from .parts import analyse
+from .shape import Shape
+from .store import FamilyStore, StoreLayout
+
+def _group_entry(store: FamilyStore, group: int | str) -> dict[str, Any]:
+    summary = store.read_json(StoreLayout.PAINT)
+    for g in summary["groups"]:
+        if str(g["group"]) == str(group) or (g["label"] and g["label"] == str(group)):
+            return g
+    names = [str(g["group"]) + (f" ({g['label']})" if g["label"] else "") for g in summary["groups"]]
+    raise ValueError(f"unknown group {group!r}; the template's groups are: {', '.join(names)}")
+
+
+def refresh_template_glb(store: FamilyStore) -> None:
+    """Rewrite ``template/textured.glb`` from the stored mesh, UVs and group PNGs."""
+    from .export import glb_bytes
+    config = stored_config(store)
+    template = load_template_shape(store, config)
+    uv = store.read_arrays(StoreLayout.UV)
+    summary = store.read_json(StoreLayout.PAINT)
+    pngs = [store.read_bytes(StoreLayout.texture(g["group"], g["label"])) for g in summary["groups"]]
+    names = [g["label"] or f"group_{g['group']}" for g in summary["groups"]]
+    store.write_bytes(StoreLayout.TEMPLATE_GLB, glb_bytes(template.vertices, template.faces, uv["corner_uv"], uv["face_group"], pngs, names=names,
+                                                         up=config.up_axis()))
+
+
+def edit_texture(
+    texture: np.ndarray,
+    group: int,
+    label: str | None = None,
+    hue: float = 0.0,
+    saturation: float = 1.0,
+    value: float = 1.0,
+    prompt: str | None = None,
+    template: Shape | None = None,
+    rep_faces: np.ndarray | None = None,
+    rep_corner_uv: np.ndarray | None = None,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray | None, dict[str, Any]]:
+    """One group texture after an edit: re-painted with ``prompt`` first (the surface painter,
+    ``seed``), then HSV-shifted (``hue`` degrees, ``saturation`` and ``value`` scales). Pure: the
+    store is not touched (:func:`edit_group` persists, the service previews with it).
+
+    Args:
+        texture: (H, W, 3) uint8 or float in [0, 1], the group's current texture.
+        group, label: the group (the painter takes them as hints).
+        template, rep_faces, rep_corner_uv: needed for a re-paint only: the template shape, the face
+            ids of the group's representative part and their (f, 3, 2) UVs.
+
+    Returns:
+        ``(texture, painted, record)``: (H, W, 3) float32 in [0, 1]; the (H, W) bool mask of the texels
+        the re-paint coloured (None without a prompt); the edit record (``group``, ``prompt``,
+        ``hsv`` as given, without the operations that were no-ops).
+    """
+    from .edit import shift_hsv
+
+    t = np.asarray(texture)
+    tex = (t.astype(np.float32) / 255) if t.dtype == np.uint8 else t.astype(np.float32)
+    tex = np.ascontiguousarray(tex[..., :3])
+    record: dict[str, Any] = {"group": int(group)}
+    painted = None
+    if prompt is not None:
+        from .paint import shape_frame
+        from .painters import SurfacePainter
+        from .uv import pad_seams, texel_map
+
+        if template is None or rep_faces is None or rep_corner_uv is None:
+            raise ValueError("a re-paint needs the template, its representative faces and their UVs")
+        faces = template.faces[np.asarray(rep_faces)]
+        tm = texel_map(template.vertices, faces, np.asarray(rep_corner_uv), tex.shape[0], tex.shape[1])
+        center, scale = shape_frame(template)
+        colors = SurfacePainter(prompt, seed=seed).paint((tm.points - center) / scale, tm.normals, group=int(group), label=label)
+        fresh = np.full_like(tex, 0.5)
+        fresh[tm.ij[:, 0], tm.ij[:, 1]] = colors
+        tex, painted = pad_seams(fresh, tm.mask, 8)
+        tex = np.asarray(tex, dtype=np.float32)
+        record["prompt"] = prompt
+    if hue or saturation != 1.0 or value != 1.0:
+        tex = shift_hsv(np.clip(tex, 0, 1), hue_deg=hue, saturation=saturation, value=value)
+        record["hsv"] = [hue, saturation, value]
+    return tex, painted, record
+
+
+def edit_group(
+    store: FamilyStore,
+    group: int | str,
+    hue: float = 0.0,
+    saturation: float = 1.0,
+    value: float = 1.0,
+    logo: str | None = None,
+    at: tuple[float, float] = (0.5, 0.5),
+    size: tuple[float, float] = (0.25, 0.25),
+    rotation: float = 0.0,
+    opacity: float = 1.0,
+    prompt: str | None = None,
+) -> dict[str, Any]:
+    """Edit one group's template texture in the store; every later transfer or bake uses it.
+
+    Operations, applied in this order when several are given: re-paint with a new ``prompt`` (the
+    surface painter, the family's seed), HSV shift (``hue`` degrees, ``saturation`` and ``value``
+    scales) — both by :func:`edit_texture` —, and placing an image file (``logo``) centred at UV
+    ``at`` with UV ``size``, ``rotation`` (degrees) and ``opacity``. Returns the edit record appended
+    to ``template/paint.json``.
+    """
+    import io
+
+    from PIL import Image
+
+    from .edit import load_overlay, place_image
+    entry = _group_entry(store, group)
+    gi = int(entry["group"])
+    rel = StoreLayout.texture(gi, entry["label"])
+    tex = np.asarray(Image.open(io.BytesIO(store.read_bytes(rel))).convert("RGB"))
+    template = rep_faces = rep_uv = None
+    config = stored_config(store)
+    if prompt is not None:  # the re-paint needs the template's geometry
+        template = load_template_shape(store, config)
+        grouping = analyse(template, seed=config.seed)
+        rep_faces = grouping.parts[grouping.groups[gi].representative].faces
+        rep_uv = store.read_arrays(StoreLayout.UV)["corner_uv"][rep_faces]
+    tex, painted, record = edit_texture(tex, gi, entry["label"], hue, saturation, value, prompt,
+                                        template=template, rep_faces=rep_faces, rep_corner_uv=rep_uv, seed=config.seed)
+    if painted is not None:
+        masks = store.read_arrays(StoreLayout.PAINTED) if store.exists(StoreLayout.PAINTED) else None
+        if masks is not None:  # the whole group is painted now
+            masks[f"g{gi}"] = painted
+            masks[f"o{gi}"] = painted
+            store.write_arrays(StoreLayout.PAINTED, **masks)
+    if logo is not None:
+        tex = place_image(tex, load_overlay(logo), at, size, rotation_deg=rotation, opacity=opacity)
+        record["logo"] = {"file": os.path.basename(logo), "at": list(at), "size": list(size), "rotation": rotation, "opacity": opacity}
+    if len(record) == 1:
+        raise ValueError("no edit given (prompt, hue/saturation/value or logo)")
+    store.write_bytes(rel, encode_png(tex))
+    summary = store.read_json(StoreLayout.PAINT)
+    for g in summary["groups"]:
+        if g["group"] == gi and "prompt" in record:
+            g["prompt"] = record["prompt"]
+    summary.setdefault("edits", []).append(record)
+    store.write_json(StoreLayout.PAINT, summary)
+    refresh_template_glb(store)
+    return record
