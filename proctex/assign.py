@@ -86,12 +86,15 @@ def assign_parts(
     for r, c in zip(rows, cols):
         if c < cost.shape[1] and cost[r, c] <= extra_cost:
             taken[r] = c
-    slotted: list[tuple[PartAssignment, np.ndarray, np.ndarray]] = []  # (assignment, vertices, local faces)
+    slot_of: dict[int, PartAssignment] = {}
     for i, p in enumerate(parts):
         if i in taken:
             s = assets.slots[taken[i]]
             out.append(PartAssignment(p.index, s.group, s.part, s.R, float(cost[i, taken[i]]), "slot"))
-            slotted.append((out[-1], *part_mesh(shape, p)))
+            slot_of[i] = out[-1]
+    # Slotted parts' meshes, for copies among the left-over parts: only when there are any (the
+    # common case, every part in a slot, pays nothing).
+    slotted = [(a, *part_mesh(shape, parts[i])) for i, a in slot_of.items()] if len(taken) < len(parts) else []
     for i, p in enumerate(parts):
         if i not in taken:
             # A part the template has no place for: the group it matches best by ICP, if any. Groups
