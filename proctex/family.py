@@ -180,8 +180,8 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     from .template import Template
 
     labels = [g.label for g in tex.groups]
-    record = Template(template, grouping, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups],
-                      [g.label or f"group_{g.group}" for g in tex.groups], labels, tex.painted_masks, tex.observed_masks)
+    record = Template(template, grouping, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups], labels,
+                      tex.painted_masks, tex.observed_masks)
     with tempfile.TemporaryDirectory() as tmp:
         summary = write_textured(tex, tmp, up=config.up_axis())
         textures = {StoreLayout.texture(g, label) for g, label in enumerate(labels)}  # the record writes those

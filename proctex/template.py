@@ -22,8 +22,8 @@ class Template:
     Attributes:
         shape: the template mesh; grouping: its parts and groups (:class:`proctex.parts.Grouping`).
         corner_uv: (m, 3, 2) float64 per-face corner UVs; face_group: (m,) int64 group per face.
-        textures: per group an (H, W, 3) uint8 texture; names: per group its label (or
-            ``group_<g>``); labels: per group the label the texture file is named by ("" for none).
+        textures: per group an (H, W, 3) uint8 texture; labels: per group its label ("" for none),
+            which names its texture file (:attr:`names`: the label, or ``group_<g>``).
         painted, observed: per group (H, W) bool masks (texels holding colour; texels the painter
             itself coloured), or None for stores written before they were kept.
     """
@@ -33,10 +33,14 @@ class Template:
     corner_uv: np.ndarray
     face_group: np.ndarray
     textures: list[np.ndarray]
-    names: list[str]
     labels: list[str]
     painted: list[np.ndarray] | None = None
     observed: list[np.ndarray] | None = None
+
+    @property
+    def names(self) -> list[str]:
+        """Per group its label, or ``group_<g>`` for a group without one (the GLB's material names)."""
+        return [label or f"group_{g}" for g, label in enumerate(self.labels)]
 
     def save(self, store: FamilyStore) -> None:
         """Write the grouping, UVs, masks and group textures (PNG) into ``store`` (atomically, file
@@ -70,12 +74,11 @@ class Template:
         if len(uv["face_group"]) != shape.n_faces or uv["corner_uv"].shape != (shape.n_faces, 3, 2):
             raise ValueError(f"{store.uri}: template UVs do not match the template mesh")
         summary = store.read_json(StoreLayout.PAINT)
-        textures, names, labels = [], [], []
+        textures, labels = [], []
         for g in summary["groups"]:
             png = store.read_bytes(StoreLayout.texture(g["group"], g["label"]))
             textures.append(np.asarray(Image.open(io.BytesIO(png)).convert("RGB")))
             labels.append(g["label"] or "")
-            names.append(g["label"] or f"group_{g['group']}")
         if len(textures) != len(grouping.groups):
             raise ValueError(f"{store.uri}: {len(textures)} group textures for {len(grouping.groups)} groups")
         painted = observed = None
@@ -84,7 +87,7 @@ class Template:
             painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
             observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
         return cls(shape, grouping, np.asarray(uv["corner_uv"], dtype=np.float64), np.asarray(uv["face_group"], dtype=np.int64),
-                   textures, names, labels, painted, observed)
+                   textures, labels, painted, observed)
 
     def assets(self) -> Any:
         """:class:`proctex.assets.TemplateAssets` for transfer. Without stored masks, the texels
