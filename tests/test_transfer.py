@@ -484,29 +484,36 @@ def test_a_third_copy_turned_about_the_centre_takes_its_siblings_map_composed_wi
     assert twin is not None and twin.part == extra.index and twin.cost < 1e-9
 
 
+def _box_mesh(extents, at):
+    """``(vertices, faces)`` of an axis-aligned box of ``extents`` centred at ``at``."""
+    import trimesh
+
+    m = trimesh.creation.box(extents)
+    m.apply_translation(at)
+    return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+def _boxes_template(boxes):
+    """Template assets of a shape made of boxes ``[(extents, centre), ...]``, painted plainly."""
+    from proctex.shape import Shape
+
+    parts = [_box_mesh(e, c) for e, c in boxes]
+    offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
+    shape_t = Shape(np.concatenate([v for v, _ in parts]), np.concatenate([f + o for (_, f), o in zip(parts, offsets)]))
+    grouping = analyse(shape_t)
+    tex = paint_surface(shape_t, grouping, SurfacePainter("oak"), size=32)
+    return prepare_template(shape_t, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+
+
 def test_a_stretched_box_keeps_its_axes_when_a_turn_would_fit_its_proportions_a_little_better():
     """A desk's pedestal grows from one drawer to four: the box is 3.4x taller. Laid on its side,
     the template's pedestal would have slightly closer proportions, but a procedural parameter
     stretches a part, it does not turn it: the map is a positive diagonal scaling."""
-    import trimesh
-
-    from proctex.shape import Shape
     from proctex.assign import match_box
 
-    def box(extents, at):
-        m = trimesh.creation.box(extents)
-        m.apply_translation(at)
-        return np.asarray(m.vertices), np.asarray(m.faces)
-
-    parts = [box((0.4, 0.6, 0.19), (0, 0, 0)), box((1.4, 0.65, 0.03), (0, 0, 0.5))]  # a pedestal, a top
-    v = np.concatenate([parts[0][0], parts[1][0]])
-    f = np.concatenate([parts[0][1], parts[1][1] + len(parts[0][0])])
-    shape_t = Shape(v, f)
-    grouping = analyse(shape_t)
-    tex = paint_surface(shape_t, grouping, SurfacePainter("oak"), size=32)
-    assets = prepare_template(shape_t, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    assets = _boxes_template([((0.4, 0.6, 0.19), (0, 0, 0)), ((1.4, 0.65, 0.03), (0, 0, 0.5))])  # a pedestal, a top
     pedestal = next(ga.group for ga in assets.groups if np.ptp(ga.vertices, axis=0)[2] > 0.5)
-    tall, tf = box((0.4, 0.655, 0.64), (0, 0, 0))
+    tall, tf = _box_mesh((0.4, 0.655, 0.64), (0, 0, 0))
     u = tall / np.abs(tall).max()
     m = match_box(u, tf, assets)
     assert m is not None and m.group == pedestal
@@ -521,25 +528,11 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
     """A stair's extra tread thicker than the template's (both thin: under 5% of their width) is
     the same primitive once every axis is scaled to the box, thin ones included; the same slab
     placed far from every tread slot (placement cost over ``extra_cost``) does not join them."""
-    import trimesh
-
-    from proctex.shape import Shape
     from proctex.assign import match_box
 
-    def slab(extents, at):
-        m = trimesh.creation.box(extents)
-        m.apply_translation(at)
-        return np.asarray(m.vertices), np.asarray(m.faces)
-
-    parts = [slab((1.0, 0.3, 0.02), (0, 0, 0)), slab((0.05, 0.05, 1.0), (2.0, 0, 0))]  # a tread, a post
-    v = np.concatenate([parts[0][0], parts[1][0]])
-    f = np.concatenate([parts[0][1], parts[1][1] + len(parts[0][0])])
-    shape_t = Shape(v, f)
-    grouping = analyse(shape_t)
-    tex = paint_surface(shape_t, grouping, SurfacePainter("oak"), size=32)
-    assets = prepare_template(shape_t, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    assets = _boxes_template([((1.0, 0.3, 0.02), (0, 0, 0)), ((0.05, 0.05, 1.0), (2.0, 0, 0))])  # a tread, a post
     tread = next(ga.group for ga in assets.groups if np.ptp(ga.vertices, axis=0)[2] < 0.1)
-    thick, tf = slab((1.0, 0.45, 0.07), (0, 0, 0))
+    thick, tf = _box_mesh((1.0, 0.45, 0.07), (0, 0, 0))
     c = (thick.max(0) + thick.min(0)) / 2
     m = match_box((thick - c) / np.abs(thick - c).max(), tf, assets)
     assert m is not None and m.group == tread and m.chamfer < 0.01
