@@ -14,12 +14,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .meshio import load_mesh, save_mesh, save_params
+from proctex.family.sources import FolderSource, resolve_model, resolve_shape
+from proctex.geometry.meshio import load_mesh, save_mesh, save_params
+from proctex.geometry.parts import Grouping, analyse, match_groups
 from .models import get_model, list_models
 from .params import select_template
-from .parts import Grouping, analyse, match_groups
 from .progress import track
-from .sources import FolderSource, resolve_model, resolve_shape
 
 
 def _print_json(data: Any) -> None:
@@ -104,8 +104,8 @@ def cmd_match(args: argparse.Namespace) -> int:
 
 
 def cmd_correspond(args: argparse.Namespace) -> int:
-    from .cage import CageConfig
-    from .correspond import correspond_shapes
+    from proctex.correspond.cage import CageConfig
+    from proctex.correspond.dense import correspond_shapes
 
     if args.points < 1:
         raise ValueError(f"--points must be >= 1, got {args.points}")
@@ -152,8 +152,9 @@ def _group_prompts(arg: str | None) -> dict[str, str] | None:
 
 
 def cmd_paint(args: argparse.Namespace) -> int:
-    from .paint import paint_template, resolve_group_prompts, write_textured
-    from .render import default_up
+    from proctex.family.template import write_textured
+    from proctex.texture.paint import paint_template, resolve_group_prompts
+    from proctex.texture.render import default_up
 
     if args.size < 8 or args.size > 8192:
         raise ValueError(f"--size must be in [8, 8192], got {args.size}")
@@ -181,7 +182,7 @@ def cmd_paint(args: argparse.Namespace) -> int:
     summary = write_textured(tex, args.out, up=up, obj=args.obj)
     summary["paint_seconds"] = round(seconds, 3)
     if args.preview:
-        from .render import render_three_quarter, save_png
+        from proctex.texture.render import render_three_quarter, save_png
 
         image = render_three_quarter(tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group,
                                      [g.uint8() for g in tex.groups], up=up, size=512)
@@ -210,7 +211,7 @@ def _check_preview_path(preview: str | None) -> None:
 
 
 def _build_config(args: argparse.Namespace):
-    from .config import BuildConfig
+    from proctex.family.config import BuildConfig
 
     data: dict[str, Any] = {}
     if args.config and args.config_file:
@@ -234,9 +235,9 @@ def _build_config(args: argparse.Namespace):
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    from .family import STAGES
-    from .pipeline import build
-    from .store import FamilyStore
+    from proctex.family.pipeline import build
+    from proctex.family.stages import STAGES
+    from proctex.family.store import FamilyStore
 
     config = _build_config(args)
     if args.ray is not None:
@@ -249,10 +250,10 @@ def cmd_build(args: argparse.Namespace) -> int:
 
 
 def cmd_transfer(args: argparse.Namespace) -> int:
-    from .family import load_assets, load_models, stored_config
-    from .store import FamilyStore
-    from .mappers import make_mapper
-    from .transfer import bake, glb, info, transfer
+    from proctex.family.mappers import make_mapper
+    from proctex.family.stages import load_assets, load_models, stored_config
+    from proctex.family.store import FamilyStore
+    from proctex.family.transfer import bake, glb, info, transfer
 
     store = FamilyStore(args.family)
     config = stored_config(store)
@@ -278,12 +279,12 @@ def cmd_transfer(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.family} has no trained models (run the train stage)")
     mapper = make_mapper(args.mapper, assets, models, corr_points=config.corr_points, cage=config.cage_config())
     t1 = time.perf_counter()
-    from .painters import SurfacePainter
+    from proctex.texture.painters import SurfacePainter
 
     painter = SurfacePainter(config.prompt, seed=config.seed)  # for parts of groups the template lacks
     result = transfer(shape, assets, mapper, seed=args.seed, painter=painter)
     if args.bake:
-        from .export import glb_bytes
+        from proctex.texture.export import glb_bytes
 
         baked = bake(shape, result, assets, size=args.bake)
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
@@ -298,7 +299,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     atomic_write(args.out, data)
     summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(mapper).__name__, "out": args.out, "bytes": len(data)}
     if args.preview:
-        from .render import render_three_quarter, save_png
+        from proctex.texture.render import render_three_quarter, save_png
 
         image = render_three_quarter(shape.vertices, shape.faces, *textured, up=config.up_axis(), size=512)
         Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
@@ -317,9 +318,16 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from .export import read_textured_glb
-    from .render import (
-        Tracer, default_up, grid_columns, render_grid, render_six_views, render_three_quarter, save_gif, save_png,
+    from proctex.texture.export import read_textured_glb
+    from proctex.texture.render import (
+        Tracer,
+        default_up,
+        grid_columns,
+        render_grid,
+        render_six_views,
+        render_three_quarter,
+        save_gif,
+        save_png,
         turntable_frames,
     )
 
@@ -382,8 +390,8 @@ def _pair(text: str | None, what: str, n: int = 2) -> tuple[float, ...] | None:
 
 
 def cmd_edit(args: argparse.Namespace) -> int:
-    from .family_edits import edit_group
-    from .store import FamilyStore
+    from proctex.family.edits import edit_group
+    from proctex.family.store import FamilyStore
 
     store = FamilyStore(args.family)
     if args.logo is not None and not os.path.isfile(args.logo):
@@ -399,7 +407,7 @@ def cmd_edit(args: argparse.Namespace) -> int:
 
 def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
     """Validated keyword arguments of :func:`proctex.evaluate.evaluate` from the eval flags."""
-    from .evaluate import METHODS
+    from proctex.family.evaluate import METHODS
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]
@@ -419,8 +427,8 @@ def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> int:
     """Evaluate, write ``metrics.json`` into the store, print the table (or the JSON)."""
-    from .evaluate import evaluate, markdown_table
-    from .store import StoreLayout
+    from proctex.family.evaluate import evaluate, markdown_table
+    from proctex.family.store import StoreLayout
 
     if not store.exists(StoreLayout.MODELS) and {"corrnet", "corrnet_all"} & set(options["methods"]):
         raise ValueError(f"{store.uri}: no trained models (run the train stage, or evaluate without corrnet)")
@@ -435,8 +443,8 @@ def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> i
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from .family import stored_config
-    from .store import FamilyStore
+    from proctex.family.stages import stored_config
+    from proctex.family.store import FamilyStore
 
     store = FamilyStore(args.family)
     stored_config(store)  # a clear error when the folder is not a family
@@ -445,9 +453,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_eval_folder(args: argparse.Namespace) -> int:
     """Build a family from a folder of samples (train/ and inference/), then evaluate it."""
-    from .config import BuildConfig
-    from .pipeline import build
-    from .store import FamilyStore
+    from proctex.family.config import BuildConfig
+    from proctex.family.pipeline import build
+    from proctex.family.store import FamilyStore
 
     if not os.path.isdir(args.folder):
         raise ValueError(f"{args.folder}: no such folder")
@@ -471,8 +479,8 @@ def cmd_eval_folder(args: argparse.Namespace) -> int:
 
 
 def _add_eval_flags(p: argparse.ArgumentParser) -> None:
-    from .evaluate import DEFAULT_METHODS
-    from .fidelity import TRUTHS
+    from proctex.family.evaluate import DEFAULT_METHODS
+    from proctex.family.fidelity import TRUTHS
 
     p.add_argument("--shapes", choices=["test", "train"], default="test")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
@@ -508,7 +516,7 @@ def cmd_template(args: argparse.Namespace) -> int:
 def cmd_gallery(args: argparse.Namespace) -> int:
     from PIL import Image
 
-    from .preview import face_label_colors, grid_image, render_faces
+    from proctex.geometry.preview import face_label_colors, grid_image, render_faces
 
     names = args.models or list_models()
     out = Path(args.out)

@@ -276,7 +276,7 @@ def render_sheet(sweep: list[SweepRow], rendered: list[tuple[Any, Any]], texture
                  title: str = "", quiet: bool = False) -> np.ndarray:
     """The contact sheet of transferred variants ``rendered`` [(Shape, TransferResult)], in the order
     of ``sweep``'s rows: one camera fitted to every variant (sizes compare truthfully), crops shared."""
-    from .render import bounding_sphere, orbit_camera, render_textured
+    from proctex.texture.render import bounding_sphere, orbit_camera, render_textured
 
     center, radius = bounding_sphere(np.concatenate([s.vertices for s, _ in rendered]))
     cam = orbit_camera(center, radius, up, -35.0, 22.0, size, fov_deg=32.0)
@@ -300,8 +300,8 @@ def render_turntable(model: Any, base: dict[str, Any], names: Sequence[str], svc
                      seed: int = 0, quiet: bool = False) -> list[np.ndarray]:
     """Frames of the sweep's turntable: the camera circles once while ``names`` follow
     :func:`turntable_path`; every frame is a real-time transfer by ``svc`` (a ``FamilyService``)."""
-    from .render import Tracer, bounding_sphere, orbit_camera, render_textured
-    from .transfer import transfer
+    from proctex.family.transfer import transfer
+    from proctex.texture.render import Tracer, bounding_sphere, orbit_camera, render_textured
 
     shapes = [model.generate(p) for p in turntable_path(model.space, base, names, frames)]
     center, radius = bounding_sphere(np.concatenate([s.vertices for s in shapes]))
@@ -338,11 +338,11 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     ``report.html`` and ``demo.json``. ``stage_seconds``: the build's wall time per stage;
     ``started``: ``time.perf_counter()`` when the whole job began (for its total wall time).
     """
-    from .family import stored_config
-    from .render import save_gif, save_png
-    from .service import FamilyService
-    from .store import FamilyStore, StoreLayout
-    from .transfer import glb, transfer
+    from proctex.family.service import FamilyService
+    from proctex.family.stages import stored_config
+    from proctex.family.store import FamilyStore, StoreLayout
+    from proctex.family.transfer import glb, transfer
+    from proctex.texture.render import save_gif, save_png
 
     t_start = time.perf_counter()
     out = Path(out)
@@ -420,10 +420,10 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
 
 def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str], None] = print) -> dict[str, float]:
     """Build a family in this process, stage by stage; returns wall seconds per stage."""
-    from .config import BuildConfig
-    from .family import STAGES
-    from .pipeline import build
-    from .store import FamilyStore
+    from proctex.family.config import BuildConfig
+    from proctex.family.pipeline import build
+    from proctex.family.stages import STAGES
+    from proctex.family.store import FamilyStore
 
     config = BuildConfig.from_dict(config_dict)
     store = FamilyStore(root)
@@ -451,8 +451,8 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
     """
     import shutil
 
-    from .config import BuildConfig
-    from .store import StoreLayout
+    from proctex.family.config import BuildConfig
+    from proctex.family.store import StoreLayout
 
     if not prompt or not prompt.strip():
         raise ValueError("the prompt must not be empty")

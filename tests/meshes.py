@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from proctex import primitives as P
+from proctex.geometry import primitives as P
 
 
 def cube(center=(0.0, 0.0, 0.0), size=1.0):

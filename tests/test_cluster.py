@@ -44,7 +44,7 @@ def test_manifests_parse_and_name_what_exists():
     assert entry[:3] == ["python", "-m", "workflows.cli"] and entry[3] == "build" and "--ray" in entry
     importlib.import_module("workflows.cli").build_parser().parse_args(entry[3:])
     # The job's config file is in this folder and is a valid build config.
-    from proctex.config import BuildConfig
+    from proctex.family.config import BuildConfig
 
     assert entry[4].endswith("cluster/family.toml")
     BuildConfig.from_dict(tomllib.loads((CLUSTER / "family.toml").read_text()))

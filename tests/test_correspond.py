@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 import torch
 
-from proctex.cage import CageConfig, init_cage
 from proctex.cli import main
-from proctex.correspond import METHODS, correspond_parts, correspond_shapes
-from proctex.cpd import cpd_nonrigid
-from proctex.geometry import SurfaceIndex, closest_point_bruteforce, face_normals, sample_surface, vertex_normals
-from proctex.metrics import gt_correspondence_error, interpolate
+from proctex.correspond.cage import CageConfig, init_cage
+from proctex.correspond.cpd import cpd_nonrigid
+from proctex.correspond.dense import METHODS, correspond_parts, correspond_shapes
+from proctex.geometry.parts import analyse, part_mesh
+from proctex.geometry.primitives import box, revolve
+from proctex.geometry.shape import Shape
+from proctex.geometry.surface import SurfaceIndex, closest_point_bruteforce, face_normals, sample_surface, vertex_normals
 from proctex.models import get_model
-from proctex.parts import analyse, part_mesh
-from proctex.primitives import box, revolve
-from proctex.shape import Shape
+from proctex.texture.metrics import gt_correspondence_error, interpolate
 
 
 def _bent(v: np.ndarray) -> np.ndarray:
@@ -219,7 +219,7 @@ def test_correspond_shapes_builtin_all_methods():
 
 
 def test_correspond_shapes_on_sofa_data_skips_degenerate_parts(sofa_dir):
-    from proctex.sources import FolderSource
+    from proctex.family.sources import FolderSource
 
     src = FolderSource(sofa_dir)
     template = src.load(src.template_index())
@@ -279,10 +279,10 @@ def test_cage_correspondence_of_a_sofa_sample_is_scored_against_the_truth(capsys
 def test_cage_keeps_identical_parts_matched_in_place(part):
     """Two identical parts: the tangent-plane Chamfer has its minimum at the identity, so the cage
     barely moves (the point-to-point form drifts several times further on the same pair)."""
-    from proctex.cage import CageConfig
-    from proctex.geometry import normalised_frame
+    from proctex.correspond.cage import CageConfig
+    from proctex.geometry.parts import part_mesh, segment
+    from proctex.geometry.surface import normalised_frame
     from proctex.models import get_model
-    from proctex.parts import part_mesh, segment
 
     shape = get_model("mug").generate()
     v, f = part_mesh(shape, segment(shape).parts[part])
@@ -312,7 +312,7 @@ def _stretched_vase():
 def test_box_prealignment_recovers_a_per_axis_stretch():
     """A part stretched per axis: the box pre-alignment maps every sample exactly onto its true
     point (error ~0); a similarity (ICP) cannot, and "auto" picks the box by its smaller Chamfer."""
-    from proctex.correspond import prepare
+    from proctex.correspond.dense import prepare
 
     sv, sf, tv, tf, k = _stretched_vase()
     errors = {}
@@ -329,7 +329,7 @@ def test_box_prealignment_recovers_a_per_axis_stretch():
 
 
 def test_box_scale_keeps_flat_axes():
-    from proctex.correspond import box_scale
+    from proctex.correspond.dense import box_scale
 
     src = np.array([[-1.0, -0.5, 0.0], [1.0, 0.5, 0.0]])
     tpl = np.array([[-0.5, -1.0, -0.3], [0.5, 1.0, 0.3]])

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from proctex import corrnet as cn
 from proctex._reference.corrnet import decode_reference
-from proctex.corrnet import CorrNetConfig, ProcCorrNet
+from proctex.correspond import corrnet as cn
+from proctex.correspond.corrnet import CorrNetConfig, ProcCorrNet
 
 
 @pytest.fixture(autouse=True)
@@ -140,7 +140,7 @@ def test_bfloat16_autocast_predict_and_train():
     np.testing.assert_array_equal(cn.predict(wide, src, src, autocast="auto"), cn.predict(wide, src, src))
     with pytest.raises(ValueError, match="autocast"):
         cn.resolve_autocast("half", "cpu")
-    from proctex.mappers import NetworkMapper
+    from proctex.family.mappers import NetworkMapper
 
     with pytest.raises(ValueError, match="autocast"):
         NetworkMapper({}, autocast="fp8")

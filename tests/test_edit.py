@@ -5,13 +5,7 @@ import pytest
 from PIL import Image
 
 from proctex._reference.edit import place_image_reference, shift_hsv_reference
-from proctex.edit import (
-    hsv_to_rgb,
-    load_overlay,
-    place_image,
-    rgb_to_hsv,
-    shift_hsv,
-)
+from proctex.texture.edit import hsv_to_rgb, load_overlay, place_image, rgb_to_hsv, shift_hsv
 
 
 def _texel_centres(H, W):

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from proctex.config import BuildConfig
-from proctex.pipeline import build
-from proctex.metrics import PSNR_CAP, view_similarity
+from proctex.family.config import BuildConfig
+from proctex.family.pipeline import build
+from proctex.family.store import FamilyStore
 from proctex.models import get_model
-from proctex.store import FamilyStore
+from proctex.texture.metrics import PSNR_CAP, view_similarity
 
 TINY_TRAIN = {"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2}
 
@@ -36,7 +36,7 @@ def test_view_similarity_of_identical_views_is_perfect_and_drops_with_damage():
 
 
 def _random_lpips_file(path):
-    from proctex.lpips import LPIPS
+    from proctex.texture.lpips import LPIPS
 
     torch.manual_seed(0)
     state = {}
@@ -50,7 +50,7 @@ def _random_lpips_file(path):
 
 
 def test_lpips_from_a_local_file_is_a_distance(tmp_path):
-    from proctex.lpips import LPIPS
+    from proctex.texture.lpips import LPIPS
 
     _random_lpips_file(tmp_path / "alex.pt")
     model = LPIPS.load(tmp_path / "alex.pt")
@@ -74,9 +74,9 @@ def test_lpips_from_a_local_file_is_a_distance(tmp_path):
 
 # ------------------------------------------------------------------------------------ correspondence
 def test_cpd_field_applies_to_any_point_and_reproduces_its_samples():
-    from proctex.correspond import correspond_parts, deform
-    from proctex.geometry import SurfaceIndex, normalised_frame
-    from proctex.parts import part_mesh, segment
+    from proctex.correspond.dense import correspond_parts, deform
+    from proctex.geometry.parts import part_mesh, segment
+    from proctex.geometry.surface import SurfaceIndex, normalised_frame
 
     shape = get_model("mug").generate({"radius": 0.045})
     tpl = get_model("mug").generate()
@@ -92,9 +92,9 @@ def test_cpd_field_applies_to_any_point_and_reproduces_its_samples():
 def test_a_wrong_correspondence_gives_large_errors():
     """Known answers: the true map has zero ground-truth error; the same points mirrored (a
     deliberately wrong correspondence) are off by about the part's size."""
-    from proctex.geometry import SurfaceIndex, normalised_frame
-    from proctex.metrics import gt_correspondence_error
-    from proctex.parts import part_mesh, segment
+    from proctex.geometry.parts import part_mesh, segment
+    from proctex.geometry.surface import SurfaceIndex, normalised_frame
+    from proctex.texture.metrics import gt_correspondence_error
 
     shape = get_model("mug").generate()
     part = segment(shape).parts[0]
@@ -129,7 +129,7 @@ def test_methods_side_by_side_on_identical_shapes(pinned_family, tmp_path):
     """On shapes identical to the template the run-time path is exact: tracked-point variance 0,
     SSIM 1 and PSNR at its cap, no unpainted pixel; every other method maps every part, close to
     but not exactly the identity. The JSON has every field the issue names."""
-    from proctex.evaluate import evaluate
+    from proctex.family.evaluate import evaluate
 
     _random_lpips_file(tmp_path / "alex.pt")
 
@@ -184,7 +184,7 @@ def test_eval_cli_and_eval_folder(pinned_family, tmp_path, capsys):
 def test_eval_folder_builds_then_evaluates(tmp_path, capsys):
     """A folder of samples in the sofa layout (train/, inference/): built, then evaluated."""
     from proctex.cli import main
-    from proctex.meshio import save_mesh, save_params
+    from proctex.geometry.meshio import save_mesh, save_params
 
     model = get_model("mug")
     for split, n, seed in (("train", 3, 0), ("inference", 2, 1)):

@@ -12,7 +12,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from proctex import export as ex
+from proctex.texture import export as ex
 
 # Quadrant colours per group: PALETTE[g][top/bottom][left/right]; texture row 0 is the top.
 PALETTE = np.array([

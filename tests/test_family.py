@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.config import BuildConfig
-from proctex.family import load_assets, read_pair, stage_done, stage_paint, stage_pairs, stage_sample, stage_template, write_config
-from proctex.store import FamilyStore
+from proctex.family.config import BuildConfig
+from proctex.family.stages import load_assets, read_pair, stage_done, stage_paint, stage_pairs, stage_sample, stage_template, write_config
+from proctex.family.store import FamilyStore
 
 
 @pytest.fixture(scope="module")
@@ -46,10 +46,10 @@ def test_the_template_record_reads_its_grouping_back_and_round_trips(mug_family,
     """The stored grouping is read, not analysed again (analysis is switched off here); the record
     saves and loads to the same arrays; a store whose grouping predates the member maps is
     analysed as before."""
-    import proctex.template as tm
-    from proctex.family import load_template, load_template_shape
-    from proctex.parts import analyse
-    from proctex.store import StoreLayout
+    import proctex.family.template as tm
+    from proctex.family.stages import load_template, load_template_shape
+    from proctex.family.store import StoreLayout
+    from proctex.geometry.parts import analyse
 
     st, cfg = mug_family
     fresh = analyse(load_template_shape(st, cfg), seed=cfg.seed)
@@ -130,11 +130,11 @@ def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
 
     from PIL import Image
 
-    from proctex.edit import rgb_to_hsv
-    from proctex.family_edits import edit_group
+    from proctex.family.edits import edit_group
+    from proctex.family.mappers import IdentityMapper
+    from proctex.family.transfer import glb, transfer
     from proctex.models import get_model
-    from proctex.mappers import IdentityMapper
-    from proctex.transfer import glb, transfer
+    from proctex.texture.edit import rgb_to_hsv
 
     st0, _ = mug_family
     shutil.copytree(st0.base, tmp_path / "fam")
@@ -162,7 +162,7 @@ def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
     edit_group(st, "body", prompt="white marble")
     assert st.read_json("template/paint.json")["groups"][0]["prompt"] == "white marble"
     assert len(st.read_json("template/paint.json")["edits"]) == 3
-    from proctex.family import load_assets
+    from proctex.family.stages import load_assets
 
     assets = load_assets(st)
     assert np.allclose(assets.textures[1] / 255, handle1, atol=1 / 255)
@@ -210,10 +210,10 @@ def test_cli_transfer_and_edit(mug_family, tmp_path, capsys):
 def test_train_stage_and_network_transfer(mug_family, tmp_path):
     import shutil
 
-    from proctex.family import load_models, stage_train
+    from proctex.family.mappers import NetworkMapper
+    from proctex.family.stages import load_models, stage_train
+    from proctex.family.transfer import transfer
     from proctex.models import get_model
-    from proctex.mappers import NetworkMapper
-    from proctex.transfer import transfer
 
     st0, cfg0 = mug_family
     shutil.copytree(st0.base, tmp_path / "fam")
@@ -236,7 +236,7 @@ def test_train_stage_and_network_transfer(mug_family, tmp_path):
 def test_evaluate_stage_on_identical_shapes(tmp_path):
     """Bounds pinned to the defaults: every sample is the template, so every method must give a
     tracked-point variance of exactly 0 and full coverage; errors are reported for net and cage."""
-    from proctex.pipeline import build
+    from proctex.family.pipeline import build
     from proctex.models import get_model
 
     pinned = {s.name: [s.default, s.default] for s in get_model("mug").space.specs}
@@ -266,7 +266,7 @@ def test_evaluate_stage_on_identical_shapes(tmp_path):
     logs.clear()
     build(st, cfg, stages=("evaluate",), log=logs.append)
     assert logs == ["evaluate: done already"]
-    from proctex.evaluate import evaluate
+    from proctex.family.evaluate import evaluate
 
     with pytest.raises(ValueError, match="methods"):
         evaluate(st, methods=("bogus",))
@@ -306,8 +306,8 @@ def test_cli_eval(mug_family, tmp_path, capsys):
 def test_view_painted_family_keeps_its_already_painted_mask(tmp_path):
     """A template painted from views of the whole shape only stores which texels no view saw;
     transfer then finds the dis-occluded surface of a shape and the bake fills it."""
-    from proctex.mappers import IdentityMapper
-    from proctex.transfer import bake, transfer
+    from proctex.family.mappers import IdentityMapper
+    from proctex.family.transfer import bake, transfer
 
     cfg = BuildConfig(model="cake", n_train=2, n_test=0, texture_size=64, painter="views", views=6, view_size=96,
                       paint_hidden=False, params={"candles": [0, 0], "tiers": [2, 2], "shrink": [0.7, 0.72]}, prompt="red velvet cake").validate()
@@ -342,7 +342,7 @@ def test_build_config_painter_checks(tmp_path):
 
 
 def test_cage_settings_reach_the_solver_and_bad_ones_are_refused():
-    from proctex.config import BuildConfig
+    from proctex.family.config import BuildConfig
 
     cfg = BuildConfig.from_dict({"model": "mug", "cage_level": 2, "cage_iterations": 40, "cage": {"w_rest": 0.3, "prealign": "box"}})
     cage = cfg.cage_config()
@@ -359,8 +359,8 @@ def test_a_store_built_before_the_cage_settings_keeps_its_old_solver(tmp_path):
     term, last iterate): resuming its pairs must use that solver, not the new defaults."""
     from dataclasses import asdict
 
-    from proctex.config import BuildConfig
-    from proctex.family import stored_config, write_config
+    from proctex.family.config import BuildConfig
+    from proctex.family.stages import stored_config, write_config
 
     store = FamilyStore(str(tmp_path / "old"))
     settings = asdict(BuildConfig.from_dict({"model": "mug"}))

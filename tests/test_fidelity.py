@@ -13,22 +13,34 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from proctex.config import BuildConfig
-from proctex.family import load_assets, load_sample, samples
-from proctex.pipeline import build
-from proctex.fidelity import (
-    FAIL_ERROR, Location, colours_at, error_summary, gt_errors, incident_faces, locate_by_map, locate_canonical,
-    locate_vertex_index, match_parts_by_label, template_truth, tracked_points, tracked_variance, truth_samples,
+from proctex.family.config import BuildConfig
+from proctex.family.pipeline import build
+from proctex.family.stages import load_assets, load_sample, samples
+from proctex.family.fidelity import (
+    FAIL_ERROR,
+    Location,
+    colours_at,
+    error_summary,
+    gt_errors,
+    incident_faces,
+    locate_by_map,
+    locate_canonical,
+    locate_vertex_index,
+    match_parts_by_label,
+    template_truth,
+    tracked_points,
+    tracked_variance,
+    truth_samples,
 )
-from proctex.geometry import SurfaceIndex
-from proctex.metrics import interpolate
+from proctex.family.assign import PartAssignment, assign_parts, representative_frame
+from proctex.family.mappers import IdentityMapper
+from proctex.family.store import FamilyStore
+from proctex.family.transfer import transfer
+from proctex.geometry.parts import part_mesh, segment
+from proctex.geometry.surface import SurfaceIndex
 from proctex.models import get_model
-from proctex.parts import part_mesh, segment
-from proctex.store import FamilyStore
-from proctex.assign import PartAssignment, assign_parts, representative_frame
-from proctex.mappers import IdentityMapper
-from proctex.transfer import transfer
-from proctex.uv import pad_seams, texel_map
+from proctex.texture.metrics import interpolate
+from proctex.texture.uv import pad_seams, texel_map
 
 
 # ---------------------------------------------------------------------------------------- mappers
@@ -151,7 +163,7 @@ def _self_tracked_variance(family, mapper, n=1500):
     from unittest import mock
 
     flat = lambda v, f: np.zeros((len(f), 3))  # noqa: E731
-    with mock.patch("proctex.transfer._side_normals", flat), mock.patch("proctex.uvlookup._side_normals", flat):
+    with mock.patch("proctex.family.transfer._side_normals", flat), mock.patch("proctex.family.uvlookup._side_normals", flat):
         return _self_tracked_variance_old(family, mapper, n)
 
 
@@ -168,7 +180,7 @@ def _self_tracked_variance_old(family, mapper, n):
         loc = Location.empty(len(tp))
         pts = interpolate(tpl.vertices, tpl.faces, tp.face, tp.bary)
         for g in np.unique(tp.group):
-            from proctex.assign import choose_part
+            from proctex.family.assign import choose_part
 
             a = choose_part(result.assignment, int(g))
             ga = assets.groups[int(g)]
@@ -310,7 +322,7 @@ def test_vertex_index_tracking_agrees_with_canonical_truth_on_a_shared_vertex_or
     vertex count is a clear error."""
     model = get_model("mug", tessellation="fixed")
     tpl, shape = model.generate(), model.generate({"radius": 0.047, "height": 0.12, "taper": -0.05})
-    from proctex.parts import analyse
+    from proctex.geometry.parts import analyse
 
     grouping = analyse(tpl)
     tv = tracked_points(tpl, grouping, "vertex-index")
@@ -323,7 +335,7 @@ def test_vertex_index_tracking_agrees_with_canonical_truth_on_a_shared_vertex_or
     tc.canonical = tpl.canonical[tv.vertex]
     loc_c = locate_canonical(tc, tpl, grouping.segmentation, shape, segment(shape))
     assert np.abs(interpolate(shape.vertices, shape.faces, loc_c.face, loc_c.bary) - shape.vertices[tv.vertex]).max() < 1e-9
-    from proctex.shape import Shape
+    from proctex.geometry.shape import Shape
 
     other = Shape(np.vstack([shape.vertices, [[0.0, 0.0, 0.0]]]), shape.faces)  # one vertex more
     with pytest.raises(ValueError, match="vertex-index truth needs"):
@@ -364,11 +376,11 @@ def test_one_part_frame_everywhere(monkeypatch):
     and moved comes back onto the representative's normalised frame through its assignment's map
     (R, then the translation t); the build's cage pairs and the run-time transfer both compute it
     with this one function."""
-    from proctex.geometry import normalised_frame
-    from proctex.paint import paint_surface
-    from proctex.painters import SurfacePainter
-    from proctex.parts import analyse
-    from proctex.assets import prepare_template
+    from proctex.family.assets import prepare_template
+    from proctex.geometry.parts import analyse
+    from proctex.geometry.surface import normalised_frame
+    from proctex.texture.paint import paint_surface
+    from proctex.texture.painters import SurfacePainter
 
     rng = np.random.default_rng(0)
     rep = rng.normal(size=(50, 3))
@@ -378,19 +390,19 @@ def test_one_part_frame_everywhere(monkeypatch):
     t0 = np.array([0.1, -0.2, 0.05])
     got = representative_frame(member, PartAssignment(0, 0, -1, R, 0.0, "extra", t0))
     assert np.allclose(got, (rep - c) / r + t0, atol=1e-9)
-    import proctex.assign
-    import proctex.family
-    import proctex.transfer
+    import proctex.family.assign
+    import proctex.family.stages
+    import proctex.family.transfer
 
     calls = []
-    real = proctex.assign.representative_frame
+    real = proctex.family.assign.representative_frame
 
     def spy(v, a):
         calls.append(len(v))
         return real(v, a)
 
-    monkeypatch.setattr(proctex.assign, "representative_frame", spy)  # where the build and the evaluation look it up
-    monkeypatch.setattr(proctex.transfer, "representative_frame", spy)  # the run time's import of it
+    monkeypatch.setattr(proctex.family.assign, "representative_frame", spy)  # where the build and the evaluation look it up
+    monkeypatch.setattr(proctex.family.transfer, "representative_frame", spy)  # the run time's import of it
     tpl = get_model("mug").generate()
     grouping = analyse(tpl)
     tex = paint_surface(tpl, grouping, SurfacePainter("red"), size=32)
@@ -399,5 +411,5 @@ def test_one_part_frame_everywhere(monkeypatch):
     transfer(shape, assets, IdentityMapper(), shortcut=False)
     assert len(calls) == 2  # body and handle
     cfg = BuildConfig(model="mug", corr_points=100, cage_iterations=2).validate()
-    proctex.family.solve_pair(shape, assets, 0, cfg, seed=0)
+    proctex.family.stages.solve_pair(shape, assets, 0, cfg, seed=0)
     assert len(calls) == 3

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from proctex.align import icp_to_surface, rotation_angle, umeyama, apply
-from proctex.geometry import SurfaceIndex, closest_point_bruteforce, closest_point_on_triangles, sample_surface, triangle_areas
+from proctex.geometry.align import icp_to_surface, rotation_angle, umeyama, apply
+from proctex.geometry.surface import SurfaceIndex, closest_point_bruteforce, closest_point_on_triangles, sample_surface, triangle_areas
 from proctex.models import get_model
 
 
@@ -91,7 +91,7 @@ def test_icp_recovers_small_rigid_motion():
     rng = np.random.default_rng(2)
     pts, _, _ = sample_surface(shape.vertices, shape.faces, 500, seed=3)
     angle = 0.15
-    from proctex.primitives import rotation
+    from proctex.geometry.primitives import rotation
 
     R = rotation([1, 2, 3], angle)
     t = np.array([0.02, -0.01, 0.015])
@@ -103,8 +103,8 @@ def test_icp_recovers_small_rigid_motion():
 
 
 def test_point_icp_and_chamfer():
-    from proctex.align import chamfer, icp_points
-    from proctex.primitives import rotation
+    from proctex.geometry.align import chamfer, icp_points
+    from proctex.geometry.primitives import rotation
 
     shape = get_model("chair").generate()
     pts, _, _ = sample_surface(shape.vertices, shape.faces, 2000, seed=0)
@@ -123,7 +123,7 @@ def test_query_facing_keeps_each_side_of_a_thin_wall():
     whole (a mirrored part) still land on the top by majority, and on the bottom without it."""
     import trimesh
 
-    from proctex.geometry import SurfaceIndex
+    from proctex.geometry.surface import SurfaceIndex
 
     slab = trimesh.creation.box((1.0, 1.0, 0.02))
     slab = slab.subdivide().subdivide()

@@ -3,13 +3,9 @@
 import numpy as np
 import pytest
 
-import proctex.inpaint as ip
+import proctex.texture.inpaint as ip
 from proctex._reference.inpaint import nnf_reference, patch_distance_reference
-from proctex.inpaint import (
-    chart_labels,
-    patchmatch_fill,
-    patchmatch_nnf,
-)
+from proctex.texture.inpaint import chart_labels, patchmatch_fill, patchmatch_nnf
 
 
 def _checker(H, W, period=8, noise=0.0, seed=0):

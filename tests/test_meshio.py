@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from proctex.meshio import clean_mesh, load_mesh, read_obj, save_mesh, triangulate
-from proctex.parts import connected_parts, segment
-from proctex.shape import Shape
+from proctex.geometry.meshio import clean_mesh, load_mesh, read_obj, save_mesh, triangulate
+from proctex.geometry.parts import connected_parts, segment
+from proctex.geometry.shape import Shape
 
 from .meshes import cube, soup, two_cubes_touching
 
@@ -89,7 +89,7 @@ def test_round_trip_every_format(tmp_path, ext):
     save_mesh(shape, p)
     back, _ = load_mesh(p)
     # The same bytes without a file (an upload, a store object): the same mesh.
-    from proctex.meshio import load_mesh_bytes
+    from proctex.geometry.meshio import load_mesh_bytes
 
     same, report = load_mesh_bytes(p.read_bytes(), f"upload.{ext}")
     np.testing.assert_array_equal(same.vertices, back.vertices)
@@ -179,7 +179,7 @@ def test_unsupported_and_missing(tmp_path):
         load_mesh(tmp_path / "missing.obj")
     with pytest.raises(ValueError, match="cannot read"):
         load_mesh(write(tmp_path, "junk.glb", "this is not a glb"))
-    from proctex.meshio import load_mesh_bytes
+    from proctex.geometry.meshio import load_mesh_bytes
 
     with pytest.raises(ValueError, match="x.obj: the file is empty"):
         load_mesh_bytes(b"", "x.obj")
@@ -219,7 +219,7 @@ def test_sofa_loads_with_nine_parts(sofa_dir):
 def test_vectorised_obj_reader_agrees_with_the_line_reader():
     """Triangle files take the numpy path; it gives the line-by-line reader's exact arrays, and
     anything it does not handle (quads, relative indices, tabs, bad tokens) goes to that reader."""
-    from proctex.meshio import _read_obj_triangles, read_obj
+    from proctex.geometry.meshio import _read_obj_triangles, read_obj
 
     text = "# c\nv 0 0 0\nv 1.5 0 0\nv 0 1 -2e-3\nv 1 1 0\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1\nf 2//1 4//1 3//1\n"
     fast = _read_obj_triangles(text)

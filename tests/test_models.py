@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from proctex.geometry.parts import analyse, match_groups
 from proctex.models import get_model, list_models
-from proctex.parts import analyse, match_groups
 
 MODELS = list_models()
 
@@ -51,8 +51,8 @@ def test_determinism_and_finite(name):
 
 def _part_points(shape, label):
     """Canonical coords, per-axis normalised positions and vertex areas of the first part with a label."""
-    from proctex.geometry import triangle_areas
-    from proctex.parts import part_mesh, segment
+    from proctex.geometry.parts import part_mesh, segment
+    from proctex.geometry.surface import triangle_areas
 
     seg = segment(shape)
     part = next(p for p in seg.parts if p.label == label)

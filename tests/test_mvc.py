@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from proctex._reference.mvc import mean_value_coordinates_reference
-from proctex.mvc import mean_value_coordinates
-from proctex.primitives import box
+from proctex.correspond.mvc import mean_value_coordinates
+from proctex.geometry.primitives import box
 
 
 def _octahedron() -> tuple[np.ndarray, np.ndarray]:

@@ -6,22 +6,15 @@ import numpy as np
 import pytest
 
 from proctex.cli import main
-from proctex.meshio import load_mesh
-from proctex.metrics import coverage
+from proctex.family.template import write_textured
+from proctex.geometry.meshio import load_mesh
+from proctex.geometry.parts import analyse
 from proctex.models import get_model, list_models
-from proctex.paint import (
-    SolidViewPainter,
-    fill_unseen,
-    paint_surface,
-    paint_views,
-    resolve_group_prompts,
-    trimap,
-    write_textured,
-)
-from proctex.painters import GENERATE, KEEP, SurfacePainter
-from proctex.parts import analyse
-from proctex.render import Tracer, bounding_sphere, orbit_path, render_buffers
-from proctex.uv import sample_texture
+from proctex.texture.metrics import coverage
+from proctex.texture.paint import SolidViewPainter, fill_unseen, paint_surface, paint_views, resolve_group_prompts, trimap
+from proctex.texture.painters import GENERATE, KEEP, SurfacePainter
+from proctex.texture.render import Tracer, bounding_sphere, orbit_path, render_buffers
+from proctex.texture.uv import sample_texture
 
 
 class Analytic:
@@ -71,7 +64,7 @@ def test_surface_paint_puts_the_painter_colour_on_every_covered_texel(chair):
     shape, g = chair
     tex = paint_surface(shape, g, Analytic(), size=128)
     assert len(tex.groups) == len(g.groups)
-    from proctex.paint import shape_frame
+    from proctex.texture.paint import shape_frame
 
     center, scale = shape_frame(shape)
     for gt in tex.groups:
@@ -170,7 +163,7 @@ def test_diffusion_painter_runs_the_whole_loop(tmp_path, chair):
     pytest.importorskip("diffusers")
     import torch
 
-    from proctex.painters.diffusion import DiffusionViewPainter, build_tiny_pipeline
+    from proctex.texture.painters.diffusion import DiffusionViewPainter, build_tiny_pipeline
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -193,7 +186,7 @@ def _glb_colour_at(path, point, material, expect_tol=2e-3):
     interpolate its UVs, sample its texture. (Touching parts share surface, hence the material.)"""
     import trimesh
 
-    from proctex.geometry import SurfaceIndex
+    from proctex.geometry.surface import SurfaceIndex
 
     scene = trimesh.load(path, force="scene")
     best = None
@@ -229,7 +222,7 @@ def test_write_textured_glb_has_the_right_colours_at_known_points(tmp_path, sofa
             uv = gt.texels.bary[k] @ rep_uv[gt.texels.face[k]]
             want = sample_texture(gt.uint8(), uv[None])[0]
             assert np.abs(got - want).max() < 1.5 / 255
-    from proctex.export import validate_glb, validator_available
+    from proctex.texture.export import validate_glb, validator_available
 
     if validator_available():
         report = validate_glb(tmp_path / "textured.glb")
@@ -277,7 +270,7 @@ def test_cli_paint_bad_input(tmp_path, capsys, argv, message):
 
 def test_backproject_matches_the_reference(chair):
     from proctex._reference.paint import backproject_reference
-    from proctex.paint import backproject
+    from proctex.texture.paint import backproject
 
     shape, g = chair
     c, r = bounding_sphere(shape.vertices)

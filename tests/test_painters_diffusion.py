@@ -11,8 +11,8 @@ import pytest
 pytest.importorskip("diffusers")
 pytest.importorskip("transformers")
 
-from proctex.painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest  # noqa: E402
-from proctex.painters.diffusion import (  # noqa: E402
+from proctex.texture.painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest  # noqa: E402
+from proctex.texture.painters.diffusion import (
     DiffusionViewPainter,
     _block_dilate,
     _resize_mask,

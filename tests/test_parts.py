@@ -3,10 +3,10 @@ import json
 import numpy as np
 import pytest
 
-from proctex import primitives as P
-from proctex.meshio import load_mesh
-from proctex.parts import analyse, connected_parts, match_groups, segment, symmetry_planes
-from proctex.shape import Shape, ShapeBuilder
+from proctex.geometry import primitives as P
+from proctex.geometry.meshio import load_mesh
+from proctex.geometry.parts import analyse, connected_parts, match_groups, segment, symmetry_planes
+from proctex.geometry.shape import Shape, ShapeBuilder
 
 
 def chiral_block():
@@ -79,7 +79,7 @@ def test_exact_part_and_group_counts_on_hand_built_shape():
 def test_mirrored_part_needs_a_reflection():
     blk = chiral_block()
     mir = P.mirror(blk, axis=0)
-    from proctex.align import umeyama, apply
+    from proctex.geometry.align import umeyama, apply
 
     R, t, _ = umeyama(mir.vertices, blk.vertices, reflection=False)
     assert np.abs(apply(mir.vertices, R, t) - blk.vertices).max() > 0.05  # no rotation does it

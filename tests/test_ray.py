@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.config import BuildConfig
-from proctex.family import read_pair, samples
-from proctex.pipeline import build
-from proctex.store import FamilyStore
+from proctex.family.config import BuildConfig
+from proctex.family.pipeline import build
+from proctex.family.stages import read_pair, samples
+from proctex.family.store import FamilyStore
 
 ray = pytest.importorskip("ray")
 pytestmark = [pytest.mark.ray, pytest.mark.slow]
@@ -65,7 +65,7 @@ def _same_pairs(a: FamilyStore, b: FamilyStore) -> int:
 
 
 def test_ray_build_equals_the_single_process_build(local_ray, reference, tmp_path):
-    from proctex.corrnet import load
+    from proctex.correspond.corrnet import load
     from workflows.build import build_on_ray
 
     # The store as a URI (any pyarrow.fs URI works the same way; file:// needs no credentials).

@@ -13,12 +13,12 @@ import pytest
 from PIL import Image
 
 from proctex.cli import main
-from proctex.export import glb_bytes, read_textured_glb, write_glb
+from proctex.geometry.parts import analyse
 from proctex.models import get_model
-from proctex.paint import paint_surface
-from proctex.painters import SurfacePainter
-from proctex.parts import analyse
-from proctex.render import (
+from proctex.texture.export import glb_bytes, read_textured_glb, write_glb
+from proctex.texture.paint import paint_surface
+from proctex.texture.painters import SurfacePainter
+from proctex.texture.render import (
     Tracer,
     bounding_sphere,
     canonical_cameras,
@@ -308,9 +308,9 @@ def test_cli_render_bad_input(argv, message, mug_glb, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def mug_family(tmp_path_factory):
     """A small built mug family (sample, template, paint; no correspondences needed by --mapper identity/nearest)."""
-    from proctex.config import BuildConfig
-    from proctex.family import stage_paint, stage_sample, stage_template, write_config
-    from proctex.store import FamilyStore
+    from proctex.family.config import BuildConfig
+    from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
+    from proctex.family.store import FamilyStore
 
     root = tmp_path_factory.mktemp("fam") / "mug"
     cfg = BuildConfig(model="mug", n_train=2, n_test=0, texture_size=64, prompt="red and white checkered fabric",

@@ -8,11 +8,11 @@ import shutil
 import numpy as np
 import pytest
 
-from proctex.config import BuildConfig
-from proctex.family import stage_paint, stage_sample, stage_template, write_config
-from proctex.family_edits import edit_group
-from proctex.service import Catalog, FamilyService, Limits, NotFound, build_stamp
-from proctex.store import FamilyStore
+from proctex.family.config import BuildConfig
+from proctex.family.edits import edit_group
+from proctex.family.service import Catalog, FamilyService, Limits, NotFound, build_stamp
+from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
+from proctex.family.store import FamilyStore
 
 fastapi = pytest.importorskip("fastapi")
 from fastapi.testclient import TestClient  # noqa: E402
@@ -61,7 +61,7 @@ def test_routes(client, root):
     assert float(r.headers["x-proctex-seconds"]) > 0 and isinstance(json.loads(r.headers["x-proctex-notes"]), list)
     _glb_ok(r.content)
     # The same shape as an uploaded mesh.
-    from proctex.meshio import obj_text
+    from proctex.geometry.meshio import obj_text
     from proctex.models import get_model
 
     shape = get_model("mug").generate({"radius": 0.045})
@@ -106,8 +106,8 @@ def test_unknown_families_and_mesh_limits(client, root):
         assert r.status_code == 404 and "unknown family" in r.json()["error"]
     assert c.post("/v1/families/nope/transfer", json={"params": {}}).status_code == 404
     # A valid mesh over the face limit.
-    from proctex.meshio import obj_text
-    from proctex.primitives import box
+    from proctex.geometry.meshio import obj_text
+    from proctex.geometry.primitives import box
 
     big = box((1, 1, 1))
     cat = Catalog(str(root), Limits(max_faces=5), check_every=0)
@@ -139,7 +139,7 @@ def test_folder_families_take_meshes_only(tmp_path, sofa_dir):
     cfg = BuildConfig(folder=str(sofa_dir), texture_size=32).validate()
     write_config(st, cfg)
     # Three samples are enough for a painted template.
-    from proctex.family import finish_sample_stage, run_sample_job, sample_jobs
+    from proctex.family.stages import finish_sample_stage, run_sample_job, sample_jobs
 
     jobs = [j for j in sample_jobs(cfg) if j.split == "train"][:3]
     finish_sample_stage(st, [run_sample_job(st, cfg, j) for j in jobs])
@@ -248,7 +248,7 @@ def _glb_parts(data: bytes):
 
 
 def test_transfers_take_non_destructive_edits(client, root):
-    from proctex.edit import rgb_to_hsv
+    from proctex.texture.edit import rgb_to_hsv
 
     c, cat = client
     st = FamilyStore(root / "mug")
@@ -282,7 +282,7 @@ def test_transfers_take_non_destructive_edits(client, root):
     hits = svc.edit_stats["hits"]
     assert c.post("/v1/families/mug/transfer", json={**body, "edits": {"0": {"hue": 180}}}).content == r.content
     assert svc.edit_stats["hits"] > hits
-    from proctex.meshio import obj_text
+    from proctex.geometry.meshio import obj_text
     from proctex.models import get_model
 
     shape = get_model("mug").generate({"radius": 0.045})
@@ -397,7 +397,7 @@ def test_edits_persist_into_the_family(root, tmp_path):
 
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     """The pure texture edit and the persisted one are the same code: equal results."""
-    from proctex.family_edits import edit_texture
+    from proctex.family.edits import edit_texture
     from proctex.fileio import encode_png
 
     shutil.copytree(root / "mug", tmp_path / "mug")
@@ -412,6 +412,6 @@ def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
         edit_texture(before, 1, "handle", prompt="gold")
     edit_group(st, "handle", hue=-40, saturation=1.5, value=0.8)
     assert st.read_bytes("template/group_1_handle.png") == encode_png(tex)
-    from proctex.service import GroupEdit
+    from proctex.family.service import GroupEdit
 
     assert svc.edited_texture(1, GroupEdit(-40, 1.5, 0.8))[1] == encode_png(tex)

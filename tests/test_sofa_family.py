@@ -2,8 +2,8 @@
 
 import pytest
 
-from proctex.parts import analyse, match_groups
-from proctex.sources import FolderSource
+from proctex.family.sources import FolderSource
+from proctex.geometry.parts import analyse, match_groups
 
 from .test_parts import SOFA_GROUPS
 
@@ -45,12 +45,12 @@ def test_every_sofa_sample_matches_the_template_consistently(sofa):
 def test_baking_a_sofa_leaves_no_visible_texel_unpainted(sofa):
     """inference/27 has sliver triangles whose tips own no texel for several texels (a 4-texel
     gutter left 2 visible pixels unpainted); the baked atlas must still show colour everywhere."""
-    from proctex.metrics import coverage
-    from proctex.paint import paint_surface
-    from proctex.painters import SurfacePainter
-    from proctex.assets import prepare_template
-    from proctex.mappers import IdentityMapper
-    from proctex.transfer import bake, transfer
+    from proctex.family.assets import prepare_template
+    from proctex.family.mappers import IdentityMapper
+    from proctex.family.transfer import bake, transfer
+    from proctex.texture.metrics import coverage
+    from proctex.texture.paint import paint_surface
+    from proctex.texture.painters import SurfacePainter
 
     src, ti, template, tg = sofa
     tex = paint_surface(template, tg, SurfacePainter("a patchwork bohemian sofa"), size=256)

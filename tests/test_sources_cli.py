@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from proctex.cli import main
-from proctex.meshio import load_mesh
-from proctex.sources import FolderSource, load_generator, resolve_shape
+from proctex.family.sources import FolderSource, load_generator, resolve_shape
+from proctex.geometry.meshio import load_mesh
 
 GEN = '''
 import numpy as np
@@ -87,7 +87,7 @@ def test_cli_sample_formats_round_trip(tmp_path, fmt):
 
         want_parts, _ = get_model("fork").expected_counts(p)
         shape, _ = load_mesh(out / f"{i}.{fmt}")
-        from proctex.parts import segment
+        from proctex.geometry.parts import segment
 
         assert segment(shape).n_parts == want_parts
 
@@ -149,7 +149,7 @@ def test_cli_bad_mesh_file(tmp_path, capsys):
 
 
 def test_resolve_shape_reads_params_next_to_mesh(tmp_path):
-    from proctex.meshio import save_mesh, save_params
+    from proctex.geometry.meshio import save_mesh, save_params
     from proctex.models import get_model
 
     shape = get_model("vase").generate()

@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.config import BuildConfig
-from proctex.family import stage_paint, stage_sample, stage_template, write_config
-from proctex.service import Catalog
-from proctex.store import FamilyStore
+from proctex.family.config import BuildConfig
+from proctex.family.service import Catalog
+from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
+from proctex.family.store import FamilyStore
 from workflows.screenshot import CHROMIUM_ARGS
 
 pytestmark = pytest.mark.slow
@@ -243,7 +243,7 @@ def test_the_studio_textures_a_family_interactively(server, browser):
 def test_the_studio_uploads_a_mesh_for_families_of_meshes(server, browser, sofa_dir):
     """A family from a folder of meshes takes meshes only: after choosing it in the family select,
     the page shows a file field instead of sliders, and an uploaded mesh comes back textured."""
-    from proctex.family import finish_sample_stage, run_sample_job, sample_jobs
+    from proctex.family.stages import finish_sample_stage, run_sample_job, sample_jobs
 
     base, root = server
     st = FamilyStore(root / "sofa")

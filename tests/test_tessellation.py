@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from proctex import primitives as P
-from proctex.geometry import sample_surface
-from proctex.metrics import canonical_lookup, interpolate
+from proctex.geometry import primitives as P
+from proctex.geometry.parts import part_mesh, segment
+from proctex.geometry.surface import sample_surface
 from proctex.models import get_model, list_models
 from proctex.models.furniture import Desk
-from proctex.parts import part_mesh, segment
+from proctex.texture.metrics import canonical_lookup, interpolate
 
 MODELS = list_models()
 

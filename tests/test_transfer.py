@@ -4,19 +4,19 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from proctex.export import validate_glb, validator_available
-from proctex.metrics import coverage
+from proctex.family.assets import prepare_template
+from proctex.family.assign import assign_parts
+from proctex.family.mappers import IdentityMapper
+from proctex.family.store import FamilyStore
+from proctex.family.transfer import bake, glb, info, transfer
+from proctex.geometry.parts import analyse, segment
 from proctex.models import get_model
-from proctex.paint import paint_surface
-from proctex.painters import SurfacePainter
-from proctex.parts import analyse, segment
-from proctex.render import Tracer, bounding_sphere, canonical_cameras, pixel_uv, render_buffers
-from proctex.store import FamilyStore
-from proctex.assets import prepare_template
-from proctex.assign import assign_parts
-from proctex.mappers import IdentityMapper
-from proctex.transfer import bake, glb, info, transfer
-from proctex.uv import sample_texture
+from proctex.texture.export import validate_glb, validator_available
+from proctex.texture.metrics import coverage
+from proctex.texture.paint import paint_surface
+from proctex.texture.painters import SurfacePainter
+from proctex.texture.render import Tracer, bounding_sphere, canonical_cameras, pixel_uv, render_buffers
+from proctex.texture.uv import sample_texture
 
 
 # ------------------------------------------------------------------------------------------ store
@@ -229,7 +229,7 @@ def test_parts_with_the_template_connectivity_take_its_uvs_unchanged(chair):
 def cake_views():
     """A two-tier cake painted from six views of the whole shape only: the top of the bottom tier
     under the top tier is never seen, so those texels are not "already painted"."""
-    from proctex.paint import SolidViewPainter, paint_views
+    from proctex.texture.paint import SolidViewPainter, paint_views
 
     tpl = get_model("cake").generate({"candles": 0})
     grouping = analyse(tpl)
@@ -256,7 +256,7 @@ def test_observed_mask_marks_what_no_view_saw(cake_views):
 
 
 def test_disocclusion_is_detected_and_filled_without_repainting(cake_views):
-    from proctex.uv import texel_map
+    from proctex.texture.uv import texel_map
 
     tpl, grouping, tex, assets = cake_views
     shape = get_model("cake").generate({"candles": 0, "shrink": 0.6})  # a smaller top tier uncovers the bottom tier
@@ -293,11 +293,11 @@ def test_disocclusion_is_detected_and_filled_without_repainting(cake_views):
 def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
     """A big shape face mapped onto a small template chart: its affine UVs leave the chart and read
     unpainted texels; with the painted mask the corners snap onto the template triangle instead."""
-    from proctex.geometry import SurfaceIndex
-    from proctex.assets import GroupAssets
-    from proctex.inpaint import chart_labels
-    from proctex.uvlookup import part_uvs
-    from proctex.uv import bilinear_texels
+    from proctex.family.assets import GroupAssets
+    from proctex.family.uvlookup import part_uvs
+    from proctex.geometry.surface import SurfaceIndex
+    from proctex.texture.inpaint import chart_labels
+    from proctex.texture.uv import bilinear_texels
 
     v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
     f = np.array([[0, 1, 2], [0, 2, 3]])
@@ -320,10 +320,10 @@ def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
 
 
 def test_a_face_extrapolated_into_another_chart_is_pulled_back():
-    from proctex.geometry import SurfaceIndex
-    from proctex.assets import GroupAssets
-    from proctex.inpaint import chart_labels
-    from proctex.uvlookup import part_uvs
+    from proctex.family.assets import GroupAssets
+    from proctex.family.uvlookup import part_uvs
+    from proctex.geometry.surface import SurfaceIndex
+    from proctex.texture.inpaint import chart_labels
 
     sq = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
     v = np.concatenate([sq, sq + [5.0, 0, 0]])
@@ -347,11 +347,11 @@ def test_a_face_whose_inside_crosses_unpainted_texels_takes_its_template_colour(
     """An L-shaped chart: a template face whose corners and centre are painted but whose long edge
     crosses the missing quadrant would show unpainted texels inside; it reads the colour at its
     template triangle's centre instead (every probe painted), and without charts it is left alone."""
-    from proctex.geometry import SurfaceIndex
-    from proctex.assets import GroupAssets
-    from proctex.inpaint import chart_labels
-    from proctex.uvlookup import _inside_chart, part_uvs
-    from proctex.uv import bilinear_texels
+    from proctex.family.assets import GroupAssets
+    from proctex.family.uvlookup import _inside_chart, part_uvs
+    from proctex.geometry.surface import SurfaceIndex
+    from proctex.texture.inpaint import chart_labels
+    from proctex.texture.uv import bilinear_texels
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
     f = np.array([[0, 1, 2]])
@@ -396,9 +396,9 @@ def test_stretched_copies_join_their_group_by_box_shape():
     candles have neither the template's connectivity nor its proportions (rigid ICP leaves them
     out); matched in box-scaled frames they join the tier and candle groups, and the map ``A``
     takes each one's bounding box exactly onto its representative's."""
-    from proctex.geometry import normalised_frame
-    from proctex.parts import part_mesh
-    from proctex.assign import match_box
+    from proctex.family.assign import match_box
+    from proctex.geometry.parts import part_mesh
+    from proctex.geometry.surface import normalised_frame
 
     model = get_model("cake", tessellation="adaptive")
     shape_t = model.generate({"tiers": 1, "candles": 3})
@@ -437,8 +437,8 @@ def test_a_third_copy_turned_about_the_centre_takes_its_siblings_map_composed_wi
     degrees: they laid it on the wrong side)."""
     import trimesh
 
-    from proctex.shape import Shape
-    from proctex.assign import copy_of_sibling, representative_frame
+    from proctex.family.assign import copy_of_sibling, representative_frame
+    from proctex.geometry.shape import Shape
 
     button = trimesh.creation.cone(0.25, 0.5, sections=12)
     button.apply_transform(trimesh.transformations.rotation_matrix(0.3, [0, 1, 0]))  # leans outwards (+x)
@@ -495,7 +495,7 @@ def _box_mesh(extents, at):
 
 def _boxes_template(boxes):
     """Template assets of a shape made of boxes ``[(extents, centre), ...]``, painted plainly."""
-    from proctex.shape import Shape
+    from proctex.geometry.shape import Shape
 
     parts = [_box_mesh(e, c) for e, c in boxes]
     offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
@@ -509,7 +509,7 @@ def test_a_stretched_box_keeps_its_axes_when_a_turn_would_fit_its_proportions_a_
     """A desk's pedestal grows from one drawer to four: the box is 3.4x taller. Laid on its side,
     the template's pedestal would have slightly closer proportions, but a procedural parameter
     stretches a part, it does not turn it: the map is a positive diagonal scaling."""
-    from proctex.assign import match_box
+    from proctex.family.assign import match_box
 
     assets = _boxes_template([((0.4, 0.6, 0.19), (0, 0, 0)), ((1.4, 0.65, 0.03), (0, 0, 0.5))])  # a pedestal, a top
     pedestal = next(ga.group for ga in assets.groups if np.ptp(ga.vertices, axis=0)[2] > 0.5)
@@ -528,7 +528,7 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
     """A stair's extra tread thicker than the template's (both thin: under 5% of their width) is
     the same primitive once every axis is scaled to the box, thin ones included; the same slab
     placed far from every tread slot (placement cost over ``extra_cost``) does not join them."""
-    from proctex.assign import match_box
+    from proctex.family.assign import match_box
 
     assets = _boxes_template([((1.0, 0.3, 0.02), (0, 0, 0)), ((0.05, 0.05, 1.0), (2.0, 0, 0))])  # a tread, a post
     tread = next(ga.group for ga in assets.groups if np.ptp(ga.vertices, axis=0)[2] < 0.1)
@@ -545,8 +545,8 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
 def _reads_only_chart_reference(uv: np.ndarray, charts: np.ndarray, chart: np.ndarray, step: float = 0.2) -> np.ndarray:
     """Slow reference of the run-time coverage check: every face sampled every ``step`` texels,
     each sample's four bilinear texels read."""
-    from proctex.uvlookup import _bary_grid
-    from proctex.uv import bilinear_texels
+    from proctex.family.uvlookup import _bary_grid
+    from proctex.texture.uv import bilinear_texels
 
     h, w = charts.shape
     out = np.empty(len(uv), dtype=bool)
@@ -563,9 +563,9 @@ def test_run_time_coverage_check_never_passes_a_face_that_reads_outside_its_char
     gap: the check never passes a face that reads a texel outside its chart anywhere. Probing every
     3 texels with plain bilinear reads (the check before) passes some that do (a vase showed a few
     unpainted pixels): the test can fail."""
-    from proctex.inpaint import chart_labels
-    from proctex.uvlookup import _bary_grid, _inside_chart, chart_lookup
-    from proctex.uv import bilinear_texels
+    from proctex.family.uvlookup import _bary_grid, _inside_chart, chart_lookup
+    from proctex.texture.inpaint import chart_labels
+    from proctex.texture.uv import bilinear_texels
 
     rng = np.random.default_rng(3)
     painted = np.ones((128, 128), bool)
@@ -618,7 +618,7 @@ def test_run_time_coverage_check_never_passes_a_face_that_reads_outside_its_char
 def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
     """One read of a 2x2-block map at :func:`bilinear_corner` equals reducing over the four
     :func:`bilinear_texels`, at the clamped rim and outside [0, 1] too."""
-    from proctex.uv import bilinear_blocks, bilinear_corner, bilinear_texels
+    from proctex.texture.uv import bilinear_blocks, bilinear_corner, bilinear_texels
 
     rng = np.random.default_rng(0)
     labels = rng.integers(0, 3, (7, 5)).astype(np.int32)
@@ -639,7 +639,7 @@ def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
 
 
 def test_make_mapper_is_the_one_place_a_mapper_is_chosen_by_name():
-    from proctex.mappers import IdentityMapper, NetworkMapper, SolverMapper, make_mapper
+    from proctex.family.mappers import IdentityMapper, NetworkMapper, SolverMapper, make_mapper
 
     assets = object()  # only the solver mappers keep it
     nets = {0: object()}

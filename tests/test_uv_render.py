@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from proctex import primitives as P
 from proctex._reference.raster import rasterise_reference
 from proctex._reference.uv import texel_map_reference
-from proctex.geometry import SurfaceIndex, triangle_areas
+from proctex.geometry import primitives as P
+from proctex.geometry.parts import analyse
+from proctex.geometry.raster import rasterise
+from proctex.geometry.surface import SurfaceIndex, triangle_areas
 from proctex.models import get_model
-from proctex.parts import analyse
-from proctex.raster import rasterise
-from proctex.render import (
+from proctex.texture.render import (
     Camera,
     Tracer,
     bounding_sphere,
@@ -22,16 +22,8 @@ from proctex.render import (
     save_png,
     turntable,
 )
-from proctex.shape import Shape
-from proctex.uv import (
-    pad_seams,
-    planar_uv,
-    sample_texture,
-    shape_uv,
-    texel_map,
-    unwrap,
-    uv_to_pixel,
-)
+from proctex.geometry.shape import Shape
+from proctex.texture.uv import pad_seams, planar_uv, sample_texture, shape_uv, texel_map, unwrap, uv_to_pixel
 
 from .meshes import cube
 

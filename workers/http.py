@@ -17,7 +17,7 @@ Routes:
 - ``GET /v1/families/{name}/groups/{group}/texture.png?size=128&hue=&saturation=&value=&prompt=``:
   the group's texture (edited as given) as a PNG at most ``size`` pixels a side.
 - ``POST /v1/families/{name}/edits``: ``{"group": index or label, "hue", "saturation", "value",
-  "prompt"}`` stored into the family (:func:`proctex.family.edit_group`); returns
+  "prompt"}`` stored into the family (:func:`proctex.family.edits.edit_group`); returns
   ``{"family", "edit": record, "stamp": new build stamp}``. Later transfers use it.
 
 Errors are JSON ``{"error": message}``: unknown family (or group in a path) 404, body over the size
@@ -42,7 +42,7 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from proctex.service import BadInput, Catalog, NotFound, TooLarge, build_stamp, parse_edit
+from proctex.family.service import BadInput, Catalog, NotFound, TooLarge, build_stamp, parse_edit
 
 GLB_MEDIA_TYPE = "model/gltf-binary"
 STUDIO_DIST = Path(__file__).resolve().parent / "studio" / "dist"

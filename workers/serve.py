@@ -11,7 +11,7 @@ from typing import Any
 
 from ray import serve
 
-from proctex.service import Catalog, Limits
+from proctex.family.service import Catalog, Limits
 from workers.http import create_app
 
 

@@ -16,9 +16,9 @@ from typing import Any
 
 import ray
 
-from proctex.config import BuildConfig
-from proctex.family import PairJob, SampleJob, load_assets, run_pair_job, run_sample_job
-from proctex.store import FamilyStore, StoreLayout
+from proctex.family.config import BuildConfig
+from proctex.family.stages import PairJob, SampleJob, load_assets, run_pair_job, run_sample_job
+from proctex.family.store import FamilyStore, StoreLayout
 
 #: Ray retries a task whose worker died this many times (a job's own errors are recorded instead).
 MAX_RETRIES = 3
@@ -57,7 +57,7 @@ def pair_batch(store_uri: str, config: dict[str, Any], jobs: list[dict[str, Any]
 
     Returns ``{"records": [...], "pid": worker process id}``.
     """
-    from proctex.family import load_sample
+    from proctex.family.stages import load_sample
 
     _single_thread()
     store, cfg = FamilyStore(store_uri), BuildConfig.from_dict(config)

@@ -18,13 +18,13 @@ import time
 from typing import Any, Callable
 
 
-from proctex.config import BuildConfig
+from proctex.family.config import BuildConfig
 
 
-from proctex.family import group_training_data, save_group_model, trainable_groups
+from proctex.family.stages import group_training_data, save_group_model, trainable_groups
 
 
-from proctex.store import FamilyStore, StoreLayout
+from proctex.family.store import FamilyStore, StoreLayout
 
 
 def teams(world: int, groups: list[int]) -> list[tuple[list[int], list[int]]]:
@@ -46,7 +46,7 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
     import torch.distributed as dist
     from ray.train import Checkpoint
 
-    from proctex.corrnet import train
+    from proctex.correspond.corrnet import train
 
     torch.set_num_threads(int(loop_config.get("threads", 1)))
     ctx = ray.train.get_context()

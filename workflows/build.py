@@ -20,11 +20,23 @@ import time
 from dataclasses import asdict
 from typing import Any, Callable, Sequence
 
-from proctex.config import BuildConfig
-from proctex.family import STAGES, _mark, finish_pairs_stage, finish_sample_stage, load_assets, pair_complete, pair_jobs, pair_records, sample_jobs, stage_done, write_pairs_index
-from proctex.pipeline import STAGE_RUNNERS, build
+from proctex.family.config import BuildConfig
+from proctex.family.stages import (
+    STAGES,
+    _mark,
+    finish_pairs_stage,
+    finish_sample_stage,
+    load_assets,
+    pair_complete,
+    pair_jobs,
+    pair_records,
+    sample_jobs,
+    stage_done,
+    write_pairs_index,
+)
+from proctex.family.pipeline import STAGE_RUNNERS, build
+from proctex.family.store import FamilyStore
 from proctex.progress import Progress
-from proctex.store import FamilyStore
 
 
 def store_uri(root: str) -> str:

@@ -14,7 +14,7 @@ from proctex import cli as core
 def cmd_build(args: argparse.Namespace) -> int:
     if args.ray is None:
         return core.cmd_build(args)
-    from proctex.family import STAGES
+    from proctex.family.stages import STAGES
 
     from .build import build_on_ray
 
@@ -34,7 +34,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     import ray
     from ray import serve
 
-    from proctex.service import Catalog
+    from proctex.family.service import Catalog
     from workers.serve import build_app
 
     if args.port < 1 or args.port > 65535:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import torch
 
-from ..corrnet import ProcCorrNet
+from proctex.correspond.corrnet import ProcCorrNet
 
 
 def decode_reference(model: ProcCorrNet, query: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:

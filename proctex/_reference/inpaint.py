@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..inpaint import DEFAULT_MIN_SOURCE_SHARE, NNFResult, _penalty, _prepare_nnf_inputs
+from proctex.texture.inpaint import DEFAULT_MIN_SOURCE_SHARE, NNFResult, _penalty, _prepare_nnf_inputs
 
 
 def patch_distance_reference(

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ..mvc import _check_cage
+from proctex.correspond.mvc import _check_cage
 
 
 def mean_value_coordinates_reference(

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..painters.noise import _INV1023, _hash_cell, _octave_seed, _perlin_scalar, derive_seed, seed_key, split_points
+from proctex.texture.painters.noise import _INV1023, _hash_cell, _octave_seed, _perlin_scalar, derive_seed, seed_key, split_points
 
 
 def perlin_reference(points: np.ndarray, freq: float | Sequence[float] = 1.0, seed: int = 0) -> np.ndarray:

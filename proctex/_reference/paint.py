@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..painters.base import REFINE
-from ..render import Buffers
+from proctex.texture.painters.base import REFINE
+from proctex.texture.render import Buffers
 
 
 def backproject_reference(

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..raster import _check
+from proctex.geometry.raster import _check
 
 
 def rasterise_reference(

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..uv import _check_texel_args
+from proctex.texture.uv import _check_texel_args
 
 
 def texel_map_reference(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, size: int) -> dict[tuple[int, int], tuple[int, np.ndarray]]:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..shape import ProceduralModel, check_tessellation
+from proctex.geometry.shape import ProceduralModel, check_tessellation
 from .registry import REGISTRY as _REGISTRY
 from .registry import register
 

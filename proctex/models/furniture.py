@@ -15,9 +15,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .. import primitives as P
+from proctex.geometry import primitives as P
+from proctex.geometry.shape import ProceduralModel, Shape, ShapeBuilder
 from ..params import ParamSpace, choice, continuous, integer
-from ..shape import ProceduralModel, Shape, ShapeBuilder
 from .registry import register
 
 Warp = Callable[[np.ndarray, np.ndarray], np.ndarray]

@@ -4,7 +4,7 @@ loads them."""
 
 from __future__ import annotations
 
-from ..shape import ProceduralModel
+from proctex.geometry.shape import ProceduralModel
 
 REGISTRY: dict[str, type[ProceduralModel]] = {}
 

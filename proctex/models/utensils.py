@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import primitives as P
+from proctex.geometry import primitives as P
+from proctex.geometry.shape import ProceduralModel, Shape, ShapeBuilder
 from ..params import ParamSpace, continuous, integer
-from ..shape import ProceduralModel, Shape, ShapeBuilder
 from .registry import register
 
 HEAD_LENGTH = 0.028

@@ -15,9 +15,9 @@ import torch
 from fixtures import shapes, template
 import harness
 from harness import report, timeit
-from proctex.corrnet import CorrNetConfig, build_model
-from proctex.mappers import NetworkMapper
-from proctex.transfer import bake, glb, transfer
+from proctex.correspond.corrnet import CorrNetConfig, build_model
+from proctex.family.mappers import NetworkMapper
+from proctex.family.transfer import bake, glb, transfer
 
 
 def run(args) -> dict:

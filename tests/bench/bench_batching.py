@@ -24,12 +24,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     if args.family:
-        from proctex.family import load_models
-        from proctex.store import FamilyStore
+        from proctex.family.stages import load_models
+        from proctex.family.store import FamilyStore
 
         model = next(iter(load_models(FamilyStore(args.family)).values()))
     else:
-        from proctex.corrnet import CorrNetConfig, build_model
+        from proctex.correspond.corrnet import CorrNetConfig, build_model
 
         model = build_model(CorrNetConfig()).eval()
     rows = []

@@ -14,11 +14,11 @@ import torch
 
 import harness
 from harness import report, timeit
-from proctex.cage import CageConfig
-from proctex.correspond import correspond_parts
-from proctex.geometry import normalised_frame
+from proctex.correspond.cage import CageConfig
+from proctex.correspond.dense import correspond_parts
+from proctex.geometry.parts import part_mesh, segment
+from proctex.geometry.surface import normalised_frame
 from proctex.models import get_model
-from proctex.parts import part_mesh, segment
 
 
 def run(args) -> dict:

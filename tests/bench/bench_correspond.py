@@ -47,11 +47,11 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     torch.set_num_threads(args.threads)
-    from proctex.cage import CageConfig
-    from proctex.correspond import correspond_shapes
+    from proctex.correspond.cage import CageConfig
+    from proctex.correspond.dense import correspond_shapes
+    from proctex.family.sources import FolderSource
+    from proctex.geometry.parts import analyse
     from proctex.models import get_model
-    from proctex.parts import analyse
-    from proctex.sources import FolderSource
 
     cage = CageConfig() if args.level is None else CageConfig(level=args.level)
     if args.chamfer is not None:

@@ -35,7 +35,7 @@ SOFA_DIR = ROOT.parent / "shared" / "data" / "procedural_sofa"
 def _template_and_shapes(name: str, n_train: int, n_test: int, seed: int, sofa_dir: Path):
     """``(template Shape, [(shape id, split, loader)])``; loaders are callables returning a Shape."""
     if name == "sofa_data":
-        from proctex.sources import FolderSource
+        from proctex.family.sources import FolderSource
 
         src = FolderSource(sofa_dir)
         template = src.load(src.template_index())
@@ -56,10 +56,10 @@ def build_pairs(name: str, n_train: int, n_test: int, points: int, seed: int, so
     """Cage pairs of one model as a dict of stacked arrays (see :func:`load_or_build`)."""
     import numpy as np
 
-    from proctex.correspond import correspond_shapes
-    from proctex.geometry import normalised_frame
-    from proctex.parts import analyse, part_mesh
-    from proctex.metrics import interpolate
+    from proctex.correspond.dense import correspond_shapes
+    from proctex.geometry.parts import analyse, part_mesh
+    from proctex.geometry.surface import normalised_frame
+    from proctex.texture.metrics import interpolate
 
     template, items = _template_and_shapes(name, n_train, n_test, seed, sofa_dir)
     tg = analyse(template)
@@ -127,10 +127,10 @@ SUMMARY_KEYS = (
 
 def _template_parts(name: str, sofa_dir: Path) -> tuple[object, object]:
     """The model's template shape and its grouping (regenerated; deterministic)."""
-    from proctex.parts import analyse
+    from proctex.geometry.parts import analyse
 
     if name == "sofa_data":
-        from proctex.sources import FolderSource
+        from proctex.family.sources import FolderSource
 
         src = FolderSource(sofa_dir)
         template = src.load(src.template_index())
@@ -161,10 +161,10 @@ def gt_errors(model, data: dict, rows: list[int], template, tgrouping, seed: int
     plus the pseudo-ground-truth error after projection."""
     import numpy as np
 
-    from proctex.corrnet import predict
-    from proctex.geometry import SurfaceIndex, normalised_frame
-    from proctex.metrics import gt_correspondence_error
-    from proctex.parts import part_mesh
+    from proctex.correspond.corrnet import predict
+    from proctex.geometry.parts import part_mesh
+    from proctex.geometry.surface import SurfaceIndex, normalised_frame
+    from proctex.texture.metrics import gt_correspondence_error
 
     tp = int(data["template_part"][rows[0]])
     tv, tf = part_mesh(template, tgrouping.parts[tp])
@@ -196,8 +196,8 @@ def predict_timing(model, src, template_vertices, repeats: int = 7) -> dict:
     in float32 and with bfloat16 autocast."""
     import numpy as np
 
-    from proctex.corrnet import predict
-    from proctex.geometry import normalised_frame
+    from proctex.correspond.corrnet import predict
+    from proctex.geometry.surface import normalised_frame
 
     c, r = normalised_frame(template_vertices)
     query = np.concatenate([src, (template_vertices - c) / r])
@@ -218,7 +218,7 @@ def step_timing(config, repeats: int = 20) -> dict:
     import numpy as np
     import torch
 
-    from proctex.corrnet import build_model, sample_batch, train_step
+    from proctex.correspond.corrnet import build_model, sample_batch, train_step
 
     model = build_model(config)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
@@ -241,8 +241,8 @@ def run_group(name: str, data: dict, group: int, config, n_val: int, template, t
     """Train one group's network and evaluate it on the group's test shapes."""
     import numpy as np
 
-    from proctex.corrnet import eval_step, train
-    from proctex.parts import part_mesh
+    from proctex.correspond.corrnet import eval_step, train
+    from proctex.geometry.parts import part_mesh
 
     tr, val, te, te_rows = group_splits(data, group, n_val)
     if not tr or not te:
@@ -321,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.threads)
     sys.path.insert(0, str(ROOT))
-    from proctex.corrnet import CorrNetConfig
+    from proctex.correspond.corrnet import CorrNetConfig
 
     base = parse_settings(args.set)
     variants: list[tuple[str, dict]] = [] if (args.skip_base and args.sweep) else [("base", base)]

@@ -27,10 +27,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from harness import write_json  # noqa: E402
 
-from proctex.evaluate import evaluate, markdown_table  # noqa: E402
-from proctex.config import BuildConfig  # noqa: E402
-from proctex.pipeline import build  # noqa: E402
-from proctex.store import FamilyStore  # noqa: E402
+from proctex.family.config import BuildConfig  # noqa: E402
+from proctex.family.evaluate import evaluate, markdown_table  # noqa: E402
+from proctex.family.pipeline import build  # noqa: E402
+from proctex.family.store import FamilyStore  # noqa: E402
 
 PROMPTS = {"vase": "blue and white porcelain with floral patterns", "mug": "blue and white striped ceramic",
            "chair": "weathered oak wood with a red cushion", "table": "polished walnut wood", "mushroom": "red cap with white spots",

@@ -14,7 +14,7 @@ import torch
 
 import harness
 from harness import report, timeit
-from proctex.corrnet import CorrNetConfig, build_model, predict
+from proctex.correspond.corrnet import CorrNetConfig, build_model, predict
 
 
 def run(args) -> dict:

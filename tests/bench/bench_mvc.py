@@ -14,8 +14,8 @@ import torch
 
 import harness
 from harness import report, timeit
-from proctex.cage import init_cage
-from proctex.mvc import mean_value_coordinates
+from proctex.correspond.cage import init_cage
+from proctex.correspond.mvc import mean_value_coordinates
 
 
 def run(args) -> dict:

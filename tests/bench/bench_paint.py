@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from proctex.metrics import coverage
-from proctex.paint import SolidViewPainter, paint_surface, paint_views
-from proctex.painters import SurfacePainter
-from proctex.parts import analyse
-from proctex.render import Tracer, bounding_sphere, embree_available, orbit_path, render_buffers
-from proctex.sources import FolderSource
+from proctex.family.sources import FolderSource
+from proctex.geometry.parts import analyse
+from proctex.texture.metrics import coverage
+from proctex.texture.paint import SolidViewPainter, paint_surface, paint_views
+from proctex.texture.painters import SurfacePainter
+from proctex.texture.render import Tracer, bounding_sphere, embree_available, orbit_path, render_buffers
 
 SOFA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "procedural_sofa"
 

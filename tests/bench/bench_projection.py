@@ -13,7 +13,7 @@ import numpy as np
 
 import harness
 from harness import report, timeit
-from proctex.geometry import SurfaceIndex, sample_surface
+from proctex.geometry.surface import SurfaceIndex, sample_surface
 from proctex.models import get_model
 
 

@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import numpy as np
 
-    from proctex.painters import SurfacePainter
+    from proctex.texture.painters import SurfacePainter
 
     prompts = [p.strip() for p in args.prompts.split(";")] if args.prompts else PROMPTS
     rng = np.random.default_rng(args.seed)

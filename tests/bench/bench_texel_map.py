@@ -11,7 +11,7 @@ import sys
 from fixtures import template
 import harness
 from harness import report, timeit
-from proctex.uv import texel_map
+from proctex.texture.uv import texel_map
 
 
 def run(args) -> dict:

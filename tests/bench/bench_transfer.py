@@ -22,14 +22,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from proctex.meshio import load_mesh
-from proctex.paint import paint_surface
-from proctex.painters import SurfacePainter
-from proctex.parts import analyse
-from proctex.sources import FolderSource
-from proctex.assets import prepare_template
-from proctex.mappers import IdentityMapper, NetworkMapper
-from proctex.transfer import bake, glb, transfer
+from proctex.family.assets import prepare_template
+from proctex.family.mappers import IdentityMapper, NetworkMapper
+from proctex.family.sources import FolderSource
+from proctex.family.transfer import bake, glb, transfer
+from proctex.geometry.meshio import load_mesh
+from proctex.geometry.parts import analyse
+from proctex.texture.paint import paint_surface
+from proctex.texture.painters import SurfacePainter
 
 SOFA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "procedural_sofa"
 
@@ -50,14 +50,14 @@ def main(argv=None) -> int:
 
     src = FolderSource(args.sofa)
     if args.family:
-        from proctex.family import load_assets, load_models
-        from proctex.store import FamilyStore
+        from proctex.family.stages import load_assets, load_models
+        from proctex.family.store import FamilyStore
 
         store = FamilyStore(args.family)
         assets = load_assets(store)
         models = load_models(store)
     else:
-        from proctex.corrnet import CorrNetConfig, build_model
+        from proctex.correspond.corrnet import CorrNetConfig, build_model
 
         template = src.load(src.template_index())
         grouping = analyse(template)

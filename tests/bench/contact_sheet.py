@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from proctex.paint import paint_surface
-from proctex.painters import SurfacePainter
-from proctex.parts import analyse
-from proctex.render import Tracer, bounding_sphere, default_up, orbit_camera, render_buffers, save_png, shade, textured_albedo
-from proctex.sources import resolve_shape
+from proctex.family.sources import resolve_shape
+from proctex.geometry.parts import analyse
+from proctex.texture.paint import paint_surface
+from proctex.texture.painters import SurfacePainter
+from proctex.texture.render import Tracer, bounding_sphere, default_up, orbit_camera, render_buffers, save_png, shade, textured_albedo
 
 PROMPTS = [
     "red velvet",

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+from proctex.family.assets import prepare_template
+from proctex.geometry.parts import analyse
 from proctex.models import get_model
-from proctex.paint import paint_surface
-from proctex.painters import SurfacePainter
-from proctex.parts import analyse
-from proctex.assets import prepare_template
+from proctex.texture.paint import paint_surface
+from proctex.texture.painters import SurfacePainter
 
 
 @lru_cache(maxsize=4)

@@ -11,12 +11,12 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Mapping
 
-from .evaluate import stage_evaluate
 from .config import BuildConfig
-from .family import STAGES, _state, stage_paint, stage_pairs, stage_sample, stage_template, stage_train, write_config
+from .evaluate import stage_evaluate
+from .stages import STAGES, _state, stage_paint, stage_pairs, stage_sample, stage_template, stage_train, write_config
 from .store import FamilyStore
 
-#: Stage name -> ``runner(store, config, log=...)``, in :data:`proctex.family.STAGES` order.
+#: Stage name -> ``runner(store, config, log=...)``, in :data:`proctex.family.stages.STAGES` order.
 STAGE_RUNNERS: Mapping[str, Callable[..., None]] = {
     "sample": stage_sample,
     "template": stage_template,
@@ -29,7 +29,7 @@ STAGE_RUNNERS: Mapping[str, Callable[..., None]] = {
 
 def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | list[str] = STAGES, log: Callable[[str], None] = print,
           runners: Mapping[str, Callable[..., None]] = STAGE_RUNNERS) -> dict[str, Any]:
-    """Run the build ``stages`` in :data:`proctex.family.STAGES` order with ``runners`` (stage ->
+    """Run the build ``stages`` in :data:`proctex.family.stages.STAGES` order with ``runners`` (stage ->
     ``runner(store, config, log=...)``; each skips what is complete). The one stage loop: the Ray
     build hands it a table whose fanned-out stages run on Ray (``workflows/build.py``). Returns the
     family state with ``wall_seconds`` per stage run. ``ValueError`` for a stage name the table does

@@ -30,10 +30,10 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .meshio import FORMATS, load_mesh, read_params
-from .models import get_model, list_models
-from .params import ParamSpace, infer_space, select_template
-from .shape import ProceduralModel, Shape
+from proctex.geometry.meshio import FORMATS, load_mesh, read_params
+from proctex.geometry.shape import ProceduralModel, Shape
+from proctex.models import get_model, list_models
+from proctex.params import ParamSpace, infer_space, select_template
 
 SPLIT_ALIASES = {"train": "train", "inference": "test", "test": "test"}
 

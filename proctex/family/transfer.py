@@ -12,7 +12,7 @@ side), :mod:`proctex.assign` (step 2), :mod:`proctex.mappers` (step 3), :mod:`pr
    (centre and extents relative to the shape's bounding box). Parts left over (a group the template
    does not have, or more copies than the template has) join a group they are another copy of:
    the same connectivity up to an affine map, else the same primitive once both bounding boxes are
-   scaled to a cube (:func:`proctex.assign.match_box`: a wider tier, a longer leg), else a rigid
+   scaled to a cube (:func:`proctex.family.assign.match_box`: a wider tier, a longer leg), else a rigid
    ICP fit; parts matching none form a new group.
 3. **Map** each part, in its normalised frame (and mirrored into the representative's side by the
    slot's member map), onto the template representative's normalised frame with a *mapper* (a
@@ -34,12 +34,12 @@ from typing import Any
 
 import numpy as np
 
+from proctex.geometry.parts import part_mesh, segment
+from proctex.geometry.shape import Shape
+from proctex.texture.uv import pad_seams, sample_texture, texel_map, unwrap
 from .assets import TemplateAssets, same_topology
 from .assign import PartAssignment, assign_parts, representative_frame
 from .mappers import Mapper
-from .parts import part_mesh, segment
-from .shape import Shape
-from .uv import pad_seams, sample_texture, texel_map, unwrap
 from .uvlookup import _side_normals, chart_lookups, part_uvs
 
 
@@ -153,7 +153,7 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
     Points go to the painter in the shape's normalised frame, as when the template was painted.
     Returns (corner_uv (k, 3, 2), texture (size, size, 3) uint8).
     """
-    from .paint import UNPAINTED, shape_frame
+    from proctex.texture.paint import UNPAINTED, shape_frame
 
     used = np.unique(shape.faces[faces])
     local = np.searchsorted(used, shape.faces[faces])
@@ -169,7 +169,7 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
 def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = "y") -> bytes:
     """Textured GLB bytes of a transferred shape (reuses the template's encoded PNGs); ``up``: the
     shape's up axis (the GLB stands it upright, see :func:`proctex.export.glb_bytes`)."""
-    from .export import glb_bytes
+    from proctex.texture.export import glb_bytes
 
     extra = [f"new_{k}" for k in range(len(result.new_textures))]
     return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png + list(result.new_textures), names=assets.names + extra, up=up)
@@ -207,7 +207,7 @@ class Baked:
 def disoccluded_texels(uv: np.ndarray, observed: np.ndarray) -> np.ndarray:
     """(k,) bool: which template lookups at ``uv (k, 2)`` touch a texel outside ``observed (H, W)``
     (any of the four texels of the bilinear footprint)."""
-    from .uv import bilinear_texels
+    from proctex.texture.uv import bilinear_texels
 
     idx = bilinear_texels(np.asarray(uv, dtype=np.float64), observed.shape[0], observed.shape[1])
     return ~observed.ravel()[idx].all(axis=1)
@@ -235,7 +235,7 @@ def bake(
     detected and, with ``fill="patchmatch"``, re-synthesised by exemplar PatchMatch from this group's
     other texels; no other texel changes (``fill="none"`` keeps the template's colours there).
     """
-    from .inpaint import patchmatch_fill
+    from proctex.texture.inpaint import patchmatch_fill
 
     if fill not in ("patchmatch", "none"):
         raise ValueError(f"fill must be patchmatch or none, got {fill!r}")

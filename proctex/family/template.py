@@ -5,14 +5,17 @@ store. The stored grouping is read back as it was painted, not analysed again.""
 from __future__ import annotations
 
 import io
+import json
+from pathlib import Path
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from .parts import Grouping, analyse, segment
-from .shape import Shape
-from .store import FamilyStore, StoreLayout
+from proctex.fileio import atomic_write
+from proctex.geometry.parts import Grouping, analyse, segment
+from proctex.geometry.shape import Shape
+from .store import FamilyStore, StoreLayout, group_file_name
 
 
 @dataclass
@@ -45,7 +48,7 @@ class Template:
     def save(self, store: FamilyStore) -> None:
         """Write the grouping, UVs, masks and group textures (PNG) into ``store`` (atomically, file
         by file). The painter's own outputs (summary, preview, textured GLB) are the paint stage's."""
-        from .fileio import encode_png
+        from proctex.fileio import encode_png
 
         store.write_json(StoreLayout.GROUPING, self.grouping.to_dict())
         store.write_arrays(StoreLayout.UV, corner_uv=self.corner_uv, face_group=self.face_group)
@@ -98,7 +101,7 @@ class Template:
         if self.painted is not None:
             assets.painted, assets.observed = self.painted, self.observed
         else:
-            from .uv import pad_seams, texel_map
+            from proctex.texture.uv import pad_seams, texel_map
 
             masks = []
             for ga, tex in zip(assets.groups, assets.textures):
@@ -108,3 +111,37 @@ class Template:
                 masks.append(mask)
             assets.painted, assets.observed = masks, masks
         return assets
+
+
+def write_textured(tex: Any, out: str | Path, up: str = "z", obj: bool = False, preview_size: int = 256) -> dict[str, Any]:
+    """Write a painted template (:class:`proctex.texture.paint.TemplateTexture`) into the folder ``out``: the per-group PNGs, ``textured.glb``, ``preview.png`` (six views) and ``paint.json``.
+
+    Every file is written atomically; returns the summary written to ``paint.json`` (with the
+    coverage of the result and the written paths).
+    """
+    from proctex.geometry.preview import grid_image
+    from proctex.texture.export import write_glb, write_obj
+    from proctex.texture.metrics import coverage
+    from proctex.texture.paint import preview_views
+    from proctex.texture.render import save_png
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for g in tex.groups:
+        save_png(out / group_file_name(g.group, g.label), g.uint8())
+        written.append(str(out / group_file_name(g.group, g.label)))
+    names = [g.label or f"group_{g.group}" for g in tex.groups]
+    textures = [g.uint8() for g in tex.groups]
+    shape = tex.shape
+    write_glb(out / "textured.glb", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names, up=up)
+    written.append(str(out / "textured.glb"))
+    if obj:
+        written += write_obj(out / "textured.obj", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names)
+    views = preview_views(tex, up, preview_size)
+    save_png(out / "preview.png", grid_image([views[:3], views[3:]]))
+    written.append(str(out / "preview.png"))
+    cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.painted_masks, up=up)
+    summary = {**tex.summary(), "up": up, "coverage": cov.to_dict(), "files": written + [str(out / StoreLayout.PAINT_NAME)]}
+    atomic_write(out / StoreLayout.PAINT_NAME, json.dumps(summary, indent=1))
+    return summary

@@ -38,11 +38,11 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .geometry import SurfaceIndex, face_normals, sample_surface
-from .metrics import interpolate
-from .parts import Grouping, Segmentation, part_mesh
-from .shape import Shape
-from .uv import sample_texture
+from proctex.geometry.parts import Grouping, Segmentation, part_mesh
+from proctex.geometry.shape import Shape
+from proctex.geometry.surface import SurfaceIndex, face_normals, sample_surface
+from proctex.texture.metrics import interpolate
+from proctex.texture.uv import sample_texture
 
 #: Trackers of the tracked-point variance, best first.
 TRACKERS = ("canonical", "vertex-index", "cage")
@@ -238,7 +238,7 @@ def locate_by_map(tracked: TrackedPoints, template: Shape, shape: Shape, seg: Se
                   seed: int | dict[int, int] = 0) -> Location:
     """Locate tracked points of group representatives through a correspondence map (the cage
     tracker): per group, the shape part standing for the representative
-    (:func:`proctex.assign.choose_part`) is mapped into the representative's normalised frame by
+    (:func:`proctex.family.assign.choose_part`) is mapped into the representative's normalised frame by
     ``mapper`` (:class:`proctex.mappers.Mapper`) and the map is inverted exactly: the closest
     point of the mapped part mesh gives the face and barycentrics of the shape point. ``seed``: the
     mapper's seed, or one per group (the cage tracker solves each pair with the build's seed)."""
@@ -446,7 +446,7 @@ def _mapped_points(shape: Shape, seg: Segmentation, result, assets, part: int, f
 
 
 def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets, truth: TemplateTruth, flips: bool = False):
-    """Ground-truth errors (k,) of a transfer (:class:`proctex.transfer.TransferResult`) at
+    """Ground-truth errors (k,) of a transfer (:class:`proctex.family.transfer.TransferResult`) at
     ``samples``, in the normalised frame of the representative the method chose, and the group
     (k,) each point was measured in (-1: failed or no truth). With ``flips``, also (k,) float:
     1 where the point landed on a template face facing away from its true face (the other side of
@@ -499,7 +499,7 @@ def pgt_errors(shape: Shape, seg: Segmentation, result, assets, pairs: Sequence[
     """Pseudo-ground-truth errors of a transfer against the stored cage pairs of this shape.
 
     ``pairs``: per pair ``{"group", "part", "src" (n, 3), "dst" (n, 3)}`` (source samples in the
-    representative's normalised frame, as :func:`proctex.assign.representative_frame` puts the
+    representative's normalised frame, as :func:`proctex.family.assign.representative_frame` puts the
     part, and their cage template points). Returns ``(errors (N,), groups (N,), per-pair means)``;
     a pair whose part the method dropped or put in another group fails every point.
     """

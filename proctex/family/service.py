@@ -10,8 +10,8 @@ Requests are validated here with ``ValueError`` subclasses that a server maps to
 :class:`NotFound` (404), :class:`BadInput` (422) and :class:`TooLarge` (413).
 
 Non-destructive edits (:class:`GroupEdit`): a transfer can take, per template group, a re-paint
-prompt and an HSV shift applied to a copy of the group's texture (:func:`proctex.family.edit_texture`,
-the code :func:`proctex.family.edit_group` persists with); edited textures are kept in a small LRU
+prompt and an HSV shift applied to a copy of the group's texture (:func:`proctex.family.edits.edit_texture`,
+the code :func:`proctex.family.edits.edit_group` persists with); edited textures are kept in a small LRU
 cache per service so that a client dragging a hue slider costs one HSV shift per new value.
 """
 
@@ -136,9 +136,9 @@ class FamilyService:
     """One built family, loaded for transfer."""
 
     def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None) -> None:
-        from .family import load_assets, load_models, stored_config
-        from .painters import SurfacePainter
+        from proctex.texture.painters import SurfacePainter
         from .mappers import make_mapper
+        from .stages import load_assets, load_models, stored_config
 
         t0 = time.perf_counter()
         self.store = store
@@ -164,12 +164,12 @@ class FamilyService:
     # --------------------------------------------------------------------------------- describe
     def describe(self) -> dict[str, Any]:
         """Parameter specs, groups, prompts and state of the family (JSON-ready)."""
-        from .params import infer_space
+        from proctex.params import infer_space
 
         if self.model is not None:
             space = self.model.space
         else:
-            from .family import samples
+            from .stages import samples
 
             space = infer_space([json.loads(r["params"]) for r in samples(self.store)])
         paint = self.store.read_json(StoreLayout.PAINT) if self.store.exists(StoreLayout.PAINT) else {}
@@ -207,7 +207,7 @@ class FamilyService:
             raise BadInput(str(exc)) from exc
 
     def shape_from_mesh(self, data: bytes, filename: str = "mesh.obj"):
-        from .meshio import load_mesh_bytes
+        from proctex.geometry.meshio import load_mesh_bytes
 
         if len(data) > self.limits.max_bytes:
             raise TooLarge(f"mesh of {len(data)} bytes is over the limit of {self.limits.max_bytes}")
@@ -285,7 +285,7 @@ class FamilyService:
 
     def _repainted(self, group: int, prompt: str):
         """The group's texture re-painted with ``prompt`` (float, before any HSV shift; cached)."""
-        from .family_edits import edit_texture
+        from .edits import edit_texture
 
         key = (group, prompt)
         with self._edit_lock:
@@ -304,11 +304,11 @@ class FamilyService:
 
     def edited_texture(self, group: int, edit: GroupEdit) -> tuple[Any, bytes]:
         """``(uint8 (H, W, 3) texture, PNG bytes)`` of template group ``group`` after ``edit``, the same
-        texture :func:`proctex.family.edit_group` would store (an identity edit: the template's own)."""
+        texture :func:`proctex.family.edits.edit_group` would store (an identity edit: the template's own)."""
         import numpy as np
 
-        from .family_edits import edit_texture
-        from .fileio import encode_png
+        from proctex.fileio import encode_png
+        from .edits import edit_texture
 
         if edit.identity:
             return self.assets.textures[group], self.assets.png[group]
@@ -351,10 +351,10 @@ class FamilyService:
         return buf.getvalue()
 
     def persist_edit(self, raw: Any) -> dict[str, Any]:
-        """Store an edit into the family (:func:`proctex.family.edit_group`): ``{"group": index or
+        """Store an edit into the family (:func:`proctex.family.edits.edit_group`): ``{"group": index or
         label, "hue", "saturation", "value", "prompt"}``. Returns the edit record; this service is
         stale afterwards (the catalog reloads the family on its new build stamp)."""
-        from .family_edits import edit_group
+        from .edits import edit_group
 
         if not isinstance(raw, dict) or "group" not in raw:
             raise BadInput('send {"group": <index or label>, "hue": deg, "saturation": s, "value": v, "prompt": text}')
@@ -416,7 +416,7 @@ class Catalog:
             if cached is not None and build_stamp(store) == cached[0].stamp:
                 self._cache[name] = (cached[0], now)
                 return cached[0]
-            from .family import stage_done
+            from .stages import stage_done
 
             if not stage_done(store, "paint"):
                 raise NotFound(f"family {name!r} is not built yet (no painted template)")

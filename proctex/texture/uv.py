@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from .geometry import SurfaceIndex, face_normals, normalised_frame, triangle_areas
-from .parts import Grouping, MemberMap, PartInfo
-from .raster import rasterise
-from .shape import Shape
+from proctex.geometry.parts import Grouping, MemberMap, PartInfo
+from proctex.geometry.raster import rasterise
+from proctex.geometry.shape import Shape
+from proctex.geometry.surface import SurfaceIndex, face_normals, normalised_frame, triangle_areas
 
 AREA_EPS = 1e-12  # zero area, relative to the part's normalised frame
 

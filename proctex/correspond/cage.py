@@ -47,10 +47,10 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from .geometry import SurfaceIndex
-from .metrics import interpolate
+from proctex.geometry.primitives import box
+from proctex.geometry.surface import SurfaceIndex
+from proctex.texture.metrics import interpolate
 from .mvc import mean_value_coordinates
-from .primitives import box
 
 #: Pre-alignments of a source part (:attr:`CageConfig.prealign`).
 PREALIGNS = ("icp", "box", "auto")

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .geometry import SurfaceIndex, face_normals, normalised_frame
+from proctex.geometry.surface import SurfaceIndex, face_normals, normalised_frame
 
 
 @dataclass

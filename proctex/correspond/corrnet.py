@@ -728,7 +728,7 @@ def from_bytes(data: bytes, device: str = "cpu", where: str = "checkpoint") -> t
 
 def save(path: str | os.PathLike, model: ProcCorrNet, config: CorrNetConfig, extra: dict[str, Any] | None = None) -> None:
     """Write :func:`to_bytes` to ``path`` atomically (its folder is created)."""
-    from .fileio import atomic_write
+    from proctex.fileio import atomic_write
 
     data = to_bytes(model, config, extra)
     path = Path(path)

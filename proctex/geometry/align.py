@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .geometry import SurfaceIndex
+from .surface import SurfaceIndex
 
 
 def umeyama(src: np.ndarray, dst: np.ndarray, scale: bool = False, reflection: bool | None = False) -> tuple[np.ndarray, np.ndarray, float]:

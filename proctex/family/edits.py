@@ -8,10 +8,10 @@ from typing import Any
 
 import numpy as np
 
-from .family import load_template_shape, stored_config
-from .fileio import encode_png
-from .parts import analyse
-from .shape import Shape
+from proctex.fileio import encode_png
+from proctex.geometry.parts import analyse
+from proctex.geometry.shape import Shape
+from .stages import load_template_shape, stored_config
 from .store import FamilyStore, StoreLayout
 
 def _group_entry(store: FamilyStore, group: int | str) -> dict[str, Any]:
@@ -25,7 +25,7 @@ def _group_entry(store: FamilyStore, group: int | str) -> dict[str, Any]:
 
 def refresh_template_glb(store: FamilyStore) -> None:
     """Rewrite ``template/textured.glb`` from the stored mesh, UVs and group PNGs."""
-    from .export import glb_bytes
+    from proctex.texture.export import glb_bytes
     config = stored_config(store)
     template = load_template_shape(store, config)
     uv = store.read_arrays(StoreLayout.UV)
@@ -64,7 +64,7 @@ def edit_texture(
         the re-paint coloured (None without a prompt); the edit record (``group``, ``prompt``,
         ``hsv`` as given, without the operations that were no-ops).
     """
-    from .edit import shift_hsv
+    from proctex.texture.edit import shift_hsv
 
     t = np.asarray(texture)
     tex = (t.astype(np.float32) / 255) if t.dtype == np.uint8 else t.astype(np.float32)
@@ -72,9 +72,9 @@ def edit_texture(
     record: dict[str, Any] = {"group": int(group)}
     painted = None
     if prompt is not None:
-        from .paint import shape_frame
-        from .painters import SurfacePainter
-        from .uv import pad_seams, texel_map
+        from proctex.texture.paint import shape_frame
+        from proctex.texture.painters import SurfacePainter
+        from proctex.texture.uv import pad_seams, texel_map
 
         if template is None or rep_faces is None or rep_corner_uv is None:
             raise ValueError("a re-paint needs the template, its representative faces and their UVs")
@@ -118,7 +118,7 @@ def edit_group(
 
     from PIL import Image
 
-    from .edit import load_overlay, place_image
+    from proctex.texture.edit import load_overlay, place_image
     entry = _group_entry(store, group)
     gi = int(entry["group"])
     rel = StoreLayout.texture(gi, entry["label"])

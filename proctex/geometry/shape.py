@@ -12,7 +12,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .params import ParamSpace
+from proctex.params import ParamSpace
 from .primitives import Part
 
 

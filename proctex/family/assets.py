@@ -9,9 +9,9 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from .geometry import SurfaceIndex, normalised_frame
-from .parts import Grouping, part_mesh
-from .shape import Shape
+from proctex.geometry.parts import Grouping, part_mesh
+from proctex.geometry.shape import Shape
+from proctex.geometry.surface import SurfaceIndex, normalised_frame
 
 if TYPE_CHECKING:  # annotations only: the lookups are built above this module
     from .uvlookup import ChartLookup
@@ -84,7 +84,7 @@ def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, te
         shape, grouping: the template; corner_uv: (m, 3, 2) its UVs; textures: per group (H, W, 3)
         uint8 (or float in [0, 1]) images; names: per group material names.
     """
-    from .export import _png
+    from proctex.texture.export import _png
 
     if len(textures) != len(grouping.groups):
         raise ValueError(f"need one texture per group ({len(grouping.groups)}), got {len(textures)}")

@@ -42,7 +42,7 @@ import numpy as np
 import pygltflib as gl
 from PIL import Image
 
-from .fileio import atomic_write, encode_png
+from proctex.fileio import atomic_write, encode_png
 
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 GREY = [0.5, 0.5, 0.5, 1.0]

@@ -8,8 +8,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from proctex.geometry.surface import sample_surface
 from .assets import TemplateAssets
-from .geometry import sample_surface
 
 
 class Mapper(Protocol):
@@ -40,7 +40,7 @@ class SolverMapper:
         self.last = None
 
     def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray:
-        from .correspond import correspond_parts, deform
+        from proctex.correspond.dense import correspond_parts, deform
 
         ga = self.assets.groups[group]
         res = correspond_parts(vertices, faces, ga.vertices, ga.faces, method=self.method, n_points=self.n_points, seed=seed, cage=self.cage)
@@ -63,7 +63,7 @@ class NetworkMapper:
 
     def __init__(self, models: dict[int, Any], context: int | None = None, fallback: Mapper | None = None, threads: int | None = 1,
                  autocast: str = "auto") -> None:
-        from .corrnet import AUTOCASTS
+        from proctex.correspond.corrnet import AUTOCASTS
 
         if autocast not in AUTOCASTS + ("auto",):
             raise ValueError(f"autocast must be one of {AUTOCASTS + ('auto',)}, got {autocast!r}")
@@ -75,7 +75,7 @@ class NetworkMapper:
         self.threads = threads
 
     def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray:
-        from .corrnet import predict
+        from proctex.correspond.corrnet import predict
 
         model = self.models.get(group)
         if model is None:

@@ -22,19 +22,16 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .fileio import atomic_write
-from .geometry import normalised_frame
-from .painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest
-from .parts import Grouping, PartGroup
+from proctex.geometry.parts import Grouping, PartGroup
+from proctex.geometry.shape import Shape
+from proctex.geometry.surface import normalised_frame
+from proctex.texture.painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest
 from .render import Buffers, Camera, Tracer, bounding_sphere, canonical_cameras, orbit_path, render_buffers, textured_albedo
-from .shape import Shape
-from .store import StoreLayout, group_file_name
 from .uv import ShapeUV, TexelMap, pad_seams, sample_texture, shape_uv, texel_map
 
 UNPAINTED = 0.5  # grey shown where nothing is painted yet
@@ -649,7 +646,7 @@ def paint_template(
     if painter == "views":
         view_painter: Any = SolidViewPainter(surface, grouping)
     elif painter == "diffusion":
-        from .painters.diffusion import DiffusionViewPainter
+        from proctex.texture.painters.diffusion import DiffusionViewPainter
 
         view_painter = DiffusionViewPainter(model_dir, device=device, steps=steps)
     else:
@@ -711,38 +708,3 @@ def preview_views(tex: TemplateTexture, up: str = "z", size: int = 256, backend:
         b = render_buffers(tracer, cam, face_group=tex.uv.face_group)
         images.append(shade(b, textured_albedo(b, tex.uv.corner_uv, tex.uv.face_group, tex.images)))
     return images
-
-
-def write_textured(tex: TemplateTexture, out: str | Path, up: str = "z", obj: bool = False, preview_size: int = 256) -> dict[str, Any]:
-    """Write the per-group PNGs, ``textured.glb``, ``preview.png`` (six views) and ``paint.json``.
-
-    Every file is written atomically; returns the summary written to ``paint.json`` (with the
-    coverage of the result and the written paths).
-    """
-    import json
-
-    from .export import write_glb, write_obj
-    from .metrics import coverage
-    from .preview import grid_image
-    from .render import save_png
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for g in tex.groups:
-        save_png(out / group_file_name(g.group, g.label), g.uint8())
-        written.append(str(out / group_file_name(g.group, g.label)))
-    names = [g.label or f"group_{g.group}" for g in tex.groups]
-    textures = [g.uint8() for g in tex.groups]
-    shape = tex.shape
-    write_glb(out / "textured.glb", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names, up=up)
-    written.append(str(out / "textured.glb"))
-    if obj:
-        written += write_obj(out / "textured.obj", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names)
-    views = preview_views(tex, up, preview_size)
-    save_png(out / "preview.png", grid_image([views[:3], views[3:]]))
-    written.append(str(out / "preview.png"))
-    cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.painted_masks, up=up)
-    summary = {**tex.summary(), "up": up, "coverage": cov.to_dict(), "files": written + [str(out / StoreLayout.PAINT_NAME)]}
-    atomic_write(out / StoreLayout.PAINT_NAME, json.dumps(summary, indent=1))
-    return summary

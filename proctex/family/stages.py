@@ -26,10 +26,10 @@ from typing import Any, Callable
 import numpy as np
 import pyarrow as pa
 
+from proctex.geometry.meshio import load_mesh_bytes, obj_text
+from proctex.geometry.parts import analyse, part_mesh, segment
+from proctex.geometry.shape import Shape
 from .config import BuildConfig, with_legacy
-from .meshio import load_mesh_bytes, obj_text
-from .parts import analyse, part_mesh, segment
-from .shape import Shape
 from .store import FamilyStore, StoreLayout
 
 STAGES = ("sample", "template", "paint", "pairs", "train", "evaluate")
@@ -151,7 +151,7 @@ def stage_template(store: FamilyStore, config: BuildConfig, log: Callable[[str],
     if stage_done(store, "template"):
         log("template: done already")
         return
-    from .params import infer_space, select_template
+    from proctex.params import infer_space, select_template
 
     rows = [r for r in samples(store) if r["split"] == "train"]
     params = [json.loads(r["params"]) for r in rows]
@@ -169,7 +169,8 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
         return
     import tempfile
 
-    from .paint import paint_template, write_textured
+    from proctex.texture.paint import paint_template
+    from .template import write_textured
 
     template = load_template_shape(store, config)
     grouping = analyse(template, seed=config.seed)
@@ -212,7 +213,7 @@ def stored_config(store: FamilyStore) -> BuildConfig:
 
 
 def load_template(store: FamilyStore, config: BuildConfig | None = None):
-    """The stored :class:`proctex.template.Template` (its mesh regenerated for model families)."""
+    """The stored :class:`proctex.family.template.Template` (its mesh regenerated for model families)."""
     from .template import Template
 
     config = config if config is not None else stored_config(store)
@@ -226,7 +227,7 @@ def load_assets(store: FamilyStore):
 
 def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:
     """Cage correspondence of one (shape, template group): the training pair and its record."""
-    from .correspond import correspond_parts
+    from proctex.correspond.dense import correspond_parts
     from .assign import assign_parts, choose_part, representative_frame
 
     seg = segment(shape)
@@ -424,7 +425,7 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
 
 def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str, Any]) -> None:
     """Write a trained group network to ``models/group_<g>.pt`` (atomically)."""
-    from .corrnet import to_bytes
+    from proctex.correspond.corrnet import to_bytes
 
     extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val}
     store.write_bytes(StoreLayout.model(group), to_bytes(result.model, cfg, extra))
@@ -432,7 +433,7 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
 
 def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, val_share: float = 0.15) -> None:
     """One ProcCorrNet per non-degenerate group on the train pairs (a share held out for early stopping)."""
-    from .corrnet import train
+    from proctex.correspond.corrnet import train
 
     cfg = config.corrnet_config()
     # A resumed build keeps the record of the groups trained before.
@@ -458,7 +459,7 @@ def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
 
 def load_models(store: FamilyStore, device: str = "cpu") -> dict[int, Any]:
     """{group: ProcCorrNet} of every stored model."""
-    from .corrnet import from_bytes
+    from proctex.correspond.corrnet import from_bytes
 
     models = {}
     for name in store.listdir(StoreLayout.MODELS):

@@ -8,7 +8,7 @@ template representative's exact connectivity take its UVs, the family's ProcCorr
 Drift) and ``identity`` (the normalised part frames taken to coincide, then projection). Every
 method but ``corrnet`` maps every part.
 
-Every figure reads each method's real output (its transfer, :func:`proctex.transfer.transfer`) at
+Every figure reads each method's real output (its transfer, :func:`proctex.family.transfer.transfer`) at
 points located independently of it (:mod:`proctex.fidelity`). Per test shape and method:
 
 - **transfer** and GLB encoding, timed; **bake** into the shape's own atlas;
@@ -59,8 +59,8 @@ def _cage_config(config) -> Any:
 
 
 def _mapper(name: str, store: FamilyStore, assets, config=None) -> Any:
-    from .family import load_models
     from .mappers import MAPPER_ALIASES, make_mapper
+    from .stages import load_models
 
     if name not in METHODS:
         raise ValueError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
@@ -91,7 +91,7 @@ def resolve_truth(config, truth: str = "auto") -> str | None:
 def stored_pairs(store: FamilyStore, sid: str, index: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
     """The solved cage pairs of sample ``sid``: ``[{"group", "part", "src", "dst"}]``; ``index``: the
     rows of ``pairs.parquet`` when already read."""
-    from .family import read_pair
+    from .stages import read_pair
 
     if index is None:
         index = store.read_table(StoreLayout.PAIRS).to_pylist() if store.exists(StoreLayout.PAIRS) else []
@@ -108,10 +108,10 @@ class _Context:
     colours, the truth, the template's reference views, mappers by name, settings."""
 
     def __init__(self, uri: str, settings: dict[str, Any]) -> None:
-        from .family import load_assets, stored_config
+        from proctex.texture.render import render_six_views
         from .fidelity import colours_at, Location, template_truth, tracked_points
-        from .render import render_six_views
         from .mappers import IdentityMapper
+        from .stages import load_assets, stored_config
         from .transfer import transfer
 
         self.store = FamilyStore(uri)
@@ -130,7 +130,7 @@ class _Context:
             raise ValueError(f"{uri}: the template itself is untextured at some tracked points (template/uv.npz)")
         self.lpips = None
         if settings.get("lpips"):
-            from .lpips import LPIPS
+            from proctex.texture.lpips import LPIPS
 
             self.lpips = LPIPS.load(settings["lpips"])
         # The template's own six views: what every transferred shape is compared with (DESIGN §6).
@@ -147,10 +147,10 @@ class _Context:
 
     def locate(self, shape, seg, index: int):
         """Where the tracked points lie on ``shape`` (sample ``index``), by the family's tracker."""
-        from .fidelity import locate_by_map, locate_canonical, locate_vertex_index
-        from .family import pair_seed
         from .assign import assign_parts
+        from .fidelity import locate_by_map, locate_canonical, locate_vertex_index
         from .mappers import SolverMapper
+        from .stages import pair_seed
 
         if self.tracker == "canonical":
             return locate_canonical(self.points, self.template, self.assets.grouping.segmentation, shape, seg)
@@ -166,9 +166,9 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     """One shape with one method: transfer (timed, GLB included), bake, coverage of both, colours at
     the tracked points (real-time and baked), ground-truth and pseudo-ground-truth errors, view
     similarity with the template. A transfer that raises counts as a failed shape."""
+    from proctex.texture.metrics import coverage, view_similarity
+    from proctex.texture.render import render_six_views
     from .fidelity import colours_at, gt_errors, pgt_errors
-    from .metrics import coverage, view_similarity
-    from .render import render_six_views
     from .transfer import bake, glb, transfer
 
     st, assets, up = ctx.settings, ctx.assets, ctx.up
@@ -220,9 +220,9 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
 def evaluate_shape(ctx: _Context, job: tuple[int, dict[str, Any]]) -> dict[str, Any]:
     """Every method of ``ctx.settings["methods"]`` on one shape (``job``: its sample index and
     row); the tracker's locations, the truth samples and the stored pairs are found once."""
-    from .family import load_sample
+    from proctex.geometry.parts import segment
     from .fidelity import truth_samples
-    from .parts import segment
+    from .stages import load_sample
 
     index, row = job
     shape = load_sample(ctx.store, row, ctx.config)
@@ -346,9 +346,9 @@ def evaluate(
         truth: the ground truth (:func:`resolve_truth`); "auto": the family config's.
         quiet: no progress lines.
     """
-    from .family import load_sample, samples, stored_config
+    from proctex.progress import Progress
     from .fidelity import check_vertex_index
-    from .progress import Progress
+    from .stages import load_sample, samples, stored_config
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
@@ -366,14 +366,14 @@ def evaluate(
     if len(jobs) < 1:
         raise ValueError(f"{store.uri}: evaluation needs at least one {split} shape besides the template, found none")
     if kind == "vertex-index":  # a clear error before any work: every sample must share the template's vertex order
-        from .family import load_template_shape
+        from .stages import load_template_shape
 
         n = load_template_shape(store, config).n_vertices
         bad = next((r for _, r in jobs if r["vertices"] != n), None)  # the sample stage records vertex counts
         if bad is not None:
             check_vertex_index(load_sample(store, bad, config), n, name=f"sample {bad['id']}")
     if lpips:
-        from .lpips import LPIPS
+        from proctex.texture.lpips import LPIPS
 
         LPIPS.load(lpips)  # a bad weights file fails before any work
     settings = {"bake_size": bake_size, "view_size": view_size, "tracked": tracked, "seed": seed, "lpips": lpips,
@@ -441,7 +441,7 @@ def markdown_table(metrics: dict[str, Any]) -> str:
 
 def stage_evaluate(store: FamilyStore, config, log: Callable[[str], None] = print, methods: Sequence[str] = ("corrnet", "identity")) -> None:
     """The ``evaluate`` build stage: :func:`evaluate` on the test shapes into ``metrics.json``."""
-    from .family import _mark, samples, stage_done
+    from .stages import _mark, samples, stage_done
 
     if stage_done(store, "evaluate"):
         log("evaluate: done already")

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import face_normals
-from .raster import rasterise
+from proctex.geometry.raster import rasterise
+from proctex.geometry.surface import face_normals
 
 AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -361,7 +361,7 @@ def shade(buffers: Buffers, albedo: np.ndarray, background=(1.0, 1.0, 1.0), ambi
 
 def save_png(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write an (H, W, 3|4) uint8 (or float in [0, 1]) image as PNG, atomically."""
-    from .fileio import atomic_write, encode_png
+    from proctex.fileio import atomic_write, encode_png
 
     atomic_write(path, encode_png(image))
 
@@ -506,7 +506,7 @@ def save_gif(path: str | os.PathLike, frames: list[np.ndarray], fps: float = 12.
         ims.append(Image.fromarray(f))
     import io
 
-    from .fileio import atomic_write
+    from proctex.fileio import atomic_write
 
     buf = io.BytesIO()
     ims[0].save(buf, format="GIF", save_all=True, append_images=ims[1:], duration=max(10, round(1000 / fps)), loop=loop, disposal=1)

@@ -76,7 +76,7 @@ class BuildConfig:
         if len(named) != 1:
             raise ValueError("name exactly one of model, folder or generator")
         if self.model:
-            from .models import get_model
+            from proctex.models import get_model
 
             get_model(self.model)  # unknown names raise ValueError listing the models
         if self.folder and not os.path.isdir(self.folder):
@@ -119,7 +119,7 @@ class BuildConfig:
         ``cage_level``, ``cage_iterations`` and the ``cage`` overrides; ``ValueError`` on bad ones."""
         from dataclasses import fields as dc_fields
 
-        from .cage import CageConfig
+        from proctex.correspond.cage import CageConfig
 
         if not isinstance(self.cage, dict):
             raise ValueError(f"cage must be an object of cage solver settings, got {type(self.cage).__name__}")
@@ -138,7 +138,7 @@ class BuildConfig:
     def procedural_model(self):
         """The family's procedural model (a built-in one, or the user's generator), its parameter
         space restricted to ``params``' bounds."""
-        from .models import get_model
+        from proctex.models import get_model
         from .sources import load_generator
 
         model = load_generator(self.generator) if self.generator else get_model(self.model, tessellation=self.tessellation)
@@ -154,7 +154,7 @@ class BuildConfig:
 
     def corrnet_config(self):
         """The ProcCorrNet settings of the build (``train`` over the defaults, the family seed)."""
-        from .corrnet import CorrNetConfig
+        from proctex.correspond.corrnet import CorrNetConfig
 
         return CorrNetConfig.from_dict({**self.train, "seed": self.train.get("seed", self.seed)})
 
@@ -191,7 +191,7 @@ class BuildConfig:
 
 
 def _restricted(space, bounds: dict[str, list[float]]):
-    from .params import ParamSpace, ParamSpec
+    from proctex.params import ParamSpace, ParamSpec
 
     specs = []
     for s in space.specs:

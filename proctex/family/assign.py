@@ -9,10 +9,10 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from proctex.geometry.parts import Segmentation, part_mesh
+from proctex.geometry.shape import Shape
+from proctex.geometry.surface import SurfaceIndex, normalised_frame, sample_surface
 from .assets import TemplateAssets, _box, _placement, same_topology
-from .geometry import SurfaceIndex, normalised_frame, sample_surface
-from .parts import Segmentation, part_mesh
-from .shape import Shape
 
 
 @dataclass
@@ -63,7 +63,7 @@ def assign_parts(
     representative has its connectivity (:func:`copy_of_group`), the group whose representative is
     the same primitive in other proportions (:func:`match_box`), the group it fits by ICP
     (:func:`match_extra`, alignment error at most ``extra_tol``); otherwise it forms a group of its
-    own ("new"), which :func:`proctex.transfer.transfer` paints with the family's painter.
+    own ("new"), which :func:`proctex.family.transfer.transfer` paints with the family's painter.
     """
     lo, size = _box(shape.vertices)
     parts = [p for p in seg.parts if not p.degenerate]
@@ -138,7 +138,7 @@ def copy_of_sibling(part: int, vertices: np.ndarray, faces: np.ndarray, slotted:
     faces are identical and the fit's RMS residual is at most ``tol`` (normalised units); the best
     fit wins. Returns an "extra" :class:`PartAssignment`, or ``None``.
     """
-    from .align import umeyama
+    from proctex.geometry.align import umeyama
 
     v = np.asarray(vertices, dtype=np.float64)
     c, r = normalised_frame(v)
@@ -284,7 +284,7 @@ def match_extra(
     """
     from itertools import product
 
-    from .align import icp_to_surface
+    from proctex.geometry.align import icp_to_surface
 
     pts, _, _ = sample_surface(vertices, faces, n, seed=seed)
     best = (-1, np.eye(3), np.zeros(3), np.inf)

@@ -33,13 +33,13 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .align import apply, chamfer, icp_to_surface
+from proctex.geometry.align import apply, chamfer, icp_to_surface
+from proctex.geometry.parts import Grouping, GroupMatch, PartGroup, analyse, match_groups, part_mesh, symmetry_planes
+from proctex.geometry.shape import Shape
+from proctex.geometry.surface import SurfaceIndex, face_normals, normalised_frame, sample_surface, triangle_areas, vertex_normals
+from proctex.texture.metrics import GTError, gt_correspondence_error, interpolate
 from .cage import CageConfig, solve_cage
 from .cpd import cpd_nonrigid
-from .geometry import SurfaceIndex, face_normals, normalised_frame, sample_surface, triangle_areas, vertex_normals
-from .metrics import GTError, gt_correspondence_error, interpolate
-from .parts import Grouping, GroupMatch, PartGroup, analyse, match_groups, part_mesh, symmetry_planes
-from .shape import Shape
 
 METHODS = ("cage", "nearest", "cpd")
 

@@ -28,8 +28,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .align import apply, icp_points, icp_to_surface, rotation_angle, umeyama
-from .geometry import SurfaceIndex, normalised_frame, sample_surface, triangle_areas
 from .shape import Shape
+from .surface import SurfaceIndex, normalised_frame, sample_surface, triangle_areas
 
 
 # ---------------------------------------------------------------------------------------- segment

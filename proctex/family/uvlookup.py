@@ -9,8 +9,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from proctex.texture.inpaint import chart_labels
 from .assets import GroupAssets, TemplateAssets
-from .inpaint import chart_labels
 
 
 def _affine_uv(target: np.ndarray, tri: np.ndarray, tri_uv: np.ndarray) -> np.ndarray:
@@ -70,7 +70,7 @@ def chart_lookup(labels: np.ndarray) -> ChartLookup:
     """:class:`ChartLookup` of chart ``labels (H, W)`` (:func:`chart_labels`)."""
     from scipy import ndimage
 
-    from .uv import bilinear_blocks
+    from proctex.texture.uv import bilinear_blocks
 
     labels = np.asarray(labels, dtype=np.int32)
     # Chessboard distance of each texel to the nearest texel outside its chart (unpainted, so also
@@ -125,14 +125,14 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
         out[:, k] = _affine_uv(mapped[faces[:, k]], tri, tri_uv)
     out = np.clip(out, 0.0, 1.0)
     if charts is not None and len(faces):
-        from .uv import bilinear_texels
+        from proctex.texture.uv import bilinear_texels
 
         look = charts if isinstance(charts, ChartLookup) else chart_lookup(charts)
         h, w = look.labels.shape
         target = look.labels.ravel()[bilinear_texels(tri_uv.mean(axis=1), h, w)].max(axis=1)  # the template triangle's chart
         bad = ~_inside_chart(out, look, target)
         if bad.any():
-            from .geometry import closest_point_on_triangles
+            from proctex.geometry.surface import closest_point_on_triangles
 
             fi = np.flatnonzero(bad)
             t = tri[fi]
@@ -190,7 +190,7 @@ def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray | ChartLookup, chart
     longer than ``leaf`` (<= 2) texels, which fail (within a texel of the rim: not proven). The
     work grows with the length of rim a face runs along, not with its area; a face not settled
     after ``max_level`` splits is reported outside."""
-    from .uv import bilinear_corner
+    from proctex.texture.uv import bilinear_corner
 
     if not 0 < leaf <= 2.0:
         raise ValueError(f"leaf must be in (0, 2] texels, got {leaf}")
