@@ -11,6 +11,7 @@ import torch
 
 from proctex._reference.corrnet import decode_reference
 from proctex.correspond import corrnet as cn
+from proctex.correspond import training as tr
 from proctex.correspond.corrnet import CorrNetConfig, ProcCorrNet
 
 
@@ -122,7 +123,7 @@ def test_predict_chunking_and_context_resampling():
 
 def test_bfloat16_autocast_predict_and_train():
     pairs = family_pairs(4, 100, seed=12)
-    res = cn.train(pairs, pairs[:1], small_config(iterations=10, autocast="bfloat16"))
+    res = tr.train(pairs, pairs[:1], small_config(iterations=10, autocast="bfloat16"))
     assert np.isfinite(res.best_val["mean"])
     src = pairs[0][0]
     full = cn.predict(res.model, src, src)
@@ -161,8 +162,8 @@ def test_learns_a_known_smooth_map():
     test_pairs = family_pairs(8, 256, seed=3)
     identity = np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in test_pairs])
     cfg = small_config(context_points=64, query_points=64, iterations=1000, eval_every=100, lr=3e-3, patience=0)
-    res = cn.train(train_pairs, val_pairs, cfg)
-    err = cn.eval_step(res.model, test_pairs)
+    res = tr.train(train_pairs, val_pairs, cfg)
+    err = tr.eval_step(res.model, test_pairs)
     assert err["mean"] < 0.3 * identity, (err, identity)  # measured: 0.24x (0.25x without the residual)
     assert err["max_point"] >= err["p95"] >= 0 and err["max_shape_mean"] >= err["mean"]
     assert res.iterations == 1000 and not res.stopped_early
@@ -172,7 +173,7 @@ def test_learns_a_known_smooth_map():
 def test_separate_queries_and_l2_loss_train():
     pairs = family_pairs(6, 200, seed=4)
     cfg = small_config(query_mode="separate", query_points=32, loss="l2", iterations=20, schedule="step")
-    res = cn.train(pairs, pairs[:2], cfg)
+    res = tr.train(pairs, pairs[:2], cfg)
     assert res.iterations == 20 and np.isfinite(res.best_val["mean"])
 
 
@@ -180,25 +181,25 @@ def test_early_stopping_keeps_best_state():
     pairs = family_pairs(6, 200, seed=5)
     # min_delta 1.0 demands a 100 % improvement: only the first evaluation is ever "best".
     cfg = small_config(iterations=100, eval_every=10, patience=2, min_delta=1.0)
-    res = cn.train(pairs[:4], pairs[4:], cfg)
+    res = tr.train(pairs[:4], pairs[4:], cfg)
     assert res.stopped_early and res.iterations == 30 and len(res.history) == 3
     assert res.best_val["iteration"] == 10
-    assert cn.eval_step(res.model, pairs[4:], seed=cfg.seed)["mean"] == pytest.approx(res.best_val["mean"], rel=1e-6)
+    assert tr.eval_step(res.model, pairs[4:], seed=cfg.seed)["mean"] == pytest.approx(res.best_val["mean"], rel=1e-6)
 
 
 def test_best_state_is_the_minimum_of_history():
     pairs = family_pairs(6, 200, seed=6)
-    res = cn.train(pairs[:4], pairs[4:], small_config(iterations=60, eval_every=10, patience=0, lr=2e-2))
+    res = tr.train(pairs[:4], pairs[4:], small_config(iterations=60, eval_every=10, patience=0, lr=2e-2))
     best = min(res.history, key=lambda h: h["val_mean"])
     assert res.best_val["iteration"] == best["iteration"]
-    assert cn.eval_step(res.model, pairs[4:])["mean"] == pytest.approx(best["val_mean"], rel=1e-6)
+    assert tr.eval_step(res.model, pairs[4:])["mean"] == pytest.approx(best["val_mean"], rel=1e-6)
 
 
 def test_training_is_deterministic_per_seed():
     pairs = family_pairs(5, 150, seed=7)
-    a = cn.train(pairs, None, small_config(iterations=15, seed=3)).model.state_dict()
-    b = cn.train(pairs, None, small_config(iterations=15, seed=3)).model.state_dict()
-    c = cn.train(pairs, None, small_config(iterations=15, seed=4)).model.state_dict()
+    a = tr.train(pairs, None, small_config(iterations=15, seed=3)).model.state_dict()
+    b = tr.train(pairs, None, small_config(iterations=15, seed=3)).model.state_dict()
+    c = tr.train(pairs, None, small_config(iterations=15, seed=4)).model.state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)
     assert not all(torch.equal(a[k], c[k]) for k in a)
 
@@ -210,31 +211,31 @@ def test_train_step_returns_mean_distance():
     dst = torch.rand(2, 16, 3)
     with torch.no_grad():
         expected = float((m(src) - dst).norm(dim=-1).mean())
-    assert cn.train_step(m, opt, src, dst) == pytest.approx(expected, rel=1e-5)
+    assert tr.train_step(m, opt, src, dst) == pytest.approx(expected, rel=1e-5)
     with pytest.raises(ValueError, match="loss"):
-        cn.train_step(m, opt, src, dst, loss="huber")
+        tr.train_step(m, opt, src, dst, loss="huber")
     # targets of the first Q points only: same as decoding them against the whole set
     with torch.no_grad():
         expected = float((m.decode(src[:, :5], m.encode(src)) - dst[:, :5]).norm(dim=-1).mean())
-    assert cn.train_step(m, opt, src, dst[:, :5]) == pytest.approx(expected, rel=1e-5)
+    assert tr.train_step(m, opt, src, dst[:, :5]) == pytest.approx(expected, rel=1e-5)
     with pytest.raises(ValueError, match="Q <= N"):
-        cn.train_step(m, opt, src[:, :4], dst)
+        tr.train_step(m, opt, src[:, :4], dst)
     with pytest.raises(ValueError, match="Q == N"):
-        cn.train_step(m, opt, src, dst[:, :5], context=src)
+        tr.train_step(m, opt, src, dst[:, :5], context=src)
 
 
 def test_learning_rate_schedules():
     c = CorrNetConfig(iterations=100, lr=1.0, lr_final=0.1)
-    assert cn.learning_rate(c, 0) == pytest.approx(1.0) and cn.learning_rate(c, 100) == pytest.approx(0.1)
+    assert tr.learning_rate(c, 0) == pytest.approx(1.0) and tr.learning_rate(c, 100) == pytest.approx(0.1)
     s = CorrNetConfig(iterations=100, lr=1.0, schedule="step")
-    assert [cn.learning_rate(s, i) for i in (0, 59, 60, 85)] == pytest.approx([1.0, 1.0, 0.1, 0.01])
-    assert cn.learning_rate(CorrNetConfig(schedule="constant", lr=0.5), 10**6) == 0.5
+    assert [tr.learning_rate(s, i) for i in (0, 59, 60, 85)] == pytest.approx([1.0, 1.0, 0.1, 0.01])
+    assert tr.learning_rate(CorrNetConfig(schedule="constant", lr=0.5), 10**6) == 0.5
 
 
 def test_eval_step_figures():
     m = cn.build_model(small_config())
     pairs = family_pairs(3, 64, seed=8)
-    e = cn.eval_step(m, pairs)
+    e = tr.eval_step(m, pairs)
     per_shape = []
     for s, d in pairs:
         per_shape.append(np.linalg.norm(cn.predict(m, s, s) - d, axis=1))  # 64 < N: the full set is the context
@@ -243,7 +244,7 @@ def test_eval_step_figures():
     assert e["max_shape_mean"] == pytest.approx(max(p.mean() for p in per_shape), rel=1e-5)
     assert e["max"] == e["max_shape_mean"]
     assert e["shapes"] == 3 and e["points"] == 192
-    assert cn.eval_step(m, []) == {}
+    assert tr.eval_step(m, []) == {}
 
 
 # ------------------------------------------------------------------------------------ validation
@@ -304,28 +305,28 @@ def test_input_validation():
         cn.predict(m, ok, ok, chunk=0)
     good = family_pairs(2, 32, seed=9)
     with pytest.raises(ValueError, match="no pairs"):
-        cn.train([], None, small_config())
+        tr.train([], None, small_config())
     with pytest.raises(ValueError, match="same shape"):
-        cn.train([(good[0][0], good[0][1][:20])], None, small_config())
+        tr.train([(good[0][0], good[0][1][:20])], None, small_config())
     with pytest.raises(ValueError, match="at least 16"):
-        cn.train([(good[0][0][:5], good[0][1][:5])], None, small_config())
+        tr.train([(good[0][0][:5], good[0][1][:5])], None, small_config())
     with pytest.raises(ValueError, match="normalised"):
-        cn.train([(good[0][0] * 10, good[0][1])], None, small_config())
+        tr.train([(good[0][0] * 10, good[0][1])], None, small_config())
     with pytest.raises(ValueError, match="NaN"):
         bad = good[0][0].copy()
         bad[3, 1] = np.nan
-        cn.train([(bad, good[0][1])], None, small_config())
+        tr.train([(bad, good[0][1])], None, small_config())
     with pytest.raises(ValueError, match="pair"):
-        cn.train([good[0][0]], None, small_config())
+        tr.train([good[0][0]], None, small_config())
     with pytest.raises(ValueError, match="sequence"):
-        cn.train(good[0][0], None, small_config())
+        tr.train(good[0][0], None, small_config())
 
 
 # ----------------------------------------------------------------------------------- persistence
 def test_save_load_round_trip(tmp_path):
     pairs = family_pairs(4, 100, seed=10)
     cfg = small_config(iterations=10, context_points=64, query_points=64)
-    res = cn.train(pairs, None, cfg)
+    res = tr.train(pairs, None, cfg)
     extra = {"group": 3, "frame": "bbox-centre / Linf radius", "val": {"mean": 0.01}, "counts": [1, 2], "t": torch.ones(2)}
     path = tmp_path / "models" / "group3.pt"
     cn.save(path, res.model, cfg, extra)
@@ -397,7 +398,7 @@ def test_load_rejects_mismatched_weights(tmp_path):
 def test_cuda_train_predict_save_load(tmp_path):
     pairs = family_pairs(4, 100, seed=11)
     cfg = small_config(iterations=10, device="cuda")
-    res = cn.train(pairs, pairs[:1], cfg)
+    res = tr.train(pairs, pairs[:1], cfg)
     assert next(res.model.parameters()).is_cuda
     q = pairs[0][0]
     p = cn.predict(res.model, q, q)
@@ -421,7 +422,7 @@ def _dp_worker(rank: int, world: int, port: int, out: str) -> None:
 
     pairs = family_pairs(8, 256, seed=0)
     cfg = small_config(context_points=64, query_points=64, iterations=200, eval_every=50, patience=0)
-    res = cn.train(pairs[:6], pairs[6:], cfg, rank=rank, world=world, grad_hook=average)
+    res = tr.train(pairs[:6], pairs[6:], cfg, rank=rank, world=world, grad_hook=average)
     torch.save({"state": res.model.state_dict(), "iterations": res.iterations, "val": res.best_val["mean"]}, f"{out}/rank{rank}.pt")
     dist.destroy_process_group()
 
@@ -444,7 +445,7 @@ def test_data_parallel_workers_keep_identical_weights(tmp_path):
     identity = float(np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in pairs[6:]]))
     assert a["val"] < 0.8 * identity
     with pytest.raises(ValueError, match="rank"):
-        cn.train(pairs[:2], None, small_config(iterations=1), rank=2, world=2)
+        tr.train(pairs[:2], None, small_config(iterations=1), rank=2, world=2)
 
 
 # ------------------------------------------------------------------------------------- box frame
@@ -478,7 +479,7 @@ def test_box_frame_learns_stretches_better_than_the_uniform_frame():
     train_pairs, val_pairs = _stretch_pairs(24, seed=0), _stretch_pairs(4, seed=1)
     errors = {}
     for frame in ("uniform", "box"):
-        res = cn.train(train_pairs, val_pairs, small_config(frame=frame, iterations=150, patience=0))
+        res = tr.train(train_pairs, val_pairs, small_config(frame=frame, iterations=150, patience=0))
         errors[frame] = res.best_val["mean"]
         np.testing.assert_allclose(res.model.template_extent.numpy() if frame == "box" else [1.0, 1.0, 1.0],
                                    [1.0, 0.6, 0.4] if frame == "box" else [1.0, 1.0, 1.0], atol=1e-6)

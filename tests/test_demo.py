@@ -21,7 +21,7 @@ from proctex.demo import (
 )
 from proctex.models import get_model
 from proctex.params import choice, continuous, integer, ParamSpace
-from proctex.texture.export import read_textured_glb
+from proctex.texture.gltf_read import read_textured_glb
 
 SPACE = ParamSpace((continuous("width", 1.0, 2.0, 1.5), integer("legs", 3, 6, 4), choice("arms", [True, False], True)))
 # A tiny build: every stage runs, in seconds.

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import proctex.texture.inpaint as ip
+import proctex.texture.patchmatch as pm
 from proctex._reference.inpaint import nnf_reference, patch_distance_reference
 from proctex.texture.inpaint import chart_labels, patchmatch_fill, patchmatch_nnf
 
@@ -135,7 +136,7 @@ def test_valid_centres_match_explicit_count():
     img, valid, source, targets = _nnf_case()
     labels = chart_labels(valid | targets)
     for patch, share in ((3, 0.5), (3, 1.0), (5, 0.75)):
-        fast = ip._source_centres(source, labels, patch, share)
+        fast = pm._source_centres(source, labels, patch, share)
         r = patch // 2
         slow = np.zeros_like(fast)
         for i, j in np.argwhere(source):
@@ -193,12 +194,12 @@ def test_vote_matches_per_texel_reference():
     fill[3:6, 13:17] = True
     known &= ~fill
     labels = chart_labels(known | fill)
-    lv = ip._Level(img, known, known, labels, P, 0.5, 3.0)
+    lv = pm._Level(img, known, known, labels, P, 0.5, 3.0)
     ii, jj = np.nonzero(fill)
     tgt = lv.flat(ii, jj)
-    nnf = ip._random_centres(lv, len(tgt), rng)
+    nnf = pm._random_centres(lv, len(tgt), rng)
     before = lv.image().copy()
-    ip._vote(lv, tgt, nnf, lv._pad(fill))
+    pm._vote(lv, tgt, nnf, lv._pad(fill))
     got = lv.image()
     sr, sc = lv.rc(nnf)
     r = P // 2

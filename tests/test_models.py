@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from proctex.geometry.parts import analyse, match_groups
+from proctex.geometry.matching import match_groups
+from proctex.geometry.parts import analyse
 from proctex.models import get_model, list_models
 
 MODELS = list_models()

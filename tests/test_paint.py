@@ -11,7 +11,8 @@ from proctex.geometry.meshio import load_mesh
 from proctex.geometry.parts import analyse
 from proctex.models import get_model, list_models
 from proctex.texture.metrics import coverage
-from proctex.texture.paint import SolidViewPainter, fill_unseen, paint_surface, paint_views, resolve_group_prompts, trimap
+from proctex.texture.paint import SolidViewPainter, paint_surface, resolve_group_prompts
+from proctex.texture.paint_loop import fill_unseen, paint_views, trimap
 from proctex.texture.painters import GENERATE, KEEP, SurfacePainter
 from proctex.texture.render import Tracer, bounding_sphere, orbit_path, render_buffers
 from proctex.texture.uv import sample_texture
@@ -270,7 +271,7 @@ def test_cli_paint_bad_input(tmp_path, capsys, argv, message):
 
 def test_backproject_matches_the_reference(chair):
     from proctex._reference.paint import backproject_reference
-    from proctex.texture.paint import backproject
+    from proctex.texture.paint_loop import backproject
 
     shape, g = chair
     c, r = bounding_sphere(shape.vertices)

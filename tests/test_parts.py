@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from proctex.geometry import primitives as P
+from proctex.geometry.matching import match_groups
 from proctex.geometry.meshio import load_mesh
-from proctex.geometry.parts import analyse, connected_parts, match_groups, segment, symmetry_planes
+from proctex.geometry.parts import analyse, connected_parts, segment, symmetry_planes
 from proctex.geometry.shape import Shape, ShapeBuilder
 
 

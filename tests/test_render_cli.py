@@ -15,7 +15,8 @@ from PIL import Image
 from proctex.cli import main
 from proctex.geometry.parts import analyse
 from proctex.models import get_model
-from proctex.texture.export import glb_bytes, read_textured_glb, write_glb
+from proctex.texture.export import glb_bytes, write_glb
+from proctex.texture.gltf_read import read_textured_glb
 from proctex.texture.paint import paint_surface
 from proctex.texture.painters import SurfacePainter
 from proctex.texture.render import (

@@ -3,7 +3,8 @@
 import pytest
 
 from proctex.family.sources import FolderSource
-from proctex.geometry.parts import analyse, match_groups
+from proctex.geometry.matching import match_groups
+from proctex.geometry.parts import analyse
 
 from .test_parts import SOFA_GROUPS
 

@@ -10,7 +10,7 @@ from proctex.geometry.meshio import load_mesh
 
 GEN = '''
 import numpy as np
-from proctex import primitives as P
+from proctex.geometry import primitives as P
 
 PARAMS = [{"name": "legs", "kind": "integer", "low": 2, "high": 5, "default": 3}]
 

@@ -229,7 +229,8 @@ def test_parts_with_the_template_connectivity_take_its_uvs_unchanged(chair):
 def cake_views():
     """A two-tier cake painted from six views of the whole shape only: the top of the bottom tier
     under the top tier is never seen, so those texels are not "already painted"."""
-    from proctex.texture.paint import SolidViewPainter, paint_views
+    from proctex.texture.paint import SolidViewPainter
+    from proctex.texture.paint_loop import paint_views
 
     tpl = get_model("cake").generate({"candles": 0})
     grouping = analyse(tpl)

@@ -46,7 +46,7 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
     import torch.distributed as dist
     from ray.train import Checkpoint
 
-    from proctex.correspond.corrnet import train
+    from proctex.correspond.training import train
 
     torch.set_num_threads(int(loop_config.get("threads", 1)))
     ctx = ray.train.get_context()

@@ -5,20 +5,23 @@
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import sys
 import time
 
-from proctex import cli as core
+from proctex.cli import app as core
+from proctex.cli import families
 
 
 def cmd_build(args: argparse.Namespace) -> int:
     if args.ray is None:
-        return core.cmd_build(args)
+        return families.cmd_build(args)
     from proctex.family.stages import STAGES
 
     from .build import build_on_ray
 
-    config = core._build_config(args)
+    config = families._build_config(args)
     stages = tuple(args.stages.split(",")) if args.stages else STAGES
     address = None if args.ray == "local" else args.ray
     log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
@@ -44,14 +47,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
     names = Catalog(args.store).names()
     if not names:
         raise ValueError(f"{args.store}: no families found (sub-folders with a family.json)")
-    app_args = {"root": core.os.path.abspath(args.store) if "://" not in args.store else args.store}
+    app_args = {"root": os.path.abspath(args.store) if "://" not in args.store else args.store}
     if args.autoscale:
         lo, hi = (int(x) for x in args.autoscale.split(","))
         app_args.update(min_replicas=lo, max_replicas=hi)
     else:
         # Transfers are CPU-bound and serialised per replica: one replica per core pays (sofa on
         # 2 cores: 9.9 req/s with one replica, 16.4 with two); batching requests does not (bench_batching.py).
-        app_args["replicas"] = args.replicas or max(1, min(4, core.os.cpu_count() or 1))
+        app_args["replicas"] = args.replicas or max(1, min(4, os.cpu_count() or 1))
     if args.address:
         ray.init(address=args.address, log_to_driver=False)
     else:
@@ -71,12 +74,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
     """The main job with the build on Ray (a private local instance unless --address), or in this
     process with --no-ray."""
     if args.no_ray:
-        return core.cmd_demo(args)
+        return families.cmd_demo(args)
     from .demo import run_demo_on_ray
 
-    kwargs = core.demo_arguments(args)  # bad flags fail before Ray starts
+    kwargs = families.demo_arguments(args)  # bad flags fail before Ray starts
     log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
-    core.print_demo_outputs(run_demo_on_ray(args.out, address=args.address, log=log, **kwargs))
+    families.print_demo_outputs(run_demo_on_ray(args.out, address=args.address, log=log, **kwargs))
     return 0
 
 
@@ -90,8 +93,8 @@ def cmd_screenshot(args: argparse.Namespace) -> int:
     params = None
     if args.params:
         try:
-            params = core.json.loads(args.params)
-        except core.json.JSONDecodeError as exc:
+            params = json.loads(args.params)
+        except json.JSONDecodeError as exc:
             raise ValueError(f"--params is not valid JSON ({exc})") from exc
         if not isinstance(params, dict):
             raise ValueError('--params must be a JSON object, e.g. {"seats": 2}')
@@ -112,7 +115,7 @@ def cmd_eval_folder(args: argparse.Namespace) -> int:
             build_on_ray(out, config, address=address, stages=stages, log=log, quiet=args.quiet or args.json)
 
         args.builder = builder
-    return core.cmd_eval_folder(args)
+    return families.cmd_eval_folder(args)
 
 
 def build_parser() -> argparse.ArgumentParser:

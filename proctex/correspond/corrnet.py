@@ -34,7 +34,7 @@ repetition, which leaves a max-pool unchanged) and queries of any number are dec
 ``W_local @ local + (W_global @ global + b)`` with the global half computed once per shape (same
 result as the concatenation, :func:`proctex._reference.corrnet.decode_reference`, at about half the cost).
 
-Training (:func:`train`): Adam on random batches of pairs; each step draws ``shapes_per_batch``
+Training (:func:`proctex.correspond.training.train`): Adam on random batches of pairs; each step draws ``shapes_per_batch``
 pairs, for each a context of ``context_points`` samples and ``query_points`` query samples, and
 minimises the loss between the predicted and the cage points at the queries. Validation pairs
 (held-out shapes) drive early stopping; the best validation state is kept. Errors are reported as
@@ -46,14 +46,12 @@ atomically, loaded with ``torch.load(weights_only=True)``.
 
 from __future__ import annotations
 
-import copy
 import math
 import os
 import pickle
-import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -344,44 +342,6 @@ def check_pairs(pairs: Any, what: str, allow_empty: bool = False) -> list[tuple[
     return out
 
 
-# --------------------------------------------------------------------------------------- sampling
-def sample_indices(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
-    """``k`` indices into ``n`` points: without replacement when ``n >= k``; otherwise every point
-    once plus ``k - n`` repeats drawn with replacement (a max-pool sees every point)."""
-    if n >= k:
-        return rng.choice(n, size=k, replace=False)
-    return np.concatenate([rng.permutation(n), rng.integers(0, n, size=k - n)])
-
-
-def sample_batch(
-    pairs: Sequence[Pair], config: CorrNetConfig, rng: np.random.Generator, size: int | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One training batch: ``(context (B, N, 3), query (B, Q, 3), target (B, Q, 3))`` float32.
-
-    ``B = size or shapes_per_batch`` pairs drawn with replacement; per pair ``N = context_points``
-    context samples and ``Q = query_points`` queries (the first Q context points, or an independent
-    sample).
-    """
-    B, N, Q = size or config.shapes_per_batch, config.context_points, config.query_points
-    ctx, qry, tgt = np.empty((B, N, 3), np.float32), np.empty((B, Q, 3), np.float32), np.empty((B, Q, 3), np.float32)
-    for b, j in enumerate(rng.integers(0, len(pairs), size=B)):
-        src, dst = pairs[j]
-        ci = sample_indices(len(src), N, rng)
-        qi = ci[:Q] if config.query_mode == "context" else sample_indices(len(src), Q, rng)
-        ctx[b], qry[b], tgt[b] = src[ci], src[qi], dst[qi]
-    return ctx, qry, tgt
-
-
-def learning_rate(config: CorrNetConfig, step: int) -> float:
-    """Learning rate of ``step`` (0-based) under the config's schedule."""
-    t = min(step / max(config.iterations, 1), 1.0)
-    if config.schedule == "cosine":
-        return config.lr * (config.lr_final + (1 - config.lr_final) * 0.5 * (1 + math.cos(math.pi * t)))
-    if config.schedule == "step":
-        return config.lr * (0.1 ** ((t >= 0.6) + (t >= 0.85)))
-    return config.lr
-
-
 # ---------------------------------------------------------------------------------- train and eval
 def native_bfloat16(device: torch.device | str = "cpu") -> bool:
     """Whether ``device`` runs bfloat16 matrix products natively (CPUs with AVX512-BF16 or AMX;
@@ -414,185 +374,6 @@ def _autocast(device: torch.device, mode: str) -> torch.autocast:
     if mode not in AUTOCASTS:
         raise ValueError(f"autocast must be one of {AUTOCASTS}, got {mode!r}")
     return torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=mode == "bfloat16")
-
-
-def train_step(
-    model: ProcCorrNet,
-    optimiser: torch.optim.Optimizer,
-    src: torch.Tensor,
-    dst: torch.Tensor,
-    context: torch.Tensor | None = None,
-    loss: str = "mse",
-    autocast: str = "none",
-    grad_hook: Callable[[ProcCorrNet], None] | None = None,
-) -> float:
-    """One optimisation step; returns the batch's mean Euclidean distance (before the step).
-
-    Args:
-        src: (B, N, 3) points of the shapes' parts (part frames). Without ``context`` they are the
-            context and ``dst (B, Q, 3)``, Q <= N, holds the cage targets (template frame) of the
-            first Q of them. With ``context (B, N, 3)`` they are Q queries decoded against it and
-            ``dst`` is (B, Q, 3) as well.
-        loss: "mse" (mean squared distance) or "l2" (mean Euclidean distance).
-        autocast: "none" or "bfloat16" (matrix products in bfloat16, loss in float32).
-        grad_hook: called with the model between the backward pass and the update (data-parallel
-            training averages the gradients across workers there).
-    """
-    if loss not in LOSSES:
-        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
-    ok = src.ndim == 3 and src.shape[-1] == 3 and dst.ndim == 3 and dst.shape[0] == src.shape[0] and dst.shape[-1] == 3
-    if not ok or (dst.shape[1] > src.shape[1] if context is None else dst.shape != src.shape):
-        raise ValueError(f"expected src (B, N, 3) and dst (B, Q, 3) with Q {'<=' if context is None else '=='} N, got {tuple(src.shape)} and {tuple(dst.shape)}")
-    model.train()
-    with _autocast(src.device, autocast):
-        pred = model(src, dst.shape[1]) if context is None else model.decode(src, model.encode(context))
-    dist2 = (pred.to(dst.dtype) - dst).square().sum(-1)
-    dist = dist2.clamp_min(1e-20).sqrt()  # clamp: finite gradient of the "l2" loss at 0
-    value = dist2.mean() if loss == "mse" else dist.mean()
-    optimiser.zero_grad(set_to_none=True)
-    value.backward()
-    if grad_hook is not None:
-        grad_hook(model)
-    optimiser.step()
-    return float(dist.detach().mean())
-
-
-def _error_summary(per_shape: list[np.ndarray]) -> dict[str, float]:
-    if not per_shape:
-        return {}
-    allv = np.concatenate(per_shape)
-    means = np.array([e.mean() for e in per_shape])
-    return {
-        "mean": float(means.mean()),
-        "max": float(means.max()),
-        "p95": float(np.percentile(allv, 95)),
-        "max_point": float(allv.max()),
-        "max_shape_mean": float(means.max()),
-        "shapes": len(per_shape),
-        "points": int(len(allv)),
-    }
-
-
-def eval_step(model: ProcCorrNet, pairs: Sequence[Pair], seed: int = 0, chunk: int = 8192, autocast: str = "none") -> dict[str, float]:
-    """Pseudo-ground-truth error of the network on ``pairs`` (DESIGN §6).
-
-    For every pair the global feature is pooled over ``model.context_points`` samples of ``src``
-    (seeded by ``seed``) and every ``src`` point is predicted; the error is the Euclidean distance to
-    ``dst`` in the template part's normalised frame.
-
-    Returns:
-        ``mean``: mean over shapes of the per-shape mean (pairs of equal n: the mean over points);
-        ``p95`` and ``max_point``: over all points of all shapes; ``max_shape_mean``: the largest
-        per-shape mean; ``max``: the paper's "max", read as ``max_shape_mean`` (its sofa row has
-        max / mean = 2.3; measured on the sofa data, max_shape_mean / mean is 1.7-1.9 and
-        max_point / mean 3-7);
-        ``shapes``, ``points``. Empty dict for no pairs.
-    """
-    pairs = check_pairs(pairs, "eval pairs", allow_empty=True)
-    rng = np.random.default_rng(seed)
-    errors = []
-    for src, dst in pairs:
-        ctx = src[sample_indices(len(src), model.context_points, rng)]
-        pred = predict(model, ctx, src, chunk=chunk, autocast=autocast)
-        errors.append(np.linalg.norm(pred - dst, axis=1))
-    return _error_summary(errors)
-
-
-@dataclass
-class TrainResult:
-    """Outcome of :func:`train`.
-
-    Attributes:
-        model: the network in its best validation state (the final state without validation
-            pairs), in eval mode.
-        history: one dict per evaluation: ``iteration``, ``lr``, ``train_error`` (mean Euclidean
-            distance over the steps since the last evaluation), ``seconds`` and ``val_*`` figures.
-        best_val: :func:`eval_step` of the kept state plus its ``iteration`` ({} without validation).
-        iterations: steps run; seconds: wall time; stopped_early: patience ran out.
-    """
-
-    model: ProcCorrNet
-    history: list[dict[str, Any]]
-    best_val: dict[str, Any]
-    iterations: int
-    seconds: float
-    stopped_early: bool
-    config: CorrNetConfig = field(default_factory=CorrNetConfig)
-
-
-def train(
-    train_pairs: Sequence[Pair],
-    val_pairs: Sequence[Pair] | None,
-    config: CorrNetConfig | None = None,
-    on_eval: Callable[[dict[str, Any]], None] | None = None,
-    rank: int = 0,
-    world: int = 1,
-    grad_hook: Callable[[ProcCorrNet], None] | None = None,
-) -> TrainResult:
-    """Train one ProcCorrNet on cage pairs of one template group.
-
-    Args:
-        train_pairs: sequence of ``(src (n, 3), dst (n, 3))`` arrays (see :func:`check_pairs`).
-        val_pairs: held-out pairs for early stopping and model selection (may be empty / None:
-            then the final state is kept and nothing stops early).
-        config: settings (defaults: :class:`CorrNetConfig`).
-        on_eval: called with each history entry (progress reporting).
-        rank, world, grad_hook: data-parallel training. Each of ``world`` workers draws its own
-            ``ceil(shapes_per_batch / world)`` shapes per step (seeded by the seed and its rank) and
-            ``grad_hook`` averages the gradients across workers, so all workers keep identical
-            weights and take identical early-stopping decisions (validation is the same everywhere).
-
-    Same seed, same data, same device -> identical weights (CPU); ``world=1`` is the single-process run.
-    """
-    if not (isinstance(world, int) and world >= 1 and isinstance(rank, int) and 0 <= rank < world):
-        raise ValueError(f"need 0 <= rank < world, got rank {rank!r}, world {world!r}")
-    config = (config or CorrNetConfig()).validate()
-    train_pairs = check_pairs(train_pairs, "train pairs")
-    val_pairs = check_pairs(val_pairs or [], "val pairs", allow_empty=True)
-    t0 = time.perf_counter()
-    model = build_model(config)
-    device, dtype = _model_spec(model)
-    if config.frame == "box":  # the template part's half extents, from every target point
-        extent = np.max([np.abs(dst).max(axis=0) for _, dst in train_pairs], axis=0)
-        model.template_extent.copy_(torch.as_tensor(np.maximum(extent, MIN_EXTENT), dtype=dtype))
-    optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    rng = np.random.default_rng(config.seed if world == 1 else [config.seed, rank])
-    per_rank = -(-config.shapes_per_batch // world)
-    history: list[dict[str, Any]] = []
-    best_state, best_val, best_mean, bad, stopped, step = None, {}, math.inf, 0, False, 0
-    window: list[float] = []
-    while step < config.iterations:
-        lr = learning_rate(config, step)
-        for g in optimiser.param_groups:
-            g["lr"] = lr
-        ctx, qry, tgt = (torch.as_tensor(a, device=device, dtype=dtype) for a in sample_batch(train_pairs, config, rng, per_rank))
-        if config.query_mode == "context":  # queries = the first Q context points: one encoder pass
-            window.append(train_step(model, optimiser, ctx, tgt, None, config.loss, config.autocast, grad_hook))
-        else:
-            window.append(train_step(model, optimiser, qry, tgt, ctx, config.loss, config.autocast, grad_hook))
-        step += 1
-        if step % config.eval_every and step < config.iterations:
-            continue
-        entry: dict[str, Any] = {"iteration": step, "lr": lr, "train_error": float(np.mean(window)), "seconds": time.perf_counter() - t0}
-        window = []
-        if val_pairs:
-            val = eval_step(model, val_pairs, seed=config.seed, autocast=config.autocast)
-            entry.update({f"val_{k}": v for k, v in val.items()})
-            if best_state is None or val["mean"] < best_mean * (1 - config.min_delta):
-                best_mean, bad = val["mean"], 0
-                best_state, best_val = copy.deepcopy(model.state_dict()), {**val, "iteration": step}
-            else:
-                bad += 1
-        history.append(entry)
-        if on_eval is not None:
-            on_eval(entry)
-        if config.patience and bad >= config.patience:
-            stopped = True
-            break
-    if best_state is not None:
-        model.load_state_dict(best_state)
-    model.eval()
-    return TrainResult(model, history, best_val, step, time.perf_counter() - t0, stopped, config)
 
 
 # ---------------------------------------------------------------------------------------- predict
@@ -743,3 +524,12 @@ def load(path: str | os.PathLike, device: str = "cpu") -> tuple[ProcCorrNet, Cor
     except OSError as e:
         raise ValueError(f"{path}: cannot read the checkpoint ({e.__class__.__name__})") from e
     return from_bytes(data, device=device, where=str(path))
+
+
+# --------------------------------------------------------------------------------------- sampling
+def sample_indices(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
+    """``k`` indices into ``n`` points: without replacement when ``n >= k``; otherwise every point
+    once plus ``k - n`` repeats drawn with replacement (a max-pool sees every point)."""
+    if n >= k:
+        return rng.choice(n, size=k, replace=False)
+    return np.concatenate([rng.permutation(n), rng.integers(0, n, size=k - n)])

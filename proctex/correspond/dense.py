@@ -34,7 +34,8 @@ from typing import Any, Callable
 import numpy as np
 
 from proctex.geometry.align import apply, chamfer, icp_to_surface
-from proctex.geometry.parts import Grouping, GroupMatch, PartGroup, analyse, match_groups, part_mesh, symmetry_planes
+from proctex.geometry.matching import GroupMatch, match_groups
+from proctex.geometry.parts import Grouping, PartGroup, analyse, part_mesh, symmetry_planes
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, face_normals, normalised_frame, sample_surface, triangle_areas, vertex_normals
 from proctex.texture.metrics import GTError, gt_correspondence_error, interpolate

@@ -169,7 +169,7 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
         return
     import tempfile
 
-    from proctex.texture.paint import paint_template
+    from proctex.texture.paint_loop import paint_template
     from .template import write_textured
 
     template = load_template_shape(store, config)
@@ -433,7 +433,7 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
 
 def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, val_share: float = 0.15) -> None:
     """One ProcCorrNet per non-degenerate group on the train pairs (a share held out for early stopping)."""
-    from proctex.correspond.corrnet import train
+    from proctex.correspond.training import train
 
     cfg = config.corrnet_config()
     # A resumed build keeps the record of the groups trained before.

@@ -218,7 +218,8 @@ def step_timing(config, repeats: int = 20) -> dict:
     import numpy as np
     import torch
 
-    from proctex.correspond.corrnet import build_model, sample_batch, train_step
+    from proctex.correspond.corrnet import build_model
+    from proctex.correspond.training import sample_batch, train_step
 
     model = build_model(config)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
@@ -241,7 +242,7 @@ def run_group(name: str, data: dict, group: int, config, n_val: int, template, t
     """Train one group's network and evaluate it on the group's test shapes."""
     import numpy as np
 
-    from proctex.correspond.corrnet import eval_step, train
+    from proctex.correspond.training import eval_step, train
     from proctex.geometry.parts import part_mesh
 
     tr, val, te, te_rows = group_splits(data, group, n_val)

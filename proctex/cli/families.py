@@ -1,0 +1,266 @@
+"""The commands on families: ``build``, ``transfer``, ``edit``, ``eval``, ``gallery`` and
+``demo`` (the in-process build; ``workflows.cli`` adds the Ray layer)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from proctex.geometry.meshio import load_mesh
+from proctex.models import get_model, list_models
+from proctex.progress import track
+
+from .common import _check_preview_path, _group_prompts, _pair, _print_json
+
+
+def _build_config(args: argparse.Namespace):
+    from proctex.family.config import BuildConfig
+
+    data: dict[str, Any] = {}
+    if args.config and args.config_file:
+        raise ValueError("give the config file once (positional CONFIG or --config)")
+    config_file = args.config or args.config_file
+    if config_file:
+        data = {k: v for k, v in vars(BuildConfig.from_file(config_file)).items()}
+    flags = {
+        "model": args.model, "folder": os.path.abspath(args.folder) if args.folder else None, "prompt": args.prompt,
+        "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed, "n_train": args.n_train, "n_test": args.n_test,
+        "texture_size": args.texture_size, "corr_points": args.points, "cage_iterations": args.iterations, "up": args.up,
+        "painter": args.painter, "model_dir": os.path.abspath(args.model_dir) if args.model_dir else None,
+        "tessellation": args.tessellation, "truth": args.truth,
+    }
+    if args.model or args.folder:  # a source flag replaces the config's source
+        data.update(model=None, folder=None, generator=None)
+    data.update({k: v for k, v in flags.items() if v is not None})
+    if args.train_iterations is not None:
+        data["train"] = {**data.get("train", {}), "iterations": args.train_iterations}
+    return BuildConfig.from_dict(data)
+
+
+def cmd_build(args: argparse.Namespace) -> int:
+    from proctex.family.pipeline import build
+    from proctex.family.stages import STAGES
+    from proctex.family.store import FamilyStore
+
+    config = _build_config(args)
+    if args.ray is not None:
+        raise ValueError("--ray runs through the Ray layer: use the installed `proctex` command (workflows.cli)")
+    stages = tuple(args.stages.split(",")) if args.stages else STAGES
+    state = build(FamilyStore(args.out), config, stages=stages, log=(lambda *_: None) if args.quiet else (lambda m: print(m, flush=True)))
+    done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
+    print(f"family {args.out}: stages done: {', '.join(done)}")
+    return 0
+
+
+def cmd_transfer(args: argparse.Namespace) -> int:
+    from proctex.family.mappers import make_mapper
+    from proctex.family.stages import load_assets, load_models, stored_config
+    from proctex.family.store import FamilyStore
+    from proctex.family.transfer import bake, glb, info, transfer
+
+    store = FamilyStore(args.family)
+    config = stored_config(store)
+    if bool(args.params) == bool(args.mesh):
+        raise ValueError("give exactly one of --params JSON or --mesh FILE")
+    if args.params:
+        if config.folder:
+            raise ValueError("this family comes from a folder of meshes: transfer a --mesh")
+        try:
+            params = json.loads(args.params)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"--params is not valid JSON ({exc})") from exc
+        shape = config.procedural_model().generate(params)
+    else:
+        shape, _ = load_mesh(args.mesh)
+    if not args.out.endswith(".glb"):
+        raise ValueError("--out must name a .glb file")
+    _check_preview_path(args.preview)
+    t0 = time.perf_counter()
+    assets = load_assets(store)
+    models = load_models(store) if args.mapper in ("auto", "net") else None
+    if args.mapper == "net" and not models:
+        raise ValueError(f"{args.family} has no trained models (run the train stage)")
+    mapper = make_mapper(args.mapper, assets, models, corr_points=config.corr_points, cage=config.cage_config())
+    t1 = time.perf_counter()
+    from proctex.texture.painters import SurfacePainter
+
+    painter = SurfacePainter(config.prompt, seed=config.seed)  # for parts of groups the template lacks
+    result = transfer(shape, assets, mapper, seed=args.seed, painter=painter)
+    if args.bake:
+        from proctex.texture.export import glb_bytes
+
+        baked = bake(shape, result, assets, size=args.bake)
+        names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
+        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=config.up_axis())
+        textured = (baked.corner_uv, baked.face_group, list(baked.textures))
+    else:
+        data = glb(shape, result, assets, up=config.up_axis())
+        textured = (result.corner_uv, result.face_group, list(assets.textures) + list(result.new_textures))
+    from proctex.fileio import atomic_write
+
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(args.out, data)
+    summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(mapper).__name__, "out": args.out, "bytes": len(data)}
+    if args.preview:
+        from proctex.texture.render import render_three_quarter, save_png
+
+        image = render_three_quarter(shape.vertices, shape.faces, *textured, up=config.up_axis(), size=512)
+        Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
+        save_png(args.preview, image)
+        summary["preview"] = args.preview
+    if args.json:
+        _print_json(summary)
+    else:
+        for note in result.notes:
+            print(f"note: {note}")
+        print(f"transferred {shape.n_faces} faces with {summary['mapper']} in {result.seconds * 1000:.0f} ms "
+              f"(family loaded in {t1 - t0:.1f}s) -> {args.out}")
+        if args.preview:
+            print(f"wrote {args.preview} (3/4 view, 512x512)")
+    return 0
+
+
+def cmd_edit(args: argparse.Namespace) -> int:
+    from proctex.family.edits import edit_group
+    from proctex.family.store import FamilyStore
+
+    store = FamilyStore(args.family)
+    if args.logo is not None and not os.path.isfile(args.logo):
+        raise ValueError(f"--logo {args.logo}: no such file")
+    record = edit_group(
+        store, args.group, hue=args.hue, saturation=args.saturation, value=args.value, logo=args.logo,
+        at=_pair(args.at, "--at") or (0.5, 0.5), size=_pair(args.size, "--size") or (0.25, 0.25),
+        rotation=args.rotation, opacity=args.opacity, prompt=args.prompt,
+    )
+    print(f"edited group {record['group']}: {', '.join(k for k in record if k != 'group')}; transfers now use it")
+    return 0
+
+
+def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Validated keyword arguments of :func:`proctex.evaluate.evaluate` from the eval flags."""
+    from proctex.family.evaluate import METHODS
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise ValueError(f"--methods must name some of {', '.join(METHODS)}, got {args.methods!r}")
+    if args.limit is not None and args.limit < 1:
+        raise ValueError(f"--limit must be >= 1, got {args.limit}")
+    if args.workers < 0:
+        raise ValueError(f"--workers must be >= 0 (0: one per CPU, at most 4), got {args.workers}")
+    if args.lpips and not os.path.isfile(args.lpips):
+        raise ValueError(f"--lpips {args.lpips!r}: no such weights file")
+    if args.tracked < 10 or args.tracked > 1_000_000:
+        raise ValueError(f"--tracked must be in [10, 1000000], got {args.tracked}")
+    return {"methods": methods, "split": args.shapes, "limit": args.limit, "lpips": args.lpips, "truth": args.truth, "tracked": args.tracked,
+            "workers": args.workers or max(1, min(4, os.cpu_count() or 1)), "quiet": args.quiet or args.json}
+
+
+def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> int:
+    """Evaluate, write ``metrics.json`` into the store, print the table (or the JSON)."""
+    from proctex.family.evaluate import evaluate, markdown_table
+    from proctex.family.store import StoreLayout
+
+    if not store.exists(StoreLayout.MODELS) and {"corrnet", "corrnet_all"} & set(options["methods"]):
+        raise ValueError(f"{store.uri}: no trained models (run the train stage, or evaluate without corrnet)")
+    log = (lambda *_: None) if (args.quiet or args.json) else (lambda m: print(m, flush=True))
+    metrics = evaluate(store, log=log, **options)
+    store.write_json(StoreLayout.METRICS, metrics)
+    if args.json:
+        _print_json(metrics)
+    else:
+        print(markdown_table(metrics))
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from proctex.family.stages import stored_config
+    from proctex.family.store import FamilyStore
+
+    store = FamilyStore(args.family)
+    stored_config(store)  # a clear error when the folder is not a family
+    return run_eval(store, args, _eval_options(args))
+
+
+def cmd_eval_folder(args: argparse.Namespace) -> int:
+    """Build a family from a folder of samples (train/ and inference/), then evaluate it."""
+    from proctex.family.config import BuildConfig
+    from proctex.family.pipeline import build
+    from proctex.family.store import FamilyStore
+
+    if not os.path.isdir(args.folder):
+        raise ValueError(f"{args.folder}: no such folder")
+    options = _eval_options(args)
+    data: dict[str, Any] = BuildConfig.read_settings(args.config) if args.config else {}
+    data.update(model=None, generator=None, folder=os.path.abspath(args.folder), prompt=args.prompt)
+    if args.group_prompts:
+        data["group_prompts"] = _group_prompts(args.group_prompts)
+    if args.seed is not None:
+        data["seed"] = args.seed
+    config = BuildConfig.from_dict(data)
+    out = args.out or os.path.join("out", "families", Path(os.path.abspath(args.folder)).name)
+    log = (lambda *_: None) if (args.quiet or args.json) else (lambda m: print(m, flush=True))
+    builder = getattr(args, "builder", None)  # the Ray layer passes one (workflows.cli)
+    stages = ("sample", "template", "paint", "pairs", "train")
+    if builder is not None:
+        builder(out, config, stages, log)
+    else:
+        build(FamilyStore(out), config, stages=stages, log=log)
+    return run_eval(FamilyStore(out), args, options)
+
+
+def cmd_gallery(args: argparse.Namespace) -> int:
+    from PIL import Image
+
+    from proctex.geometry.preview import face_label_colors, grid_image, render_faces
+
+    names = args.models or list_models()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in track(names, "gallery", len(names), args.quiet):
+        model = get_model(name)
+        settings = [model.space.defaults()] + model.space.sample(2, seed=args.seed, method="lhs")
+        row = []
+        for p in settings:
+            s = model.generate(p)
+            row.append(render_faces(s.vertices, s.faces, face_label_colors(s), size=args.size, azimuth=-60, elevation=25))
+        Image.fromarray(grid_image([row])).save(out / f"{name}.png")
+    if not args.quiet:
+        print(f"wrote {len(names)} previews to {out}", file=sys.stderr)
+    return 0
+
+
+def demo_arguments(args: argparse.Namespace) -> dict[str, Any]:
+    """Validated keyword arguments of :func:`proctex.demo.run_demo` from the ``demo`` flags."""
+    if args.n_train < 2 or args.n_test < 0:
+        raise ValueError(f"--n-train must be >= 2 and --n-test >= 0, got {args.n_train}, {args.n_test}")
+    if args.rows < 0 or args.per_row < 1 or args.frames < 1:
+        raise ValueError("--rows must be >= 0, --per-row >= 1 and --frames >= 1")
+    return {"model": args.model, "prompt": args.prompt, "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed,
+            "n_train": args.n_train, "n_test": args.n_test, "rows": args.rows, "per_row": args.per_row, "frames": args.frames,
+            "fresh": args.fresh, "quiet": args.quiet}
+
+
+def print_demo_outputs(result: Any) -> None:
+    s = result.summary
+    fam = Path(result.out) / "families" / s["model"]
+    print(f"demo done in {s['total_seconds']:.0f}s ({len(result.variants)} variants, median transfer "
+          f"{1000 * s['transfer_median_seconds']:.0f} ms). Look at:")
+    for what, where in (("report", result.report), ("contact sheet", result.contact_sheet), ("turntable", result.turntable),
+                        ("variants", f"{Path(result.out) / 'variants'}/ ({len(result.variants)} GLBs)"), ("family store", fam),
+                        ("studio", f"proctex serve {fam.parent}  ->  http://127.0.0.1:8000/")):
+        print(f"  {what:<14}{where}")
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The main job in this process (the installed ``proctex demo`` builds on a local Ray instead)."""
+    from proctex.demo import run_demo
+
+    log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
+    print_demo_outputs(run_demo(args.out, log=log, **demo_arguments(args)))
+    return 0
