@@ -12,7 +12,7 @@ import html
 import json
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -30,15 +30,12 @@ DEMO_PROMPT = "a patchwork bohemian sofa"
 
 def demo_config(model: str = DEMO_MODEL, prompt: str = DEMO_PROMPT, seed: int = 0, n_train: int = 10, n_test: int = 3,
                 group_prompts: dict[str, str] | None = None) -> dict[str, Any]:
-    """A small build config (``BuildConfig`` fields) that finishes in a few minutes on 2 cores.
+    """The demo's build config as sections: the ``demo`` preset (:data:`proctex.family.config.PRESETS`)
+    with this model, prompt, seed and shape counts. A few minutes on 2 cores."""
+    from proctex.family.config import PRESETS, merge, sections
 
-    Fewer shapes, correspondence points and iterations than a production build; every stage runs.
-    """
-    return {
-        "model": model, "prompt": prompt, "group_prompts": dict(group_prompts or {}), "seed": seed,
-        "n_train": n_train, "n_test": n_test, "texture_size": 512, "corr_points": 1000, "cage_iterations": 200,
-        "train": {"iterations": 600},
-    }
+    return merge(sections(PRESETS["demo"]), {"seed": seed, "source": {"model": model, "n_train": n_train, "n_test": n_test},
+                                             "paint": {"prompt": prompt, "group_prompts": dict(group_prompts or {})}})
 
 
 # ------------------------------------------------------------------------------------------ sweep
@@ -349,7 +346,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     (out / "variants").mkdir(parents=True, exist_ok=True)
     store = FamilyStore(family)
     config = stored_config(store)
-    if config.model is None and config.generator is None:
+    if config.source.model is None and config.source.generator is None:
         raise ValueError("the demo sweeps parameters: build the family from a model or generator, not a folder")
     model = config.procedural_model()
     svc = FamilyService(store)
@@ -376,7 +373,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
             bar.update()
     atomic_write(out / "variants.json", json.dumps(variants, indent=1))
 
-    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{config.model or 'family'}: \"{config.prompt}\"", quiet=quiet)
+    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{config.source.model or 'family'}: \"{config.paint.prompt}\"", quiet=quiet)
     save_png(out / "contact_sheet.png", sheet)
     swept = [r.name for r in sweep if r.name != "random"][:2]
     spin = render_turntable(model, base, swept, svc, up, frames, gif_size, seed=seed, quiet=quiet)
@@ -401,8 +398,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     stage_all = {**{k: float(v) for k, v in stage_seconds.items()}, "sweep + renders + report": time.perf_counter() - t_start}
     notes = sorted({n for v in variants for n in v["notes"]})
     summary = {
-        "model": config.model or "generator", "prompt": config.prompt, "family": fam_rel, "serve_root": os.path.dirname(fam_rel) or ".",
-        "seed": config.seed, "n_train": config.n_train, "n_test": config.n_test, "ray": ray,
+        "model": config.source.model or "generator", "prompt": config.paint.prompt, "family": fam_rel, "serve_root": os.path.dirname(fam_rel) or ".",
+        "seed": config.seed, "n_train": config.source.n_train, "n_test": config.source.n_test, "ray": ray,
         "groups": groups, "metrics": None if metrics is None else {"shapes": metrics["shapes"], "tracker": metrics.get("tracker"), "methods": {
             k: {kk: vv for kk, vv in m.items() if kk not in ("per_shape", "per_group")} for k, m in metrics["methods"].items()}},
         "stage_seconds": {k: round(v, 2) for k, v in stage_all.items()},
@@ -456,15 +453,18 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
 
     if not prompt or not prompt.strip():
         raise ValueError("the prompt must not be empty")
-    config = {**demo_config(model, prompt, seed=seed, n_train=n_train, n_test=n_test, group_prompts=group_prompts), **(overrides or {})}
-    checked = asdict(BuildConfig.from_dict(config))  # validates the model name and settings before any work
+    from proctex.family.config import merge, resolved_settings, sections
+
+    config = merge(demo_config(model, prompt, seed=seed, n_train=n_train, n_test=n_test, group_prompts=group_prompts),
+                   sections(overrides or {}, where="overrides"))
+    checked = BuildConfig.from_dict(config).to_dict()  # validates the model name and settings before any work
     out = Path(out)
     root = out / "families" / model
     if fresh and root.exists():
         shutil.rmtree(root)
     if root.exists() and (root / StoreLayout.STATE).exists():
         old = json.loads((root / StoreLayout.STATE).read_text()).get("config")
-        if old is not None and old != checked:
+        if old is not None and resolved_settings(old) != checked:
             raise ValueError(f"{root} holds a family built with other settings; pass --fresh to rebuild it, or choose another --out")
     root.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

@@ -117,8 +117,8 @@ def test_a_wrong_correspondence_gives_large_errors():
 def pinned_family(tmp_path_factory):
     """Bounds pinned to the defaults: every sample is the template."""
     pinned = {s.name: [s.default, s.default] for s in get_model("mug").space.specs}
-    cfg = BuildConfig(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, params=pinned,
-                      prompt="red and white checkered fabric", train=TINY_TRAIN).validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, params=pinned,
+                      prompt="red and white checkered fabric", train=TINY_TRAIN)).validate()
     st = FamilyStore(tmp_path_factory.mktemp("pinned") / "mug")
     build(st, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
     return st

@@ -14,8 +14,8 @@ from proctex.family.store import FamilyStore
 @pytest.fixture(scope="module")
 def mug_family(tmp_path_factory):
     root = tmp_path_factory.mktemp("fam") / "mug"
-    cfg = BuildConfig(model="mug", n_train=2, n_test=1, corr_points=200, cage_iterations=20, texture_size=64,
-                      prompt="glazed blue ceramic", group_prompts={"handle": "gold"}).validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=1, corr_points=200, cage_iterations=20, texture_size=64,
+                      prompt="glazed blue ceramic", group_prompts={"handle": "gold"})).validate()
     st = FamilyStore(root)
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint, stage_pairs):
@@ -98,22 +98,22 @@ def test_rerun_skips_completed_work(mug_family):
 def test_config_files_and_validation(tmp_path):
     (tmp_path / "fam.toml").write_text('model = "chair"\nprompt = "oak"\nn_train = 4\n[params]\nslats = [2, 4]\n')
     cfg = BuildConfig.from_file(tmp_path / "fam.toml")
-    assert cfg.model == "chair" and cfg.params == {"slats": [2, 4]}
+    assert cfg.source.model == "chair" and cfg.source.params == {"slats": [2, 4]}
     (tmp_path / "data").mkdir()
     (tmp_path / "f.json").write_text(json.dumps({"folder": "data", "prompt": "x"}))
-    assert BuildConfig.from_file(tmp_path / "f.json").folder == str((tmp_path / "data").resolve())
+    assert BuildConfig.from_file(tmp_path / "f.json").source.folder == str((tmp_path / "data").resolve())
     for bad in [{"prompt": "x"}, {"model": "mug", "folder": "x"}, {"model": "mug", "n_train": 1}, {"model": "mug", "nonsense": 1},
                 {"model": "nosuch"}, {"folder": str(tmp_path / "missing")}]:
         with pytest.raises(ValueError):
             BuildConfig.from_dict(bad)
     with pytest.raises(ValueError, match="another config"):
         st = FamilyStore(tmp_path / "x")
-        write_config(st, BuildConfig(model="mug").validate())
-        write_config(st, BuildConfig(model="mug", prompt="gold").validate())
+        write_config(st, BuildConfig.from_dict(dict(model="mug")).validate())
+        write_config(st, BuildConfig.from_dict(dict(model="mug", prompt="gold")).validate())
 
 
 def test_parameter_bounds_restrict_sampling(tmp_path):
-    cfg = BuildConfig(model="chair", n_train=6, n_test=0, params={"slats": [2, 3], "seat_width": [0.4, 0.42]}).validate()
+    cfg = BuildConfig.from_dict(dict(model="chair", n_train=6, n_test=0, params={"slats": [2, 3], "seat_width": [0.4, 0.42]})).validate()
     st = FamilyStore(tmp_path / "c")
     write_config(st, cfg)
     stage_sample(st, cfg, log=lambda *_: None)
@@ -121,7 +121,7 @@ def test_parameter_bounds_restrict_sampling(tmp_path):
         p = json.loads(r["params"])
         assert 2 <= p["slats"] <= 3 and 0.4 <= p["seat_width"] <= 0.42
     with pytest.raises(ValueError, match="within"):
-        BuildConfig(model="chair", params={"slats": [0, 9]}).procedural_model()
+        BuildConfig.from_dict(dict(model="chair", params={"slats": [0, 9]})).procedural_model()
 
 
 def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
@@ -240,8 +240,8 @@ def test_evaluate_stage_on_identical_shapes(tmp_path):
     from proctex.models import get_model
 
     pinned = {s.name: [s.default, s.default] for s in get_model("mug").space.specs}
-    cfg = BuildConfig(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, params=pinned,
-                      train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2}).validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, params=pinned,
+                      train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2})).validate()
     st = FamilyStore(tmp_path / "fam")
     logs = []
     state = build(st, cfg, log=logs.append)
@@ -309,8 +309,8 @@ def test_view_painted_family_keeps_its_already_painted_mask(tmp_path):
     from proctex.family.mappers import IdentityMapper
     from proctex.family.transfer import bake, transfer
 
-    cfg = BuildConfig(model="cake", n_train=2, n_test=0, texture_size=64, painter="views", views=6, view_size=96,
-                      paint_hidden=False, params={"candles": [0, 0], "tiers": [2, 2], "shrink": [0.7, 0.72]}, prompt="red velvet cake").validate()
+    cfg = BuildConfig.from_dict(dict(model="cake", n_train=2, n_test=0, texture_size=64, painter="views", views=6, view_size=96,
+                      paint_hidden=False, params={"candles": [0, 0], "tiers": [2, 2], "shrink": [0.7, 0.72]}, prompt="red velvet cake")).validate()
     st = FamilyStore(tmp_path / "cake")
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint):
@@ -331,24 +331,26 @@ def test_view_painted_family_keeps_its_already_painted_mask(tmp_path):
 
 def test_build_config_painter_checks(tmp_path):
     with pytest.raises(ValueError, match="model_dir"):
-        BuildConfig(model="mug", painter="diffusion").validate()
+        BuildConfig.from_dict(dict(model="mug", painter="diffusion")).validate()
     with pytest.raises(ValueError, match="painter"):
-        BuildConfig(model="mug", painter="crayon").validate()
+        BuildConfig.from_dict(dict(model="mug", painter="crayon")).validate()
     with pytest.raises(ValueError, match="fill"):
-        BuildConfig(model="mug", painter="views", fill="blur").validate()
+        BuildConfig.from_dict(dict(model="mug", painter="views", fill="blur")).validate()
 
     with pytest.raises(ValueError, match="iteratons"):
-        BuildConfig(model="mug", train={"iteratons": 5}).corrnet_config()
+        BuildConfig.from_dict(dict(model="mug", train={"iteratons": 5}))
 
 
 def test_cage_settings_reach_the_solver_and_bad_ones_are_refused():
     from proctex.family.config import BuildConfig
 
     cfg = BuildConfig.from_dict({"model": "mug", "cage_level": 2, "cage_iterations": 40, "cage": {"w_rest": 0.3, "prealign": "box"}})
-    cage = cfg.cage_config()
+    cage = cfg.cage
     assert (cage.level, cage.iterations, cage.w_rest, cage.prealign) == (2, 40, 0.3, "box")
-    assert BuildConfig.from_dict({"model": "mug"}).cage_config().prealign == "auto"
-    for bad, msg in (({"level": 2}, "cage_level"), ({"nope": 1}, "unknown cage"), ({"w_rest": -1.0}, "weights"),
+    assert BuildConfig.from_dict({"model": "mug"}).cage.prealign == "auto"
+    with pytest.raises(ValueError, match="once"):
+        BuildConfig.from_dict({"model": "mug", "cage_level": 2, "cage": {"level": 3}})
+    for bad, msg in (({"level": 9}, "level"), ({"nope": 1}, "bad cage"), ({"w_rest": -1.0}, "weights"),
                      ({"normal_target": "edge"}, "normal_target"), ("w_rest=1", "object")):
         with pytest.raises(ValueError, match=msg):
             BuildConfig.from_dict({"model": "mug", "cage": bad})
@@ -357,17 +359,52 @@ def test_cage_settings_reach_the_solver_and_bad_ones_are_refused():
 def test_a_store_built_before_the_cage_settings_keeps_its_old_solver(tmp_path):
     """A family.json without ``cage`` was solved by the old cage (ICP start, vertex normals, no rest
     term, last iterate): resuming its pairs must use that solver, not the new defaults."""
-    from dataclasses import asdict
-
     from proctex.family.config import BuildConfig
     from proctex.family.stages import stored_config, write_config
 
     store = FamilyStore(str(tmp_path / "old"))
-    settings = asdict(BuildConfig.from_dict({"model": "mug"}))
-    del settings["cage"]
+    settings = {"model": "mug", "prompt": "oak", "seed": 0, "n_train": 24, "cage_level": 1, "cage_iterations": 300, "train": {}}  # flat, no cage
     store.write_json("family.json", {"config": settings, "stages": {}})
-    cage = stored_config(store).cage_config()
+    cage = stored_config(store).cage
     assert (cage.prealign, cage.normal_target, cage.keep_best, cage.w_rest) == ("icp", "vertex", False, 0.0)
     with pytest.raises(ValueError, match="another config"):  # resuming with the new defaults is refused
         write_config(store, BuildConfig.from_dict({"model": "mug"}))
     write_config(store, stored_config(store))  # and with its own settings accepted
+
+
+def test_configs_in_sections_and_flat_keys_are_the_same_config_and_round_trip():
+    from proctex.family.config import PRESETS, BuildConfig, resolved_settings
+
+    flat = {"model": "chair", "prompt": "oak", "seed": 3, "n_train": 5, "cage_iterations": 40, "cage": {"w_rest": 0.3},
+            "train": {"iterations": 50}, "texture_size": 64}
+    nested = {"seed": 3, "source": {"model": "chair", "n_train": 5}, "paint": {"prompt": "oak", "texture_size": 64},
+              "cage": {"iterations": 40, "w_rest": 0.3}, "train": {"iterations": 50}}
+    a, b = BuildConfig.from_dict(flat), BuildConfig.from_dict(nested)
+    assert a == b and a.cage.iterations == 40 and a.train.iterations == 50 and a.source.n_train == 5
+    assert a.train.seed == 3  # the network's seed follows the family seed unless set
+    stored = a.to_dict()
+    assert BuildConfig.from_dict(stored) == a and resolved_settings(stored) == stored
+    assert set(stored) == {"seed", "corr_points", "truth", "source", "paint", "cage", "train"}
+    old = resolved_settings({"model": "chair"})  # an old store's flat settings: the values of then filled in
+    assert old["source"]["tessellation"] == "fixed" and old["cage"]["prealign"] == "icp"
+    demo = BuildConfig.from_dict({}, preset="demo")
+    assert demo.source.model == PRESETS["demo"]["source"]["model"] and demo.corr_points == 1000 and demo.train.iterations == 600
+    over = BuildConfig.from_dict({"source": {"n_train": 4}, "paint": {"prompt": "red"}}, preset="demo")
+    assert (over.source.model, over.source.n_train, over.paint.prompt, over.cage.iterations) == ("sofa", 4, "red", 200)
+
+
+def test_bad_configs_are_clear_errors():
+    from proctex.family.config import BuildConfig
+
+    deep: dict = {}
+    for _ in range(3000):
+        deep = {"x": deep}
+    for bad, msg in (({"source": "mug"}, "source must be an object"), ({"source": {"model": "mug", "colour": 1}}, "bad config"),
+                     ({"model": "mug", "extra": 1}, "unknown config keys"), ({"model": "mug", "paint": {"texture_size": 8}}, "texture_size"),
+                     ({"model": "mug", "train": {"nope": 1}}, "unknown CorrNetConfig"), ([1, 2], "object of settings"),
+                     ({"model": "mug", "source": {"n_train": 1}}, "n_train"), ({"model": "mug", "deep": deep}, "unknown config keys"),
+                     ({"source": {"model": "mug", **{f"k{i}": i for i in range(300)}}}, "at most")):
+        with pytest.raises(ValueError, match=msg):
+            BuildConfig.from_dict(bad)
+    with pytest.raises(ValueError, match="unknown preset"):
+        BuildConfig.from_dict({"model": "mug"}, preset="nope")

@@ -124,7 +124,7 @@ def _smooth_textures(assets, size=128):
 
 @pytest.fixture(scope="module")
 def chair_family(tmp_path_factory):
-    cfg = BuildConfig(model="chair", n_train=2, n_test=5, texture_size=128, prompt="oak", seed=3).validate()
+    cfg = BuildConfig.from_dict(dict(model="chair", n_train=2, n_test=5, texture_size=128, prompt="oak", seed=3)).validate()
     st = FamilyStore(tmp_path_factory.mktemp("fid") / "chair")
     build(st, cfg, stages=("sample", "template", "paint"), log=lambda *_: None)
     assets = load_assets(st)
@@ -410,6 +410,6 @@ def test_one_part_frame_everywhere(monkeypatch):
     shape = get_model("mug").generate({"radius": 0.045})
     transfer(shape, assets, IdentityMapper(), shortcut=False)
     assert len(calls) == 2  # body and handle
-    cfg = BuildConfig(model="mug", corr_points=100, cage_iterations=2).validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", corr_points=100, cage_iterations=2)).validate()
     proctex.family.stages.solve_pair(shape, assets, 0, cfg, seed=0)
     assert len(calls) == 3

@@ -8,9 +8,9 @@ import pytest
 import trimesh
 from .meshes import part_label, split_parts
 
-from proctex.geometry.primitives import sphere_canonical
+from proctex.geometry.sweeps import sphere_canonical
 from proctex.models import get_model, list_models
-from proctex.models.vessels import tier_label
+from proctex.models.food import tier_label
 
 MODELS = ["mug", "pumpkin", "mushroom", "cake", "shell"]
 

@@ -164,7 +164,8 @@ def test_diffusion_painter_runs_the_whole_loop(tmp_path, chair):
     pytest.importorskip("diffusers")
     import torch
 
-    from proctex.texture.painters.diffusion import DiffusionViewPainter, build_tiny_pipeline
+    from proctex.texture.painters.diffusion import DiffusionViewPainter
+    from proctex.texture.painters.tiny_pipeline import build_tiny_pipeline
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -16,11 +16,11 @@ from proctex.texture.painters.diffusion import (
     DiffusionViewPainter,
     _block_dilate,
     _resize_mask,
-    build_tiny_pipeline,
     compose_prompt,
     depth_control_image,
     detect_pipeline,
 )
+from proctex.texture.painters.tiny_pipeline import build_tiny_pipeline
 
 STEPS = 4
 

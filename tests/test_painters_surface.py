@@ -12,8 +12,9 @@ from proctex._reference import noise as nz_ref
 from proctex.texture.painters import MaterialSpec, SurfacePainter, parse_prompt
 from proctex.texture.painters import noise as nz
 from proctex.texture.painters.colors import COLOR_TABLE, apply_modifier, hue_degrees, lightness, lookup_color, parse_color
-from proctex.texture.painters.materials import MATERIAL_FUNCS, PATTERN_FUNCS
-from proctex.texture.painters.prompt import MATERIAL_KINDS, PATTERNS
+from proctex.texture.painters.materials import MATERIAL_FUNCS
+from proctex.texture.painters.patterns import PATTERN_FUNCS
+from proctex.texture.painters.vocabulary import MATERIAL_KINDS, PATTERNS
 
 RNG = np.random.default_rng(1234)
 

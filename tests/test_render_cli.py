@@ -314,8 +314,8 @@ def mug_family(tmp_path_factory):
     from proctex.family.store import FamilyStore
 
     root = tmp_path_factory.mktemp("fam") / "mug"
-    cfg = BuildConfig(model="mug", n_train=2, n_test=0, texture_size=64, prompt="red and white checkered fabric",
-                      group_prompts={"handle": "gold"}).validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=64, prompt="red and white checkered fabric",
+                      group_prompts={"handle": "gold"})).validate()
     st = FamilyStore(root)
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint):

@@ -25,7 +25,7 @@ def root(tmp_path_factory):
     """A store root with a painted mug family (no networks: the identity mapper serves it) and a
     half-built folder that is not a family yet."""
     base = tmp_path_factory.mktemp("families")
-    cfg = BuildConfig(model="mug", n_train=2, n_test=0, texture_size=32, prompt="blue ceramic").validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="blue ceramic")).validate()
     st = FamilyStore(base / "mug")
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint):
@@ -136,7 +136,7 @@ def test_folder_families_take_meshes_only(tmp_path, sofa_dir):
     import pyarrow as pa
 
     st = FamilyStore(tmp_path / "sofa")
-    cfg = BuildConfig(folder=str(sofa_dir), texture_size=32).validate()
+    cfg = BuildConfig.from_dict(dict(folder=str(sofa_dir), texture_size=32)).validate()
     write_config(st, cfg)
     # Three samples are enough for a painted template.
     from proctex.family.stages import finish_sample_stage, run_sample_job, sample_jobs

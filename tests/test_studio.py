@@ -60,7 +60,7 @@ def server(tmp_path_factory):
     from workers.http import create_app
 
     root = tmp_path_factory.mktemp("studio")
-    cfg = BuildConfig(model="mug", n_train=2, n_test=0, texture_size=64, prompt="blue ceramic").validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=64, prompt="blue ceramic")).validate()
     st = FamilyStore(root / "mug")
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint):
@@ -247,7 +247,7 @@ def test_the_studio_uploads_a_mesh_for_families_of_meshes(server, browser, sofa_
 
     base, root = server
     st = FamilyStore(root / "sofa")
-    cfg = BuildConfig(folder=str(sofa_dir), texture_size=64, prompt="green velvet").validate()
+    cfg = BuildConfig.from_dict(dict(folder=str(sofa_dir), texture_size=64, prompt="green velvet")).validate()
     write_config(st, cfg)
     jobs = [j for j in sample_jobs(cfg) if j.split == "train"][:3]  # three samples make a painted template
     finish_sample_stage(st, [run_sample_job(st, cfg, j) for j in jobs])

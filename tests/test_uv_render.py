@@ -5,7 +5,7 @@ import pytest
 
 from proctex._reference.raster import rasterise_reference
 from proctex._reference.uv import texel_map_reference
-from proctex.geometry import primitives as P
+from proctex.geometry import sweeps as S
 from proctex.geometry.parts import analyse
 from proctex.geometry.raster import rasterise
 from proctex.geometry.surface import SurfaceIndex, triangle_areas
@@ -30,7 +30,7 @@ from .meshes import cube
 
 def cylinder(radius, height, segments):
     """Closed cylinder part (surface of revolution with poles)."""
-    return P.revolve(np.full(4, radius), np.linspace(0, height, 4), n_theta=segments)
+    return S.revolve(np.full(4, radius), np.linspace(0, height, 4), n_theta=segments)
 
 
 # ------------------------------------------------------------------------------------ rasteriser

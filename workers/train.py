@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import tempfile
-from dataclasses import asdict
 import time
 from typing import Any, Callable
 
@@ -53,7 +52,7 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
     rank, world = ctx.get_world_rank(), ctx.get_world_size()
     store = FamilyStore(loop_config["store"])
     config = BuildConfig.from_dict(loop_config["config"])
-    cfg = config.corrnet_config()
+    cfg = config.train
     plan = teams(world, [int(g) for g in loop_config["groups"]])
     # Every rank creates every team's process group, in the same order (torch.distributed requires it).
     handles = [dist.new_group(ranks) if world > 1 and len(ranks) > 1 else None for ranks, _ in plan]
@@ -144,7 +143,7 @@ def train_groups(
     t0 = time.perf_counter()
     trainer = TorchTrainer(
         train_group_loop,
-        train_loop_config={"store": store_uri, "config": asdict(config), "groups": todo},
+        train_loop_config={"store": store_uri, "config": config.to_dict(), "groups": todo},
         scaling_config=ScalingConfig(num_workers=num_workers, use_gpu=False, resources_per_worker={"CPU": cpus_per_worker}),
         # A fresh run name: Ray Train resumes silently from an existing run of the same name.
         run_config=RunConfig(name=f"corrnet_{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}", storage_path=storage, storage_filesystem=store.fs),

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import asdict
 from typing import Any, Callable, Sequence
 
 from proctex.family.config import BuildConfig
@@ -89,7 +88,7 @@ def ray_stage_sample(store: FamilyStore, config: BuildConfig, batch_size: int = 
     batches = [jobs[i : i + batch_size] for i in range(0, len(jobs), batch_size)]
     rows: dict[int, dict[str, Any]] = {}
     bar = Progress("sample", len(jobs), quiet=quiet)
-    cfg = asdict(config)
+    cfg = config.to_dict()
 
     def collect(batch, result):
         for job, row in zip(batch, result):
@@ -118,7 +117,7 @@ def ray_stage_pairs(store: FamilyStore, config: BuildConfig, max_in_flight: int 
         by_shape.setdefault(job.row["id"], []).append(job)
     batches = list(by_shape.values())
     bar = Progress("pairs", len(todo), quiet=quiet)
-    cfg = asdict(config)
+    cfg = config.to_dict()
     pids: set[int] = set()
     last = [time.perf_counter()]
     t0 = time.perf_counter()

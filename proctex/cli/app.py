@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from proctex.family.config import PRESETS
+
 from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_transfer
 from .shapes import cmd_correspond, cmd_match, cmd_models, cmd_paint, cmd_render, cmd_sample, cmd_segment, cmd_template
 
@@ -105,7 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--model", help="built-in model name")
     src.add_argument("--folder", help="folder of samples (mesh + JSON params, train/ and inference/)")
     p.add_argument("config_file", nargs="?", metavar="CONFIG", help="JSON or TOML build config (same as --config)")
-    p.add_argument("--config", help="JSON or TOML build config (flags override it)")
+    p.add_argument("--config", help="JSON or TOML build config, in sections or flat keys (flags override it)")
+    p.add_argument("--preset", choices=sorted(PRESETS), help="start from a named config (the config file and flags override it)")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="run on Ray: a private local instance, or the cluster at ADDRESS ('auto', 'host:port')")
     p.add_argument("--train-workers", type=int, help="Ray Train workers per group network (--ray; default min(2, CPUs))")

@@ -19,14 +19,13 @@ from .common import _check_preview_path, _group_prompts, _pair, _print_json
 
 
 def _build_config(args: argparse.Namespace):
-    from proctex.family.config import BuildConfig
+    """The build config of ``proctex build``: the ``--preset``, the config file over it, the flags over both."""
+    from proctex.family.config import BuildConfig, merge, sections
 
-    data: dict[str, Any] = {}
     if args.config and args.config_file:
         raise ValueError("give the config file once (positional CONFIG or --config)")
     config_file = args.config or args.config_file
-    if config_file:
-        data = {k: v for k, v in vars(BuildConfig.from_file(config_file)).items()}
+    data: dict[str, Any] = BuildConfig.read_settings(config_file) if config_file else {}
     flags = {
         "model": args.model, "folder": os.path.abspath(args.folder) if args.folder else None, "prompt": args.prompt,
         "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed, "n_train": args.n_train, "n_test": args.n_test,
@@ -34,12 +33,12 @@ def _build_config(args: argparse.Namespace):
         "painter": args.painter, "model_dir": os.path.abspath(args.model_dir) if args.model_dir else None,
         "tessellation": args.tessellation, "truth": args.truth,
     }
-    if args.model or args.folder:  # a source flag replaces the config's source
-        data.update(model=None, folder=None, generator=None)
-    data.update({k: v for k, v in flags.items() if v is not None})
+    if args.model or args.folder:  # a source flag replaces the config's (and the preset's) source
+        data = merge(data, {"source": {"model": None, "folder": None, "generator": None}})
+    data = merge(data, sections({k: v for k, v in flags.items() if v is not None}))
     if args.train_iterations is not None:
-        data["train"] = {**data.get("train", {}), "iterations": args.train_iterations}
-    return BuildConfig.from_dict(data)
+        data = merge(data, {"train": {"iterations": args.train_iterations}})
+    return BuildConfig.from_dict(data, preset=args.preset)
 
 
 def cmd_build(args: argparse.Namespace) -> int:
@@ -68,7 +67,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     if bool(args.params) == bool(args.mesh):
         raise ValueError("give exactly one of --params JSON or --mesh FILE")
     if args.params:
-        if config.folder:
+        if config.source.folder:
             raise ValueError("this family comes from a folder of meshes: transfer a --mesh")
         try:
             params = json.loads(args.params)
@@ -85,11 +84,11 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     models = load_models(store) if args.mapper in ("auto", "net") else None
     if args.mapper == "net" and not models:
         raise ValueError(f"{args.family} has no trained models (run the train stage)")
-    mapper = make_mapper(args.mapper, assets, models, corr_points=config.corr_points, cage=config.cage_config())
+    mapper = make_mapper(args.mapper, assets, models, corr_points=config.corr_points, cage=config.cage)
     t1 = time.perf_counter()
     from proctex.texture.painters import SurfacePainter
 
-    painter = SurfacePainter(config.prompt, seed=config.seed)  # for parts of groups the template lacks
+    painter = SurfacePainter(config.paint.prompt, seed=config.seed)  # for parts of groups the template lacks
     result = transfer(shape, assets, mapper, seed=args.seed, painter=painter)
     if args.bake:
         from proctex.texture.export import glb_bytes

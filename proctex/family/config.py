@@ -6,72 +6,49 @@ from __future__ import annotations
 import json
 import os
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+#: Flat settings (the config format before sections, still read) -> (section, field).
+FLAT_KEYS: dict[str, tuple[str, str]] = {
+    **{k: ("source", k) for k in ("model", "folder", "generator", "n_train", "n_test", "sampling", "params", "tessellation", "up")},
+    **{k: ("paint", k) for k in ("prompt", "group_prompts", "painter", "texture_size", "views", "view_size", "paint_hidden", "fill",
+                                 "model_dir", "device", "steps")},
+    "cage_level": ("cage", "level"), "cage_iterations": ("cage", "iterations"),
+}
+SECTIONS = ("source", "paint", "cage", "train")
+TOP_LEVEL = ("seed", "corr_points", "truth")
+MAX_SETTINGS = 256  # keys in one section (a config is small; a huge one is a mistake or an attack)
+
+
 @dataclass
-class BuildConfig:
-    """Everything a build needs. Exactly one of ``model`` (built-in name), ``folder`` (samples on
-    disk) or ``generator`` (a generator config file) names the family.
+class SourceConfig:
+    """Where the family's shapes come from. Exactly one of ``model`` (built-in name), ``folder``
+    (samples on disk) or ``generator`` (a generator config file).
 
     Attributes:
-        prompt, group_prompts: what to paint (group prompts keyed by group label or index).
-        seed: the family seed; sample ``i`` and pair ``(i, g)`` derive theirs from it.
         n_train, n_test, sampling: how many shapes to sample from a model ("lhs" or "random").
         params: bounds overrides ``{"name": [low, high]}`` for continuous / integer parameters.
-        texture_size, painter: template texturing: "surface" (the solid surface painter), "views"
-            (the multi-view loop with the offline view painter) or "diffusion" (the multi-view loop
-            with a local diffusers model in ``model_dir``).
-        views, view_size, paint_hidden, fill: the multi-view loop (cameras on the orbit, their size,
-            whether parts hidden from the orbit get views of their own, and how unseen texels are
-            filled: "patchmatch" or "surface"). Texels no view saw stay out of the template's
-            "already painted" mask, so transfer can detect dis-occlusion.
-        model_dir, device, steps: the diffusion painter.
-        up: the shapes' up axis ("auto": y for OBJ/glTF files, z otherwise).
-        corr_points, cage_level, cage_iterations: the cage solver per pair; cage: other
-            :class:`proctex.cage.CageConfig` settings (e.g. ``{"w_rest": 0.3}``).
-        train: ProcCorrNet settings (``proctex.corrnet.CorrNetConfig`` fields).
         tessellation: built-in models only: "adaptive" (segments follow each part's size, so most
             parameter changes change a part's connectivity, as real procedural exports do: the
             networks are exercised) or "fixed" (every part keeps its connectivity: the
             same-connectivity shortcut textures it). Stores built before the setting existed are
             "fixed".
-        truth: what the evaluation takes as ground truth (:data:`proctex.fidelity.TRUTHS`): "auto"
-            (canonical coordinates for built-in models, none otherwise), "vertex-index" (the
-            samples share one vertex order: vertex *i* is the same point in every sample; checked
-            when evaluating), "canonical" or "none" (the cage solver tracks points; no GT error).
+        up: the shapes' up axis ("auto": y for OBJ/glTF files, z otherwise).
     """
 
     model: str | None = None
     folder: str | None = None
     generator: str | None = None
-    prompt: str = "oak"
-    group_prompts: dict[str, str] = field(default_factory=dict)
-    seed: int = 0
     n_train: int = 24
     n_test: int = 8
     sampling: str = "lhs"
     params: dict[str, list[float]] = field(default_factory=dict)
-    texture_size: int = 512
-    painter: str = "surface"
-    views: int = 11
-    view_size: int = 512
-    paint_hidden: bool = True
-    fill: str = "patchmatch"
-    model_dir: str | None = None
-    device: str = "cpu"
-    steps: int = 20
-    up: str = "auto"
-    corr_points: int = 2000
-    cage_level: int = 1
-    cage_iterations: int = 300
-    train: dict[str, Any] = field(default_factory=dict)
-    cage: dict[str, Any] = field(default_factory=dict)
     tessellation: str = "adaptive"
-    truth: str = "auto"
+    up: str = "auto"
 
-    def validate(self) -> "BuildConfig":
+    def validate(self) -> "SourceConfig":
         named = [x for x in (self.model, self.folder, self.generator) if x]
         if len(named) != 1:
             raise ValueError("name exactly one of model, folder or generator")
@@ -83,12 +60,52 @@ class BuildConfig:
             raise ValueError(f"folder {self.folder!r} not found")
         if self.generator and not os.path.isfile(self.generator):
             raise ValueError(f"generator config {self.generator!r} not found")
-        if not isinstance(self.prompt, str):
-            raise ValueError("prompt must be a string")
         if self.n_train < 2 or self.n_test < 0:
             raise ValueError(f"need n_train >= 2 and n_test >= 0, got {self.n_train}, {self.n_test}")
         if self.sampling not in ("lhs", "random"):
             raise ValueError(f"sampling must be lhs or random, got {self.sampling!r}")
+        if not isinstance(self.params, dict):
+            raise ValueError("params must be an object of bounds {name: [low, high]}")
+        if self.up not in ("auto", "x", "y", "z"):
+            raise ValueError(f"up must be auto, x, y or z, got {self.up!r}")
+        if self.tessellation not in ("adaptive", "fixed"):
+            raise ValueError(f"tessellation must be adaptive or fixed, got {self.tessellation!r}")
+        return self
+
+
+@dataclass
+class PaintConfig:
+    """How the template is painted.
+
+    Attributes:
+        prompt, group_prompts: what to paint (group prompts keyed by group label or index).
+        texture_size, painter: template texturing: "surface" (the solid surface painter), "views"
+            (the multi-view loop with the offline view painter) or "diffusion" (the multi-view loop
+            with a local diffusers model in ``model_dir``).
+        views, view_size, paint_hidden, fill: the multi-view loop (cameras on the orbit, their size,
+            whether parts hidden from the orbit get views of their own, and how unseen texels are
+            filled: "patchmatch" or "surface"). Texels no view saw stay out of the template's
+            "already painted" mask, so transfer can detect dis-occlusion.
+        model_dir, device, steps: the diffusion painter.
+    """
+
+    prompt: str = "oak"
+    group_prompts: dict[str, str] = field(default_factory=dict)
+    painter: str = "surface"
+    texture_size: int = 512
+    views: int = 11
+    view_size: int = 512
+    paint_hidden: bool = True
+    fill: str = "patchmatch"
+    model_dir: str | None = None
+    device: str = "cpu"
+    steps: int = 20
+
+    def validate(self) -> "PaintConfig":
+        if not isinstance(self.prompt, str):
+            raise ValueError("prompt must be a string")
+        if not isinstance(self.group_prompts, dict) or not all(isinstance(v, str) for v in self.group_prompts.values()):
+            raise ValueError("group_prompts must be an object of prompts {group label or index: prompt}")
         if self.texture_size < 16:
             raise ValueError(f"texture_size must be >= 16, got {self.texture_size}")
         if self.painter not in ("surface", "views", "diffusion"):
@@ -99,95 +116,170 @@ class BuildConfig:
             raise ValueError(f"fill must be patchmatch or surface, got {self.fill!r}")
         if self.painter == "diffusion" and not (self.model_dir and os.path.isdir(self.model_dir)):
             raise ValueError(f"painter 'diffusion' needs model_dir, a local diffusers model folder (got {self.model_dir!r})")
-        if self.up not in ("auto", "x", "y", "z"):
-            raise ValueError(f"up must be auto, x, y or z, got {self.up!r}")
-        if self.tessellation not in ("adaptive", "fixed"):
-            raise ValueError(f"tessellation must be adaptive or fixed, got {self.tessellation!r}")
+        return self
+
+
+@dataclass
+class BuildConfig:
+    """Everything a build needs, in sections: ``source`` (:class:`SourceConfig`), ``paint``
+    (:class:`PaintConfig`), ``cage`` (the cage solver per pair, :class:`proctex.correspond.cage.CageConfig`)
+    and ``train`` (ProcCorrNet, :class:`proctex.correspond.corrnet.CorrNetConfig`; its seed is the
+    family seed unless set), plus:
+
+    Attributes:
+        seed: the family seed; sample ``i`` and pair ``(i, g)`` derive theirs from it.
+        corr_points: surface points per shape in each cage pair.
+        truth: what the evaluation takes as ground truth (:data:`proctex.family.fidelity.TRUTHS`): "auto"
+            (canonical coordinates for built-in models, none otherwise), "vertex-index" (the
+            samples share one vertex order: vertex *i* is the same point in every sample; checked
+            when evaluating), "canonical" or "none" (the cage solver tracks points; no GT error).
+
+    Build one with :meth:`from_dict` (sections or the older flat keys, optionally over a preset of
+    :data:`PRESETS`); :meth:`to_dict` is what ``family.json`` stores.
+    """
+
+    source: SourceConfig = field(default_factory=SourceConfig)
+    paint: PaintConfig = field(default_factory=PaintConfig)
+    cage: Any = None  # CageConfig, filled in by validate()
+    train: Any = None  # CorrNetConfig, filled in by validate()
+    seed: int = 0
+    corr_points: int = 2000
+    truth: str = "auto"
+
+    def validate(self) -> "BuildConfig":
+        from proctex.correspond.cage import CageConfig
+        from proctex.correspond.corrnet import CorrNetConfig
+
+        self.source.validate()
+        self.paint.validate()
+        if self.cage is None:
+            self.cage = CageConfig()
+        if self.train is None:
+            self.train = CorrNetConfig(seed=self.seed)
+        self.cage.validate()
+        self.train.validate()
         from .fidelity import TRUTHS
 
         if self.truth not in TRUTHS:
             raise ValueError(f"truth must be one of {', '.join(TRUTHS)}, got {self.truth!r}")
-        if self.truth == "canonical" and not self.model:
+        if self.truth == "canonical" and not self.source.model:
             raise ValueError("truth 'canonical' needs a built-in model (canonical coordinates)")
-        if self.corr_points < 100 or self.cage_iterations < 1 or not 0 <= self.cage_level <= 4:
-            raise ValueError("corr_points >= 100, cage_iterations >= 1 and cage_level in [0, 4] required")
-        self.cage_config()
+        if self.corr_points < 100:
+            raise ValueError(f"corr_points must be >= 100, got {self.corr_points}")
         return self
-
-    def cage_config(self):
-        """The cage solver's settings of this build (:class:`proctex.cage.CageConfig`):
-        ``cage_level``, ``cage_iterations`` and the ``cage`` overrides; ``ValueError`` on bad ones."""
-        from dataclasses import fields as dc_fields
-
-        from proctex.correspond.cage import CageConfig
-
-        if not isinstance(self.cage, dict):
-            raise ValueError(f"cage must be an object of cage solver settings, got {type(self.cage).__name__}")
-        clash = sorted(set(self.cage) & {"level", "iterations"})
-        if clash:
-            raise ValueError(f"set the cage's {', '.join(clash)} with cage_level / cage_iterations, not in cage")
-        known = {f.name for f in dc_fields(CageConfig)}
-        unknown = sorted(set(self.cage) - known)
-        if unknown:
-            raise ValueError(f"unknown cage settings {unknown}; known: {sorted(known - {'level', 'iterations'})}")
-        try:
-            return CageConfig(level=self.cage_level, iterations=self.cage_iterations, **self.cage).validate()
-        except TypeError as exc:
-            raise ValueError(f"bad cage settings: {exc}") from exc
 
     def procedural_model(self):
         """The family's procedural model (a built-in one, or the user's generator), its parameter
-        space restricted to ``params``' bounds."""
+        space restricted to the source's ``params`` bounds."""
         from proctex.models import get_model
+
         from .sources import load_generator
 
-        model = load_generator(self.generator) if self.generator else get_model(self.model, tessellation=self.tessellation)
-        if self.params:
-            model.space = _restricted(model.space, self.params)
+        src = self.source
+        model = load_generator(src.generator) if src.generator else get_model(src.model, tessellation=src.tessellation)
+        if src.params:
+            model.space = _restricted(model.space, src.params)
         return model
 
     def up_axis(self) -> str:
-        """The shapes' up axis: ``up``, or for "auto" y for files (OBJ / glTF) and z for models."""
-        if self.up != "auto":
-            return self.up
-        return "y" if self.folder else "z"
+        """The shapes' up axis: the source's ``up``, or for "auto" y for files (OBJ / glTF) and z for models."""
+        if self.source.up != "auto":
+            return self.source.up
+        return "y" if self.source.folder else "z"
 
-    def corrnet_config(self):
-        """The ProcCorrNet settings of the build (``train`` over the defaults, the family seed)."""
-        from proctex.correspond.corrnet import CorrNetConfig
-
-        return CorrNetConfig.from_dict({**self.train, "seed": self.train.get("seed", self.seed)})
+    def to_dict(self) -> dict[str, Any]:
+        """The resolved config as JSON-able sections (what ``family.json`` stores)."""
+        return json.loads(json.dumps({"seed": self.seed, "corr_points": self.corr_points, "truth": self.truth,
+                                      "source": asdict(self.source), "paint": asdict(self.paint),
+                                      "cage": asdict(self.cage), "train": self.train.to_dict()}))
 
     @staticmethod
-    def from_dict(data: dict[str, Any]) -> "BuildConfig":
-        known = {f.name for f in fields(BuildConfig)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"unknown config keys: {', '.join(unknown)} (known: {', '.join(sorted(known))})")
-        return BuildConfig(**data).validate()
+    def from_dict(data: dict[str, Any], preset: str | None = None) -> "BuildConfig":
+        """A checked config from sections (``{"source": {...}, "paint": {...}, "cage": {...},
+        "train": {...}, "seed": ...}``) or the flat keys of older configs (:data:`FLAT_KEYS`, ``cage``
+        and ``train`` as objects), over the preset ``preset`` of :data:`PRESETS` when given. Unknown
+        keys, sections that are not objects and bad values are ``ValueError``."""
+        from proctex.correspond.cage import CageConfig
+        from proctex.correspond.corrnet import CorrNetConfig
+
+        nested = sections(data)
+        if preset is not None:
+            if preset not in PRESETS:
+                raise ValueError(f"unknown preset {preset!r}; presets: {', '.join(sorted(PRESETS))}")
+            nested = merge(sections(PRESETS[preset]), nested)
+        top = {k: nested[k] for k in TOP_LEVEL if k in nested}
+        train = dict(nested.get("train", {}))
+        train.setdefault("seed", top.get("seed", 0))
+        try:
+            cage = CageConfig(**nested.get("cage", {}))
+        except TypeError as exc:
+            raise ValueError(f"bad cage settings: {exc}") from exc
+        try:
+            return BuildConfig(source=SourceConfig(**nested.get("source", {})), paint=PaintConfig(**nested.get("paint", {})), cage=cage,
+                               train=CorrNetConfig.from_dict(train), **top).validate()
+        except TypeError as exc:
+            raise ValueError(f"bad config: {exc}") from exc
 
     @staticmethod
     def read_settings(path: str | os.PathLike) -> dict[str, Any]:
-        """The settings of a JSON or TOML config file, unvalidated (relative paths made relative to
-        the file); a missing or unparsable file is a ``ValueError``."""
+        """The settings of a JSON or TOML config file as sections (:func:`sections`), unvalidated,
+        with relative paths made relative to the file; a missing or unparsable file is a ``ValueError``."""
         p = Path(path)
         if not p.is_file():
             raise ValueError(f"{path}: config file not found")
         try:
             data = tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())
-        except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise ValueError(f"{path}: cannot parse config ({exc})") from exc
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: a config must be an object of settings")
-        for key in ("folder", "generator", "model_dir"):
-            if data.get(key) and not os.path.isabs(data[key]):
-                data[key] = str((p.parent / data[key]).resolve())
+        except (json.JSONDecodeError, tomllib.TOMLDecodeError, RecursionError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{path}: cannot parse config ({type(exc).__name__}: {str(exc)[:200]})") from exc
+        data = sections(data, where=str(path))
+        for section, key in (("source", "folder"), ("source", "generator"), ("paint", "model_dir")):
+            value = data.get(section, {}).get(key)
+            if value and isinstance(value, str) and not os.path.isabs(value):
+                data[section][key] = str((p.parent / value).resolve())
         return data
 
     @staticmethod
-    def from_file(path: str | os.PathLike) -> "BuildConfig":
-        """Read a JSON or TOML config (keys as the attributes; relative paths are relative to the file)."""
-        return BuildConfig.from_dict(BuildConfig.read_settings(path))
+    def from_file(path: str | os.PathLike, preset: str | None = None) -> "BuildConfig":
+        """Read a JSON or TOML config (sections or flat keys; relative paths are relative to the file)."""
+        return BuildConfig.from_dict(BuildConfig.read_settings(path), preset=preset)
+
+
+def sections(data: Any, where: str = "config") -> dict[str, Any]:
+    """``data`` (sections, flat keys of older configs, or a mix) as sections: ``{"source": {...},
+    "paint": {...}, "cage": {...}, "train": {...}}`` plus the top-level keys. Nothing is checked but
+    the shape: unknown keys and sections that are not objects are ``ValueError``."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: a config must be an object of settings")
+    out: dict[str, Any] = {}
+    unknown = []
+    for key, value in data.items():
+        if key in SECTIONS:
+            if not isinstance(value, dict):
+                raise ValueError(f"{where}: {key} must be an object of settings, got {type(value).__name__}")
+            if len(value) > MAX_SETTINGS:
+                raise ValueError(f"{where}: {key} has {len(value)} settings (at most {MAX_SETTINGS})")
+            if key == "cage" and set(value) & {"level", "iterations"} and ("cage_level" in data or "cage_iterations" in data):
+                raise ValueError(f"{where}: set the cage's level and iterations once (cage_level / cage_iterations or cage)")
+            out[key] = {**out.get(key, {}), **value}
+        elif key in FLAT_KEYS:
+            section, name = FLAT_KEYS[key]
+            out.setdefault(section, {})[name] = value
+        elif key in TOP_LEVEL:
+            out[key] = value
+        else:
+            unknown.append(str(key)[:80])
+    if unknown:
+        known = sorted(set(SECTIONS) | set(TOP_LEVEL) | set(FLAT_KEYS))
+        raise ValueError(f"{where}: unknown config keys: {', '.join(sorted(unknown)[:20])} (known: {', '.join(known)})")
+    return out
+
+
+def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """Sections ``over`` laid over ``base``: per section key by key, top-level keys replaced."""
+    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in base.items()}
+    for k, v in over.items():
+        out[k] = {**out.get(k, {}), **v} if k in SECTIONS else v
+    return out
 
 
 def _restricted(space, bounds: dict[str, list[float]]):
@@ -219,7 +311,27 @@ LEGACY_SETTINGS = {"tessellation": "fixed",
 
 
 def with_legacy(settings: dict[str, Any]) -> dict[str, Any]:
-    """A stored config's settings with the values older stores were built with filled in."""
+    """A stored config's settings with the values older stores were built with filled in. Stores
+    written with sections store every setting resolved and are returned as they are."""
+    if any(k in settings for k in ("source", "paint")):
+        return settings
     return {**LEGACY_SETTINGS, **settings}
+
+
+def resolved_settings(stored: dict[str, Any]) -> dict[str, Any]:
+    """A stored config (sections, or the flat keys of older stores) resolved as :meth:`BuildConfig.to_dict`
+    writes it today: settings added since that build count at their value then, or their default."""
+    return BuildConfig.from_dict(with_legacy(stored)).to_dict()
+
+
+#: Named starting points for a build (``BuildConfig.from_dict(data, preset=...)``, ``proctex build
+#: --preset``): the settings given lay over them.
+PRESETS: dict[str, dict[str, Any]] = {
+    # The main job (``make demo``): the sofa with one design that has to follow every cushion, arm and
+    # leg; fewer shapes, points and iterations than a production build, every stage run; a few
+    # minutes on 2 cores.
+    "demo": {"source": {"model": "sofa", "n_train": 10, "n_test": 3}, "paint": {"prompt": "a patchwork bohemian sofa", "texture_size": 512},
+             "corr_points": 1000, "cage": {"iterations": 200}, "train": {"iterations": 600}},
+}
 
 

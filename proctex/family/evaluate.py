@@ -55,7 +55,7 @@ def _summary(values: Sequence[float]) -> dict[str, float]:
 
 
 def _cage_config(config) -> Any:
-    return None if config is None else config.cage_config()  # as the build's pairs
+    return None if config is None else config.cage  # as the build's pairs
 
 
 def _mapper(name: str, store: FamilyStore, assets, config=None) -> Any:
@@ -80,10 +80,10 @@ def resolve_truth(config, truth: str = "auto") -> str | None:
         raise ValueError(f"truth must be one of {', '.join(TRUTHS)}, got {truth!r}")
     t = config.truth if truth == "auto" else truth
     if t == "auto":
-        return "canonical" if config.model else None
+        return "canonical" if config.source.model else None
     if t == "none":
         return None
-    if t == "canonical" and not config.model:
+    if t == "canonical" and not config.source.model:
         raise ValueError("canonical truth needs a built-in model family (canonical coordinates)")
     return t
 

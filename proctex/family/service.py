@@ -146,12 +146,12 @@ class FamilyService:
         self.limits = limits or Limits()
         self.stamp = build_stamp(store)
         self.config = stored_config(store)
-        self.model = None if self.config.folder else self.config.procedural_model()
+        self.model = None if self.config.source.folder else self.config.procedural_model()
         self.up = self.config.up_axis()  # GLBs stand the shape upright in glTF's +Y-up world
         self.assets = load_assets(store)
         self.models = load_models(store)
         self.mapper: Any = make_mapper("auto", self.assets, self.models)
-        self.painter = SurfacePainter(self.config.prompt, seed=self.config.seed)
+        self.painter = SurfacePainter(self.config.paint.prompt, seed=self.config.seed)
         self.load_seconds = time.perf_counter() - t0
         self.lock = threading.Lock()  # transfers share the torch models and the painter
         # Edited group textures: (group, GroupEdit) -> (uint8 texture, PNG); re-paints: (group, prompt) -> float texture.
@@ -177,12 +177,12 @@ class FamilyService:
         metrics = self.store.read_json(StoreLayout.METRICS) if self.store.exists(StoreLayout.METRICS) else None
         return {
             "name": self.name,
-            "source": {"model": self.config.model, "folder": bool(self.config.folder), "generator": bool(self.config.generator)},
+            "source": {"model": self.config.source.model, "folder": bool(self.config.source.folder), "generator": bool(self.config.source.generator)},
             "inputs": ["params", "mesh"] if self.model is not None else ["mesh"],
             "up": self.up,
             "parameters": [s.to_dict() for s in space.specs],
-            "prompt": self.config.prompt,
-            "group_prompts": dict(self.config.group_prompts),
+            "prompt": self.config.paint.prompt,
+            "group_prompts": dict(self.config.paint.group_prompts),
             "groups": [{"group": g.group, "label": g.label, "degenerate": g.degenerate, "network": g.group in self.models,
                         "prompt": next((p.get("prompt") for p in paint.get("groups", []) if p.get("group") == g.group), None),
                         "texture_size": list(self.assets.textures[g.group].shape[:2])}

@@ -19,7 +19,7 @@ import json
 import os
 import platform
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -29,7 +29,7 @@ import pyarrow as pa
 from proctex.geometry.meshio import load_mesh_bytes, obj_text
 from proctex.geometry.parts import analyse, part_mesh, segment
 from proctex.geometry.shape import Shape
-from .config import BuildConfig, with_legacy
+from .config import BuildConfig, resolved_settings, with_legacy
 from .store import FamilyStore, StoreLayout
 
 STAGES = ("sample", "template", "paint", "pairs", "train", "evaluate")
@@ -73,12 +73,12 @@ class SampleJob:
 def sample_jobs(config: BuildConfig) -> list[SampleJob]:
     """Every sample of the family (the folder's, or ``n_train + n_test`` drawn from the model with the
     family seed), in order."""
-    if config.folder:
-        src = _folder(config.folder)
+    if config.source.folder:
+        src = _folder(config.source.folder)
         return [SampleJob(i, s.id.replace("/", "_"), s.split, src.params(i)) for i, s in enumerate(src.samples)]
     model = config.procedural_model()
-    params = model.space.sample(config.n_train + config.n_test, seed=config.seed, method=config.sampling)
-    return [SampleJob(i, f"s{i:04d}", "train" if i < config.n_train else "test", p) for i, p in enumerate(params)]
+    params = model.space.sample(config.source.n_train + config.source.n_test, seed=config.seed, method=config.source.sampling)
+    return [SampleJob(i, f"s{i:04d}", "train" if i < config.source.n_train else "test", p) for i, p in enumerate(params)]
 
 
 _FOLDERS: dict[str, Any] = {}
@@ -98,7 +98,7 @@ def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> d
     rel = StoreLayout.sample_record(job.id)
     if store.exists(rel):
         return store.read_json(rel)
-    shape = _folder(config.folder).load(job.index) if config.folder else config.procedural_model().generate(job.params)
+    shape = _folder(config.source.folder).load(job.index) if config.source.folder else config.procedural_model().generate(job.params)
     path = StoreLayout.mesh(job.id)
     store.write_bytes(path, obj_text(shape.vertices, shape.faces).encode())
     seg = segment(shape)
@@ -137,7 +137,7 @@ def load_sample(store: FamilyStore, row: dict[str, Any], config: BuildConfig | N
     """A sample as a :class:`Shape`. Model families regenerate it from its parameters (exact, with
     labels and canonical coordinates); folder families read the stored mesh."""
     params = json.loads(row["params"])
-    if config is not None and not config.folder:
+    if config is not None and not config.source.folder:
         shape = config.procedural_model().generate(params)
         shape.source = row["mesh"]
         return shape
@@ -155,7 +155,7 @@ def stage_template(store: FamilyStore, config: BuildConfig, log: Callable[[str],
 
     rows = [r for r in samples(store) if r["split"] == "train"]
     params = [json.loads(r["params"]) for r in rows]
-    space = infer_space(params) if config.folder else config.procedural_model().space
+    space = infer_space(params) if config.source.folder else config.procedural_model().space
     i = select_template(space, params) if len(space) else 0
     store.write_bytes(StoreLayout.TEMPLATE_MESH, store.read_bytes(rows[i]["mesh"]))
     _mark(store, "template", id=rows[i]["id"], params=params[i])
@@ -174,10 +174,10 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
 
     template = load_template_shape(store, config)
     grouping = analyse(template, seed=config.seed)
-    tex = paint_template(template, grouping, config.prompt, config.group_prompts, painter=config.painter, size=config.texture_size,
-                         seed=config.seed, up=config.up_axis(), views=config.views, view_size=config.view_size,
-                         complete_hidden=config.paint_hidden, fill=config.fill, model_dir=config.model_dir, device=config.device,
-                         steps=config.steps, on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
+    tex = paint_template(template, grouping, config.paint.prompt, config.paint.group_prompts, painter=config.paint.painter, size=config.paint.texture_size,
+                         seed=config.seed, up=config.up_axis(), views=config.paint.views, view_size=config.paint.view_size,
+                         complete_hidden=config.paint.paint_hidden, fill=config.paint.fill, model_dir=config.paint.model_dir, device=config.paint.device,
+                         steps=config.paint.steps, on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
     from .template import Template
 
     labels = [g.label for g in tex.groups]
@@ -197,7 +197,7 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
 def load_template_shape(store: FamilyStore, config: BuildConfig | None = None) -> Shape:
     """The template shape (regenerated from its parameters for model families, see :func:`load_sample`)."""
     config = config if config is not None else stored_config(store)
-    if not config.folder:
+    if not config.source.folder:
         params = _state(store)["stages"]["template"]["params"]
         shape = config.procedural_model().generate(params)
         shape.source = StoreLayout.TEMPLATE_MESH
@@ -237,7 +237,7 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int)
     v, f = part_mesh(shape, seg.parts[a.part])
     vn = representative_frame(v, a)
     ga = assets.groups[group]
-    cage = config.cage_config()
+    cage = config.cage
     res = correspond_parts(vn, f, ga.vertices, ga.faces, method="cage", n_points=config.corr_points, seed=seed, cage=cage)
     return {
         "part": a.part,
@@ -390,10 +390,8 @@ def read_pair(store: FamilyStore, sid: str, group: int, faces: bool = False):
 def write_config(store: FamilyStore, config: BuildConfig) -> None:
     state = _state(store)
     old = state.get("config")
-    new = asdict(config)
-    if old is not None:  # settings added since that build count at their defaults (or their value then)
-        old = {**asdict(BuildConfig()), **with_legacy(old)}
-    if old is not None and old != new:
+    new = config.to_dict()
+    if old is not None and resolved_settings(old) != new:
         raise ValueError(f"{store.uri} was built with another config; use a new folder (or delete it) to change settings")
     state["config"] = new
     state["versions"] = _versions()
@@ -435,7 +433,7 @@ def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     """One ProcCorrNet per non-degenerate group on the train pairs (a share held out for early stopping)."""
     from proctex.correspond.training import train
 
-    cfg = config.corrnet_config()
+    cfg = config.train
     # A resumed build keeps the record of the groups trained before.
     before = _state(store).get("stages", {}).get("train", {}).get("groups", {})
     trained: dict[Any, Any] = {}

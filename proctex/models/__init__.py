@@ -29,4 +29,4 @@ def get_model(name: str, tessellation: str = "fixed") -> ProceduralModel:
 
 
 def _load_all() -> None:
-    from . import vessels, furniture, utensils  # noqa: F401  (registration side effect)
+    from . import food, furniture, utensils, vessels  # noqa: F401  (registration side effect)

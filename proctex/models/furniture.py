@@ -16,6 +16,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from proctex.geometry import primitives as P
+from proctex.geometry import sweeps as S
 from proctex.geometry.shape import ProceduralModel, Shape, ShapeBuilder
 from ..params import ParamSpace, choice, continuous, integer
 from .registry import register
@@ -80,12 +81,12 @@ def tapered_cylinder(
     if edge is None:
         z = np.linspace(0.0, height, n_rings)
         r = np.interp(z, [0.0, height], [r_bottom, r_top])
-        return P.revolve(r, z, n_theta=n_theta, z_bottom=0.0, z_top=height)
+        return S.revolve(r, z, n_theta=n_theta, z_bottom=0.0, z_top=height)
     n_theta, along = P.revolve_resolution(max(r_top, r_bottom), edge, minimum=8)
     u = np.linspace(0.0, 1.0, P.segment_count(height, along, 2) + 1)
     z = u * height
     r = np.interp(z, [0.0, height], [r_bottom, r_top])
-    return P.revolve(r, z, P.uniform_s(n_rings, u), n_theta=n_theta, z_bottom=0.0, z_top=height)
+    return S.revolve(r, z, P.uniform_s(n_rings, u), n_theta=n_theta, z_bottom=0.0, z_top=height)
 
 
 def superellipse_radius(theta: np.ndarray, a: float, b: float, power: float) -> np.ndarray:
@@ -110,12 +111,12 @@ def knob(radius: float, edge: float | None = None) -> P.Part:
     z = np.array([0.0, 0.4, 0.55, 0.75, 0.95]) * 1.6 * radius
     r = np.array([0.45, 0.45, 0.9, 1.0, 0.7]) * radius
     if edge is None:
-        part = P.revolve(r, z, n_theta=16, z_bottom=0.0, z_top=1.6 * radius)
+        part = S.revolve(r, z, n_theta=16, z_bottom=0.0, z_top=1.6 * radius)
     else:
         n_theta, along = P.revolve_resolution(radius, edge, minimum=16)
         s = (np.arange(len(r)) + 1.0) / (len(r) + 1.0)
         r, z, s = P.subdivide_profile(r, z, s, 0.0, 1.6 * radius, along)
-        part = P.revolve(r, z, s, n_theta=n_theta, z_bottom=0.0, z_top=1.6 * radius)
+        part = S.revolve(r, z, s, n_theta=n_theta, z_bottom=0.0, z_top=1.6 * radius)
     return P.transform(part, R=P.rotation("x", np.pi / 2))
 
 
@@ -467,13 +468,13 @@ class Stair(ProceduralModel):
         start, end = tops[0] - 0.1 * direction, tops[-1] + 0.1 * direction
         if e is None:
             path = start + np.linspace(0.0, 1.0, 2 * n)[:, None] * (end - start)
-            sb.add(P.tube(path, RAIL_RADIUS, n_sides=12, up=(0.0, 0.0, 1.0)), "rail")
+            sb.add(S.tube(path, RAIL_RADIUS, n_sides=12, up=(0.0, 0.0, 1.0)), "rail")
             return
         # A straight rail needs no rings for its shape: they follow its length at the target edge.
         n_sides = P.ring_points(RAIL_RADIUS, e, minimum=8)
         u = np.linspace(0.0, 1.0, P.segment_count(np.linalg.norm(end - start), e, 2) + 1)
         path = start + u[:, None] * (end - start)
-        sb.add(P.tube(path, RAIL_RADIUS, n_sides=n_sides, s=P.uniform_s(2 * n, u), up=(0.0, 0.0, 1.0)), "rail")
+        sb.add(S.tube(path, RAIL_RADIUS, n_sides=n_sides, s=P.uniform_s(2 * n, u), up=(0.0, 0.0, 1.0)), "rail")
 
 
 # --------------------------------------------------------------------------------------------- table
@@ -543,13 +544,13 @@ class Table(ProceduralModel):
             phi = np.linspace(-np.pi / 2, np.pi / 2, 7)
             r = radius - t / 2 + t / 2 * np.cos(phi)
             z = h - t / 2 + t / 2 * np.sin(phi)
-            return P.revolve(r, z, n_theta=64, z_bottom=h - t, z_top=h)
+            return S.revolve(r, z, n_theta=64, z_bottom=h - t, z_top=h)
         n_theta, along = P.revolve_resolution(radius, e, minimum=32, multiple=4)
         u = np.linspace(0.0, 1.0, P.segment_count(np.pi * t / 2, along, 4) + 1)
         phi = -np.pi / 2 + np.pi * u
         r = radius - t / 2 + t / 2 * np.cos(phi)
         z = h - t / 2 + t / 2 * np.sin(phi)
-        return P.revolve(r, z, P.uniform_s(7, u), n_theta=n_theta, z_bottom=h - t, z_top=h)
+        return S.revolve(r, z, P.uniform_s(7, u), n_theta=n_theta, z_bottom=h - t, z_top=h)
 
     @staticmethod
     def _apron(a: float, b: float, power: float, z_top: float, e: float | None = None) -> P.Part:
@@ -568,7 +569,7 @@ class Table(ProceduralModel):
             def outline(theta: np.ndarray, s: np.ndarray) -> np.ndarray:
                 return np.stack([superellipse_radius(theta, a + o, b + o, power) / (a + o) for o in offsets])
 
-            return P.revolve(a + offsets, heights, n_theta=64, z_bottom=z_top - APRON_WALL, z_top=z_top, radial=outline)
+            return S.revolve(a + offsets, heights, n_theta=64, z_bottom=z_top - APRON_WALL, z_top=z_top, radial=outline)
         s_ref = (np.arange(4) + 1.0) / 5.0
         theta = np.linspace(0.0, 2 * np.pi, 721)
         rim = superellipse_radius(theta, a, b, power)
@@ -583,4 +584,4 @@ class Table(ProceduralModel):
             return np.stack([superellipse_radius(theta, a + o, b + o, power) / (a + o) for o in prof[:, 0]])
 
         z_ceiling = z_top - APRON_WALL
-        return P.revolve(a + prof[:, 0], prof[:, 1], s, n_theta=n_theta, z_bottom=z_ceiling, z_top=z_top, radial=outline_s)
+        return S.revolve(a + prof[:, 0], prof[:, 1], s, n_theta=n_theta, z_bottom=z_ceiling, z_top=z_top, radial=outline_s)

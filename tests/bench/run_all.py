@@ -43,8 +43,8 @@ def serve_report(out: Path, requests: int) -> dict:
     from proctex.family.store import FamilyStore
 
     root = out / "families"
-    cfg = BuildConfig(model="mug", n_train=3, n_test=0, corr_points=300, cage_iterations=40, texture_size=512, prompt="blue ceramic",
-                      train={"iterations": 60, "eval_every": 20}).validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=0, corr_points=300, cage_iterations=40, texture_size=512, prompt="blue ceramic",
+                      train={"iterations": 60, "eval_every": 20})).validate()
     build(FamilyStore(root / "mug"), cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
     raw = out / "serve_raw.json"
     bench_serve.main(["--root", str(root), "--family", "mug", "--requests", str(requests), "--concurrency", "1,4", "--out", str(raw)])

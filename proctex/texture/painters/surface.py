@@ -16,8 +16,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .materials import Ctx, shade
+from .materials import shade
 from .prompt import MaterialSpec, parse_prompt
+from .shading import Ctx
 
 __all__ = ["SurfacePainter", "CHUNK", "MAX_COORD"]
 
