@@ -416,20 +416,12 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
 
 
 def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str], None] = print) -> dict[str, float]:
-    """Build a family in this process, stage by stage; returns wall seconds per stage."""
+    """Build a family in this process; returns wall seconds per stage."""
     from proctex.family.config import BuildConfig
     from proctex.family.pipeline import build
-    from proctex.family.stages import STAGES
     from proctex.family.store import FamilyStore
 
-    config = BuildConfig.from_dict(config_dict)
-    store = FamilyStore(root)
-    walls: dict[str, float] = {}
-    for stage in STAGES:
-        t = time.perf_counter()
-        build(store, config, stages=(stage,), log=log)
-        walls[stage] = round(time.perf_counter() - t, 2)
-    return walls
+    return build(FamilyStore(root), BuildConfig.from_dict(config_dict), log=log)["wall_seconds"]
 
 
 Builder = Callable[[str, dict[str, Any]], dict[str, float]]

@@ -26,7 +26,7 @@ def mug_family(tmp_path_factory):
 def test_build_writes_the_store(mug_family):
     st, cfg = mug_family
     state = st.read_json("family.json")
-    assert state["config"]["model"] == "mug" and "torch" in state["versions"]
+    assert state["config"]["source"]["model"] == "mug" and "torch" in state["versions"]
     for stage in ("sample", "template", "paint", "pairs"):
         assert stage_done(st, stage)
     rows = st.read_table("samples.parquet").to_pylist()
@@ -408,3 +408,46 @@ def test_bad_configs_are_clear_errors():
             BuildConfig.from_dict(bad)
     with pytest.raises(ValueError, match="unknown preset"):
         BuildConfig.from_dict({"model": "mug"}, preset="nope")
+
+
+def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
+    """The build is plans run by an executor: one that runs the batches backwards, without the
+    in-process context (as a Ray worker does), stores the same family; a rerun plans nothing."""
+    from proctex.family.pipeline import build
+    from proctex.family.plan import run_in_process
+    from proctex.family.stages import load_models, samples
+
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=1, corr_points=200, cage_iterations=10, texture_size=64,
+                                     train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64}))
+    ran = []
+
+    def backwards(plan, store, config, log):
+        if plan.skip or plan.in_place:
+            return run_in_process(plan, store, config, log)
+        ran.append((plan.stage, plan.n_jobs))
+        out = {i: plan.run_batch(store, config, plan.batches[i], None) for i in reversed(range(len(plan.batches)))}
+        for i in reversed(range(len(plan.batches))):
+            plan.collect(plan.batches[i], out[i]) if plan.collect else None
+        plan.finish([out[i] for i in range(len(plan.batches))])
+        return plan
+
+    stages = ("sample", "template", "paint", "pairs", "train")
+    a, b = FamilyStore(tmp_path / "a"), FamilyStore(tmp_path / "b")
+    build(a, cfg, stages=stages, log=lambda *_: None)
+    build(b, cfg, stages=stages, log=lambda *_: None, executor=backwards)
+    assert ran == [("sample", 4), ("pairs", 8), ("train", 2)]
+    assert samples(a) == samples(b)
+    for row in samples(a):
+        for g in (0, 1):
+            assert all(np.array_equal(x, y) for x, y in zip(read_pair(a, row["id"], g), read_pair(b, row["id"], g)))
+    pts = np.random.default_rng(0).uniform(-1, 1, (50, 3)).astype(np.float32)
+    from proctex.correspond.corrnet import predict
+
+    ma, mb = load_models(a), load_models(b)
+    assert sorted(ma) == sorted(mb) == [0, 1]
+    for g in ma:
+        assert np.allclose(predict(ma[g], pts, pts), predict(mb[g], pts, pts), atol=1e-6)
+    ran.clear()
+    logs = []
+    build(b, cfg, stages=stages, log=logs.append, executor=backwards)
+    assert ran == [] and sum("done already" in line for line in logs) >= 3

@@ -103,7 +103,8 @@ def _pids_running(title: bytes) -> list[int]:
 
 
 def test_a_worker_killed_during_the_cage_fan_out_does_not_stop_the_build(local_ray, reference, tmp_path):
-    from workflows.build import build_on_ray, ray_stage_pairs
+    from proctex.family.stages import plan_pairs
+    from workflows.build import build_on_ray, ray_executor
 
     st_root = str(tmp_path / "mug")
     build_on_ray(st_root, config(), stages=("sample", "template", "paint"), log=lambda *_: None, quiet=True)
@@ -112,7 +113,7 @@ def test_a_worker_killed_during_the_cage_fan_out_does_not_stop_the_build(local_r
 
     def killer():
         while not stop.is_set() and not killed:
-            pids = _pids_running(b"ray::pair_batch")
+            pids = _pids_running(b"ray::run_batch")
             if pids:
                 time.sleep(0.3)  # let it get into a solve
                 os.kill(pids[0], signal.SIGKILL)
@@ -122,7 +123,8 @@ def test_a_worker_killed_during_the_cage_fan_out_does_not_stop_the_build(local_r
     t = threading.Thread(target=killer)
     t.start()
     try:
-        info = ray_stage_pairs(FamilyStore(st_root), config(), log=lambda *_: None, quiet=True)
+        st, quiet = FamilyStore(st_root), (lambda *_: None)
+        info = ray_executor(quiet=True)(plan_pairs(st, config(), quiet), st, config(), quiet).info
     finally:
         stop.set()
         t.join()

@@ -1,6 +1,7 @@
-"""The family build on Ray: the same stages as ``proctex.pipeline.build``, fanned out over a cluster.
+"""The family build on Ray: the same stage plans as ``proctex.family.pipeline.build`` runs in process,
+run by a Ray executor (:func:`ray_executor`) that fans them out over a cluster.
 
-- ``sample``: batches of samples as Ray tasks (:func:`workers.tasks.sample_batch`);
+- ``sample``: batches of samples as Ray tasks (:func:`workers.tasks.run_batch`);
 - ``template`` and ``paint``: on the driver (one shape; seconds);
 - ``pairs``: every (shape, group) cage pair as Ray tasks, one task per shape (its groups share the
   loaded mesh), at most ``max_in_flight`` tasks submitted at a time, each retried by Ray if its
@@ -16,24 +17,12 @@ with the same artifacts as an uninterrupted run. Seeds depend on (family seed, s
 from __future__ import annotations
 
 import os
-import time
 from typing import Any, Callable, Sequence
 
 from proctex.family.config import BuildConfig
-from proctex.family.stages import (
-    STAGES,
-    _mark,
-    finish_pairs_stage,
-    finish_sample_stage,
-    load_assets,
-    pair_complete,
-    pair_jobs,
-    pair_records,
-    sample_jobs,
-    stage_done,
-    write_pairs_index,
-)
-from proctex.family.pipeline import STAGE_RUNNERS, build
+from proctex.family.pipeline import build
+from proctex.family.plan import Plan, run_in_process
+from proctex.family.stages import STAGES
 from proctex.family.store import FamilyStore
 from proctex.progress import Progress
 
@@ -77,71 +66,41 @@ def _fan_out(submit: Callable[[Any], Any], batches: Sequence[Any], max_in_flight
             on_result(pending.pop(ref), ray.get(ref))
 
 
-def ray_stage_sample(store: FamilyStore, config: BuildConfig, batch_size: int = 8, max_in_flight: int | None = None,
-                     log: Callable[[str], None] = print, quiet: bool = False) -> None:
-    from workers.tasks import job_dict, sample_batch
+def ray_executor(max_in_flight: int | None = None, train_workers: int | None = None, quiet: bool = False):
+    """An executor for :func:`proctex.family.pipeline.build` that runs each plan's batches as Ray
+    tasks (:func:`workers.tasks.run_batch`; at most ``max_in_flight`` submitted at a time, default 2 x
+    CPUs), the train plan's groups as Ray Train jobs (:func:`workers.train.train_groups`,
+    ``train_workers`` workers, default min(2, CPUs)), and one-step plans here on the driver."""
 
-    if stage_done(store, "sample"):
-        log("sample: done already")
-        return
-    jobs = sample_jobs(config)
-    batches = [jobs[i : i + batch_size] for i in range(0, len(jobs), batch_size)]
-    rows: dict[int, dict[str, Any]] = {}
-    bar = Progress("sample", len(jobs), quiet=quiet)
-    cfg = config.to_dict()
+    def execute(plan: Plan, store: FamilyStore, config: BuildConfig, log: Callable[[str], None]) -> Plan:
+        if plan.skip or plan.in_place or not plan.batches:
+            return run_in_process(plan, store, config, log)
+        if plan.stage == "train":
+            from workers.train import train_groups
 
-    def collect(batch, result):
-        for job, row in zip(batch, result):
-            rows[job.index] = row
-        bar.update(len(batch))
+            groups = [g for batch in plan.batches for g in batch]
+            out = train_groups(store.uri, config, num_workers=train_workers or min(2, cluster_cpus()), groups=groups, log=log, quiet=quiet)
+            plan.info["mark"] = {"ray": True}
+            plan.finish([[out.get(g) for g in batch] for batch in plan.batches])
+            return plan
+        from workers.tasks import run_batch
 
-    _fan_out(lambda b: sample_batch.remote(store.uri, cfg, [job_dict(j) for j in b]), batches, max_in_flight or 2 * cluster_cpus(), collect)
-    finish_sample_stage(store, [rows[j.index] for j in jobs])
-    log(f"sample: {len(jobs)} shapes")
+        bar = Progress(plan.stage, plan.n_jobs, quiet=quiet)
+        cfg = config.to_dict()
+        results: dict[int, list[Any]] = {}
 
+        def collect(i: int, out: list[Any]) -> None:
+            if plan.collect is not None:
+                plan.collect(plan.batches[i], out)
+            bar.update(len(plan.batches[i]))
+            results[i] = out
 
-def ray_stage_pairs(store: FamilyStore, config: BuildConfig, max_in_flight: int | None = None, log: Callable[[str], None] = print,
-                    quiet: bool = False, index_every: float = 5.0) -> dict[str, Any]:
-    """Cage pairs as Ray tasks (one per shape); returns ``{"solved", "pids", "seconds"}``."""
-    from workers.tasks import job_dict, pair_batch
+        _fan_out(lambda i: run_batch.remote(plan.run_batch, store.uri, cfg, plan.batches[i]), list(range(len(plan.batches))),
+                 max_in_flight or 2 * cluster_cpus(), collect)
+        plan.finish([results[i] for i in range(len(plan.batches))])
+        return plan
 
-    assets = load_assets(store)
-    jobs = pair_jobs(store, config, assets)
-    records = pair_records(store, jobs)
-    todo = [j for j in jobs if not pair_complete(records.get(j.key))]
-    if not todo and stage_done(store, "pairs"):
-        log("pairs: done already")
-        return {"solved": 0, "pids": [], "seconds": 0.0}
-    by_shape: dict[str, list] = {}
-    for job in todo:
-        by_shape.setdefault(job.row["id"], []).append(job)
-    batches = list(by_shape.values())
-    bar = Progress("pairs", len(todo), quiet=quiet)
-    cfg = config.to_dict()
-    pids: set[int] = set()
-    last = [time.perf_counter()]
-    t0 = time.perf_counter()
-
-    def collect(batch, result):
-        for rec in result["records"]:
-            records[(rec["id"], rec["group"])] = rec
-        pids.add(result["pid"])
-        bar.update(len(batch))
-        if time.perf_counter() - last[0] >= index_every:
-            write_pairs_index(store, jobs, records)
-            last[0] = time.perf_counter()
-
-    _fan_out(lambda b: pair_batch.remote(store.uri, cfg, [job_dict(j) for j in b]), batches, max_in_flight or 2 * cluster_cpus(), collect)
-    finish_pairs_stage(store, jobs, records, log)
-    return {"solved": len(todo), "pids": sorted(pids), "seconds": time.perf_counter() - t0}
-
-
-def ray_stage_train(store: FamilyStore, config: BuildConfig, num_workers: int | None = None, log: Callable[[str], None] = print,
-                    quiet: bool = False) -> None:
-    from workers.train import train_groups
-
-    trained = train_groups(store.uri, config, num_workers=num_workers or min(2, cluster_cpus()), log=log, quiet=quiet)
-    _mark(store, "train", groups={str(g): m for g, m in trained.items()}, ray=True)
+    return execute
 
 
 def build_on_ray(
@@ -155,7 +114,7 @@ def build_on_ray(
     log: Callable[[str], None] = print,
     quiet: bool = False,
 ) -> dict[str, Any]:
-    """Run the build stages on Ray (module docstring): :func:`proctex.pipeline.build`'s loop with the
+    """Run the build stages on Ray (module docstring): :func:`proctex.family.pipeline.build`'s loop with the
     sample, pairs and train stages fanned out; returns the family state with per-stage wall times."""
     unknown = set(stages) - set(STAGES)
     if unknown:
@@ -163,10 +122,5 @@ def build_on_ray(
     store = FamilyStore(store_uri(root))
     init_ray(address, num_cpus)
     log(f"ray: {cluster_cpus()} CPUs")
-    runners = {
-        **STAGE_RUNNERS,
-        "sample": lambda st, cfg, log: ray_stage_sample(st, cfg, max_in_flight=max_in_flight, log=log, quiet=quiet),
-        "pairs": lambda st, cfg, log: ray_stage_pairs(st, cfg, max_in_flight=max_in_flight, log=log, quiet=quiet),
-        "train": lambda st, cfg, log: ray_stage_train(st, cfg, num_workers=train_workers, log=log, quiet=quiet),
-    }
-    return build(store, config, stages=tuple(stages), log=log, runners=runners)
+    executor = ray_executor(max_in_flight=max_in_flight, train_workers=train_workers, quiet=quiet)
+    return build(store, config, stages=tuple(stages), log=log, executor=executor)

@@ -1,9 +1,11 @@
-"""The in-process family build: the stage table and the loop that runs it.
+"""The family build: the table of stage planners and the one loop that runs their plans.
 
-The stages themselves live below this module (:mod:`proctex.family` for sample, template, paint,
-pairs and train; :mod:`proctex.evaluate` for evaluate), so neither imports the other's stages back:
-the table is assembled here, at the top, and handed to the loop. ``workflows/build.py`` runs the same
-stages on Ray.
+Each stage is planned when its turn comes (a plan reads what the stages before it stored) and handed
+to an *executor*: :func:`proctex.family.plan.run_in_process` here, or the Ray executor of
+``workflows/build.py``, which fans the same plans out over a cluster. The planners live below this
+module (:mod:`proctex.family.stages` for sample, template, paint, pairs and train;
+:mod:`proctex.family.evaluate` for evaluate): the table is assembled here, at the top, so neither
+imports the other's stages back.
 """
 
 from __future__ import annotations
@@ -13,35 +15,37 @@ from typing import Any, Callable, Mapping
 
 from .config import BuildConfig
 from .evaluate import stage_evaluate
-from .stages import STAGES, _state, stage_paint, stage_pairs, stage_sample, stage_template, stage_train, write_config
+from .plan import Plan, run_in_process, single_step
+from .stages import STAGES, _state, plan_pairs, plan_sample, plan_train, stage_paint, stage_template, write_config
 from .store import FamilyStore
 
-#: Stage name -> ``runner(store, config, log=...)``, in :data:`proctex.family.stages.STAGES` order.
-STAGE_RUNNERS: Mapping[str, Callable[..., None]] = {
-    "sample": stage_sample,
-    "template": stage_template,
-    "paint": stage_paint,
-    "pairs": stage_pairs,
-    "train": stage_train,
-    "evaluate": stage_evaluate,
+Planner = Callable[[FamilyStore, BuildConfig, Callable[[str], None]], Plan]
+Executor = Callable[[Plan, FamilyStore, BuildConfig, Callable[[str], None]], Plan]
+
+#: Stage name -> ``planner(store, config, log) -> Plan``, in :data:`proctex.family.stages.STAGES` order.
+PLANNERS: Mapping[str, Planner] = {
+    "sample": plan_sample,
+    "template": lambda store, config, log: single_step("template", stage_template, store, config, log),
+    "paint": lambda store, config, log: single_step("paint", stage_paint, store, config, log),
+    "pairs": plan_pairs,
+    "train": plan_train,
+    "evaluate": lambda store, config, log: single_step("evaluate", stage_evaluate, store, config, log),
 }
 
 
 def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | list[str] = STAGES, log: Callable[[str], None] = print,
-          runners: Mapping[str, Callable[..., None]] = STAGE_RUNNERS) -> dict[str, Any]:
-    """Run the build ``stages`` in :data:`proctex.family.stages.STAGES` order with ``runners`` (stage ->
-    ``runner(store, config, log=...)``; each skips what is complete). The one stage loop: the Ray
-    build hands it a table whose fanned-out stages run on Ray (``workflows/build.py``). Returns the
-    family state with ``wall_seconds`` per stage run. ``ValueError`` for a stage name the table does
-    not know."""
-    unknown = set(stages) - set(runners)
+          executor: Executor = run_in_process) -> dict[str, Any]:
+    """Run the build ``stages`` in :data:`proctex.family.stages.STAGES` order: plan each (skipping what
+    is complete) and run the plan with ``executor``. Returns the family state with ``wall_seconds``
+    per stage run. ``ValueError`` for a stage name the table does not know, before any work."""
+    unknown = set(stages) - set(PLANNERS)
     if unknown:
-        raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(runners)}")
+        raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(PLANNERS)}")
     write_config(store, config)
     walls: dict[str, float] = {}
     for stage in STAGES:
         if stage in stages:
             t = time.perf_counter()
-            runners[stage](store, config, log=log)
+            executor(PLANNERS[stage](store, config, log), store, config, log)
             walls[stage] = round(time.perf_counter() - t, 2)
     return {**_state(store), "wall_seconds": walls}

@@ -10,7 +10,9 @@ Stages, each idempotent (a rerun skips what is complete and redoes what is missi
 5. ``train``    — one ProcCorrNet per group: ``models/group_<g>.pt``.
 6. ``evaluate`` — transfer to the test shapes and measure (:mod:`proctex.evaluate`): ``metrics.json``.
 
-Single process here; the Ray workflows fan the same stage functions out over a cluster.
+Each stage is a :class:`proctex.family.plan.Plan` (``plan_sample``, ``plan_pairs``, ``plan_train``; the
+one-step stages run in place): ``stage_<name>`` runs it in this process, the Ray build
+(``workflows/build.py``) fans the same plans out over a cluster.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from proctex.geometry.meshio import load_mesh_bytes, obj_text
 from proctex.geometry.parts import analyse, part_mesh, segment
 from proctex.geometry.shape import Shape
 from .config import BuildConfig, resolved_settings, with_legacy
+from .plan import Plan, run_in_process
 from .store import FamilyStore, StoreLayout
 
 STAGES = ("sample", "template", "paint", "pairs", "train", "evaluate")
@@ -114,14 +117,32 @@ def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]]) -> None:
     _mark(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows))
 
 
-def stage_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
-    """Sample shapes (or read the folder) into ``meshes/`` and ``samples.parquet``."""
+SAMPLE_BATCH = 8  # samples per batch (a Ray task)
+
+
+def run_sample_batch(store: FamilyStore, config: BuildConfig, jobs: list[SampleJob], context: Any = None) -> list[dict[str, Any]]:
+    """Make and store a batch of samples; their ``samples.parquet`` rows."""
+    return [run_sample_job(store, config, job) for job in jobs]
+
+
+def plan_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> Plan:
+    """The sample stage: every sample (the folder's, or drawn from the model) into ``meshes/`` and
+    ``samples.parquet``, in batches of :data:`SAMPLE_BATCH`."""
     if stage_done(store, "sample"):
-        log("sample: done already")
-        return
-    rows = [run_sample_job(store, config, job) for job in sample_jobs(config)]
-    finish_sample_stage(store, rows)
-    log(f"sample: {len(rows)} shapes")
+        return Plan("sample", [], run_sample_batch, finish=lambda results: None, skip="done already")
+    jobs = sample_jobs(config)
+
+    def finish(results: list[list[dict[str, Any]]]) -> None:
+        rows = [row for out in results for row in out]
+        finish_sample_stage(store, rows)
+        log(f"sample: {len(rows)} shapes")
+
+    return Plan("sample", [jobs[i : i + SAMPLE_BATCH] for i in range(0, len(jobs), SAMPLE_BATCH)], run_sample_batch, finish)
+
+
+def stage_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
+    """Sample shapes (or read the folder) into ``meshes/`` and ``samples.parquet`` (:func:`plan_sample`, here)."""
+    run_in_process(plan_sample(store, config, log), store, config, log)
 
 
 def samples(store: FamilyStore) -> list[dict[str, Any]]:
@@ -357,25 +378,77 @@ def finish_pairs_stage(store: FamilyStore, jobs: list[PairJob], records: dict[tu
         _mark(store, "pairs", pairs=len(records))
 
 
-def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, splits: tuple[str, ...] = ("train", "test")) -> None:
-    """Cage pairs for every (shape, non-degenerate template group); skips pairs already complete."""
+INDEX_EVERY = 5.0  # seconds between rewrites of pairs.parquet while pairs arrive
+
+# Template assets per (store, paint stamp), kept between batches by a process that runs pair batches
+# without them (a Ray worker).
+_ASSETS: dict[tuple[str, str], Any] = {}
+
+
+def cached_assets(store: FamilyStore) -> Any:
+    """The store's template assets, loaded once per process and paint stamp."""
+    stamp = str(_state(store).get("stages", {}).get("paint", {}).get("finished", ""))
+    key = (store.uri, stamp)
+    if key not in _ASSETS:
+        _ASSETS.clear()
+        _ASSETS[key] = load_assets(store)
+    return _ASSETS[key]
+
+
+def run_pair_batch(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], context: Any = None) -> list[dict[str, Any]]:
+    """Solve and store a batch of cage pairs (one shape's: it is loaded once) with the template
+    assets ``context`` (loaded here when None); their records."""
+    assets = context if context is not None else cached_assets(store)
+    records, shape, shape_id = [], None, None
+    for job in jobs:
+        if shape_id != job.row["id"]:
+            shape, shape_id = None, job.row["id"]
+            try:
+                shape = load_sample(store, job.row, config)
+            except (ValueError, RuntimeError):
+                shape = None  # run_pair_job loads it again and records the failure
+        records.append(run_pair_job(store, config, assets, job, shape))
+    return records
+
+
+def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print,
+               splits: tuple[str, ...] = ("train", "test")) -> Plan:
+    """The pairs stage: a cage pair for every (shape, non-degenerate template group) not complete
+    yet, one batch per shape; ``pairs.parquet`` rewritten as they arrive. ``info["solved"]``: pairs run."""
     assets = load_assets(store)
     jobs = pair_jobs(store, config, assets, splits)
     records = pair_records(store, jobs)
     todo = [j for j in jobs if not pair_complete(records.get(j.key))]
     if not todo and stage_done(store, "pairs"):
-        log("pairs: done already")
-        return
-    t0, n, shape, shape_id = time.perf_counter(), 0, None, None
-    for k, job in enumerate(todo):
-        if shape_id != job.row["id"]:
-            shape, shape_id = load_sample(store, job.row, config), job.row["id"]
-        records[job.key] = run_pair_job(store, config, assets, job, shape)
-        n += 1
-        if k + 1 == len(todo) or todo[k + 1].row["id"] != shape_id:
+        return Plan("pairs", [], run_pair_batch, finish=lambda results: None, skip="done already", info={"solved": 0})
+    by_shape: dict[str, list[PairJob]] = {}
+    for job in todo:
+        by_shape.setdefault(job.row["id"], []).append(job)
+    t0 = time.perf_counter()
+    clock = {"solved": 0, "index": t0}
+
+    def collect(batch: list[PairJob], out: list[dict[str, Any]]) -> None:
+        for rec in out:
+            records[(rec["id"], rec["group"])] = rec
+        clock["solved"] += len(batch)
+        now = time.perf_counter()
+        if now - clock["index"] >= INDEX_EVERY:
             write_pairs_index(store, jobs, records)
-            log(f"pairs: {shape_id} ({n}/{len(todo)} solved, {time.perf_counter() - t0:.0f}s)")
-    finish_pairs_stage(store, jobs, records, log)
+            clock["index"] = now
+        log(f"pairs: {batch[0].row['id']} ({clock['solved']}/{len(todo)} solved, {now - t0:.0f}s)")
+
+    def finish(results: list[list[dict[str, Any]]]) -> None:
+        finish_pairs_stage(store, jobs, records, log)
+        plan.info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
+
+    plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets)
+    return plan
+
+
+def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, splits: tuple[str, ...] = ("train", "test")) -> None:
+    """Cage pairs for every (shape, non-degenerate template group); skips pairs already complete
+    (:func:`plan_pairs`, here)."""
+    run_in_process(plan_pairs(store, config, log, splits), store, config, log)
 
 
 def read_pair(store: FamilyStore, sid: str, group: int, faces: bool = False):
@@ -429,30 +502,60 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
     store.write_bytes(StoreLayout.model(group), to_bytes(result.model, cfg, extra))
 
 
-def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, val_share: float = 0.15) -> None:
-    """One ProcCorrNet per non-degenerate group on the train pairs (a share held out for early stopping)."""
+VAL_SHARE = 0.15  # of a group's train shapes, held out for early stopping
+
+
+def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], context: Any = None) -> list[dict[str, Any]]:
+    """Train and store the networks of ``groups``; per group its metrics (best validation error,
+    iterations, seconds, pairs used)."""
     from proctex.correspond.training import train
 
-    cfg = config.train
-    # A resumed build keeps the record of the groups trained before.
+    out = []
+    for g in groups:
+        data = group_training_data(store, config, g, VAL_SHARE)
+        t = time.perf_counter()
+        result = train(data["train"], data["val"], config.train)
+        save_group_model(store, g, result, config.train, data)
+        out.append({"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2),
+                    "train_pairs": len(data["train"]), "val_pairs": len(data["val"])})
+    return out
+
+
+def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> Plan:
+    """The train stage: one ProcCorrNet per trainable group without one yet, a batch per group. A
+    resumed build keeps the record of the groups trained before. An executor may set
+    ``info["mark"]`` (extra fields for the stage's record)."""
     before = _state(store).get("stages", {}).get("train", {}).get("groups", {})
+    groups = trainable_groups(store)
+    todo = [g for g in groups if not store.exists(StoreLayout.model(g))]
     trained: dict[Any, Any] = {}
-    fresh = False
-    for g in trainable_groups(store):
-        if store.exists(StoreLayout.model(g)):
+    for g in groups:
+        if g not in todo:
             log(f"train: group {g} done already")
             if str(g) in before:
                 trained[g] = before[str(g)]
-            continue
-        data = group_training_data(store, config, g, val_share)
-        t = time.perf_counter()
-        result = train(data["train"], data["val"], cfg)
-        save_group_model(store, g, result, cfg, data)
-        trained[g] = {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2)}
-        fresh = True
-        log(f"train: group {g}: {len(data['train'])} train / {len(data['val'])} val pairs, val {result.best_val}, {trained[g]['seconds']}s")
-    if fresh or not stage_done(store, "train"):
-        _mark(store, "train", groups=trained)
+    if not todo and stage_done(store, "train"):
+        return Plan("train", [], run_train_batch, finish=lambda results: None, skip="done already")
+
+    def collect(batch: list[int], out: list[dict[str, Any] | None]) -> None:
+        for g, m in zip(batch, out):
+            if m is not None and "train_pairs" in m:
+                log(f"train: group {g}: {m['train_pairs']} train / {m['val_pairs']} val pairs, val {m['best_val']}, {m['seconds']}s")
+
+    def finish(results: list[list[dict[str, Any] | None]]) -> None:
+        for g, m in zip(todo, (m for out in results for m in out)):
+            if m is not None:
+                trained[g] = {k: v for k, v in m.items() if k not in ("train_pairs", "val_pairs")}
+        if todo or not stage_done(store, "train"):
+            _mark(store, "train", groups=trained, **plan.info.get("mark", {}))
+
+    plan = Plan("train", [[g] for g in todo], run_train_batch, finish, collect)
+    return plan
+
+
+def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
+    """One ProcCorrNet per non-degenerate group on the train pairs (:func:`plan_train`, here)."""
+    run_in_process(plan_train(store, config, log), store, config, log)
 
 
 def load_models(store: FamilyStore, device: str = "cpu") -> dict[int, Any]:
