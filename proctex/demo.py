@@ -2,7 +2,7 @@
 rendered into a contact sheet, a turntable GIF of the sweep, a GLB per variant and an HTML report.
 
 Pure functions plus :func:`finish_demo`, which runs them over a built family store. The build itself
-is the caller's (``proctex.pipeline.build`` in one process, ``workflows.build.build_on_ray`` on Ray);
+is the caller's (``proctex.family.pipeline.build`` in one process, ``workflows.build.build_on_ray`` on Ray);
 ``proctex`` never imports Ray.
 """
 

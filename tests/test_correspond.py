@@ -10,13 +10,14 @@ from proctex.cli import main
 from proctex.correspond.cage import CageConfig, init_cage
 from proctex.correspond.cpd import cpd_nonrigid
 from proctex.correspond.dense import METHODS, correspond_parts, correspond_shapes
+from proctex.correspond.metrics import gt_correspondence_error
 from proctex.geometry.parts import analyse, part_mesh
 from proctex.geometry.primitives import box
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, closest_point_bruteforce, face_normals, sample_surface, vertex_normals
+from proctex.geometry.surface import interpolate
 from proctex.geometry.sweeps import revolve
 from proctex.models import get_model
-from proctex.texture.metrics import gt_correspondence_error, interpolate
 
 
 def _bent(v: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Part-level texture edits: HSV shift, logo placement, overlay loading (proctex.edit)."""
+"""Part-level texture edits: HSV shift, logo placement, overlay loading (proctex.texture.edit)."""
 
 import numpy as np
 import pytest

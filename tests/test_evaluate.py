@@ -92,9 +92,9 @@ def test_cpd_field_applies_to_any_point_and_reproduces_its_samples():
 def test_a_wrong_correspondence_gives_large_errors():
     """Known answers: the true map has zero ground-truth error; the same points mirrored (a
     deliberately wrong correspondence) are off by about the part's size."""
+    from proctex.correspond.metrics import gt_correspondence_error
     from proctex.geometry.parts import part_mesh, segment
     from proctex.geometry.surface import SurfaceIndex, normalised_frame
-    from proctex.texture.metrics import gt_correspondence_error
 
     shape = get_model("mug").generate()
     part = segment(shape).parts[0]

@@ -1,4 +1,4 @@
-"""Tests for proctex.export: GLB / OBJ textured export, texcoord conventions, validator cleanliness."""
+"""Tests for proctex.texture.export: GLB / OBJ textured export, texcoord conventions, validator cleanliness."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Honest fidelity measures (proctex.fidelity, DESIGN §6): every metric must be able to fail.
+"""Honest fidelity measures (proctex.family.fidelity, DESIGN §6): every metric must be able to fail.
 
 On a built-in family (the chair, canonical ground truth), the true correspondence must score far
 better than deliberately wrong ones (every part collapsed to a point, a random rotation per shape,
@@ -38,8 +38,8 @@ from proctex.family.store import FamilyStore
 from proctex.family.transfer import transfer
 from proctex.geometry.parts import part_mesh, segment
 from proctex.geometry.surface import SurfaceIndex
+from proctex.geometry.surface import interpolate
 from proctex.models import get_model
-from proctex.texture.metrics import interpolate
 from proctex.texture.uv import pad_seams, texel_map
 
 

@@ -1,4 +1,4 @@
-"""Exemplar PatchMatch fill (proctex.inpaint): quality, search optimality, guarantees, validation."""
+"""Exemplar PatchMatch fill (proctex.texture.inpaint): quality, search optimality, guarantees, validation."""
 
 import numpy as np
 import pytest

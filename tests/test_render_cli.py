@@ -1,4 +1,4 @@
-"""Reading textured GLBs back, the view helpers of proctex.render and the visual CLI outputs
+"""Reading textured GLBs back, the view helpers of proctex.texture.render and the visual CLI outputs
 (`proctex render`, `transfer --preview`, `paint --preview`)."""
 
 from __future__ import annotations

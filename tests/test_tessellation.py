@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 import trimesh
 
+from proctex.correspond.metrics import canonical_lookup
 from proctex.geometry import primitives as P
 from proctex.geometry.parts import part_mesh, segment
 from proctex.geometry.surface import sample_surface
+from proctex.geometry.surface import interpolate
 from proctex.models import get_model, list_models
 from proctex.models.furniture import Desk
-from proctex.texture.metrics import canonical_lookup, interpolate
 
 MODELS = list_models()
 

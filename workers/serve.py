@@ -1,6 +1,6 @@
 """Ray Serve deployment of the transfer service: the FastAPI app of :mod:`workers.http` as ingress.
 
-Each replica keeps a :class:`proctex.service.Catalog` of the families under the store root (loaded
+Each replica keeps a :class:`proctex.family.service.Catalog` of the families under the store root (loaded
 on first use, reloaded when a family's build stamp changes). Transfers run in a worker thread of the
 replica, so one replica overlaps request parsing, encoding and I/O with the CPU-bound transfer.
 """

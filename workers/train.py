@@ -1,7 +1,7 @@
 """Ray Train: one ProcCorrNet per part group, fitted data-parallel by a ``TorchTrainer`` on CPU workers.
 
 Every worker runs the same pure training loop as the single-process build
-(:func:`proctex.corrnet.train`) on the group's pairs from the store, drawing its own share of each
+(:func:`proctex.correspond.training.train`) on the group's pairs from the store, drawing its own share of each
 batch; a gradient hook averages the gradients across workers (gloo ``all_reduce``), so the workers
 keep identical weights and stop together. Rank 0 writes the network to the store
 (``models/group_<g>.pt``) and reports it as the run's checkpoint (under ``train_runs/`` in the

@@ -1,4 +1,4 @@
-"""Slow, literal reference of :meth:`proctex.corrnet.ProcCorrNet.decode`, which the tests compare
+"""Slow, literal reference of :meth:`proctex.correspond.corrnet.ProcCorrNet.decode`, which the tests compare
 the shipped split first layer with; not used by the library."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Slow, obviously correct references of :mod:`proctex.edit` (loops over points, pixels or
+"""Slow, obviously correct references of :mod:`proctex.texture.edit` (loops over points, pixels or
 texels), which the tests compare the shipped fast versions with; not used by the library."""
 
 from __future__ import annotations

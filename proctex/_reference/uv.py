@@ -1,4 +1,4 @@
-"""Slow, obviously correct references of :mod:`proctex.uv` (loops over points, pixels or
+"""Slow, obviously correct references of :mod:`proctex.texture.uv` (loops over points, pixels or
 texels), which the tests compare the shipped fast versions with; not used by the library."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ def texel_map_reference(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.n
     """Slow reference: for every texel centre and every face, barycentric inside test in UV space.
 
     Returns ``{(row, col): (face, bary)}`` for texels whose centre lies inside a face (the highest
-    face index wins, as in :func:`proctex.raster.rasterise`). Does not add the lonely-face texels.
+    face index wins, as in :func:`proctex.geometry.raster.rasterise`). Does not add the lonely-face texels.
     """
     v, f, uv = _check_texel_args(vertices, faces, corner_uv, size, size)
     out: dict[tuple[int, int], tuple[int, np.ndarray]] = {}

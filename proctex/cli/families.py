@@ -141,7 +141,7 @@ def cmd_edit(args: argparse.Namespace) -> int:
 
 
 def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
-    """Validated keyword arguments of :func:`proctex.evaluate.evaluate` from the eval flags."""
+    """Validated keyword arguments of :func:`proctex.family.evaluate.evaluate` from the eval flags."""
     from proctex.family.evaluate import METHODS
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]

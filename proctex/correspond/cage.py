@@ -2,7 +2,7 @@
 
 The source part, already similarity-aligned into the template part's normalised frame, is enclosed by
 a subdivided, slightly inflated axis-aligned box cage. Every source sample is written once in mean
-value coordinates of that cage (:mod:`proctex.mvc`); moving the cage vertices moves the samples
+value coordinates of that cage (:mod:`proctex.correspond.mvc`); moving the cage vertices moves the samples
 smoothly (``x' = W @ C'``). Adam moves the cage vertices to minimise
 
 - a Chamfer term between deformed source samples and template samples, matches restricted to
@@ -16,7 +16,7 @@ smoothly (``x' = W @ C'``). Adam moves the cage vertices to minimise
   0.0087 -> 0.0067, vase 0.099 -> 0.064, sofa 0.0121 -> 0.0105, at the same cost;
 - a point-to-surface term: squared distance from every deformed sample to its closest template
   point among faces whose normal agrees (KD-tree candidates, exact point-triangle distance;
-  :meth:`proctex.geometry.SurfaceIndex.query_oriented`). With the match held fixed, the gradient of
+  :meth:`proctex.geometry.surface.SurfaceIndex.query_oriented`). With the match held fixed, the gradient of
   the squared distance is exact;
 - a normal term: ``1 - cos`` between the normals of the *deformed source triangles* and the
   matched template face normals (``normal_target="face"``; interpolated vertex normals with
@@ -49,7 +49,7 @@ from scipy.spatial import cKDTree
 
 from proctex.geometry.primitives import box
 from proctex.geometry.surface import SurfaceIndex
-from proctex.texture.metrics import interpolate
+from proctex.geometry.surface import interpolate
 from .mvc import mean_value_coordinates
 
 #: Pre-alignments of a source part (:attr:`CageConfig.prealign`).
@@ -79,7 +79,7 @@ class CageConfig:
             so Adam drifts a perfect start away).
         keep_best: return the iterate with the lowest loss rather than the last one.
         prealign: the source part's pre-alignment into the template part's frame (used by
-            :func:`proctex.correspond.correspond_parts`): "icp" (similarity ICP from the
+            :func:`proctex.correspond.dense.correspond_parts`): "icp" (similarity ICP from the
             identity), "box" (per-axis scale of the normalised bounding boxes) or "auto" (the one
             with the smaller symmetric Chamfer distance).
         chamfer: "plane" (template samples to the deformed source's tangent planes) or "point"

@@ -5,7 +5,7 @@ template part. ProcCorrNet learns that map over the family, so that at run time 
 mapped in one forward pass.
 
 Frames (DESIGN §6): inputs are points of the shape's part in *that part's* normalised frame (centre =
-bounding-box centre, divided by the L∞ radius; :func:`proctex.geometry.normalised_frame`), outputs are
+bounding-box centre, divided by the L∞ radius; :func:`proctex.geometry.surface.normalised_frame`), outputs are
 points in the *template part's* normalised frame. Both lie in [-1, 1]³, which is the only input
 normalisation the network needs (the checkpoint records it as ``extra["frame"]``).
 
@@ -58,7 +58,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-FORMAT = "proctex.corrnet/1"
+FORMAT = "proctex.corrnet/1"  # the checkpoint format name (kept from before the subpackages: old files load)
 LOSSES = ("mse", "l2")
 SCHEDULES = ("constant", "cosine", "step")
 QUERY_MODES = ("context", "separate")

@@ -2,11 +2,11 @@
 
 One interface, three methods (:data:`METHODS`):
 
-- ``"cage"``: similarity pre-alignment, then the per-pair cage deformation of :mod:`proctex.cage`;
+- ``"cage"``: similarity pre-alignment, then the per-pair cage deformation of :mod:`proctex.correspond.cage`;
   the deformed samples are projected onto the template surface (faces with agreeing normals).
 - ``"nearest"``: the same similarity pre-alignment, then the nearest template surface point (what
   a plain "data transfer" tool gives).
-- ``"cpd"``: the same pre-alignment, then non-rigid Coherent Point Drift (:mod:`proctex.cpd`) and
+- ``"cpd"``: the same pre-alignment, then non-rigid Coherent Point Drift (:mod:`proctex.correspond.cpd`) and
   the nearest template surface point.
 
 Pre-alignment: both parts in their normalised frames (bounding-box centre, L∞ radius; DESIGN §6),
@@ -19,10 +19,10 @@ on the chair and table parts (up to 0.16 after ICP) and 0.015-0.020 on three vas
 cage ended at 0.044-0.067 (``tests/bench/bench_correspond.py --tessellation adaptive``). The
 baselines keep ICP (a plain data transfer). The transform is kept in the result.
 
-:func:`correspond_shapes` matches part groups (:func:`proctex.parts.match_groups`) and solves every
+:func:`correspond_shapes` matches part groups (:func:`proctex.geometry.matching.match_groups`) and solves every
 matched group pair between the shape member that lies where the template's representative lies and
 that representative; with canonical coordinates on both shapes it also reports the ground-truth
-error (:mod:`proctex.metrics`).
+error (:mod:`proctex.texture.metrics`).
 """
 
 from __future__ import annotations
@@ -38,9 +38,10 @@ from proctex.geometry.matching import GroupMatch, match_groups
 from proctex.geometry.parts import Grouping, PartGroup, analyse, part_mesh, symmetry_planes
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, face_normals, normalised_frame, sample_surface, triangle_areas, vertex_normals
-from proctex.texture.metrics import GTError, gt_correspondence_error, interpolate
+from proctex.geometry.surface import interpolate
 from .cage import CageConfig, solve_cage
 from .cpd import cpd_nonrigid
+from .metrics import GTError, gt_correspondence_error
 
 METHODS = ("cage", "nearest", "cpd")
 

@@ -1,6 +1,6 @@
 """The template prepared for transfer (:class:`TemplateAssets`): per group its representative in
 its normalised frame with UVs, a surface index and its texture, and the slots (template parts) a
-shape's parts are assigned to (:mod:`proctex.assign`)."""
+shape's parts are assigned to (:mod:`proctex.family.assign`)."""
 
 from __future__ import annotations
 

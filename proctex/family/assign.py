@@ -1,5 +1,5 @@
 """Which template slot and group each part of a shape takes, and the map of the part's normalised
-frame onto its group representative's (:func:`assign_parts`; step 2 of :mod:`proctex.transfer`)."""
+frame onto its group representative's (:func:`assign_parts`; step 2 of :mod:`proctex.family.transfer`)."""
 
 from __future__ import annotations
 

@@ -9,10 +9,10 @@ Drift) and ``identity`` (the normalised part frames taken to coincide, then proj
 method but ``corrnet`` maps every part.
 
 Every figure reads each method's real output (its transfer, :func:`proctex.family.transfer.transfer`) at
-points located independently of it (:mod:`proctex.fidelity`). Per test shape and method:
+points located independently of it (:mod:`proctex.family.fidelity`). Per test shape and method:
 
 - **transfer** and GLB encoding, timed; **bake** into the shape's own atlas;
-- **coverage** (:func:`proctex.metrics.coverage`) of the real-time output and of the bake;
+- **coverage** (:func:`proctex.texture.metrics.coverage`) of the real-time output and of the bake;
 - the colours it shows at the **tracked points**, located by the family's tracker (``canonical``
   for built-in models, ``vertex-index`` when the samples share one vertex order, else ``cage``),
   through its real-time UVs and from its bake: the **tracked-point variance**;
@@ -23,7 +23,7 @@ points located independently of it (:mod:`proctex.fidelity`). Per test shape and
   and the shape's renders from the six canonical views.
 
 A method that fails a shape or drops a part is counted (untextured readings count as the colour
-farthest from the template's, dropped points as :data:`proctex.fidelity.FAIL_ERROR`), never
+farthest from the template's, dropped points as :data:`proctex.family.fidelity.FAIL_ERROR`), never
 skipped. Shapes can be evaluated in parallel processes (``workers``). Results go to
 ``metrics.json`` in the store: ``{"tracker", "truth", "methods": {"corrnet": {...}, ...}}``.
 """
@@ -73,7 +73,7 @@ def _mapper(name: str, store: FamilyStore, assets, config=None) -> Any:
 
 def resolve_truth(config, truth: str = "auto") -> str | None:
     """The ground truth an evaluation uses: "canonical", "vertex-index" or None (no truth: the cage
-    tracks points). ``truth`` (:data:`proctex.fidelity.TRUTHS`) overrides the family config's."""
+    tracks points). ``truth`` (:data:`proctex.family.fidelity.TRUTHS`) overrides the family config's."""
     from .fidelity import TRUTHS
 
     if truth not in TRUTHS:
@@ -341,7 +341,7 @@ def evaluate(
         limit: evaluate at most this many shapes (the first ones).
         bake_size: baked texture size; view_size: coverage and view-similarity render size;
         tracked: tracked points (and truth samples per shape; vertex-index truth uses every vertex);
-        lpips: a local LPIPS weights file (:mod:`proctex.lpips`), optional.
+        lpips: a local LPIPS weights file (:mod:`proctex.texture.lpips`), optional.
         workers: processes evaluating shapes in parallel (1: this process).
         truth: the ground truth (:func:`resolve_truth`); "auto": the family config's.
         quiet: no progress lines.

@@ -41,7 +41,7 @@ from scipy.optimize import linear_sum_assignment
 from proctex.geometry.parts import Grouping, Segmentation, part_mesh
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, face_normals, sample_surface
-from proctex.texture.metrics import interpolate
+from proctex.geometry.surface import interpolate
 from proctex.texture.uv import sample_texture
 
 #: Trackers of the tracked-point variance, best first.
@@ -239,7 +239,7 @@ def locate_by_map(tracked: TrackedPoints, template: Shape, shape: Shape, seg: Se
     """Locate tracked points of group representatives through a correspondence map (the cage
     tracker): per group, the shape part standing for the representative
     (:func:`proctex.family.assign.choose_part`) is mapped into the representative's normalised frame by
-    ``mapper`` (:class:`proctex.mappers.Mapper`) and the map is inverted exactly: the closest
+    ``mapper`` (:class:`proctex.family.mappers.Mapper`) and the map is inverted exactly: the closest
     point of the mapped part mesh gives the face and barycentrics of the shape point. ``seed``: the
     mapper's seed, or one per group (the cage tracker solves each pair with the build's seed)."""
     from .assign import choose_part, representative_frame
@@ -362,7 +362,7 @@ class TemplateTruth:
 
 def template_truth(template: Shape, grouping: Grouping, assets, kind: str) -> TemplateTruth:
     """:class:`TemplateTruth` of ``kind`` ("canonical" or "vertex-index") from the template, its
-    grouping and its transfer assets (:class:`proctex.assets.TemplateAssets`)."""
+    grouping and its transfer assets (:class:`proctex.family.assets.TemplateAssets`)."""
     seg = grouping.segmentation
     if kind == "canonical":
         if template.canonical is None or template.labels is None:
@@ -428,7 +428,7 @@ def _mapped_points(shape: Shape, seg: Segmentation, result, assets, part: int, f
     """A transfer's template points (k, 3) for shape points on ``part`` (global faces and
     barycentrics): its mapped vertices interpolated, in group ``group``'s representative's
     normalised frame, projected onto the representative on the side its face is on (as
-    :func:`proctex.uvlookup.part_uvs` reads the texture); and the representative's faces (k,) they
+    :func:`proctex.family.uvlookup.part_uvs` reads the texture); and the representative's faces (k,) they
     land on."""
     from .assign import representative_frame
     from .uvlookup import _side_normals

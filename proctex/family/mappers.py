@@ -1,5 +1,5 @@
 """Mappers: what takes a part's points onto its group representative (step 3 of
-:mod:`proctex.transfer`): the networks, the solvers, the identity, chosen by name in one place
+:mod:`proctex.family.transfer`): the networks, the solvers, the identity, chosen by name in one place
 (:func:`make_mapper`)."""
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ class SolverMapper:
     ``cpd``).
 
     Slow (seconds per part); used to build training pairs and as the pseudo-ground truth.
-    ``last`` keeps the last :class:`proctex.correspond.PartCorrespondence`.
+    ``last`` keeps the last :class:`proctex.correspond.dense.PartCorrespondence`.
     """
 
     def __init__(self, assets: TemplateAssets, method: str = "cage", n_points: int = 2000, cage: Any = None) -> None:
@@ -50,13 +50,13 @@ class SolverMapper:
 
 
 class NetworkMapper:
-    """The run-time mapper: one ProcCorrNet per template group (:mod:`proctex.corrnet`).
+    """The run-time mapper: one ProcCorrNet per template group (:mod:`proctex.correspond.corrnet`).
 
     The network's global feature comes from ``context`` uniform surface samples of the part (seeded,
     so a shape always maps the same way); the per-point head then runs on the query points only.
     Groups without a network fall back to ``fallback`` (default: :class:`IdentityMapper`).
     ``threads``: torch threads during prediction (restored afterwards; None leaves them alone).
-    ``autocast``: :func:`proctex.corrnet.predict`'s; "auto" (default) runs the matrix products in
+    ``autocast``: :func:`proctex.correspond.corrnet.predict`'s; "auto" (default) runs the matrix products in
     bfloat16 on CPUs with native bfloat16 (measured 1.4x faster on a sofa's parts; the mapped points
     move by 2e-4 of the normalised frame on average, 1e-3 at most), float32 elsewhere.
     """

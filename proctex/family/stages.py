@@ -8,7 +8,7 @@ Stages, each idempotent (a rerun skips what is complete and redoes what is missi
 4. ``pairs``    — the cage correspondence of every (train or test shape, template group):
    ``correspondences/<id>__g<group>.parquet`` and ``pairs.parquet``.
 5. ``train``    — one ProcCorrNet per group: ``models/group_<g>.pt``.
-6. ``evaluate`` — transfer to the test shapes and measure (:mod:`proctex.evaluate`): ``metrics.json``.
+6. ``evaluate`` — transfer to the test shapes and measure (:mod:`proctex.family.evaluate`): ``metrics.json``.
 
 Each stage is a :class:`proctex.family.plan.Plan` (``plan_sample``, ``plan_pairs``, ``plan_train``; the
 one-step stages run in place): ``stage_<name>`` runs it in this process, the Ray build
@@ -242,7 +242,7 @@ def load_template(store: FamilyStore, config: BuildConfig | None = None):
 
 
 def load_assets(store: FamilyStore):
-    """The template ready for transfer (:class:`proctex.assets.TemplateAssets`), from the store."""
+    """The template ready for transfer (:class:`proctex.family.assets.TemplateAssets`), from the store."""
     return load_template(store).assets()
 
 

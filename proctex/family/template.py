@@ -23,7 +23,7 @@ class Template:
     """A textured template.
 
     Attributes:
-        shape: the template mesh; grouping: its parts and groups (:class:`proctex.parts.Grouping`).
+        shape: the template mesh; grouping: its parts and groups (:class:`proctex.geometry.parts.Grouping`).
         corner_uv: (m, 3, 2) float64 per-face corner UVs; face_group: (m,) int64 group per face.
         textures: per group an (H, W, 3) uint8 texture; labels: per group its label ("" for none),
             which names its texture file (:attr:`names`: the label, or ``group_<g>``).
@@ -93,7 +93,7 @@ class Template:
                    textures, labels, painted, observed)
 
     def assets(self) -> Any:
-        """:class:`proctex.assets.TemplateAssets` for transfer. Without stored masks, the texels
+        """:class:`proctex.family.assets.TemplateAssets` for transfer. Without stored masks, the texels
         each group's UV charts cover plus an 8-texel gutter count as painted and observed."""
         from .assets import prepare_template
 

@@ -2,8 +2,8 @@
 
 The run-time path (DESIGN §1, step 3), per shape:
 
-The steps live in their own modules, in the order they run: :mod:`proctex.assets` (the template
-side), :mod:`proctex.assign` (step 2), :mod:`proctex.mappers` (step 3), :mod:`proctex.uvlookup`
+The steps live in their own modules, in the order they run: :mod:`proctex.family.assets` (the template
+side), :mod:`proctex.family.assign` (step 2), :mod:`proctex.family.mappers` (step 3), :mod:`proctex.family.uvlookup`
 (step 4); this module strings them together, writes the GLB and bakes.
 
 1. **Segment** into parts (connected components by shared vertex index: milliseconds).
@@ -168,7 +168,7 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
 
 def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = "y") -> bytes:
     """Textured GLB bytes of a transferred shape (reuses the template's encoded PNGs); ``up``: the
-    shape's up axis (the GLB stands it upright, see :func:`proctex.export.glb_bytes`)."""
+    shape's up axis (the GLB stands it upright, see :func:`proctex.texture.export.glb_bytes`)."""
     from proctex.texture.export import glb_bytes
 
     extra = [f"new_{k}" for k in range(len(result.new_textures))]

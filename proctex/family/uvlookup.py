@@ -1,6 +1,6 @@
 """Per-face UVs into the template textures from a part's mapped vertices (:func:`part_uvs`), with the
 side test for thin walls and the run-time coverage check that proves each face reads only its
-chart (:func:`_inside_chart`; step 4 of :mod:`proctex.transfer`)."""
+chart (:func:`_inside_chart`; step 4 of :mod:`proctex.family.transfer`)."""
 
 from __future__ import annotations
 
@@ -55,7 +55,7 @@ class ChartLookup:
 
     ``labels (H, W)``: :func:`chart_labels`. ``block_label (H*W,)``: per texel, the chart all four
     texels of its bilinear 2x2 block share, -1 where they differ (so one read answers for a whole
-    bilinear lookup, :func:`proctex.uv.bilinear_blocks`). ``block_room (H*W,)``: per texel ``T``,
+    bilinear lookup, :func:`proctex.texture.uv.bilinear_blocks`). ``block_room (H*W,)``: per texel ``T``,
     the largest ``r`` such that the texels at offsets ``-r .. r + 1`` (rows and columns) from ``T``
     all lie in its chart: every point within ``r`` texels (in each coordinate) of a lookup whose
     first texel is ``T`` reads only that chart (0 when ``T``'s own block leaves it).

@@ -350,3 +350,8 @@ class SurfaceIndex:
             plain = self.query(pts[todo])
             out.points[todo], out.faces[todo], out.bary[todo], out.distance[todo] = plain.points, plain.faces, plain.bary, plain.distance
         return out, oriented
+
+
+def interpolate(values: np.ndarray, faces: np.ndarray, face_index: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """Barycentric interpolation of per-vertex ``values (n, d)`` at ``(face_index (k,), bary (k, 3))``."""
+    return np.einsum("kj,kjd->kd", bary, values[faces[face_index]])

@@ -4,7 +4,7 @@
 - :func:`place_image`: an RGB(A) image (a logo) placed at a UV spot, rotated, alpha-blended.
 - :func:`load_overlay`: any image file Pillow reads -> (H, W, 4) float32 RGBA in [0, 1].
 
-Textures follow :mod:`proctex.uv`: ``(H, W, 3)`` (or ``(H, W, 4)``) float in [0, 1] or uint8, row 0 at
+Textures follow :mod:`proctex.texture.uv`: ``(H, W, 3)`` (or ``(H, W, 4)``) float in [0, 1] or uint8, row 0 at
 the top; UVs are OpenGL-style (u right, v up), texel (i, j) has its centre at ``u = (j + 0.5) / W``,
 ``v = 1 - (i + 0.5) / H``. Every edit returns a new array of the input's dtype and shape; texels outside
 the mask (and, for :func:`place_image`, outside the overlay's footprint) are bit-identical to the input.

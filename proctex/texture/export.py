@@ -205,7 +205,7 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
     V, F, UV, FG, texs, names = _check_shape(vertices, faces, corner_uv, face_group, textures, names)
     if up not in UP_ROTATIONS:
         raise ValueError(f"up must be x, y or z, got {up!r}")
-    gltf = gl.GLTF2(asset=gl.Asset(generator="proctex.export", version="2.0"), scene=0,
+    gltf = gl.GLTF2(asset=gl.Asset(generator="proctex.texture.export", version="2.0"), scene=0,
                     scenes=[gl.Scene(nodes=[0])], nodes=[gl.Node(mesh=0, rotation=UP_ROTATIONS[up])], buffers=[gl.Buffer()])
     blob = _Blob(gltf)
     primitives = []
@@ -301,7 +301,7 @@ def write_obj(path, vertices, faces, corner_uv, face_group, textures, names=None
     atomic_write(mtl_path, "".join(mtl).encode())
 
     text = io.StringIO()
-    text.write(f"# proctex.export\nmtllib {mtl_path.name}\n")
+    text.write(f"# proctex.texture.export\nmtllib {mtl_path.name}\n")
     np.savetxt(text, V, fmt="v %.9g %.9g %.9g")
     np.savetxt(text, uv_unique, fmt="vt %.9g %.9g")
     text.write(body.getvalue())

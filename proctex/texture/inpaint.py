@@ -172,7 +172,7 @@ def _penalty(work: np.ndarray, source: np.ndarray) -> float:
 def chart_labels(mask: np.ndarray) -> np.ndarray:
     """(H, W) int32 chart ids of a texture: 8-connected components of ``mask`` (its painted or
     covered texels) numbered from 1, 0 outside it. The one definition: the run-time coverage check
-    (:mod:`proctex.transfer`) uses it too."""
+    (:mod:`proctex.family.transfer`) uses it too."""
     lab, _ = ndimage.label(np.asarray(mask, dtype=bool), structure=np.ones((3, 3), dtype=bool))
     return lab.astype(np.int32)
 

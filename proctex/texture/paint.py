@@ -195,7 +195,7 @@ def paint_surface(
     Args:
         shape, grouping: the template and its parts/groups.
         painter: has ``paint(points (n, 3), normals (n, 3), group=int, label=str) -> (n, 3)`` (e.g.
-            :class:`proctex.painters.SurfacePainter`); points are in the shape's normalised frame.
+            :class:`proctex.texture.painters.SurfacePainter`); points are in the shape's normalised frame.
         size: texture size (square); uv: a precomputed layout (else unwrapped here at ``size``).
         gutter: seam padding in texels.
         prompts: prompt per group for the record (defaults to what the painter reports, if anything).

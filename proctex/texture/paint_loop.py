@@ -310,7 +310,7 @@ def paint_views(
     Args:
         painter: a :class:`ViewPainter`.
         prompt, group_prompts: the global prompt and overrides keyed by group label or index.
-        cameras: the camera path (default: :func:`proctex.render.orbit_path` with ``n_views`` views of
+        cameras: the camera path (default: :func:`proctex.texture.render.orbit_path` with ``n_views`` views of
             ``view_size`` pixels around the shape, ``up`` being its up axis).
         size: texture size; uv: a precomputed layout.
         margin: cosine gain needed to refine an already painted texel; power: blend weight ``cos^power``.
@@ -318,7 +318,7 @@ def paint_views(
         complete_hidden: paint groups with texels no path view saw from six views of the group's
             representative alone (inner parts hidden by others).
         fill: how texels no view saw are filled: "patchmatch" (exemplar PatchMatch from the group's
-            painted texels, :mod:`proctex.inpaint`) or "surface" (:func:`fill_unseen`, inverse distance
+            painted texels, :mod:`proctex.texture.inpaint`) or "surface" (:func:`fill_unseen`, inverse distance
             on the surface).
         on_view: progress callback ``(k, n, stats)``.
     """

@@ -1,7 +1,7 @@
 """Ray-cast rendering of views: cameras, per-pixel geometry buffers and shaded textured images.
 
 Two backends give the same buffers: Embree through trimesh (``embreex`` installed, the fast default)
-and a pure NumPy z-buffer rasteriser (:mod:`proctex.raster`). Both only decide *which triangle* a
+and a pure NumPy z-buffer rasteriser (:mod:`proctex.geometry.raster`). Both only decide *which triangle* a
 pixel sees; the hit point, distance and barycentrics then come from an exact ray-plane intersection,
 so the backends agree to rounding wherever they pick the same triangle.
 

@@ -2,7 +2,7 @@
 
 Data: for each model, shapes are drawn with ``space.sample(n, seed, method="lhs")`` (the template is
 the model's default setting); every matched, non-degenerate group pair is solved by the cage solver
-(:func:`proctex.correspond.correspond_shapes`) and turned into a training pair ``src`` (shape part's
+(:func:`proctex.correspond.dense.correspond_shapes`) and turned into a training pair ``src`` (shape part's
 normalised frame) / ``dst`` (template part's normalised frame). The real sofa samples
 (``--sofa-data``, no ground truth) use their train split for training and the inference split for
 testing. Pairs are cached in ``out/`` (``.npz``) so reruns only train.
@@ -59,7 +59,7 @@ def build_pairs(name: str, n_train: int, n_test: int, points: int, seed: int, so
     from proctex.correspond.dense import correspond_shapes
     from proctex.geometry.parts import analyse, part_mesh
     from proctex.geometry.surface import normalised_frame
-    from proctex.texture.metrics import interpolate
+    from proctex.geometry.surface import interpolate
 
     template, items = _template_and_shapes(name, n_train, n_test, seed, sofa_dir)
     tg = analyse(template)
@@ -157,14 +157,14 @@ def group_splits(data: dict, group: int, n_val: int) -> tuple[list, list, list, 
 
 def gt_errors(model, data: dict, rows: list[int], template, tgrouping, seed: int) -> dict:
     """Ground-truth error of the network's predictions projected onto the template part (as
-    :func:`proctex.correspond.correspond_shapes` computes it for the cage), next to the cage's,
+    :func:`proctex.correspond.dense.correspond_shapes` computes it for the cage), next to the cage's,
     plus the pseudo-ground-truth error after projection."""
     import numpy as np
 
     from proctex.correspond.corrnet import predict
+    from proctex.correspond.metrics import gt_correspondence_error
     from proctex.geometry.parts import part_mesh
     from proctex.geometry.surface import SurfaceIndex, normalised_frame
-    from proctex.texture.metrics import gt_correspondence_error
 
     tp = int(data["template_part"][rows[0]])
     tv, tf = part_mesh(template, tgrouping.parts[tp])
@@ -192,7 +192,7 @@ def gt_errors(model, data: dict, rows: list[int], template, tgrouping, seed: int
 
 
 def predict_timing(model, src, template_vertices, repeats: int = 7) -> dict:
-    """Median ms of :func:`proctex.corrnet.predict` on ``src`` samples plus a part's vertex count,
+    """Median ms of :func:`proctex.correspond.corrnet.predict` on ``src`` samples plus a part's vertex count,
     in float32 and with bfloat16 autocast."""
     import numpy as np
 
@@ -214,7 +214,7 @@ def predict_timing(model, src, template_vertices, repeats: int = 7) -> dict:
 
 
 def step_timing(config, repeats: int = 20) -> dict:
-    """Median ms of one :func:`proctex.corrnet.train_step` for ``config`` (random data)."""
+    """Median ms of one :func:`proctex.correspond.training.train_step` for ``config`` (random data)."""
     import numpy as np
     import torch
 

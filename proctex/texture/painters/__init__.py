@@ -3,7 +3,7 @@
 - :class:`SurfacePainter` (offline default): colours texels from their 3D position and normal with solid
   procedural materials read from the prompt (:func:`parse_prompt` -> :class:`MaterialSpec`).
 - View painters (:class:`ViewPainter`, fed :class:`ViewRequest`) paint rendered views inside the
-  multi-view loop; the diffusion-backed one lives in :mod:`proctex.painters.diffusion` and is imported
+  multi-view loop; the diffusion-backed one lives in :mod:`proctex.texture.painters.diffusion` and is imported
   from there (it needs optional dependencies).
 """
 

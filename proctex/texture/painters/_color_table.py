@@ -3,7 +3,7 @@ the CSS4 / X11 names (also split into words: "navajo white") for those XKCD lack
 matplotlib's ``_color_data`` and committed as data: proctex does not import matplotlib at run time.
 
 Keys are normalised (lower case, "gray" spelled "grey", "/" and "-" as spaces, single spaces; see
-``proctex.painters.colors.normalise_name``); XKCD wins where both define a name. A handful of XKCD names
+``proctex.texture.painters.colors.normalise_name``); XKCD wins where both define a name. A handful of XKCD names
 built on vulgar words were left out. Values are "#rrggbb".
 """
 

@@ -38,7 +38,7 @@ class ViewRequest:
             (``(points - center) / scale`` lies in [-1, 1]^3), so painters can work in shape units.
         view_index: index of this view in the camera path; n_views: length of the path.
         seed: seed for this view (derived from the loop's seed and the view index).
-        camera: the camera (``proctex.render.Camera``), for painters that need intrinsics.
+        camera: the camera (``proctex.texture.render.Camera``), for painters that need intrinsics.
         part: (H, W) int64 part id per pixel, -1 on background (or None).
         extra: anything else the loop knows (``group_labels``: {group id: label}).
     """

@@ -1,7 +1,7 @@
 """Named colours and colour modifiers.
 
 The table (:data:`COLOR_TABLE`, ~1,000 names) is the XKCD colour survey plus the CSS4/X11 names, committed
-as data in :mod:`proctex.painters._color_table`. Names are looked up after :func:`normalise_name`
+as data in :mod:`proctex.texture.painters._color_table`. Names are looked up after :func:`normalise_name`
 ("Navy-Blue" -> "navy blue", "gray" -> "grey"). Modifiers (light, dark, pale, deep, bright, pastel,
 muted, vivid, ...) act in HLS space, optionally scaled by an intensifier ("very", "slightly").
 

@@ -1,7 +1,7 @@
 """A view painter backed by a local diffusers pipeline: depth-conditioned inpainting, InTex style (DESIGN §5).
 
 The multi-view paint loop asks :class:`DiffusionViewPainter` to paint one rendered view at a time
-(:class:`~proctex.painters.base.ViewRequest`). The painter conditions a Stable-Diffusion-style model on
+(:class:`~proctex.texture.painters.base.ViewRequest`). The painter conditions a Stable-Diffusion-style model on
 
 * the **depth** of the view (a MiDaS-style image, near = bright, background = 0; see
   :func:`depth_control_image`), through a depth ControlNet or a depth-to-image UNet;
