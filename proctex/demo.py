@@ -338,7 +338,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     from proctex.family.service import FamilyService
     from proctex.family.stages import stored_config
     from proctex.family.store import FamilyStore, StoreLayout
-    from proctex.family.transfer import glb, transfer
+    from proctex.family.transfer import shape_to_glb
     from proctex.texture.render import save_gif, save_png
 
     t_start = time.perf_counter()
@@ -364,9 +364,10 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     for r in sweep:
         for k, params in enumerate(r.settings):
             shape = model.generate(params)
-            result = transfer(shape, svc.assets, svc.mapper, seed=seed, painter=svc.painter)
+            answer = shape_to_glb(shape, svc.assets, svc.mapper, seed=seed, painter=svc.painter, up=up)
+            result = answer.result
             rel = f"variants/{r.name}_{k}.glb"
-            atomic_write(out / rel, glb(shape, result, svc.assets, up=up))
+            atomic_write(out / rel, answer.data)
             variants.append({"row": r.name, "index": k, "params": params, "glb": rel, "seconds": round(result.seconds, 4),
                              "faces": int(shape.n_faces), "notes": result.notes})
             rendered.append((shape, result))

@@ -166,6 +166,28 @@ def test_transfer_glb_is_valid_and_bake_matches(tmp_path, chair):
     assert np.median(np.abs(c1 - c2).max(axis=1)) < 0.05
 
 
+def test_shape_to_glb_is_transfer_then_glb_or_bake(chair):
+    """The one run-time path equals its parts: the GLB of :func:`transfer` + :func:`glb`, or of the
+    bake; the GLB read back has the shape's faces and the textures it says it shows."""
+    from proctex.family.transfer import shape_to_glb
+    from proctex.texture.gltf_read import read_textured_glb
+
+    _, _, _, assets = chair
+    shape = get_model("chair").generate({"seat_width": 0.52, "back_height": 0.5})
+    answer = shape_to_glb(shape, assets, IdentityMapper(), up="z")
+    r = transfer(shape, assets, IdentityMapper())
+    assert answer.data == glb(shape, r, assets, up="z") and answer.baked is None
+    assert np.array_equal(answer.corner_uv, r.corner_uv) and len(answer.textures) == len(assets.groups)
+    back = read_textured_glb(answer.data)
+    assert len(back.faces) == shape.n_faces
+    baked = shape_to_glb(shape, assets, IdentityMapper(), up="z", bake_size=64)
+    b = baked.baked
+    assert b is not None and len(baked.textures) == len(assets.groups) and not all(b.direct)
+    for t, direct, tpl in zip(baked.textures, b.direct, assets.textures):  # direct groups keep the template's texture
+        assert t.shape == (tpl.shape if direct else (64, 64, 3))
+    assert baked.data != answer.data and len(read_textured_glb(baked.data).faces) == shape.n_faces
+
+
 def test_prepare_template_validates(chair):
     shape, grouping, tex, _ = chair
     with pytest.raises(ValueError):

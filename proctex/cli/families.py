@@ -57,10 +57,9 @@ def cmd_build(args: argparse.Namespace) -> int:
 
 
 def cmd_transfer(args: argparse.Namespace) -> int:
-    from proctex.family.mappers import make_mapper
-    from proctex.family.stages import load_assets, load_models, stored_config
+    from proctex.family.service import FamilyService
+    from proctex.family.stages import stored_config
     from proctex.family.store import FamilyStore
-    from proctex.family.transfer import bake, glb, info, transfer
 
     store = FamilyStore(args.family)
     config = stored_config(store)
@@ -80,35 +79,20 @@ def cmd_transfer(args: argparse.Namespace) -> int:
         raise ValueError("--out must name a .glb file")
     _check_preview_path(args.preview)
     t0 = time.perf_counter()
-    assets = load_assets(store)
-    models = load_models(store) if args.mapper in ("auto", "net") else None
-    if args.mapper == "net" and not models:
-        raise ValueError(f"{args.family} has no trained models (run the train stage)")
-    mapper = make_mapper(args.mapper, assets, models, corr_points=config.corr_points, cage=config.cage)
+    svc = FamilyService(store, mapper=args.mapper)
     t1 = time.perf_counter()
-    from proctex.texture.painters import SurfacePainter
-
-    painter = SurfacePainter(config.paint.prompt, seed=config.seed)  # for parts of groups the template lacks
-    result = transfer(shape, assets, mapper, seed=args.seed, painter=painter)
-    if args.bake:
-        from proctex.texture.export import glb_bytes
-
-        baked = bake(shape, result, assets, size=args.bake)
-        names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
-        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=config.up_axis())
-        textured = (baked.corner_uv, baked.face_group, list(baked.textures))
-    else:
-        data = glb(shape, result, assets, up=config.up_axis())
-        textured = (result.corner_uv, result.face_group, list(assets.textures) + list(result.new_textures))
+    answer, _ = svc.textured(shape, seed=args.seed, bake_size=args.bake or None)
     from proctex.fileio import atomic_write
+    from proctex.family.transfer import info
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(args.out, data)
-    summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(mapper).__name__, "out": args.out, "bytes": len(data)}
+    atomic_write(args.out, answer.data)
+    result = answer.result
+    summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(svc.mapper).__name__, "out": args.out, "bytes": len(answer.data)}
     if args.preview:
         from proctex.texture.render import render_three_quarter, save_png
 
-        image = render_three_quarter(shape.vertices, shape.faces, *textured, up=config.up_axis(), size=512)
+        image = render_three_quarter(shape.vertices, shape.faces, answer.corner_uv, answer.face_group, answer.textures, up=config.up_axis(), size=512)
         Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
         save_png(args.preview, image)
         summary["preview"] = args.preview

@@ -169,13 +169,12 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     from proctex.texture.metrics import coverage, view_similarity
     from proctex.texture.render import render_six_views
     from .fidelity import colours_at, gt_errors, pgt_errors
-    from .transfer import bake, glb, transfer
+    from .transfer import bake, shape_to_glb
 
     st, assets, up = ctx.settings, ctx.assets, ctx.up
     t = time.perf_counter()
     try:
-        result = transfer(shape, assets, ctx.mapper(name), seed=st["seed"], shortcut=name in SHORTCUT)
-        glb(shape, result, assets, up=up)
+        result = shape_to_glb(shape, assets, ctx.mapper(name), seed=st["seed"], up=up, shortcut=name in SHORTCUT).result
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         # A failed shape counts: every located point untextured, every point with a truth failed.
         failed = np.where((loc.face >= 0)[:, None], np.inf, np.nan).repeat(3, axis=1).astype(np.float32)

@@ -135,7 +135,9 @@ def build_stamp(store: FamilyStore) -> str:
 class FamilyService:
     """One built family, loaded for transfer."""
 
-    def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None) -> None:
+    def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None, mapper: str = "auto") -> None:
+        """Load the family in ``store``; ``mapper``: a :func:`proctex.family.mappers.make_mapper` name
+        ("auto": the group networks where trained, the default)."""
         from proctex.texture.painters import SurfacePainter
         from .mappers import make_mapper
         from .stages import load_assets, load_models, stored_config
@@ -149,8 +151,10 @@ class FamilyService:
         self.model = None if self.config.source.folder else self.config.procedural_model()
         self.up = self.config.up_axis()  # GLBs stand the shape upright in glTF's +Y-up world
         self.assets = load_assets(store)
-        self.models = load_models(store)
-        self.mapper: Any = make_mapper("auto", self.assets, self.models)
+        self.models = load_models(store) if mapper in ("auto", "net") else {}
+        if mapper == "net" and not self.models:
+            raise ValueError(f"{store.uri} has no trained models (run the train stage)")
+        self.mapper: Any = make_mapper(mapper, self.assets, self.models, corr_points=self.config.corr_points, cage=self.config.cage)
         self.painter = SurfacePainter(self.config.paint.prompt, seed=self.config.seed)
         self.load_seconds = time.perf_counter() - t0
         self.lock = threading.Lock()  # transfers share the torch models and the painter
@@ -228,11 +232,19 @@ class FamilyService:
         return shape
 
     def transfer(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None) -> tuple[bytes, dict[str, Any]]:
-        """Textured GLB bytes of ``shape`` and a summary (timings, notes).
+        """Textured GLB bytes of ``shape`` and a summary (timings, notes); see :meth:`textured`."""
+        answer, summary = self.textured(shape, seed, edits)
+        return answer.data, summary
+
+    def textured(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None,
+                 bake_size: int | None = None) -> tuple[Any, dict[str, Any]]:
+        """``shape`` textured by the family (:func:`proctex.family.transfer.shape_to_glb`, a
+        :class:`~proctex.family.transfer.TexturedGLB`) and a summary (timings, notes).
 
         ``edits`` ({group index: :class:`GroupEdit`}, see :meth:`parse_edits`) use edited copies of
-        those group textures in this GLB only; the family is unchanged."""
-        from .transfer import glb, info, transfer
+        those group textures in this GLB only; the family is unchanged. ``bake_size``: give the shape
+        its own atlas of that size instead of the template's textures."""
+        from .transfer import info, shape_to_glb
 
         t0 = time.perf_counter()
         assets = self.assets
@@ -240,18 +252,18 @@ class FamilyService:
             png = list(assets.png)
             for g, edit in edits.items():
                 png[g] = self.edited_texture(g, edit)[1]
-            assets = replace(assets, png=png)
+            assets = replace(assets, png=png)  # only the encoded images differ: the transfer is the same
         t_edit = time.perf_counter() - t0
         with self.lock:
             try:
-                result = transfer(shape, self.assets, self.mapper, seed=seed, painter=self.painter)
+                answer = shape_to_glb(shape, assets, self.mapper, seed=seed, painter=self.painter, up=self.up, bake_size=bake_size)
             except ValueError as exc:
                 raise BadInput(f"cannot texture this shape: {exc}") from exc
-            data = glb(shape, result, assets, up=self.up)
-        summary = {**info(result), "seconds": round(time.perf_counter() - t0, 4), "faces": shape.n_faces, "vertices": shape.n_vertices, "bytes": len(data)}
+        summary = {**info(answer.result), "seconds": round(time.perf_counter() - t0, 4), "faces": shape.n_faces, "vertices": shape.n_vertices,
+                   "bytes": len(answer.data)}
         if edits:
             summary["edits"] = {"groups": sorted(edits), "seconds": round(t_edit, 4)}
-        return data, summary
+        return answer, summary
 
     # ------------------------------------------------------------------------------------ edits
     def group_index(self, key: Any, missing: type[ValueError] = BadInput) -> int:

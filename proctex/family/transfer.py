@@ -326,3 +326,34 @@ def info(result: TransferResult) -> dict[str, Any]:
     }
 
 
+# ------------------------------------------------------------------------------- shape in, GLB out
+@dataclass
+class TexturedGLB:
+    """A textured shape as answered: ``data`` (GLB bytes), the transfer ``result``, and what the GLB
+    shows (``corner_uv`` (m, 3, 2), ``face_group`` (m,), ``textures``: per material an (H, W, 3)
+    uint8 image or encoded PNG bytes), e.g. for a preview. ``baked``: the bake, when asked for."""
+
+    data: bytes
+    result: TransferResult
+    corner_uv: np.ndarray
+    face_group: np.ndarray
+    textures: list[Any]
+    baked: Baked | None = None
+
+
+def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, up: str = "y",
+                 bake_size: int | None = None, shortcut: bool = True) -> TexturedGLB:
+    """The run-time path, shape in, GLB out: :func:`transfer` with ``mapper`` (``painter`` colours
+    parts of groups the template lacks), then the GLB (:func:`glb`, the template's encoded PNGs), or
+    with ``bake_size`` the shape's own atlas and textures (:func:`bake`). The command line, the
+    service, the demo and the evaluation all answer with this."""
+    from proctex.texture.export import glb_bytes
+
+    result = transfer(shape, assets, mapper, seed=seed, painter=painter, shortcut=shortcut)
+    if bake_size:
+        baked = bake(shape, result, assets, size=bake_size)
+        names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
+        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up)
+        return TexturedGLB(data, result, baked.corner_uv, baked.face_group, list(baked.textures), baked)
+    return TexturedGLB(glb(shape, result, assets, up=up), result, result.corner_uv, result.face_group,
+                       list(assets.textures) + list(result.new_textures))
