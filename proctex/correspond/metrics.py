@@ -17,9 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from proctex.geometry.surface import SurfaceIndex, face_normals, normalised_frame
+from proctex.geometry.surface import SurfaceIndex, face_normals, interpolate, normalised_frame
 
-from .surface import interpolate
 
 
 @dataclass
