@@ -324,3 +324,22 @@ def test_unseen_texels_are_filled_without_repainting_seen_ones(chair):
     for tv in runs.values():
         cov = coverage(shape.vertices, shape.faces, tv.uv.corner_uv, tv.uv.face_group, tv.painted_masks, size=128)
         assert cov.share == 0.0
+
+
+def test_painters_come_from_one_registry(tmp_path):
+    from proctex.texture.paint import SolidViewPainter
+    from proctex.texture.paint_loop import PAINTERS, make_painter
+    from proctex.texture.painters import SurfacePainter
+    from proctex.texture.painters.diffusion import DiffusionViewPainter
+    from proctex.texture.painters.tiny_pipeline import build_tiny_pipeline
+
+    shape = get_model("mug").generate()
+    grouping = analyse(shape)
+    assert isinstance(make_painter("surface", grouping, "red"), SurfacePainter)
+    views = make_painter("views", grouping, "red", {1: "gold"})
+    assert isinstance(views, SolidViewPainter) and isinstance(views.surface, SurfacePainter)
+    build_tiny_pipeline(tmp_path / "tiny")
+    assert isinstance(make_painter("diffusion", grouping, "red", model_dir=str(tmp_path / "tiny")), DiffusionViewPainter)
+    assert set(PAINTERS) == {"surface", "views", "diffusion"}
+    with pytest.raises(ValueError, match="painter must be one of"):
+        make_painter("crayon", grouping, "red")

@@ -10,6 +10,7 @@ import argparse
 import sys
 
 from proctex.family.config import PRESETS
+from proctex.texture.paint_loop import PAINTERS
 
 from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_transfer
 from .shapes import cmd_correspond, cmd_match, cmd_models, cmd_paint, cmd_render, cmd_sample, cmd_segment, cmd_template
@@ -88,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True)
     p.add_argument("--size", type=int, default=1024, help="texture size per group")
-    p.add_argument("--painter", choices=["surface", "views", "diffusion"], default="surface",
+    p.add_argument("--painter", choices=PAINTERS, default="surface",
                    help="surface: solid materials at texels; views: the multi-view loop with the solid materials; diffusion: the multi-view loop with a local diffusers model")
     p.add_argument("--views", type=int, default=11, help="camera path length for view painters")
     p.add_argument("--view-size", type=int, default=512)
@@ -124,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, help="cage solver iterations per pair")
     p.add_argument("--train-iterations", type=int, help="ProcCorrNet training iterations")
     p.add_argument("--up", choices=["auto", "x", "y", "z"])
-    p.add_argument("--painter", choices=["surface", "views", "diffusion"], help="template painter (default surface)")
+    p.add_argument("--painter", choices=PAINTERS, help="template painter (default surface)")
     p.add_argument("--model-dir", help="local diffusers model folder (--painter diffusion)")
     p.add_argument("--tessellation", choices=["adaptive", "fixed"],
                    help="built-in models: segments follow part sizes (adaptive, the default) or fixed counts")

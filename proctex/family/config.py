@@ -108,8 +108,10 @@ class PaintConfig:
             raise ValueError("group_prompts must be an object of prompts {group label or index: prompt}")
         if self.texture_size < 16:
             raise ValueError(f"texture_size must be >= 16, got {self.texture_size}")
-        if self.painter not in ("surface", "views", "diffusion"):
-            raise ValueError(f"painter must be surface, views or diffusion, got {self.painter!r}")
+        from proctex.texture.paint_loop import PAINTERS
+
+        if self.painter not in PAINTERS:
+            raise ValueError(f"painter must be one of {', '.join(PAINTERS)}, got {self.painter!r}")
         if self.views < 3 or self.view_size < 16 or self.steps < 1:
             raise ValueError("views must be >= 3, view_size >= 16 and steps >= 1")
         if self.fill not in ("patchmatch", "surface"):

@@ -413,6 +413,28 @@ def _complete_hidden(
     return n
 
 
+#: The painters a template can be painted with (:func:`make_painter`).
+PAINTERS = ("surface", "views", "diffusion")
+
+
+def make_painter(name: str, grouping: Grouping, prompt: str, prompts: Mapping[int, str] | None = None, seed: int = 0,
+                 model_dir: str | None = None, device: str = "cpu", steps: int = 20) -> Any:
+    """The painter ``name`` of :data:`PAINTERS`, the one place painters are chosen: "surface" (a
+    :class:`~proctex.texture.painters.SurfacePainter`: colours at 3D points, ``prompts`` per group
+    index), "views" (:class:`SolidViewPainter` over it, for the multi-view loop) or "diffusion" (a
+    local diffusers model in ``model_dir``). ``ValueError`` for another name."""
+    from .painters import SurfacePainter
+
+    if name not in PAINTERS:
+        raise ValueError(f"painter must be one of {', '.join(PAINTERS)}, got {name!r}")
+    if name == "diffusion":
+        from proctex.texture.painters.diffusion import DiffusionViewPainter
+
+        return DiffusionViewPainter(model_dir, device=device, steps=steps)
+    surface = SurfacePainter(prompt, {str(k): v for k, v in (prompts or {}).items()}, seed=seed)
+    return surface if name == "surface" else SolidViewPainter(surface, grouping)
+
+
 def paint_template(
     shape: Shape,
     grouping: Grouping,
@@ -433,20 +455,11 @@ def paint_template(
 ) -> TemplateTexture:
     """Texture a template with one of the painters: ``"surface"`` (:func:`paint_surface`),
     ``"views"`` (the multi-view loop with :class:`SolidViewPainter`) or ``"diffusion"`` (the loop with
-    a local diffusers model in ``model_dir``); the remaining arguments go to :func:`paint_views`."""
-    from .painters import SurfacePainter
-
+    a local diffusers model in ``model_dir``), made by :func:`make_painter`; the remaining arguments
+    go to :func:`paint_views`."""
     prompts = resolve_group_prompts(grouping, prompt, group_prompts)  # validates the keys
-    surface = SurfacePainter(prompt, {str(k): v for k, v in prompts.items()}, seed=seed)
+    chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, model_dir=model_dir, device=device, steps=steps)
     if painter == "surface":
-        return paint_surface(shape, grouping, surface, size=size, prompts=prompts)
-    if painter == "views":
-        view_painter: Any = SolidViewPainter(surface, grouping)
-    elif painter == "diffusion":
-        from proctex.texture.painters.diffusion import DiffusionViewPainter
-
-        view_painter = DiffusionViewPainter(model_dir, device=device, steps=steps)
-    else:
-        raise ValueError(f"painter must be surface, views or diffusion, got {painter!r}")
-    return paint_views(shape, grouping, view_painter, prompt, group_prompts, n_views=views, view_size=view_size, size=size,
+        return paint_surface(shape, grouping, chosen, size=size, prompts=prompts)
+    return paint_views(shape, grouping, chosen, prompt, group_prompts, n_views=views, view_size=view_size, size=size,
                        up=up, seed=seed, complete_hidden=complete_hidden, fill=fill, on_view=on_view)
