@@ -33,6 +33,7 @@ import json
 import mimetypes
 import os
 import re
+import weakref
 from pathlib import Path
 from typing import Any, Callable
 
@@ -42,9 +43,11 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from proctex.family.service import BadInput, Catalog, NotFound, TooLarge, build_stamp, parse_edit
+from proctex.family.budget import Budget, OverBudget
+from proctex.family.service import BadInput, Catalog, NotFound, TooLarge, Watchdog, build_stamp, parse_edit
 
 GLB_MEDIA_TYPE = "model/gltf-binary"
+MAX_SEED = 2**31 - 1
 STUDIO_DIST = Path(__file__).resolve().parent / "studio" / "dist"
 _ASSET_NAME = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]*(/[A-Za-z0-9_-][A-Za-z0-9._-]*)*$")
 NOT_BUILT = """<!doctype html><html><head><meta charset="utf-8"><title>ProcTex studio not built</title></head>
@@ -61,7 +64,7 @@ class TransferRequest(BaseModel):
     """JSON body of a transfer by parameters."""
 
     params: dict[str, Any] = Field(default_factory=dict, description="parameter values (missing ones take their defaults)")
-    seed: int = Field(0, description="seed of the network's context samples and of painting new parts")
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="seed of the network's context samples and of painting new parts")
     edits: dict[str, Any] | None = Field(None, description='non-destructive edits: {"<group index or label>": '
                                          '{"hue": degrees, "saturation": scale, "value": scale, "prompt": text}}')
 
@@ -70,20 +73,53 @@ def _error(status: int, message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
 
-def error_response(exc: Exception) -> JSONResponse:
+def error_response(exc: BaseException) -> JSONResponse:
+    """The JSON answer to an exception: unknown family or group 404, too large 413, over the time
+    budget 422 (cancelled: 499), any other bad input (``ValueError``, a number too large for its
+    type, a body nested too deep) 422; anything else 500, with its type, never a traceback."""
     if isinstance(exc, NotFound):
         return _error(404, str(exc))
     if isinstance(exc, TooLarge):
         return _error(413, str(exc))
-    return _error(422, str(exc))
+    if isinstance(exc, OverBudget):
+        return _error(499 if exc.cancelled else 422, str(exc))
+    if isinstance(exc, (ValueError, OverflowError, RecursionError, UnicodeError)):
+        return _error(422, (str(exc) or type(exc).__name__)[:1000])
+    return _error(500, f"internal error ({type(exc).__name__}); the request was not served")
+
+
+async def read_body(request: Request, max_bytes: int) -> bytes:
+    """The request body, read in chunks and refused (:class:`TooLarge`) as soon as it passes
+    ``max_bytes``, whether or not it declared a Content-Length. Later ``request.form()`` /
+    ``request.body()`` calls read these bytes again, not the socket."""
+    length = request.headers.get("content-length")
+    if length is not None and length.isdigit() and int(length) > max_bytes:
+        raise TooLarge(f"request body of {length} bytes is over the limit of {max_bytes}")
+    chunks, size = [], 0
+    async for chunk in request.stream():
+        size += len(chunk)
+        if size > max_bytes:
+            raise TooLarge(f"request body over the limit of {max_bytes} bytes")
+        chunks.append(chunk)
+    body = b"".join(chunks)
+    request._body = body  # starlette reads a consumed body from here
+    return body
+
+
+def _seed(raw: Any) -> int:
+    try:
+        value = int(raw)
+    except (TypeError, ValueError, OverflowError):
+        raise BadInput(f"seed must be an integer, got {str(raw)[:40]!r}") from None
+    if not 0 <= value <= MAX_SEED:
+        raise BadInput(f"seed must be in [0, {MAX_SEED}], got {str(raw)[:40]}")
+    return value
 
 
 async def read_transfer_request(request: Request, max_bytes: int) -> tuple[str, Any, int, Any]:
     """``("params", dict, seed, edits)`` or ``("mesh", (bytes, filename), seed, edits)`` from a
     request (``edits``: the raw JSON value or None; see :meth:`FamilyService.parse_edits`)."""
-    length = request.headers.get("content-length")
-    if length is not None and length.isdigit() and int(length) > max_bytes:
-        raise TooLarge(f"request body of {length} bytes is over the limit of {max_bytes}")
+    body = await read_body(request, max_bytes)
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if ctype == "multipart/form-data":
         try:
@@ -97,51 +133,49 @@ async def read_transfer_request(request: Request, max_bytes: int) -> tuple[str, 
         if len(data) > max_bytes:
             raise TooLarge(f"mesh upload over the limit of {max_bytes} bytes")
         seed = form.get("seed", "0")
-        try:
-            seed_value = int(seed) if isinstance(seed, str) else 0
-        except ValueError as exc:
-            raise BadInput(f"seed must be an integer, got {seed!r}") from exc
+        seed_value = _seed(seed if isinstance(seed, str) else 0)
         edits_text = form.get("edits")
         edits = None
         if isinstance(edits_text, str) and edits_text.strip():
             try:
                 edits = json.loads(edits_text)
-            except ValueError as exc:
-                raise BadInput(f"the 'edits' field must be JSON text: {exc}") from exc
+            except (ValueError, RecursionError) as exc:
+                raise BadInput(f"the 'edits' field must be JSON text: {str(exc)[:200] or type(exc).__name__}") from exc
         return "mesh", (data, upload.filename or "mesh.obj"), seed_value, edits
-    body = await request.body()
-    if len(body) > max_bytes:
-        raise TooLarge(f"request body over the limit of {max_bytes} bytes")
     if ctype not in ("application/json", ""):
         raise BadInput(f"send application/json ({{\"params\": {{...}}}}) or multipart/form-data with a 'mesh' file, not {ctype!r}")
     try:
         req = TransferRequest.model_validate_json(body)
-    except Exception as exc:  # pydantic ValidationError or JSON errors
+    except (ValueError, RecursionError) as exc:  # pydantic ValidationError or JSON errors
         raise BadInput(f"bad JSON body: {str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__}; "
                        'expected {"params": {"name": value, ...}, "seed": 0}') from exc
     return "params", req.params, req.seed, req.edits
 
 
 async def read_json_object(request: Request, max_bytes: int = 65536) -> dict[str, Any]:
-    body = await request.body()
-    if len(body) > max_bytes:
-        raise TooLarge(f"request body over the limit of {max_bytes} bytes")
+    body = await read_body(request, max_bytes)
     try:
         data = json.loads(body or b"null")
-    except ValueError as exc:
-        raise BadInput(f"bad JSON body: {exc}") from exc
+    except (ValueError, RecursionError) as exc:
+        raise BadInput(f"bad JSON body: {str(exc)[:200] or type(exc).__name__}") from exc
     if not isinstance(data, dict):
         raise BadInput("the body must be a JSON object")
     return data
 
 
 def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], Any]], Any] | None = None,
-               studio_dir: str | Path | None = None) -> FastAPI:
+               studio_dir: str | Path | None = None, watchdog: Watchdog | None = None) -> FastAPI:
     """The FastAPI application over a :class:`Catalog`.
 
     ``run(fn)`` executes the blocking transfer (default: a worker thread), so the event loop keeps
     serving other requests. ``studio_dir``: the built studio bundle (default: ``$PROCTEX_STUDIO_DIR``,
-    else ``workers/studio/dist`` beside this file).
+    else ``workers/studio/dist`` beside this file). ``watchdog``: the transfers under way (default: a
+    new one whose stuck time is twice the catalog's transfer budget plus 30 s); ``/healthz`` answers
+    503 while one is stuck.
+
+    Transfers of one family run one at a time: a request waits for its turn in the event loop (no
+    worker thread is held while waiting), has ``max_seconds`` of work (a 422 past it), and is
+    cancelled when its client goes away.
     """
     dist = Path(studio_dir or os.environ.get("PROCTEX_STUDIO_DIR") or STUDIO_DIST)
     app = FastAPI(
@@ -154,6 +188,23 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         if run is not None:
             return await run(fn)
         return await asyncio.to_thread(fn)
+
+    dog = watchdog if watchdog is not None else Watchdog(2 * get_catalog().limits.max_seconds + 30)
+    gates: weakref.WeakKeyDictionary[Any, asyncio.Semaphore] = weakref.WeakKeyDictionary()
+
+    async def watched(fn: Callable[[], Any], request: Request, budget: Budget) -> Any:
+        """Run ``fn`` off the event loop; cancel its budget if the client disconnects meanwhile."""
+        task = asyncio.ensure_future(blocking(fn))
+        while True:
+            done, _ = await asyncio.wait({task}, timeout=0.25)
+            if done:
+                return task.result()
+            if not budget.cancelled and await request.is_disconnected():
+                budget.cancel()
+
+    @app.exception_handler(Exception)
+    async def any_error(request: Request, exc: Exception):
+        return error_response(exc)
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError):
@@ -187,9 +238,13 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
 
     # ------------------------------------------------------------------------------------ API
     @app.get("/healthz")
-    def healthz() -> dict[str, Any]:
+    def healthz():
         cat = get_catalog()
-        return {"status": "ok", "families": len(cat.names()), "loads": cat.loads}
+        info = {"families": len(cat.names()), "loads": cat.loads, "transfers_running": dog.running(),
+                "oldest_transfer_seconds": round(dog.oldest(), 3)}
+        if dog.stuck():
+            return JSONResponse({"status": "stuck", **info}, status_code=503)
+        return {"status": "ok", **info}
 
     @app.get("/v1/families")
     def families() -> dict[str, Any]:
@@ -200,7 +255,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         try:
             svc = await blocking(lambda: get_catalog().get(name))
             return svc.describe()
-        except (NotFound, BadInput, TooLarge) as exc:
+        except Exception as exc:
             return error_response(exc)
 
     @app.post(
@@ -217,6 +272,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         }}},
     )
     async def transfer(name: str, request: Request):
+        token = None
         try:
             cat = get_catalog()
             svc = await blocking(lambda: cat.get(name))
@@ -225,11 +281,21 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
 
             def work():
                 shape = svc.shape_from_params(payload) if kind == "params" else svc.shape_from_mesh(*payload)
-                return svc.transfer(shape, seed=seed, edits=edits)
+                budget.check("reading the shape")
+                return svc.transfer(shape, seed=seed, edits=edits, budget=budget)
 
-            data, summary = await blocking(work)
-        except (NotFound, BadInput, TooLarge) as exc:
+            gate = gates.setdefault(svc, asyncio.Semaphore(1))
+            async with gate:  # one transfer of this family at a time; the others wait here, not in a thread
+                if await request.is_disconnected():
+                    return _error(499, "the client went away before its transfer started")
+                budget = Budget(svc.limits.max_seconds)  # the budget counts from the turn, not the queue
+                token = dog.begin()
+                data, summary = await watched(work, request, budget)
+        except Exception as exc:
             return error_response(exc)
+        finally:
+            if token is not None:
+                dog.end(token)
         headers = {"X-ProcTex-Seconds": str(summary["seconds"]), "X-ProcTex-Notes": json.dumps(summary["notes"])[:2000],
                    "Content-Disposition": f'inline; filename="{name}.glb"'}
         return Response(content=data, media_type=GLB_MEDIA_TYPE, headers=headers)
@@ -248,7 +314,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             g = svc.group_index(group, missing=NotFound)
             edit = parse_edit({"hue": hue, "saturation": saturation, "value": value, "prompt": prompt}, svc.limits.max_prompt)
             data = await blocking(lambda: svc.thumbnail(g, edit, size))
-        except (NotFound, BadInput, TooLarge) as exc:
+        except Exception as exc:
             return error_response(exc)
         return Response(content=data, media_type="image/png", headers={"Cache-Control": "no-cache", "X-ProcTex-Stamp": svc.stamp})
 
@@ -267,7 +333,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             svc = await blocking(lambda: cat.get(name))
             body = await read_json_object(request)
             record, stamp = await blocking(lambda: (svc.persist_edit(body), build_stamp(svc.store)))
-        except (NotFound, BadInput, TooLarge) as exc:
+        except Exception as exc:
             return error_response(exc)
         cat.invalidate(name)
         return {"family": name, "edit": record, "stamp": stamp}

@@ -11,7 +11,7 @@ from typing import Any
 
 from ray import serve
 
-from proctex.family.service import Catalog, Limits
+from proctex.family.service import Catalog, Limits, Watchdog
 from workers.http import create_app
 
 
@@ -21,8 +21,9 @@ class TransferService:
     """One replica: the catalog of families under ``root`` (preloaded) behind the FastAPI app, which
     is built in the replica after the constructor (``__serve_build_asgi_app__``), bound to it."""
 
-    def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, int] | None = None, preload: bool = True) -> None:
+    def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True) -> None:
         self.catalog = Catalog(root, Limits(**(limits or {})), check_every)
+        self.watchdog = Watchdog(2 * self.catalog.limits.max_seconds + 30)
         if preload:
             for name in self.catalog.names():
                 try:
@@ -31,7 +32,13 @@ class TransferService:
                     pass  # not built yet: reported per request
 
     def __serve_build_asgi_app__(self):
-        return create_app(lambda: self.catalog)
+        return create_app(lambda: self.catalog, watchdog=self.watchdog)
+
+    def check_health(self) -> None:
+        """Serve's health check: a transfer stuck far past its budget fails it, so Serve replaces
+        this replica (``/healthz`` answers 503 meanwhile)."""
+        if self.watchdog.stuck():
+            raise RuntimeError(f"a transfer has run {self.watchdog.oldest():.0f} s (stuck after {self.watchdog.stuck_after:.0f} s)")
 
 
 def build_app(args: dict[str, Any]) -> Any:
@@ -41,7 +48,7 @@ def build_app(args: dict[str, Any]) -> Any:
     Args (all strings accepted, as from the command line): ``root`` (store root folder or URI,
     required); ``replicas`` (fixed count) or ``min_replicas``/``max_replicas``/``target_ongoing_requests``
     (autoscaling); ``max_ongoing_requests``; ``num_cpus`` per replica; ``check_every`` seconds;
-    ``max_bytes``/``max_vertices``/``max_faces`` request limits; ``preload``.
+    ``max_bytes``/``max_vertices``/``max_faces``/``max_parts``/``max_seconds`` request limits; ``preload``.
     """
     if not args.get("root"):
         raise ValueError("build_app needs args['root'], the family store root")
@@ -54,6 +61,8 @@ def build_app(args: dict[str, Any]) -> Any:
         }
     else:
         options["num_replicas"] = int(args.get("replicas", 1))
-    limits = {k: int(args[k]) for k in ("max_bytes", "max_vertices", "max_faces") if k in args}
+    limits: dict[str, Any] = {k: int(args[k]) for k in ("max_bytes", "max_vertices", "max_faces", "max_parts") if k in args}
+    if "max_seconds" in args:
+        limits["max_seconds"] = float(args["max_seconds"])
     preload = str(args.get("preload", "true")).lower() not in ("0", "false", "no")
     return TransferService.options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)), limits, preload)

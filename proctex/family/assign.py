@@ -3,6 +3,8 @@ frame onto its group representative's (:func:`assign_parts`; step 2 of :mod:`pro
 
 from __future__ import annotations
 
+import hashlib
+
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -13,6 +15,7 @@ from proctex.geometry.parts import Segmentation, part_mesh
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, normalised_frame, sample_surface
 from .assets import TemplateAssets, _box, _placement, same_topology
+from .budget import Budget
 
 
 @dataclass
@@ -52,7 +55,7 @@ def choose_part(assignment: Sequence[PartAssignment], group: int) -> PartAssignm
 
 def assign_parts(
     shape: Shape, seg: Segmentation, assets: TemplateAssets, w_extent: float = 1.0, extra_cost: float = 0.6, extra_tol: float = 0.02,
-    box_cost: float = 1.2,
+    box_cost: float = 1.2, budget: Budget | None = None,
 ) -> list[PartAssignment]:
     """Assign each part of a shape to a template slot (see the module docstring).
 
@@ -64,6 +67,11 @@ def assign_parts(
     the same primitive in other proportions (:func:`match_box`), the group it fits by ICP
     (:func:`match_extra`, alignment error at most ``extra_tol``); otherwise it forms a group of its
     own ("new"), which :func:`proctex.family.transfer.transfer` paints with the family's painter.
+
+    The ICP fit depends on the part's shape alone, so identical left-over parts (the same faces and
+    the same normalised vertices: copies that differ by a translation and a scale) are fitted once.
+    ``budget`` (:class:`proctex.family.budget.Budget`) is checked before each left-over part's
+    matching; past it the assignment stops with :class:`~proctex.family.budget.OverBudget`.
     """
     lo, size = _box(shape.vertices)
     parts = [p for p in seg.parts if not p.degenerate]
@@ -95,8 +103,12 @@ def assign_parts(
     # Slotted parts' meshes, for copies among the left-over parts: only when there are any (the
     # common case, every part in a slot, pays nothing).
     slotted = [(a, *part_mesh(shape, parts[i])) for i, a in slot_of.items()] if len(taken) < len(parts) else []
+    fitted: dict[bytes, tuple[int, np.ndarray, np.ndarray, float]] = {}  # shape key -> match_extra's answer
+    n_left = len(parts) - len(taken)
     for i, p in enumerate(parts):
         if i not in taken:
+            if budget is not None:
+                budget.check(f"matching {n_left} parts the template has no slot for")
             # A part the template has no place for: the group it matches best by ICP, if any. Groups
             # whose representative has this part's exact connectivity are the only candidates when
             # there are any (an extra slat is a copy of the slat primitive): one ICP, not one per group.
@@ -116,7 +128,10 @@ def assign_parts(
             if box is not None:  # the same primitive in other proportions (a wider tier, a longer leg)
                 out.append(PartAssignment(p.index, box.group, -1, box.A, box.score, "extra"))
                 continue
-            g, R, t, err = match_extra(u, f, assets, groups=same or None)
+            key = hashlib.sha1(f.tobytes() + (np.round(u, 6) + 0.0).tobytes()).digest()
+            if key not in fitted:
+                fitted[key] = match_extra(u, f, assets, groups=same or None)
+            g, R, t, err = fitted[key]
             if err <= extra_tol:
                 out.append(PartAssignment(p.index, g, -1, R, err, "extra", t))
             else:

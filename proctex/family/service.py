@@ -20,6 +20,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 import threading
 import time
 from collections import OrderedDict
@@ -27,6 +28,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from .budget import OverBudget
 from .store import FamilyStore, StoreLayout
 
 
@@ -44,12 +46,24 @@ class TooLarge(ValueError):
 
 @dataclass
 class Limits:
-    """Request limits: body bytes, mesh vertices and faces, characters of an edit prompt."""
+    """Request limits: body bytes, mesh vertices, faces and parts (connected components), characters
+    of an edit prompt, and seconds of work per transfer (the request's
+    :class:`~proctex.family.budget.Budget`)."""
 
     max_bytes: int = 32 * 2**20
     max_vertices: int = 500_000
     max_faces: int = 1_000_000
     max_prompt: int = 200
+    max_parts: int = 512
+    max_seconds: float = 30.0
+
+    def __post_init__(self) -> None:
+        for name in ("max_bytes", "max_vertices", "max_faces", "max_prompt", "max_parts"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"limit {name} must be a positive integer, got {value!r}")
+        if not (isinstance(self.max_seconds, (int, float)) and math.isfinite(self.max_seconds) and self.max_seconds > 0):
+            raise ValueError(f"limit max_seconds must be a positive number, got {self.max_seconds!r}")
 
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
@@ -206,9 +220,23 @@ class FamilyService:
         if not isinstance(params, dict):
             raise BadInput("params must be a JSON object of parameter values")
         try:
-            return self.model.generate(params)
-        except ValueError as exc:
-            raise BadInput(str(exc)) from exc
+            shape = self.model.generate(params)
+        except (ValueError, OverflowError, RecursionError) as exc:
+            raise BadInput(str(exc)[:500] or type(exc).__name__) from exc
+        return self.check_shape(shape)
+
+    def check_shape(self, shape):
+        """``shape`` if within the limits on vertices, faces (:class:`TooLarge`) and parts
+        (:class:`BadInput`: every part beyond the template's is matched on its own)."""
+        from proctex.geometry.parts import connected_parts
+
+        if shape.n_vertices > self.limits.max_vertices or shape.n_faces > self.limits.max_faces:
+            raise TooLarge(f"mesh has {shape.n_vertices} vertices and {shape.n_faces} faces; limits are "
+                           f"{self.limits.max_vertices} and {self.limits.max_faces}")
+        n_parts = connected_parts(shape.faces, shape.n_vertices)[2]
+        if n_parts > self.limits.max_parts:
+            raise BadInput(f"mesh has {n_parts} parts (connected components); the limit is {self.limits.max_parts}")
+        return shape
 
     def shape_from_mesh(self, data: bytes, filename: str = "mesh.obj"):
         from proctex.geometry.meshio import load_mesh_bytes
@@ -226,24 +254,23 @@ class FamilyService:
         except Exception as exc:  # ValueError, or a parser crashing on garbage: the client's bad mesh
             text = str(exc).replace(name, Path(filename or "mesh").name)[:300]
             raise BadInput(f"cannot read the mesh: {text if isinstance(exc, ValueError) else exc.__class__.__name__ + ': ' + text}") from exc
-        if shape.n_vertices > self.limits.max_vertices or shape.n_faces > self.limits.max_faces:
-            raise TooLarge(f"mesh has {shape.n_vertices} vertices and {shape.n_faces} faces; limits are "
-                           f"{self.limits.max_vertices} and {self.limits.max_faces}")
-        return shape
+        return self.check_shape(shape)
 
-    def transfer(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None) -> tuple[bytes, dict[str, Any]]:
+    def transfer(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None, budget: Any = None) -> tuple[bytes, dict[str, Any]]:
         """Textured GLB bytes of ``shape`` and a summary (timings, notes); see :meth:`textured`."""
-        answer, summary = self.textured(shape, seed, edits)
+        answer, summary = self.textured(shape, seed, edits, budget=budget)
         return answer.data, summary
 
     def textured(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None,
-                 bake_size: int | None = None) -> tuple[Any, dict[str, Any]]:
+                 bake_size: int | None = None, budget: Any = None) -> tuple[Any, dict[str, Any]]:
         """``shape`` textured by the family (:func:`proctex.family.transfer.shape_to_glb`, a
         :class:`~proctex.family.transfer.TexturedGLB`) and a summary (timings, notes).
 
         ``edits`` ({group index: :class:`GroupEdit`}, see :meth:`parse_edits`) use edited copies of
         those group textures in this GLB only; the family is unchanged. ``bake_size``: give the shape
-        its own atlas of that size instead of the template's textures."""
+        its own atlas of that size instead of the template's textures. ``budget``
+        (:class:`proctex.family.budget.Budget`): past it, or cancelled, the transfer stops with
+        :class:`~proctex.family.budget.OverBudget`."""
         from .transfer import info, shape_to_glb
 
         t0 = time.perf_counter()
@@ -256,7 +283,10 @@ class FamilyService:
         t_edit = time.perf_counter() - t0
         with self.lock:
             try:
-                answer = shape_to_glb(shape, assets, self.mapper, seed=seed, painter=self.painter, up=self.up, bake_size=bake_size)
+                answer = shape_to_glb(shape, assets, self.mapper, seed=seed, painter=self.painter, up=self.up, bake_size=bake_size,
+                                      budget=budget)
+            except OverBudget:
+                raise
             except ValueError as exc:
                 raise BadInput(f"cannot texture this shape: {exc}") from exc
         summary = {**info(answer.result), "seconds": round(time.perf_counter() - t0, 4), "faces": shape.n_faces, "vertices": shape.n_vertices,
@@ -381,6 +411,44 @@ class FamilyService:
                 raise BadInput(str(exc)) from exc
 
 
+class Watchdog:
+    """The transfers under way in this process, to tell a stuck one from a busy one: a transfer
+    running longer than ``stuck_after`` seconds (far past its budget: the budget is checked between
+    steps, so only a step that never returns gets there) marks the process unhealthy."""
+
+    def __init__(self, stuck_after: float = 90.0) -> None:
+        self.stuck_after = stuck_after
+        self._running: dict[int, float] = {}
+        self._lock = threading.Lock()
+        self._next = 0
+
+    def begin(self) -> int:
+        with self._lock:
+            self._next += 1
+            self._running[self._next] = time.monotonic()
+            return self._next
+
+    def end(self, token: int) -> None:
+        with self._lock:
+            self._running.pop(token, None)
+
+    def running(self) -> int:
+        with self._lock:
+            return len(self._running)
+
+    def oldest(self) -> float:
+        """Seconds the longest-running transfer has run (0 when none runs)."""
+        with self._lock:
+            return time.monotonic() - min(self._running.values()) if self._running else 0.0
+
+    def stuck(self) -> bool:
+        return self.oldest() > self.stuck_after
+
+
+#: Family names the catalog serves: a folder name, no path, no oddities.
+FAMILY_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
+
+
 class Catalog:
     """The families under a root folder or URI, served from a cache reloaded on rebuilds.
 
@@ -398,7 +466,7 @@ class Catalog:
     def names(self) -> list[str]:
         """Families under the root (sub-folders holding a family.json), sorted."""
         try:
-            return [n for n in self.root.listdir() if self._is_family(n)]
+            return [n for n in self.root.listdir() if FAMILY_NAME.fullmatch(n) and self._is_family(n)]
         except OSError:
             return []
 
@@ -406,8 +474,9 @@ class Catalog:
         return not name.startswith(".") and self.root.exists(f"{name}/{StoreLayout.STATE}")
 
     def store(self, name: str) -> FamilyStore:
-        if not name or "/" in name or name.startswith(".") or not self._is_family(name):
-            raise NotFound(f"unknown family {name!r}; families: {', '.join(self.names()) or '(none)'}")
+        if not isinstance(name, str) or not FAMILY_NAME.fullmatch(name) or not self._is_family(name):
+            shown = name if isinstance(name, str) and len(name) <= 80 else f"{str(name)[:80]}..."
+            raise NotFound(f"unknown family {shown!r}; families: {', '.join(self.names()) or '(none)'}")
         return FamilyStore(self.root.uri.rstrip("/") + "/" + name)
 
     def invalidate(self, name: str) -> None:

@@ -39,6 +39,7 @@ from proctex.geometry.shape import Shape
 from proctex.texture.uv import pad_seams, sample_texture, texel_map, unwrap
 from .assets import TemplateAssets, same_topology
 from .assign import PartAssignment, assign_parts, representative_frame
+from .budget import Budget
 from .mappers import Mapper
 from .uvlookup import _side_normals, chart_lookups, part_uvs
 
@@ -71,7 +72,7 @@ class TransferResult:
 
 
 def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256,
-             shortcut: bool = True) -> TransferResult:
+             shortcut: bool = True, budget: Budget | None = None) -> TransferResult:
     """UVs of ``shape`` into the template textures (module docstring, steps 1-4).
 
     ``shortcut``: parts with their representative's exact connectivity take its UVs directly (exact
@@ -80,13 +81,16 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
     Parts of a group the template does not have ("new") get a texture of their own, painted by
     ``painter`` (the family's surface painter; the template's textures are untouched), at
     ``new_size``; without a painter they stay untextured (group -1) and a note says so.
+
+    ``budget`` (:class:`proctex.family.budget.Budget`) is checked between parts; past its deadline,
+    or cancelled, the transfer stops with :class:`~proctex.family.budget.OverBudget`.
     """
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     seg = segment(shape)
     t1 = time.perf_counter()
     timings["segment"] = t1 - t0
-    assignment = assign_parts(shape, seg, assets)
+    assignment = assign_parts(shape, seg, assets, budget=budget)
     t2 = time.perf_counter()
     timings["assign"] = t2 - t1
     corner = np.zeros((shape.n_faces, 3, 2))
@@ -98,6 +102,8 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
     for a in assignment:
         if a.group < 0:
             continue
+        if budget is not None:
+            budget.check(f"mapping {len(assignment)} parts")
         part = seg.parts[a.part]
         ga = assets.groups[a.group]
         v, f = part_mesh(shape, part)
@@ -342,14 +348,16 @@ class TexturedGLB:
 
 
 def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, up: str = "y",
-                 bake_size: int | None = None, shortcut: bool = True) -> TexturedGLB:
+                 bake_size: int | None = None, shortcut: bool = True, budget: Budget | None = None) -> TexturedGLB:
     """The run-time path, shape in, GLB out: :func:`transfer` with ``mapper`` (``painter`` colours
     parts of groups the template lacks), then the GLB (:func:`glb`, the template's encoded PNGs), or
     with ``bake_size`` the shape's own atlas and textures (:func:`bake`). The command line, the
-    service, the demo and the evaluation all answer with this."""
+    service, the demo and the evaluation all answer with this. ``budget``: see :func:`transfer`."""
     from proctex.texture.export import glb_bytes
 
-    result = transfer(shape, assets, mapper, seed=seed, painter=painter, shortcut=shortcut)
+    result = transfer(shape, assets, mapper, seed=seed, painter=painter, shortcut=shortcut, budget=budget)
+    if budget is not None:
+        budget.check("encoding the answer")
     if bake_size:
         baked = bake(shape, result, assets, size=bake_size)
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]

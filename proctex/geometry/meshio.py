@@ -228,15 +228,35 @@ def _union_find(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
+#: Most vertex pairs within the weld tolerance per distinct position before a mesh is refused: a real
+#: mesh has a few near-duplicates per position (seams, soups), an attack crams thousands into one spot.
+MAX_NEAR_PAIRS_PER_VERTEX = 64
+
+
 def position_ids(vertices: np.ndarray, tol: float) -> np.ndarray:
-    """(n,) int64 id per vertex, equal for vertices within ``tol`` of each other (transitively)."""
+    """(n,) int64 id per vertex, equal for vertices within ``tol`` of each other (transitively).
+
+    Exact duplicates are merged first (memory linear in ``n`` however many share a position); the
+    near pairs among the distinct positions are counted before they are listed, and more than
+    :data:`MAX_NEAR_PAIRS_PER_VERTEX` per position is a ``ValueError`` (a cluster of thousands of
+    vertices within ``tol`` would need memory quadratic in its size)."""
     n = len(vertices)
     if n == 0:
         return np.zeros(0, np.int64)
-    pairs = cKDTree(vertices).query_pairs(tol, output_type="ndarray")
+    distinct, inverse = np.unique(np.asarray(vertices, dtype=np.float64), axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    tree = cKDTree(distinct)
+    near = (int(tree.count_neighbors(tree, tol)) - len(distinct)) // 2  # unordered pairs, self-pairs left out
+    if near > MAX_NEAR_PAIRS_PER_VERTEX * len(distinct) + 1000:
+        raise ValueError(f"{near} pairs of distinct vertices lie within {tol:g} of each other ({len(distinct)} positions): "
+                         "too many coincident vertices to weld")
+    pairs = tree.query_pairs(tol, output_type="ndarray")
     if len(pairs) == 0:
-        return np.arange(n, dtype=np.int64)
-    return _union_find(n, pairs[:, 0], pairs[:, 1])
+        labels = np.arange(len(distinct), dtype=np.int64)
+    else:
+        labels = _union_find(len(distinct), pairs[:, 0], pairs[:, 1])
+    # Components numbered as before (first vertex order does not matter to callers: ids are labels).
+    return labels[inverse].astype(np.int64)
 
 
 def _pair_around_edge(vertices: np.ndarray, faces: np.ndarray, he_face: np.ndarray, pa: int, pb: int) -> list[tuple[int, int]]:

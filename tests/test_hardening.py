@@ -1,0 +1,248 @@
+"""Hostile but legitimate input (issue 18): bounded work per request, every error a JSON answer, no
+memory blow-up from coincident vertices, budgets that stop work between steps."""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+import threading
+
+import numpy as np
+import pytest
+
+from proctex.family.budget import Budget, OverBudget
+from proctex.family.config import BuildConfig
+from proctex.family.service import Catalog, Limits, Watchdog
+from proctex.family.stages import load_assets, stage_paint, stage_sample, stage_template, write_config
+from proctex.family.store import FamilyStore
+from proctex.geometry.meshio import load_mesh_bytes, obj_text, position_ids
+from proctex.models import get_model
+
+fastapi = pytest.importorskip("fastapi")
+from fastapi.testclient import TestClient  # noqa: E402
+
+from workers.http import create_app  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    """A painted mug family (no networks: the identity mapper serves it)."""
+    base = tmp_path_factory.mktemp("families")
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="blue ceramic"))
+    st = FamilyStore(base / "mug")
+    write_config(st, cfg)
+    for stage in (stage_sample, stage_template, stage_paint):
+        stage(st, cfg, log=lambda *_: None)
+    return base
+
+
+def _client(root, **limits):
+    cat = Catalog(str(root), Limits(**{"max_bytes": 2_000_000, **limits}), check_every=0)
+    return TestClient(create_app(lambda: cat)), cat
+
+
+def _triangle_copies(n: int, spread: float = 0.2, seed: int = 0) -> bytes:
+    """An OBJ of ``n`` copies of one small triangle scattered around the mug."""
+    rng = np.random.default_rng(seed)
+    tri = np.array([[0.0, 0.0, 0.0], [0.004, 0.0, 0.0], [0.0, 0.004, 0.002]])
+    verts = np.concatenate([tri + rng.uniform(-spread, spread, 3) for _ in range(n)])
+    faces = np.arange(3 * n).reshape(n, 3)
+    return obj_text(verts, faces).encode()
+
+
+def _distinct_boxes(n: int, seed: int = 0) -> bytes:
+    """The mug plus ``n`` boxes of different proportions beside it: parts the template has no slot
+    for, each unlike the others (no shortcut: each is matched on its own)."""
+    from proctex.geometry.primitives import box
+
+    rng = np.random.default_rng(seed)
+    mug = get_model("mug").generate()
+    verts, faces, off = [mug.vertices], [mug.faces], mug.n_vertices
+    for _ in range(n):
+        b = box(rng.uniform(0.005, 0.03, 3))
+        v = b.vertices + rng.uniform(-0.15, 0.15, 3)
+        verts.append(v)
+        faces.append(b.faces + off)
+        off += len(v)
+    return obj_text(np.concatenate(verts), np.concatenate(faces)).encode()
+
+
+# ------------------------------------------------------------------------------------------ meshes
+def test_weld_ids_equal_a_brute_force_reference_and_coincident_clusters_cost_linear_memory():
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(0, 1, (300, 3))
+    pts = np.concatenate([pts, pts[:50], pts[:20] + 1e-9, rng.uniform(0, 1, (30, 3))])
+    tol = 0.02
+    ids = position_ids(pts, tol)
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=2) <= tol  # brute force: transitive closure of "within tol"
+    from scipy.sparse.csgraph import connected_components
+
+    _, ref = connected_components(d, directed=False)
+    same = ids[:, None] == ids[None]
+    assert np.array_equal(same, ref[:, None] == ref[None])
+    # 12,000 vertices at three positions (an STL soup of one triangle 4,000 times) weld to three.
+    many = np.repeat(np.eye(3) * 1e-7, 4000, axis=0)
+    assert len(np.unique(position_ids(many, 1e-6))) == 1
+    # Thousands of distinct vertices crammed within the tolerance: refused, not listed pair by pair.
+    cloud = rng.uniform(0, 1e-7, (5000, 3))
+    with pytest.raises(ValueError, match="too many coincident vertices"):
+        position_ids(cloud, 1e-6)
+
+
+def test_an_stl_of_one_triangle_four_thousand_times_loads_in_linear_memory():
+    tri = np.array([[0, 0, 0], [1e-7, 0, 0], [0, 1e-7, 0]], dtype=np.float32)
+    stl = b"\0" * 80 + struct.pack("<I", 4000) + b"".join(struct.pack("<12fH", 0, 0, 1, *tri.reshape(-1), 0) for _ in range(4000))
+    try:
+        shape, _ = load_mesh_bytes(stl, "soup.stl")
+        assert shape.n_faces <= 4000
+    except ValueError as exc:  # degenerate after welding is a clear refusal too
+        assert "faces" in str(exc) or "coincident" in str(exc)
+
+
+# ------------------------------------------------------------------------------------------ budgets
+def test_a_budget_stops_between_steps_and_a_cancel_names_itself():
+    b = Budget(seconds=None)
+    b.check("nothing")
+    b.cancel()
+    with pytest.raises(OverBudget, match="cancelled while mapping") as info:
+        b.check("mapping")
+    assert info.value.cancelled
+    over = Budget(seconds=1e-9)
+    with pytest.raises(OverBudget, match="time budget") as info:
+        over.check("matching")
+    assert not info.value.cancelled
+    with pytest.raises(ValueError):
+        Budget(seconds=0)
+
+
+def test_transfer_checks_its_budget_and_identical_extra_parts_are_fitted_once(root, monkeypatch):
+    import proctex.family.assign as assign
+    from proctex.family.mappers import IdentityMapper
+    from proctex.family.transfer import transfer
+
+    assets = load_assets(FamilyStore(root / "mug"))
+    mug = get_model("mug").generate()
+    odd = np.array([[0, 0, 0], [0.02, 0, 0], [0, 0.03, 0], [0, 0, 0.01]], dtype=float)  # a small tetrahedron
+    tf = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    verts, faces = [mug.vertices], [mug.faces]
+    for k in range(6):  # six translated copies
+        faces.append(tf + sum(len(v) for v in verts))
+        verts.append(odd + [0.2 + 0.05 * k, 0.0, 0.0])
+    from proctex.geometry.shape import Shape
+
+    shape = Shape(np.concatenate(verts), np.concatenate(faces))
+    calls = []
+    real = assign.match_extra
+    monkeypatch.setattr(assign, "match_extra", lambda u, f, *a, **k: calls.append(len(f)) or real(u, f, *a, **k))
+    result = transfer(shape, assets, IdentityMapper())
+    assert calls.count(4) <= 1  # six copies of the tetrahedron, one fit (or none when a cheaper test placed them)
+    assert len([a for a in result.assignment if a.part >= 2]) == 6
+    cancelled = Budget()
+    cancelled.cancel()
+    with pytest.raises(OverBudget):
+        transfer(shape, assets, IdentityMapper(), budget=cancelled)
+
+
+# ------------------------------------------------------------------------------------------- HTTP
+def test_four_thousand_tiny_parts_are_refused_before_any_matching(root):
+    c, _ = _client(root)
+    r = c.post("/v1/families/mug/transfer", files={"mesh": ("many.obj", _triangle_copies(4000))})
+    assert r.status_code == 422 and "4000 parts" in r.json()["error"]
+
+
+def test_a_transfer_past_its_budget_is_a_422_and_the_other_routes_answer_meanwhile(root):
+    c, cat = _client(root, max_seconds=3.0)
+    body = _distinct_boxes(120)
+    order: list[str] = []
+    answers: dict[str, int] = {}
+
+    def slow():
+        r = c.post("/v1/families/mug/transfer", files={"mesh": ("boxes.obj", body)})
+        answers["transfer"] = r.status_code
+        answers["transfer_error"] = r.json().get("error", "") if r.status_code != 200 else ""
+        order.append("transfer")
+
+    t = threading.Thread(target=slow)
+    t.start()
+    for _ in range(200):  # wait until the transfer is under way
+        if c.get("/healthz").json()["transfers_running"]:
+            break
+        threading.Event().wait(0.02)
+    for route in ("/healthz", "/v1/families", "/v1/families/mug", "/v1/families/mug/groups/0/texture.png?size=16"):
+        r = c.get(route)
+        answers[route] = r.status_code
+        order.append(route)
+    t.join(timeout=120)
+    assert not t.is_alive()
+    assert all(answers[r] == 200 for r in ("/healthz", "/v1/families", "/v1/families/mug", "/v1/families/mug/groups/0/texture.png?size=16"))
+    if answers["transfer"] == 422:  # the budget stopped it: the other routes were answered first
+        assert "time budget" in answers["transfer_error"]
+        assert order.index("transfer") == len(order) - 1
+    else:  # a fast machine finished within the budget
+        assert answers["transfer"] == 200
+
+
+@pytest.mark.parametrize(
+    "method, path, kwargs, status",
+    [
+        ("post", "/v1/families/mug/transfer", {"json": {"params": {"radius": int("9" * 400)}}}, 422),
+        ("post", "/v1/families/mug/transfer", {"json": {"params": {}, "seed": int("9" * 400)}}, 422),
+        ("post", "/v1/families/mug/transfer", {"content": b'{"params": ' + b"[" * 3000 + b"]" * 3000 + b"}",
+                                                "headers": {"content-type": "application/json"}}, 422),
+        ("post", "/v1/families/mug/transfer", {"files": {"mesh": ("m.obj", b"v 0 0 0\n")}, "data": {"seed": "9" * 400}}, 422),
+        ("post", "/v1/families/mug/transfer", {"files": {"mesh": ("m.obj", b"v 0 0 0\n")}, "data": {"edits": "[" * 5000}}, 422),
+        ("get", "/v1/families/mug/groups/0/texture.png?hue=" + "9" * 400, {}, 422),
+        ("get", "/v1/families/mug/groups/0/texture.png?size=" + "9" * 400, {}, 422),
+        ("get", "/v1/families/" + "a" * 1500, {}, 404),
+        ("get", "/v1/families/a%5Cb", {}, 404),
+        ("get", "/v1/families/a%00b", {}, 404),
+        ("post", "/v1/families/" + "x" * 2000 + "/transfer", {"json": {"params": {}}}, 404),
+        ("post", "/v1/families/mug/edits", {"content": b"[" * 5000, "headers": {"content-type": "application/json"}}, 422),
+    ],
+)
+def test_hostile_requests_get_json_errors_not_tracebacks(root, method, path, kwargs, status):
+    c, _ = _client(root)
+    r = getattr(c, method)(path, **kwargs)
+    assert r.status_code == status, r.text[:300]
+    assert r.headers["content-type"].startswith("application/json") and "error" in r.json()
+
+
+def test_a_body_without_content_length_is_cut_off_at_the_limit(root):
+    c, _ = _client(root, max_bytes=10_000)
+
+    def chunks():
+        for _ in range(100):
+            yield b"x" * 1000
+
+    r = c.post("/v1/families/mug/transfer", content=chunks(), headers={"content-type": "application/json"})
+    assert r.status_code == 413 and "limit" in r.json()["error"]
+
+
+def test_an_unexpected_error_is_a_json_500_naming_its_type(root, monkeypatch):
+    c, cat = _client(root)
+    svc = cat.get("mug")
+    monkeypatch.setattr(svc, "describe", lambda: {}["missing"])
+    r = c.get("/v1/families/mug")
+    assert r.status_code == 500 and r.json()["error"].startswith("internal error (KeyError)")
+
+
+def test_a_stuck_transfer_turns_healthz_to_503(root):
+    dog = Watchdog(stuck_after=0.0)
+    cat = Catalog(str(root), Limits(), check_every=0)
+    c = TestClient(create_app(lambda: cat, watchdog=dog))
+    assert c.get("/healthz").json()["status"] == "ok"
+    token = dog.begin()
+    threading.Event().wait(0.01)
+    r = c.get("/healthz")
+    assert r.status_code == 503 and r.json()["status"] == "stuck" and r.json()["transfers_running"] == 1
+    dog.end(token)
+    assert c.get("/healthz").status_code == 200
+
+
+def test_limits_refuse_nonsense():
+    for bad in ({"max_parts": 0}, {"max_seconds": float("nan")}, {"max_bytes": -1}, {"max_faces": True}):
+        with pytest.raises(ValueError):
+            Limits(**bad)
+    assert json.dumps(Limits().__dict__)
+    assert io
