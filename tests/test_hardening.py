@@ -246,3 +246,56 @@ def test_limits_refuse_nonsense():
             Limits(**bad)
     assert json.dumps(Limits().__dict__)
     assert io
+
+
+# -------------------------------------------------------------------------------------------- CLI
+def _cli(argv, capsys):
+    from proctex.cli import main
+
+    code = main(argv)
+    err = capsys.readouterr().err
+    return code, err
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--params", "[" * 5000 + "]" * 5000], "error:"),
+        (["--params", '{"radius": ' + "9" * 400 + "}"], "error:"),
+        (["--params", '{"radius": 1e999}'], "error:"),
+        (["--mesh", "/nonexistent/x.obj"], "error:"),
+    ],
+)
+def test_cli_transfer_bad_input_is_an_error_line_and_writes_nothing(root, tmp_path, capsys, extra, message):
+    out = tmp_path / "x.glb"
+    code, err = _cli(["transfer", str(root / "mug"), *extra, "--out", str(out)], capsys)
+    assert code == 2 and err.startswith(message) and "Traceback" not in err
+    assert not out.exists() and not list(tmp_path.glob(".*tmp"))
+
+
+def test_cli_outputs_are_checked_before_any_work(root, tmp_path, capsys):
+    fam = str(root / "mug")
+    out = tmp_path / "x.glb"
+    out.write_bytes(b"keep me")
+    code, err = _cli(["transfer", fam, "--params", "{}", "--out", str(out)], capsys)
+    assert code == 2 and "--force" in err and out.read_bytes() == b"keep me"
+    code, err = _cli(["transfer", fam, "--params", "{}", "--out", str(out), "--force"], capsys)
+    assert code == 0 and out.read_bytes()[:4] == b"glTF"
+    (tmp_path / "dir.glb").mkdir()
+    for bad in (str(tmp_path / "dir.glb"), "/proc/nope/x.glb", str(out / "under_a_file.glb")):
+        code, err = _cli(["transfer", fam, "--params", "{}", "--out", bad], capsys)
+        assert code == 2 and err.startswith("error:"), (bad, err)
+    assert not [p for p in tmp_path.rglob("*") if p.name.endswith(".tmp")]
+    code, err = _cli(["segment", "mug", "--tol", "nan"], capsys)
+    assert code == 2 and "--tol" in err
+
+
+def test_a_config_with_a_nan_seed_is_refused_before_the_store_is_touched(tmp_path, capsys):
+    cfg = tmp_path / "bad.json"
+    cfg.write_text('{"model": "mug", "seed": NaN}')
+    code, err = _cli(["build", str(cfg), "--out", str(tmp_path / "fam")], capsys)
+    assert code == 2 and "seed" in err
+    assert not (tmp_path / "fam" / "family.json").exists()
+    for bad in ({"model": "mug", "n_train": 2.5}, {"model": "mug", "seed": -1}, {"model": "mug", "paint": {"texture_size": 1e9}}):
+        with pytest.raises(ValueError):
+            BuildConfig.from_dict(bad)

@@ -7,6 +7,7 @@ status 2, without writing partial output.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from proctex.family.config import PRESETS
@@ -99,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--up", choices=["auto", "x", "y", "z"], default="auto", help="up axis (auto: y for OBJ/glTF files, else z)")
     p.add_argument("--obj", action="store_true", help="also write OBJ + MTL")
     p.add_argument("--preview", metavar="PNG", help="also write a 512px 3/4 view of the painted template to this .png")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --preview")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_paint)
@@ -143,6 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mapper", choices=["auto", "net", "cage", "nearest", "identity"], default="auto")
     p.add_argument("--bake", type=int, default=0, help="bake into the shape's own atlas at this size (0: read the template textures)")
     p.add_argument("--preview", metavar="PNG", help="also write a 512px 3/4 view of the textured shape to this .png")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out / --preview")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_transfer)
@@ -150,6 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("render", help="render a textured GLB (e.g. a transfer result) to a PNG, or a turntable GIF")
     p.add_argument("file", metavar="FILE.glb", help="textured .glb (or .gltf) file")
     p.add_argument("--out", help="output .png (or .gif with --views turntable); default: FILE with a .png suffix")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     p.add_argument("--size", type=int, default=512, help="pixels per view (square)")
     p.add_argument("--views", choices=["front", "six", "turntable"], default="front",
                    help="front: one 3/4 view; six: the six canonical views (3x2, labelled); turntable: --frames views around the up axis")
@@ -220,13 +224,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: What a command may fail with on bad input or a bad place to write: an ``error: ...`` line, exit 2.
+USER_ERRORS = (ValueError, OSError, OverflowError, RecursionError, MemoryError, UnicodeError)
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
-    """Parse and run a command; bad input (``ValueError``) prints ``error: ...`` and returns 2."""
+    """Parse and run a command. Bad input, an unwritable output or a number too large prints
+    ``error: ...`` and returns 2; anything else prints ``error: internal error (Type): ...`` and
+    returns 2 too (``PROCTEX_DEBUG=1`` shows the traceback instead). Ctrl-C returns 130."""
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+    except USER_ERRORS as exc:
+        print(f"error: {str(exc)[:2000] or type(exc).__name__}", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        if os.environ.get("PROCTEX_DEBUG"):
+            raise
+        print(f"error: internal error ({type(exc).__name__}): {str(exc)[:500]}", file=sys.stderr)
         return 2
 
 

@@ -4,6 +4,7 @@ preview path check."""
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -45,3 +46,31 @@ def _pair(text: str | None, what: str, n: int = 2) -> tuple[float, ...] | None:
     if len(vals) != n:
         raise ValueError(f"{what} needs {n} numbers, got {text!r}")
     return vals
+
+
+def check_output_file(path: str | None, force: bool, what: str = "--out") -> None:
+    """Refuse an output file path before any work: a folder, a parent that is a file or not
+    writable, or (without ``--force``) an existing file. ``None`` passes."""
+    if path is None:
+        return
+    p = Path(path)
+    if p.is_dir():
+        raise ValueError(f"{what} {path!r} is a folder; name a file")
+    if p.exists() and not force:
+        raise ValueError(f"{what} {path!r} exists; pass --force to overwrite it")
+    parent = p.parent if str(p.parent) else Path(".")
+    probe = parent
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ValueError(f"{what} {path!r}: {probe} is not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ValueError(f"{what} {path!r}: cannot write in {probe}")
+
+
+def finite(name: str, value: float, lo: float | None = None, hi: float | None = None) -> float:
+    """``value`` if finite and within [lo, hi]; else a ``ValueError`` naming the flag."""
+    if not math.isfinite(value) or (lo is not None and value < lo) or (hi is not None and value > hi):
+        bounds = f" in [{lo:g}, {hi:g}]" if lo is not None and hi is not None else (f" >= {lo:g}" if lo is not None else "")
+        raise ValueError(f"{name} must be a finite number{bounds}, got {value!r}")
+    return value

@@ -15,7 +15,7 @@ from proctex.geometry.meshio import load_mesh
 from proctex.models import get_model, list_models
 from proctex.progress import track
 
-from .common import _check_preview_path, _group_prompts, _pair, _print_json
+from .common import _check_preview_path, _group_prompts, _pair, _print_json, check_output_file
 
 
 def _build_config(args: argparse.Namespace):
@@ -78,24 +78,31 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     if not args.out.endswith(".glb"):
         raise ValueError("--out must name a .glb file")
     _check_preview_path(args.preview)
+    check_output_file(args.out, args.force)
+    check_output_file(args.preview, args.force, "--preview")
+    if args.preview and os.path.abspath(args.preview) == os.path.abspath(args.out):
+        raise ValueError("--preview and --out name the same file")
     t0 = time.perf_counter()
     svc = FamilyService(store, mapper=args.mapper)
     t1 = time.perf_counter()
     answer, _ = svc.textured(shape, seed=args.seed, bake_size=args.bake or None)
-    from proctex.fileio import atomic_write
     from proctex.family.transfer import info
+    from proctex.fileio import atomic_write, encode_png
 
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(args.out, answer.data)
     result = answer.result
     summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(svc.mapper).__name__, "out": args.out, "bytes": len(answer.data)}
-    if args.preview:
-        from proctex.texture.render import render_three_quarter, save_png
+    preview = None
+    if args.preview:  # rendered before anything is written: a failing preview leaves no GLB behind
+        from proctex.texture.render import render_three_quarter
 
-        image = render_three_quarter(shape.vertices, shape.faces, answer.corner_uv, answer.face_group, answer.textures, up=config.up_axis(), size=512)
-        Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
-        save_png(args.preview, image)
+        preview = encode_png(render_three_quarter(shape.vertices, shape.faces, answer.corner_uv, answer.face_group, answer.textures,
+                                                  up=config.up_axis(), size=512))
         summary["preview"] = args.preview
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(args.out, answer.data)
+    if preview is not None:
+        Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(args.preview, preview)
     if args.json:
         _print_json(summary)
     else:

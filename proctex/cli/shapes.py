@@ -19,7 +19,7 @@ from proctex.models import get_model, list_models
 from proctex.params import select_template
 from proctex.progress import track
 
-from .common import _check_preview_path, _group_prompts, _print_json
+from .common import _check_preview_path, _group_prompts, _print_json, check_output_file, finite
 
 
 # -------------------------------------------------------------------------------------- commands
@@ -66,6 +66,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
         load_info = report.to_dict()
     else:
         shape, load_info = resolve_shape(args.mesh), None
+    finite("--tol", args.tol, 1e-6, 1.0)
     grouping = analyse(shape, tol=args.tol, seed=args.seed)
     summary = segment_summary(grouping)
     if load_info is not None:
@@ -146,6 +147,7 @@ def cmd_paint(args: argparse.Namespace) -> int:
     if args.painter == "diffusion" and not args.model_dir:
         raise ValueError("--painter diffusion needs --model-dir (a local diffusers model folder)")
     group_prompts = _group_prompts(args.group_prompts)
+    check_output_file(args.preview, args.force, "--preview")
     _check_preview_path(args.preview)
     shape = resolve_shape(args.mesh)
     up = default_up(shape.source) if args.up == "auto" else args.up
@@ -217,6 +219,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise ValueError("an animated .gif needs --views turntable")
     if os.path.abspath(out) == os.path.abspath(args.file):
         raise ValueError(f"--out {out!r} would overwrite the input")
+    check_output_file(out, args.force)
     mesh = read_textured_glb(args.file)
     up = default_up(args.file) if args.up == "auto" else args.up
     arrays = (mesh.vertices, mesh.faces, mesh.corner_uv, mesh.face_group, mesh.textures)

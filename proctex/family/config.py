@@ -22,6 +22,12 @@ TOP_LEVEL = ("seed", "corr_points", "truth")
 MAX_SETTINGS = 256  # keys in one section (a config is small; a huge one is a mistake or an attack)
 
 
+def _integer(name: str, value: Any, lo: int, hi: int) -> None:
+    """``ValueError`` unless ``value`` is an int (not a bool, not a float) in [lo, hi]."""
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {str(value)[:40]}")
+
+
 @dataclass
 class SourceConfig:
     """Where the family's shapes come from. Exactly one of ``model`` (built-in name), ``folder``
@@ -60,8 +66,8 @@ class SourceConfig:
             raise ValueError(f"folder {self.folder!r} not found")
         if self.generator and not os.path.isfile(self.generator):
             raise ValueError(f"generator config {self.generator!r} not found")
-        if self.n_train < 2 or self.n_test < 0:
-            raise ValueError(f"need n_train >= 2 and n_test >= 0, got {self.n_train}, {self.n_test}")
+        _integer("n_train", self.n_train, 2, 100_000)
+        _integer("n_test", self.n_test, 0, 100_000)
         if self.sampling not in ("lhs", "random"):
             raise ValueError(f"sampling must be lhs or random, got {self.sampling!r}")
         if not isinstance(self.params, dict):
@@ -106,8 +112,10 @@ class PaintConfig:
             raise ValueError("prompt must be a string")
         if not isinstance(self.group_prompts, dict) or not all(isinstance(v, str) for v in self.group_prompts.values()):
             raise ValueError("group_prompts must be an object of prompts {group label or index: prompt}")
-        if self.texture_size < 16:
-            raise ValueError(f"texture_size must be >= 16, got {self.texture_size}")
+        _integer("texture_size", self.texture_size, 16, 8192)
+        _integer("views", self.views, 3, 256)
+        _integer("view_size", self.view_size, 16, 4096)
+        _integer("steps", self.steps, 1, 1000)
         from proctex.texture.paint_loop import PAINTERS
 
         if self.painter not in PAINTERS:
@@ -166,8 +174,8 @@ class BuildConfig:
             raise ValueError(f"truth must be one of {', '.join(TRUTHS)}, got {self.truth!r}")
         if self.truth == "canonical" and not self.source.model:
             raise ValueError("truth 'canonical' needs a built-in model (canonical coordinates)")
-        if self.corr_points < 100:
-            raise ValueError(f"corr_points must be >= 100, got {self.corr_points}")
+        _integer("seed", self.seed, 0, 2**32 - 1)
+        _integer("corr_points", self.corr_points, 100, 1_000_000)
         return self
 
     def procedural_model(self):
