@@ -299,3 +299,42 @@ def test_a_config_with_a_nan_seed_is_refused_before_the_store_is_touched(tmp_pat
     for bad in ({"model": "mug", "n_train": 2.5}, {"model": "mug", "seed": -1}, {"model": "mug", "paint": {"texture_size": 1e9}}):
         with pytest.raises(ValueError):
             BuildConfig.from_dict(bad)
+
+
+# ------------------------------------------------------------------------------------------ edits
+EDITOR = """
+import sys
+from proctex.family.service import Catalog
+cat = Catalog(sys.argv[1], check_every=0)
+for k in range(int(sys.argv[2])):
+    svc = cat.get("mug")
+    svc.persist_edit({"group": k % 2, "hue": 7})
+"""
+
+
+def test_concurrent_edits_from_two_processes_apply_in_order_and_lose_nothing(root, tmp_path):
+    """Two processes (two replicas) store ten edits each at once: twenty versions, and every edit
+    starts from the texture the one before it left (the before / after digests form one chain)."""
+    import shutil
+    import subprocess
+    import sys
+
+    shutil.copytree(root / "mug", tmp_path / "mug")
+    procs = [subprocess.Popen([sys.executable, "-c", EDITOR, str(tmp_path), "10"], stderr=subprocess.PIPE) for _ in range(2)]
+    for p in procs:
+        _, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err.decode()[-2000:]
+    st = FamilyStore(tmp_path / "mug")
+    edits = st.read_json("template/paint.json")["edits"]
+    assert [e["version"] for e in edits] == list(range(1, 21))
+    for g in (0, 1):
+        chain = [e for e in edits if e["group"] == g]
+        assert len(chain) == 10
+        assert all(a["after"] == b["before"] for a, b in zip(chain, chain[1:]))  # no edit overwrote another
+    from proctex.family.edits import _texture_digest
+    from proctex.family.store import StoreLayout
+
+    labels = {g["group"]: g["label"] for g in st.read_json("template/paint.json")["groups"]}
+    for g in (0, 1):
+        last = [e for e in edits if e["group"] == g][-1]
+        assert _texture_digest(st, StoreLayout.texture(g, labels[g])) == last["after"]

@@ -349,7 +349,7 @@ def test_edits_persist_into_the_family(root, tmp_path):
     base = tmp_path / "root"
     shutil.copytree(root / "mug", base / "mug")
     cat = Catalog(str(base), check_every=60)  # a long check period: the edit route invalidates the cache itself
-    c = TestClient(create_app(lambda: cat))
+    c = TestClient(create_app(lambda: cat, edit_token="s3cret-token"), headers={"X-ProcTex-Token": "s3cret-token"})
     st = FamilyStore(base / "mug")
     body = {"params": {"height": 0.1}}
     preview = c.post("/v1/families/mug/transfer", json={**body, "edits": {"body": {"hue": 180}}}).content
@@ -379,20 +379,52 @@ def test_edits_persist_into_the_family(root, tmp_path):
     r = c.post("/v1/families/mug/edits", json={"group": "body", "hue": 180})
     assert r.status_code == 200, r.text
     out = r.json()
-    assert out["edit"] == {"group": 0, "hsv": [180.0, 1.0, 1.0]} and out["family"] == "mug" and out["stamp"] != stamp
+    assert {k: out["edit"][k] for k in ("group", "hsv", "version")} == {"group": 0, "hsv": [180.0, 1.0, 1.0], "version": 1}
+    assert out["family"] == "mug" and out["stamp"] != stamp
     after = c.post("/v1/families/mug/transfer", json=body).content
     assert after != before and after == preview
     d = c.get("/v1/families/mug").json()
     assert d["stamp"] == out["stamp"] and d["edits"] == 1
     # A re-paint of the handle by prompt, the same texture as its thumbnail preview.
     r = c.post("/v1/families/mug/edits", json={"group": 1, "prompt": "red brick"})
-    assert r.status_code == 200 and r.json()["edit"] == {"group": 1, "prompt": "red brick"}
+    assert r.status_code == 200 and {k: r.json()["edit"][k] for k in ("group", "prompt", "version")} == {"group": 1, "prompt": "red brick", "version": 2}
     assert st.read_bytes("template/group_1_handle.png") == preview_handle
     assert c.get("/v1/families/mug/groups/1/texture.png").content == preview_handle
     d = c.get("/v1/families/mug").json()
     assert d["groups"][1]["prompt"] == "red brick" and d["edits"] == 2 and cat.loads == 3
     _, imgs = _glb_parts(c.post("/v1/families/mug/transfer", json=body).content)
     assert imgs["handle"] == preview_handle
+    # Undo the last edit, then all of them: the family answers as before any edit.
+    r = c.delete("/v1/families/mug/edits/last")
+    assert r.status_code == 200 and r.json()["undone"][0]["version"] == 2
+    assert c.post("/v1/families/mug/transfer", json=body).content == after
+    assert c.delete("/v1/families/mug/edits").status_code == 200
+    assert c.post("/v1/families/mug/transfer", json=body).content == before
+    assert c.delete("/v1/families/mug/edits/last").status_code == 409  # nothing left to undo
+
+
+def test_stored_edits_need_the_token_a_json_body_and_the_current_stamp(root, tmp_path):
+    base = tmp_path / "root"
+    shutil.copytree(root / "mug", base / "mug")
+    cat = Catalog(str(base), check_every=0)
+    read_only = TestClient(create_app(lambda: cat))
+    r = read_only.post("/v1/families/mug/edits", json={"group": 0, "hue": 10})
+    assert r.status_code == 403 and "read-only" in r.json()["error"]
+    assert read_only.get("/v1/families/mug").json()["edits_enabled"] is False
+    c = TestClient(create_app(lambda: cat, edit_token="s3cret-token"))
+    assert c.get("/v1/families/mug").json()["edits_enabled"] is True
+    for headers in ({}, {"X-ProcTex-Token": "wrong"}, {"Authorization": "Bearer nope"}):
+        assert c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=headers).status_code == 401
+    ok = {"X-ProcTex-Token": "s3cret-token"}
+    r = c.post("/v1/families/mug/edits", content=b'{"group": 0, "hue": 10}', headers={**ok, "content-type": "text/plain"})
+    assert r.status_code == 415  # what a cross-site form could send
+    stamp = c.get("/v1/families/mug").json()["stamp"]
+    assert c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers={**ok, "If-Match": stamp}).status_code == 200
+    r = c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers={**ok, "If-Match": stamp})
+    assert r.status_code == 409 and "changed since" in r.json()["error"]  # made against the old stamp
+    assert c.post("/v1/families/mug/edits", json={"group": 0, "value": 0.0}, headers={"Authorization": "Bearer s3cret-token"}).status_code == 200
+    assert len(FamilyStore(base / "mug").read_json("template/paint.json")["edits"]) == 2
+    assert c.delete("/v1/families/mug/edits", headers=ok).json()["undone"][0]["hsv"][2] == 0.0  # a blackened texture comes back
 
 
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):

@@ -29,6 +29,7 @@ prompt too long) 422.
 from __future__ import annotations
 
 import asyncio
+import hmac
 import json
 import mimetypes
 import os
@@ -44,6 +45,7 @@ from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from proctex.family.budget import Budget, OverBudget
+from proctex.family.edits import EditConflict
 from proctex.family.service import BadInput, Catalog, NotFound, TooLarge, Watchdog, build_stamp, parse_edit
 
 GLB_MEDIA_TYPE = "model/gltf-binary"
@@ -69,6 +71,18 @@ class TransferRequest(BaseModel):
                                          '{"hue": degrees, "saturation": scale, "value": scale, "prompt": text}}')
 
 
+class Forbidden(ValueError):
+    """Stored edits are off on this service."""
+
+
+class Unauthorized(ValueError):
+    """A missing or wrong edit token."""
+
+
+class UnsupportedType(ValueError):
+    """A body of another content type than the route takes."""
+
+
 def _error(status: int, message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
@@ -83,6 +97,9 @@ def error_response(exc: BaseException) -> JSONResponse:
         return _error(413, str(exc))
     if isinstance(exc, OverBudget):
         return _error(499 if exc.cancelled else 422, str(exc))
+    for kind, status in ((Forbidden, 403), (Unauthorized, 401), (UnsupportedType, 415), (EditConflict, 409)):
+        if isinstance(exc, kind):
+            return _error(status, str(exc))
     if isinstance(exc, (ValueError, OverflowError, RecursionError, UnicodeError)):
         return _error(422, (str(exc) or type(exc).__name__)[:1000])
     return _error(500, f"internal error ({type(exc).__name__}); the request was not served")
@@ -164,14 +181,15 @@ async def read_json_object(request: Request, max_bytes: int = 65536) -> dict[str
 
 
 def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], Any]], Any] | None = None,
-               studio_dir: str | Path | None = None, watchdog: Watchdog | None = None) -> FastAPI:
+               studio_dir: str | Path | None = None, watchdog: Watchdog | None = None, edit_token: str | None = None) -> FastAPI:
     """The FastAPI application over a :class:`Catalog`.
 
     ``run(fn)`` executes the blocking transfer (default: a worker thread), so the event loop keeps
     serving other requests. ``studio_dir``: the built studio bundle (default: ``$PROCTEX_STUDIO_DIR``,
     else ``workers/studio/dist`` beside this file). ``watchdog``: the transfers under way (default: a
     new one whose stuck time is twice the catalog's transfer budget plus 30 s); ``/healthz`` answers
-    503 while one is stuck.
+    503 while one is stuck. ``edit_token``: the secret that stored edits need (header
+    ``X-ProcTex-Token`` or ``Authorization: Bearer``); without one the families are read-only.
 
     Transfers of one family run one at a time: a request waits for its turn in the event loop (no
     worker thread is held while waiting), has ``max_seconds`` of work (a 422 past it), and is
@@ -201,6 +219,22 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
                 return task.result()
             if not budget.cancelled and await request.is_disconnected():
                 budget.cancel()
+
+    def check_edit_request(request: Request) -> None:
+        """Stored edits need the service's token and a JSON body (a cross-site form cannot send
+        either): 403 when edits are off, 401 for a missing or wrong token, 415 for another body type."""
+        if not edit_token:
+            raise Forbidden("this service is read-only: stored edits are off (start it with an edit token)")
+        given = request.headers.get("x-proctex-token") or ""
+        auth = request.headers.get("authorization") or ""
+        if not given and auth.lower().startswith("bearer "):
+            given = auth[7:].strip()
+        if not hmac.compare_digest(given.encode(), edit_token.encode()):
+            raise Unauthorized("stored edits need the service's edit token (header X-ProcTex-Token)")
+        if request.method == "POST":
+            ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+            if ctype != "application/json":
+                raise UnsupportedType(f"send the edit as application/json, not {ctype or 'no content type'!r}")
 
     @app.exception_handler(Exception)
     async def any_error(request: Request, exc: Exception):
@@ -254,7 +288,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
     async def family(name: str):
         try:
             svc = await blocking(lambda: get_catalog().get(name))
-            return svc.describe()
+            return {**svc.describe(), "edits_enabled": bool(edit_token)}
         except Exception as exc:
             return error_response(exc)
 
@@ -327,15 +361,48 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
                 "value": {"type": "number"}, "prompt": {"type": "string"}}}}}}},
     )
     async def persist_edit(name: str, request: Request):
-        """Store an edit of one group texture in the family; every later transfer uses it."""
+        """Store an edit of one group texture in the family; every later transfer uses it. Needs the
+        edit token; ``If-Match: <stamp>`` makes it conditional on the family being unchanged (409)."""
         try:
             cat = get_catalog()
             svc = await blocking(lambda: cat.get(name))
+            check_edit_request(request)
             body = await read_json_object(request)
-            record, stamp = await blocking(lambda: (svc.persist_edit(body), build_stamp(svc.store)))
+            expect = request.headers.get("if-match")
+            record, stamp = await blocking(lambda: (svc.persist_edit(body, expect_stamp=expect), build_stamp(svc.store)))
         except Exception as exc:
             return error_response(exc)
-        cat.invalidate(name)
+        finally:
+            get_catalog().invalidate(name)
         return {"family": name, "edit": record, "stamp": stamp}
+
+    @app.delete("/v1/families/{name}/edits/last", responses={404: {"description": "unknown family"}, 409: {"description": "nothing to undo"}})
+    async def undo_edit(name: str, request: Request):
+        """Undo the family's last stored edit (needs the edit token)."""
+        try:
+            cat = get_catalog()
+            svc = await blocking(lambda: cat.get(name))
+            check_edit_request(request)
+            expect = request.headers.get("if-match")
+            undone, stamp = await blocking(lambda: (svc.undo_edit(expect_stamp=expect), build_stamp(svc.store)))
+        except Exception as exc:
+            return error_response(exc)
+        finally:
+            get_catalog().invalidate(name)
+        return {"family": name, "undone": undone, "stamp": stamp}
+
+    @app.delete("/v1/families/{name}/edits", responses={404: {"description": "unknown family"}})
+    async def reset_edits(name: str, request: Request):
+        """Undo every stored edit: the template as painted (needs the edit token)."""
+        try:
+            cat = get_catalog()
+            svc = await blocking(lambda: cat.get(name))
+            check_edit_request(request)
+            undone, stamp = await blocking(lambda: (svc.undo_edit(all_edits=True), build_stamp(svc.store)))
+        except Exception as exc:
+            return error_response(exc)
+        finally:
+            get_catalog().invalidate(name)
+        return {"family": name, "undone": undone, "stamp": stamp}
 
     return app

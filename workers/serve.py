@@ -7,6 +7,7 @@ replica, so one replica overlaps request parsing, encoding and I/O with the CPU-
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 from ray import serve
@@ -21,7 +22,9 @@ class TransferService:
     """One replica: the catalog of families under ``root`` (preloaded) behind the FastAPI app, which
     is built in the replica after the constructor (``__serve_build_asgi_app__``), bound to it."""
 
-    def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True) -> None:
+    def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True,
+                 edit_token: str | None = None) -> None:
+        self.edit_token = edit_token or None
         self.catalog = Catalog(root, Limits(**(limits or {})), check_every)
         self.watchdog = Watchdog(2 * self.catalog.limits.max_seconds + 30)
         if preload:
@@ -32,7 +35,7 @@ class TransferService:
                     pass  # not built yet: reported per request
 
     def __serve_build_asgi_app__(self):
-        return create_app(lambda: self.catalog, watchdog=self.watchdog)
+        return create_app(lambda: self.catalog, watchdog=self.watchdog, edit_token=self.edit_token)
 
     def check_health(self) -> None:
         """Serve's health check: a transfer stuck far past its budget fails it, so Serve replaces
@@ -48,7 +51,8 @@ def build_app(args: dict[str, Any]) -> Any:
     Args (all strings accepted, as from the command line): ``root`` (store root folder or URI,
     required); ``replicas`` (fixed count) or ``min_replicas``/``max_replicas``/``target_ongoing_requests``
     (autoscaling); ``max_ongoing_requests``; ``num_cpus`` per replica; ``check_every`` seconds;
-    ``max_bytes``/``max_vertices``/``max_faces``/``max_parts``/``max_seconds`` request limits; ``preload``.
+    ``max_bytes``/``max_vertices``/``max_faces``/``max_parts``/``max_seconds`` request limits; ``preload``;
+    ``edit_token`` (default ``$PROCTEX_EDIT_TOKEN``): the secret stored edits need (none: read-only).
     """
     if not args.get("root"):
         raise ValueError("build_app needs args['root'], the family store root")
@@ -65,4 +69,5 @@ def build_app(args: dict[str, Any]) -> Any:
     if "max_seconds" in args:
         limits["max_seconds"] = float(args["max_seconds"])
     preload = str(args.get("preload", "true")).lower() not in ("0", "false", "no")
-    return TransferService.options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)), limits, preload)
+    token = args.get("edit_token") or os.environ.get("PROCTEX_EDIT_TOKEN") or None
+    return TransferService.options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)), limits, preload, token)

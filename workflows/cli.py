@@ -48,6 +48,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if not names:
         raise ValueError(f"{args.store}: no families found (sub-folders with a family.json)")
     app_args = {"root": os.path.abspath(args.store) if "://" not in args.store else args.store}
+    token = args.edit_token or os.environ.get("PROCTEX_EDIT_TOKEN")
+    if token is not None and len(token) < 8:
+        raise ValueError("--edit-token must be at least 8 characters")
+    if token:
+        app_args["edit_token"] = token
     if args.autoscale:
         lo, hi = (int(x) for x in args.autoscale.split(","))
         app_args.update(min_replicas=lo, max_replicas=hi)
@@ -136,6 +141,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--replicas", type=int, default=0, help="fixed replica count (default: one per CPU, at most 4)")
     p.add_argument("--autoscale", help="MIN,MAX replicas (autoscaling instead of a fixed count)")
     p.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
+    p.add_argument("--edit-token", help="allow stored edits to requests carrying this secret (header X-ProcTex-Token); "
+                                        "default $PROCTEX_EDIT_TOKEN; none: the families are read-only")
     p.set_defaults(func=cmd_serve)
     p = sub.add_parser("screenshot", help="a PNG of the web studio at URL (headless Chromium), e.g. http://127.0.0.1:8000/?family=sofa")
     p.add_argument("url", help="the studio's URL; ?family=NAME picks a family")

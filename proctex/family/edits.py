@@ -152,3 +152,101 @@ def edit_group(
     store.write_json(StoreLayout.PAINT, summary)
     refresh_template_glb(store)
     return record
+
+
+# ------------------------------------------------------------------------------ versioned edits
+class EditConflict(ValueError):
+    """The family changed since the stamp the edit was made against (or there is nothing to undo)."""
+
+
+def edit_lock(store: FamilyStore, timeout: float = 60.0):
+    """A context manager holding the family's edit lock, across processes on one machine (an
+    exclusive ``flock`` on ``.edit.lock`` in the store folder). Stores that are not local folders
+    cannot be edited safely and are refused (``ValueError``)."""
+    import contextlib
+    import fcntl
+    import time
+
+    if "://" in store.uri and not store.uri.startswith("file://"):
+        raise ValueError(f"{store.uri}: edits need a family on a local file system (the edit lock is a file lock)")
+
+    @contextlib.contextmanager
+    def held():
+        path = os.path.join(store.base, StoreLayout.EDIT_LOCK)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            deadline = time.monotonic() + timeout
+            while True:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if time.monotonic() > deadline:
+                        raise EditConflict(f"{store.uri}: another edit has held the family for over {timeout:g} s") from None
+                    time.sleep(0.01)
+            yield
+        finally:
+            os.close(fd)  # releases the lock
+
+    return held()
+
+
+def _texture_digest(store: FamilyStore, rel: str) -> str:
+    import hashlib
+
+    return hashlib.sha256(store.read_bytes(rel)).hexdigest()[:16]
+
+
+def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None = None, stamp: Any = None, **edit: Any) -> dict[str, Any]:
+    """:func:`edit_group`, versioned and serialised: under the family's edit lock, check
+    ``expect_stamp`` against the family's stamp (``stamp(store)``; :class:`EditConflict` when they
+    differ), keep the files the edit replaces (its undo), apply it. The record gains ``version`` and
+    the digests of the group texture ``before`` and ``after``, so the edit history is a chain a
+    lost update would break."""
+    with edit_lock(store):
+        if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
+            raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r} (now {stamp(store)!r}); reload and edit again")
+        entry = _group_entry(store, group)
+        rel = StoreLayout.texture(int(entry["group"]), entry["label"])
+        version = len(store.read_json(StoreLayout.PAINT).get("edits", [])) + 1
+        kept = [rel, StoreLayout.PAINT] + ([StoreLayout.PAINTED] if store.exists(StoreLayout.PAINTED) else [])
+        for f in kept:
+            store.write_bytes(StoreLayout.edit_snapshot(version, os.path.basename(f)), store.read_bytes(f))
+        before = _texture_digest(store, rel)
+        edit_group(store, group, **edit)
+        summary = store.read_json(StoreLayout.PAINT)
+        summary["edits"][-1].update(version=version, before=before, after=_texture_digest(store, rel))
+        store.write_json(StoreLayout.PAINT, summary)
+        return summary["edits"][-1]
+
+
+def undo_edit(store: FamilyStore, expect_stamp: str | None = None, stamp: Any = None) -> dict[str, Any]:
+    """Undo the family's last stored edit (the files it replaced come back); returns its record.
+    :class:`EditConflict` when there is none, or when ``expect_stamp`` is stale."""
+    with edit_lock(store):
+        if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
+            raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r}; reload and try again")
+        edits = store.read_json(StoreLayout.PAINT).get("edits", [])
+        if not edits:
+            raise EditConflict(f"{store.uri}: no stored edit to undo")
+        last = edits[-1]
+        version = int(last.get("version", len(edits)))
+        folder = StoreLayout.edit_snapshot(version, "")
+        names = store.listdir(folder.rstrip("/"))
+        if not names:
+            raise EditConflict(f"{store.uri}: edit {version} was stored without its undo (made before edits were versioned)")
+        for name in names:  # paint.json last: until it is back, the edit still counts as stored
+            if name != StoreLayout.PAINT_NAME:
+                store.write_bytes(StoreLayout.template_file(name), store.read_bytes(folder + name))
+        store.write_bytes(StoreLayout.PAINT, store.read_bytes(folder + StoreLayout.PAINT_NAME))
+        store.delete(folder.rstrip("/"))
+        refresh_template_glb(store)
+        return last
+
+
+def reset_edits(store: FamilyStore) -> list[dict[str, Any]]:
+    """Undo every stored edit, last first: the template as it was painted. Returns the undone records."""
+    undone = []
+    while store.read_json(StoreLayout.PAINT).get("edits"):
+        undone.append(undo_edit(store))
+    return undone

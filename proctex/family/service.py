@@ -392,11 +392,13 @@ class FamilyService:
         img.save(buf, format="PNG")
         return buf.getvalue()
 
-    def persist_edit(self, raw: Any) -> dict[str, Any]:
-        """Store an edit into the family (:func:`proctex.family.edits.edit_group`): ``{"group": index or
-        label, "hue", "saturation", "value", "prompt"}``. Returns the edit record; this service is
-        stale afterwards (the catalog reloads the family on its new build stamp)."""
-        from .edits import edit_group
+    def persist_edit(self, raw: Any, expect_stamp: str | None = None) -> dict[str, Any]:
+        """Store an edit into the family (:func:`proctex.family.edits.stored_edit`: versioned, under
+        the family's edit lock, undoable): ``{"group": index or label, "hue", "saturation", "value",
+        "prompt"}``. ``expect_stamp``: the build stamp the edit was made against
+        (:class:`~proctex.family.edits.EditConflict` when the family changed since). Returns the edit
+        record; this service is stale afterwards (the catalog reloads the family on its new stamp)."""
+        from .edits import EditConflict, stored_edit
 
         if not isinstance(raw, dict) or "group" not in raw:
             raise BadInput('send {"group": <index or label>, "hue": deg, "saturation": s, "value": v, "prompt": text}')
@@ -406,9 +408,23 @@ class FamilyService:
             raise BadInput("no edit given: send a prompt or a hue, saturation or value change")
         with _EDIT_LOCK:
             try:
-                return edit_group(self.store, g, hue=edit.hue, saturation=edit.saturation, value=edit.value, prompt=edit.prompt)
+                return stored_edit(self.store, g, expect_stamp=expect_stamp, stamp=build_stamp, hue=edit.hue, saturation=edit.saturation,
+                                   value=edit.value, prompt=edit.prompt)
+            except EditConflict:
+                raise
             except ValueError as exc:
                 raise BadInput(str(exc)) from exc
+
+    def undo_edit(self, expect_stamp: str | None = None, all_edits: bool = False) -> list[dict[str, Any]]:
+        """Undo the family's last stored edit (``all_edits``: every one, back to the painted
+        template); returns the undone records. :class:`~proctex.family.edits.EditConflict` when there
+        is nothing to undo or ``expect_stamp`` is stale."""
+        from .edits import reset_edits, undo_edit
+
+        with _EDIT_LOCK:
+            if all_edits:
+                return reset_edits(self.store)
+            return [undo_edit(self.store, expect_stamp=expect_stamp, stamp=build_stamp)]
 
 
 class Watchdog:

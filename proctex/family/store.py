@@ -53,6 +53,13 @@ class StoreLayout:
     UV = "template/uv.npz"
     PAINTED = "template/painted.npz"
     GROUPING = "template/grouping.json"
+    EDITS = "template/edits"  # one folder per stored edit: the files it replaced (its undo)
+    EDIT_LOCK = ".edit.lock"  # held while an edit changes the store (local stores)
+
+    @staticmethod
+    def edit_snapshot(version: int, name: str) -> str:
+        """A file as it was before edit ``version`` (``name``: a template file name)."""
+        return f"{StoreLayout.EDITS}/v{int(version):05d}/{name}"
 
     @staticmethod
     def mesh(sid: str) -> str:
