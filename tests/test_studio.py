@@ -33,6 +33,7 @@ pytestmark = pytest.mark.slow
 REPO = Path(__file__).resolve().parents[1]
 DIST = REPO / "workers" / "studio" / "dist"
 ARTIFACTS = REPO / "artifacts" / "studio"
+STUDIO_TOKEN = "studio-test-token"  # the service allows stored edits to the page that carries it (#token=...)
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 BACKGROUND = np.array([0x16, 0x19, 0x1E])
 
@@ -69,7 +70,7 @@ def server(tmp_path_factory):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    srv = uvicorn.Server(uvicorn.Config(create_app(lambda: cat), host="127.0.0.1", port=port, log_level="warning"))
+    srv = uvicorn.Server(uvicorn.Config(create_app(lambda: cat, edit_token=STUDIO_TOKEN), host="127.0.0.1", port=port, log_level="warning"))
     thread = threading.Thread(target=srv.run, daemon=True)
     thread.start()
     deadline = time.monotonic() + 30
@@ -133,7 +134,7 @@ def test_the_studio_textures_a_family_interactively(server, browser):
     page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
     page.on("response", lambda r: errors.append(f"{r.status} {r.url}") if r.status >= 400 else None)
     try:
-        page.goto(base + "/")
+        page.goto(base + "/#token=" + STUDIO_TOKEN)
         # 1. The first shape: WebGL draws a textured mug.
         _wait_for_shape(page, 1)
         page.screenshot(path=str(ARTIFACTS / "01-first-shape.png"))

@@ -125,6 +125,10 @@ function showGlb(buffer, current) {
 }
 
 // ------------------------------------------------------------------------------------ requests
+function editToken() {
+  return new URLSearchParams(window.location.hash.slice(1)).get('token') || '';
+}
+
 async function api(path, options = {}) {
   const response = await fetch(path, options);
   if (!response.ok) {
@@ -369,7 +373,7 @@ function groupPanel(group) {
   const changed = () => {
     const e = studio.edits[g] || {};
     const dirty = Boolean(e.hue || e.prompt);
-    save.disabled = !dirty;
+    save.disabled = !dirty || !studio.family.edits_enabled;
     reset.disabled = !dirty;
     clearTimeout(thumbTimer);
     thumbTimer = setTimeout(() => { img.src = thumbUrl(g); }, DEBOUNCE_MS);
@@ -379,7 +383,9 @@ function groupPanel(group) {
   hue.value = String(pending.hue || 0);
   hueOut.textContent = `${hue.value}°`;
   prompt.value = pending.prompt || '';
-  save.disabled = reset.disabled = !(pending.hue || pending.prompt);
+  reset.disabled = !(pending.hue || pending.prompt);
+  save.disabled = reset.disabled || !studio.family.edits_enabled;
+  if (!studio.family.edits_enabled) save.title = 'this service is read-only (started without an edit token)';
   img.src = thumbUrl(g);
   hue.addEventListener('input', () => {
     studio.edits[g] = { ...studio.edits[g], hue: Number(hue.value) };
@@ -403,8 +409,12 @@ function groupPanel(group) {
     const edit = { group: g, ...editsBody()[g] };
     save.disabled = true;
     try {
+      // The edit token comes from the page's fragment (#token=...), which never reaches a server log;
+      // If-Match makes the save fail (409) if the family changed since this view loaded.
       await api(`/v1/families/${encodeURIComponent(studio.family.name)}/edits`, {
-        method: 'POST', headers: { 'content-type': 'application/json' }, body: JSON.stringify(edit),
+        method: 'POST',
+        headers: { 'content-type': 'application/json', 'X-ProcTex-Token': editToken(), 'If-Match': studio.family.stamp },
+        body: JSON.stringify(edit),
       });
       delete studio.edits[g]; // part of the family now
       await loadFamily(studio.family.name, { keepView: true });
