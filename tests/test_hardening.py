@@ -198,7 +198,7 @@ def test_a_transfer_past_its_budget_is_a_422_and_the_other_routes_answer_meanwhi
         ("get", "/v1/families/a%5Cb", {}, 404),
         ("get", "/v1/families/a%00b", {}, 404),
         ("post", "/v1/families/" + "x" * 2000 + "/transfer", {"json": {"params": {}}}, 404),
-        ("post", "/v1/families/mug/edits", {"content": b"[" * 5000, "headers": {"content-type": "application/json"}}, 422),
+        ("post", "/v1/families/mug/edits", {"content": b"[" * 5000, "headers": {"content-type": "application/json"}}, 403),  # read-only
     ],
 )
 def test_hostile_requests_get_json_errors_not_tracebacks(root, method, path, kwargs, status):
@@ -338,3 +338,75 @@ def test_concurrent_edits_from_two_processes_apply_in_order_and_lose_nothing(roo
     for g in (0, 1):
         last = [e for e in edits if e["group"] == g][-1]
         assert _texture_digest(st, StoreLayout.texture(g, labels[g])) == last["after"]
+
+
+# ----------------------------------------------------------------------------------------- damage
+def _damage(folder, how):
+    from proctex.family.store import StoreLayout
+
+    st = FamilyStore(folder)
+    summary = st.read_json("template/paint.json")
+    g = summary["groups"][0]
+    png = folder / StoreLayout.texture(g["group"], g["label"])
+    if how == "truncated png":
+        png.write_bytes(png.read_bytes()[: len(png.read_bytes()) // 2])
+    elif how == "greyscale png":
+        from PIL import Image
+
+        Image.open(png).convert("L").save(png)
+    elif how == "wrong size png":
+        from PIL import Image
+
+        Image.open(png).resize((8, 8)).save(png)
+    elif how == "changed png":
+        from PIL import Image
+
+        img = np.asarray(Image.open(png).convert("RGB")).copy()
+        img[0, 0] = 255 - img[0, 0]
+        Image.fromarray(img).save(png)
+    elif how == "damaged family.json":
+        (folder / "family.json").write_text('{"config": ')
+    elif how == "missing uv":
+        (folder / "template" / "uv.npz").unlink()
+
+
+@pytest.mark.parametrize("how", ["truncated png", "greyscale png", "wrong size png", "changed png", "damaged family.json", "missing uv"])
+def test_a_damaged_family_is_unavailable_and_the_others_are_served(root, tmp_path, how):
+    import shutil
+
+    for name in ("good", "bad"):
+        shutil.copytree(root / "mug", tmp_path / name)
+    _damage(tmp_path / "bad", how)
+    cat = Catalog(str(tmp_path), check_every=0)
+    c = TestClient(create_app(lambda: cat))
+    assert c.post("/v1/families/good/transfer", json={"params": {}}).status_code == 200
+    r = c.post("/v1/families/bad/transfer", json={"params": {}})
+    assert r.status_code == 503 and "bad" in r.json()["error"], r.text
+    health = c.get("/v1/families").json()["health"]
+    assert health["good"] == "ok" and "unavailable" in health["bad"]
+    h = c.get("/healthz").json()
+    assert h["status"] == "ok" and h["unavailable"] == ["bad"]
+    assert c.get("/v1/families/bad").status_code == 503
+
+
+def test_a_swapped_or_altered_network_is_refused_on_load(tmp_path):
+    from proctex.family.pipeline import build
+    from proctex.family.stages import load_models
+
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, corr_points=200, cage_iterations=5, texture_size=32,
+                                     train={"iterations": 5, "eval_every": 5, "context_points": 64, "query_points": 32}))
+    st = FamilyStore(tmp_path / "mug")
+    build(st, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
+    assert sorted(load_models(st)) == [0, 1]
+    models = tmp_path / "mug" / "models"
+    a, b = (models / "group_0.pt").read_bytes(), (models / "group_1.pt").read_bytes()
+    (models / "group_0.pt").write_bytes(b)
+    (models / "group_1.pt").write_bytes(a)
+    with pytest.raises(ValueError, match="checksum mismatch|holds the network of group"):
+        load_models(st)
+    state = st.read_json("family.json")
+    for g in state["stages"]["train"]["groups"].values():
+        g.pop("sha256")  # an older store: no checksums, the group inside the file still tells
+    st.write_json("family.json", state)
+    with pytest.raises(ValueError, match="holds the network of group 1"):
+        load_models(st)

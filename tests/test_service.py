@@ -52,7 +52,7 @@ def _glb_ok(data: bytes) -> None:
 def test_routes(client, root):
     c, cat = client
     assert c.get("/healthz").json()["status"] == "ok"
-    assert c.get("/v1/families").json() == {"families": ["mug"]}
+    assert c.get("/v1/families").json() == {"families": ["mug"], "health": {"mug": "ok"}}
     d = c.get("/v1/families/mug").json()
     assert d["name"] == "mug" and d["inputs"] == ["params", "mesh"] and d["prompt"] == "blue ceramic"
     assert [p["name"] for p in d["parameters"]][:2] == ["height", "radius"] and len(d["groups"]) == 2
@@ -220,7 +220,7 @@ def test_the_studio_page_and_its_assets_are_served_safely(root, tmp_path):
     r = c2.get("/")
     assert r.status_code == 503 and "make setup" in r.text and r.headers["content-type"].startswith("text/html")
     assert c2.get("/studio/main.js").status_code == 404
-    assert c2.get("/v1/families").json() == {"families": ["mug"]}
+    assert c2.get("/v1/families").json()["families"] == ["mug"]
 
 
 def _png_array(data: bytes) -> np.ndarray:

@@ -46,7 +46,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from proctex.family.budget import Budget, OverBudget
 from proctex.family.edits import EditConflict
-from proctex.family.service import BadInput, Catalog, NotFound, TooLarge, Watchdog, build_stamp, parse_edit
+from proctex.family.service import BadInput, Catalog, NotFound, TooLarge, Unavailable, Watchdog, build_stamp, parse_edit
 
 GLB_MEDIA_TYPE = "model/gltf-binary"
 MAX_SEED = 2**31 - 1
@@ -95,6 +95,8 @@ def error_response(exc: BaseException) -> JSONResponse:
         return _error(404, str(exc))
     if isinstance(exc, TooLarge):
         return _error(413, str(exc))
+    if isinstance(exc, Unavailable):
+        return _error(503, str(exc))
     if isinstance(exc, OverBudget):
         return _error(499 if exc.cancelled else 422, str(exc))
     for kind, status in ((Forbidden, 403), (Unauthorized, 401), (UnsupportedType, 415), (EditConflict, 409)):
@@ -274,7 +276,9 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
     @app.get("/healthz")
     def healthz():
         cat = get_catalog()
-        info = {"families": len(cat.names()), "loads": cat.loads, "transfers_running": dog.running(),
+        health = cat.health()
+        info = {"families": len(health), "unavailable": sorted(n for n, h in health.items() if h not in ("ok", "not built")),
+                "loads": cat.loads, "transfers_running": dog.running(),
                 "oldest_transfer_seconds": round(dog.oldest(), 3)}
         if dog.stuck():
             return JSONResponse({"status": "stuck", **info}, status_code=503)
@@ -282,7 +286,10 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
 
     @app.get("/v1/families")
     def families() -> dict[str, Any]:
-        return {"families": get_catalog().names()}
+        """The families under the root and the health of each ("ok", "not built", or why a damaged
+        one is unavailable)."""
+        cat = get_catalog()
+        return {"families": cat.names(), "health": cat.health()}
 
     @app.get("/v1/families/{name}", responses={404: {"description": "unknown family"}})
     async def family(name: str):

@@ -31,8 +31,8 @@ class TransferService:
             for name in self.catalog.names():
                 try:
                     self.catalog.get(name)
-                except ValueError:
-                    pass  # not built yet: reported per request
+                except Exception:  # not built yet, or damaged: reported per request (503) and in /v1/families
+                    pass
 
     def __serve_build_asgi_app__(self):
         return create_app(lambda: self.catalog, watchdog=self.watchdog, edit_token=self.edit_token)

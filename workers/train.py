@@ -73,19 +73,24 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
             data = group_training_data(store, config, group)
             t0 = time.perf_counter()
             result = train(data["train"], data["val"], cfg, rank=team_rank, world=team_size, grad_hook=average)
+            sha = None
             if team_rank == 0:
-                save_group_model(store, group, result, cfg, data)
+                sha = save_group_model(store, group, result, cfg, data)
                 with open(os.path.join(tmp, f"group_{group}.pt"), "wb") as fh:
                     fh.write(store.read_bytes(StoreLayout.model(group)))
             out[str(group)] = {"group": group, "best_val": float(result.best_val["mean"]) if result.best_val else float("nan"),
-                               "iterations": result.iterations, "seconds": time.perf_counter() - t0, "workers": team_size}
+                               "iterations": result.iterations, "seconds": time.perf_counter() - t0, "workers": team_size, "sha256": sha}
         # One report per worker (a barrier); the team leaders' networks form the run's checkpoint.
         has = team_rank == 0 and bool(my_groups)
         ray.train.report({"groups": sorted(out)}, checkpoint=Checkpoint.from_directory(tmp) if has else None)
     if world > 1:
         gathered: list[Any] = [None] * world
         dist.all_gather_object(gathered, out)
-        merged = {k: v for part in gathered for k, v in part.items()}
+        merged: dict[str, Any] = {}
+        for part in gathered:  # every team member reports its groups; the leader's carries the checksum
+            for k, v in part.items():
+                if k not in merged or v.get("sha256"):
+                    merged[k] = v
         return merged
     return out
 

@@ -12,7 +12,7 @@ from proctex.fileio import encode_png
 from proctex.geometry.parts import analyse
 from proctex.geometry.shape import Shape
 from .stages import load_template_shape, stored_config
-from .store import FamilyStore, StoreLayout
+from .store import FamilyStore, StoreLayout, digest
 
 def _group_entry(store: FamilyStore, group: int | str) -> dict[str, Any]:
     summary = store.read_json(StoreLayout.PAINT)
@@ -143,11 +143,14 @@ def edit_group(
         record["logo"] = {"file": os.path.basename(logo), "at": list(at), "size": list(size), "rotation": rotation, "opacity": opacity}
     if len(record) == 1:
         raise ValueError("no edit given (prompt, hue/saturation/value or logo)")
-    store.write_bytes(rel, encode_png(tex))
+    png = encode_png(tex)
+    store.write_bytes(rel, png)
     summary = store.read_json(StoreLayout.PAINT)
     for g in summary["groups"]:
-        if g["group"] == gi and "prompt" in record:
-            g["prompt"] = record["prompt"]
+        if g["group"] == gi:
+            g["sha256"] = digest(png)
+            if "prompt" in record:
+                g["prompt"] = record["prompt"]
     summary.setdefault("edits", []).append(record)
     store.write_json(StoreLayout.PAINT, summary)
     refresh_template_glb(store)
@@ -192,9 +195,7 @@ def edit_lock(store: FamilyStore, timeout: float = 60.0):
 
 
 def _texture_digest(store: FamilyStore, rel: str) -> str:
-    import hashlib
-
-    return hashlib.sha256(store.read_bytes(rel)).hexdigest()[:16]
+    return digest(store.read_bytes(rel))
 
 
 def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None = None, stamp: Any = None, **edit: Any) -> dict[str, Any]:

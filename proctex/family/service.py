@@ -44,6 +44,10 @@ class TooLarge(ValueError):
     """A request over the size limits."""
 
 
+class Unavailable(ValueError):
+    """A family whose store is damaged: it is not served (the others are)."""
+
+
 @dataclass
 class Limits:
     """Request limits: body bytes, mesh vertices, faces and parts (connected components), characters
@@ -476,6 +480,7 @@ class Catalog:
         self.limits = limits or Limits()
         self.check_every = check_every
         self._cache: dict[str, tuple[FamilyService, float]] = {}
+        self._broken: dict[str, tuple[str, str]] = {}  # name -> (build stamp, why it cannot be served)
         self._lock = threading.Lock()
         self.loads = 0
 
@@ -515,9 +520,42 @@ class Catalog:
                 return cached[0]
             from .stages import stage_done
 
-            if not stage_done(store, "paint"):
-                raise NotFound(f"family {name!r} is not built yet (no painted template)")
-            service = FamilyService(store, name, self.limits)
+            try:
+                stamp = build_stamp(store)
+                if not stage_done(store, "paint"):
+                    raise NotFound(f"family {name!r} is not built yet (no painted template)")
+            except NotFound:
+                raise
+            except Exception as exc:  # family.json itself damaged
+                raise self._mark_broken(name, "", exc) from exc
+            broken = self._broken.get(name)
+            if broken is not None and broken[0] == stamp:
+                raise Unavailable(broken[1])
+            try:
+                service = FamilyService(store, name, self.limits)
+            except Exception as exc:  # a damaged file of this family: the others are still served
+                raise self._mark_broken(name, stamp, exc) from exc
+            self._broken.pop(name, None)
             self._cache[name] = (service, now)
             self.loads += 1
             return service
+
+    def _mark_broken(self, name: str, stamp: str, exc: BaseException) -> Unavailable:
+        why = f"family {name!r} is unavailable: {type(exc).__name__}: {str(exc)[:500]}"
+        self._broken[name] = (stamp, why)
+        self._cache.pop(name, None)
+        return Unavailable(why)
+
+    def health(self) -> dict[str, str]:
+        """Per family under the root (each loaded if it was not): "ok", "not built", or why it is
+        unavailable (a damaged file, named)."""
+        out = {}
+        for name in self.names():
+            try:
+                self.get(name)
+                out[name] = "ok"
+            except NotFound as exc:
+                out[name] = "not built" if "not built" in str(exc) else str(exc)
+            except ValueError as exc:
+                out[name] = str(exc)
+        return out

@@ -33,7 +33,7 @@ from proctex.geometry.parts import analyse, part_mesh, segment
 from proctex.geometry.shape import Shape
 from .config import BuildConfig, resolved_settings, with_legacy
 from .plan import Plan, run_in_process
-from .store import FamilyStore, StoreLayout
+from .store import FamilyStore, StoreLayout, check_digest, digest
 
 STAGES = ("sample", "template", "paint", "pairs", "train", "evaluate")
 
@@ -494,12 +494,15 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
     return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": sorted(val_ids)}
 
 
-def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str, Any]) -> None:
-    """Write a trained group network to ``models/group_<g>.pt`` (atomically)."""
+def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str, Any]) -> str:
+    """Write a trained group network to ``models/group_<g>.pt`` (atomically); returns its checksum
+    (:func:`proctex.family.store.digest`), which the train stage records."""
     from proctex.correspond.corrnet import to_bytes
 
     extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val}
-    store.write_bytes(StoreLayout.model(group), to_bytes(result.model, cfg, extra))
+    blob = to_bytes(result.model, cfg, extra)
+    store.write_bytes(StoreLayout.model(group), blob)
+    return digest(blob)
 
 
 VAL_SHARE = 0.15  # of a group's train shapes, held out for early stopping
@@ -515,9 +518,9 @@ def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], 
         data = group_training_data(store, config, g, VAL_SHARE)
         t = time.perf_counter()
         result = train(data["train"], data["val"], config.train)
-        save_group_model(store, g, result, config.train, data)
+        sha = save_group_model(store, g, result, config.train, data)
         out.append({"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2),
-                    "train_pairs": len(data["train"]), "val_pairs": len(data["val"])})
+                    "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha})
     return out
 
 
@@ -559,15 +562,20 @@ def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
 
 
 def load_models(store: FamilyStore, device: str = "cpu") -> dict[int, Any]:
-    """{group: ProcCorrNet} of every stored model."""
+    """{group: ProcCorrNet} of every stored model. A network whose file holds another group's, or
+    whose checksum differs from the train stage's record, is a ``ValueError`` naming the file."""
     from proctex.correspond.corrnet import from_bytes
 
+    recorded = _state(store).get("stages", {}).get("train", {}).get("groups", {})
     models = {}
     for name in store.listdir(StoreLayout.MODELS):
         g = StoreLayout.model_group(name)
         if g is None:
             continue
-        models[g], _, _ = from_bytes(store.read_bytes(StoreLayout.model(g)), device=device, where=store.path(StoreLayout.model(g)))
+        where = store.path(StoreLayout.model(g))
+        blob = store.read_bytes(StoreLayout.model(g))
+        check_digest(blob, (recorded.get(str(g)) or {}).get("sha256"), where)
+        models[g], _, extra = from_bytes(blob, device=device, where=where)
+        if int(extra.get("group", g)) != g:
+            raise ValueError(f"{where}: holds the network of group {extra.get('group')}, not of group {g}")
     return models
-
-

@@ -37,6 +37,20 @@ def group_file_name(group: int, label: str) -> str:
     return f"group_{group}{'_' + safe if safe else ''}.png"
 
 
+def digest(data: bytes) -> str:
+    """The checksum a record keeps of a store file: the first 16 hex digits of its SHA-256."""
+    import hashlib
+
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def check_digest(data: bytes, expected: str | None, where: str) -> None:
+    """``ValueError`` naming ``where`` when ``data`` does not have the recorded checksum (None: none
+    was recorded, as in stores written before checksums)."""
+    if expected is not None and digest(data) != expected:
+        raise ValueError(f"{where}: checksum mismatch (recorded {expected}, found {digest(data)}): the file changed outside ProcTex")
+
+
 class StoreLayout:
     """Every path of a family store (relative to its root), and nothing else spells them."""
 

@@ -15,7 +15,7 @@ import numpy as np
 from proctex.fileio import atomic_write
 from proctex.geometry.parts import Grouping, analyse, segment
 from proctex.geometry.shape import Shape
-from .store import FamilyStore, StoreLayout, group_file_name
+from .store import FamilyStore, StoreLayout, check_digest, digest, group_file_name
 
 
 @dataclass
@@ -56,8 +56,17 @@ class Template:
             observed = self.observed if self.observed is not None else self.painted
             store.write_arrays(StoreLayout.PAINTED, **{f"g{k}": m for k, m in enumerate(self.painted)},
                                **{f"o{k}": m for k, m in enumerate(observed)})
+        digests = {}
         for g, (tex, label) in enumerate(zip(self.textures, self.labels)):
-            store.write_bytes(StoreLayout.texture(g, label), encode_png(tex))
+            png = encode_png(tex)
+            store.write_bytes(StoreLayout.texture(g, label), png)
+            digests[g] = digest(png)
+        if store.exists(StoreLayout.PAINT):  # the painter's summary records each texture's checksum
+            summary = store.read_json(StoreLayout.PAINT)
+            for entry in summary.get("groups", []):
+                if entry.get("group") in digests:
+                    entry["sha256"] = digests[entry["group"]]
+            store.write_json(StoreLayout.PAINT, summary)
 
     @classmethod
     def load(cls, store: FamilyStore, shape: Shape, seed: int = 0) -> "Template":
@@ -78,9 +87,22 @@ class Template:
             raise ValueError(f"{store.uri}: template UVs do not match the template mesh")
         summary = store.read_json(StoreLayout.PAINT)
         textures, labels = [], []
+        size = summary.get("texture_size") or None
         for g in summary["groups"]:
-            png = store.read_bytes(StoreLayout.texture(g["group"], g["label"]))
-            textures.append(np.asarray(Image.open(io.BytesIO(png)).convert("RGB")))
+            rel = StoreLayout.texture(g["group"], g["label"])
+            png = store.read_bytes(rel)
+            where = store.path(rel)
+            check_digest(png, g.get("sha256"), where)
+            try:
+                image = Image.open(io.BytesIO(png))
+                image.load()
+            except Exception as exc:  # PIL raises many kinds for damaged files
+                raise ValueError(f"{where}: cannot read the texture ({type(exc).__name__}: {str(exc)[:200]})") from exc
+            if image.mode not in ("RGB", "RGBA"):
+                raise ValueError(f"{where}: a {image.mode} image; group textures are RGB")
+            if size and list(image.size[::-1]) != [int(x) for x in size][:2]:
+                raise ValueError(f"{where}: {image.size[0]}x{image.size[1]}, the family's textures are {size[1]}x{size[0]}")
+            textures.append(np.asarray(image.convert("RGB")))
             labels.append(g["label"] or "")
         if len(textures) != len(grouping.groups):
             raise ValueError(f"{store.uri}: {len(textures)} group textures for {len(grouping.groups)} groups")
