@@ -39,9 +39,27 @@ start() {
   echo "jobs API / dashboard: http://127.0.0.1:$DASHBOARD_PORT"
 }
 
+# Stop only this cluster's processes: every Ray process it started names its temp dir (RAY_TMP) on
+# its command line; other Ray instances on the machine (another temp dir) are left alone. With the
+# shared default /tmp/ray, any Ray using that dir stops too: give RAY_TMP a dir of its own.
+stop() {
+  local pids
+  pids=$(pgrep -f -- "$RAY_TMP" | grep -vx "$$" || true)
+  if [ -n "$pids" ]; then
+    kill $pids 2>/dev/null || true
+    for ((t = 0; t < 20; t++)); do
+      pids=$(pgrep -f -- "$RAY_TMP" | grep -vx "$$" || true)
+      [ -z "$pids" ] && break
+      sleep 0.5
+    done
+    [ -n "$pids" ] && kill -9 $pids 2>/dev/null || true
+  fi
+  echo "ray cluster stopped"
+}
+
 case "${1:-}" in
   start) shift; start "$@" ;;
   status) "$RAY" status --address="127.0.0.1:$RAY_PORT" ;;
-  stop) "$RAY" stop --force >/dev/null 2>&1 || true; echo "ray cluster stopped" ;;
+  stop) stop ;;
   *) echo "usage: $0 start [WORKERS] [CPUS_PER_NODE] | status | stop" >&2; exit 2 ;;
 esac

@@ -274,13 +274,12 @@ def test_empty_fill_returns_a_copy():
 
 
 def test_large_texture_smoke():
-    """512^2 with a 20 % hole stays within a few seconds (the benchmark number is in the report)."""
+    """A 256^2 texture with a 20 % hole is filled well (its time is a benchmark figure, not asserted)."""
     H = W = 256  # a quarter of the work, to keep the suite quick
     img = _checker(H, W, period=16, noise=0.02)
     yy, xx = np.mgrid[0:H, 0:W]
     fill = (yy - H / 2) ** 2 + (xx - W / 2) ** 2 < 0.2 * H * W / np.pi
     res = patchmatch_fill(img, ~fill, fill, seed=0)
-    assert res.seconds < 10.0
     assert np.abs(res.image - img)[fill].mean() < 0.05
 
 

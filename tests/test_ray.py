@@ -90,12 +90,36 @@ def torch_allclose(a, b) -> bool:
     return bool(torch.allclose(a, b, atol=1e-4, rtol=1e-3))
 
 
+def _parent(pid: int) -> int:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("PPid:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def _ours(pid: int) -> bool:
+    """Whether ``pid`` descends from this test process (a worker of the Ray it started), so a test
+    never touches another Ray on the machine."""
+    me = os.getpid()
+    for _ in range(64):
+        pid = _parent(pid)
+        if pid == me:
+            return True
+        if pid <= 1:
+            return False
+    return False
+
+
 def _pids_running(title: bytes) -> list[int]:
+    """This test process's own processes whose command line holds ``title``."""
     out = []
     for p in Path("/proc").iterdir():
         if p.name.isdigit():
             try:
-                if title in (p / "cmdline").read_bytes():
+                if title in (p / "cmdline").read_bytes() and _ours(int(p.name)):
                     out.append(int(p.name))
             except OSError:
                 pass
@@ -238,3 +262,23 @@ def test_the_demo_builds_on_ray_and_leaves_a_running_ray_as_it_was(local_ray, tm
     assert state["stages"]["train"].get("ray") is True  # trained by Ray Train
     for path in (result.report, result.contact_sheet, result.turntable, *result.variants):
         assert Path(path).is_file() and Path(path).stat().st_size > 0
+
+
+def test_a_group_trained_by_two_ray_train_workers_averages_their_gradients(local_ray, reference, tmp_path):
+    """Ray Train's all-reduce path: one group, two workers in its team (the other tests train two
+    groups on two workers: a team of one each, no all-reduce)."""
+    import shutil
+
+    from proctex.family.stages import load_models, plan_train
+    from workflows.build import ray_executor
+
+    shutil.copytree(reference.base, tmp_path / "mug")
+    st = FamilyStore(str(tmp_path / "mug"))
+    st.delete("models/group_0.pt")
+    quiet = lambda *_: None  # noqa: E731
+    plan = plan_train(st, config(), quiet)
+    assert plan.batches == [[0]]
+    ray_executor(train_workers=2, quiet=True)(plan, st, config(), quiet)
+    record = st.read_json("family.json")["stages"]["train"]
+    assert record["ray"] is True and record["groups"]["0"]["workers"] == 2 and record["groups"]["0"]["sha256"]
+    assert sorted(load_models(st)) == [0, 1]  # the new network's checksum is the one recorded
