@@ -293,7 +293,7 @@ def test_writes_are_atomic_and_overwrite(tmp_path):
 @pytest.fixture()
 def validator():
     """The Khronos validator: required where npm exists (``conftest.require_validator``), skipped elsewhere."""
-    from conftest import require_validator
+    from .conftest import require_validator
 
     if not require_validator():
         pytest.skip("no npm here: the Khronos glTF validator cannot be installed")

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import require_validator
+from .conftest import require_validator
 
 from proctex.cli import main
 from proctex.family.template import write_textured

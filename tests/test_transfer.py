@@ -3,7 +3,7 @@
 import numpy as np
 import pyarrow as pa
 import pytest
-from conftest import require_validator
+from .conftest import require_validator
 
 from proctex.family.assets import prepare_template
 from proctex.family.assign import assign_parts
