@@ -152,7 +152,7 @@ def test_four_thousand_tiny_parts_are_refused_before_any_matching(root):
 
 
 def test_a_transfer_past_its_budget_is_a_422_and_the_other_routes_answer_meanwhile(root):
-    c, cat = _client(root, max_seconds=3.0)
+    c, cat = _client(root, max_seconds=15.0)  # long enough that the other requests surely come first
     body = _distinct_boxes(120)
     order: list[str] = []
     answers: dict[str, int] = {}
@@ -410,3 +410,11 @@ def test_a_swapped_or_altered_network_is_refused_on_load(tmp_path):
     st.write_json("family.json", state)
     with pytest.raises(ValueError, match="holds the network of group 1"):
         load_models(st)
+
+
+def test_a_gltf_upload_that_refers_to_files_is_refused(root):
+    c, _ = _client(root)
+    for uri in ("/etc/passwd", "../../family.json", "http://example.com/x.bin"):
+        doc = {"asset": {"version": "2.0"}, "buffers": [{"uri": uri, "byteLength": 12}]}
+        r = c.post("/v1/families/mug/transfer", files={"mesh": ("m.gltf", json.dumps(doc).encode())})
+        assert r.status_code == 422 and "self-contained" in r.json()["error"]

@@ -72,6 +72,8 @@ def cmd_transfer(args: argparse.Namespace) -> int:
             params = json.loads(args.params)
         except json.JSONDecodeError as exc:
             raise ValueError(f"--params is not valid JSON ({exc})") from exc
+        if not isinstance(params, dict):
+            raise ValueError(f"--params must be a JSON object of parameter values, got {type(params).__name__}")
         shape = config.procedural_model().generate(params)
     else:
         shape, _ = load_mesh(args.mesh)

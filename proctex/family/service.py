@@ -73,6 +73,25 @@ class Limits:
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 
 
+def _check_self_contained_gltf(data: bytes) -> None:
+    """An uploaded .gltf may carry its buffers and images only as ``data:`` URIs: a reference to a
+    file or a URL would make the server read it (:class:`BadInput`)."""
+    try:
+        doc = json.loads(data)
+    except (ValueError, RecursionError) as exc:
+        raise BadInput(f"cannot read the .gltf upload as JSON ({type(exc).__name__})") from exc
+    if not isinstance(doc, dict):
+        raise BadInput("a .gltf upload must be a JSON object")
+    for key in ("buffers", "images"):
+        items = doc.get(key) or []
+        if not isinstance(items, list):
+            raise BadInput(f".gltf {key} must be a list")
+        for item in items:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if isinstance(uri, str) and not uri.startswith("data:"):
+                raise BadInput(f"a .gltf upload must be self-contained: {key} refer to {uri[:80]!r} (embed them as data: URIs, or send a .glb)")
+
+
 # ------------------------------------------------------------------------------------------- edits
 EDIT_FIELDS = ("hue", "saturation", "value", "prompt")
 HUE_RANGE = (-360.0, 360.0)
@@ -252,6 +271,8 @@ class FamilyService:
             raise BadInput(f"unsupported mesh type {suffix!r}; send one of {', '.join(MESH_SUFFIXES)}")
         if not data:
             raise BadInput("empty mesh upload")
+        if suffix == ".gltf":
+            _check_self_contained_gltf(data)
         name = f"upload{suffix}"
         try:
             shape, _ = load_mesh_bytes(data, name)
