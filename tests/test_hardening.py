@@ -368,9 +368,36 @@ def _damage(folder, how):
         (folder / "family.json").write_text('{"config": ')
     elif how == "missing uv":
         (folder / "template" / "uv.npz").unlink()
+    elif how == "truncated uv":
+        p = folder / "template" / "uv.npz"
+        p.write_bytes(p.read_bytes()[:100])
+    elif how == "truncated painted masks":
+        p = folder / "template" / "painted.npz"
+        p.write_bytes(p.read_bytes()[:50])
+    elif how == "damaged paint.json":
+        (folder / "template" / "paint.json").write_text("[1, 2")
+    elif how == "paint.json without groups":
+        summary["groups"] = summary["groups"][:1]
+        st.write_json("template/paint.json", summary)
+    elif how == "missing texture":
+        png.unlink()
+    elif how == "png that is a jpeg":
+        from PIL import Image
+
+        Image.open(png).convert("RGB").save(png, format="JPEG")
+    elif how == "wrong uv shape":
+        st.write_arrays("template/uv.npz", corner_uv=np.zeros((3, 3, 2)), face_group=np.zeros(3, np.int64))
+    elif how == "garbage model":
+        (folder / "models").mkdir(exist_ok=True)
+        (folder / "models" / "group_0.pt").write_bytes(b"\x80\x04garbage")
+    elif how == "family.json of another shape":
+        (folder / "family.json").write_text('{"config": {"source": {"model": "nosuch"}}, "stages": {"paint": {"state": "done"}}}')
 
 
-@pytest.mark.parametrize("how", ["truncated png", "greyscale png", "wrong size png", "changed png", "damaged family.json", "missing uv"])
+@pytest.mark.parametrize("how", ["truncated png", "greyscale png", "wrong size png", "changed png", "damaged family.json", "missing uv",
+                                 "truncated uv", "truncated painted masks", "damaged paint.json", "paint.json without groups",
+                                 "missing texture", "png that is a jpeg", "wrong uv shape", "garbage model",
+                                 "family.json of another shape"])
 def test_a_damaged_family_is_unavailable_and_the_others_are_served(root, tmp_path, how):
     import shutil
 
