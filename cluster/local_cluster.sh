@@ -39,16 +39,21 @@ start() {
   echo "jobs API / dashboard: http://127.0.0.1:$DASHBOARD_PORT"
 }
 
-# Stop only this cluster's processes: every Ray process it started names its temp dir (RAY_TMP) on
-# its command line; other Ray instances on the machine (another temp dir) are left alone. With the
-# shared default /tmp/ray, any Ray using that dir stops too: give RAY_TMP a dir of its own.
+# Stop only this cluster's processes: the Ray processes it started name its temp dir (RAY_TMP) or its
+# head's port (RAY_PORT) on their command lines; other Ray instances on the machine (another temp
+# dir and port) are left alone. With the shared default /tmp/ray, any Ray using that dir stops too:
+# give RAY_TMP a dir of its own.
+ours() {
+  pgrep -f -- "$RAY_TMP|:${RAY_PORT}( |$)" | grep -vx "$$" || true
+}
+
 stop() {
   local pids
-  pids=$(pgrep -f -- "$RAY_TMP" | grep -vx "$$" || true)
+  pids=$(ours)
   if [ -n "$pids" ]; then
     kill $pids 2>/dev/null || true
     for ((t = 0; t < 20; t++)); do
-      pids=$(pgrep -f -- "$RAY_TMP" | grep -vx "$$" || true)
+      pids=$(ours)
       [ -z "$pids" ] && break
       sleep 0.5
     done
