@@ -4,8 +4,9 @@ Routes:
 
 - ``GET /``: the web studio (``workers/studio/dist/index.html``; 503 with a note naming
   ``make setup`` when the bundle has not been built). ``GET /studio/<file>``: its bundled assets.
-- ``GET /healthz``: liveness and the loaded families.
-- ``GET /v1/families``: the families under the store root.
+- ``GET /healthz``: liveness, the families and those unavailable, the transfers under way (503
+  while one is stuck far past its budget).
+- ``GET /v1/families``: the families under the store root and each one's health.
 - ``GET /v1/families/{name}``: parameter specs, groups, prompts, build state, metrics.
 - ``POST /v1/families/{name}/transfer``: a textured GLB (``model/gltf-binary``) for either a JSON
   body ``{"params": {...}, "seed": 0, "edits": {...}}`` (families of a procedural model) or a
@@ -18,12 +19,17 @@ Routes:
   the group's texture (edited as given) as a PNG at most ``size`` pixels a side.
 - ``POST /v1/families/{name}/edits``: ``{"group": index or label, "hue", "saturation", "value",
   "prompt"}`` stored into the family (:func:`proctex.family.edits.edit_group`); returns
-  ``{"family", "edit": record, "stamp": new build stamp}``. Later transfers use it.
+  ``{"family", "edit": record, "stamp": new build stamp}``. Later transfers use it. Needs the service's
+  edit token (``X-ProcTex-Token``; without a token configured the service is read-only) and a JSON
+  body; ``If-Match: <stamp>`` makes it conditional (409 when the family changed).
+- ``DELETE /v1/families/{name}/edits/last``: undo the last stored edit; ``DELETE
+  /v1/families/{name}/edits``: undo them all (the template as painted). Both need the token.
 
-Errors are JSON ``{"error": message}``: unknown family (or group in a path) 404, body over the size
-limit 413, bad JSON, parameters out of bounds, unknown parameters, an unreadable mesh or a bad edit
-(unknown group, non-finite numbers, hue outside [-360, 360], saturation or value outside [0, 4],
-prompt too long) 422.
+Errors are JSON ``{"error": message}`` on every route: unknown family (or group in a path) 404, body
+over the size limit 413, bad JSON, parameters out of bounds, unknown parameters, an unreadable mesh,
+too many parts, a transfer past its time budget or a bad edit (unknown group, non-finite numbers, hue
+outside [-360, 360], saturation or value outside [0, 4], prompt too long) 422; edits off 403, a wrong
+token 401, a non-JSON edit 415, a stale stamp 409; a damaged family 503; anything unexpected a JSON 500.
 """
 
 from __future__ import annotations
