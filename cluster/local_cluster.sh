@@ -40,11 +40,17 @@ start() {
 }
 
 # Stop only this cluster's processes: the Ray processes it started name its temp dir (RAY_TMP) or its
-# head's port (RAY_PORT) on their command lines; other Ray instances on the machine (another temp
-# dir and port) are left alone. With the shared default /tmp/ray, any Ray using that dir stops too:
+# head's port (RAY_PORT) on their command lines, or hold files under RAY_TMP open; other Ray
+# instances on the machine (another temp dir and port) are left alone. With the shared default /tmp/ray, any Ray using that dir stops too:
 # give RAY_TMP a dir of its own.
 ours() {
-  pgrep -f -- "$RAY_TMP|:${RAY_PORT}( |$)" | grep -vx "$$" || true
+  {
+    pgrep -f -- "$RAY_TMP|:${RAY_PORT}( |$)" || true
+    # Renamed processes (ray::DashboardAgent, ...) name neither, but hold files under RAY_TMP open.
+    for fd in /proc/[0-9]*/fd; do
+      if ls -l "$fd" 2>/dev/null | grep -q -- "$RAY_TMP"; then basename "$(dirname "$fd")"; fi
+    done
+  } | { grep -vx "$$" || true; } | sort -u
 }
 
 stop() {
