@@ -162,26 +162,36 @@ class EditConflict(ValueError):
     """The family changed since the stamp the edit was made against (or there is nothing to undo)."""
 
 
-def edit_lock(store: FamilyStore, timeout: float = 60.0):
-    """A context manager holding the family's edit lock, across processes on one machine (an
-    exclusive ``flock`` on ``.edit.lock`` in the store folder). Stores that are not local folders
-    cannot be edited safely and are refused (``ValueError``)."""
+def edit_lock(store: FamilyStore, timeout: float = 60.0, shared: bool = False):
+    """A context manager holding the family's edit lock, across processes on one machine (a
+    ``flock`` on ``.edit.lock`` in the store folder): exclusive for an edit, ``shared`` for a reader
+    that must see the template's files of one version (a service loading the family). Stores that
+    are not local folders cannot be edited (``ValueError``); readers of them take no lock."""
     import contextlib
     import fcntl
     import time
 
     if "://" in store.uri and not store.uri.startswith("file://"):
+        if shared:
+            return contextlib.nullcontext()
         raise ValueError(f"{store.uri}: edits need a family on a local file system (the edit lock is a file lock)")
+    mode = fcntl.LOCK_SH if shared else fcntl.LOCK_EX
 
     @contextlib.contextmanager
     def held():
         path = os.path.join(store.base, StoreLayout.EDIT_LOCK)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            if shared:  # a read-only store folder: nobody edits it, nothing to wait for
+                yield
+                return
+            raise ValueError(f"{store.uri}: cannot take the edit lock ({exc})") from exc
         try:
             deadline = time.monotonic() + timeout
             while True:
                 try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    fcntl.flock(fd, mode | fcntl.LOCK_NB)
                     break
                 except BlockingIOError:
                     if time.monotonic() > deadline:

@@ -187,8 +187,11 @@ class FamilyService:
         self.config = stored_config(store)
         self.model = None if self.config.source.folder else self.config.procedural_model()
         self.up = self.config.up_axis()  # GLBs stand the shape upright in glTF's +Y-up world
-        self.assets = load_assets(store)
-        self.models = load_models(store) if mapper in ("auto", "net") else {}
+        from .edits import edit_lock
+
+        with edit_lock(store, shared=True):  # the template's files as one version, never half an edit
+            self.assets = load_assets(store)
+            self.models = load_models(store) if mapper in ("auto", "net") else {}
         if mapper == "net" and not self.models:
             raise ValueError(f"{store.uri} has no trained models (run the train stage)")
         self.mapper: Any = make_mapper(mapper, self.assets, self.models, corr_points=self.config.corr_points, cage=self.config.cage)
