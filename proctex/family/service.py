@@ -7,7 +7,10 @@ stamp changes (a rebuild or an edit). Both are plain Python: the Ray Serve deplo
 (``workers/serve.py``) and any other server wrap them.
 
 Requests are validated here with ``ValueError`` subclasses that a server maps to HTTP codes:
-:class:`NotFound` (404), :class:`BadInput` (422) and :class:`TooLarge` (413).
+:class:`NotFound` (404), :class:`BadInput` (422), :class:`TooLarge` (413) and :class:`Unavailable`
+(503: a damaged family, which the catalog isolates). Transfers run within :class:`Limits`, with a
+:class:`~proctex.family.budget.Budget`; a :class:`Watchdog` tells a stuck transfer from a busy one.
+Stored edits are versioned, serialised across processes and undoable (:mod:`proctex.family.edits`).
 
 Non-destructive edits (:class:`GroupEdit`): a transfer can take, per template group, a re-paint
 prompt and an HSV shift applied to a copy of the group's texture (:func:`proctex.family.edits.edit_texture`,
