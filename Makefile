@@ -10,7 +10,18 @@ STUDIO     := workers/studio
 STUDIO_OUT := $(STUDIO)/dist/index.html
 STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: setup demo test test-fast bench gallery clean studio browser
+.PHONY: setup demo test test-fast bench gallery clean studio browser blender
+
+# Blender's Python (bpy, which needs numpy < 2) in an environment of its own, for .blend family
+# sources (proctex/family/blender.py). A machine where bpy cannot be installed skips those tests.
+BLENDER_VENV := .venv-blender
+BLENDER_STAMP := $(BLENDER_VENV)/.bpy-installed
+$(BLENDER_STAMP):
+	@($(PYTHON) -m venv $(BLENDER_VENV) && $(BLENDER_VENV)/bin/python -m pip install --quiet --upgrade pip \
+	  && $(BLENDER_VENV)/bin/python -m pip install --quiet bpy==5.0.1 && touch $(BLENDER_STAMP)) \
+	  || echo "bpy could not be installed: the Blender tests will skip"
+
+blender: $(BLENDER_STAMP)
 
 # The Khronos glTF validator (npm) goes into the venv too; GLB tests use it where npm exists.
 # Where npm exists, the studio's locked packages are installed (npm ci) and bundled too.
@@ -44,7 +55,7 @@ browser:
 demo: setup
 	$(VENV)/bin/proctex demo --out out/demo
 
-test: setup browser
+test: setup browser blender
 	$(PY) -m pytest -q
 
 # The benchmark suite (not part of make test): JSON per benchmark and a summary table in out/bench.
