@@ -107,3 +107,29 @@ def test_input_specs_need_bounds_for_an_unbounded_input():
     assert space.specs[0].low == 0.5 and pins == {}
     with pytest.raises(ValueError, match="no input 'Nope'"):
         input_specs(inputs, pins={"Nope": 1})
+
+
+@needs_bpy
+@pytest.mark.slow
+def test_a_blend_family_builds_and_transfers_new_parameters(vase_blend, tmp_path, capsys):
+    """``proctex build --blend`` samples the .blend through its Blender process, paints, solves
+    pairs and trains; ``proctex transfer`` textures new parameters (a new ring count) into a GLB."""
+    import json
+
+    from proctex.cli import main
+    from proctex.family.store import FamilyStore
+    from proctex.texture.gltf_read import read_textured_glb
+
+    out = tmp_path / "fam"
+    code = main(["build", "--blend", str(vase_blend), "--object", "Vase", "--prompt", "blue ceramic", "--n-train", "3", "--n-test", "0",
+                 "--texture-size", "64", "--points", "200", "--iterations", "20", "--train-iterations", "20", "--out", str(out), "--quiet",
+                 "--stages", "sample,template,paint,pairs,train"])
+    assert code == 0, capsys.readouterr().err
+    state = FamilyStore(out).read_json("family.json")
+    assert state["config"]["source"]["blender"]["object"] == "Vase"
+    assert all(state["stages"][s]["state"] == "done" for s in ("sample", "template", "paint", "pairs", "train"))
+    glb = tmp_path / "v.glb"
+    code = main(["transfer", str(out), "--params", json.dumps({"Height": 2.0, "Resolution": 24}), "--out", str(glb)])
+    assert code == 0, capsys.readouterr().err
+    mesh = read_textured_glb(glb.read_bytes())
+    assert len(mesh.faces) > 0 and len(mesh.textures) >= 1

@@ -33,8 +33,12 @@ def _build_config(args: argparse.Namespace):
         "painter": args.painter, "model_dir": os.path.abspath(args.model_dir) if args.model_dir else None,
         "tessellation": args.tessellation, "truth": args.truth,
     }
-    if args.model or args.folder:  # a source flag replaces the config's (and the preset's) source
-        data = merge(data, {"source": {"model": None, "folder": None, "generator": None}})
+    if args.blend:
+        if not args.object:
+            raise ValueError("--blend needs --object (the object carrying the Geometry Nodes modifier)")
+        flags["blender"] = {"file": os.path.abspath(args.blend), "object": args.object, "modifier": args.modifier}
+    if args.model or args.folder or args.blend:  # a source flag replaces the config's (and the preset's) source
+        data = merge(data, {"source": {"model": None, "folder": None, "generator": None, "blender": None}})
     data = merge(data, sections({k: v for k, v in flags.items() if v is not None}))
     if args.train_iterations is not None:
         data = merge(data, {"train": {"iterations": args.train_iterations}})

@@ -12,7 +12,7 @@ from typing import Any
 
 #: Flat settings (the config format before sections, still read) -> (section, field).
 FLAT_KEYS: dict[str, tuple[str, str]] = {
-    **{k: ("source", k) for k in ("model", "folder", "generator", "n_train", "n_test", "sampling", "params", "tessellation", "up")},
+    **{k: ("source", k) for k in ("model", "folder", "generator", "blender", "n_train", "n_test", "sampling", "params", "tessellation", "up")},
     **{k: ("paint", k) for k in ("prompt", "group_prompts", "painter", "texture_size", "views", "view_size", "paint_hidden", "fill",
                                  "model_dir", "device", "steps")},
     "cage_level": ("cage", "level"), "cage_iterations": ("cage", "iterations"),
@@ -31,7 +31,9 @@ def _integer(name: str, value: Any, lo: int, hi: int) -> None:
 @dataclass
 class SourceConfig:
     """Where the family's shapes come from. Exactly one of ``model`` (built-in name), ``folder``
-    (samples on disk) or ``generator`` (a generator config file).
+    (samples on disk), ``generator`` (a generator config file) or ``blender`` (a ``.blend`` file's
+    Geometry Nodes modifier: ``{"file", "object", "modifier": "GeometryNodes", "pins": {input: value}}``;
+    ``params`` narrows its inputs' ranges, see :mod:`proctex.family.blender`).
 
     Attributes:
         n_train, n_test, sampling: how many shapes to sample from a model ("lhs" or "random").
@@ -47,6 +49,7 @@ class SourceConfig:
     model: str | None = None
     folder: str | None = None
     generator: str | None = None
+    blender: dict[str, Any] | None = None
     n_train: int = 24
     n_test: int = 8
     sampling: str = "lhs"
@@ -55,9 +58,20 @@ class SourceConfig:
     up: str = "auto"
 
     def validate(self) -> "SourceConfig":
-        named = [x for x in (self.model, self.folder, self.generator) if x]
+        named = [x for x in (self.model, self.folder, self.generator, self.blender) if x]
         if len(named) != 1:
-            raise ValueError("name exactly one of model, folder or generator")
+            raise ValueError("name exactly one of model, folder, generator or blender")
+        if self.blender is not None:
+            b = self.blender
+            if not isinstance(b, dict) or not isinstance(b.get("file"), str) or not isinstance(b.get("object"), str):
+                raise ValueError('blender must be {"file": "x.blend", "object": "Name", "modifier": "GeometryNodes", "pins": {...}}')
+            unknown = sorted(set(b) - {"file", "object", "modifier", "pins"})
+            if unknown:
+                raise ValueError(f"unknown blender settings {unknown}; known: file, object, modifier, pins")
+            if not os.path.isfile(b["file"]):
+                raise ValueError(f"blender file {b['file']!r} not found")
+            if not isinstance(b.get("pins", {}), dict) or not isinstance(b.get("modifier", "GeometryNodes"), str):
+                raise ValueError("blender pins must be an object {input: value} and modifier a name")
         if self.model:
             from proctex.models import get_model
 
@@ -186,6 +200,8 @@ class BuildConfig:
         from .sources import load_generator
 
         src = self.source
+        if src.blender:
+            return blender_model(src.blender, src.params)
         model = load_generator(src.generator) if src.generator else get_model(src.model, tessellation=src.tessellation)
         if src.params:
             model.space = _restricted(model.space, src.params)
@@ -246,6 +262,9 @@ class BuildConfig:
             value = data.get(section, {}).get(key)
             if value and isinstance(value, str) and not os.path.isabs(value):
                 data[section][key] = str((p.parent / value).resolve())
+        blend = data.get("source", {}).get("blender")
+        if isinstance(blend, dict) and isinstance(blend.get("file"), str) and not os.path.isabs(blend["file"]):
+            data["source"]["blender"] = {**blend, "file": str((p.parent / blend["file"]).resolve())}
         return data
 
     @staticmethod
@@ -290,6 +309,21 @@ def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     for k, v in over.items():
         out[k] = {**out.get(k, {}), **v} if k in SECTIONS else v
     return out
+
+
+#: One Blender process per .blend source per process (a Ray worker opens the file once).
+_BLENDER_MODELS: dict[str, Any] = {}
+
+
+def blender_model(settings: dict[str, Any], bounds: dict[str, list[float]] | None = None):
+    """The :class:`proctex.family.blender.BlenderModel` of a ``blender`` source, kept per process."""
+    from .blender import BlenderModel
+
+    key = json.dumps({"settings": settings, "bounds": bounds or {}}, sort_keys=True)
+    if key not in _BLENDER_MODELS:
+        _BLENDER_MODELS[key] = BlenderModel(settings["file"], settings["object"], settings.get("modifier", "GeometryNodes"),
+                                            bounds=bounds, pins=settings.get("pins"))
+    return _BLENDER_MODELS[key]
 
 
 def _restricted(space, bounds: dict[str, list[float]]):

@@ -224,7 +224,8 @@ class FamilyService:
         metrics = self.store.read_json(StoreLayout.METRICS) if self.store.exists(StoreLayout.METRICS) else None
         return {
             "name": self.name,
-            "source": {"model": self.config.source.model, "folder": bool(self.config.source.folder), "generator": bool(self.config.source.generator)},
+            "source": {"model": self.config.source.model, "folder": bool(self.config.source.folder), "generator": bool(self.config.source.generator),
+                       "blender": bool(self.config.source.blender)},
             "inputs": ["params", "mesh"] if self.model is not None else ["mesh"],
             "up": self.up,
             "parameters": [s.to_dict() for s in space.specs],
