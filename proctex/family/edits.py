@@ -105,6 +105,7 @@ def edit_group(
     rotation: float = 0.0,
     opacity: float = 1.0,
     prompt: str | None = None,
+    record_extra: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Edit one group's template texture in the store; every later transfer or bake uses it.
 
@@ -112,7 +113,8 @@ def edit_group(
     surface painter, the family's seed), HSV shift (``hue`` degrees, ``saturation`` and ``value``
     scales) — both by :func:`edit_texture` —, and placing an image file (``logo``) centred at UV
     ``at`` with UV ``size``, ``rotation`` (degrees) and ``opacity``. Returns the edit record appended
-    to ``template/paint.json``.
+    to ``template/paint.json``; ``record_extra`` (a versioned edit's fields, :func:`stored_edit`) joins
+    it, with the digest of the new texture as ``after``.
     """
     import io
 
@@ -151,6 +153,8 @@ def edit_group(
             g["sha256"] = digest(png)
             if "prompt" in record:
                 g["prompt"] = record["prompt"]
+    if record_extra is not None:
+        record.update(record_extra, after=digest(png))
     summary.setdefault("edits", []).append(record)
     store.write_json(StoreLayout.PAINT, summary)
     refresh_template_glb(store)
@@ -204,10 +208,6 @@ def edit_lock(store: FamilyStore, timeout: float = 60.0, shared: bool = False):
     return held()
 
 
-def _texture_digest(store: FamilyStore, rel: str) -> str:
-    return digest(store.read_bytes(rel))
-
-
 def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None = None, stamp: Any = None, **edit: Any) -> dict[str, Any]:
     """:func:`edit_group`, versioned and serialised: under the family's edit lock, check
     ``expect_stamp`` against the family's stamp (``stamp(store)``; :class:`EditConflict` when they
@@ -221,14 +221,13 @@ def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None =
         rel = StoreLayout.texture(int(entry["group"]), entry["label"])
         version = len(store.read_json(StoreLayout.PAINT).get("edits", [])) + 1
         kept = [rel, StoreLayout.PAINT] + ([StoreLayout.PAINTED] if store.exists(StoreLayout.PAINTED) else [])
+        before = None
         for f in kept:
-            store.write_bytes(StoreLayout.edit_snapshot(version, os.path.basename(f)), store.read_bytes(f))
-        before = _texture_digest(store, rel)
-        edit_group(store, group, **edit)
-        summary = store.read_json(StoreLayout.PAINT)
-        summary["edits"][-1].update(version=version, before=before, after=_texture_digest(store, rel))
-        store.write_json(StoreLayout.PAINT, summary)
-        return summary["edits"][-1]
+            data = store.read_bytes(f)
+            store.write_bytes(StoreLayout.edit_snapshot(version, os.path.basename(f)), data)
+            if f == rel:
+                before = digest(data)
+        return edit_group(store, group, **edit, record_extra={"version": version, "before": before})
 
 
 def undo_edit(store: FamilyStore, expect_stamp: str | None = None, stamp: Any = None) -> dict[str, Any]:
