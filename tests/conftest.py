@@ -25,3 +25,20 @@ def require_validator() -> bool:
     if shutil.which("npm"):
         pytest.fail("the Khronos glTF validator is missing although npm is here: run `make setup`")
     return False
+
+
+@pytest.fixture(scope="session")
+def painted_mug_root(tmp_path_factory) -> Path:
+    """A store root holding ``mug``: a painted mug family without networks (the identity mapper
+    serves it), built once per test session. Tests that change it work on a copy."""
+    from proctex.family.config import BuildConfig
+    from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
+    from proctex.family.store import FamilyStore
+
+    base = tmp_path_factory.mktemp("painted_mug")
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="blue ceramic"))
+    st = FamilyStore(base / "mug")
+    write_config(st, cfg)
+    for stage in (stage_sample, stage_template, stage_paint):
+        stage(st, cfg, log=lambda *_: None)
+    return base

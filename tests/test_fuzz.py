@@ -7,10 +7,7 @@ from __future__ import annotations
 import pytest
 
 from .fuzz_cases import cli_cases, http_cases
-from proctex.family.config import BuildConfig
 from proctex.family.service import Catalog, Limits
-from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
-from proctex.family.store import FamilyStore
 
 fastapi = pytest.importorskip("fastapi")
 from fastapi.testclient import TestClient  # noqa: E402
@@ -21,13 +18,12 @@ ALLOWED = {200, 401, 403, 404, 405, 409, 413, 415, 422, 503}
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory):
+def root(painted_mug_root, tmp_path_factory):
+    """A copy of the painted mug: the fuzzed edits may store some."""
+    import shutil
+
     base = tmp_path_factory.mktemp("fuzz")
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="blue ceramic"))
-    st = FamilyStore(base / "mug")
-    write_config(st, cfg)
-    for stage in (stage_sample, stage_template, stage_paint):
-        stage(st, cfg, log=lambda *_: None)
+    shutil.copytree(painted_mug_root / "mug", base / "mug")
     return base
 
 

@@ -14,7 +14,7 @@ import pytest
 from proctex.family.budget import Budget, OverBudget
 from proctex.family.config import BuildConfig
 from proctex.family.service import Catalog, Limits, Watchdog
-from proctex.family.stages import load_assets, stage_paint, stage_sample, stage_template, write_config
+from proctex.family.stages import load_assets
 from proctex.family.store import FamilyStore
 from proctex.geometry.meshio import load_mesh_bytes, obj_text, position_ids
 from proctex.models import get_model
@@ -26,15 +26,8 @@ from workers.http import create_app  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory):
-    """A painted mug family (no networks: the identity mapper serves it)."""
-    base = tmp_path_factory.mktemp("families")
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="blue ceramic"))
-    st = FamilyStore(base / "mug")
-    write_config(st, cfg)
-    for stage in (stage_sample, stage_template, stage_paint):
-        stage(st, cfg, log=lambda *_: None)
-    return base
+def root(painted_mug_root):
+    return painted_mug_root
 
 
 def _client(root, **limits):
@@ -331,13 +324,12 @@ def test_concurrent_edits_from_two_processes_apply_in_order_and_lose_nothing(roo
         chain = [e for e in edits if e["group"] == g]
         assert len(chain) == 10
         assert all(a["after"] == b["before"] for a, b in zip(chain, chain[1:]))  # no edit overwrote another
-    from proctex.family.edits import _texture_digest
-    from proctex.family.store import StoreLayout
+    from proctex.family.store import StoreLayout, digest
 
     labels = {g["group"]: g["label"] for g in st.read_json("template/paint.json")["groups"]}
     for g in (0, 1):
         last = [e for e in edits if e["group"] == g][-1]
-        assert _texture_digest(st, StoreLayout.texture(g, labels[g])) == last["after"]
+        assert digest(st.read_bytes(StoreLayout.texture(g, labels[g]))) == last["after"]
 
 
 # ----------------------------------------------------------------------------------------- damage
