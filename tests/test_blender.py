@@ -5,7 +5,7 @@ Python with ``bpy`` exists (``make blender`` makes ``.venv-blender``)."""
 from __future__ import annotations
 
 import subprocess
-import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,44 +16,23 @@ from proctex.geometry.parts import segment
 PYTHON = blender_python()
 needs_bpy = pytest.mark.skipif(PYTHON is None, reason="no Python with bpy (make blender makes .venv-blender; bpy not installable here?)")
 
-#: A vase-like family: a cylinder whose ring count follows its "Resolution" input (topology
-#: changes) and whose depth is "Height"; a bool "Capped" drops the caps.
-BUILD_VASE = textwrap.dedent("""
-    import sys, bpy
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    mesh = bpy.data.meshes.new("m")
-    obj = bpy.data.objects.new("Vase", mesh)
-    bpy.context.scene.collection.objects.link(obj)
-    ng = bpy.data.node_groups.new("VaseNodes", "GeometryNodeTree")
-    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    h = ng.interface.new_socket("Height", in_out="INPUT", socket_type="NodeSocketFloat")
-    h.default_value, h.min_value, h.max_value = 1.0, 0.2, 3.0
-    r = ng.interface.new_socket("Resolution", in_out="INPUT", socket_type="NodeSocketInt")
-    r.default_value, r.min_value, r.max_value = 8, 3, 64
-    c = ng.interface.new_socket("Capped", in_out="INPUT", socket_type="NodeSocketBool")
-    c.default_value = True
-    gin, gout = ng.nodes.new("NodeGroupInput"), ng.nodes.new("NodeGroupOutput")
-    cyl = ng.nodes.new("GeometryNodeMeshCylinder")
-    ng.links.new(gin.outputs["Height"], cyl.inputs["Depth"])
-    ng.links.new(gin.outputs["Resolution"], cyl.inputs["Vertices"])
-    switch = ng.nodes.new("FunctionNodeCompare")  # unused: inputs of other types must not confuse the reader
-    ng.links.new(cyl.outputs["Mesh"], gout.inputs["Geometry"])
-    mod = obj.modifiers.new("GeometryNodes", "NODES")
-    mod.node_group = ng
-    bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1])
-""")
+FIXTURES = Path(__file__).parent / "fixtures" / "blend" / "make_fixtures.py"
 
 
 @pytest.fixture(scope="module")
-def vase_blend(tmp_path_factory):
+def blends(tmp_path_factory):
+    """The fixture files (``vase.blend``, ``table.blend``), built in code by ``make_fixtures.py``."""
     if PYTHON is None:
         pytest.skip("no Python with bpy")
-    path = tmp_path_factory.mktemp("blend") / "vase.blend"
-    script = path.with_suffix(".py")
-    script.write_text(BUILD_VASE)
-    done = subprocess.run([PYTHON, str(script), str(path)], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0 and path.exists(), done.stderr[-2000:]
-    return path
+    out = tmp_path_factory.mktemp("blend")
+    done = subprocess.run([PYTHON, str(FIXTURES), str(out)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and (out / "table.blend").exists(), done.stderr[-2000:]
+    return out
+
+
+@pytest.fixture(scope="module")
+def vase_blend(blends):
+    return blends / "vase.blend"
 
 
 @needs_bpy
@@ -110,6 +89,109 @@ def test_input_specs_need_bounds_for_an_unbounded_input():
 
 
 @needs_bpy
+def test_a_table_with_a_menu_and_a_leg_count_changes_its_parts(blends):
+    """The menu's options come from the modifier; every leg is one more part; the menu switches the
+    top's mesh."""
+    model = BlenderModel(blends / "table.blend", "Table")
+    try:
+        specs = {s.name: s for s in model.space.specs}
+        assert specs["Top Shape"].kind == "choice" and specs["Top Shape"].options == ("Round", "Square")
+        assert specs["Top Shape"].default == "Round"
+        assert (specs["Legs"].low, specs["Legs"].high, specs["Legs"].default) == (3, 8, 4)
+        for legs in (3, 5, 8):
+            assert segment(model.generate({"Legs": legs})).n_parts == 1 + legs
+        round_top, square_top = (model.generate({"Legs": 3, "Top Shape": t}) for t in ("Round", "Square"))
+        assert square_top.n_faces < round_top.n_faces  # a box against a 32-sided disc
+        assert np.allclose(np.ptp(square_top.vertices[:, :2], axis=0), 1.2)
+        with pytest.raises(ValueError, match="Top Shape"):
+            model.generate({"Top Shape": "Oval"})
+    finally:
+        model.close()
+
+
+@needs_bpy
+def test_a_part_attribute_overrides_connectivity_and_a_uv_map_travels_with_the_shape(vase_blend):
+    """The vase is one connected mesh; its ``part_id`` face attribute cuts it in two, at the middle.
+    Its ``UVMap`` comes back per face corner, equal to the cylinder's own layout."""
+    plain = BlenderModel(vase_blend, "Vase")
+    model = BlenderModel(vase_blend, "Vase", parts="part_id", uv="UVMap")
+    try:
+        one = plain.generate({"Resolution": 10})
+        two = model.generate({"Resolution": 10})
+        assert segment(one).n_parts == 1 and one.corner_uv is None
+        seg = segment(two)
+        assert seg.n_parts == 2 and two.n_faces == one.n_faces and two.n_vertices == one.n_vertices + 10  # the middle ring, twice
+        centres = two.vertices[two.faces].mean(axis=1)[:, 2]
+        for p in range(2):  # each part lies on one side of the middle
+            side = centres[seg.face_part == p]
+            assert (side > 0).all() or (side < 0).all()
+        assert ("UVMap", "CORNER", "FLOAT2") in model.attributes and ("part_id", "FACE", "INT") in model.attributes
+        assert two.corner_uv.shape == (two.n_faces, 3, 2) and 0 <= two.corner_uv.min() and two.corner_uv.max() <= 1
+        assert np.ptp(two.corner_uv[..., 0]) > 0.9  # the side's strip spans the whole width
+        with pytest.raises(ValueError, match="no attribute 'nope'.*part_id"):
+            BlenderModel(vase_blend, "Vase", parts="nope").generate({})
+        with pytest.raises(ValueError, match="not a UV map"):
+            BlenderModel(vase_blend, "Vase", uv="part_id").generate({})
+    finally:
+        plain.close()
+        model.close()
+
+
+FAKE_BLENDER = """#!{python}
+import json, os, signal, sys
+for line in sys.stdin:
+    req = json.loads(line)
+    if req["op"] == "open":
+        print(json.dumps({{"inputs": [{{"name": "Size", "identifier": "S", "type": "float", "default": 1.0, "min": 0.0, "max": 2.0}}]}}), flush=True)
+    elif req["op"] == "generate" and req["params"].get("Size", 1.0) > 1.5:
+        os.kill(os.getpid(), signal.SIGSEGV)  # what a crashing evaluation looks like from outside
+    elif req["op"] == "generate":
+        import time; time.sleep(float(req["params"].get("Size", 1.0)) * 10)
+"""
+
+
+def test_a_blender_process_that_crashes_or_hangs_is_an_error_and_the_next_request_starts_a_new_one(tmp_path):
+    """A stand-in for Blender (a process speaking the protocol) segfaults on one input and hangs on
+    another: both are ``ValueError``s naming what happened, the caller lives on, and the next request
+    opens the file in a fresh process."""
+    import sys
+
+    from proctex.family.blender import BlenderSession
+
+    fake = tmp_path / "fake_python"
+    fake.write_text(FAKE_BLENDER.format(python=sys.executable))
+    fake.chmod(0o755)
+    blend = tmp_path / "x.blend"
+    blend.write_bytes(b"BLENDER")
+    session = BlenderSession(blend, "Thing", python=str(fake), timeout=2.0)
+    try:
+        first = session.proc.pid
+        with pytest.raises(ValueError, match=r"ended \(signal 11\) during 'generate'"):
+            session.generate({"Size": 1.8})
+        with pytest.raises(ValueError, match="did not answer 'generate' within 2 s"):
+            session.generate({"Size": 1.0})
+        assert session.restarts == 1 and session.proc.pid != first and session.proc.poll() is not None  # the hung one was stopped
+        with pytest.raises(ValueError, match="signal 11"):
+            session.generate({"Size": 1.9})
+        assert session.restarts == 2
+    finally:
+        session.close()
+
+
+@needs_bpy
+def test_a_killed_blender_process_is_replaced_and_gives_the_same_shapes(vase_blend):
+    model = BlenderModel(vase_blend, "Vase")
+    try:
+        a = model.generate({"Resolution": 12})
+        model.session.proc.kill()
+        model.session.proc.wait()
+        b = model.generate({"Resolution": 12})
+        assert model.session.restarts == 1 and np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
+    finally:
+        model.close()
+
+
+@needs_bpy
 @pytest.mark.slow
 def test_a_blend_family_builds_and_transfers_new_parameters(vase_blend, tmp_path, capsys):
     """``proctex build --blend`` samples the .blend through its Blender process, paints, solves
@@ -123,10 +205,21 @@ def test_a_blend_family_builds_and_transfers_new_parameters(vase_blend, tmp_path
     out = tmp_path / "fam"
     code = main(["build", "--blend", str(vase_blend), "--object", "Vase", "--prompt", "blue ceramic", "--n-train", "3", "--n-test", "0",
                  "--texture-size", "64", "--points", "200", "--iterations", "20", "--train-iterations", "20", "--out", str(out), "--quiet",
-                 "--stages", "sample,template,paint,pairs,train"])
+                 "--stages", "sample,template,paint,pairs,train", "--parts-attribute", "part_id", "--keep-uv", "UVMap"])
     assert code == 0, capsys.readouterr().err
-    state = FamilyStore(out).read_json("family.json")
-    assert state["config"]["source"]["blender"]["object"] == "Vase"
+    store = FamilyStore(out)
+    state = store.read_json("family.json")
+    assert state["config"]["source"]["blender"] == {"file": str(vase_blend), "object": "Vase", "modifier": "GeometryNodes",
+                                                    "parts": "part_id", "uv": "UVMap"}
+    # the graph's parts (two halves) and its UV map (kept for each group's representative)
+    from proctex.family.stages import load_template
+
+    template = load_template(store)
+    assert template.grouping.segmentation.n_parts == 2
+    made = template.shape.corner_uv
+    for g in template.grouping.groups:
+        faces = template.grouping.parts[g.representative].faces
+        assert np.allclose(template.corner_uv[faces], made[faces])
     assert all(state["stages"][s]["state"] == "done" for s in ("sample", "template", "paint", "pairs", "train"))
     glb = tmp_path / "v.glb"
     code = main(["transfer", str(out), "--params", json.dumps({"Height": 2.0, "Resolution": 24}), "--out", str(glb)])

@@ -3,7 +3,11 @@ import pytest
 
 from proctex.geometry.align import icp_to_surface, rotation_angle, umeyama, apply
 from proctex.geometry.surface import SurfaceIndex, closest_point_bruteforce, closest_point_on_triangles, sample_surface, triangle_areas
+from proctex.geometry.parts import segment
+from proctex.geometry.shape import Shape, split_by_face_parts
 from proctex.models import get_model
+
+from .meshes import cube
 
 
 def random_rotation(rng):
@@ -145,3 +149,27 @@ def test_query_facing_keeps_each_side_of_a_thin_wall():
     np.testing.assert_allclose(idx.query_facing(pts, up, k=1).points[:, 2], 0.01)
     # ... but never beyond max_k: with one proxy allowed, each keeps its one candidate.
     np.testing.assert_allclose(idx.query_facing(pts, up, k=1, max_k=1).points, idx.query(pts, exact=False, k=1).points)
+
+
+def test_split_by_face_parts_cuts_a_connected_mesh_along_part_boundaries():
+    """One cube (one connected part) whose faces are labelled by their normal's axis: no component
+    spans two labels (opposite sides share a label but not a vertex, so they stay two parts),
+    vertices are duplicated only where labels meet, and positions are unchanged."""
+    v, f = cube()
+    assert segment(Shape(v, f)).n_parts == 1
+    normal_axis = np.argmax(np.abs(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])), axis=1)
+    faces, source = split_by_face_parts(f, normal_axis * 10, len(v))  # labels need not be 0..k-1
+    split = Shape(v[source], faces)
+    seg = segment(split)
+    assert seg.n_parts == 6 and split.n_vertices == 3 * 8  # each corner is in three axis classes
+    assert np.allclose(split.vertices[split.faces], v[f])  # every triangle keeps its corners
+    for part in range(6):
+        assert len(set(normal_axis[seg.face_part == part])) == 1
+    same, src = split_by_face_parts(f, np.zeros(len(f), dtype=int), len(v))
+    assert np.array_equal(same, f) and np.array_equal(src, np.arange(8))
+    unused, src = split_by_face_parts(f[:2], np.zeros(2, dtype=int), 8)
+    assert np.array_equal(v[src][unused], v[f[:2]]) and len(src) == len(np.unique(f[:2]))
+    with pytest.raises(ValueError, match="face_part"):
+        split_by_face_parts(f, np.zeros(3), len(v))
+    with pytest.raises(ValueError, match="face indices"):
+        split_by_face_parts(f, np.zeros(len(f)), 4)

@@ -23,7 +23,7 @@ from proctex.texture.render import (
     turntable,
 )
 from proctex.geometry.shape import Shape
-from proctex.texture.uv import pad_seams, planar_uv, sample_texture, shape_uv, texel_map, unwrap, uv_to_pixel
+from proctex.texture.uv import fit_unit_square, pad_seams, planar_uv, sample_texture, shape_uv, source_uv, texel_map, unwrap, uv_to_pixel
 
 from .meshes import cube
 
@@ -200,6 +200,37 @@ def test_shape_uv_members_read_their_representatives_texture():
             expected = (x - lo) / np.maximum(hi - lo, 1e-9)
             got = sample_texture(img, centroid_uv)
             assert np.median(np.abs(got - expected)) < 0.02, (g.index, member, mmap.method)
+
+
+def test_source_uv_keeps_a_given_layout_and_members_follow_their_representative():
+    """A source's UVs (here the unwrap's own, as if a Blender graph had made them) are kept for each
+    representative exactly; members get theirs as :func:`shape_uv` gives them; a layout outside
+    [0, 1] is moved in (aspect kept); one with no extent is unwrapped instead, with a note."""
+    shape = get_model("table").generate()
+    grouping = analyse(shape)
+    made = shape_uv(shape, grouping, resolution=128)
+    kept = source_uv(shape, grouping, made.corner_uv, resolution=128)
+    assert np.allclose(kept.corner_uv, made.corner_uv) and np.array_equal(kept.face_group, made.face_group)
+    assert all(a.method == "source" and not a.notes for a in kept.atlases)
+    moved = source_uv(shape, grouping, made.corner_uv * 3.0 - 1.0, resolution=128)
+    for g in grouping.groups:
+        f = grouping.parts[g.representative].faces
+        a, b = moved.corner_uv[f].reshape(-1, 2), made.corner_uv[f].reshape(-1, 2)
+        assert a.min() >= 0.0 and a.max() <= 1.0
+        assert np.allclose(np.corrcoef(a[:, 0], b[:, 0])[0, 1], 1.0) and np.allclose(np.corrcoef(a[:, 1], b[:, 1])[0, 1], 1.0)
+        ratio = np.ptp(a, axis=0) / np.maximum(np.ptp(b, axis=0), 1e-12)
+        assert np.isclose(ratio[0], ratio[1], rtol=1e-6)  # one scale for u and v
+        assert any("moved into [0, 1]" in n for n in moved.atlases[g.index].notes)
+    flat = source_uv(shape, grouping, np.zeros_like(made.corner_uv), resolution=128)
+    assert all(a.method in ("xatlas", "planar") and any("no extent" in n for n in a.notes) for a in flat.atlases)
+    folded = made.corner_uv.copy()
+    rep = grouping.parts[grouping.groups[0].representative].faces
+    folded[rep] = folded[rep[0]]  # every face of the representative on one triangle: heavy overlap
+    assert any("overlap" in n for n in source_uv(shape, grouping, folded, resolution=128).atlases[0].notes)
+    with pytest.raises(ValueError, match="corner_uv"):
+        source_uv(shape, grouping, made.corner_uv[:-1])
+    with pytest.raises(ValueError, match="no extent"):
+        fit_unit_square(np.ones((4, 3, 2)))
 
 
 # ----------------------------------------------------------------------------------------- render

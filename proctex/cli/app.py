@@ -112,6 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--blend", metavar="FILE", help="a .blend file whose Geometry Nodes modifier is the model (with --object)")
     p.add_argument("--object", help="--blend: the object carrying the modifier")
     p.add_argument("--modifier", default="GeometryNodes", help="--blend: the Geometry Nodes modifier's name")
+    p.add_argument("--parts-attribute", metavar="NAME", help="--blend: a face / point / corner attribute whose values are the parts")
+    p.add_argument("--keep-uv", metavar="UVMAP", help="--blend: keep this UV map of the graph as the template's UVs")
     p.add_argument("config_file", nargs="?", metavar="CONFIG", help="JSON or TOML build config (same as --config)")
     p.add_argument("--config", help="JSON or TOML build config, in sections or flat keys (flags override it)")
     p.add_argument("--preset", choices=sorted(PRESETS), help="start from a named config (the config file and flags override it)")

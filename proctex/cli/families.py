@@ -37,6 +37,7 @@ def _build_config(args: argparse.Namespace):
         if not args.object:
             raise ValueError("--blend needs --object (the object carrying the Geometry Nodes modifier)")
         flags["blender"] = {"file": os.path.abspath(args.blend), "object": args.object, "modifier": args.modifier}
+        flags["blender"].update({k: v for k, v in (("parts", args.parts_attribute), ("uv", args.keep_uv)) if v})
     if args.model or args.folder or args.blend:  # a source flag replaces the config's (and the preset's) source
         data = merge(data, {"source": {"model": None, "folder": None, "generator": None, "blender": None}})
     data = merge(data, sections({k: v for k, v in flags.items() if v is not None}))

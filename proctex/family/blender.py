@@ -8,7 +8,9 @@ once (:mod:`proctex.family.blender_server`, spoken to over a pipe, one JSON line
 read from the modifier's exposed inputs (float / int / bool / menu, with the node group's
 min / max / default), which ``bounds`` may narrow and ``pins`` may fix; ``generate(params)`` sets
 the inputs, evaluates the depsgraph headless and returns the evaluated, triangulated mesh in world
-coordinates.
+coordinates. A named face / point / corner attribute (``parts``) may define the parts instead of
+the mesh's connectivity, and a UV map the graph makes (``uv``) may travel with the shape
+(:attr:`Shape.corner_uv`), for the template's UVs where the user asks.
 """
 
 from __future__ import annotations
@@ -19,12 +21,13 @@ import os
 import select
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from proctex.geometry.shape import ProceduralModel, Shape
+from proctex.geometry.shape import ProceduralModel, Shape, split_by_face_parts
 from proctex.params import ParamSpace, ParamSpec, choice, continuous, integer
 
 SERVER = Path(__file__).with_name("blender_server.py")
@@ -42,8 +45,33 @@ def blender_python() -> str | None:
     return str(local) if local.exists() else None
 
 
+@dataclass
+class Evaluated:
+    """One evaluated mesh from Blender.
+
+    Attributes:
+        vertices: (n, 3) float64 world coordinates; faces: (m, 3) int64 triangles.
+        seconds: Blender's own time for the evaluation.
+        attributes: ``(name, domain, type)`` of every named attribute the mesh carries.
+        corner_uv: (m, 3, 2) float64 UVs of the requested UV map, or None.
+        face_parts: (m,) int64 part per triangle from the requested attribute (values renumbered
+            0..k-1 in sorted order), or None.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    seconds: float
+    attributes: list[tuple[str, str, str]]
+    corner_uv: np.ndarray | None = None
+    face_parts: np.ndarray | None = None
+
+
 class BlenderSession:
-    """One Blender process with one ``.blend`` file open (:mod:`proctex.family.blender_server`)."""
+    """One Blender process with one ``.blend`` file open (:mod:`proctex.family.blender_server`).
+
+    The process is the only thing that can crash: a request it dies on, or does not answer within
+    ``timeout`` seconds, is a ``ValueError`` (the process is killed), and the next request starts a
+    fresh process that opens the file again (:attr:`restarts` counts them)."""
 
     def __init__(self, file: str | os.PathLike, obj: str, modifier: str = "GeometryNodes", python: str | None = None,
                  timeout: float = 120.0) -> None:
@@ -53,46 +81,79 @@ class BlenderSession:
         self.python = python or blender_python()
         if not self.python:
             raise ValueError("no Python with bpy: run `make blender` (it makes .venv-blender) or set PROCTEX_BLENDER_PYTHON")
-        self.timeout = timeout
+        self.obj, self.modifier, self.timeout = obj, modifier, timeout
+        self.restarts = -1
+        self.proc: subprocess.Popen | None = None
+        self.inputs: list[dict[str, Any]] = self._start()
+
+    def _start(self) -> list[dict[str, Any]]:
+        self.restarts += 1
         self.proc = subprocess.Popen([self.python, str(SERVER)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      text=True, bufsize=1)
-        self.inputs: list[dict[str, Any]] = self.request({"op": "open", "file": self.file, "object": obj, "modifier": modifier})["inputs"]
+        try:
+            return self._send({"op": "open", "file": self.file, "object": self.obj, "modifier": self.modifier})["inputs"]
+        except ValueError:
+            self._kill()  # a file Blender cannot open (or without the object): no process is left behind
+            raise
 
     def request(self, req: dict[str, Any]) -> dict[str, Any]:
         """Send one request; its answer, or ``ValueError`` with Blender's error, or when the process
-        died or did not answer within ``timeout`` seconds."""
-        if self.proc.poll() is not None:
-            raise ValueError(f"the Blender process for {self.file} has exited ({self.proc.returncode})")
-        self.proc.stdin.write(json.dumps(req) + "\n")
-        self.proc.stdin.flush()
-        ready, _, _ = select.select([self.proc.stdout], [], [], self.timeout)
+        died or did not answer within ``timeout`` seconds (a dead process is started again first)."""
+        if self.proc is None or self.proc.poll() is not None:
+            inputs = self._start()
+            if inputs != self.inputs:
+                raise ValueError(f"{self.file} changed its inputs since it was opened; build the family again")
+        return self._send(req)
+
+    def _send(self, req: dict[str, Any]) -> dict[str, Any]:
+        proc = self.proc
+        try:
+            proc.stdin.write(json.dumps(req) + "\n")
+            proc.stdin.flush()
+        except (BrokenPipeError, OSError):
+            pass  # it died already: the read below says how
+        ready, _, _ = select.select([proc.stdout], [], [], self.timeout)
         if not ready:
-            self.close()
-            raise ValueError(f"Blender did not answer {req.get('op')!r} within {self.timeout:g} s ({self.file})")
-        line = self.proc.stdout.readline()
+            self._kill()
+            raise ValueError(f"Blender did not answer {req.get('op')!r} within {self.timeout:g} s ({self.file}); the process was stopped")
+        line = proc.stdout.readline()
         if not line:
-            raise ValueError(f"the Blender process for {self.file} ended without an answer")
+            code = proc.wait()
+            how = f"signal {-code}" if code < 0 else f"exit status {code}"
+            raise ValueError(f"the Blender process for {self.file} ended ({how}) during {req.get('op')!r} {json.dumps(req.get('params', {}))[:300]}")
         data = json.loads(line)
         if "error" in data:
             raise ValueError(f"{self.file}: {data['error']}")
         return data
 
-    def generate(self, params: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, float]:
-        """``(vertices (n, 3) float64, faces (m, 3) int64, seconds Blender took)`` of the evaluated mesh."""
-        out = self.request({"op": "generate", "params": dict(params)})
-        v = np.frombuffer(base64.b64decode(out["vertices"]), dtype=np.float64).reshape(-1, 3)
-        f = np.frombuffer(base64.b64decode(out["faces"]), dtype=np.int64).reshape(-1, 3)
-        return v.copy(), f.copy(), float(out["seconds"])
+    def _kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+    def generate(self, params: Mapping[str, Any], uv: str | None = None, parts: str | None = None) -> Evaluated:
+        """The evaluated mesh for ``params``, with the UV map ``uv`` and the part attribute ``parts``
+        where named (:class:`Evaluated`)."""
+        out = self.request({"op": "generate", "params": dict(params), "uv": uv, "parts": parts})
+        m = int(out["m"])
+
+        def array(key: str, dtype: Any, shape: tuple[int, ...]) -> np.ndarray | None:
+            if key not in out:
+                return None
+            return np.frombuffer(base64.b64decode(out[key]), dtype=dtype).reshape(shape).copy()
+
+        return Evaluated(array("vertices", np.float64, (-1, 3)), array("faces", np.int64, (m, 3)), float(out["seconds"]),
+                         [tuple(a) for a in out.get("attributes", [])], array("corner_uv", np.float64, (m, 3, 2)),
+                         array("face_parts", np.int64, (m,)))
 
     def close(self) -> None:
-        if self.proc.poll() is None:
+        if self.proc is not None and self.proc.poll() is None:
             try:
                 self.proc.stdin.write(json.dumps({"op": "quit"}) + "\n")
                 self.proc.stdin.flush()
                 self.proc.wait(timeout=10)
             except (OSError, subprocess.TimeoutExpired, ValueError):
-                self.proc.kill()
-                self.proc.wait()
+                self._kill()
 
     def __del__(self) -> None:  # pragma: no cover - best effort at garbage collection
         try:
@@ -136,7 +197,8 @@ def input_specs(inputs: list[dict[str, Any]], bounds: Mapping[str, Any] | None =
         elif s["type"] == "bool":
             specs.append(choice(name, (False, True), bool(s["default"])))
         elif s["type"] == "menu" and s.get("options"):
-            specs.append(choice(name, tuple(s["options"]), s["options"][0]))
+            default = s["default"] if s.get("default") in s["options"] else s["options"][0]
+            specs.append(choice(name, tuple(s["options"]), default))
     return ParamSpace(tuple(specs)), pins
 
 
@@ -144,9 +206,12 @@ class BlenderModel(ProceduralModel):
     """A family from a ``.blend`` file's Geometry Nodes modifier (module docstring)."""
 
     def __init__(self, file: str | os.PathLike, obj: str, modifier: str = "GeometryNodes", bounds: Mapping[str, Any] | None = None,
-                 pins: Mapping[str, Any] | None = None, python: str | None = None) -> None:
+                 pins: Mapping[str, Any] | None = None, python: str | None = None, uv: str | None = None,
+                 parts: str | None = None) -> None:
         super().__init__("adaptive")
         self.session = BlenderSession(file, obj, modifier, python=python)
+        self.uv, self.parts = uv, parts
+        self.attributes: list[tuple[str, str, str]] = []
         self.name = f"blender:{Path(file).stem}/{obj}"
         self.description = f"Geometry Nodes modifier {modifier!r} of {obj!r} in {Path(file).name}"
         self.space, self.pins = input_specs(self.session.inputs, bounds, pins)
@@ -154,10 +219,15 @@ class BlenderModel(ProceduralModel):
 
     def _build(self, params: Mapping[str, Any]) -> Shape:
         values = {**self.pins, **{k: (v.item() if hasattr(v, "item") else v) for k, v in params.items()}}
-        vertices, faces, self.last_seconds = self.session.generate(values)
-        if len(faces) == 0:
+        out = self.session.generate(values, uv=self.uv, parts=self.parts)
+        self.last_seconds, self.attributes = out.seconds, out.attributes
+        if len(out.faces) == 0:
             raise ValueError(f"{self.name}: the evaluated mesh has no faces for {values}")
-        return Shape(vertices, faces, source=self.session.file)
+        vertices, faces = out.vertices, out.faces
+        if out.face_parts is not None:  # the graph's parts, not its connectivity
+            faces, source = split_by_face_parts(faces, out.face_parts, len(vertices))
+            vertices = vertices[source]
+        return Shape(vertices, faces, source=self.session.file, corner_uv=out.corner_uv)
 
     def close(self) -> None:
         self.session.close()

@@ -7,8 +7,12 @@ process's original stdout; Blender's own messages go to stderr). Requests:
 
 - ``{"op": "open", "file": path, "object": name, "modifier": name}`` -> ``{"inputs": [{"name",
   "identifier", "type": "float"|"int"|"bool"|"menu", "default", "min", "max", "options"}]}``
-- ``{"op": "generate", "params": {name: value}}`` -> ``{"n": vertices, "m": triangles, "vertices":
-  base64 float64 (n, 3), "faces": base64 int64 (m, 3), "seconds"}`` (the evaluated mesh, triangulated)
+- ``{"op": "generate", "params": {name: value}, "uv": name | null, "parts": name | null}`` ->
+  ``{"n": vertices, "m": triangles, "vertices": base64 float64 (n, 3), "faces": base64 int64 (m, 3),
+  "attributes": [[name, domain, type]], "seconds"}`` (the evaluated mesh, triangulated), plus
+  ``"corner_uv"`` (base64 float64 (m, 3, 2)) when ``uv`` names a 2D corner attribute (a UV map) and
+  ``"face_parts"`` (base64 int64 (m,)) when ``parts`` names a face, point or corner attribute (a
+  point or corner attribute gives each triangle its first corner's value).
 - ``{"op": "quit"}``
 
 Errors answer ``{"error": message}``; the process keeps serving.
@@ -22,6 +26,32 @@ import os
 import sys
 import time
 
+SCALAR = {"FLOAT", "INT", "BOOLEAN", "INT8"}
+ROW = {"FLOAT2": 2, "FLOAT_VECTOR": 3}
+
+
+def _attribute(mesh, name: str, want: str):
+    """One attribute of ``mesh`` as a numpy array: ``want="uv"`` a 2D corner attribute ((corners, 2)),
+    ``want="parts"`` a scalar one ((elements,), with its domain)."""
+    import numpy as np
+
+    attr = mesh.attributes.get(name)
+    if attr is None:
+        names = sorted(a.name for a in mesh.attributes if not a.name.startswith("."))
+        raise ValueError(f"the evaluated mesh has no attribute {name!r}; it has {names}")
+    if want == "uv":
+        if attr.domain != "CORNER" or attr.data_type != "FLOAT2":
+            raise ValueError(f"attribute {name!r} is {attr.data_type} on {attr.domain}, not a UV map (2D vector on face corners)")
+        out = np.empty(len(attr.data) * 2, dtype=np.float32)
+        attr.data.foreach_get("vector", out)
+        return out.reshape(-1, 2), attr.domain
+    if attr.data_type not in SCALAR or attr.domain not in ("FACE", "POINT", "CORNER"):
+        raise ValueError(f"attribute {name!r} is {attr.data_type} on {attr.domain}: parts need an integer, float or boolean value per face, point or corner")
+    dtype = np.float32 if attr.data_type == "FLOAT" else (bool if attr.data_type == "BOOLEAN" else np.int32)
+    out = np.empty(len(attr.data), dtype=dtype)
+    attr.data.foreach_get("value", out)
+    return out, attr.domain
+
 
 def _inputs(modifier) -> list[dict]:
     out = []
@@ -34,9 +64,12 @@ def _inputs(modifier) -> list[dict]:
         spec = {"name": item.name, "identifier": item.identifier, "type": kind, "default": getattr(item, "default_value", None)}
         if kind in ("float", "int"):
             spec.update(min=item.min_value, max=item.max_value)
-        if kind == "menu":
+        if kind == "menu":  # the modifier keeps a menu as an int whose items name the options
+            items = modifier.id_properties_ui(item.identifier).as_dict().get("items") or []
+            spec["options"] = [it[0] for it in items]
+            spec["values"] = [it[4] for it in items]
             current = modifier[item.identifier]
-            spec["options"] = [current] if isinstance(current, str) else []
+            spec["default"] = next((it[0] for it in items if it[4] == current), spec["options"][0] if items else None)
         if kind == "bool":
             spec["default"] = bool(spec["default"])
         out.append(spec)
@@ -82,8 +115,14 @@ def main() -> int:
                 for name, value in (req.get("params") or {}).items():
                     if name not in ids:
                         raise ValueError(f"unknown input {name!r}; inputs: {sorted(ids)}")
-                    kind = ids[name]["type"]
-                    state["mod"][ids[name]["identifier"]] = {"float": float, "int": int, "bool": bool}.get(kind, str)(value)
+                    spec = ids[name]
+                    if spec["type"] == "menu":
+                        if value not in spec["options"]:
+                            raise ValueError(f"{name!r} must be one of {spec['options']}, got {value!r}")
+                        value = spec["values"][spec["options"].index(value)]
+                    else:
+                        value = {"float": float, "int": int, "bool": bool}[spec["type"]](value)
+                    state["mod"][spec["identifier"]] = value
                 obj = state["obj"]
                 obj.update_tag()  # without it the depsgraph keeps the previous evaluation
                 depsgraph = bpy.context.evaluated_depsgraph_get()
@@ -97,12 +136,31 @@ def main() -> int:
                     mesh.vertices.foreach_get("co", verts)
                     tris = np.empty(m * 3, dtype=np.int32)
                     mesh.loop_triangles.foreach_get("vertices", tris)
+                    extra = {"attributes": [[a.name, a.domain, a.data_type] for a in mesh.attributes if not a.name.startswith(".")]}
+                    if req.get("uv") or req.get("parts"):
+                        loops = np.empty(m * 3, dtype=np.int32)
+                        mesh.loop_triangles.foreach_get("loops", loops)
+                    if req.get("uv"):
+                        uv, _ = _attribute(mesh, str(req["uv"]), "uv")
+                        extra["corner_uv"] = base64.b64encode(uv[loops].astype(np.float64).tobytes()).decode()
+                    if req.get("parts"):
+                        values, domain = _attribute(mesh, str(req["parts"]), "parts")
+                        if domain == "FACE":
+                            polygon = np.empty(m, dtype=np.int32)
+                            mesh.loop_triangles.foreach_get("polygon_index", polygon)
+                            per_tri = values[polygon]
+                        else:
+                            per_tri = values[(tris if domain == "POINT" else loops)[0::3]]
+                        if not np.all(np.isfinite(per_tri)):
+                            raise ValueError(f"attribute {req['parts']!r} has non-finite values")
+                        _, ids = np.unique(per_tri, return_inverse=True)
+                        extra["face_parts"] = base64.b64encode(ids.astype(np.int64).tobytes()).decode()
                 finally:
                     evaluated.to_mesh_clear()
                 world = np.array(obj.matrix_world, dtype=np.float64)
                 v = verts.reshape(-1, 3) @ world[:3, :3].T + world[:3, 3]
                 answer({"n": n, "m": m, "vertices": base64.b64encode(np.ascontiguousarray(v).tobytes()).decode(),
-                        "faces": base64.b64encode(tris.astype(np.int64).tobytes()).decode(), "seconds": time.perf_counter() - t0})
+                        "faces": base64.b64encode(tris.astype(np.int64).tobytes()).decode(), "seconds": time.perf_counter() - t0, **extra})
             else:
                 raise ValueError(f"unknown op {op!r}")
         except Exception as exc:  # one bad request: say why, keep serving

@@ -64,10 +64,14 @@ class SourceConfig:
         if self.blender is not None:
             b = self.blender
             if not isinstance(b, dict) or not isinstance(b.get("file"), str) or not isinstance(b.get("object"), str):
-                raise ValueError('blender must be {"file": "x.blend", "object": "Name", "modifier": "GeometryNodes", "pins": {...}}')
-            unknown = sorted(set(b) - {"file", "object", "modifier", "pins"})
+                raise ValueError('blender must be {"file": "x.blend", "object": "Name", "modifier": "GeometryNodes", "pins": {...}, '
+                                 '"parts": "part_id", "uv": "UVMap"}')
+            unknown = sorted(set(b) - set(BLENDER_KEYS))
             if unknown:
-                raise ValueError(f"unknown blender settings {unknown}; known: file, object, modifier, pins")
+                raise ValueError(f"unknown blender settings {unknown}; known: {', '.join(BLENDER_KEYS)}")
+            for key in ("parts", "uv"):
+                if b.get(key) is not None and (not isinstance(b[key], str) or not b[key] or len(b[key]) > 256):
+                    raise ValueError(f"blender {key} must name an attribute of the evaluated mesh, got {b[key]!r}")
             if not os.path.isfile(b["file"]):
                 raise ValueError(f"blender file {b['file']!r} not found")
             if not isinstance(b.get("pins", {}), dict) or not isinstance(b.get("modifier", "GeometryNodes"), str):
@@ -313,6 +317,10 @@ def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 #: One Blender process per .blend source per process (a Ray worker opens the file once).
 _BLENDER_MODELS: dict[str, Any] = {}
+#: The settings of a ``blender`` source: ``parts`` names an attribute whose values are the parts
+#: (instead of the mesh's connectivity); ``uv`` names a UV map the graph makes, kept as the
+#: template's UVs (each group's representative keeps its own layout).
+BLENDER_KEYS = ("file", "object", "modifier", "pins", "parts", "uv")
 
 
 def blender_model(settings: dict[str, Any], bounds: dict[str, list[float]] | None = None):
@@ -322,7 +330,7 @@ def blender_model(settings: dict[str, Any], bounds: dict[str, list[float]] | Non
     key = json.dumps({"settings": settings, "bounds": bounds or {}}, sort_keys=True)
     if key not in _BLENDER_MODELS:
         _BLENDER_MODELS[key] = BlenderModel(settings["file"], settings["object"], settings.get("modifier", "GeometryNodes"),
-                                            bounds=bounds, pins=settings.get("pins"))
+                                            bounds=bounds, pins=settings.get("pins"), uv=settings.get("uv"), parts=settings.get("parts"))
     return _BLENDER_MODELS[key]
 
 

@@ -195,10 +195,19 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
 
     template = load_template_shape(store, config)
     grouping = analyse(template, seed=config.seed)
+    uv = None
+    if config.source.blender and config.source.blender.get("uv"):  # the graph's own UVs, as the user asked
+        from proctex.texture.uv import source_uv
+
+        if template.corner_uv is None:
+            raise ValueError(f"the template has no UV map {config.source.blender['uv']!r}")
+        uv = source_uv(template, grouping, template.corner_uv, resolution=config.paint.texture_size)
+        for note in (n for a in uv.atlases for n in a.notes):
+            log(f"paint: {note}")
     tex = paint_template(template, grouping, config.paint.prompt, config.paint.group_prompts, painter=config.paint.painter, size=config.paint.texture_size,
                          seed=config.seed, up=config.up_axis(), views=config.paint.views, view_size=config.paint.view_size,
                          complete_hidden=config.paint.paint_hidden, fill=config.paint.fill, model_dir=config.paint.model_dir, device=config.paint.device,
-                         steps=config.paint.steps, on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
+                         steps=config.paint.steps, on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"), uv=uv)
     from .template import Template
 
     labels = [g.label for g in tex.groups]

@@ -28,6 +28,8 @@ class Shape:
         label_names: semantic part labels ("leg", "seat", ...).
         params: the validated parameters the shape was generated from ({} when unknown).
         source: where it came from (model name or file path), informational.
+        corner_uv: (m, 3, 2) float64 UVs per face corner that the source made (a Blender graph's UV
+            map), or None. Used as the template's UVs only where the user asks.
     """
 
     vertices: np.ndarray
@@ -37,6 +39,7 @@ class Shape:
     label_names: tuple[str, ...] = ()
     params: dict[str, Any] = field(default_factory=dict)
     source: str = ""
+    corner_uv: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float64)
@@ -58,6 +61,10 @@ class Shape:
                 raise ValueError(f"labels must be ({n},), got {self.labels.shape}")
             if n and (self.labels.min() < 0 or self.labels.max() >= len(self.label_names)):
                 raise ValueError("labels index outside label_names")
+        if self.corner_uv is not None:
+            self.corner_uv = np.ascontiguousarray(self.corner_uv, dtype=np.float64)
+            if self.corner_uv.shape != (len(self.faces), 3, 2) or not np.isfinite(self.corner_uv).all():
+                raise ValueError(f"corner_uv must be finite ({len(self.faces)}, 3, 2), got {self.corner_uv.shape}")
 
     @property
     def n_vertices(self) -> int:
@@ -72,6 +79,31 @@ class Shape:
         if self.labels is None:
             raise ValueError("shape has no semantic labels")
         return np.asarray(self.label_names, dtype=object)[self.labels]
+
+
+def split_by_face_parts(faces: np.ndarray, face_part: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Give faces of different parts their own vertices, so that connected components (the parts of
+    a :class:`Shape`) never span two of ``face_part``'s values.
+
+    Args:
+        faces: (m, 3) int vertex indices; face_part: (m,) int part per face; n_vertices: n.
+
+    Returns:
+        ``(faces (m, 3) int64 new indices, source (k,) int64 old vertex of each new one)``: one new
+        vertex per (vertex, part) pair in use, in vertex order; unused vertices are dropped.
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    face_part = np.asarray(face_part, dtype=np.int64)
+    if faces.ndim != 2 or faces.shape[1] != 3 or face_part.shape != (len(faces),):
+        raise ValueError(f"faces must be (m, 3) and face_part (m,), got {faces.shape} and {face_part.shape}")
+    if faces.size and (faces.min() < 0 or faces.max() >= n_vertices):
+        raise ValueError(f"face indices must be in [0, {n_vertices})")
+    if len(faces) == 0:
+        return faces.reshape(0, 3), np.zeros(0, dtype=np.int64)
+    _, part = np.unique(face_part, return_inverse=True)
+    keys = faces * (int(part.max()) + 1) + part[:, None]  # (vertex, part) as one integer, vertex-major
+    unique, inverse = np.unique(keys, return_inverse=True)
+    return inverse.reshape(faces.shape).astype(np.int64), unique // (int(part.max()) + 1)
 
 
 class ShapeBuilder:

@@ -240,6 +240,61 @@ def shape_uv(shape: Shape, grouping: Grouping, resolution: int = 1024, padding: 
     return ShapeUV(corner, face_group, atlases, resolution)
 
 
+def fit_unit_square(uv: np.ndarray, margin: float = 0.02) -> tuple[np.ndarray, bool]:
+    """UVs that already lie in [0, 1] as they are; others scaled uniformly (aspect kept) and moved
+    into ``[margin, 1 - margin]``. Returns ``(uv, moved)``. ``ValueError`` for a layout with no extent."""
+    uv = np.asarray(uv, dtype=np.float64)
+    flat = uv.reshape(-1, 2)
+    lo, hi = flat.min(axis=0), flat.max(axis=0)
+    extent = float((hi - lo).max())
+    if not np.isfinite(extent) or extent <= 1e-9:
+        raise ValueError("the UV layout has no extent (every corner at one point)")
+    if lo.min() >= 0.0 and hi.max() <= 1.0:
+        return uv.copy(), False
+    return (uv - lo) * ((1.0 - 2 * margin) / extent) + margin, True
+
+
+def source_uv(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, resolution: int = 1024) -> ShapeUV:
+    """Keep UVs the source made (a Blender graph's UV map) instead of unwrapping: each group's
+    representative keeps its own layout (moved into [0, 1] when it lies outside, see
+    :func:`fit_unit_square`) and members read it off as in :func:`shape_uv`. A representative whose
+    layout has no extent is unwrapped instead; both that and overlapping UVs (texels shared by
+    several faces) are said in the atlas notes.
+
+    Args:
+        corner_uv: (m, 3, 2) float64 UVs per face corner of ``shape``.
+    """
+    corner_uv = np.asarray(corner_uv, dtype=np.float64)
+    if corner_uv.shape != (shape.n_faces, 3, 2) or not np.isfinite(corner_uv).all():
+        raise ValueError(f"corner_uv must be finite ({shape.n_faces}, 3, 2), got {corner_uv.shape}")
+    corner = np.zeros((shape.n_faces, 3, 2))
+    face_group = np.full(shape.n_faces, -1, dtype=np.int64)
+    atlases = []
+    for g in grouping.groups:
+        rep = grouping.parts[g.representative]
+        t0 = time.perf_counter()
+        try:
+            rep_uv, moved = fit_unit_square(corner_uv[rep.faces])
+        except ValueError as exc:
+            atlas = unwrap(shape.vertices[rep.vertices], _local_faces(shape, rep), resolution=resolution)
+            atlas.notes.append(f"the source's UVs were not used for group {g.index}: {exc}; unwrapped instead")
+        else:
+            e1, e2 = rep_uv[:, 1] - rep_uv[:, 0], rep_uv[:, 2] - rep_uv[:, 0]
+            area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum() * resolution**2  # in texels, overlaps counted twice
+            covered = len(texel_map(shape.vertices, shape.faces[rep.faces], rep_uv, resolution).ij)
+            shared = max(0.0, 1.0 - covered / area) if area > 64 else 0.0
+            notes = [f"UVs moved into [0, 1] for group {g.index}"] if moved else []
+            if shared > 0.01:
+                notes.append(f"the source's UVs overlap for group {g.index}: {100 * shared:.1f}% of its texels serve several faces")
+            atlas = Atlas(rep_uv, "source", 0, resolution, 0, time.perf_counter() - t0, notes)
+        atlases.append(atlas)
+        for member, mmap in zip(g.members, g.maps):
+            part = grouping.parts[member]
+            corner[part.faces] = member_corner_uv(shape, rep, atlas.corner_uv, part, mmap)
+            face_group[part.faces] = g.index
+    return ShapeUV(corner, face_group, atlases, resolution)
+
+
 # -------------------------------------------------------------------------------------- texel maps
 @dataclass
 class TexelMap:
