@@ -173,6 +173,38 @@ def test_proctex_never_imports_ray():
     assert not offenders, f"proctex modules importing ray: {offenders}"
 
 
+#: What runs inside someone else's Python: the Blender add-on (Blender's own interpreter, nothing
+#: of ours installed) and the Blender side of a .blend source (``.venv-blender``: bpy and numpy).
+FOREIGN = {Path(__file__).resolve().parents[1] / "clients" / "blender" / "proctex_blender": {"bpy", "addon_utils", "mathutils"},
+           ROOT / "family" / "blender_server.py": {"bpy", "numpy"}}
+
+
+def foreign_imports(path: Path, allowed: set[str]) -> list[str]:
+    """Imports in ``path`` (a file, or every ``.py`` under a folder) of anything but the standard
+    library, the package's own modules and ``allowed``."""
+    import sys
+
+    files = [path] if path.is_file() else sorted(path.rglob("*.py"))
+    bad = []
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                continue
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            bad += [f"{f.name}: {n}" for n in names
+                    if n.split(".")[0] not in sys.stdlib_module_names and n.split(".")[0] not in allowed and n != "__future__"]
+    return bad
+
+
+def test_code_that_runs_in_blender_imports_only_what_blender_has(tmp_path):
+    for path, allowed in FOREIGN.items():
+        assert path.exists(), path
+        assert not foreign_imports(path, allowed), foreign_imports(path, allowed)
+    sneaky = tmp_path / "addon.py"
+    sneaky.write_text("import json\nimport bpy\nfrom proctex.geometry import shape\nfrom . import client\n")
+    assert foreign_imports(sneaky, {"bpy"}) == ["addon.py: proctex.geometry"]
+
+
 def test_the_library_never_imports_its_slow_references():
     """The ``*_reference`` implementations are for the tests (``proctex/_reference``): the shipped
     modules read as the product and never call them."""

@@ -257,3 +257,147 @@ def test_a_blend_family_fans_out_on_ray_like_any_other_source(vase_blend, tmp_pa
     on_ray = FamilyStore(tmp_path / "ray")
     assert [(r["id"], r["faces"], r["params"]) for r in samples(on_ray)] == [(r["id"], r["faces"], r["params"]) for r in samples(local)]
     assert len({r["faces"] for r in samples(on_ray)}) > 1  # the ring count varies across the family
+
+
+# ------------------------------------------------------------------------------- the Blender add-on
+ADDON = Path(__file__).resolve().parents[1] / "clients" / "blender"
+DRIVER = Path(__file__).parent / "fixtures" / "blend" / "drive_addon.py"
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def served_vase(blends, tmp_path_factory):
+    """A vase family built from ``vase.blend`` and served by a real ``proctex serve`` (Ray Serve, one
+    replica) on 127.0.0.1: ``(URL, family store)``. The server is this fixture's own process group."""
+    import os
+    import signal
+    import sys
+    import time
+    import urllib.request
+
+    from proctex.family.config import BuildConfig
+    from proctex.family.pipeline import build
+    from proctex.family.store import FamilyStore
+
+    root = tmp_path_factory.mktemp("served")
+    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(blends / "vase.blend"), "object": "Vase"}, "n_train": 3, "n_test": 0},
+                                 "paint": {"prompt": "blue ceramic", "texture_size": 64}, "corr_points": 200,
+                                 "cage": {"iterations": 20}, "train": {"iterations": 20}})
+    store = FamilyStore(root / "vase")
+    build(store, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
+    port = _free_port()
+    log = open(root / "serve.log", "w")
+    proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "serve", str(root), "--port", str(port), "--replicas", "1"],
+                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=Path(__file__).resolve().parents[1])
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 240
+        while True:
+            assert proc.poll() is None, (root / "serve.log").read_text()[-3000:]
+            assert time.monotonic() < deadline, "proctex serve did not answer in 240 s"
+            try:
+                with urllib.request.urlopen(url + "/healthz", timeout=5) as answer:
+                    if answer.status == 200:
+                        break
+            except OSError:
+                time.sleep(1.0)
+        yield url, store
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        log.close()
+
+
+def test_the_addon_client_speaks_the_api_and_reports_errors_plainly():
+    """The add-on's HTTP client (standard library only) without Blender: URLs checked, multipart
+    bodies well formed, OBJ text exact, an unreachable service a ServiceError."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("proctex_addon_client", ADDON / "proctex_blender" / "client.py")
+    client = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(client)
+    assert client.obj_text([0, 0, 0, 1, 0, 0, 0, 1, 0.5], [0, 1, 2]) == b"v 0 0 0\nv 1 0 0\nv 0 1 0.5\nf 1 2 3\n"
+    body, ctype = client.multipart({"seed": "3"}, "mesh", "mesh.obj", b"v 0 0 0\n")
+    boundary = ctype.split("boundary=")[1]
+    assert body.startswith(f"--{boundary}\r\n".encode()) and body.endswith(f"--{boundary}--\r\n".encode()) and b'name="seed"\r\n\r\n3' in body
+    with pytest.raises(client.ServiceError, match="must look like"):
+        client.families("ftp://x")
+    with pytest.raises(client.ServiceError, match="cannot reach") as err:
+        client.families(f"http://127.0.0.1:{_free_port()}", timeout=2)
+    assert err.value.status == 0
+    with pytest.raises(client.ServiceError, match="pick a family"):
+        client.transfer_params("http://127.0.0.1:1", "", {})
+
+
+def test_the_addon_zip_holds_the_package(tmp_path):
+    import importlib.util
+    import zipfile
+
+    spec = importlib.util.spec_from_file_location("build_zip", ADDON / "build_zip.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    with zipfile.ZipFile(module.build(tmp_path / "a.zip")) as zf:
+        names = set(zf.namelist())
+    assert {"proctex_blender/__init__.py", "proctex_blender/client.py"} <= names and not any("__pycache__" in n for n in names)
+
+
+@needs_bpy
+@pytest.mark.slow
+@pytest.mark.ray
+def test_the_addon_textures_the_selected_object_through_a_live_service(served_vase, blends, tmp_path):
+    """Headless Blender with the add-on installed from its zip, against ``proctex serve``: the
+    family list and parameters fill the panel; "Texture selected" on the moved, turned, scaled Vase
+    (new inputs: a ring count no sample had) imports a textured copy with the same transform and the
+    same surface, the original hidden, the family's group textures in its materials; pressing it
+    again replaces the copy; "Add variant" adds the family's shape; an unreachable service is a
+    message in the panel."""
+    import hashlib
+    import io
+    import json
+
+    from PIL import Image
+
+    from proctex.family.store import StoreLayout
+
+    url, store = served_vase
+    zip_path = tmp_path / "proctex_blender.zip"
+    done = subprocess.run([PYTHON, str(ADDON / "build_zip.py"), str(zip_path)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    out = tmp_path / "report.json"
+    env = {**__import__("os").environ, "BLENDER_USER_SCRIPTS": str(tmp_path / "scripts"), "BLENDER_USER_CONFIG": str(tmp_path / "config"),
+           "BLENDER_USER_EXTENSIONS": str(tmp_path / "extensions")}
+    done = subprocess.run([PYTHON, str(DRIVER), str(zip_path), str(blends / "vase.blend"), url, "vase",
+                           json.dumps({"Resolution": 13, "Height": 1.7}), str(out)], capture_output=True, text=True, timeout=400, env=env)
+    assert done.returncode == 0 and out.exists(), (done.stdout[-2000:], done.stderr[-3000:])
+    report = json.loads(out.read_text())
+    assert report["families"] == ["vase"] and all(report["timer_registered"])
+    assert set(report["params"]) == {"Height", "Resolution", "Capped"} and report["params"]["Resolution"][0] == "integer"
+    assert report["copies"] == 1 and report["copies_after_second"] == 1, report["status"]
+    new = report["new"]
+    assert new["family"] == "vase" and new["hidden"] and new["hidden_render"]
+    assert np.allclose(new["matrix"], new["source_matrix"], atol=1e-6), (new["matrix"], new["source_matrix"])
+    src, got = np.array(report["source_world"]), np.array(new["world"])
+    assert np.ptp(src[:, 2]) > 1.0 and np.allclose(src.min(0), got.min(0), atol=1e-4) and np.allclose(src.max(0), got.max(0), atol=1e-4)
+    from scipy.spatial import cKDTree
+
+    assert cKDTree(src).query(got)[0].max() < 1e-4  # the same surface, where the original stands
+    expected = set()
+    paint = store.read_json(StoreLayout.PAINT)
+    for g in paint["groups"]:
+        img = np.asarray(Image.open(io.BytesIO(store.read_bytes(StoreLayout.texture(g["group"], g.get("label") or "")))).convert("RGB"))
+        expected.add(hashlib.sha256(np.ascontiguousarray(img[::-1]).tobytes()).hexdigest())  # Blender's rows run bottom-up
+    seen = {im["rgb_sha"] for m in new["materials"] for im in m["images"]}
+    assert expected and expected <= seen, (expected, new["materials"])
+    assert report["variant"] is not None and report["variant"]["faces"] > 0 and report["variant"]["materials"], report["variant_status"]
+    assert report["unreachable_status"].startswith("error: cannot reach"), report["unreachable_status"]

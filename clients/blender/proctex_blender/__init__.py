@@ -1,0 +1,325 @@
+"""ProcTex inside Blender: texture the selected object (or a new variant of a family) through a
+running ProcTex service.
+
+The sidebar panel (3D view, N, "ProcTex") holds the service URL, a family picker filled from
+``/v1/families`` and the family's parameters as properties. "Texture selected" sends the selected
+object's evaluated mesh (object coordinates, modifiers applied) to the family's transfer route and
+imports the returned GLB in its place: same transform, the original hidden, a second texturing
+replacing the first copy. "Add variant" asks for the family's own shape at the panel's parameters.
+
+Network calls run in worker threads; everything that touches Blender's data runs on the main thread,
+from a queue drained by a ``bpy.app.timers`` function (:func:`drain`).
+"""
+
+import json
+import os
+import queue
+import tempfile
+import threading
+from typing import Any, Callable
+
+import bpy
+from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+from . import client
+
+bl_info = {
+    "name": "ProcTex",
+    "author": "ProcTex",
+    "version": (0, 1, 0),
+    "blender": (4, 2, 0),
+    "location": "View3D > Sidebar > ProcTex",
+    "description": "Texture procedural shapes through a ProcTex service",
+    "category": "Material",
+}
+
+_results: queue.Queue = queue.Queue()
+_state: dict[str, Any] = {"pending": 0, "families": []}
+_ENUM_CACHE: dict[str, list] = {}  # Blender needs the items of a dynamic enum kept alive
+
+
+# --------------------------------------------------------------------------------------- the work
+def _start(kind: str, call: Callable[[], Any], **meta: Any) -> None:
+    """Run ``call`` in a worker thread; its result (or error) comes back through the queue."""
+
+    def work() -> None:
+        try:
+            _results.put((kind, call(), meta))
+        except client.ServiceError as exc:
+            _results.put(("error", str(exc), meta))
+        except Exception as exc:  # noqa: BLE001 - a worker must always report back
+            _results.put(("error", f"{type(exc).__name__}: {exc}", meta))
+
+    _state["pending"] += 1
+    threading.Thread(target=work, name=f"proctex-{kind}", daemon=True).start()
+    if not bpy.app.timers.is_registered(drain):
+        bpy.app.timers.register(drain, first_interval=0.1)
+
+
+def busy() -> bool:
+    """Whether requests are still under way or their results not yet applied."""
+    return _state["pending"] > 0 or not _results.empty()
+
+
+def drain() -> float | None:
+    """Apply every finished request to the scene (main thread: the timer). Returns the interval to
+    run again, or None when nothing is pending."""
+    while True:
+        try:
+            kind, value, meta = _results.get_nowait()
+        except queue.Empty:
+            break
+        _state["pending"] = max(0, _state["pending"] - 1)
+        settings = _settings(meta.get("scene"))
+        try:
+            if kind == "error":
+                settings.status = f"error: {value}"
+                print(f"ProcTex: {value}")
+            elif kind == "families":
+                _state["families"] = value
+                settings.status = f"{len(value)} families"
+            elif kind == "describe":
+                _fill_params(settings, value)
+                settings.status = f"{meta['family']}: {len(value.get('parameters', []))} parameters, {len(value.get('groups', []))} groups"
+            elif kind == "glb":
+                data, summary = value
+                obj = _import_glb(data, meta)
+                settings.status = f"{obj.name}: textured in {summary['seconds']:.2f} s" + (f" ({'; '.join(summary['notes'])[:200]})" if summary["notes"] else "")
+        except Exception as exc:  # noqa: BLE001 - a bad answer must not break the timer
+            settings.status = f"error: {type(exc).__name__}: {exc}"
+            print(f"ProcTex: {settings.status}")
+    return 0.1 if busy() else None
+
+
+def _settings(scene_name: str | None):
+    scene = bpy.data.scenes.get(scene_name) if scene_name else None
+    return (scene or bpy.context.scene).proctex
+
+
+# ---------------------------------------------------------------------------------- mesh in, GLB out
+def evaluated_obj_text(obj, depsgraph) -> bytes:
+    """OBJ text of ``obj``'s evaluated mesh (modifiers applied), triangulated, in object coordinates."""
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        verts = [0.0] * (3 * len(mesh.vertices))
+        mesh.vertices.foreach_get("co", verts)
+        tris = [0] * (3 * len(mesh.loop_triangles))
+        mesh.loop_triangles.foreach_get("vertices", tris)
+    finally:
+        evaluated.to_mesh_clear()
+    if not tris:
+        raise ValueError(f"{obj.name} has no faces to texture")
+    return client.obj_text(verts, tris)
+
+
+def _import_glb(data: bytes, meta: dict[str, Any]):
+    """Import a GLB; place it on the source object (same transform, the source hidden, an earlier
+    copy replaced) or at the 3D cursor. Returns the new mesh object."""
+    source = bpy.data.objects.get(meta["source"]) if meta.get("source") else None
+    if source is not None:
+        for old in [o for o in bpy.data.objects if o.get("proctex_source") == source.name]:
+            bpy.data.objects.remove(old, do_unlink=True)
+    before = set(bpy.data.objects)
+    fd, path = tempfile.mkstemp(suffix=".glb", prefix="proctex-")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        result = bpy.ops.import_scene.gltf(filepath=path)
+    finally:
+        os.remove(path)
+    if "FINISHED" not in result:
+        raise ValueError(f"Blender could not import the answer ({result})")
+    new = [o for o in bpy.data.objects if o not in before]
+    meshes = [o for o in new if o.type == "MESH"]
+    if not meshes:
+        raise ValueError("the answer held no mesh")
+    place = source.matrix_world.copy() if source is not None else bpy.context.scene.cursor.matrix.copy()
+    for o in new:
+        if o.parent is None and o.type == "MESH" and not o.children:
+            o.data.transform(o.matrix_world)  # the importer's axis turn goes into the mesh: the copy gets exactly the source's transform
+            o.matrix_world = place
+        elif o.parent is None:
+            o.matrix_world = place @ o.matrix_world
+    obj = meshes[0]
+    obj.name = f"{source.name}.proctex" if source is not None else f"{meta['family']}.variant"
+    obj["proctex_family"] = meta["family"]
+    if source is not None:
+        obj["proctex_source"] = source.name
+        source.hide_set(True)
+        source.hide_render = True
+    return obj
+
+
+# ------------------------------------------------------------------------------------ properties
+def _family_items(self, context):
+    items = [(f["name"], f["name"], f"health: {f['health']}") for f in _state["families"]]
+    _ENUM_CACHE["families"] = items or [("", "(refresh the list)", "no families yet")]
+    return _ENUM_CACHE["families"]
+
+
+def _family_changed(self, context) -> None:
+    if self.family:
+        url, name = self.url, self.family
+        _start("describe", lambda: client.describe(url, name), family=name, scene=context.scene.name)
+
+
+def _choice_items(self, context):
+    options = json.loads(self.options or "[]")
+    items = [(json.dumps(o), str(o), "") for o in options]
+    _ENUM_CACHE[f"choice:{self.name}"] = items or [("null", "-", "")]
+    return _ENUM_CACHE[f"choice:{self.name}"]
+
+
+def _clamp(self, context) -> None:
+    if self.kind == "continuous" and not (self.low <= self.value_float <= self.high):
+        self.value_float = min(max(self.value_float, self.low), self.high)
+    if self.kind == "integer" and not (self.low <= self.value_int <= self.high):
+        self.value_int = int(min(max(self.value_int, self.low), self.high))
+
+
+class ProcTexParam(bpy.types.PropertyGroup):
+    """One family parameter: its spec and its value in the slot of its kind."""
+
+    kind: StringProperty()
+    low: FloatProperty()
+    high: FloatProperty()
+    options: StringProperty(description="JSON list of a choice's options")
+    value_float: FloatProperty(update=_clamp)
+    value_int: IntProperty(update=_clamp)
+    value_choice: EnumProperty(items=_choice_items)
+
+    def value(self) -> Any:
+        if self.kind == "continuous":
+            return float(self.value_float)
+        if self.kind == "integer":
+            return int(self.value_int)
+        return json.loads(self.value_choice)
+
+
+class ProcTexSettings(bpy.types.PropertyGroup):
+    url: StringProperty(name="Service", default=client.DEFAULT_URL, description="The ProcTex service's URL")
+    family: EnumProperty(name="Family", items=_family_items, update=_family_changed)
+    params: CollectionProperty(type=ProcTexParam)
+    accepts_params: BoolProperty(default=False)
+    seed: IntProperty(name="Seed", default=0, min=0)
+    status: StringProperty(name="Status", default="")
+
+
+def _fill_params(settings, description: dict[str, Any]) -> None:
+    settings.params.clear()
+    settings.accepts_params = "params" in description.get("inputs", [])
+    for spec in description.get("parameters", []):
+        p = settings.params.add()
+        p.name, p.kind = str(spec["name"]), str(spec.get("kind", "continuous"))
+        if p.kind in ("continuous", "integer"):
+            p.low, p.high = float(spec["low"]), float(spec["high"])
+            if p.kind == "continuous":
+                p.value_float = float(spec.get("default", p.low))
+            else:
+                p.value_int = int(spec.get("default", p.low))
+        else:
+            p.options = json.dumps(list(spec.get("options", [])))
+            p.value_choice = json.dumps(spec.get("default"))
+
+
+# ------------------------------------------------------------------------------------- operators
+class PROCTEX_OT_refresh(bpy.types.Operator):
+    """List the service's families"""
+
+    bl_idname = "proctex.refresh"
+    bl_label = "Refresh families"
+
+    def execute(self, context):
+        url = context.scene.proctex.url
+        _start("families", lambda: client.families(url), scene=context.scene.name)
+        return {"FINISHED"}
+
+
+class PROCTEX_OT_texture_selected(bpy.types.Operator):
+    """Texture the active object's evaluated mesh with the family and show the result in its place"""
+
+    bl_idname = "proctex.texture_selected"
+    bl_label = "Texture selected"
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.active_object
+        return obj is not None and obj.type in {"MESH", "CURVE", "SURFACE", "META", "FONT"}
+
+    def execute(self, context):
+        settings = context.scene.proctex
+        if not settings.family:
+            self.report({"ERROR"}, "pick a family first (Refresh families)")
+            return {"CANCELLED"}
+        obj = context.active_object
+        try:
+            text = evaluated_obj_text(obj, context.evaluated_depsgraph_get())
+        except ValueError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        url, name, seed = settings.url, settings.family, settings.seed
+        settings.status = f"texturing {obj.name}..."
+        _start("glb", lambda: client.transfer_mesh(url, name, text, seed), source=obj.name, family=name, scene=context.scene.name)
+        return {"FINISHED"}
+
+
+class PROCTEX_OT_add_variant(bpy.types.Operator):
+    """Add the family's shape at the panel's parameters, textured, at the 3D cursor"""
+
+    bl_idname = "proctex.add_variant"
+    bl_label = "Add variant"
+
+    def execute(self, context):
+        settings = context.scene.proctex
+        if not settings.family or not settings.accepts_params:
+            self.report({"ERROR"}, "this family takes meshes only; use Texture selected")
+            return {"CANCELLED"}
+        params = {p.name: p.value() for p in settings.params}
+        url, name, seed = settings.url, settings.family, settings.seed
+        settings.status = "making a variant..."
+        _start("glb", lambda: client.transfer_params(url, name, params, seed), family=name, scene=context.scene.name)
+        return {"FINISHED"}
+
+
+class PROCTEX_PT_panel(bpy.types.Panel):
+    bl_label = "ProcTex"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "ProcTex"
+
+    def draw(self, context):
+        settings = context.scene.proctex
+        col = self.layout.column()
+        col.prop(settings, "url")
+        row = col.row(align=True)
+        row.prop(settings, "family")
+        row.operator("proctex.refresh", text="", icon="FILE_REFRESH")
+        if settings.accepts_params:
+            box = col.box()
+            for p in settings.params:
+                slot = {"continuous": "value_float", "integer": "value_int"}.get(p.kind, "value_choice")
+                box.prop(p, slot, text=p.name)
+        col.prop(settings, "seed")
+        col.operator("proctex.texture_selected")
+        col.operator("proctex.add_variant")
+        if settings.status:
+            col.label(text=settings.status)
+
+
+CLASSES = (ProcTexParam, ProcTexSettings, PROCTEX_OT_refresh, PROCTEX_OT_texture_selected, PROCTEX_OT_add_variant, PROCTEX_PT_panel)
+
+
+def register() -> None:
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.proctex = PointerProperty(type=ProcTexSettings)
+
+
+def unregister() -> None:
+    if bpy.app.timers.is_registered(drain):
+        bpy.app.timers.unregister(drain)
+    del bpy.types.Scene.proctex
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

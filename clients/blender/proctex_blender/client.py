@@ -1,0 +1,127 @@
+"""The ProcTex HTTP API as the add-on speaks it: the standard library only (no ``bpy``, no
+``proctex``), so it runs in any Blender's Python and can be tested outside Blender.
+
+Every call is bounded by a timeout and raises :class:`ServiceError` with the service's own message
+(its JSON ``error`` field) or the network's.
+"""
+
+from __future__ import annotations
+
+import json
+import urllib.error
+import urllib.parse
+import urllib.request
+import uuid
+from typing import Any
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+MAX_ANSWER = 256 * 2**20  # a GLB larger than this is refused rather than read into memory
+
+
+class ServiceError(Exception):
+    """A failed call: ``status`` is the HTTP status (0 when the service could not be reached)."""
+
+    def __init__(self, message: str, status: int = 0) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+def _base(url: str) -> str:
+    url = (url or "").strip().rstrip("/")
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme not in ("http", "https") or not parts.netloc:
+        raise ServiceError(f"the service URL must look like {DEFAULT_URL}, got {url!r}")
+    return url
+
+
+def _family_path(name: str) -> str:
+    if not name:
+        raise ServiceError("pick a family first")
+    return "/v1/families/" + urllib.parse.quote(name, safe="")
+
+
+def _call(url: str, path: str, data: bytes | None = None, headers: dict[str, str] | None = None,
+          timeout: float = 30.0) -> tuple[bytes, dict[str, str]]:
+    req = urllib.request.Request(_base(url) + path, data=data, headers=dict(headers or {}), method="POST" if data is not None else "GET")
+    try:
+        with urllib.request.urlopen(req, timeout=timeout) as answer:
+            body = answer.read(MAX_ANSWER + 1)
+            if len(body) > MAX_ANSWER:
+                raise ServiceError(f"the answer is over {MAX_ANSWER} bytes")
+            return body, {k.lower(): v for k, v in answer.headers.items()}
+    except urllib.error.HTTPError as exc:
+        text = exc.read(65536).decode("utf-8", "replace")
+        try:
+            message = json.loads(text).get("error") or text
+        except (ValueError, AttributeError):
+            message = text
+        raise ServiceError(f"{exc.code}: {str(message)[:500]}", exc.code) from None
+    except (urllib.error.URLError, OSError) as exc:  # refused, timed out, DNS...
+        raise ServiceError(f"cannot reach {url}: {getattr(exc, 'reason', exc)}") from None
+
+
+def _json(body: bytes) -> Any:
+    try:
+        return json.loads(body)
+    except ValueError as exc:
+        raise ServiceError(f"the service answered something that is not JSON: {exc}") from None
+
+
+def families(url: str, timeout: float = 10.0) -> list[dict[str, str]]:
+    """``[{"name", "health"}]`` of the families the service holds (``GET /v1/families``)."""
+    data = _json(_call(url, "/v1/families", timeout=timeout)[0])
+    health = data.get("health") or {}
+    return [{"name": str(n), "health": str(health.get(n, "ok"))} for n in data.get("families", [])]
+
+
+def describe(url: str, name: str, timeout: float = 30.0) -> dict[str, Any]:
+    """The family's description: ``parameters`` (specs), ``groups``, ``inputs`` ("params", "mesh")."""
+    return _json(_call(url, _family_path(name), timeout=timeout)[0])
+
+
+def multipart(fields: dict[str, str], file_field: str, filename: str, content: bytes) -> tuple[bytes, str]:
+    """A ``multipart/form-data`` body and its content type."""
+    boundary = "proctex-" + uuid.uuid4().hex
+    out = []
+    for key, value in fields.items():
+        out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{key}"\r\n\r\n{value}\r\n'.encode())
+    out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{file_field}"; filename="{filename}"\r\n'
+               f"Content-Type: application/octet-stream\r\n\r\n".encode())
+    out.append(content)
+    out.append(f"\r\n--{boundary}--\r\n".encode())
+    return b"".join(out), f"multipart/form-data; boundary={boundary}"
+
+
+def transfer_mesh(url: str, name: str, obj_text: bytes, seed: int = 0, timeout: float = 120.0) -> tuple[bytes, dict[str, Any]]:
+    """Texture a mesh (OBJ text): ``(GLB bytes, {"seconds", "notes"})``."""
+    body, ctype = multipart({"seed": str(int(seed))}, "mesh", "mesh.obj", obj_text)
+    data, headers = _call(url, _family_path(name) + "/transfer", body, {"Content-Type": ctype}, timeout=timeout)
+    return data, _summary(headers)
+
+
+def transfer_params(url: str, name: str, params: dict[str, Any], seed: int = 0, timeout: float = 120.0) -> tuple[bytes, dict[str, Any]]:
+    """Texture the family's own shape for ``params``: ``(GLB bytes, {"seconds", "notes"})``."""
+    body = json.dumps({"params": params, "seed": int(seed)}).encode()
+    data, headers = _call(url, _family_path(name) + "/transfer", body, {"Content-Type": "application/json"}, timeout=timeout)
+    return data, _summary(headers)
+
+
+def _summary(headers: dict[str, str]) -> dict[str, Any]:
+    try:
+        notes = json.loads(headers.get("x-proctex-notes", "[]"))
+    except ValueError:
+        notes = []
+    try:
+        seconds = float(headers.get("x-proctex-seconds", "nan"))
+    except ValueError:
+        seconds = float("nan")
+    return {"seconds": seconds, "notes": notes if isinstance(notes, list) else []}
+
+
+def obj_text(vertices: Any, triangles: Any) -> bytes:
+    """OBJ text of a triangle mesh: ``vertices`` a flat sequence of x, y, z; ``triangles`` a flat
+    sequence of 0-based vertex indices, three per face."""
+    n, m = len(vertices) // 3, len(triangles) // 3
+    lines = [f"v {vertices[3 * i]:.7g} {vertices[3 * i + 1]:.7g} {vertices[3 * i + 2]:.7g}" for i in range(n)]
+    lines += [f"f {triangles[3 * k] + 1} {triangles[3 * k + 1] + 1} {triangles[3 * k + 2] + 1}" for k in range(m)]
+    return ("\n".join(lines) + "\n").encode()
