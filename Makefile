@@ -10,7 +10,7 @@ STUDIO     := workers/studio
 STUDIO_OUT := $(STUDIO)/dist/index.html
 STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: setup demo test test-fast bench gallery clean studio browser blender blender-addon
+.PHONY: setup demo test test-fast bench gallery clean studio browser blender blender-addon blender-fixtures
 
 # Blender's Python (bpy, which needs numpy < 2) in an environment of its own, for .blend family
 # sources (proctex/family/blender.py). A machine where bpy cannot be installed skips those tests.
@@ -22,6 +22,10 @@ $(BLENDER_STAMP):
 	  || echo "bpy could not be installed: the Blender tests will skip"
 
 blender: $(BLENDER_STAMP)
+
+# The .blend files of the Blender tests (vase, table, pumpkin), built in code into out/blend.
+blender-fixtures: $(BLENDER_STAMP)
+	$(BLENDER_VENV)/bin/python tests/fixtures/blend/make_fixtures.py out/blend
 
 # The Blender add-on (clients/blender), as a zip for Preferences > Add-ons > Install from Disk.
 blender-addon:
