@@ -103,6 +103,7 @@ def test_a_table_with_a_menu_and_a_leg_count_changes_its_parts(blends):
         round_top, square_top = (model.generate({"Legs": 3, "Top Shape": t}) for t in ("Round", "Square"))
         assert square_top.n_faces < round_top.n_faces  # a box against a 32-sided disc
         assert np.allclose(np.ptp(square_top.vertices[:, :2], axis=0), 1.2)
+        assert np.allclose(square_top.vertices[:, :2].min(axis=0), -0.6) and np.isclose(square_top.vertices[:, 2].min(), 0.0)  # its own frame
         with pytest.raises(ValueError, match="Top Shape"):
             model.generate({"Top Shape": "Oval"})
     finally:

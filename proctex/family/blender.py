@@ -7,8 +7,9 @@ once (:mod:`proctex.family.blender_server`, spoken to over a pipe, one JSON line
 :class:`BlenderModel` is a :class:`~proctex.geometry.shape.ProceduralModel`: its parameter space is
 read from the modifier's exposed inputs (float / int / bool / menu, with the node group's
 min / max / default), which ``bounds`` may narrow and ``pins`` may fix; ``generate(params)`` sets
-the inputs, evaluates the depsgraph headless and returns the evaluated, triangulated mesh in world
-coordinates. A named face / point / corner attribute (``parts``) may define the parts instead of
+the inputs, evaluates the depsgraph headless and returns the evaluated, triangulated mesh in the
+object's own coordinates (where the object stands in the file is not part of the shape; the add-on
+sends meshes in the same frame). A named face / point / corner attribute (``parts``) may define the parts instead of
 the mesh's connectivity, and a UV map the graph makes (``uv``) may travel with the shape
 (:attr:`Shape.corner_uv`), for the template's UVs where the user asks.
 """
@@ -50,7 +51,7 @@ class Evaluated:
     """One evaluated mesh from Blender.
 
     Attributes:
-        vertices: (n, 3) float64 world coordinates; faces: (m, 3) int64 triangles.
+        vertices: (n, 3) float64 object coordinates; faces: (m, 3) int64 triangles.
         seconds: Blender's own time for the evaluation.
         attributes: ``(name, domain, type)`` of every named attribute the mesh carries.
         corner_uv: (m, 3, 2) float64 UVs of the requested UV map, or None.

@@ -8,7 +8,7 @@ process's original stdout; Blender's own messages go to stderr). Requests:
 - ``{"op": "open", "file": path, "object": name, "modifier": name}`` -> ``{"inputs": [{"name",
   "identifier", "type": "float"|"int"|"bool"|"menu", "default", "min", "max", "options"}]}``
 - ``{"op": "generate", "params": {name: value}, "uv": name | null, "parts": name | null}`` ->
-  ``{"n": vertices, "m": triangles, "vertices": base64 float64 (n, 3), "faces": base64 int64 (m, 3),
+  ``{"n": vertices, "m": triangles, "vertices": base64 float64 (n, 3) in object coordinates, "faces": base64 int64 (m, 3),
   "attributes": [[name, domain, type]], "seconds"}`` (the evaluated mesh, triangulated), plus
   ``"corner_uv"`` (base64 float64 (m, 3, 2)) when ``uv`` names a 2D corner attribute (a UV map) and
   ``"face_parts"`` (base64 int64 (m,)) when ``parts`` names a face, point or corner attribute (a
@@ -157,8 +157,7 @@ def main() -> int:
                         extra["face_parts"] = base64.b64encode(ids.astype(np.int64).tobytes()).decode()
                 finally:
                     evaluated.to_mesh_clear()
-                world = np.array(obj.matrix_world, dtype=np.float64)
-                v = verts.reshape(-1, 3) @ world[:3, :3].T + world[:3, 3]
+                v = verts.reshape(-1, 3)  # object coordinates: the object's placement in the file is not the shape
                 answer({"n": n, "m": m, "vertices": base64.b64encode(np.ascontiguousarray(v).tobytes()).decode(),
                         "faces": base64.b64encode(tris.astype(np.int64).tobytes()).decode(), "seconds": time.perf_counter() - t0, **extra})
             else:
