@@ -21,6 +21,8 @@ from proctex.family.pipeline import build
 from proctex.family.stages import read_pair, samples
 from proctex.family.store import FamilyStore
 
+from .processes import pids_running
+
 ray = pytest.importorskip("ray")
 pytestmark = [pytest.mark.ray, pytest.mark.slow]
 
@@ -90,42 +92,6 @@ def torch_allclose(a, b) -> bool:
     return bool(torch.allclose(a, b, atol=1e-4, rtol=1e-3))
 
 
-def _parent(pid: int) -> int:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("PPid:"):
-                return int(line.split()[1])
-    except OSError:
-        pass
-    return 0
-
-
-def _ours(pid: int) -> bool:
-    """Whether ``pid`` descends from this test process (a worker of the Ray it started), so a test
-    never touches another Ray on the machine."""
-    me = os.getpid()
-    for _ in range(64):
-        pid = _parent(pid)
-        if pid == me:
-            return True
-        if pid <= 1:
-            return False
-    return False
-
-
-def _pids_running(title: bytes) -> list[int]:
-    """This test process's own processes whose command line holds ``title``."""
-    out = []
-    for p in Path("/proc").iterdir():
-        if p.name.isdigit():
-            try:
-                if title in (p / "cmdline").read_bytes() and _ours(int(p.name)):
-                    out.append(int(p.name))
-            except OSError:
-                pass
-    return out
-
-
 def test_a_worker_killed_during_the_cage_fan_out_does_not_stop_the_build(local_ray, reference, tmp_path):
     from proctex.family.stages import plan_pairs
     from workflows.build import build_on_ray, ray_executor
@@ -137,7 +103,7 @@ def test_a_worker_killed_during_the_cage_fan_out_does_not_stop_the_build(local_r
 
     def killer():
         while not stop.is_set() and not killed:
-            pids = _pids_running(b"ray::run_batch")
+            pids = pids_running(b"ray::run_batch")
             if pids:
                 time.sleep(0.3)  # let it get into a solve
                 os.kill(pids[0], signal.SIGKILL)

@@ -75,6 +75,23 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_generate(args: argparse.Namespace) -> int:
+    """``proctex generate`` on Ray Data (a private local Ray unless --address), or in this process
+    with --no-ray."""
+    if args.no_ray:
+        return families.cmd_generate(args)
+    from .generate import generate_on_ray, parse_concurrency
+
+    settings = families.generate_settings(args)  # bad flags fail before Ray starts
+    if args.cpus is not None and not 1 <= args.cpus <= 4096:
+        raise ValueError(f"--cpus must be in 1..4096, got {args.cpus}")
+    concurrency = parse_concurrency(args.concurrency, args.cpus or os.cpu_count() or 1) if args.concurrency else None
+    log = (lambda *_: None) if args.quiet or args.json else (lambda m: print(m, flush=True))
+    summary = generate_on_ray(settings, concurrency=concurrency, address=args.address, num_cpus=args.cpus, log=log, quiet=args.quiet or args.json)
+    families.print_generate_summary(args, summary)
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job with the build on Ray (a private local instance unless --address), or in this
     process with --no-ray."""
@@ -127,6 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = core.build_parser()
     sub = parser.subparsers  # type: ignore[attr-defined]
     sub.choices["build"].set_defaults(func=cmd_build)
+    sub.choices["generate"].set_defaults(func=cmd_generate)
     demo = sub.choices["demo"]
     demo.add_argument("--no-ray", action="store_true", help="build in this process instead of on Ray")
     demo.add_argument("--address", help="build on an existing Ray cluster (default: a private local one)")

@@ -13,7 +13,7 @@ import sys
 from proctex.family.config import PRESETS
 from proctex.texture.paint_loop import PAINTERS
 
-from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_transfer
+from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_generate, cmd_transfer
 from .shapes import cmd_correspond, cmd_match, cmd_models, cmd_paint, cmd_render, cmd_sample, cmd_segment, cmd_template
 
 
@@ -154,6 +154,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_transfer)
+
+    p = sub.add_parser("generate", help="textured variants by the thousand: one file per parameter row and a Parquet manifest (on Ray Data)")
+    p.add_argument("family", help="the family store (path or URI)")
+    rows = p.add_mutually_exclusive_group(required=True)
+    rows.add_argument("--n", type=int, help="parameter rows to sample (Latin hypercube over the family's space)")
+    rows.add_argument("--rows", metavar="FILE", help="a Parquet or CSV file of parameter rows (one column per parameter)")
+    p.add_argument("--out", required=True, help="output folder or URI (variants/, records/, manifest.parquet); a rerun resumes")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--params-bounds", metavar="JSON", help='narrow the sampled ranges, e.g. {"seats": [2, 3]}')
+    p.add_argument("--format", choices=["glb", "obj"], default="glb")
+    p.add_argument("--bake", type=int, default=0, help="give each variant its own atlas at this size (0: the template's textures)")
+    p.add_argument("--max-failed", type=int, default=10, help="rows that may fail (recorded in the manifest) before the run stops")
+    p.add_argument("--batch-size", type=int, default=8, help="rows per batch")
+    p.add_argument("--no-ray", action="store_true", help="run in this process (the files are the same)")
+    p.add_argument("--concurrency", metavar="SHAPES,TEXTURES", help="Ray Data actors per stage (default 1,<CPUs>)")
+    p.add_argument("--cpus", type=int, help="CPUs of the private local Ray (default: all)")
+    p.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
+    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=cmd_generate)
 
     p = sub.add_parser("render", help="render a textured GLB (e.g. a transfer result) to a PNG, or a turntable GIF")
     p.add_argument("file", metavar="FILE.glb", help="textured .glb (or .gltf) file")

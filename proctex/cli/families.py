@@ -122,6 +122,42 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     return 0
 
 
+def generate_settings(args: argparse.Namespace):
+    """The :class:`proctex.family.generate.GenerateSettings` of ``proctex generate``'s flags (checked)."""
+    from proctex.family.generate import GenerateSettings
+
+    bounds = {}
+    if args.params_bounds:
+        try:
+            bounds = json.loads(args.params_bounds)
+        except (ValueError, RecursionError) as exc:
+            raise ValueError(f"--params-bounds is not valid JSON ({str(exc)[:200]})") from None
+        if not isinstance(bounds, dict):
+            raise ValueError('--params-bounds must be a JSON object, e.g. {"seats": [2, 3]}')
+    if args.rows is not None and not os.path.isfile(args.rows):
+        raise ValueError(f"--rows {args.rows}: no such file")
+    return GenerateSettings(args.family, args.out, n=args.n, rows=args.rows, seed=args.seed, bounds=bounds, format=args.format,
+                            bake=args.bake or None, max_failed=args.max_failed, batch_size=args.batch_size).validate()
+
+
+def print_generate_summary(args: argparse.Namespace, summary: dict[str, Any]) -> None:
+    if args.json:
+        _print_json(summary)
+    else:
+        print(f"generated {summary['written']} variants ({summary['done_before']} done before, {summary['failed']} failed) "
+              f"in {summary['seconds']:.1f}s -> {args.out} (manifest: {summary['manifest']})")
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    """``proctex generate`` in this process (``workflows.cli`` runs it on Ray Data unless ``--no-ray``)."""
+    from proctex.family.generate import run_in_process
+
+    settings = generate_settings(args)
+    log = (lambda *_: None) if args.quiet or args.json else (lambda m: print(m, flush=True))
+    print_generate_summary(args, run_in_process(settings, log=log, quiet=args.quiet or args.json))
+    return 0
+
+
 def cmd_edit(args: argparse.Namespace) -> int:
     from proctex.family.edits import edit_group
     from proctex.family.store import FamilyStore

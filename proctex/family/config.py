@@ -4,6 +4,7 @@ JSON or TOML files, checked, and stored resolved in ``family.json``."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import tomllib
 from dataclasses import asdict, dataclass, field
@@ -208,7 +209,7 @@ class BuildConfig:
             return blender_model(src.blender, src.params)
         model = load_generator(src.generator) if src.generator else get_model(src.model, tessellation=src.tessellation)
         if src.params:
-            model.space = _restricted(model.space, src.params)
+            model.space = restricted_space(model.space, src.params)
         return model
 
     def up_axis(self) -> str:
@@ -334,13 +335,21 @@ def blender_model(settings: dict[str, Any], bounds: dict[str, list[float]] | Non
     return _BLENDER_MODELS[key]
 
 
-def _restricted(space, bounds: dict[str, list[float]]):
+def restricted_space(space, bounds: dict[str, list[float]]):
+    """``space`` with the ranges of the named float / int parameters narrowed to ``bounds``
+    ``{name: [low, high]}`` (within the old ones); ``ValueError`` for unknown names, choices or
+    ranges outside."""
     from proctex.params import ParamSpace, ParamSpec
+
+    if not isinstance(bounds, dict) or not all(isinstance(b, (list, tuple)) and len(b) == 2 for b in bounds.values()):
+        raise ValueError('bounds must be an object {"name": [low, high]}')
 
     specs = []
     for s in space.specs:
         if s.name in bounds:
             lo, hi = bounds[s.name]
+            if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in (lo, hi)):
+                raise ValueError(f"bounds for {s.name!r} must be two finite numbers, got {bounds[s.name]!r}")
             if s.kind not in ("continuous", "integer"):
                 raise ValueError(f"bounds given for {s.name!r}, which is a {s.kind} parameter")
             if not (s.low <= lo <= hi <= s.high):

@@ -266,6 +266,40 @@ def _obj_material_names(names: list[str]) -> list[str]:
     return out
 
 
+def obj_files(stem: str, vertices, faces, corner_uv, face_group, textures, names=None) -> list[tuple[str, bytes]]:
+    """The files of a textured OBJ, in memory: ``[(name, bytes)]`` for ``<stem>_<g>.png`` per
+    non-empty group g, ``<stem>.mtl`` and ``<stem>.obj``, in that order (the OBJ, which names the
+    others, last). Inputs are as in :func:`glb_bytes`; see :func:`write_obj` for the format."""
+    if not stem or "/" in stem or "\\" in stem:
+        raise ValueError(f"stem must be a plain file name, got {stem!r}")
+    V, F, UV, FG, texs, names = _check_shape(vertices, faces, corner_uv, face_group, textures, names)
+    mat_names = _obj_material_names(names)
+    mtl_name = f"{stem}.mtl"
+    uv_unique, uv_inv = np.unique(UV.reshape(-1, 2), axis=0, return_inverse=True)
+    fv = np.stack([F + 1, uv_inv.reshape(-1, 3) + 1], axis=2).reshape(-1, 6)
+
+    files, mtl, body = [], [], io.StringIO()
+    for g, idx in _groups(FG, len(texs)):
+        name = mat_names[g] if g >= 0 else UNTEXTURED_NAME
+        kd = "1 1 1" if g >= 0 else " ".join(map(str, GREY[:3]))
+        mtl.append(f"newmtl {name}\nKa 1 1 1\nKd {kd}\nKs 0 0 0\nd 1\nillum 1\n")
+        if g >= 0:
+            png = f"{stem}_{g}.png"
+            files.append((png, _png(texs[g])))
+            mtl.append(f"map_Kd {png}\n")
+        mtl.append("\n")
+        body.write(f"usemtl {name}\n")
+        np.savetxt(body, fv[idx], fmt="f %d/%d %d/%d %d/%d")
+    files.append((mtl_name, "".join(mtl).encode()))
+    text = io.StringIO()
+    text.write(f"# proctex.texture.export\nmtllib {mtl_name}\n")
+    np.savetxt(text, V, fmt="v %.9g %.9g %.9g")
+    np.savetxt(text, uv_unique, fmt="vt %.9g %.9g")
+    text.write(body.getvalue())
+    files.append((f"{stem}.obj", text.getvalue().encode()))
+    return files
+
+
 def write_obj(path, vertices, faces, corner_uv, face_group, textures, names=None) -> list[str]:
     """Write ``<stem>.obj``, ``<stem>.mtl`` and ``<stem>_<g>.png`` per non-empty group g.
 
@@ -273,40 +307,16 @@ def write_obj(path, vertices, faces, corner_uv, face_group, textures, names=None
     convention (v up, equal to ``corner_uv``); faces are ``f v/vt`` grouped by ``usemtl``; faces of
     group -1 use a grey material without a texture map. Material names are the group names with
     whitespace replaced by ``_`` (made unique). Every file is written atomically, the PNGs and MTL
-    before the OBJ. Returns the written paths: [obj, mtl, png...].
+    before the OBJ (:func:`obj_files`). Returns the written paths: [obj, mtl, png...].
     """
     path = Path(path)
     if path.suffix.lower() != ".obj":
         raise ValueError(f"path: expected a file name ending in .obj, got {str(path)!r}")
-    V, F, UV, FG, texs, names = _check_shape(vertices, faces, corner_uv, face_group, textures, names)
-    mat_names = _obj_material_names(names)
-    stem = path.with_suffix("")
-    mtl_path = stem.with_suffix(".mtl")
-    uv_unique, uv_inv = np.unique(UV.reshape(-1, 2), axis=0, return_inverse=True)
-    fv = np.stack([F + 1, uv_inv.reshape(-1, 3) + 1], axis=2).reshape(-1, 6)
-
-    written, mtl, body = [], [], io.StringIO()
-    for g, idx in _groups(FG, len(texs)):
-        name = mat_names[g] if g >= 0 else UNTEXTURED_NAME
-        kd = "1 1 1" if g >= 0 else " ".join(map(str, GREY[:3]))
-        mtl.append(f"newmtl {name}\nKa 1 1 1\nKd {kd}\nKs 0 0 0\nd 1\nillum 1\n")
-        if g >= 0:
-            png = stem.parent / f"{stem.name}_{g}.png"
-            atomic_write(png, _png(texs[g]))
-            written.append(str(png))
-            mtl.append(f"map_Kd {png.name}\n")
-        mtl.append("\n")
-        body.write(f"usemtl {name}\n")
-        np.savetxt(body, fv[idx], fmt="f %d/%d %d/%d %d/%d")
-    atomic_write(mtl_path, "".join(mtl).encode())
-
-    text = io.StringIO()
-    text.write(f"# proctex.texture.export\nmtllib {mtl_path.name}\n")
-    np.savetxt(text, V, fmt="v %.9g %.9g %.9g")
-    np.savetxt(text, uv_unique, fmt="vt %.9g %.9g")
-    text.write(body.getvalue())
-    atomic_write(path, text.getvalue().encode())
-    return [str(path), str(mtl_path)] + written
+    written = []
+    for name, data in obj_files(path.stem, vertices, faces, corner_uv, face_group, textures, names):
+        atomic_write(path.parent / name, data)
+        written.append(str(path.parent / name))
+    return [written[-1], written[-2]] + written[:-2]
 
 
 # --------------------------------------------------------------------------- validator

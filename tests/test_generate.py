@@ -1,0 +1,212 @@
+"""``proctex generate``: textured variants by the thousand, in this process and on Ray Data; the
+manifest, resuming, bad rows, killed workers and drivers (issue 20)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from proctex.cli import main
+from proctex.family.generate import GenerateLayout, GenerateSettings, plan_rows, run_in_process
+from proctex.texture.gltf_read import read_textured_glb
+
+from .processes import pids_running
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def mug(painted_mug_root):
+    return str(painted_mug_root / "mug")
+
+
+def _manifest(out) -> list[dict]:
+    return pq.read_table(Path(out) / GenerateLayout.MANIFEST).to_pylist()
+
+
+def _mtimes(out) -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in sorted((Path(out) / "variants").iterdir())}
+
+
+def test_generate_writes_one_glb_per_row_and_a_manifest_and_a_rerun_writes_nothing(mug, tmp_path):
+    out = tmp_path / "variants"
+    summary = run_in_process(GenerateSettings(mug, str(out), n=6, seed=3, batch_size=4), log=lambda *_: None, quiet=True)
+    assert (summary["rows"], summary["written"], summary["failed"]) == (6, 6, 0)
+    rows = _manifest(out)
+    assert [r["id"] for r in rows] == [f"v{i:07d}" for i in range(6)] and {r["status"] for r in rows} == {"written"}
+    for r in rows:
+        mesh = read_textured_glb((out / r["file"]).read_bytes())
+        assert len(mesh.faces) == r["faces"] and r["parts"] >= 1 and r["groups"] >= 1 and len(mesh.textures) >= 1
+        params = json.loads(r["params"])
+        assert r["param.height"] == params["height"] and 0.0 < r["transfer_seconds"] < 60
+    assert len({r["faces"] for r in rows}) > 1  # the family's tessellation follows its parameters
+    before = _mtimes(out)
+    again = run_in_process(GenerateSettings(mug, str(out), n=6, seed=3, batch_size=4), log=lambda *_: None, quiet=True)
+    assert (again["written"], again["done_before"]) == (0, 6) and _mtimes(out) == before
+    assert [r["faces"] for r in _manifest(out)] == [r["faces"] for r in rows] and {r["status"] for r in _manifest(out)} == {"done"}
+    with pytest.raises(ValueError, match="holds another run .*seed"):
+        run_in_process(GenerateSettings(mug, str(out), n=6, seed=4), log=lambda *_: None, quiet=True)
+
+
+def test_rows_from_a_file_fail_alone_and_past_the_bound_the_run_stops(mug, tmp_path):
+    """A CSV of parameters: rows out of range or naming unknown parameters are recorded as failed
+    (with the reason) and the others are written; a rerun retries only the failed ones. With a
+    lower bound on failures the run stops, naming the first."""
+    csv = tmp_path / "rows.csv"
+    csv.write_text("height,radius,colour\n0.1,0.04,\n9.0,0.04,\n0.08,,\n0.1,0.04,red\n")
+    out = tmp_path / "from_csv"
+    summary = run_in_process(GenerateSettings(mug, str(out), rows=str(csv)), log=lambda *_: None, quiet=True)
+    assert (summary["written"], summary["failed"]) == (2, 2)
+    rows = {r["index"]: r for r in _manifest(out)}
+    assert rows[1]["status"] == "failed" and "height" in rows[1]["error"] and rows[1]["file"] == ""
+    assert rows[3]["status"] == "failed" and "colour" in rows[3]["error"]
+    assert rows[2]["status"] == "written" and json.loads(rows[2]["params"]) == {"height": 0.08}  # the radius takes its default
+    again = run_in_process(GenerateSettings(mug, str(out), rows=str(csv)), log=lambda *_: None, quiet=True)
+    assert (again["written"], again["done_before"], again["failed"]) == (0, 2, 2)
+    with pytest.raises(ValueError, match=r"2 rows failed, more than max_failed=1; the first: v0000001: .*height"):
+        run_in_process(GenerateSettings(mug, str(tmp_path / "strict"), rows=str(csv), max_failed=1, batch_size=1), log=lambda *_: None, quiet=True)
+
+
+def test_obj_output_and_a_file_uri_and_a_damaged_record_is_made_again(mug, tmp_path):
+    from proctex.geometry.meshio import load_mesh
+
+    out = tmp_path / "obj"
+    uri = out.resolve().as_uri()  # file:///...: any pyarrow.fs URI works the same way
+    run_in_process(GenerateSettings(mug, uri, n=3, format="obj"), log=lambda *_: None, quiet=True)
+    rows = _manifest(out)
+    for r in rows:
+        obj = out / r["file"]
+        assert obj.suffix == ".obj" and (obj.with_suffix(".mtl")).exists() and list(out.glob(f"variants/{obj.stem}_*.png"))
+        shape, _ = load_mesh(str(obj))
+        assert shape.n_faces == r["faces"]
+    (out / GenerateLayout.record(rows[1]["id"])).write_text("{ damaged")
+    again = run_in_process(GenerateSettings(mug, uri, n=3, format="obj"), log=lambda *_: None, quiet=True)
+    assert (again["written"], again["done_before"]) == (1, 2)
+    assert not list(out.rglob("*.tmp-*"))
+
+
+def test_bad_settings_are_clear_errors_before_any_work(mug, tmp_path, capsys):
+    out = tmp_path / "never"
+    cases = [
+        (["--n", "5", "--params-bounds", "[1]"], "must be a JSON object"),
+        (["--n", "5", "--params-bounds", '{"height": [0, 9]}'], "must lie within"),
+        (["--n", "5", "--params-bounds", '{"nope": [0, 1]}'], "unknown parameters: nope"),
+        (["--n", "5", "--params-bounds", '{"height": ["a", 1]}'], "two finite numbers"),
+        (["--n", "0"], "n must be in"),
+        (["--n", "5", "--bake", "3"], "bake must be"),
+        (["--n", "5", "--max-failed", "-1"], "max_failed"),
+        (["--rows", str(tmp_path / "missing.csv")], "no such file"),
+    ]
+    for flags, message in cases:
+        assert main(["generate", mug, "--out", str(out), "--no-ray", *flags]) == 2
+        assert message in capsys.readouterr().err, flags
+    assert main(["generate", str(tmp_path), "--n", "2", "--out", str(out), "--no-ray"]) == 2
+    assert "no family here" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_sampled_rows_follow_the_seed_and_the_bounds(mug):
+    from proctex.family.generate import family_space
+    from proctex.family.store import FamilyStore
+
+    space = family_space(FamilyStore(mug))
+    a = plan_rows(GenerateSettings(mug, "x", n=50, seed=1, bounds={"height": [0.08, 0.09]}), space)
+    b = plan_rows(GenerateSettings(mug, "x", n=50, seed=1, bounds={"height": [0.08, 0.09]}), space)
+    assert a == b and len({r["seed"] for r in a}) == 50
+    heights = np.array([json.loads(r["params"])["height"] for r in a])
+    assert heights.min() >= 0.08 and heights.max() <= 0.09
+    assert np.histogram(heights, bins=5, range=(0.08, 0.09))[0].min() == 10  # a Latin hypercube: every stratum once
+
+
+# ------------------------------------------------------------------------------------------ on Ray
+@pytest.fixture(scope="module")
+def reference(mug, tmp_path_factory):
+    """The single-process run that the Ray runs must equal, byte for byte."""
+    out = tmp_path_factory.mktemp("gen_reference")
+    run_in_process(GenerateSettings(mug, str(out), n=24, seed=5, batch_size=2), log=lambda *_: None, quiet=True)
+    return out
+
+
+def _same_files(a: Path, b: Path) -> int:
+    names = sorted(p.name for p in (a / "variants").iterdir())
+    assert names == sorted(p.name for p in (b / "variants").iterdir())
+    for n in names:
+        assert (a / "variants" / n).read_bytes() == (b / "variants" / n).read_bytes(), n
+    return len(names)
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_ray_data_run_equals_the_single_process_run_and_survives_a_killed_actor(mug, reference, tmp_path):
+    """Two texture actors on a private 2-CPU Ray; one is killed once its first records exist. Ray
+    Data restarts it and retries its batch: every row is written, the files equal the single-process
+    run's, and no partial file is left."""
+    import ray
+
+    from workflows.generate import generate_on_ray
+
+    out = tmp_path / "ray"
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    killed: list[int] = []
+    stop = threading.Event()
+
+    def killer() -> None:
+        while not stop.is_set():
+            if (out / "records").exists() and len(list((out / "records").glob("*.json"))) >= 2:
+                pids = pids_running(b"TextureStage")
+                if pids:
+                    os.kill(pids[0], signal.SIGKILL)
+                    killed.append(pids[0])
+                    return
+            time.sleep(0.02)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    try:
+        summary = generate_on_ray(GenerateSettings(mug, str(out), n=24, seed=5, batch_size=2), concurrency=(1, 2), log=lambda *_: None, quiet=True)
+    finally:
+        stop.set()
+        thread.join(5)
+        ray.shutdown()
+    assert killed, "no texture actor was seen running"
+    assert summary["rows"] == 24 and summary["written"] + summary["done_before"] == 24 and summary["failed"] == 0
+    assert _same_files(reference, out) == 24
+    assert [r["faces"] for r in _manifest(out)] == [r["faces"] for r in _manifest(reference)]
+    assert not list(out.rglob("*.tmp-*"))
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_a_killed_generate_driver_resumes_without_redoing_rows(mug, reference, tmp_path):
+    out = tmp_path / "killed"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "generate", mug, "--n", "24", "--seed", "5", "--batch-size", "2",
+                             "--out", str(out), "--cpus", "2", "--quiet"], cwd=ROOT, env=env, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None:
+        if (out / "records").exists() and len(list((out / "records").glob("*.json"))) >= 4:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run finished before it could be killed"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "records").glob("*.json")}
+    assert 4 <= len(before) < 24
+    summary = run_in_process(GenerateSettings(mug, str(out), n=24, seed=5, batch_size=2), log=lambda *_: None, quiet=True)
+    assert summary["done_before"] >= len(before) and summary["written"] == 24 - summary["done_before"]
+    for name, mtime in before.items():
+        assert (out / "records" / name).stat().st_mtime_ns == mtime, f"{name} was redone"
+    assert _same_files(reference, out) == 24
+    shutil.rmtree(out / "variants")
