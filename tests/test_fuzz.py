@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import pytest
 
+from proctex.family.catalog import Catalog
+from proctex.family.service import Limits
 from .fuzz_cases import cli_cases, http_cases
-from proctex.family.service import Catalog, Limits
 
 fastapi = pytest.importorskip("fastapi")
 from fastapi.testclient import TestClient  # noqa: E402

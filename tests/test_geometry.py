@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from proctex.geometry.align import icp_to_surface, rotation_angle, umeyama, apply
-from proctex.geometry.surface import SurfaceIndex, closest_point_bruteforce, closest_point_on_triangles, sample_surface, triangle_areas
 from proctex.geometry.parts import segment
 from proctex.geometry.shape import Shape, split_by_face_parts
+from proctex.geometry.surface import SurfaceIndex, closest_point_bruteforce, closest_point_on_triangles, sample_surface, triangle_areas
 from proctex.models import get_model
 
 from .meshes import cube

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from proctex.family.budget import Budget, OverBudget
+from proctex.family.catalog import Catalog, Watchdog
 from proctex.family.config import BuildConfig
-from proctex.family.service import Catalog, Limits, Watchdog
+from proctex.family.service import Limits
 from proctex.family.stages import load_assets
 from proctex.family.store import FamilyStore
 from proctex.geometry.meshio import load_mesh_bytes, obj_text, position_ids

@@ -8,9 +8,10 @@ import shutil
 import numpy as np
 import pytest
 
+from proctex.family.catalog import Catalog
 from proctex.family.config import BuildConfig
 from proctex.family.edits import edit_group
-from proctex.family.service import Catalog, FamilyService, Limits, NotFound, build_stamp
+from proctex.family.service import FamilyService, Limits, NotFound, build_stamp
 from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
 from proctex.family.store import FamilyStore
 

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from proctex.family.catalog import Catalog
 from proctex.family.config import BuildConfig
-from proctex.family.service import Catalog
 from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
 from proctex.family.store import FamilyStore
 from workflows.screenshot import CHROMIUM_ARGS

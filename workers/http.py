@@ -51,8 +51,9 @@ from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from proctex.family.budget import Budget, OverBudget
+from proctex.family.catalog import Catalog, Watchdog
 from proctex.family.edits import EditConflict
-from proctex.family.service import BadInput, Catalog, NotFound, TooLarge, Unavailable, Watchdog, build_stamp, parse_edit
+from proctex.family.service import BadInput, NotFound, TooLarge, Unavailable, build_stamp, parse_edit
 
 GLB_MEDIA_TYPE = "model/gltf-binary"
 MAX_SEED = 2**31 - 1

@@ -12,7 +12,8 @@ from typing import Any
 
 from ray import serve
 
-from proctex.family.service import Catalog, Limits, Watchdog
+from proctex.family.catalog import Catalog, Watchdog
+from proctex.family.service import Limits
 from workers.http import create_app
 
 

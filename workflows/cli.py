@@ -37,7 +37,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     import ray
     from ray import serve
 
-    from proctex.family.service import Catalog
+    from proctex.family.catalog import Catalog
     from workers.serve import build_app
 
     if args.port < 1 or args.port > 65535:

@@ -44,7 +44,8 @@ def probe_http(root: Path, n: int, seed: int) -> dict:
     from fastapi.testclient import TestClient
 
     try:
-        from proctex.family.service import Catalog, Limits
+        from proctex.family.catalog import Catalog
+        from proctex.family.service import Limits
     except ImportError:
         from proctex.service import Catalog, Limits
     from workers.http import create_app
