@@ -14,7 +14,8 @@ family once per worker:
 
 The output folder (:class:`GenerateLayout`) holds ``generate.json`` (the run's settings and the
 family's build stamp: a rerun must match them), ``variants/``, ``records/`` and ``manifest.parquet``
-(one row per parameter row: parameters, file, counts, notes, seconds, status, error).
+(one row per parameter row: parameters, file, counts, notes, seconds, status, error, and when it
+finished).
 """
 
 from __future__ import annotations
@@ -218,12 +219,13 @@ def _record(out: FamilyStore, vid: str, fmt: str) -> dict[str, Any] | None:
 
 # ----------------------------------------------------------------------------------------- stages
 MANIFEST_FIELDS = ("index", "id", "params", "status", "file", "faces", "vertices", "parts", "groups", "notes", "error", "bytes",
-                   "generate_seconds", "transfer_seconds", "write_seconds")
+                   "generate_seconds", "transfer_seconds", "write_seconds", "finished")
 
 
 def _empty(row: dict[str, Any]) -> dict[str, Any]:
     return {"index": int(row["index"]), "id": str(row["id"]), "params": str(row["params"]), "status": "", "file": "", "faces": 0, "vertices": 0,
-            "parts": 0, "groups": 0, "notes": "[]", "error": "", "bytes": 0, "generate_seconds": 0.0, "transfer_seconds": 0.0, "write_seconds": 0.0}
+            "parts": 0, "groups": 0, "notes": "[]", "error": "", "bytes": 0, "generate_seconds": 0.0, "transfer_seconds": 0.0, "write_seconds": 0.0,
+            "finished": time.time()}
 
 
 def _rows_of(batch: dict[str, np.ndarray]) -> list[dict[str, Any]]:
@@ -309,7 +311,8 @@ class TextureStage:
                 shape = Shape(z["vertices"], z["faces"])
             answer, summary = self.svc.textured(shape, seed=int(row["seed"]), bake_size=self.bake)
         except (ValueError, TypeError, OverflowError) as exc:
-            return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"[:500], "transfer_seconds": time.perf_counter() - t0}
+            return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"[:500], "transfer_seconds": time.perf_counter() - t0,
+                    "finished": time.time()}
         t1 = time.perf_counter()
         files = self._files(vid, shape, answer)
         main = GenerateLayout.variant(vid, self.fmt)
@@ -321,6 +324,7 @@ class TextureStage:
                "error": "", "bytes": int(sum(len(d) for _, d in files)), "generate_seconds": float(row["generate_seconds"]),
                "transfer_seconds": t1 - t0, "write_seconds": 0.0}
         rec["write_seconds"] = time.perf_counter() - t1
+        rec["finished"] = time.time()  # wall clock: throughput over a run, across workers
         self.out.write_json(GenerateLayout.record(vid), rec)
         return rec
 

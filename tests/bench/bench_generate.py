@@ -3,7 +3,7 @@
 
 For each family, each way of running writes N fresh variants into its own folder. The rate is given
 twice: over the whole run (Ray's start and the actors' family loading included) and over the steady
-part (from the first finished batch to the last, which is what a 10,000-row job sees). The
+part (between the 10th and 90th percentile of the rows' finish times, the pace a 10,000-row job sees). The
 per-variant costs are the medians of the manifest's columns from the in-process run.
 
     .venv/bin/python tests/bench/bench_generate.py --family out/bench/gen_families/sofa --family out/bench/gen_families/chair --n 60
@@ -29,35 +29,12 @@ sys.path.insert(0, str(HERE.parents[1]))
 from harness import machine, versions, write_json  # noqa: E402
 
 
-class Clock:
-    """When each finished batch reached the driver, and how many rows it held."""
-
-    def __init__(self) -> None:
-        self.arrivals: list[tuple[float, int]] = []
-
-    def steady_rate(self) -> float:
-        if len(self.arrivals) < 2:
-            return float("nan")
-        (t0, _), (t1, _) = self.arrivals[0], self.arrivals[-1]
-        rows = sum(n for _, n in self.arrivals[1:])
-        return rows / max(t1 - t0, 1e-9)
-
-
-def _timed(run, clock: Clock):
-    """Run ``run()`` with :class:`proctex.family.generate.Tally` recording batch arrivals in ``clock``."""
-    from proctex.family import generate
-
-    original = generate.Tally.add
-
-    def add(self, batch):
-        original(self, batch)
-        clock.arrivals.append((time.perf_counter(), len(next(iter(batch.values())))))
-
-    generate.Tally.add = add
-    try:
-        return run()
-    finally:
-        generate.Tally.add = original
+def steady_rate(rows: list[dict]) -> float:
+    """Rows per second between the 10th and the 90th percentile of the rows' finish times: the pace
+    of a long run, without the start (Ray, actors loading the family) or the tail."""
+    t = np.sort([r["finished"] for r in rows])
+    lo, hi = int(0.1 * (len(t) - 1)), int(0.9 * (len(t) - 1))
+    return (hi - lo) / max(t[hi] - t[lo], 1e-9)
 
 
 def main(argv=None) -> int:
@@ -81,24 +58,22 @@ def main(argv=None) -> int:
         for way in ("process", "ray1", "ray2"):
             out = work / f"{name}-{way}"
             settings = GenerateSettings(family, str(out), n=args.n, seed=0, batch_size=args.batch_size)
-            clock = Clock()
             t0 = time.perf_counter()
             if way == "process":
-                summary = _timed(lambda: run_in_process(settings, log=lambda *_: None, quiet=True), clock)
+                summary = run_in_process(settings, log=lambda *_: None, quiet=True)
             else:
-                cpus = int(way[-1])
-                ray.init(address="local", num_cpus=cpus, include_dashboard=False, log_to_driver=False)
+                ray.init(address="local", num_cpus=int(way[-1]), include_dashboard=False, log_to_driver=False)
                 try:
-                    summary = _timed(lambda: generate_on_ray(settings, log=lambda *_: None, quiet=True), clock)
+                    summary = generate_on_ray(settings, log=lambda *_: None, quiet=True)
                 finally:
                     ray.shutdown()
             total = time.perf_counter() - t0
             assert summary["written"] == args.n, summary
-            runs[way] = {"seconds": round(total, 2), "rate": round(args.n / total, 2), "steady_rate": round(clock.steady_rate(), 2),
-                         "actors": summary.get("actors")}
-            print(f"{name} {way}: {args.n} variants in {total:.1f}s, {args.n / total:.2f}/s overall, {clock.steady_rate():.2f}/s steady", flush=True)
+            rows = pq.read_table(out / "manifest.parquet").to_pylist()
+            steady = steady_rate(rows)
+            runs[way] = {"seconds": round(total, 2), "rate": round(args.n / total, 2), "steady_rate": round(steady, 2), "actors": summary.get("actors")}
+            print(f"{name} {way}: {args.n} variants in {total:.1f}s, {args.n / total:.2f}/s overall, {steady:.2f}/s steady", flush=True)
             if way == "process":
-                rows = pq.read_table(out / "manifest.parquet").to_pylist()
                 runs["cost"] = {k: round(float(np.median([r[k] for r in rows])) * 1000, 2) for k in ("generate_seconds", "transfer_seconds", "write_seconds")}
                 runs["cost"]["bytes"] = int(np.median([r["bytes"] for r in rows]))
                 runs["cost"]["faces"] = int(np.median([r["faces"] for r in rows]))
