@@ -298,7 +298,7 @@ def test_a_config_with_a_nan_seed_is_refused_before_the_store_is_touched(tmp_pat
 # ------------------------------------------------------------------------------------------ edits
 EDITOR = """
 import sys
-from proctex.family.service import Catalog
+from proctex.family.catalog import Catalog
 cat = Catalog(sys.argv[1], check_every=0)
 for k in range(int(sys.argv[2])):
     svc = cat.get("mug")

@@ -248,3 +248,95 @@ def test_a_group_trained_by_two_ray_train_workers_averages_their_gradients(local
     record = st.read_json("family.json")["stages"]["train"]
     assert record["ray"] is True and record["groups"]["0"]["workers"] == 2 and record["groups"]["0"]["sha256"]
     assert sorted(load_models(st)) == [0, 1]  # the new network's checksum is the one recorded
+
+
+def _serve_app(root: Path, name: str, **args) -> str:
+    from ray import serve
+
+    from workers.serve import build_app
+
+    serve.shutdown()  # a proxy started earlier keeps its port: start Serve afresh on a new one
+    port = _free_port()
+    serve.start(http_options={"host": "127.0.0.1", "port": port})
+    serve.run(build_app({"root": str(root), **{k: str(v) for k, v in args.items()}}), name=name, route_prefix="/")
+    return f"http://127.0.0.1:{port}"
+
+
+def _transfer(base: str, family: str, routed: bool, radius: float = 0.04) -> tuple[int, str, bytes]:
+    import urllib.error
+    import urllib.request
+
+    headers = {"content-type": "application/json", **({"serve_multiplexed_model_id": family} if routed else {})}
+    req = urllib.request.Request(f"{base}/v1/families/{family}/transfer", data=json.dumps({"params": {"radius": radius}}).encode(),
+                                 headers=headers, method="POST")
+    try:
+        with urllib.request.urlopen(req, timeout=120) as r:
+            return r.status, r.headers.get("X-ProcTex-Replica", ""), r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, "", e.read()
+
+
+def test_a_multiplexed_replica_holds_at_most_its_cap_and_serves_every_family(local_ray, reference, tmp_path):
+    """Three families, one replica with room for two: requests to all three succeed (the third
+    pushes the least recently used one out), the replica holds two, and the evicted one loads
+    again when asked for. Nothing is preloaded."""
+    import shutil
+    import urllib.request
+
+    from ray import serve
+
+    root = tmp_path / "families"
+    for name in ("a", "b", "c"):
+        shutil.copytree(reference.base, root / name)
+    base = _serve_app(root, "proctex-mux", replicas=1, max_families=2)
+
+    def health() -> dict:
+        with urllib.request.urlopen(base + "/healthz", timeout=60) as r:
+            return json.loads(r.read())
+
+    try:
+        first = health()
+        assert first["loaded"] == [] and first["families"] == 3 and first["unavailable"] == []  # lazy: nothing loaded to answer
+        for name in ("a", "b", "c"):
+            code, _, body = _transfer(base, name, routed=True)
+            assert code == 200 and body[:4] == b"glTF", body[:200]
+        time.sleep(0.5)
+        assert health()["loaded"] == ["b", "c"]
+        code, _, _ = _transfer(base, "a", routed=True)
+        state = health()
+        assert code == 200 and state["loaded"] == ["a", "c"] and state["loads"] == 4
+        with urllib.request.urlopen(base + "/v1/families", timeout=60) as r:
+            assert json.loads(r.read())["health"] == {"a": "ok", "b": "ok", "c": "ok"}
+    finally:
+        serve.delete("proctex-mux")
+
+
+def test_multiplexed_requests_go_to_the_replica_that_holds_their_family(local_ray, reference, tmp_path):
+    """Two replicas with room for one family each, two families: with the routing header every
+    request of a family lands on one replica and each family loads once; without it (no routing)
+    the same requests make the replicas load families over and over."""
+    import shutil
+    import urllib.request
+
+    from ray import serve
+
+    root = tmp_path / "families"
+    for name in ("a", "b"):
+        shutil.copytree(reference.base, root / name)
+    base = _serve_app(root, "proctex-route", replicas=2, max_families=1)
+    try:
+        seen: dict[str, set[str]] = {"a": set(), "b": set()}
+        for k in range(16):
+            family = "ab"[k % 2]
+            code, replica, _ = _transfer(base, family, routed=True, radius=0.03 + 0.001 * k)
+            assert code == 200
+            seen[family].add(replica)
+            time.sleep(0.2)  # replicas report what they hold every few tenths of a second
+        assert all(len(r) == 1 for r in seen.values()) and seen["a"] != seen["b"], seen
+        loads = []
+        for _ in range(2):
+            with urllib.request.urlopen(base + "/healthz", timeout=60) as r:
+                loads.append(json.loads(r.read())["loads"])
+        assert max(loads) <= 2, loads
+    finally:
+        serve.delete("proctex-route")

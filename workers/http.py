@@ -42,7 +42,7 @@ import os
 import re
 import weakref
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Awaitable, Callable
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -190,7 +190,8 @@ async def read_json_object(request: Request, max_bytes: int = 65536) -> dict[str
 
 
 def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], Any]], Any] | None = None,
-               studio_dir: str | Path | None = None, watchdog: Watchdog | None = None, edit_token: str | None = None) -> FastAPI:
+               studio_dir: str | Path | None = None, watchdog: Watchdog | None = None, edit_token: str | None = None,
+               get_family: Callable[[str], Awaitable[Any]] | None = None, replica: str | None = None) -> FastAPI:
     """The FastAPI application over a :class:`Catalog`.
 
     ``run(fn)`` executes the blocking transfer (default: a worker thread), so the event loop keeps
@@ -199,6 +200,9 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
     new one whose stuck time is twice the catalog's transfer budget plus 30 s); ``/healthz`` answers
     503 while one is stuck. ``edit_token``: the secret that stored edits need (header
     ``X-ProcTex-Token`` or ``Authorization: Bearer``); without one the families are read-only.
+    ``get_family(name)``: how a route gets a family's service (default: the catalog's, in a worker
+    thread; the multiplexed Serve replica passes its LRU). ``replica``: this replica's name, sent
+    back as ``X-ProcTex-Replica`` and in ``/healthz``.
 
     Transfers of one family run one at a time: a request waits for its turn in the event loop (no
     worker thread is held while waiting), has ``max_seconds`` of work (a 422 past it), and is
@@ -217,6 +221,13 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         return await asyncio.to_thread(fn)
 
     dog = watchdog if watchdog is not None else Watchdog(2 * get_catalog().limits.max_seconds + 30)
+    served_by = {"X-ProcTex-Replica": replica} if replica else {}
+
+    async def family_of(name: str) -> Any:
+        if get_family is not None:
+            return await get_family(name)
+        return await blocking(lambda: get_catalog().get(name))
+
     gates: weakref.WeakKeyDictionary[Any, asyncio.Semaphore] = weakref.WeakKeyDictionary()
 
     async def watched(fn: Callable[[], Any], request: Request, budget: Budget) -> Any:
@@ -285,7 +296,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         cat = get_catalog()
         health = cat.health()
         info = {"families": len(health), "unavailable": sorted(n for n, h in health.items() if h not in ("ok", "not built")),
-                "loads": cat.loads, "transfers_running": dog.running(),
+                "loaded": cat.loaded(), "loads": cat.loads, "replica": replica, "transfers_running": dog.running(),
                 "oldest_transfer_seconds": round(dog.oldest(), 3)}
         if dog.stuck():
             return JSONResponse({"status": "stuck", **info}, status_code=503)
@@ -301,7 +312,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
     @app.get("/v1/families/{name}", responses={404: {"description": "unknown family"}})
     async def family(name: str):
         try:
-            svc = await blocking(lambda: get_catalog().get(name))
+            svc = await family_of(name)
             return {**svc.describe(), "edits_enabled": bool(edit_token)}
         except Exception as exc:
             return error_response(exc)
@@ -322,8 +333,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
     async def transfer(name: str, request: Request):
         token = None
         try:
-            cat = get_catalog()
-            svc = await blocking(lambda: cat.get(name))
+            svc = await family_of(name)
             kind, payload, seed, raw_edits = await read_transfer_request(request, svc.limits.max_bytes)
             edits = svc.parse_edits(raw_edits)
 
@@ -345,7 +355,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             if token is not None:
                 dog.end(token)
         headers = {"X-ProcTex-Seconds": str(summary["seconds"]), "X-ProcTex-Notes": json.dumps(summary["notes"])[:2000],
-                   "Content-Disposition": f'inline; filename="{name}.glb"'}
+                   "Content-Disposition": f'inline; filename="{name}.glb"', **served_by}
         return Response(content=data, media_type=GLB_MEDIA_TYPE, headers=headers)
 
     @app.get(
@@ -358,7 +368,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
                             value: str | None = None, prompt: str | None = None):
         """The group's template texture, edited as the query says (no edit: the stored one)."""
         try:
-            svc = await blocking(lambda: get_catalog().get(name))
+            svc = await family_of(name)
             g = svc.group_index(group, missing=NotFound)
             edit = parse_edit({"hue": hue, "saturation": saturation, "value": value, "prompt": prompt}, svc.limits.max_prompt)
             data = await blocking(lambda: svc.thumbnail(g, edit, size))
@@ -378,8 +388,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         """Store an edit of one group texture in the family; every later transfer uses it. Needs the
         edit token; ``If-Match: <stamp>`` makes it conditional on the family being unchanged (409)."""
         try:
-            cat = get_catalog()
-            svc = await blocking(lambda: cat.get(name))
+            svc = await family_of(name)
             check_edit_request(request)
             body = await read_json_object(request)
             expect = request.headers.get("if-match")
@@ -394,8 +403,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
     async def undo_edit(name: str, request: Request):
         """Undo the family's last stored edit (needs the edit token)."""
         try:
-            cat = get_catalog()
-            svc = await blocking(lambda: cat.get(name))
+            svc = await family_of(name)
             check_edit_request(request)
             expect = request.headers.get("if-match")
             undone, stamp = await blocking(lambda: (svc.undo_edit(expect_stamp=expect), build_stamp(svc.store)))
@@ -409,8 +417,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
     async def reset_edits(name: str, request: Request):
         """Undo every stored edit: the template as painted (needs the edit token)."""
         try:
-            cat = get_catalog()
-            svc = await blocking(lambda: cat.get(name))
+            svc = await family_of(name)
             check_edit_request(request)
             undone, stamp = await blocking(lambda: (svc.undo_edit(all_edits=True), build_stamp(svc.store)))
         except Exception as exc:

@@ -1,12 +1,13 @@
 """Ray Serve deployment of the transfer service: the FastAPI app of :mod:`workers.http` as ingress.
 
-Each replica keeps a :class:`proctex.family.service.Catalog` of the families under the store root (loaded
-on first use, reloaded when a family's build stamp changes). Transfers run in a worker thread of the
+Each replica keeps a :class:`proctex.family.catalog.Catalog` of the families under the store root
+(reloaded when a family's build stamp changes): all of them, or, multiplexed, the few it serves. Transfers run in a worker thread of the
 replica, so one replica overlaps request parsing, encoding and I/O with the CPU-bound transfer.
 """
 
 from __future__ import annotations
 
+import asyncio
 import os
 from typing import Any
 
@@ -17,18 +18,22 @@ from proctex.family.service import Limits
 from workers.http import create_app
 
 
-@serve.deployment(name="ProcTexTransfer", ray_actor_options={"num_cpus": 0}, max_ongoing_requests=16, health_check_period_s=10)
-@serve.ingress()
 class TransferService:
-    """One replica: the catalog of families under ``root`` (preloaded) behind the FastAPI app, which
-    is built in the replica after the constructor (``__serve_build_asgi_app__``), bound to it."""
+    """One replica: the catalog of families under ``root`` behind the FastAPI app, which is built in
+    the replica after the constructor (``__serve_build_asgi_app__``), bound to it.
+
+    Without ``max_families`` every family is preloaded and kept. With it the replica is multiplexed
+    (:func:`deployment`): families load on their first request and at most ``max_families`` stay,
+    least recently used first out."""
+
+    max_families = 0
 
     def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True,
                  edit_token: str | None = None) -> None:
         self.edit_token = edit_token or None
-        self.catalog = Catalog(root, Limits(**(limits or {})), check_every)
+        self.catalog = Catalog(root, Limits(**(limits or {})), check_every, lazy=self.max_families > 0)
         self.watchdog = Watchdog(2 * self.catalog.limits.max_seconds + 30)
-        if preload:
+        if preload and not self.max_families:
             for name in self.catalog.names():
                 try:
                     self.catalog.get(name)
@@ -36,13 +41,60 @@ class TransferService:
                     pass
 
     def __serve_build_asgi_app__(self):
-        return create_app(lambda: self.catalog, watchdog=self.watchdog, edit_token=self.edit_token)
+        return create_app(lambda: self.catalog, watchdog=self.watchdog, edit_token=self.edit_token,
+                          get_family=self.family if self.max_families else None, replica=_replica_name())
 
     def check_health(self) -> None:
         """Serve's health check: a transfer stuck far past its budget fails it, so Serve replaces
         this replica (``/healthz`` answers 503 meanwhile)."""
         if self.watchdog.stuck():
             raise RuntimeError(f"a transfer has run {self.watchdog.oldest():.0f} s (stuck after {self.watchdog.stuck_after:.0f} s)")
+
+
+class _Held:
+    """What Serve's multiplexing LRU keeps per family: unloading it (``__del__``, which Serve calls
+    when the family leaves the LRU) makes the catalog let the family go too."""
+
+    def __init__(self, catalog: Catalog, name: str, service: Any) -> None:
+        self.catalog, self.name, self.service = catalog, name, service
+
+    def __del__(self) -> None:
+        self.catalog.forget(self.name, self.service)
+
+
+def _replica_name() -> str:
+    try:
+        return serve.get_replica_context().replica_tag
+    except Exception:  # outside a replica (tests building the class directly)
+        return f"pid-{os.getpid()}"
+
+
+def deployment(max_families: int = 0, name: str = "ProcTexTransfer"):
+    """The Serve deployment class: :class:`TransferService`, multiplexed when ``max_families`` > 0.
+
+    Multiplexed, the family is Serve's model id (:func:`ray.serve.multiplexed`): a family loads on
+    its first request, a replica keeps at most ``max_families`` (LRU), and requests that carry the
+    header ``serve_multiplexed_model_id: <family>`` (the studio and the Blender add-on send it) are
+    routed to a replica that already holds the family. The catalog behind it still checks the
+    family's build stamp, so a rebuilt or edited family is reloaded in place."""
+    if max_families < 0:
+        raise ValueError(f"max_families must be >= 0 (0: every family, preloaded), got {max_families}")
+    cls = TransferService
+    if max_families:
+
+        class MultiplexedTransferService(TransferService):
+            @serve.multiplexed(max_num_models_per_replica=max_families)
+            async def held(self, name: str) -> _Held:
+                service = await asyncio.to_thread(self.catalog.get, name)
+                return _Held(self.catalog, name, service)
+
+            async def family(self, name: str) -> Any:
+                await self.held(name)  # the LRU (a miss loads it) and the routing table
+                return await asyncio.to_thread(self.catalog.get, name)  # a rebuilt family reloads here
+
+        MultiplexedTransferService.max_families = max_families
+        cls = MultiplexedTransferService
+    return serve.deployment(name=name, ray_actor_options={"num_cpus": 0}, max_ongoing_requests=16, health_check_period_s=10)(serve.ingress()(cls))
 
 
 def build_app(args: dict[str, Any]) -> Any:
@@ -53,7 +105,9 @@ def build_app(args: dict[str, Any]) -> Any:
     required); ``replicas`` (fixed count) or ``min_replicas``/``max_replicas``/``target_ongoing_requests``
     (autoscaling); ``max_ongoing_requests``; ``num_cpus`` per replica; ``check_every`` seconds;
     ``max_bytes``/``max_vertices``/``max_faces``/``max_parts``/``max_seconds`` request limits; ``preload``;
-    ``edit_token`` (default ``$PROCTEX_EDIT_TOKEN``): the secret stored edits need (none: read-only).
+    ``edit_token`` (default ``$PROCTEX_EDIT_TOKEN``): the secret stored edits need (none: read-only);
+    ``max_families`` (default 0: every family, preloaded): multiplex the families, at most this many
+    per replica (:func:`deployment`).
     """
     if not args.get("root"):
         raise ValueError("build_app needs args['root'], the family store root")
@@ -71,4 +125,5 @@ def build_app(args: dict[str, Any]) -> Any:
         limits["max_seconds"] = float(args["max_seconds"])
     preload = str(args.get("preload", "true")).lower() not in ("0", "false", "no")
     token = args.get("edit_token") or os.environ.get("PROCTEX_EDIT_TOKEN") or None
-    return TransferService.options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)), limits, preload, token)
+    return deployment(int(args.get("max_families", 0))).options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)),
+                                                                               limits, preload, token)

@@ -46,8 +46,11 @@ def probe_http(root: Path, n: int, seed: int) -> dict:
     try:
         from proctex.family.catalog import Catalog
         from proctex.family.service import Limits
-    except ImportError:
-        from proctex.service import Catalog, Limits
+    except ImportError:  # older layouts, for before/after runs
+        try:
+            from proctex.family.service import Catalog, Limits
+        except ImportError:
+            from proctex.service import Catalog, Limits
     from workers.http import create_app
 
     cat = Catalog(str(root), Limits(max_bytes=500_000), check_every=0)
