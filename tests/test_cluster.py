@@ -28,21 +28,31 @@ def test_manifests_parse_and_name_what_exists():
     ServeDeploySchema.model_validate(serve_cfg)
     for app in serve_cfg["applications"]:
         assert callable(_import_path(app["import_path"]))
-    docs = {d["kind"]: d for f in (CLUSTER / "kuberay").glob("*.yaml") for d in yaml.safe_load_all(f.read_text())}
-    assert set(docs) == {"RayJob", "RayService"}
-    assert all(d["apiVersion"] == "ray.io/v1" for d in docs.values())
-    service = docs["RayService"]["spec"]
+    docs = [d for f in sorted((CLUSTER / "kuberay").glob("*.yaml")) for d in yaml.safe_load_all(f.read_text())]
+    assert sorted(d["kind"] for d in docs) == ["RayJob", "RayJob", "RayService"]
+    assert all(d["apiVersion"] == "ray.io/v1" for d in docs)
+    jobs = {d["metadata"]["name"]: d for d in docs if d["kind"] == "RayJob"}
+    service = next(d for d in docs if d["kind"] == "RayService")["spec"]
     inner = yaml.safe_load(service["serveConfigV2"])
     ServeDeploySchema.model_validate(inner)
     for app in inner["applications"]:
         app_builder = _import_path(app["import_path"])
         assert callable(app_builder)
         app_builder({k: v for k, v in app["args"].items()})  # the builder accepts its args (binds, does not run)
-    for spec in (docs["RayJob"]["spec"]["rayClusterSpec"], service["rayClusterConfig"]):
+    for spec in [j["spec"]["rayClusterSpec"] for j in jobs.values()] + [service["rayClusterConfig"]]:
         assert spec["headGroupSpec"]["template"]["spec"]["containers"] and spec["workerGroupSpecs"][0]["groupName"]
-    entry = docs["RayJob"]["spec"]["entrypoint"].split()
-    assert entry[:3] == ["python", "-m", "workflows.cli"] and entry[3] == "build" and "--ray" in entry
-    importlib.import_module("workflows.cli").build_parser().parse_args(entry[3:])
+    parser = importlib.import_module("workflows.cli").build_parser()
+    commands = {}
+    for job in jobs.values():
+        entry = job["spec"]["entrypoint"].split()
+        assert entry[:3] == ["python", "-m", "workflows.cli"]
+        args = parser.parse_args(entry[3:])  # every flag exists
+        commands[entry[3]] = (entry, args)
+    assert set(commands) == {"build", "generate"}
+    entry, _ = commands["build"]
+    assert "--ray" in entry
+    _, gen = commands["generate"]
+    assert gen.n == 10000 and gen.address == "auto" and gen.out.startswith("s3://") and not gen.no_ray
     # The job's config file is in this folder and is a valid build config.
     from proctex.family.config import BuildConfig
 

@@ -190,9 +190,10 @@ function settled(seq) {
 }
 
 function transferRequest(fam, params, edits, signal) {
-  const options = { method: 'POST', signal };
+  // The routing header sends the request to a Serve replica that already holds the family.
+  const options = { method: 'POST', signal, headers: { serve_multiplexed_model_id: fam.name } };
   if (fam.inputs.includes('params')) {
-    options.headers = { 'content-type': 'application/json' };
+    options.headers['content-type'] = 'application/json';
     options.body = JSON.stringify({ params, seed: 0, edits });
   } else {
     options.body = new FormData();
