@@ -29,9 +29,9 @@ class TransferService:
     max_families = 0
 
     def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True,
-                 edit_token: str | None = None) -> None:
+                 edit_token: str | None = None, device: str = "cpu") -> None:
         self.edit_token = edit_token or None
-        self.catalog = Catalog(root, Limits(**(limits or {})), check_every, lazy=self.max_families > 0)
+        self.catalog = Catalog(root, Limits(**(limits or {})), check_every, lazy=self.max_families > 0, device=device)
         self.watchdog = Watchdog(2 * self.catalog.limits.max_seconds + 30)
         if preload and not self.max_families:
             for name in self.catalog.names():
@@ -107,7 +107,8 @@ def build_app(args: dict[str, Any]) -> Any:
     ``max_bytes``/``max_vertices``/``max_faces``/``max_parts``/``max_seconds`` request limits; ``preload``;
     ``edit_token`` (default ``$PROCTEX_EDIT_TOKEN``): the secret stored edits need (none: read-only);
     ``max_families`` (default 0: every family, preloaded): multiplex the families, at most this many
-    per replica (:func:`deployment`).
+    per replica (:func:`deployment`); ``device`` (default "cpu"): where the networks run, with
+    ``num_gpus`` per replica (default for "cuda": the GPU shared by the replicas).
     """
     if not args.get("root"):
         raise ValueError("build_app needs args['root'], the family store root")
@@ -125,5 +126,9 @@ def build_app(args: dict[str, Any]) -> Any:
         limits["max_seconds"] = float(args["max_seconds"])
     preload = str(args.get("preload", "true")).lower() not in ("0", "false", "no")
     token = args.get("edit_token") or os.environ.get("PROCTEX_EDIT_TOKEN") or None
+    device = str(args.get("device", "cpu"))
+    if device.startswith("cuda"):
+        replicas = int(args.get("replicas", args.get("max_replicas", 1)))
+        options["ray_actor_options"]["num_gpus"] = float(args.get("num_gpus", 1.0 / max(1, replicas)))
     return deployment(int(args.get("max_families", 0))).options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)),
-                                                                               limits, preload, token)
+                                                                               limits, preload, token, device)

@@ -57,6 +57,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise ValueError(f"--max-families must be >= 0 (0: every family, preloaded), got {args.max_families}")
     if args.max_families:
         app_args["max_families"] = args.max_families
+    if args.device != "cpu":
+        from proctex.correspond.corrnet import resolve_device
+
+        resolve_device(args.device)  # CUDA asked for and absent: said before Ray starts
+        app_args["device"] = args.device
     if args.autoscale:
         lo, hi = (int(x) for x in args.autoscale.split(","))
         app_args.update(min_replicas=lo, max_replicas=hi)
@@ -163,6 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--replicas", type=int, default=0, help="fixed replica count (default: one per CPU, at most 4)")
     p.add_argument("--autoscale", help="MIN,MAX replicas (autoscaling instead of a fixed count)")
     p.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
+    p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i>")
     p.add_argument("--max-families", type=int, default=0,
                    help="multiplex: load families on demand, at most this many per replica (LRU); 0: every family, preloaded")
     p.add_argument("--edit-token", help="allow stored edits to requests carrying this secret (header X-ProcTex-Token); "

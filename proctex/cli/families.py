@@ -43,6 +43,11 @@ def _build_config(args: argparse.Namespace):
     data = merge(data, sections({k: v for k, v in flags.items() if v is not None}))
     if args.train_iterations is not None:
         data = merge(data, {"train": {"iterations": args.train_iterations}})
+    if args.device is not None:
+        from proctex.correspond.corrnet import resolve_device
+
+        resolve_device(args.device)  # CUDA asked for and absent: said now, not halfway through the build
+        data = merge(data, {"paint": {"device": args.device}, "cage": {"device": args.device}, "train": {"device": args.device}})
     return BuildConfig.from_dict(data, preset=args.preset)
 
 
@@ -90,7 +95,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     if args.preview and os.path.abspath(args.preview) == os.path.abspath(args.out):
         raise ValueError("--preview and --out name the same file")
     t0 = time.perf_counter()
-    svc = FamilyService(store, mapper=args.mapper)
+    svc = FamilyService(store, mapper=args.mapper, device=args.device)
     t1 = time.perf_counter()
     answer, _ = svc.textured(shape, seed=args.seed, bake_size=args.bake or None)
     from proctex.family.transfer import info
@@ -137,7 +142,7 @@ def generate_settings(args: argparse.Namespace):
     if args.rows is not None and not os.path.isfile(args.rows):
         raise ValueError(f"--rows {args.rows}: no such file")
     return GenerateSettings(args.family, args.out, n=args.n, rows=args.rows, seed=args.seed, bounds=bounds, format=args.format,
-                            bake=args.bake or None, max_failed=args.max_failed, batch_size=args.batch_size).validate()
+                            bake=args.bake or None, max_failed=args.max_failed, batch_size=args.batch_size, device=args.device).validate()
 
 
 def print_generate_summary(args: argparse.Namespace, summary: dict[str, Any]) -> None:

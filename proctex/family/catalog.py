@@ -59,10 +59,11 @@ class Catalog:
     ``check_every``: seconds between build-stamp checks of a cached family (0: every request).
     """
 
-    def __init__(self, root: str, limits: Limits | None = None, check_every: float = 2.0, lazy: bool = False) -> None:
+    def __init__(self, root: str, limits: Limits | None = None, check_every: float = 2.0, lazy: bool = False, device: str = "cpu") -> None:
         self.root = FamilyStore(root)
         self.limits = limits or Limits()
         self.check_every = check_every
+        self.device = device  # where the families' networks run
         self.lazy = lazy  # health() loads nothing (a replica holds only the families it serves)
         self._cache: dict[str, tuple[FamilyService, float]] = {}
         self._broken: dict[str, tuple[str, str]] = {}  # name -> (build stamp, why it cannot be served)
@@ -117,7 +118,7 @@ class Catalog:
             if broken is not None and broken[0] == stamp:
                 raise Unavailable(broken[1])
             try:
-                service = FamilyService(store, name, self.limits)
+                service = FamilyService(store, name, self.limits, device=self.device)
             except Exception as exc:  # a damaged file of this family: the others are still served
                 raise self._mark_broken(name, stamp, exc) from exc
             self._broken.pop(name, None)

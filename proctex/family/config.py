@@ -379,6 +379,16 @@ def with_legacy(settings: dict[str, Any]) -> dict[str, Any]:
     return {**LEGACY_SETTINGS, **settings}
 
 
+def without_devices(data: dict[str, Any]) -> dict[str, Any]:
+    """A config dict (sections) with every device read as "cpu": where a family is built or used (a
+    GPU, say) is no part of what it is, and a family built on a GPU must load where there is none."""
+    out = dict(data)
+    for section in ("paint", "cage", "train"):
+        if isinstance(out.get(section), dict) and "device" in out[section]:
+            out[section] = {**out[section], "device": "cpu"}
+    return out
+
+
 def resolved_settings(stored: dict[str, Any]) -> dict[str, Any]:
     """A stored config (sections, or the flat keys of older stores) resolved as :meth:`BuildConfig.to_dict`
     writes it today: settings added since that build count at their value then, or their default."""

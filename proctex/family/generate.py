@@ -66,6 +66,7 @@ class GenerateSettings:
         bake: give each variant its own texture atlas of this size instead of the template's.
         max_failed: rows that may fail before the run stops.
         batch_size: rows per batch.
+        device: where the networks run ("cpu", "cuda", "cuda:<i>").
     """
 
     family: str
@@ -78,6 +79,7 @@ class GenerateSettings:
     bake: int | None = None
     max_failed: int = 10
     batch_size: int = 8
+    device: str = "cpu"
 
     def validate(self) -> "GenerateSettings":
         if (self.n is None) == (self.rows is None):
@@ -100,13 +102,16 @@ class GenerateSettings:
             raise ValueError(f"format must be one of {list(FORMATS)}, got {self.format!r}")
         if not isinstance(self.bounds, dict):
             raise ValueError('bounds must be an object {"name": [low, high]}')
+        from proctex.correspond.corrnet import resolve_device
+
+        resolve_device(self.device)  # CUDA asked for and absent: said before any work
         return self
 
     def key(self) -> dict[str, Any]:
         """What a rerun into the same output must repeat (everything but the run's bounds on failures
         and batching)."""
         d = asdict(self)
-        for k in ("out", "max_failed", "batch_size"):
+        for k in ("out", "max_failed", "batch_size", "device"):
             d.pop(k)
         return d
 
@@ -282,7 +287,7 @@ class TextureStage:
     def __init__(self, family: str, out: str, fmt: str = "glb", bake: int | None = None, device: str = "cpu") -> None:
         from .service import FamilyService
 
-        self.svc = FamilyService(FamilyStore(family))
+        self.svc = FamilyService(FamilyStore(family), device=device)
         self.out, self.fmt, self.bake = FamilyStore(out), fmt, bake
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -383,7 +388,7 @@ def run_in_process(settings: GenerateSettings, log: Callable[[str], None] = prin
     t0 = time.perf_counter()
     out, rows, space = start_run(settings, log)
     shapes = ShapeStage(settings.family, settings.out, settings.format)
-    textures = TextureStage(settings.family, settings.out, settings.format, settings.bake)
+    textures = TextureStage(settings.family, settings.out, settings.format, settings.bake, settings.device)
     tally = Tally(len(rows), settings.max_failed, quiet)
     for batch in batches(rows, settings.batch_size):
         tally.add(textures(shapes(batch)))

@@ -174,15 +174,19 @@ def build_stamp(store: FamilyStore) -> str:
 class FamilyService:
     """One built family, loaded for transfer."""
 
-    def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None, mapper: str = "auto") -> None:
+    def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None, mapper: str = "auto",
+                 device: str = "cpu") -> None:
         """Load the family in ``store``; ``mapper``: a :func:`proctex.family.mappers.make_mapper` name
-        ("auto": the group networks where trained, the default)."""
+        ("auto": the group networks where trained, the default); ``device``: where the networks and a
+        cage fallback run ("cpu", "cuda", "cuda:<i>"; ``ValueError`` when CUDA is asked for and absent)."""
+        from proctex.correspond.corrnet import resolve_device
         from proctex.texture.painters import SurfacePainter
 
         from .mappers import make_mapper
         from .stages import load_assets, load_models, stored_config
 
         t0 = time.perf_counter()
+        self.device = str(resolve_device(device))
         self.store = store
         self.name = name or Path(store.base).name
         self.limits = limits or Limits()
@@ -194,10 +198,11 @@ class FamilyService:
 
         with edit_lock(store, shared=True):  # the template's files as one version, never half an edit
             self.assets = load_assets(store)
-            self.models = load_models(store) if mapper in ("auto", "net") else {}
+            self.models = load_models(store, device=self.device) if mapper in ("auto", "net") else {}
         if mapper == "net" and not self.models:
             raise ValueError(f"{store.uri} has no trained models (run the train stage)")
-        self.mapper: Any = make_mapper(mapper, self.assets, self.models, corr_points=self.config.corr_points, cage=self.config.cage)
+        cage = replace(self.config.cage, device=self.device) if self.config.cage is not None else None
+        self.mapper: Any = make_mapper(mapper, self.assets, self.models, corr_points=self.config.corr_points, cage=cage)
         self.painter = SurfacePainter(self.config.paint.prompt, seed=self.config.seed)
         self.load_seconds = time.perf_counter() - t0
         self.lock = threading.Lock()  # transfers share the torch models and the painter

@@ -31,7 +31,7 @@ import pyarrow as pa
 from proctex.geometry.meshio import load_mesh_bytes, obj_text
 from proctex.geometry.parts import analyse, part_mesh, segment
 from proctex.geometry.shape import Shape
-from .config import BuildConfig, resolved_settings, with_legacy
+from .config import BuildConfig, resolved_settings, with_legacy, without_devices
 from .plan import Plan, run_in_process
 from .store import FamilyStore, StoreLayout, check_digest, digest
 
@@ -236,10 +236,12 @@ def load_template_shape(store: FamilyStore, config: BuildConfig | None = None) -
 
 
 def stored_config(store: FamilyStore) -> BuildConfig:
+    """The config the family was built with. Its devices read as "cpu": where a family was built
+    (a GPU, say) is not where it is used; readers choose their own device."""
     state = _state(store)
     if "config" not in state:
         raise ValueError(f"{store.uri}: not a ProcTex family (no family.json with a config)")
-    return BuildConfig.from_dict(with_legacy(state["config"]))
+    return BuildConfig.from_dict(without_devices(with_legacy(state["config"])))
 
 
 def load_template(store: FamilyStore, config: BuildConfig | None = None):
@@ -473,7 +475,7 @@ def write_config(store: FamilyStore, config: BuildConfig) -> None:
     state = _state(store)
     old = state.get("config")
     new = config.to_dict()
-    if old is not None and resolved_settings(old) != new:
+    if old is not None and without_devices(resolved_settings(without_devices(with_legacy(old)))) != without_devices(new):
         raise ValueError(f"{store.uri} was built with another config; use a new folder (or delete it) to change settings")
     state["config"] = new
     state["versions"] = _versions()
