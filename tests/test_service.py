@@ -448,3 +448,51 @@ def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     from proctex.family.service import GroupEdit
 
     assert svc.edited_texture(1, GroupEdit(-40, 1.5, 0.8))[1] == encode_png(tex)
+
+
+def test_linked_answers_carry_geometry_only_and_the_textures_are_cached_by_digest(client, root, tmp_path):
+    """``?textures=linked``: the same geometry and UVs as the self-contained answer, images by
+    relative URI (resolved against the transfer URL, they give the embedded PNGs byte for byte) and
+    far fewer bytes; the texture route answers with an ETag (304 on a match) and is immutable for
+    the digest the GLB names. A per-request edit embeds the edited texture; a stored edit changes
+    the URI."""
+    import posixpath
+    import shutil
+    from urllib.parse import urlsplit
+
+    import pygltflib
+
+    c, _ = client
+    body = {"params": {"radius": 0.045}}
+    full = c.post("/v1/families/mug/transfer", json=body)
+    linked = c.post("/v1/families/mug/transfer?textures=linked", json=body)
+    assert full.status_code == linked.status_code == 200
+    geometry_full, images_full = _glb_parts(full.content)
+    g = pygltflib.GLTF2().load_from_bytes(linked.content)
+    blob = g.binary_blob()
+    views = [g.accessors[a].bufferView for p in g.meshes[0].primitives for a in (p.attributes.POSITION, p.attributes.TEXCOORD_0, p.indices)]
+    assert [blob[(g.bufferViews[i].byteOffset or 0): (g.bufferViews[i].byteOffset or 0) + g.bufferViews[i].byteLength] for i in views] == geometry_full
+    assert all(im.bufferView is None and im.uri.startswith("textures/") for im in g.images)
+    assert len(linked.content) < len(full.content) - sum(len(v) for v in images_full.values()) + 4096
+    for im in g.images:
+        url = posixpath.join(posixpath.dirname("/v1/families/mug/transfer"), im.uri)
+        answer = c.get(url)
+        assert answer.status_code == 200 and answer.content == images_full[im.name]
+        assert answer.headers["cache-control"].startswith("public") and "immutable" in answer.headers["cache-control"]
+        again = c.get(urlsplit(url).path, headers={"If-None-Match": answer.headers["etag"]})
+        assert again.status_code == 304 and again.content == b"" and again.headers["cache-control"] == "no-cache"
+    edited = c.post("/v1/families/mug/transfer?textures=linked", json={**body, "edits": {"0": {"hue": 90}}})
+    ge = pygltflib.GLTF2().load_from_bytes(edited.content)
+    assert [im.uri is None for im in ge.images] == [True] + [False] * (len(ge.images) - 1)
+    assert c.post("/v1/families/mug/transfer?textures=inline", json=body).status_code == 422
+    assert c.get("/v1/families/mug/textures/9.png").status_code == 404
+    assert c.get("/v1/families/mug/textures/0.jpg").status_code == 404
+    # a stored edit: a new digest, so a new URI; the old one is no longer immutable
+    shutil.copytree(root / "mug", tmp_path / "mug")
+    cat = Catalog(str(tmp_path), check_every=0)
+    c2 = TestClient(create_app(lambda: cat, edit_token="secret-token"))
+    before = pygltflib.GLTF2().load_from_bytes(c2.post("/v1/families/mug/transfer?textures=linked", json=body).content).images[0].uri
+    assert c2.post("/v1/families/mug/edits", json={"group": 0, "hue": 30}, headers={"X-ProcTex-Token": "secret-token"}).status_code == 200
+    after = pygltflib.GLTF2().load_from_bytes(c2.post("/v1/families/mug/transfer?textures=linked", json=body).content).images[0].uri
+    assert before != after
+    assert c2.get("/v1/families/mug/" + before).headers["cache-control"] == "no-cache"

@@ -330,9 +330,13 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
                 "mesh": {"type": "string", "format": "binary"}, "seed": {"type": "integer"}}}},
         }}},
     )
-    async def transfer(name: str, request: Request):
+    async def transfer(name: str, request: Request, textures: str = "embedded"):
+        """``?textures=linked``: the GLB refers to the family's textures (``textures/<g>.png?v=...``,
+        relative to this URL) instead of carrying them; a client caches those once."""
         token = None
         try:
+            if textures not in ("embedded", "linked"):
+                raise BadInput(f"textures must be 'embedded' or 'linked', got {textures[:40]!r}")
             svc = await family_of(name)
             kind, payload, seed, raw_edits = await read_transfer_request(request, svc.limits.max_bytes)
             edits = svc.parse_edits(raw_edits)
@@ -340,7 +344,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             def work():
                 shape = svc.shape_from_params(payload) if kind == "params" else svc.shape_from_mesh(*payload)
                 budget.check("reading the shape")
-                return svc.transfer(shape, seed=seed, edits=edits, budget=budget)
+                return svc.transfer(shape, seed=seed, edits=edits, budget=budget, linked=textures == "linked")
 
             gate = gates.setdefault(svc, asyncio.Semaphore(1))
             async with gate:  # one transfer of this family at a time; the others wait here, not in a thread
@@ -357,6 +361,29 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         headers = {"X-ProcTex-Seconds": str(summary["seconds"]), "X-ProcTex-Notes": json.dumps(summary["notes"])[:2000],
                    "Content-Disposition": f'inline; filename="{name}.glb"', **served_by}
         return Response(content=data, media_type=GLB_MEDIA_TYPE, headers=headers)
+
+    @app.get(
+        "/v1/families/{name}/textures/{file}",
+        response_class=Response,
+        responses={200: {"content": {"image/png": {}}, "description": "a template group's texture as stored"},
+                   304: {"description": "not modified (If-None-Match)"}, 404: {"description": "unknown family or group"}},
+    )
+    async def group_texture_file(name: str, file: str, request: Request, v: str | None = None):
+        """The texture a linked GLB refers to (``<group>.png``), with its digest as ETag. With
+        ``v`` equal to the digest's start (as the GLB writes it) it is cached as immutable."""
+        try:
+            if not file.endswith(".png"):
+                raise NotFound(f"no texture {file[:80]!r}; textures are <group>.png")
+            svc = await family_of(name)
+            png, digest = svc.texture_png(file[:-4])
+        except Exception as exc:
+            return error_response(exc)
+        etag = f'"{digest}"'
+        cache = "public, max-age=31536000, immutable" if v and digest.startswith(v) and len(v) >= 8 else "no-cache"
+        headers = {"ETag": etag, "Cache-Control": cache, **served_by}
+        if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
+            return Response(status_code=304, headers=headers)
+        return Response(content=png, media_type="image/png", headers=headers)
 
     @app.get(
         "/v1/families/{name}/groups/{group}/texture.png",

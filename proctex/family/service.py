@@ -20,6 +20,7 @@ cache per service so that a client dragging a hue slider costs one HSV shift per
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import math
@@ -199,6 +200,7 @@ class FamilyService:
         with edit_lock(store, shared=True):  # the template's files as one version, never half an edit
             self.assets = load_assets(store)
             self.models = load_models(store, device=self.device) if mapper in ("auto", "net") else {}
+        self.texture_digests = [hashlib.sha256(png).hexdigest() for png in self.assets.png]
         if mapper == "net" and not self.models:
             raise ValueError(f"{store.uri} has no trained models (run the train stage)")
         cage = replace(self.config.cage, device=self.device) if self.config.cage is not None else None
@@ -293,13 +295,25 @@ class FamilyService:
             raise BadInput(f"cannot read the mesh: {text if isinstance(exc, ValueError) else exc.__class__.__name__ + ': ' + text}") from exc
         return self.check_shape(shape)
 
-    def transfer(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None, budget: Any = None) -> tuple[bytes, dict[str, Any]]:
+    def transfer(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None, budget: Any = None,
+                 linked: bool = False) -> tuple[bytes, dict[str, Any]]:
         """Textured GLB bytes of ``shape`` and a summary (timings, notes); see :meth:`textured`."""
-        answer, summary = self.textured(shape, seed, edits, budget=budget)
+        answer, summary = self.textured(shape, seed, edits, budget=budget, linked=linked)
         return answer.data, summary
 
+    def texture_uris(self, edited: Any = ()) -> list[str | None]:
+        """Per template group the URI of its texture, relative to the transfer route's URL
+        (``textures/<g>.png?v=<digest>``, see :meth:`texture_png`), or None for the groups in
+        ``edited`` (a per-request edit: that texture is this answer's own, so it is embedded)."""
+        return [None if g in edited else f"textures/{g}.png?v={d[:16]}" for g, d in enumerate(self.texture_digests)]
+
+    def texture_png(self, group: Any) -> tuple[bytes, str]:
+        """``(PNG bytes, sha256 digest)`` of a template group's texture as stored (edits included)."""
+        g = self.group_index(group, missing=NotFound)
+        return self.assets.png[g], self.texture_digests[g]
+
     def textured(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None,
-                 bake_size: int | None = None, budget: Any = None) -> tuple[Any, dict[str, Any]]:
+                 bake_size: int | None = None, budget: Any = None, linked: bool = False) -> tuple[Any, dict[str, Any]]:
         """``shape`` textured by the family (:func:`proctex.family.transfer.shape_to_glb`, a
         :class:`~proctex.family.transfer.TexturedGLB`) and a summary (timings, notes).
 
@@ -307,7 +321,9 @@ class FamilyService:
         those group textures in this GLB only; the family is unchanged. ``bake_size``: give the shape
         its own atlas of that size instead of the template's textures. ``budget``
         (:class:`proctex.family.budget.Budget`): past it, or cancelled, the transfer stops with
-        :class:`~proctex.family.budget.OverBudget`."""
+        :class:`~proctex.family.budget.OverBudget`. ``linked``: the GLB refers to the template's
+        textures by URI (:meth:`texture_uris`) instead of carrying them, so a client that caches
+        them is sent the geometry and UVs only."""
         from .transfer import info, shape_to_glb
 
         t0 = time.perf_counter()
@@ -320,8 +336,9 @@ class FamilyService:
         t_edit = time.perf_counter() - t0
         with self.lock:
             try:
+                uris = self.texture_uris(edits or ()) if linked and not bake_size else None
                 answer = shape_to_glb(shape, assets, self.mapper, seed=seed, painter=self.painter, up=self.up, bake_size=bake_size,
-                                      budget=budget)
+                                      budget=budget, texture_uris=uris)
             except OverBudget:
                 raise
             except ValueError as exc:

@@ -172,13 +172,17 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
     return atlas.corner_uv, (np.clip(image, 0, 1) * 255).round().astype(np.uint8)
 
 
-def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = "y") -> bytes:
+def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = "y", texture_uris: list[str | None] | None = None) -> bytes:
     """Textured GLB bytes of a transferred shape (reuses the template's encoded PNGs); ``up``: the
-    shape's up axis (the GLB stands it upright, see :func:`proctex.texture.export.glb_bytes`)."""
+    shape's up axis (the GLB stands it upright, see :func:`proctex.texture.export.glb_bytes`).
+    ``texture_uris``: per template group a URI its texture is read from instead of being embedded
+    (None: embedded); textures painted for new parts are always embedded."""
     from proctex.texture.export import glb_bytes
 
     extra = [f"new_{k}" for k in range(len(result.new_textures))]
-    return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png + list(result.new_textures), names=assets.names + extra, up=up)
+    uris = (list(texture_uris) + [None] * len(extra)) if texture_uris is not None else None
+    return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png + list(result.new_textures),
+                     names=assets.names + extra, up=up, image_uris=uris)
 
 
 # ------------------------------------------------------------------------------------------ bake
@@ -348,11 +352,13 @@ class TexturedGLB:
 
 
 def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, up: str = "y",
-                 bake_size: int | None = None, shortcut: bool = True, budget: Budget | None = None) -> TexturedGLB:
+                 bake_size: int | None = None, shortcut: bool = True, budget: Budget | None = None,
+                 texture_uris: list[str | None] | None = None) -> TexturedGLB:
     """The run-time path, shape in, GLB out: :func:`transfer` with ``mapper`` (``painter`` colours
     parts of groups the template lacks), then the GLB (:func:`glb`, the template's encoded PNGs), or
     with ``bake_size`` the shape's own atlas and textures (:func:`bake`). The command line, the
-    service, the demo and the evaluation all answer with this. ``budget``: see :func:`transfer`."""
+    service, the demo and the evaluation all answer with this. ``budget``: see :func:`transfer`.
+    ``texture_uris``: see :func:`glb` (not with ``bake_size``: a baked atlas is the shape's own)."""
     from proctex.texture.export import glb_bytes
 
     result = transfer(shape, assets, mapper, seed=seed, painter=painter, shortcut=shortcut, budget=budget)
@@ -363,5 +369,5 @@ def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
         data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up)
         return TexturedGLB(data, result, baked.corner_uv, baked.face_group, list(baked.textures), baked)
-    return TexturedGLB(glb(shape, result, assets, up=up), result, result.corner_uv, result.face_group,
+    return TexturedGLB(glb(shape, result, assets, up=up, texture_uris=texture_uris), result, result.corner_uv, result.face_group,
                        list(assets.textures) + list(result.new_textures))

@@ -185,7 +185,7 @@ UP_ROTATIONS = {"y": None, "z": [-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)], "x"
 
 
 def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
-              double_sided: bool = True, up: str = "y") -> bytes:
+              double_sided: bool = True, up: str = "y", image_uris: list[str | None] | None = None) -> bytes:
     """Encode a textured shape as a GLB (glTF 2.0 binary) file.
 
     Args: see the module docstring (vertices (n, 3) float64, faces (m, 3) int64, corner_uv
@@ -200,11 +200,16 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
     NORMAL, TEXCOORD_0 = (u, 1 - v) and uint32 indices. Each group has a material named after it
     (baseColorTexture, metallic 0, roughness 0.8) and a PNG image embedded in the buffer; all
     textures share one LINEAR / LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE sampler. Textures of empty
-    groups are left out. Raises ValueError on malformed input.
+    groups are left out. ``image_uris``: per group a URI (relative to the GLB's own URL, or absolute)
+    that the image is read from instead of being embedded, or None to embed it (so a client that
+    caches the textures is sent only the geometry and UVs). Raises ValueError on malformed input.
     """
     V, F, UV, FG, texs, names = _check_shape(vertices, faces, corner_uv, face_group, textures, names)
     if up not in UP_ROTATIONS:
         raise ValueError(f"up must be x, y or z, got {up!r}")
+    uris = list(image_uris) if image_uris is not None else [None] * len(texs)
+    if len(uris) != len(texs):
+        raise ValueError(f"image_uris needs one entry per texture ({len(texs)}), got {len(uris)}")
     gltf = gl.GLTF2(asset=gl.Asset(generator="proctex.texture.export", version="2.0"), scene=0,
                     scenes=[gl.Scene(nodes=[0])], nodes=[gl.Node(mesh=0, rotation=UP_ROTATIONS[up])], buffers=[gl.Buffer()])
     blob = _Blob(gltf)
@@ -223,8 +228,10 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
         pbr = gl.PbrMetallicRoughness(metallicFactor=0.0, roughnessFactor=ROUGHNESS)
         if g >= 0:
             attrs.TEXCOORD_0 = blob.accessor(st_split, gl.VEC2, ARRAY_BUFFER)
-            gltf.images.append(gl.Image(bufferView=blob.view(_png(texs[g])), mimeType="image/png",
-                                        name=names[g]))
+            if uris[g]:
+                gltf.images.append(gl.Image(uri=uris[g], mimeType="image/png", name=names[g]))
+            else:
+                gltf.images.append(gl.Image(bufferView=blob.view(_png(texs[g])), mimeType="image/png", name=names[g]))
             gltf.textures.append(gl.Texture(sampler=0, source=len(gltf.images) - 1))
             pbr.baseColorTexture = gl.TextureInfo(index=len(gltf.textures) - 1)
             name = names[g]
