@@ -235,3 +235,20 @@ def test_vectorised_obj_reader_agrees_with_the_line_reader():
         read_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n")
     with pytest.raises(ValueError, match="out of range"):  # saturates int64: the line reader says where
         read_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n")
+
+
+def test_unique_rows_matches_numpy_unique_on_rows():
+    from proctex.geometry.meshio import unique_rows
+
+    rng = np.random.default_rng(0)
+    for a in (rng.integers(0, 3, size=(500, 3)).astype(float), rng.normal(size=(200, 2)), np.zeros((1, 3)), rng.integers(0, 2, size=(50, 4))):
+        a = np.concatenate([a, a[::3]])  # duplicates
+        distinct, inverse = unique_rows(a)
+        ref, ref_inv = np.unique(a, axis=0, return_inverse=True)
+        assert np.array_equal(distinct, ref) and np.array_equal(inverse, ref_inv.reshape(-1))
+        assert np.array_equal(distinct[inverse], a)
+    d, inv = unique_rows(np.array([[0.0, 1.0], [-0.0, 1.0]]))
+    assert len(d) == 1 and inv.tolist() == [0, 0]  # by value
+    assert unique_rows(np.zeros((0, 3)))[0].shape == (0, 3)
+    with pytest.raises(ValueError):
+        unique_rows(np.zeros(3))

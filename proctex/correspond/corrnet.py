@@ -421,7 +421,8 @@ def predict(
     if autocast == "auto":
         autocast = resolve_autocast(autocast, device) if dtype == torch.float32 else "none"
     was_training = model.training
-    model.eval()
+    if was_training:  # walking every submodule costs ~0.3 ms a call: only when the mode changes
+        model.eval()
     out = np.empty((len(qry), 3))
     if autocast != "none" and dtype != torch.float32:
         raise ValueError(f"autocast {autocast!r} needs a float32 model, got {dtype}")
@@ -430,7 +431,8 @@ def predict(
         for s in range(0, len(qry), chunk):
             q = torch.as_tensor(qry[s : s + chunk], device=device, dtype=dtype)[None]
             out[s : s + chunk] = model.decode(q, g)[0].to("cpu", torch.float64).numpy()
-    model.train(was_training)
+    if was_training:
+        model.train(True)
     return out
 
 

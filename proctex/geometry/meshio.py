@@ -233,6 +233,25 @@ def _union_find(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 MAX_NEAR_PAIRS_PER_VERTEX = 64
 
 
+def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(distinct rows (d, c) in lexicographic order, inverse (n,) int64)`` of ``a (n, c)``, like
+    ``np.unique(a, axis=0, return_inverse=True)`` but by a column-wise ``lexsort`` (about 5x faster
+    on float rows than sorting them as opaque bytes). Rows compare by value: 0.0 equals -0.0."""
+    a = np.asarray(a)
+    if a.ndim != 2:
+        raise ValueError(f"unique_rows needs a 2-D array, got shape {a.shape}")
+    if len(a) == 0:
+        return a.copy(), np.zeros(0, np.int64)
+    order = np.lexsort(a.T[::-1])
+    ordered = a[order]
+    new = np.empty(len(a), dtype=bool)
+    new[0] = True
+    np.any(ordered[1:] != ordered[:-1], axis=1, out=new[1:])
+    inverse = np.empty(len(a), dtype=np.int64)
+    inverse[order] = np.cumsum(new) - 1
+    return ordered[new], inverse
+
+
 def position_ids(vertices: np.ndarray, tol: float) -> np.ndarray:
     """(n,) int64 id per vertex, equal for vertices within ``tol`` of each other (transitively).
 
@@ -243,8 +262,7 @@ def position_ids(vertices: np.ndarray, tol: float) -> np.ndarray:
     n = len(vertices)
     if n == 0:
         return np.zeros(0, np.int64)
-    distinct, inverse = np.unique(np.asarray(vertices, dtype=np.float64), axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    distinct, inverse = unique_rows(np.asarray(vertices, dtype=np.float64))
     tree = cKDTree(distinct)
     near = (int(tree.count_neighbors(tree, tol)) - len(distinct)) // 2  # unordered pairs, self-pairs left out
     if near > MAX_NEAR_PAIRS_PER_VERTEX * len(distinct) + 1000:

@@ -52,6 +52,7 @@ def main(argv=None) -> int:
     ap.add_argument("--replicas", type=int, default=1)
     ap.add_argument("--sofa", default=str(SOFA))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--textures", choices=["embedded", "linked"], default="embedded", help="answers with the textures, or referring to them")
     ap.add_argument("--out", default="")
     args = ap.parse_args(argv)
 
@@ -73,7 +74,8 @@ def main(argv=None) -> int:
     port = _free_port()
     serve.start(http_options={"host": "127.0.0.1", "port": port})
     serve.run(build_app({"root": str(Path(args.root).resolve()), "replicas": args.replicas, "max_ongoing_requests": 16}), name="bench", route_prefix="/")
-    url = f"http://127.0.0.1:{port}/v1/families/{args.family}/transfer"
+    url = f"http://127.0.0.1:{port}/v1/families/{args.family}/transfer?textures={args.textures}"
+    sizes: list[int] = []
 
     def call(i: int) -> tuple[float, int]:
         body, ctype = payloads[i % len(payloads)]
@@ -81,7 +83,7 @@ def main(argv=None) -> int:
         t = time.perf_counter()
         try:
             with urllib.request.urlopen(req, timeout=120) as r:
-                r.read()
+                sizes.append(len(r.read()))
                 code = r.status
         except urllib.error.HTTPError as e:
             code = e.code
@@ -106,8 +108,10 @@ def main(argv=None) -> int:
               f"{levels[-1]['rps']:.1f} req/s, {errors} errors", flush=True)
     serve.shutdown()
     ray.shutdown()
+    print(f"bytes per answer (median): {int(np.median(sizes))}", flush=True)
     best = max(levels, key=lambda lv: lv["rps"])
-    report = {"benchmark": "serve", "family": args.family, "replicas": args.replicas, "levels": levels,
+    report = {"benchmark": "serve", "family": args.family, "replicas": args.replicas, "textures": args.textures,
+              "bytes_per_answer": int(np.median(sizes)), "levels": levels,
               "saturation_rps": best["rps"], "p50_ms_at_1": levels[0]["p50_ms"], "p99_ms_at_1": levels[0]["p99_ms"],
               "machine": {"python": platform.python_version(), "cpus": __import__("os").cpu_count(), "ray": ray.__version__},
               "time": time.strftime("%Y-%m-%d %H:%M:%S")}
