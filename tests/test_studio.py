@@ -12,6 +12,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import re
 import shutil
 import socket
 import threading
@@ -104,6 +105,9 @@ def _foreground(px: np.ndarray) -> np.ndarray:
     return np.abs(px.astype(int) - BACKGROUND).sum(axis=-1) > 24
 
 
+TRANSFER_URL = re.compile(r".*/transfer(\?.*)?$")  # the studio asks with ?textures=linked
+
+
 def _wait_for_shape(page, at_least: int, timeout: float = 60_000) -> None:
     page.wait_for_function(
         "n => document.body.dataset.state === 'idle' && document.body.dataset.busy === '0' && +document.body.dataset.requests >= n",
@@ -133,6 +137,8 @@ def test_the_studio_textures_a_family_interactively(server, browser):
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
     page.on("response", lambda r: errors.append(f"{r.status} {r.url}") if r.status >= 400 else None)
+    texture_fetches: list[str] = []
+    page.on("request", lambda r: texture_fetches.append(r.url) if "/textures/" in r.url else None)
     try:
         page.goto(base + "/#token=" + STUDIO_TOKEN)
         # 1. The first shape: WebGL draws a textured mug.
@@ -147,6 +153,11 @@ def test_the_studio_textures_a_family_interactively(server, browser):
         assert names[:2] == ["height", "radius"] and len(names) == 7
         assert page.eval_on_selector_all(".group img", "imgs => imgs.map(i => i.complete && i.naturalWidth)") == [64, 64]
         first_ms = page.evaluate("window.studio.lastLatencyMs")
+        import pygltflib
+
+        first = pygltflib.GLTF2().load_from_bytes(bytes(page.evaluate("Array.from(window.studio.lastGlbBytes)")))
+        assert all(im.uri and im.uri.startswith("textures/") for im in first.images)  # linked: geometry and UVs only
+        assert sorted(u.split("/textures/")[1].split("?")[0] for u in texture_fetches) == ["0.png", "1.png"]
 
         # 2. A slider moves, five times in quick succession: debounced into (about) one request, the last value wins.
         n = _requests(page)
@@ -161,6 +172,7 @@ def test_the_studio_textures_a_family_interactively(server, browser):
         px1 = _canvas(page)
         assert (np.abs(px1.astype(int) - px0).sum(axis=-1) > 30).mean() > 0.01, "the canvas did not change with the radius"
         slider_ms = page.evaluate("window.studio.lastLatencyMs")
+        assert len(set(texture_fetches)) == 2, texture_fetches  # the same two URLs each time (immutable: the browser may keep them)
         server_s = page.evaluate("window.studio.lastServerSeconds")
         assert server_s > 0
         # A drag: a value every 100 ms for 1.2 s; the view follows during the drag, the last value wins.
@@ -213,12 +225,16 @@ def test_the_studio_textures_a_family_interactively(server, browser):
         path = ARTIFACTS / "mug.glb"
         download.save_as(str(path))
         data = path.read_bytes()
-        assert data == bytes(page.evaluate("Array.from(window.studio.lastGlbBytes)"))
+        assert data == bytes(page.evaluate("Array.from(window.studio.lastDownloadBytes)"))
         import pygltflib
         import trimesh
 
         gltf = pygltflib.GLTF2().load_from_bytes(data)
         assert len(gltf.images) == 2 and len(gltf.textures) == 2
+        assert all(im.bufferView is not None for im in gltf.images)  # the download is self-contained
+        shown = pygltflib.GLTF2().load_from_bytes(bytes(page.evaluate("Array.from(window.studio.lastGlbBytes)")))
+        assert [im.uri is None for im in shown.images] == [True, True]  # both groups carry an edit here: embedded
+        assert [a.count for a in shown.accessors] == [a.count for a in gltf.accessors]  # the same shape
         scene = trimesh.load(io.BytesIO(data), file_type="glb")
         assert len(scene.geometry) >= 1 and all(getattr(g.visual, "uv", None) is not None for g in scene.geometry.values())
 
@@ -260,12 +276,12 @@ def test_the_studio_uploads_a_mesh_for_families_of_meshes(server, browser, sofa_
         page.goto(base + "/")
         _wait_for_shape(page, 1)
         # A failing transfer shows the server's message and the error state; the next one clears it.
-        page.route("**/transfer", lambda route: route.fulfill(status=422, json={"error": "radius must be in [0.03, 0.05]"}))
+        page.route(TRANSFER_URL, lambda route: route.fulfill(status=422, json={"error": "radius must be in [0.03, 0.05]"}))
         _set_range(page, "input[name=radius]", 0.033)
         page.wait_for_function("document.body.dataset.state === 'error' && document.body.dataset.busy === '0'")
         assert page.inner_text("#error") == "radius must be in [0.03, 0.05]" and page.evaluate("document.body.dataset.requests") == "1"
         page.screenshot(path=str(ARTIFACTS / "07-error.png"))
-        page.unroute("**/transfer")
+        page.unroute(TRANSFER_URL)
         _set_range(page, "input[name=radius]", 0.034)
         _wait_for_shape(page, 2)
         assert not page.is_visible("#error")

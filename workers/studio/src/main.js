@@ -19,7 +19,9 @@ const studio = {
   controller: null,
   timer: null,
   requests: 0,
-  lastGlbBytes: null, // Uint8Array of the shape on screen
+  lastGlbBytes: null, // Uint8Array of the shape on screen (its textures linked: fetched once, then cached)
+  lastDownloadBytes: null, // Uint8Array of the last download (self-contained: textures embedded)
+  downloadReady: false,
   lastParams: null,
   lastEdits: null,
   lastLatencyMs: null,
@@ -97,10 +99,12 @@ function clearModel() {
   render();
 }
 
-// Parse a GLB and put it on screen unless `current()` says it is stale by then.
-function showGlb(buffer, current) {
+// Parse a GLB and put it on screen unless `current()` says it is stale by then. `base` is the
+// transfer route's folder: the GLB's linked textures (textures/<g>.png?v=<digest>) resolve there,
+// and the browser keeps them (immutable for that digest), so a slider move fetches geometry only.
+function showGlb(buffer, current, base) {
   return new Promise((resolve, reject) => {
-    loader.parse(buffer, '', (gltf) => {
+    loader.parse(buffer, base, (gltf) => {
       const next = gltf.scene;
       if (!current()) {
         dispose(next);
@@ -189,7 +193,11 @@ function settled(seq) {
   return seq === studio.seq && studio.timer === null;
 }
 
-function transferRequest(fam, params, edits, signal) {
+function familyPath(fam) {
+  return `/v1/families/${encodeURIComponent(fam.name)}/`;
+}
+
+function transferRequest(fam, params, edits, signal, textures = 'linked') {
   // The routing header sends the request to a Serve replica that already holds the family.
   const options = { method: 'POST', signal, headers: { serve_multiplexed_model_id: fam.name } };
   if (fam.inputs.includes('params')) {
@@ -200,7 +208,7 @@ function transferRequest(fam, params, edits, signal) {
     options.body.append('mesh', studio.mesh, studio.mesh.name);
     options.body.append('edits', JSON.stringify(edits));
   }
-  return api(`/v1/families/${encodeURIComponent(fam.name)}/transfer`, options);
+  return api(`${familyPath(fam)}transfer?textures=${textures}`, options);
 }
 
 async function transfer() {
@@ -223,7 +231,7 @@ async function transfer() {
     const buffer = await response.arrayBuffer();
     if (seq !== studio.seq) return; // a newer request owns the view
     const ms = performance.now() - t0;
-    await showGlb(buffer, () => seq === studio.seq);
+    await showGlb(buffer, () => seq === studio.seq, familyPath(fam));
     if (seq !== studio.seq) return;
     studio.controller = null;
     studio.lastGlbBytes = new Uint8Array(buffer);
@@ -231,7 +239,7 @@ async function transfer() {
     studio.lastEdits = edits;
     studio.lastLatencyMs = ms;
     studio.lastServerSeconds = parseFloat(response.headers.get('X-ProcTex-Seconds'));
-    updateDownload(buffer);
+    updateDownload();
     showStats(ms, studio.lastServerSeconds, buffer.byteLength, params, edits, response.headers.get('X-ProcTex-Notes'));
     studio.requests += 1;
     body.dataset.requests = String(studio.requests);
@@ -254,14 +262,34 @@ function resetDownload() {
   link.setAttribute('aria-disabled', 'true');
 }
 
-function updateDownload(buffer) {
-  if (studio.glbUrl) URL.revokeObjectURL(studio.glbUrl);
-  studio.glbUrl = URL.createObjectURL(new Blob([buffer], { type: 'model/gltf-binary' }));
+function updateDownload() {
+  // The shape on screen refers to its textures; the download is asked for self-contained, on click.
   const link = $('download');
-  link.href = studio.glbUrl;
   link.download = `${studio.family.name}.glb`;
   link.classList.remove('disabled');
   link.removeAttribute('aria-disabled');
+}
+
+async function download(event) {
+  const link = $('download');
+  if (studio.downloadReady) {
+    studio.downloadReady = false; // the click below: the browser saves the file
+    return;
+  }
+  event.preventDefault();
+  if (link.classList.contains('disabled') || !studio.lastParams) return;
+  try {
+    const response = await transferRequest(studio.family, studio.lastParams, studio.lastEdits, undefined, 'embedded');
+    const buffer = await response.arrayBuffer();
+    studio.lastDownloadBytes = new Uint8Array(buffer);
+    if (studio.glbUrl) URL.revokeObjectURL(studio.glbUrl);
+    studio.glbUrl = URL.createObjectURL(new Blob([buffer], { type: 'model/gltf-binary' }));
+    link.href = studio.glbUrl;
+    studio.downloadReady = true;
+    link.click();
+  } catch (err) {
+    showError(err.message);
+  }
 }
 
 function showStats(ms, seconds, bytes, params, edits, notes) {
@@ -469,6 +497,7 @@ async function start() {
     const wanted = new URL(window.location).searchParams.get('family');
     select.value = families.includes(wanted) ? wanted : families[0];
     select.addEventListener('change', () => loadFamily(select.value).catch((e) => showError(e.message)));
+    $('download').addEventListener('click', download);
     $('mesh').addEventListener('change', (ev) => {
       studio.mesh = ev.target.files[0] || null;
       framed = false;
