@@ -680,3 +680,24 @@ def test_make_mapper_is_the_one_place_a_mapper_is_chosen_by_name():
         assert isinstance(m, SolverMapper) and (m.method, m.n_points, m.cage, m.assets) == (name, 123, "settings", assets)
     with pytest.raises(ValueError, match="unknown mapper 'magic'"):
         make_mapper("magic", assets)
+
+
+def test_parts_mapped_side_by_side_give_the_same_result_and_leave_torch_threads_alone(chair):
+    """The per-part work runs in a small thread pool: the result equals the one-by-one run exactly,
+    for a mapper that solves per part (cage) and for networks, and torch's thread count is what it
+    was (the networks' mapper sets it while any part is inside)."""
+    import torch
+
+    from proctex.correspond.corrnet import CorrNetConfig, build_model
+    from proctex.family.mappers import NetworkMapper, make_mapper
+
+    assets = chair[3]
+    shape = get_model("chair").generate({"slats": 4, "seat_width": 0.5, "arms": True})
+    nets = {g.group: build_model(CorrNetConfig(context_points=64, query_points=64, local_hidden=32, feature_dim=32, decoder_hidden=32, seed=g.group)) for g in assets.groups}
+    before = torch.get_num_threads()
+    for mapper in (NetworkMapper(nets), make_mapper("nearest", assets, corr_points=300)):
+        one = transfer(shape, assets, mapper, shortcut=False, workers=1)
+        many = transfer(shape, assets, mapper, shortcut=False)
+        assert np.array_equal(one.corner_uv, many.corner_uv) and np.array_equal(one.face_group, many.face_group)
+        assert one.points.keys() == many.points.keys() and all(np.array_equal(one.points[k], many.points[k]) for k in one.points)
+        assert torch.get_num_threads() == before

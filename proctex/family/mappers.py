@@ -4,11 +4,14 @@
 
 from __future__ import annotations
 
+import threading
+from contextlib import contextmanager
 from typing import Any, Protocol
 
 import numpy as np
 
 from proctex.geometry.surface import sample_surface
+
 from .assets import TemplateAssets
 
 
@@ -49,6 +52,30 @@ class SolverMapper:
         return deform(res, query, np.zeros(3), 1.0)
 
 
+_THREADS_LOCK = threading.Lock()
+_THREADS_STATE = {"users": 0, "before": 0}
+
+
+@contextmanager
+def _torch_threads(n: int):
+    """torch's (process-wide) thread count set to ``n`` while any caller is inside, and restored by
+    the last one out: parts mapped side by side in threads never leave it changed."""
+    import torch
+
+    with _THREADS_LOCK:
+        if _THREADS_STATE["users"] == 0:
+            _THREADS_STATE["before"] = torch.get_num_threads()
+            torch.set_num_threads(n)
+        _THREADS_STATE["users"] += 1
+    try:
+        yield
+    finally:
+        with _THREADS_LOCK:
+            _THREADS_STATE["users"] -= 1
+            if _THREADS_STATE["users"] == 0:
+                torch.set_num_threads(_THREADS_STATE["before"])
+
+
 class NetworkMapper:
     """The run-time mapper: one ProcCorrNet per template group (:mod:`proctex.correspond.corrnet`).
 
@@ -83,14 +110,8 @@ class NetworkMapper:
         ctx, _, _ = sample_surface(vertices, faces, int(self.context or model.context_points), seed=seed)
         if self.threads is None:
             return np.asarray(predict(model, ctx, query, autocast=self.autocast), dtype=np.float64)
-        import torch
-
-        before = torch.get_num_threads()
-        torch.set_num_threads(self.threads)
-        try:
+        with _torch_threads(self.threads):
             return np.asarray(predict(model, ctx, query, autocast=self.autocast), dtype=np.float64)
-        finally:
-            torch.set_num_threads(before)
 
 
 #: Mapper names :func:`make_mapper` knows, and the aliases it accepts for them.

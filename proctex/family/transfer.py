@@ -28,7 +28,9 @@ side), :mod:`proctex.family.assign` (step 2), :mod:`proctex.family.mappers` (ste
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -72,7 +74,7 @@ class TransferResult:
 
 
 def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256,
-             shortcut: bool = True, budget: Budget | None = None) -> TransferResult:
+             shortcut: bool = True, budget: Budget | None = None, workers: int | None = None) -> TransferResult:
     """UVs of ``shape`` into the template textures (module docstring, steps 1-4).
 
     ``shortcut``: parts with their representative's exact connectivity take its UVs directly (exact
@@ -84,6 +86,9 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
 
     ``budget`` (:class:`proctex.family.budget.Budget`) is checked between parts; past its deadline,
     or cancelled, the transfer stops with :class:`~proctex.family.budget.OverBudget`.
+
+    ``workers``: 1 maps the parts one after the other; otherwise they share a small thread pool
+    (:func:`_parts_pool`). The result is the same either way.
     """
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -98,10 +103,11 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
     points: dict[int, np.ndarray] = {}
     direct: set[int] = set()
     notes: list[str] = []
-    t_map = t_uv = 0.0
-    for a in assignment:
-        if a.group < 0:
-            continue
+    lookups = chart_lookups(assets)  # computed once, before any part (the parts may run in threads)
+    todo = [a for a in assignment if a.group >= 0]
+
+    def one(a: PartAssignment) -> tuple[Any, np.ndarray, np.ndarray, bool, float, float]:
+        """``(part, corner UVs, mapped points, direct, map seconds, uv seconds)`` of one assigned part."""
         if budget is not None:
             budget.check(f"mapping {len(assignment)} parts")
         part = seg.parts[a.part]
@@ -111,22 +117,29 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
         if shortcut and same_topology(f, len(v), ga):
             # Same mesh connectivity as the representative: vertex i is the template's vertex i
             # (procedural models), so the part takes the template UVs directly, no mapping.
+            return part, ga.corner_uv.copy(), ga.vertices.copy(), True, time.perf_counter() - ta, 0.0
+        vn = representative_frame(v, a)
+        mapped = np.asarray(mapper.map(a.group, vn, f, vn, seed=seed), dtype=np.float64)
+        if mapped.shape != vn.shape or not np.isfinite(mapped).all():
+            raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
+        tb = time.perf_counter()
+        uv, _ = part_uvs(ga, mapped, f, None if lookups is None else lookups[a.group], normals=_side_normals(vn, f))
+        return part, uv, mapped, False, tb - ta, time.perf_counter() - tb
+
+    # Parts are independent: on a multi-core machine they run side by side (numpy and torch let go
+    # of the GIL in their loops); the results land in disjoint rows, in the same order either way.
+    pool = _parts_pool() if len(todo) > 1 and workers != 1 else None
+    outcomes = list(pool.map(one, todo)) if pool is not None else [one(a) for a in todo]
+    t_map = t_uv = 0.0
+    for a, (part, uv, mapped, is_direct, dt_map, dt_uv) in zip(todo, outcomes):
+        ga = assets.groups[a.group]
+        if is_direct:
             direct.add(a.part)
-            mapped, uv = ga.vertices.copy(), ga.corner_uv.copy()
-            tb = time.perf_counter()
-        else:
-            vn = representative_frame(v, a)
-            mapped = np.asarray(mapper.map(a.group, vn, f, vn, seed=seed), dtype=np.float64)
-            if mapped.shape != vn.shape or not np.isfinite(mapped).all():
-                raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
-            tb = time.perf_counter()
-            lookups = chart_lookups(assets)
-            uv, _ = part_uvs(ga, mapped, f, None if lookups is None else lookups[a.group], normals=_side_normals(vn, f))
         corner[part.faces] = uv
         face_group[part.faces] = a.group
         points[a.part] = mapped * ga.radius + ga.center
-        t_map += tb - ta
-        t_uv += time.perf_counter() - tb
+        t_map += dt_map
+        t_uv += dt_uv
     timings["map"] = t_map
     timings["uv"] = t_uv
     if assets.observed is not None:  # faces reading template texels the painter never painted
@@ -151,6 +164,17 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
         timings["new"] = time.perf_counter() - tn
         result.seconds = time.perf_counter() - t0
     return result
+
+
+_POOL: list[ThreadPoolExecutor] = []
+
+
+def _parts_pool() -> ThreadPoolExecutor:
+    """The process's thread pool for parts of one transfer (two workers at most: a request is a few
+    parts, and replicas are what use more cores)."""
+    if not _POOL:
+        _POOL.append(ThreadPoolExecutor(max_workers=max(1, min(2, os.cpu_count() or 1)), thread_name_prefix="proctex-parts"))
+    return _POOL[0]
 
 
 def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 256) -> tuple[np.ndarray, np.ndarray]:
