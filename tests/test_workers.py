@@ -18,3 +18,22 @@ def test_teams_use_every_worker_and_every_group_once():
             assert all(ranks and gs for ranks, gs in plan)
     with pytest.raises(ValueError):
         teams(0, [1])
+
+
+def test_a_family_serve_unloads_leaves_the_catalog_once_and_only_once(painted_mug_root):
+    """Serve's multiplexing LRU unloads a family by calling ``__del__`` on what it held; the catalog
+    drops the family then, and the garbage collector's later call (after a reload) changes nothing."""
+    from proctex.family.catalog import Catalog
+    from workers.serve import _Held, deployment
+
+    cat = Catalog(str(painted_mug_root), check_every=0, lazy=True)
+    cat.get("mug")
+    held = _Held(cat, "mug")
+    held.__del__()  # Serve unloads it
+    assert cat.loaded() == []
+    cat.get("mug")  # asked for again: loaded anew
+    held.__del__()  # the garbage collector, later
+    assert cat.loaded() == ["mug"]
+    assert cat.health() == {"mug": "ok"}
+    with pytest.raises(ValueError, match="max_families"):
+        deployment(-1)

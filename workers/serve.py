@@ -53,13 +53,17 @@ class TransferService:
 
 class _Held:
     """What Serve's multiplexing LRU keeps per family: unloading it (``__del__``, which Serve calls
-    when the family leaves the LRU) makes the catalog let the family go too."""
+    when the family leaves the LRU) makes the catalog let the family go too, whichever build of it
+    the catalog holds by then (a rebuild reloads it there, not here). Only the first call counts:
+    the garbage collector calls ``__del__`` again later, maybe after the family was loaded anew."""
 
-    def __init__(self, catalog: Catalog, name: str, service: Any) -> None:
-        self.catalog, self.name, self.service = catalog, name, service
+    def __init__(self, catalog: Catalog, name: str) -> None:
+        self.catalog, self.name, self.released = catalog, name, False
 
     def __del__(self) -> None:
-        self.catalog.forget(self.name, self.service)
+        if not self.released:
+            self.released = True
+            self.catalog.forget(self.name)
 
 
 def _replica_name() -> str:
@@ -85,8 +89,8 @@ def deployment(max_families: int = 0, name: str = "ProcTexTransfer"):
         class MultiplexedTransferService(TransferService):
             @serve.multiplexed(max_num_models_per_replica=max_families)
             async def held(self, name: str) -> _Held:
-                service = await asyncio.to_thread(self.catalog.get, name)
-                return _Held(self.catalog, name, service)
+                await asyncio.to_thread(self.catalog.get, name)  # loads it (or says why not)
+                return _Held(self.catalog, name)
 
             async def family(self, name: str) -> Any:
                 await self.held(name)  # the LRU (a miss loads it) and the routing table
