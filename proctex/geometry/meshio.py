@@ -98,6 +98,56 @@ def _parse_obj_index(token: str, n_vertices: int, path: str, lineno: int) -> int
     raise ValueError(f"{path}:{lineno}: face index 0 is invalid in OBJ (indices start at 1)")
 
 
+_OBJ_OTHER_V = ("vt", "vn", "vp")
+
+
+def _read_obj_columns(data: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """The common OBJ read as space-separated columns by Arrow's CSV reader (C++, about 4x faster
+    than :func:`_read_obj_triangles` on a sofa export): every ``v`` line ``v x y z`` and every ``f``
+    line ``f a b c`` (``a``, ``a/b``, ``a//c`` or ``a/b/c``, positive), one space apart. ``None``
+    for anything else (another column count on a ``v`` / ``f`` line, a tab, a quad, a relative
+    index, a malformed number), which the next reader then takes; lines of other kinds are ignored."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.csv as pacsv
+
+    odd: list[int] = []
+
+    def other_shape(row) -> str:
+        tag = (row.text or "").lstrip().split(" ", 1)[0]
+        if tag[:1] in ("v", "f") and tag not in _OBJ_OTHER_V:
+            odd.append(row.number)  # a vertex or face line this reader does not take
+        return "skip"
+
+    names = ["t", "a", "b", "c"]
+    try:
+        table = pacsv.read_csv(pa.py_buffer(data.encode()),
+                               read_options=pacsv.ReadOptions(column_names=names, use_threads=False, block_size=1 << 22),
+                               parse_options=pacsv.ParseOptions(delimiter=" ", quote_char=False, invalid_row_handler=other_shape),
+                               convert_options=pacsv.ConvertOptions(column_types={n: pa.string() for n in names}, strings_can_be_null=False))
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, ValueError):
+        return None
+    tags = table["t"]
+    if odd or any(t[:1] in ("v", "f") and t not in ("v", "f") + _OBJ_OTHER_V for t in pc.unique(tags).to_pylist()):
+        return None
+    v_rows = table.filter(pc.equal(tags, "v"))
+    f_rows = table.filter(pc.equal(tags, "f"))
+    try:
+        v = np.stack([pc.cast(v_rows[n], pa.float64()).to_numpy(zero_copy_only=False) for n in "abc"], axis=1) if len(v_rows) else np.zeros((0, 3))
+        cols = []
+        for n in "abc":
+            col = f_rows[n]
+            if len(col) and pc.any(pc.match_substring(col, "/")).as_py():
+                col = pc.list_element(pc.split_pattern(col, "/"), 0)
+            cols.append(pc.cast(col, pa.int64()).to_numpy(zero_copy_only=False))
+        f = np.stack(cols, axis=1) if len(f_rows) else np.zeros((0, 3), np.int64)
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, ValueError):
+        return None
+    if len(f) and (f.min() < 1 or f.max() >= 2**62):
+        return None
+    return v.astype(np.float64), f.astype(np.int64) - 1
+
+
 def _read_obj_triangles(data: str) -> tuple[np.ndarray, np.ndarray] | None:
     """The common OBJ in one pass of numpy parsing: every ``v`` line three coordinates, every ``f``
     line three positive indices (``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn``). ``None`` for anything
@@ -133,7 +183,9 @@ def read_obj(data: str, path: str = "<obj>") -> tuple[np.ndarray, list[list[int]
     Triangle-only files with plain vertices take a vectorised path (polygons then an (m, 3) int64
     array); anything else is read line by line (a list of index lists).
     """
-    fast = _read_obj_triangles(data)
+    fast = _read_obj_columns(data)
+    if fast is None:
+        fast = _read_obj_triangles(data)
     if fast is not None:
         return fast
     verts: list[tuple[float, float, float]] = []
