@@ -386,13 +386,15 @@ def stitch_split_edges(vertices: np.ndarray, faces: np.ndarray, tol: float) -> t
         ``(weld (n,) int64, stitched_edge_count)``: ``weld[i]`` is the representative vertex of i.
     """
     n = len(vertices)
-    pid = position_ids(vertices, tol)
     he_a = faces.reshape(-1)
     he_b = np.roll(faces, -1, axis=1).reshape(-1)
-    he_f = np.repeat(np.arange(len(faces)), 3)
     lo, hi = np.minimum(he_a, he_b), np.maximum(he_a, he_b)
     _, inv, counts = np.unique(lo * n + hi, return_inverse=True, return_counts=True)
     boundary = counts[inv] == 1
+    if not boundary.any():  # closed by index already (most exports): nothing to stitch, no position search
+        return np.arange(n, dtype=np.int64), 0
+    pid = position_ids(vertices, tol)
+    he_f = np.repeat(np.arange(len(faces)), 3)
     pa, pb = pid[he_a], pid[he_b]
     pos_key = np.minimum(pa, pb) * n + np.maximum(pa, pb)
     # Every half-edge at a geometric edge that has at least one boundary half-edge takes part in
