@@ -108,11 +108,17 @@ def test_bad_settings_are_clear_errors_before_any_work(mug, tmp_path, capsys):
         (["--n", "5", "--max-failed", "-1"], "max_failed"),
         (["--rows", str(tmp_path / "missing.csv")], "no such file"),
     ]
+    rows_file = tmp_path / "rows.csv"
+    rows_file.write_text("height\n0.1\n")
+    cases.append((["--rows", str(rows_file), "--params-bounds", '{"height": [0.08, 0.09]}'], "taken as they are"))
     for flags, message in cases:
         assert main(["generate", mug, "--out", str(out), "--no-ray", *flags]) == 2
         assert message in capsys.readouterr().err, flags
-    assert main(["generate", str(tmp_path), "--n", "2", "--out", str(out), "--no-ray"]) == 2
+    (tmp_path / "empty").mkdir()
+    assert main(["generate", str(tmp_path / "empty"), "--n", "2", "--out", str(out), "--no-ray"]) == 2
     assert "no family here" in capsys.readouterr().err
+    assert main(["generate", mug, "--n", "2", "--out", str(Path(mug) / "variants"), "--no-ray"]) == 2
+    assert "lies in the family" in capsys.readouterr().err and not (Path(mug) / "variants").exists()
     assert not out.exists()
 
 

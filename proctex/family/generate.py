@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Iterable
@@ -102,6 +103,12 @@ class GenerateSettings:
             raise ValueError(f"format must be one of {list(FORMATS)}, got {self.format!r}")
         if not isinstance(self.bounds, dict):
             raise ValueError('bounds must be an object {"name": [low, high]}')
+        if self.rows is not None and self.bounds:
+            raise ValueError("bounds narrow sampled rows; rows from a file are taken as they are")
+        if "://" not in self.out and "://" not in self.family:
+            fam, out = os.path.realpath(self.family), os.path.realpath(self.out)
+            if out == fam or out.startswith(fam + os.sep):
+                raise ValueError(f"the output {self.out} lies in the family {self.family}: give another folder")
         from proctex.correspond.corrnet import resolve_device
 
         resolve_device(self.device)  # CUDA asked for and absent: said before any work
