@@ -19,6 +19,8 @@ import pytest
 
 from proctex.cli import main
 from proctex.family.generate import GenerateLayout, GenerateSettings, plan_rows, run_in_process
+from proctex.geometry.parts import segment
+from proctex.models import get_model
 from proctex.texture.gltf_read import read_textured_glb
 
 from .processes import pids_running
@@ -50,6 +52,7 @@ def test_generate_writes_one_glb_per_row_and_a_manifest_and_a_rerun_writes_nothi
         assert len(mesh.faces) == r["faces"] and r["parts"] >= 1 and r["groups"] >= 1 and len(mesh.textures) >= 1
         params = json.loads(r["params"])
         assert r["param.height"] == params["height"] and 0.0 < r["transfer_seconds"] < 60
+        assert r["parts"] == segment(get_model("mug").generate(params)).n_parts  # the transfer's own part count
     assert len({r["faces"] for r in rows}) > 1  # the family's tessellation follows its parameters
     before = _mtimes(out)
     again = run_in_process(GenerateSettings(mug, str(out), n=6, seed=3, batch_size=4), log=lambda *_: None, quiet=True)

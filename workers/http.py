@@ -426,31 +426,26 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             get_catalog().invalidate(name)
         return {"family": name, "edit": record, "stamp": stamp}
 
-    @app.delete("/v1/families/{name}/edits/last", responses={404: {"description": "unknown family"}, 409: {"description": "nothing to undo"}})
-    async def undo_edit(name: str, request: Request):
-        """Undo the family's last stored edit (needs the edit token)."""
+    async def undo(name: str, request: Request, **how: Any):
+        """Undo stored edits of family ``name`` (``how``: :meth:`FamilyService.undo_edit`'s arguments)."""
         try:
             svc = await family_of(name)
             check_edit_request(request)
-            expect = request.headers.get("if-match")
-            undone, stamp = await blocking(lambda: (svc.undo_edit(expect_stamp=expect), build_stamp(svc.store)))
+            undone, stamp = await blocking(lambda: (svc.undo_edit(**how), build_stamp(svc.store)))
         except Exception as exc:
             return error_response(exc)
         finally:
             get_catalog().invalidate(name)
         return {"family": name, "undone": undone, "stamp": stamp}
 
+    @app.delete("/v1/families/{name}/edits/last", responses={404: {"description": "unknown family"}, 409: {"description": "nothing to undo"}})
+    async def undo_edit(name: str, request: Request):
+        """Undo the family's last stored edit (needs the edit token; ``If-Match: <stamp>`` makes it conditional)."""
+        return await undo(name, request, expect_stamp=request.headers.get("if-match"))
+
     @app.delete("/v1/families/{name}/edits", responses={404: {"description": "unknown family"}})
     async def reset_edits(name: str, request: Request):
         """Undo every stored edit: the template as painted (needs the edit token)."""
-        try:
-            svc = await family_of(name)
-            check_edit_request(request)
-            undone, stamp = await blocking(lambda: (svc.undo_edit(all_edits=True), build_stamp(svc.store)))
-        except Exception as exc:
-            return error_response(exc)
-        finally:
-            get_catalog().invalidate(name)
-        return {"family": name, "undone": undone, "stamp": stamp}
+        return await undo(name, request, all_edits=True)
 
     return app

@@ -391,8 +391,9 @@ def without_devices(data: dict[str, Any]) -> dict[str, Any]:
 
 def resolved_settings(stored: dict[str, Any]) -> dict[str, Any]:
     """A stored config (sections, or the flat keys of older stores) resolved as :meth:`BuildConfig.to_dict`
-    writes it today: settings added since that build count at their value then, or their default."""
-    return BuildConfig.from_dict(with_legacy(stored)).to_dict()
+    writes it today: settings added since that build count at their value then, or their default;
+    devices read as "cpu" (:func:`without_devices`)."""
+    return BuildConfig.from_dict(without_devices(with_legacy(stored))).to_dict()
 
 
 #: Named starting points for a build (``BuildConfig.from_dict(data, preset=...)``, ``proctex build

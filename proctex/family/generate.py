@@ -256,9 +256,10 @@ def _columns(rows: list[dict[str, Any]], fields: tuple[str, ...]) -> dict[str, n
 class ShapeStage:
     """Stage 1: parameters to shapes. A callable over column batches (see :func:`batches`) that adds
     ``status`` ("made", "done" for a complete earlier output, "failed"), ``mesh`` (the shape as
-    ``.npz`` bytes, empty unless made), ``error`` and ``generate_seconds``."""
+    ``.npz`` bytes, empty unless made), ``record`` (a done row's record as JSON text, else empty),
+    ``error`` and ``generate_seconds``."""
 
-    FIELDS = ("index", "id", "params", "seed", "status", "mesh", "error", "generate_seconds")
+    FIELDS = ("index", "id", "params", "seed", "status", "mesh", "record", "error", "generate_seconds")
 
     def __init__(self, family: str, out: str, fmt: str = "glb") -> None:
         from .stages import stored_config
@@ -269,9 +270,10 @@ class ShapeStage:
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         rows = []
         for row in _rows_of(batch):
-            row = {**row, "status": "made", "mesh": b"", "error": "", "generate_seconds": 0.0}
-            if _record(self.out, str(row["id"]), self.fmt) is not None:
-                row["status"] = "done"
+            row = {**row, "status": "made", "mesh": b"", "record": "", "error": "", "generate_seconds": 0.0}
+            rec = _record(self.out, str(row["id"]), self.fmt)
+            if rec is not None:
+                row.update(status="done", record=json.dumps(rec))
             else:
                 t0 = time.perf_counter()
                 try:
@@ -303,8 +305,7 @@ class TextureStage:
             entry = _empty(row)
             entry["generate_seconds"] = float(row["generate_seconds"])
             if row["status"] == "done":
-                rec = _record(self.out, str(row["id"]), self.fmt)
-                entry = {**entry, **(rec or {}), "status": "done" if rec else "failed", "error": "" if rec else "its record vanished"}
+                entry = {**entry, **json.loads(str(row["record"])), "status": "done"}
             elif row["status"] == "failed":
                 entry.update(status="failed", error=str(row["error"]))
             else:
@@ -313,7 +314,6 @@ class TextureStage:
         return _columns(rows, MANIFEST_FIELDS)
 
     def _make(self, row: dict[str, Any]) -> dict[str, Any]:
-        from proctex.geometry.parts import segment
         from proctex.geometry.shape import Shape
 
         vid = str(row["id"])
@@ -331,7 +331,7 @@ class TextureStage:
         for rel, data in files:  # the main file last: what it names exists before it does
             self.out.write_bytes(rel, data)
         rec = {"index": int(row["index"]), "id": vid, "params": str(row["params"]), "status": "written", "file": main,
-               "faces": shape.n_faces, "vertices": shape.n_vertices, "parts": int(segment(shape).n_parts),
+               "faces": shape.n_faces, "vertices": shape.n_vertices, "parts": len(answer.result.assignment),  # one entry per part
                "groups": int(len(set(answer.face_group[answer.face_group >= 0].tolist()))), "notes": json.dumps(summary.get("notes", [])),
                "error": "", "bytes": int(sum(len(d) for _, d in files)), "generate_seconds": float(row["generate_seconds"]),
                "transfer_seconds": t1 - t0, "write_seconds": 0.0}
@@ -359,15 +359,15 @@ class Tally:
         from proctex.progress import Progress
 
         self.progress = Progress("generate", total, quiet=quiet, interval=2.0)
-        self.max_failed, self.rows = max_failed, []
+        self.max_failed, self.rows, self.failed = max_failed, [], []
 
     def add(self, batch: dict[str, np.ndarray]) -> None:
         rows = _rows_of(batch)
         self.rows.extend(rows)
-        failed = [r for r in self.rows if r["status"] == "failed"]
-        if len(failed) > self.max_failed:
-            first = "; ".join(f"{r['id']}: {r['error']}" for r in failed[:3])
-            raise ValueError(f"{len(failed)} rows failed, more than max_failed={self.max_failed}; the first: {first}")
+        self.failed.extend(r for r in rows if r["status"] == "failed")
+        if len(self.failed) > self.max_failed:
+            first = "; ".join(f"{r['id']}: {r['error']}" for r in self.failed[:3])
+            raise ValueError(f"{len(self.failed)} rows failed, more than max_failed={self.max_failed}; the first: {first}")
         self.progress.update(len(rows))
 
 

@@ -475,7 +475,7 @@ def write_config(store: FamilyStore, config: BuildConfig) -> None:
     state = _state(store)
     old = state.get("config")
     new = config.to_dict()
-    if old is not None and without_devices(resolved_settings(without_devices(with_legacy(old)))) != without_devices(new):
+    if old is not None and resolved_settings(old) != without_devices(new):
         raise ValueError(f"{store.uri} was built with another config; use a new folder (or delete it) to change settings")
     state["config"] = new
     state["versions"] = _versions()

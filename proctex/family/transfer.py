@@ -32,6 +32,7 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -166,15 +167,11 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
     return result
 
 
-_POOL: list[ThreadPoolExecutor] = []
-
-
+@lru_cache(maxsize=1)
 def _parts_pool() -> ThreadPoolExecutor:
     """The process's thread pool for parts of one transfer (two workers at most: a request is a few
     parts, and replicas are what use more cores)."""
-    if not _POOL:
-        _POOL.append(ThreadPoolExecutor(max_workers=max(1, min(2, os.cpu_count() or 1)), thread_name_prefix="proctex-parts"))
-    return _POOL[0]
+    return ThreadPoolExecutor(max_workers=max(1, min(2, os.cpu_count() or 1)), thread_name_prefix="proctex-parts")
 
 
 def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 256) -> tuple[np.ndarray, np.ndarray]:
