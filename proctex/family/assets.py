@@ -5,7 +5,7 @@ shape's parts are assigned to (:mod:`proctex.family.assign`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -64,6 +64,9 @@ class TemplateAssets:
     painted: list[np.ndarray] | None = None
     observed: list[np.ndarray] | None = None
     charts: list[np.ndarray] | None = None  # chart ids of ``painted`` (see :func:`template_charts`)
+    # Per group its PBR maps (uint8 images) and the same maps as PNG bytes, or None (no maps).
+    pbr: list[Any] | None = None
+    pbr_png: list[Any] | None = None
     lookups: list[ChartLookup] | None = None  # per group, chart and room maps for the run-time coverage check (:func:`chart_lookups`)
 
 
@@ -77,12 +80,14 @@ def _placement(vertices: np.ndarray, lo: np.ndarray, size: np.ndarray) -> tuple[
     return ((plo + phi) / 2 - lo) / size, (phi - plo) / size
 
 
-def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, textures: Sequence[np.ndarray], names: Sequence[str] | None = None) -> TemplateAssets:
+def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, textures: Sequence[np.ndarray], names: Sequence[str] | None = None,
+                     pbr: Sequence[Any] | None = None) -> TemplateAssets:
     """Build :class:`TemplateAssets` from a textured template.
 
     Args:
         shape, grouping: the template; corner_uv: (m, 3, 2) its UVs; textures: per group (H, W, 3)
-        uint8 (or float in [0, 1]) images; names: per group material names.
+        uint8 (or float in [0, 1]) images; names: per group material names; pbr: per group its
+        :class:`proctex.texture.pbr.PbrMaps` or None (encoded once here, like the textures).
     """
     from proctex.texture.export import _png
 
@@ -107,7 +112,15 @@ def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, te
             centre, extents = _placement(shape.vertices[part.vertices], lo, size)
             slots.append(Slot(member, g.index, np.asarray(mmap.R, float), centre, extents))
     names = list(names) if names is not None else [g.label or f"group_{g.index}" for g in grouping.groups]
-    return TemplateAssets(shape, grouping, groups, slots, texs, [_png(t) for t in texs], names)
+    maps = maps_png = None
+    if pbr is not None and any(m is not None for m in pbr):
+        from proctex.texture.pbr import PbrMaps
+
+        if len(pbr) != len(texs):
+            raise ValueError(f"need PBR maps (or None) per group ({len(texs)}), got {len(pbr)}")
+        maps = [None if m is None else PbrMaps(m.orm_uint8(), m.normal_uint8(), m.occlusion) for m in pbr]
+        maps_png = [None if m is None else PbrMaps(_png(m.orm), _png(m.normal), m.occlusion) for m in maps]
+    return TemplateAssets(shape, grouping, groups, slots, texs, [_png(t) for t in texs], names, pbr=maps, pbr_png=maps_png)
 
 
 def same_topology(faces: np.ndarray, n_vertices: int, assets: GroupAssets) -> bool:

@@ -33,7 +33,7 @@ from proctex.geometry.parts import analyse, part_mesh, segment
 from proctex.geometry.shape import Shape
 from .config import BuildConfig, resolved_settings, with_legacy, without_devices
 from .plan import Plan, run_in_process
-from .store import FamilyStore, StoreLayout, check_digest, digest
+from .store import MAP_KINDS, FamilyStore, StoreLayout, check_digest, digest
 
 STAGES = ("sample", "template", "paint", "pairs", "train", "evaluate")
 
@@ -212,10 +212,10 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
 
     labels = [g.label for g in tex.groups]
     record = Template(template, grouping, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups], labels,
-                      tex.painted_masks, tex.observed_masks)
+                      tex.painted_masks, tex.observed_masks, tex.pbr if any(m is not None for m in tex.pbr) else None)
     with tempfile.TemporaryDirectory() as tmp:
         summary = write_textured(tex, tmp, up=config.up_axis())
-        textures = {StoreLayout.texture(g, label) for g, label in enumerate(labels)}  # the record writes those
+        textures = {StoreLayout.texture(g, label, kind) for g, label in enumerate(labels) for kind in ("", *MAP_KINDS)}  # the record writes those
         for name in sorted(os.listdir(tmp)):
             if StoreLayout.template_file(name) not in textures:
                 store.write_bytes(StoreLayout.template_file(name), (Path(tmp) / name).read_bytes())

@@ -31,10 +31,18 @@ import pyarrow.fs as pafs
 import pyarrow.parquet as pq
 
 
-def group_file_name(group: int, label: str) -> str:
-    """``group_<index>[_<label>].png`` (label made file-name safe): a group texture's file name."""
+#: the PBR maps a group texture may have besides its base colour (file ``group_<g>[_<label>].<kind>.png``).
+MAP_KINDS = ("orm", "normal")
+
+
+def group_file_name(group: int, label: str, kind: str = "") -> str:
+    """``group_<index>[_<label>].png`` (label made file-name safe): a group texture's file name; with
+    ``kind`` (one of :data:`MAP_KINDS`) the name of that PBR map, ``group_<index>[_<label>].<kind>.png``
+    (labels never hold a dot, so no label makes a map's name)."""
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in label)
-    return f"group_{group}{'_' + safe if safe else ''}.png"
+    if kind and kind not in MAP_KINDS:
+        raise ValueError(f"map kind must be one of {', '.join(MAP_KINDS)}, got {kind!r}")
+    return f"group_{group}{'_' + safe if safe else ''}{'.' + kind if kind else ''}.png"
 
 
 def digest(data: bytes) -> str:
@@ -112,9 +120,9 @@ class StoreLayout:
         return f"{StoreLayout.TEMPLATE}/{name}"
 
     @staticmethod
-    def texture(group: int, label: str) -> str:
-        """A group's texture (:func:`group_file_name`)."""
-        return StoreLayout.template_file(group_file_name(group, label))
+    def texture(group: int, label: str, kind: str = "") -> str:
+        """A group's texture, or with ``kind`` one of its PBR maps (:func:`group_file_name`)."""
+        return StoreLayout.template_file(group_file_name(group, label, kind))
 
 
 class FamilyStore:

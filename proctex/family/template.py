@@ -29,6 +29,8 @@ class Template:
             which names its texture file (:attr:`names`: the label, or ``group_<g>``).
         painted, observed: per group (H, W) bool masks (texels holding colour; texels the painter
             itself coloured), or None for stores written before they were kept.
+        pbr: per group its PBR maps (:class:`proctex.texture.pbr.PbrMaps`, uint8 images) or None;
+            None as a whole for stores written before maps were made.
     """
 
     shape: Shape
@@ -39,6 +41,7 @@ class Template:
     labels: list[str]
     painted: list[np.ndarray] | None = None
     observed: list[np.ndarray] | None = None
+    pbr: list[Any] | None = None
 
     @property
     def names(self) -> list[str]:
@@ -56,16 +59,25 @@ class Template:
             observed = self.observed if self.observed is not None else self.painted
             store.write_arrays(StoreLayout.PAINTED, **{f"g{k}": m for k, m in enumerate(self.painted)},
                                **{f"o{k}": m for k, m in enumerate(observed)})
-        digests = {}
+        digests: dict[int, dict[str, Any]] = {}
         for g, (tex, label) in enumerate(zip(self.textures, self.labels)):
             png = encode_png(tex)
             store.write_bytes(StoreLayout.texture(g, label), png)
-            digests[g] = digest(png)
+            digests[g] = {"sha256": digest(png)}
+            maps = self.pbr[g] if self.pbr is not None else None
+            if maps is not None:
+                for kind, image in (("orm", maps.orm_uint8()), ("normal", maps.normal_uint8())):
+                    data = encode_png(image)
+                    store.write_bytes(StoreLayout.texture(g, label, kind), data)
+                    digests[g][f"{kind}_sha256"] = digest(data)
+                digests[g]["occlusion"] = bool(maps.occlusion)
         if store.exists(StoreLayout.PAINT):  # the painter's summary records each texture's checksum
             summary = store.read_json(StoreLayout.PAINT)
             for entry in summary.get("groups", []):
                 if entry.get("group") in digests:
-                    entry["sha256"] = digests[entry["group"]]
+                    for key in ("orm_sha256", "normal_sha256", "occlusion"):
+                        entry.pop(key, None)
+                    entry.update(digests[entry["group"]])
             store.write_json(StoreLayout.PAINT, summary)
 
     @classmethod
@@ -88,11 +100,12 @@ class Template:
         summary = store.read_json(StoreLayout.PAINT)
         textures, labels = [], []
         size = summary.get("texture_size") or None
-        for g in summary["groups"]:
-            rel = StoreLayout.texture(g["group"], g["label"])
+        pbr: list[Any] = []
+
+        def read(rel: str, recorded: str | None, shape: tuple[int, ...] | None) -> np.ndarray:
             png = store.read_bytes(rel)
             where = store.path(rel)
-            check_digest(png, g.get("sha256"), where)
+            check_digest(png, recorded, where)
             try:
                 image = Image.open(io.BytesIO(png))
                 image.load()
@@ -100,10 +113,22 @@ class Template:
                 raise ValueError(f"{where}: cannot read the texture ({type(exc).__name__}: {str(exc)[:200]})") from exc
             if image.mode not in ("RGB", "RGBA"):
                 raise ValueError(f"{where}: a {image.mode} image; group textures are RGB")
-            if size and list(image.size[::-1]) != [int(x) for x in size][:2]:
-                raise ValueError(f"{where}: {image.size[0]}x{image.size[1]}, the family's textures are {size[1]}x{size[0]}")
-            textures.append(np.asarray(image.convert("RGB")))
+            if shape and list(image.size[::-1]) != [int(x) for x in shape][:2]:
+                raise ValueError(f"{where}: {image.size[0]}x{image.size[1]}, the family's textures are {shape[1]}x{shape[0]}")
+            return np.asarray(image.convert("RGB"))
+
+        for g in summary["groups"]:
+            textures.append(read(StoreLayout.texture(g["group"], g["label"]), g.get("sha256"), size))
             labels.append(g["label"] or "")
+            if g.get("orm_sha256") and g.get("normal_sha256"):  # the maps, where the paint stage made them
+                from proctex.texture.pbr import PbrMaps
+
+                shape = textures[-1].shape[:2]
+                pbr.append(PbrMaps(read(StoreLayout.texture(g["group"], g["label"], "orm"), g["orm_sha256"], shape),
+                                   read(StoreLayout.texture(g["group"], g["label"], "normal"), g["normal_sha256"], shape),
+                                   bool(g.get("occlusion", False))))
+            else:
+                pbr.append(None)
         if len(textures) != len(grouping.groups):
             raise ValueError(f"{store.uri}: {len(textures)} group textures for {len(grouping.groups)} groups")
         painted = observed = None
@@ -112,14 +137,14 @@ class Template:
             painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
             observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
         return cls(shape, grouping, np.asarray(uv["corner_uv"], dtype=np.float64), np.asarray(uv["face_group"], dtype=np.int64),
-                   textures, labels, painted, observed)
+                   textures, labels, painted, observed, pbr if any(m is not None for m in pbr) else None)
 
     def assets(self) -> Any:
         """:class:`proctex.family.assets.TemplateAssets` for transfer. Without stored masks, the texels
         each group's UV charts cover plus an 8-texel gutter count as painted and observed."""
         from .assets import prepare_template
 
-        assets = prepare_template(self.shape, self.grouping, self.corner_uv, self.textures, self.names)
+        assets = prepare_template(self.shape, self.grouping, self.corner_uv, self.textures, self.names, pbr=self.pbr)
         if self.painted is not None:
             assets.painted, assets.observed = self.painted, self.observed
         else:
@@ -153,13 +178,18 @@ def write_textured(tex: Any, out: str | Path, up: str = "z", obj: bool = False, 
     for g in tex.groups:
         save_png(out / group_file_name(g.group, g.label), g.uint8())
         written.append(str(out / group_file_name(g.group, g.label)))
+        if g.pbr is not None:
+            for kind, image in (("orm", g.pbr.orm_uint8()), ("normal", g.pbr.normal_uint8())):
+                save_png(out / group_file_name(g.group, g.label, kind), image)
+                written.append(str(out / group_file_name(g.group, g.label, kind)))
     names = [g.label or f"group_{g.group}" for g in tex.groups]
     textures = [g.uint8() for g in tex.groups]
+    pbr = tex.pbr if any(m is not None for m in tex.pbr) else None
     shape = tex.shape
-    write_glb(out / "textured.glb", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names, up=up)
+    write_glb(out / "textured.glb", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names, up=up, pbr=pbr)
     written.append(str(out / "textured.glb"))
     if obj:
-        written += write_obj(out / "textured.obj", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names)
+        written += write_obj(out / "textured.obj", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names, pbr=pbr)
     views = preview_views(tex, up, preview_size)
     save_png(out / "preview.png", grid_image([views[:3], views[3:]]))
     written.append(str(out / "preview.png"))

@@ -10,7 +10,9 @@ A *textured shape* is
   texture (it gets a plain grey material);
 - ``textures``: G images, each (H, W, 3) or (H, W, 4) uint8 (or the bytes of an already encoded PNG, so a server can reuse them) with row 0 at the **top**, so texel
   (i, j) has its centre at u = (j + 0.5) / W, v = 1 - (i + 0.5) / H;
-- ``names``: optional G group names (material names).
+- ``names``: optional G group names (material names);
+- ``pbr``: optional G PBR maps (:class:`proctex.texture.pbr.PbrMaps`, arrays or PNG bytes), or None
+  per group for a colour-only material.
 
 glTF puts the texcoord origin at the top-left with v pointing down, so the GLB stores (u, 1 - v);
 OBJ ``vt`` lines use the convention above unchanged. Positions, normals and texcoords are stored as
@@ -97,6 +99,32 @@ def _check_shape(vertices, faces, corner_uv, face_group, textures, names):
     return V, F, UV, G, texs, names
 
 
+def _check_pbr(pbr, n: int) -> list:
+    """Per texture its PBR maps or None (``pbr`` None: none at all)."""
+    if pbr is None:
+        return [None] * n
+    if isinstance(pbr, (str, bytes)) or not isinstance(pbr, Sequence) or len(pbr) != n:
+        raise ValueError(f"pbr: expected one entry (maps or None) per texture ({n})")
+    out = []
+    for g, m in enumerate(pbr):
+        if m is None:
+            out.append(None)
+            continue
+        if not all(hasattr(m, a) for a in ("orm", "normal", "occlusion")):
+            raise ValueError(f"pbr[{g}]: expected PbrMaps (orm, normal, occlusion), got {type(m).__name__}")
+        for name in ("orm", "normal"):
+            img = getattr(m, name)
+            if isinstance(img, (bytes, bytearray)):
+                if bytes(img[:8]) != b"\x89PNG\r\n\x1a\n":
+                    raise ValueError(f"pbr[{g}].{name}: bytes given, but not a PNG file")
+                continue
+            a = np.asarray(img)
+            if a.ndim != 3 or a.shape[2] not in (3, 4) or min(a.shape[:2]) == 0 or a.dtype.kind not in "uf":
+                raise ValueError(f"pbr[{g}].{name}: expected an (H, W, 3) image, got {a.dtype} {a.shape}")
+        out.append(m)
+    return out
+
+
 def _groups(face_group: np.ndarray, n_groups: int) -> list[tuple[int, np.ndarray]]:
     """[(group, face indices)] for each non-empty group, the untextured group -1 last."""
     order = np.argsort(face_group, kind="stable")
@@ -176,7 +204,18 @@ class _Blob:
 
 def _png(image: np.ndarray | bytes) -> bytes:
     """PNG bytes of a texture, or the bytes themselves when already encoded."""
-    return image if isinstance(image, bytes) else encode_png(image)
+    return bytes(image) if isinstance(image, (bytes, bytearray)) else encode_png(image)
+
+
+def _split_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, indices: np.ndarray, n_split: int) -> np.ndarray:
+    """(s, 4) float32 TANGENT of each split vertex: the corner tangents (:func:`proctex.texture.pbr.corner_tangents`)
+    of the primitive's faces, taken from a corner that became that split vertex."""
+    from .pbr import corner_tangents
+
+    tang = corner_tangents(vertices, faces, corner_uv).reshape(-1, 4)
+    out = np.zeros((n_split, 4), np.float32)
+    out[indices.reshape(-1).astype(np.int64)] = tang
+    return out
 
 
 #: Node rotations (glTF quaternions x, y, z, w) that stand a shape with the given up axis upright in
@@ -185,7 +224,8 @@ UP_ROTATIONS = {"y": None, "z": [-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)], "x"
 
 
 def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
-              double_sided: bool = True, up: str = "y", image_uris: list[str | None] | None = None) -> bytes:
+              double_sided: bool = True, up: str = "y", image_uris: list[str | None] | None = None,
+              pbr=None, pbr_uris: list[tuple[str, str] | None] | None = None) -> bytes:
     """Encode a textured shape as a GLB (glTF 2.0 binary) file.
 
     Args: see the module docstring (vertices (n, 3) float64, faces (m, 3) int64, corner_uv
@@ -202,9 +242,20 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
     textures share one LINEAR / LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE sampler. Textures of empty
     groups are left out. ``image_uris``: per group a URI (relative to the GLB's own URL, or absolute)
     that the image is read from instead of being embedded, or None to embed it (so a client that
-    caches the textures is sent only the geometry and UVs). Raises ValueError on malformed input.
+    caches the textures is sent only the geometry and UVs).
+
+    ``pbr``: per texture its :class:`~proctex.texture.pbr.PbrMaps` (or None). A group with maps gets
+    metallic and roughness factors 1 with ``metallicRoughnessTexture`` on the ORM image (and
+    ``occlusionTexture`` on the same image when it holds occlusion), a ``normalTexture``, and a
+    TANGENT attribute (:func:`proctex.texture.pbr.corner_tangents`, the frame the normal map was
+    baked in). ``pbr_uris``: per group ``(orm URI, normal URI)`` to refer to instead of embedding.
+    Raises ValueError on malformed input.
     """
     V, F, UV, FG, texs, names = _check_shape(vertices, faces, corner_uv, face_group, textures, names)
+    maps = _check_pbr(pbr, len(texs))
+    map_uris = list(pbr_uris) if pbr_uris is not None else [None] * len(texs)
+    if len(map_uris) != len(texs):
+        raise ValueError(f"pbr_uris needs one entry per texture ({len(texs)}), got {len(map_uris)}")
     if up not in UP_ROTATIONS:
         raise ValueError(f"up must be x, y or z, got {up!r}")
     uris = list(image_uris) if image_uris is not None else [None] * len(texs)
@@ -228,18 +279,34 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
         pbr = gl.PbrMetallicRoughness(metallicFactor=0.0, roughnessFactor=ROUGHNESS)
         if g >= 0:
             attrs.TEXCOORD_0 = blob.accessor(st_split, gl.VEC2, ARRAY_BUFFER)
-            if uris[g]:
-                gltf.images.append(gl.Image(uri=uris[g], mimeType="image/png", name=names[g]))
-            else:
-                gltf.images.append(gl.Image(bufferView=blob.view(_png(texs[g])), mimeType="image/png", name=names[g]))
-            gltf.textures.append(gl.Texture(sampler=0, source=len(gltf.images) - 1))
-            pbr.baseColorTexture = gl.TextureInfo(index=len(gltf.textures) - 1)
+
+            def texture(image, uri, suffix: str = "") -> int:
+                if uri:
+                    gltf.images.append(gl.Image(uri=uri, mimeType="image/png", name=names[g] + suffix))
+                else:
+                    gltf.images.append(gl.Image(bufferView=blob.view(_png(image)), mimeType="image/png", name=names[g] + suffix))
+                gltf.textures.append(gl.Texture(sampler=0, source=len(gltf.images) - 1))
+                return len(gltf.textures) - 1
+
+            pbr.baseColorTexture = gl.TextureInfo(index=texture(texs[g], uris[g]))
             name = names[g]
+            material_maps = maps[g]
         else:
+            material_maps = None
             pbr.baseColorFactor = list(GREY)
             name = UNTEXTURED_NAME
+        extra = {}
+        if material_maps is not None:
+            mu = map_uris[g] or (None, None)
+            orm = texture(material_maps.orm, mu[0], "_orm")
+            pbr.metallicFactor, pbr.roughnessFactor = 1.0, 1.0
+            pbr.metallicRoughnessTexture = gl.TextureInfo(index=orm)
+            extra["normalTexture"] = gl.NormalMaterialTexture(index=texture(material_maps.normal, mu[1], "_normal"))
+            if material_maps.occlusion:
+                extra["occlusionTexture"] = gl.OcclusionTextureInfo(index=orm)
+            attrs.TANGENT = blob.accessor(_split_tangents(V, f, UV[idx], indices, len(vid)), gl.VEC4, ARRAY_BUFFER)
         gltf.materials.append(gl.Material(pbrMetallicRoughness=pbr, doubleSided=bool(double_sided),
-                                          name=name, emissiveFactor=None))
+                                          name=name, emissiveFactor=None, **extra))
         primitives.append(gl.Primitive(
             attributes=attrs, material=len(gltf.materials) - 1, mode=gl.TRIANGLES,
             indices=blob.accessor(indices.reshape(-1), gl.SCALAR, ELEMENT_ARRAY_BUFFER)))
@@ -254,9 +321,9 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
 # --------------------------------------------------------------------------- files
 
 def write_glb(path, vertices, faces, corner_uv, face_group, textures, names=None,
-              double_sided: bool = True, up: str = "y") -> str:
+              double_sided: bool = True, up: str = "y", pbr=None) -> str:
     """Write :func:`glb_bytes` to ``path`` atomically (temp file + ``os.replace``); returns the path."""
-    data = glb_bytes(vertices, faces, corner_uv, face_group, textures, names, double_sided, up=up)
+    data = glb_bytes(vertices, faces, corner_uv, face_group, textures, names, double_sided, up=up, pbr=pbr)
     atomic_write(Path(path), data)
     return str(path)
 
@@ -273,13 +340,28 @@ def _obj_material_names(names: list[str]) -> list[str]:
     return out
 
 
-def obj_files(stem: str, vertices, faces, corner_uv, face_group, textures, names=None) -> list[tuple[str, bytes]]:
+def _channel_png(image, channel: int) -> bytes:
+    """A grey PNG of one channel of an (H, W, 3) image (array or PNG bytes)."""
+    if isinstance(image, (bytes, bytearray)):
+        from PIL import Image
+
+        image = np.asarray(Image.open(io.BytesIO(bytes(image))).convert("RGB"))
+    from proctex.fileio import to_uint8
+
+    c = to_uint8(np.asarray(image))[..., channel]
+    return encode_png(np.repeat(c[..., None], 3, axis=2))
+
+
+def obj_files(stem: str, vertices, faces, corner_uv, face_group, textures, names=None, pbr=None) -> list[tuple[str, bytes]]:
     """The files of a textured OBJ, in memory: ``[(name, bytes)]`` for ``<stem>_<g>.png`` per
-    non-empty group g, ``<stem>.mtl`` and ``<stem>.obj``, in that order (the OBJ, which names the
-    others, last). Inputs are as in :func:`glb_bytes`; see :func:`write_obj` for the format."""
+    non-empty group g (with PBR maps also ``<stem>_<g>_roughness.png``, ``_metallic.png``,
+    ``_normal.png`` and, with occlusion, ``_ao.png``), ``<stem>.mtl`` and ``<stem>.obj``, in that
+    order (the OBJ, which names the others, last). Inputs are as in :func:`glb_bytes`; see
+    :func:`write_obj` for the format."""
     if not stem or "/" in stem or "\\" in stem:
         raise ValueError(f"stem must be a plain file name, got {stem!r}")
     V, F, UV, FG, texs, names = _check_shape(vertices, faces, corner_uv, face_group, textures, names)
+    maps = _check_pbr(pbr, len(texs))
     mat_names = _obj_material_names(names)
     mtl_name = f"{stem}.mtl"
     uv_unique, uv_inv = np.unique(UV.reshape(-1, 2), axis=0, return_inverse=True)
@@ -294,6 +376,15 @@ def obj_files(stem: str, vertices, faces, corner_uv, face_group, textures, names
             png = f"{stem}_{g}.png"
             files.append((png, _png(texs[g])))
             mtl.append(f"map_Kd {png}\n")
+        if g >= 0 and maps[g] is not None:  # the PBR extension of MTL (Pr / Pm / norm), read by Blender
+            m = maps[g]
+            for kind, channel, key in (("roughness", 1, "Pr"), ("metallic", 2, "Pm")) + ((("ao", 0, "Ka"),) if m.occlusion else ()):
+                name_k = f"{stem}_{g}_{kind}.png"
+                files.append((name_k, _channel_png(m.orm, channel)))
+                mtl.append(f"{key} 1\nmap_{key} {name_k}\n" if key != "Ka" else f"map_Ka {name_k}\n")
+            name_n = f"{stem}_{g}_normal.png"
+            files.append((name_n, _png(m.normal)))
+            mtl.append(f"norm {name_n}\nmap_Bump -bm 1 {name_n}\n")
         mtl.append("\n")
         body.write(f"usemtl {name}\n")
         np.savetxt(body, fv[idx], fmt="f %d/%d %d/%d %d/%d")
@@ -307,7 +398,7 @@ def obj_files(stem: str, vertices, faces, corner_uv, face_group, textures, names
     return files
 
 
-def write_obj(path, vertices, faces, corner_uv, face_group, textures, names=None) -> list[str]:
+def write_obj(path, vertices, faces, corner_uv, face_group, textures, names=None, pbr=None) -> list[str]:
     """Write ``<stem>.obj``, ``<stem>.mtl`` and ``<stem>_<g>.png`` per non-empty group g.
 
     ``path`` must end in ``.obj``. Inputs are as in :func:`glb_bytes`. ``vt`` lines use the OBJ
@@ -320,7 +411,7 @@ def write_obj(path, vertices, faces, corner_uv, face_group, textures, names=None
     if path.suffix.lower() != ".obj":
         raise ValueError(f"path: expected a file name ending in .obj, got {str(path)!r}")
     written = []
-    for name, data in obj_files(path.stem, vertices, faces, corner_uv, face_group, textures, names):
+    for name, data in obj_files(path.stem, vertices, faces, corner_uv, face_group, textures, names, pbr):
         atomic_write(path.parent / name, data)
         written.append(str(path.parent / name))
     return [written[-1], written[-2]] + written[:-2]

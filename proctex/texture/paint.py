@@ -35,6 +35,7 @@ from proctex.geometry.shape import Shape
 from proctex.geometry.surface import normalised_frame
 from proctex.texture.painters.base import ViewRequest
 
+from .pbr import PbrMaps, bake_maps
 from .render import Tracer, bounding_sphere, canonical_cameras, render_buffers, textured_albedo
 from .uv import ShapeUV, TexelMap, pad_seams, shape_uv, texel_map
 
@@ -53,6 +54,7 @@ class GroupTexture:
         texels: the texel map of the group's representative.
         seen: share of covered texels painted directly (views: seen by a view; surface painter: 1).
         direct: (t,) bool per covered texel: painted directly (None: all of them).
+        pbr: the group's PBR maps over the same layout (:func:`paint_material_maps`), or None.
     """
 
     group: int
@@ -63,6 +65,7 @@ class GroupTexture:
     texels: TexelMap
     seen: float = 1.0
     direct: np.ndarray | None = None
+    pbr: PbrMaps | None = None
 
     def uint8(self) -> np.ndarray:
         """(H, W, 3) uint8 image."""
@@ -100,6 +103,11 @@ class TemplateTexture:
     @property
     def images(self) -> list[np.ndarray]:
         return [g.image for g in self.groups]
+
+    @property
+    def pbr(self) -> list[PbrMaps | None]:
+        """Per group its PBR maps (None where none were made)."""
+        return [g.pbr for g in self.groups]
 
     @property
     def painted_masks(self) -> list[np.ndarray]:
@@ -229,6 +237,28 @@ def paint_surface(
     for gi, a in enumerate(uv.atlases):
         notes.extend(f"group {gi}: {n}" for n in a.notes)
     return TemplateTexture(shape, grouping, uv, out, "surface", time.perf_counter() - t0, notes, {"timings": timings})
+
+
+def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8) -> TemplateTexture:
+    """Give every group texture of ``tex`` its PBR maps (:class:`proctex.texture.pbr.PbrMaps`), in place.
+
+    ``painter`` has ``material(points, normals, tangents, bitangents, group=, label=)`` (a
+    :class:`proctex.texture.painters.SurfacePainter` of the same prompts): whatever painted the
+    colour (surface, views, diffusion), roughness, metalness and relief come from the prompt's
+    materials, evaluated at each covered texel's surface point in the representative's tangent frame
+    (the frame the GLB's TANGENT attribute carries). Returns ``tex``; its stats get ``timings.maps``.
+    """
+    t0 = time.perf_counter()
+    center, scale = shape_frame(tex.shape)
+    for g, gt in zip(tex.grouping.groups, tex.groups):
+        rep = tex.grouping.parts[g.representative]
+
+        def props(p, n, t, b, g=g):
+            return painter.material(p, n, t, b, group=g.index, label=g.label)
+
+        gt.pbr = bake_maps(gt.texels, tex.shape.vertices, tex.shape.faces[rep.faces], tex.uv.corner_uv[rep.faces], props, center, scale, gutter)
+    tex.stats.setdefault("timings", {})["maps"] = time.perf_counter() - t0
+    return tex
 
 
 def _painter_prompt(painter: Any, g: PartGroup) -> str:

@@ -17,6 +17,7 @@ from proctex.geometry.shape import Shape
 from proctex.texture.painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest
 
 from .paint import (
+    paint_material_maps,
     UNPAINTED,
     GroupTexture,
     SolidViewPainter,
@@ -453,15 +454,22 @@ def paint_template(
     steps: int = 20,
     on_view: Callable[[int, int, dict[str, Any]], None] | None = None,
     uv: ShapeUV | None = None,
+    maps: bool = True,
 ) -> TemplateTexture:
     """Texture a template with one of the painters: ``"surface"`` (:func:`paint_surface`),
     ``"views"`` (the multi-view loop with :class:`SolidViewPainter`) or ``"diffusion"`` (the loop with
     a local diffusers model in ``model_dir``), made by :func:`make_painter`; the remaining arguments
     go to :func:`paint_views`. ``uv`` (e.g. :func:`proctex.texture.uv.source_uv`) replaces the
-    per-group unwrap."""
+    per-group unwrap. ``maps``: also make each group's PBR maps (:func:`paint_material_maps`: from
+    the prompts' materials, whichever painter made the colour)."""
     prompts = resolve_group_prompts(grouping, prompt, group_prompts)  # validates the keys
     chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, model_dir=model_dir, device=device, steps=steps)
     if painter == "surface":
-        return paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv)
-    return paint_views(shape, grouping, chosen, prompt, group_prompts, n_views=views, view_size=view_size, size=size,
-                       up=up, seed=seed, complete_hidden=complete_hidden, fill=fill, on_view=on_view, uv=uv)
+        tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv)
+    else:
+        tex = paint_views(shape, grouping, chosen, prompt, group_prompts, n_views=views, view_size=view_size, size=size,
+                          up=up, seed=seed, complete_hidden=complete_hidden, fill=fill, on_view=on_view, uv=uv)
+    if maps:
+        materials = chosen if painter == "surface" else make_painter("surface", grouping, prompt, prompts, seed=seed)
+        paint_material_maps(tex, materials)
+    return tex

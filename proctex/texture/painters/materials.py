@@ -129,8 +129,15 @@ def mat_concrete(ctx, spec, albedo):
     return out
 
 
-def mat_brick(ctx, spec, albedo):
-    """Brick: running-bond bricks 0.22 x 0.075 with 0.014 mortar joints, per-brick tone."""
+def brick_mortar(ctx: Ctx) -> np.ndarray:
+    """Mortar joints of running-bond bricks 0.22 x 0.075 (0.014 joints): ``(n,)`` in [0, 1], 1 in a joint."""
+    return _bricks(ctx)[0]
+
+
+def _bricks(ctx: Ctx) -> tuple[np.ndarray, np.ndarray]:
+    key = ("bricks",)
+    if key in ctx._cache:
+        return ctx._cache[key]
     L, H, m = 0.22 * ctx.scale, 0.075 * ctx.scale, 0.014 * ctx.scale
     ou, ov, _ = _offset(ctx.seed, "brick")
     mortar = tone = None
@@ -145,6 +152,13 @@ def mat_brick(ctx, spec, albedo):
         to = nz.hash_unit(nz.cell_hash(colu, row, i, ctx.seed_for("brick"))) * w
         mortar = mo if mortar is None else mortar + mo
         tone = to if tone is None else tone + to
+    ctx._cache[key] = (mortar, tone)
+    return mortar, tone
+
+
+def mat_brick(ctx, spec, albedo):
+    """Brick: running-bond bricks 0.22 x 0.075 with 0.014 mortar joints, per-brick tone."""
+    mortar, tone = _bricks(ctx)
     low = ctx.noise("low", 2.5, 2)
     brick = albedo * (F32(0.8) + F32(0.35) * tone + F32(0.12) * low)
     brick = brick * (F32(1.0) + F32(0.08) * ctx.noise("grit", 38.0))
@@ -163,12 +177,22 @@ def mat_ceramic(ctx, spec, albedo):
     return out + (sheen(ctx, 0.08) if spec.finish != "matte" else F32(0.0))
 
 
+def hammer_dimples(ctx: Ctx) -> np.ndarray:
+    """Hammered metal: round dimples from cellular noise (~0.06 across), ``(n,)`` in [-1, 0], -1 at a
+    dimple's centre and 0 on the ridges between them."""
+    f1, _, _ = ctx.cells("hammer", 16.0, jitter=0.85)
+    return smoothstep(0.0, 0.7, f1) - F32(1.0)
+
+
 def mat_metal(ctx, spec, albedo):
-    """Metal: brushed streaks along x (anisotropic noise), soft blotches and a normal-driven reflection."""
+    """Metal: brushed streaks along x (anisotropic noise), soft blotches and a normal-driven reflection;
+    hammered metal shows its dimples as soft light and dark facets."""
     brushed = ctx.noise("brushed", (1.0, 38.0, 38.0))
     polished = spec.finish in ("polished", "glossy") or spec.variant == "chrome"
     amp = 0.025 if polished else 0.08
     out = albedo * (F32(1.0) + F32(amp) * brushed + F32(0.07) * ctx.noise("low", 2.5, 2))
+    if spec.finish == "hammered":
+        out = out * (F32(1.0) + F32(0.12) * hammer_dimples(ctx) + F32(0.06))
     refl = F32(0.88) + F32(0.18) * smoothstep(-0.6, 1.0, ctx.nz)
     return out * refl + sheen(ctx, 0.1 if polished else 0.06)
 
@@ -179,9 +203,14 @@ def mat_rust(ctx, spec, albedo):
     return _rust_over(ctx, metal, col(spec.accent_color), coverage=0.55)
 
 
-def _rust_over(ctx: Ctx, under: np.ndarray, rust: np.ndarray, coverage: float) -> np.ndarray:
+def rust_mask(ctx: Ctx, coverage: float) -> np.ndarray:
+    """Where rust grows: fBm patches covering about ``coverage`` of the surface, ``(n,)`` in [0, 1]."""
     low = ctx.noise("rust-mask", 2.2, 4)
-    mask = smoothstep(-0.08, 0.08, low + F32(0.22 * (coverage - 0.5)))
+    return smoothstep(-0.08, 0.08, low + F32(0.22 * (coverage - 0.5)))
+
+
+def _rust_over(ctx: Ctx, under: np.ndarray, rust: np.ndarray, coverage: float) -> np.ndarray:
+    mask = rust_mask(ctx, coverage)
     mottle = ctx.noise("rust-mottle", 14.0, 2)
     flecks = smoothstep(0.3, 0.5, ctx.noise("rust-flecks", 30.0))
     r = rust * (F32(0.8) + F32(0.5) * mottle)
@@ -202,6 +231,15 @@ def _weave(ctx: Ctx, period: float, twill: bool) -> np.ndarray:
     return out
 
 
+def fabric_weave(ctx: Ctx, spec: MaterialSpec) -> np.ndarray:
+    """The fabric's weave field in [-1, 1], ``(n,)``: plain weave (twill for denim), period by variant."""
+    key = ("weave", spec.variant)
+    if key not in ctx._cache:
+        period = {"linen": 0.034, "canvas": 0.032, "denim": 0.03}.get(spec.variant, 0.028)
+        ctx._cache[key] = _weave(ctx, period, twill=(spec.variant == "denim"))
+    return ctx._cache[key]
+
+
 def mat_fabric(ctx, spec, albedo):
     """Fabric: a fine visible weave (period 0.03), slubby threads and soft blotches; linen coarser and
     irregular, denim a twill with white weft, wool / tweed fuzzy with flecks, silk smooth with sheen."""
@@ -209,8 +247,7 @@ def mat_fabric(ctx, spec, albedo):
     low = ctx.noise("low", 2.5, 2)
     if v == "silk":
         return albedo * (F32(0.94) + F32(0.08) * low) + sheen(ctx, 0.1)
-    period = {"linen": 0.034, "canvas": 0.032, "denim": 0.03}.get(v, 0.028)
-    weave = _weave(ctx, period, twill=(v == "denim"))
+    weave = fabric_weave(ctx, spec)
     slub = ctx.noise("slub", (18.0, 18.0, 18.0))
     if v == "denim":
         out = lerp(albedo, col(spec.accent_color), F32(0.16) * smoothstep(0.0, 1.0, weave))
@@ -341,10 +378,14 @@ def apply_overlay(ctx: Ctx, spec: MaterialSpec, c: np.ndarray) -> np.ndarray:
     if spec.overlay == "rust":
         return _rust_over(ctx, c, col((0.56, 0.26, 0.10)), coverage=0.35)
     if spec.overlay == "moss":
-        mask = smoothstep(0.0, 0.2, ctx.noise("moss-mask", 2.0, 3) - F32(0.05))
         moss = _moss(ctx, col((0.36, 0.50, 0.18)), col((0.62, 0.70, 0.28)))
-        return lerp(c, moss, mask)
+        return lerp(c, moss, moss_mask(ctx))
     return c
+
+
+def moss_mask(ctx: Ctx) -> np.ndarray:
+    """Where moss grows over a material, ``(n,)`` in [0, 1]."""
+    return smoothstep(0.0, 0.2, ctx.noise("moss-mask", 2.0, 3) - F32(0.05))
 
 
 def _scratch_lines(ctx: Ctx, across: tuple[float, float, float], name: str) -> np.ndarray:
@@ -363,6 +404,16 @@ def _scratch_lines(ctx: Ctx, across: tuple[float, float, float], name: str) -> n
     return F32(1.0) - smoothstep(0.03, 0.1, np.abs(s))
 
 
+def scratch_field(ctx: Ctx, spec: MaterialSpec) -> np.ndarray:
+    """Scratches of a worn surface, ``(n,)`` in [0, 1]: thin lines in sparse clusters, scaled by the wear."""
+    key = ("scratches", spec.wear)
+    if key not in ctx._cache:
+        line = np.maximum(_scratch_lines(ctx, (0.78, 0.49, 0.39), "scratch-a"), _scratch_lines(ctx, (-0.33, 0.52, -0.79), "scratch-b"))
+        cluster = smoothstep(0.15, 0.4, ctx.noise("scratch-cluster", 1.8))
+        ctx._cache[key] = line * cluster * F32(min(1.0, 0.9 * spec.wear + 0.2))
+    return ctx._cache[key]
+
+
 def apply_wear(ctx: Ctx, spec: MaterialSpec, c: np.ndarray) -> np.ndarray:
     """Dirt (darker brownish fBm patches), fading (desaturated, lighter blotches) and scratches (thin
     light lines where a stretched noise crosses zero, in sparse clusters), scaled by ``spec.wear``."""
@@ -379,10 +430,7 @@ def apply_wear(ctx: Ctx, spec: MaterialSpec, c: np.ndarray) -> np.ndarray:
         grey = luma(c) * F32(0.85) + F32(0.12)
         c = lerp(c, grey, f)
     if "scratches" in kinds:
-        line = np.maximum(_scratch_lines(ctx, (0.78, 0.49, 0.39), "scratch-a"), _scratch_lines(ctx, (-0.33, 0.52, -0.79), "scratch-b"))
-        cluster = smoothstep(0.15, 0.4, ctx.noise("scratch-cluster", 1.8))
-        t = line * cluster * F32(min(1.0, 0.9 * w + 0.2))
-        c = lerp(c, c * F32(0.55) + F32(0.42), F32(0.75) * t)
+        c = lerp(c, c * F32(0.55) + F32(0.42), F32(0.75) * scratch_field(ctx, spec))
     return c
 
 

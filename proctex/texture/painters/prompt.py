@@ -88,7 +88,7 @@ class MaterialSpec:
         wear: 0 (new) .. 1 (very worn).
         wear_kinds: subset of ``("dirt", "scratches", "fade")``.
         scale: feature-size multiplier (2: features twice as large, 0.5: half).
-        finish: "default", "glossy", "polished", "matte" or "brushed".
+        finish: "default", "glossy", "polished", "matte", "brushed" or "hammered".
         pattern_axis: "horizontal", "vertical" or "diagonal" (stripes, plaid orientation).
         thin_pattern: pinstripes (thin lines instead of equal bands).
         overlay: "rust" or "moss" growing over the material, or None.

@@ -17,16 +17,20 @@ from collections.abc import Mapping
 import numpy as np
 
 from .materials import shade
+from .pbr import height, surface_props
 from .prompt import MaterialSpec, parse_prompt
 from .shading import Ctx
 
-__all__ = ["SurfacePainter", "CHUNK", "MAX_COORD"]
+__all__ = ["SurfacePainter", "CHUNK", "MAX_COORD", "RELIEF_STEP"]
 
 #: largest accepted |coordinate|: points live in the normalised frame (about [-1, 1]); far larger values
 #: would overflow the noise lattice (int32 cells) and mean the caller forgot to normalise.
 MAX_COORD = 1000.0
 #: points per evaluation chunk: keeps each temporary array (~128 KiB) in the L2 cache.
 CHUNK = 32768
+#: finite-difference step (normalised frame) of the relief's surface gradient: well under the finest
+#: feature (wavelength ~0.02), well over float32 resolution at |p| ~ 1.
+RELIEF_STEP = 0.0015
 
 
 class SurfacePainter:
@@ -98,11 +102,60 @@ class SurfacePainter:
         out = np.empty((len(pts), 3), dtype=np.float32)
         for s in range(0, len(pts), CHUNK):
             p = pts[s : s + CHUNK].astype(np.float32)
-            n = nrm[s : s + CHUNK].astype(np.float32)
-            length = np.sqrt((n * n).sum(axis=1, keepdims=True))
-            n = np.divide(n, length, out=np.zeros_like(n), where=length > 1e-12)
+            n = _unit(nrm[s : s + CHUNK].astype(np.float32))
             out[s : s + CHUNK] = shade(Ctx(p, n, self.seed, spec.scale), spec).T
         return out
+
+
+    def material(self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray,
+                 group: int | None = None, label: str = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """PBR properties of surface points: the twin of :meth:`paint` for the other maps.
+
+        Args:
+            points, normals: as in :meth:`paint`.
+            tangents, bitangents: ``(n, 3)`` unit surface directions of increasing u and v (the frame
+                the normal map is expressed in; :func:`proctex.texture.pbr.texel_frames`).
+            group, label: which group prompt applies.
+        Returns:
+            ``(roughness (n,), metallic (n,), normal (n, 3))`` float32: roughness and metalness in
+            [0, 1] and the unit tangent-space normal of the relief, ``normalize(-dh/dT, -dh/dB, 1)``
+            with ``h`` the material's height (:func:`.pbr.height`), differentiated by central
+            differences of :data:`RELIEF_STEP` along the two directions.
+        Raises:
+            ValueError: as :meth:`paint`, for any of the four arrays.
+        """
+        pts = _check_array("points", points)
+        nrm = _check_array("normals", normals)
+        tan = _check_array("tangents", tangents)
+        bit = _check_array("bitangents", bitangents)
+        if not len(pts) == len(nrm) == len(tan) == len(bit):
+            raise ValueError(f"points, normals, tangents and bitangents must have the same length, got {len(pts)}, {len(nrm)}, {len(tan)}, {len(bit)}")
+        spec = self.spec_for(group, label)
+        n_pts = len(pts)
+        rough = np.empty(n_pts, np.float32)
+        metal = np.empty(n_pts, np.float32)
+        out_n = np.empty((n_pts, 3), np.float32)
+        step = np.float32(RELIEF_STEP * spec.scale)
+        for s in range(0, n_pts, CHUNK):
+            p = pts[s : s + CHUNK].astype(np.float32)
+            n = _unit(nrm[s : s + CHUNK].astype(np.float32))
+            t = _unit(tan[s : s + CHUNK].astype(np.float32))
+            b = _unit(bit[s : s + CHUNK].astype(np.float32))
+            r, m, _ = surface_props(Ctx(p, n, self.seed, spec.scale), spec)
+            dh = []
+            for d in (t, b):
+                hp = height(Ctx(p + step * d, n, self.seed, spec.scale), spec)
+                hm = height(Ctx(p - step * d, n, self.seed, spec.scale), spec)
+                dh.append((hp - hm) / (np.float32(2.0) * step))
+            nt = np.stack([-dh[0], -dh[1], np.ones_like(dh[0])], axis=1)
+            rough[s : s + CHUNK], metal[s : s + CHUNK] = r, m
+            out_n[s : s + CHUNK] = nt / np.linalg.norm(nt, axis=1, keepdims=True)
+        return rough, metal, out_n
+
+
+def _unit(a: np.ndarray) -> np.ndarray:
+    length = np.sqrt((a * a).sum(axis=1, keepdims=True))
+    return np.divide(a, length, out=np.zeros_like(a), where=length > 1e-12)
 
 
 def _check_array(name: str, a) -> np.ndarray:

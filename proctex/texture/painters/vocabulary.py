@@ -135,6 +135,7 @@ _FINISH_WORDS = {
     **{w: "polished" for w in ("polished", "mirror", "burnished")},
     **{w: "matte" for w in ("matte", "matt", "flat", "unglazed", "raw", "rough")},
     **{w: "brushed" for w in ("brushed", "satin finish", "hairline")},
+    **{w: "hammered" for w in ("hammered", "beaten", "dimpled", "planished")},
 }
 
 
