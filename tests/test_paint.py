@@ -242,7 +242,8 @@ def test_cli_paint_writes_everything(tmp_path, capsys):
     prompts = {gr["label"]: gr["prompt"] for gr in data["groups"]}
     assert prompts["handle"] == "gold" and prompts["body"] == "glazed blue ceramic"
     pngs = sorted(p.name for p in out.glob("group_*.png"))
-    assert len(pngs) == len(data["groups"])
+    assert len(pngs) == 3 * len(data["groups"])  # base colour, ORM and normal map per group
+    assert {p.split(".")[-2] for p in pngs} == {"group_0_body", "group_1_handle", "orm", "normal"}
     assert (out / "textured.glb").is_file() and (out / "preview.png").is_file()
 
 

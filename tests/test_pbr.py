@@ -1,0 +1,343 @@
+"""PBR maps: tangent frames, normal-map baking, material values, and the maps through GLB, OBJ and the store."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+import pygltflib as gl
+import pytest
+from PIL import Image
+
+from .conftest import require_validator
+
+from proctex.geometry.parts import analyse
+from proctex.geometry.shape import Shape
+from proctex.models import get_model
+from proctex.texture.export import glb_bytes, obj_files, validate_glb
+from proctex.texture.paint_loop import paint_template
+from proctex.texture.painters import SurfacePainter, parse_prompt
+from proctex.texture.painters.pbr import base_props
+from proctex.texture.pbr import (
+    PbrMaps,
+    bake_maps,
+    corner_normals,
+    corner_tangents,
+    decode_normal,
+    encode_normal,
+    texel_frames,
+)
+from proctex.texture.uv import texel_map
+
+
+# ---------------------------------------------------------------------------------------- helpers
+def grid(n: int = 12, angle: float = 0.0, mirror: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A unit square in z = 0 as 2 n^2 triangles, with UVs rotated by ``angle`` (and mirrored in u)
+    and fitted into [0.1, 0.9]^2. Returns (vertices, faces, corner_uv)."""
+    xs = np.linspace(0.0, 1.0, n + 1)
+    X, Y = np.meshgrid(xs, xs, indexing="ij")
+    V = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], axis=1)
+    idx = np.arange(V.shape[0]).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    uv = (V[:, :2] - 0.5) @ R.T
+    if mirror:
+        uv[:, 0] *= -1
+    uv = 0.5 + 0.55 * uv  # rotated square stays inside [0, 1]^2
+    return V, F, uv[F]
+
+
+def glb_material_images(data: bytes) -> list[dict[str, np.ndarray]]:
+    """Per material of a GLB: its images by role (base, orm, normal, occlusion), as uint8 arrays."""
+    g = gl.GLTF2.load_from_bytes(data)
+    blob = g.binary_blob()
+
+    def image(tex_index: int) -> np.ndarray:
+        img = g.images[g.textures[tex_index].source]
+        view = g.bufferViews[img.bufferView]
+        raw = blob[view.byteOffset : view.byteOffset + view.byteLength]
+        return np.asarray(Image.open(io.BytesIO(raw)).convert("RGB"))
+
+    out = []
+    for m in g.materials:
+        roles = {}
+        pbr = m.pbrMetallicRoughness
+        if pbr.baseColorTexture is not None:
+            roles["base"] = image(pbr.baseColorTexture.index)
+        if pbr.metallicRoughnessTexture is not None:
+            roles["orm"] = image(pbr.metallicRoughnessTexture.index)
+        if m.normalTexture is not None:
+            roles["normal"] = image(m.normalTexture.index)
+        if m.occlusionTexture is not None:
+            roles["occlusion"] = image(m.occlusionTexture.index)
+        out.append(roles)
+    return out
+
+
+def glb_attribute(data: bytes, prim: int, name: str) -> np.ndarray:
+    g = gl.GLTF2.load_from_bytes(data)
+    p = g.meshes[0].primitives[prim]
+    acc = g.accessors[p.indices if name == "indices" else getattr(p.attributes, name)]
+    view = g.bufferViews[acc.bufferView]
+    comps = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc.type]
+    dtype = np.uint32 if acc.componentType == gl.UNSIGNED_INT else np.float32
+    raw = g.binary_blob()[view.byteOffset : view.byteOffset + view.byteLength]
+    return np.frombuffer(raw, dtype=dtype).reshape(acc.count, comps) if comps > 1 else np.frombuffer(raw, dtype=dtype)
+
+
+# ---------------------------------------------------------------------------------------- tangents
+@pytest.mark.parametrize("angle", [0.0, 0.7, np.pi / 2, 2.5])
+@pytest.mark.parametrize("mirror", [False, True])
+def test_corner_tangents_follow_the_uv_directions(angle, mirror):
+    V, F, UV = grid(6, angle, mirror)
+    T = corner_tangents(V, F, UV)
+    assert T.shape == (len(F), 3, 4)
+    # On the plane, u = 0.5 + 0.55 * s (R p)_0 with s = -1 when mirrored: dP/du is the first row of R, times s.
+    s = -1.0 if mirror else 1.0
+    du = s * np.array([np.cos(angle), -np.sin(angle), 0.0])
+    dv = np.array([np.sin(angle), np.cos(angle), 0.0])
+    np.testing.assert_allclose(T[..., :3].reshape(-1, 3), np.tile(du, (3 * len(F), 1)), atol=1e-9)
+    # The bitangent a viewer builds, w * cross(N, T), is dP/dv.
+    B = np.cross(np.array([0.0, 0.0, 1.0]), T[..., :3].reshape(-1, 3)) * T[..., 3].reshape(-1, 1)
+    np.testing.assert_allclose(B, np.tile(dv, (3 * len(F), 1)), atol=1e-9)
+
+
+def test_corner_tangents_degenerate_uvs_and_curved_surfaces():
+    V, F, UV = grid(4)
+    UV[:] = 0.5  # no UV extent at all
+    T = corner_tangents(V, F, UV)
+    assert np.isfinite(T).all() and np.allclose(np.linalg.norm(T[..., :3], axis=-1), 1.0)
+    assert np.allclose((T[..., :3] * corner_normals(V, F)).sum(-1), 0.0)
+    # On a sphere the tangents stay orthogonal to the smooth normals.
+    import trimesh
+
+    m = trimesh.creation.uv_sphere(radius=2.0, count=(12, 16))
+    uv = np.stack([np.arctan2(m.vertices[:, 1], m.vertices[:, 0]) / (2 * np.pi) + 0.5, m.vertices[:, 2] / 4 + 0.5], 1)[m.faces]
+    T = corner_tangents(m.vertices, m.faces, uv)
+    N = corner_normals(m.vertices, m.faces)
+    assert np.abs((T[..., :3] * N).sum(-1)).max() < 1e-9
+    assert set(np.unique(T[..., 3])) <= {-1.0, 1.0}
+
+
+def test_normal_encoding_round_trip():
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(500, 3))
+    n[:, 2] = np.abs(n[:, 2]) + 0.2
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    back = decode_normal((encode_normal(n) * 255).round().astype(np.uint8))
+    assert np.degrees(np.arccos(np.clip((back * n).sum(1), -1, 1))).max() < 0.8  # 8-bit quantisation
+
+
+# ------------------------------------------------------------------------- baking a known relief
+@pytest.mark.parametrize("angle, mirror", [(0.0, False), (0.9, False), (2.2, True)])
+def test_baked_normal_map_decodes_to_the_analytic_relief(angle, mirror):
+    """A height h = A sin(k x) on a plane, baked with UVs rotated (and mirrored), read back the way a
+    glTF viewer does (the GLB's TANGENT, bitangent w * cross(N, T), the 8-bit map) gives the analytic
+    perturbed normal normalize(-dh/dx, 0, 1) everywhere."""
+    A, k = 0.02, 2 * np.pi * 3
+    V, F, UV = grid(16, angle, mirror)
+
+    def props(p, n, t, b):
+        grad = np.stack([A * k * np.cos(k * p[:, 0]), np.zeros(len(p)), np.zeros(len(p))], 1)
+        nts = np.stack([-(grad * t).sum(1), -(grad * b).sum(1), np.ones(len(p))], 1)
+        return np.full(len(p), 0.5), np.zeros(len(p)), nts / np.linalg.norm(nts, axis=1, keepdims=True)
+
+    texels = texel_map(V, F, UV, 128)
+    maps = bake_maps(texels, V, F, UV, props, center=np.zeros(3), scale=1.0)
+    # Through the GLB: tangents per split vertex, and the encoded map.
+    data = glb_bytes(V, F, UV, np.zeros(len(F), np.int64), [np.full((128, 128, 3), 200, np.uint8)], pbr=[maps])
+    images = glb_material_images(data)[0]
+    tangent = glb_attribute(data, 0, "TANGENT")
+    corners = glb_attribute(data, 0, "indices").reshape(-1, 3)  # one primitive: the faces in order
+    corner_t = tangent[corners].astype(np.float64)
+    T, B, N = texel_frames(texels, corner_t, corner_normals(V, F))
+    nts = decode_normal(images["normal"][texels.ij[:, 0], texels.ij[:, 1]])
+    world = nts[:, :1] * T + nts[:, 1:2] * B + nts[:, 2:] * N
+    x = texels.points[:, 0]
+    expected = np.stack([-A * k * np.cos(k * x), np.zeros_like(x), np.ones_like(x)], 1)
+    expected /= np.linalg.norm(expected, axis=1, keepdims=True)
+    err = np.degrees(np.arccos(np.clip((world * expected).sum(1), -1, 1)))
+    assert np.median(err) < 0.5 and np.percentile(err, 99) < 1.5, (np.median(err), err.max())
+    # A map baked with the wrong handedness (bitangent flipped) decodes far from the relief on a mirrored or rotated layout.
+    wrong = nts[:, :1] * T - nts[:, 1:2] * B + nts[:, 2:] * N
+    tilt = np.degrees(np.arctan(A * k))
+    if abs(np.sin(angle)) > 0.5:
+        assert np.median(np.degrees(np.arccos(np.clip((wrong * expected).sum(1), -1, 1)))) > tilt / 2
+
+
+# ------------------------------------------------------------------------------- material values
+PLAUSIBLE = [
+    # prompt, roughness range, metallic
+    ("brushed brass", (0.3, 0.5), 1.0),
+    ("polished chrome", (0.0, 0.12), 1.0),
+    ("hammered copper", (0.2, 0.45), 1.0),
+    ("gold", (0.1, 0.35), 1.0),
+    ("red velvet", (0.85, 1.0), 0.0),
+    ("blue denim", (0.85, 1.0), 0.0),
+    ("wool", (0.85, 1.0), 0.0),
+    ("glazed ceramic", (0.0, 0.12), 0.0),
+    ("white porcelain", (0.0, 0.15), 0.0),
+    ("terracotta", (0.75, 1.0), 0.0),
+    ("oak", (0.5, 0.85), 0.0),
+    ("varnished walnut", (0.1, 0.35), 0.0),
+    ("black rubber", (0.8, 1.0), 0.0),
+    ("polished marble", (0.0, 0.2), 0.0),
+    ("grey concrete", (0.8, 1.0), 0.0),
+    ("glossy red plastic", (0.1, 0.3), 0.0),
+]
+
+
+def _sphere_points(n=4000, seed=0):
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    t = np.cross(p, [0.0, 0.0, 1.0]) + np.cross(p, [1.0, 0.0, 0.0]) * 1e-3
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    return 0.9 * p, p, t, np.cross(p, t)
+
+
+@pytest.mark.parametrize("prompt, rough, metal", PLAUSIBLE)
+def test_materials_have_physically_plausible_values(prompt, rough, metal):
+    p, n, t, b = _sphere_points()
+    r, m, nts = SurfacePainter(prompt).material(p, n, t, b)
+    assert rough[0] <= np.median(r) <= rough[1], (prompt, np.median(r))
+    assert np.allclose(m, metal), prompt
+    assert np.allclose(np.linalg.norm(nts, axis=1), 1.0, atol=1e-5) and (nts[:, 2] > 0.5).all()
+    assert base_props(parse_prompt(prompt))[1] == metal
+
+
+def test_relief_follows_the_material():
+    """Fabric weave, leather creases, brick mortar and hammered dimples tilt the normal; glazed
+    ceramic and polished chrome stay flat; a rusty patch on steel is not metal."""
+    p, n, t, b = _sphere_points()
+
+    def tilt(prompt):
+        nts = SurfacePainter(prompt).material(p, n, t, b)[2]
+        return np.degrees(np.arccos(np.clip(nts[:, 2], -1, 1)))
+
+    for prompt in ("denim", "worn leather", "red brick", "hammered copper", "oak", "tree bark"):
+        assert np.percentile(tilt(prompt), 90) > 2.0, prompt
+    for prompt in ("glazed ceramic", "polished chrome", "white porcelain"):
+        assert np.percentile(tilt(prompt), 90) < 0.5, prompt
+    r, m, _ = SurfacePainter("rusty steel").material(p, n, t, b)
+    assert (m < 0.1).mean() > 0.2 and (m > 0.9).mean() > 0.2
+    assert np.corrcoef(r, m)[0, 1] < -0.8  # rust is rough where the steel is gone
+
+
+def test_material_is_pointwise_and_frame_covariant():
+    p, n, t, b = _sphere_points(3000)
+    sp = SurfacePainter("denim", seed=3)
+    r, m, nts = sp.material(p, n, t, b)
+    r2, m2, nts2 = sp.material(p[::-1], n[::-1], t[::-1], b[::-1])  # another batch order: same values
+    np.testing.assert_array_equal(r, r2[::-1])
+    np.testing.assert_array_equal(nts, nts2[::-1])
+    # A frame turned by 90 degrees (T' = B, B' = -T) turns the tangent-space normal the same way.
+    _, _, nts3 = sp.material(p, n, b, -t)
+    np.testing.assert_allclose(nts3[:, 0], nts[:, 1], atol=0.02)
+    np.testing.assert_allclose(nts3[:, 1], -nts[:, 0], atol=0.02)
+    with pytest.raises(ValueError, match="same length"):
+        sp.material(p, n, t[:5], b)
+    with pytest.raises(ValueError, match="NaN"):
+        sp.material(p, n, np.full_like(t, np.nan), b)
+
+
+# ------------------------------------------------------------------------- GLB, OBJ, validator
+@pytest.fixture(scope="module")
+def painted():
+    """The mug painted with a metal and with a fabric prompt (64 px textures)."""
+    shape = get_model("mug").generate(None)
+    grouping = analyse(shape)
+    return {prompt: paint_template(shape, grouping, prompt, size=64) for prompt in ("brushed brass", "red velvet")}
+
+
+def _glb(tex) -> bytes:
+    return glb_bytes(tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups],
+                     names=[g.label for g in tex.groups], up="z", pbr=tex.pbr)
+
+
+def test_glb_carries_every_map_and_is_validator_clean(painted):
+    for prompt, tex in painted.items():
+        data = _glb(tex)
+        g = gl.GLTF2.load_from_bytes(data)
+        for mat in g.materials:
+            assert mat.pbrMetallicRoughness.metallicRoughnessTexture is not None and mat.normalTexture is not None
+            assert mat.pbrMetallicRoughness.metallicFactor == 1.0 and mat.pbrMetallicRoughness.roughnessFactor == 1.0
+        for prim in g.meshes[0].primitives:
+            assert prim.attributes.TANGENT is not None
+        if require_validator():
+            report = validate_glb(data)
+            assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0, report["issues"]["messages"][:5]
+
+
+def test_glb_metallic_and_roughness_at_known_texels(painted):
+    """Read back with pygltflib: at every covered texel, the brass is metal and the velvet is rough
+    and not metal (and each check fails on the other prompt's file)."""
+    values = {}
+    for prompt, tex in painted.items():
+        images = glb_material_images(_glb(tex))
+        values[prompt] = [(img["orm"][gt.texels.ij[:, 0], gt.texels.ij[:, 1]] / 255.0) for img, gt in zip(images, tex.groups)]
+    for orm in values["brushed brass"]:
+        assert (orm[:, 2] > 0.98).all() and np.median(orm[:, 1]) < 0.5
+    for orm in values["red velvet"]:
+        assert (orm[:, 2] < 0.02).all() and (orm[:, 1] > 0.85).all()
+
+
+def test_obj_mtl_names_the_pbr_maps(painted):
+    tex = painted["brushed brass"]
+    files = dict(obj_files("mug", tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group,
+                           [g.uint8() for g in tex.groups], names=["body", "handle"], pbr=tex.pbr))
+    mtl = files["mug.mtl"].decode()
+    for g in (0, 1):
+        for line in (f"map_Pr mug_{g}_roughness.png", f"map_Pm mug_{g}_metallic.png", f"norm mug_{g}_normal.png"):
+            assert line in mtl
+        metal = np.asarray(Image.open(io.BytesIO(files[f"mug_{g}_metallic.png"])))
+        ij = tex.groups[g].texels.ij
+        assert (metal[ij[:, 0], ij[:, 1]] > 250).all()
+
+
+def test_bad_pbr_input_is_a_clear_error(painted):
+    tex = painted["red velvet"]
+    args = (tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups])
+    with pytest.raises(ValueError, match="one entry"):
+        glb_bytes(*args, pbr=[tex.pbr[0]])
+    with pytest.raises(ValueError, match="not a PNG"):
+        glb_bytes(*args, pbr=[PbrMaps(b"nope", b"nope"), None])
+    with pytest.raises(ValueError, match=r"\(H, W, 3\)"):
+        glb_bytes(*args, pbr=[PbrMaps(np.zeros((4, 4)), np.zeros((4, 4, 3))), None])
+    with pytest.raises(ValueError, match="expected PbrMaps"):
+        glb_bytes(*args, pbr=["orm", None])
+
+
+# ------------------------------------------------------------------------------------ the store
+def test_template_store_keeps_the_maps(tmp_path):
+    from proctex.family.config import BuildConfig
+    from proctex.family.stages import load_template_shape, stage_paint, stage_sample, stage_template, write_config
+    from proctex.family.store import FamilyStore, StoreLayout
+    from proctex.family.template import Template
+
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="hammered copper",
+                                     group_prompts={"handle": "black rubber"}))
+    st = FamilyStore(tmp_path / "mug")
+    write_config(st, cfg)
+    for stage in (stage_sample, stage_template, stage_paint):
+        stage(st, cfg, log=lambda *_: None)
+    t = Template.load(st, load_template_shape(st, cfg))
+    assert t.pbr is not None and len(t.pbr) == 2
+    body, handle = t.pbr
+    assert body.orm[..., 2].max() == 255 and handle.orm[..., 2].max() == 0
+    summary = json.loads((tmp_path / "mug" / StoreLayout.PAINT).read_text())
+    assert all(g["orm_sha256"] and g["normal_sha256"] for g in summary["groups"])
+    # The stored GLB is validator-clean with every map.
+    data = (tmp_path / "mug" / StoreLayout.TEMPLATE_GLB).read_bytes()
+    assert all("normal" in m and "orm" in m for m in glb_material_images(data))
+    if require_validator():
+        assert validate_glb(data)["issues"]["numErrors"] == 0
+    # A damaged map is named, not read.
+    path = tmp_path / "mug" / StoreLayout.texture(0, "body", "orm")
+    raw = bytearray(path.read_bytes())
+    raw[-20] ^= 0xFF
+    path.write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match="checksum mismatch"):
+        Template.load(st, load_template_shape(st, cfg))
