@@ -464,12 +464,16 @@ def paint_template(
     the prompts' materials, whichever painter made the colour)."""
     prompts = resolve_group_prompts(grouping, prompt, group_prompts)  # validates the keys
     chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, model_dir=model_dir, device=device, steps=steps)
+    surface = chosen if painter == "surface" else getattr(chosen, "surface", None)
+    if surface is not None:
+        surface.bind(shape, grouping, up)  # places the prompt's regions on this shape
     if painter == "surface":
         tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv)
     else:
         tex = paint_views(shape, grouping, chosen, prompt, group_prompts, n_views=views, view_size=view_size, size=size,
                           up=up, seed=seed, complete_hidden=complete_hidden, fill=fill, on_view=on_view, uv=uv)
     if maps:
-        materials = chosen if painter == "surface" else make_painter("surface", grouping, prompt, prompts, seed=seed)
+        materials = surface if surface is not None else make_painter("surface", grouping, prompt, prompts, seed=seed).bind(shape, grouping, up)
         paint_material_maps(tex, materials)
+        tex.notes.extend(n for n in materials.notes() if "regions" in n and n not in tex.notes)
     return tex

@@ -13,12 +13,14 @@ a few wood rings per part, a weave period of 0.03).
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
 from .materials import shade
 from .pbr import height, surface_props
 from .prompt import MaterialSpec, parse_prompt
+from .regions import RegionFrame, region_weight, split_regions
 from .shading import Ctx
 
 __all__ = ["SurfacePainter", "CHUNK", "MAX_COORD", "RELIEF_STEP"]
@@ -33,8 +35,23 @@ CHUNK = 32768
 RELIEF_STEP = 0.0015
 
 
+@dataclass(frozen=True)
+class _Layer:
+    """One material of a group: its spec, and where it lies (None: everywhere, the base layer)."""
+
+    spec: MaterialSpec
+    region: str | None = None
+    frame: RegionFrame | None = None
+    named: tuple[str, ...] = ()
+
+
 class SurfacePainter:
     """Colours surface points from a text prompt, with optional per-group prompts.
+
+    A prompt may place materials in regions ("a dinner fork with a silver tip and a dark wood
+    handle", :mod:`.regions`): once the painter knows the shape (:meth:`bind`), clauses naming a part
+    group become that group's prompt and region clauses are blended over the rest along the scope's
+    own frame. Before :meth:`bind` (or for points of an unknown group) the rest's material is used.
 
     Args:
         prompt: the global prompt (any string; unknown words are reported in :meth:`notes`).
@@ -50,35 +67,103 @@ class SurfacePainter:
             raise ValueError(f"seed must be an int, got {type(seed).__name__}")
         self.prompt = prompt
         self.seed = int(seed)
-        self._spec = parse_prompt(prompt)
+        self._plan = split_regions(prompt)
+        self._spec = parse_prompt(self._plan.base if self._plan.has_regions else prompt)
+        self._group_texts: dict[str, str] = {}
         self._group_specs: dict[str, MaterialSpec] = {}
         for key, text in (group_prompts or {}).items():
             if isinstance(key, bool) or not isinstance(key, (str, int, np.integer)):
                 raise ValueError(f"group_prompts keys must be labels (str) or group ids (int), got {key!r}")
             try:
-                self._group_specs[str(key)] = parse_prompt(text)
+                plan = split_regions(text)
+                self._group_specs[str(key)] = parse_prompt(plan.base if plan.has_regions else text)
             except ValueError as exc:
                 raise ValueError(f"group prompt for {key!r}: {exc}") from None
+            self._group_texts[str(key)] = text
+        self._bound: dict | None = None
+        self._layers: dict[tuple[int | None, str], tuple[_Layer, ...]] = {}
+
+    def bind(self, shape, grouping, up: str = "z") -> "SurfacePainter":
+        """Let the painter place the prompt's regions on ``shape`` (a :class:`proctex.geometry.shape.Shape`)
+        with its ``grouping``: the global prompt's regions lie in the whole shape's frame, a group
+        prompt's in the group's representative part; ``up`` ("x", "y" or "z") is the shape's up axis.
+        Returns the painter."""
+        from proctex.geometry.surface import normalised_frame
+
+        if up not in ("x", "y", "z"):
+            raise ValueError(f"up must be x, y or z, got {up!r}")
+        center, radius = normalised_frame(shape.vertices)
+        vn = (np.asarray(shape.vertices, dtype=np.float64) - center) / (radius if radius > 0 else 1.0)
+        reps = {g.index: np.asarray(shape.faces)[grouping.parts[g.representative].faces] for g in grouping.groups}
+        self._bound = {"vertices": vn, "faces": np.asarray(shape.faces), "reps": reps, "up": "xyz".index(up), "frames": {}}
+        self._plan = split_regions(self.prompt, [g.label for g in grouping.groups])
+        self._layers = {}
+        return self
+
+    def _frame(self, scope: int | None) -> RegionFrame:
+        frames = self._bound["frames"]
+        if scope not in frames:
+            faces = self._bound["faces"] if scope is None else self._bound["reps"][scope]
+            frames[scope] = RegionFrame.from_mesh(self._bound["vertices"], faces, self._bound["up"])
+        return frames[scope]
+
+    def _layers_for(self, group: int | None, label: str) -> tuple[_Layer, ...]:
+        key = (group, label)
+        if key in self._layers:
+            return self._layers[key]
+        text = None
+        if label and label in self._group_texts:
+            text = self._group_texts[label]
+        elif group is not None and str(group) in self._group_texts:
+            text = self._group_texts[str(group)]
+        scope: int | None = group
+        if text is None or text == self.prompt:  # the global prompt (make_painter repeats it per group)
+            plan = self._plan
+            routed = dict(plan.parts).get(label) if label else None
+            if routed is not None:
+                plan = split_regions(routed)
+            else:
+                scope = None
+        else:
+            plan = split_regions(text)
+        if not plan.has_regions:
+            layers: tuple[_Layer, ...] = (_Layer(parse_prompt(plan.prompt)),)
+        elif self._bound is None or (scope is not None and scope not in self._bound["reps"]):
+            layers = (_Layer(parse_prompt(plan.base)),)
+        else:
+            frame = self._frame(scope)
+            named = tuple(r for r, _ in plan.regions)
+            layers = (_Layer(parse_prompt(plan.base)),) + tuple(_Layer(parse_prompt(t), r, frame, named) for r, t in plan.regions)
+        self._layers[key] = layers
+        return layers
 
     @property
     def spec(self) -> MaterialSpec:
-        """The global prompt's spec."""
+        """The global prompt's spec (its rest's, when it names regions)."""
         return self._spec
 
     def spec_for(self, group: int | None = None, label: str = "") -> MaterialSpec:
-        """The spec used for a group: ``group_prompts[label]``, else ``group_prompts[str(group)]``, else
+        """The spec used for a group (the rest's, where regions add others): ``group_prompts[label]``,
+        else ``group_prompts[str(group)]``, else a clause of the global prompt naming the group, else
         the global prompt's."""
-        if label and label in self._group_specs:
+        if label and label in self._group_specs and self._group_texts[label] != self.prompt:
             return self._group_specs[label]
-        if group is not None and str(group) in self._group_specs:
+        if group is not None and str(group) in self._group_specs and self._group_texts[str(group)] != self.prompt:
             return self._group_specs[str(group)]
+        if self._bound is not None:
+            return self._layers_for(group, label)[0].spec
         return self._spec
 
     def notes(self) -> list[str]:
         """One human-readable line per prompt: what was understood and what was ignored."""
         lines = [f"prompt {self.prompt!r}: {self._spec.notes}"]
+        if self._plan.has_regions:
+            lines.append(f"prompt {self.prompt!r} regions: " + "; ".join(self._plan.notes))
+            if self._bound is None:
+                lines.append("regions are placed once the painter knows the shape; painted with the rest's material")
         for key, spec in self._group_specs.items():
-            lines.append(f"group {key} prompt {spec.prompt!r}: {spec.notes}")
+            if self._group_texts[key] != self.prompt:
+                lines.append(f"group {key} prompt {spec.prompt!r}: {spec.notes}")
         return lines
 
     def paint(self, points: np.ndarray, normals: np.ndarray, group: int | None = None, label: str = "") -> np.ndarray:
@@ -98,14 +183,13 @@ class SurfacePainter:
         nrm = _check_array("normals", normals)
         if len(pts) != len(nrm):
             raise ValueError(f"points and normals must have the same length, got {len(pts)} and {len(nrm)}")
-        spec = self.spec_for(group, label)
+        layers = self._layers_for(group, label)
         out = np.empty((len(pts), 3), dtype=np.float32)
         for s in range(0, len(pts), CHUNK):
             p = pts[s : s + CHUNK].astype(np.float32)
             n = _unit(nrm[s : s + CHUNK].astype(np.float32))
-            out[s : s + CHUNK] = shade(Ctx(p, n, self.seed, spec.scale), spec).T
+            out[s : s + CHUNK] = _blend(layers, p, n, lambda L, q, m: shade(Ctx(q, m, self.seed, L.spec.scale), L.spec)).T
         return out
-
 
     def material(self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray,
                  group: int | None = None, label: str = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -119,8 +203,9 @@ class SurfacePainter:
         Returns:
             ``(roughness (n,), metallic (n,), normal (n, 3))`` float32: roughness and metalness in
             [0, 1] and the unit tangent-space normal of the relief, ``normalize(-dh/dT, -dh/dB, 1)``
-            with ``h`` the material's height (:func:`.pbr.height`), differentiated by central
-            differences of :data:`RELIEF_STEP` along the two directions.
+            with ``h`` the material's height (:func:`.pbr.height`, blended over regions like the
+            colour), differentiated by central differences of :data:`RELIEF_STEP` along the two
+            directions.
         Raises:
             ValueError: as :meth:`paint`, for any of the four arrays.
         """
@@ -130,27 +215,49 @@ class SurfacePainter:
         bit = _check_array("bitangents", bitangents)
         if not len(pts) == len(nrm) == len(tan) == len(bit):
             raise ValueError(f"points, normals, tangents and bitangents must have the same length, got {len(pts)}, {len(nrm)}, {len(tan)}, {len(bit)}")
-        spec = self.spec_for(group, label)
+        layers = self._layers_for(group, label)
         n_pts = len(pts)
         rough = np.empty(n_pts, np.float32)
         metal = np.empty(n_pts, np.float32)
         out_n = np.empty((n_pts, 3), np.float32)
-        step = np.float32(RELIEF_STEP * spec.scale)
+        step = np.float32(RELIEF_STEP * layers[0].spec.scale)
+
+        def props(L, q, m):
+            r, mt, _ = surface_props(Ctx(q, m, self.seed, L.spec.scale), L.spec)
+            return np.stack([r, mt])
+
+        def relief(L, q, m):
+            return height(Ctx(q, m, self.seed, L.spec.scale), L.spec)[None]
+
         for s in range(0, n_pts, CHUNK):
             p = pts[s : s + CHUNK].astype(np.float32)
             n = _unit(nrm[s : s + CHUNK].astype(np.float32))
             t = _unit(tan[s : s + CHUNK].astype(np.float32))
             b = _unit(bit[s : s + CHUNK].astype(np.float32))
-            r, m, _ = surface_props(Ctx(p, n, self.seed, spec.scale), spec)
+            rm = _blend(layers, p, n, props)
             dh = []
             for d in (t, b):
-                hp = height(Ctx(p + step * d, n, self.seed, spec.scale), spec)
-                hm = height(Ctx(p - step * d, n, self.seed, spec.scale), spec)
+                hp = _blend(layers, p + step * d, n, relief)[0]
+                hm = _blend(layers, p - step * d, n, relief)[0]
                 dh.append((hp - hm) / (np.float32(2.0) * step))
             nt = np.stack([-dh[0], -dh[1], np.ones_like(dh[0])], axis=1)
-            rough[s : s + CHUNK], metal[s : s + CHUNK] = r, m
+            rough[s : s + CHUNK], metal[s : s + CHUNK] = rm[0], rm[1]
             out_n[s : s + CHUNK] = nt / np.linalg.norm(nt, axis=1, keepdims=True)
         return rough, metal, out_n
+
+
+def _blend(layers: tuple[_Layer, ...], p: np.ndarray, n: np.ndarray, fn) -> np.ndarray:
+    """``fn(layer, points, normals) -> (k, n')`` of the base layer, with each region layer laid over it
+    by its weight (evaluated only where the weight is not 0). Returns ``(k, n) float32``."""
+    out = np.asarray(fn(layers[0], p, n), dtype=np.float32)
+    for L in layers[1:]:
+        w = region_weight(L.region, L.frame, p, n, L.named).astype(np.float32)
+        sel = np.flatnonzero(w > 0)
+        if len(sel) == 0:
+            continue
+        val = np.asarray(fn(L, np.ascontiguousarray(p[sel]), np.ascontiguousarray(n[sel])), dtype=np.float32)
+        out[:, sel] += (val - out[:, sel]) * w[sel]
+    return out
 
 
 def _unit(a: np.ndarray) -> np.ndarray:
