@@ -341,3 +341,56 @@ def test_template_store_keeps_the_maps(tmp_path):
     path.write_bytes(bytes(raw))
     with pytest.raises(ValueError, match="checksum mismatch"):
         Template.load(st, load_template_shape(st, cfg))
+
+
+# ------------------------------------------------------------------------------ edits and serving
+def test_edits_carry_the_maps(painted_mug_root, tmp_path):
+    """A hue shift leaves roughness alone; a re-paint makes every map again; roughness / metallic
+    edits move those channels; undo brings the maps back; the service answers with them, linked."""
+    import shutil
+
+    from proctex.family.edits import adjust_orm, stored_edit, undo_edit
+    from proctex.family.service import FamilyService, GroupEdit, build_stamp
+    from proctex.family.store import FamilyStore, StoreLayout
+
+    root = tmp_path / "fams"
+    shutil.copytree(painted_mug_root, root)
+    st = FamilyStore(root / "mug")
+    orm_path = root / "mug" / StoreLayout.texture(0, "body", "orm")
+    normal_path = root / "mug" / StoreLayout.texture(0, "body", "normal")
+    orm0, normal0 = orm_path.read_bytes(), normal_path.read_bytes()
+    stored_edit(st, 0, hue=120.0)
+    assert orm_path.read_bytes() == orm0 and normal_path.read_bytes() == normal0
+    stored_edit(st, 0, prompt="brushed steel")
+    metal = np.asarray(Image.open(orm_path))[..., 2]
+    assert metal.max() == 255 and np.asarray(Image.open(io.BytesIO(orm0)))[..., 2].max() == 0
+    stored_edit(st, "body", roughness=0.9, metallic=0.0)
+    orm = np.asarray(Image.open(orm_path)) / 255.0
+    assert abs(orm[..., 1].mean() - 0.9) < 0.02 and orm[..., 2].max() == 0
+    summary = json.loads((root / "mug" / StoreLayout.PAINT).read_text())
+    assert summary["edits"][-1]["material"] == {"roughness": 0.9, "metallic": 0.0}
+    glb = (root / "mug" / StoreLayout.TEMPLATE_GLB).read_bytes()
+    assert np.array_equal(glb_material_images(glb)[0]["orm"], np.asarray(Image.open(orm_path).convert("RGB")))
+    for _ in range(3):
+        undo_edit(st, stamp=build_stamp)
+    assert orm_path.read_bytes() == orm0 and normal_path.read_bytes() == normal0
+    with pytest.raises(ValueError, match="roughness must be"):
+        adjust_orm(np.zeros((2, 2, 3)), roughness=1.5)
+    # The service: linked answers name the maps' URIs and serve them; an edit that changes the maps embeds them.
+    from proctex.geometry.primitives import box  # noqa: F401 (the family's own shape is used below)
+    from proctex.family.stages import load_template_shape, stored_config
+
+    svc = FamilyService(st)
+    shape = load_template_shape(st, stored_config(st))
+    data, _ = svc.transfer(shape, linked=True)
+    g = gl.GLTF2.load_from_bytes(data)
+    uris = sorted(img.uri for img in g.images if img.uri)
+    assert any(".orm.png?v=" in u for u in uris) and any(".normal.png?v=" in u for u in uris)
+    png, dig = svc.texture_png("0.orm")
+    assert png == orm0 and dig.startswith(uris[[".orm." in u for u in uris].index(True)].split("v=")[1])
+    data, _ = svc.transfer(shape, linked=True, edits={0: GroupEdit(roughness=0.2)})
+    g = gl.GLTF2.load_from_bytes(data)
+    assert not any(img.uri and img.uri.startswith("textures/0.orm") for img in g.images)
+    assert any(img.uri and img.uri.startswith("textures/0.normal") for img in g.images)  # the normal map stays linked
+    roles = glb_material_images(svc.transfer(shape, edits={0: GroupEdit(roughness=0.2)})[0])
+    assert abs(roles[0]["orm"][..., 1].mean() / 255 - 0.2) < 0.02

@@ -173,7 +173,7 @@ def cmd_edit(args: argparse.Namespace) -> int:
     record = edit_group(
         store, args.group, hue=args.hue, saturation=args.saturation, value=args.value, logo=args.logo,
         at=_pair(args.at, "--at") or (0.5, 0.5), size=_pair(args.size, "--size") or (0.25, 0.25),
-        rotation=args.rotation, opacity=args.opacity, prompt=args.prompt,
+        rotation=args.rotation, opacity=args.opacity, prompt=args.prompt, roughness=args.roughness, metallic=args.metallic,
     )
     print(f"edited group {record['group']}: {', '.join(k for k in record if k != 'group')}; transfers now use it")
     return 0

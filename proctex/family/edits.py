@@ -12,7 +12,7 @@ from proctex.fileio import encode_png
 from proctex.geometry.parts import analyse
 from proctex.geometry.shape import Shape
 from .stages import load_template_shape, stored_config
-from .store import FamilyStore, StoreLayout, digest
+from .store import MAP_KINDS, FamilyStore, StoreLayout, digest
 
 def _group_entry(store: FamilyStore, group: int | str) -> dict[str, Any]:
     summary = store.read_json(StoreLayout.PAINT)
@@ -24,16 +24,57 @@ def _group_entry(store: FamilyStore, group: int | str) -> dict[str, Any]:
 
 
 def refresh_template_glb(store: FamilyStore) -> None:
-    """Rewrite ``template/textured.glb`` from the stored mesh, UVs and group PNGs."""
+    """Rewrite ``template/textured.glb`` from the stored mesh, UVs, group PNGs and PBR maps."""
     from proctex.texture.export import glb_bytes
+    from proctex.texture.pbr import PbrMaps
+
     config = stored_config(store)
     template = load_template_shape(store, config)
     uv = store.read_arrays(StoreLayout.UV)
     summary = store.read_json(StoreLayout.PAINT)
     pngs = [store.read_bytes(StoreLayout.texture(g["group"], g["label"])) for g in summary["groups"]]
+    maps = [PbrMaps(store.read_bytes(StoreLayout.texture(g["group"], g["label"], "orm")), store.read_bytes(StoreLayout.texture(g["group"], g["label"], "normal")),
+                    bool(g.get("occlusion"))) if g.get("orm_sha256") else None for g in summary["groups"]]
     names = [g["label"] or f"group_{g['group']}" for g in summary["groups"]]
     store.write_bytes(StoreLayout.TEMPLATE_GLB, glb_bytes(template.vertices, template.faces, uv["corner_uv"], uv["face_group"], pngs, names=names,
-                                                         up=config.up_axis()))
+                                                         up=config.up_axis(), pbr=maps if any(m is not None for m in maps) else None))
+
+
+def repaint_maps(prompt: str, group: int, label: str | None, template: Shape, rep_faces: np.ndarray, rep_corner_uv: np.ndarray,
+                 size: tuple[int, int], seed: int = 0) -> Any:
+    """The PBR maps (:class:`proctex.texture.pbr.PbrMaps`, float) of a group re-painted with ``prompt``:
+    what :func:`edit_texture` does for the colour, for roughness, metalness and relief (the surface
+    painter bound to the template, so the prompt's regions apply in the part's own frame)."""
+    from proctex.texture.paint import shape_frame
+    from proctex.texture.painters import SurfacePainter
+    from proctex.texture.pbr import bake_maps
+    from proctex.texture.uv import texel_map
+
+    faces = template.faces[np.asarray(rep_faces)]
+    tm = texel_map(template.vertices, faces, np.asarray(rep_corner_uv), size[0], size[1])
+    center, scale = shape_frame(template)
+    painter = SurfacePainter(prompt, seed=seed)
+
+    def props(p, n, t, b):
+        return painter.material(p, n, t, b, group=int(group), label=label or "")
+
+    return bake_maps(tm, template.vertices, faces, np.asarray(rep_corner_uv), props, center, scale)
+
+
+def adjust_orm(orm: np.ndarray, roughness: float | None = None, metallic: float | None = None) -> np.ndarray:
+    """An ORM image (H, W, 3, uint8 or float in [0, 1]) with its roughness (G) and metalness (B)
+    moved to the given means: the channel is shifted by the difference, so its variation (grain,
+    rust patches) stays, and clipped to [0, 1]. Occlusion (R) is untouched. Returns float32."""
+    a = np.asarray(orm)
+    out = (a.astype(np.float32) / 255.0) if a.dtype == np.uint8 else a.astype(np.float32, copy=True)
+    for channel, target in ((1, roughness), (2, metallic)):
+        if target is None:
+            continue
+        if not (isinstance(target, (int, float)) and np.isfinite(target) and 0.0 <= target <= 1.0):
+            raise ValueError(f"{('roughness', 'metallic')[channel - 1]} must be a number in [0, 1], got {target!r}")
+        c = out[..., channel]
+        out[..., channel] = np.clip(c + (float(target) - float(c.mean())), 0.0, 1.0)
+    return out
 
 
 def edit_texture(
@@ -106,13 +147,18 @@ def edit_group(
     opacity: float = 1.0,
     prompt: str | None = None,
     record_extra: dict[str, Any] | None = None,
+    roughness: float | None = None,
+    metallic: float | None = None,
 ) -> dict[str, Any]:
     """Edit one group's template texture in the store; every later transfer or bake uses it.
 
     Operations, applied in this order when several are given: re-paint with a new ``prompt`` (the
     surface painter, the family's seed), HSV shift (``hue`` degrees, ``saturation`` and ``value``
     scales) — both by :func:`edit_texture` —, and placing an image file (``logo``) centred at UV
-    ``at`` with UV ``size``, ``rotation`` (degrees) and ``opacity``. Returns the edit record appended
+    ``at`` with UV ``size``, ``rotation`` (degrees) and ``opacity``. A re-paint makes the group's
+    PBR maps again from the new prompt; an HSV shift or an image leaves them as they are;
+    ``roughness`` / ``metallic`` move the group's roughness and metalness maps to those means
+    (:func:`adjust_orm`). Returns the edit record appended
     to ``template/paint.json``; ``record_extra`` (a versioned edit's fields, :func:`stored_edit`) joins
     it, with the digest of the new texture as ``after``.
     """
@@ -143,14 +189,29 @@ def edit_group(
     if logo is not None:
         tex = place_image(tex, load_overlay(logo), at, size, rotation_deg=rotation, opacity=opacity)
         record["logo"] = {"file": os.path.basename(logo), "at": list(at), "size": list(size), "rotation": rotation, "opacity": opacity}
+    maps_out: dict[str, bytes] = {}
+    if prompt is not None and entry.get("orm_sha256"):  # a re-paint makes every map again
+        maps = repaint_maps(prompt, gi, entry["label"], template, rep_faces, rep_uv, tex.shape[:2], seed=config.seed)
+        maps_out = {"orm": encode_png(maps.orm_uint8()), "normal": encode_png(maps.normal_uint8())}
+    if roughness is not None or metallic is not None:
+        if not entry.get("orm_sha256"):
+            raise ValueError(f"group {gi} has no PBR maps (a family painted before they were made); re-paint it first")
+        current = maps_out.get("orm") or store.read_bytes(StoreLayout.texture(gi, entry["label"], "orm"))
+        orm = adjust_orm(np.asarray(Image.open(io.BytesIO(current)).convert("RGB")), roughness, metallic)
+        maps_out["orm"] = encode_png(orm)
+        record["material"] = {k: v for k, v in (("roughness", roughness), ("metallic", metallic)) if v is not None}
     if len(record) == 1:
-        raise ValueError("no edit given (prompt, hue/saturation/value or logo)")
+        raise ValueError("no edit given (prompt, hue/saturation/value, roughness/metallic or logo)")
     png = encode_png(tex)
     store.write_bytes(rel, png)
+    for kind, data in maps_out.items():
+        store.write_bytes(StoreLayout.texture(gi, entry["label"], kind), data)
     summary = store.read_json(StoreLayout.PAINT)
     for g in summary["groups"]:
         if g["group"] == gi:
             g["sha256"] = digest(png)
+            for kind, data in maps_out.items():
+                g[f"{kind}_sha256"] = digest(data)
             if "prompt" in record:
                 g["prompt"] = record["prompt"]
     if record_extra is not None:
@@ -220,7 +281,8 @@ def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None =
         entry = _group_entry(store, group)
         rel = StoreLayout.texture(int(entry["group"]), entry["label"])
         version = len(store.read_json(StoreLayout.PAINT).get("edits", [])) + 1
-        kept = [rel, StoreLayout.PAINT] + ([StoreLayout.PAINTED] if store.exists(StoreLayout.PAINTED) else [])
+        maps = [StoreLayout.texture(int(entry["group"]), entry["label"], kind) for kind in MAP_KINDS if entry.get(f"{kind}_sha256")]
+        kept = [rel, *maps, StoreLayout.PAINT] + ([StoreLayout.PAINTED] if store.exists(StoreLayout.PAINTED) else [])
         before = None
         for f in kept:
             data = store.read_bytes(f)

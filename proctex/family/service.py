@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from .budget import OverBudget
-from .store import FamilyStore, StoreLayout
+from .store import MAP_KINDS, FamilyStore, StoreLayout
 
 
 class NotFound(ValueError):
@@ -96,7 +96,7 @@ def _check_self_contained_gltf(data: bytes) -> None:
 
 
 # ------------------------------------------------------------------------------------------- edits
-EDIT_FIELDS = ("hue", "saturation", "value", "prompt")
+EDIT_FIELDS = ("hue", "saturation", "value", "prompt", "roughness", "metallic")
 HUE_RANGE = (-360.0, 360.0)
 SCALE_RANGE = (0.0, 4.0)  # saturation and value scales
 THUMB_SIZES = (8, 1024)
@@ -111,13 +111,21 @@ class GroupEdit:
     saturation: float = 1.0
     value: float = 1.0
     prompt: str | None = None
+    roughness: float | None = None  # the group's roughness map moved to this mean (None: as painted)
+    metallic: float | None = None  # the same for metalness
 
     @property
     def identity(self) -> bool:
-        return self.prompt is None and self.hue == 0.0 and self.saturation == 1.0 and self.value == 1.0
+        return self.prompt is None and self.hue == 0.0 and self.saturation == 1.0 and self.value == 1.0 and not self.changes_maps
+
+    @property
+    def changes_maps(self) -> bool:
+        """Whether the edit changes the group's PBR maps (a re-paint, roughness or metalness): an HSV
+        shift leaves them as they are."""
+        return self.prompt is not None or self.roughness is not None or self.metallic is not None
 
 
-def _number(name: str, raw: Any, default: float, lo: float, hi: float) -> float:
+def _number(name: str, raw: Any, default: float | None, lo: float, hi: float) -> float | None:
     if raw is None or raw == "":
         return default
     if isinstance(raw, bool) or not isinstance(raw, (int, float, str)):
@@ -154,6 +162,8 @@ def parse_edit(raw: Any, max_prompt: int = 200, extra: tuple[str, ...] = ()) -> 
         saturation=_number("saturation", raw.get("saturation"), 1.0, *SCALE_RANGE),
         value=_number("value", raw.get("value"), 1.0, *SCALE_RANGE),
         prompt=prompt,
+        roughness=_number("roughness", raw.get("roughness"), None, 0.0, 1.0),
+        metallic=_number("metallic", raw.get("metallic"), None, 0.0, 1.0),
     )
 
 
@@ -201,6 +211,8 @@ class FamilyService:
             self.assets = load_assets(store)
             self.models = load_models(store, device=self.device) if mapper in ("auto", "net") else {}
         self.texture_digests = [hashlib.sha256(png).hexdigest() for png in self.assets.png]
+        self.map_digests = [None if m is None else (hashlib.sha256(m.orm).hexdigest(), hashlib.sha256(m.normal).hexdigest())
+                            for m in (self.assets.pbr_png or [None] * len(self.assets.png))]
         if mapper == "net" and not self.models:
             raise ValueError(f"{store.uri} has no trained models (run the train stage)")
         cage = replace(self.config.cage, device=self.device) if self.config.cage is not None else None
@@ -307,10 +319,73 @@ class FamilyService:
         ``edited`` (a per-request edit: that texture is this answer's own, so it is embedded)."""
         return [None if g in edited else f"textures/{g}.png?v={d[:16]}" for g, d in enumerate(self.texture_digests)]
 
+    def map_uris(self, edits: dict[int, GroupEdit] | None = None) -> list[tuple[str, str] | None] | None:
+        """Per template group the URIs of its PBR maps (``textures/<g>.orm.png?v=...``,
+        ``textures/<g>.normal.png?v=...``; None for a map this answer carries itself: the ORM after a
+        re-paint or a roughness / metallic edit, the normal map after a re-paint), or None for a group
+        without maps; None when the family has no maps."""
+        if self.assets.pbr_png is None:
+            return None
+        out: list[tuple[str | None, str | None] | None] = []
+        for g, d in enumerate(self.map_digests):
+            edit = (edits or {}).get(g)
+            if d is None:
+                out.append(None)
+                continue
+            orm = None if edit is not None and edit.changes_maps else f"textures/{g}.orm.png?v={d[0][:16]}"
+            normal = None if edit is not None and edit.prompt is not None else f"textures/{g}.normal.png?v={d[1][:16]}"
+            out.append((orm, normal))
+        return out
+
     def texture_png(self, group: Any) -> tuple[bytes, str]:
-        """``(PNG bytes, sha256 digest)`` of a template group's texture as stored (edits included)."""
-        g = self.group_index(group, missing=NotFound)
-        return self.assets.png[g], self.texture_digests[g]
+        """``(PNG bytes, sha256 digest)`` of a template group's texture as stored (edits included);
+        ``group`` may end in ``.orm`` or ``.normal`` for one of its PBR maps."""
+        kind = ""
+        text = str(group)
+        for k in MAP_KINDS:
+            if text.endswith("." + k):
+                text, kind = text[: -len(k) - 1], k
+        g = self.group_index(text, missing=NotFound)
+        if not kind:
+            return self.assets.png[g], self.texture_digests[g]
+        if self.assets.pbr_png is None or self.assets.pbr_png[g] is None:
+            raise NotFound(f"group {g} has no {kind} map (a family painted before PBR maps were made)")
+        return getattr(self.assets.pbr_png[g], kind), self.map_digests[g][MAP_KINDS.index(kind)]
+
+    def edited_maps(self, group: int, edit: GroupEdit) -> Any:
+        """The group's PBR maps after ``edit`` as PNGs (:class:`proctex.texture.pbr.PbrMaps`), the
+        maps :func:`proctex.family.edits.edit_group` would store: a re-paint makes them again, a
+        roughness / metallic edit moves those channels; None when the family has no maps."""
+        from proctex.fileio import encode_png
+        from proctex.texture.pbr import PbrMaps
+
+        from .edits import adjust_orm, repaint_maps
+
+        if self.assets.pbr_png is None or self.assets.pbr_png[group] is None:
+            return None
+        if not edit.changes_maps:
+            return self.assets.pbr_png[group]
+        key = ("maps", group, edit.prompt, edit.roughness, edit.metallic)
+        with self._edit_lock:
+            hit = self._edited.get(key)
+            if hit is not None:
+                self._edited.move_to_end(key)
+                return hit
+        if edit.prompt is not None:
+            ga = self.assets.groups[group]
+            fresh = repaint_maps(edit.prompt, group, ga.label, self.assets.shape, self.assets.grouping.parts[ga.rep].faces, ga.corner_uv,
+                                 self.assets.textures[group].shape[:2], seed=self.config.seed)
+            orm, normal = fresh.orm_uint8(), encode_png(fresh.normal_uint8())
+        else:
+            orm, normal = self.assets.pbr[group].orm, self.assets.pbr_png[group].normal
+        if edit.roughness is not None or edit.metallic is not None:
+            orm = adjust_orm(orm, edit.roughness, edit.metallic)
+        out = PbrMaps(encode_png(orm), normal, self.assets.pbr[group].occlusion)
+        with self._edit_lock:
+            self._edited[key] = out
+            while len(self._edited) > self.edit_cache_size:
+                self._edited.popitem(last=False)
+        return out
 
     def textured(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None,
                  bake_size: int | None = None, budget: Any = None, linked: bool = False) -> tuple[Any, dict[str, Any]]:
@@ -330,15 +405,19 @@ class FamilyService:
         assets = self.assets
         if edits:
             png = list(assets.png)
+            maps = list(assets.pbr_png) if assets.pbr_png is not None else None
             for g, edit in edits.items():
                 png[g] = self.edited_texture(g, edit)[1]
-            assets = replace(assets, png=png)  # only the encoded images differ: the transfer is the same
+                if maps is not None and edit.changes_maps:
+                    maps[g] = self.edited_maps(g, edit)
+            assets = replace(assets, png=png, pbr_png=maps)  # only the encoded images differ: the transfer is the same
         t_edit = time.perf_counter() - t0
         with self.lock:
             try:
                 uris = self.texture_uris(edits or ()) if linked and not bake_size else None
+                m_uris = self.map_uris(edits) if linked and not bake_size else None
                 answer = shape_to_glb(shape, assets, self.mapper, seed=seed, painter=self.painter, up=self.up, bake_size=bake_size,
-                                      budget=budget, texture_uris=uris)
+                                      budget=budget, texture_uris=uris, map_uris=m_uris)
             except OverBudget:
                 raise
             except ValueError as exc:
@@ -460,11 +539,11 @@ class FamilyService:
         g = self.group_index(raw["group"])
         edit = parse_edit(raw, self.limits.max_prompt, extra=("group",))
         if edit.identity:
-            raise BadInput("no edit given: send a prompt or a hue, saturation or value change")
+            raise BadInput("no edit given: send a prompt, a hue, saturation or value change, or a roughness or metallic")
         with _EDIT_LOCK:
             try:
                 return stored_edit(self.store, g, expect_stamp=expect_stamp, stamp=build_stamp, hue=edit.hue, saturation=edit.saturation,
-                                   value=edit.value, prompt=edit.prompt)
+                                   value=edit.value, prompt=edit.prompt, roughness=edit.roughness, metallic=edit.metallic)
             except EditConflict:
                 raise
             except ValueError as exc:

@@ -102,7 +102,7 @@ class Template:
         size = summary.get("texture_size") or None
         pbr: list[Any] = []
 
-        def read(rel: str, recorded: str | None, shape: tuple[int, ...] | None) -> np.ndarray:
+        def read(rel: str, recorded: str | None, hw: tuple[int, ...] | None) -> np.ndarray:
             png = store.read_bytes(rel)
             where = store.path(rel)
             check_digest(png, recorded, where)
@@ -113,8 +113,8 @@ class Template:
                 raise ValueError(f"{where}: cannot read the texture ({type(exc).__name__}: {str(exc)[:200]})") from exc
             if image.mode not in ("RGB", "RGBA"):
                 raise ValueError(f"{where}: a {image.mode} image; group textures are RGB")
-            if shape and list(image.size[::-1]) != [int(x) for x in shape][:2]:
-                raise ValueError(f"{where}: {image.size[0]}x{image.size[1]}, the family's textures are {shape[1]}x{shape[0]}")
+            if hw and list(image.size[::-1]) != [int(x) for x in hw][:2]:
+                raise ValueError(f"{where}: {image.size[0]}x{image.size[1]}, the family's textures are {hw[1]}x{hw[0]}")
             return np.asarray(image.convert("RGB"))
 
         for g in summary["groups"]:
@@ -123,9 +123,9 @@ class Template:
             if g.get("orm_sha256") and g.get("normal_sha256"):  # the maps, where the paint stage made them
                 from proctex.texture.pbr import PbrMaps
 
-                shape = textures[-1].shape[:2]
-                pbr.append(PbrMaps(read(StoreLayout.texture(g["group"], g["label"], "orm"), g["orm_sha256"], shape),
-                                   read(StoreLayout.texture(g["group"], g["label"], "normal"), g["normal_sha256"], shape),
+                hw = textures[-1].shape[:2]
+                pbr.append(PbrMaps(read(StoreLayout.texture(g["group"], g["label"], "orm"), g["orm_sha256"], hw),
+                                   read(StoreLayout.texture(g["group"], g["label"], "normal"), g["normal_sha256"], hw),
                                    bool(g.get("occlusion", False))))
             else:
                 pbr.append(None)

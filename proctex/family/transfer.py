@@ -381,12 +381,12 @@ class TexturedGLB:
 
 def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, up: str = "y",
                  bake_size: int | None = None, shortcut: bool = True, budget: Budget | None = None,
-                 texture_uris: list[str | None] | None = None) -> TexturedGLB:
+                 texture_uris: list[str | None] | None = None, map_uris: list[tuple[str, str] | None] | None = None) -> TexturedGLB:
     """The run-time path, shape in, GLB out: :func:`transfer` with ``mapper`` (``painter`` colours
     parts of groups the template lacks), then the GLB (:func:`glb`, the template's encoded PNGs), or
     with ``bake_size`` the shape's own atlas and textures (:func:`bake`). The command line, the
     service, the demo and the evaluation all answer with this. ``budget``: see :func:`transfer`.
-    ``texture_uris``: see :func:`glb` (not with ``bake_size``: a baked atlas is the shape's own)."""
+    ``texture_uris``, ``map_uris``: see :func:`glb` (not with ``bake_size``: a baked atlas is the shape's own)."""
     from proctex.texture.export import glb_bytes
 
     result = transfer(shape, assets, mapper, seed=seed, painter=painter, shortcut=shortcut, budget=budget)
@@ -397,5 +397,5 @@ def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
         data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up)
         return TexturedGLB(data, result, baked.corner_uv, baked.face_group, list(baked.textures), baked)
-    return TexturedGLB(glb(shape, result, assets, up=up, texture_uris=texture_uris), result, result.corner_uv, result.face_group,
+    return TexturedGLB(glb(shape, result, assets, up=up, texture_uris=texture_uris, map_uris=map_uris), result, result.corner_uv, result.face_group,
                        list(assets.textures) + list(result.new_textures))
