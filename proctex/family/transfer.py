@@ -228,6 +228,8 @@ class Baked:
             from this group's other texels (``fill="patchmatch"``).
         direct: per group whether it kept the template's UVs and texture (every part of it has the
             representative's connectivity: nothing baked).
+        pbr: per group its PBR maps in the shape's own atlas (None: none), or None when the
+            template has no maps.
         seconds; notes.
     """
 
@@ -240,6 +242,38 @@ class Baked:
     disoccluded: list[np.ndarray] = field(default_factory=list)
     direct: list[bool] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    pbr: list[Any] | None = None
+
+
+def bake_pbr(maps: Any, vertices: np.ndarray, faces: np.ndarray, template_uv: np.ndarray, atlas_uv: np.ndarray, tm: Any,
+             uv: np.ndarray, gutter: int) -> Any:
+    """A group's template PBR maps baked into a shape's own atlas.
+
+    Args:
+        maps: the template's :class:`~proctex.texture.pbr.PbrMaps`; vertices (n, 3), faces (k, 3):
+            the group's faces on the shape; template_uv, atlas_uv: (k, 3, 2) their corners' UVs into
+            the template textures and in the new atlas; tm: the atlas's texel map; uv: (t, 2) each
+            covered texel's template UV; gutter: seam padding (-1: the whole atlas).
+    The ORM is resampled like the colour. A tangent-space normal is relative to the UV directions,
+    so each texel's normal is decoded in the frame the template UVs give this surface (what the
+    un-baked GLB shows) and encoded again in the atlas's frame: the relief stays where it was.
+    """
+    from proctex.texture.pbr import PbrMaps, corner_normals, corner_tangents, decode_normal, encode_normal, flat_maps, texel_frames
+
+    size = tm.height
+    out = flat_maps(size, tm.width)
+    orm = out.orm.copy()
+    orm[tm.ij[:, 0], tm.ij[:, 1]] = sample_texture(maps.orm_uint8(), uv)[:, :3]
+    cn = corner_normals(vertices, faces)
+    T1, B1, N = texel_frames(tm, corner_tangents(vertices, faces, template_uv, cn), cn)
+    T2, B2, _ = texel_frames(tm, corner_tangents(vertices, faces, atlas_uv, cn), cn)
+    nt = decode_normal(sample_texture(maps.normal_uint8(), uv)[:, :3])
+    world = nt[:, :1] * T1 + nt[:, 1:2] * B1 + nt[:, 2:] * N
+    normal = out.normal.copy()
+    normal[tm.ij[:, 0], tm.ij[:, 1]] = encode_normal(np.stack([(world * T2).sum(1), (world * B2).sum(1), (world * N).sum(1)], 1))
+    orm, _ = pad_seams(orm, tm.mask, gutter)
+    normal, _ = pad_seams(normal, tm.mask, gutter)
+    return PbrMaps(orm.astype(np.float32), normal.astype(np.float32), maps.occlusion)
 
 
 def disoccluded_texels(uv: np.ndarray, observed: np.ndarray) -> np.ndarray:
@@ -281,8 +315,9 @@ def bake(
     seg = segment(shape)
     corner = np.zeros((shape.n_faces, 3, 2))
     face_group = np.full(shape.n_faces, -1, dtype=np.int64)
-    out = Baked(corner, face_group, [], [], 0.0)
+    out = Baked(corner, face_group, [], [], 0.0, pbr=[] if assets.pbr is not None else None)
     for g, ga in enumerate(assets.groups):
+        maps = assets.pbr[g] if assets.pbr is not None else None
         parts = [a.part for a in result.assignment if a.group == g and a.part in result.points]
         observed = assets.observed[g] if assets.observed is not None else None
         if not parts:
@@ -291,6 +326,8 @@ def bake(
             out.covered.append(np.ones((1, 1), bool))
             out.disoccluded.append(np.zeros((1, 1), bool))
             out.direct.append(False)
+            if out.pbr is not None:
+                out.pbr.append(None)
             continue
         faces = np.concatenate([seg.parts[p].faces for p in parts])
         face_group[faces] = g
@@ -302,6 +339,8 @@ def bake(
             out.covered.append(out.painted[-1])
             out.disoccluded.append(np.zeros(assets.textures[g].shape[:2], bool))
             out.direct.append(True)
+            if out.pbr is not None:
+                out.pbr.append(maps)
             continue
         used = np.unique(shape.faces[faces])
         local = np.searchsorted(used, shape.faces[faces])
@@ -333,6 +372,8 @@ def bake(
                 except ValueError as exc:  # no usable source patch: keep the template's colours there
                     out.notes.append(f"group {g}: {int(dis.sum())} dis-occluded texels kept the template's fill ({exc})")
         image, mask = pad_seams(image, tm.mask, gutter)
+        if out.pbr is not None:
+            out.pbr.append(None if maps is None else bake_pbr(maps, shape.vertices[used], local, result.corner_uv[faces], atlas.corner_uv, tm, uv, gutter))
         out.textures.append((np.clip(image, 0, 1) * 255).round().astype(np.uint8))
         out.painted.append(mask)
         out.covered.append(tm.mask)
@@ -347,6 +388,8 @@ def bake(
         out.covered.append(out.painted[-1])
         out.disoccluded.append(np.zeros(image.shape[:2], dtype=bool))
         out.direct.append(False)
+        if out.pbr is not None:
+            out.pbr.append(None)
     out.seconds = time.perf_counter() - t0
     return out
 
@@ -395,7 +438,8 @@ def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int
     if bake_size:
         baked = bake(shape, result, assets, size=bake_size)
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
-        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up)
+        pbr = baked.pbr if baked.pbr is not None and any(m is not None for m in baked.pbr) else None
+        data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up, pbr=pbr)
         return TexturedGLB(data, result, baked.corner_uv, baked.face_group, list(baked.textures), baked)
     return TexturedGLB(glb(shape, result, assets, up=up, texture_uris=texture_uris, map_uris=map_uris), result, result.corner_uv, result.face_group,
                        list(assets.textures) + list(result.new_textures))
