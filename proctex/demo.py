@@ -270,9 +270,10 @@ median {1000 * s['transfer_median_seconds']:.0f} ms each.</p>
 
 
 def render_sheet(sweep: list[SweepRow], rendered: list[tuple[Any, Any]], textures: list[np.ndarray], up: str, size: int,
-                 title: str = "", quiet: bool = False) -> np.ndarray:
+                 title: str = "", quiet: bool = False, maps: list | None = None) -> np.ndarray:
     """The contact sheet of transferred variants ``rendered`` [(Shape, TransferResult)], in the order
-    of ``sweep``'s rows: one camera fitted to every variant (sizes compare truthfully), crops shared."""
+    of ``sweep``'s rows: one camera fitted to every variant (sizes compare truthfully), crops shared.
+    ``maps``: the template's PBR maps per texture (None: colour only), lit physically."""
     from proctex.texture.render import bounding_sphere, orbit_camera, render_textured
 
     center, radius = bounding_sphere(np.concatenate([s.vertices for s, _ in rendered]))
@@ -281,7 +282,8 @@ def render_sheet(sweep: list[SweepRow], rendered: list[tuple[Any, Any]], texture
     images = []
     for shape, result in rendered:
         images.append(render_textured(shape.vertices, shape.faces, result.corner_uv, result.face_group,
-                                      list(textures) + list(result.new_textures), cam))
+                                      list(textures) + list(result.new_textures), cam,
+                                      maps=None if maps is None else list(maps) + [None] * len(result.new_textures)))
         bar.update()
     images = crop_to_content(images)
     grid, caps, titles, i = [], [], [], 0
@@ -307,8 +309,9 @@ def render_turntable(model: Any, base: dict[str, Any], names: Sequence[str], svc
     for f, shape in enumerate(shapes):
         result = transfer(shape, svc.assets, svc.mapper, seed=seed, painter=svc.painter)
         cam = orbit_camera(center, radius, up, -35.0 + 360.0 * f / frames, 20.0, size, fov_deg=32.0)
+        maps = None if svc.assets.pbr is None else list(svc.assets.pbr) + [None] * len(result.new_textures)
         out.append(render_textured(shape.vertices, shape.faces, result.corner_uv, result.face_group,
-                                   svc.assets.textures + list(result.new_textures), cam, tracer=Tracer(shape.vertices, shape.faces)))
+                                   svc.assets.textures + list(result.new_textures), cam, tracer=Tracer(shape.vertices, shape.faces), maps=maps))
         bar.update()
     return out
 
@@ -374,7 +377,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
             bar.update()
     atomic_write(out / "variants.json", json.dumps(variants, indent=1))
 
-    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{config.source.model or 'family'}: \"{config.paint.prompt}\"", quiet=quiet)
+    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{config.source.model or 'family'}: \"{config.paint.prompt}\"", quiet=quiet,
+                         maps=svc.assets.pbr)
     save_png(out / "contact_sheet.png", sheet)
     swept = [r.name for r in sweep if r.name != "random"][:2]
     spin = render_turntable(model, base, swept, svc, up, frames, gif_size, seed=seed, quiet=quiet)

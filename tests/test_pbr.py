@@ -438,3 +438,70 @@ def test_bake_re_expresses_the_relief_in_the_new_atlas():
     assert all("normal" in m and "orm" in m for m in glb_material_images(answer.data))
     if require_validator():
         assert validate_glb(answer.data)["issues"]["numErrors"] == 0
+
+
+# ------------------------------------------------------------------------------------ PBR shading
+def _sphere_scene(rough: float, metal: float, colour=(200, 150, 60), normal=None):
+    import trimesh
+
+    from proctex.texture.pbr import flat_maps
+    from proctex.texture.render import orbit_camera
+
+    m = trimesh.creation.uv_sphere(radius=1.0, count=(48, 64))
+    V, F = m.vertices, m.faces
+    uv = np.stack([np.arctan2(V[:, 1], V[:, 0]) / (2 * np.pi) + 0.5, np.arccos(np.clip(V[:, 2], -1, 1)) / np.pi], 1)[F]
+    uv[..., 1] = 1 - uv[..., 1]
+    maps = flat_maps(64, 64, rough, metal)
+    if normal is not None:
+        maps.normal[:] = normal
+    tex = np.zeros((64, 64, 3), np.uint8)
+    tex[:] = colour
+    cam = orbit_camera(np.zeros(3), 1.0, "z", 20.0, 15.0, size=160)
+    from proctex.texture.render import render_textured
+
+    return render_textured(V, F, uv, np.zeros(len(F), np.int64), [tex], cam, maps=[maps])
+
+
+def test_pbr_shading_tells_materials_apart():
+    """Metal reflects in its own colour and has no diffuse; smooth surfaces have small bright
+    highlights and rough ones broad dim ones; a flat normal map changes nothing, a tilted one does."""
+    luma = lambda img: img.astype(float) @ [0.2126, 0.7152, 0.0722]  # noqa: E731
+    obj = lambda img: (img < 250).any(axis=2)  # noqa: E731
+    smooth_metal, rough_metal = _sphere_scene(0.1, 1.0), _sphere_scene(0.8, 1.0)
+    smooth_plastic = _sphere_scene(0.1, 0.0)
+    # Highlights: the smooth metal's brightest pixels are brighter than the rough metal's, and there are fewer of them.
+    top_s, top_r = np.percentile(luma(smooth_metal)[obj(smooth_metal)], 99.5), np.percentile(luma(rough_metal)[obj(rough_metal)], 99.5)
+    assert top_s > top_r + 10
+    # A dielectric's highlight is white, a metal's is tinted by its base colour (orange: red > blue).
+    hi_p = smooth_plastic[luma(smooth_plastic) >= np.percentile(luma(smooth_plastic)[obj(smooth_plastic)], 99.8)].astype(float)
+    hi_m = smooth_metal[luma(smooth_metal) >= np.percentile(luma(smooth_metal)[obj(smooth_metal)], 99.8)].astype(float)
+    assert (hi_p[:, 0] - hi_p[:, 2]).mean() < 0.5 * (hi_m[:, 0] - hi_m[:, 2]).mean()
+    # The flat normal map is the unbent surface; a tilted map changes the shading.
+    flat = _sphere_scene(0.5, 0.0)
+    same = _sphere_scene(0.5, 0.0, normal=(0.5, 0.5, 1.0))
+    tilted = _sphere_scene(0.5, 0.0, normal=(0.85, 0.5, 0.85))
+    assert np.abs(flat.astype(int) - same.astype(int)).max() <= 1
+    assert np.abs(flat.astype(int) - tilted.astype(int))[obj(flat)].mean() > 5
+
+
+def test_glb_read_back_gives_the_maps_and_render_lights_them(painted, tmp_path):
+    from proctex.cli import main
+    from proctex.texture.gltf_read import read_textured_glb
+
+    tex = painted["brushed brass"]
+    path = tmp_path / "brass.glb"
+    path.write_bytes(_glb(tex))
+    mesh = read_textured_glb(path)
+    assert len(mesh.pbr) == 2 and all(m is not None for m in mesh.pbr)
+    for got, want in zip(mesh.pbr, tex.pbr):
+        np.testing.assert_array_equal((got.orm[..., 1:] * 255).round().astype(np.uint8), want.orm_uint8()[..., 1:])
+        np.testing.assert_array_equal(got.normal, want.normal_uint8())
+    # `proctex render` lights a PBR file physically: it differs from the same file without its maps.
+    assert main(["render", str(path), "--size", "96", "--out", str(tmp_path / "pbr.png")]) == 0
+    plain = tmp_path / "plain.glb"
+    plain.write_bytes(glb_bytes(tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups], up="z"))
+    assert read_textured_glb(plain).pbr == [None, None]
+    assert main(["render", str(plain), "--size", "96", "--out", str(tmp_path / "plain.png")]) == 0
+    a = np.asarray(Image.open(tmp_path / "pbr.png")).astype(int)
+    b = np.asarray(Image.open(tmp_path / "plain.png")).astype(int)
+    assert np.abs(a - b).mean() > 3

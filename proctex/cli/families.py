@@ -108,7 +108,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
         from proctex.texture.render import render_three_quarter
 
         preview = encode_png(render_three_quarter(shape.vertices, shape.faces, answer.corner_uv, answer.face_group, answer.textures,
-                                                  up=config.up_axis(), size=512))
+                                                  up=config.up_axis(), size=512, maps=answer.pbr))
         summary["preview"] = args.preview
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write(args.out, answer.data)

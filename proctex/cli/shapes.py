@@ -224,13 +224,14 @@ def cmd_render(args: argparse.Namespace) -> int:
     up = default_up(args.file) if args.up == "auto" else args.up
     arrays = (mesh.vertices, mesh.faces, mesh.corner_uv, mesh.face_group, mesh.textures)
     tracer = Tracer(mesh.vertices, mesh.faces)
+    maps = mesh.pbr if any(m is not None for m in mesh.pbr) else None  # PBR materials are lit physically
     if args.views == "front":
-        image, what = render_three_quarter(*arrays, up=up, size=args.size, tracer=tracer), "3/4 view"
+        image, what = render_three_quarter(*arrays, up=up, size=args.size, tracer=tracer, maps=maps), "3/4 view"
     elif args.views == "six":
-        images, names = render_six_views(*arrays, up=up, size=args.size, tracer=tracer)
+        images, names = render_six_views(*arrays, up=up, size=args.size, tracer=tracer, maps=maps)
         image, what = render_grid(images, 3, labels=names), "six views"
     else:
-        frames = turntable_frames(*arrays, up=up, n=args.frames, size=args.size, tracer=tracer)
+        frames = turntable_frames(*arrays, up=up, n=args.frames, size=args.size, tracer=tracer, maps=maps)
         image, what = None, f"turntable, {args.frames} frames"
         if suffix != ".gif":
             image = render_grid(frames, grid_columns(len(frames)))

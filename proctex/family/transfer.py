@@ -412,7 +412,8 @@ def info(result: TransferResult) -> dict[str, Any]:
 class TexturedGLB:
     """A textured shape as answered: ``data`` (GLB bytes), the transfer ``result``, and what the GLB
     shows (``corner_uv`` (m, 3, 2), ``face_group`` (m,), ``textures``: per material an (H, W, 3)
-    uint8 image or encoded PNG bytes), e.g. for a preview. ``baked``: the bake, when asked for."""
+    uint8 image or encoded PNG bytes), e.g. for a preview. ``baked``: the bake, when asked for.
+    ``pbr``: per material its PBR maps (uint8 images) or None; None when the family has none."""
 
     data: bytes
     result: TransferResult
@@ -420,6 +421,7 @@ class TexturedGLB:
     face_group: np.ndarray
     textures: list[Any]
     baked: Baked | None = None
+    pbr: list[Any] | None = None
 
 
 def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, up: str = "y",
@@ -440,6 +442,7 @@ def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
         pbr = baked.pbr if baked.pbr is not None and any(m is not None for m in baked.pbr) else None
         data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up, pbr=pbr)
-        return TexturedGLB(data, result, baked.corner_uv, baked.face_group, list(baked.textures), baked)
+        return TexturedGLB(data, result, baked.corner_uv, baked.face_group, list(baked.textures), baked, pbr)
     return TexturedGLB(glb(shape, result, assets, up=up, texture_uris=texture_uris, map_uris=map_uris), result, result.corner_uv, result.face_group,
-                       list(assets.textures) + list(result.new_textures))
+                       list(assets.textures) + list(result.new_textures),
+                       pbr=None if assets.pbr is None else list(assets.pbr) + [None] * len(result.new_textures))

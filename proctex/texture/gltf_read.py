@@ -38,6 +38,9 @@ class TexturedMesh:
             of their base colour factor.
         names: G group (material) names.
         notes: what was skipped or approximated (non-triangle primitives, missing texcoords, ...).
+        pbr: per group its :class:`proctex.texture.pbr.PbrMaps` (ORM from ``metallicRoughnessTexture``
+            times its factors, normal from ``normalTexture``), or None for a material with neither
+            texture (colour only).
     """
 
     vertices: np.ndarray
@@ -47,6 +50,7 @@ class TexturedMesh:
     textures: list[np.ndarray]
     names: list[str]
     notes: list[str] = field(default_factory=list)
+    pbr: list = field(default_factory=list)
 
 
 def _data_uri(uri: str) -> bytes:
@@ -265,6 +269,7 @@ def _read_gltf(gltf: gl.GLTF2, rd: _GltfReader) -> TexturedMesh:
     textures: list[np.ndarray] = []
     names: list[str] = []
     texcoord_of_group: list[int | None] = []
+    pbr_maps: list = []
     V, F, UV, G = [], [], [], []
     n_vertices = 0
 
@@ -295,7 +300,9 @@ def _read_gltf(gltf: gl.GLTF2, rd: _GltfReader) -> TexturedMesh:
                         notes.append(f"material {name!r}: KHR_texture_transform ignored")
             if tex is None:
                 tex = np.round(factor * 255).astype(np.uint8).reshape(1, 1, 3)
+            maps = _material_maps(gltf, rd, m, pbr, name, notes)
         groups[mat] = len(textures)
+        pbr_maps.append(maps if mat is not None else None)
         textures.append(tex)
         names.append(name)
         texcoord_of_group.append(tc)
@@ -363,4 +370,40 @@ def _read_gltf(gltf: gl.GLTF2, rd: _GltfReader) -> TexturedMesh:
     if not np.isfinite(vertices).all():
         raise ValueError("vertex positions contain NaN or inf")
     # Groups are made only for primitives with triangles, so every group is used.
-    return TexturedMesh(vertices, np.concatenate(F), np.concatenate(UV), np.concatenate(G), textures, names, notes)
+    return TexturedMesh(vertices, np.concatenate(F), np.concatenate(UV), np.concatenate(G), textures, names, notes, pbr_maps)
+
+
+def _material_maps(gltf: gl.GLTF2, rd: "_GltfReader", m: gl.Material, pbr: gl.PbrMetallicRoughness, name: str, notes: list[str]):
+    """A material's :class:`~proctex.texture.pbr.PbrMaps`, or None without a metallic-roughness or normal texture."""
+    from .pbr import FLAT_NORMAL, PbrMaps
+
+    def image(info, what: str):
+        if info is None or info.index is None:
+            return None
+        if not 0 <= info.index < len(gltf.textures) or gltf.textures[info.index].source is None:
+            notes.append(f"material {name!r}: its {what} texture cannot be read; ignored")
+            return None
+        if int(getattr(info, "texCoord", 0) or 0) != 0:
+            notes.append(f"material {name!r}: its {what} texture uses another texcoord set; read with TEXCOORD_0")
+        return rd.image(gltf.textures[info.index].source)
+
+    mr = image(pbr.metallicRoughnessTexture, "metallic-roughness")
+    nt = image(m.normalTexture, "normal")
+    if mr is None and nt is None:
+        return None
+    rough_f = 1.0 if pbr.roughnessFactor is None else float(pbr.roughnessFactor)
+    metal_f = 1.0 if pbr.metallicFactor is None else float(pbr.metallicFactor)
+    if mr is None:
+        orm = np.empty((1, 1, 3), np.float32)
+        orm[:] = (1.0, rough_f, metal_f)
+    else:
+        orm = mr.astype(np.float32) / 255.0
+        orm[..., 0] = 1.0
+        orm[..., 1] *= rough_f
+        orm[..., 2] *= metal_f
+    if nt is None:
+        normal = np.empty((1, 1, 3), np.float32)
+        normal[:] = FLAT_NORMAL
+    else:
+        normal = nt
+    return PbrMaps(np.clip(orm, 0, 1), normal, False)

@@ -309,14 +309,21 @@ class SolidViewPainter:
 
 # ------------------------------------------------------------------------------------- outputs
 def preview_views(tex: TemplateTexture, up: str = "z", size: int = 256, backend: str = "auto") -> list[np.ndarray]:
-    """The six canonical views of the textured template, shaded: list of (size, size, 3) uint8."""
+    """The six canonical views of the textured template, shaded (lit physically when it has PBR
+    maps): list of (size, size, 3) uint8."""
     from .render import shade
 
     shape = tex.shape
     tracer = Tracer(shape.vertices, shape.faces, backend)
     c, r = bounding_sphere(shape.vertices)
     images = []
+    maps = tex.pbr if any(m is not None for m in tex.pbr) else None
     for cam in canonical_cameras(c, r, up, size):
         b = render_buffers(tracer, cam, face_group=tex.uv.face_group)
-        images.append(shade(b, textured_albedo(b, tex.uv.corner_uv, tex.uv.face_group, tex.images)))
+        if maps is not None:
+            from .lighting import pbr_surface, shade_pbr
+
+            images.append(shade_pbr(b, pbr_surface(b, shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.images, maps)))
+        else:
+            images.append(shade(b, textured_albedo(b, tex.uv.corner_uv, tex.uv.face_group, tex.images)))
     return images
