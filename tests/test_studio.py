@@ -157,7 +157,7 @@ def test_the_studio_textures_a_family_interactively(server, browser):
 
         first = pygltflib.GLTF2().load_from_bytes(bytes(page.evaluate("Array.from(window.studio.lastGlbBytes)")))
         assert all(im.uri and im.uri.startswith("textures/") for im in first.images)  # linked: geometry and UVs only
-        assert sorted(u.split("/textures/")[1].split("?")[0] for u in texture_fetches) == ["0.png", "1.png"]
+        assert sorted(u.split("/textures/")[1].split("?")[0] for u in texture_fetches) == sorted(f"{g}{k}.png" for g in (0, 1) for k in ("", ".orm", ".normal"))
 
         # 2. A slider moves, five times in quick succession: debounced into (about) one request, the last value wins.
         n = _requests(page)
@@ -172,7 +172,7 @@ def test_the_studio_textures_a_family_interactively(server, browser):
         px1 = _canvas(page)
         assert (np.abs(px1.astype(int) - px0).sum(axis=-1) > 30).mean() > 0.01, "the canvas did not change with the radius"
         slider_ms = page.evaluate("window.studio.lastLatencyMs")
-        assert len(set(texture_fetches)) == 2, texture_fetches  # the same two URLs each time (immutable: the browser may keep them)
+        assert len(set(texture_fetches)) == 6, texture_fetches  # the same six URLs each time (immutable: the browser may keep them)
         server_s = page.evaluate("window.studio.lastServerSeconds")
         assert server_s > 0
         # A drag: a value every 100 ms for 1.2 s; the view follows during the drag, the last value wins.
@@ -230,10 +230,12 @@ def test_the_studio_textures_a_family_interactively(server, browser):
         import trimesh
 
         gltf = pygltflib.GLTF2().load_from_bytes(data)
-        assert len(gltf.images) == 2 and len(gltf.textures) == 2
+        assert len(gltf.images) == 6 and len(gltf.textures) == 6  # per group: base colour, ORM, normal map
         assert all(im.bufferView is not None for im in gltf.images)  # the download is self-contained
         shown = pygltflib.GLTF2().load_from_bytes(bytes(page.evaluate("Array.from(window.studio.lastGlbBytes)")))
-        assert [im.uri is None for im in shown.images] == [True, True]  # both groups carry an edit here: embedded
+        # Both base colours carry an edit here (embedded); the hue shift leaves the body's maps (linked),
+        # the handle's re-paint made its maps again (embedded).
+        assert [im.uri is None for im in shown.images] == [True, False, False, True, True, True], [im.uri for im in shown.images]
         assert [a.count for a in shown.accessors] == [a.count for a in gltf.accessors]  # the same shape
         scene = trimesh.load(io.BytesIO(data), file_type="glb")
         assert len(scene.geometry) >= 1 and all(getattr(g.visual, "uv", None) is not None for g in scene.geometry.values())
@@ -249,6 +251,30 @@ def test_the_studio_textures_a_family_interactively(server, browser):
         px4 = _canvas(page)
         assert (np.abs(px4.astype(int) - px3).sum(axis=-1) > 30).mean() < 0.002, "the saved edit looks different from its preview"
         assert page.evaluate("window.studio.lastEdits") == {"1": {"prompt": "bright green plastic"}}
+
+        # 7. The body's material: its sliders start at the painted means; turned to metal the view changes
+        # (the environment light shows in it) and the shape on screen carries the new metalness map.
+        assert page.evaluate("window.studio.scene.environment !== null")
+        start = page.evaluate("[...document.querySelectorAll(\".group[data-group='0'] input.roughness, .group[data-group='0'] input.metallic\")].map(e => +e.value)")
+        described = json.loads(urllib.request.urlopen(base + "/v1/families/mug").read())["groups"][0]
+        assert start == [pytest.approx(described["roughness"], abs=0.011), pytest.approx(described["metallic"], abs=0.011)]
+        assert described["pbr"] and described["metallic"] == 0.0  # ceramic
+        n = _requests(page)
+        _set_range(page, ".group[data-group='0'] input.metallic", 1)
+        _wait_for_shape(page, n + 1)
+        page.screenshot(path=str(ARTIFACTS / "06-body-metallic.png"))
+        px5 = _canvas(page)
+        assert (np.abs(px5.astype(int) - px4).sum(axis=-1) > 30).mean() > 0.01, "turning the body to metal did not show"
+        assert page.evaluate("window.studio.lastEdits")["0"] == {"metallic": 1}
+        shown = pygltflib.GLTF2().load_from_bytes(bytes(page.evaluate("Array.from(window.studio.lastGlbBytes)")))
+        body = shown.materials[0]
+        orm_image = shown.images[shown.textures[body.pbrMetallicRoughness.metallicRoughnessTexture.index].source]
+        assert orm_image.uri is None and shown.images[shown.textures[body.normalTexture.index].source].uri is not None
+        view = shown.bufferViews[orm_image.bufferView]
+        from PIL import Image
+
+        orm = np.asarray(Image.open(io.BytesIO(shown.binary_blob()[view.byteOffset: view.byteOffset + view.byteLength])).convert("RGB"))
+        assert orm[..., 2].mean() > 250
         assert not errors, errors
     finally:
         context.close()

@@ -252,7 +252,7 @@ class FamilyService:
             "group_prompts": dict(self.config.paint.group_prompts),
             "groups": [{"group": g.group, "label": g.label, "degenerate": g.degenerate, "network": g.group in self.models,
                         "prompt": next((p.get("prompt") for p in paint.get("groups", []) if p.get("group") == g.group), None),
-                        "texture_size": list(self.assets.textures[g.group].shape[:2])}
+                        "texture_size": list(self.assets.textures[g.group].shape[:2]), **self._material_means(g.group)}
                        for g in self.assets.groups],
             "edits": len(paint.get("edits", [])),
             "stages": {k: v.get("state") for k, v in state.get("stages", {}).items()},
@@ -318,6 +318,18 @@ class FamilyService:
         (``textures/<g>.png?v=<digest>``, see :meth:`texture_png`), or None for the groups in
         ``edited`` (a per-request edit: that texture is this answer's own, so it is embedded)."""
         return [None if g in edited else f"textures/{g}.png?v={d[:16]}" for g, d in enumerate(self.texture_digests)]
+
+    def _material_means(self, group: int) -> dict[str, Any]:
+        """``{"pbr": bool, "roughness": mean, "metallic": mean}`` of a group's maps over its painted
+        texels (what the studio's sliders start at); ``{"pbr": False}`` without maps."""
+        import numpy as np
+
+        maps = self.assets.pbr[group] if self.assets.pbr is not None else None
+        if maps is None:
+            return {"pbr": False}
+        orm = maps.orm_uint8()
+        mask = self.assets.painted[group] if self.assets.painted is not None and self.assets.painted[group].shape == orm.shape[:2] else np.ones(orm.shape[:2], bool)
+        return {"pbr": True, "roughness": round(float(orm[..., 1][mask].mean()) / 255, 3), "metallic": round(float(orm[..., 2][mask].mean()) / 255, 3)}
 
     def map_uris(self, edits: dict[int, GroupEdit] | None = None) -> list[tuple[str, str] | None] | None:
         """Per template group the URIs of its PBR maps (``textures/<g>.orm.png?v=...``,

@@ -5,6 +5,7 @@
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { RoomEnvironment } from 'three/addons/environments/RoomEnvironment.js';
 
 const DEBOUNCE_MS = 120;
 const $ = (id) => document.getElementById(id);
@@ -13,7 +14,7 @@ const body = document.body;
 const studio = {
   family: null, // the family's description (GET /v1/families/{name})
   params: {}, // current parameter values
-  edits: {}, // {group index: {hue, prompt}} not yet saved to the family
+  edits: {}, // {group index: {hue, prompt, roughness, metallic}} not yet saved to the family
   mesh: null, // an uploaded File (families of meshes)
   seq: 0, // sequence number of the latest transfer request
   controller: null,
@@ -35,10 +36,16 @@ const canvas = $('canvas');
 const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
 renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
 renderer.outputColorSpace = THREE.SRGBColorSpace;
+renderer.toneMapping = THREE.ACESFilmicToneMapping;
 const scene = new THREE.Scene();
 scene.background = new THREE.Color(0x16191e);
-scene.add(new THREE.HemisphereLight(0xffffff, 0x444455, 1.6));
-const sun = new THREE.DirectionalLight(0xffffff, 1.6);
+// PBR materials (roughness, metalness, normal maps) need something to reflect: an environment light
+// (three's room, pre-filtered once), a soft fill and a key light for shape.
+const pmrem = new THREE.PMREMGenerator(renderer);
+scene.environment = pmrem.fromScene(new RoomEnvironment(), 0.04).texture;
+studio.scene = scene; // test hook
+scene.add(new THREE.HemisphereLight(0xffffff, 0x444455, 0.6));
+const sun = new THREE.DirectionalLight(0xffffff, 1.4);
 sun.position.set(2, 3, 2.5);
 scene.add(sun);
 const camera = new THREE.PerspectiveCamera(40, 1, 0.001, 1000);
@@ -162,6 +169,8 @@ function editsBody() {
     const edit = {};
     if (e.hue) edit.hue = e.hue;
     if (e.prompt) edit.prompt = e.prompt;
+    if (e.roughness !== undefined) edit.roughness = e.roughness;
+    if (e.metallic !== undefined) edit.metallic = e.metallic;
     if (Object.keys(edit).length) out[g] = edit;
   }
   return out;
@@ -387,12 +396,26 @@ function groupPanel(group) {
   box.innerHTML = `
     <header><img alt="texture"><div><b></b><div class="muted prompt"></div></div></header>
     <label>hue <output>0°</output><input type="range" min="-180" max="180" step="1" value="0" aria-label="hue"></label>
+    <label class="pbr">roughness <output class="rough-out"></output><input class="roughness" type="range" min="0" max="1" step="0.01" aria-label="roughness"></label>
+    <label class="pbr">metallic <output class="metal-out"></output><input class="metallic" type="range" min="0" max="1" step="0.01" aria-label="metallic"></label>
     <div class="row"><input type="text" placeholder="new prompt" aria-label="prompt"><button class="secondary repaint">re-paint</button></div>
     <div class="row"><button class="save" disabled>save to family</button><button class="secondary reset" disabled>reset</button></div>`;
   const img = box.querySelector('img');
   const hue = box.querySelector('input[type=range]');
   const hueOut = box.querySelector('output');
   const prompt = box.querySelector('input[type=text]');
+  const material = { roughness: box.querySelector('input.roughness'), metallic: box.querySelector('input.metallic') };
+  const materialOut = { roughness: box.querySelector('.rough-out'), metallic: box.querySelector('.metal-out') };
+  const painted = { roughness: group.roughness, metallic: group.metallic }; // the maps' means as painted
+  const showMaterial = () => {
+    const e = studio.edits[g] || {};
+    for (const key of ['roughness', 'metallic']) {
+      const v = e[key] !== undefined ? e[key] : painted[key];
+      material[key].value = String(v ?? 0);
+      materialOut[key].textContent = Number(v ?? 0).toFixed(2);
+    }
+  };
+  for (const el of box.querySelectorAll('.pbr')) el.hidden = !group.pbr;
   prompt.maxLength = studio.family.limits.max_prompt;
   const save = box.querySelector('.save');
   const reset = box.querySelector('.reset');
@@ -401,7 +424,7 @@ function groupPanel(group) {
   let thumbTimer = null;
   const changed = () => {
     const e = studio.edits[g] || {};
-    const dirty = Boolean(e.hue || e.prompt);
+    const dirty = Boolean(e.hue || e.prompt || e.roughness !== undefined || e.metallic !== undefined);
     save.disabled = !dirty || !studio.family.edits_enabled;
     reset.disabled = !dirty;
     clearTimeout(thumbTimer);
@@ -412,7 +435,8 @@ function groupPanel(group) {
   hue.value = String(pending.hue || 0);
   hueOut.textContent = `${hue.value}°`;
   prompt.value = pending.prompt || '';
-  reset.disabled = !(pending.hue || pending.prompt);
+  reset.disabled = !(pending.hue || pending.prompt || pending.roughness !== undefined || pending.metallic !== undefined);
+  showMaterial();
   save.disabled = reset.disabled || !studio.family.edits_enabled;
   if (!studio.family.edits_enabled) save.title = 'this service is read-only (started without an edit token)';
   img.src = thumbUrl(g);
@@ -421,6 +445,13 @@ function groupPanel(group) {
     hueOut.textContent = `${hue.value}°`;
     changed();
   });
+  for (const key of ['roughness', 'metallic']) {
+    material[key].addEventListener('input', () => {
+      studio.edits[g] = { ...studio.edits[g], [key]: Number(material[key].value) };
+      materialOut[key].textContent = Number(material[key].value).toFixed(2);
+      changed();
+    });
+  }
   const repaint = () => {
     studio.edits[g] = { ...studio.edits[g], prompt: prompt.value.trim() };
     changed();
@@ -432,6 +463,7 @@ function groupPanel(group) {
     hue.value = '0';
     hueOut.textContent = '0°';
     prompt.value = '';
+    showMaterial();
     changed();
   });
   save.addEventListener('click', async () => {
