@@ -192,7 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("edit", help="edit one group's template texture (re-paint, HSV shift, roughness / metalness, logo); applies to every transfer")
     p.add_argument("family")
-    p.add_argument("--group", required=True, help="group index or label")
+    p.add_argument("--group", help="group index or label (required unless --make-maps)")
+    p.add_argument("--make-maps", action="store_true", help="give a family painted before PBR maps existed its maps (from its stored prompts)")
     p.add_argument("--prompt", help="re-paint the group with this prompt")
     p.add_argument("--hue", type=float, default=0.0, help="hue shift in degrees")
     p.add_argument("--saturation", type=float, default=1.0, help="saturation scale")

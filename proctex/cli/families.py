@@ -168,6 +168,16 @@ def cmd_edit(args: argparse.Namespace) -> int:
     from proctex.family.store import FamilyStore
 
     store = FamilyStore(args.family)
+    if args.make_maps:
+        from proctex.family.edits import add_material_maps
+
+        if args.group is not None:
+            raise ValueError("--make-maps works on every group: leave out --group")
+        made = add_material_maps(store)
+        print(f"made PBR maps for {len(made)} group(s)" + (f": {', '.join(map(str, made))}" if made else " (every group had them)"))
+        return 0
+    if args.group is None:
+        raise ValueError("--group is required (a group index or label)")
     if args.logo is not None and not os.path.isfile(args.logo):
         raise ValueError(f"--logo {args.logo}: no such file")
     record = edit_group(

@@ -61,6 +61,41 @@ def repaint_maps(prompt: str, group: int, label: str | None, template: Shape, re
     return bake_maps(tm, template.vertices, faces, np.asarray(rep_corner_uv), props, center, scale)
 
 
+def add_material_maps(store: FamilyStore, force: bool = False) -> list[int]:
+    """Give a family painted before PBR maps were made its maps, from each group's stored prompt (the
+    family's prompt, group prompts and re-paints as ``template/paint.json`` records them) on the stored
+    template, under the family's edit lock. Groups that have maps keep them unless ``force``. The
+    textures, UVs and networks are untouched, so transfers keep their colours and gain the maps.
+    Returns the groups that got maps."""
+    with edit_lock(store):
+        config = stored_config(store)
+        template = load_template_shape(store, config)
+        from .template import Template
+
+        record = Template.load(store, template, seed=config.seed)
+        uv = store.read_arrays(StoreLayout.UV)["corner_uv"]
+        summary = store.read_json(StoreLayout.PAINT)
+        made = []
+        for entry in summary["groups"]:
+            gi = int(entry["group"])
+            if entry.get("orm_sha256") and not force:
+                continue
+            group = record.grouping.groups[gi]
+            rep = record.grouping.parts[group.representative].faces
+            prompt = entry.get("prompt") or config.paint.prompt
+            maps = repaint_maps(prompt, gi, entry["label"], template, rep, uv[rep], record.textures[gi].shape[:2], seed=config.seed)
+            for kind, image in (("orm", maps.orm_uint8()), ("normal", maps.normal_uint8())):
+                data = encode_png(image)
+                store.write_bytes(StoreLayout.texture(gi, entry["label"], kind), data)
+                entry[f"{kind}_sha256"] = digest(data)
+            entry["occlusion"] = False
+            made.append(gi)
+        if made:
+            store.write_json(StoreLayout.PAINT, summary)
+            refresh_template_glb(store)
+        return made
+
+
 def adjust_orm(orm: np.ndarray, roughness: float | None = None, metallic: float | None = None) -> np.ndarray:
     """An ORM image (H, W, 3, uint8 or float in [0, 1]) with its roughness (G) and metalness (B)
     moved to the given means: the channel is shifted by the difference, so its variation (grain,

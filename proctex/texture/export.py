@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import pygltflib as gl
 
 from proctex.fileio import atomic_write, encode_png
 
@@ -179,27 +178,41 @@ def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, vid: np.ndarray,
 # --------------------------------------------------------------------------- GLB
 
 class _Blob:
-    """Binary buffer with 4-byte aligned bufferViews."""
+    """The GLB under construction as plain JSON dicts, with a binary buffer of 4-byte aligned
+    bufferViews (written directly: building pygltflib objects cost more than the rest of a GLB)."""
 
-    def __init__(self, gltf: gl.GLTF2):
-        self.gltf, self.parts, self.offset = gltf, [], 0
+    def __init__(self, doc: dict):
+        self.doc, self.parts, self.offset = doc, [], 0
 
     def view(self, data: bytes, target: int | None = None) -> int:
-        self.gltf.bufferViews.append(gl.BufferView(buffer=0, byteOffset=self.offset,
-                                                   byteLength=len(data), target=target))
+        view = {"buffer": 0, "byteOffset": self.offset, "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        self.doc["bufferViews"].append(view)
         pad = -len(data) % 4
         self.parts += [data, b"\0" * pad]
         self.offset += len(data) + pad
-        return len(self.gltf.bufferViews) - 1
+        return len(self.doc["bufferViews"]) - 1
 
     def accessor(self, array: np.ndarray, kind: str, target: int, minmax: bool = False) -> int:
-        ctype = gl.UNSIGNED_INT if array.dtype == np.uint32 else gl.FLOAT
-        acc = gl.Accessor(bufferView=self.view(array.tobytes(), target), componentType=ctype,
-                          count=len(array), type=kind, min=None, max=None, byteOffset=None)
+        ctype = 5125 if array.dtype == np.uint32 else 5126  # UNSIGNED_INT, FLOAT
+        acc = {"bufferView": self.view(array.tobytes(), target), "componentType": ctype, "count": len(array), "type": kind}
         if minmax:
-            acc.min, acc.max = array.min(axis=0).tolist(), array.max(axis=0).tolist()
-        self.gltf.accessors.append(acc)
-        return len(self.gltf.accessors) - 1
+            acc["min"], acc["max"] = array.min(axis=0).tolist(), array.max(axis=0).tolist()
+        self.doc["accessors"].append(acc)
+        return len(self.doc["accessors"]) - 1
+
+    def to_bytes(self) -> bytes:
+        """The GLB file: header, JSON chunk (space-padded), BIN chunk (zero-padded)."""
+        doc = {k: v for k, v in self.doc.items() if v != []}
+        binary = b"".join(self.parts)
+        doc["buffers"] = [{"byteLength": len(binary)}]
+        text = json.dumps(doc, separators=(",", ":")).encode()
+        text += b" " * (-len(text) % 4)
+        binary += b"\0" * (-len(binary) % 4)
+        total = 12 + 8 + len(text) + 8 + len(binary)
+        header = b"glTF" + (2).to_bytes(4, "little") + total.to_bytes(4, "little")
+        return b"".join([header, len(text).to_bytes(4, "little"), b"JSON", text, len(binary).to_bytes(4, "little"), b"BIN\0", binary])
 
 
 def _png(image: np.ndarray | bytes) -> bytes:
@@ -207,15 +220,12 @@ def _png(image: np.ndarray | bytes) -> bytes:
     return bytes(image) if isinstance(image, (bytes, bytearray)) else encode_png(image)
 
 
-def _split_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, indices: np.ndarray, n_split: int) -> np.ndarray:
-    """(s, 4) float32 TANGENT of each split vertex: the corner tangents (:func:`proctex.texture.pbr.corner_tangents`)
-    of the primitive's faces, taken from a corner that became that split vertex."""
-    from .pbr import corner_tangents
+def _split_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, indices: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(s, 4) float32 TANGENT of each split vertex (one per (vertex, texcoord) pair, the pairs
+    :func:`proctex.texture.pbr.corner_tangents` averages over), orthogonal to its NORMAL (``normals`` (s, 3))."""
+    from .pbr import key_tangents
 
-    tang = corner_tangents(vertices, faces, corner_uv).reshape(-1, 4)
-    out = np.zeros((n_split, 4), np.float32)
-    out[indices.reshape(-1).astype(np.int64)] = tang
-    return out
+    return key_tangents(vertices, faces, corner_uv, indices.reshape(-1).astype(np.int64), normals.astype(np.float64)).astype(np.float32)
 
 
 #: Node rotations (glTF quaternions x, y, z, w) that stand a shape with the given up axis upright in
@@ -261,9 +271,12 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
     uris = list(image_uris) if image_uris is not None else [None] * len(texs)
     if len(uris) != len(texs):
         raise ValueError(f"image_uris needs one entry per texture ({len(texs)}), got {len(uris)}")
-    gltf = gl.GLTF2(asset=gl.Asset(generator="proctex.texture.export", version="2.0"), scene=0,
-                    scenes=[gl.Scene(nodes=[0])], nodes=[gl.Node(mesh=0, rotation=UP_ROTATIONS[up])], buffers=[gl.Buffer()])
-    blob = _Blob(gltf)
+    node = {"mesh": 0}
+    if UP_ROTATIONS[up] is not None:
+        node["rotation"] = UP_ROTATIONS[up]
+    doc: dict = {"asset": {"generator": "proctex.texture.export", "version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [node],
+                 "meshes": [], "accessors": [], "bufferViews": [], "images": [], "textures": [], "samplers": [], "materials": []}
+    blob = _Blob(doc)
     primitives = []
     for g, idx in _groups(FG, len(texs)):
         f = F[idx]
@@ -273,49 +286,45 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
             st[..., 0] = UV[idx, :, 0]
             st[..., 1] = 1.0 - UV[idx, :, 1]
         vid, st_split, indices = _split_vertices(f, st)
-        attrs = gl.Attributes(
-            POSITION=blob.accessor(V[vid].astype(np.float32), gl.VEC3, ARRAY_BUFFER, minmax=True),
-            NORMAL=blob.accessor(_smooth_normals(V, f, vid, indices), gl.VEC3, ARRAY_BUFFER))
-        pbr = gl.PbrMetallicRoughness(metallicFactor=0.0, roughnessFactor=ROUGHNESS)
+        normals = _smooth_normals(V, f, vid, indices)
+        attrs = {"POSITION": blob.accessor(V[vid].astype(np.float32), "VEC3", ARRAY_BUFFER, minmax=True),
+                 "NORMAL": blob.accessor(normals, "VEC3", ARRAY_BUFFER)}
+        pbr: dict = {"metallicFactor": 0.0, "roughnessFactor": ROUGHNESS}
+        material: dict = {}
         if g >= 0:
-            attrs.TEXCOORD_0 = blob.accessor(st_split, gl.VEC2, ARRAY_BUFFER)
+            attrs["TEXCOORD_0"] = blob.accessor(st_split, "VEC2", ARRAY_BUFFER)
 
             def texture(image, uri, suffix: str = "") -> int:
                 if uri:
-                    gltf.images.append(gl.Image(uri=uri, mimeType="image/png", name=names[g] + suffix))
+                    doc["images"].append({"uri": uri, "mimeType": "image/png", "name": names[g] + suffix})
                 else:
-                    gltf.images.append(gl.Image(bufferView=blob.view(_png(image)), mimeType="image/png", name=names[g] + suffix))
-                gltf.textures.append(gl.Texture(sampler=0, source=len(gltf.images) - 1))
-                return len(gltf.textures) - 1
+                    doc["images"].append({"bufferView": blob.view(_png(image)), "mimeType": "image/png", "name": names[g] + suffix})
+                doc["textures"].append({"sampler": 0, "source": len(doc["images"]) - 1})
+                return len(doc["textures"]) - 1
 
-            pbr.baseColorTexture = gl.TextureInfo(index=texture(texs[g], uris[g]))
+            pbr["baseColorTexture"] = {"index": texture(texs[g], uris[g])}
             name = names[g]
             material_maps = maps[g]
         else:
             material_maps = None
-            pbr.baseColorFactor = list(GREY)
+            pbr["baseColorFactor"] = list(GREY)
             name = UNTEXTURED_NAME
-        extra = {}
         if material_maps is not None:
             mu = map_uris[g] or (None, None)
             orm = texture(material_maps.orm, mu[0], "_orm")
-            pbr.metallicFactor, pbr.roughnessFactor = 1.0, 1.0
-            pbr.metallicRoughnessTexture = gl.TextureInfo(index=orm)
-            extra["normalTexture"] = gl.NormalMaterialTexture(index=texture(material_maps.normal, mu[1], "_normal"))
+            pbr["metallicFactor"], pbr["roughnessFactor"] = 1.0, 1.0
+            pbr["metallicRoughnessTexture"] = {"index": orm}
+            material["normalTexture"] = {"index": texture(material_maps.normal, mu[1], "_normal")}
             if material_maps.occlusion:
-                extra["occlusionTexture"] = gl.OcclusionTextureInfo(index=orm)
-            attrs.TANGENT = blob.accessor(_split_tangents(V, f, UV[idx], indices, len(vid)), gl.VEC4, ARRAY_BUFFER)
-        gltf.materials.append(gl.Material(pbrMetallicRoughness=pbr, doubleSided=bool(double_sided),
-                                          name=name, emissiveFactor=None, **extra))
-        primitives.append(gl.Primitive(
-            attributes=attrs, material=len(gltf.materials) - 1, mode=gl.TRIANGLES,
-            indices=blob.accessor(indices.reshape(-1), gl.SCALAR, ELEMENT_ARRAY_BUFFER)))
-    if gltf.textures:
-        gltf.samplers = [gl.Sampler(magFilter=gl.LINEAR, minFilter=gl.LINEAR_MIPMAP_LINEAR,
-                                    wrapS=gl.CLAMP_TO_EDGE, wrapT=gl.CLAMP_TO_EDGE)]
-    gltf.meshes = [gl.Mesh(primitives=primitives)]
-    gltf.set_binary_blob(b"".join(blob.parts))
-    return b"".join(gltf.save_to_bytes())
+                material["occlusionTexture"] = {"index": orm}
+            attrs["TANGENT"] = blob.accessor(_split_tangents(V, f, UV[idx], indices, normals), "VEC4", ARRAY_BUFFER)
+        doc["materials"].append({"name": name, "pbrMetallicRoughness": pbr, "doubleSided": bool(double_sided), **material})
+        primitives.append({"attributes": attrs, "material": len(doc["materials"]) - 1, "mode": 4,
+                           "indices": blob.accessor(indices.reshape(-1), "SCALAR", ELEMENT_ARRAY_BUFFER)})
+    if doc["textures"]:
+        doc["samplers"] = [{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}]  # LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE
+    doc["meshes"] = [{"primitives": primitives}]
+    return blob.to_bytes()
 
 
 # --------------------------------------------------------------------------- files

@@ -24,7 +24,7 @@ import numpy as np
 
 from .uv import TexelMap, pad_seams
 
-__all__ = ["PbrMaps", "corner_tangents", "corner_normals", "texel_frames", "encode_normal", "decode_normal",
+__all__ = ["PbrMaps", "corner_tangents", "key_tangents", "corner_normals", "texel_frames", "encode_normal", "decode_normal",
            "bake_maps", "flat_maps", "FLAT_NORMAL"]
 
 #: the encoded colour of an unperturbed normal (0, 0, 1).
@@ -110,9 +110,8 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     f = np.asarray(faces, dtype=np.int64)
     tri = v[f]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    acc = np.zeros((len(v), 3))
-    for k in range(3):
-        np.add.at(acc, f[:, k], fn)
+    flat = f.reshape(-1)
+    acc = np.stack([np.bincount(flat, weights=np.repeat(fn[:, k], 3), minlength=len(v)) for k in range(3)], axis=1)
     length = np.linalg.norm(acc, axis=1)
     ok = length > 0
     acc[ok] /= length[ok, None]
@@ -121,13 +120,15 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def corner_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray,
-                    normals: np.ndarray | None = None) -> np.ndarray:
+                    normals: np.ndarray | None = None, keys: np.ndarray | None = None) -> np.ndarray:
     """Per-corner tangent frames ``(m, 3, 4)`` float64: unit tangent xyz (orthogonal to the corner's
     normal) and handedness w = ±1, shared by every corner of the same (vertex, UV) pair.
 
     Args:
         vertices: (n, 3); faces: (m, 3); corner_uv: (m, 3, 2) with v up.
         normals: (m, 3, 3) per-corner unit normals (default :func:`corner_normals` over ``faces``).
+        keys: (m * 3,) int ids of the corners' (vertex, UV) pairs when the caller has them (the GLB's
+            split vertices); default: computed from ``faces`` and the float32 UVs.
     A pair whose faces have no UV extent gets any tangent orthogonal to its normal, w = 1.
     """
     v = np.asarray(vertices, dtype=np.float64)
@@ -136,9 +137,20 @@ def corner_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarr
     if f.ndim != 2 or f.shape[1] != 3 or uv.shape != (len(f), 3, 2):
         raise ValueError(f"faces (m, 3) and corner_uv (m, 3, 2) expected, got {f.shape} and {uv.shape}")
     m = len(f)
-    nrm = corner_normals(v, f) if normals is None else np.asarray(normals, dtype=np.float64)
     if m == 0:
         return np.zeros((0, 3, 4))
+    nrm = corner_normals(v, f) if normals is None else np.asarray(normals, dtype=np.float64)
+    key = _uv_keys(f, uv) if keys is None else np.asarray(keys, dtype=np.int64).reshape(-1)
+    n_keys = int(key.max()) + 1
+    key_normals = np.zeros((n_keys, 3))
+    key_normals[key] = nrm.reshape(-1, 3)  # every corner of a pair has its vertex's normal
+    return key_tangents(v, f, uv, key, key_normals)[key].reshape(m, 3, 4)
+
+
+def key_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, keys: np.ndarray, key_normals: np.ndarray) -> np.ndarray:
+    """The tangent frame ``(k, 4)`` of each (vertex, UV) pair: ``keys`` (m * 3,) gives each corner's
+    pair, ``key_normals`` (k, 3) each pair's unit normal. See :func:`corner_tangents`."""
+    v, f, uv = vertices, faces, corner_uv
     tri = v[f]
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
@@ -147,31 +159,25 @@ def corner_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarr
     r = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
     t = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * r[:, None]  # dP/du
     b = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * r[:, None]  # dP/dv
-    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    area = 0.5 * np.sqrt((np.cross(e1, e2) ** 2).sum(1))
     for a in (t, b):  # unit directions weighted by area: a stretched face must not dominate
-        length = np.linalg.norm(a, axis=1, keepdims=True)
-        np.divide(a, length, out=a, where=length > 1e-30)
-        a *= area[:, None]
-    key = _uv_keys(f, uv)
-    n_keys = int(key.max()) + 1
-    acc_t = np.zeros((n_keys, 3))
-    acc_b = np.zeros((n_keys, 3))
-    np.add.at(acc_t, key, np.repeat(t, 3, axis=0))
-    np.add.at(acc_b, key, np.repeat(b, 3, axis=0))
-    T = acc_t[key].reshape(m, 3, 3)
-    B = acc_b[key].reshape(m, 3, 3)
-    T = T - nrm * (T * nrm).sum(-1, keepdims=True)
-    length = np.linalg.norm(T, axis=-1, keepdims=True)
-    bad = length[..., 0] < 1e-12
+        length = np.sqrt((a * a).sum(1))
+        a *= (area / np.where(length > 1e-30, length, 1.0))[:, None]
+    n_keys = len(key_normals)
+    T = np.stack([np.bincount(keys, weights=np.repeat(t[:, k], 3), minlength=n_keys) for k in range(3)], axis=1)
+    B = np.stack([np.bincount(keys, weights=np.repeat(b[:, k], 3), minlength=n_keys) for k in range(3)], axis=1)
+    N = key_normals
+    T -= N * (T * N).sum(1, keepdims=True)
+    length = np.sqrt((T * T).sum(1))
+    bad = length < 1e-12
     if bad.any():  # no UV extent: any direction in the tangent plane
-        n = nrm[bad]
+        n = N[bad]
         helper = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-        alt = helper - n * (helper * n).sum(-1, keepdims=True)
-        T[bad] = alt
-        length = np.linalg.norm(T, axis=-1, keepdims=True)
-    T = T / np.maximum(length, 1e-300)
-    w = np.where((np.cross(nrm, T) * B).sum(-1) < 0, -1.0, 1.0)
-    return np.concatenate([T, w[..., None]], axis=-1)
+        T[bad] = helper - n * (helper * n).sum(1, keepdims=True)
+        length = np.sqrt((T * T).sum(1))
+    T /= np.maximum(length, 1e-300)[:, None]
+    w = np.where((np.cross(N, T) * B).sum(1) < 0, -1.0, 1.0)
+    return np.concatenate([T, w[:, None]], axis=1)
 
 
 def texel_frames(texels: TexelMap, tangents: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

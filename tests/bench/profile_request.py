@@ -1,6 +1,7 @@
 """Where one mesh-upload request's time goes, in this process (no Ray): reading and welding the
-mesh, the part-count check, the transfer, the GLB (textures embedded or linked), and the whole route
-through FastAPI's test client; medians of repeated runs, plus the bytes per answer.
+mesh, the part-count check, the transfer, the GLB (textures embedded or linked; with the family's PBR
+maps and, in the same run, without them), and the whole route through FastAPI's test client; medians
+of repeated runs, plus the bytes per answer.
 
     .venv/bin/python tests/bench/profile_request.py --root out/fam --family sofa
 """
@@ -57,8 +58,17 @@ def main(argv=None) -> int:
         "transfer (segment, assign, map, UVs)": median_ms(lambda k: transfer(shapes[k % len(shapes)], svc.assets, svc.mapper, painter=svc.painter)),
         "GLB, textures embedded": median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], svc.assets, up=svc.up)),
         "GLB, textures linked": median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], svc.assets, up=svc.up,
-                                                         texture_uris=svc.texture_uris())),
+                                                         texture_uris=svc.texture_uris(), map_uris=svc.map_uris())),
     }
+    if svc.assets.pbr_png is not None:  # the same GLBs without the maps: what the maps cost
+        from dataclasses import replace
+
+        plain = replace(svc.assets, pbr=None, pbr_png=None)
+        rows["GLB, embedded, colour only"] = median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], plain, up=svc.up))
+        rows["GLB, linked, colour only"] = median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], plain, up=svc.up,
+                                                                   texture_uris=svc.texture_uris()))
+        print("bytes per GLB, embedded: with maps", len(glb(shapes[0], results[0], svc.assets, up=svc.up)), "colour only",
+              len(glb(shapes[0], results[0], plain, up=svc.up)))
     for mode in ("embedded", "linked"):
         sizes: list[int] = []
 
