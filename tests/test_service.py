@@ -275,8 +275,9 @@ def test_transfers_take_non_destructive_edits(client, root):
     _glb_ok(r.content)
     geo0, img0 = _glb_parts(plain)
     geo1, img1 = _glb_parts(r.content)
-    assert geo1 == geo0 and set(img1) == {"body", "handle"}
-    assert img0 == {"body": stored[0], "handle": stored[1]}
+    assert geo1 == geo0 and set(img1) == {f"{g}{k}" for g in ("body", "handle") for k in ("", "_orm", "_normal")}
+    assert {k: img0[k] for k in ("body", "handle")} == {"body": stored[0], "handle": stored[1]}
+    assert img1["body_orm"] == img0["body_orm"] and img1["body_normal"] == img0["body_normal"]  # a hue shift leaves the maps
     assert img1["handle"] == stored[1] and img1["body"] == t180.content
     # Index or label, JSON or multipart: the same GLB; a repeated edit comes from the cache.
     svc = cat.get("mug")

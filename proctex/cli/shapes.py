@@ -170,7 +170,8 @@ def cmd_paint(args: argparse.Namespace) -> int:
         from proctex.texture.render import render_three_quarter, save_png
 
         image = render_three_quarter(tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group,
-                                     [g.uint8() for g in tex.groups], up=up, size=512)
+                                     [g.uint8() for g in tex.groups], up=up, size=512,
+                                     maps=tex.pbr if any(m is not None for m in tex.pbr) else None)
         Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
         save_png(args.preview, image)
         summary["preview"] = args.preview
@@ -225,13 +226,14 @@ def cmd_render(args: argparse.Namespace) -> int:
     arrays = (mesh.vertices, mesh.faces, mesh.corner_uv, mesh.face_group, mesh.textures)
     tracer = Tracer(mesh.vertices, mesh.faces)
     maps = mesh.pbr if any(m is not None for m in mesh.pbr) else None  # PBR materials are lit physically
+    lit = {"maps": maps, "normals": mesh.corner_normals}  # with the file's own normals
     if args.views == "front":
-        image, what = render_three_quarter(*arrays, up=up, size=args.size, tracer=tracer, maps=maps), "3/4 view"
+        image, what = render_three_quarter(*arrays, up=up, size=args.size, tracer=tracer, **lit), "3/4 view"
     elif args.views == "six":
-        images, names = render_six_views(*arrays, up=up, size=args.size, tracer=tracer, maps=maps)
+        images, names = render_six_views(*arrays, up=up, size=args.size, tracer=tracer, **lit)
         image, what = render_grid(images, 3, labels=names), "six views"
     else:
-        frames = turntable_frames(*arrays, up=up, n=args.frames, size=args.size, tracer=tracer, maps=maps)
+        frames = turntable_frames(*arrays, up=up, n=args.frames, size=args.size, tracer=tracer, **lit)
         image, what = None, f"turntable, {args.frames} frames"
         if suffix != ".gif":
             image = render_grid(frames, grid_columns(len(frames)))

@@ -41,6 +41,8 @@ class TexturedMesh:
         pbr: per group its :class:`proctex.texture.pbr.PbrMaps` (ORM from ``metallicRoughnessTexture``
             times its factors, normal from ``normalTexture``), or None for a material with neither
             texture (colour only).
+        corner_normals: (m, 3, 3) float64 unit normals per face corner from the file's NORMAL
+            attributes (world frame), or None when a primitive has none.
     """
 
     vertices: np.ndarray
@@ -51,6 +53,7 @@ class TexturedMesh:
     names: list[str]
     notes: list[str] = field(default_factory=list)
     pbr: list = field(default_factory=list)
+    corner_normals: np.ndarray | None = None
 
 
 def _data_uri(uri: str) -> bytes:
@@ -270,7 +273,7 @@ def _read_gltf(gltf: gl.GLTF2, rd: _GltfReader) -> TexturedMesh:
     names: list[str] = []
     texcoord_of_group: list[int | None] = []
     pbr_maps: list = []
-    V, F, UV, G = [], [], [], []
+    V, F, UV, G, NRM = [], [], [], [], []
     n_vertices = 0
 
     def group_of(mat: int | None) -> int:
@@ -354,10 +357,21 @@ def _read_gltf(gltf: gl.GLTF2, rd: _GltfReader) -> TexturedMesh:
                     uv[:, 1] = 1.0 - st[:, 1].astype(np.float64)
             else:
                 uv = np.zeros((len(pos), 2))
+            nrm = None
+            if getattr(attrs, "NORMAL", None) is not None:
+                nrm = rd.accessor(attrs.NORMAL).astype(np.float64)
+                nrm = nrm if nrm.shape == (len(pos), 3) and np.isfinite(nrm).all() else None
             if not np.array_equal(world, np.eye(4)):
                 pos = pos @ world[:3, :3].T + world[:3, 3]
+                if nrm is not None:  # normals follow the inverse transpose
+                    inv_t = np.linalg.inv(world[:3, :3]).T if abs(np.linalg.det(world[:3, :3])) > 1e-30 else world[:3, :3]
+                    nrm = nrm @ inv_t.T
                 if np.linalg.det(world[:3, :3]) < 0:  # mirrored: keep the faces' front side
                     tri = tri[:, [0, 2, 1]]
+            if nrm is not None:
+                length = np.linalg.norm(nrm, axis=1, keepdims=True)
+                nrm = np.where(length > 1e-12, nrm / np.where(length > 1e-12, length, 1.0), np.array([0.0, 0.0, 1.0]))
+            NRM.append(None if nrm is None else nrm[tri])
             V.append(pos)
             F.append(tri + n_vertices)
             UV.append(uv[tri])
@@ -370,7 +384,8 @@ def _read_gltf(gltf: gl.GLTF2, rd: _GltfReader) -> TexturedMesh:
     if not np.isfinite(vertices).all():
         raise ValueError("vertex positions contain NaN or inf")
     # Groups are made only for primitives with triangles, so every group is used.
-    return TexturedMesh(vertices, np.concatenate(F), np.concatenate(UV), np.concatenate(G), textures, names, notes, pbr_maps)
+    normals = np.concatenate(NRM) if all(n is not None for n in NRM) else None
+    return TexturedMesh(vertices, np.concatenate(F), np.concatenate(UV), np.concatenate(G), textures, names, notes, pbr_maps, normals)
 
 
 def _material_maps(gltf: gl.GLTF2, rd: "_GltfReader", m: gl.Material, pbr: gl.PbrMetallicRoughness, name: str, notes: list[str]):

@@ -61,19 +61,22 @@ def environment(directions: np.ndarray, up: np.ndarray, roughness: np.ndarray | 
 
 
 def pbr_surface(buffers: Any, vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
-                textures: Sequence[np.ndarray], maps: Sequence[Any] | None = None) -> dict[str, np.ndarray]:
+                textures: Sequence[np.ndarray], maps: Sequence[Any] | None = None, normals: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Per seen pixel (``buffers.mask``): ``albedo`` (k, 3) sRGB, ``roughness`` (k,), ``metallic`` (k,)
     and the world ``normal`` (k, 3), bent by the normal maps of the groups that have them.
 
     ``maps``: per texture its :class:`proctex.texture.pbr.PbrMaps` or None (colour only: roughness
-    0.8, not metal, the smooth normal). Inputs as in :func:`proctex.texture.render.render_textured`.
+    0.8, not metal, the smooth normal). ``normals``: (m, 3, 3) per-corner unit normals (a file's
+    own, e.g. :attr:`proctex.texture.gltf_read.TexturedMesh.corner_normals`); default the smooth
+    vertex normals (:func:`proctex.texture.pbr.corner_normals`, what the GLB writes). Inputs as in
+    :func:`proctex.texture.render.render_textured`.
     """
     m = buffers.mask
     face = buffers.face[m]
     bary = buffers.bary[m]
     fg = np.asarray(face_group)[face]
     uv = np.einsum("ij,ijk->ik", bary, np.asarray(corner_uv)[face])
-    cn = corner_normals(vertices, faces)
+    cn = corner_normals(vertices, faces) if normals is None else np.asarray(normals, dtype=np.float64)
     n = np.einsum("ij,ijk->ik", bary, cn[face])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     # Face the camera (double-sided materials): flip where the geometric normal was flipped.

@@ -376,6 +376,7 @@ def render_textured(
     tracer: Tracer | None = None,
     background=(1.0, 1.0, 1.0),
     maps: list | None = None,
+    normals: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, W, 3) uint8 shaded image of a textured mesh seen by ``camera``.
 
@@ -383,14 +384,15 @@ def render_textured(
     ``textures`` (each (H, W, 3|4) uint8 or float). ``tracer``: reuse one built for this mesh.
     ``maps``: per texture its :class:`proctex.texture.pbr.PbrMaps` or None; with any, the view is lit
     physically (:mod:`proctex.texture.lighting`: roughness, metalness and normal maps under lights
-    and a studio environment), else by the headlight of :func:`shade`.
+    and a studio environment), else by the headlight of :func:`shade`; ``normals``: (m, 3, 3)
+    per-corner normals for that lighting (default: smooth vertex normals).
     """
     tracer = tracer if tracer is not None else Tracer(vertices, faces)
     b = render_buffers(tracer, camera, face_group=np.asarray(face_group))
     if maps is not None and any(m is not None for m in maps):
         from .lighting import pbr_surface, shade_pbr
 
-        return shade_pbr(b, pbr_surface(b, vertices, faces, corner_uv, face_group, textures, maps), background=background)
+        return shade_pbr(b, pbr_surface(b, vertices, faces, corner_uv, face_group, textures, maps, normals), background=background)
     return shade(b, textured_albedo(b, corner_uv, face_group, textures), background=background)
 
 
@@ -411,39 +413,39 @@ def three_quarter_camera(vertices: np.ndarray, up="z", size: int = 512, azimuth:
 
 def render_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
                  textures: list[np.ndarray], cameras: list[Camera], tracer: Tracer | None = None,
-                 background=(1.0, 1.0, 1.0), maps: list | None = None) -> list[np.ndarray]:
+                 background=(1.0, 1.0, 1.0), maps: list | None = None, normals: np.ndarray | None = None) -> list[np.ndarray]:
     """Shaded textured images, one (H, W, 3) uint8 per camera (inputs as in :func:`render_textured`).
 
     One :class:`Tracer` is built for all cameras (or ``tracer`` is reused).
     """
     tracer = tracer if tracer is not None else Tracer(vertices, faces)
-    return [render_textured(vertices, faces, corner_uv, face_group, textures, cam, tracer, background, maps) for cam in cameras]
+    return [render_textured(vertices, faces, corner_uv, face_group, textures, cam, tracer, background, maps, normals) for cam in cameras]
 
 
 def render_three_quarter(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
                          textures: list[np.ndarray], up="z", size: int = 512, tracer: Tracer | None = None,
-                         maps: list | None = None) -> np.ndarray:
+                         maps: list | None = None, normals: np.ndarray | None = None) -> np.ndarray:
     """(size, size, 3) uint8 image of the textured mesh from the 3/4 view (:func:`three_quarter_camera`)."""
     cam = three_quarter_camera(vertices, up, size)
-    return render_views(vertices, faces, corner_uv, face_group, textures, [cam], tracer, maps=maps)[0]
+    return render_views(vertices, faces, corner_uv, face_group, textures, [cam], tracer, maps=maps, normals=normals)[0]
 
 
 def render_six_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
                      textures: list[np.ndarray], up="z", size: int = 512,
-                     tracer: Tracer | None = None, maps: list | None = None) -> tuple[list[np.ndarray], list[str]]:
+                     tracer: Tracer | None = None, maps: list | None = None, normals: np.ndarray | None = None) -> tuple[list[np.ndarray], list[str]]:
     """The six canonical views (:func:`canonical_cameras`): six (size, size, 3) uint8 images and their names."""
     c, r = bounding_sphere(vertices)
     cams = canonical_cameras(c, r, up, size)
-    return render_views(vertices, faces, corner_uv, face_group, textures, cams, tracer, maps=maps), [cam.name for cam in cams]
+    return render_views(vertices, faces, corner_uv, face_group, textures, cams, tracer, maps=maps, normals=normals), [cam.name for cam in cams]
 
 
 def turntable_frames(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
                      textures: list[np.ndarray], up="z", n: int = 24, size: int = 512, elevation: float = 20.0,
-                     tracer: Tracer | None = None, maps: list | None = None) -> list[np.ndarray]:
+                     tracer: Tracer | None = None, maps: list | None = None, normals: np.ndarray | None = None) -> list[np.ndarray]:
     """``n`` (size, size, 3) uint8 frames around ``up`` (:func:`turntable`), starting at the front."""
     c, r = bounding_sphere(vertices)
     cams = turntable(c, r, up, n, elevation, size)
-    return render_views(vertices, faces, corner_uv, face_group, textures, cams, tracer, maps=maps)
+    return render_views(vertices, faces, corner_uv, face_group, textures, cams, tracer, maps=maps, normals=normals)
 
 
 def _font(height: int):
