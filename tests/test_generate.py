@@ -91,6 +91,7 @@ def test_obj_output_and_a_file_uri_and_a_damaged_record_is_made_again(mug, tmp_p
     for r in rows:
         obj = out / r["file"]
         assert obj.suffix == ".obj" and (obj.with_suffix(".mtl")).exists() and list(out.glob(f"variants/{obj.stem}_*.png"))
+        assert "map_Pr" in obj.with_suffix(".mtl").read_text() and "norm " in obj.with_suffix(".mtl").read_text()  # the PBR maps travel too
         shape, _ = load_mesh(str(obj))
         assert shape.n_faces == r["faces"]
     (out / GenerateLayout.record(rows[1]["id"])).write_text("{ damaged")

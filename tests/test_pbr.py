@@ -505,3 +505,45 @@ def test_glb_read_back_gives_the_maps_and_render_lights_them(painted, tmp_path):
     a = np.asarray(Image.open(tmp_path / "pbr.png")).astype(int)
     b = np.asarray(Image.open(tmp_path / "plain.png")).astype(int)
     assert np.abs(a - b).mean() > 3
+
+
+def test_ambient_occlusion_darkens_crevices():
+    """Inside a box open at the top, the floor's corners see less sky than its middle and the outside
+    sees it all; painted with --occlusion, the mug's maps hold it in R and the GLB names it."""
+    from proctex.texture.lighting import vertex_occlusion
+    from proctex.texture.render import embree_available
+
+    if not embree_available():
+        pytest.skip("no Embree here")
+    # An open box (no lid) from five quads, subdivided.
+    import trimesh
+
+    box = trimesh.creation.box(extents=(2, 2, 2))
+    box = box.subdivide().subdivide().subdivide()
+    keep = box.triangles_center[:, 2] < 0.99  # drop the lid
+    V, F = box.vertices, box.faces[keep]
+    flip = F[:, [0, 2, 1]]  # the inside: faces turned inwards
+    ao_in = vertex_occlusion(V, flip, rays=64)
+    used = np.unique(flip)
+    floor = used[V[used, 2] < -0.99]
+    corner = floor[np.linalg.norm(V[floor, :2], axis=1) > 1.3]
+    middle = floor[np.linalg.norm(V[floor, :2], axis=1) < 0.3]
+    assert ao_in[corner].mean() < ao_in[middle].mean() - 0.1
+    assert vertex_occlusion(V, F, rays=64)[used].min() > 0.95  # the outside of the same box is open
+    shape = get_model("mug").generate(None)
+    tex = paint_template(shape, analyse(shape), "white ceramic", size=64, occlusion=True)
+    body = tex.groups[0]
+    occ = body.pbr.orm[body.texels.ij[:, 0], body.texels.ij[:, 1], 0]
+    assert body.pbr.occlusion and occ.min() < 0.6 and occ.max() > 0.95
+    g = gl.GLTF2.load_from_bytes(_glb(tex))
+    assert g.materials[0].occlusionTexture.index == g.materials[0].pbrMetallicRoughness.metallicRoughnessTexture.index
+    with pytest.raises(ValueError, match="rays"):
+        vertex_occlusion(V, F, rays=0)
+
+
+def test_occlusion_setting_is_validated():
+    from proctex.family.config import BuildConfig
+
+    assert BuildConfig.from_dict(dict(model="mug", occlusion=True)).validate().paint.occlusion is True
+    with pytest.raises(ValueError, match="occlusion must be true or false"):
+        BuildConfig.from_dict(dict(model="mug", occlusion="yes")).validate()

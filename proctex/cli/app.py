@@ -99,6 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="cpu")
     p.add_argument("--up", choices=["auto", "x", "y", "z"], default="auto", help="up axis (auto: y for OBJ/glTF files, else z)")
     p.add_argument("--obj", action="store_true", help="also write OBJ + MTL")
+    p.add_argument("--occlusion", action="store_true", help="bake ambient occlusion into the PBR maps")
     p.add_argument("--preview", metavar="PNG", help="also write a 512px 3/4 view of the painted template to this .png")
     p.add_argument("--force", action="store_true", help="overwrite an existing --preview")
     p.add_argument("--json", action="store_true")

@@ -162,7 +162,7 @@ def cmd_paint(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     tex = paint_template(shape, grouping, args.prompt, group_prompts, painter=args.painter, size=args.size, seed=args.seed, up=up,
                          views=args.views, view_size=args.view_size, model_dir=args.model_dir, device=args.device, steps=args.steps,
-                         on_view=progress)
+                         on_view=progress, occlusion=args.occlusion)
     seconds = time.perf_counter() - t0
     summary = write_textured(tex, args.out, up=up, obj=args.obj)
     summary["paint_seconds"] = round(seconds, 3)

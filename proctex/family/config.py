@@ -15,7 +15,7 @@ from typing import Any
 FLAT_KEYS: dict[str, tuple[str, str]] = {
     **{k: ("source", k) for k in ("model", "folder", "generator", "blender", "n_train", "n_test", "sampling", "params", "tessellation", "up")},
     **{k: ("paint", k) for k in ("prompt", "group_prompts", "painter", "texture_size", "views", "view_size", "paint_hidden", "fill",
-                                 "model_dir", "device", "steps")},
+                                 "model_dir", "device", "steps", "occlusion")},
     "cage_level": ("cage", "level"), "cage_iterations": ("cage", "iterations"),
 }
 SECTIONS = ("source", "paint", "cage", "train")
@@ -112,6 +112,7 @@ class PaintConfig:
             filled: "patchmatch" or "surface"). Texels no view saw stay out of the template's
             "already painted" mask, so transfer can detect dis-occlusion.
         model_dir, device, steps: the diffusion painter.
+        occlusion: bake ambient occlusion into the PBR maps (the ORM's R channel).
     """
 
     prompt: str = "oak"
@@ -125,6 +126,7 @@ class PaintConfig:
     model_dir: str | None = None
     device: str = "cpu"
     steps: int = 20
+    occlusion: bool = False
 
     def validate(self) -> "PaintConfig":
         if not isinstance(self.prompt, str):
@@ -143,6 +145,8 @@ class PaintConfig:
             raise ValueError("views must be >= 3, view_size >= 16 and steps >= 1")
         if self.fill not in ("patchmatch", "surface"):
             raise ValueError(f"fill must be patchmatch or surface, got {self.fill!r}")
+        if not isinstance(self.occlusion, bool):
+            raise ValueError(f"occlusion must be true or false, got {self.occlusion!r}")
         if self.painter == "diffusion" and not (self.model_dir and os.path.isdir(self.model_dir)):
             raise ValueError(f"painter 'diffusion' needs model_dir, a local diffusers model folder (got {self.model_dir!r})")
         return self

@@ -347,7 +347,8 @@ class TextureStage:
         from proctex.texture.export import obj_files
 
         names = self.svc.assets.names + [f"new_{k}" for k in range(len(answer.textures) - len(self.svc.assets.names))]
-        made = obj_files(vid, shape.vertices, shape.faces, answer.corner_uv, answer.face_group, answer.textures, names=names[: len(answer.textures)])
+        pbr = answer.pbr if answer.pbr is not None and any(m is not None for m in answer.pbr) else None  # MTL names the PBR maps too
+        made = obj_files(vid, shape.vertices, shape.faces, answer.corner_uv, answer.face_group, answer.textures, names=names[: len(answer.textures)], pbr=pbr)
         return [(f"variants/{name}", data) for name, data in made]
 
 

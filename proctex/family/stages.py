@@ -207,7 +207,8 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     tex = paint_template(template, grouping, config.paint.prompt, config.paint.group_prompts, painter=config.paint.painter, size=config.paint.texture_size,
                          seed=config.seed, up=config.up_axis(), views=config.paint.views, view_size=config.paint.view_size,
                          complete_hidden=config.paint.paint_hidden, fill=config.paint.fill, model_dir=config.paint.model_dir, device=config.paint.device,
-                         steps=config.paint.steps, on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"), uv=uv)
+                         steps=config.paint.steps, on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"), uv=uv,
+                         occlusion=config.paint.occlusion)
     from .template import Template
 
     labels = [g.label for g in tex.groups]

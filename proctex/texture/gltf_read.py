@@ -404,6 +404,11 @@ def _material_maps(gltf: gl.GLTF2, rd: "_GltfReader", m: gl.Material, pbr: gl.Pb
 
     mr = image(pbr.metallicRoughnessTexture, "metallic-roughness")
     nt = image(m.normalTexture, "normal")
+    occlusion = False
+    if m.occlusionTexture is not None and m.occlusionTexture.index is not None and pbr.metallicRoughnessTexture is not None:
+        occlusion = m.occlusionTexture.index == pbr.metallicRoughnessTexture.index  # packed ORM: R is occlusion
+        if not occlusion:
+            notes.append(f"material {name!r}: an occlusion texture apart from the metallic-roughness one is ignored")
     if mr is None and nt is None:
         return None
     rough_f = 1.0 if pbr.roughnessFactor is None else float(pbr.roughnessFactor)
@@ -413,7 +418,8 @@ def _material_maps(gltf: gl.GLTF2, rd: "_GltfReader", m: gl.Material, pbr: gl.Pb
         orm[:] = (1.0, rough_f, metal_f)
     else:
         orm = mr.astype(np.float32) / 255.0
-        orm[..., 0] = 1.0
+        if not occlusion:
+            orm[..., 0] = 1.0
         orm[..., 1] *= rough_f
         orm[..., 2] *= metal_f
     if nt is None:
@@ -421,4 +427,4 @@ def _material_maps(gltf: gl.GLTF2, rd: "_GltfReader", m: gl.Material, pbr: gl.Pb
         normal[:] = FLAT_NORMAL
     else:
         normal = nt
-    return PbrMaps(np.clip(orm, 0, 1), normal, False)
+    return PbrMaps(np.clip(orm, 0, 1), normal, occlusion)

@@ -25,7 +25,7 @@ import numpy as np
 from .pbr import corner_normals, corner_tangents, decode_normal
 from .uv import sample_texture
 
-__all__ = ["pbr_surface", "shade_pbr", "environment"]
+__all__ = ["pbr_surface", "shade_pbr", "environment", "vertex_occlusion"]
 
 _SKY = np.array([0.95, 0.97, 1.0])
 _FLOOR = np.array([0.22, 0.2, 0.18])
@@ -62,8 +62,9 @@ def environment(directions: np.ndarray, up: np.ndarray, roughness: np.ndarray | 
 
 def pbr_surface(buffers: Any, vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
                 textures: Sequence[np.ndarray], maps: Sequence[Any] | None = None, normals: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Per seen pixel (``buffers.mask``): ``albedo`` (k, 3) sRGB, ``roughness`` (k,), ``metallic`` (k,)
-    and the world ``normal`` (k, 3), bent by the normal maps of the groups that have them.
+    """Per seen pixel (``buffers.mask``): ``albedo`` (k, 3) sRGB, ``roughness`` (k,), ``metallic`` (k,),
+    ``occlusion`` (k,) (1 where no map holds any) and the world ``normal`` (k, 3), bent by the normal
+    maps of the groups that have them.
 
     ``maps``: per texture its :class:`proctex.texture.pbr.PbrMaps` or None (colour only: roughness
     0.8, not metal, the smooth normal). ``normals``: (m, 3, 3) per-corner unit normals (a file's
@@ -86,6 +87,7 @@ def pbr_surface(buffers: Any, vertices: np.ndarray, faces: np.ndarray, corner_uv
     albedo = np.full((k, 3), 0.7)
     rough = np.full(k, 0.8)
     metal = np.zeros(k)
+    occl = np.ones(k)
     tangents = None
     for g, tex in enumerate(textures):
         sel = fg == g
@@ -97,6 +99,8 @@ def pbr_surface(buffers: Any, vertices: np.ndarray, faces: np.ndarray, corner_uv
             continue
         orm = sample_texture(mp.orm_uint8(), uv[sel])
         rough[sel], metal[sel] = orm[:, 1], orm[:, 2]
+        if mp.occlusion:
+            occl[sel] = orm[:, 0]
         if tangents is None:
             tangents = corner_tangents(vertices, faces, corner_uv, cn)
         tw = tangents[face[sel]]
@@ -109,7 +113,7 @@ def pbr_surface(buffers: Any, vertices: np.ndarray, faces: np.ndarray, corner_uv
         nt = decode_normal(sample_texture(mp.normal_uint8(), uv[sel]))
         bent = nt[:, :1] * T + nt[:, 1:2] * B + nt[:, 2:] * N
         n[sel] = bent / np.maximum(np.linalg.norm(bent, axis=1, keepdims=True), 1e-12)
-    return {"albedo": albedo, "roughness": rough, "metallic": metal, "normal": n}
+    return {"albedo": albedo, "roughness": rough, "metallic": metal, "normal": n, "occlusion": occl}
 
 
 def _ggx(n_h: np.ndarray, n_v: np.ndarray, n_l: np.ndarray, alpha: np.ndarray) -> np.ndarray:
@@ -165,7 +169,8 @@ def shade_pbr(buffers: Any, surface: dict[str, np.ndarray], up: np.ndarray | Non
     a004 = np.minimum(rr[:, 0] ** 2, np.exp2(-9.28 * n_v)) * rr[:, 0] + rr[:, 1]
     env_a = -1.04 * a004 + rr[:, 2]
     env_b = 1.04 * a004 + rr[:, 3]
-    out += diffuse_col * irr * 0.5 + pre * (f0 * env_a[:, None] + env_b[:, None])
+    ao = surface.get("occlusion", np.ones(len(n)))[:, None]  # ambient occlusion dims the image-based light only
+    out += ao * (diffuse_col * irr * 0.5 + pre * (f0 * env_a[:, None] + env_b[:, None]))
     out *= exposure
     lum = out @ np.array([0.2126, 0.7152, 0.0722])
     out *= (1.0 / (1.0 + lum / 1.6))[:, None] * 1.25  # Reinhard on luminance, keeps hue
@@ -174,3 +179,47 @@ def shade_pbr(buffers: Any, surface: dict[str, np.ndarray], up: np.ndarray | Non
     img[m] = _linear_to_srgb(out)
     return (np.clip(img, 0, 1) * 255).round().astype(np.uint8)
 
+
+
+def vertex_occlusion(vertices: np.ndarray, faces: np.ndarray, rays: int = 48, reach: float = 0.15, seed: int = 0,
+                     normals: np.ndarray | None = None) -> np.ndarray:
+    """Ambient occlusion per vertex ``(n,) float64`` in [0, 1] (1: open sky): the share of
+    cosine-weighted hemisphere rays around the smooth normal that leave the mesh within ``reach`` times
+    the bounding-box diagonal, with a sample set fixed by ``seed`` (the same for every vertex, turned
+    into its frame). Rays are cast with Embree (trimesh); ``ValueError`` without it. ``normals``:
+    (n, 3) vertex normals (default: area-weighted smooth normals)."""
+    from .render import embree_available
+
+    if not embree_available():
+        raise ValueError("ambient occlusion needs ray casting: install embreex (trimesh's Embree backend)")
+    if not 1 <= int(rays) <= 1024:
+        raise ValueError(f"rays must be in [1, 1024], got {rays}")
+    import trimesh
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if normals is None:
+        cn = corner_normals(v, f)
+        normals = np.zeros_like(v)
+        normals[f.reshape(-1)] = cn.reshape(-1, 3)
+    n = np.asarray(normals, dtype=np.float64)
+    diag = float(np.linalg.norm(v.max(0) - v.min(0))) or 1.0
+    rng = np.random.default_rng(seed)
+    u1, u2 = rng.random(rays), rng.random(rays)
+    local = np.stack([np.sqrt(u1) * np.cos(2 * np.pi * u2), np.sqrt(u1) * np.sin(2 * np.pi * u2), np.sqrt(1 - u1)], 1)  # cosine-weighted
+    helper = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    t = np.cross(n, helper)
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+    b = np.cross(n, t)
+    dirs = (local[None, :, :1] * t[:, None] + local[None, :, 1:2] * b[:, None] + local[None, :, 2:] * n[:, None]).reshape(-1, 3)
+    origins = np.repeat(v + n * (1e-4 * diag), rays, axis=0)
+    hit = np.zeros(len(dirs), dtype=bool)
+    intersector = RayMeshIntersector(trimesh.Trimesh(v, f, process=False, validate=False))
+    chunk = 262144
+    for s in range(0, len(dirs), chunk):
+        loc, ray, _ = intersector.intersects_location(origins[s : s + chunk], dirs[s : s + chunk], multiple_hits=False)
+        if len(ray):
+            near = np.linalg.norm(loc - origins[s + ray], axis=1) < reach * diag
+            hit[s + ray[near]] = True
+    return 1.0 - hit.reshape(len(v), rays).mean(axis=1)

@@ -239,24 +239,34 @@ def paint_surface(
     return TemplateTexture(shape, grouping, uv, out, "surface", time.perf_counter() - t0, notes, {"timings": timings})
 
 
-def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8) -> TemplateTexture:
+def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occlusion: bool = False, seed: int = 0) -> TemplateTexture:
     """Give every group texture of ``tex`` its PBR maps (:class:`proctex.texture.pbr.PbrMaps`), in place.
 
     ``painter`` has ``material(points, normals, tangents, bitangents, group=, label=)`` (a
     :class:`proctex.texture.painters.SurfacePainter` of the same prompts): whatever painted the
     colour (surface, views, diffusion), roughness, metalness and relief come from the prompt's
     materials, evaluated at each covered texel's surface point in the representative's tangent frame
-    (the frame the GLB's TANGENT attribute carries). Returns ``tex``; its stats get ``timings.maps``.
+    (the frame the GLB's TANGENT attribute carries). ``occlusion``: also bake ambient occlusion into
+    the maps' R channel (:func:`proctex.texture.lighting.vertex_occlusion` on the whole shape, so parts
+    shade each other, interpolated to the texels; ``seed`` fixes its rays). Returns ``tex``; its stats
+    get ``timings.maps``.
     """
     t0 = time.perf_counter()
     center, scale = shape_frame(tex.shape)
+    ao = None
+    if occlusion:
+        from .lighting import vertex_occlusion
+
+        ao = vertex_occlusion(tex.shape.vertices, tex.shape.faces, seed=seed)
     for g, gt in zip(tex.grouping.groups, tex.groups):
         rep = tex.grouping.parts[g.representative]
 
         def props(p, n, t, b, g=g):
             return painter.material(p, n, t, b, group=g.index, label=g.label)
 
-        gt.pbr = bake_maps(gt.texels, tex.shape.vertices, tex.shape.faces[rep.faces], tex.uv.corner_uv[rep.faces], props, center, scale, gutter)
+        faces = tex.shape.faces[rep.faces]
+        texel_ao = None if ao is None else (gt.texels.bary * ao[faces[gt.texels.face]]).sum(1)
+        gt.pbr = bake_maps(gt.texels, tex.shape.vertices, faces, tex.uv.corner_uv[rep.faces], props, center, scale, gutter, occlusion=texel_ao)
     tex.stats.setdefault("timings", {})["maps"] = time.perf_counter() - t0
     return tex
 

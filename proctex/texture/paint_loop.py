@@ -455,13 +455,15 @@ def paint_template(
     on_view: Callable[[int, int, dict[str, Any]], None] | None = None,
     uv: ShapeUV | None = None,
     maps: bool = True,
+    occlusion: bool = False,
 ) -> TemplateTexture:
     """Texture a template with one of the painters: ``"surface"`` (:func:`paint_surface`),
     ``"views"`` (the multi-view loop with :class:`SolidViewPainter`) or ``"diffusion"`` (the loop with
     a local diffusers model in ``model_dir``), made by :func:`make_painter`; the remaining arguments
     go to :func:`paint_views`. ``uv`` (e.g. :func:`proctex.texture.uv.source_uv`) replaces the
     per-group unwrap. ``maps``: also make each group's PBR maps (:func:`paint_material_maps`: from
-    the prompts' materials, whichever painter made the colour)."""
+    the prompts' materials, whichever painter made the colour); ``occlusion``: bake ambient occlusion
+    into them too."""
     prompts = resolve_group_prompts(grouping, prompt, group_prompts)  # validates the keys
     chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, model_dir=model_dir, device=device, steps=steps)
     surface = chosen if painter == "surface" else getattr(chosen, "surface", None)
@@ -474,6 +476,6 @@ def paint_template(
                           up=up, seed=seed, complete_hidden=complete_hidden, fill=fill, on_view=on_view, uv=uv)
     if maps:
         materials = surface if surface is not None else make_painter("surface", grouping, prompt, prompts, seed=seed).bind(shape, grouping, up)
-        paint_material_maps(tex, materials)
+        paint_material_maps(tex, materials, occlusion=occlusion, seed=seed)
         tex.notes.extend(n for n in materials.notes() if "regions" in n and n not in tex.notes)
     return tex
