@@ -547,3 +547,35 @@ def test_occlusion_setting_is_validated():
     assert BuildConfig.from_dict(dict(model="mug", occlusion=True)).validate().paint.occlusion is True
     with pytest.raises(ValueError, match="occlusion must be true or false"):
         BuildConfig.from_dict(dict(model="mug", occlusion="yes")).validate()
+
+
+def test_http_serves_the_maps_and_refuses_bad_material_edits(painted_mug_root, tmp_path):
+    import shutil
+
+    from fastapi.testclient import TestClient
+
+    from proctex.family.catalog import Catalog
+    from proctex.family.service import BadInput, parse_edit
+    from workers.http import create_app
+
+    root = tmp_path / "fams"
+    shutil.copytree(painted_mug_root, root)
+    c = TestClient(create_app(lambda: Catalog(str(root))))
+    described = c.get("/v1/families/mug").json()["groups"]
+    assert all(g["pbr"] and 0 <= g["roughness"] <= 1 and 0 <= g["metallic"] <= 1 for g in described)
+    r = c.get("/v1/families/mug/textures/0.orm.png")
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png" and r.headers["etag"]
+    assert c.get("/v1/families/mug/textures/1.normal.png").status_code == 200
+    for bad in ("0.bogus.png", "9.orm.png", "0.orm", "..%2F0.png"):
+        r = c.get(f"/v1/families/mug/textures/{bad}")
+        assert r.status_code == 404 and "error" in r.json(), bad
+    for raw, message in (({"roughness": "nan"}, "finite"), ({"metallic": 2}, r"\[0, 1\]"), ({"roughness": True}, "number"),
+                         ({"roughness": [0.5]}, "number")):
+        with pytest.raises(BadInput, match=message):
+            parse_edit(raw)
+        r = c.post("/v1/families/mug/transfer", json={"params": {}, "edits": {"0": raw}})
+        assert r.status_code == 422 and "error" in r.json()
+    ok = c.post("/v1/families/mug/transfer", json={"params": {}, "edits": {"body": {"roughness": 0.3, "metallic": 1}}})
+    assert ok.status_code == 200
+    orm = glb_material_images(ok.content)[0]["orm"]
+    assert orm[..., 2].mean() > 250
