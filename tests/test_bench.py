@@ -96,3 +96,11 @@ def test_fidelity_verdict_names_each_loss():
     assert verdict({"corrnet": m(0.1, 0.01), "identity": m(0.2, 0.02), "nearest": m(0.3, 0.03)}) == "beats both"
     assert verdict({"corrnet": m(0.1, 0.05), "identity": m(0.2, 0.02), "nearest": m(0.05, 0.03)}) == \
         "loses: GT vs identity, variance vs nearest, GT vs nearest"
+
+
+def test_the_pbr_contact_sheet_script_runs(tmp_path):
+    out = tmp_path / "sheet.png"
+    done = subprocess.run([sys.executable, str(BENCH / "pbr_sheet.py"), "--size", "64", "--view", "64", "--out", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert out.stat().st_size > 1000 and "luma spread" in done.stdout

@@ -67,6 +67,14 @@ def main(argv=None) -> int:
           f"({result['texels']} texels; uv {tex.stats['timings']['uv']:.2f} s, texel maps {tex.stats['timings']['texels']:.2f} s, "
           f"paint {tex.stats['timings']['paint']:.2f} s); coverage {cov.share}")
 
+    # The PBR maps of the same texture (roughness, metalness, relief): what they add to the paint stage.
+    from proctex.texture.paint import paint_material_maps
+
+    painter.bind(shape, grouping, "y")
+    t, _ = median_time(lambda: paint_material_maps(tex, painter), args.repeats)
+    result["pbr_maps_s"] = t
+    print(f"PBR maps (ORM + normal) of the same {len(grouping.groups)} groups at {args.size}²: {t:.2f} s")
+
     c, r = bounding_sphere(shape.vertices)
     cam = orbit_path(c, r, "y", 11, args.view_size)[1]
     for backend in ["raster"] + (["embree"] if embree_available() else []):
