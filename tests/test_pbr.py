@@ -392,6 +392,7 @@ def test_edits_carry_the_maps(painted_mug_root, tmp_path):
     g = gl.GLTF2.load_from_bytes(data)
     assert not any(img.uri and img.uri.startswith("textures/0.orm") for img in g.images)
     assert any(img.uri and img.uri.startswith("textures/0.normal") for img in g.images)  # the normal map stays linked
+    assert any(img.uri and img.uri.startswith("textures/0.png") for img in g.images)  # and so does the colour
     roles = glb_material_images(svc.transfer(shape, edits={0: GroupEdit(roughness=0.2)})[0])
     assert abs(roles[0]["orm"][..., 1].mean() / 255 - 0.2) < 0.02
 

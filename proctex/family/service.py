@@ -119,6 +119,11 @@ class GroupEdit:
         return self.prompt is None and self.hue == 0.0 and self.saturation == 1.0 and self.value == 1.0 and not self.changes_maps
 
     @property
+    def changes_colour(self) -> bool:
+        """Whether the edit changes the group's base colour (a re-paint or an HSV shift)."""
+        return self.prompt is not None or self.hue != 0.0 or self.saturation != 1.0 or self.value != 1.0
+
+    @property
     def changes_maps(self) -> bool:
         """Whether the edit changes the group's PBR maps (a re-paint, roughness or metalness): an HSV
         shift leaves them as they are."""
@@ -426,7 +431,8 @@ class FamilyService:
         t_edit = time.perf_counter() - t0
         with self.lock:
             try:
-                uris = self.texture_uris(edits or ()) if linked and not bake_size else None
+                recoloured = {g for g, e in (edits or {}).items() if e.changes_colour}
+                uris = self.texture_uris(recoloured) if linked and not bake_size else None
                 m_uris = self.map_uris(edits) if linked and not bake_size else None
                 answer = shape_to_glb(shape, assets, self.mapper, seed=seed, painter=self.painter, up=self.up, bake_size=bake_size,
                                       budget=budget, texture_uris=uris, map_uris=m_uris)
@@ -498,7 +504,7 @@ class FamilyService:
 
         from .edits import edit_texture
 
-        if edit.identity:
+        if not edit.changes_colour:  # identity, or roughness / metalness only
             return self.assets.textures[group], self.assets.png[group]
         key = (group, edit)
         with self._edit_lock:

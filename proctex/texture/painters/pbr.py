@@ -25,7 +25,7 @@ from .materials import brick_mortar, fabric_weave, hammer_dimples, moss_mask, ru
 from .prompt import MaterialSpec
 from .shading import F32, TAU, Ctx, _offset, smoothstep
 
-__all__ = ["surface_props", "base_props", "PROPS"]
+__all__ = ["surface_props", "height", "base_props", "PROPS"]
 
 #: kind -> (roughness, metallic) of the plain material with the default finish.
 PROPS: dict[str, tuple[float, float]] = {
@@ -61,10 +61,6 @@ def base_props(spec: MaterialSpec) -> tuple[float, float]:
 # ------------------------------------------------------------------------------------ relief per kind
 # Each returns (height (n,) in normalised units, roughness change (n,) or 0). Noise names and
 # frequencies are the colour shader's, so relief and colour line up.
-
-def _zero(ctx: Ctx) -> np.ndarray:
-    return np.zeros(ctx.n, dtype=F32)
-
 
 def _rel_plastic(ctx, spec):
     return F32(0.0004) * ctx.noise("low", 2.5, 2), F32(0.0)
@@ -127,7 +123,7 @@ def _rel_metal(ctx, spec):
             return F32(0.004) * hammer_dimples(ctx), F32(0.0)
     polished = spec.finish in ("polished", "glossy") or spec.variant == "chrome"
     brushed = ctx.noise("brushed", (1.0, 38.0, 38.0))
-    amp = 0.00006 if polished else 0.0004
+    amp = 0.00006 if polished else 0.0008
     return F32(amp) * brushed, F32(0.0 if polished else 0.08) * brushed
 
 
