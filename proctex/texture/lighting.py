@@ -188,13 +188,12 @@ def vertex_occlusion(vertices: np.ndarray, faces: np.ndarray, rays: int = 48, re
     the bounding-box diagonal, with a sample set fixed by ``seed`` (the same for every vertex, turned
     into its frame). Rays are cast with Embree (trimesh); ``ValueError`` without it. ``normals``:
     (n, 3) vertex normals (default: area-weighted smooth normals)."""
-    from .render import embree_available
+    import trimesh
 
-    if not embree_available():
+    if not getattr(trimesh.ray, "has_embree", False):
         raise ValueError("ambient occlusion needs ray casting: install embreex (trimesh's Embree backend)")
     if not 1 <= int(rays) <= 1024:
         raise ValueError(f"rays must be in [1, 1024], got {rays}")
-    import trimesh
     from trimesh.ray.ray_pyembree import RayMeshIntersector
 
     v = np.asarray(vertices, dtype=np.float64)
