@@ -81,6 +81,39 @@ def test_rows_from_a_file_fail_alone_and_past_the_bound_the_run_stops(mug, tmp_p
         run_in_process(GenerateSettings(mug, str(tmp_path / "strict"), rows=str(csv), max_failed=1, batch_size=1), log=lambda *_: None, quiet=True)
 
 
+def test_shared_textures_are_written_once_and_every_glb_refers_to_them(mug, tmp_path):
+    """--textures shared: the family's textures and PBR maps lie once in textures/, each GLB holds its
+    geometry and UVs and names them by a relative URI; read back from its path it has the same
+    colours and maps as the embedded run's file, without the textures' bytes."""
+    shared, embedded = tmp_path / "shared", tmp_path / "embedded"
+    run_in_process(GenerateSettings(mug, str(shared), n=3, seed=1, textures="shared"), log=lambda *_: None, quiet=True)
+    run_in_process(GenerateSettings(mug, str(embedded), n=3, seed=1), log=lambda *_: None, quiet=True)
+    names = sorted(p.name for p in (shared / "textures").iterdir())
+    assert names == sorted(f"{g}{k}.png" for g in (0, 1) for k in ("", ".orm", ".normal"))
+    total = sum(p.stat().st_size for p in (shared / "textures").iterdir())
+    for a, b in zip(_manifest(shared), _manifest(embedded)):
+        assert b["bytes"] - a["bytes"] > 0.9 * total  # each file saves the textures' bytes
+        ms, me = read_textured_glb(shared / a["file"]), read_textured_glb(embedded / b["file"])
+        np.testing.assert_array_equal(ms.faces, me.faces)
+        for ts, te in zip(ms.textures, me.textures):
+            np.testing.assert_array_equal(ts, te)
+        for ps, pe in zip(ms.pbr, me.pbr):
+            np.testing.assert_array_equal(ps.orm, pe.orm)
+            np.testing.assert_array_equal(ps.normal, pe.normal)
+    from proctex.texture.export import validate_glb
+
+    from .conftest import require_validator
+
+    if require_validator():  # the references resolve: no error, no warning (URIs in a GLB are an info)
+        issues = validate_glb(shared / _manifest(shared)[0]["file"])["issues"]
+        assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"][:3]
+    with pytest.raises(ValueError, match="other run"):  # another texture mode into the same output
+        run_in_process(GenerateSettings(mug, str(shared), n=3, seed=1), log=lambda *_: None, quiet=True)
+    for bad in (dict(format="obj"), dict(bake=64), dict(textures="linked")):
+        with pytest.raises(ValueError, match="shared textures|textures must be"):
+            GenerateSettings(mug, str(tmp_path / "x"), n=1, **{"textures": "shared", **bad}).validate()
+
+
 def test_obj_output_and_a_file_uri_and_a_damaged_record_is_made_again(mug, tmp_path):
     from proctex.geometry.meshio import load_mesh
 

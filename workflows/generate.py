@@ -58,7 +58,7 @@ def generate_on_ray(settings: GenerateSettings, concurrency: tuple[int, int] | N
         ds = ds.map_batches(ShapeStage, fn_constructor_args=(settings.family, settings.out, settings.format), batch_size=settings.batch_size,
                             batch_format="numpy", concurrency=n_shapes, num_cpus=shape_cpus)
         gpu = {"num_gpus": 1.0 / n_textures} if settings.device.startswith("cuda") else {}  # the texture actors share the GPU
-        ds = ds.map_batches(TextureStage, fn_constructor_args=(settings.family, settings.out, settings.format, settings.bake, settings.device),
+        ds = ds.map_batches(TextureStage, fn_constructor_args=(settings.family, settings.out, settings.format, settings.bake, settings.device, settings.textures),
                             batch_size=settings.batch_size, batch_format="numpy", concurrency=n_textures, num_cpus=texture_cpus, **gpu)
         tally = Tally(len(rows), settings.max_failed, quiet)
         for batch in ds.iter_batches(batch_size=None, batch_format="numpy"):

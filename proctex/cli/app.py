@@ -168,6 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params-bounds", metavar="JSON", help='narrow the sampled ranges, e.g. {"seats": [2, 3]}')
     p.add_argument("--format", choices=["glb", "obj"], default="glb")
     p.add_argument("--bake", type=int, default=0, help="give each variant its own atlas at this size (0: the template's textures)")
+    p.add_argument("--textures", choices=["embedded", "shared"], default="embedded",
+                   help="embedded: every GLB carries its textures and PBR maps; shared: written once into textures/, each GLB refers to them")
     p.add_argument("--max-failed", type=int, default=10, help="rows that may fail (recorded in the manifest) before the run stops")
     p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i> (on Ray the texture actors share the GPU)")
     p.add_argument("--batch-size", type=int, default=8, help="rows per batch")

@@ -142,7 +142,8 @@ def generate_settings(args: argparse.Namespace):
     if args.rows is not None and not os.path.isfile(args.rows):
         raise ValueError(f"--rows {args.rows}: no such file")
     return GenerateSettings(args.family, args.out, n=args.n, rows=args.rows, seed=args.seed, bounds=bounds, format=args.format,
-                            bake=args.bake or None, max_failed=args.max_failed, batch_size=args.batch_size, device=args.device).validate()
+                            bake=args.bake or None, textures=args.textures, max_failed=args.max_failed, batch_size=args.batch_size,
+                            device=args.device).validate()
 
 
 def print_generate_summary(args: argparse.Namespace, summary: dict[str, Any]) -> None:

@@ -34,6 +34,7 @@ from proctex.params import ParamSpace
 from .store import FamilyStore
 
 FORMATS = ("glb", "obj")
+TEXTURE_MODES = ("embedded", "shared")
 MAX_ROWS = 10_000_000
 
 
@@ -51,6 +52,14 @@ class GenerateLayout:
     def record(vid: str) -> str:
         return f"records/{vid}.json"
 
+    @staticmethod
+    def texture(name: str) -> str:
+        """A texture every variant shares (``textures=shared``): ``textures/<group>[.<map>].png``."""
+        return f"textures/{name}"
+
+    #: how a variant (in ``variants/``) refers to the shared textures
+    TEXTURE_LINK = "../textures/"
+
 
 @dataclass(frozen=True)
 class GenerateSettings:
@@ -64,6 +73,9 @@ class GenerateSettings:
         seed: sampling seed, and the base of each row's transfer seed.
         bounds: ``{name: [low, high]}`` narrowing float / int parameters for sampling.
         format: "glb" (self-contained) or "obj" (OBJ, MTL and PNGs per row).
+        textures: "embedded" (every file carries its textures and PBR maps) or "shared" (GLB only,
+            without ``bake``: the family's textures and maps are written once into ``textures/`` and
+            every GLB refers to them, ``../textures/<g>.png``, so a variant is its geometry and UVs).
         bake: give each variant its own texture atlas of this size instead of the template's.
         max_failed: rows that may fail before the run stops.
         batch_size: rows per batch.
@@ -78,6 +90,7 @@ class GenerateSettings:
     bounds: dict[str, list[float]] = field(default_factory=dict)
     format: str = "glb"
     bake: int | None = None
+    textures: str = "embedded"
     max_failed: int = 10
     batch_size: int = 8
     device: str = "cpu"
@@ -101,6 +114,10 @@ class GenerateSettings:
             raise ValueError(f"bake must be a texture size in 8..8192, got {self.bake}")
         if self.format not in FORMATS:
             raise ValueError(f"format must be one of {list(FORMATS)}, got {self.format!r}")
+        if self.textures not in TEXTURE_MODES:
+            raise ValueError(f"textures must be one of {list(TEXTURE_MODES)}, got {self.textures!r}")
+        if self.textures == "shared" and (self.format != "glb" or self.bake):
+            raise ValueError("shared textures are for GLB output with the template's textures (not obj, not bake)")
         if not isinstance(self.bounds, dict):
             raise ValueError('bounds must be an object {"name": [low, high]}')
         if self.rows is not None and self.bounds:
@@ -200,6 +217,8 @@ def start_run(settings: GenerateSettings, log: Callable[[str], None] = print) ->
     run = {"settings": settings.key(), "stamp": stamp, "rows": len(rows)}
     if out.exists(GenerateLayout.RUN):
         before = out.read_json(GenerateLayout.RUN)
+        if isinstance(before.get("settings"), dict):
+            before["settings"].setdefault("textures", "embedded")  # runs recorded before shared textures existed
         if before != run:
             diff = sorted(k for k in set(before.get("settings", {})) | set(run["settings"]) if before.get("settings", {}).get(k) != run["settings"].get(k))
             why = "the family was rebuilt or edited since" if before.get("stamp") != stamp else f"settings differ: {', '.join(diff) or 'rows'}"
@@ -293,11 +312,16 @@ class TextureStage:
     each made row's file and record and returns manifest rows (:data:`MANIFEST_FIELDS`); rows done
     earlier come back from their records."""
 
-    def __init__(self, family: str, out: str, fmt: str = "glb", bake: int | None = None, device: str = "cpu") -> None:
+    def __init__(self, family: str, out: str, fmt: str = "glb", bake: int | None = None, device: str = "cpu", textures: str = "embedded") -> None:
         from .service import FamilyService
 
         self.svc = FamilyService(FamilyStore(family), device=device)
-        self.out, self.fmt, self.bake = FamilyStore(out), fmt, bake
+        self.out, self.fmt, self.bake, self.textures = FamilyStore(out), fmt, bake, textures
+        if textures == "shared":  # written once per worker, atomically and identically: concurrent writers agree
+            for name, data in self.svc.shared_textures().items():
+                rel = GenerateLayout.texture(name)
+                if not self.out.exists(rel) or self.out.read_bytes(rel) != data:
+                    self.out.write_bytes(rel, data)
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         rows = []
@@ -321,7 +345,8 @@ class TextureStage:
         try:
             with np.load(io.BytesIO(bytes(row["mesh"])), allow_pickle=False) as z:
                 shape = Shape(z["vertices"], z["faces"])
-            answer, summary = self.svc.textured(shape, seed=int(row["seed"]), bake_size=self.bake)
+            link = GenerateLayout.TEXTURE_LINK if self.textures == "shared" else None
+            answer, summary = self.svc.textured(shape, seed=int(row["seed"]), bake_size=self.bake, linked=link is not None, link_base=link)
         except (ValueError, TypeError, OverflowError) as exc:
             return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"[:500], "transfer_seconds": time.perf_counter() - t0,
                     "finished": time.time()}
@@ -396,7 +421,7 @@ def run_in_process(settings: GenerateSettings, log: Callable[[str], None] = prin
     t0 = time.perf_counter()
     out, rows, space = start_run(settings, log)
     shapes = ShapeStage(settings.family, settings.out, settings.format)
-    textures = TextureStage(settings.family, settings.out, settings.format, settings.bake, settings.device)
+    textures = TextureStage(settings.family, settings.out, settings.format, settings.bake, settings.device, settings.textures)
     tally = Tally(len(rows), settings.max_failed, quiet)
     for batch in batches(rows, settings.batch_size):
         tally.add(textures(shapes(batch)))

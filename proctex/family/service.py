@@ -318,11 +318,24 @@ class FamilyService:
         answer, summary = self.textured(shape, seed, edits, budget=budget, linked=linked)
         return answer.data, summary
 
-    def texture_uris(self, edited: Any = ()) -> list[str | None]:
+    def texture_uris(self, edited: Any = (), base: str | None = None) -> list[str | None]:
         """Per template group the URI of its texture, relative to the transfer route's URL
         (``textures/<g>.png?v=<digest>``, see :meth:`texture_png`), or None for the groups in
-        ``edited`` (a per-request edit: that texture is this answer's own, so it is embedded)."""
+        ``edited`` (a per-request edit: that texture is this answer's own, so it is embedded).
+        ``base``: another folder the textures lie in (files named as :meth:`shared_textures` names
+        them, no version query: e.g. ``../textures/`` for files written next to a folder of GLBs)."""
+        if base is not None:
+            return [None if g in edited else f"{base}{g}.png" for g in range(len(self.texture_digests))]
         return [None if g in edited else f"textures/{g}.png?v={d[:16]}" for g, d in enumerate(self.texture_digests)]
+
+    def shared_textures(self) -> dict[str, bytes]:
+        """``{file name: PNG bytes}`` of every texture and PBR map of the family, as linked answers
+        name them without a version (``<g>.png``, ``<g>.orm.png``, ``<g>.normal.png``)."""
+        out = {f"{g}.png": png for g, png in enumerate(self.assets.png)}
+        for g, maps in enumerate(self.assets.pbr_png or []):
+            if maps is not None:
+                out[f"{g}.orm.png"], out[f"{g}.normal.png"] = maps.orm, maps.normal
+        return out
 
     def _material_means(self, group: int) -> dict[str, Any]:
         """``{"pbr": bool, "roughness": mean, "metallic": mean}`` of a group's maps over its painted
@@ -336,7 +349,7 @@ class FamilyService:
         mask = self.assets.painted[group] if self.assets.painted is not None and self.assets.painted[group].shape == orm.shape[:2] else np.ones(orm.shape[:2], bool)
         return {"pbr": True, "roughness": round(float(orm[..., 1][mask].mean()) / 255, 3), "metallic": round(float(orm[..., 2][mask].mean()) / 255, 3)}
 
-    def map_uris(self, edits: dict[int, GroupEdit] | None = None) -> list[tuple[str, str] | None] | None:
+    def map_uris(self, edits: dict[int, GroupEdit] | None = None, base: str | None = None) -> list[tuple[str, str] | None] | None:
         """Per template group the URIs of its PBR maps (``textures/<g>.orm.png?v=...``,
         ``textures/<g>.normal.png?v=...``; None for a map this answer carries itself: the ORM after a
         re-paint or a roughness / metallic edit, the normal map after a re-paint), or None for a group
@@ -349,8 +362,10 @@ class FamilyService:
             if d is None:
                 out.append(None)
                 continue
-            orm = None if edit is not None and edit.changes_maps else f"textures/{g}.orm.png?v={d[0][:16]}"
-            normal = None if edit is not None and edit.prompt is not None else f"textures/{g}.normal.png?v={d[1][:16]}"
+            orm_uri = f"{base}{g}.orm.png" if base is not None else f"textures/{g}.orm.png?v={d[0][:16]}"
+            normal_uri = f"{base}{g}.normal.png" if base is not None else f"textures/{g}.normal.png?v={d[1][:16]}"
+            orm = None if edit is not None and edit.changes_maps else orm_uri
+            normal = None if edit is not None and edit.prompt is not None else normal_uri
             out.append((orm, normal))
         return out
 
@@ -405,7 +420,7 @@ class FamilyService:
         return out
 
     def textured(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None,
-                 bake_size: int | None = None, budget: Any = None, linked: bool = False) -> tuple[Any, dict[str, Any]]:
+                 bake_size: int | None = None, budget: Any = None, linked: bool = False, link_base: str | None = None) -> tuple[Any, dict[str, Any]]:
         """``shape`` textured by the family (:func:`proctex.family.transfer.shape_to_glb`, a
         :class:`~proctex.family.transfer.TexturedGLB`) and a summary (timings, notes).
 
@@ -415,7 +430,8 @@ class FamilyService:
         (:class:`proctex.family.budget.Budget`): past it, or cancelled, the transfer stops with
         :class:`~proctex.family.budget.OverBudget`. ``linked``: the GLB refers to the template's
         textures by URI (:meth:`texture_uris`) instead of carrying them, so a client that caches
-        them is sent the geometry and UVs only."""
+        them is sent the geometry and UVs only; ``link_base``: the folder those URIs point into
+        instead of the texture route (:meth:`texture_uris`)."""
         from .transfer import info, shape_to_glb
 
         t0 = time.perf_counter()
@@ -432,8 +448,8 @@ class FamilyService:
         with self.lock:
             try:
                 recoloured = {g for g, e in (edits or {}).items() if e.changes_colour}
-                uris = self.texture_uris(recoloured) if linked and not bake_size else None
-                m_uris = self.map_uris(edits) if linked and not bake_size else None
+                uris = self.texture_uris(recoloured, link_base) if linked and not bake_size else None
+                m_uris = self.map_uris(edits, link_base) if linked and not bake_size else None
                 answer = shape_to_glb(shape, assets, self.mapper, seed=seed, painter=self.painter, up=self.up, bake_size=bake_size,
                                       budget=budget, texture_uris=uris, map_uris=m_uris)
             except OverBudget:

@@ -439,8 +439,17 @@ def validator_available() -> bool:
 
 _VALIDATE_JS = """
 const validator = require(%s);
-const data = require('fs').readFileSync(0);
-validator.validateBytes(new Uint8Array(data), {uri: %s, maxIssues: 1000})
+const fs = require('fs');
+const path = require('path');
+const data = fs.readFileSync(0);
+const base = %s;
+const options = {uri: %s, maxIssues: 1000};
+if (base !== null) {  // external images resolved next to the file
+  options.externalResourceFunction = (uri) => new Promise((resolve, reject) => {
+    fs.readFile(path.resolve(base, decodeURIComponent(uri.split('?')[0])), (err, d) => err ? reject(err.toString()) : resolve(new Uint8Array(d)));
+  });
+}
+validator.validateBytes(new Uint8Array(data), options)
   .then(r => process.stdout.write(JSON.stringify(r)),
         e => { process.stderr.write(String(e)); process.exit(2); });
 """
@@ -448,6 +457,7 @@ validator.validateBytes(new Uint8Array(data), {uri: %s, maxIssues: 1000})
 
 def validate_glb(path_or_bytes, timeout: float = 120.0) -> dict:
     """Run the Khronos glTF validator on a GLB file path or GLB bytes; returns its report dict.
+    Given a path, images the file refers to by URI are read relative to its folder.
 
     The report has ``issues`` with ``numErrors``, ``numWarnings``, ``numInfos``, ``numHints`` and
     ``messages`` (each with ``code``, ``message``, ``severity`` 0=error..3=hint, ``pointer``).
@@ -456,10 +466,10 @@ def validate_glb(path_or_bytes, timeout: float = 120.0) -> dict:
     if not validator_available():
         raise RuntimeError(f"glTF validator unavailable: need node on PATH and {_validator_dir()}")
     if isinstance(path_or_bytes, (bytes, bytearray, memoryview)):
-        data, uri = bytes(path_or_bytes), "asset.glb"
+        data, uri, base = bytes(path_or_bytes), "asset.glb", None
     else:
-        data, uri = Path(path_or_bytes).read_bytes(), Path(path_or_bytes).name
-    script = _VALIDATE_JS % (json.dumps(str(_validator_dir())), json.dumps(uri))
+        data, uri, base = Path(path_or_bytes).read_bytes(), Path(path_or_bytes).name, str(Path(path_or_bytes).resolve().parent)
+    script = _VALIDATE_JS % (json.dumps(str(_validator_dir())), json.dumps(base), json.dumps(uri))
     proc = subprocess.run(["node", "-e", script], input=data, capture_output=True, timeout=timeout)
     if proc.returncode != 0:
         raise RuntimeError(f"glTF validator failed (rc {proc.returncode}): "
