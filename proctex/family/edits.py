@@ -96,19 +96,21 @@ def add_material_maps(store: FamilyStore, force: bool = False) -> list[int]:
         return made
 
 
-def adjust_orm(orm: np.ndarray, roughness: float | None = None, metallic: float | None = None) -> np.ndarray:
+def adjust_orm(orm: np.ndarray, roughness: float | None = None, metallic: float | None = None, mask: np.ndarray | None = None) -> np.ndarray:
     """An ORM image (H, W, 3, uint8 or float in [0, 1]) with its roughness (G) and metalness (B)
-    moved to the given means: the channel is shifted by the difference, so its variation (grain,
-    rust patches) stays, and clipped to [0, 1]. Occlusion (R) is untouched. Returns float32."""
+    moved to the given means over ``mask`` ((H, W) bool: the painted texels; default all): the
+    channel is shifted by the difference, so its variation (grain, rust patches) stays, and clipped
+    to [0, 1]. Occlusion (R) is untouched. Returns float32."""
     a = np.asarray(orm)
     out = (a.astype(np.float32) / 255.0) if a.dtype == np.uint8 else a.astype(np.float32, copy=True)
+    sel = np.ones(out.shape[:2], bool) if mask is None or np.shape(mask) != out.shape[:2] or not np.any(mask) else np.asarray(mask, bool)
     for channel, target in ((1, roughness), (2, metallic)):
         if target is None:
             continue
-        if not (isinstance(target, (int, float)) and np.isfinite(target) and 0.0 <= target <= 1.0):
+        if isinstance(target, bool) or not (isinstance(target, (int, float)) and np.isfinite(target) and 0.0 <= target <= 1.0):
             raise ValueError(f"{('roughness', 'metallic')[channel - 1]} must be a number in [0, 1], got {target!r}")
         c = out[..., channel]
-        out[..., channel] = np.clip(c + (float(target) - float(c.mean())), 0.0, 1.0)
+        out[..., channel] = np.clip(c + (float(target) - float(c[sel].mean())), 0.0, 1.0)
     return out
 
 
@@ -232,7 +234,9 @@ def edit_group(
         if not entry.get("orm_sha256"):
             raise ValueError(f"group {gi} has no PBR maps (a family painted before they were made); re-paint it first")
         current = maps_out.get("orm") or store.read_bytes(StoreLayout.texture(gi, entry["label"], "orm"))
-        orm = adjust_orm(np.asarray(Image.open(io.BytesIO(current)).convert("RGB")), roughness, metallic)
+        masks = store.read_arrays(StoreLayout.PAINTED) if store.exists(StoreLayout.PAINTED) else {}
+        painted_mask = painted if painted is not None else masks.get(f"g{gi}")
+        orm = adjust_orm(np.asarray(Image.open(io.BytesIO(current)).convert("RGB")), roughness, metallic, painted_mask)
         maps_out["orm"] = encode_png(orm)
         record["material"] = {k: v for k, v in (("roughness", roughness), ("metallic", metallic)) if v is not None}
     if len(record) == 1:

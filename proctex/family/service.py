@@ -410,8 +410,8 @@ class FamilyService:
             orm, normal = fresh.orm_uint8(), encode_png(fresh.normal_uint8())
         else:
             orm, normal = self.assets.pbr[group].orm, self.assets.pbr_png[group].normal
-        if edit.roughness is not None or edit.metallic is not None:
-            orm = adjust_orm(orm, edit.roughness, edit.metallic)
+        if edit.roughness is not None or edit.metallic is not None:  # means over the painted texels, as the studio shows them
+            orm = adjust_orm(orm, edit.roughness, edit.metallic, self.assets.painted[group] if self.assets.painted is not None else None)
         out = PbrMaps(encode_png(orm), normal, self.assets.pbr[group].occlusion)
         with self._edit_lock:
             self._edited[key] = out
