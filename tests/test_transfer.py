@@ -314,6 +314,37 @@ def test_disocclusion_is_detected_and_filled_without_repainting(cake_views):
     assert all(np.array_equal(x, y) for x, y in zip(again.textures, b.textures))
 
 
+def test_disoccluded_texels_take_their_maps_from_where_their_colour_came(cake_views):
+    """The PatchMatch fill of a dis-occluded ring copies colour patches; the PBR maps follow the same
+    source texels there (relief and sheen stay with the synthesised colour) and nowhere else differ
+    from a bake without the fill."""
+    from dataclasses import replace
+
+    from proctex.texture.paint import paint_material_maps
+    from proctex.texture.painters import SurfacePainter
+
+    tpl, grouping, tex, assets = cake_views
+    paint_material_maps(tex, SurfacePainter("red velvet cake").bind(tpl, grouping))
+    with_maps = prepare_template(tpl, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups], pbr=tex.pbr)
+    with_maps = replace(with_maps, painted=assets.painted, observed=assets.observed)
+    shape = get_model("cake").generate({"candles": 0, "shrink": 0.6})
+    r = transfer(shape, with_maps, IdentityMapper())
+    b = bake(shape, r, with_maps, size=128, seed=3)
+    b0 = bake(shape, r, with_maps, size=128, fill="none")
+    g = [ga.group for ga in with_maps.groups if ga.label == "tier_bottom"][0]
+    hole = b.disoccluded[g]
+    assert hole.any() and b.pbr[g] is not None
+    keep = b.covered[g] & ~hole
+    for kind in ("orm", "normal"):
+        filled, plain = getattr(b.pbr[g], kind), getattr(b0.pbr[g], kind)
+        np.testing.assert_array_equal(filled[keep], plain[keep])
+    # Each hole texel's maps are some covered texel's maps of the same bake (a copy, not a blend).
+    covered = b.covered[g] & ~hole
+    pool = {tuple(np.round(np.concatenate([b.pbr[g].orm[i, j], b.pbr[g].normal[i, j]]), 6)) for i, j in zip(*np.nonzero(covered))}
+    copied = [tuple(np.round(np.concatenate([b.pbr[g].orm[i, j], b.pbr[g].normal[i, j]]), 6)) in pool for i, j in zip(*np.nonzero(hole))]
+    assert np.mean(copied) > 0.99
+
+
 def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
     """A big shape face mapped onto a small template chart: its affine UVs leave the chart and read
     unpainted texels; with the painted mask the corners snap onto the template triangle instead."""

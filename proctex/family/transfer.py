@@ -246,14 +246,16 @@ class Baked:
 
 
 def bake_pbr(maps: Any, vertices: np.ndarray, faces: np.ndarray, template_uv: np.ndarray, atlas_uv: np.ndarray, tm: Any,
-             uv: np.ndarray, gutter: int) -> Any:
+             uv: np.ndarray, gutter: int, nnf: np.ndarray | None = None) -> Any:
     """A group's template PBR maps baked into a shape's own atlas.
 
     Args:
         maps: the template's :class:`~proctex.texture.pbr.PbrMaps`; vertices (n, 3), faces (k, 3):
             the group's faces on the shape; template_uv, atlas_uv: (k, 3, 2) their corners' UVs into
             the template textures and in the new atlas; tm: the atlas's texel map; uv: (t, 2) each
-            covered texel's template UV; gutter: seam padding (-1: the whole atlas).
+            covered texel's template UV; gutter: seam padding (-1: the whole atlas); nnf: (H, W, 2)
+            the source texel PatchMatch copied each dis-occluded texel's colour from (-1 elsewhere):
+            those texels take that texel's maps too, so relief and sheen follow the synthesised colour.
     The ORM is resampled like the colour. A tangent-space normal is relative to the UV directions,
     so each texel's normal is decoded in the frame the template UVs give this surface (what the
     un-baked GLB shows) and encoded again in the atlas's frame: the relief stays where it was.
@@ -271,6 +273,11 @@ def bake_pbr(maps: Any, vertices: np.ndarray, faces: np.ndarray, template_uv: np
     world = nt[:, :1] * T1 + nt[:, 1:2] * B1 + nt[:, 2:] * N
     normal = out.normal.copy()
     normal[tm.ij[:, 0], tm.ij[:, 1]] = encode_normal(np.stack([(world * T2).sum(1), (world * B2).sum(1), (world * N).sum(1)], 1))
+    if nnf is not None:  # tangent-space values move with the UV-space patches the colour was copied in
+        ti, tj = np.nonzero(nnf[..., 0] >= 0)
+        si, sj = nnf[ti, tj, 0], nnf[ti, tj, 1]
+        orm[ti, tj] = orm[si, sj]
+        normal[ti, tj] = normal[si, sj]
     orm, _ = pad_seams(orm, tm.mask, gutter)
     normal, _ = pad_seams(normal, tm.mask, gutter)
     return PbrMaps(orm.astype(np.float32), normal.astype(np.float32), maps.occlusion)
@@ -361,19 +368,21 @@ def bake(
         image = np.zeros((size, size, 3))
         image[tm.ij[:, 0], tm.ij[:, 1]] = sample_texture(assets.textures[g], uv)
         hole = np.zeros((size, size), dtype=bool)
+        nnf = None
         if observed is not None:
             dis = disoccluded_texels(uv, observed)
             hole[tm.ij[dis, 0], tm.ij[dis, 1]] = True
             if dis.any() and fill == "patchmatch":
                 known = tm.mask & ~hole
                 try:
-                    image = patchmatch_fill(image, known, hole, seed=seed + g).image
+                    filled = patchmatch_fill(image, known, hole, seed=seed + g)
+                    image, nnf = filled.image, filled.nnf
                     out.notes.append(f"group {g}: {int(dis.sum())} dis-occluded texels filled by PatchMatch")
                 except ValueError as exc:  # no usable source patch: keep the template's colours there
                     out.notes.append(f"group {g}: {int(dis.sum())} dis-occluded texels kept the template's fill ({exc})")
         image, mask = pad_seams(image, tm.mask, gutter)
         if out.pbr is not None:
-            out.pbr.append(None if maps is None else bake_pbr(maps, shape.vertices[used], local, result.corner_uv[faces], atlas.corner_uv, tm, uv, gutter))
+            out.pbr.append(None if maps is None else bake_pbr(maps, shape.vertices[used], local, result.corner_uv[faces], atlas.corner_uv, tm, uv, gutter, nnf))
         out.textures.append((np.clip(image, 0, 1) * 255).round().astype(np.uint8))
         out.painted.append(mask)
         out.covered.append(tm.mask)
