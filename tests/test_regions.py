@@ -195,3 +195,20 @@ def test_views_painter_places_regions_too(shapes):
     t = (pts[:, 2] - z.min()) / np.ptp(z)
     seen = tex.groups[0].direct if tex.groups[0].direct is not None else np.ones(len(t), bool)
     assert (col[seen & (t > 0.8), 0] > 0.6).all() and (col[seen & (t < 0.6)].min(axis=1) > 0.75).all()
+
+
+def test_hostile_prompts_stay_bounded():
+    """Thousands of region clauses: one clause per region (the last), the regions there are at most,
+    and one material layer per region to paint; a region named twice keeps its last clause."""
+    from proctex.texture.painters.regions import MAX_REGIONS, REGIONS
+
+    plan = split_regions("with red top, " * 5000 + "with blue top")
+    assert plan.regions == (("top", "blue"),) and any("again" in n for n in plan.notes)
+    every = ", ".join(f"{c} {w}" for c, w in zip(["red", "blue", "green", "gold", "white", "black", "grey", "pink"],
+                                                 ["tip", "handle", "top", "bottom", "rim", "inside", "outside", "top"]))
+    assert len(split_regions(every).regions) <= min(MAX_REGIONS, len(REGIONS))
+    shape = get_model("vase").generate(None)
+    sp = SurfacePainter("with red top, " * 5000).bind(shape, analyse(shape))
+    assert len(sp._layers_for(0, "body")) == 2  # the rest and one region layer, not 5,000
+    colours = sp.paint(np.random.default_rng(0).uniform(-1, 1, (2000, 3)), np.tile([0.0, 0.0, 1.0], (2000, 1)), group=0, label="body")
+    assert np.isfinite(colours).all()

@@ -60,6 +60,9 @@ REGION_WORDS: dict[str, str] = {
 }
 
 _CUT = {",", ";", "with", "having", "featuring"}
+#: region clauses a prompt may hold (each is a material evaluated where its region lies); more are
+#: dropped with a note, and a region named twice keeps its last clause
+MAX_REGIONS = 8
 _PREPOSITIONS = {"in", "of", "made"}
 _ARTICLES = {"a", "an", "the", "its", "their"}
 _SOFT = 0.04  # half-width of a region's soft boundary, as a share of the scope
@@ -172,6 +175,13 @@ def split_regions(prompt: str, labels: Iterable[str] = ()) -> RegionPlan:
             notes.append(f"region {name}: {text!r}")
     if not (regions or parts or unknown):
         return RegionPlan(prompt, prompt, notes=tuple(notes))
+    last = {name: text for name, text in regions}  # a region named twice: its last clause
+    if len(last) < len(regions):
+        notes.append(f"{len(regions) - len(last)} region clause(s) named a region again; the last one is used")
+    regions = [(name, last[name]) for name in dict.fromkeys(name for name, _ in regions)]
+    if len(regions) > MAX_REGIONS:
+        notes.append(f"{len(regions)} regions named; the first {MAX_REGIONS} are used")
+        regions = regions[:MAX_REGIONS]
     return RegionPlan(prompt, " ".join(base), tuple(regions), tuple(parts), tuple(unknown), tuple(notes))
 
 
