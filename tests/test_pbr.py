@@ -13,7 +13,6 @@ from PIL import Image
 from .conftest import require_validator
 
 from proctex.geometry.parts import analyse
-from proctex.geometry.shape import Shape
 from proctex.models import get_model
 from proctex.texture.export import glb_bytes, obj_files, validate_glb
 from proctex.texture.paint_loop import paint_template
@@ -378,7 +377,6 @@ def test_edits_carry_the_maps(painted_mug_root, tmp_path):
     with pytest.raises(ValueError, match="roughness must be"):
         adjust_orm(np.zeros((2, 2, 3)), roughness=1.5)
     # The service: linked answers name the maps' URIs and serve them; an edit that changes the maps embeds them.
-    from proctex.geometry.primitives import box  # noqa: F401 (the family's own shape is used below)
     from proctex.family.stages import load_template_shape, stored_config
 
     svc = FamilyService(st)

@@ -94,7 +94,6 @@ def test_region_rules_on_a_flared_tube():
 def test_region_weights_are_pointwise():
     V, F = _cylinder(flare=0.5)
     sp = SurfacePainter("white ceramic with a red top and a gold rim")
-    from proctex.geometry.parts import Grouping  # noqa: F401  (bind needs a shape and grouping)
     from proctex.geometry.shape import Shape
 
     shape = Shape(V, F)
@@ -140,7 +139,6 @@ def test_fork_silver_tip_and_dark_wood_handle(shapes):
 
 def test_fork_as_one_part_gets_tip_and_handle_along_its_axis(shapes):
     """The fork's parts joined into one: the tip end (the wide one) is silver and the handle end wood."""
-    from proctex.geometry.parts import Grouping, PartGroup, PartInfo
     from proctex.geometry.shape import Shape
 
     shape, _ = shapes["fork"]
