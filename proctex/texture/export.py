@@ -71,17 +71,7 @@ def _check_shape(vertices, faces, corner_uv, face_group, textures, names):
         raise ValueError("corner_uv: contains NaN or inf")
     if isinstance(textures, np.ndarray) or not isinstance(textures, Sequence):
         raise ValueError(f"textures: expected a list of images, got {type(textures).__name__}")
-    texs = []
-    for g, t in enumerate(textures):
-        if isinstance(t, (bytes, bytearray)):  # an already encoded PNG (reused across requests)
-            if not bytes(t[:8]) == b"\x89PNG\r\n\x1a\n":
-                raise ValueError(f"textures[{g}]: bytes given, but not a PNG file")
-            texs.append(bytes(t))
-            continue
-        t = np.asarray(t)
-        if t.dtype != np.uint8 or t.ndim != 3 or t.shape[2] not in (3, 4) or min(t.shape[:2]) == 0:
-            raise ValueError(f"textures[{g}]: expected a (H, W, 3|4) uint8 image, got {t.dtype} {t.shape}")
-        texs.append(np.ascontiguousarray(t))
+    texs = [_checked_image(t, f"textures[{g}]", "u") for g, t in enumerate(textures)]
     G = np.asarray(face_group)
     if G.shape != (m,) or G.dtype.kind not in "iu":
         raise ValueError(f"face_group: expected a ({m},) integer array, got {G.dtype} {G.shape}")
@@ -98,6 +88,21 @@ def _check_shape(vertices, faces, corner_uv, face_group, textures, names):
     return V, F, UV, G, texs, names
 
 
+def _checked_image(image, where: str, kinds: str) -> np.ndarray | bytes:
+    """An image as given: PNG bytes (checked by signature) or an (H, W, 3|4) array of dtype kind in
+    ``kinds`` ("u": uint8 only; "uf": uint8 or float); ``ValueError`` naming ``where`` otherwise."""
+    if isinstance(image, (bytes, bytearray)):  # an already encoded PNG (reused across requests)
+        if bytes(image[:8]) != b"\x89PNG\r\n\x1a\n":
+            raise ValueError(f"{where}: bytes given, but not a PNG file")
+        return bytes(image)
+    a = np.asarray(image)
+    ok_dtype = a.dtype == np.uint8 if kinds == "u" else a.dtype.kind in kinds
+    if not ok_dtype or a.ndim != 3 or a.shape[2] not in (3, 4) or min(a.shape[:2]) == 0:
+        want = "a (H, W, 3|4) uint8 image" if kinds == "u" else "an (H, W, 3) image (or 4 channels), uint8 or float"
+        raise ValueError(f"{where}: expected {want}, got {a.dtype} {a.shape}")
+    return np.ascontiguousarray(a)
+
+
 def _check_pbr(pbr, n: int) -> list:
     """Per texture its PBR maps or None (``pbr`` None: none at all)."""
     if pbr is None:
@@ -112,14 +117,7 @@ def _check_pbr(pbr, n: int) -> list:
         if not all(hasattr(m, a) for a in ("orm", "normal", "occlusion")):
             raise ValueError(f"pbr[{g}]: expected PbrMaps (orm, normal, occlusion), got {type(m).__name__}")
         for name in ("orm", "normal"):
-            img = getattr(m, name)
-            if isinstance(img, (bytes, bytearray)):
-                if bytes(img[:8]) != b"\x89PNG\r\n\x1a\n":
-                    raise ValueError(f"pbr[{g}].{name}: bytes given, but not a PNG file")
-                continue
-            a = np.asarray(img)
-            if a.ndim != 3 or a.shape[2] not in (3, 4) or min(a.shape[:2]) == 0 or a.dtype.kind not in "uf":
-                raise ValueError(f"pbr[{g}].{name}: expected an (H, W, 3) image, got {a.dtype} {a.shape}")
+            _checked_image(getattr(m, name), f"pbr[{g}].{name}", "uf")
         out.append(m)
     return out
 
@@ -154,25 +152,19 @@ def _split_vertices(faces: np.ndarray, st: np.ndarray | None):
     return keys // n_st, st_split, inv.reshape(-1, 3).astype(np.uint32)
 
 
-def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, vid: np.ndarray,
-                    indices: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (s, 3) float32 for the split vertices of one primitive.
+def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, indices: np.ndarray, n_split: int) -> np.ndarray:
+    """Area-weighted unit vertex normals (s, 3) float32 for the ``n_split`` split vertices of one
+    primitive (``indices`` (k, 3): each corner's split vertex).
 
-    Normals are accumulated per *source* vertex over the primitive's faces, so texture seams do not
-    become shading seams. Vertices whose faces are all degenerate (or cancel) get +z.
+    Normals are accumulated per *source* vertex over the primitive's faces
+    (:func:`proctex.texture.pbr.corner_normals`), so texture seams do not become shading seams.
+    Vertices whose faces are all degenerate (or cancel) get +z.
     """
-    tri = vertices[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 * area
-    _, local = np.unique(vid, return_inverse=True)  # vid is sorted: local id per split vertex
-    corner_local = local.ravel()[indices.astype(np.int64)].ravel()
-    n_local = int(corner_local.max()) + 1
-    acc = np.stack([np.bincount(corner_local, weights=np.repeat(fn[:, k], 3), minlength=n_local)
-                    for k in range(3)], axis=1)
-    length = np.linalg.norm(acc, axis=1)
-    ok = length > 0
-    acc[ok] /= length[ok, None]
-    acc[~ok] = (0.0, 0.0, 1.0)
-    return acc[local.ravel()].astype(np.float32)
+    from .pbr import corner_normals
+
+    out = np.empty((n_split, 3), np.float32)
+    out[indices.reshape(-1).astype(np.int64)] = corner_normals(vertices, faces).reshape(-1, 3)
+    return out
 
 
 # --------------------------------------------------------------------------- GLB
@@ -286,7 +278,7 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
             st[..., 0] = UV[idx, :, 0]
             st[..., 1] = 1.0 - UV[idx, :, 1]
         vid, st_split, indices = _split_vertices(f, st)
-        normals = _smooth_normals(V, f, vid, indices)
+        normals = _smooth_normals(V, f, indices, len(vid))
         attrs = {"POSITION": blob.accessor(V[vid].astype(np.float32), "VEC3", ARRAY_BUFFER, minmax=True),
                  "NORMAL": blob.accessor(normals, "VEC3", ARRAY_BUFFER)}
         pbr: dict = {"metallicFactor": 0.0, "roughnessFactor": ROUGHNESS}
