@@ -22,7 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .pbr import corner_normals, corner_tangents, decode_normal
+from .pbr import corner_normals, corner_tangents, decode_normal, surface_frames
 from .uv import sample_texture
 
 __all__ = ["pbr_surface", "shade_pbr", "environment", "vertex_occlusion"]
@@ -103,13 +103,8 @@ def pbr_surface(buffers: Any, vertices: np.ndarray, faces: np.ndarray, corner_uv
             occl[sel] = orm[:, 0]
         if tangents is None:
             tangents = corner_tangents(vertices, faces, corner_uv, cn)
-        tw = tangents[face[sel]]
-        T = (tw[..., :3] * bary[sel][:, :, None]).sum(1)
-        N = n[sel]
-        T -= N * (T * N).sum(1, keepdims=True)
-        T /= np.maximum(np.linalg.norm(T, axis=1, keepdims=True), 1e-12)
-        w = np.where(tw[:, 0, 3] < 0, -1.0, 1.0)
-        B = np.cross(N, T) * w[:, None] * np.where(flip[sel], -1.0, 1.0)[:, None]
+        T, B, _ = surface_frames(face[sel], bary[sel], tangents, cn)  # the frame the map was baked in
+        N = n[sel]  # turned to the camera: the bitangent keeps its texture-space direction
         nt = decode_normal(sample_texture(mp.normal_uint8(), uv[sel]))
         bent = nt[:, :1] * T + nt[:, 1:2] * B + nt[:, 2:] * N
         n[sel] = bent / np.maximum(np.linalg.norm(bent, axis=1, keepdims=True), 1e-12)

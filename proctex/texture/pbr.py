@@ -24,7 +24,7 @@ import numpy as np
 
 from .uv import TexelMap, pad_seams
 
-__all__ = ["PbrMaps", "corner_tangents", "key_tangents", "corner_normals", "texel_frames", "encode_normal", "decode_normal",
+__all__ = ["PbrMaps", "corner_tangents", "key_tangents", "corner_normals", "texel_frames", "surface_frames", "encode_normal", "decode_normal",
            "bake_maps", "flat_maps", "FLAT_NORMAL"]
 
 #: the encoded colour of an unperturbed normal (0, 0, 1).
@@ -185,10 +185,17 @@ def texel_frames(texels: TexelMap, tangents: np.ndarray, normals: np.ndarray) ->
 
     ``tangents``: (k, 3, 4) per corner (:func:`corner_tangents`) and ``normals``: (k, 3, 3) per corner,
     of the faces ``texels`` was made from. The bitangent is ``w * cross(N, T)``, as a viewer builds it."""
-    bary = texels.bary[:, :, None]
-    N = (normals[texels.face] * bary).sum(1)
+    return surface_frames(texels.face, texels.bary, tangents, normals)
+
+
+def surface_frames(face: np.ndarray, bary: np.ndarray, tangents: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Interpolated, orthonormalised frames ``(T, B, N)`` (t, 3) at surface points given by ``face``
+    (t,) and barycentrics ``bary`` (t, 3): the per-corner ``tangents`` (k, 3, 4) and ``normals``
+    (k, 3, 3) interpolated as a viewer does (texels, rendered pixels)."""
+    bary = np.asarray(bary)[:, :, None]
+    N = (normals[face] * bary).sum(1)
     N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
-    tw = tangents[texels.face]
+    tw = tangents[face]
     T = (tw[..., :3] * bary).sum(1)
     T -= N * (T * N).sum(1, keepdims=True)
     T /= np.maximum(np.linalg.norm(T, axis=1, keepdims=True), 1e-300)
@@ -226,12 +233,10 @@ def bake_maps(texels: TexelMap, vertices: np.ndarray, faces: np.ndarray, corner_
     if not (np.isfinite(rough).all() and np.isfinite(metal).all() and np.isfinite(nts).all()):
         raise ValueError("material props returned NaN or infinite values")
     ii, jj = texels.ij[:, 0], texels.ij[:, 1]
-    orm = maps.orm.copy()
-    orm[ii, jj, 0] = 1.0 if occlusion is None else np.clip(occlusion, 0, 1)
-    orm[ii, jj, 1] = np.clip(rough, 0, 1)
-    orm[ii, jj, 2] = np.clip(metal, 0, 1)
-    normal = maps.normal.copy()
-    normal[ii, jj] = encode_normal(nts)
-    orm, _ = pad_seams(orm, texels.mask, gutter)
-    normal, _ = pad_seams(normal, texels.mask, gutter)
+    maps.orm[ii, jj, 0] = 1.0 if occlusion is None else np.clip(occlusion, 0, 1)
+    maps.orm[ii, jj, 1] = np.clip(rough, 0, 1)
+    maps.orm[ii, jj, 2] = np.clip(metal, 0, 1)
+    maps.normal[ii, jj] = encode_normal(nts)
+    orm, _ = pad_seams(maps.orm, texels.mask, gutter)
+    normal, _ = pad_seams(maps.normal, texels.mask, gutter)
     return PbrMaps(orm, normal, occlusion is not None)
