@@ -477,5 +477,5 @@ def paint_template(
     if maps:
         materials = surface if surface is not None else make_painter("surface", grouping, prompt, prompts, seed=seed).bind(shape, grouping, up)
         paint_material_maps(tex, materials, occlusion=occlusion, seed=seed)
-        tex.notes.extend(n for n in materials.notes() if "regions" in n and n not in tex.notes)
+        tex.notes.extend(n for n in materials.region_notes() if n not in tex.notes)  # the surface painter's notes hold them already
     return tex

@@ -146,21 +146,20 @@ class SurfacePainter:
         """The spec used for a group (the rest's, where regions add others): ``group_prompts[label]``,
         else ``group_prompts[str(group)]``, else a clause of the global prompt naming the group, else
         the global prompt's."""
-        if label and label in self._group_specs and self._group_texts[label] != self.prompt:
-            return self._group_specs[label]
-        if group is not None and str(group) in self._group_specs and self._group_texts[str(group)] != self.prompt:
-            return self._group_specs[str(group)]
-        if self._bound is not None:
-            return self._layers_for(group, label)[0].spec
-        return self._spec
+        return self._layers_for(group, label)[0].spec
+
+    def region_notes(self) -> list[str]:
+        """What the global prompt's region clauses became (none without regions)."""
+        if not self._plan.has_regions:
+            return []
+        lines = [f"prompt {self.prompt!r} regions: " + "; ".join(self._plan.notes)]
+        if self._bound is None:
+            lines.append("regions are placed once the painter knows the shape; painted with the rest's material")
+        return lines
 
     def notes(self) -> list[str]:
         """One human-readable line per prompt: what was understood and what was ignored."""
-        lines = [f"prompt {self.prompt!r}: {self._spec.notes}"]
-        if self._plan.has_regions:
-            lines.append(f"prompt {self.prompt!r} regions: " + "; ".join(self._plan.notes))
-            if self._bound is None:
-                lines.append("regions are placed once the painter knows the shape; painted with the rest's material")
+        lines = [f"prompt {self.prompt!r}: {self._spec.notes}", *self.region_notes()]
         for key, spec in self._group_specs.items():
             if self._group_texts[key] != self.prompt:
                 lines.append(f"group {key} prompt {spec.prompt!r}: {spec.notes}")
