@@ -184,8 +184,9 @@ _RELIEF: dict[str, Callable[[Ctx, MaterialSpec], tuple[np.ndarray, np.ndarray]]]
 
 def height(ctx: Ctx, spec: MaterialSpec) -> np.ndarray:
     """The relief of the chunk's points for ``spec`` (material, overlay and wear), ``(n,) float32`` in
-    normalised-frame units. A pure function of (point, normal, spec, seed), like the colour."""
-    return _props(ctx, spec, with_props=False)[0]
+    normalised-frame units. A pure function of (point, normal, spec, seed), like the colour. (The
+    normal map evaluates it four times per texel, so it computes nothing but the relief.)"""
+    return _props(ctx, spec, with_props=False)[2]
 
 
 def surface_props(ctx: Ctx, spec: MaterialSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -194,38 +195,41 @@ def surface_props(ctx: Ctx, spec: MaterialSpec) -> tuple[np.ndarray, np.ndarray,
     return _props(ctx, spec, with_props=True)
 
 
-def _props(ctx: Ctx, spec: MaterialSpec, with_props: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _props(ctx: Ctx, spec: MaterialSpec, with_props: bool) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """``(roughness, metallic, height)``; without ``with_props`` only the height (the others None)."""
     rough0, metal0 = base_props(spec)
     h, dr = _RELIEF[spec.material](ctx, spec)
     h = np.broadcast_to(h, (ctx.n,)).astype(F32, copy=True)
-    rough = np.full(ctx.n, F32(rough0), dtype=F32) + dr
-    metal = np.full(ctx.n, F32(metal0), dtype=F32)
+    rough = np.full(ctx.n, F32(rough0), dtype=F32) + dr if with_props else None
+    metal = np.full(ctx.n, F32(metal0), dtype=F32) if with_props else None
     # Overlays: rust (the kind "rust" or a "rusty" overlay) and moss are dielectric and rough.
+    overlays = []
     if spec.material == "rust" or spec.overlay == "rust":
         mask = rust_mask(ctx, 0.55 if spec.material == "rust" else 0.35)
         h += mask * (F32(0.0012) + F32(0.0012) * ctx.noise("rust-mottle", 14.0, 2))
-        rough = rough + (F32(0.9) - rough) * mask
-        metal = metal * (F32(1.0) - mask)
+        overlays.append((mask, 0.9))
     if spec.overlay == "moss":
         mask = moss_mask(ctx)
         h += mask * (F32(0.003) * ctx.noise("moss", 5.0, 4))
-        rough = rough + (F32(1.0) - rough) * mask
+        overlays.append((mask, 1.0))
+    scratches = scratch_field(ctx, spec) if spec.wear > 0 and "scratches" in spec.wear_kinds else None
+    if scratches is not None:
+        h -= F32(0.0008) * scratches
+    if not with_props:
+        return None, None, h
+    for mask, r in overlays:
+        rough = rough + (F32(r) - rough) * mask
         metal = metal * (F32(1.0) - mask)
     if spec.wear > 0:
         w = spec.wear
-        kinds = spec.wear_kinds
-        if "dirt" in kinds:
+        if "dirt" in spec.wear_kinds:
             m = smoothstep(0.0, 0.35, ctx.noise("dirt", 2.4, 3) + F32(0.3 * (w - 0.5))) * F32(0.6 * w)
             rough = rough + (F32(0.95) - rough) * m * F32(0.6)
-        if "fade" in kinds:
+        if "fade" in spec.wear_kinds:
             f = smoothstep(-0.25, 0.3, ctx.noise("fade", 1.5, 2)) * F32(0.45 * w)
             rough = rough + (F32(0.9) - rough) * f * F32(0.4)
-        if "scratches" in kinds:
-            t = scratch_field(ctx, spec)
-            h -= F32(0.0008) * t
-            rough = rough + (F32(0.75) - rough) * t * F32(0.7 if metal0 > 0 else 0.3)
-    if not with_props:
-        return h, rough, metal
+        if scratches is not None:
+            rough = rough + (F32(0.75) - rough) * scratches * F32(0.7 if metal0 > 0 else 0.3)
     np.clip(rough, F32(0.03), F32(1.0), out=rough)
     np.clip(metal, F32(0.0), F32(1.0), out=metal)
     return rough, metal, h
