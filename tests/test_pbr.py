@@ -432,6 +432,9 @@ def test_bake_re_expresses_the_relief_in_the_new_atlas():
     # Copied without re-expressing (the template map's texels as they are) would be far worse.
     raw = decode_normal(tex.groups[0].pbr.normal_uint8()[tm.ij[:, 0], tm.ij[:, 1]])
     assert np.median(np.degrees(np.arccos(np.clip((raw * fresh).sum(1), -1, 1)))) > np.median(err) * 1.5
+    # Deliberately wrong frames score clearly worse: the baked map turned by 90 degrees, or mirrored.
+    for wrong in (np.stack([-got[:, 1], got[:, 0], got[:, 2]], 1), got * np.array([1.0, -1.0, 1.0])):
+        assert np.median(np.degrees(np.arccos(np.clip((wrong * fresh).sum(1), -1, 1)))) > np.median(err) * 1.5
     assert (baked.pbr[0].orm_uint8()[tm.ij[:, 0], tm.ij[:, 1], 2] > 250).all()
     # The baked GLB carries the maps and stays validator-clean.
     answer = shape_to_glb(shape, assets, mapper, up="z", bake_size=128, shortcut=False)
