@@ -194,20 +194,18 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
 
 
 def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = "y", texture_uris: list[str | None] | None = None,
-        map_uris: list[tuple[str, str] | None] | None = None, pbr: list[Any] | None = None) -> bytes:
+        map_uris: list[tuple[str, str] | None] | None = None) -> bytes:
     """Textured GLB bytes of a transferred shape (reuses the template's encoded PNGs and PBR maps:
     the maps share the textures' UVs, so nothing is recomputed); ``up``: the shape's up axis (the
     GLB stands it upright, see :func:`proctex.texture.export.glb_bytes`). ``texture_uris``: per
     template group a URI its texture is read from instead of being embedded (None: embedded);
-    ``map_uris``: the same for its PBR maps, ``(orm URI, normal URI)``; ``pbr``: per template group
-    maps replacing the template's (an edit). Textures painted for new parts are always embedded
-    (colour only)."""
+    ``map_uris``: the same for its PBR maps, ``(orm URI, normal URI)`` (an edit replaces
+    ``assets.pbr_png``). Textures painted for new parts are always embedded (colour only)."""
     from proctex.texture.export import glb_bytes
 
     extra = [f"new_{k}" for k in range(len(result.new_textures))]
     uris = (list(texture_uris) + [None] * len(extra)) if texture_uris is not None else None
-    maps = pbr if pbr is not None else assets.pbr_png
-    maps = (list(maps) + [None] * len(extra)) if maps is not None else None
+    maps = (list(assets.pbr_png) + [None] * len(extra)) if assets.pbr_png is not None else None
     m_uris = (list(map_uris) + [None] * len(extra)) if map_uris is not None and maps is not None else None
     return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png + list(result.new_textures),
                      names=assets.names + extra, up=up, image_uris=uris, pbr=maps, pbr_uris=m_uris)
