@@ -152,19 +152,17 @@ def _split_vertices(faces: np.ndarray, st: np.ndarray | None):
     return keys // n_st, st_split, inv.reshape(-1, 3).astype(np.uint32)
 
 
-def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, indices: np.ndarray, n_split: int) -> np.ndarray:
-    """Area-weighted unit vertex normals (s, 3) float32 for the ``n_split`` split vertices of one
-    primitive (``indices`` (k, 3): each corner's split vertex).
+def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, vid: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (s, 3) float32 for the split vertices of one primitive
+    (``vid``: each split vertex's source vertex).
 
     Normals are accumulated per *source* vertex over the primitive's faces
-    (:func:`proctex.texture.pbr.corner_normals`), so texture seams do not become shading seams.
+    (:func:`proctex.texture.pbr.vertex_normals`), so texture seams do not become shading seams.
     Vertices whose faces are all degenerate (or cancel) get +z.
     """
-    from .pbr import corner_normals
+    from .pbr import vertex_normals
 
-    out = np.empty((n_split, 3), np.float32)
-    out[indices.reshape(-1).astype(np.int64)] = corner_normals(vertices, faces).reshape(-1, 3)
-    return out
+    return vertex_normals(vertices, faces)[vid].astype(np.float32)
 
 
 # --------------------------------------------------------------------------- GLB
@@ -278,7 +276,7 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
             st[..., 0] = UV[idx, :, 0]
             st[..., 1] = 1.0 - UV[idx, :, 1]
         vid, st_split, indices = _split_vertices(f, st)
-        normals = _smooth_normals(V, f, indices, len(vid))
+        normals = _smooth_normals(V, f, vid)
         attrs = {"POSITION": blob.accessor(V[vid].astype(np.float32), "VEC3", ARRAY_BUFFER, minmax=True),
                  "NORMAL": blob.accessor(normals, "VEC3", ARRAY_BUFFER)}
         pbr: dict = {"metallicFactor": 0.0, "roughnessFactor": ROUGHNESS}

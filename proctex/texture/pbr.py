@@ -24,7 +24,7 @@ import numpy as np
 
 from .uv import TexelMap, pad_seams
 
-__all__ = ["PbrMaps", "corner_tangents", "key_tangents", "corner_normals", "texel_frames", "surface_frames", "encode_normal", "decode_normal",
+__all__ = ["PbrMaps", "corner_tangents", "key_tangents", "corner_normals", "vertex_normals", "texel_frames", "surface_frames", "encode_normal", "decode_normal",
            "bake_maps", "flat_maps", "FLAT_NORMAL"]
 
 #: the encoded colour of an unperturbed normal (0, 0, 1).
@@ -103,9 +103,9 @@ def _uv_keys(faces: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
     return key.ravel()
 
 
-def corner_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(m, 3, 3) float64 area-weighted smooth vertex normals at each corner, over the given faces only
-    (the GLB's NORMAL); a vertex whose faces cancel gets +z."""
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(n, 3) float64 area-weighted smooth vertex normals over the given faces only (the GLB's
+    NORMAL); a vertex whose faces cancel, or that no face uses, gets +z."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     tri = v[f]
@@ -116,7 +116,12 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     ok = length > 0
     acc[ok] /= length[ok, None]
     acc[~ok] = (0.0, 0.0, 1.0)
-    return acc[f]
+    return acc
+
+
+def corner_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) float64 :func:`vertex_normals` at each corner of ``faces``."""
+    return vertex_normals(vertices, faces)[np.asarray(faces, dtype=np.int64)]
 
 
 def corner_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray,
