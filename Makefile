@@ -10,7 +10,7 @@ STUDIO     := workers/studio
 STUDIO_OUT := $(STUDIO)/dist/index.html
 STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: setup demo test test-fast bench gallery clean studio browser blender blender-addon blender-fixtures
+.PHONY: setup demo test test-fast test-no-avx512 bench gallery clean studio browser blender blender-addon blender-fixtures
 
 # Blender's Python (bpy, which needs numpy < 2) in an environment of its own, for .blend family
 # sources (proctex/family/blender.py). A machine where bpy cannot be installed skips those tests.
@@ -72,6 +72,12 @@ bench: setup
 
 test-fast: setup
 	$(PY) -m pytest -q -m "not slow"
+
+# The whole suite on the code paths of a CPU without AVX-512 (numpy's dispatch, torch's ATen and
+# oneDNN limited to AVX2, so bfloat16 is not native): what a user's AVX2 machine runs (issue 30).
+test-no-avx512: setup browser blender
+	NPY_DISABLE_CPU_FEATURES="$$($(PY) -c 'from tests.portable import numpy_avx512_targets as t; print(" ".join(t()))')" \
+	  ATEN_CPU_CAPABILITY=avx2 ONEDNN_MAX_CPU_ISA=AVX2 $(PY) -m pytest -q
 
 gallery: setup
 	$(VENV)/bin/proctex gallery --out out/gallery

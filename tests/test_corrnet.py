@@ -3,6 +3,7 @@ stopping, determinism, config validation and persistence."""
 
 from __future__ import annotations
 
+import os
 import pickle
 
 import numpy as np
@@ -131,11 +132,8 @@ def test_bfloat16_autocast_predict_and_train():
     assert np.abs(full - half).max() < 5e-3  # bfloat16 products; the residual add stays float32
     with pytest.raises(ValueError, match="float32"):
         cn.predict(cn.build_model(small_config(dtype="float64")), src, src, autocast="bfloat16")
-    # "auto" is bfloat16 exactly where the CPU has it natively, float32 elsewhere; a float64 model
-    # keeps float64 (no error).
-    auto = cn.predict(res.model, src, src, autocast="auto")
-    np.testing.assert_array_equal(auto, half if cn.native_bfloat16("cpu") else full)
-    assert cn.resolve_autocast("auto", "cpu") == ("bfloat16" if cn.native_bfloat16("cpu") else "none")
+    # "auto" on either kind of CPU: test_auto_autocast_on_either_cpu_agrees_with_float32. A float64
+    # model keeps float64 under "auto" (no error).
     assert cn.resolve_autocast("none", "cpu") == "none" and cn.resolve_autocast("bfloat16", "cpu") == "bfloat16"
     wide = cn.build_model(small_config(dtype="float64"))
     np.testing.assert_array_equal(cn.predict(wide, src, src, autocast="auto"), cn.predict(wide, src, src))
@@ -145,6 +143,51 @@ def test_bfloat16_autocast_predict_and_train():
 
     with pytest.raises(ValueError, match="autocast"):
         NetworkMapper({}, autocast="fp8")
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_auto_autocast_on_either_cpu_agrees_with_float32(native, monkeypatch):
+    """"auto" resolves by the CPU (native bfloat16 or not), so a user's machine may take either path:
+    both are forced here, whatever this CPU is, and both agree with float32. bfloat16 runs (emulated)
+    on every CPU, so both paths run everywhere."""
+    from proctex.family.mappers import NetworkMapper
+
+    from .meshes import cube
+
+    monkeypatch.setattr(cn, "native_bfloat16", lambda device="cpu": native)
+    assert cn.resolve_autocast("auto", "cpu") == ("bfloat16" if native else "none")
+    pairs = family_pairs(4, 100, seed=12)
+    model = tr.train(pairs, pairs[:1], small_config(iterations=10)).model
+    src = pairs[1][0]
+    full = cn.predict(model, src, src)
+    auto = cn.predict(model, src, src, autocast="auto")
+    # bfloat16 keeps 8 bits of mantissa in the products: the residual network's output moves by a few
+    # 1e-3 of the normalised frame at most (measured 1e-3 on the sofa's parts), float32 not at all.
+    assert np.abs(auto - full).max() < 5e-3
+    if native:
+        assert np.abs(auto - full).max() > 0  # the bfloat16 path was taken
+    else:
+        np.testing.assert_array_equal(auto, full)  # the same float32 program in this process
+    # The run-time mapper ("auto" by default) on a mesh: the same agreement.
+    v, f = cube()
+    query = v * 0.8
+    mapped = NetworkMapper({0: model}).map(0, v, f, query)
+    mapped32 = NetworkMapper({0: model}, autocast="none").map(0, v, f, query)
+    assert mapped.shape == (len(v), 3) and np.abs(mapped - mapped32).max() < 5e-3
+
+
+def test_native_bfloat16_honours_torch_dispatch_limits():
+    """A CPU without AVX-512 has no native bfloat16: with torch (ATEN_CPU_CAPABILITY) or oneDNN
+    (ONEDNN_MAX_CPU_ISA) limited to AVX2, the probe says so, so "auto" takes float32 as it would
+    there (tests/test_portability.py runs the suite that way)."""
+    import subprocess
+    import sys
+
+    probe = "from proctex.correspond import corrnet as c; print(c.native_bfloat16(), c.resolve_autocast('auto'))"
+    for env in ({"ATEN_CPU_CAPABILITY": "avx2"}, {"ONEDNN_MAX_CPU_ISA": "AVX2"}, {"ONEDNN_MAX_CPU_ISA": "avx512_core"}):
+        out = subprocess.run([sys.executable, "-c", probe], env={**os.environ, **env}, capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.split() == ["False", "none"], env
 
 
 def test_sample_indices():

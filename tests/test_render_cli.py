@@ -97,10 +97,13 @@ def test_render_of_the_glb_equals_render_of_the_arrays(mug):
     c, r = bounding_sphere(V)
     cams = [three_quarter_camera(V, "z", 128)] + canonical_cameras(c, r, "z", 96)
     from_glb = render_views(m.vertices, m.faces, m.corner_uv, m.face_group, m.textures, cams)
-    # Pixel-for-pixel equal to the arrays rounded as the GLB stores them (float32 positions / UVs) ...
+    # Equal to the arrays rounded as the GLB stores them (float32 positions / UVs) but for rays that
+    # hit a shared edge exactly: the GLB's split vertices and per-material face order give the ray
+    # tracer another BVH, whose traversal order (its width follows the CPU's SIMD) may hand such a
+    # tie to the other triangle (0 pixels here; 1e-4 is 7 of the 71,680) ...
     exact = render_views(f32(V), F, stored_uv(UV), G, tex, cams)
     for a, b in zip(from_glb, exact):
-        assert np.array_equal(a, b)
+        assert a.shape == b.shape and (np.abs(a.astype(int) - b).max(axis=-1) > 0).mean() <= 1e-4
     # ... and to the float64 originals but for at most 0.2% of the pixels (float32 rounding).
     for a, b, cam in zip(from_glb, render_views(V, F, UV, G, tex, cams), cams):
         d = np.abs(a.astype(int) - b).max(axis=-1)

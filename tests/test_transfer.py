@@ -726,7 +726,8 @@ def test_parts_mapped_side_by_side_give_the_same_result_and_leave_torch_threads_
     shape = get_model("chair").generate({"slats": 4, "seat_width": 0.5, "arms": True})
     nets = {g.group: build_model(CorrNetConfig(context_points=64, query_points=64, local_hidden=32, feature_dim=32, decoder_hidden=32, seed=g.group)) for g in assets.groups}
     before = torch.get_num_threads()
-    for mapper in (NetworkMapper(nets), make_mapper("nearest", assets, corr_points=300)):
+    # Both autocast paths explicitly ("auto" picks one by the CPU: issue 30).
+    for mapper in (NetworkMapper(nets, autocast="none"), NetworkMapper(nets, autocast="bfloat16"), make_mapper("nearest", assets, corr_points=300)):
         one = transfer(shape, assets, mapper, shortcut=False, workers=1)
         many = transfer(shape, assets, mapper, shortcut=False)
         assert np.array_equal(one.corner_uv, many.corner_uv) and np.array_equal(one.face_group, many.face_group)

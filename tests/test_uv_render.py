@@ -42,8 +42,17 @@ def test_rasterise_matches_reference(with_depth):
         depth = rng.uniform(1, 5, (10, 3)) if with_depth else None
         f1, b1 = rasterise(xy, 19, 17, depth)
         f2, b2 = rasterise_reference(xy, 19, 17, depth)
-        assert np.array_equal(f1, f2)
-        assert np.allclose(b1, b2, atol=1e-12)
+        # The same face everywhere, but where two faces meet at one depth (the two compute depth
+        # with other sums, whose last bits follow the CPU: a tie may go either way there).
+        other = f1 != f2
+        if depth is not None and other.any():
+            both = other & (f1 >= 0) & (f2 >= 0)
+            z1 = (b1[both] * depth[f1[both]]).sum(-1)
+            z2 = (b2[both] * depth[f2[both]]).sum(-1)
+            assert both.sum() == other.sum() and np.allclose(z1, z2, rtol=1e-9, atol=0)
+        else:
+            assert not other.any()
+        assert np.allclose(b1[~other], b2[~other], atol=1e-12)
 
 
 def test_rasterise_square_covers_exact_pixels():

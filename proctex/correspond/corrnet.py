@@ -343,12 +343,28 @@ def check_pairs(pairs: Any, what: str, allow_empty: bool = False) -> list[tuple[
 
 
 # ---------------------------------------------------------------------------------- train and eval
+#: oneDNN ISA limits (``ONEDNN_MAX_CPU_ISA``) under which bfloat16 products are still native.
+_ONEDNN_BF16_ISAS = ("AVX512_CORE_BF16", "AVX512_CORE_FP16", "AVX512_CORE_AMX", "AVX512_CORE_AMX_FP16",
+                     "AVX10_1_512", "AVX10_1_512_AMX", "AVX10_1_512_AMX_FP16", "AVX10_2_512",
+                     "AVX10_2_512_AMX_2", "ALL", "DEFAULT", "")
+
+
 def native_bfloat16(device: torch.device | str = "cpu") -> bool:
     """Whether ``device`` runs bfloat16 matrix products natively (CPUs with AVX512-BF16 or AMX;
-    CUDA devices reporting bfloat16 support), so autocast there is faster rather than emulated."""
+    CUDA devices reporting bfloat16 support), so autocast there is faster rather than emulated.
+
+    On a CPU this honours torch's own dispatch limits, so a machine told to behave like one without
+    AVX-512 (``ATEN_CPU_CAPABILITY=avx2``, or ``ONEDNN_MAX_CPU_ISA`` below ``AVX512_CORE_BF16``)
+    takes the float32 path that such a machine takes (the suite runs that way too:
+    tests/test_portability.py)."""
     device = torch.device(device)
     try:
         if device.type == "cpu":
+            if not torch.backends.cpu.get_cpu_capability().upper().startswith("AVX512"):
+                return False
+            isa = os.environ.get("ONEDNN_MAX_CPU_ISA", os.environ.get("DNNL_MAX_CPU_ISA", "")).strip().upper()
+            if isa not in _ONEDNN_BF16_ISAS:
+                return False
             return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
         if device.type == "cuda":
             return bool(torch.cuda.is_bf16_supported())
