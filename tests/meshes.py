@@ -56,3 +56,40 @@ def part_label(shape, ids):
 def labelled_parts(shape):
     """(vertex ids, local faces, label) per part."""
     return [(ids, faces, part_label(shape, ids)) for ids, faces in split_parts(shape)]
+
+
+def boxes(specs):
+    """A shape of axis-aligned boxes, no labels: ``specs`` is [(size (3,), centre (3,))]; each box
+    its own part. Returns :class:`proctex.geometry.shape.Shape`."""
+    from proctex.geometry.shape import Shape
+
+    vs, fs, n = [], [], 0
+    for size, center in specs:
+        part = P.box(size, center=center, divisions=(2, 2, 2))
+        vs.append(part.vertices)
+        fs.append(part.faces + n)
+        n += len(part.vertices)
+    return Shape(np.concatenate(vs), np.concatenate(fs))
+
+
+def unlabelled_chair(arms=True, back=True, up="z", scale=1.0):
+    """A chair of boxes (seat, four legs, optional back panel and two armrests), no part labels,
+    standing on z = 0 (``up="y"``: the same chair turned so that y is up), in units of ``scale``."""
+    specs = [((0.5, 0.5, 0.06), (0, 0, 0.47))]
+    specs += [((0.05, 0.05, 0.44), (x, y, 0.22)) for x in (-0.22, 0.22) for y in (-0.22, 0.22)]
+    if back:
+        specs.append(((0.46, 0.05, 0.45), (0, 0.225, 0.75)))
+    if arms:
+        specs += [((0.06, 0.4, 0.05), (x, 0.0, 0.68)) for x in (-0.28, 0.28)]
+    shape = boxes([(np.asarray(s) * scale, np.asarray(c) * scale) for s, c in specs])
+    if up == "y":
+        shape.vertices = shape.vertices[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0])
+    return shape
+
+
+def unlabelled_table():
+    """A table of boxes: top, four legs, a shelf between them; no labels, z up."""
+    specs = [((1.2, 0.7, 0.04), (0, 0, 0.73))]
+    specs += [((0.05, 0.05, 0.71), (x, y, 0.355)) for x in (-0.55, 0.55) for y in (-0.3, 0.3)]
+    specs.append(((1.05, 0.55, 0.02), (0, 0, 0.2)))
+    return boxes(specs)

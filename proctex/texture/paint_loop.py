@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from proctex.geometry.parts import Grouping, PartGroup
 from proctex.geometry.shape import Shape
+from proctex.texture.painters.partwords import plan_parts
 from proctex.texture.painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest
 
 from .paint import (
@@ -465,17 +466,23 @@ def paint_template(
     the prompts' materials, whichever painter made the colour); ``occlusion``: bake ambient occlusion
     into them too."""
     prompts = resolve_group_prompts(grouping, prompt, group_prompts)  # validates the keys
+    # Clauses naming parts (by label or by what the parts are) become those groups' prompts, for
+    # every painter and in the record; explicit group prompts win.
+    parts = plan_parts(prompt, shape.vertices, shape.faces, grouping, up)
+    prompts = {g: (parts.text_for(g) if text == prompt else text) for g, text in prompts.items()}
     chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, model_dir=model_dir, device=device, steps=steps)
     surface = chosen if painter == "surface" else getattr(chosen, "surface", None)
     if surface is not None:
-        surface.bind(shape, grouping, up)  # places the prompt's regions on this shape
+        surface.bind(shape, grouping, up, parts=parts)  # places the prompt's regions on this shape
     if painter == "surface":
         tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv)
     else:
-        tex = paint_views(shape, grouping, chosen, prompt, group_prompts, n_views=views, view_size=view_size, size=size,
-                          up=up, seed=seed, complete_hidden=complete_hidden, fill=fill, on_view=on_view, uv=uv)
+        tex = paint_views(shape, grouping, chosen, prompt, {str(g): t for g, t in prompts.items()}, n_views=views,
+                          view_size=view_size, size=size, up=up, seed=seed, complete_hidden=complete_hidden, fill=fill,
+                          on_view=on_view, uv=uv)
+    tex.notes.extend(line for line in (f"prompt {prompt!r} parts: {n}" for n in parts.notes) if line not in tex.notes)
     if maps:
-        materials = surface if surface is not None else make_painter("surface", grouping, prompt, prompts, seed=seed).bind(shape, grouping, up)
+        materials = surface if surface is not None else make_painter("surface", grouping, prompt, prompts, seed=seed).bind(shape, grouping, up, parts=parts)
         paint_material_maps(tex, materials, occlusion=occlusion, seed=seed)
         tex.notes.extend(n for n in materials.region_notes() if n not in tex.notes)  # the surface painter's notes hold them already
     return tex

@@ -1,7 +1,8 @@
 """Regions within a part, read from the prompt: "a dinner fork with a silver tip and a dark wood handle".
 
-:func:`split_regions` cuts a prompt into clauses at commas, semicolons, "with" (and "having",
-"featuring"), and at "and" right after a clause that ends in a region word. A clause that ends in a
+:func:`split_regions` cuts a prompt into clauses at commas, semicolons, colons, "with" (and "having",
+"featuring"), and at "and" right after a clause that ends in a region word (or, after "with", in a
+word the prompt parser does not know). A clause that ends in a
 region word ("a silver tip", "red top", "a gold rim") -- or starts with one followed by "in", "of" or
 "made of" ("handle in dark wood") -- describes that region; the other clauses are the rest of the
 surface. Region words are, first, the labels of the shape's part groups ("handle" on a fork whose
@@ -59,7 +60,7 @@ REGION_WORDS: dict[str, str] = {
     "body": "rest",
 }
 
-_CUT = {",", ";", "with", "having", "featuring"}
+_CUT = {",", ";", ":", "with", "having", "featuring"}
 #: region clauses a prompt may hold (each is a material evaluated where its region lies); more are
 #: dropped with a note, and a region named twice keeps its last clause
 MAX_REGIONS = 8
@@ -79,6 +80,8 @@ class RegionPlan:
         parts: ``(group label, text)``: clauses that name a part group of the shape.
         unknown: region words that are neither a group nor a known region (their text is unused).
         notes: human-readable lines on what was read.
+        unplaced: the text of each unknown region's clause, in the order of ``unknown``
+            (:mod:`.partwords` gives it to the rest when the rest names no material).
     """
 
     prompt: str
@@ -87,6 +90,7 @@ class RegionPlan:
     parts: tuple[tuple[str, str], ...] = ()
     unknown: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    unplaced: tuple[str, ...] = ()
 
     @property
     def has_regions(self) -> bool:
@@ -98,6 +102,14 @@ def _label_of(word: str, labels: dict[str, str]) -> str | None:
         if cand and cand in labels:
             return labels[cand]
     return None
+
+
+def _unknown_noun(word: str) -> bool:
+    """A word the prompt parser does not know (a part name it cannot place, "spout"): after "with",
+    an "and" following it starts a new clause ("a gold spout and dark walnut legs")."""
+    from .prompt import parse_prompt
+
+    return word in parse_prompt(word).ignored
 
 
 def split_regions(prompt: str, labels: Iterable[str] = ()) -> RegionPlan:
@@ -114,7 +126,7 @@ def split_regions(prompt: str, labels: Iterable[str] = ()) -> RegionPlan:
     if not isinstance(prompt, str):
         raise ValueError(f"prompt must be a string, got {type(prompt).__name__}")
     label_map = {str(lab).lower(): str(lab) for lab in labels if lab}
-    tokens = re.findall(r"#[0-9a-fA-F]{3,6}\b|[\w'-]+|[,;]", prompt.lower())
+    tokens = re.findall(r"#[0-9a-fA-F]{3,6}\b|[\w'-]+|[,;:]", prompt.lower())
 
     def region_of(word: str) -> tuple[str, str] | None:
         lab = _label_of(word, label_map)
@@ -128,7 +140,7 @@ def split_regions(prompt: str, labels: Iterable[str] = ()) -> RegionPlan:
     cur: list[str] = []
     after = False
     for tok in tokens:
-        if tok in _CUT or (tok == "and" and cur and region_of(cur[-1])):
+        if tok in _CUT or (tok == "and" and cur and (region_of(cur[-1]) or (after and _unknown_noun(cur[-1])))):
             if cur:
                 segments.append((cur, after))
             after = after or tok in ("with", "having", "featuring", "and")
@@ -142,6 +154,7 @@ def split_regions(prompt: str, labels: Iterable[str] = ()) -> RegionPlan:
     regions: list[tuple[str, str]] = []
     parts: list[tuple[str, str]] = []
     unknown: list[str] = []
+    unplaced: list[str] = []
     notes: list[str] = []
     for words, after_with in segments:
         words = [w for w in words if w not in _ARTICLES] or words
@@ -156,6 +169,7 @@ def split_regions(prompt: str, labels: Iterable[str] = ()) -> RegionPlan:
         if target is None:
             if after_with and len(words) > 1 and words[-1] in parse_prompt(" ".join(words)).ignored:
                 unknown.append(words[-1])
+                unplaced.append(" ".join(words[:-1]))
                 notes.append(f"region {words[-1]!r} is neither a part of this shape nor a region ProcTex knows "
                              f"({', '.join(r for r in REGIONS)}); {' '.join(words[:-1])!r} was not used")
             else:
@@ -182,7 +196,7 @@ def split_regions(prompt: str, labels: Iterable[str] = ()) -> RegionPlan:
     if len(regions) > MAX_REGIONS:
         notes.append(f"{len(regions)} regions named; the first {MAX_REGIONS} are used")
         regions = regions[:MAX_REGIONS]
-    return RegionPlan(prompt, " ".join(base), tuple(regions), tuple(parts), tuple(unknown), tuple(notes))
+    return RegionPlan(prompt, " ".join(base), tuple(regions), tuple(parts), tuple(unknown), tuple(notes), tuple(unplaced))
 
 
 # ----------------------------------------------------------------------------------------- geometry

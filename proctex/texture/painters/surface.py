@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .materials import shade
+from .partwords import PartPlan, plan_parts
 from .pbr import height, surface_props
 from .prompt import MaterialSpec, parse_prompt
 from .regions import RegionFrame, region_weight, split_regions
@@ -81,12 +82,15 @@ class SurfacePainter:
                 raise ValueError(f"group prompt for {key!r}: {exc}") from None
             self._group_texts[str(key)] = text
         self._bound: dict | None = None
+        self._parts: PartPlan | None = None
         self._layers: dict[tuple[int | None, str], tuple[_Layer, ...]] = {}
 
-    def bind(self, shape, grouping, up: str = "z") -> "SurfacePainter":
-        """Let the painter place the prompt's regions on ``shape`` (a :class:`proctex.geometry.shape.Shape`)
-        with its ``grouping``: the global prompt's regions lie in the whole shape's frame, a group
-        prompt's in the group's representative part; ``up`` ("x", "y" or "z") is the shape's up axis.
+    def bind(self, shape, grouping, up: str = "z", parts: PartPlan | None = None) -> "SurfacePainter":
+        """Let the painter place the prompt's regions and parts on ``shape`` (a
+        :class:`proctex.geometry.shape.Shape`) with its ``grouping``: clauses naming a part (by label
+        or by what the part is, :mod:`.partwords`) paint that group in its representative's frame, the
+        rest's regions lie in the whole shape's frame; ``up`` ("x", "y" or "z") is the shape's up
+        axis. ``parts``: the prompt's :class:`PartPlan` on this shape when the caller has it.
         Returns the painter."""
         from proctex.geometry.surface import normalised_frame
 
@@ -96,7 +100,8 @@ class SurfacePainter:
         vn = (np.asarray(shape.vertices, dtype=np.float64) - center) / (radius if radius > 0 else 1.0)
         reps = {g.index: np.asarray(shape.faces)[grouping.parts[g.representative].faces] for g in grouping.groups}
         self._bound = {"vertices": vn, "faces": np.asarray(shape.faces), "reps": reps, "up": "xyz".index(up), "frames": {}}
-        self._plan = split_regions(self.prompt, [g.label for g in grouping.groups])
+        self._parts = parts if parts is not None else plan_parts(self.prompt, shape.vertices, shape.faces, grouping, up)
+        self._plan = self._parts.regions
         self._layers = {}
         return self
 
@@ -118,12 +123,11 @@ class SurfacePainter:
             text = self._group_texts[str(group)]
         scope: int | None = group
         if text is None or text == self.prompt:  # the global prompt (make_painter repeats it per group)
-            plan = self._plan
-            routed = dict(plan.parts).get(label) if label else None
-            if routed is not None:
+            routed = self._parts.texts.get(group) if self._parts is not None and group is not None else None
+            if routed is not None:  # a clause naming the group, or what it borrows (PartPlan)
                 plan = split_regions(routed)
             else:
-                scope = None
+                plan, scope = self._plan, None
         else:
             plan = split_regions(text)
         if not plan.has_regions:
@@ -149,17 +153,22 @@ class SurfacePainter:
         return self._layers_for(group, label)[0].spec
 
     def region_notes(self) -> list[str]:
-        """What the global prompt's region clauses became (none without regions)."""
-        if not self._plan.has_regions:
-            return []
-        lines = [f"prompt {self.prompt!r} regions: " + "; ".join(self._plan.notes)]
-        if self._bound is None:
-            lines.append("regions are placed once the painter knows the shape; painted with the rest's material")
+        """What the global prompt's region and part clauses became (none without them)."""
+        lines = []
+        if self._plan.has_regions:
+            lines.append(f"prompt {self.prompt!r} regions: " + "; ".join(self._plan.notes))
+            if self._bound is None:
+                lines.append("regions are placed once the painter knows the shape; painted with the rest's material")
+        if self._parts is not None:
+            lines.extend(f"prompt {self.prompt!r} parts: {n}" for n in self._parts.notes)
         return lines
 
     def notes(self) -> list[str]:
         """One human-readable line per prompt: what was understood and what was ignored."""
-        lines = [f"prompt {self.prompt!r}: {self._spec.notes}", *self.region_notes()]
+        head = f"prompt {self.prompt!r}: {self._spec.notes}"
+        if self._parts is not None and self._parts.texts and not self._spec.understood:
+            head = f"prompt {self.prompt!r}: the rest names no material; its groups are painted from the clauses naming parts"
+        lines = [head, *self.region_notes()]
         for key, spec in self._group_specs.items():
             if self._group_texts[key] != self.prompt:
                 lines.append(f"group {key} prompt {spec.prompt!r}: {spec.notes}")
