@@ -27,9 +27,11 @@ blender: $(BLENDER_STAMP)
 blender-fixtures: $(BLENDER_STAMP)
 	$(BLENDER_VENV)/bin/python tests/fixtures/blend/make_fixtures.py out/blend
 
-# The Blender add-on (clients/blender), as a zip for Preferences > Add-ons > Install from Disk.
+# The Blender add-on (clients/blender): a legacy zip for Preferences > Add-ons > Install from Disk,
+# and the Blender 4.2+ extension (blender_manifest.toml at its root) for Get Extensions > Install from Disk.
 blender-addon:
 	$(PYTHON) clients/blender/build_zip.py out/proctex_blender.zip
+	$(PYTHON) clients/blender/build_zip.py --extension out/proctex_blender_extension.zip
 
 # The Khronos glTF validator (npm) goes into the venv too; GLB tests use it where npm exists.
 # Where npm exists, the studio's locked packages are installed (npm ci) and bundled too.

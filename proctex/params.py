@@ -19,6 +19,11 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 KINDS = ("continuous", "integer", "choice")
+#: Conditions per parameter (``when`` / ``unless``), and the bounds on a parameter spec file.
+MAX_CONDITIONS = 32
+MAX_SPEC_PARAMS = 1000
+MAX_SPEC_DEPTH = 16
+MAX_SPEC_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -33,6 +38,11 @@ class ParamSpec:
         options: allowed values (choice kind).
         unit: free-text unit ("m", "count", "deg", ...), informational.
         description: one line for help texts and the studio.
+        when: ``((name, value), ...)``: the parameter matters only while every named parameter has
+            that value (a model's input that only acts under another: "Middle Offset" with "Legs
+            Type" 0 and "Has Middle Support"); :meth:`ParamSpace.settle` holds it at its default
+            otherwise.
+        unless: ``((name, value), ...)``: it matters only while none of them holds.
     """
 
     name: str
@@ -43,6 +53,8 @@ class ParamSpec:
     options: tuple = ()
     unit: str = ""
     description: str = ""
+    when: tuple = ()
+    unless: tuple = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -66,6 +78,14 @@ class ParamSpec:
             object.__setattr__(self, "options", tuple(self.options))
             if len(set(map(repr, self.options))) != len(self.options):
                 raise ValueError(f"parameter {self.name!r}: options must be distinct, got {self.options}")
+        for key in ("when", "unless"):
+            conds = getattr(self, key)
+            if not isinstance(conds, (tuple, list)) or not all(
+                    isinstance(c, (tuple, list)) and len(c) == 2 and isinstance(c[0], str) and c[0] for c in conds):
+                raise ValueError(f"parameter {self.name!r}: {key} must be a list of [name, value] pairs, got {conds!r}")
+            if len(conds) > MAX_CONDITIONS:
+                raise ValueError(f"parameter {self.name!r}: at most {MAX_CONDITIONS} conditions in {key}")
+            object.__setattr__(self, key, tuple((str(n), v) for n, v in conds))
         # Validate the default with the same rules as user values.
         object.__setattr__(self, "default", self.validate(self.default))
 
@@ -133,13 +153,16 @@ class ParamSpec:
             d["unit"] = self.unit
         if self.description:
             d["description"] = self.description
+        for key in ("when", "unless"):
+            if getattr(self, key):
+                d[key] = [[n, v] for n, v in getattr(self, key)]
         return d
 
     @staticmethod
     def from_dict(d: Mapping[str, Any]) -> "ParamSpec":
         if not isinstance(d, Mapping):
             raise ValueError(f"a parameter spec must be a mapping, got {type(d).__name__}")
-        unknown = set(d) - {"name", "kind", "default", "low", "high", "options", "unit", "description"}
+        unknown = set(d) - {"name", "kind", "default", "low", "high", "options", "unit", "description", "when", "unless"}
         if unknown:
             raise ValueError(f"parameter spec {d.get('name')!r}: unknown keys {sorted(unknown)}")
         for key in ("name", "kind", "default"):
@@ -154,6 +177,8 @@ class ParamSpec:
             options=tuple(d.get("options", ())),
             unit=d.get("unit", ""),
             description=d.get("description", ""),
+            when=tuple(tuple(c) if isinstance(c, list) else c for c in d.get("when", ())),
+            unless=tuple(tuple(c) if isinstance(c, list) else c for c in d.get("unless", ())),
         )
 
 
@@ -181,6 +206,41 @@ class ParamSpace:
         dup = {n for n in names if names.count(n) > 1}
         if dup:
             raise ValueError(f"duplicate parameter names: {sorted(dup)}")
+        for spec in self.specs:
+            for other, value in spec.when + spec.unless:
+                if other == spec.name or other not in names:
+                    raise ValueError(f"parameter {spec.name!r}: its condition names {other!r}, "
+                                     f"{'itself' if other == spec.name else 'which is not a parameter'}")
+                try:
+                    self[other].validate(value)
+                except ValueError as exc:
+                    raise ValueError(f"parameter {spec.name!r}: condition on {other!r}: {exc}") from None
+
+    def active(self, params: Mapping[str, Any]) -> list[str]:
+        """The parameters that matter at ``params`` (validated, defaults filled): those whose
+        conditions hold, where a parameter that does not matter counts at its default (so
+        conditions chain: "Middle Offset" needs "Has Middle Support", which needs "Legs Type" 0)."""
+        return [n for n, on in self._activity(self.validate(params)).items() if on]
+
+    def _activity(self, p: dict[str, Any]) -> dict[str, bool]:
+        on = {s.name: True for s in self.specs}
+        for _ in range(len(self.specs) + 1):
+            cur = {n: (p[n] if on[n] else self[n].default) for n in p}
+            new = {s.name: all(cur[n] == v for n, v in s.when) and not any(cur[n] == v for n, v in s.unless)
+                   for s in self.specs}
+            if new == on:
+                break
+            on = new
+        return on
+
+    def settle(self, params: Mapping[str, Any]) -> dict[str, Any]:
+        """``params`` (validated, defaults filled) with every parameter that does not matter
+        (:meth:`active`) at its default: two settings that differ only there are the same setting."""
+        p = self.validate(params)
+        if not any(s.when or s.unless for s in self.specs):
+            return p
+        on = self._activity(p)
+        return {n: (v if on[n] else self[n].default) for n, v in p.items()}
 
     @property
     def names(self) -> list[str]:
@@ -222,7 +282,7 @@ class ParamSpace:
 
     def feature(self, params: Mapping[str, Any]) -> np.ndarray:
         """(d,) float64 feature vector: each parameter scaled by its range (choices one-hot)."""
-        p = self.validate(params)
+        p = self.settle(params)
         if not self.specs:
             return np.zeros(0)
         return np.concatenate([s.normalise(p[s.name]) for s in self.specs])
@@ -249,7 +309,8 @@ class ParamSpace:
                 u[:, j] = (rng.permutation(n) + rng.random(n)) / n
         else:
             raise ValueError(f"sampling method must be 'random' or 'lhs', got {method!r}")
-        return [{s.name: s.from_unit(u[i, j]) for j, s in enumerate(self.specs)} for i in range(n)]
+        drawn = [{s.name: s.from_unit(u[i, j]) for j, s in enumerate(self.specs)} for i in range(n)]
+        return [self.settle(p) for p in drawn] if any(s.when or s.unless for s in self.specs) else drawn
 
     def to_list(self) -> list[dict]:
         return [s.to_dict() for s in self.specs]
@@ -259,16 +320,23 @@ class ParamSpace:
         return ParamSpace(tuple(ParamSpec.from_dict(d) for d in items))
 
 
-def select_template(space: ParamSpace, samples: Sequence[Mapping[str, Any]]) -> int:
-    """Index of the sample nearest the mean parameter vector (each parameter scaled by its range).
+def select_template(space: ParamSpace, samples: Sequence[Mapping[str, Any]], coverage: Sequence[float] | None = None) -> int:
+    """Index of the sample nearest the mean parameter vector (each parameter scaled by its range),
+    among the samples of the highest ``coverage`` when given (e.g. how many kinds of part each
+    has: a family with optional parts gets a template that carries them).
 
     Ties go to the lowest index, so the choice is deterministic.
     """
     if len(samples) == 0:
         raise ValueError("cannot select a template from zero samples")
+    if coverage is not None and len(coverage) != len(samples):
+        raise ValueError(f"coverage needs one value per sample, got {len(coverage)} for {len(samples)}")
     feats = np.stack([space.feature(p) for p in samples]) if len(space) else np.zeros((len(samples), 0))
     mean = feats.mean(axis=0)
     dist = np.linalg.norm(feats - mean, axis=1)
+    if coverage is not None:
+        cov = np.asarray(coverage, dtype=np.float64)
+        dist = np.where(cov >= cov.max(), dist, np.inf)
     return int(np.argmin(dist))
 
 
@@ -305,4 +373,161 @@ def infer_space(samples: Sequence[Mapping[str, Any]]) -> ParamSpace:
                     opts.append(v)
             most = max(opts, key=lambda o: sum(1 for v in values if v == o))
             specs.append(choice(name, opts, most))
+    return ParamSpace(tuple(specs))
+
+
+# ----------------------------------------------------------------------------- parameter spec files
+@dataclass(frozen=True)
+class ParamsSpec:
+    """The usable ranges and conditions of a model's inputs, as a spec file beside a ``.blend`` gives
+    them (:func:`read_params_spec`).
+
+    Attributes:
+        bounds: ``{name: [low, high]}`` for float and int inputs.
+        kinds: ``{name: "float" | "int" | "bool" | "range"}`` (``"range"``: a flat file's entry).
+        conditions: ``{name: {"when": [[other, value], ...], "unless": [...]}}`` for inputs that
+            matter only under others (:class:`ParamSpec` ``when`` / ``unless``).
+    """
+
+    bounds: dict[str, list[float]]
+    kinds: dict[str, str]
+    conditions: dict[str, dict[str, list]]
+
+
+def _condition(item: Any, where: str) -> list:
+    """``"Name"`` (a bool input that must be on) or ``["Name", value]`` as ``[name, value]``."""
+    if isinstance(item, str) and item:
+        return [item, True]
+    if isinstance(item, (list, tuple)) and len(item) == 2 and isinstance(item[0], str) and item[0] \
+            and isinstance(item[1], (bool, int, float, str)) and not (isinstance(item[1], float) and not math.isfinite(item[1])):
+        return [item[0], item[1]]
+    raise ValueError(f"{where}: a dependency must be a name or [name, value], got {str(item)[:80]}")
+
+
+def read_params_spec(spec: Any) -> ParamsSpec:
+    """The ranges and conditions of a parameter spec: a path to a JSON file or its parsed content.
+
+    Two forms are read:
+
+    - nested (the PyTorchGeoNodes ``sp_<name>.json`` form): ``{"params": {name: entry}}`` where an
+      entry is ``{"type": "nested", "params": {...}}`` (a group, any depth up to
+      :data:`MAX_SPEC_DEPTH`) or ``{"type": "float" | "int" | "bool", "range": [low, high],
+      "or_dependencies": [...], "not_dependencies": [...]}``. A dependency is an input name (a bool
+      that must be on) or ``[name, value]``. The input matters only while every one of its
+      ``or_dependencies`` holds (the data's own reading: "Middle Offset" only with "Legs Type" 0
+      *and* "Has Middle Support") and none of its ``not_dependencies``;
+    - flat: ``{name: [low, high]}``.
+
+    Other keys of the nested form (``class_name``, ``blend_path``) are ignored. ``ValueError`` for
+    anything else: files over :data:`MAX_SPEC_BYTES`, more than :data:`MAX_SPEC_PARAMS` inputs,
+    deeper nesting, unknown types, ranges that are not two finite numbers with low <= high, a
+    dependency on an input the spec does not have.
+    """
+    import json
+    from pathlib import Path
+
+    where = "params spec"
+    if isinstance(spec, (str, Path)):
+        path = Path(spec)
+        where = str(path)
+        if not path.is_file():
+            raise ValueError(f"{where}: params spec file not found")
+        if path.stat().st_size > MAX_SPEC_BYTES:
+            raise ValueError(f"{where}: params spec is larger than {MAX_SPEC_BYTES} bytes")
+        try:
+            spec = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+            raise ValueError(f"{where}: cannot parse ({type(exc).__name__}: {str(exc)[:200]})") from None
+    if not isinstance(spec, Mapping) or not spec:
+        raise ValueError(f"{where}: a params spec must be a non-empty object")
+    bounds: dict[str, list[float]] = {}
+    kinds: dict[str, str] = {}
+    conditions: dict[str, dict[str, list]] = {}
+
+    def number_pair(value: Any, name: str, kind: str) -> list[float]:
+        if not (isinstance(value, (list, tuple)) and len(value) == 2
+                and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)):
+            raise ValueError(f"{where}: {name!r}: range must be two finite numbers, got {str(value)[:80]}")
+        lo, hi = float(value[0]), float(value[1])
+        if lo > hi:
+            raise ValueError(f"{where}: {name!r}: range [{lo:g}, {hi:g}] has low > high")
+        if kind == "int" and (lo != int(lo) or hi != int(hi)):
+            raise ValueError(f"{where}: {name!r}: an int range must be whole numbers, got [{lo:g}, {hi:g}]")
+        return [int(lo), int(hi)] if kind == "int" else [lo, hi]
+
+    def add(name: Any) -> str:
+        if not isinstance(name, str) or not name or len(name) > 256:
+            raise ValueError(f"{where}: input names must be non-empty strings of at most 256 characters, got {str(name)[:80]!r}")
+        if name in kinds:
+            raise ValueError(f"{where}: input {name!r} appears twice")
+        if len(kinds) >= MAX_SPEC_PARAMS:
+            raise ValueError(f"{where}: more than {MAX_SPEC_PARAMS} inputs")
+        return name
+
+    def walk(params: Any, depth: int) -> None:
+        if depth > MAX_SPEC_DEPTH:
+            raise ValueError(f"{where}: nested deeper than {MAX_SPEC_DEPTH}")
+        if not isinstance(params, Mapping):
+            raise ValueError(f"{where}: 'params' must be an object of inputs")
+        for name, entry in params.items():
+            if not isinstance(entry, Mapping):
+                raise ValueError(f"{where}: {str(name)[:80]!r}: an entry must be an object with a 'type'")
+            kind = entry.get("type")
+            if kind == "nested":
+                walk(entry.get("params", {}), depth + 1)
+                continue
+            if kind not in ("float", "int", "bool"):
+                raise ValueError(f"{where}: {str(name)[:80]!r}: type must be nested, float, int or bool, got {str(kind)[:40]!r}")
+            name = add(name)
+            kinds[name] = kind
+            if kind != "bool":
+                if "range" not in entry:
+                    raise ValueError(f"{where}: {name!r}: a {kind} input needs a range")
+                bounds[name] = number_pair(entry["range"], name, kind)
+            cond = {}
+            for key, out in (("or_dependencies", "when"), ("not_dependencies", "unless")):
+                items = entry.get(key, [])
+                if not isinstance(items, list) or len(items) > MAX_CONDITIONS:
+                    raise ValueError(f"{where}: {name!r}: {key} must be a list of at most {MAX_CONDITIONS} dependencies")
+                if items:
+                    cond[out] = [_condition(i, f"{where}: {name!r}") for i in items]
+            if cond:
+                conditions[name] = cond
+
+    if "params" in spec:
+        walk(spec["params"], 1)
+    else:  # flat {name: [low, high]}
+        for name, value in spec.items():
+            name = add(name)
+            kinds[name] = "range"
+            bounds[name] = number_pair(value, name, "float")
+    if not kinds:
+        raise ValueError(f"{where}: the spec names no input")
+    for name, cond in conditions.items():
+        for other, _ in cond.get("when", []) + cond.get("unless", []):
+            if other not in kinds:
+                raise ValueError(f"{where}: {name!r} depends on {other!r}, which the spec does not have")
+    return ParamsSpec(bounds, kinds, conditions)
+
+
+def with_conditions(space: ParamSpace, conditions: Mapping[str, Mapping[str, Any]]) -> ParamSpace:
+    """``space`` with ``{name: {"when": [[other, value], ...], "unless": [...]}}`` attached to its
+    parameters (:class:`ParamSpec`); conditions on parameters the space lacks (pinned, say) are
+    dropped, a condition naming a missing parameter drops that one condition (the input it names is
+    fixed, so it cannot switch)."""
+    if not conditions:
+        return space
+    names = set(space.names)
+    specs = []
+    for s in space.specs:
+        c = conditions.get(s.name)
+        if not c:
+            specs.append(s)
+            continue
+        d = s.to_dict()
+        for key in ("when", "unless"):
+            kept = [list(x) for x in c.get(key, []) if x[0] in names]
+            if kept:
+                d[key] = kept
+        specs.append(ParamSpec.from_dict(d))
     return ParamSpace(tuple(specs))

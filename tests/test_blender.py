@@ -351,6 +351,75 @@ def test_the_addon_zip_holds_the_package(tmp_path):
     with zipfile.ZipFile(module.build(tmp_path / "a.zip")) as zf:
         names = set(zf.namelist())
     assert {"proctex_blender/__init__.py", "proctex_blender/client.py"} <= names and not any("__pycache__" in n for n in names)
+    assert not any(n.endswith("blender_manifest.toml") for n in names)  # legacy: Blender reads bl_info
+
+
+#: The manifest fields Blender's extension docs require (schema 1.0.0), and the ones it knows.
+MANIFEST_REQUIRED = {"schema_version", "id", "version", "name", "tagline", "maintainer", "type", "blender_version_min", "license"}
+MANIFEST_KNOWN = MANIFEST_REQUIRED | {"website", "tags", "blender_version_max", "copyright", "platforms", "wheels", "permissions", "build"}
+
+
+def _manifest_problems(manifest: dict) -> list[str]:
+    """What a manifest breaks of the documented rules (required fields, an id of lowercase letters,
+    digits and underscores, semantic versions, a tagline of at most 64 characters not ending in
+    punctuation, SPDX licences, permissions with a reason each)."""
+    import re
+
+    out = [f"missing {k}" for k in sorted(MANIFEST_REQUIRED - set(manifest))]
+    out += [f"unknown {k}" for k in sorted(set(manifest) - MANIFEST_KNOWN)]
+    if not re.fullmatch(r"[a-z][a-z0-9_]*", str(manifest.get("id", ""))):
+        out.append("id")
+    for key in ("version", "blender_version_min", "schema_version"):
+        if not re.fullmatch(r"\d+\.\d+\.\d+", str(manifest.get(key, ""))):
+            out.append(key)
+    tag = str(manifest.get("tagline", ""))
+    if not tag or len(tag) > 64 or not tag[-1].isalnum():
+        out.append("tagline")
+    if manifest.get("type") != "add-on":
+        out.append("type")
+    if not manifest.get("license") or not all(str(x).startswith("SPDX:") for x in manifest["license"]):
+        out.append("license")
+    perms = manifest.get("permissions", {})
+    if not isinstance(perms, dict) or not all(k in ("files", "network", "clipboard", "camera", "microphone") and isinstance(v, str) and v
+                                              for k, v in perms.items()):
+        out.append("permissions")
+    return out
+
+
+def test_the_addon_is_a_blender_extension_with_a_valid_manifest(tmp_path):
+    """The extension zip holds the manifest and the modules at its root; the manifest has the
+    documented fields (a manifest missing one, or with a tagline ending in a full stop, fails the same
+    check); where bpy is installed, Blender's own ``extension validate`` accepts the package."""
+    import importlib.util
+    import tomllib
+    import zipfile
+
+    spec = importlib.util.spec_from_file_location("build_zip", ADDON / "build_zip.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    with zipfile.ZipFile(module.build_extension(tmp_path / "ext.zip")) as zf:
+        names = set(zf.namelist())
+        manifest = tomllib.loads(zf.read("blender_manifest.toml").decode())
+    assert {"blender_manifest.toml", "__init__.py", "client.py"} <= names and not any("/" in n for n in names)
+    assert _manifest_problems(manifest) == [] and manifest["id"] == "proctex" and "network" in manifest["permissions"]
+    broken = {k: v for k, v in manifest.items() if k != "maintainer"}
+    assert _manifest_problems({**broken, "tagline": "Ends with a stop."}) == ["missing maintainer", "tagline"]
+    if PYTHON is None:
+        return
+    tool = Path(PYTHON).parents[1] / "lib"
+    found = sorted(tool.glob("python3*/site-packages/bpy/*/scripts/addons_core/bl_pkg/cli/blender_ext.py"))
+    if not found:
+        return
+    ok = subprocess.run([PYTHON, str(found[0]), "validate", str(ADDON / "proctex_blender")], capture_output=True, text=True, timeout=120)
+    assert "Success" in ok.stdout + ok.stderr, ok.stdout + ok.stderr
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    for path in (ADDON / "proctex_blender").glob("*.py"):
+        (bad / path.name).write_bytes(path.read_bytes())
+    text = (ADDON / "proctex_blender" / "blender_manifest.toml").read_text()
+    (bad / "blender_manifest.toml").write_text(text.replace('tagline = "Texture procedural shapes through a ProcTex service"', 'tagline = "Bad."'))
+    no = subprocess.run([PYTHON, str(found[0]), "validate", str(bad)], capture_output=True, text=True, timeout=120)
+    assert "Success" not in no.stdout + no.stderr and "tagline" in no.stdout + no.stderr
 
 
 @needs_bpy
@@ -402,3 +471,81 @@ def test_the_addon_textures_the_selected_object_through_a_live_service(served_va
     assert expected and expected <= seen, (expected, new["materials"])
     assert report["variant"] is not None and report["variant"]["faces"] > 0 and report["variant"]["materials"], report["variant_status"]
     assert report["unreachable_status"].startswith("error: cannot reach"), report["unreachable_status"]
+
+
+# ---------------------------------------------------------------------- real users' files (issue 31)
+@needs_bpy
+def test_a_model_made_only_of_instances_is_realized_and_only_it_is_evaluated(blends):
+    """The rack outputs nothing but instances (Instance on Points, never realized in its graph):
+    each cube comes back as a part, the instances' ``part_id`` as the parts, and the file's second,
+    heavy object is not evaluated with it (a scene file's other objects cost nothing)."""
+    from proctex.family.blender import BlenderSession
+
+    session = BlenderSession(blends / "rack.blend", "Rack")
+    try:
+        for count in (2, 5, 8):
+            out = session.generate({"Count": count, "Size": 0.3}, parts="part_id")
+            assert out.faces.shape == (12 * count, 3) and len(out.vertices) == 8 * count
+            assert out.objects == 1  # the model alone, not "Heavy" (a 1500 x 1500 grid)
+            assert out.face_parts is not None and len(np.unique(out.face_parts)) == count
+            assert out.seconds < 1.0
+    finally:
+        session.close()
+    model = BlenderModel(blends / "rack.blend", "Rack")
+    try:
+        assert segment(model.generate({"Count": 6})).n_parts == 6
+    finally:
+        model.close()
+
+
+@needs_bpy
+def test_the_inputs_command_says_which_inputs_need_bounds(blends, tmp_path, capsys):
+    import json
+
+    from proctex.cli import main
+
+    spec = tmp_path / "sp.json"
+    spec.write_text(json.dumps({"params": {"Count": {"type": "int", "range": [2, 6]}, "Nope": {"type": "bool"}}}))
+    assert main(["inputs", str(blends / "rack.blend"), "--object", "Rack", "--params-spec", str(spec), "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    rows = {r["name"]: r for r in got["inputs"]}
+    assert set(rows) == {"Count", "Size"} and rows["Count"]["type"] == "int" and rows["Count"]["spec"] == {"range": [2, 6]}
+    assert not any(r["needs_bounds"] for r in rows.values()) and got["spec_unknown"] == ["Nope"]
+    assert main(["inputs", str(blends / "rack.blend"), "--object", "Nothing"]) == 2
+    assert "no object 'Nothing'" in capsys.readouterr().err
+
+
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "blend"
+
+
+@needs_bpy
+def test_the_real_chair_reads_its_spec_and_paints_the_parts_a_prompt_names():
+    """The third-party Geometry Nodes chair (no part names; every input unbounded in Blender): its
+    spec gives the ranges and conditions, and "a chair with a red velvet seat and dark walnut legs"
+    paints the seat red and the legs dark brown, with no group left a grey default."""
+    from proctex.family.config import BuildConfig
+    from proctex.geometry.parts import analyse
+    from proctex.texture.paint_loop import paint_template
+
+    if not (REAL / "chair.blend").is_file():
+        pytest.skip("the shared .blend files are absent")
+    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / "chair.blend"), "object": "Cube"},
+                                            "params_spec": str(REAL / "sp_chair.json")}})
+    model = cfg.procedural_model()
+    space = model.space
+    assert space["Middle Offset"].when == (("Legs Type", 0), ("Has Middle Support", True))
+    params = {**space.defaults(), "Has Back": True, "Has Arms": True, "Legs Type": 0, "Back Height": 0.6, "Backrest Scale": 0.7}
+    shape = model.generate(params)
+    grouping = analyse(shape)
+    tex = paint_template(shape, grouping, "a chair with a red velvet seat and dark walnut legs", size=48, up="z")
+    by_prompt = {}
+    for g in tex.groups:
+        c = g.image[g.painted].mean(0)
+        by_prompt.setdefault(g.prompt, []).append(c)
+        assert c.max() - c.min() > 0.08, (g.group, g.prompt, c)  # no grey default
+    assert set(by_prompt) == {"red velvet", "dark walnut"}
+    seat = [g for g in grouping.groups if len(g.members) == 1 and np.ptp(shape.vertices[grouping.parts[g.representative].vertices][:, 2]) < 0.1
+            and grouping.parts[g.representative].radius > 0.2]
+    assert seat and tex.groups[seat[0].index].prompt == "red velvet"
+    legs = [g for g in grouping.groups if len(g.members) == 4]
+    assert legs and tex.groups[legs[0].index].prompt == "dark walnut"

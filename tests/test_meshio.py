@@ -290,3 +290,33 @@ def test_the_column_reader_agrees_with_the_numpy_reader_or_declines(sofa_dir):
     assert _read_obj_columns(bad) is None
     with pytest.raises(ValueError, match="bad vertex coordinates"):
         read_obj(bad)
+
+
+def test_obj_groups_are_parts_when_asked_and_nothing_joins_across_them():
+    """An upload whose pieces share vertices (one connected mesh, as Blender's evaluated mesh of a
+    graph that joins its parts) but names its parts as OBJ groups (the add-on's part attribute):
+    with ``groups=True`` each group is a part of its own, never stitched to its neighbour."""
+    import importlib.util
+    from pathlib import Path
+
+    from proctex.geometry.meshio import load_mesh_bytes, read_obj_groups
+    from proctex.geometry.parts import segment
+
+    spec = importlib.util.spec_from_file_location("client", Path(__file__).resolve().parents[1] / "clients" / "blender" / "proctex_blender" / "client.py")
+    client = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(client)
+    # A strip of 4 quads (8 triangles) sharing its inner edges: one component by index.
+    verts = [float(x) for i in range(5) for x in (i, 0, 0)] + [float(x) for i in range(5) for x in (i, 1, 0)]
+    tris = []
+    for i in range(4):
+        tris += [i, i + 1, 5 + i, i + 1, 6 + i, 5 + i]
+    parts = [0, 0, 0, 0, 1, 1, 2, 2]
+    plain, grouped = client.obj_text(verts, tris), client.obj_text(verts, tris, parts)
+    assert grouped.count(b"\ng part_") == 3
+    assert segment(load_mesh_bytes(plain, "m.obj", groups=True)[0]).n_parts == 1
+    shape, report = load_mesh_bytes(grouped, "m.obj", groups=True)
+    assert segment(shape).n_parts == 3 and report.connectivity == "index" and shape.n_faces == 8
+    assert segment(load_mesh_bytes(grouped, "m.obj")[0]).n_parts == 1  # groups are not parts unless asked
+    assert read_obj_groups("v 0 0 0\nf 1 1 1\n", 1) is None
+    with pytest.raises(ValueError, match="one value per triangle"):
+        client.obj_text(verts, tris, [0])

@@ -158,3 +158,36 @@ def test_part_word_table():
         resolve_words(["spout"], [])
     with pytest.raises(ValueError, match="prompt must be a string"):
         plan_parts(3, np.zeros((3, 3)), np.zeros((1, 3), int), None)
+
+
+def test_parts_the_template_lacks_take_what_the_prompt_says_of_them():
+    """At run time, a chair with arms and a back (the template had neither) paints its arms with the
+    arms' clause and its back with the clause of the part most like it, never a default."""
+    from proctex.family.assets import prepare_template
+    from proctex.family.mappers import IdentityMapper
+    from proctex.family.transfer import transfer
+    from proctex.geometry.parts import segment
+    from proctex.texture.painters import SurfacePainter
+    from proctex.texture.painters.partwords import new_part_texts
+
+    prompt = "a chair with a red velvet seat, dark walnut legs and brass arms"
+    full = unlabelled_chair()
+    seg = segment(full)
+    arms = [p.index for p in seg.parts if abs(p.center[0]) > 0.25 and p.center[2] > 0.6]
+    back = [p.index for p in seg.parts if p.center[1] > 0.2 and p.center[2] > 0.6]
+    texts = new_part_texts(prompt, full, seg, arms + back, "z")
+    assert {texts[p] for p in arms} == {"brass"} and texts[back[0]] == "red velvet"
+
+    bare = unlabelled_chair(arms=False, back=False)
+    grouping = analyse(bare)
+    tex = paint_template(bare, grouping, prompt, size=32, up="z")
+    assets = prepare_template(bare, grouping, tex.uv.corner_uv, [g.image for g in tex.groups])
+    r = transfer(full, assets, IdentityMapper(), painter=SurfacePainter(prompt), new_size=32, up="z")
+    new = [a.part for a in r.assignment if a.how == "new"]
+    assert set(arms) <= set(new)  # (the back panel may match the seat's group as a box: then it is not new)
+    assert any("painted with 'brass'" in n for n in r.notes)
+    image = r.new_textures[0].astype(float) / 255
+    painted = image.reshape(-1, 3)
+    painted = painted[np.abs(painted - painted[0]).sum(1) > 0] if len(painted) else painted
+    saturation = painted.max(1) - painted.min(1)
+    assert np.median(saturation) > 0.1  # brass and red velvet, not a grey default

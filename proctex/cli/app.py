@@ -13,7 +13,7 @@ import sys
 from proctex.family.config import PRESETS
 from proctex.texture.paint_loop import PAINTERS
 
-from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_generate, cmd_transfer
+from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_generate, cmd_inputs, cmd_transfer
 from .shapes import cmd_correspond, cmd_match, cmd_models, cmd_paint, cmd_render, cmd_sample, cmd_segment, cmd_template
 
 
@@ -115,6 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--modifier", default="GeometryNodes", help="--blend: the Geometry Nodes modifier's name")
     p.add_argument("--parts-attribute", metavar="NAME", help="--blend: a face / point / corner attribute whose values are the parts")
     p.add_argument("--keep-uv", metavar="UVMAP", help="--blend: keep this UV map of the graph as the template's UVs")
+    p.add_argument("--params-spec", metavar="FILE.json",
+                   help="the inputs' ranges and conditions from a spec file (nested sp_<name>.json or flat {name: [low, high]})")
     p.add_argument("config_file", nargs="?", metavar="CONFIG", help="JSON or TOML build config (same as --config)")
     p.add_argument("--config", help="JSON or TOML build config, in sections or flat keys (flags override it)")
     p.add_argument("--preset", choices=sorted(PRESETS), help="start from a named config (the config file and flags override it)")
@@ -143,6 +145,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stages", help="comma-separated subset of sample,template,paint,pairs,train,evaluate")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_build)
+
+    p = sub.add_parser("inputs", help="a .blend modifier's inputs: types, defaults, ranges and which need bounds")
+    p.add_argument("blend", metavar="FILE.blend")
+    p.add_argument("--object", required=True, help="the object carrying the Geometry Nodes modifier")
+    p.add_argument("--modifier", default="GeometryNodes")
+    p.add_argument("--params-spec", metavar="FILE.json", help="check a spec file against the inputs (ranges, unknown names)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_inputs)
 
     p = sub.add_parser("transfer", help="texture a new shape of a family: textured GLB")
     p.add_argument("family")

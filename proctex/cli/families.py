@@ -41,6 +41,8 @@ def _build_config(args: argparse.Namespace):
     if args.model or args.folder or args.blend:  # a source flag replaces the config's (and the preset's) source
         data = merge(data, {"source": {"model": None, "folder": None, "generator": None, "blender": None}})
     data = merge(data, sections({k: v for k, v in flags.items() if v is not None}))
+    if args.params_spec:
+        data = merge(data, {"source": {"params_spec": os.path.abspath(args.params_spec)}})
     if args.train_iterations is not None:
         data = merge(data, {"train": {"iterations": args.train_iterations}})
     if args.device is not None:
@@ -63,6 +65,45 @@ def cmd_build(args: argparse.Namespace) -> int:
     state = build(FamilyStore(args.out), config, stages=stages, log=(lambda *_: None) if args.quiet else (lambda m: print(m, flush=True)))
     done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
     print(f"family {args.out}: stages done: {', '.join(done)}")
+    return 0
+
+
+def cmd_inputs(args: argparse.Namespace) -> int:
+    """The modifier's inputs: name, type, default, Blender's range, whether a build needs bounds for
+    it (an unbounded float or int), and with ``--params-spec`` what the spec gives each."""
+    from proctex.family.blender import UNBOUNDED, BlenderSession
+    from proctex.params import read_params_spec
+
+    if not os.path.isfile(args.blend):
+        raise ValueError(f"no such file: {args.blend}")
+    spec = read_params_spec(args.params_spec) if args.params_spec else None
+    session = BlenderSession(args.blend, args.object, args.modifier)
+    try:
+        inputs = session.inputs
+    finally:
+        session.close()
+    rows = []
+    for s in inputs:
+        row = {k: s.get(k) for k in ("name", "type", "default", "min", "max", "options") if s.get(k) is not None}
+        unbounded = s["type"] in ("float", "int") and max(abs(float(s.get("min", 0))), abs(float(s.get("max", 0)))) > UNBOUNDED
+        row["needs_bounds"] = bool(unbounded and not (spec and s["name"] in spec.bounds))
+        if spec is not None:
+            row["spec"] = {"range": spec.bounds.get(s["name"]), **spec.conditions.get(s["name"], {})} if s["name"] in spec.kinds else None
+        rows.append(row)
+    unknown = sorted(set(spec.kinds) - {s["name"] for s in inputs}) if spec else []
+    if args.json:
+        _print_json({"object": args.object, "modifier": args.modifier, "inputs": rows, "spec_unknown": unknown})
+        return 0
+    for r in rows:
+        rng = f"[{r['min']:g}, {r['max']:g}]" if "min" in r and "max" in r else ", ".join(map(str, r.get("options", [])))
+        extra = "  needs bounds" if r["needs_bounds"] else ""
+        if r.get("spec"):
+            extra += f"  spec: {r['spec']}"
+        print(f"{r['name']:<32} {r['type']:<6} default {r.get('default')!s:<10} {rng}{extra}")
+    if unknown:
+        print(f"the spec names inputs the modifier lacks: {', '.join(unknown)}")
+    n = sum(r["needs_bounds"] for r in rows)
+    print(f"{len(rows)} inputs; {n} need bounds" + (" (give them with --params-spec or [source.params])" if n else ""))
     return 0
 
 

@@ -21,6 +21,7 @@ import json
 import os
 import select
 import subprocess
+import time
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +34,8 @@ from proctex.params import ParamSpace, ParamSpec, choice, continuous, integer
 
 SERVER = Path(__file__).with_name("blender_server.py")
 REPO = Path(__file__).resolve().parents[2]
+#: A .blend larger than this gets progress lines while its Blender process opens it.
+SLOW_FILE_BYTES = 20_000_000
 UNBOUNDED = 1e6  # a Blender input range wider than this is "no range given": the config must narrow it
 
 
@@ -57,6 +60,7 @@ class Evaluated:
         corner_uv: (m, 3, 2) float64 UVs of the requested UV map, or None.
         face_parts: (m,) int64 part per triangle from the requested attribute (values renumbered
             0..k-1 in sorted order), or None.
+        objects: how many objects Blender evaluated for it (the model and what its graph reads).
     """
 
     vertices: np.ndarray
@@ -65,6 +69,7 @@ class Evaluated:
     attributes: list[tuple[str, str, str]]
     corner_uv: np.ndarray | None = None
     face_parts: np.ndarray | None = None
+    objects: int = 1
 
 
 class BlenderSession:
@@ -89,13 +94,21 @@ class BlenderSession:
 
     def _start(self) -> list[dict[str, Any]]:
         self.restarts += 1
+        size = Path(self.file).stat().st_size
+        if size > SLOW_FILE_BYTES:  # a scene file can take tens of seconds to open: say so first
+            print(f"blender: opening {Path(self.file).name} ({size / 1e6:.0f} MB) in a Blender process ...", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
         self.proc = subprocess.Popen([self.python, str(SERVER)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      text=True, bufsize=1)
         try:
-            return self._send({"op": "open", "file": self.file, "object": self.obj, "modifier": self.modifier})["inputs"]
+            inputs = self._send({"op": "open", "file": self.file, "object": self.obj, "modifier": self.modifier})["inputs"]
         except ValueError:
             self._kill()  # a file Blender cannot open (or without the object): no process is left behind
             raise
+        self.open_seconds = time.perf_counter() - t0
+        if size > SLOW_FILE_BYTES or self.open_seconds > 5.0:
+            print(f"blender: {Path(self.file).name} open in {self.open_seconds:.1f} s ({len(inputs)} inputs)", file=sys.stderr, flush=True)
+        return inputs
 
     def request(self, req: dict[str, Any]) -> dict[str, Any]:
         """Send one request; its answer, or ``ValueError`` with Blender's error, or when the process
@@ -145,7 +158,7 @@ class BlenderSession:
 
         return Evaluated(array("vertices", np.float64, (-1, 3)), array("faces", np.int64, (m, 3)), float(out["seconds"]),
                          [tuple(a) for a in out.get("attributes", [])], array("corner_uv", np.float64, (m, 3, 2)),
-                         array("face_parts", np.int64, (m,)))
+                         array("face_parts", np.int64, (m,)), int(out.get("objects", 1)))
 
     def close(self) -> None:
         if self.proc is not None and self.proc.poll() is None:

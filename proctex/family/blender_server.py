@@ -9,7 +9,10 @@ process's original stdout; Blender's own messages go to stderr). Requests:
   "identifier", "type": "float"|"int"|"bool"|"menu", "default", "min", "max", "options"}]}``
 - ``{"op": "generate", "params": {name: value}, "uv": name | null, "parts": name | null}`` ->
   ``{"n": vertices, "m": triangles, "vertices": base64 float64 (n, 3) in object coordinates, "faces": base64 int64 (m, 3),
-  "attributes": [[name, domain, type]], "seconds"}`` (the evaluated mesh, triangulated), plus
+  "attributes": [[name, domain, type]], "objects": how many objects the depsgraph evaluated, "seconds"}``
+  (the evaluated mesh, triangulated, instances realized: a Realize Instances modifier follows the
+  model's, in memory; evaluated in a scene of its own holding only the object, so the rest of a
+  scene is not evaluated), plus
   ``"corner_uv"`` (base64 float64 (m, 3, 2)) when ``uv`` names a 2D corner attribute (a UV map) and
   ``"face_parts"`` (base64 int64 (m,)) when ``parts`` names a face, point or corner attribute (a
   point or corner attribute gives each triangle its first corner's value).
@@ -76,6 +79,37 @@ def _inputs(modifier) -> list[dict]:
     return out
 
 
+REALIZE = "ProcTexRealize"
+SOLO = "ProcTexSolo"
+
+
+def _realize_after(bpy, obj, mod) -> None:
+    """Instances realized right after the model's modifier (a Realize Instances node group in a
+    modifier of its own, in memory only): ``to_mesh`` drops instances otherwise (legs, leaves,
+    bricks made with Instance on Points). Realizing meshes that are already real changes nothing."""
+    ng = bpy.data.node_groups.get(REALIZE)
+    if ng is None:
+        ng = bpy.data.node_groups.new(REALIZE, "GeometryNodeTree")
+        ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+        ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+        gin, gout = ng.nodes.new("NodeGroupInput"), ng.nodes.new("NodeGroupOutput")
+        real = ng.nodes.new("GeometryNodeRealizeInstances")
+        ng.links.new(gin.outputs[0], real.inputs[0])
+        ng.links.new(real.outputs[0], gout.inputs[0])
+    extra = obj.modifiers.get(REALIZE) or obj.modifiers.new(REALIZE, "NODES")
+    extra.node_group = ng
+    obj.modifiers.move(list(obj.modifiers).index(extra), list(obj.modifiers).index(mod) + 1)
+
+
+def _solo_scene(bpy, obj):
+    """A scene holding only the model's object: its depsgraph evaluates that object and what it
+    depends on (objects its graph reads), not every visible object of a file that holds a scene."""
+    solo = bpy.data.scenes.get(SOLO) or bpy.data.scenes.new(SOLO)
+    if obj.name not in solo.collection.objects:
+        solo.collection.objects.link(obj)
+    return solo
+
+
 def main() -> int:
     proto = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # Blender prints to stdout: keep it off the protocol stream
@@ -105,7 +139,9 @@ def main() -> int:
                 if mod is None or mod.type != "NODES" or mod.node_group is None:
                     names = [m.name for m in obj.modifiers if m.type == "NODES"]
                     raise ValueError(f"object {req['object']!r} has no Geometry Nodes modifier {req['modifier']!r}; it has {names}")
-                state.update(obj=obj, mod=mod, inputs=_inputs(mod))
+                _realize_after(bpy, obj, mod)
+                solo = _solo_scene(bpy, obj)
+                state.update(obj=obj, mod=mod, inputs=_inputs(mod), solo=solo)
                 answer({"inputs": state["inputs"]})
             elif op == "generate":
                 if "obj" not in state:
@@ -125,9 +161,12 @@ def main() -> int:
                     state["mod"][spec["identifier"]] = value
                 obj = state["obj"]
                 obj.update_tag()  # without it the depsgraph keeps the previous evaluation
-                depsgraph = bpy.context.evaluated_depsgraph_get()
-                depsgraph.update()
-                evaluated = obj.evaluated_get(depsgraph)
+                solo = state["solo"]
+                with bpy.context.temp_override(scene=solo, view_layer=solo.view_layers[0]):
+                    depsgraph = bpy.context.evaluated_depsgraph_get()
+                    depsgraph.update()
+                    evaluated = obj.evaluated_get(depsgraph)
+                    n_objects = sum(1 for _ in depsgraph.objects)
                 mesh = evaluated.to_mesh()
                 try:
                     mesh.calc_loop_triangles()
@@ -136,7 +175,8 @@ def main() -> int:
                     mesh.vertices.foreach_get("co", verts)
                     tris = np.empty(m * 3, dtype=np.int32)
                     mesh.loop_triangles.foreach_get("vertices", tris)
-                    extra = {"attributes": [[a.name, a.domain, a.data_type] for a in mesh.attributes if not a.name.startswith(".")]}
+                    extra = {"attributes": [[a.name, a.domain, a.data_type] for a in mesh.attributes if not a.name.startswith(".")],
+                             "objects": n_objects}
                     if req.get("uv") or req.get("parts"):
                         loops = np.empty(m * 3, dtype=np.int32)
                         mesh.loop_triangles.foreach_get("loops", loops)

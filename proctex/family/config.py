@@ -11,6 +11,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from proctex.params import read_params_spec, with_conditions
+
 #: Flat settings (the config format before sections, still read) -> (section, field).
 FLAT_KEYS: dict[str, tuple[str, str]] = {
     **{k: ("source", k) for k in ("model", "folder", "generator", "blender", "n_train", "n_test", "sampling", "params", "tessellation", "up")},
@@ -39,6 +41,11 @@ class SourceConfig:
     Attributes:
         n_train, n_test, sampling: how many shapes to sample from a model ("lhs" or "random").
         params: bounds overrides ``{"name": [low, high]}`` for continuous / integer parameters.
+        conditions: ``{"name": {"when": [[other, value], ...], "unless": [...]}}``: inputs that
+            matter only under others are sampled only where they do (:class:`proctex.params.ParamSpec`).
+            A ``params_spec`` file (``[source] params_spec = "sp_chair.json"``, ``--params-spec``)
+            fills ``params`` and ``conditions`` when the config is read
+            (:func:`proctex.params.read_params_spec`); bounds given in ``params`` win.
         tessellation: built-in models only: "adaptive" (segments follow each part's size, so most
             parameter changes change a part's connectivity, as real procedural exports do: the
             networks are exercised) or "fixed" (every part keeps its connectivity: the
@@ -57,6 +64,7 @@ class SourceConfig:
     params: dict[str, list[float]] = field(default_factory=dict)
     tessellation: str = "adaptive"
     up: str = "auto"
+    conditions: dict[str, dict[str, list]] = field(default_factory=dict)
 
     def validate(self) -> "SourceConfig":
         named = [x for x in (self.model, self.folder, self.generator, self.blender) if x]
@@ -91,6 +99,9 @@ class SourceConfig:
             raise ValueError(f"sampling must be lhs or random, got {self.sampling!r}")
         if not isinstance(self.params, dict):
             raise ValueError("params must be an object of bounds {name: [low, high]}")
+        if not isinstance(self.conditions, dict) or not all(
+                isinstance(c, dict) and set(c) <= {"when", "unless"} for c in self.conditions.values()):
+            raise ValueError('conditions must be an object {"name": {"when": [[other, value], ...], "unless": [...]}}')
         if self.up not in ("auto", "x", "y", "z"):
             raise ValueError(f"up must be auto, x, y or z, got {self.up!r}")
         if self.tessellation not in ("adaptive", "fixed"):
@@ -210,10 +221,11 @@ class BuildConfig:
 
         src = self.source
         if src.blender:
-            return blender_model(src.blender, src.params)
+            return blender_model(src.blender, src.params, src.conditions)
         model = load_generator(src.generator) if src.generator else get_model(src.model, tessellation=src.tessellation)
         if src.params:
             model.space = restricted_space(model.space, src.params)
+        model.space = with_conditions(model.space, src.conditions)
         return model
 
     def up_axis(self) -> str:
@@ -242,6 +254,8 @@ class BuildConfig:
             if preset not in PRESETS:
                 raise ValueError(f"unknown preset {preset!r}; presets: {', '.join(sorted(PRESETS))}")
             nested = merge(sections(PRESETS[preset]), nested)
+        if "source" in nested:
+            nested = {**nested, "source": resolve_params_spec(nested["source"])}
         top = {k: nested[k] for k in TOP_LEVEL if k in nested}
         train = dict(nested.get("train", {}))
         train.setdefault("seed", top.get("seed", 0))
@@ -267,7 +281,7 @@ class BuildConfig:
         except (json.JSONDecodeError, tomllib.TOMLDecodeError, RecursionError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: cannot parse config ({type(exc).__name__}: {str(exc)[:200]})") from exc
         data = sections(data, where=str(path))
-        for section, key in (("source", "folder"), ("source", "generator"), ("paint", "model_dir")):
+        for section, key in (("source", "folder"), ("source", "generator"), ("source", "params_spec"), ("paint", "model_dir")):
             value = data.get(section, {}).get(key)
             if value and isinstance(value, str) and not os.path.isabs(value):
                 data[section][key] = str((p.parent / value).resolve())
@@ -328,15 +342,41 @@ _BLENDER_MODELS: dict[str, Any] = {}
 BLENDER_KEYS = ("file", "object", "modifier", "pins", "parts", "uv")
 
 
-def blender_model(settings: dict[str, Any], bounds: dict[str, list[float]] | None = None):
-    """The :class:`proctex.family.blender.BlenderModel` of a ``blender`` source, kept per process."""
+def blender_model(settings: dict[str, Any], bounds: dict[str, list[float]] | None = None,
+                  conditions: dict[str, dict[str, list]] | None = None):
+    """The :class:`proctex.family.blender.BlenderModel` of a ``blender`` source, kept per process;
+    ``conditions`` as :attr:`SourceConfig.conditions`."""
     from .blender import BlenderModel
 
-    key = json.dumps({"settings": settings, "bounds": bounds or {}}, sort_keys=True)
+    key = json.dumps({"settings": settings, "bounds": bounds or {}, "conditions": conditions or {}}, sort_keys=True)
     if key not in _BLENDER_MODELS:
-        _BLENDER_MODELS[key] = BlenderModel(settings["file"], settings["object"], settings.get("modifier", "GeometryNodes"),
-                                            bounds=bounds, pins=settings.get("pins"), uv=settings.get("uv"), parts=settings.get("parts"))
+        model = BlenderModel(settings["file"], settings["object"], settings.get("modifier", "GeometryNodes"),
+                             bounds=bounds, pins=settings.get("pins"), uv=settings.get("uv"), parts=settings.get("parts"))
+        model.space = with_conditions(model.space, conditions or {})
+        _BLENDER_MODELS[key] = model
     return _BLENDER_MODELS[key]
+
+
+def resolve_params_spec(source: dict[str, Any]) -> dict[str, Any]:
+    """A source section with its ``params_spec`` file (if any) read into ``params`` (bounds of the
+    spec's float and int inputs, under the section's own) and ``conditions`` (the section's own win),
+    the key itself removed: a stored family needs no spec file to be read again."""
+    if "params_spec" not in source:
+        return source
+    out = dict(source)
+    path = out.pop("params_spec")
+    if path is None:
+        return out
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"params_spec must be a path to a JSON spec, got {type(path).__name__}")
+    spec = read_params_spec(path)
+    params = out.get("params") or {}
+    conditions = out.get("conditions") or {}
+    if not isinstance(params, dict) or not isinstance(conditions, dict):
+        raise ValueError("params and conditions must be objects")
+    out["params"] = {**spec.bounds, **params}
+    out["conditions"] = {**spec.conditions, **conditions}
+    return out
 
 
 def restricted_space(space, bounds: dict[str, list[float]]):

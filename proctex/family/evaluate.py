@@ -210,6 +210,7 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
         "id": sid, "seconds": seconds, "bake_seconds": baked.seconds, "coverage": c1, "coverage_baked": c2,
         "ssim": sim.ssim, "psnr": sim.psnr, "lpips": sim.lpips, "parts": len(active),
         "mapped_parts": len([a for a in active if a.group >= 0 and a.part not in result.direct]),
+        "new_parts": len([a for a in active if a.how == "new"]),
         "gt_mean": float(np.nanmean(out["gt"])) if out["gt"] is not None and (~np.isnan(out["gt"])).any() else None,
         "pgt_mean": float(e.mean()) if len(e) else None, "notes": list(result.notes),
     }
@@ -286,6 +287,9 @@ def summarise_method(ctx_points, tracker: str, template_colours: np.ndarray, out
         "parts": int(parts),
         "mapped_parts": int(sum(r["mapped_parts"] for r in per_shape)),
         "mapped_share": float(sum(r["mapped_parts"] for r in per_shape) / parts) if parts else 0.0,
+        # Parts of a kind the template lacks (painted as new groups at run time, untextured here).
+        "new_parts": int(sum(r.get("new_parts", 0) for r in per_shape)),
+        "new_share": float(sum(r.get("new_parts", 0) for r in per_shape) / parts) if parts else 0.0,
         "per_shape": per_shape,
     }
     gts = [o["gt"] for o in outs if o["gt"] is not None]
@@ -408,6 +412,7 @@ def evaluate(
             + (f"GT error mean {gt['mean']:.4f} max {gt['max']:.4f}; " if gt else "")
             + (f"pseudo-GT mean {pgt['mean']:.4f} max {pgt['max']:.4f}; " if pgt else "")
             + f"coverage max {entry['coverage']:.4f} (baked {entry['coverage_baked']:.4f}); networks on {entry['mapped_share']:.0%} of parts; "
+            + f"new parts (a kind the template lacks) {entry['new_share']:.0%}; "
             + (f"{1000 * entry['seconds_per_shape']:.0f} ms per shape" if entry["seconds_per_shape"] is not None else "every shape failed"))
     return metrics
 
@@ -420,7 +425,8 @@ def markdown_table(metrics: dict[str, Any]) -> str:
     has_lpips = any(m.get("lpips") is not None for m in metrics["methods"].values())
     truth = metrics.get("truth") or "none"
     lines = [f"{metrics['shapes']} {metrics['split']} shapes; tracked points: {metrics.get('tracker')} ({metrics.get('tracked_points')}); "
-             f"ground truth: {truth}; errors in the template part's normalised frame, max = over all points", "",
+             f"ground truth: {truth}; errors in the template part's normalised frame, max = over all points; "
+             f"parts of a kind the template lacks: {next(iter(metrics['methods'].values()), {}).get('new_share', 0.0):.0%}", "",
              "| method | tracked-point variance (baked / real-time) | GT error mean / p95 / max | pseudo-GT error mean / max "
              "| coverage (real-time / baked) | networks on parts | SSIM | PSNR (dB) |" + (" LPIPS |" if has_lpips else "") + " ms per shape |",
              "|---|---|---|---|---|---|---|---|" + ("---|" if has_lpips else "") + "---|"]

@@ -251,6 +251,8 @@ class FamilyService:
             "source": {"model": self.config.source.model, "folder": bool(self.config.source.folder), "generator": bool(self.config.source.generator),
                        "blender": bool(self.config.source.blender)},
             "inputs": ["params", "mesh"] if self.model is not None else ["mesh"],
+            # the attribute whose values are the parts: a mesh sent with it as OBJ groups keeps them apart
+            "parts_attribute": (self.config.source.blender or {}).get("parts"),
             "up": self.up,
             "parameters": [s.to_dict() for s in space.specs],
             "prompt": self.config.paint.prompt,
@@ -306,7 +308,7 @@ class FamilyService:
             _check_self_contained_gltf(data)
         name = f"upload{suffix}"
         try:
-            shape, _ = load_mesh_bytes(data, name)
+            shape, _ = load_mesh_bytes(data, name, groups=True)  # OBJ groups are parts (the add-on's part attribute)
         except Exception as exc:  # ValueError, or a parser crashing on garbage: the client's bad mesh
             text = str(exc).replace(name, Path(filename or "mesh").name)[:300]
             raise BadInput(f"cannot read the mesh: {text if isinstance(exc, ValueError) else exc.__class__.__name__ + ': ' + text}") from exc

@@ -168,19 +168,25 @@ def load_sample(store: FamilyStore, row: dict[str, Any], config: BuildConfig | N
 
 
 def stage_template(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
-    """Pick the train sample nearest the mean parameters."""
+    """Pick the template among the train samples: of those with the most kinds of part
+    (:func:`proctex.geometry.parts.part_kinds`, so a family with optional parts gets a template
+    that carries them), the one nearest the mean parameters."""
     if stage_done(store, "template"):
         log("template: done already")
         return
+    from proctex.geometry.parts import part_kinds
     from proctex.params import infer_space, select_template
 
     rows = [r for r in samples(store) if r["split"] == "train"]
     params = [json.loads(r["params"]) for r in rows]
     space = infer_space(params) if config.source.folder else config.procedural_model().space
-    i = select_template(space, params) if len(space) else 0
+    kinds = [part_kinds(_read_obj(store, r["mesh"])) for r in rows]
+    i = select_template(space, params, coverage=kinds) if len(space) else int(np.argmax(kinds))
+    nearest = select_template(space, params) if len(space) else 0
     store.write_bytes(StoreLayout.TEMPLATE_MESH, store.read_bytes(rows[i]["mesh"]))
-    _mark(store, "template", id=rows[i]["id"], params=params[i])
-    log(f"template: {rows[i]['id']}")
+    _mark(store, "template", id=rows[i]["id"], params=params[i], part_kinds=kinds[i])
+    why = "" if i == nearest else f"; the sample nearest the mean ({rows[nearest]['id']}) has {kinds[nearest]}"
+    log(f"template: {rows[i]['id']} ({kinds[i]} kinds of part, the most of the {len(rows)} train samples{why})")
 
 
 def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:

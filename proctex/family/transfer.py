@@ -39,6 +39,7 @@ import numpy as np
 
 from proctex.geometry.parts import part_mesh, segment
 from proctex.geometry.shape import Shape
+from proctex.texture.painters.partwords import new_part_texts
 from proctex.texture.uv import pad_seams, sample_texture, texel_map, unwrap
 from .assets import TemplateAssets, same_topology
 from .assign import PartAssignment, assign_parts, representative_frame
@@ -75,7 +76,7 @@ class TransferResult:
 
 
 def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256,
-             shortcut: bool = True, budget: Budget | None = None, workers: int | None = None) -> TransferResult:
+             shortcut: bool = True, budget: Budget | None = None, workers: int | None = None, up: str = "z") -> TransferResult:
     """UVs of ``shape`` into the template textures (module docstring, steps 1-4).
 
     ``shortcut``: parts with their representative's exact connectivity take its UVs directly (exact
@@ -83,7 +84,10 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
 
     Parts of a group the template does not have ("new") get a texture of their own, painted by
     ``painter`` (the family's surface painter; the template's textures are untouched), at
-    ``new_size``; without a painter they stay untextured (group -1) and a note says so.
+    ``new_size``; without a painter they stay untextured (group -1) and a note says so. A painter
+    with a ``prompt`` (the surface painter) paints each new part with what the prompt says of it,
+    read on this shape (``up`` its up axis; :func:`proctex.texture.painters.partwords.new_part_texts`):
+    arms the template lacked take the arms' clause, not a default.
 
     ``budget`` (:class:`proctex.family.budget.Budget`) is checked between parts; past its deadline,
     or cancelled, the transfer stops with :class:`~proctex.family.budget.OverBudget`.
@@ -157,7 +161,11 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
             result.notes.append(f"parts {new} match no template group and no painter was given: left untextured")
         else:
             faces = np.concatenate([seg.parts[p].faces for p in new])
-            uv, image = paint_new_parts(shape, faces, painter, new_size)
+            texts = new_part_texts(painter.prompt, shape, seg, new, up) if isinstance(getattr(painter, "prompt", None), str) else {}
+            face_texts = np.concatenate([np.full(len(seg.parts[p].faces), texts.get(p), dtype=object) for p in new]) if texts else None
+            for text in dict.fromkeys(texts.values()):
+                result.notes.append(f"new parts {[p for p in new if texts.get(p) == text]} painted with {text!r} (what the prompt says of them)")
+            uv, image = paint_new_parts(shape, faces, painter, new_size, face_texts)
             result.corner_uv[faces] = uv
             result.face_group[faces] = len(assets.groups)
             result.new_textures.append(image)
@@ -174,11 +182,13 @@ def _parts_pool() -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=max(1, min(2, os.cpu_count() or 1)), thread_name_prefix="proctex-parts")
 
 
-def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 256) -> tuple[np.ndarray, np.ndarray]:
+def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 256,
+                    face_texts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Atlas and texture for faces of parts no template group fits, painted by a surface painter.
 
     Points go to the painter in the shape's normalised frame, as when the template was painted.
-    Returns (corner_uv (k, 3, 2), texture (size, size, 3) uint8).
+    ``face_texts``: (k,) object, per face a text the painter paints there (``paint(..., text=)``) or
+    None (its default). Returns (corner_uv (k, 3, 2), texture (size, size, 3) uint8).
     """
     from proctex.texture.paint import UNPAINTED, shape_frame
 
@@ -188,7 +198,14 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
     tm = texel_map(shape.vertices[used], local, atlas.corner_uv, size)
     center, scale = shape_frame(shape)
     image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
-    image[tm.ij[:, 0], tm.ij[:, 1]] = painter.paint((tm.points - center) / scale, tm.normals)
+    pts = (tm.points - center) / scale
+    colors = np.asarray(painter.paint(pts, tm.normals), dtype=np.float32)
+    if face_texts is not None:
+        per_texel = np.asarray(face_texts, dtype=object)[tm.face]
+        for text in dict.fromkeys(t for t in per_texel if t is not None):
+            sel = np.flatnonzero(per_texel == text)
+            colors[sel] = painter.paint(pts[sel], tm.normals[sel], text=text)
+    image[tm.ij[:, 0], tm.ij[:, 1]] = colors
     image, _ = pad_seams(image, tm.mask, 4)
     return atlas.corner_uv, (np.clip(image, 0, 1) * 255).round().astype(np.uint8)
 
@@ -441,7 +458,7 @@ def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int
     ``texture_uris``, ``map_uris``: see :func:`glb` (not with ``bake_size``: a baked atlas is the shape's own)."""
     from proctex.texture.export import glb_bytes
 
-    result = transfer(shape, assets, mapper, seed=seed, painter=painter, shortcut=shortcut, budget=budget)
+    result = transfer(shape, assets, mapper, seed=seed, painter=painter, shortcut=shortcut, budget=budget, up=up)
     if budget is not None:
         budget.check("encoding the answer")
     if bake_size:

@@ -35,7 +35,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from proctex.fileio import atomic_write
-from .shape import Shape
+from .shape import Shape, split_by_face_parts
 
 FORMATS = {".obj": "obj", ".ply": "ply", ".stl": "stl", ".glb": "glb", ".gltf": "gltf"}
 CONNECTIVITY = ("auto", "index", "stitch", "weld")
@@ -207,6 +207,26 @@ def read_obj(data: str, path: str = "<obj>") -> tuple[np.ndarray, list[list[int]
                 raise ValueError(f"{path}:{lineno}: face needs at least 3 corners: {line.strip()!r}")
             polys.append([_parse_obj_index(t, len(verts), path, lineno) for t in parts[1:]])
     return np.array(verts, dtype=np.float64).reshape(-1, 3), polys
+
+
+def read_obj_groups(data: str, n_polygons: int) -> np.ndarray | None:
+    """The OBJ group (``g`` or ``o`` line) of each of the file's ``n_polygons`` faces, as (p,) int64
+    ids in order of first use, or None when the file names fewer than two groups. Faces before the
+    first group line are group 0's "default" group."""
+    if "\ng " not in "\n" + data and "\no " not in "\n" + data:
+        return None
+    ids: dict[str, int] = {}
+    out = np.empty(n_polygons, dtype=np.int64)
+    current, k = "", 0
+    for line in data.splitlines():
+        if line.startswith(("g ", "o ")):
+            current = line[2:].strip()
+        elif line.startswith("f ") and k < n_polygons:
+            out[k] = ids.setdefault(current, len(ids))
+            k += 1
+    if k != n_polygons or len(ids) < 2:
+        return None
+    return out
 
 
 def _read_with_trimesh(data: bytes, fmt: str, path: str) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -541,9 +561,14 @@ def load_mesh_bytes(
     name: str,
     connectivity: str = "auto",
     nonfinite: str = "drop",
+    groups: bool = False,
 ) -> tuple[Shape, LoadReport]:
     """:func:`load_mesh` of a file's bytes (an upload, a store object): the format comes from
-    ``name``'s extension, which also names the mesh in errors and as the shape's source."""
+    ``name``'s extension, which also names the mesh in errors and as the shape's source.
+
+    ``groups``: an OBJ naming two or more groups (``g`` / ``o``) has one part per group at least:
+    faces of different groups get their own vertices and nothing is stitched or welded across them
+    (connectivity by index; the Blender add-on sends a family's part attribute this way)."""
     name = str(name)
     fmt = detect_format(name)
     if not len(data):
@@ -556,6 +581,17 @@ def load_mesh_bytes(
         if len(polygons) == 0:
             raise ValueError(f"{name}: the file has no faces")
         faces: Any = polygons
+        group = read_obj_groups(bytes(data).decode("utf-8", errors="replace"), len(polygons)) if groups else None
+        if group is not None:
+            tri, _ = triangulate(list(polygons)) if not isinstance(polygons, np.ndarray) else (polygons, 0)
+            lengths = np.full(len(polygons), 3) if isinstance(polygons, np.ndarray) else np.fromiter(map(len, polygons), np.int64, len(polygons))
+            tri_group = np.repeat(group, lengths - 2)
+            if tri.size and (tri.min() < 0 or tri.max() >= len(vertices)):
+                raise ValueError(f"{name}: a face references a vertex that does not exist")
+            faces, source = split_by_face_parts(tri, tri_group, len(vertices))
+            vertices = vertices[source]
+            connectivity = "index"
+            report.connectivity = "index"
     else:
         vertices, blocks = _read_with_trimesh(bytes(data), fmt, name)
         if len(vertices) == 0 or not blocks or sum(len(b) for b in blocks) == 0:

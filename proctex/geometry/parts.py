@@ -151,6 +151,39 @@ def segment(shape: Shape, degenerate_eps: float = 1e-12, tiny_share: float = 1e-
     return Segmentation(face_part, vertex_part, parts)
 
 
+def kind_groups(shape: Shape, segmentation: Segmentation | None = None, tol: float = 0.15) -> Grouping:
+    """A quick grouping of a shape's parts by kind: non-degenerate, non-tiny parts whose bounding-box
+    extents (per axis, relative to the shape's largest extent) agree within ``tol`` relatively share
+    a group (four legs, a mirrored pair of arms); degenerate and tiny parts are groups of their own,
+    marked degenerate. No rigid matching (members carry no maps): a cheap stand-in for
+    :func:`group_parts` where only what the parts are matters (part words, template coverage)."""
+    seg = segmentation if segmentation is not None else segment(shape)
+    v = shape.vertices
+    used = np.unique(shape.faces)
+    longest = float(np.ptp(v[used], axis=0).max()) or 1.0
+    keys: list[np.ndarray] = []
+    groups: list[PartGroup] = []
+    part_group = np.full(len(seg.parts), -1, dtype=np.int64)
+    for p in seg.parts:
+        skip = p.degenerate or p.tiny
+        e = np.log(np.maximum(np.ptp(v[p.vertices], axis=0) / longest, 1e-6))
+        hit = None if skip else next((k for k, r in enumerate(keys) if r is not None and np.all(np.abs(e - r) <= np.log1p(tol))), None)
+        if hit is None:
+            keys.append(None if skip else e)
+            groups.append(PartGroup(len(groups), [p.index], [], bool(skip), p.label))
+            hit = len(groups) - 1
+        else:
+            groups[hit].members.append(p.index)
+        part_group[p.index] = hit
+    return Grouping(seg, groups, part_group)
+
+
+def part_kinds(shape: Shape, segmentation: Segmentation | None = None, tol: float = 0.15) -> int:
+    """How many kinds of part a shape has (the non-degenerate groups of :func:`kind_groups`): used
+    to pick a template that carries the optional parts of a family (a chair with its back and arms)."""
+    return sum(not g.degenerate for g in kind_groups(shape, segmentation, tol).groups)
+
+
 def part_mesh(shape: Shape, part: PartInfo) -> tuple[np.ndarray, np.ndarray]:
     """Local ``(vertices (j, 3), faces (k, 3))`` of a part; local vertex i is ``part.vertices[i]``."""
     local = np.searchsorted(part.vertices, shape.faces[part.faces])

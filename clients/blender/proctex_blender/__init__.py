@@ -80,6 +80,7 @@ def drain() -> float | None:
                 settings.status = f"{len(value)} families"
             elif kind == "describe":
                 _fill_params(settings, value)
+                _state["parts_attribute"] = value.get("parts_attribute")
                 settings.status = f"{meta['family']}: {len(value.get('parameters', []))} parameters, {len(value.get('groups', []))} groups"
             elif kind == "glb":
                 data, summary = value
@@ -97,8 +98,29 @@ def _settings(scene_name: str | None):
 
 
 # ---------------------------------------------------------------------------------- mesh in, GLB out
-def evaluated_obj_text(obj, depsgraph) -> bytes:
-    """OBJ text of ``obj``'s evaluated mesh (modifiers applied), triangulated, in object coordinates."""
+def _triangle_parts(mesh, name: str | None) -> list | None:
+    """Per loop triangle the value of the part attribute ``name`` (face, point or corner domain;
+    a point or corner attribute gives a triangle its first corner's value), or None without it."""
+    attr = mesh.attributes.get(name) if name else None
+    if attr is None or attr.domain not in ("FACE", "POINT", "CORNER") or attr.data_type not in ("INT", "FLOAT", "BOOLEAN", "INT8"):
+        return None
+    values = [0] * len(attr.data)
+    attr.data.foreach_get("value", values)
+    m = len(mesh.loop_triangles)
+    if attr.domain == "FACE":
+        index = [0] * m
+        mesh.loop_triangles.foreach_get("polygon_index", index)
+    else:
+        corners = [0] * (3 * m)
+        mesh.loop_triangles.foreach_get("vertices" if attr.domain == "POINT" else "loops", corners)
+        index = corners[0::3]
+    return [values[i] for i in index]
+
+
+def evaluated_obj_text(obj, depsgraph, parts_attribute: str | None = None) -> bytes:
+    """OBJ text of ``obj``'s evaluated mesh (modifiers applied), triangulated, in object coordinates;
+    with the family's part attribute (``parts_attribute``) on the mesh, one OBJ group per part, so
+    the service keeps touching parts apart as the family's own shapes do."""
     evaluated = obj.evaluated_get(depsgraph)
     mesh = evaluated.to_mesh()
     try:
@@ -107,11 +129,12 @@ def evaluated_obj_text(obj, depsgraph) -> bytes:
         mesh.vertices.foreach_get("co", verts)
         tris = [0] * (3 * len(mesh.loop_triangles))
         mesh.loop_triangles.foreach_get("vertices", tris)
+        parts = _triangle_parts(mesh, parts_attribute)
     finally:
         evaluated.to_mesh_clear()
     if not tris:
         raise ValueError(f"{obj.name} has no faces to texture")
-    return client.obj_text(verts, tris)
+    return client.obj_text(verts, tris, parts)
 
 
 def _import_glb(data: bytes, meta: dict[str, Any]):
@@ -255,7 +278,7 @@ class PROCTEX_OT_texture_selected(bpy.types.Operator):
             return {"CANCELLED"}
         obj = context.active_object
         try:
-            text = evaluated_obj_text(obj, context.evaluated_depsgraph_get())
+            text = evaluated_obj_text(obj, context.evaluated_depsgraph_get(), _state.get("parts_attribute"))
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -123,10 +123,18 @@ def _summary(headers: dict[str, str]) -> dict[str, Any]:
     return {"seconds": seconds, "notes": notes if isinstance(notes, list) else []}
 
 
-def obj_text(vertices: Any, triangles: Any) -> bytes:
+def obj_text(vertices: Any, triangles: Any, parts: Any = None) -> bytes:
     """OBJ text of a triangle mesh: ``vertices`` a flat sequence of x, y, z; ``triangles`` a flat
-    sequence of 0-based vertex indices, three per face."""
+    sequence of 0-based vertex indices, three per face; ``parts`` (optional): a part value per
+    triangle, written as OBJ groups (``g part_<value>`` before each run of a part's faces)."""
     n, m = len(vertices) // 3, len(triangles) // 3
+    if parts is not None and len(parts) != m:
+        raise ValueError(f"parts needs one value per triangle, got {len(parts)} for {m}")
     lines = [f"v {vertices[3 * i]:.7g} {vertices[3 * i + 1]:.7g} {vertices[3 * i + 2]:.7g}" for i in range(n)]
-    lines += [f"f {triangles[3 * k] + 1} {triangles[3 * k + 1] + 1} {triangles[3 * k + 2] + 1}" for k in range(m)]
+    current = None
+    for k in range(m):
+        if parts is not None and parts[k] != current:
+            current = parts[k]
+            lines.append(f"g part_{current:g}" if isinstance(current, float) else f"g part_{current}")
+        lines.append(f"f {triangles[3 * k] + 1} {triangles[3 * k + 1] + 1} {triangles[3 * k + 2] + 1}")
     return ("\n".join(lines) + "\n").encode()

@@ -58,7 +58,8 @@ import numpy as np
 from .prompt import parse_prompt
 from .regions import RegionPlan, split_regions
 
-__all__ = ["PART_WORDS", "GroupGeometry", "PartPlan", "describe_groups", "part_word", "resolve_words", "plan_parts"]
+__all__ = ["PART_WORDS", "GroupGeometry", "PartPlan", "describe_groups", "part_word", "resolve_words", "plan_parts",
+           "new_part_texts"]
 
 
 @dataclass(frozen=True)
@@ -449,3 +450,23 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
             plan.notes.append(f"group {g.index} is named by no clause and the rest of the prompt names no material: "
                               f"it takes {clause_of[near]!r} from group {near}, the most alike in shape")
     return plan
+
+
+def new_part_texts(prompt: str, shape: Any, segmentation: Any, parts: list[int], up: str | int = "z") -> dict[int, str]:
+    """What parts of a new shape that match no template group are painted with: the prompt resolved
+    on the new shape itself (its parts grouped by kind, :func:`proctex.geometry.parts.kind_groups`),
+    so "brass arms" paints arms the template lacked; ``{part: text}`` for the parts a clause (or a
+    borrowed clause, or the rest joined by an unplaced clause) names, the others take the whole
+    prompt's rest."""
+    from proctex.geometry.parts import kind_groups
+
+    if not parts:
+        return {}
+    grouping = kind_groups(shape, segmentation)
+    plan = plan_parts(prompt, shape.vertices, shape.faces, grouping, up)
+    out = {}
+    for p in parts:
+        g = int(grouping.part_group[p])
+        if g in plan.texts:
+            out[int(p)] = plan.texts[g]
+    return out

@@ -174,13 +174,24 @@ class SurfacePainter:
                 lines.append(f"group {key} prompt {spec.prompt!r}: {spec.notes}")
         return lines
 
-    def paint(self, points: np.ndarray, normals: np.ndarray, group: int | None = None, label: str = "") -> np.ndarray:
+    def _text_layers(self, text: str) -> tuple[_Layer, ...]:
+        """The layers of a text painted without a place on the template (a new part at run time):
+        its rest's material (its regions have no frame there)."""
+        key = (None, "text:" + text)
+        if key not in self._layers:
+            plan = split_regions(text)
+            self._layers[key] = (_Layer(parse_prompt(plan.base if plan.has_regions and plan.base else text)),)
+        return self._layers[key]
+
+    def paint(self, points: np.ndarray, normals: np.ndarray, group: int | None = None, label: str = "",
+              text: str | None = None) -> np.ndarray:
         """Colours of surface points.
 
         Args:
             points: ``(n, 3)`` float, in the shape's normalised frame (roughly [-1, 1]^3).
             normals: ``(n, 3)`` float unit normals (renormalised here; zero rows are tolerated).
             group, label: which group prompt applies (see :meth:`spec_for`).
+            text: paint this text instead (a new part's clause, :func:`.partwords.new_part_texts`).
         Returns:
             ``(n, 3) float32`` RGB in [0, 1]; ``n == 0`` gives an empty array.
         Raises:
@@ -191,7 +202,9 @@ class SurfacePainter:
         nrm = _check_array("normals", normals)
         if len(pts) != len(nrm):
             raise ValueError(f"points and normals must have the same length, got {len(pts)} and {len(nrm)}")
-        layers = self._layers_for(group, label)
+        if text is not None and not isinstance(text, str):
+            raise ValueError(f"text must be a string, got {type(text).__name__}")
+        layers = self._text_layers(text) if text is not None else self._layers_for(group, label)
         out = np.empty((len(pts), 3), dtype=np.float32)
         for s in range(0, len(pts), CHUNK):
             p = pts[s : s + CHUNK].astype(np.float32)
