@@ -168,20 +168,25 @@ def _self_tracked_variance(family, mapper, n=1500):
 
 
 def _self_tracked_variance_old(family, mapper, n):
+    from proctex.family.assign import choose_part
+
     st, cfg, assets, uv, shapes = family
     tpl = assets.shape
     tp = tracked_points(tpl, assets.grouping, "cage", n=n, seed=1)  # points on the representatives
-    cols = []
+    runs = []
     for shape in shapes:
         if hasattr(mapper, "set_shape"):
             mapper.set_shape(shape)
-        seg = segment(shape)
-        result = transfer(shape, assets, mapper, shortcut=False)
+        runs.append((shape, segment(shape), transfer(shape, assets, mapper, shortcut=False)))
+    # Only the groups every shape has (the template carries the optional parts some shapes lack).
+    common = [g for g in np.unique(tp.group) if all(choose_part(r.assignment, int(g)) is not None for _, _, r in runs)]
+    keep = np.isin(tp.group, common)
+    tp = type(tp)(**{k: (v[keep] if isinstance(v, np.ndarray) and len(v) == len(keep) else v) for k, v in vars(tp).items()})
+    cols = []
+    for shape, seg, result in runs:
         loc = Location.empty(len(tp))
         pts = interpolate(tpl.vertices, tpl.faces, tp.face, tp.bary)
         for g in np.unique(tp.group):
-            from proctex.family.assign import choose_part
-
             a = choose_part(result.assignment, int(g))
             ga = assets.groups[int(g)]
             sel = np.flatnonzero(tp.group == g)

@@ -14,8 +14,8 @@ from scipy.spatial import cKDTree
 
 from proctex.geometry.parts import Grouping, PartGroup
 from proctex.geometry.shape import Shape
-from proctex.texture.painters.partwords import plan_parts
 from proctex.texture.painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest
+from proctex.texture.painters.partwords import plan_parts
 
 from .paint import (
     paint_material_maps,
