@@ -23,8 +23,9 @@ word that names a group's label is routed by the label (as :mod:`.regions` alway
 ========== ==================================================================================
 word       test (u: height in the shape, 0 floor, 1 top; sizes of one member)
 ========== ==================================================================================
-legs       touch the floor (u_lo <= 0.1), below the top part (u_hi <= 0.6) or an upright bar;
-           not a slab covering most of the footprint
+legs       touch the floor (u_lo <= 0.1), below the top part (u_hi <= 0.6) or an upright bar
+           narrow across the shape (<= 30 % of its width and depth); not a slab covering most of
+           the footprint
 seat       a horizontal slab (thickness <= half its width) over >= 25 % of the footprint at mid
            height (u in 0.2-0.75) with no large slab above it: the largest such
 top        a horizontal slab over >= 30 % of the footprint at the top (u_hi >= 0.9): the largest
@@ -41,7 +42,8 @@ drawer     box-like members (thinnest >= 15 % of the widest) stacked or side by 
 base       on the floor (u_lo <= 0.05, u_hi <= 0.3) over >= 15 % of the footprint
 rungs      horizontal bars (longest >= 3x the others) off the floor, in the lower half
 frame      bars (longest >= 5x the thinnest)
-handle     small (<= 20 % of the shape's area) and not the largest group, at a horizontal end
+handle     small (<= 20 % of the shape's area, no longer than 60 % of it) and not the largest
+           group, at a horizontal end
 body       the largest group by area
 cushion    slabs over >= 10 % of the footprint at mid height (one or more)
 ========== ==================================================================================
@@ -182,11 +184,12 @@ def describe_groups(vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: 
 
 # ------------------------------------------------------------------------------------------ tests
 def _legs(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    if g.u_lo > 0.1 or not (g.upright_bar() or g.u_hi <= 0.6):
+    post = g.upright_bar() and max(g.width_share(a) for a in g.horizontal) <= 0.3  # not a cabinet's side board
+    if g.u_lo > 0.1 or not (post or g.u_hi <= 0.6):
         return 0.0
     if g.flat() and g.footprint() >= 0.6:
         return 0.0
-    return 1.0 if g.upright_bar() else 0.7
+    return 1.0 if post else 0.7
 
 
 def _seat_like(g: GroupGeometry, all_: list[GroupGeometry]) -> bool:
@@ -265,7 +268,7 @@ def _frame(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
 
 
 def _handle(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    if len(all_) < 2 or g.area_share > 0.2 or g.area_share >= max(h.area_share for h in all_):
+    if len(all_) < 2 or g.area_share > 0.2 or g.area_share >= max(h.area_share for h in all_) or g.extent.max() > 0.6:
         return 0.0
     return 0.7 if any(g.at_one_end(a, 0.3) or g.at_both_ends(a, 0.3) for a in g.horizontal) else 0.0
 
