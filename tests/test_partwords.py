@@ -185,6 +185,11 @@ def test_parts_the_template_lacks_take_what_the_prompt_says_of_them():
     r = transfer(full, assets, IdentityMapper(), painter=SurfacePainter(prompt), new_size=32, up="z")
     new = [a.part for a in r.assignment if a.how == "new"]
     assert set(arms) <= set(new)  # (the back panel may match the seat's group as a box: then it is not new)
+    # What the evaluation's new_share counts: none with a template that carries the arms and back.
+    fg = analyse(full)
+    ftex = paint_template(full, fg, prompt, size=32, up="z")
+    fassets = prepare_template(full, fg, ftex.uv.corner_uv, [g.image for g in ftex.groups])
+    assert not [a for a in transfer(full, fassets, IdentityMapper(), up="z").assignment if a.how == "new"]
     assert any("painted with 'brass'" in n for n in r.notes)
     image = r.new_textures[0].astype(float) / 255
     painted = image.reshape(-1, 3)

@@ -575,13 +575,14 @@ def load_mesh_bytes(
         raise ValueError(f"{name}: the file is empty")
     report = LoadReport(path=name, format=fmt, connectivity=connectivity)
     if fmt == "obj":
-        vertices, polygons = read_obj(bytes(data).decode("utf-8", errors="replace"), name)
+        text = bytes(data).decode("utf-8", errors="replace")
+        vertices, polygons = read_obj(text, name)
         if len(vertices) == 0:
             raise ValueError(f"{name}: the file has no vertices")
         if len(polygons) == 0:
             raise ValueError(f"{name}: the file has no faces")
         faces: Any = polygons
-        group = read_obj_groups(bytes(data).decode("utf-8", errors="replace"), len(polygons)) if groups else None
+        group = read_obj_groups(text, len(polygons)) if groups else None
         if group is not None:
             tri, _ = triangulate(list(polygons)) if not isinstance(polygons, np.ndarray) else (polygons, 0)
             lengths = np.full(len(polygons), 3) if isinstance(polygons, np.ndarray) else np.fromiter(map(len, polygons), np.int64, len(polygons))

@@ -58,7 +58,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .prompt import parse_prompt
-from .regions import RegionPlan, split_regions
+from .regions import RegionPlan, _label_of, split_regions
 
 __all__ = ["PART_WORDS", "GroupGeometry", "PartPlan", "describe_groups", "part_word", "resolve_words", "plan_parts",
            "new_part_texts"]
@@ -393,13 +393,9 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     if not isinstance(prompt, str):
         raise ValueError(f"prompt must be a string, got {type(prompt).__name__}")
     labels = [g.label for g in grouping.groups if g.label]
-    label_set = {lab.lower() for lab in labels}
+    label_map = {lab.lower(): lab for lab in labels}
     tokens = re.findall(r"[\w'-]+", prompt.lower())
-
-    def is_label(tok: str) -> bool:
-        return any(c and c in label_set for c in (tok, tok[:-1] if tok.endswith("s") else "", tok[:-2] if tok.endswith("es") else ""))
-
-    wanted = list(dict.fromkeys(part_word(t) for t in tokens if part_word(t) and not is_label(t)))
+    wanted = list(dict.fromkeys(part_word(t) for t in tokens if part_word(t) and _label_of(t, label_map) is None))
     geoms = describe_groups(vertices, faces, grouping, up) if wanted else []
     # A word only becomes a part where the shape has more than one group: on a one-part vase "top"
     # and "base" stay regions of that part.
