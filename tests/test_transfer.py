@@ -733,3 +733,62 @@ def test_parts_mapped_side_by_side_give_the_same_result_and_leave_torch_threads_
         assert np.array_equal(one.corner_uv, many.corner_uv) and np.array_equal(one.face_group, many.face_group)
         assert one.points.keys() == many.points.keys() and all(np.array_equal(one.points[k], many.points[k]) for k in one.points)
         assert torch.get_num_threads() == before
+
+
+def _match_extra_reference(u, f, assets, n=300, seed=0):
+    """The slow way: every non-degenerate group, every axis sign flip as an ICP start, no prefilter."""
+    from itertools import product
+
+    from proctex.geometry.align import icp_to_surface
+    from proctex.geometry.surface import sample_surface
+
+    pts = sample_surface(u, f, n, seed=seed)[0]
+    best = (-1, np.eye(3), np.zeros(3), np.inf)
+    for ga in assets.groups:
+        if ga.degenerate:
+            continue
+        for signs in product((1.0, -1.0), repeat=3):
+            res = icp_to_surface(pts, ga.index, R0=np.diag(signs), max_iter=30, exact=False)
+            if res.error < best[3]:
+                best = (ga.group, res.R, res.t, float(res.error))
+    return best
+
+
+def test_match_extra_recovers_turned_copies_like_the_exhaustive_search_and_skips_unlike_parts(chair, monkeypatch):
+    import proctex.family.assign as assign
+    import proctex.geometry.align as align
+    from proctex.geometry.parts import surface_moments
+    from scipy.spatial.transform import Rotation
+
+    _, _, _, assets = chair
+    rng = np.random.default_rng(3)
+    reps = [ga for ga in assets.groups if not ga.degenerate]
+    assert len(reps) >= 3
+    for ga in reps * 2:
+        # The representative turned by a sign flip (mirrors too) and a small rotation, shifted a little: a copy
+        # the template places nowhere. Its group and the inverse motion must come back.
+        flip = np.diag(rng.choice([-1.0, 1.0], 3))
+        R = Rotation.from_rotvec(rng.normal(size=3) * 0.05).as_matrix() @ flip
+        u = ga.vertices @ R.T + rng.normal(size=3) * 0.01
+        g, Rf, t, err = assign.match_extra(u, ga.faces, assets)
+        gr, _, _, err_ref = _match_extra_reference(u, ga.faces, assets)
+        assert err <= err_ref + 1e-3, (ga.group, err, err_ref)  # ranked starts lose nothing the exhaustive search finds
+        assert err < 0.01 and (g == ga.group or err_ref < 0.01 and g == gr)  # a symmetric twin group may fit as well
+        if g == ga.group:
+            back = u @ Rf.T + t  # the part mapped onto the representative
+            assert ga.index.query(back).distance.mean() < 0.01
+    # A part whose surface moments no representative has (a regular tetrahedron: equal extents on
+    # every axis) is answered without a single ICP run, and as no match.
+    tet = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float) / np.sqrt(3)
+    tf = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    m = surface_moments(tet, tf)
+    for ga in reps:
+        assert np.abs(m - ga.probe()[0]).max() > 0.08 * max(m[0], ga.probe()[0][0])
+    runs = []
+    real = align.icp_to_surface
+    monkeypatch.setattr(align, "icp_to_surface", lambda *a, **k: runs.append(1) or real(*a, **k))
+    g, _, _, err = assign.match_extra(tet, tf, assets)
+    assert (g, err, runs) == (-1, np.inf, [])
+    # The same part with the prefilter's tolerance opened up is fitted (the prefilter did the work).
+    g, _, _, err = assign.match_extra(tet, tf, assets, tol=10.0)
+    assert g >= 0 and np.isfinite(err) and runs

@@ -4,7 +4,7 @@ shape's parts are assigned to (:mod:`proctex.family.assign`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
@@ -22,7 +22,8 @@ class GroupAssets:
     """What transfer needs of one template group (its representative part, in its normalised frame).
 
     ``vertices (k, 3)`` normalised, ``faces (f, 3)`` local, ``corner_uv (f, 3, 2)``, ``center (3,)``,
-    ``radius``, ``index`` a :class:`SurfaceIndex` over the normalised mesh.
+    ``radius``, ``index`` a :class:`SurfaceIndex` over the normalised mesh. :meth:`probe` gives
+    what matching a left-over part against it needs, computed once.
     """
 
     group: int
@@ -35,6 +36,21 @@ class GroupAssets:
     radius: float
     index: SurfaceIndex
     degenerate: bool
+    _probes: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def probe(self, n: int = 300, seed: int = 0) -> tuple[np.ndarray, np.ndarray, Any]:
+        """``(moments (3,), samples (n, 3), tree)`` of the normalised representative: its exact
+        surface moments (:func:`proctex.geometry.parts.surface_moments`), ``n`` surface samples
+        (``seed``) and a cKDTree over them; computed on first use and kept."""
+        if (n, seed) not in self._probes:
+            from scipy.spatial import cKDTree
+
+            from proctex.geometry.parts import surface_moments
+            from proctex.geometry.surface import sample_surface
+
+            pts = sample_surface(self.vertices, self.faces, n, seed=seed)[0]
+            self._probes[(n, seed)] = (surface_moments(self.vertices, self.faces), pts, cKDTree(pts))
+        return self._probes[(n, seed)]
 
 
 @dataclass

@@ -130,7 +130,7 @@ def assign_parts(
                 continue
             key = hashlib.sha1(f.tobytes() + (np.round(u, 6) + 0.0).tobytes()).digest()
             if key not in fitted:
-                fitted[key] = match_extra(u, f, assets, groups=same or None)
+                fitted[key] = match_extra(u, f, assets, groups=same or None, tol=extra_tol)
             g, R, t, err = fitted[key]
             if err <= extra_tol:
                 out.append(PartAssignment(p.index, g, -1, R, err, "extra", t))
@@ -289,25 +289,44 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
 
 
 def match_extra(
-    vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, n: int = 300, seed: int = 0, groups: Sequence[int] | None = None
+    vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, n: int = 300, seed: int = 0, groups: Sequence[int] | None = None,
+    tol: float = 0.02,
 ) -> tuple[int, np.ndarray, np.ndarray, float]:
     """Best template group for a part (normalised frame) by point-to-surface ICP.
 
-    Tries the eight axis sign flips as starts against every non-degenerate group representative
-    (or those of ``groups``).
-    Returns ``(group, R (3, 3), t (3,), error)``, error = mean distance after alignment (normalised units).
+    Candidates: the non-degenerate group representatives (or those of ``groups``) whose exact
+    surface moments (:func:`proctex.geometry.parts.surface_moments`, both in their normalised frames)
+    are within :data:`~proctex.geometry.parts.MOMENT_TOLS` x ``tol`` of the part's (a fit whose mean
+    distance is within ``tol`` moves them less), at most
+    :data:`~proctex.geometry.parts.MAX_MATCH_TRIES` of them, nearest first. Per candidate the eight
+    axis sign flips are ranked by the mean distance of the part's samples to the representative's
+    samples, and ICP to the exact surface refines the good ones (within 1.5 x the best plus ``tol``),
+    at most :data:`~proctex.geometry.parts.ICP_STARTS`, in their order (the identity first).
+    Returns ``(group, R (3, 3), t (3,), error)``, error = mean distance after alignment (normalised
+    units); ``(-1, I, 0, inf)`` when no candidate passes the prefilter.
     """
     from itertools import product
 
     from proctex.geometry.align import icp_to_surface
+    from proctex.geometry.parts import ICP_STARTS, MAX_MATCH_TRIES, MOMENT_TOLS, surface_moments
 
     pts, _, _ = sample_surface(vertices, faces, n, seed=seed)
-    best = (-1, np.eye(3), np.zeros(3), np.inf)
+    mom = surface_moments(vertices, faces)
+    near = []
     for ga in assets.groups:
         if ga.degenerate or (groups is not None and ga.group not in groups):
             continue
-        for signs in product((1.0, -1.0), repeat=3):
-            res = icp_to_surface(pts, ga.index, R0=np.diag(signs), max_iter=30, exact=False)
+        gm, gpts, tree = ga.probe(n, seed)
+        gap = np.abs(mom - gm)
+        if np.all(gap <= MOMENT_TOLS * tol * max(mom[0], gm[0], 1e-300)):
+            near.append((float(gap.sum()), ga, tree))
+    near.sort(key=lambda c: c[0])
+    best = (-1, np.eye(3), np.zeros(3), np.inf)
+    for _, ga, tree in near[:MAX_MATCH_TRIES]:
+        starts = [(float(tree.query(pts * np.asarray(signs))[0].mean()), np.diag(signs)) for signs in product((1.0, -1.0), repeat=3)]
+        lowest = min(d for d, _ in starts)
+        for R0 in [R0 for d, R0 in starts if d <= 1.5 * lowest + tol][:ICP_STARTS]:
+            res = icp_to_surface(pts, ga.index, R0=R0, max_iter=30, exact=False)
             if res.error < best[3]:
                 best = (ga.group, res.R, res.t, float(res.error))
     return best
