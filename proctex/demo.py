@@ -124,13 +124,16 @@ def turntable_path(space: ParamSpace, base: dict[str, Any], names: Sequence[str]
     return out
 
 
-def caption(params: dict[str, Any], varied: str | None) -> list[str]:
-    """Caption lines of a variant: the varied parameter, or every parameter (random row)."""
+def caption(params: dict[str, Any], varied: str | None, max_lines: int = 6, shown: Sequence[str] | None = None) -> list[str]:
+    """Caption lines of a variant: the varied parameter, or every parameter (random row; only those
+    in ``shown`` when given, e.g. the ones that matter there), at most ``max_lines`` of them and a
+    "+k more" line."""
     def fmt(v: Any) -> str:
         return f"{v:.3g}" if isinstance(v, float) else str(v)
 
-    keys = [varied] if varied else list(params)
-    return [f"{k} = {fmt(params[k])}" for k in keys]
+    keys = [varied] if varied else [k for k in params if shown is None or k in shown]
+    lines = [f"{k} = {fmt(params[k])}" for k in keys]
+    return lines if len(lines) <= max_lines else lines[: max_lines - 1] + [f"+{len(lines) - max_lines + 1} more"]
 
 
 # ------------------------------------------------------------------------------------------ images
@@ -270,10 +273,11 @@ median {1000 * s['transfer_median_seconds']:.0f} ms each.</p>
 
 
 def render_sheet(sweep: list[SweepRow], rendered: list[tuple[Any, Any]], textures: list[np.ndarray], up: str, size: int,
-                 title: str = "", quiet: bool = False, maps: list | None = None) -> np.ndarray:
+                 title: str = "", quiet: bool = False, maps: list | None = None, space: ParamSpace | None = None) -> np.ndarray:
     """The contact sheet of transferred variants ``rendered`` [(Shape, TransferResult)], in the order
     of ``sweep``'s rows: one camera fitted to every variant (sizes compare truthfully), crops shared.
-    ``maps``: the template's PBR maps per texture (None: colour only), lit physically."""
+    ``maps``: the template's PBR maps per texture (None: colour only), lit physically. ``space``:
+    random settings are captioned with the parameters that matter there (:meth:`ParamSpace.active`)."""
     from proctex.texture.render import bounding_sphere, orbit_camera, render_textured
 
     center, radius = bounding_sphere(np.concatenate([s.vertices for s, _ in rendered]))
@@ -289,7 +293,8 @@ def render_sheet(sweep: list[SweepRow], rendered: list[tuple[Any, Any]], texture
     grid, caps, titles, i = [], [], [], 0
     for r in sweep:
         grid.append(images[i : i + len(r.settings)])
-        caps.append([caption(p, None if r.name == "random" else r.name) for p in r.settings])
+        caps.append([caption(p, None if r.name == "random" else r.name, shown=None if space is None else space.active(p))
+                     for p in r.settings])
         titles.append("random unseen settings" if r.name == "random" else f"sweep of {r.name}")
         i += len(r.settings)
     return contact_sheet(grid, caps, titles, title=title)
@@ -329,6 +334,17 @@ class DemoResult:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
+def family_title(config: Any) -> str:
+    """A family's source in a few words: the built-in model's name, ``file.blend:Object`` or
+    ``generator``."""
+    src = config.source
+    if src.model:
+        return src.model
+    if src.blender:
+        return f"{Path(str(src.blender.get('file', 'model.blend'))).name}:{src.blender.get('object', '?')}"
+    return "generator"
+
+
 def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, float], ray: bool = False, rows: int = 3,
                 per_row: int = 5, frames: int = 48, size: int = 320, gif_size: int = 320, seed: int = 0,
                 log: Callable[[str], None] = print, quiet: bool = False, started: float | None = None) -> DemoResult:
@@ -349,8 +365,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     (out / "variants").mkdir(parents=True, exist_ok=True)
     store = FamilyStore(family)
     config = stored_config(store)
-    if config.source.model is None and config.source.generator is None:
-        raise ValueError("the demo sweeps parameters: build the family from a model or generator, not a folder")
+    if config.source.folder is not None:
+        raise ValueError("a contact sheet sweeps parameters: the family must come from a model, a generator or a .blend file, not a folder")
     model = config.procedural_model()
     svc = FamilyService(store)
     up = config.up_axis()
@@ -377,8 +393,8 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
             bar.update()
     atomic_write(out / "variants.json", json.dumps(variants, indent=1))
 
-    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{config.source.model or 'family'}: \"{config.paint.prompt}\"", quiet=quiet,
-                         maps=svc.assets.pbr)
+    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{family_title(config)}: \"{config.paint.prompt}\"", quiet=quiet,
+                         maps=svc.assets.pbr, space=model.space)
     save_png(out / "contact_sheet.png", sheet)
     swept = [r.name for r in sweep if r.name != "random"][:2]
     spin = render_turntable(model, base, swept, svc, up, frames, gif_size, seed=seed, quiet=quiet)
@@ -403,7 +419,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     stage_all = {**{k: float(v) for k, v in stage_seconds.items()}, "sweep + renders + report": time.perf_counter() - t_start}
     notes = sorted({n for v in variants for n in v["notes"]})
     summary = {
-        "model": config.source.model or "generator", "prompt": config.paint.prompt, "family": fam_rel, "serve_root": os.path.dirname(fam_rel) or ".",
+        "model": family_title(config), "prompt": config.paint.prompt, "family": fam_rel, "serve_root": os.path.dirname(fam_rel) or ".",
         "seed": config.seed, "n_train": config.source.n_train, "n_test": config.source.n_test, "ray": ray,
         "groups": groups, "metrics": None if metrics is None else {"shapes": metrics["shapes"], "tracker": metrics.get("tracker"), "methods": {
             k: {kk: vv for kk, vv in m.items() if kk not in ("per_shape", "per_group")} for k, m in metrics["methods"].items()}},

@@ -196,3 +196,33 @@ def test_parts_the_template_lacks_take_what_the_prompt_says_of_them():
     painted = painted[np.abs(painted - painted[0]).sum(1) > 0] if len(painted) else painted
     saturation = painted.max(1) - painted.min(1)
     assert np.median(saturation) > 0.1  # brass and red velvet, not a grey default
+
+
+def test_a_stool_seat_is_its_seat_and_a_base_or_stretchers_take_the_legs_material():
+    from .meshes import boxes
+
+    # A stool: a seat slab at the very top on four legs, joined by two stretchers, on a wide plinth.
+    specs = [((0.5, 0.5, 0.06), (0, 0, 0.67))]
+    specs += [((0.05, 0.05, 0.56), (x, y, 0.36)) for x in (-0.2, 0.2) for y in (-0.2, 0.2)]
+    specs += [((0.4, 0.04, 0.04), (0, y, 0.25)) for y in (-0.2, 0.2)]
+    specs.append(((0.56, 0.56, 0.08), (0, 0, 0.04)))
+    stool = boxes(specs)
+    grouping = analyse(stool)
+    role = {}
+    for g in grouping.groups:
+        c, n = grouping.parts[g.representative].center, len(g.members)
+        role["legs" if n == 4 else "rungs" if n == 2 else "seat" if c[2] > 0.5 else "base"] = g.index
+    assert len(role) == 4
+    plan = plan_parts(PROMPT, stool.vertices, stool.faces, grouping, "z")
+    assert plan.texts[role["seat"]] == "red velvet"  # the highest part, nothing above it: the seat
+    assert plan.texts[role["legs"]] == "dark walnut"
+    # Neither the plinth nor the stretchers are named: they are legs' kin and take their clause,
+    # not the seat's (the slab most alike in shape to the plinth).
+    assert plan.texts[role["base"]] == "dark walnut" and plan.texts[role["rungs"]] == "dark walnut"
+    assert any("of the same kind" in n and f"group {role['base']}" in n for n in plan.notes)
+    # Named both, "top" takes the highest slab and the seat finds none.
+    plan = plan_parts("a stool with an oak top and a velvet seat", stool.vertices, stool.faces, grouping, "z")
+    assert plan.words.get("top") == [role["seat"]] and "seat" not in plan.words
+    # Without a placed leg clause the plinth is no one's kin: it takes the rest of the prompt.
+    plan = plan_parts("a walnut stool with a red velvet seat", stool.vertices, stool.faces, grouping, "z")
+    assert role["base"] not in plan.texts and "of the same kind" not in " ".join(plan.notes)  # the whole prompt

@@ -13,7 +13,7 @@ import sys
 from proctex.family.config import PRESETS
 from proctex.texture.paint_loop import PAINTERS
 
-from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_generate, cmd_inputs, cmd_transfer
+from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_generate, cmd_inputs, cmd_sheet, cmd_transfer
 from .shapes import cmd_correspond, cmd_match, cmd_models, cmd_paint, cmd_render, cmd_sample, cmd_segment, cmd_template
 
 
@@ -250,6 +250,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_gallery)
+
+    p = sub.add_parser("sheet", help="contact sheet, turntable, GLBs and report of a built family's unseen settings (built-in, generator or .blend)")
+    p.add_argument("family", help="a built family folder")
+    p.add_argument("--out", help="where to write (default out/sheets/<family folder name>)")
+    p.add_argument("--rows", type=int, default=3, help="parameters swept (those that change the shape most), plus one row of random settings")
+    p.add_argument("--per-row", type=int, default=5, help="variants per row")
+    p.add_argument("--frames", type=int, default=24, help="turntable frames")
+    p.add_argument("--size", type=int, default=320, help="pixels per variant")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_sheet)
 
     p = sub.add_parser("demo", help="the main job: build a family, transfer a sweep of unseen settings, GLBs, contact sheet, turntable, HTML report")
     p.add_argument("--model", default="sofa", help="built-in model (default sofa)")

@@ -354,3 +354,29 @@ def cmd_demo(args: argparse.Namespace) -> int:
     log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
     print_demo_outputs(run_demo(args.out, log=log, **demo_arguments(args)))
     return 0
+
+
+def cmd_sheet(args: argparse.Namespace) -> int:
+    """Sweep, transfer and render a built family's unseen settings (:func:`proctex.demo.finish_demo`)."""
+    from proctex.demo import finish_demo
+    from proctex.family.stages import stored_config
+    from proctex.family.store import FamilyStore, StoreLayout
+
+    if args.rows < 0 or args.per_row < 1 or args.frames < 1 or not 32 <= args.size <= 2048:
+        raise ValueError("--rows must be >= 0, --per-row >= 1, --frames >= 1 and --size within 32..2048")
+    if not os.path.isdir(args.family):
+        raise ValueError(f"{args.family}: no such folder")
+    store = FamilyStore(args.family)
+    stored_config(store)  # a clear error when the folder is not a family
+    state = store.read_json(StoreLayout.STATE).get("stages", {})
+    missing = [s for s in ("template", "paint") if not isinstance(state.get(s), dict) or state[s].get("state") != "done"]
+    if missing:
+        raise ValueError(f"{args.family}: the family is not built yet (stages not done: {', '.join(missing)}); run proctex build first")
+    out = args.out or os.path.join("out", "sheets", Path(os.path.abspath(args.family)).name)
+    log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
+    result = finish_demo(out, args.family, {}, rows=args.rows, per_row=args.per_row, frames=args.frames, size=args.size,
+                         gif_size=args.size, seed=args.seed, log=log, quiet=args.quiet)
+    for what, where in (("contact sheet", result.contact_sheet), ("turntable", result.turntable), ("report", result.report),
+                        ("variants", f"{Path(result.out) / 'variants'}/ ({len(result.variants)} GLBs)")):
+        print(f"  {what:<14}{where}")
+    return 0

@@ -10,7 +10,10 @@ into the clauses that name them (:func:`proctex.texture.painters.regions.split_r
 every group its text:
 
 - a group a word took gets that word's clause ("red velvet" for the seat);
-- a group no word took gets the rest of the prompt when the rest names a material ("an oak chair
+- a group no word took that passes the test of a word of the same kind as a word the prompt placed
+  (:data:`KINDRED`: a chair's disc base or stretchers when the prompt names its legs) gets that
+  word's clause;
+- any other group no word took gets the rest of the prompt when the rest names a material ("an oak chair
   with a red velvet seat": oak), else the clause of the taken group most alike in shape (a back panel
   is a slab like the seat, arms are bars like the legs), so no group falls back to a plain default
   while the prompt names a material;
@@ -23,11 +26,12 @@ word that names a group's label is routed by the label (as :mod:`.regions` alway
 ========== ==================================================================================
 word       test (u: height in the shape, 0 floor, 1 top; sizes of one member)
 ========== ==================================================================================
-legs       touch the floor (u_lo <= 0.1), below the top part (u_hi <= 0.6) or an upright bar
+legs       touch the floor (u_lo <= 0.1; or the top of a flat base on it), below the top part (u_hi <= 0.6) or an upright bar
            narrow across the shape (<= 30 % of its width and depth); not a slab covering most of
            the footprint
-seat       a horizontal slab (thickness <= half its width) over >= 25 % of the footprint at mid
-           height (u in 0.2-0.75) with no large slab above it: the largest such
+seat       a horizontal slab (thickness <= half its width) over >= 25 % of the footprint off the
+           floor (u_mid >= 0.2) with no large slab above it: the largest such (at the very top,
+           u_hi >= 0.9, it scores below "top")
 top        a horizontal slab over >= 30 % of the footprint at the top (u_hi >= 0.9): the largest
 back       upright, thin across one horizontal axis, every member at the same end of that axis
            (within its outer 20 %), reaching the upper quarter (u_hi >= 0.75, u_mid >= 0.5)
@@ -60,7 +64,7 @@ import numpy as np
 from .prompt import parse_prompt
 from .regions import RegionPlan, _label_of, split_regions
 
-__all__ = ["PART_WORDS", "GroupGeometry", "PartPlan", "describe_groups", "part_word", "resolve_words", "plan_parts",
+__all__ = ["PART_WORDS", "KINDRED", "GroupGeometry", "PartPlan", "describe_groups", "part_word", "resolve_words", "plan_parts",
            "new_part_texts"]
 
 
@@ -183,9 +187,15 @@ def describe_groups(vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: 
 
 
 # ------------------------------------------------------------------------------------------ tests
+def _floor(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
+    """Where legs stand: the floor (0), or the top of a flat base on it (a plinth) other than ``g``."""
+    return max([h.u_hi for h in all_ if h.group != g.group and h.flat() and h.u_lo <= 0.05 and h.u_hi <= 0.3
+                and h.footprint() >= 0.15] + [0.0])
+
+
 def _legs(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
     post = g.upright_bar() and max(g.width_share(a) for a in g.horizontal) <= 0.3  # not a cabinet's side board
-    if g.u_lo > 0.1 or not (post or g.u_hi <= 0.6):
+    if g.u_lo > _floor(g, all_) + 0.1 or not (post or g.u_hi <= 0.6):
         return 0.0
     if g.flat() and g.footprint() >= 0.6:
         return 0.0
@@ -193,8 +203,9 @@ def _legs(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
 
 
 def _seat_like(g: GroupGeometry, all_: list[GroupGeometry]) -> bool:
-    """A slab at mid height with no other large slab above it (that would make it a shelf)."""
-    if not g.flat() or g.footprint() < 0.25 or not 0.2 <= g.u_mid <= 0.75:
+    """A slab off the floor with no other large slab above it (that would make it a shelf); the
+    highest part when nothing rises above it (a stool, a chair without back or arms)."""
+    if not g.flat() or g.footprint() < 0.25 or g.u_mid < 0.2:
         return False
     return not any(h.group != g.group and h.flat() and h.footprint() >= 0.3 and h.u_lo > g.u_hi for h in all_)
 
@@ -202,7 +213,8 @@ def _seat_like(g: GroupGeometry, all_: list[GroupGeometry]) -> bool:
 def _seat(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
     if not _seat_like(g, all_):
         return 0.0
-    return _largest(g, all_, lambda h: _seat_like(h, all_), GroupGeometry.footprint)
+    # A seat at the very top (a stool's) is also a top: named both, "top" takes it.
+    return (0.6 if g.u_hi >= 0.9 else 1.0) * _largest(g, all_, lambda h: _seat_like(h, all_), GroupGeometry.footprint)
 
 
 def _top(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
@@ -309,6 +321,12 @@ PART_WORDS: dict[str, tuple[tuple[str, ...], Callable[[GroupGeometry, list[Group
 }
 
 _FORMS = {form: word for word, (forms, _, _) in PART_WORDS.items() for form in forms}
+
+
+#: Words of one kind: what holds a shape up. A group the prompt does not name that passes the test of
+#: one of them takes the clause of another the prompt placed ("dark walnut legs" paints a chair's disc
+#: base and its stretchers), before the rest of the prompt or the most alike shape.
+KINDRED: tuple[tuple[str, ...], ...] = (("legs", "base", "rungs"),)
 
 
 def part_word(form: str) -> str | None:
@@ -431,6 +449,11 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
         rest = " ".join([rest, *unplaced]).strip()
     plan.texts.update(clause_of)
     others = [g for g in grouping.groups if not g.degenerate and g.index not in clause_of]
+    kin = _kindred_texts(others, plan.words, clause_of, geoms or describe_groups(vertices, faces, grouping, up)) if clause_of and others else {}
+    for gid, (text, word, kind) in kin.items():
+        plan.texts[gid] = text
+        plan.notes.append(f"group {gid} passes the test of {kind!r} and takes the clause of {word!r}, of the same kind: {text!r}")
+    others = [g for g in others if g.index not in kin]
     if _understood(rest):
         # The rest of the shape: the rest of the prompt (in the whole shape's frame, with its regions,
         # unless an unplaced clause had to join it) ...
@@ -449,6 +472,29 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
             plan.notes.append(f"group {g.index} is named by no clause and the rest of the prompt names no material: "
                               f"it takes {clause_of[near]!r} from group {near}, the most alike in shape")
     return plan
+
+
+def _kindred_texts(others: list[Any], words: dict[str, list[int]], clause_of: dict[int, str],
+                   geoms: list[GroupGeometry]) -> dict[int, tuple[str, str, str]]:
+    """``{group: (text, placed word, kindred word it passes)}`` for the groups of ``others`` that
+    pass the test of a :data:`KINDRED` word whose kin the plan placed (``words``, ``clause_of``)."""
+    by_id = {g.group: g for g in geoms}
+    out: dict[int, tuple[str, str, str]] = {}
+    for kin in KINDRED:
+        placed = [w for w in kin if any(gid in clause_of for gid in words.get(w, []))]
+        if not placed:
+            continue
+        word = placed[0]
+        text = clause_of[next(gid for gid in words[word] if gid in clause_of)]
+        for g in others:
+            geo = by_id.get(g.index)
+            if geo is None or g.index in out:
+                continue
+            for k in kin:
+                if k not in placed and PART_WORDS[k][1](geo, geoms) > 0:
+                    out[g.index] = (text, word, k)
+                    break
+    return out
 
 
 def new_part_texts(prompt: str, shape: Any, segmentation: Any, parts: list[int], up: str | int = "z") -> dict[int, str]:
