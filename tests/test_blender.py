@@ -549,3 +549,59 @@ def test_the_real_chair_reads_its_spec_and_paints_the_parts_a_prompt_names():
     assert seat and tex.groups[seat[0].index].prompt == "red velvet"
     legs = [g for g in grouping.groups if len(g.members) == 4]
     assert legs and tex.groups[legs[0].index].prompt == "dark walnut"
+
+
+@needs_bpy
+def test_the_real_chair_keeps_its_seat_red_and_legs_dark_on_every_variant():
+    """The chair's template painted from the prompt, transferred (no networks: the assignment and
+    new-part painting are under test) onto variants with and without back and arms and with each
+    leg build: read back per part, the seat is red, the posts and the disc base (a part the template
+    lacks) dark brown, and no part (back, arms) is untextured or grey."""
+    from proctex.family.assets import prepare_template
+    from proctex.family.config import BuildConfig
+    from proctex.family.mappers import IdentityMapper
+    from proctex.family.transfer import transfer
+    from proctex.geometry.parts import analyse, connected_parts
+    from proctex.texture.paint_loop import paint_template
+    from proctex.texture.painters import SurfacePainter
+    from proctex.texture.uv import sample_texture
+
+    if not (REAL / "chair.blend").is_file():
+        pytest.skip("the shared .blend files are absent")
+    prompt = "a chair with a red velvet seat and dark walnut legs"
+    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / "chair.blend"), "object": "Cube"},
+                                            "params_spec": str(REAL / "sp_chair.json")}})
+    model = cfg.procedural_model()
+    base = {**model.space.defaults(), "Has Back": True, "Has Arms": True, "Legs Type": 0, "Back Height": 0.6, "Backrest Scale": 0.7}
+    template = model.generate(base)
+    grouping = analyse(template)
+    tex = paint_template(template, grouping, prompt, size=48, up="z")
+    assets = prepare_template(template, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    painter = SurfacePainter(prompt)
+    variants = [{"Has Back": False}, {"Has Arms": False}, {"Legs Type": 1}, {"Legs Type": 2, "Has Back": False, "Has Arms": False},
+                {"Seat Width": 0.7, "Seat Height": 0.75}]
+    for change in variants:
+        shape = model.generate({**base, **change})
+        r = transfer(shape, assets, IdentityMapper(), painter=painter, up="z")
+        textures = list(assets.textures) + list(r.new_textures)
+        _, labels, n = connected_parts(shape.faces, shape.n_vertices)
+        lo, hi = shape.vertices.min(0), shape.vertices.max(0)
+        colours, seat, best = {}, None, 0.0
+        for p in range(n):
+            faces = np.flatnonzero(labels[shape.faces[:, 0]] == p)
+            assert (r.face_group[faces] >= 0).all(), (change, p)  # every face textured
+            uv = r.corner_uv[faces].mean(axis=1)
+            col = np.concatenate([sample_texture(textures[g], uv[r.face_group[faces] == g]) for g in np.unique(r.face_group[faces])])
+            mean = colours[p] = col.mean(0)
+            assert mean.max() - mean.min() > 0.08 or col.std(0).max() > 0.05, (change, p, mean)  # not a grey default
+            pts = shape.vertices[np.unique(shape.faces[faces])]
+            ext, z0 = np.ptp(pts, axis=0), (pts[:, 2].min() - lo[2]) / (hi - lo)[2]
+            if z0 > 0.3 and ext[0] * ext[1] > best:  # measuring only: the widest part off the floor is the seat
+                seat, best = p, ext[0] * ext[1]
+            if change.get("Legs Type", 0) == 0 and ext[2] > 3 * max(ext[0], ext[1]) and z0 < 0.05:  # a post on the floor
+                assert mean.max() < 0.45 and mean[0] >= mean[2], (change, "leg", mean)  # dark walnut
+            if z0 < 0.05 and ext[2] < 0.1 * (hi - lo)[2]:  # a disc base (the template has none): the legs' kin, walnut
+                assert mean.max() < 0.45 and mean[0] >= mean[2], (change, "base", mean)
+        assert seat is not None, change
+        red = colours[seat]
+        assert red[0] > red[1] + 0.15 and red[0] > red[2] + 0.15, (change, "seat", red)

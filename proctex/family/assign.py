@@ -60,7 +60,9 @@ def assign_parts(
     """Assign each part of a shape to a template slot (see the module docstring).
 
     Cost between a part and a slot: distance between their centres plus ``w_extent`` times the mean
-    absolute log-ratio of their extents, both relative to each shape's bounding box. Pairs costing
+    absolute log-ratio of their extents, both relative to each shape's bounding box, or both
+    relative to the template's box where that costs less (parts that kept their place in model
+    units while an optional part changed the shape's box). Pairs costing
     more than ``extra_cost`` are not taken. Such a part ("extra") joins, in this order: the group of
     a part of the same shape it is a rigid copy of (:func:`copy_of_sibling`), the group whose
     representative has its connectivity (:func:`copy_of_group`), the group whose representative is
@@ -78,13 +80,21 @@ def assign_parts(
     out = [PartAssignment(p.index, -1, -1, np.eye(3), 0.0, "degenerate") for p in seg.parts if p.degenerate]
     if not parts or not assets.slots:
         return out + [PartAssignment(p.index, -1, -1, np.eye(3), np.inf, "unmatched") for p in parts]
-    desc = [_placement(shape.vertices[p.vertices], lo, size) for p in parts]
-    pc = np.array([d[0] for d in desc])
-    pe = np.array([d[1] for d in desc])
     sc = np.array([s.center for s in assets.slots])
     se = np.array([s.extents for s in assets.slots])
-    loge = np.abs(np.log(np.maximum(pe[:, None], 1e-6) / np.maximum(se[None], 1e-6))).mean(axis=2)
-    cost = np.linalg.norm(pc[:, None] - sc[None], axis=2) + w_extent * loge
+
+    def placement_cost(lo: np.ndarray, size: np.ndarray) -> np.ndarray:
+        desc = [_placement(shape.vertices[p.vertices], lo, size) for p in parts]
+        pc = np.array([d[0] for d in desc])
+        pe = np.array([d[1] for d in desc])
+        loge = np.abs(np.log(np.maximum(pe[:, None], 1e-6) / np.maximum(se[None], 1e-6))).mean(axis=2)
+        return np.linalg.norm(pc[:, None] - sc[None], axis=2) + w_extent * loge
+
+    # Placement in the shape's own box (any units, any pose of the box), or in the template's box
+    # where that is cheaper: a procedural model's parts stay where they are in model units while an
+    # optional part (a chair's back) changes the box, and a seat that did not move must keep the
+    # seat's slot.
+    cost = np.minimum(placement_cost(lo, size), placement_cost(*_box(assets.shape.vertices)))
     # One "no slot" column per part at the threshold cost: a part takes a slot only where that beats
     # leaving it out, so an extra part (an armrest the template lacks) can never win a slot from
     # the part that belongs there and then be dropped for costing too much.
