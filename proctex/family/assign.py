@@ -93,8 +93,10 @@ def assign_parts(
     # Placement in the shape's own box (any units, any pose of the box), or in the template's box
     # where that is cheaper: a procedural model's parts stay where they are in model units while an
     # optional part (a chair's back) changes the box, and a seat that did not move must keep the
-    # seat's slot.
-    cost = np.minimum(placement_cost(lo, size), placement_cost(*_box(assets.shape.vertices)))
+    # seat's slot. Left-over parts are placed among groups by the shape's box alone (``own``): a
+    # chair's rear legs are the lower ends of its back posts wherever the back is.
+    own = placement_cost(lo, size)
+    cost = np.minimum(own, placement_cost(*_box(assets.shape.vertices)))
     # One "no slot" column per part at the threshold cost: a part takes a slot only where that beats
     # leaving it out, so an extra part (an armrest the template lacks) can never win a slot from
     # the part that belongs there and then be dropped for costing too much.
@@ -129,12 +131,12 @@ def assign_parts(
                 continue
             c, r = normalised_frame(v)
             same = [ga.group for ga in assets.groups if not ga.degenerate and same_topology(f, len(v), ga)]
-            copy = copy_of_group(v, same, assets, cost[i], extra_tol)
+            copy = copy_of_group(v, same, assets, own[i], extra_tol)
             if copy is not None and copy[1] <= box_cost:  # another copy of a template primitive (a third cushion): its group, template UVs
                 out.append(PartAssignment(p.index, copy[0], -1, np.eye(3), copy[1], "extra"))
                 continue
             u = (v - c) / (r if r > 0 else 1.0)
-            box = match_box(u, f, assets, cost[i], extra_cost=box_cost)
+            box = match_box(u, f, assets, own[i], extra_cost=box_cost)
             if box is not None:  # the same primitive in other proportions (a wider tier, a longer leg)
                 out.append(PartAssignment(p.index, box.group, -1, box.A, box.score, "extra"))
                 continue
