@@ -158,3 +158,26 @@ def test_demo_cli_rejects_bad_flags(capsys, tmp_path):
     assert main(["demo", "--out", str(tmp_path / "d"), "--model", "spaceship"]) == 2
     assert "unknown model" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.slow
+def test_sheet_renders_a_built_family_and_refuses_what_it_cannot_sweep(demo_run, capsys, tmp_path):
+    from proctex.cli import main
+
+    out, _ = demo_run
+    family = out / "families" / "mug"
+    sheet = tmp_path / "sheet"
+    assert main(["sheet", str(family), "--out", str(sheet), "--rows", "1", "--per-row", "2", "--frames", "2", "--size", "96", "--quiet"]) == 0
+    s = json.loads((sheet / "demo.json").read_text())
+    assert s["model"] == "mug" and len(s["variants"]) == 2 + 2  # one swept row and the random row
+    for v in s["variants"]:
+        assert read_textured_glb(sheet / v["glb"]).notes == []
+    assert Image.open(sheet / "turntable.gif").n_frames == 2
+    assert "contact sheet" in capsys.readouterr().out
+    # Bad input: an error line and exit 2, nothing written.
+    (tmp_path / "empty").mkdir()
+    for argv, needle in ((["sheet", str(tmp_path / "nothing")], "no such folder"), (["sheet", str(tmp_path / "empty")], "family"),
+                         (["sheet", str(family), "--per-row", "0"], "--per-row"), (["sheet", str(family), "--size", "9999"], "--size")):
+        assert main(argv + ["--out", str(tmp_path / "bad"), "--quiet"]) == 2, argv
+        assert needle in capsys.readouterr().err, argv
+    assert not (tmp_path / "bad").exists()

@@ -328,7 +328,7 @@ def match_extra(
     for ga in assets.groups:
         if ga.degenerate or (groups is not None and ga.group not in groups):
             continue
-        gm, gpts, tree = ga.probe(n, seed)
+        gm, _, tree = ga.probe(n, seed)
         gap = np.abs(mom - gm)
         if np.all(gap <= MOMENT_TOLS * tol * max(mom[0], gm[0], 1e-300)):
             near.append((float(gap.sum()), ga, tree))

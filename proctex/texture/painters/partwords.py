@@ -26,9 +26,9 @@ word that names a group's label is routed by the label (as :mod:`.regions` alway
 ========== ==================================================================================
 word       test (u: height in the shape, 0 floor, 1 top; sizes of one member)
 ========== ==================================================================================
-legs       touch the floor (u_lo <= 0.1; or the top of a flat base on it), below the top part (u_hi <= 0.6) or an upright bar
-           narrow across the shape (<= 30 % of its width and depth); not a slab covering most of
-           the footprint
+legs       touch the floor (u_lo <= 0.1; or the top of a flat base on it), below the top part
+           (u_hi <= 0.6) or an upright bar narrow across the shape (<= 30 % of its width and
+           depth); not a slab covering most of the footprint
 seat       a horizontal slab (thickness <= half its width) over >= 25 % of the footprint off the
            floor (u_mid >= 0.2) with no large slab above it: the largest such (at the very top,
            u_hi >= 0.9, it scores below "top")
@@ -303,7 +303,7 @@ def _largest(g: GroupGeometry, all_: list[GroupGeometry], passes: Callable[[Grou
 #: canonical word -> (the forms a prompt may use, the test, why in one phrase for the notes)
 PART_WORDS: dict[str, tuple[tuple[str, ...], Callable[[GroupGeometry, list[GroupGeometry]], float], str]] = {
     "legs": (("leg", "legs", "feet", "foot"), _legs, "stands on the floor"),
-    "seat": (("seat", "seats", "saddle"), _seat, "the largest horizontal slab at mid height"),
+    "seat": (("seat", "seats", "saddle"), _seat, "the largest horizontal slab off the floor with none above it"),
     "top": (("top", "tabletop", "table-top", "worktop", "countertop", "tops"), _top, "the largest horizontal slab at the top"),
     "back": (("back", "backrest", "backs", "backrests"), _back, "upright at one end, reaching the upper part"),
     "arms": (("arm", "arms", "armrest", "armrests"), _arms, "a pair at both sides, off the floor"),
