@@ -547,3 +547,37 @@ def test_checkpoints_from_before_the_box_frame_load_as_uniform(tmp_path):
     np.testing.assert_allclose(again.template_extent.numpy(), [0.5, 1.0, 0.25])
     with pytest.raises(ValueError, match="frame"):
         CorrNetConfig(frame="polar").validate()
+
+
+# ------------------------------------------------------------------------------- serving choice
+def test_serving_choice_picks_the_box_map_for_an_exactly_affine_family_and_the_network_for_a_bent_one():
+    # Stretched boxes: the box map is exact (error ~0), so no trained network can beat it by the margin.
+    train_pairs, val_pairs = _stretch_pairs(16, seed=0), _stretch_pairs(3, seed=1)
+    res = tr.train(train_pairs, val_pairs, small_config(iterations=60, patience=0))
+    choice = tr.choose_serving(res.model, val_pairs, tr.template_extent(train_pairs))
+    assert choice.serve == "box" and choice.errors["box"] < 1e-6 < choice.errors["network"], choice
+    np.testing.assert_allclose(choice.template_extent, [1.0, 0.6, 0.4], atol=1e-6)
+    # Bent boxes (not affine): the network learns what the box map cannot.
+    train_pairs, val_pairs = family_pairs(32, 256, seed=1), family_pairs(4, 256, seed=2)
+    res = tr.train(train_pairs, val_pairs, small_config(context_points=64, query_points=64, iterations=600, eval_every=100, patience=0))
+    choice = tr.choose_serving(res.model, val_pairs, tr.template_extent(train_pairs))
+    assert choice.serve == "network" and choice.errors["network"] < 0.95 * min(choice.errors["box"], choice.errors["identity"]), choice
+    # The same network against pairs whose map is the identity (parts of several sizes): the identity serves.
+    same = [(s, s.copy()) for s, _ in val_pairs]
+    choice_same = tr.choose_serving(res.model, same, tr.template_extent(same))
+    assert choice_same.serve == "identity" and choice_same.errors["identity"] == 0.0
+    assert set(choice.to_dict()) == {"serve", "errors", "template_extent", "shapes", "margin"}
+    with pytest.raises(ValueError, match="margin"):
+        tr.choose_serving(res.model, val_pairs, np.ones(3), margin=1.0)
+    with pytest.raises(ValueError, match="extent"):
+        tr.choose_serving(res.model, val_pairs, np.array([1.0, 0.0, 1.0]))
+
+
+def test_box_map_is_the_zeroed_box_frame_network():
+    m = cn.build_model(CorrNetConfig(dtype="float64", **SMALL))
+    with torch.no_grad():
+        m.decoder[-1].weight.zero_()
+        m.decoder[-1].bias.zero_()
+        m.template_extent.copy_(torch.tensor([0.9, 0.5, 0.3], dtype=torch.float64))
+    src = _stretch_pairs(1, seed=4)[0][0].astype(np.float64)
+    np.testing.assert_allclose(tr.box_map(src, tr.part_extent(src), [0.9, 0.5, 0.3]), cn.predict(m, src, src), atol=1e-9)

@@ -227,10 +227,47 @@ def test_train_stage_and_network_transfer(mug_family, tmp_path):
     assets = load_assets(st)
     r = transfer(shape, assets, NetworkMapper(models, context=128))
     assert np.isfinite(r.corner_uv).all() and (r.face_group >= 0).all()
+    # Each network carries what the build chose to serve its group, from held-out pairs, and the
+    # train record says the same.
+    record = st.read_json("family.json")["stages"]["train"]["groups"]
+    for g, m in models.items():
+        assert m.serving["serve"] in ("network", "box", "identity") and m.serving == record[str(g)]["serving"]
+        assert set(m.serving["errors"]) == {"network", "box", "identity"}
+    _serving_is_followed(models, assets, shape)
     # Rerunning skips trained groups.
     logs = []
     stage_train(st, cfg, log=logs.append)
     assert all("done already" in line for line in logs if line.startswith("train: group"))
+
+
+def _serving_is_followed(models, assets, shape):
+    """The run-time mapper maps each group by the stored choice: the box map runs no network, the
+    identity is the fallback, and ``follow=False`` (``corrnet_all``) runs the networks anyway."""
+    import copy
+
+    from proctex.correspond.training import box_map, part_extent
+    from proctex.family.mappers import NetworkMapper, make_mapper
+
+    rng = np.random.default_rng(0)
+    v = rng.uniform(-1, 1, (40, 3))
+    f = np.array([[0, 1, 2], [2, 3, 0]])
+    for serve in ("box", "identity", "network"):
+        ms = {g: copy.deepcopy(m) for g, m in models.items()}
+        for m in ms.values():
+            m.serving = {**m.serving, "serve": serve, "template_extent": [0.9, 0.5, 0.25]}
+            if serve != "network":  # the network must not run: a broken one would show
+                m.decode = m.encode = None
+        mapper = NetworkMapper(ms, context=128)
+        assert [mapper.serves(g) for g in ms] == [serve] * len(ms)
+        out = mapper.map(0, v, f, v)
+        if serve == "box":
+            np.testing.assert_allclose(out, box_map(v, part_extent(v), [0.9, 0.5, 0.25]))
+        elif serve == "identity":
+            np.testing.assert_array_equal(out, v)
+        else:
+            assert not np.allclose(out, v)
+    everywhere = make_mapper("corrnet_all", assets, ms)
+    assert not everywhere.follow and make_mapper("corrnet", assets, ms).follow
 
 
 def test_evaluate_stage_on_identical_shapes(tmp_path):
@@ -447,6 +484,8 @@ def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
     assert sorted(ma) == sorted(mb) == [0, 1]
     for g in ma:
         assert np.allclose(predict(ma[g], pts, pts), predict(mb[g], pts, pts), atol=1e-6)
+        assert ma[g].serving["serve"] == mb[g].serving["serve"]
+        assert ma[g].serving["errors"] == pytest.approx(mb[g].serving["errors"], rel=1e-5, abs=1e-7)
     ran.clear()
     logs = []
     build(b, cfg, stages=stages, log=logs.append, executor=backwards)

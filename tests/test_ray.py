@@ -83,6 +83,13 @@ def test_ray_build_equals_the_single_process_build(local_ray, reference, tmp_pat
         mb, _, _ = load(Path(st.path(f"models/group_{g}.pt")))
         sa, sb = ma.state_dict(), mb.state_dict()
         assert all(torch_allclose(sa[k], sb[k]) for k in sa), g
+    # The serving choice is made and recorded the same way by Ray Train as in process.
+    from proctex.family.stages import load_models
+
+    mine, theirs = load_models(st), load_models(reference)
+    record = st.read_json("family.json")["stages"]["train"]["groups"]
+    for g in (0, 1):
+        assert mine[g].serving["serve"] == theirs[g].serving["serve"] and record[str(g)]["serving"] == mine[g].serving
     assert st.listdir("train_runs"), "Ray Train checkpoints live in the store"
 
 

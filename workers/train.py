@@ -20,7 +20,7 @@ from typing import Any, Callable
 from proctex.family.config import BuildConfig
 
 
-from proctex.family.stages import group_training_data, save_group_model, trainable_groups
+from proctex.family.stages import group_training_data, save_group_model, serving_line, trainable_groups
 
 
 from proctex.family.store import FamilyStore, StoreLayout
@@ -73,13 +73,14 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
             data = group_training_data(store, config, group)
             t0 = time.perf_counter()
             result = train(data["train"], data["val"], cfg, rank=team_rank, world=team_size, grad_hook=average)
-            sha = None
+            sha, serving = None, None
             if team_rank == 0:
-                sha = save_group_model(store, group, result, cfg, data)
+                sha, serving = save_group_model(store, group, result, cfg, data)
                 with open(os.path.join(tmp, f"group_{group}.pt"), "wb") as fh:
                     fh.write(store.read_bytes(StoreLayout.model(group)))
             out[str(group)] = {"group": group, "best_val": float(result.best_val["mean"]) if result.best_val else float("nan"),
-                               "iterations": result.iterations, "seconds": time.perf_counter() - t0, "workers": team_size, "sha256": sha}
+                               "iterations": result.iterations, "seconds": time.perf_counter() - t0, "workers": team_size, "sha256": sha,
+                               "serving": serving}
         # One report per worker (a barrier); the team leaders' networks form the run's checkpoint.
         has = team_rank == 0 and bool(my_groups)
         ray.train.report({"groups": sorted(out)}, checkpoint=Checkpoint.from_directory(tmp) if has else None)
@@ -156,6 +157,7 @@ def train_groups(
     result = _fit_with_progress(trainer, store, todo, quiet=quiet)
     out = {int(g): m for g, m in (result.return_value or {}).items()}
     for g, m in out.items():
-        log(f"train: group {g} on {m['workers']} of {num_workers} Ray Train workers: val {m['best_val']:.4f}, {m['iterations']} iterations, {m['seconds']:.1f}s")
+        log(f"train: group {g} on {m['workers']} of {num_workers} Ray Train workers: val {m['best_val']:.4f}, {m['iterations']} iterations, "
+            f"{m['seconds']:.1f}s; {serving_line(m.get('serving'))}")
     log(f"train: {len(todo)} groups in {time.perf_counter() - t0:.1f}s")
     return out

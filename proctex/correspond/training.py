@@ -233,3 +233,79 @@ def train(
         model.load_state_dict(best_state)
     model.eval()
     return TrainResult(model, history, best_val, step, time.perf_counter() - t0, stopped, config)
+
+
+# ------------------------------------------------------------------------------------ serving choice
+#: What can serve a group at run time: its network, the box map (each axis of the part's normalised
+#: frame scaled from the part's half extents to the template part's: the network's zero residual in
+#: the box frame) or the identity (the normalised frames taken to coincide).
+SERVING = ("network", "box", "identity")
+#: The network serves a group only when its held-out error is below ``1 - SERVE_MARGIN`` times the
+#: best map without it: the held-out shapes also chose the network's kept state (early stopping),
+#: which favours it a little, and a tie should cost nothing at run time.
+SERVE_MARGIN = 0.05
+
+
+def part_extent(points: np.ndarray) -> np.ndarray:
+    """(3,) half extents of a part's points in its normalised frame, at least ``MIN_EXTENT`` (as the
+    box-frame network reads them from its context)."""
+    return np.maximum(np.abs(np.asarray(points, dtype=np.float64)).max(axis=0), MIN_EXTENT)
+
+
+def box_map(points: np.ndarray, extent: np.ndarray, template_extent: np.ndarray) -> np.ndarray:
+    """(n, 3) the box map of ``points (n, 3)`` (normalised frame, half extents ``extent (3,)``)
+    onto a template part of half extents ``template_extent (3,)``: each axis scaled."""
+    return np.asarray(points, dtype=np.float64) / np.asarray(extent, dtype=np.float64) * np.asarray(template_extent, dtype=np.float64)
+
+
+def template_extent(pairs: Sequence[Pair]) -> np.ndarray:
+    """(3,) the template part's half extents from the target points of ``pairs`` (at least
+    ``MIN_EXTENT``), as :func:`train` sets a box-frame network's."""
+    pairs = check_pairs(pairs, "pairs")
+    return np.maximum(np.max([np.abs(dst).max(axis=0) for _, dst in pairs], axis=0), MIN_EXTENT)
+
+
+@dataclass
+class ServingChoice:
+    """What serves one group at run time (:func:`choose_serving`).
+
+    Attributes:
+        serve: one of :data:`SERVING`.
+        errors: held-out mean error (mean over shapes of the per-shape mean distance to the cage
+            points, the template part's normalised frame) of each candidate.
+        template_extent: (3,) half extents the box map scales to.
+        shapes: held-out shapes the choice was made on; margin: :data:`SERVE_MARGIN` as used.
+    """
+
+    serve: str
+    errors: dict[str, float]
+    template_extent: np.ndarray
+    shapes: int
+    margin: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"serve": self.serve, "errors": dict(self.errors), "template_extent": [float(x) for x in self.template_extent],
+                "shapes": self.shapes, "margin": self.margin}
+
+
+def choose_serving(model: ProcCorrNet, val_pairs: Sequence[Pair], extent: np.ndarray, margin: float = SERVE_MARGIN,
+                   seed: int = 0) -> ServingChoice:
+    """Network, box map or identity for one group, from held-out pairs (never ground truth).
+
+    Each candidate maps every source point of ``val_pairs`` (the network as :func:`eval_step` does);
+    its error is the mean over shapes of the per-shape mean distance to the cage points. The network
+    serves when its error is below ``(1 - margin)`` x the better of the two maps without it; else
+    that map. ``extent (3,)``: the template part's half extents (:func:`template_extent`).
+    """
+    if not 0.0 <= margin < 1.0:
+        raise ValueError(f"margin must be in [0, 1), got {margin!r}")
+    val_pairs = check_pairs(val_pairs, "val pairs")
+    extent = np.asarray(extent, dtype=np.float64)
+    if extent.shape != (3,) or not np.all(np.isfinite(extent)) or np.any(extent <= 0):
+        raise ValueError(f"extent must be three positive finite half extents, got {extent!r}")
+    errors = {"network": float(eval_step(model, val_pairs, seed=seed)["mean"])}
+    errors["box"] = float(np.mean([np.linalg.norm(box_map(s, part_extent(s), extent) - d, axis=1).mean() for s, d in val_pairs]))
+    errors["identity"] = float(np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in val_pairs]))
+    plain = min(("box", "identity"), key=lambda k: (errors[k], k != "box"))
+    serve = "network" if errors["network"] < (1.0 - margin) * errors[plain] else plain
+    return ServingChoice(serve, errors, extent, len(val_pairs), float(margin))

@@ -2,8 +2,9 @@
 build stage.
 
 Methods, side by side on the same shapes: ``corrnet`` (ProcTex's run-time path: parts with the
-template representative's exact connectivity take its UVs, the family's ProcCorrNets map the rest),
-``corrnet_all`` (the networks on every part), ``cage`` (the cage solver per part at transfer time),
+template representative's exact connectivity take its UVs, the rest is mapped by what the build
+chose per group: its ProcCorrNet, the box map or the identity), ``corrnet_all`` (the networks on
+every part), ``cage`` (the cage solver per part at transfer time),
 ``nearest`` (nearest surface point after similarity alignment), ``cpd`` (non-rigid Coherent Point
 Drift) and ``identity`` (the normalised part frames taken to coincide, then projection). Every
 method but ``corrnet`` maps every part.

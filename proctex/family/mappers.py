@@ -81,7 +81,11 @@ class NetworkMapper:
 
     The network's global feature comes from ``context`` uniform surface samples of the part (seeded,
     so a shape always maps the same way); the per-point head then runs on the query points only.
-    Groups without a network fall back to ``fallback`` (default: :class:`IdentityMapper`).
+    Groups without a network fall back to ``fallback`` (default: :class:`IdentityMapper`). With
+    ``follow`` (default) each group is mapped by what the build chose for it from held-out pairs
+    (``model.serving``, :func:`proctex.family.stages.serving_choice`): its network, the box map
+    (:func:`proctex.correspond.training.box_map`, no network run) or the fallback; without, the
+    networks map every group they have.
     ``threads``: torch threads during prediction (restored afterwards; None leaves them alone).
     ``autocast``: :func:`proctex.correspond.corrnet.predict`'s; "auto" (default) runs the matrix products in
     bfloat16 on CPUs with native bfloat16 (measured 1.4x faster on a sofa's parts; the mapped points
@@ -89,7 +93,7 @@ class NetworkMapper:
     """
 
     def __init__(self, models: dict[int, Any], context: int | None = None, fallback: Mapper | None = None, threads: int | None = 1,
-                 autocast: str = "auto") -> None:
+                 autocast: str = "auto", follow: bool = True) -> None:
         from proctex.correspond.corrnet import AUTOCASTS
 
         if autocast not in AUTOCASTS + ("auto",):
@@ -100,13 +104,27 @@ class NetworkMapper:
         # One part is a few thousand points: one thread does it in milliseconds, while two threads
         # on a busy 2-core machine stall at every OpenMP barrier (measured: 30 ms vs 1.1 s per shape).
         self.threads = threads
+        self.follow = bool(follow)
+
+    def serves(self, group: int) -> str:
+        """What maps ``group``: "network", "box" or "identity" (the build's choice, stored with the
+        network, when ``follow``; "identity" without a network: the fallback)."""
+        model = self.models.get(group)
+        if model is None:
+            return "identity"
+        choice = getattr(model, "serving", None) if self.follow else None
+        return choice["serve"] if choice else "network"
 
     def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray:
         from proctex.correspond.corrnet import predict
+        from proctex.correspond.training import box_map, part_extent
 
         model = self.models.get(group)
-        if model is None:
+        serve = self.serves(group)
+        if model is None or serve == "identity":
             return self.fallback.map(group, vertices, faces, query, seed)
+        if serve == "box":  # the build found the network no better than the box map: no network run
+            return box_map(query, part_extent(vertices), model.serving["template_extent"])
         ctx, _, _ = sample_surface(vertices, faces, int(self.context or model.context_points), seed=seed)
         if self.threads is None:
             return np.asarray(predict(model, ctx, query, autocast=self.autocast), dtype=np.float64)
@@ -126,20 +144,20 @@ def make_mapper(name: str, assets: TemplateAssets, models: dict[int, Any] | None
     """The one place a mapper is chosen by name (the CLI, the service and the evaluation use it).
 
     ``"auto"``: the family's networks (``models``, group -> ProcCorrNet) when there are any, else
-    the identity; ``"corrnet"`` (aliases ``"net"``, ``"corrnet_all"``): the networks, a
-    ``ValueError`` without them; ``"identity"``; ``"cage"``, ``"nearest"``, ``"cpd"``: solved per
-    part at transfer time on ``corr_points`` samples with the family's ``cage`` settings, as the
-    build solves its pairs. ``autocast``: the networks' (:class:`NetworkMapper`).
+    the identity; ``"corrnet"`` (alias ``"net"``): the networks where the build chose them, a
+    ``ValueError`` without them; ``"corrnet_all"``: the networks on every group they have;
+    ``"identity"``; ``"cage"``, ``"nearest"``, ``"cpd"``: solved per part at transfer time on
+    ``corr_points`` samples with the family's ``cage`` settings, as the build solves its pairs. ``autocast``: the networks' (:class:`NetworkMapper`).
     """
     key = MAPPER_ALIASES.get(name, name)
     if key not in MAPPERS:
         raise ValueError(f"unknown mapper {name!r}; known: {', '.join(MAPPERS + tuple(MAPPER_ALIASES))}")
     if key == "auto":
-        return NetworkMapper(models, autocast=autocast) if models else IdentityMapper()
+        return NetworkMapper(models, autocast=autocast) if models else IdentityMapper()  # the build's choices
     if key == "corrnet":
         if not models:
             raise ValueError("no trained models (run the train stage)")
-        return NetworkMapper(models, autocast=autocast)
+        return NetworkMapper(models, autocast=autocast, follow=name != "corrnet_all")
     if key == "identity":
         return IdentityMapper()
     return SolverMapper(assets, key, n_points=int(corr_points), cage=cage)

@@ -512,15 +512,36 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
     return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": sorted(val_ids)}
 
 
-def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str, Any]) -> str:
-    """Write a trained group network to ``models/group_<g>.pt`` (atomically); returns its checksum
-    (:func:`proctex.family.store.digest`), which the train stage records."""
+def serving_choice(model: Any, data: dict[str, Any]) -> dict[str, Any]:
+    """What serves a group at run time (:func:`proctex.correspond.training.choose_serving`): its
+    network, the box map or the identity, chosen on the group's held-out train pairs (``data``, from
+    :func:`group_training_data`; never ground truth). ``held_out`` False: the group had too few
+    shapes to hold one out and the choice was made on a training pair, which favours the network."""
+    from proctex.correspond.training import choose_serving, template_extent
+
+    extent = model.template_extent.detach().cpu().numpy() if model.frame == "box" else template_extent(data["train"])
+    return {**choose_serving(model, data["val"], extent).to_dict(), "held_out": bool(data["val_ids"])}
+
+
+def serving_line(serving: dict[str, Any] | None) -> str:
+    """One line for a log: what serves the group and the held-out errors it was chosen on."""
+    if not serving:
+        return "the network serves"
+    errs = ", ".join(f"{k} {v:.4f}" for k, v in serving["errors"].items())
+    return f"the {serving['serve']} serves (held-out errors: {errs}{'' if serving.get('held_out', True) else '; no held-out shape'})"
+
+
+def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """Write a trained group network to ``models/group_<g>.pt`` (atomically) with its serving choice
+    (:func:`serving_choice`); returns its checksum (:func:`proctex.family.store.digest`) and that
+    choice, which the train stage records."""
     from proctex.correspond.corrnet import to_bytes
 
-    extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val}
+    serving = serving_choice(result.model, data)
+    extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val, "serving": serving}
     blob = to_bytes(result.model, cfg, extra)
     store.write_bytes(StoreLayout.model(group), blob)
-    return digest(blob)
+    return digest(blob), serving
 
 
 VAL_SHARE = 0.15  # of a group's train shapes, held out for early stopping
@@ -536,9 +557,9 @@ def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], 
         data = group_training_data(store, config, g, VAL_SHARE)
         t = time.perf_counter()
         result = train(data["train"], data["val"], config.train)
-        sha = save_group_model(store, g, result, config.train, data)
+        sha, serving = save_group_model(store, g, result, config.train, data)
         out.append({"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2),
-                    "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha})
+                    "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving})
     return out
 
 
@@ -561,7 +582,8 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
     def collect(batch: list[int], out: list[dict[str, Any] | None]) -> None:
         for g, m in zip(batch, out):
             if m is not None and "train_pairs" in m:
-                log(f"train: group {g}: {m['train_pairs']} train / {m['val_pairs']} val pairs, val {m['best_val']}, {m['seconds']}s")
+                log(f"train: group {g}: {m['train_pairs']} train / {m['val_pairs']} val pairs, val {m['best_val']}, {m['seconds']}s; "
+                    f"{serving_line(m.get('serving'))}")
 
     def finish(results: list[list[dict[str, Any] | None]]) -> None:
         for g, m in zip(todo, (m for out in results for m in out)):
@@ -596,4 +618,21 @@ def load_models(store: FamilyStore, device: str = "cpu") -> dict[int, Any]:
         models[g], _, extra = from_bytes(blob, device=device, where=where)
         if int(extra.get("group", g)) != g:
             raise ValueError(f"{where}: holds the network of group {extra.get('group')}, not of group {g}")
+        models[g].serving = check_serving(extra.get("serving"), where)
     return models
+
+
+def check_serving(raw: Any, where: str) -> dict[str, Any] | None:
+    """A stored serving choice (:func:`serving_choice`) checked: ``{"serve", "template_extent"}``
+    with a known ``serve`` and three positive finite extents, else ``ValueError`` naming ``where``;
+    None (networks trained before the choice existed: the network serves)."""
+    from proctex.correspond.training import SERVING
+
+    if raw is None:
+        return None
+    ext = raw.get("template_extent") if isinstance(raw, dict) else None
+    ok = isinstance(raw, dict) and raw.get("serve") in SERVING and isinstance(ext, list) and len(ext) == 3 and \
+        all(isinstance(x, (int, float)) and np.isfinite(x) and x > 0 for x in ext)
+    if not ok:
+        raise ValueError(f"{where}: damaged serving choice {str(raw)[:200]!r}")
+    return raw
