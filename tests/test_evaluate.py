@@ -152,6 +152,8 @@ def test_methods_side_by_side_on_identical_shapes(pinned_family, tmp_path):
         e = m["methods"][name]
         assert e["mapped_parts"] > 0 and e["mapped_share"] == 1.0 and e["ssim"] > 0.8, name
         assert e["new_parts"] == 0 and e["new_share"] == 0.0, name  # every shape is the template: nothing new
+        # corrnet_all runs a network on every part it maps, whatever the build chose; no other method runs one.
+        assert e["network_share"] == (1.0 if name == "corrnet_all" else 0.0), name
     # On shapes equal to the template the identity is exact; the solvers are close to it.
     assert m["methods"]["identity"]["gt_error"]["max"] < 1e-6
     for name, bound in (("cage", 0.05), ("nearest", 0.05), ("cpd", 0.25)):  # CPD drifts even here

@@ -174,8 +174,9 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
 
     st, assets, up = ctx.settings, ctx.assets, ctx.up
     t = time.perf_counter()
+    mapper = ctx.mapper(name)
     try:
-        result = shape_to_glb(shape, assets, ctx.mapper(name), seed=st["seed"], up=up, shortcut=name in SHORTCUT).result
+        result = shape_to_glb(shape, assets, mapper, seed=st["seed"], up=up, shortcut=name in SHORTCUT).result
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         # A failed shape counts: every located point untextured, every point with a truth failed.
         failed = np.where((loc.face >= 0)[:, None], np.inf, np.nan).repeat(3, axis=1).astype(np.float32)
@@ -210,7 +211,9 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     out["record"] = {
         "id": sid, "seconds": seconds, "bake_seconds": baked.seconds, "coverage": c1, "coverage_baked": c2,
         "ssim": sim.ssim, "psnr": sim.psnr, "lpips": sim.lpips, "parts": len(active),
-        "mapped_parts": len([a for a in active if a.group >= 0 and a.part not in result.direct]),
+        "mapped_parts": len(mapped := [a for a in active if a.group >= 0 and a.part not in result.direct]),
+        # Of those, the parts a network mapped (not the box map or identity the build chose instead).
+        "network_parts": len([a for a in mapped if serves(a.group) == "network"]) if (serves := getattr(mapper, "serves", None)) else 0,
         "new_parts": len([a for a in active if a.how == "new"]),
         "gt_mean": float(np.nanmean(out["gt"])) if out["gt"] is not None and (~np.isnan(out["gt"])).any() else None,
         "pgt_mean": float(e.mean()) if len(e) else None, "notes": list(result.notes),
@@ -288,6 +291,7 @@ def summarise_method(ctx_points, tracker: str, template_colours: np.ndarray, out
         "parts": int(parts),
         "mapped_parts": int(sum(r["mapped_parts"] for r in per_shape)),
         "mapped_share": float(sum(r["mapped_parts"] for r in per_shape) / parts) if parts else 0.0,
+        "network_share": float(sum(r.get("network_parts", 0) for r in per_shape) / parts) if parts else 0.0,
         # Parts of a kind the template lacks (painted as new groups at run time, untextured here).
         "new_parts": int(sum(r.get("new_parts", 0) for r in per_shape)),
         "new_share": float(sum(r.get("new_parts", 0) for r in per_shape) / parts) if parts else 0.0,
@@ -412,7 +416,8 @@ def evaluate(
             f"real-time ({ctx.tracker}); "
             + (f"GT error mean {gt['mean']:.4f} max {gt['max']:.4f}; " if gt else "")
             + (f"pseudo-GT mean {pgt['mean']:.4f} max {pgt['max']:.4f}; " if pgt else "")
-            + f"coverage max {entry['coverage']:.4f} (baked {entry['coverage_baked']:.4f}); networks on {entry['mapped_share']:.0%} of parts; "
+            + f"coverage max {entry['coverage']:.4f} (baked {entry['coverage_baked']:.4f}); mapped {entry['mapped_share']:.0%} of parts, "
+            + f"by a network {entry['network_share']:.0%}; "
             + f"new parts (a kind the template lacks) {entry['new_share']:.0%}; "
             + (f"{1000 * entry['seconds_per_shape']:.0f} ms per shape" if entry["seconds_per_shape"] is not None else "every shape failed"))
     return metrics
@@ -429,13 +434,13 @@ def markdown_table(metrics: dict[str, Any]) -> str:
              f"ground truth: {truth}; errors in the template part's normalised frame, max = over all points; "
              f"parts of a kind the template lacks: {next(iter(metrics['methods'].values()), {}).get('new_share', 0.0):.0%}", "",
              "| method | tracked-point variance (baked / real-time) | GT error mean / p95 / max | pseudo-GT error mean / max "
-             "| coverage (real-time / baked) | networks on parts | SSIM | PSNR (dB) |" + (" LPIPS |" if has_lpips else "") + " ms per shape |",
+             "| coverage (real-time / baked) | parts by a network, of parts mapped | SSIM | PSNR (dB) |" + (" LPIPS |" if has_lpips else "") + " ms per shape |",
              "|---|---|---|---|---|---|---|---|" + ("---|" if has_lpips else "") + "---|"]
     for name, m in metrics["methods"].items():
         pgt = m.get("pgt_error") or {}
         gt = m.get("gt_error") or {}
         ms = "-" if m.get("seconds_per_shape") is None else f"{1000 * m['seconds_per_shape']:.0f}"
-        nets = f"{m['mapped_share']:.0%}" if name.startswith("corrnet") else "-"
+        nets = f"{m.get('network_share', m['mapped_share']):.0%} of {m['mapped_share']:.0%}" if name.startswith("corrnet") else "-"
         lines.append(
             f"| {name} | {f(m['tracked_point_variance'])} / {f(m['tracked_point_variance_realtime'])} | "
             f"{f(gt.get('mean'))} / {f(gt.get('p95'))} / {f(gt.get('max'))} | {f(pgt.get('mean'))} / {f(pgt.get('max'))} | "

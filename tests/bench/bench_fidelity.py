@@ -144,7 +144,7 @@ def goals_table(results: dict[str, dict[str, Any]]) -> str:
 
 def summary_table(results: dict[str, dict[str, Any]]) -> str:
     """Markdown: per family, variance (baked) and GT mean / max for corrnet, identity and nearest."""
-    head = "| family | test shapes | networks on parts | " + " | ".join(
+    head = "| family | test shapes | parts by a network | " + " | ".join(
         f"{m}: variance / GT mean / GT max" for m in COMPARED) + " | corrnet ms | verdict |"
     lines = [head, "|" + "---|" * (5 + len(COMPARED))]
     for name, r in results.items():
@@ -159,7 +159,7 @@ def summary_table(results: dict[str, dict[str, Any]]) -> str:
             cells.append(f"{e['tracked_point_variance']:.3f} / {gt.get('mean', float('nan')):.3f} / {gt.get('max', float('nan')):.3f}")
         net = ms["corrnet"]
         sec = net.get("seconds_per_shape")
-        lines.append(f"| {name} | {r['metrics']['shapes']} | {net['mapped_share']:.0%} | " + " | ".join(cells)
+        lines.append(f"| {name} | {r['metrics']['shapes']} | {net.get('network_share', net['mapped_share']):.0%} | " + " | ".join(cells)
                      + f" | {'-' if sec is None else f'{1000 * sec:.0f}'} | {verdict(ms)} |")
     return "\n".join(lines)
 
