@@ -104,3 +104,26 @@ def test_the_pbr_contact_sheet_script_runs(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert out.stat().st_size > 1000 and "luma spread" in done.stdout
+
+
+def test_fidelity_real_suite_configs_and_pseudo_gt_verdicts():
+    from bench_fidelity import DATA, REAL, goals, real_config, verdict
+
+    from proctex.family.config import BuildConfig
+
+    if not (DATA / "blend" / "chair.blend").is_file() or not (DATA / "procedural_sofa").is_dir():
+        pytest.skip("the shared real data is absent")
+    for name in REAL:  # every real family is a valid build config at the default settings
+        cfg = BuildConfig.from_dict(real_config(name))
+        assert cfg.source.n_train == 24 or cfg.source.folder
+    chair = BuildConfig.from_dict(real_config("chair.blend", {"train": {"iterations": 50}}))
+    assert chair.train.iterations == 50 and chair.source.params["Seat Height"] == [0.3, 0.9]
+    # Without a truth, the verdict and the goals read the pseudo-GT (the network against its teacher).
+    m = lambda var, pgt: {"tracked_point_variance": var, "tracked_point_variance_realtime": var, "coverage": 0.0,  # noqa: E731
+                          "coverage_baked": 0.0, "gt_error": None, "pgt_error": {"mean": pgt}}
+    assert verdict({"corrnet": m(0.1, 0.05), "identity": m(0.2, 0.02), "nearest": m(0.3, 0.1)}) == "loses: pseudo-GT vs identity"
+    g = goals("chair.blend", {"corrnet": m(0.1, 0.022), "identity": m(0.2, 0.05), "nearest": m(0.3, 0.1)})
+    assert g["missed"] == ["pseudo-GT mean 2.0x paper"] and g["pgt_mean"] == 0.022
+    bad = subprocess.run([sys.executable, str(BENCH / "bench_fidelity.py"), "--suite", "real", "--models", "spaceship"],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode != 0 and "unknown real families" in bad.stderr
