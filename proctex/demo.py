@@ -362,11 +362,11 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
 
     t_start = time.perf_counter()
     out = Path(out)
-    (out / "variants").mkdir(parents=True, exist_ok=True)
     store = FamilyStore(family)
     config = stored_config(store)
     if config.source.folder is not None:
         raise ValueError("a contact sheet sweeps parameters: the family must come from a model, a generator or a .blend file, not a folder")
+    (out / "variants").mkdir(parents=True, exist_ok=True)
     model = config.procedural_model()
     svc = FamilyService(store)
     up = config.up_axis()

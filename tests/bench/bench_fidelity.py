@@ -48,13 +48,13 @@ DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 #: truth (pseudo-GT and cage-tracked variance).
 REAL = {
     "sofa": {"source": {"folder": str(DATA / "procedural_sofa")}, "paint": {"prompt": PROMPTS["sofa"]}, "truth": "vertex-index"},
-    "table.blend": {"source": {"blender": {"file": str(DATA / "blend" / "table.blend"), "object": "Cube"},
+    "table.blend": {"source": {"blender": {"file": str(DATA / "blend" / "table.blend"), "object": "Cube", "modifier": "GeometryNodes"},
                                "params_spec": str(DATA / "blend" / "sp_table.json")},
                     "paint": {"prompt": "a table with a white marble top and black steel legs"}},
-    "cabinet.blend": {"source": {"blender": {"file": str(DATA / "blend" / "cabinet.blend"), "object": "Cabinet"},
+    "cabinet.blend": {"source": {"blender": {"file": str(DATA / "blend" / "cabinet.blend"), "object": "Cabinet", "modifier": "GeometryNodes"},
                                  "params_spec": str(DATA / "blend" / "sp_cabinet.json")},
                       "paint": {"prompt": "a white cabinet with oak shelves and brass handles"}},
-    "chair.blend": {"source": {"blender": {"file": str(DATA / "blend" / "chair.blend"), "object": "Cube"},
+    "chair.blend": {"source": {"blender": {"file": str(DATA / "blend" / "chair.blend"), "object": "Cube", "modifier": "GeometryNodes"},
                                "params_spec": str(DATA / "blend" / "sp_chair.json")},
                     "paint": {"prompt": "a chair with a red velvet seat and dark walnut legs"}},
 }
