@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -181,3 +182,13 @@ def test_sheet_renders_a_built_family_and_refuses_what_it_cannot_sweep(demo_run,
         assert main(argv + ["--out", str(tmp_path / "bad"), "--quiet"]) == 2, argv
         assert needle in capsys.readouterr().err, argv
     assert not (tmp_path / "bad").exists()
+    # The in-process transfer benchmark runs on the same family (random settings of its model).
+    import subprocess
+    import sys
+
+    bench = Path(__file__).parent / "bench" / "bench_family_transfer.py"
+    done = subprocess.run([sys.executable, str(bench), str(family), "--settings", "2", "--repeats", "1", "--out", str(tmp_path / "t.json")],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    figures = json.loads((tmp_path / "t.json").read_text())
+    assert figures["max_ms"] >= figures["median_ms"] >= figures["min_ms"] > 0 and sum(figures["parts"].values()) > 0

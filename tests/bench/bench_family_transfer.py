@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 import statistics
 import sys
 import time
@@ -20,6 +19,9 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
+sys.path.insert(0, str(HERE))
+
+from harness import write_json  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -60,8 +62,7 @@ def main(argv=None) -> int:
           f"over {args.settings} settings x {args.repeats}; parts {dict(how)}")
     print("stages (median ms): " + ", ".join(f"{k} {v:.1f}" for k, v in result["stages_median_ms"].items()))
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(result, indent=1))
+        write_json(args.out, result)
     return 0
 
 
