@@ -201,6 +201,16 @@ def train(
     history: list[dict[str, Any]] = []
     best_state, best_val, best_mean, bad, stopped, step = None, {}, math.inf, 0, False, 0
     window: list[float] = []
+    if val_pairs and config.zero_init and config.residual:
+        # The start is the frame's own map (the box map): a candidate like any other state, so a
+        # group whose network never beats it keeps it.
+        val = eval_step(model, val_pairs, seed=config.seed, autocast=config.autocast)
+        best_mean, best_state, best_val = val["mean"], copy.deepcopy(model.state_dict()), {**val, "iteration": 0}
+        entry = {"iteration": 0, "lr": learning_rate(config, 0), "train_error": float("nan"), "seconds": time.perf_counter() - t0,
+                 **{f"val_{k}": v for k, v in val.items()}}
+        history.append(entry)
+        if on_eval is not None:
+            on_eval(entry)
     while step < config.iterations:
         lr = learning_rate(config, step)
         for g in optimiser.param_groups:
