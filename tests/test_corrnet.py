@@ -597,3 +597,12 @@ def test_zero_init_starts_at_the_box_map_and_early_stopping_may_keep_it():
     # evaluation follows the first steps.
     off = tr.train(train_pairs, val_pairs, small_config(iterations=20, eval_every=10, patience=0))
     assert [h["iteration"] for h in off.history] == [10, 20]
+
+
+def test_min_iterations_holds_off_early_stopping():
+    pairs = family_pairs(6, 200, seed=5)
+    # min_delta 1.0: nothing after the first evaluation is "better"; patience 2 would stop at 30.
+    res = tr.train(pairs[:4], pairs[4:], small_config(iterations=100, eval_every=10, patience=2, min_delta=1.0, min_iterations=60))
+    assert res.stopped_early and res.iterations == 60 and res.best_val["iteration"] == 10
+    with pytest.raises(ValueError, match="min_iterations"):
+        small_config(min_iterations=-1).validate()

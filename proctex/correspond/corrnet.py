@@ -95,7 +95,9 @@ class CorrNetConfig:
         weight_decay: Adam's L2 weight decay.
         loss: "mse" (mean squared distance) or "l2" (mean Euclidean distance).
         eval_every: steps between validation evaluations; patience: evaluations without a
-            validation improvement (relative ``min_delta``) before stopping (0 = never stop early).
+            validation improvement (relative ``min_delta``) before stopping (0 = never stop early);
+            ``min_iterations``: no early stop before this many steps (the first evaluations of a
+            network started at the box map are noise around it).
         local_hidden, feature_dim, decoder_hidden: layer widths (the paper: 128, 256, 256).
         residual: predict the displacement (output = query + decoder), see the module docstring.
         frame: "uniform" (points in the parts' normalised frames, as the paper) or "box" (each
@@ -108,7 +110,8 @@ class CorrNetConfig:
             training starts from it rather than from a random displacement; :func:`train`
             evaluates that start too, so early stopping can keep it. Off by default: on the real
             chair, early stopping kept the start of groups whose randomly initialised networks
-            beat the box map (held-out 0.0272 vs 0.0176 on one group; README, issue 32).
+            beat the box map (held-out 0.0272 vs 0.0176 on one group, with or without
+            ``min_iterations`` 1000; README, issue 32).
         seed: weights, batch sampling and evaluation contexts.
         device: "cpu", "cuda", "cuda:<i>" or "auto" (CUDA when present); dtype: "float32" or "float64".
         autocast: "none" or "bfloat16" (matrix products in bfloat16; about 2.3x faster training and
@@ -137,6 +140,7 @@ class CorrNetConfig:
     eval_every: int = 100
     patience: int = 10
     min_delta: float = 1e-3
+    min_iterations: int = 0
     local_hidden: int = 128
     feature_dim: int = 256
     decoder_hidden: int = 256
@@ -155,7 +159,7 @@ class CorrNetConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"CorrNetConfig.{name} must be a positive integer, got {v!r}")
-        for name in ("patience", "seed"):
+        for name in ("patience", "seed", "min_iterations"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 0:
                 raise ValueError(f"CorrNetConfig.{name} must be a non-negative integer, got {v!r}")

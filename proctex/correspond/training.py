@@ -236,7 +236,7 @@ def train(
         history.append(entry)
         if on_eval is not None:
             on_eval(entry)
-        if config.patience and bad >= config.patience:
+        if config.patience and bad >= config.patience and step >= config.min_iterations:
             stopped = True
             break
     if best_state is not None:
