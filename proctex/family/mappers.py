@@ -147,7 +147,8 @@ def make_mapper(name: str, assets: TemplateAssets, models: dict[int, Any] | None
     the identity; ``"corrnet"`` (alias ``"net"``): the networks where the build chose them, a
     ``ValueError`` without them; ``"corrnet_all"``: the networks on every group they have;
     ``"identity"``; ``"cage"``, ``"nearest"``, ``"cpd"``: solved per part at transfer time on
-    ``corr_points`` samples with the family's ``cage`` settings, as the build solves its pairs. ``autocast``: the networks' (:class:`NetworkMapper`).
+    ``corr_points`` samples with the family's ``cage`` settings, as the build solves its pairs.
+    ``autocast``: the networks' (:class:`NetworkMapper`).
     """
     key = MAPPER_ALIASES.get(name, name)
     if key not in MAPPERS:

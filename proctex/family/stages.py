@@ -528,7 +528,8 @@ def serving_line(serving: dict[str, Any] | None) -> str:
     if not serving:
         return "the network serves"
     errs = ", ".join(f"{k} {v:.4f}" for k, v in serving["errors"].items())
-    return f"the {serving['serve']} serves (held-out errors: {errs}{'' if serving.get('held_out', True) else '; no held-out shape'})"
+    what = {"box": "box map"}.get(serving["serve"], serving["serve"])
+    return f"the {what} serves (held-out errors: {errs}{'' if serving.get('held_out', True) else '; no held-out shape'})"
 
 
 def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str, Any]) -> tuple[str, dict[str, Any]]:
