@@ -109,9 +109,9 @@ class CorrNetConfig:
             network is the map the frame gives for free (the box map in the box frame) and
             training starts from it rather than from a random displacement; :func:`train`
             evaluates that start too, so early stopping can keep it. Off by default: on the real
-            chair, early stopping kept the start of groups whose randomly initialised networks
-            beat the box map (held-out 0.0272 vs 0.0176 on one group, with or without
-            ``min_iterations`` 1000; README, issue 32).
+            chair, groups whose randomly initialised networks beat the box map ended at the
+            start (held-out 0.0272 vs 0.0176 on one group, with or without ``min_iterations``
+            1000; README, issue 32).
         seed: weights, batch sampling and evaluation contexts.
         device: "cpu", "cuda", "cuda:<i>" or "auto" (CUDA when present); dtype: "float32" or "float64".
         autocast: "none" or "bfloat16" (matrix products in bfloat16; about 2.3x faster training and
