@@ -490,3 +490,14 @@ def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
     logs = []
     build(b, cfg, stages=stages, log=logs.append, executor=backwards)
     assert ran == [] and sum("done already" in line for line in logs) >= 3
+
+
+def test_a_damaged_serving_choice_is_a_clear_error_and_none_means_the_network():
+    from proctex.family.stages import check_serving
+
+    good = {"serve": "box", "template_extent": [1.0, 0.5, 0.25], "errors": {}}
+    assert check_serving(good, "m.pt") is good and check_serving(None, "m.pt") is None
+    for bad in ({"serve": "magic", "template_extent": [1, 1, 1]}, {"serve": "box", "template_extent": [1, 0, 1]},
+                {"serve": "box", "template_extent": [1, float("nan"), 1]}, {"serve": "box"}, ["box"], "box"):
+        with pytest.raises(ValueError, match="m.pt: damaged serving choice"):
+            check_serving(bad, "m.pt")
