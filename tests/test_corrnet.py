@@ -606,3 +606,16 @@ def test_min_iterations_holds_off_early_stopping():
     assert res.stopped_early and res.iterations == 60 and res.best_val["iteration"] == 10
     with pytest.raises(ValueError, match="min_iterations"):
         small_config(min_iterations=-1).validate()
+
+
+def test_serving_choice_refuses_a_deliberately_wrong_network():
+    """A network made wrong on purpose (its output mirrored: the template extents negated on one
+    axis) scores clearly worse than the box map on held-out pairs and does not serve."""
+    train_pairs, val_pairs = family_pairs(32, 256, seed=1), family_pairs(4, 256, seed=2)
+    res = tr.train(train_pairs, val_pairs, small_config(context_points=64, query_points=64, iterations=300, eval_every=100, patience=0))
+    right = tr.choose_serving(res.model, val_pairs, tr.template_extent(train_pairs))
+    with torch.no_grad():
+        res.model.template_extent[0] *= -1.0  # a mirror across x
+    wrong = tr.choose_serving(res.model, val_pairs, tr.template_extent(train_pairs))
+    assert wrong.serve != "network" and wrong.errors["network"] > 3 * right.errors["network"], (right, wrong)
+    assert wrong.errors["network"] > 2 * wrong.errors["box"]
