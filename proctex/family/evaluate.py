@@ -208,12 +208,14 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     e, g, means = pgt_errors(shape, seg, result, assets, pairs)
     out["pgt"], out["pgt_groups"], out["pgt_pairs"] = e.astype(np.float32), g.astype(np.int32), means
     active = [a for a in result.assignment if a.how != "degenerate"]
+    mapped = [a for a in active if a.group >= 0 and a.part not in result.direct]
+    serves = getattr(mapper, "serves", None)  # what the build chose per group (network mappers only)
     out["record"] = {
         "id": sid, "seconds": seconds, "bake_seconds": baked.seconds, "coverage": c1, "coverage_baked": c2,
         "ssim": sim.ssim, "psnr": sim.psnr, "lpips": sim.lpips, "parts": len(active),
-        "mapped_parts": len(mapped := [a for a in active if a.group >= 0 and a.part not in result.direct]),
+        "mapped_parts": len(mapped),
         # Of those, the parts a network mapped (not the box map or identity the build chose instead).
-        "network_parts": len([a for a in mapped if serves(a.group) == "network"]) if (serves := getattr(mapper, "serves", None)) else 0,
+        "network_parts": len([a for a in mapped if serves(a.group) == "network"]) if serves else 0,
         "new_parts": len([a for a in active if a.how == "new"]),
         "gt_mean": float(np.nanmean(out["gt"])) if out["gt"] is not None and (~np.isnan(out["gt"])).any() else None,
         "pgt_mean": float(e.mean()) if len(e) else None, "notes": list(result.notes),
