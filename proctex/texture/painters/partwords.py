@@ -189,8 +189,7 @@ def describe_groups(vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: 
 # ------------------------------------------------------------------------------------------ tests
 def _floor(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
     """Where legs stand: the floor (0), or the top of a flat base on it (a plinth) other than ``g``."""
-    return max([h.u_hi for h in all_ if h.group != g.group and h.flat() and h.u_lo <= 0.05 and h.u_hi <= 0.3
-                and h.footprint() >= 0.15] + [0.0])
+    return max([h.u_hi for h in all_ if h.group != g.group and h.flat() and _base(h, all_) > 0] + [0.0])
 
 
 def _legs(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
