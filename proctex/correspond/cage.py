@@ -53,7 +53,7 @@ from proctex.geometry.surface import interpolate
 from .mvc import mean_value_coordinates
 
 #: Pre-alignments of a source part (:attr:`CageConfig.prealign`).
-PREALIGNS = ("icp", "box", "auto")
+PREALIGNS = ("icp", "box", "affine", "auto")
 
 
 @dataclass
@@ -62,6 +62,8 @@ class CageConfig:
 
     Attributes:
         level: cage subdivision; the box has ``2**level`` segments per axis.
+        elongation: at most this many times ``2**level`` segments along an axis longer than the
+            box's median side (:func:`cage_divisions`; 1: the same on every axis).
         margin: inflation of the bounding box, as a share of its largest side.
         iterations: maximum Adam steps; lr: initial learning rate; lr_final: the rate reached
             (exponential decay) at ``iterations``.
@@ -88,6 +90,7 @@ class CageConfig:
     """
 
     level: int = 1
+    elongation: int = 1
     margin: float = 0.1
     iterations: int = 300
     lr: float = 0.02
@@ -115,6 +118,8 @@ class CageConfig:
     def validate(self) -> "CageConfig":
         if not 0 <= int(self.level) <= 4:
             raise ValueError(f"cage level must be in 0..4, got {self.level}")
+        if not isinstance(self.elongation, (int, np.integer)) or not 1 <= int(self.elongation) <= 8:
+            raise ValueError(f"cage elongation must be an integer in 1..8, got {self.elongation!r}")
         if not self.margin >= 0 or not np.isfinite(self.margin):
             raise ValueError(f"cage margin must be >= 0, got {self.margin}")
         if int(self.iterations) < 1 or not self.lr > 0 or not self.lr_final > 0:
@@ -161,10 +166,23 @@ class CageResult:
     seconds: float = 0.0
 
 
-def init_cage(points: np.ndarray, level: int = 1, margin: float = 0.1, symmetric_axes: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+def cage_divisions(size: np.ndarray, level: int = 1, elongation: int = 1) -> tuple[int, int, int]:
+    """Cells per axis of a cage box of ``size (3,)``: ``2**level`` on every axis, times
+    ``min(round(size[a] / median side), elongation)`` on an axis longer than the median side, so a
+    long thin part gets cells along its length (where its shape changes) rather than across it."""
+    size = np.asarray(size, dtype=float)
+    n = 2 ** int(level)
+    ref = max(float(np.median(size)), 1e-12)
+    mult = np.clip(np.rint(size / ref), 1, max(int(elongation), 1)).astype(int)
+    return tuple(int(n * m) for m in mult)  # type: ignore[return-value]
+
+
+def init_cage(points: np.ndarray, level: int = 1, margin: float = 0.1, symmetric_axes: tuple[int, ...] = (),
+              elongation: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Subdivided, inflated axis-aligned bounding box of ``points (n, 3)``.
 
-    ``symmetric_axes``: axes across whose plane through the origin the box is made symmetric.
+    ``symmetric_axes``: axes across whose plane through the origin the box is made symmetric;
+    ``elongation``: see :func:`cage_divisions`.
     Returns ``(vertices (V, 3) float64, faces (F, 3) int64)``, closed and outward-oriented.
     """
     pts = np.asarray(points, dtype=float)
@@ -176,18 +194,18 @@ def init_cage(points: np.ndarray, level: int = 1, margin: float = 0.1, symmetric
         lo[a], hi[a] = -m, m
     pad = margin * float((hi - lo).max()) + 1e-3 * max(float((hi - lo).max()), 1e-9)
     lo, hi = lo - pad, hi + pad
-    n = 2 ** int(level)
-    part = box(hi - lo, (hi + lo) / 2, (n, n, n))
+    part = box(hi - lo, (hi + lo) / 2, cage_divisions(hi - lo, level, elongation))
     return part.vertices, part.faces
 
 
-def lattice_triples(cage: np.ndarray, level: int) -> np.ndarray:
+def lattice_triples(cage: np.ndarray, divisions: tuple[int, int, int]) -> np.ndarray:
     """(t, 3) int64 vertex triples ``(prev, mid, next)`` of consecutive cage lattice points along an axis.
 
-    The second difference ``D[prev] - 2 D[mid] + D[next]`` of a displacement ``D`` vanishes for every
-    affine displacement, so penalising it smooths the cage without resisting stretch or shear.
+    ``divisions``: the cage box's cells per axis. The second difference ``D[prev] - 2 D[mid] +
+    D[next]`` of a displacement ``D`` vanishes for every affine displacement, so penalising it
+    smooths the cage without resisting stretch or shear.
     """
-    n = 2 ** int(level)
+    n = np.asarray(divisions, dtype=float)
     lo, hi = cage.min(0), cage.max(0)
     ijk = np.rint((cage - lo) / (hi - lo) * n).astype(np.int64)
     index = {tuple(p): i for i, p in enumerate(ijk)}
@@ -255,7 +273,7 @@ def solve_cage(
     dtype = torch.float64 if cfg.dtype == "float64" else torch.float32
     rng = np.random.default_rng(seed)
     axes = tuple(symmetry_axes) if cfg.symmetry else ()
-    cage0, cage_faces = init_cage(np.concatenate([points, tri_vertices]), cfg.level, cfg.margin, axes)
+    cage0, cage_faces = init_cage(np.concatenate([points, tri_vertices]), cfg.level, cfg.margin, axes, cfg.elongation)
     # Every sample and every triangle corner in mean value coordinates of the initial cage.
     W_pts = mean_value_coordinates(points, cage0, cage_faces).to(device, dtype)
     W_tri = mean_value_coordinates(tri_vertices, cage0, cage_faces).to(device, dtype)
@@ -264,7 +282,7 @@ def solve_cage(
     faces_t = torch.as_tensor(cage_faces, device=device)
     C0 = torch.as_tensor(cage0, device=device, dtype=dtype)
     offset = torch.zeros_like(C0, requires_grad=True)
-    triples = torch.as_tensor(lattice_triples(cage0, cfg.level), device=device)
+    triples = torch.as_tensor(lattice_triples(cage0, cage_divisions(cage0.max(0) - cage0.min(0), cfg.level, cfg.elongation)), device=device)
     pairs = [(a, p) for a in axes if (p := _mirror_pairs(cage0, a)) is not None]
     flips = {a: torch.as_tensor([-1.0 if i == a else 1.0 for i in range(3)], device=device, dtype=dtype) for a, _ in pairs}
     T = torch.as_tensor(template_samples, device=device, dtype=dtype)

@@ -33,7 +33,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from proctex.geometry.align import apply, chamfer, icp_to_surface
+from proctex.geometry.align import affine_icp_to_surface, apply, chamfer, icp_to_surface
 from proctex.geometry.matching import GroupMatch, match_groups
 from proctex.geometry.parts import Grouping, PartGroup, analyse, part_mesh, symmetry_planes
 from proctex.geometry.shape import Shape
@@ -192,17 +192,26 @@ def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.n
     rng = np.random.default_rng(seed)
     samples, sf, sb = sample_surface(src_v, src_f, int(n_points), seed=rng)
     index = SurfaceIndex((tpl_v - tc) / tr, tpl_f)
-    sub = (samples[rng.choice(len(samples), size=min(icp_points, len(samples)), replace=False)] - sc) / sr
+    pick = rng.choice(len(samples), size=min(icp_points, len(samples)), replace=False)
+    sub = (samples[pick] - sc) / sr
     candidates = []
-    if prealign in ("box", "auto"):
+    tpl_s = None
+    if prealign in ("box", "affine", "auto"):
         used = np.unique(src_f)
         k = box_scale((src_v[used] - sc) / sr, index.vertices[np.unique(tpl_f)])
         candidates.append((np.diag(k), np.zeros(3), 1.0, float(index.query(sub * k, exact=False).distance.mean())))
+        if prealign in ("affine", "auto"):
+            tpl_s, _, _ = sample_surface(index.vertices, index.faces, len(sub), seed=rng)
+            fit = affine_icp_to_surface(sub, face_normals(src_v, src_f)[sf[pick]], index, A0=np.diag(k))
+            # the facet fit replaces the box start only where it fits at least as well by Chamfer
+            if fit.accepted and (prealign == "affine" or chamfer(apply(sub, fit.A, fit.t), tpl_s) <= chamfer(sub * k, tpl_s)):
+                candidates[0] = (fit.A, fit.t, 1.0, fit.error)
     if prealign in ("icp", "auto"):
         icp = icp_to_surface(sub, index, scale=True, max_iter=100, tol=1e-7, exact=False)
         candidates.append((icp.R, icp.t, icp.s, icp.error))
     if len(candidates) > 1:
-        tpl_s, _, _ = sample_surface(index.vertices, index.faces, len(sub), seed=rng)
+        if tpl_s is None:
+            tpl_s, _, _ = sample_surface(index.vertices, index.faces, len(sub), seed=rng)
         candidates.sort(key=lambda c: chamfer(apply(sub, c[0], c[1], c[2]), tpl_s))  # stable: box first on a tie
     R, t, s, error = candidates[0]
     return _Prepared(src_v, src_f, sc, sr, tc, tr, samples, sf, sb, index, R, t, s, error)

@@ -159,3 +159,116 @@ def icp_points(
             converged = True
             break
     return ICPResult(R, t, 1.0, err, it, converged)
+
+
+@dataclass
+class AffineResult:
+    """Outcome of :func:`affine_icp_to_surface`.
+
+    ``A (3, 3), t (3,)``: the map ``x -> A x + t``; ``error``: mean point-to-plane distance of the
+    oriented matches after the last refit; ``start_error``: the same at the start; ``iterations``;
+    ``converged``: the error stopped improving before the limit; ``accepted``: the map kept the
+    start's handedness and no axis was stretched or squeezed past ``max_stretch`` relative to the
+    start (otherwise ``A, t`` are the start's).
+    """
+
+    A: np.ndarray
+    t: np.ndarray
+    error: float
+    start_error: float
+    iterations: int
+    converged: bool
+    accepted: bool
+
+
+def affine_icp_to_surface(
+    src: np.ndarray,
+    src_normals: np.ndarray,
+    target: SurfaceIndex,
+    A0: np.ndarray | None = None,
+    t0: np.ndarray | None = None,
+    max_iter: int = 30,
+    tol: float = 1e-6,
+    min_dot: float = 0.5,
+    max_stretch: float = 2.0,
+    damping: float = 1e-3,
+) -> AffineResult:
+    """Facet-matched affine alignment: point-to-plane ICP with a general affine map.
+
+    Every mapped source point ``p`` (with its normal carried by the inverse transpose) is matched
+    to its closest template point ``q`` on a face whose normal ``m`` agrees (``dot > min_dot``;
+    :meth:`SurfaceIndex.query_oriented`), and ``(A, t)`` is refitted by linear least squares on
+    ``m . (A p + t) = m . q``: each source point must land on the *plane* of its matched template
+    facet. A sheared or tapered box is an exact affine image of another box, and its facet planes
+    fix the map exactly, which a Chamfer distance between near-equal fits cannot. Points may still
+    slide within a facet: each Gauss-Newton step moves only along the eigen-directions of the normal
+    equations stronger than ``damping`` times the strongest, so what no plane constrains (a turn
+    about the axis of a surface of revolution, a slide along a cylinder) keeps the start's value,
+    and an exact fit stays exact.
+
+    Args:
+        src: (k, 3) float64 source points; src_normals: (k, 3) their unit normals.
+        target: the template surface.
+        A0, t0: the start (default identity), e.g. the per-axis box scale.
+        max_stretch: reject the result (``accepted=False``) when a singular value of
+            ``A @ inv(A0)`` leaves ``[1/max_stretch, max_stretch]`` or the handedness flips.
+
+    Raises:
+        ValueError: shapes that do not match, non-finite input, a singular start.
+    """
+    p = np.asarray(src, dtype=np.float64)
+    n = np.asarray(src_normals, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape or len(p) < 4:
+        raise ValueError(f"affine ICP needs (k >= 4, 3) points and normals of the same shape, got {p.shape} and {n.shape}")
+    if not (np.isfinite(p).all() and np.isfinite(n).all()):
+        raise ValueError("affine ICP: points or normals contain NaN or inf")
+    A = np.eye(3) if A0 is None else np.asarray(A0, dtype=np.float64).copy()
+    t = np.zeros(3) if t0 is None else np.asarray(t0, dtype=np.float64).copy()
+    if A.shape != (3, 3) or t.shape != (3,) or not np.isfinite(A).all() or abs(np.linalg.det(A)) < 1e-12:
+        raise ValueError("affine ICP: the start must be a finite, invertible (3, 3) map and a (3,) offset")
+    A_start, t_start = A.copy(), t.copy()
+
+    def matches(A: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        moved = p @ A.T + t
+        nm = n @ np.linalg.inv(A)  # normals: inverse transpose, as rows
+        nm /= np.maximum(np.linalg.norm(nm, axis=1, keepdims=True), 1e-300)
+        hit, oriented = target.query_oriented(moved, nm, min_dot=min_dot, exact=False)
+        m = target.normals[hit.faces]
+        w = oriented.astype(np.float64)
+        plane = np.einsum("kd,kd->k", m, moved - hit.points)
+        err = float(np.sum(w * np.abs(plane)) / max(w.sum(), 1.0))
+        return m * w[:, None], np.einsum("kd,kd->k", m, hit.points) * w, err
+
+    m, rhs, err = matches(A, t)
+    start_error = err
+    converged, it = False, 0
+    k = len(p)
+    for it in range(1, max_iter + 1):
+        # rows: m_i (x) p_i for the 9 entries of A (row-major), m_i for t
+        M = np.concatenate([(m[:, :, None] * p[:, None, :]).reshape(k, 9), m], axis=1)
+        x_prev = np.concatenate([A.reshape(-1), t])
+        # Gauss-Newton step on the directions the planes constrain: eigen-directions of M^T M
+        # weaker than ``damping`` times the strongest (points sliding within facets, a turn about
+        # a surface of revolution's axis) keep their current value.
+        H = M.T @ M
+        evals, evecs = np.linalg.eigh(H)
+        keep = evals > damping * max(float(evals[-1]), 1e-300)
+        g = evecs.T @ (M.T @ (rhs - M @ x_prev))
+        x = x_prev + evecs[:, keep] @ (g[keep] / evals[keep])
+        A_new, t_new = x[:9].reshape(3, 3), x[9:]
+        if not np.isfinite(x).all() or np.linalg.det(A_new) * np.linalg.det(A) <= 0:
+            break
+        m_new, rhs_new, err_new = matches(A_new, t_new)
+        if err_new > err:
+            converged = True
+            break
+        prev = err
+        A, t, m, rhs, err = A_new, t_new, m_new, rhs_new, err_new
+        if prev - err <= tol * max(prev, 1e-12):
+            converged = True
+            break
+    sv = np.linalg.svd(A @ np.linalg.inv(A_start), compute_uv=False)
+    accepted = bool(np.linalg.det(A) * np.linalg.det(A_start) > 0 and sv.max() <= max_stretch and sv.min() >= 1.0 / max_stretch)
+    if not accepted:
+        A, t, err = A_start, t_start, start_error
+    return AffineResult(A, t, err, start_error, it, converged, accepted)
