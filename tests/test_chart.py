@@ -1,0 +1,91 @@
+"""The sweep chart of tube-like parts (proctex.geometry.chart): along and around a part."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from proctex.geometry.chart import cotangent_laplacian, sweep_chart
+from proctex.geometry.primitives import box
+from proctex.geometry.sweeps import tube
+
+
+def _coil(turns: float, radius: float = 0.12, pitch: float = 0.6):
+    """A tube swept along a helix of ``turns`` turns about z; returns the part, the helix and its
+    parameter (0..1 along the helix, proportional to arc length)."""
+    k = int(60 * turns)
+    u = np.linspace(0.0, 1.0, k)
+    a = 2 * np.pi * turns * u
+    path = np.stack([np.cos(a), np.sin(a), pitch * turns * u], axis=1)
+    return tube(path, radius, n_sides=12), path, u
+
+
+@pytest.mark.parametrize("turns", [2.0, 3.5, 5.0])
+def test_the_chart_orders_a_helix_and_counts_its_turns(turns):
+    """Every vertex's position along the chart is its place along the helix (to 0.01 of the
+    length, either direction), the centre line winds the known number of turns about z, and the
+    part reads as a tube (length many times its radius)."""
+    part, path, u = _coil(turns)
+    chart = sweep_chart(part.vertices, part.faces)
+    _, j = cKDTree(path).query(part.vertices)
+    truth = u[j]
+    if np.corrcoef(chart.s, truth)[0, 1] < 0:
+        truth = 1.0 - truth  # the Fiedler vector's sign is arbitrary
+    assert np.abs(chart.s - truth).max() < 0.01
+    assert abs(chart.turns - turns) < 0.05
+    np.testing.assert_array_equal(chart.reference, [0.0, 0.0, 1.0])
+    assert chart.aspect > 50 and abs(chart.radius - 0.12) < 0.02
+    assert np.all((chart.theta >= -np.pi) & (chart.theta <= np.pi))
+
+
+def test_the_chart_angle_goes_once_around_each_ring():
+    """Around a straight tube the angle of the ring's vertices covers the circle once, in order."""
+    path = np.stack([np.linspace(0.0, 4.0, 40), np.zeros(40), np.zeros(40)], axis=1)
+    part = tube(path, 0.3, n_sides=16)
+    chart = sweep_chart(part.vertices, part.faces)
+    mid = np.flatnonzero(np.abs(part.vertices[:, 0] - path[20, 0]) < 1e-9)
+    assert len(mid) == 16
+    th = np.unwrap(chart.theta[mid])
+    assert abs(abs(th[-1] - th[0]) - 2 * np.pi * 15 / 16) < 0.05
+    assert chart.turns < 0.05
+
+
+def test_a_uv_seam_split_does_not_cut_the_chart():
+    """The same coil with every vertex of one seam duplicated (as UV exports do) gives the same chart."""
+    part, _, _ = _coil(3.0)
+    v, f = part.vertices, part.faces.copy()
+    seam = np.flatnonzero(np.abs(np.arctan2(v[:, 1], v[:, 0])) < 0.05)
+    dup = np.arange(len(v), len(v) + len(seam))
+    v2 = np.concatenate([v, v[seam]])
+    remap = np.arange(len(v))
+    remap[seam] = dup
+    faces_right = v[f].mean(axis=1)[:, 1] > 0  # faces on one side of the seam use the copies
+    f[faces_right] = remap[f[faces_right]]
+    whole = sweep_chart(v, part.faces)
+    split = sweep_chart(v2, f)
+    s = split.s[: len(v)].copy()
+    moved = np.isnan(s[seam])  # seam vertices only the copies use now
+    assert moved.any()
+    s[seam[moved]] = split.s[dup[moved]]
+    assert not np.isnan(s).any()
+    if np.corrcoef(s, whole.s)[0, 1] < 0:
+        s = 1.0 - s
+    assert np.abs(s - whole.s).max() < 1e-6
+
+
+def test_a_box_is_not_a_tube_and_bad_parts_are_refused():
+    b = box((1.0, 0.8, 0.6), divisions=(4, 4, 4))
+    assert sweep_chart(b.vertices, b.faces).aspect < 10
+    L, area = cotangent_laplacian(b.vertices, b.faces)
+    np.testing.assert_allclose(L @ np.ones(len(b.vertices)), 0.0, atol=1e-9)  # constants are in its kernel
+    assert abs(area.sum() - 2 * (0.8 + 0.48 + 0.6)) < 1e-9
+    two = box((1.0, 1.0, 1.0), center=(3.0, 0.0, 0.0))
+    v = np.concatenate([b.vertices, two.vertices])
+    f = np.concatenate([b.faces, two.faces + len(b.vertices)])
+    with pytest.raises(ValueError, match="pieces"):
+        sweep_chart(v, f)
+    bad = b.vertices.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        sweep_chart(bad, b.faces)
+    with pytest.raises(ValueError, match="at least 4"):
+        sweep_chart(np.eye(3), np.array([[0, 1, 2]]))
