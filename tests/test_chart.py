@@ -89,3 +89,67 @@ def test_a_box_is_not_a_tube_and_bad_parts_are_refused():
         sweep_chart(bad, b.faces)
     with pytest.raises(ValueError, match="at least 4"):
         sweep_chart(np.eye(3), np.array([[0, 1, 2]]))
+
+
+def _fixed_coil(turns: float):
+    """A coil whose rings measure their angle from z projected normal to the path (the chart's own
+    convention), with its helix and helix parameter."""
+    k = int(60 * turns)
+    u = np.linspace(0.0, 1.0, k)
+    a = 2 * np.pi * turns * u
+    path = np.stack([np.cos(a), np.sin(a), 0.6 * turns * u], axis=1)
+    return tube(path, 0.12, n_sides=12, normals=np.tile([0.0, 0.0, 1.0], (k, 1))), path, u
+
+
+def _along_and_around(path, u, points):
+    """Helix parameter of the nearest path point, and the angle around the path from z."""
+    _, j = cKDTree(path).query(points)
+    t = np.gradient(path, axis=0)[j]
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    n = np.array([0.0, 0.0, 1.0]) - t[:, 2:3] * t
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    d = points - path[j]
+    return u[j], np.arctan2(np.einsum("kd,kd->k", d, np.cross(t, n)), np.einsum("kd,kd->k", d, n))
+
+
+def test_a_coil_with_more_turns_maps_along_and_around_through_the_charts():
+    """Source coil: 3 turns; template: 4. The cage can only follow the volume (a point a third of
+    the way along lands far from a third of the way along); the sweep teacher maps every sample to
+    the same place along (to 0.005 of the length on average) and around the coil, and deform()
+    agrees with it for arbitrary source points."""
+    from proctex.correspond.cage import CageConfig
+    from proctex.correspond.dense import correspond_parts, deform
+
+    (src, sp, su), (tpl, tp, tu) = _fixed_coil(3.0), _fixed_coil(4.0)
+    swept = correspond_parts(src.vertices, src.faces, tpl.vertices, tpl.faces, method="cage", n_points=800, seed=0,
+                             cage=CageConfig(sweep=True, iterations=30))
+    assert swept.details["teacher"] == "sweep"
+    assert abs(swept.details["turns"] - 3.0) < 0.05 and abs(swept.details["template_turns"] - 4.0) < 0.05
+    u_s, a_s = _along_and_around(sp, su, swept.source_points)
+    u_t, a_t = _along_and_around(tp, tu, swept.points)
+    assert np.abs(u_s - u_t).mean() < 0.005 and np.abs(u_s - u_t).max() < 0.02
+    assert np.abs(np.angle(np.exp(1j * (a_s - a_t)))).mean() < 0.1
+    caged = correspond_parts(src.vertices, src.faces, tpl.vertices, tpl.faces, method="cage", n_points=800, seed=0,
+                             cage=CageConfig(sweep=False, iterations=30))
+    assert "teacher" not in caged.details
+    u_c, _ = _along_and_around(tp, tu, caged.points)
+    assert np.abs(u_s - u_c).mean() > 0.03
+    # deform() maps arbitrary source points the same way (world in, template normalised frame out)
+    centre = (tpl.vertices.min(0) + tpl.vertices.max(0)) / 2
+    radius = float(np.abs(tpl.vertices - centre).max())
+    moved = deform(swept, src.vertices, np.zeros(3), 1.0) * radius + centre
+    u_v, _ = _along_and_around(sp, su, src.vertices)
+    u_m, _ = _along_and_around(tp, tu, moved)
+    assert np.abs(u_v - u_m).mean() < 0.005
+
+
+def test_the_sweep_teacher_leaves_parts_that_are_not_tubes_to_the_cage():
+    from proctex.correspond.cage import CageConfig
+    from proctex.correspond.dense import correspond_parts
+
+    a = box((1.0, 0.8, 0.6), divisions=(4, 4, 4))
+    b = box((1.2, 0.7, 0.6), divisions=(3, 5, 4))
+    res = correspond_parts(a.vertices, a.faces, b.vertices, b.faces, method="cage", n_points=300, seed=0, cage=CageConfig(sweep=True, iterations=20))
+    assert "teacher" not in res.details and "cage" in res.details
+    with pytest.raises(ValueError, match="sweep"):
+        CageConfig(sweep_aspect=-1.0).validate()

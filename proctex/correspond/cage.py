@@ -82,8 +82,16 @@ class CageConfig:
         keep_best: return the iterate with the lowest loss rather than the last one.
         prealign: the source part's pre-alignment into the template part's frame (used by
             :func:`proctex.correspond.dense.correspond_parts`): "icp" (similarity ICP from the
-            identity), "box" (per-axis scale of the normalised bounding boxes) or "auto" (the one
-            with the smaller symmetric Chamfer distance).
+            identity), "box" (per-axis scale of the normalised bounding boxes), "affine" (the box
+            map refined by facet-matched affine ICP,
+            :func:`proctex.geometry.align.affine_icp_to_surface`) or "auto" (the box map, replaced
+            by its affine refinement where that fits at least as well, or ICP: the one with the
+            smaller symmetric Chamfer distance).
+        sweep: for a pair of tube-like parts (sweep-chart aspect, centre-line length over mean
+            radius, of at least ``sweep_aspect`` on both), map along and around the parts
+            through their sweep charts (:mod:`proctex.correspond.sweep`) instead of the cage's
+            result when that fits the template better by Chamfer distance (coils whose number of
+            turns changes; the cage can only follow the volume).
         chamfer: "plane" (template samples to the deformed source's tangent planes) or "point"
             (point-to-point, both directions); see the module docstring.
         device, dtype: where the optimisation runs (CUDA when asked for and present).
@@ -112,6 +120,8 @@ class CageConfig:
     normal_target: str = "face"
     keep_best: bool = True
     prealign: str = "auto"
+    sweep: bool = False
+    sweep_aspect: float = 12.0
     device: str = "cpu"
     dtype: str = "float64"
 
@@ -130,6 +140,8 @@ class CageConfig:
             raise ValueError(f"normal_target must be face or vertex, got {self.normal_target!r}")
         if self.prealign not in PREALIGNS:
             raise ValueError(f"prealign must be one of {', '.join(PREALIGNS)}, got {self.prealign!r}")
+        if not isinstance(self.sweep, bool) or not (np.isfinite(self.sweep_aspect) and self.sweep_aspect > 0):
+            raise ValueError(f"sweep must be true or false and sweep_aspect a positive number, got {self.sweep!r}, {self.sweep_aspect!r}")
         weights = {k: getattr(self, k) for k in ("w_chamfer", "w_surface", "w_normal", "w_mvc", "w_smooth", "w_symmetry", "w_rest")}
         bad = [k for k, v in weights.items() if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0)]
         if bad:

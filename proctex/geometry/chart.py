@@ -105,7 +105,8 @@ def cotangent_laplacian(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr
     return L.tocsr(), area
 
 
-def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None, weld_tol: float = 1e-9) -> SweepChart:
+def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None, weld_tol: float = 1e-9,
+                reference: np.ndarray | None = None) -> SweepChart:
     """The sweep chart of a connected part mesh.
 
     Vertices split along UV seams are welded first (``weld_tol``, relative to the part's size), so
@@ -115,6 +116,8 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
         vertices: (n, 3) float64; faces: (m, 3) int64.
         bins: level sets of the Fiedler vector that make the centre line (default: from the
             vertex count, 8..128).
+        reference: (3,) the direction angles are measured from (default: the world axis the
+            centre line's tangents avoid most); give the template's to chart a shape like it.
 
     Raises:
         ValueError: fewer than 4 used vertices, non-finite input, more than
@@ -177,7 +180,14 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-300)
     weights = seg / max(seg.sum(), 1e-300)
     align = (weights[:, None] * tang ** 2).sum(axis=0) if len(tang) else np.zeros(3)
-    reference = np.eye(3)[int(np.argmin(align))]
+    axis = int(np.argmin(align))
+    if reference is None:
+        reference = np.eye(3)[axis]
+    else:
+        reference = np.asarray(reference, dtype=np.float64)
+        if reference.shape != (3,) or not np.isfinite(reference).all() or not np.linalg.norm(reference) > 0:
+            raise ValueError("sweep chart: reference must be a finite non-zero (3,) direction")
+        reference = reference / np.linalg.norm(reference)
     chart = SweepChart(np.full(len(v), np.nan), np.full(len(v), np.nan), cent, knots, reference, length, 0.0, 0.0, 0.0, lam)
     c, _, _, _ = chart.frame(s_w)
     radius = float(np.average(np.linalg.norm(pos - c, axis=1), weights=mass))
@@ -188,7 +198,9 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     chart.aspect = length / max(radius, 1e-300)
     # winding of the centre line about the reference axis (through its mean)
     rel = cent - cent.mean(axis=0)
-    u_ax, w_ax = np.eye(3)[[a for a in range(3) if a != int(np.argmin(align))]]
+    u_ax = np.cross(reference, np.eye(3)[int(np.argmin(np.abs(reference)))])
+    u_ax /= np.linalg.norm(u_ax)
+    w_ax = np.cross(reference, u_ax)
     px, py = rel @ u_ax, rel @ w_ax
     rad = np.hypot(px, py)
     step = np.diff(np.unwrap(np.arctan2(py, px)))
