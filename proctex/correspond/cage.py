@@ -88,10 +88,11 @@ class CageConfig:
             by its affine refinement where that fits at least as well, or ICP: the one with the
             smaller symmetric Chamfer distance).
         sweep: for a pair of tube-like parts (sweep-chart aspect, centre-line length over mean
-            radius, of at least ``sweep_aspect`` on both), map along and around the parts
+            radius, of at least ``sweep_aspect`` on both) whose centre lines' turns differ by at
+            least ``sweep_turns`` (a coil that gained a turn), map along and around the parts
             through their sweep charts (:mod:`proctex.correspond.sweep`) instead of the cage's
-            result when that fits the template better by Chamfer distance (coils whose number of
-            turns changes; the cage can only follow the volume).
+            result when that fits the template better by Chamfer distance; the cage can only
+            follow the volume.
         chamfer: "plane" (template samples to the deformed source's tangent planes) or "point"
             (point-to-point, both directions); see the module docstring.
         device, dtype: where the optimisation runs (CUDA when asked for and present).
@@ -120,8 +121,9 @@ class CageConfig:
     normal_target: str = "face"
     keep_best: bool = True
     prealign: str = "auto"
-    sweep: bool = False
+    sweep: bool = True
     sweep_aspect: float = 12.0
+    sweep_turns: float = 0.5
     device: str = "cpu"
     dtype: str = "float64"
 
@@ -140,8 +142,9 @@ class CageConfig:
             raise ValueError(f"normal_target must be face or vertex, got {self.normal_target!r}")
         if self.prealign not in PREALIGNS:
             raise ValueError(f"prealign must be one of {', '.join(PREALIGNS)}, got {self.prealign!r}")
-        if not isinstance(self.sweep, bool) or not (np.isfinite(self.sweep_aspect) and self.sweep_aspect > 0):
-            raise ValueError(f"sweep must be true or false and sweep_aspect a positive number, got {self.sweep!r}, {self.sweep_aspect!r}")
+        if not isinstance(self.sweep, bool) or not all(isinstance(x, (int, float)) and np.isfinite(x) and x > 0 for x in (self.sweep_aspect, self.sweep_turns)):
+            raise ValueError(f"sweep must be true or false and sweep_aspect, sweep_turns positive numbers, "
+                             f"got {self.sweep!r}, {self.sweep_aspect!r}, {self.sweep_turns!r}")
         weights = {k: getattr(self, k) for k in ("w_chamfer", "w_surface", "w_normal", "w_mvc", "w_smooth", "w_symmetry", "w_rest")}
         bad = [k for k, v in weights.items() if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0)]
         if bad:
