@@ -179,6 +179,30 @@ def goals_table(results: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def results_table(results: dict[str, dict[str, Any]]) -> str:
+    """Markdown: the README's results table, one row per family: the paper's ProcCorrNet mean / max;
+    the run-time path's pseudo-GT mean, worst-pair mean and max (what the paper reports: the network
+    against its own cage teacher); GT mean / p99 / max where a truth exists; baked tracked-point
+    variance and its ratios to identity and nearest; flipped share; ms per shape."""
+    head = ("| family | paper mean / max | pseudo-GT mean / worst pair / max | GT mean / p99 / max "
+            "| variance (x identity, x nearest) | flipped | ms |")
+    lines = [head, "|" + "---|" * 7]
+    f = lambda x, d=4: "-" if x is None else f"{x:.{d}f}"  # noqa: E731
+    for name, r in results.items():
+        ms = r["metrics"]["methods"]
+        net = ms["corrnet"]
+        paper = PAPER.get(name) or (None, None)
+        pgt, gt = net.get("pgt_error") or {}, net.get("gt_error") or {}
+        var = net["tracked_point_variance"]
+        ratios = ", ".join(f"{var / max(ms[b]['tracked_point_variance'], 1e-12):.2f}x" if b in ms else "-" for b in ("identity", "nearest"))
+        sec = net.get("seconds_per_shape")
+        flipped = gt.get("flipped")
+        lines.append(f"| {name} | {f(paper[0], 3)} / {f(paper[1], 3)} | {f(pgt.get('mean'))} / {f(pgt.get('worst_pair_mean'))} / {f(pgt.get('max'), 3)} "
+                     f"| {f(gt.get('mean'))} / {f(gt.get('p99'), 3)} / {f(gt.get('max'), 3)} | {var:.4f} ({ratios}) "
+                     f"| {'-' if flipped is None else f'{flipped:.2%}'} | {'-' if sec is None else f'{1000 * sec:.0f}'} |")
+    return "\n".join(lines)
+
+
 def summary_table(results: dict[str, dict[str, Any]]) -> str:
     """Markdown: per family, baked tracked-point variance, GT mean (where a truth exists) and
     pseudo-GT mean of corrnet, identity and nearest, the share of parts a network mapped, corrnet's
@@ -257,7 +281,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         print(markdown_table(results[model]["metrics"]), flush=True)
         write_json(out, {"benchmark": "fidelity", "params": vars(args), "families": results})
     done = {m: results[m] for m in models if m in results}
-    table = summary_table(done) + "\n\nIssue 16's goals:\n\n" + goals_table(done)
+    table = (results_table(done) + "\n\nAgainst the baselines:\n\n" + summary_table(done)
+             + "\n\nGoals:\n\n" + goals_table(done))
     print(table)
     Path(out.with_suffix(".md")).write_text(table + "\n")
     return results
