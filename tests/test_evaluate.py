@@ -203,3 +203,41 @@ def test_eval_folder_builds_then_evaluates(tmp_path, capsys):
     assert "| corrnet |" in text and "| nearest |" in text and "2 test shapes" in text
     state = json.loads((out / "family.json").read_text())
     assert all(state["stages"][s]["state"] == "done" for s in ("sample", "template", "paint", "pairs", "train"))
+
+
+@pytest.mark.slow
+def test_pseudo_gt_flips_are_measured_against_the_teacher(pinned_family):
+    """Without ground truth, a flipped point is one the method put on a template face facing away
+    from the face its cage point lies on. The identity on the template itself, against a teacher
+    that agrees with it, flips nothing; against a teacher that puts every point on the other side
+    of the wall (the nearest face facing the other way), most points count as flipped (0.78 here:
+    points near a rim or an edge sit on faces of both orientations)."""
+    from proctex.family.assign import representative_frame
+    from proctex.family.fidelity import pgt_errors
+    from proctex.family.mappers import IdentityMapper
+    from proctex.family.stages import load_assets
+    from proctex.family.transfer import transfer
+    from proctex.geometry.parts import part_mesh, segment
+    from proctex.geometry.surface import face_normals, sample_surface
+
+    assets = load_assets(pinned_family)
+    shape = assets.shape
+    seg = segment(shape)
+    result = transfer(shape, assets, IdentityMapper(), seed=0)
+    right, wrong = [], []
+    for a in result.assignment:
+        if a.group < 0 or a.part not in result.points:
+            continue
+        v, f = part_mesh(shape, seg.parts[a.part])
+        src, _, _ = sample_surface(representative_frame(v, a), f, 300, seed=a.part)
+        ga = assets.groups[a.group]
+        hit = ga.index.query(src)
+        other, ok = ga.index.query_oriented(hit.points, -face_normals(ga.vertices, ga.faces)[hit.faces])
+        right.append({"group": a.group, "part": a.part, "src": src, "dst": hit.points})
+        wrong.append({"group": a.group, "part": a.part, "src": src[ok], "dst": other.points[ok]})
+    assert right
+    e, _, _, fl = pgt_errors(shape, seg, result, assets, right, flips=True)
+    assert float(np.nanmean(fl)) < 0.01 and float(e.mean()) < 0.01
+    e, _, _, fl = pgt_errors(shape, seg, result, assets, wrong, flips=True)
+    assert float(np.nanmean(fl)) > 0.6
+    assert len(pgt_errors(shape, seg, result, assets, right)) == 3  # without flips: the three arrays as before

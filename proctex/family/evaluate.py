@@ -205,8 +205,8 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     if samples is not None:
         e, g, fl = gt_errors(shape, seg, samples, result, assets, ctx.truth, flips=True)
         out["gt"], out["gt_groups"], out["gt_flipped"] = e.astype(np.float32), g.astype(np.int32), fl.astype(np.float32)
-    e, g, means = pgt_errors(shape, seg, result, assets, pairs)
-    out["pgt"], out["pgt_groups"], out["pgt_pairs"] = e.astype(np.float32), g.astype(np.int32), means
+    e, g, means, fl = pgt_errors(shape, seg, result, assets, pairs, flips=True)
+    out["pgt"], out["pgt_groups"], out["pgt_pairs"], out["pgt_flipped"] = e.astype(np.float32), g.astype(np.int32), means, fl.astype(np.float32)
     active = [a for a in result.assignment if a.how != "degenerate"]
     mapped = [a for a in active if a.group >= 0 and a.part not in result.direct]
     serves = getattr(mapper, "serves", None)  # what the build chose per group (network mappers only)
@@ -325,6 +325,12 @@ def summarise_method(ctx_points, tracker: str, template_colours: np.ndarray, out
         if groups:
             entry["pgt_error"]["per_group"] = _per_group(np.concatenate([o["pgt"] for o in outs if o["pgt_groups"] is not None and len(o["pgt"])]),
                                                          np.concatenate(groups))
+        flips = [o["pgt_flipped"] for o in outs if o.get("pgt_flipped") is not None and len(o["pgt_flipped"])]
+        if flips:
+            # Against the cage teacher, where no truth exists: points landing on a template face
+            # that faces away from the one their cage point lies on.
+            fl = np.concatenate(flips)
+            entry["pgt_error"]["flipped"] = float(np.nanmean(fl)) if (~np.isnan(fl)).any() else None
     return entry
 
 

@@ -495,36 +495,46 @@ def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets,
     return (errors, groups, flipped) if flips else (errors, groups)
 
 
-def pgt_errors(shape: Shape, seg: Segmentation, result, assets, pairs: Sequence[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, list[float]]:
+def pgt_errors(shape: Shape, seg: Segmentation, result, assets, pairs: Sequence[dict[str, Any]], flips: bool = False):
     """Pseudo-ground-truth errors of a transfer against the stored cage pairs of this shape.
 
     ``pairs``: per pair ``{"group", "part", "src" (n, 3), "dst" (n, 3)}`` (source samples in the
     representative's normalised frame, as :func:`proctex.family.assign.representative_frame` puts the
     part, and their cage template points). Returns ``(errors (N,), groups (N,), per-pair means)``;
-    a pair whose part the method dropped or put in another group fails every point.
+    a pair whose part the method dropped or put in another group fails every point. With ``flips``,
+    also (N,) float: 1 where the point landed on a template face facing away from the face its cage
+    point lies on (the other side of a thin wall, measured without ground truth), 0 where not, NaN
+    on failed pairs.
     """
     from .assign import representative_frame
 
     by_part = {a.part: a for a in result.assignment}
-    errs, grps, means = [], [], []
+    errs, grps, means, flipped = [], [], [], []
     for pr in pairs:
         g, part = int(pr["group"]), int(pr["part"])
         src, dst = np.asarray(pr["src"], dtype=np.float64), np.asarray(pr["dst"], dtype=np.float64)
         a = by_part.get(part)
+        fl = np.full(len(src), np.nan)
         if a is None or a.group != g or part not in result.points or part >= len(seg.parts):
             e = np.full(len(src), FAIL_ERROR)
         else:
             p = seg.parts[part]
             v, f = part_mesh(shape, p)
             hit = SurfaceIndex(representative_frame(v, a), f).query(src)
-            pred, _ = _mapped_points(shape, seg, result, assets, part, p.faces[hit.faces], hit.bary, g)
+            pred, pred_faces = _mapped_points(shape, seg, result, assets, part, p.faces[hit.faces], hit.bary, g)
             e = np.linalg.norm(pred - dst, axis=1)
+            if flips:
+                ga = assets.groups[g]
+                fn = face_normals(ga.vertices, ga.faces)
+                fl = (np.einsum("kd,kd->k", fn[pred_faces], fn[ga.index.query(dst).faces]) < 0).astype(np.float64)
         errs.append(e)
         grps.append(np.full(len(e), g, dtype=np.int64))
         means.append(float(e.mean()))
+        flipped.append(fl)
     if not errs:
-        return np.zeros(0), np.zeros(0, dtype=np.int64), []
-    return np.concatenate(errs), np.concatenate(grps), means
+        return (np.zeros(0), np.zeros(0, dtype=np.int64), []) + ((np.zeros(0),) if flips else ())
+    out = (np.concatenate(errs), np.concatenate(grps), means)
+    return out + (np.concatenate(flipped),) if flips else out
 
 
 def error_summary(errors: np.ndarray) -> dict[str, Any]:
