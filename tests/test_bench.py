@@ -124,6 +124,13 @@ def test_fidelity_real_suite_configs_and_pseudo_gt_verdicts():
     assert verdict({"corrnet": m(0.1, 0.05), "identity": m(0.2, 0.02), "nearest": m(0.3, 0.1)}) == "loses: pseudo-GT vs identity"
     g = goals("chair.blend", {"corrnet": m(0.1, 0.022), "identity": m(0.2, 0.05), "nearest": m(0.3, 0.1)})
     assert g["missed"] == ["pseudo-GT mean 2.0x paper"] and g["pgt_mean"] == 0.022
+    # The README's results table: the paper's row, the network against its teacher, the ratios.
+    from bench_fidelity import results_table
+
+    net = {**m(0.1, 0.022), "seconds_per_shape": 0.05, "pgt_error": {"mean": 0.022, "worst_pair_mean": 0.05, "max": 0.2, "flipped": 0.004}}
+    row = results_table({"chair.blend": {"metrics": {"methods": {"corrnet": net, "identity": m(0.2, 0.05), "nearest": m(0.4, 0.1)}}}}).splitlines()[2]
+    for cell in ("0.011 / 0.025", "0.0220 / 0.0500 / 0.200", "- / - / -", "0.1000 (0.50x, 0.25x)", "- / 0.40%", "| 50 |"):
+        assert cell in row, (cell, row)
     bad = subprocess.run([sys.executable, str(BENCH / "bench_fidelity.py"), "--suite", "real", "--models", "spaceship"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode != 0 and "unknown real families" in bad.stderr
