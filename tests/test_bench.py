@@ -134,3 +134,11 @@ def test_fidelity_real_suite_configs_and_pseudo_gt_verdicts():
     bad = subprocess.run([sys.executable, str(BENCH / "bench_fidelity.py"), "--suite", "real", "--models", "spaceship"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode != 0 and "unknown real families" in bad.stderr
+
+
+def test_the_sweep_pairs_scan_runs():
+    done = subprocess.run([sys.executable, str(BENCH / "sweep_pairs.py"), "--models", "fork", "--sofa-dir", ""],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    row = [line for line in done.stdout.splitlines() if line.startswith("| fork |")]
+    assert len(row) == 1 and row[0].endswith("| 0 |")  # no fork pair changes its winding

@@ -33,7 +33,7 @@ def test_the_chart_orders_a_helix_and_counts_its_turns(turns):
     assert np.abs(chart.s - truth).max() < 0.01
     assert abs(chart.turns - turns) < 0.05
     np.testing.assert_array_equal(chart.reference, [0.0, 0.0, 1.0])
-    assert chart.aspect > 50 and abs(chart.radius - 0.12) < 0.02
+    assert chart.aspect > 50 and abs(chart.radius - 0.12) < 0.02 and chart.tubular
     assert np.all((chart.theta >= -np.pi) & (chart.theta <= np.pi))
 
 
@@ -45,7 +45,7 @@ def test_the_chart_angle_goes_once_around_each_ring():
     mid = np.flatnonzero(np.abs(part.vertices[:, 0] - path[20, 0]) < 1e-9)
     assert len(mid) == 16
     th = np.unwrap(chart.theta[mid])
-    assert abs(abs(th[-1] - th[0]) - 2 * np.pi * 15 / 16) < 0.05
+    assert abs(abs(th[-1] - th[0]) - 2 * np.pi * 15 / 16) < 0.08
     assert chart.turns < 0.05
 
 
@@ -72,9 +72,32 @@ def test_a_uv_seam_split_does_not_cut_the_chart():
     assert np.abs(s - whole.s).max() < 1e-6
 
 
+def test_only_tubes_are_tubular_and_the_chart_is_deterministic():
+    """A coil and a tube of elliptic section are tubes; a long flat slab (a sofa's back panel) and
+    a mug's thin-walled body, whose Fiedler vector may run around it, are not; the chart of the
+    same mesh is the same every time, even where the Fiedler eigenvalue is degenerate."""
+    from proctex.geometry.parts import analyse, part_mesh
+    from proctex.models import get_model
+
+    coil, _, _ = _coil(3.0)
+    assert sweep_chart(coil.vertices, coil.faces).tubular
+    path = np.stack([np.linspace(0.0, 4.0, 40), np.zeros(40), np.zeros(40)], axis=1)
+    oval = tube(path, 0.3, n_sides=16, scale_xy=(1.0, 0.5))
+    assert sweep_chart(oval.vertices, oval.faces).tubular
+    slab = box((2.0, 0.06, 0.78), divisions=(20, 2, 8))
+    chart = sweep_chart(slab.vertices, slab.faces)
+    assert not chart.tubular and chart.spread > 0.4
+    mug = get_model("mug").generate()
+    g = analyse(mug)
+    v, f = part_mesh(mug, g.parts[g.groups[0].representative])
+    first, second = sweep_chart(v, f), sweep_chart(v, f)
+    assert not first.tubular
+    np.testing.assert_array_equal(first.s, second.s)
+
+
 def test_a_box_is_not_a_tube_and_bad_parts_are_refused():
     b = box((1.0, 0.8, 0.6), divisions=(4, 4, 4))
-    assert sweep_chart(b.vertices, b.faces).aspect < 10
+    assert sweep_chart(b.vertices, b.faces).aspect < 10  # round enough, but not long: not tube-like
     L, area = cotangent_laplacian(b.vertices, b.faces)
     np.testing.assert_allclose(L @ np.ones(len(b.vertices)), 0.0, atol=1e-9)  # constants are in its kernel
     assert abs(area.sum() - 2 * (0.8 + 0.48 + 0.6)) < 1e-9

@@ -345,8 +345,9 @@ def correspond_parts(
 def _sweep_candidate(prep: _Prepared, cage: CageConfig | None, cage_points: np.ndarray, tpl_s: np.ndarray):
     """The sweep-chart map of a tube-like pair (:mod:`proctex.correspond.sweep`) when it fits the
     template better than the cage did: ``(moved (n, 3) in the template's normalised frame,
-    SweepField)``, else None. Only when ``cage.sweep`` is on, both parts' charts have an aspect
-    of at least ``cage.sweep_aspect`` and their centre lines' turns differ by at least
+    SweepField)``, else None. Only when ``cage.sweep`` is on, both parts' charts are tubes
+    (:attr:`proctex.geometry.chart.SweepChart.tubular`) with an aspect of at least
+    ``cage.sweep_aspect`` and their centre lines' turns differ by at least
     ``cage.sweep_turns`` (where the winding is the same, the cage follows the part as well or
     better: mug handles and stair rails lost 0.002-0.003 of GT mean when every tube-like pair
     took the chart)."""
@@ -355,7 +356,7 @@ def _sweep_candidate(prep: _Prepared, cage: CageConfig | None, cage_points: np.n
     from .sweep import sweep_field, template_chart
 
     tpl_chart = template_chart(prep.index.vertices, prep.index.faces)
-    if tpl_chart is None or tpl_chart.aspect < cage.sweep_aspect:
+    if tpl_chart is None or tpl_chart.aspect < cage.sweep_aspect or not tpl_chart.tubular:
         return None
     src_norm = (prep.src_v - prep.src_center) / prep.src_radius
     try:
@@ -363,7 +364,7 @@ def _sweep_candidate(prep: _Prepared, cage: CageConfig | None, cage_points: np.n
                             prep.src_center, prep.src_radius)
     except ValueError:
         return None
-    if field.source.aspect < cage.sweep_aspect or abs(field.source.turns - tpl_chart.turns) < cage.sweep_turns:
+    if field.source.aspect < cage.sweep_aspect or not field.source.tubular or abs(field.source.turns - tpl_chart.turns) < cage.sweep_turns:
         return None
     s = interpolate(field.source_s[:, None], prep.src_f, prep.sample_faces, prep.sample_bary)[:, 0]
     moved = field.map_normalised((prep.samples - prep.src_center) / prep.src_radius, s)

@@ -49,6 +49,9 @@ class SweepChart:
         turns: turns of the centre line about ``reference`` through its mean (a coil's winding
             count; segments passing within 0.2 of the median distance of that axis count nothing).
         eigenvalue: the Fiedler eigenvalue.
+        tube_fit: surface area over ``2 pi radius length`` (about 1 for a tube; see :attr:`tubular`).
+        spread: mean over level sets of the coefficient of variation of the distances to the
+            centre line (0 for a round tube).
     """
 
     s: np.ndarray
@@ -61,6 +64,18 @@ class SweepChart:
     aspect: float
     turns: float
     eigenvalue: float
+    tube_fit: float = float("nan")
+    spread: float = float("nan")
+
+    @property
+    def tubular(self) -> bool:
+        """The chart describes a tube: the surface area is that of a tube of the chart's length
+        and radius (``tube_fit`` within [2/3, 3/2]) and each level set is a ring about its
+        centroid (``spread`` at most 0.3). When the Fiedler vector runs *around* a wide part
+        instead of along it (a short, wide vessel) the level sets are strips and the area is far
+        from ``2 pi r L``; a flat slab's level sets are long thin rectangles (spread ~0.5). How
+        long the tube is, is :attr:`aspect`'s to say (a cube is a short, fat "tube")."""
+        return bool(2.0 / 3.0 <= self.tube_fit <= 1.5 and self.spread <= 0.3)
 
     def frame(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Centre point, tangent, normal and binormal, each (k, 3), at positions ``s (k,)``."""
@@ -158,7 +173,10 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     mass = np.maximum(area, 1e-12 * area.max())
     M = sp.diags(mass)
     scale = float(mass.sum())  # eigenvalues scale as 1/area: shift relative to it
-    evals, evecs = eigsh(L.tocsc(), k=2, M=M.tocsc(), sigma=-1e-3 / scale, which="LM")
+    # a fixed start vector: the solve is deterministic even where the eigenvalue is degenerate
+    # (the two angular modes of a surface of revolution)
+    v0 = np.random.default_rng(0).standard_normal(nv)
+    evals, evecs = eigsh(L.tocsc(), k=2, M=M.tocsc(), sigma=-1e-3 / scale, which="LM", v0=v0)
     order = np.argsort(evals)
     fied = evecs[:, order[1]]
     lam = float(evals[order[1]])
@@ -190,12 +208,19 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
         reference = reference / np.linalg.norm(reference)
     chart = SweepChart(np.full(len(v), np.nan), np.full(len(v), np.nan), cent, knots, reference, length, 0.0, 0.0, 0.0, lam)
     c, _, _, _ = chart.frame(s_w)
-    radius = float(np.average(np.linalg.norm(pos - c, axis=1), weights=mass))
+    dist = np.linalg.norm(pos - c, axis=1)
+    radius = float(np.average(dist, weights=mass))
+    # spread of the distances to the centre line within each level set: ~0 for a round tube
+    lvl_mean = np.bincount(which, weights=mass * dist, minlength=b) / np.maximum(wsum, 1e-300)
+    lvl_var = np.bincount(which, weights=mass * (dist - lvl_mean[which]) ** 2, minlength=b) / np.maximum(wsum, 1e-300)
+    spread = float(np.average(np.sqrt(lvl_var[ok]) / np.maximum(lvl_mean[ok], 1e-300), weights=wsum[ok]))
     th = chart.angle(pos, s_w)
     chart.s[used] = s_w[inv]
     chart.theta[used] = th[inv]
     chart.radius = radius
     chart.aspect = length / max(radius, 1e-300)
+    chart.tube_fit = float(area.sum() / max(2 * np.pi * radius * length, 1e-300))
+    chart.spread = spread
     # winding of the centre line about the reference axis (through its mean)
     rel = cent - cent.mean(axis=0)
     u_ax = np.cross(reference, np.eye(3)[int(np.argmin(np.abs(reference)))])
