@@ -188,6 +188,9 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     ok = wsum > 0
     cent = np.stack([np.bincount(which, weights=mass * pos[:, j], minlength=b) for j in range(3)], axis=1)[ok] / wsum[ok, None]
     fmid = (np.bincount(which, weights=mass * fied, minlength=b)[ok] / wsum[ok])
+    # level sets whose centroids coincide (a symmetric part's middle) would repeat a knot
+    distinct = np.concatenate([[True], np.linalg.norm(np.diff(cent, axis=0), axis=1) > 1e-9 * size])
+    cent, fmid = cent[distinct], fmid[distinct]
     seg = np.linalg.norm(np.diff(cent, axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(seg)])
     length = float(arc[-1])
