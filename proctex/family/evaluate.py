@@ -139,6 +139,12 @@ class _Context:
         self.reference, _ = render_six_views(self.template.vertices, self.template.faces, tpl.corner_uv, tpl.face_group,
                                              self.assets.textures, self.up, settings["view_size"])
         self.mappers: dict[str, Any] = {}
+        # Parts of a kind the template lacks are painted as the service paints them (the family's
+        # prompt, read on the new shape), so coverage measures the run-time path, not a gap of
+        # the evaluation.
+        from proctex.texture.painters import SurfacePainter
+
+        self.painter = SurfacePainter(self.config.paint.prompt, seed=self.config.seed)
         self.pairs_index = self.store.read_table(StoreLayout.PAIRS).to_pylist() if self.store.exists(StoreLayout.PAIRS) else []
 
     def mapper(self, name: str) -> Any:
@@ -176,7 +182,7 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     t = time.perf_counter()
     mapper = ctx.mapper(name)
     try:
-        result = shape_to_glb(shape, assets, mapper, seed=st["seed"], up=up, shortcut=name in SHORTCUT).result
+        result = shape_to_glb(shape, assets, mapper, seed=st["seed"], up=up, shortcut=name in SHORTCUT, painter=ctx.painter).result
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         # A failed shape counts: every located point untextured, every point with a truth failed.
         failed = np.where((loc.face >= 0)[:, None], np.inf, np.nan).repeat(3, axis=1).astype(np.float32)
