@@ -87,8 +87,9 @@ class CageConfig:
             :func:`proctex.geometry.align.affine_icp_to_surface`) or "auto" (the box map, replaced
             by its affine refinement where that fits at least as well, or ICP: the one with the
             smaller symmetric Chamfer distance).
-        sweep: for a pair of tube-like parts (sweep-chart aspect, centre-line length over mean
-            radius, of at least ``sweep_aspect`` on both) whose centre lines' turns differ by at
+        sweep: for a pair of tubes (:attr:`proctex.geometry.chart.SweepChart.tubular`, with a
+            sweep-chart aspect, centre-line length over mean radius, of at least
+            ``sweep_aspect`` on both) whose centre lines' turns differ by at
             least ``sweep_turns`` (a coil that gained a turn), map along and around the parts
             through their sweep charts (:mod:`proctex.correspond.sweep`) instead of the cage's
             result when that fits the template better by Chamfer distance; the cage can only
