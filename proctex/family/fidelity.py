@@ -40,7 +40,7 @@ from scipy.optimize import linear_sum_assignment
 
 from proctex.geometry.parts import Grouping, Segmentation, part_mesh
 from proctex.geometry.shape import Shape
-from proctex.geometry.surface import SurfaceIndex, face_normals, sample_surface
+from proctex.geometry.surface import SurfaceIndex, sample_surface
 from proctex.geometry.surface import interpolate
 from proctex.texture.uv import sample_texture
 
@@ -445,6 +445,14 @@ def _mapped_points(shape: Shape, seg: Segmentation, result, assets, part: int, f
     return hit.points, hit.faces
 
 
+def _facing_away(ga, faces: np.ndarray, reference_faces: np.ndarray) -> np.ndarray:
+    """(k,) float: 1 where representative face ``faces[i]`` faces away from ``reference_faces[i]``
+    (the other side of a thin wall), else 0; ``ga``: the group's assets (its index holds the face
+    normals)."""
+    n = ga.index.normals
+    return (np.einsum("kd,kd->k", n[faces], n[reference_faces]) < 0).astype(np.float64)
+
+
 def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets, truth: TemplateTruth, flips: bool = False):
     """Ground-truth errors (k,) of a transfer (:class:`proctex.family.transfer.TransferResult`) at
     ``samples``, in the normalised frame of the representative the method chose, and the group
@@ -489,9 +497,7 @@ def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets,
         errors[sel] = np.linalg.norm(pred - true, axis=1)
         groups[sel] = g
         if flips:
-            ga = assets.groups[g]
-            fn = face_normals(ga.vertices, ga.faces)
-            flipped[sel] = (np.einsum("kd,kd->k", fn[pred_faces], fn[true_faces]) < 0).astype(np.float64)
+            flipped[sel] = _facing_away(assets.groups[g], pred_faces, true_faces)
     return (errors, groups, flipped) if flips else (errors, groups)
 
 
@@ -524,9 +530,7 @@ def pgt_errors(shape: Shape, seg: Segmentation, result, assets, pairs: Sequence[
             pred, pred_faces = _mapped_points(shape, seg, result, assets, part, p.faces[hit.faces], hit.bary, g)
             e = np.linalg.norm(pred - dst, axis=1)
             if flips:
-                ga = assets.groups[g]
-                fn = face_normals(ga.vertices, ga.faces)
-                fl = (np.einsum("kd,kd->k", fn[pred_faces], fn[ga.index.query(dst).faces]) < 0).astype(np.float64)
+                fl = _facing_away(assets.groups[g], pred_faces, assets.groups[g].index.query(dst).faces)
         errs.append(e)
         grps.append(np.full(len(e), g, dtype=np.int64))
         means.append(float(e.mean()))
