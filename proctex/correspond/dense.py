@@ -204,26 +204,25 @@ def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.n
     index = SurfaceIndex((tpl_v - tc) / tr, tpl_f)
     pick = rng.choice(len(samples), size=min(icp_points, len(samples)), replace=False)
     sub = (samples[pick] - sc) / sr
-    candidates = []
-    tpl_s = None
+    tpl_s = sample_surface(index.vertices, index.faces, len(sub), seed=rng)[0] if prealign in ("affine", "auto") else None
+    fit_of = lambda R, t, s: chamfer(apply(sub, R, t, s), tpl_s) if tpl_s is not None else 0.0  # noqa: E731
+    candidates = []  # (R, t, s, error, Chamfer)
     if prealign in ("box", "affine", "auto"):
         used = np.unique(src_f)
         k = box_scale((src_v[used] - sc) / sr, index.vertices[np.unique(tpl_f)])
-        candidates.append((np.diag(k), np.zeros(3), 1.0, float(index.query(sub * k, exact=False).distance.mean())))
+        candidates.append((np.diag(k), np.zeros(3), 1.0, float(index.query(sub * k, exact=False).distance.mean()), fit_of(np.diag(k), np.zeros(3), 1.0)))
         if prealign in ("affine", "auto"):
-            tpl_s, _, _ = sample_surface(index.vertices, index.faces, len(sub), seed=rng)
             fit = affine_icp_to_surface(sub, face_normals(src_v, src_f)[sf[pick]], index, A0=np.diag(k))
-            # the facet fit replaces the box start only where it fits at least as well by Chamfer
-            if fit.accepted and (prealign == "affine" or chamfer(apply(sub, fit.A, fit.t), tpl_s) <= chamfer(sub * k, tpl_s)):
-                candidates[0] = (fit.A, fit.t, 1.0, fit.error)
+            if fit.accepted:
+                c = fit_of(fit.A, fit.t, 1.0)
+                # the facet fit replaces the box start only where it fits at least as well by Chamfer
+                if prealign == "affine" or c <= candidates[0][4]:
+                    candidates[0] = (fit.A, fit.t, 1.0, fit.error, c)
     if prealign in ("icp", "auto"):
         icp = icp_to_surface(sub, index, scale=True, max_iter=100, tol=1e-7, exact=False)
-        candidates.append((icp.R, icp.t, icp.s, icp.error))
-    if len(candidates) > 1:
-        if tpl_s is None:
-            tpl_s, _, _ = sample_surface(index.vertices, index.faces, len(sub), seed=rng)
-        candidates.sort(key=lambda c: chamfer(apply(sub, c[0], c[1], c[2]), tpl_s))  # stable: box first on a tie
-    R, t, s, error = candidates[0]
+        candidates.append((icp.R, icp.t, icp.s, icp.error, fit_of(icp.R, icp.t, icp.s)))
+    candidates.sort(key=lambda c: c[4])  # stable: box first on a tie
+    R, t, s, error, _ = candidates[0]
     return _Prepared(src_v, src_f, sc, sr, tc, tr, samples, sf, sb, index, R, t, s, error)
 
 

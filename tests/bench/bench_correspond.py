@@ -96,15 +96,15 @@ def main(argv: list[str] | None = None) -> int:
         src = FolderSource(sofa)
         ti = src.template_index()
         template = src.load(ti)
+        # vertex-index truth: the export keeps one vertex order, so shape vertex i is template vertex
+        # i; the template's positions serve as canonical coordinates on both.
+        template.canonical = template.vertices.copy()
         tg = analyse(template)
         others = [i for i in src.indices("train") if i != ti][: args.sofa_pairs]
         for i in others:
             shape = src.load(i)
             if len(shape.vertices) == len(template.vertices):
-                # vertex-index truth: the export keeps one vertex order, so shape vertex i is template
-                # vertex i; the template's positions serve as canonical coordinates on both.
-                shape.canonical = template.vertices.copy()
-                template.canonical = template.vertices.copy()
+                shape.canonical = template.canonical
             sg = analyse(shape)
             for method in methods:
                 res = correspond_shapes(shape, template, method=method, n_points=args.points, seed=args.seed, cage=cage, grouping=sg, template_grouping=tg, **opts)
