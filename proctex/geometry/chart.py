@@ -44,8 +44,8 @@ class SweepChart:
         centerline: (b, 3) float64 centroids of ``b`` level sets of ``s``, in order; knots: (b,)
             their ``s``.
         reference: (3,) the world axis angles are measured from.
-        length: centre-line length; radius: mean distance of the surface to it; aspect:
-            ``length / radius`` (tube-like parts: large).
+        length: centre-line length; radius: mean distance of the surface to it (their ratio is
+            :attr:`aspect`).
         turns: turns of the centre line about ``reference`` through its mean (a coil's winding
             count; segments passing within 0.2 of the median distance of that axis count nothing).
         eigenvalue: the Fiedler eigenvalue.
@@ -61,11 +61,15 @@ class SweepChart:
     reference: np.ndarray
     length: float
     radius: float
-    aspect: float
     turns: float
     eigenvalue: float
     tube_fit: float = float("nan")
     spread: float = float("nan")
+
+    @property
+    def aspect(self) -> float:
+        """Centre-line length over the mean distance of the surface to it (large for a long tube)."""
+        return self.length / max(self.radius, 1e-300)
 
     @property
     def tubular(self) -> bool:
@@ -201,15 +205,14 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-300)
     weights = seg / max(seg.sum(), 1e-300)
     align = (weights[:, None] * tang ** 2).sum(axis=0) if len(tang) else np.zeros(3)
-    axis = int(np.argmin(align))
     if reference is None:
-        reference = np.eye(3)[axis]
+        reference = np.eye(3)[int(np.argmin(align))]
     else:
         reference = np.asarray(reference, dtype=np.float64)
         if reference.shape != (3,) or not np.isfinite(reference).all() or not np.linalg.norm(reference) > 0:
             raise ValueError("sweep chart: reference must be a finite non-zero (3,) direction")
         reference = reference / np.linalg.norm(reference)
-    chart = SweepChart(np.full(len(v), np.nan), np.full(len(v), np.nan), cent, knots, reference, length, 0.0, 0.0, 0.0, lam)
+    chart = SweepChart(np.full(len(v), np.nan), np.full(len(v), np.nan), cent, knots, reference, length, 0.0, 0.0, lam)
     c, _, _, _ = chart.frame(s_w)
     dist = np.linalg.norm(pos - c, axis=1)
     radius = float(np.average(dist, weights=mass))
@@ -221,7 +224,6 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     chart.s[used] = s_w[inv]
     chart.theta[used] = th[inv]
     chart.radius = radius
-    chart.aspect = length / max(radius, 1e-300)
     chart.tube_fit = float(area.sum() / max(2 * np.pi * radius * length, 1e-300))
     chart.spread = spread
     # winding of the centre line about the reference axis (through its mean)
