@@ -406,8 +406,7 @@ def test_one_part_frame_everywhere(monkeypatch):
         calls.append(len(v))
         return real(v, a)
 
-    monkeypatch.setattr(proctex.family.assign, "representative_frame", spy)  # where the build and the evaluation look it up
-    monkeypatch.setattr(proctex.family.transfer, "representative_frame", spy)  # the run time's import of it
+    monkeypatch.setattr(proctex.family.assign, "representative_frame", spy)  # the build, the run time and the evaluation reach it here
     tpl = get_model("mug").generate()
     grouping = analyse(tpl)
     tex = paint_surface(tpl, grouping, SurfacePainter("red"), size=32)
@@ -418,3 +417,45 @@ def test_one_part_frame_everywhere(monkeypatch):
     cfg = BuildConfig.from_dict(dict(model="mug", corr_points=100, cage_iterations=2)).validate()
     proctex.family.stages.solve_pair(shape, assets, 0, cfg, seed=0)
     assert len(calls) == 3
+
+
+def _plate(size=(1.0, 0.3, 0.05), n=6):
+    """A closed thin plate, faces wound outward, with an off-centre notch cut into one long edge
+    (a quad of its top raised) so that it has no mirror symmetry across x."""
+    from proctex.geometry import primitives as P
+
+    part = P.box(size, divisions=(n, 3, 1))
+    v, f = part.vertices.copy(), part.faces
+    v[:, 2] += 0.02 * np.clip(v[:, 0] - 0.2, 0.0, None) * (v[:, 2] > 0)  # a top that rises towards +x: not mirror-symmetric in x
+    return v, np.asarray(f, dtype=np.int64)
+
+
+def test_a_part_matched_through_a_mirror_keeps_its_faces_wound_outward():
+    """A part matched to its representative through a mirror (det R = -1: a left part on the right
+    representative) comes into the representative's frame with its faces' winding reversed, so its
+    normals still point out of the part: the cage teacher, which projects onto faces whose normals
+    agree, maps each point of the mirrored plate onto itself; fed the winding as the mirror leaves
+    it (inside out), the same solver sends the points across the plate to the other side."""
+    from proctex.correspond.dense import correspond_parts
+    from proctex.family.assign import representative_part
+    from proctex.geometry.surface import face_normals, normalised_frame
+
+    v, f = _plate()
+    c, r = normalised_frame(v)
+    tpl = (v - c) / r
+    M = np.diag([-1.0, 1.0, 1.0])
+    mirrored_v, mirrored_f = v @ M.T * 2.0 + [3.0, 1.0, 0.0], f[:, ::-1]  # an exported mirrored copy: outward winding
+    a = PartAssignment(0, 0, -1, M, 0.0, "extra")
+    vn, fo = representative_part(mirrored_v, mirrored_f, a)
+    assert np.allclose(vn, tpl, atol=1e-9) and (fo == f).all()  # the representative itself, wound as it is
+    n_out = face_normals(vn, fo)
+    assert (np.einsum("kd,kd->k", n_out, face_normals(tpl, f)) > 0.99).all()
+    same, kept_f = representative_part(v, f, PartAssignment(0, 0, -1, np.eye(3), 0.0, "slot"))
+    assert np.allclose(same, tpl) and (kept_f == f).all()  # no mirror: the faces as they are
+
+    kept = correspond_parts(vn, fo, tpl, f, method="cage", n_points=400, seed=0)
+    inside_out = correspond_parts(vn, mirrored_f, tpl, f, method="cage", n_points=400, seed=0)
+    err = lambda res: np.linalg.norm(res.points - res.source_points, axis=1)  # noqa: E731  (the map is the identity)
+    thickness = 0.05 / r
+    assert err(kept).mean() < 0.1 * thickness
+    assert np.median(err(inside_out)) > 0.5 * thickness  # the failure this guards against: the other side of the plate

@@ -44,6 +44,19 @@ def representative_frame(vertices: np.ndarray, assignment: PartAssignment) -> np
     return (v - c) / (r if r > 0 else 1.0) @ np.asarray(assignment.R, dtype=np.float64).T + np.asarray(assignment.t, dtype=np.float64)
 
 
+def representative_part(vertices: np.ndarray, faces: np.ndarray, assignment: PartAssignment) -> tuple[np.ndarray, np.ndarray]:
+    """A part mesh in its representative's normalised frame (:func:`representative_frame`) with
+    its faces wound so that their normals keep pointing out of the part: ``(vertices (k, 3)
+    float64, faces (m, 3) int64)``. A map that mirrors (``det R < 0``: a left part matched to the
+    right representative) turns every face's winding inside out; its faces come back in the
+    reverse corner order, the same faces in the same rows. Everything that reads a normal in this
+    frame (the cage teacher's normal terms, the side of a thin wall a texel is read from) takes
+    its faces from here; points alone (the networks, the projections) may use either."""
+    vn = representative_frame(vertices, assignment)
+    f = np.asarray(faces, dtype=np.int64)
+    return vn, (f[:, ::-1].copy() if np.linalg.det(np.asarray(assignment.R, dtype=np.float64)) < 0 else f)
+
+
 def choose_part(assignment: Sequence[PartAssignment], group: int) -> PartAssignment | None:
     """The part of a shape that stands for group ``group``'s representative (it teaches the group's
     network and carries the cage tracker): the one in the representative's own slot (a slot of the

@@ -242,7 +242,7 @@ def locate_by_map(tracked: TrackedPoints, template: Shape, shape: Shape, seg: Se
     ``mapper`` (:class:`proctex.family.mappers.Mapper`) and the map is inverted exactly: the closest
     point of the mapped part mesh gives the face and barycentrics of the shape point. ``seed``: the
     mapper's seed, or one per group (the cage tracker solves each pair with the build's seed)."""
-    from .assign import choose_part, representative_frame
+    from .assign import choose_part, representative_part
 
     loc = Location.empty(len(tracked))
     points = interpolate(template.vertices, template.faces, tracked.face, tracked.bary)
@@ -255,8 +255,7 @@ def locate_by_map(tracked: TrackedPoints, template: Shape, shape: Shape, seg: Se
         if not len(sel):
             continue
         part = seg.parts[a.part]
-        v, f = part_mesh(shape, part)
-        vn = representative_frame(v, a)
+        vn, f = representative_part(*part_mesh(shape, part), a)
         pair_seed = seed.get(int(g), 0) if isinstance(seed, dict) else seed
         mapped = np.asarray(mapper.map(int(g), vn, f, vn, seed=pair_seed), dtype=np.float64)
         hit = SurfaceIndex(mapped, f).query((points[sel] - ga.center) / ga.radius)
@@ -430,7 +429,7 @@ def _mapped_points(shape: Shape, seg: Segmentation, result, assets, part: int, f
     normalised frame, projected onto the representative on the side its face is on (as
     :func:`proctex.family.uvlookup.part_uvs` reads the texture); and the representative's faces (k,) they
     land on."""
-    from .assign import representative_frame
+    from .assign import representative_part
     from .uvlookup import _side_normals
 
     p = seg.parts[part]
@@ -440,8 +439,8 @@ def _mapped_points(shape: Shape, seg: Segmentation, result, assets, part: int, f
     pts = np.einsum("kj,kjd->kd", bary, mapped[local])
     # Projected on the side the point's face is on, as the transfer reads the texture (part_uvs).
     a = next((x for x in result.assignment if x.part == part), None)
-    src = representative_frame(shape.vertices[p.vertices], a) if a is not None else mapped
-    hit = ga.index.query_facing(pts, _side_normals(src, local), k=16)
+    src, wound = representative_part(shape.vertices[p.vertices], local, a) if a is not None else (mapped, local)
+    hit = ga.index.query_facing(pts, _side_normals(src, wound), k=16)
     return hit.points, hit.faces
 
 

@@ -267,14 +267,13 @@ def load_assets(store: FamilyStore):
 def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:
     """Cage correspondence of one (shape, template group): the training pair and its record."""
     from proctex.correspond.dense import correspond_parts
-    from .assign import assign_parts, choose_part, representative_frame
+    from .assign import assign_parts, choose_part, representative_part
 
     seg = segment(shape)
     a = choose_part(assign_parts(shape, seg, assets), group)
     if a is None:
         return None
-    v, f = part_mesh(shape, seg.parts[a.part])
-    vn = representative_frame(v, a)
+    vn, f = representative_part(*part_mesh(shape, seg.parts[a.part]), a)  # winding kept outward under a mirror
     ga = assets.groups[group]
     cage = config.cage
     res = correspond_parts(vn, f, ga.vertices, ga.faces, method="cage", n_points=config.corr_points, seed=seed, cage=cage)

@@ -42,7 +42,7 @@ from proctex.geometry.shape import Shape
 from proctex.texture.painters.partwords import new_part_texts
 from proctex.texture.uv import pad_seams, sample_texture, texel_map, unwrap
 from .assets import TemplateAssets, same_topology
-from .assign import PartAssignment, assign_parts, representative_frame
+from .assign import PartAssignment, assign_parts, representative_part
 from .budget import Budget
 from .mappers import Mapper
 from .uvlookup import _side_normals, chart_lookups, part_uvs
@@ -123,12 +123,12 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
             # Same mesh connectivity as the representative: vertex i is the template's vertex i
             # (procedural models), so the part takes the template UVs directly, no mapping.
             return part, ga.corner_uv.copy(), ga.vertices.copy(), True, time.perf_counter() - ta, 0.0
-        vn = representative_frame(v, a)
-        mapped = np.asarray(mapper.map(a.group, vn, f, vn, seed=seed), dtype=np.float64)
+        vn, fo = representative_part(v, f, a)  # fo: f wound outward in this frame (reversed under a mirror)
+        mapped = np.asarray(mapper.map(a.group, vn, fo, vn, seed=seed), dtype=np.float64)
         if mapped.shape != vn.shape or not np.isfinite(mapped).all():
             raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
         tb = time.perf_counter()
-        uv, _ = part_uvs(ga, mapped, f, None if lookups is None else lookups[a.group], normals=_side_normals(vn, f))
+        uv, _ = part_uvs(ga, mapped, f, None if lookups is None else lookups[a.group], normals=_side_normals(vn, fo))
         return part, uv, mapped, False, tb - ta, time.perf_counter() - tb
 
     # Parts are independent: on a multi-core machine they run side by side (numpy and torch let go
