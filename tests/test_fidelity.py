@@ -430,12 +430,15 @@ def _plate(size=(1.0, 0.3, 0.05), n=6):
     return v, np.asarray(f, dtype=np.int64)
 
 
-def test_a_part_matched_through_a_mirror_keeps_its_faces_wound_outward():
+def test_a_part_matched_through_a_mirror_keeps_its_faces_wound_outward(monkeypatch):
     """A part matched to its representative through a mirror (det R = -1: a left part on the right
     representative) comes into the representative's frame with its faces' winding reversed, so its
-    normals still point out of the part: the cage teacher, which projects onto faces whose normals
-    agree, maps each point of the mirrored plate onto itself; fed the winding as the mirror leaves
-    it (inside out), the same solver sends the points across the plate to the other side."""
+    normals still point out of the part; and the teacher itself turns a source wound inside out
+    relative to the template (an export whose faces wind inward) before it reads a normal. Either
+    way the cage teacher, which projects onto faces whose normals agree, maps each point of the
+    mirrored plate onto itself; without both, fed the winding as the mirror leaves it, the same
+    solver sends the points across the plate to the other side."""
+    import proctex.correspond.dense as dense
     from proctex.correspond.dense import correspond_parts
     from proctex.family.assign import representative_part
     from proctex.geometry.surface import face_normals, normalised_frame
@@ -448,14 +451,31 @@ def test_a_part_matched_through_a_mirror_keeps_its_faces_wound_outward():
     a = PartAssignment(0, 0, -1, M, 0.0, "extra")
     vn, fo = representative_part(mirrored_v, mirrored_f, a)
     assert np.allclose(vn, tpl, atol=1e-9) and (fo == f).all()  # the representative itself, wound as it is
-    n_out = face_normals(vn, fo)
-    assert (np.einsum("kd,kd->k", n_out, face_normals(tpl, f)) > 0.99).all()
+    assert (np.einsum("kd,kd->k", face_normals(vn, fo), face_normals(tpl, f)) > 0.99).all()
     same, kept_f = representative_part(v, f, PartAssignment(0, 0, -1, np.eye(3), 0.0, "slot"))
     assert np.allclose(same, tpl) and (kept_f == f).all()  # no mirror: the faces as they are
 
-    kept = correspond_parts(vn, fo, tpl, f, method="cage", n_points=400, seed=0)
-    inside_out = correspond_parts(vn, mirrored_f, tpl, f, method="cage", n_points=400, seed=0)
     err = lambda res: np.linalg.norm(res.points - res.source_points, axis=1)  # noqa: E731  (the map is the identity)
     thickness = 0.05 / r
-    assert err(kept).mean() < 0.1 * thickness
+    kept = correspond_parts(vn, fo, tpl, f, method="cage", n_points=400, seed=0)
+    turned = correspond_parts(vn, mirrored_f, tpl, f, method="cage", n_points=400, seed=0)  # inside out: the teacher turns it
+    assert err(kept).mean() < 0.1 * thickness and err(turned).mean() < 0.1 * thickness
+    monkeypatch.setattr(dense, "inside_out", lambda *a, **k: False)
+    inside_out = correspond_parts(vn, mirrored_f, tpl, f, method="cage", n_points=400, seed=0)
     assert np.median(err(inside_out)) > 0.5 * thickness  # the failure this guards against: the other side of the plate
+
+
+def test_inside_out_is_read_from_the_normals_against_the_template():
+    """An outward part is not inside out, its reversed winding is, on a box that the box map
+    stretches (normals are carried by the inverse transpose) and on a template with many faces."""
+    from proctex.correspond.dense import inside_out
+    from proctex.geometry.surface import SurfaceIndex, face_normals, normalised_frame, sample_surface
+
+    v, f = _plate()
+    c, r = normalised_frame(v)
+    index = SurfaceIndex((v - c) / r, f)
+    src = v * [1.0, 2.5, 0.4]  # another plate, stretched
+    sc, sr = normalised_frame(src)
+    for faces, expect in ((f, False), (f[:, ::-1], True)):
+        pts, sf, _ = sample_surface(src, faces, 300, seed=0)
+        assert inside_out((pts - sc) / sr, face_normals(src, faces)[sf], src, sc, sr, index) is expect

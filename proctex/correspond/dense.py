@@ -181,6 +181,27 @@ def box_scale(src: np.ndarray, tpl: np.ndarray, min_extent: float = 0.05) -> np.
     return np.where(ok, et / np.where(ok, es, 1.0), 1.0)
 
 
+#: A source part is taken as wound inside out relative to the template when its sample normals,
+#: box-mapped, agree with their nearest template faces' this much or less on average (-1: all
+#: opposed, 1: all agreeing; an outward part scores near 1, a part turned by the box map near 0).
+INSIDE_OUT = -0.25
+
+
+def inside_out(sub: np.ndarray, normals: np.ndarray, vertices: np.ndarray, center: np.ndarray, radius: float,
+               index: SurfaceIndex) -> bool:
+    """Whether a source part is wound inside out relative to the template (a mirrored copy brought
+    over by a reflection, an export whose faces wind inward): its samples ``sub (k, 3)`` (normalised
+    frame) with their face ``normals (k, 3)``, box-mapped onto the template (``index``, normalised
+    frame), face away from their nearest template faces on average (:data:`INSIDE_OUT`). The
+    cage's normal terms, the facet-matched affine start and the final side-aware projection all
+    read the source's normals, so such a part would be mapped onto the other side of every wall."""
+    k = box_scale((vertices - center) / radius, index.vertices[np.unique(index.faces)])
+    nrm = normals / k  # normals map by the inverse transpose of diag(k)
+    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    hit = index.query(sub * k, exact=False)
+    return bool(len(sub)) and float(np.einsum("kd,kd->k", index.normals[hit.faces], nrm).mean()) <= INSIDE_OUT
+
+
 def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.ndarray, n_points: int, seed: int, icp_points: int = 500,
             prealign: str = "icp") -> _Prepared:
     """Validate, sample the source, and pre-align it to the template.
@@ -204,6 +225,8 @@ def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.n
     index = SurfaceIndex((tpl_v - tc) / tr, tpl_f)
     pick = rng.choice(len(samples), size=min(icp_points, len(samples)), replace=False)
     sub = (samples[pick] - sc) / sr
+    if inside_out(sub, face_normals(src_v, src_f)[sf[pick]], src_v[np.unique(src_f)], sc, sr, index):
+        src_f = src_f[:, ::-1].copy()  # same faces, same samples: only the normals turn outward
     tpl_s = sample_surface(index.vertices, index.faces, len(sub), seed=rng)[0] if prealign in ("affine", "auto") else None
     fit_of = lambda R, t, s: chamfer(apply(sub, R, t, s), tpl_s) if tpl_s is not None else 0.0  # noqa: E731
     candidates = []  # (R, t, s, error, Chamfer)
