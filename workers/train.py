@@ -72,7 +72,7 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
         for group in my_groups:
             data = group_training_data(store, config, group)
             t0 = time.perf_counter()
-            result = train(data["train"], data["val"], cfg, rank=team_rank, world=team_size, grad_hook=average)
+            result = train(data["train"], data["val"], cfg, rank=team_rank, world=team_size, grad_hook=average, features=data["features"])
             sha, serving = None, None
             if team_rank == 0:
                 sha, serving = save_group_model(store, group, result, cfg, data)

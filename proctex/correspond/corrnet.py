@@ -73,6 +73,8 @@ MIN_PAIR_POINTS = 16
 FRAME_LIMIT = 1.5
 
 Pair = tuple[np.ndarray, np.ndarray]
+#: How training points are weighted by the teacher's confidence (:attr:`CorrNetConfig.confidence`).
+CONFIDENCES = ("none", "neighbours")
 
 
 # ------------------------------------------------------------------------------------------- config
@@ -112,6 +114,12 @@ class CorrNetConfig:
             chair, groups whose randomly initialised networks beat the box map ended at the
             start (held-out 0.0272 vs 0.0176 on one group, with or without ``min_iterations``
             1000; README, issue 32).
+        confidence: how each training point's loss is weighted by the teacher's confidence:
+            "none" (all alike) or "neighbours" (:mod:`proctex.correspond.confidence`: by how well
+            the pair's targets agree with those of the ``confidence_neighbours`` most similar
+            training shapes, ``1 / (1 + (d / s)^2)`` with ``s`` = ``confidence_scale`` times the
+            group's median disagreement). Validation stays unweighted (the held-out error is
+            the pseudo-ground truth the paper reports).
         seed: weights, batch sampling and evaluation contexts.
         device: "cpu", "cuda", "cuda:<i>" or "auto" (CUDA when present); dtype: "float32" or "float64".
         autocast: "none" or "bfloat16" (matrix products in bfloat16; about 2.3x faster training and
@@ -147,6 +155,9 @@ class CorrNetConfig:
     residual: bool = True
     frame: str = "box"
     zero_init: bool = False
+    confidence: str = "none"
+    confidence_neighbours: int = 3
+    confidence_scale: float = 1.0
     seed: int = 0
     device: str = "cpu"
     dtype: str = "float32"
@@ -159,6 +170,14 @@ class CorrNetConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"CorrNetConfig.{name} must be a positive integer, got {v!r}")
+        if self.confidence not in CONFIDENCES:
+            raise ValueError(f"CorrNetConfig.confidence must be one of {CONFIDENCES}, got {self.confidence!r}")
+        v = self.confidence_neighbours
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+            raise ValueError(f"CorrNetConfig.confidence_neighbours must be a positive integer, got {v!r}")
+        v = self.confidence_scale
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ValueError(f"CorrNetConfig.confidence_scale must be a positive number, got {v!r}")
         for name in ("patience", "seed", "min_iterations"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 0:

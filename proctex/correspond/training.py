@@ -28,22 +28,27 @@ from .corrnet import (
 
 
 def sample_batch(
-    pairs: Sequence[Pair], config: CorrNetConfig, rng: np.random.Generator, size: int | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One training batch: ``(context (B, N, 3), query (B, Q, 3), target (B, Q, 3))`` float32.
+    pairs: Sequence[Pair], config: CorrNetConfig, rng: np.random.Generator, size: int | None = None,
+    weights: Sequence[np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One training batch: ``(context (B, N, 3), query (B, Q, 3), target (B, Q, 3), weight (B, Q))``
+    float32.
 
     ``B = size or shapes_per_batch`` pairs drawn with replacement; per pair ``N = context_points``
     context samples and ``Q = query_points`` queries (the first Q context points, or an independent
-    sample).
+    sample); ``weight``: the queries' entries of ``weights`` (per pair ``(n,)``), ones without.
     """
     B, N, Q = size or config.shapes_per_batch, config.context_points, config.query_points
     ctx, qry, tgt = np.empty((B, N, 3), np.float32), np.empty((B, Q, 3), np.float32), np.empty((B, Q, 3), np.float32)
+    wq = np.ones((B, Q), np.float32)
     for b, j in enumerate(rng.integers(0, len(pairs), size=B)):
         src, dst = pairs[j]
         ci = sample_indices(len(src), N, rng)
         qi = ci[:Q] if config.query_mode == "context" else sample_indices(len(src), Q, rng)
         ctx[b], qry[b], tgt[b] = src[ci], src[qi], dst[qi]
-    return ctx, qry, tgt
+        if weights is not None:
+            wq[b] = weights[j][qi]
+    return ctx, qry, tgt, wq
 
 
 def learning_rate(config: CorrNetConfig, step: int) -> float:
@@ -65,8 +70,10 @@ def train_step(
     loss: str = "mse",
     autocast: str = "none",
     grad_hook: Callable[[ProcCorrNet], None] | None = None,
+    weight: torch.Tensor | None = None,
 ) -> float:
-    """One optimisation step; returns the batch's mean Euclidean distance (before the step).
+    """One optimisation step; returns the batch's mean Euclidean distance (before the step,
+    unweighted).
 
     Args:
         src: (B, N, 3) points of the shapes' parts (part frames). Without ``context`` they are the
@@ -77,6 +84,8 @@ def train_step(
         autocast: "none" or "bfloat16" (matrix products in bfloat16, loss in float32).
         grad_hook: called with the model between the backward pass and the update (data-parallel
             training averages the gradients across workers there).
+        weight: (B, Q) non-negative per-target loss weights (the teacher's confidence); the loss
+            is then their weighted mean.
     """
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
@@ -88,7 +97,14 @@ def train_step(
         pred = model(src, dst.shape[1]) if context is None else model.decode(src, model.encode(context))
     dist2 = (pred.to(dst.dtype) - dst).square().sum(-1)
     dist = dist2.clamp_min(1e-20).sqrt()  # clamp: finite gradient of the "l2" loss at 0
-    value = dist2.mean() if loss == "mse" else dist.mean()
+    per = dist2 if loss == "mse" else dist
+    if weight is None:
+        value = per.mean()
+    else:
+        if weight.shape != per.shape:
+            raise ValueError(f"weight must be {tuple(per.shape)}, got {tuple(weight.shape)}")
+        w = weight.to(per.dtype)
+        value = (w * per).sum() / w.sum().clamp_min(1e-12)
     optimiser.zero_grad(set_to_none=True)
     value.backward()
     if grad_hook is not None:
@@ -168,6 +184,8 @@ def train(
     rank: int = 0,
     world: int = 1,
     grad_hook: Callable[[ProcCorrNet], None] | None = None,
+    weights: Sequence[np.ndarray] | None = None,
+    features: np.ndarray | None = None,
 ) -> TrainResult:
     """Train one ProcCorrNet on cage pairs of one template group.
 
@@ -181,6 +199,11 @@ def train(
             ``ceil(shapes_per_batch / world)`` shapes per step (seeded by the seed and its rank) and
             ``grad_hook`` averages the gradients across workers, so all workers keep identical
             weights and take identical early-stopping decisions (validation is the same everywhere).
+        weights: per train pair ``(n,)`` loss weights of its points; default: the teacher's
+            confidence by ``config.confidence`` (:mod:`proctex.correspond.confidence`; none with
+            "none"). Every rank computes the same ones from the same pairs.
+        features: ``(len(train_pairs), p)`` what the confidence finds each pair's neighbours by
+            (the shapes' procedural parameters); None: by shape.
 
     Same seed, same data, same device -> identical weights (CPU); ``world=1`` is the single-process run.
     """
@@ -190,6 +213,17 @@ def train(
     train_pairs = check_pairs(train_pairs, "train pairs")
     val_pairs = check_pairs(val_pairs or [], "val pairs", allow_empty=True)
     t0 = time.perf_counter()
+    if weights is None and config.confidence == "neighbours":
+        from .confidence import confidence_weights, neighbour_disagreement
+
+        weights = confidence_weights(neighbour_disagreement(train_pairs, k=config.confidence_neighbours, seed=config.seed,
+                                                            features=features), scale=config.confidence_scale)
+    if weights is not None:
+        weights = [np.asarray(w, dtype=np.float32) for w in weights]
+        if len(weights) != len(train_pairs) or any(w.shape != (len(s),) for w, (s, _) in zip(weights, train_pairs)):
+            raise ValueError("weights must hold one (n,) array per train pair, n its number of points")
+        if any(not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0 for w in weights):
+            raise ValueError("weights must be finite, non-negative and not all zero per pair")
     model = build_model(config)
     device, dtype = _model_spec(model)
     if config.frame == "box":  # the template part's half extents, from every target point
@@ -215,11 +249,12 @@ def train(
         lr = learning_rate(config, step)
         for g in optimiser.param_groups:
             g["lr"] = lr
-        ctx, qry, tgt = (torch.as_tensor(a, device=device, dtype=dtype) for a in sample_batch(train_pairs, config, rng, per_rank))
+        ctx, qry, tgt, wq = (torch.as_tensor(a, device=device, dtype=dtype) for a in sample_batch(train_pairs, config, rng, per_rank, weights))
+        wq = wq if weights is not None else None
         if config.query_mode == "context":  # queries = the first Q context points: one encoder pass
-            window.append(train_step(model, optimiser, ctx, tgt, None, config.loss, config.autocast, grad_hook))
+            window.append(train_step(model, optimiser, ctx, tgt, None, config.loss, config.autocast, grad_hook, wq))
         else:
-            window.append(train_step(model, optimiser, qry, tgt, ctx, config.loss, config.autocast, grad_hook))
+            window.append(train_step(model, optimiser, qry, tgt, ctx, config.loss, config.autocast, grad_hook, wq))
         step += 1
         if step % config.eval_every and step < config.iterations:
             continue

@@ -497,7 +497,12 @@ def trainable_groups(store: FamilyStore) -> list[int]:
 
 def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val_share: float = 0.15) -> dict[str, Any]:
     """Train and validation pairs of one group: a seeded ``val_share`` of its train shapes is held
-    out for early stopping. Returns ``{"train": [(src, dst)], "val": [...], "train_ids", "val_ids"}``."""
+    out for early stopping. Returns ``{"train": [(src, dst)], "val": [...], "train_ids", "val_ids",
+    "features"}``; ``features``: the train shapes' procedural parameters as the teacher's
+    confidence finds neighbours by (:func:`proctex.correspond.confidence.param_features`; None
+    where the shapes carry none)."""
+    from proctex.correspond.confidence import param_features
+
     rows = [r for r in store.read_table(StoreLayout.PAIRS).to_pylist() if r["status"] == "done" and r["split"] == "train" and r["group"] == group]
     ids = sorted(r["id"] for r in rows)
     if not ids:
@@ -508,7 +513,9 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
     train_ids = [i for i in ids if i not in val_ids]
     train_pairs = [read_pair(store, i, group) for i in train_ids]
     val_pairs = [read_pair(store, i, group) for i in sorted(val_ids)] or train_pairs[:1]
-    return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": sorted(val_ids)}
+    params = {r["id"]: r.get("params") for r in samples(store)}
+    features = param_features([json.loads(params.get(i) or "{}") for i in train_ids])
+    return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": sorted(val_ids), "features": features}
 
 
 def serving_choice(model: Any, data: dict[str, Any]) -> dict[str, Any]:
@@ -556,7 +563,7 @@ def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], 
     for g in groups:
         data = group_training_data(store, config, g, VAL_SHARE)
         t = time.perf_counter()
-        result = train(data["train"], data["val"], config.train)
+        result = train(data["train"], data["val"], config.train, features=data["features"])
         sha, serving = save_group_model(store, g, result, config.train, data)
         out.append({"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2),
                     "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving})
