@@ -10,15 +10,22 @@ twisted, a thin wall's sides swapped, a symmetric part turned the other way on o
 :func:`neighbour_disagreement` measures that per point; :func:`confidence_weights` turns it into
 the weights :func:`proctex.correspond.training.train` scales each point's loss by, so a student
 learns the teacher where the teacher is consistent across the family rather than averaging its
-slips. Neighbours are found by shape (the mean nearest-point distance between the parts' samples
-in the common frame), not by procedural parameters: exports from a folder have none.
+slips. Neighbours are the nearest shapes in procedural parameters where every shape has them
+(:func:`param_features`), else by shape (the mean nearest-point distance between the parts'
+samples in the common frame).
 
 The disagreement also holds the family's genuine variation between two neighbours, which is small
 because they are the nearest shapes; the weights are relative to the group's median, so a group
-whose shapes all vary a lot is not down-weighted as a whole. Measured on the build's own train
-pairs against ground truth that the build never sees (README "Results today"), the weighted
-teacher error falls where the weights are informative (the fork's train pairs 0.0108 -> 0.0065,
-the chair's 0.0077 -> 0.0045, the sofa's 0.0051 -> 0.0046) and stays where they are not (mug).
+whose shapes all vary a lot is not down-weighted as a whole.
+
+Measured (``tests/bench/bench_confidence.py``, the build's own train pairs scored against the
+ground truth the build never sees): the disagreement points at the teacher's errors on the fork,
+the chair, the desk and the sofa (rank correlation 0.22-0.51 per point, 0.44-0.68 per pair) and
+hardly on the mug, the mushroom, the vase or the cake (0.03-0.14 per point); the teacher's error
+as the weighted loss sees it falls from 0.0108 to 0.0080 on the fork, 0.0077 to 0.0071 on the
+chair, 0.0051 to 0.0048 on the sofa. A student trained with the weights did not gain from them (the fork at the default
+scale: GT mean 0.0068 -> 0.0074, variance 0.0042 -> 0.0040), so training does not use them by
+default (:attr:`proctex.correspond.corrnet.CorrNetConfig.confidence`).
 """
 
 from __future__ import annotations
