@@ -241,3 +241,29 @@ def test_pseudo_gt_flips_are_measured_against_the_teacher(pinned_family):
     e, _, _, fl = pgt_errors(shape, seg, result, assets, wrong, flips=True)
     assert float(np.nanmean(fl)) > 0.6
     assert len(pgt_errors(shape, seg, result, assets, right)) == 3  # without flips: the three arrays as before
+
+
+def test_every_name_of_the_networks_serves_them(pinned_family, painted_mug_root):
+    """The mapper names the CLI offers are the registry's (every mapper and alias, cpd included),
+    and each name of the networks ("net", "corrnet", "corrnet_all", and "auto") loads a trained
+    family's networks in the service; asked of a family without networks, those names other than
+    "auto" say so instead of serving the identity."""
+    from proctex.cli.app import build_parser
+    from proctex.family.mappers import MAPPER_ALIASES, MAPPERS, NetworkMapper
+    from proctex.family.service import FamilyService
+
+    parser = build_parser()
+    for name in MAPPERS + tuple(MAPPER_ALIASES):  # cpd and corrnet_all were missing from --mapper
+        assert parser.parse_args(["transfer", "F", "--out", "x.glb", "--mapper", name]).mapper == name
+    with pytest.raises(SystemExit):
+        parser.parse_args(["transfer", "F", "--out", "x.glb", "--mapper", "bogus"])
+    for name in ("auto", "net", "corrnet", "corrnet_all"):
+        svc = FamilyService(pinned_family, mapper=name)
+        assert svc.models and isinstance(svc.mapper, NetworkMapper), name
+        assert svc.mapper.follow is (name != "corrnet_all")
+    assert FamilyService(pinned_family, mapper="identity").models == {}
+    untrained = FamilyStore(painted_mug_root / "mug")
+    assert not FamilyService(untrained, mapper="auto").models
+    for name in ("net", "corrnet", "corrnet_all"):
+        with pytest.raises(ValueError, match="no trained models"):
+            FamilyService(untrained, mapper=name)

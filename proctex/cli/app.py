@@ -11,6 +11,7 @@ import os
 import sys
 
 from proctex.family.config import PRESETS
+from proctex.family.mappers import MAPPER_ALIASES, MAPPERS
 from proctex.texture.paint_loop import PAINTERS
 
 from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_generate, cmd_inputs, cmd_sheet, cmd_transfer
@@ -159,7 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="parameters (JSON) for the family's model")
     p.add_argument("--mesh", help="a mesh file of the family")
     p.add_argument("--out", required=True, help="output .glb")
-    p.add_argument("--mapper", choices=["auto", "net", "cage", "nearest", "identity"], default="auto")
+    p.add_argument("--mapper", choices=MAPPERS + tuple(MAPPER_ALIASES), default="auto",
+                   help="auto: the family's networks where the build chose them; corrnet (net): the same, an error without networks; "
+                        "corrnet_all: the networks on every group; identity; cage, nearest, cpd: solved at transfer time")
     p.add_argument("--bake", type=int, default=0, help="bake into the shape's own atlas at this size (0: read the template textures)")
     p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i>")
     p.add_argument("--preview", metavar="PNG", help="also write a 512px 3/4 view of the textured shape to this .png")

@@ -198,7 +198,7 @@ class FamilyService:
         from proctex.correspond.corrnet import resolve_device
         from proctex.texture.painters import SurfacePainter
 
-        from .mappers import make_mapper
+        from .mappers import MAPPER_ALIASES, make_mapper
         from .stages import load_assets, load_models, stored_config
 
         t0 = time.perf_counter()
@@ -214,11 +214,12 @@ class FamilyService:
 
         with edit_lock(store, shared=True):  # the template's files as one version, never half an edit
             self.assets = load_assets(store)
-            self.models = load_models(store, device=self.device) if mapper in ("auto", "net") else {}
+            # every name of the networks ("net", "corrnet", "corrnet_all") loads them, as "auto" does
+            self.models = load_models(store, device=self.device) if MAPPER_ALIASES.get(mapper, mapper) in ("auto", "corrnet") else {}
         self.texture_digests = [hashlib.sha256(png).hexdigest() for png in self.assets.png]
         self.map_digests = [None if m is None else (hashlib.sha256(m.orm).hexdigest(), hashlib.sha256(m.normal).hexdigest())
                             for m in (self.assets.pbr_png or [None] * len(self.assets.png))]
-        if mapper == "net" and not self.models:
+        if MAPPER_ALIASES.get(mapper, mapper) == "corrnet" and not self.models:
             raise ValueError(f"{store.uri} has no trained models (run the train stage)")
         cage = replace(self.config.cage, device=self.device) if self.config.cage is not None else None
         self.mapper: Any = make_mapper(mapper, self.assets, self.models, corr_points=self.config.corr_points, cage=cage)
