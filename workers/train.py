@@ -20,7 +20,7 @@ from typing import Any, Callable
 from proctex.family.config import BuildConfig
 
 
-from proctex.family.stages import group_training_data, save_group_model, serving_line, trainable_groups
+from proctex.family.stages import fit_group, serving_line, trainable_groups
 
 
 from proctex.family.store import FamilyStore, StoreLayout
@@ -45,14 +45,11 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
     import torch.distributed as dist
     from ray.train import Checkpoint
 
-    from proctex.correspond.training import train
-
     torch.set_num_threads(int(loop_config.get("threads", 1)))
     ctx = ray.train.get_context()
     rank, world = ctx.get_world_rank(), ctx.get_world_size()
     store = FamilyStore(loop_config["store"])
     config = BuildConfig.from_dict(loop_config["config"])
-    cfg = config.train
     plan = teams(world, [int(g) for g in loop_config["groups"]])
     # Every rank creates every team's process group, in the same order (torch.distributed requires it).
     handles = [dist.new_group(ranks) if world > 1 and len(ranks) > 1 else None for ranks, _ in plan]
@@ -70,17 +67,11 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for group in my_groups:
-            data = group_training_data(store, config, group)
-            t0 = time.perf_counter()
-            result = train(data["train"], data["val"], cfg, rank=team_rank, world=team_size, grad_hook=average, features=data["features"])
-            sha, serving = None, None
+            # the in-process train body and record (fit_group), plus the team size
+            out[str(group)] = {**fit_group(store, config, group, rank=team_rank, world=team_size, grad_hook=average), "workers": team_size}
             if team_rank == 0:
-                sha, serving = save_group_model(store, group, result, cfg, data)
                 with open(os.path.join(tmp, f"group_{group}.pt"), "wb") as fh:
                     fh.write(store.read_bytes(StoreLayout.model(group)))
-            out[str(group)] = {"group": group, "best_val": float(result.best_val["mean"]) if result.best_val else float("nan"),
-                               "iterations": result.iterations, "seconds": time.perf_counter() - t0, "workers": team_size, "sha256": sha,
-                               "serving": serving}
         # One report per worker (a barrier); the team leaders' networks form the run's checkpoint.
         has = team_rank == 0 and bool(my_groups)
         ray.train.report({"groups": sorted(out)}, checkpoint=Checkpoint.from_directory(tmp) if has else None)
@@ -157,7 +148,8 @@ def train_groups(
     result = _fit_with_progress(trainer, store, todo, quiet=quiet)
     out = {int(g): m for g, m in (result.return_value or {}).items()}
     for g, m in out.items():
-        log(f"train: group {g} on {m['workers']} of {num_workers} Ray Train workers: val {m['best_val']:.4f}, {m['iterations']} iterations, "
+        log(f"train: group {g} on {m['workers']} of {num_workers} Ray Train workers: val {(m['best_val'] or {}).get('mean', float('nan')):.4f}, "
+            f"{m['iterations']} iterations, "
             f"{m['seconds']:.1f}s; {serving_line(m.get('serving'))}")
     log(f"train: {len(todo)} groups in {time.perf_counter() - t0:.1f}s")
     return out

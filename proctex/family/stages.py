@@ -554,20 +554,26 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
 VAL_SHARE = 0.15  # of a group's train shapes, held out for early stopping
 
 
-def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], context: Any = None) -> list[dict[str, Any]]:
-    """Train and store the networks of ``groups``; per group its metrics (best validation error,
-    iterations, seconds, pairs used)."""
+def fit_group(store: FamilyStore, config: BuildConfig, group: int, rank: int = 0, world: int = 1,
+              grad_hook: Callable[[Any], None] | None = None) -> dict[str, Any]:
+    """Train group ``group``'s network on its pairs and, on ``rank`` 0, store it; the one train body
+    of every executor (in process; each Ray Train worker of a team of ``world``, with ``grad_hook``
+    averaging gradients). Returns the group's train record, the same fields whoever trained it:
+    ``best_val`` (:func:`proctex.correspond.training.eval_step` of the kept state), ``iterations``,
+    ``seconds``, ``train_pairs``, ``val_pairs``, ``sha256`` and ``serving`` (None off rank 0)."""
     from proctex.correspond.training import train
 
-    out = []
-    for g in groups:
-        data = group_training_data(store, config, g, VAL_SHARE)
-        t = time.perf_counter()
-        result = train(data["train"], data["val"], config.train, features=data["features"])
-        sha, serving = save_group_model(store, g, result, config.train, data)
-        out.append({"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2),
-                    "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving})
-    return out
+    data = group_training_data(store, config, group, VAL_SHARE)
+    t = time.perf_counter()
+    result = train(data["train"], data["val"], config.train, rank=rank, world=world, grad_hook=grad_hook, features=data["features"])
+    sha, serving = save_group_model(store, group, result, config.train, data) if rank == 0 else (None, None)
+    return {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2),
+            "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving}
+
+
+def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], context: Any = None) -> list[dict[str, Any]]:
+    """Train and store the networks of ``groups`` in this process; per group its record (:func:`fit_group`)."""
+    return [fit_group(store, config, g) for g in groups]
 
 
 def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> Plan:
