@@ -468,7 +468,7 @@ def test_a_part_matched_through_a_mirror_keeps_its_faces_wound_outward(monkeypat
 def test_inside_out_is_read_from_the_normals_against_the_template():
     """An outward part is not inside out, its reversed winding is, on a box that the box map
     stretches (normals are carried by the inverse transpose) and on a template with many faces."""
-    from proctex.correspond.dense import inside_out
+    from proctex.correspond.dense import box_scale, inside_out
     from proctex.geometry.surface import SurfaceIndex, face_normals, normalised_frame, sample_surface
 
     v, f = _plate()
@@ -478,4 +478,6 @@ def test_inside_out_is_read_from_the_normals_against_the_template():
     sc, sr = normalised_frame(src)
     for faces, expect in ((f, False), (f[:, ::-1], True)):
         pts, sf, _ = sample_surface(src, faces, 300, seed=0)
-        assert inside_out((pts - sc) / sr, face_normals(src, faces)[sf], src, sc, sr, index) is expect
+        k = box_scale((src - sc) / sr, index.vertices)
+        nearest = index.normals[index.query((pts - sc) / sr * k).faces]
+        assert inside_out(face_normals(src, faces)[sf], k, nearest) is expect

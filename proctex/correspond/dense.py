@@ -187,19 +187,17 @@ def box_scale(src: np.ndarray, tpl: np.ndarray, min_extent: float = 0.05) -> np.
 INSIDE_OUT = -0.25
 
 
-def inside_out(sub: np.ndarray, normals: np.ndarray, vertices: np.ndarray, center: np.ndarray, radius: float,
-               index: SurfaceIndex) -> bool:
+def inside_out(normals: np.ndarray, k: np.ndarray, template_normals: np.ndarray) -> bool:
     """Whether a source part is wound inside out relative to the template (a mirrored copy brought
-    over by a reflection, an export whose faces wind inward): its samples ``sub (k, 3)`` (normalised
-    frame) with their face ``normals (k, 3)``, box-mapped onto the template (``index``, normalised
-    frame), face away from their nearest template faces on average (:data:`INSIDE_OUT`). The
-    cage's normal terms, the facet-matched affine start and the final side-aware projection all
-    read the source's normals, so such a part would be mapped onto the other side of every wall."""
-    k = box_scale((vertices - center) / radius, index.vertices[np.unique(index.faces)])
+    over by a reflection, an export whose faces wind inward): the face ``normals (m, 3)`` of its
+    samples, carried by the box map's per-axis scale ``k (3,)`` (:func:`box_scale`), face away on
+    average (:data:`INSIDE_OUT`) from ``template_normals (m, 3)``, those of the template faces
+    nearest the box-mapped samples. The cage's normal terms, the facet-matched affine start and
+    the final side-aware projection all read the source's normals, so such a part would be mapped
+    onto the other side of every wall."""
     nrm = normals / k  # normals map by the inverse transpose of diag(k)
     nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
-    hit = index.query(sub * k, exact=False)
-    return bool(len(sub)) and float(np.einsum("kd,kd->k", index.normals[hit.faces], nrm).mean()) <= INSIDE_OUT
+    return bool(len(nrm)) and float(np.einsum("kd,kd->k", template_normals, nrm).mean()) <= INSIDE_OUT
 
 
 def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.ndarray, n_points: int, seed: int, icp_points: int = 500,
@@ -225,15 +223,16 @@ def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.n
     index = SurfaceIndex((tpl_v - tc) / tr, tpl_f)
     pick = rng.choice(len(samples), size=min(icp_points, len(samples)), replace=False)
     sub = (samples[pick] - sc) / sr
-    if inside_out(sub, face_normals(src_v, src_f)[sf[pick]], src_v[np.unique(src_f)], sc, sr, index):
+    # The box map, queried once: the orientation test's reference and the box start.
+    k = box_scale((src_v[np.unique(src_f)] - sc) / sr, index.vertices[np.unique(tpl_f)])
+    box_hit = index.query(sub * k, exact=False)
+    if inside_out(face_normals(src_v, src_f)[sf[pick]], k, index.normals[box_hit.faces]):
         src_f = src_f[:, ::-1].copy()  # same faces, same samples: only the normals turn outward
     tpl_s = sample_surface(index.vertices, index.faces, len(sub), seed=rng)[0] if prealign in ("affine", "auto") else None
     fit_of = lambda R, t, s: chamfer(apply(sub, R, t, s), tpl_s) if tpl_s is not None else 0.0  # noqa: E731
     candidates = []  # (R, t, s, error, Chamfer)
     if prealign in ("box", "affine", "auto"):
-        used = np.unique(src_f)
-        k = box_scale((src_v[used] - sc) / sr, index.vertices[np.unique(tpl_f)])
-        candidates.append((np.diag(k), np.zeros(3), 1.0, float(index.query(sub * k, exact=False).distance.mean()), fit_of(np.diag(k), np.zeros(3), 1.0)))
+        candidates.append((np.diag(k), np.zeros(3), 1.0, float(box_hit.distance.mean()), fit_of(np.diag(k), np.zeros(3), 1.0)))
         if prealign in ("affine", "auto"):
             fit = affine_icp_to_surface(sub, face_normals(src_v, src_f)[sf[pick]], index, A0=np.diag(k))
             if fit.accepted:

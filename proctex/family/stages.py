@@ -500,7 +500,7 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
     out for early stopping. Returns ``{"train": [(src, dst)], "val": [...], "train_ids", "val_ids",
     "features"}``; ``features``: the train shapes' procedural parameters as the teacher's
     confidence finds neighbours by (:func:`proctex.correspond.confidence.param_features`; None
-    where the shapes carry none)."""
+    where the shapes carry none or the confidence is off)."""
     from proctex.correspond.confidence import param_features
 
     rows = [r for r in store.read_table(StoreLayout.PAIRS).to_pylist() if r["status"] == "done" and r["split"] == "train" and r["group"] == group]
@@ -513,8 +513,10 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
     train_ids = [i for i in ids if i not in val_ids]
     train_pairs = [read_pair(store, i, group) for i in train_ids]
     val_pairs = [read_pair(store, i, group) for i in sorted(val_ids)] or train_pairs[:1]
-    params = {r["id"]: r.get("params") for r in samples(store)}
-    features = param_features([json.loads(params.get(i) or "{}") for i in train_ids])
+    features = None
+    if config.train.confidence != "none":  # only the teacher's confidence reads the parameters
+        params = {r["id"]: r.get("params") for r in samples(store)}
+        features = param_features([json.loads(params.get(i) or "{}") for i in train_ids])
     return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": sorted(val_ids), "features": features}
 
 
