@@ -10,10 +10,10 @@ STUDIO     := workers/studio
 STUDIO_OUT := $(STUDIO)/dist/index.html
 STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: setup demo test test-fast test-no-avx512 bench gallery clean studio browser blender blender-addon blender-fixtures
+.PHONY: setup demo test test-fast test-no-avx512 bench gallery clean studio browser blender blender-addon blender-fixtures docs
 
 # Blender's Python (bpy, which needs numpy < 2) in an environment of its own, for .blend family
-# sources (proctex/family/blender.py). A machine where bpy cannot be installed skips those tests.
+# sources (proctex/sources/blender.py). A machine where bpy cannot be installed skips those tests.
 BLENDER_VENV := .venv-blender
 BLENDER_STAMP := $(BLENDER_VENV)/.bpy-installed
 $(BLENDER_STAMP):
@@ -80,6 +80,11 @@ test-fast: setup
 test-no-avx512: setup browser blender
 	NPY_DISABLE_CPU_FEATURES="$$($(PY) -c 'from tests.portable import numpy_avx512_targets as t; print(" ".join(t()))')" \
 	  ATEN_CPU_CAPABILITY=avx2 ONEDNN_MAX_CPU_ISA=AVX2 $(PY) -m pytest -q
+
+# The configuration reference, generated from the build config's dataclasses (workflows/docs.py);
+# tests/test_docs.py fails when docs/configuration.md is not what this writes.
+docs: setup
+	$(PY) -m workflows.docs --out docs/configuration.md
 
 gallery: setup
 	$(VENV)/bin/proctex gallery --out out/gallery

@@ -2,7 +2,7 @@
 rendered into a contact sheet, a turntable GIF of the sweep, a GLB per variant and an HTML report.
 
 Pure functions plus :func:`finish_demo`, which runs them over a built family store. The build itself
-is the caller's (``proctex.family.pipeline.build`` in one process, ``workflows.build.build_on_ray`` on Ray);
+is the caller's (``proctex.build.pipeline.build`` in one process, ``workflows.build.build_on_ray`` on Ray);
 ``proctex`` never imports Ray.
 """
 
@@ -30,9 +30,9 @@ DEMO_PROMPT = "a patchwork bohemian sofa"
 
 def demo_config(model: str = DEMO_MODEL, prompt: str = DEMO_PROMPT, seed: int = 0, n_train: int = 10, n_test: int = 3,
                 group_prompts: dict[str, str] | None = None) -> dict[str, Any]:
-    """The demo's build config as sections: the ``demo`` preset (:data:`proctex.family.config.PRESETS`)
+    """The demo's build config as sections: the ``demo`` preset (:data:`proctex.store.config.PRESETS`)
     with this model, prompt, seed and shape counts. A few minutes on 2 cores."""
-    from proctex.family.config import PRESETS, merge, sections
+    from proctex.store.config import PRESETS, merge, sections
 
     return merge(sections(PRESETS["demo"]), {"seed": seed, "source": {"model": model, "n_train": n_train, "n_test": n_test},
                                              "paint": {"prompt": prompt, "group_prompts": dict(group_prompts or {})}})
@@ -304,8 +304,13 @@ def render_turntable(model: Any, base: dict[str, Any], names: Sequence[str], svc
                      seed: int = 0, quiet: bool = False) -> list[np.ndarray]:
     """Frames of the sweep's turntable: the camera circles once while ``names`` follow
     :func:`turntable_path`; every frame is a real-time transfer by ``svc`` (a ``FamilyService``)."""
-    from proctex.family.transfer import transfer
-    from proctex.texture.render import Tracer, bounding_sphere, orbit_camera, render_textured
+    from proctex.texture.render import (
+        Tracer,
+        bounding_sphere,
+        orbit_camera,
+        render_textured,
+    )
+    from proctex.transfer.apply import transfer
 
     shapes = [model.generate(p) for p in turntable_path(model.space, base, names, frames)]
     center, radius = bounding_sphere(np.concatenate([s.vertices for s in shapes]))
@@ -316,7 +321,7 @@ def render_turntable(model: Any, base: dict[str, Any], names: Sequence[str], svc
         cam = orbit_camera(center, radius, up, -35.0 + 360.0 * f / frames, 20.0, size, fov_deg=32.0)
         maps = None if svc.assets.pbr is None else list(svc.assets.pbr) + [None] * len(result.new_textures)
         out.append(render_textured(shape.vertices, shape.faces, result.corner_uv, result.face_group,
-                                   svc.assets.textures + list(result.new_textures), cam, tracer=Tracer(shape.vertices, shape.faces), maps=maps))
+                                   list(svc.assets.textures) + list(result.new_textures), cam, tracer=Tracer(shape.vertices, shape.faces), maps=maps))
         bar.update()
     return out
 
@@ -354,24 +359,23 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     ``report.html`` and ``demo.json``. ``stage_seconds``: the build's wall time per stage;
     ``started``: ``time.perf_counter()`` when the whole job began (for its total wall time).
     """
-    from proctex.family.service import FamilyService
-    from proctex.family.stages import stored_config
-    from proctex.family.store import FamilyStore, StoreLayout
-    from proctex.family.transfer import shape_to_glb
+    from proctex.serve.service import FamilyService
+    from proctex.store.layout import FamilyStore, StoreLayout
+    from proctex.store.state import stored_config
     from proctex.texture.render import save_gif, save_png
+    from proctex.transfer.apply import shape_to_glb
 
     t_start = time.perf_counter()
     out = Path(out)
     store = FamilyStore(family)
     config = stored_config(store)
-    if config.source.folder is not None:
+    if config.shapes().model is None:
         raise ValueError("a contact sheet sweeps parameters: the family must come from a model, a generator or a .blend file, not a folder")
     (out / "variants").mkdir(parents=True, exist_ok=True)
     model = config.procedural_model()
     svc = FamilyService(store)
     up = config.up_axis()
-    state = store.read_json(StoreLayout.STATE)
-    template_params = state.get("stages", {}).get("template", {}).get("params")
+    template_params = svc.state.stage("template").get("params")
     base = model.space.validate(template_params if isinstance(template_params, dict) else model.space.defaults())
     effects = parameter_effects(model.space, base, model.generate)
     sweep = sweep_settings(model.space, base, effects, rows=rows, per_row=per_row, seed=seed)
@@ -402,7 +406,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
 
     # The report.
     paint = store.read_json(StoreLayout.PAINT)
-    trained = state.get("stages", {}).get("train", {}).get("groups", {})
+    trained = svc.state.stage("train").get("groups", {})
 
     fam_rel = os.path.relpath(store.base, out)
     groups = []
@@ -438,9 +442,9 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
 
 def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str], None] = print) -> dict[str, float]:
     """Build a family in this process; returns wall seconds per stage."""
-    from proctex.family.config import BuildConfig
-    from proctex.family.pipeline import build
-    from proctex.family.store import FamilyStore
+    from proctex.build.pipeline import build
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
 
     return build(FamilyStore(root), BuildConfig.from_dict(config_dict), log=log)["wall_seconds"]
 
@@ -461,12 +465,13 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
     """
     import shutil
 
-    from proctex.family.config import BuildConfig
-    from proctex.family.store import StoreLayout
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore, StoreLayout
+    from proctex.store.state import FamilyState
 
     if not prompt or not prompt.strip():
         raise ValueError("the prompt must not be empty")
-    from proctex.family.config import merge, resolved_settings, sections
+    from proctex.store.config import merge, resolved_settings, sections
 
     config = merge(demo_config(model, prompt, seed=seed, n_train=n_train, n_test=n_test, group_prompts=group_prompts),
                    sections(overrides or {}, where="overrides"))
@@ -476,7 +481,7 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
     if fresh and root.exists():
         shutil.rmtree(root)
     if root.exists() and (root / StoreLayout.STATE).exists():
-        old = json.loads((root / StoreLayout.STATE).read_text()).get("config")
+        old = FamilyState.load(FamilyStore(root)).config
         if old is not None and resolved_settings(old) != checked:
             raise ValueError(f"{root} holds a family built with other settings; pass --fresh to rebuild it, or choose another --out")
     root.parent.mkdir(parents=True, exist_ok=True)

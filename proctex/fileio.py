@@ -1,6 +1,6 @@
 """Local file writes and image encoding, each in one place: atomic writes (a temporary file next to
 the target, then a rename, so a reader never sees half a file and a crash leaves the old one) and
-PNG encoding. The family store (:mod:`proctex.family.store`) does its own atomic writes through pyarrow's
+PNG encoding. The family store (:mod:`proctex.store.layout`) does its own atomic writes through pyarrow's
 file systems, which also reach object stores."""
 
 from __future__ import annotations

@@ -531,3 +531,31 @@ def with_conditions(space: ParamSpace, conditions: Mapping[str, Mapping[str, Any
                 d[key] = kept
         specs.append(ParamSpec.from_dict(d))
     return ParamSpace(tuple(specs))
+
+
+def restricted_space(space, bounds: dict[str, list[float]]):
+    """``space`` with the ranges of the named float / int parameters narrowed to ``bounds``
+    ``{name: [low, high]}`` (within the old ones); ``ValueError`` for unknown names, choices or
+    ranges outside."""
+    if not isinstance(bounds, dict) or not all(isinstance(b, (list, tuple)) and len(b) == 2 for b in bounds.values()):
+        raise ValueError('bounds must be an object {"name": [low, high]}')
+
+    specs = []
+    for s in space.specs:
+        if s.name in bounds:
+            lo, hi = bounds[s.name]
+            if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in (lo, hi)):
+                raise ValueError(f"bounds for {s.name!r} must be two finite numbers, got {bounds[s.name]!r}")
+            if s.kind not in ("continuous", "integer"):
+                raise ValueError(f"bounds given for {s.name!r}, which is a {s.kind} parameter")
+            if not (s.low <= lo <= hi <= s.high):
+                raise ValueError(f"bounds for {s.name!r} must lie within [{s.low}, {s.high}], got [{lo}, {hi}]")
+            d = s.to_dict()
+            d.update(low=lo, high=hi, default=min(max(d["default"], lo), hi))
+            specs.append(ParamSpec.from_dict(d))
+        else:
+            specs.append(s)
+    unknown = set(bounds) - {s.name for s in space.specs}
+    if unknown:
+        raise ValueError(f"bounds for unknown parameters: {', '.join(sorted(unknown))}")
+    return ParamSpace(tuple(specs))

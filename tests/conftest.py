@@ -31,9 +31,12 @@ def require_validator() -> bool:
 def painted_mug_root(tmp_path_factory) -> Path:
     """A store root holding ``mug``: a painted mug family without networks (the identity mapper
     serves it), built once per test session. Tests that change it work on a copy."""
-    from proctex.family.config import BuildConfig
-    from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
-    from proctex.family.store import FamilyStore
+    from proctex.build.paint import stage_paint
+    from proctex.build.sample import stage_sample
+    from proctex.build.template import stage_template
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import write_config
 
     base = tmp_path_factory.mktemp("painted_mug")
     cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="blue ceramic"))

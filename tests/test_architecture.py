@@ -122,9 +122,14 @@ def test_proctex_has_no_import_circle():
 
 
 #: The units of ``proctex`` from the bottom up: a module imports its own unit or lower ones only.
+#: The folder list reads as the pipeline: shapes come from ``sources``, the family lives in the
+#: ``store`` (its typed records), ``transfer`` is the run-time path (records in, textured shapes
+#: out), ``measure`` scores it, ``build`` makes a family stage by stage, ``serve`` answers requests
+#: on top of records and transfer (never the build), ``generate`` makes variants in bulk.
 #: ``_reference`` (for the tests) may import anything and is imported by nothing shipped.
-LAYERS = {"proctex.fileio": 0, "proctex.params": 0, "proctex.progress": 0, "proctex.geometry": 1, "proctex.models": 2,
-          "proctex.texture": 2, "proctex.correspond": 3, "proctex.family": 4, "proctex.demo": 5, "proctex.cli": 6}
+LAYERS = {"proctex.fileio": 0, "proctex.params": 0, "proctex.progress": 0, "proctex.plugins": 0, "proctex.geometry": 1, "proctex.models": 2,
+          "proctex.texture": 2, "proctex.correspond": 3, "proctex.sources": 4, "proctex.store": 5, "proctex.transfer": 6,
+          "proctex.measure": 7, "proctex.build": 8, "proctex.serve": 8, "proctex.generate": 9, "proctex.demo": 10, "proctex.cli": 11}
 
 
 def unit_of(module: str, layers: dict[str, int]) -> str | None:
@@ -176,7 +181,7 @@ def test_proctex_never_imports_ray():
 #: What runs inside someone else's Python: the Blender add-on (Blender's own interpreter, nothing
 #: of ours installed) and the Blender side of a .blend source (``.venv-blender``: bpy and numpy).
 FOREIGN = {Path(__file__).resolve().parents[1] / "clients" / "blender" / "proctex_blender": {"bpy", "addon_utils", "mathutils"},
-           ROOT / "family" / "blender_server.py": {"bpy", "numpy"}}
+           ROOT / "sources" / "blender_server.py": {"bpy", "numpy"}}
 
 
 def foreign_imports(path: Path, allowed: set[str]) -> list[str]:
@@ -243,12 +248,12 @@ def test_only_the_store_layout_spells_store_paths(tmp_path):
     assert len(store_literals([bad])) == 2  # the check can fail
     repo = ROOT.parent
     files = [p for d in ("proctex", "workers", "workflows") for p in (repo / d).rglob("*.py")
-             if p.relative_to(repo).as_posix() != "proctex/family/store.py" and "node_modules" not in p.parts]
-    assert not store_literals(files), "store paths spelled outside proctex/family/store.py's StoreLayout:\n" + "\n".join(store_literals(files))
+             if p.relative_to(repo).as_posix() != "proctex/store/layout.py" and "node_modules" not in p.parts]
+    assert not store_literals(files), "store paths spelled outside proctex/store/layout.py's StoreLayout:\n" + "\n".join(store_literals(files))
 
 
 def test_store_layout_names():
-    from proctex.family.store import StoreLayout, group_file_name
+    from proctex.store.layout import StoreLayout, group_file_name
 
     assert StoreLayout.model(7) == "models/group_7.pt" and StoreLayout.model_group("group_7.pt") == 7
     for name in ("group_x.pt", "other.pt", "group_7.pth", "group_-1.pt", "group_.pt"):
@@ -256,3 +261,44 @@ def test_store_layout_names():
     assert StoreLayout.pair("s0001", 2) == "correspondences/s0001__g2.parquet" and StoreLayout.pair_record("s0001", 2).endswith(".json")
     assert group_file_name(3, "seat cushion/../x") == "group_3_seat_cushion____x.png" and group_file_name(0, "") == "group_0.png"
     assert StoreLayout.texture(3, "leg") == "template/group_3_leg.png"
+
+
+def private_imports(root: Path, layers: dict[str, int]) -> list[str]:
+    """``"module: name from other"`` for every name starting with ``_`` that a module of the package at
+    ``root`` imports from a module of another unit of ``layers`` (``from x import _y``, or the module
+    ``_y`` itself): a unit's privates are its own."""
+    modules = {module_name(p, root): p for p in root.rglob("*.py")}
+    bad = []
+    for mod, path in sorted(modules.items()):
+        if "_reference" in mod.split("."):  # the slow references test the privates they mirror
+            continue
+        package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.split(".")[0] != root.name:
+                continue
+            for a in node.names:
+                full = f"{target}.{a.name}"
+                owner = full if full in modules else target
+                if a.name.startswith("_") and unit_of(owner, layers) != unit_of(mod, layers):
+                    bad.append(f"{mod}: {a.name} from {target}")
+    return bad
+
+
+def test_no_unit_imports_another_units_privates(tmp_path):
+    pkg = tmp_path / "pkg"
+    (pkg / "low").mkdir(parents=True)
+    for f in ("__init__.py", "low/__init__.py"):
+        (pkg / f).write_text("")
+    (pkg / "low" / "a.py").write_text("def _helper():\n    pass\n")
+    (pkg / "low" / "b.py").write_text("from .a import _helper\n")  # inside its own unit: fine
+    (pkg / "high.py").write_text("from pkg.low.a import _helper\nfrom .low import a\n")
+    assert private_imports(pkg, {"pkg.low": 0, "pkg.high": 1}) == ["pkg.high: _helper from pkg.low.a"]
+    found = private_imports(ROOT, LAYERS)
+    assert not found, "private names imported across units (make them public or keep them home):\n" + "\n".join(found)

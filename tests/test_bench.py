@@ -110,7 +110,7 @@ def test_the_pbr_contact_sheet_script_runs(tmp_path):
 def test_fidelity_real_suite_configs_and_pseudo_gt_verdicts():
     from bench_fidelity import DATA, REAL, goals, real_config, verdict
 
-    from proctex.family.config import BuildConfig
+    from proctex.store.config import BuildConfig
 
     if not (DATA / "blend" / "chair.blend").is_file() or not (DATA / "procedural_sofa").is_dir():
         pytest.skip("the shared real data is absent")

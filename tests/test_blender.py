@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.family.blender import BlenderModel, blender_python, input_specs
 from proctex.geometry.parts import segment
+from proctex.sources.blender import BlenderModel, blender_python, input_specs
 
 PYTHON = blender_python()
 needs_bpy = pytest.mark.skipif(PYTHON is None, reason="no Python with bpy (make blender makes .venv-blender; bpy not installable here?)")
@@ -157,7 +157,7 @@ def test_a_blender_process_that_crashes_or_hangs_is_an_error_and_the_next_reques
     opens the file in a fresh process."""
     import sys
 
-    from proctex.family.blender import BlenderSession
+    from proctex.sources.blender import BlenderSession
 
     fake = tmp_path / "fake_python"
     fake.write_text(FAKE_BLENDER.format(python=sys.executable))
@@ -200,7 +200,7 @@ def test_a_blend_family_builds_and_transfers_new_parameters(vase_blend, tmp_path
     import json
 
     from proctex.cli import main
-    from proctex.family.store import FamilyStore
+    from proctex.store.layout import FamilyStore
     from proctex.texture.gltf_read import read_textured_glb
 
     out = tmp_path / "fam"
@@ -213,7 +213,7 @@ def test_a_blend_family_builds_and_transfers_new_parameters(vase_blend, tmp_path
     assert state["config"]["source"]["blender"] == {"file": str(vase_blend), "object": "Vase", "modifier": "GeometryNodes",
                                                     "parts": "part_id", "uv": "UVMap"}
     # the graph's parts (two halves) and its UV map (kept for each group's representative)
-    from proctex.family.stages import load_template
+    from proctex.store.template import load_template
 
     template = load_template(store)
     assert template.grouping.segmentation.n_parts == 2
@@ -237,10 +237,10 @@ def test_a_blend_family_fans_out_on_ray_like_any_other_source(vase_blend, tmp_pa
     its own Blender process; the samples equal the single-process build's."""
     import ray
 
-    from proctex.family.config import BuildConfig
-    from proctex.family.pipeline import build
-    from proctex.family.stages import samples
-    from proctex.family.store import FamilyStore
+    from proctex.build.pipeline import build
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
+    from proctex.store.samples import samples
     from workflows.build import build_on_ray
 
     cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(vase_blend), "object": "Vase"}, "n_train": 4, "n_test": 0},
@@ -283,9 +283,9 @@ def served_vase(blends, tmp_path_factory):
     import time
     import urllib.request
 
-    from proctex.family.config import BuildConfig
-    from proctex.family.pipeline import build
-    from proctex.family.store import FamilyStore
+    from proctex.build.pipeline import build
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
 
     root = tmp_path_factory.mktemp("served")
     cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(blends / "vase.blend"), "object": "Vase"}, "n_train": 3, "n_test": 0},
@@ -438,7 +438,7 @@ def test_the_addon_textures_the_selected_object_through_a_live_service(served_va
 
     from PIL import Image
 
-    from proctex.family.store import StoreLayout
+    from proctex.store.layout import StoreLayout
 
     url, store = served_vase
     zip_path = tmp_path / "proctex_blender.zip"
@@ -479,7 +479,7 @@ def test_a_model_made_only_of_instances_is_realized_and_only_it_is_evaluated(ble
     """The rack outputs nothing but instances (Instance on Points, never realized in its graph):
     each cube comes back as a part, the instances' ``part_id`` as the parts, and the file's second,
     heavy object is not evaluated with it (a scene file's other objects cost nothing)."""
-    from proctex.family.blender import BlenderSession
+    from proctex.sources.blender import BlenderSession
 
     session = BlenderSession(blends / "rack.blend", "Rack")
     try:
@@ -523,8 +523,8 @@ def test_the_real_chair_reads_its_spec_and_paints_the_parts_a_prompt_names():
     """The third-party Geometry Nodes chair (no part names; every input unbounded in Blender): its
     spec gives the ranges and conditions, and "a chair with a red velvet seat and dark walnut legs"
     paints the seat red and the legs dark brown, with no group left a grey default."""
-    from proctex.family.config import BuildConfig
     from proctex.geometry.parts import analyse
+    from proctex.store.config import BuildConfig
     from proctex.texture.paint_loop import paint_template
 
     if not (REAL / "chair.blend").is_file():
@@ -557,14 +557,14 @@ def test_the_real_chair_keeps_its_seat_red_and_legs_dark_on_every_variant():
     new-part painting are under test) onto variants with and without back and arms and with each
     leg build: read back per part, the seat is red, the posts and the disc base (a part the template
     lacks) dark brown, and no part (back, arms) is untextured or grey."""
-    from proctex.family.assets import prepare_template
-    from proctex.family.config import BuildConfig
-    from proctex.family.mappers import IdentityMapper
-    from proctex.family.transfer import transfer
     from proctex.geometry.parts import analyse, connected_parts
+    from proctex.store.config import BuildConfig
     from proctex.texture.paint_loop import paint_template
     from proctex.texture.painters import SurfacePainter
     from proctex.texture.uv import sample_texture
+    from proctex.transfer.apply import transfer
+    from proctex.transfer.assets import prepare_template
+    from proctex.transfer.mappers import IdentityMapper
 
     if not (REAL / "chair.blend").is_file():
         pytest.skip("the shared .blend files are absent")

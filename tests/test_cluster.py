@@ -54,7 +54,7 @@ def test_manifests_parse_and_name_what_exists():
     _, gen = commands["generate"]
     assert gen.n == 10000 and gen.address == "auto" and gen.out.startswith("s3://") and not gen.no_ray
     # The job's config file is in this folder and is a valid build config.
-    from proctex.family.config import BuildConfig
+    from proctex.store.config import BuildConfig
 
     assert entry[4].endswith("cluster/family.toml")
     BuildConfig.from_dict(tomllib.loads((CLUSTER / "family.toml").read_text()))
@@ -75,9 +75,9 @@ def test_local_cluster_script_usage():
 @pytest.mark.slow
 @pytest.mark.ray
 def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
-    from ray.job_submission import JobStatus, JobSubmissionClient
-
     import tempfile
+
+    from ray.job_submission import JobStatus, JobSubmissionClient
 
     short_tmp = tempfile.mkdtemp(prefix="rayc", dir="/tmp")  # Ray's socket paths must stay short
     env = {**os.environ, "RAY_PORT": "6391", "DASHBOARD_PORT": "8276", "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp}

@@ -14,8 +14,14 @@ from proctex.correspond.metrics import gt_correspondence_error
 from proctex.geometry.parts import analyse, part_mesh
 from proctex.geometry.primitives import box
 from proctex.geometry.shape import Shape
-from proctex.geometry.surface import SurfaceIndex, closest_point_bruteforce, face_normals, sample_surface, vertex_normals
-from proctex.geometry.surface import interpolate
+from proctex.geometry.surface import (
+    SurfaceIndex,
+    closest_point_bruteforce,
+    face_normals,
+    interpolate,
+    sample_surface,
+    vertex_normals,
+)
 from proctex.geometry.sweeps import revolve
 from proctex.models import get_model
 
@@ -221,7 +227,7 @@ def test_correspond_shapes_builtin_all_methods():
 
 
 def test_correspond_shapes_on_sofa_data_skips_degenerate_parts(sofa_dir):
-    from proctex.family.sources import FolderSource
+    from proctex.sources.files import FolderSource
 
     src = FolderSource(sofa_dir)
     template = src.load(src.template_index())

@@ -139,7 +139,7 @@ def test_bfloat16_autocast_predict_and_train():
     np.testing.assert_array_equal(cn.predict(wide, src, src, autocast="auto"), cn.predict(wide, src, src))
     with pytest.raises(ValueError, match="autocast"):
         cn.resolve_autocast("half", "cpu")
-    from proctex.family.mappers import NetworkMapper
+    from proctex.transfer.mappers import NetworkMapper
 
     with pytest.raises(ValueError, match="autocast"):
         NetworkMapper({}, autocast="fp8")
@@ -150,7 +150,7 @@ def test_auto_autocast_on_either_cpu_agrees_with_float32(native, monkeypatch):
     """"auto" resolves by the CPU (native bfloat16 or not), so a user's machine may take either path:
     both are forced here, whatever this CPU is, and both agree with float32. bfloat16 runs (emulated)
     on every CPU, so both paths run everywhere."""
-    from proctex.family.mappers import NetworkMapper
+    from proctex.transfer.mappers import NetworkMapper
 
     from .meshes import cube
 

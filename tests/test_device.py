@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from proctex.cli import main
-from proctex.family.store import FamilyStore
+from proctex.store.layout import FamilyStore
 
 CUDA = torch.cuda.is_available()
 needs_cuda = pytest.mark.skipif(not CUDA, reason="no CUDA device (these run where the device tool lends a GPU)")
@@ -48,9 +48,9 @@ def test_cuda_asked_for_without_cuda_is_a_clear_error_before_any_work(mug, tmp_p
 def test_a_family_built_on_a_gpu_loads_and_resumes_on_a_cpu(mug, tmp_path):
     """Where a family was built is no part of it: a store whose config names CUDA devices reads with
     CPU devices, serves, and a build resumed with the same settings on this machine is accepted."""
-    from proctex.family.config import BuildConfig
-    from proctex.family.service import FamilyService
-    from proctex.family.stages import stored_config, write_config
+    from proctex.serve.service import FamilyService
+    from proctex.store.config import BuildConfig
+    from proctex.store.state import stored_config, write_config
 
     shutil.copytree(mug, tmp_path / "mug")
     store = FamilyStore(tmp_path / "mug")
@@ -71,7 +71,7 @@ def test_a_family_built_on_a_gpu_loads_and_resumes_on_a_cpu(mug, tmp_path):
 def test_cage_training_and_transfer_on_cuda_agree_with_the_cpu(tmp_path):
     """A tiny mug family built with ``--device cuda`` (cage pairs and networks on the GPU), then a
     transfer on the GPU against one on the CPU: the same faces, UVs within a texel."""
-    from proctex.family.service import FamilyService
+    from proctex.serve.service import FamilyService
 
     out = tmp_path / "mug"
     assert main(["build", "--model", "mug", "--prompt", "blue ceramic", "--n-train", "3", "--n-test", "0", "--texture-size", "64",

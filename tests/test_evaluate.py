@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from proctex.family.config import BuildConfig
-from proctex.family.pipeline import build
-from proctex.family.store import FamilyStore
+from proctex.build.pipeline import build
 from proctex.models import get_model
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
 from proctex.texture.metrics import PSNR_CAP, view_similarity
 
 TINY_TRAIN = {"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2}
@@ -129,7 +129,7 @@ def test_methods_side_by_side_on_identical_shapes(pinned_family, tmp_path):
     """On shapes identical to the template the run-time path is exact: tracked-point variance 0,
     SSIM 1 and PSNR at its cap, no unpainted pixel; every other method maps every part, close to
     but not exactly the identity. The JSON has every field the issue names."""
-    from proctex.family.evaluate import evaluate
+    from proctex.measure.evaluate import evaluate
 
     _random_lpips_file(tmp_path / "alex.pt")
 
@@ -212,13 +212,13 @@ def test_pseudo_gt_flips_are_measured_against_the_teacher(pinned_family):
     that agrees with it, flips nothing; against a teacher that puts every point on the other side
     of the wall (the nearest face facing the other way), most points count as flipped (0.78 here:
     points near a rim or an edge sit on faces of both orientations)."""
-    from proctex.family.assign import representative_frame
-    from proctex.family.fidelity import pgt_errors
-    from proctex.family.mappers import IdentityMapper
-    from proctex.family.stages import load_assets
-    from proctex.family.transfer import transfer
     from proctex.geometry.parts import part_mesh, segment
     from proctex.geometry.surface import face_normals, sample_surface
+    from proctex.measure.fidelity import pgt_errors
+    from proctex.transfer.apply import transfer
+    from proctex.transfer.assets import load_assets
+    from proctex.transfer.assign import representative_frame
+    from proctex.transfer.mappers import IdentityMapper
 
     assets = load_assets(pinned_family)
     shape = assets.shape
@@ -249,11 +249,13 @@ def test_every_name_of_the_networks_serves_them(pinned_family, painted_mug_root)
     family's networks in the service; asked of a family without networks, those names other than
     "auto" say so instead of serving the identity."""
     from proctex.cli.app import build_parser
-    from proctex.family.mappers import MAPPER_ALIASES, MAPPERS, NetworkMapper
-    from proctex.family.service import FamilyService
+    from proctex.serve.service import FamilyService
+    from proctex.transfer.mappers import NetworkMapper
+    from proctex.transfer.methods import method_names
 
     parser = build_parser()
-    for name in MAPPERS + tuple(MAPPER_ALIASES):  # cpd and corrnet_all were missing from --mapper
+    assert set(method_names(aliases=True)) >= {"auto", "corrnet", "net", "corrnet_all", "identity", "cage", "nearest", "cpd"}
+    for name in method_names(aliases=True):  # cpd and corrnet_all were missing from --mapper
         assert parser.parse_args(["transfer", "F", "--out", "x.glb", "--mapper", name]).mapper == name
     with pytest.raises(SystemExit):
         parser.parse_args(["transfer", "F", "--out", "x.glb", "--mapper", "bogus"])
@@ -267,3 +269,58 @@ def test_every_name_of_the_networks_serves_them(pinned_family, painted_mug_root)
     for name in ("net", "corrnet", "corrnet_all"):
         with pytest.raises(ValueError, match="no trained models"):
             FamilyService(untrained, mapper=name)
+
+
+TOY_METHOD = '''"""A correspondence method in one file: the identity mirrored in x (a wrong map, on purpose)."""
+import numpy as np
+
+from proctex.transfer.methods import Method, register
+
+
+class MirrorMapper:
+    def map(self, group, vertices, faces, query, seed=0):
+        return np.asarray(query, dtype=np.float64) * np.array([-1.0, 1.0, 1.0])
+
+
+register(Method("toy_mirror", lambda ctx: MirrorMapper(), "the identity mirrored in x (a test's toy)"))
+'''
+
+
+@pytest.fixture()
+def toy_method(tmp_path, monkeypatch):
+    """The toy method's file named in PROCTEX_PLUGINS; unregistered afterwards."""
+    from proctex import plugins
+    from proctex.transfer.methods import unregister
+
+    path = tmp_path / "toy_method.py"
+    path.write_text(TOY_METHOD)
+    monkeypatch.setenv("PROCTEX_PLUGINS", str(path))
+    yield "toy_mirror"
+    unregister("toy_mirror")
+    plugins._LOADED.pop(str(path), None)
+
+
+@pytest.mark.slow
+def test_a_method_from_one_file_is_offered_by_the_cli_the_evaluation_and_the_service(pinned_family, toy_method, tmp_path, capsys):
+    """One new file registers a method (issue 33): ``proctex transfer --mapper`` and ``proctex eval
+    --methods`` offer it, the evaluation measures it (a mirror: far from the identity, which is exact
+    on these shapes, so the figures can tell a wrong method) and the service serves with it."""
+    import shutil
+
+    from proctex.cli import main
+    from proctex.cli.app import build_parser
+    from proctex.serve.service import FamilyService
+
+    parser = build_parser()
+    assert parser.parse_args(["transfer", "F", "--out", "x.glb", "--mapper", toy_method]).mapper == toy_method
+    assert toy_method in parser.parse_args(["eval", "F"]).methods.split(",")
+    fam = tmp_path / "fam"
+    shutil.copytree(pinned_family.base, fam)
+    assert main(["eval", str(fam), "--methods", f"identity,{toy_method}", "--workers", "1", "--json", "--limit", "1"]) == 0
+    m = json.loads(capsys.readouterr().out)["methods"]
+    assert m["identity"]["gt_error"]["max"] < 1e-6 and m[toy_method]["gt_error"]["mean"] > 0.05
+    svc = FamilyService(FamilyStore(fam), mapper=toy_method)
+    assert type(svc.mapper).__name__ == "MirrorMapper" and svc.models == {}
+    out = tmp_path / "toy.glb"
+    assert main(["transfer", str(fam), "--params", "{}", "--out", str(out), "--mapper", toy_method]) == 0
+    assert out.read_bytes()[:4] == b"glTF"

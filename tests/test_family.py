@@ -6,9 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.family.config import BuildConfig
-from proctex.family.stages import load_assets, read_pair, stage_done, stage_paint, stage_pairs, stage_sample, stage_template, write_config
-from proctex.family.store import FamilyStore
+from proctex.build.paint import stage_paint
+from proctex.build.pairs import stage_pairs
+from proctex.build.sample import stage_sample
+from proctex.build.template import stage_template
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
+from proctex.store.samples import read_pair
+from proctex.store.state import stage_done, write_config
+from proctex.transfer.assets import load_assets
 
 
 @pytest.fixture(scope="module")
@@ -46,10 +52,10 @@ def test_the_template_record_reads_its_grouping_back_and_round_trips(mug_family,
     """The stored grouping is read, not analysed again (analysis is switched off here); the record
     saves and loads to the same arrays; a store whose grouping predates the member maps is
     analysed as before."""
-    import proctex.family.template as tm
-    from proctex.family.stages import load_template, load_template_shape
-    from proctex.family.store import StoreLayout
+    import proctex.store.template as tm
     from proctex.geometry.parts import analyse
+    from proctex.store.layout import StoreLayout
+    from proctex.store.template import load_template, load_template_shape
 
     st, cfg = mug_family
     fresh = analyse(load_template_shape(st, cfg), seed=cfg.seed)
@@ -130,11 +136,11 @@ def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
 
     from PIL import Image
 
-    from proctex.family.edits import edit_group
-    from proctex.family.mappers import IdentityMapper
-    from proctex.family.transfer import glb, transfer
     from proctex.models import get_model
+    from proctex.serve.edits import edit_group
     from proctex.texture.edit import rgb_to_hsv
+    from proctex.transfer.apply import glb, transfer
+    from proctex.transfer.mappers import IdentityMapper
 
     st0, _ = mug_family
     shutil.copytree(st0.base, tmp_path / "fam")
@@ -162,7 +168,7 @@ def test_edits_change_one_group_and_reach_every_transfer(mug_family, tmp_path):
     edit_group(st, "body", prompt="white marble")
     assert st.read_json("template/paint.json")["groups"][0]["prompt"] == "white marble"
     assert len(st.read_json("template/paint.json")["edits"]) == 3
-    from proctex.family.stages import load_assets
+    from proctex.transfer.assets import load_assets
 
     assets = load_assets(st)
     assert np.allclose(assets.textures[1] / 255, handle1, atol=1 / 255)
@@ -210,10 +216,11 @@ def test_cli_transfer_and_edit(mug_family, tmp_path, capsys):
 def test_train_stage_and_network_transfer(mug_family, tmp_path):
     import shutil
 
-    from proctex.family.mappers import NetworkMapper
-    from proctex.family.stages import load_models, stage_train
-    from proctex.family.transfer import transfer
+    from proctex.build.train import stage_train
     from proctex.models import get_model
+    from proctex.store.networks import load_models
+    from proctex.transfer.apply import transfer
+    from proctex.transfer.mappers import NetworkMapper
 
     st0, cfg0 = mug_family
     shutil.copytree(st0.base, tmp_path / "fam")
@@ -246,7 +253,8 @@ def _serving_is_followed(models, assets, shape):
     import copy
 
     from proctex.correspond.training import box_map, part_extent
-    from proctex.family.mappers import NetworkMapper, make_mapper
+    from proctex.transfer.mappers import NetworkMapper
+    from proctex.transfer.methods import make_mapper
 
     rng = np.random.default_rng(0)
     v = rng.uniform(-1, 1, (40, 3))
@@ -273,7 +281,7 @@ def _serving_is_followed(models, assets, shape):
 def test_evaluate_stage_on_identical_shapes(tmp_path):
     """Bounds pinned to the defaults: every sample is the template, so every method must give a
     tracked-point variance of exactly 0 and full coverage; errors are reported for net and cage."""
-    from proctex.family.pipeline import build
+    from proctex.build.pipeline import build
     from proctex.models import get_model
 
     pinned = {s.name: [s.default, s.default] for s in get_model("mug").space.specs}
@@ -303,7 +311,7 @@ def test_evaluate_stage_on_identical_shapes(tmp_path):
     logs.clear()
     build(st, cfg, stages=("evaluate",), log=logs.append)
     assert logs == ["evaluate: done already"]
-    from proctex.family.evaluate import evaluate
+    from proctex.measure.evaluate import evaluate
 
     with pytest.raises(ValueError, match="methods"):
         evaluate(st, methods=("bogus",))
@@ -343,8 +351,8 @@ def test_cli_eval(mug_family, tmp_path, capsys):
 def test_view_painted_family_keeps_its_already_painted_mask(tmp_path):
     """A template painted from views of the whole shape only stores which texels no view saw;
     transfer then finds the dis-occluded surface of a shape and the bake fills it."""
-    from proctex.family.mappers import IdentityMapper
-    from proctex.family.transfer import bake, transfer
+    from proctex.transfer.apply import bake, transfer
+    from proctex.transfer.mappers import IdentityMapper
 
     cfg = BuildConfig.from_dict(dict(model="cake", n_train=2, n_test=0, texture_size=64, painter="views", views=6, view_size=96,
                       paint_hidden=False, params={"candles": [0, 0], "tiers": [2, 2], "shrink": [0.7, 0.72]}, prompt="red velvet cake")).validate()
@@ -379,7 +387,7 @@ def test_build_config_painter_checks(tmp_path):
 
 
 def test_cage_settings_reach_the_solver_and_bad_ones_are_refused():
-    from proctex.family.config import BuildConfig
+    from proctex.store.config import BuildConfig
 
     cfg = BuildConfig.from_dict({"model": "mug", "cage_level": 2, "cage_iterations": 40, "cage": {"w_rest": 0.3, "prealign": "box"}})
     cage = cfg.cage
@@ -396,8 +404,8 @@ def test_cage_settings_reach_the_solver_and_bad_ones_are_refused():
 def test_a_store_built_before_the_cage_settings_keeps_its_old_solver(tmp_path):
     """A family.json without ``cage`` was solved by the old cage (ICP start, vertex normals, no rest
     term, last iterate): resuming its pairs must use that solver, not the new defaults."""
-    from proctex.family.config import BuildConfig
-    from proctex.family.stages import stored_config, write_config
+    from proctex.store.config import BuildConfig
+    from proctex.store.state import stored_config, write_config
 
     store = FamilyStore(str(tmp_path / "old"))
     settings = {"model": "mug", "prompt": "oak", "seed": 0, "n_train": 24, "cage_level": 1, "cage_iterations": 300, "train": {}}  # flat, no cage
@@ -410,7 +418,7 @@ def test_a_store_built_before_the_cage_settings_keeps_its_old_solver(tmp_path):
 
 
 def test_configs_in_sections_and_flat_keys_are_the_same_config_and_round_trip():
-    from proctex.family.config import PRESETS, BuildConfig, resolved_settings
+    from proctex.store.config import PRESETS, BuildConfig, resolved_settings
 
     flat = {"model": "chair", "prompt": "oak", "seed": 3, "n_train": 5, "cage_iterations": 40, "cage": {"w_rest": 0.3},
             "train": {"iterations": 50}, "texture_size": 64}
@@ -431,7 +439,7 @@ def test_configs_in_sections_and_flat_keys_are_the_same_config_and_round_trip():
 
 
 def test_bad_configs_are_clear_errors():
-    from proctex.family.config import BuildConfig
+    from proctex.store.config import BuildConfig
 
     deep: dict = {}
     for _ in range(3000):
@@ -450,9 +458,10 @@ def test_bad_configs_are_clear_errors():
 def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
     """The build is plans run by an executor: one that runs the batches backwards, without the
     in-process context (as a Ray worker does), stores the same family; a rerun plans nothing."""
-    from proctex.family.pipeline import build
-    from proctex.family.plan import run_in_process
-    from proctex.family.stages import load_models, samples
+    from proctex.build.pipeline import build
+    from proctex.build.plan import run_in_process
+    from proctex.store.networks import load_models
+    from proctex.store.samples import samples
 
     cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=1, corr_points=200, cage_iterations=10, texture_size=64,
                                      train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64}))
@@ -493,7 +502,7 @@ def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
 
 
 def test_a_damaged_serving_choice_is_a_clear_error_and_none_means_the_network():
-    from proctex.family.stages import check_serving
+    from proctex.store.networks import check_serving
 
     good = {"serve": "box", "template_extent": [1.0, 0.5, 0.25], "errors": {}}
     assert check_serving(good, "m.pt") is good and check_serving(None, "m.pt") is None

@@ -1,4 +1,4 @@
-"""Honest fidelity measures (proctex.family.fidelity, DESIGN §6): every metric must be able to fail.
+"""Honest fidelity measures (proctex.measure.fidelity, DESIGN §6): every metric must be able to fail.
 
 On a built-in family (the chair, canonical ground truth), the true correspondence must score far
 better than deliberately wrong ones (every part collapsed to a point, a random rotation per shape,
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from proctex.family.config import BuildConfig
-from proctex.family.pipeline import build
-from proctex.family.stages import load_assets, load_sample, samples
-from proctex.family.fidelity import (
+from proctex.build.pipeline import build
+from proctex.geometry.parts import part_mesh, segment
+from proctex.geometry.surface import SurfaceIndex, interpolate
+from proctex.measure.fidelity import (
     FAIL_ERROR,
     Location,
     colours_at,
@@ -32,15 +32,15 @@ from proctex.family.fidelity import (
     tracked_variance,
     truth_samples,
 )
-from proctex.family.assign import PartAssignment, assign_parts, representative_frame
-from proctex.family.mappers import IdentityMapper
-from proctex.family.store import FamilyStore
-from proctex.family.transfer import transfer
-from proctex.geometry.parts import part_mesh, segment
-from proctex.geometry.surface import SurfaceIndex
-from proctex.geometry.surface import interpolate
 from proctex.models import get_model
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
+from proctex.store.samples import load_sample, samples
 from proctex.texture.uv import pad_seams, texel_map
+from proctex.transfer.apply import transfer
+from proctex.transfer.assets import load_assets
+from proctex.transfer.assign import PartAssignment, assign_parts, representative_frame
+from proctex.transfer.mappers import IdentityMapper
 
 
 # ---------------------------------------------------------------------------------------- mappers
@@ -163,12 +163,12 @@ def _self_tracked_variance(family, mapper, n=1500):
     from unittest import mock
 
     flat = lambda v, f: np.zeros((len(f), 3))  # noqa: E731
-    with mock.patch("proctex.family.transfer._side_normals", flat), mock.patch("proctex.family.uvlookup._side_normals", flat):
+    with mock.patch("proctex.transfer.apply.side_normals", flat), mock.patch("proctex.transfer.uvlookup.side_normals", flat):
         return _self_tracked_variance_old(family, mapper, n)
 
 
 def _self_tracked_variance_old(family, mapper, n):
-    from proctex.family.assign import choose_part
+    from proctex.transfer.assign import choose_part
 
     st, cfg, assets, uv, shapes = family
     tpl = assets.shape
@@ -381,11 +381,11 @@ def test_one_part_frame_everywhere(monkeypatch):
     and moved comes back onto the representative's normalised frame through its assignment's map
     (R, then the translation t); the build's cage pairs and the run-time transfer both compute it
     with this one function."""
-    from proctex.family.assets import prepare_template
     from proctex.geometry.parts import analyse
     from proctex.geometry.surface import normalised_frame
     from proctex.texture.paint import paint_surface
     from proctex.texture.painters import SurfacePainter
+    from proctex.transfer.assets import prepare_template
 
     rng = np.random.default_rng(0)
     rep = rng.normal(size=(50, 3))
@@ -395,18 +395,18 @@ def test_one_part_frame_everywhere(monkeypatch):
     t0 = np.array([0.1, -0.2, 0.05])
     got = representative_frame(member, PartAssignment(0, 0, -1, R, 0.0, "extra", t0))
     assert np.allclose(got, (rep - c) / r + t0, atol=1e-9)
-    import proctex.family.assign
-    import proctex.family.stages
-    import proctex.family.transfer
+    import proctex.build
+    import proctex.transfer.apply
+    import proctex.transfer.assign
 
     calls = []
-    real = proctex.family.assign.representative_frame
+    real = proctex.transfer.assign.representative_frame
 
     def spy(v, a):
         calls.append(len(v))
         return real(v, a)
 
-    monkeypatch.setattr(proctex.family.assign, "representative_frame", spy)  # the build, the run time and the evaluation reach it here
+    monkeypatch.setattr(proctex.transfer.assign, "representative_frame", spy)  # the build, the run time and the evaluation reach it here
     tpl = get_model("mug").generate()
     grouping = analyse(tpl)
     tex = paint_surface(tpl, grouping, SurfacePainter("red"), size=32)
@@ -415,7 +415,7 @@ def test_one_part_frame_everywhere(monkeypatch):
     transfer(shape, assets, IdentityMapper(), shortcut=False)
     assert len(calls) == 2  # body and handle
     cfg = BuildConfig.from_dict(dict(model="mug", corr_points=100, cage_iterations=2)).validate()
-    proctex.family.stages.solve_pair(shape, assets, 0, cfg, seed=0)
+    proctex.build.pairs.solve_pair(shape, assets, 0, cfg, seed=0)
     assert len(calls) == 3
 
 
@@ -440,8 +440,8 @@ def test_a_part_matched_through_a_mirror_keeps_its_faces_wound_outward(monkeypat
     solver sends the points across the plate to the other side."""
     import proctex.correspond.dense as dense
     from proctex.correspond.dense import correspond_parts
-    from proctex.family.assign import representative_part
     from proctex.geometry.surface import face_normals, normalised_frame
+    from proctex.transfer.assign import representative_part
 
     v, f = _plate()
     c, r = normalised_frame(v)
@@ -469,7 +469,12 @@ def test_inside_out_is_read_from_the_normals_against_the_template():
     """An outward part is not inside out, its reversed winding is, on a box that the box map
     stretches (normals are carried by the inverse transpose) and on a template with many faces."""
     from proctex.correspond.dense import box_scale, inside_out
-    from proctex.geometry.surface import SurfaceIndex, face_normals, normalised_frame, sample_surface
+    from proctex.geometry.surface import (
+        SurfaceIndex,
+        face_normals,
+        normalised_frame,
+        sample_surface,
+    )
 
     v, f = _plate()
     c, r = normalised_frame(v)

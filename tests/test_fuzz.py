@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from proctex.family.catalog import Catalog
-from proctex.family.service import Limits
+from proctex.serve.catalog import Catalog
+from proctex.serve.service import Limits
+
 from .fuzz_cases import cli_cases, http_cases
 
 fastapi = pytest.importorskip("fastapi")

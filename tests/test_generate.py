@@ -18,7 +18,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from proctex.cli import main
-from proctex.family.generate import GenerateLayout, GenerateSettings, plan_rows, run_in_process
+from proctex.generate import GenerateLayout, GenerateSettings, plan_rows, run_in_process
 from proctex.geometry.parts import segment
 from proctex.models import get_model
 from proctex.texture.gltf_read import read_textured_glb
@@ -161,8 +161,8 @@ def test_bad_settings_are_clear_errors_before_any_work(mug, tmp_path, capsys):
 
 
 def test_sampled_rows_follow_the_seed_and_the_bounds(mug):
-    from proctex.family.generate import family_space
-    from proctex.family.store import FamilyStore
+    from proctex.generate import family_space
+    from proctex.store.layout import FamilyStore
 
     space = family_space(FamilyStore(mug))
     a = plan_rows(GenerateSettings(mug, "x", n=50, seed=1, bounds={"height": [0.08, 0.09]}), space)

@@ -11,14 +11,14 @@ import threading
 import numpy as np
 import pytest
 
-from proctex.family.budget import Budget, OverBudget
-from proctex.family.catalog import Catalog, Watchdog
-from proctex.family.config import BuildConfig
-from proctex.family.service import Limits
-from proctex.family.stages import load_assets
-from proctex.family.store import FamilyStore
 from proctex.geometry.meshio import load_mesh_bytes, obj_text, position_ids
 from proctex.models import get_model
+from proctex.serve.catalog import Catalog, Watchdog
+from proctex.serve.service import Limits
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
+from proctex.transfer.assets import load_assets
+from proctex.transfer.budget import Budget, OverBudget
 
 fastapi = pytest.importorskip("fastapi")
 from fastapi.testclient import TestClient  # noqa: E402
@@ -111,9 +111,9 @@ def test_a_budget_stops_between_steps_and_a_cancel_names_itself():
 
 
 def test_transfer_checks_its_budget_and_identical_extra_parts_are_fitted_once(root, monkeypatch):
-    import proctex.family.assign as assign
-    from proctex.family.mappers import IdentityMapper
-    from proctex.family.transfer import transfer
+    import proctex.transfer.assign as assign
+    from proctex.transfer.apply import transfer
+    from proctex.transfer.mappers import IdentityMapper
 
     assets = load_assets(FamilyStore(root / "mug"))
     mug = get_model("mug").generate()
@@ -298,7 +298,7 @@ def test_a_config_with_a_nan_seed_is_refused_before_the_store_is_touched(tmp_pat
 # ------------------------------------------------------------------------------------------ edits
 EDITOR = """
 import sys
-from proctex.family.catalog import Catalog
+from proctex.serve.catalog import Catalog
 cat = Catalog(sys.argv[1], check_every=0)
 for k in range(int(sys.argv[2])):
     svc = cat.get("mug")
@@ -325,7 +325,7 @@ def test_concurrent_edits_from_two_processes_apply_in_order_and_lose_nothing(roo
         chain = [e for e in edits if e["group"] == g]
         assert len(chain) == 10
         assert all(a["after"] == b["before"] for a, b in zip(chain, chain[1:]))  # no edit overwrote another
-    from proctex.family.store import StoreLayout, digest
+    from proctex.store.layout import StoreLayout, digest
 
     labels = {g["group"]: g["label"] for g in st.read_json("template/paint.json")["groups"]}
     for g in (0, 1):
@@ -335,7 +335,7 @@ def test_concurrent_edits_from_two_processes_apply_in_order_and_lose_nothing(roo
 
 # ----------------------------------------------------------------------------------------- damage
 def _damage(folder, how):
-    from proctex.family.store import StoreLayout
+    from proctex.store.layout import StoreLayout
 
     st = FamilyStore(folder)
     summary = st.read_json("template/paint.json")
@@ -410,8 +410,8 @@ def test_a_damaged_family_is_unavailable_and_the_others_are_served(root, tmp_pat
 
 
 def test_a_swapped_or_altered_network_is_refused_on_load(tmp_path):
-    from proctex.family.pipeline import build
-    from proctex.family.stages import load_models
+    from proctex.build.pipeline import build
+    from proctex.store.networks import load_models
 
     cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, corr_points=200, cage_iterations=5, texture_size=32,
                                      train={"iterations": 5, "eval_every": 5, "context_points": 64, "query_points": 32}))

@@ -4,19 +4,20 @@ import json
 
 import numpy as np
 import pytest
-from .conftest import require_validator
 
 from proctex.cli import main
-from proctex.family.template import write_textured
 from proctex.geometry.meshio import load_mesh
 from proctex.geometry.parts import analyse
 from proctex.models import get_model, list_models
+from proctex.store.template import write_textured
 from proctex.texture.metrics import coverage
 from proctex.texture.paint import SolidViewPainter, paint_surface, resolve_group_prompts
 from proctex.texture.paint_loop import fill_unseen, paint_views, trimap
 from proctex.texture.painters import GENERATE, KEEP, SurfacePainter
 from proctex.texture.render import Tracer, bounding_sphere, orbit_path, render_buffers
 from proctex.texture.uv import sample_texture
+
+from .conftest import require_validator
 
 
 class Analytic:
@@ -330,10 +331,10 @@ def test_unseen_texels_are_filled_without_repainting_seen_ones(chair):
 
 def test_painters_come_from_one_registry(tmp_path):
     from proctex.texture.paint import SolidViewPainter
-    from proctex.texture.paint_loop import PAINTERS, make_painter
     from proctex.texture.painters import SurfacePainter
     from proctex.texture.painters.diffusion import DiffusionViewPainter
     from proctex.texture.painters.tiny_pipeline import build_tiny_pipeline
+    from proctex.texture.painting import make_painter, painter_names
 
     shape = get_model("mug").generate()
     grouping = analyse(shape)
@@ -342,6 +343,57 @@ def test_painters_come_from_one_registry(tmp_path):
     assert isinstance(views, SolidViewPainter) and isinstance(views.surface, SurfacePainter)
     build_tiny_pipeline(tmp_path / "tiny")
     assert isinstance(make_painter("diffusion", grouping, "red", model_dir=str(tmp_path / "tiny")), DiffusionViewPainter)
-    assert set(PAINTERS) == {"surface", "views", "diffusion"}
+    assert painter_names()[:3] == ("surface", "views", "diffusion")
     with pytest.raises(ValueError, match="painter must be one of"):
         make_painter("crayon", grouping, "red")
+
+
+TOY_PAINTER = '''"""A painter in one file: the surface painter's materials, every texel crimson."""
+import numpy as np
+
+from proctex.texture.painting import Painter, register_painter
+from proctex.texture.painters import SurfacePainter
+
+
+class Crimson(SurfacePainter):
+    def paint(self, points, normals, group=0, label=""):
+        return np.tile(np.array([0.86, 0.08, 0.24], np.float32), (len(points), 1))
+
+
+register_painter(Painter("toy_crimson", lambda ctx: Crimson(ctx.prompt, {}, seed=ctx.seed), summary="crimson, whatever the prompt"))
+'''
+
+
+def test_a_painter_from_one_file_paints_a_build_and_is_offered_by_the_cli(tmp_path, monkeypatch):
+    """One new file registers a painter (issue 33): ``--painter`` offers it, a build config names
+    it, and the paint stage paints with it (red where the family's prompt says blue: the registry's
+    painter ran, not a default)."""
+    from proctex import plugins
+    from proctex.build.paint import stage_paint
+    from proctex.build.sample import stage_sample
+    from proctex.build.template import stage_template
+    from proctex.cli.app import build_parser
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import write_config
+    from proctex.store.template import load_template
+    from proctex.texture.painting import unregister_painter
+
+    path = tmp_path / "toy_painter.py"
+    path.write_text(TOY_PAINTER)
+    monkeypatch.setenv("PROCTEX_PLUGINS", str(path))
+    try:
+        assert build_parser().parse_args(["paint", "mug", "--prompt", "x", "--out", "o", "--painter", "toy_crimson"]).painter == "toy_crimson"
+        cfg = BuildConfig.from_dict({"source": {"model": "mug", "n_train": 2, "n_test": 0},
+                                     "paint": {"prompt": "pale blue ceramic", "painter": "toy_crimson", "texture_size": 32}})
+        st = FamilyStore(tmp_path / "mug")
+        write_config(st, cfg)
+        for stage in (stage_sample, stage_template, stage_paint):
+            stage(st, cfg, log=lambda *_: None)
+        record = load_template(st)
+        tex = np.asarray(record.textures[0], dtype=float)
+        r, g, b = tex[record.painted[0]].mean(axis=0)
+        assert r > b + 40 and r > g + 40, (r, g, b)
+    finally:
+        unregister_painter("toy_crimson")
+        plugins._LOADED.pop(str(path), None)

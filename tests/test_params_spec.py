@@ -6,8 +6,17 @@ import json
 import numpy as np
 import pytest
 
-from proctex.params import (MAX_SPEC_DEPTH, ParamSpace, ParamSpec, choice, continuous, integer, read_params_spec,
-                            select_template, with_conditions)
+from proctex.params import (
+    MAX_SPEC_DEPTH,
+    ParamSpace,
+    ParamSpec,
+    choice,
+    continuous,
+    integer,
+    read_params_spec,
+    select_template,
+    with_conditions,
+)
 
 from .conftest import SOFA
 
@@ -107,7 +116,7 @@ def test_flat_specs_and_hostile_specs(tmp_path):
 
 
 def test_a_config_reads_its_spec_once_and_stores_what_it_read(tmp_path):
-    from proctex.family.config import BuildConfig
+    from proctex.store.config import BuildConfig
 
     spec = {"params": {"radius": {"type": "float", "range": [0.04, 0.05]}, "taper": {"type": "float", "range": [-0.01, 0.0]}}}
     (tmp_path / "sp.json").write_text(json.dumps(spec))

@@ -6,7 +6,13 @@ import pytest
 
 from proctex.geometry.parts import analyse
 from proctex.texture.paint_loop import paint_template
-from proctex.texture.painters.partwords import PART_WORDS, describe_groups, part_word, plan_parts, resolve_words
+from proctex.texture.painters.partwords import (
+    PART_WORDS,
+    describe_groups,
+    part_word,
+    plan_parts,
+    resolve_words,
+)
 
 from .meshes import unlabelled_chair, unlabelled_table
 
@@ -163,12 +169,12 @@ def test_part_word_table():
 def test_parts_the_template_lacks_take_what_the_prompt_says_of_them():
     """At run time, a chair with arms and a back (the template had neither) paints its arms with the
     arms' clause and its back with the clause of the part most like it, never a default."""
-    from proctex.family.assets import prepare_template
-    from proctex.family.mappers import IdentityMapper
-    from proctex.family.transfer import transfer
     from proctex.geometry.parts import segment
     from proctex.texture.painters import SurfacePainter
     from proctex.texture.painters.partwords import new_part_texts
+    from proctex.transfer.apply import transfer
+    from proctex.transfer.assets import prepare_template
+    from proctex.transfer.mappers import IdentityMapper
 
     prompt = "a chair with a red velvet seat, dark walnut legs and brass arms"
     full = unlabelled_chair()

@@ -10,8 +10,6 @@ import pygltflib as gl
 import pytest
 from PIL import Image
 
-from .conftest import require_validator
-
 from proctex.geometry.parts import analyse
 from proctex.models import get_model
 from proctex.texture.export import glb_bytes, obj_files, validate_glb
@@ -28,6 +26,8 @@ from proctex.texture.pbr import (
     texel_frames,
 )
 from proctex.texture.uv import texel_map
+
+from .conftest import require_validator
 
 
 # ---------------------------------------------------------------------------------------- helpers
@@ -311,10 +311,13 @@ def test_bad_pbr_input_is_a_clear_error(painted):
 
 # ------------------------------------------------------------------------------------ the store
 def test_template_store_keeps_the_maps(tmp_path):
-    from proctex.family.config import BuildConfig
-    from proctex.family.stages import load_template_shape, stage_paint, stage_sample, stage_template, write_config
-    from proctex.family.store import FamilyStore, StoreLayout
-    from proctex.family.template import Template
+    from proctex.build.paint import stage_paint
+    from proctex.build.sample import stage_sample
+    from proctex.build.template import stage_template
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore, StoreLayout
+    from proctex.store.state import write_config
+    from proctex.store.template import Template, load_template_shape
 
     cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="hammered copper",
                                      group_prompts={"handle": "black rubber"}))
@@ -348,9 +351,10 @@ def test_edits_carry_the_maps(painted_mug_root, tmp_path):
     edits move those channels; undo brings the maps back; the service answers with them, linked."""
     import shutil
 
-    from proctex.family.edits import adjust_orm, stored_edit, undo_edit
-    from proctex.family.service import FamilyService, GroupEdit, build_stamp
-    from proctex.family.store import FamilyStore, StoreLayout
+    from proctex.serve.edits import adjust_orm, stored_edit, undo_edit
+    from proctex.serve.service import FamilyService, GroupEdit
+    from proctex.store.layout import FamilyStore, StoreLayout
+    from proctex.store.state import build_stamp
 
     root = tmp_path / "fams"
     shutil.copytree(painted_mug_root, root)
@@ -377,7 +381,8 @@ def test_edits_carry_the_maps(painted_mug_root, tmp_path):
     with pytest.raises(ValueError, match="roughness must be"):
         adjust_orm(np.zeros((2, 2, 3)), roughness=1.5)
     # The service: linked answers name the maps' URIs and serve them; an edit that changes the maps embeds them.
-    from proctex.family.stages import load_template_shape, stored_config
+    from proctex.store.state import stored_config
+    from proctex.store.template import load_template_shape
 
     svc = FamilyService(st)
     shape = load_template_shape(st, stored_config(st))
@@ -400,11 +405,11 @@ def test_bake_re_expresses_the_relief_in_the_new_atlas():
     """Baking a transferred shape into its own atlas keeps the relief: the baked normal map, decoded
     in the atlas's tangent frame, matches the painter's relief evaluated afresh in that frame (the
     template itself, mapped by the identity and baked, so every surface point is known)."""
-    from proctex.family.assets import prepare_template
-    from proctex.family.mappers import make_mapper
-    from proctex.family.transfer import bake, shape_to_glb, transfer
     from proctex.texture.paint import shape_frame
     from proctex.texture.pbr import corner_tangents as ct
+    from proctex.transfer.apply import bake, shape_to_glb, transfer
+    from proctex.transfer.assets import prepare_template
+    from proctex.transfer.methods import make_mapper
 
     shape = get_model("mug").generate(None)
     grouping = analyse(shape)
@@ -545,7 +550,7 @@ def test_ambient_occlusion_darkens_crevices():
 
 
 def test_occlusion_setting_is_validated():
-    from proctex.family.config import BuildConfig
+    from proctex.store.config import BuildConfig
 
     assert BuildConfig.from_dict(dict(model="mug", occlusion=True)).validate().paint.occlusion is True
     with pytest.raises(ValueError, match="occlusion must be true or false"):
@@ -557,8 +562,8 @@ def test_http_serves_the_maps_and_refuses_bad_material_edits(painted_mug_root, t
 
     from fastapi.testclient import TestClient
 
-    from proctex.family.catalog import Catalog
-    from proctex.family.service import BadInput, parse_edit
+    from proctex.serve.catalog import Catalog
+    from proctex.serve.service import BadInput, parse_edit
     from workers.http import create_app
 
     root = tmp_path / "fams"

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.family.config import BuildConfig
-from proctex.family.pipeline import build
-from proctex.family.stages import read_pair, samples
-from proctex.family.store import FamilyStore
+from proctex.build.pipeline import build
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
+from proctex.store.samples import read_pair, samples
 
 from .processes import pids_running
 
@@ -84,7 +84,7 @@ def test_ray_build_equals_the_single_process_build(local_ray, reference, tmp_pat
         sa, sb = ma.state_dict(), mb.state_dict()
         assert all(torch_allclose(sa[k], sb[k]) for k in sa), g
     # The serving choice is made and recorded the same way by Ray Train as in process.
-    from proctex.family.stages import load_models
+    from proctex.store.networks import load_models
 
     mine, theirs = load_models(st), load_models(reference)
     record = st.read_json("family.json")["stages"]["train"]["groups"]
@@ -107,7 +107,7 @@ def torch_allclose(a, b) -> bool:
 
 
 def test_a_worker_killed_during_the_cage_fan_out_does_not_stop_the_build(local_ray, reference, tmp_path):
-    from proctex.family.stages import plan_pairs
+    from proctex.build.pairs import plan_pairs
     from workflows.build import build_on_ray, ray_executor
 
     st_root = str(tmp_path / "mug")
@@ -208,7 +208,10 @@ def test_serve_answers_every_route_and_a_concurrent_load(local_ray, reference, t
             return e.code, e.read()
 
     try:
-        assert get("/healthz")[1]["status"] == "ok"
+        try:
+            assert get("/healthz")[1]["status"] == "ok"
+        except urllib.error.HTTPError as e:
+            raise AssertionError(e.read()) from e
         with urllib.request.urlopen(base + "/", timeout=60) as r:  # the web studio's page
             assert r.status == 200 and b"<title>ProcTex studio</title>" in r.read()
         assert get("/v1/families")[1]["families"] == ["mug"]
@@ -249,7 +252,8 @@ def test_a_group_trained_by_two_ray_train_workers_averages_their_gradients(local
     groups on two workers: a team of one each, no all-reduce)."""
     import shutil
 
-    from proctex.family.stages import load_models, plan_train
+    from proctex.build.train import plan_train
+    from proctex.store.networks import load_models
     from workflows.build import ray_executor
 
     shutil.copytree(reference.base, tmp_path / "mug")

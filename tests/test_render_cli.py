@@ -312,9 +312,12 @@ def test_cli_render_bad_input(argv, message, mug_glb, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def mug_family(tmp_path_factory):
     """A small built mug family (sample, template, paint; no correspondences needed by --mapper identity/nearest)."""
-    from proctex.family.config import BuildConfig
-    from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
-    from proctex.family.store import FamilyStore
+    from proctex.build.paint import stage_paint
+    from proctex.build.sample import stage_sample
+    from proctex.build.template import stage_template
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import write_config
 
     root = tmp_path_factory.mktemp("fam") / "mug"
     cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=64, prompt="red and white checkered fabric",

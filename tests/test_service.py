@@ -8,12 +8,15 @@ import shutil
 import numpy as np
 import pytest
 
-from proctex.family.catalog import Catalog
-from proctex.family.config import BuildConfig
-from proctex.family.edits import edit_group
-from proctex.family.service import FamilyService, Limits, NotFound, build_stamp
-from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
-from proctex.family.store import FamilyStore
+from proctex.build.paint import stage_paint
+from proctex.build.sample import stage_sample
+from proctex.build.template import stage_template
+from proctex.serve.catalog import Catalog
+from proctex.serve.edits import edit_group
+from proctex.serve.service import FamilyService, Limits, NotFound
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
+from proctex.store.state import build_stamp, write_config
 
 fastapi = pytest.importorskip("fastapi")
 from fastapi.testclient import TestClient  # noqa: E402
@@ -116,6 +119,53 @@ def test_unknown_families_and_mesh_limits(client, root):
     assert r.status_code == 413 and "faces" in r.json()["error"]
 
 
+def test_a_family_load_reads_family_json_once_and_decodes_no_png(root, monkeypatch):
+    """The state record is read once and passed on (stamp, config, template, networks), and the
+    template's PNGs are kept as stored: nothing decoded or encoded until a transfer needs a texture."""
+    import PIL.Image
+
+    from proctex.build import pairs
+    from proctex.store.layout import StoreLayout
+    from proctex.transfer.assets import texture_hw
+
+    reads, opened, saved = [], [], []
+    real_read, real_open, real_save = FamilyStore.read_json, PIL.Image.open, PIL.Image.Image.save
+    monkeypatch.setattr(FamilyStore, "read_json", lambda self, rel: reads.append(rel) or real_read(self, rel))
+    monkeypatch.setattr(PIL.Image, "open", lambda *a, **k: opened.append(a) or real_open(*a, **k))
+    monkeypatch.setattr(PIL.Image.Image, "save", lambda self, *a, **k: saved.append(a) or real_save(self, *a, **k))
+    store = FamilyStore(root / "mug")
+    svc = FamilyService(store)
+    assert reads.count(StoreLayout.STATE) == 1, reads
+    assert opened == [] and saved == [], "a service load decoded or encoded a PNG"
+    labels = [g["label"] for g in real_read(store, StoreLayout.PAINT)["groups"]]
+    assert svc.assets.png == [(root / "mug" / StoreLayout.texture(g, label)).read_bytes() for g, label in enumerate(labels)]
+    assert texture_hw(svc.assets, 0) == (32, 32) and opened == []  # sizes from the PNG header
+    assert svc.assets.textures[0].shape == (32, 32, 3) and len(opened) == 1  # decoded where first used, once
+    assert svc.assets.textures[0] is svc.assets.textures[0] and len(opened) == 1
+    assert saved == []
+    reads.clear()
+    cat = Catalog(str(root), check_every=0)
+    assert cat.get("mug").stamp == svc.stamp and reads.count(StoreLayout.STATE) == 1, reads
+    pairs.cached_assets(store)  # the Ray workers' template cache keys on the same version
+    assert [key[1] for key in pairs._ASSETS] == [svc.stamp]
+
+
+def test_a_request_finds_the_shapes_parts_once(root, monkeypatch):
+    """The parts (connected components) of a requested shape are found once: the limit check,
+    the transfer and the bake share them (the count can fail: a second shape counts again)."""
+    from proctex.geometry import parts
+
+    svc = FamilyService(FamilyStore(root / "mug"))
+    calls = []
+    real = parts.connected_parts
+    monkeypatch.setattr(parts, "connected_parts", lambda *a, **k: calls.append(1) or real(*a, **k))
+    shape = svc.shape_from_params({})
+    answer, _ = svc.textured(shape, bake_size=64)
+    assert answer.data[:4] == b"glTF" and len(calls) == 1
+    svc.textured(svc.shape_from_params({}))
+    assert len(calls) == 2
+
+
 def test_catalog_caches_and_reloads_a_rebuilt_family(root, tmp_path):
     base = tmp_path / "root"
     shutil.copytree(root / "mug", base / "mug")
@@ -140,7 +190,7 @@ def test_folder_families_take_meshes_only(tmp_path, sofa_dir):
     cfg = BuildConfig.from_dict(dict(folder=str(sofa_dir), texture_size=32)).validate()
     write_config(st, cfg)
     # Three samples are enough for a painted template.
-    from proctex.family.stages import finish_sample_stage, run_sample_job, sample_jobs
+    from proctex.build.sample import finish_sample_stage, run_sample_job, sample_jobs
 
     jobs = [j for j in sample_jobs(cfg) if j.split == "train"][:3]
     finish_sample_stage(st, [run_sample_job(st, cfg, j) for j in jobs])
@@ -431,8 +481,8 @@ def test_stored_edits_need_the_token_a_json_body_and_the_current_stamp(root, tmp
 
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     """The pure texture edit and the persisted one are the same code: equal results."""
-    from proctex.family.edits import edit_texture
     from proctex.fileio import encode_png
+    from proctex.serve.edits import edit_texture
 
     shutil.copytree(root / "mug", tmp_path / "mug")
     st = FamilyStore(tmp_path / "mug")
@@ -446,7 +496,7 @@ def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
         edit_texture(before, 1, "handle", prompt="gold")
     edit_group(st, "handle", hue=-40, saturation=1.5, value=0.8)
     assert st.read_bytes("template/group_1_handle.png") == encode_png(tex)
-    from proctex.family.service import GroupEdit
+    from proctex.serve.service import GroupEdit
 
     assert svc.edited_texture(1, GroupEdit(-40, 1.5, 0.8))[1] == encode_png(tex)
 

@@ -2,9 +2,9 @@
 
 import pytest
 
-from proctex.family.sources import FolderSource
 from proctex.geometry.matching import match_groups
 from proctex.geometry.parts import analyse
+from proctex.sources.files import FolderSource
 
 from .test_parts import SOFA_GROUPS
 
@@ -46,12 +46,12 @@ def test_every_sofa_sample_matches_the_template_consistently(sofa):
 def test_baking_a_sofa_leaves_no_visible_texel_unpainted(sofa):
     """inference/27 has sliver triangles whose tips own no texel for several texels (a 4-texel
     gutter left 2 visible pixels unpainted); the baked atlas must still show colour everywhere."""
-    from proctex.family.assets import prepare_template
-    from proctex.family.mappers import IdentityMapper
-    from proctex.family.transfer import bake, transfer
     from proctex.texture.metrics import coverage
     from proctex.texture.paint import paint_surface
     from proctex.texture.painters import SurfacePainter
+    from proctex.transfer.apply import bake, transfer
+    from proctex.transfer.assets import prepare_template
+    from proctex.transfer.mappers import IdentityMapper
 
     src, ti, template, tg = sofa
     tex = paint_surface(template, tg, SurfacePainter("a patchwork bohemian sofa"), size=256)

@@ -23,10 +23,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.family.catalog import Catalog
-from proctex.family.config import BuildConfig
-from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
-from proctex.family.store import FamilyStore
+from proctex.build.paint import stage_paint
+from proctex.build.sample import stage_sample
+from proctex.build.template import stage_template
+from proctex.serve.catalog import Catalog
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
+from proctex.store.state import write_config
 from workflows.screenshot import CHROMIUM_ARGS
 
 pytestmark = pytest.mark.slow
@@ -286,7 +289,7 @@ def test_the_studio_textures_a_family_interactively(server, browser):
 def test_the_studio_uploads_a_mesh_for_families_of_meshes(server, browser, sofa_dir):
     """A family from a folder of meshes takes meshes only: after choosing it in the family select,
     the page shows a file field instead of sliders, and an uploaded mesh comes back textured."""
-    from proctex.family.stages import finish_sample_stage, run_sample_job, sample_jobs
+    from proctex.build.sample import finish_sample_stage, run_sample_job, sample_jobs
 
     base, root = server
     st = FamilyStore(root / "sofa")

@@ -3,21 +3,28 @@
 import numpy as np
 import pyarrow as pa
 import pytest
-from .conftest import require_validator
 
-from proctex.family.assets import prepare_template
-from proctex.family.assign import assign_parts
-from proctex.family.mappers import IdentityMapper
-from proctex.family.store import FamilyStore
-from proctex.family.transfer import bake, glb, info, transfer
 from proctex.geometry.parts import analyse, segment
 from proctex.models import get_model
+from proctex.store.layout import FamilyStore
 from proctex.texture.export import validate_glb
 from proctex.texture.metrics import coverage
 from proctex.texture.paint import paint_surface
 from proctex.texture.painters import SurfacePainter
-from proctex.texture.render import Tracer, bounding_sphere, canonical_cameras, pixel_uv, render_buffers
+from proctex.texture.render import (
+    Tracer,
+    bounding_sphere,
+    canonical_cameras,
+    pixel_uv,
+    render_buffers,
+)
 from proctex.texture.uv import sample_texture
+from proctex.transfer.apply import bake, glb, info, transfer
+from proctex.transfer.assets import prepare_template
+from proctex.transfer.assign import assign_parts
+from proctex.transfer.mappers import IdentityMapper
+
+from .conftest import require_validator
 
 
 # ------------------------------------------------------------------------------------------ store
@@ -170,8 +177,8 @@ def test_transfer_glb_is_valid_and_bake_matches(tmp_path, chair):
 def test_shape_to_glb_is_transfer_then_glb_or_bake(chair):
     """The one run-time path equals its parts: the GLB of :func:`transfer` + :func:`glb`, or of the
     bake; the GLB read back has the shape's faces and the textures it says it shows."""
-    from proctex.family.transfer import shape_to_glb
     from proctex.texture.gltf_read import read_textured_glb
+    from proctex.transfer.apply import shape_to_glb
 
     _, _, _, assets = chair
     shape = get_model("chair").generate({"seat_width": 0.52, "back_height": 0.5})
@@ -348,11 +355,11 @@ def test_disoccluded_texels_take_their_maps_from_where_their_colour_came(cake_vi
 def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
     """A big shape face mapped onto a small template chart: its affine UVs leave the chart and read
     unpainted texels; with the painted mask the corners snap onto the template triangle instead."""
-    from proctex.family.assets import GroupAssets
-    from proctex.family.uvlookup import part_uvs
     from proctex.geometry.surface import SurfaceIndex
     from proctex.texture.inpaint import chart_labels
     from proctex.texture.uv import bilinear_texels
+    from proctex.transfer.assets import GroupAssets
+    from proctex.transfer.uvlookup import part_uvs
 
     v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
     f = np.array([[0, 1, 2], [0, 2, 3]])
@@ -375,10 +382,10 @@ def test_faces_extrapolated_off_their_chart_are_pulled_back_into_it():
 
 
 def test_a_face_extrapolated_into_another_chart_is_pulled_back():
-    from proctex.family.assets import GroupAssets
-    from proctex.family.uvlookup import part_uvs
     from proctex.geometry.surface import SurfaceIndex
     from proctex.texture.inpaint import chart_labels
+    from proctex.transfer.assets import GroupAssets
+    from proctex.transfer.uvlookup import part_uvs
 
     sq = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
     v = np.concatenate([sq, sq + [5.0, 0, 0]])
@@ -402,11 +409,11 @@ def test_a_face_whose_inside_crosses_unpainted_texels_takes_its_template_colour(
     """An L-shaped chart: a template face whose corners and centre are painted but whose long edge
     crosses the missing quadrant would show unpainted texels inside; it reads the colour at its
     template triangle's centre instead (every probe painted), and without charts it is left alone."""
-    from proctex.family.assets import GroupAssets
-    from proctex.family.uvlookup import _inside_chart, part_uvs
     from proctex.geometry.surface import SurfaceIndex
     from proctex.texture.inpaint import chart_labels
     from proctex.texture.uv import bilinear_texels
+    from proctex.transfer.assets import GroupAssets
+    from proctex.transfer.uvlookup import _inside_chart, part_uvs
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
     f = np.array([[0, 1, 2]])
@@ -451,9 +458,9 @@ def test_stretched_copies_join_their_group_by_box_shape():
     candles have neither the template's connectivity nor its proportions (rigid ICP leaves them
     out); matched in box-scaled frames they join the tier and candle groups, and the map ``A``
     takes each one's bounding box exactly onto its representative's."""
-    from proctex.family.assign import match_box
     from proctex.geometry.parts import part_mesh
     from proctex.geometry.surface import normalised_frame
+    from proctex.transfer.assign import match_box
 
     model = get_model("cake", tessellation="adaptive")
     shape_t = model.generate({"tiers": 1, "candles": 3})
@@ -492,8 +499,8 @@ def test_a_third_copy_turned_about_the_centre_takes_its_siblings_map_composed_wi
     degrees: they laid it on the wrong side)."""
     import trimesh
 
-    from proctex.family.assign import copy_of_sibling, representative_frame
     from proctex.geometry.shape import Shape
+    from proctex.transfer.assign import copy_of_sibling, representative_frame
 
     button = trimesh.creation.cone(0.25, 0.5, sections=12)
     button.apply_transform(trimesh.transformations.rotation_matrix(0.3, [0, 1, 0]))  # leans outwards (+x)
@@ -564,7 +571,7 @@ def test_a_stretched_box_keeps_its_axes_when_a_turn_would_fit_its_proportions_a_
     """A desk's pedestal grows from one drawer to four: the box is 3.4x taller. Laid on its side,
     the template's pedestal would have slightly closer proportions, but a procedural parameter
     stretches a part, it does not turn it: the map is a positive diagonal scaling."""
-    from proctex.family.assign import match_box
+    from proctex.transfer.assign import match_box
 
     assets = _boxes_template([((0.4, 0.6, 0.19), (0, 0, 0)), ((1.4, 0.65, 0.03), (0, 0, 0.5))])  # a pedestal, a top
     pedestal = next(ga.group for ga in assets.groups if np.ptp(ga.vertices, axis=0)[2] > 0.5)
@@ -583,7 +590,7 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
     """A stair's extra tread thicker than the template's (both thin: under 5% of their width) is
     the same primitive once every axis is scaled to the box, thin ones included; the same slab
     placed far from every tread slot (placement cost over ``extra_cost``) does not join them."""
-    from proctex.family.assign import match_box
+    from proctex.transfer.assign import match_box
 
     assets = _boxes_template([((1.0, 0.3, 0.02), (0, 0, 0)), ((0.05, 0.05, 1.0), (2.0, 0, 0))])  # a tread, a post
     tread = next(ga.group for ga in assets.groups if np.ptp(ga.vertices, axis=0)[2] < 0.1)
@@ -600,8 +607,8 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
 def _reads_only_chart_reference(uv: np.ndarray, charts: np.ndarray, chart: np.ndarray, step: float = 0.2) -> np.ndarray:
     """Slow reference of the run-time coverage check: every face sampled every ``step`` texels,
     each sample's four bilinear texels read."""
-    from proctex.family.uvlookup import _bary_grid
     from proctex.texture.uv import bilinear_texels
+    from proctex.transfer.uvlookup import _bary_grid
 
     h, w = charts.shape
     out = np.empty(len(uv), dtype=bool)
@@ -618,9 +625,9 @@ def test_run_time_coverage_check_never_passes_a_face_that_reads_outside_its_char
     gap: the check never passes a face that reads a texel outside its chart anywhere. Probing every
     3 texels with plain bilinear reads (the check before) passes some that do (a vase showed a few
     unpainted pixels): the test can fail."""
-    from proctex.family.uvlookup import _bary_grid, _inside_chart, chart_lookup
     from proctex.texture.inpaint import chart_labels
     from proctex.texture.uv import bilinear_texels
+    from proctex.transfer.uvlookup import _bary_grid, _inside_chart, chart_lookup
 
     rng = np.random.default_rng(3)
     painted = np.ones((128, 128), bool)
@@ -694,7 +701,8 @@ def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
 
 
 def test_make_mapper_is_the_one_place_a_mapper_is_chosen_by_name():
-    from proctex.family.mappers import IdentityMapper, NetworkMapper, SolverMapper, make_mapper
+    from proctex.transfer.mappers import IdentityMapper, NetworkMapper, SolverMapper
+    from proctex.transfer.methods import make_mapper
 
     assets = object()  # only the solver mappers keep it
     nets = {0: object()}
@@ -709,7 +717,7 @@ def test_make_mapper_is_the_one_place_a_mapper_is_chosen_by_name():
     for name in ("cage", "nearest", "cpd"):
         m = make_mapper(name, assets, corr_points=123, cage="settings")
         assert isinstance(m, SolverMapper) and (m.method, m.n_points, m.cage, m.assets) == (name, 123, "settings", assets)
-    with pytest.raises(ValueError, match="unknown mapper 'magic'"):
+    with pytest.raises(ValueError, match="unknown method 'magic'"):
         make_mapper("magic", assets)
 
 
@@ -720,7 +728,8 @@ def test_parts_mapped_side_by_side_give_the_same_result_and_leave_torch_threads_
     import torch
 
     from proctex.correspond.corrnet import CorrNetConfig, build_model
-    from proctex.family.mappers import NetworkMapper, make_mapper
+    from proctex.transfer.mappers import NetworkMapper
+    from proctex.transfer.methods import make_mapper
 
     assets = chair[3]
     shape = get_model("chair").generate({"slats": 4, "seat_width": 0.5, "arms": True})
@@ -755,10 +764,11 @@ def _match_extra_reference(u, f, assets, n=300, seed=0):
 
 
 def test_match_extra_recovers_turned_copies_like_the_exhaustive_search_and_skips_unlike_parts(chair, monkeypatch):
-    import proctex.family.assign as assign
-    import proctex.geometry.align as align
-    from proctex.geometry.parts import surface_moments
     from scipy.spatial.transform import Rotation
+
+    import proctex.geometry.align as align
+    import proctex.transfer.assign as assign
+    from proctex.geometry.parts import surface_moments
 
     _, _, _, assets = chair
     rng = np.random.default_rng(3)

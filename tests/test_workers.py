@@ -23,7 +23,7 @@ def test_teams_use_every_worker_and_every_group_once():
 def test_a_family_serve_unloads_leaves_the_catalog_once_and_only_once(painted_mug_root):
     """Serve's multiplexing LRU unloads a family by calling ``__del__`` on what it held; the catalog
     drops the family then, and the garbage collector's later call (after a reload) changes nothing."""
-    from proctex.family.catalog import Catalog
+    from proctex.serve.catalog import Catalog
     from workers.serve import _Held, deployment
 
     cat = Catalog(str(painted_mug_root), check_every=0, lazy=True)

@@ -18,7 +18,7 @@ Routes:
 - ``GET /v1/families/{name}/groups/{group}/texture.png?size=128&hue=&saturation=&value=&prompt=``:
   the group's texture (edited as given) as a PNG at most ``size`` pixels a side.
 - ``POST /v1/families/{name}/edits``: ``{"group": index or label, "hue", "saturation", "value",
-  "prompt"}`` stored into the family (:func:`proctex.family.edits.edit_group`); returns
+  "prompt"}`` stored into the family (:func:`proctex.serve.edits.edit_group`); returns
   ``{"family", "edit": record, "stamp": new build stamp}``. Later transfers use it. Needs the service's
   edit token (``X-ProcTex-Token``; without a token configured the service is read-only) and a JSON
   body; ``If-Match: <stamp>`` makes it conditional (409 when the family changed).
@@ -50,10 +50,11 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from proctex.family.budget import Budget, OverBudget
-from proctex.family.catalog import Catalog, Watchdog
-from proctex.family.edits import EditConflict
-from proctex.family.service import BadInput, NotFound, TooLarge, Unavailable, build_stamp, parse_edit
+from proctex.serve.catalog import Catalog, Watchdog
+from proctex.serve.edits import EditConflict
+from proctex.serve.service import BadInput, NotFound, TooLarge, Unavailable, parse_edit
+from proctex.store.state import build_stamp
+from proctex.transfer.budget import Budget, OverBudget
 
 GLB_MEDIA_TYPE = "model/gltf-binary"
 MAX_SEED = 2**31 - 1

@@ -1,6 +1,6 @@
 """Ray Serve deployment of the transfer service: the FastAPI app of :mod:`workers.http` as ingress.
 
-Each replica keeps a :class:`proctex.family.catalog.Catalog` of the families under the store root
+Each replica keeps a :class:`proctex.serve.catalog.Catalog` of the families under the store root
 (reloaded when a family's build stamp changes): all of them, or, multiplexed, the few it serves. Transfers run in a worker thread of the
 replica, so one replica overlaps request parsing, encoding and I/O with the CPU-bound transfer.
 """
@@ -13,8 +13,8 @@ from typing import Any
 
 from ray import serve
 
-from proctex.family.catalog import Catalog, Watchdog
-from proctex.family.service import Limits
+from proctex.serve.catalog import Catalog, Watchdog
+from proctex.serve.service import Limits
 from workers.http import create_app
 
 

@@ -14,8 +14,8 @@ from typing import Any, Callable
 
 import ray
 
-from proctex.family.config import BuildConfig
-from proctex.family.store import FamilyStore
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
 
 #: Ray retries a task whose worker died this many times (a job's own errors are recorded instead).
 MAX_RETRIES = 3
@@ -30,8 +30,8 @@ def _single_thread() -> None:
 
 @ray.remote(num_cpus=1, max_retries=MAX_RETRIES)
 def run_batch(run: Callable[..., list[Any]], store_uri: str, config: dict[str, Any], batch: list[Any]) -> list[Any]:
-    """Run one batch of a stage plan (:class:`proctex.family.plan.Plan`): ``run`` is the plan's
-    module-level batch function (e.g. :func:`proctex.family.stages.run_pair_batch`), which loads what it
+    """Run one batch of a stage plan (:class:`proctex.build.plan.Plan`): ``run`` is the plan's
+    module-level batch function (e.g. :func:`proctex.build.pairs.run_pair_batch`), which loads what it
     needs itself (template assets once per worker process). Returns its results."""
     _single_thread()
     return run(FamilyStore(store_uri), BuildConfig.from_dict(config), batch, None)

@@ -16,14 +16,9 @@ import tempfile
 import time
 from typing import Any, Callable
 
-
-from proctex.family.config import BuildConfig
-
-
-from proctex.family.stages import fit_group, serving_line, trainable_groups
-
-
-from proctex.family.store import FamilyStore, StoreLayout
+from proctex.build.train import fit_group, serving_line, trainable_groups
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore, StoreLayout
 
 
 def teams(world: int, groups: list[int]) -> list[tuple[list[int], list[int]]]:
@@ -64,11 +59,11 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
                     dist.all_reduce(p.grad, group=pg)
                     p.grad /= team_size
 
+    step = loop_config.get("step") or fit_group  # the plan's team step: the in-process train body and record
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for group in my_groups:
-            # the in-process train body and record (fit_group), plus the team size
-            out[str(group)] = {**fit_group(store, config, group, rank=team_rank, world=team_size, grad_hook=average), "workers": team_size}
+            out[str(group)] = {**step(store, config, group, rank=team_rank, world=team_size, grad_hook=average), "workers": team_size}
             if team_rank == 0:
                 with open(os.path.join(tmp, f"group_{group}.pt"), "wb") as fh:
                     fh.write(store.read_bytes(StoreLayout.model(group)))
@@ -122,9 +117,11 @@ def train_groups(
     groups: list[int] | None = None,
     log: Callable[[str], None] = print,
     quiet: bool = False,
+    step: Callable[..., dict[str, Any]] | None = None,
 ) -> dict[int, dict[str, Any]]:
     """Fit the networks of every trainable group that has none yet with one ``TorchTrainer`` of
-    ``num_workers`` CPU workers (Ray must be initialised). Returns ``{group: metrics}``."""
+    ``num_workers`` CPU workers (Ray must be initialised); ``step``: what fits one group on a team
+    (``Plan.team``; default :func:`proctex.build.train.fit_group`). Returns ``{group: metrics}``."""
     from ray.train import RunConfig, ScalingConfig
     from ray.train.torch import TorchTrainer
 
@@ -140,7 +137,7 @@ def train_groups(
     t0 = time.perf_counter()
     trainer = TorchTrainer(
         train_group_loop,
-        train_loop_config={"store": store_uri, "config": config.to_dict(), "groups": todo},
+        train_loop_config={"store": store_uri, "config": config.to_dict(), "groups": todo, "step": step or fit_group},
         scaling_config=ScalingConfig(num_workers=num_workers, use_gpu=False, resources_per_worker={"CPU": cpus_per_worker}),
         # A fresh run name: Ray Train resumes silently from an existing run of the same name.
         run_config=RunConfig(name=f"corrnet_{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}", storage_path=storage, storage_filesystem=store.fs),

@@ -1,4 +1,4 @@
-"""The family build on Ray: the same stage plans as ``proctex.family.pipeline.build`` runs in process,
+"""The family build on Ray: the same stage plans as ``proctex.build.pipeline.build`` runs in process,
 run by a Ray executor (:func:`ray_executor`) that fans them out over a cluster.
 
 - ``sample``: batches of samples as Ray tasks (:func:`workers.tasks.run_batch`);
@@ -19,12 +19,12 @@ from __future__ import annotations
 import os
 from typing import Any, Callable, Sequence
 
-from proctex.family.config import BuildConfig
-from proctex.family.pipeline import build
-from proctex.family.plan import Plan, run_in_process
-from proctex.family.stages import STAGES
-from proctex.family.store import FamilyStore
+from proctex.build.pipeline import build
+from proctex.build.plan import Plan, run_in_process
 from proctex.progress import Progress
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
+from proctex.store.state import STAGES
 
 
 def store_uri(root: str) -> str:
@@ -67,22 +67,17 @@ def _fan_out(submit: Callable[[Any], Any], batches: Sequence[Any], max_in_flight
 
 
 def ray_executor(max_in_flight: int | None = None, train_workers: int | None = None, quiet: bool = False):
-    """An executor for :func:`proctex.family.pipeline.build` that runs each plan's batches as Ray
+    """An executor for :func:`proctex.build.pipeline.build` that runs each plan's batches as Ray
     tasks (:func:`workers.tasks.run_batch`; at most ``max_in_flight`` submitted at a time, default 2 x
-    CPUs), the train plan's groups as Ray Train jobs (:func:`workers.train.train_groups`,
-    ``train_workers`` workers, default min(2, CPUs)), and one-step plans here on the driver."""
+    CPUs), the jobs of a plan with a team step (``Plan.team``: the train plan's groups) as Ray
+    Train jobs through :func:`run_teams` (``train_workers`` workers, default min(2, CPUs)), and
+    one-step plans here on the driver."""
 
     def execute(plan: Plan, store: FamilyStore, config: BuildConfig, log: Callable[[str], None]) -> Plan:
         if plan.skip or plan.in_place or not plan.batches:
             return run_in_process(plan, store, config, log)
-        if plan.stage == "train":
-            from workers.train import train_groups
-
-            groups = [g for batch in plan.batches for g in batch]
-            out = train_groups(store.uri, config, num_workers=train_workers or min(2, cluster_cpus()), groups=groups, log=log, quiet=quiet)
-            plan.info["mark"] = {"ray": True}
-            plan.finish([[out.get(g) for g in batch] for batch in plan.batches])
-            return plan
+        if plan.team is not None:
+            return run_teams(plan, store, config, log, train_workers or min(2, cluster_cpus()), quiet)
         from workers.tasks import run_batch
 
         bar = Progress(plan.stage, plan.n_jobs, quiet=quiet)
@@ -103,6 +98,20 @@ def ray_executor(max_in_flight: int | None = None, train_workers: int | None = N
     return execute
 
 
+def run_teams(plan: Plan, store: FamilyStore, config: BuildConfig, log: Callable[[str], None], workers: int, quiet: bool = False) -> Plan:
+    """The executor's hook for a plan with a team step: its jobs (each a group) fitted by one Ray Train
+    ``TorchTrainer`` of ``workers`` workers (:func:`workers.train.train_groups`, each job by
+    ``plan.team``), the results handed to ``plan.finish`` in batch order, as the in-process executor
+    would; the stage's record notes Ray."""
+    from workers.train import train_groups
+
+    jobs = [job for batch in plan.batches for job in batch]
+    out = train_groups(store.uri, config, num_workers=workers, groups=jobs, log=log, quiet=quiet, step=plan.team)
+    plan.info["mark"] = {"ray": True}
+    plan.finish([[out.get(job) for job in batch] for batch in plan.batches])
+    return plan
+
+
 def build_on_ray(
     root: str,
     config: BuildConfig,
@@ -114,7 +123,7 @@ def build_on_ray(
     log: Callable[[str], None] = print,
     quiet: bool = False,
 ) -> dict[str, Any]:
-    """Run the build stages on Ray (module docstring): :func:`proctex.family.pipeline.build`'s loop with the
+    """Run the build stages on Ray (module docstring): :func:`proctex.build.pipeline.build`'s loop with the
     sample, pairs and train stages fanned out; returns the family state with per-stage wall times."""
     unknown = set(stages) - set(STAGES)
     if unknown:

@@ -17,7 +17,7 @@ from proctex.cli import families
 def cmd_build(args: argparse.Namespace) -> int:
     if args.ray is None:
         return families.cmd_build(args)
-    from proctex.family.stages import STAGES
+    from proctex.store.state import STAGES
 
     from .build import build_on_ray
 
@@ -37,7 +37,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     import ray
     from ray import serve
 
-    from proctex.family.catalog import Catalog
+    from proctex.serve.catalog import Catalog
     from workers.serve import build_app
 
     if args.port < 1 or args.port > 65535:

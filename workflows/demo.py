@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from proctex.demo import DemoResult, run_demo
-from proctex.family.config import BuildConfig
+from proctex.store.config import BuildConfig
 
 
 def ray_builder(log: Callable[[str], None] = print, quiet: bool = False, address: str | None = None) -> Callable[[str, dict[str, Any]], dict[str, float]]:

@@ -2,7 +2,7 @@
 (the family's model and its networks and textures load once per actor), streamed, so shape making
 and texturing pipeline; the driver tallies the finished rows (progress, the failure bound) and
 writes the manifest. The stages and the output layout are the core's
-(:mod:`proctex.family.generate`): the files equal the single-process run's."""
+(:mod:`proctex.generate`): the files equal the single-process run's."""
 
 from __future__ import annotations
 
@@ -10,7 +10,14 @@ import os
 import time
 from typing import Any, Callable
 
-from proctex.family.generate import GenerateSettings, ShapeStage, Tally, TextureStage, finish, start_run
+from proctex.generate import (
+    GenerateSettings,
+    ShapeStage,
+    Tally,
+    TextureStage,
+    finish,
+    start_run,
+)
 
 
 def parse_concurrency(text: str | None, cpus: int) -> tuple[int, int]:
@@ -34,7 +41,7 @@ def generate_on_ray(settings: GenerateSettings, concurrency: tuple[int, int] | N
 
     ``concurrency``: ``(shape actors, texture actors)``. ``shape_cpus``: the CPU share a shape actor
     asks for (making a shape costs a few percent of texturing it); the texture actors share the
-    rest, at most one CPU each, so that all actors run at once. Returns the summary of :func:`proctex.family.generate.finish` plus seconds."""
+    rest, at most one CPU each, so that all actors run at once. Returns the summary of :func:`proctex.generate.finish` plus seconds."""
     import ray
 
     t0 = time.perf_counter()

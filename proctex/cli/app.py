@@ -10,21 +10,41 @@ import argparse
 import os
 import sys
 
-from proctex.family.config import PRESETS
-from proctex.family.mappers import MAPPER_ALIASES, MAPPERS
-from proctex.texture.paint_loop import PAINTERS
+from proctex.store.config import PRESETS
+from proctex.texture.painting import painter_help, painter_names
+from proctex.transfer.methods import method_help, method_names
 
-from .families import cmd_build, cmd_demo, cmd_edit, cmd_eval, cmd_eval_folder, cmd_gallery, cmd_generate, cmd_inputs, cmd_sheet, cmd_transfer
-from .shapes import cmd_correspond, cmd_match, cmd_models, cmd_paint, cmd_render, cmd_sample, cmd_segment, cmd_template
+from .families import (
+    cmd_build,
+    cmd_demo,
+    cmd_edit,
+    cmd_eval,
+    cmd_eval_folder,
+    cmd_gallery,
+    cmd_generate,
+    cmd_inputs,
+    cmd_sheet,
+    cmd_transfer,
+)
+from .shapes import (
+    cmd_correspond,
+    cmd_match,
+    cmd_models,
+    cmd_paint,
+    cmd_render,
+    cmd_sample,
+    cmd_segment,
+    cmd_template,
+)
 
 
 def _add_eval_flags(p: argparse.ArgumentParser) -> None:
-    from proctex.family.evaluate import DEFAULT_METHODS
-    from proctex.family.fidelity import TRUTHS
+    from proctex.measure.evaluate import default_methods
+    from proctex.store.config import TRUTHS
 
     p.add_argument("--shapes", choices=["test", "train"], default="test")
-    p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
-                   help="comma-separated: corrnet (the run-time path), corrnet_all (the network on every part), cage, nearest, cpd, identity")
+    p.add_argument("--methods", default=",".join(default_methods()),
+                   help=f"comma-separated correspondence methods (default: {','.join(default_methods())}): {method_help()}")
     p.add_argument("--limit", type=int, help="evaluate only the first N shapes")
     p.add_argument("--lpips", help="a local LPIPS (AlexNet) weights file: adds LPIPS to SSIM and PSNR")
     p.add_argument("--workers", type=int, default=0, help="processes evaluating shapes in parallel (0: one per CPU, at most 4)")
@@ -74,7 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("correspond", help="dense correspondence of every matched part group of a shape onto the template")
     p.add_argument("shape", help="mesh file, MODEL or MODEL:{json}")
     p.add_argument("template", help="mesh file, MODEL or MODEL:{json}")
-    p.add_argument("--method", choices=["cage", "nearest", "cpd"], default="cage")
+    p.add_argument("--method", choices=method_names(solver=True), default="cage")
     p.add_argument("--points", type=int, default=2000, help="source surface samples per group pair")
     p.add_argument("--level", type=int, default=1, help="cage subdivision level (2**level segments per axis)")
     p.add_argument("--iterations", type=int, default=300, help="maximum cage optimisation steps")
@@ -91,8 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True)
     p.add_argument("--size", type=int, default=1024, help="texture size per group")
-    p.add_argument("--painter", choices=PAINTERS, default="surface",
-                   help="surface: solid materials at texels; views: the multi-view loop with the solid materials; diffusion: the multi-view loop with a local diffusers model")
+    p.add_argument("--painter", choices=painter_names(), default="surface", help=painter_help())
     p.add_argument("--views", type=int, default=11, help="camera path length for view painters")
     p.add_argument("--view-size", type=int, default=512)
     p.add_argument("--model-dir", help="local diffusers model folder (diffusion painter)")
@@ -137,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train-iterations", type=int, help="ProcCorrNet training iterations")
     p.add_argument("--device", help="where every torch step runs (cage solver, network training, diffusion painter): cpu, cuda or cuda:<i>")
     p.add_argument("--up", choices=["auto", "x", "y", "z"])
-    p.add_argument("--painter", choices=PAINTERS, help="template painter (default surface)")
+    p.add_argument("--painter", choices=painter_names(), help=f"template painter (default surface): {painter_help()}")
     p.add_argument("--model-dir", help="local diffusers model folder (--painter diffusion)")
     p.add_argument("--tessellation", choices=["adaptive", "fixed"],
                    help="built-in models: segments follow part sizes (adaptive, the default) or fixed counts")
@@ -160,9 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="parameters (JSON) for the family's model")
     p.add_argument("--mesh", help="a mesh file of the family")
     p.add_argument("--out", required=True, help="output .glb")
-    p.add_argument("--mapper", choices=MAPPERS + tuple(MAPPER_ALIASES), default="auto",
-                   help="auto: the family's networks where the build chose them; corrnet (net): the same, an error without networks; "
-                        "corrnet_all: the networks on every group; identity; cage, nearest, cpd: solved at transfer time")
+    p.add_argument("--mapper", choices=method_names(aliases=True), default="auto", help=f"the correspondence method: {method_help()}")
     p.add_argument("--bake", type=int, default=0, help="bake into the shape's own atlas at this size (0: read the template textures)")
     p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i>")
     p.add_argument("--preview", metavar="PNG", help="also write a 512px 3/4 view of the textured shape to this .png")

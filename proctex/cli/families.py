@@ -15,12 +15,18 @@ from proctex.geometry.meshio import load_mesh
 from proctex.models import get_model, list_models
 from proctex.progress import track
 
-from .common import _check_preview_path, _group_prompts, _pair, _print_json, check_output_file
+from .common import (
+    _check_preview_path,
+    _group_prompts,
+    _pair,
+    _print_json,
+    check_output_file,
+)
 
 
 def _build_config(args: argparse.Namespace):
     """The build config of ``proctex build``: the ``--preset``, the config file over it, the flags over both."""
-    from proctex.family.config import BuildConfig, merge, sections
+    from proctex.store.config import BuildConfig, merge, sections
 
     if args.config and args.config_file:
         raise ValueError("give the config file once (positional CONFIG or --config)")
@@ -54,9 +60,9 @@ def _build_config(args: argparse.Namespace):
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    from proctex.family.pipeline import build
-    from proctex.family.stages import STAGES
-    from proctex.family.store import FamilyStore
+    from proctex.build.pipeline import build
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import STAGES
 
     config = _build_config(args)
     if args.ray is not None:
@@ -71,8 +77,8 @@ def cmd_build(args: argparse.Namespace) -> int:
 def cmd_inputs(args: argparse.Namespace) -> int:
     """The modifier's inputs: name, type, default, Blender's range, whether a build needs bounds for
     it (an unbounded float or int), and with ``--params-spec`` what the spec gives each."""
-    from proctex.family.blender import UNBOUNDED, BlenderSession
     from proctex.params import read_params_spec
+    from proctex.sources.blender import UNBOUNDED, BlenderSession
 
     if not os.path.isfile(args.blend):
         raise ValueError(f"no such file: {args.blend}")
@@ -108,16 +114,16 @@ def cmd_inputs(args: argparse.Namespace) -> int:
 
 
 def cmd_transfer(args: argparse.Namespace) -> int:
-    from proctex.family.service import FamilyService
-    from proctex.family.stages import stored_config
-    from proctex.family.store import FamilyStore
+    from proctex.serve.service import FamilyService
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import stored_config
 
     store = FamilyStore(args.family)
     config = stored_config(store)
     if bool(args.params) == bool(args.mesh):
         raise ValueError("give exactly one of --params JSON or --mesh FILE")
     if args.params:
-        if config.source.folder:
+        if config.shapes().model is None:
             raise ValueError("this family comes from a folder of meshes: transfer a --mesh")
         try:
             params = json.loads(args.params)
@@ -139,8 +145,8 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     svc = FamilyService(store, mapper=args.mapper, device=args.device)
     t1 = time.perf_counter()
     answer, _ = svc.textured(shape, seed=args.seed, bake_size=args.bake or None)
-    from proctex.family.transfer import info
     from proctex.fileio import atomic_write, encode_png
+    from proctex.transfer.apply import info
 
     result = answer.result
     summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(svc.mapper).__name__, "out": args.out, "bytes": len(answer.data)}
@@ -169,8 +175,8 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
 
 def generate_settings(args: argparse.Namespace):
-    """The :class:`proctex.family.generate.GenerateSettings` of ``proctex generate``'s flags (checked)."""
-    from proctex.family.generate import GenerateSettings
+    """The :class:`proctex.generate.GenerateSettings` of ``proctex generate``'s flags (checked)."""
+    from proctex.generate import GenerateSettings
 
     bounds = {}
     if args.params_bounds:
@@ -197,7 +203,7 @@ def print_generate_summary(args: argparse.Namespace, summary: dict[str, Any]) ->
 
 def cmd_generate(args: argparse.Namespace) -> int:
     """``proctex generate`` in this process (``workflows.cli`` runs it on Ray Data unless ``--no-ray``)."""
-    from proctex.family.generate import run_in_process
+    from proctex.generate import run_in_process
 
     settings = generate_settings(args)
     log = (lambda *_: None) if args.quiet or args.json else (lambda m: print(m, flush=True))
@@ -206,12 +212,12 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_edit(args: argparse.Namespace) -> int:
-    from proctex.family.edits import edit_group
-    from proctex.family.store import FamilyStore
+    from proctex.serve.edits import edit_group
+    from proctex.store.layout import FamilyStore
 
     store = FamilyStore(args.family)
     if args.make_maps:
-        from proctex.family.edits import add_material_maps
+        from proctex.serve.edits import add_material_maps
 
         if args.group is not None:
             raise ValueError("--make-maps works on every group: leave out --group")
@@ -232,13 +238,14 @@ def cmd_edit(args: argparse.Namespace) -> int:
 
 
 def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
-    """Validated keyword arguments of :func:`proctex.family.evaluate.evaluate` from the eval flags."""
-    from proctex.family.evaluate import METHODS
+    """Validated keyword arguments of :func:`proctex.measure.evaluate.evaluate` from the eval flags."""
+    from proctex.transfer.methods import method_names
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    unknown = [m for m in methods if m not in METHODS]
+    known = method_names(aliases=True)
+    unknown = [m for m in methods if m not in known]
     if unknown or not methods:
-        raise ValueError(f"--methods must name some of {', '.join(METHODS)}, got {args.methods!r}")
+        raise ValueError(f"--methods must name some of {', '.join(known)}, got {args.methods!r}")
     if args.limit is not None and args.limit < 1:
         raise ValueError(f"--limit must be >= 1, got {args.limit}")
     if args.workers < 0:
@@ -253,8 +260,8 @@ def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> int:
     """Evaluate, write ``metrics.json`` into the store, print the table (or the JSON)."""
-    from proctex.family.evaluate import evaluate, markdown_table
-    from proctex.family.store import StoreLayout
+    from proctex.measure.evaluate import evaluate, markdown_table
+    from proctex.store.layout import StoreLayout
 
     if not store.exists(StoreLayout.MODELS) and {"corrnet", "corrnet_all"} & set(options["methods"]):
         raise ValueError(f"{store.uri}: no trained models (run the train stage, or evaluate without corrnet)")
@@ -269,8 +276,8 @@ def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> i
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from proctex.family.stages import stored_config
-    from proctex.family.store import FamilyStore
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import stored_config
 
     store = FamilyStore(args.family)
     stored_config(store)  # a clear error when the folder is not a family
@@ -279,9 +286,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_eval_folder(args: argparse.Namespace) -> int:
     """Build a family from a folder of samples (train/ and inference/), then evaluate it."""
-    from proctex.family.config import BuildConfig
-    from proctex.family.pipeline import build
-    from proctex.family.store import FamilyStore
+    from proctex.build.pipeline import build
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
 
     if not os.path.isdir(args.folder):
         raise ValueError(f"{args.folder}: no such folder")
@@ -359,17 +366,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_sheet(args: argparse.Namespace) -> int:
     """Sweep, transfer and render a built family's unseen settings (:func:`proctex.demo.finish_demo`)."""
     from proctex.demo import finish_demo
-    from proctex.family.stages import stored_config
-    from proctex.family.store import FamilyStore, StoreLayout
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import FamilyState
 
     if args.rows < 0 or args.per_row < 1 or args.frames < 1 or not 32 <= args.size <= 2048:
         raise ValueError("--rows must be >= 0, --per-row >= 1, --frames >= 1 and --size within 32..2048")
     if not os.path.isdir(args.family):
         raise ValueError(f"{args.family}: no such folder")
     store = FamilyStore(args.family)
-    stored_config(store)  # a clear error when the folder is not a family
-    state = store.read_json(StoreLayout.STATE).get("stages", {})
-    missing = [s for s in ("template", "paint") if not isinstance(state.get(s), dict) or state[s].get("state") != "done"]
+    state = FamilyState.load(store)
+    state.build_config(store.uri)  # a clear error when the folder is not a family
+    missing = [s for s in ("template", "paint") if not state.done(s)]
     if missing:
         raise ValueError(f"{args.family}: the family is not built yet (stages not done: {', '.join(missing)}); run proctex build first")
     out = args.out or os.path.join("out", "sheets", Path(os.path.abspath(args.family)).name)

@@ -11,15 +11,21 @@ import time
 from pathlib import Path
 from typing import Any
 
-from proctex.family.sources import FolderSource, resolve_model, resolve_shape
 from proctex.geometry.matching import match_groups
 from proctex.geometry.meshio import load_mesh, save_mesh, save_params
 from proctex.geometry.parts import Grouping, analyse
 from proctex.models import get_model, list_models
 from proctex.params import select_template
 from proctex.progress import track
+from proctex.sources.files import FolderSource, resolve_model, resolve_shape
 
-from .common import _check_preview_path, _group_prompts, _print_json, check_output_file, finite
+from .common import (
+    _check_preview_path,
+    _group_prompts,
+    _print_json,
+    check_output_file,
+    finite,
+)
 
 
 # -------------------------------------------------------------------------------------- commands
@@ -135,7 +141,7 @@ def cmd_correspond(args: argparse.Namespace) -> int:
 
 
 def cmd_paint(args: argparse.Namespace) -> int:
-    from proctex.family.template import write_textured
+    from proctex.store.template import write_textured
     from proctex.texture.paint import resolve_group_prompts
     from proctex.texture.paint_loop import paint_template
     from proctex.texture.render import default_up

@@ -25,7 +25,7 @@ Architecture (the paper's):
   part's half extent (read from the context) and the output multiplied by the template part's half
   extents (a buffer set from the training targets, saved with the weights), so the zero residual is
   the map of one bounding box onto the other, the change most procedural parameters make (on the
-  mug: tracked-point variance 0.137 -> 0.081, GT error 0.036 -> 0.021; README "Issue 16 so far").
+  mug: tracked-point variance 0.137 -> 0.081, GT error 0.036 -> 0.021; docs/fidelity-history.md).
 
 Because the global feature is a function of the point *set*, it is computed once from a fixed-size
 context (``CorrNetConfig.context_points`` surface samples of the part; fewer points are topped up by
@@ -113,7 +113,7 @@ class CorrNetConfig:
             evaluates that start too, so early stopping can keep it. Off by default: on the real
             chair, groups whose randomly initialised networks beat the box map ended at the
             start (held-out 0.0272 vs 0.0176 on one group, with or without ``min_iterations``
-            1000; README, issue 32).
+            1000; docs/results.md, "Tried, not defaults").
         confidence: how each training point's loss is weighted by the teacher's confidence:
             "none" (all alike) or "neighbours" (:mod:`proctex.correspond.confidence`: by how well
             the pair's targets agree with those of the ``confidence_neighbours`` most similar
@@ -121,7 +121,7 @@ class CorrNetConfig:
             group's median disagreement). Validation stays unweighted (the held-out error is
             the pseudo-ground truth the paper reports). Off by default: the weights point at the
             teacher's errors on the fork, chair and sofa, but a fork trained with them ended no
-            better against the truth (GT mean 0.0068 -> 0.0074; README, issue 32).
+            better against the truth (GT mean 0.0068 -> 0.0074; docs/results.md, "Tried, not defaults").
         seed: weights, batch sampling and evaluation contexts.
         device: "cpu", "cuda", "cuda:<i>" or "auto" (CUDA when present); dtype: "float32" or "float64".
         autocast: "none" or "bfloat16" (matrix products in bfloat16; about 2.3x faster training and

@@ -531,6 +531,18 @@ def group_parts(
     return Grouping(seg, groups, part_group, planes)
 
 
+def parts_of(shape: Shape) -> Segmentation:
+    """:func:`segment` of ``shape`` with the default settings, computed once and kept on the shape
+    (a request checks, transfers and bakes one segmentation). Computed again when the shape's vertex
+    or face array was replaced; an array changed in place is not seen."""
+    cached = shape.__dict__.get("_parts")
+    if cached is not None and cached[0] is shape.faces and cached[1] is shape.vertices:
+        return cached[2]
+    seg = segment(shape)
+    shape.__dict__["_parts"] = (shape.faces, shape.vertices, seg)
+    return seg
+
+
 def analyse(shape: Shape, **kwargs: Any) -> Grouping:
     """Segment and group a shape in one call (keyword arguments go to :func:`group_parts`)."""
     return group_parts(shape, segment(shape), **kwargs)

@@ -205,7 +205,7 @@ class _Blob:
         return b"".join([header, len(text).to_bytes(4, "little"), b"JSON", text, len(binary).to_bytes(4, "little"), b"BIN\0", binary])
 
 
-def _png(image: np.ndarray | bytes) -> bytes:
+def png_bytes(image: np.ndarray | bytes) -> bytes:
     """PNG bytes of a texture, or the bytes themselves when already encoded."""
     return bytes(image) if isinstance(image, (bytes, bytearray)) else encode_png(image)
 
@@ -288,7 +288,7 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
                 if uri:
                     doc["images"].append({"uri": uri, "mimeType": "image/png", "name": names[g] + suffix})
                 else:
-                    doc["images"].append({"bufferView": blob.view(_png(image)), "mimeType": "image/png", "name": names[g] + suffix})
+                    doc["images"].append({"bufferView": blob.view(png_bytes(image)), "mimeType": "image/png", "name": names[g] + suffix})
                 doc["textures"].append({"sampler": 0, "source": len(doc["images"]) - 1})
                 return len(doc["textures"]) - 1
 
@@ -373,7 +373,7 @@ def obj_files(stem: str, vertices, faces, corner_uv, face_group, textures, names
         mtl.append(f"newmtl {name}\nKa 1 1 1\nKd {kd}\nKs 0 0 0\nd 1\nillum 1\n")
         if g >= 0:
             png = f"{stem}_{g}.png"
-            files.append((png, _png(texs[g])))
+            files.append((png, png_bytes(texs[g])))
             mtl.append(f"map_Kd {png}\n")
         if g >= 0 and maps[g] is not None:  # the PBR extension of MTL (Pr / Pm / norm), read by Blender
             m = maps[g]
@@ -382,7 +382,7 @@ def obj_files(stem: str, vertices, faces, corner_uv, face_group, textures, names
                 files.append((name_k, _channel_png(m.orm, channel)))
                 mtl.append(f"{key} 1\nmap_{key} {name_k}\n" if key != "Ka" else f"map_Ka {name_k}\n")
             name_n = f"{stem}_{g}_normal.png"
-            files.append((name_n, _png(m.normal)))
+            files.append((name_n, png_bytes(m.normal)))
             mtl.append(f"norm {name_n}\nmap_Bump -bm 1 {name_n}\n")
         mtl.append("\n")
         body.write(f"usemtl {name}\n")

@@ -63,7 +63,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from .patchmatch import _cost, _downsample, _em, _Level, _onion_fill, _pm_pass, _random_centres, _source_centres, _target_patches, _vote
+from .patchmatch import (
+    _cost,
+    _downsample,
+    _em,
+    _Level,
+    _onion_fill,
+    _pm_pass,
+    _random_centres,
+    _source_centres,
+    _target_patches,
+    _vote,
+)
 
 DEFAULT_MIN_SOURCE_SHARE = 0.75
 FINE_RADIUS_PATCHES = 4  # random-search radius below the coarsest level, in patch widths
@@ -172,7 +183,7 @@ def _penalty(work: np.ndarray, source: np.ndarray) -> float:
 def chart_labels(mask: np.ndarray) -> np.ndarray:
     """(H, W) int32 chart ids of a texture: 8-connected components of ``mask`` (its painted or
     covered texels) numbered from 1, 0 outside it. The one definition: the run-time coverage check
-    (:mod:`proctex.family.transfer`) uses it too."""
+    (:mod:`proctex.transfer.apply`) uses it too."""
     lab, _ = ndimage.label(np.asarray(mask, dtype=bool), structure=np.ones((3, 3), dtype=bool))
     return lab.astype(np.int32)
 

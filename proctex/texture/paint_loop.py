@@ -14,21 +14,37 @@ from scipy.spatial import cKDTree
 
 from proctex.geometry.parts import Grouping, PartGroup
 from proctex.geometry.shape import Shape
-from proctex.texture.painters.base import BACKGROUND, GENERATE, KEEP, REFINE, ViewPainter, ViewRequest
+from proctex.texture.painters.base import (
+    BACKGROUND,
+    GENERATE,
+    KEEP,
+    REFINE,
+    ViewPainter,
+    ViewRequest,
+)
 from proctex.texture.painters.partwords import plan_parts
 
 from .paint import (
-    paint_material_maps,
     UNPAINTED,
     GroupTexture,
-    SolidViewPainter,
     TemplateTexture,
     group_texels,
+    paint_material_maps,
     paint_surface,
     resolve_group_prompts,
     shape_frame,
 )
-from .render import Buffers, Camera, Tracer, bounding_sphere, canonical_cameras, orbit_path, render_buffers, textured_albedo
+from .painting import PaintConfig, get_painter, make_painter
+from .render import (
+    Buffers,
+    Camera,
+    Tracer,
+    bounding_sphere,
+    canonical_cameras,
+    orbit_path,
+    render_buffers,
+    textured_albedo,
+)
 from .uv import ShapeUV, TexelMap, pad_seams, sample_texture, shape_uv
 
 
@@ -415,28 +431,6 @@ def _complete_hidden(
     return n
 
 
-#: The painters a template can be painted with (:func:`make_painter`).
-PAINTERS = ("surface", "views", "diffusion")
-
-
-def make_painter(name: str, grouping: Grouping, prompt: str, prompts: Mapping[int, str] | None = None, seed: int = 0,
-                 model_dir: str | None = None, device: str = "cpu", steps: int = 20) -> Any:
-    """The painter ``name`` of :data:`PAINTERS`, the one place painters are chosen: "surface" (a
-    :class:`~proctex.texture.painters.SurfacePainter`: colours at 3D points, ``prompts`` per group
-    index), "views" (:class:`SolidViewPainter` over it, for the multi-view loop) or "diffusion" (a
-    local diffusers model in ``model_dir``). ``ValueError`` for another name."""
-    from .painters import SurfacePainter
-
-    if name not in PAINTERS:
-        raise ValueError(f"painter must be one of {', '.join(PAINTERS)}, got {name!r}")
-    if name == "diffusion":
-        from proctex.texture.painters.diffusion import DiffusionViewPainter
-
-        return DiffusionViewPainter(model_dir, device=device, steps=steps)
-    surface = SurfacePainter(prompt, {str(k): v for k, v in (prompts or {}).items()}, seed=seed)
-    return surface if name == "surface" else SolidViewPainter(surface, grouping)
-
-
 def paint_template(
     shape: Shape,
     grouping: Grouping,
@@ -458,9 +452,10 @@ def paint_template(
     maps: bool = True,
     occlusion: bool = False,
 ) -> TemplateTexture:
-    """Texture a template with one of the painters: ``"surface"`` (:func:`paint_surface`),
-    ``"views"`` (the multi-view loop with :class:`SolidViewPainter`) or ``"diffusion"`` (the loop with
-    a local diffusers model in ``model_dir``), made by :func:`make_painter`; the remaining arguments
+    """Texture a template with one of the registered painters (:mod:`proctex.texture.painting`):
+    ``"surface"`` (:func:`paint_surface`), ``"views"`` (the multi-view loop with
+    :class:`SolidViewPainter`) or ``"diffusion"`` (the loop with a local diffusers model in
+    ``model_dir``), made by :func:`proctex.texture.painting.make_painter`; the remaining arguments
     go to :func:`paint_views`. ``uv`` (e.g. :func:`proctex.texture.uv.source_uv`) replaces the
     per-group unwrap. ``maps``: also make each group's PBR maps (:func:`paint_material_maps`: from
     the prompts' materials, whichever painter made the colour); ``occlusion``: bake ambient occlusion
@@ -470,11 +465,12 @@ def paint_template(
     # every painter and in the record; explicit group prompts win.
     parts = plan_parts(prompt, shape.vertices, shape.faces, grouping, up)
     prompts = {g: (parts.text_for(g) if text == prompt else text) for g, text in prompts.items()}
+    kind = get_painter(painter)
     chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, model_dir=model_dir, device=device, steps=steps)
-    surface = chosen if painter == "surface" else getattr(chosen, "surface", None)
+    surface = chosen if not kind.views else getattr(chosen, "surface", None)
     if surface is not None:
         surface.bind(shape, grouping, up, parts=parts)  # places the prompt's regions on this shape
-    if painter == "surface":
+    if not kind.views:
         tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv)
     else:
         tex = paint_views(shape, grouping, chosen, prompt, {str(g): t for g, t in prompts.items()}, n_views=views,
@@ -486,3 +482,13 @@ def paint_template(
         paint_material_maps(tex, materials, occlusion=occlusion, seed=seed)
         tex.notes.extend(n for n in materials.region_notes() if n not in tex.notes)  # the surface painter's notes hold them already
     return tex
+
+
+def paint_with(shape: Shape, grouping: Grouping, settings: PaintConfig, seed: int = 0, up: str = "z", uv: ShapeUV | None = None,
+               on_view: Callable[[int, int, dict[str, Any]], None] | None = None) -> TemplateTexture:
+    """:func:`paint_template` with the paint settings as they travel (a build config's ``[paint]``
+    section, :class:`proctex.texture.painting.PaintConfig`), whole."""
+    s = settings
+    return paint_template(shape, grouping, s.prompt, s.group_prompts, painter=s.painter, size=s.texture_size, seed=seed, up=up, views=s.views,
+                          view_size=s.view_size, complete_hidden=s.paint_hidden, fill=s.fill, model_dir=s.model_dir, device=s.device,
+                          steps=s.steps, on_view=on_view, uv=uv, occlusion=s.occlusion)

@@ -10,14 +10,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-import torch
-
-from fixtures import shapes, template
 import harness
+import torch
+from fixtures import shapes, template
 from harness import report, timeit
+
 from proctex.correspond.corrnet import CorrNetConfig, build_model
-from proctex.family.mappers import NetworkMapper
-from proctex.family.transfer import bake, glb, transfer
+from proctex.transfer.apply import bake, glb, transfer
+from proctex.transfer.mappers import NetworkMapper
 
 
 def run(args) -> dict:

@@ -24,8 +24,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     if args.family:
-        from proctex.family.stages import load_models
-        from proctex.family.store import FamilyStore
+        from proctex.store.layout import FamilyStore
+        from proctex.store.networks import load_models
 
         model = next(iter(load_models(FamilyStore(args.family)).values()))
     else:

@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ray", action="store_true", help="also build on a local Ray with 2 CPUs")
     args = ap.parse_args(argv)
 
-    from proctex.family.blender import BlenderModel, BlenderSession, blender_python
+    from proctex.sources.blender import BlenderModel, BlenderSession, blender_python
 
     python = blender_python()
     if python is None:
@@ -72,9 +72,9 @@ def main(argv=None) -> int:
         notes[f"triangles: {label}"] = int(np.median(faces))
         model.close()
 
-    from proctex.family.config import BuildConfig
-    from proctex.family.pipeline import build
-    from proctex.family.store import FamilyStore
+    from proctex.build.pipeline import build
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
 
     data = {"source": {"blender": {"file": str(work / "pumpkin.blend"), "object": "Pumpkin", "uv": "UVMap", "pins": {"Resolution": 48}},
                        "n_train": args.n_train, "n_test": args.n_test},

@@ -23,12 +23,15 @@ import numpy as np
 
 def teacher_errors(path: str) -> dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Per group, per train pair with a truth: ``(src, dst, truth error (n,))``."""
-    from proctex.family.assign import assign_parts, choose_part, representative_part
-    from proctex.family.fidelity import template_truth
-    from proctex.family.stages import load_assets, load_sample, load_template_shape, read_pair, samples, stored_config
-    from proctex.family.store import FamilyStore
     from proctex.geometry.parts import part_mesh, segment
     from proctex.geometry.surface import SurfaceIndex, interpolate
+    from proctex.measure.fidelity import template_truth
+    from proctex.store.layout import FamilyStore
+    from proctex.store.samples import load_sample, read_pair, samples
+    from proctex.store.state import stored_config
+    from proctex.store.template import load_template_shape
+    from proctex.transfer.assets import load_assets
+    from proctex.transfer.assign import assign_parts, choose_part, representative_part
 
     store = FamilyStore(path)
     config = stored_config(store)
@@ -70,7 +73,11 @@ def teacher_errors(path: str) -> dict[int, list[tuple[np.ndarray, np.ndarray, np
 def measure(path: str, k: int, scale: float, neighbours: str) -> dict:
     from scipy.stats import spearmanr
 
-    from proctex.correspond.confidence import confidence_weights, neighbour_disagreement, param_features
+    from proctex.correspond.confidence import (
+        confidence_weights,
+        neighbour_disagreement,
+        param_features,
+    )
 
     errs, dis, wts, pe, pd = [], [], [], [], []
     for pairs in teacher_errors(path).values():

@@ -50,9 +50,9 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     from proctex.correspond.cage import CageConfig
     from proctex.correspond.dense import correspond_shapes
-    from proctex.family.sources import FolderSource
     from proctex.geometry.parts import analyse
     from proctex.models import get_model
+    from proctex.sources.files import FolderSource
 
     cage = CageConfig() if args.level is None else CageConfig(level=args.level)
     if args.chamfer is not None:

@@ -35,7 +35,7 @@ SOFA_DIR = ROOT.parent / "shared" / "data" / "procedural_sofa"
 def _template_and_shapes(name: str, n_train: int, n_test: int, seed: int, sofa_dir: Path):
     """``(template Shape, [(shape id, split, loader)])``; loaders are callables returning a Shape."""
     if name == "sofa_data":
-        from proctex.family.sources import FolderSource
+        from proctex.sources.files import FolderSource
 
         src = FolderSource(sofa_dir)
         template = src.load(src.template_index())
@@ -58,8 +58,7 @@ def build_pairs(name: str, n_train: int, n_test: int, points: int, seed: int, so
 
     from proctex.correspond.dense import correspond_shapes
     from proctex.geometry.parts import analyse, part_mesh
-    from proctex.geometry.surface import normalised_frame
-    from proctex.geometry.surface import interpolate
+    from proctex.geometry.surface import interpolate, normalised_frame
 
     template, items = _template_and_shapes(name, n_train, n_test, seed, sofa_dir)
     tg = analyse(template)
@@ -130,7 +129,7 @@ def _template_parts(name: str, sofa_dir: Path) -> tuple[object, object]:
     from proctex.geometry.parts import analyse
 
     if name == "sofa_data":
-        from proctex.family.sources import FolderSource
+        from proctex.sources.files import FolderSource
 
         src = FolderSource(sofa_dir)
         template = src.load(src.template_index())

@@ -33,8 +33,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", help="write the figures as JSON here")
     args = ap.parse_args(argv)
 
-    from proctex.family.service import FamilyService
-    from proctex.family.store import FamilyStore
+    from proctex.serve.service import FamilyService
+    from proctex.store.layout import FamilyStore
 
     svc = FamilyService(FamilyStore(args.family))
     if svc.model is None:

@@ -31,10 +31,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from harness import write_json  # noqa: E402
 
-from proctex.family.config import BuildConfig  # noqa: E402
-from proctex.family.evaluate import evaluate, markdown_table  # noqa: E402
-from proctex.family.pipeline import build  # noqa: E402
-from proctex.family.store import FamilyStore  # noqa: E402
+from proctex.build.pipeline import build  # noqa: E402
+from proctex.measure.evaluate import evaluate, markdown_table  # noqa: E402
+from proctex.store.config import BuildConfig  # noqa: E402
+from proctex.store.layout import FamilyStore  # noqa: E402
 
 PROMPTS = {"vase": "blue and white porcelain with floral patterns", "mug": "blue and white striped ceramic",
            "chair": "weathered oak wood with a red cushion", "table": "polished walnut wood", "mushroom": "red cap with white spots",
@@ -73,7 +73,7 @@ def family_config(model: str, n_train: int, n_test: int, cage_iterations: int, t
 def real_config(name: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """The build config of real family ``name`` (:data:`REAL`), sections, with ``overrides``
     (``--set``) merged into them."""
-    from proctex.family.config import merge, sections
+    from proctex.store.config import merge, sections
 
     return merge(REAL[name], sections(overrides or {}, where="--set")) if overrides else json.loads(json.dumps(REAL[name]))
 

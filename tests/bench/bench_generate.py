@@ -47,7 +47,7 @@ def main(argv=None) -> int:
 
     import ray
 
-    from proctex.family.generate import GenerateSettings, run_in_process
+    from proctex.generate import GenerateSettings, run_in_process
     from workflows.generate import generate_on_ray
 
     work = Path(tempfile.mkdtemp(prefix="bench-generate-"))

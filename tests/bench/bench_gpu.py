@@ -34,17 +34,18 @@ def main(argv=None) -> int:
 
     import torch
 
+    from proctex.build.pipeline import build
+    from proctex.build.train import group_training_data
     from proctex.correspond.cage import CageConfig
     from proctex.correspond.corrnet import CorrNetConfig
     from proctex.correspond.dense import correspond_parts
     from proctex.correspond.training import train
-    from proctex.family.config import BuildConfig
-    from proctex.family.pipeline import build
-    from proctex.family.service import FamilyService
-    from proctex.family.stages import group_training_data, stored_config
-    from proctex.family.store import FamilyStore
     from proctex.geometry.parts import analyse
     from proctex.models import get_model
+    from proctex.serve.service import FamilyService
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import stored_config
 
     family = args.family
     if family is None:

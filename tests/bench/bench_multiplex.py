@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     import ray
     from ray import serve
 
-    from proctex.family.catalog import Catalog
+    from proctex.serve.catalog import Catalog
     from workers.serve import build_app
 
     specs = {n: Catalog(args.root).get(n).model.space for n in (a, b)}

@@ -19,13 +19,19 @@ from pathlib import Path
 
 import numpy as np
 
-from proctex.family.sources import FolderSource
 from proctex.geometry.parts import analyse
+from proctex.sources.files import FolderSource
 from proctex.texture.metrics import coverage
 from proctex.texture.paint import SolidViewPainter, paint_surface
 from proctex.texture.paint_loop import paint_views
 from proctex.texture.painters import SurfacePainter
-from proctex.texture.render import Tracer, bounding_sphere, embree_available, orbit_path, render_buffers
+from proctex.texture.render import (
+    Tracer,
+    bounding_sphere,
+    embree_available,
+    orbit_path,
+    render_buffers,
+)
 
 SOFA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "procedural_sofa"
 

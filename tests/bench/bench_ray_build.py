@@ -36,7 +36,7 @@ def main(argv=None) -> int:
 
     import ray
 
-    from proctex.family.config import BuildConfig
+    from proctex.store.config import BuildConfig
     from workflows.build import build_on_ray
 
     data = {"prompt": args.prompt}

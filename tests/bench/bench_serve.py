@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     import ray
     from ray import serve
 
-    from proctex.family.catalog import Catalog
+    from proctex.serve.catalog import Catalog
     from workers.serve import build_app
 
     svc = Catalog(args.root).get(args.family)

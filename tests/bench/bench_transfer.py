@@ -22,14 +22,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from proctex.family.assets import prepare_template
-from proctex.family.mappers import IdentityMapper, NetworkMapper
-from proctex.family.sources import FolderSource
-from proctex.family.transfer import bake, glb, transfer
 from proctex.geometry.meshio import load_mesh
 from proctex.geometry.parts import analyse
+from proctex.sources.files import FolderSource
 from proctex.texture.paint import paint_surface
 from proctex.texture.painters import SurfacePainter
+from proctex.transfer.apply import bake, glb, transfer
+from proctex.transfer.assets import prepare_template
+from proctex.transfer.mappers import IdentityMapper, NetworkMapper
 
 SOFA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "procedural_sofa"
 
@@ -50,8 +50,9 @@ def main(argv=None) -> int:
 
     src = FolderSource(args.sofa)
     if args.family:
-        from proctex.family.stages import load_assets, load_models
-        from proctex.family.store import FamilyStore
+        from proctex.store.layout import FamilyStore
+        from proctex.store.networks import load_models
+        from proctex.transfer.assets import load_assets
 
         store = FamilyStore(args.family)
         assets = load_assets(store)

@@ -17,11 +17,20 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from proctex.family.sources import resolve_shape
 from proctex.geometry.parts import analyse
+from proctex.sources.files import resolve_shape
 from proctex.texture.paint import paint_surface
 from proctex.texture.painters import SurfacePainter
-from proctex.texture.render import Tracer, bounding_sphere, default_up, orbit_camera, render_buffers, save_png, shade, textured_albedo
+from proctex.texture.render import (
+    Tracer,
+    bounding_sphere,
+    default_up,
+    orbit_camera,
+    render_buffers,
+    save_png,
+    shade,
+    textured_albedo,
+)
 
 PROMPTS = [
     "red velvet",

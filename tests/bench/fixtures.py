@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from proctex.family.assets import prepare_template
 from proctex.geometry.parts import analyse
 from proctex.models import get_model
 from proctex.texture.paint import paint_surface
 from proctex.texture.painters import SurfacePainter
+from proctex.transfer.assets import prepare_template
 
 
 @lru_cache(maxsize=4)

@@ -27,12 +27,21 @@ from fuzz_cases import cli_cases, http_cases  # noqa: E402
 
 def build_family(root: Path) -> None:
     try:
+        from proctex.build.paint import stage_paint
+        from proctex.build.sample import stage_sample
+        from proctex.build.template import stage_template
+        from proctex.store.config import BuildConfig
+        from proctex.store.layout import FamilyStore
+        from proctex.store.state import write_config
+    except ImportError:  # the layout before issue 33
         from proctex.family.config import BuildConfig
-        from proctex.family.stages import stage_paint, stage_sample, stage_template, write_config
+        from proctex.family.stages import (
+            stage_paint,
+            stage_sample,
+            stage_template,
+            write_config,
+        )
         from proctex.family.store import FamilyStore
-    except ImportError:  # the layout before issue 17
-        from proctex.family import BuildConfig, stage_paint, stage_sample, stage_template, write_config
-        from proctex.store import FamilyStore
     cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="blue ceramic"))
     st = FamilyStore(root / "mug")
     write_config(st, cfg)
@@ -44,11 +53,11 @@ def probe_http(root: Path, n: int, seed: int) -> dict:
     from fastapi.testclient import TestClient
 
     try:
-        from proctex.family.catalog import Catalog
-        from proctex.family.service import Limits
+        from proctex.serve.catalog import Catalog
+        from proctex.serve.service import Limits
     except ImportError:  # older layouts, for before/after runs
         try:
-            from proctex.family.service import Catalog, Limits
+            from proctex.serve.service import Catalog, Limits
         except ImportError:
             from proctex.service import Catalog, Limits
     from workers.http import create_app

@@ -30,9 +30,9 @@ def main(argv=None) -> int:
 
     from fastapi.testclient import TestClient
 
-    from proctex.family.catalog import Catalog
-    from proctex.family.transfer import glb, transfer
     from proctex.geometry.meshio import load_mesh_bytes
+    from proctex.serve.catalog import Catalog
+    from proctex.transfer.apply import glb, transfer
     from workers.http import create_app
 
     cat = Catalog(args.root)

@@ -38,9 +38,9 @@ def serve_report(out: Path, requests: int) -> dict:
     """A Serve request over HTTP: a tiny mug family built here, then ``bench_serve.py`` on it."""
     import bench_serve
 
-    from proctex.family.config import BuildConfig
-    from proctex.family.pipeline import build
-    from proctex.family.store import FamilyStore
+    from proctex.build.pipeline import build
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
 
     root = out / "families"
     cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=0, corr_points=300, cage_iterations=40, texture_size=512, prompt="blue ceramic",

@@ -67,9 +67,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--store", action="append", default=[], help="a built family folder (its meshes/*.obj)")
     args = ap.parse_args(argv)
     from proctex.correspond.cage import CageConfig
-    from proctex.family.sources import FolderSource
     from proctex.geometry.meshio import load_mesh
     from proctex.models import get_model
+    from proctex.sources.files import FolderSource
 
     cfg = CageConfig()
     print("| family | pairs | template part long enough | tubes | pairs the sweep may take |\n|---|---|---|---|---|")

@@ -1,0 +1,27 @@
+"""The ``evaluate`` stage: transfer to the test shapes and measure (:mod:`proctex.measure.evaluate`)."""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+from proctex.measure.evaluate import evaluate
+from proctex.store.layout import FamilyStore, StoreLayout
+
+
+def stage_evaluate(store: FamilyStore, config, log: Callable[[str], None] = print, methods: Sequence[str] = ("corrnet", "identity")) -> None:
+    """The ``evaluate`` build stage: :func:`evaluate` on the test shapes into ``metrics.json``."""
+    from proctex.store.samples import samples
+    from proctex.store.state import mark_stage, stage_done
+
+    if stage_done(store, "evaluate"):
+        log("evaluate: done already")
+        return
+    if sum(r["split"] == "test" for r in samples(store)) < 2:
+        log("evaluate: fewer than two test shapes, skipped")
+        return
+    metrics = evaluate(store, methods=methods, log=log, quiet=True)
+    store.write_json(StoreLayout.METRICS, metrics)
+    net = metrics["methods"]["corrnet"]
+    mark_stage(store, "evaluate", shapes=metrics["shapes"], tracker=metrics["tracker"], tracked_point_variance=net["tracked_point_variance"],
+          tracked_point_variance_realtime=net["tracked_point_variance_realtime"], coverage=net["coverage"], gt_error=net["gt_error"],
+          pgt_error=net["pgt_error"], mapped_share=net["mapped_share"], seconds_per_shape=net["seconds_per_shape"])

@@ -1,0 +1,55 @@
+"""The family build: the table of stage planners and the one loop that runs their plans.
+
+Each stage is planned when its turn comes (a plan reads what the stages before it stored) and handed
+to an *executor*: :func:`proctex.build.plan.run_in_process` here, or the Ray executor of
+``workflows/build.py``, which fans the same plans out over a cluster. The planners are the stage
+modules of :mod:`proctex.build` (one per stage); the table is assembled here, at the top, so no stage
+imports another's back.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable, Mapping
+
+from proctex.build.evaluate import stage_evaluate
+from proctex.build.paint import stage_paint
+from proctex.build.pairs import plan_pairs
+from proctex.build.plan import Plan, run_in_process, single_step
+from proctex.build.sample import plan_sample
+from proctex.build.template import stage_template
+from proctex.build.train import plan_train
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore
+from proctex.store.state import STAGES, read_state, write_config
+
+Planner = Callable[[FamilyStore, BuildConfig, Callable[[str], None]], Plan]
+Executor = Callable[[Plan, FamilyStore, BuildConfig, Callable[[str], None]], Plan]
+
+#: Stage name -> ``planner(store, config, log) -> Plan``, in :data:`proctex.store.state.STAGES` order.
+PLANNERS: Mapping[str, Planner] = {
+    "sample": plan_sample,
+    "template": lambda store, config, log: single_step("template", stage_template, store, config, log),
+    "paint": lambda store, config, log: single_step("paint", stage_paint, store, config, log),
+    "pairs": plan_pairs,
+    "train": plan_train,
+    "evaluate": lambda store, config, log: single_step("evaluate", stage_evaluate, store, config, log),
+}
+
+
+def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | list[str] = STAGES, log: Callable[[str], None] = print,
+          executor: Executor = run_in_process) -> dict[str, Any]:
+    """Run the build ``stages`` in :data:`proctex.store.state.STAGES` order: plan each (skipping what
+    is complete) and run the plan with ``executor``. Returns the family state with ``wall_seconds``
+    per stage run. ``ValueError`` for a stage name the table does not know, before any work."""
+    unknown = set(stages) - set(PLANNERS)
+    if unknown:
+        raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(PLANNERS)}")
+    write_config(store, config)
+    walls: dict[str, float] = {}
+    for stage in STAGES:
+        if stage in stages:
+            t = time.perf_counter()
+            executor(PLANNERS[stage](store, config, log), store, config, log)
+            walls[stage] = round(time.perf_counter() - t, 2)
+    return {**read_state(store).to_dict(), "wall_seconds": walls}

@@ -1,0 +1,76 @@
+"""A build stage as a plan of work, and the in-process executor.
+
+Every stage of the build (:mod:`proctex.build`, :mod:`proctex.measure.evaluate`) is a
+:class:`Plan`: its jobs in batches (a batch shares its loading: one shape's pairs, eight samples,
+one group's network), the module-level function that runs one batch anywhere (this process or a Ray
+worker), what to do with each batch's results as they arrive, and how to finish the stage. An
+*executor* decides where batches run: :func:`run_in_process` here, runs them one after the other;
+``workflows/build.py`` fans them out as Ray tasks (and the train stage's as Ray Train jobs). Both run
+the same plans, so both builds write the same artifacts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+
+@dataclass
+class Plan:
+    """One stage's work.
+
+    Attributes:
+        stage: the stage name.
+        batches: the jobs to run, in batches; empty when nothing is left to do (``skip`` says why
+            when the stage is complete).
+        run_batch: ``run_batch(store, config, batch, context) -> list`` of one result per job; a
+            module-level function, so a Ray worker can run it (with ``context`` None: it loads what
+            it needs itself).
+        collect: ``collect(batch, results)`` as each batch finishes (progress, partial indexes).
+        finish: ``finish(results)`` once, with every batch's results in batch order; marks the
+            stage done.
+        context: what the in-process executor hands every batch (e.g. the loaded template assets).
+        skip: "done already" when the stage is complete and nothing is to be run.
+        in_place: a one-step stage that runs where the build runs (template, paint, evaluate).
+        team: for plans whose jobs can each be run by a data-parallel team of workers (one group's
+            network): ``team(store, config, job, rank, world, grad_hook) -> result`` (a module-level
+            function; ``grad_hook(model)`` averages the gradients across the team). An executor
+            with teams (Ray Train, ``workflows/build.py``) runs every job so and hands ``finish``
+            the same results ``run_batch`` would give; the in-process executor runs ``run_batch``.
+    """
+
+    stage: str
+    batches: list[list[Any]]
+    run_batch: Callable[..., list[Any]]
+    finish: Callable[[list[list[Any]]], None]
+    collect: Callable[[list[Any], list[Any]], None] | None = None
+    context: Any = None
+    skip: str | None = None
+    in_place: bool = False
+    info: dict[str, Any] = field(default_factory=dict)
+    team: Callable[..., Any] | None = None
+
+    @property
+    def n_jobs(self) -> int:
+        return sum(len(b) for b in self.batches)
+
+
+def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], None] = print) -> Plan:
+    """Run ``plan`` here, batch after batch; returns it (``info`` filled by its ``finish``)."""
+    if plan.skip:
+        log(f"{plan.stage}: {plan.skip}")
+        return plan
+    results = []
+    for batch in plan.batches:
+        out = plan.run_batch(store, config, batch, plan.context)
+        if plan.collect is not None:
+            plan.collect(batch, out)
+        results.append(out)
+    plan.finish(results)
+    return plan
+
+
+def single_step(stage: str, step: Callable[[Any, Any, Callable[[str], None]], None], store: Any, config: Any,
+                log: Callable[[str], None]) -> Plan:
+    """A one-step stage as a plan: ``step(store, config, log)`` runs in place (it skips what is done)."""
+    return Plan(stage, [[None]], lambda st, cfg, batch, context: [step(st, cfg, log)], finish=lambda results: None, in_place=True)

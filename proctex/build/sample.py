@@ -1,0 +1,73 @@
+"""The ``sample`` stage: sample the procedural model (or read a folder of samples) into ``meshes/`` and
+``samples.parquet``."""
+
+from __future__ import annotations
+
+import json
+from typing import Any, Callable
+
+import pyarrow as pa
+
+from proctex.build.plan import Plan, run_in_process
+from proctex.geometry.meshio import obj_text
+from proctex.geometry.parts import segment
+from proctex.sources.registry import SampleJob
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore, StoreLayout
+from proctex.store.state import mark_stage, stage_done
+
+
+def sample_jobs(config: BuildConfig) -> list[SampleJob]:
+    """Every sample of the family (the folder's, or ``n_train + n_test`` drawn from the model with the
+    family seed), in order (:meth:`proctex.sources.registry.ShapeSource.sample_jobs`)."""
+    return config.shapes().sample_jobs(config.source, config.seed)
+
+
+def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> dict[str, Any]:
+    """Make one sample, write its mesh and its record (the mesh first: a record means both are
+    complete); returns the record, a row of ``samples.parquet``. Idempotent."""
+    rel = StoreLayout.sample_record(job.id)
+    if store.exists(rel):
+        return store.read_json(rel)
+    shape = config.shapes().shape(job)
+    path = StoreLayout.mesh(job.id)
+    store.write_bytes(path, obj_text(shape.vertices, shape.faces).encode())
+    seg = segment(shape)
+    row = {"id": job.id, "split": job.split, "params": json.dumps(job.params, sort_keys=True), "mesh": path,
+           "vertices": shape.n_vertices, "faces": shape.n_faces, "parts": seg.n_parts}
+    store.write_json(rel, row)
+    return row
+
+
+def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]]) -> None:
+    """Write ``samples.parquet`` (rows in sample order) and mark the stage done."""
+    store.write_table(StoreLayout.SAMPLES, pa.Table.from_pylist(rows))
+    mark_stage(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows))
+
+
+SAMPLE_BATCH = 8  # samples per batch (a Ray task)
+
+
+def run_sample_batch(store: FamilyStore, config: BuildConfig, jobs: list[SampleJob], context: Any = None) -> list[dict[str, Any]]:
+    """Make and store a batch of samples; their ``samples.parquet`` rows."""
+    return [run_sample_job(store, config, job) for job in jobs]
+
+
+def plan_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> Plan:
+    """The sample stage: every sample (the folder's, or drawn from the model) into ``meshes/`` and
+    ``samples.parquet``, in batches of :data:`SAMPLE_BATCH`."""
+    if stage_done(store, "sample"):
+        return Plan("sample", [], run_sample_batch, finish=lambda results: None, skip="done already")
+    jobs = sample_jobs(config)
+
+    def finish(results: list[list[dict[str, Any]]]) -> None:
+        rows = [row for out in results for row in out]
+        finish_sample_stage(store, rows)
+        log(f"sample: {len(rows)} shapes")
+
+    return Plan("sample", [jobs[i : i + SAMPLE_BATCH] for i in range(0, len(jobs), SAMPLE_BATCH)], run_sample_batch, finish)
+
+
+def stage_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
+    """Sample shapes (or read the folder) into ``meshes/`` and ``samples.parquet`` (:func:`plan_sample`, here)."""
+    run_in_process(plan_sample(store, config, log), store, config, log)

@@ -1,0 +1,36 @@
+"""The ``template`` stage: the train sample with the most kinds of part, nearest the mean parameters."""
+
+from __future__ import annotations
+
+import json
+from typing import Callable
+
+import numpy as np
+
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore, StoreLayout
+from proctex.store.samples import read_mesh, samples
+from proctex.store.state import mark_stage, stage_done
+
+
+def stage_template(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
+    """Pick the template among the train samples: of those with the most kinds of part
+    (:func:`proctex.geometry.parts.part_kinds`, so a family with optional parts gets a template
+    that carries them), the one nearest the mean parameters."""
+    if stage_done(store, "template"):
+        log("template: done already")
+        return
+    from proctex.geometry.parts import part_kinds
+    from proctex.params import infer_space, select_template
+
+    rows = [r for r in samples(store) if r["split"] == "train"]
+    params = [json.loads(r["params"]) for r in rows]
+    model = config.shapes().model
+    space = model.space if model is not None else infer_space(params)
+    kinds = [part_kinds(read_mesh(store, r["mesh"])) for r in rows]
+    i = select_template(space, params, coverage=kinds) if len(space) else int(np.argmax(kinds))
+    nearest = select_template(space, params) if len(space) else 0
+    store.write_bytes(StoreLayout.TEMPLATE_MESH, store.read_bytes(rows[i]["mesh"]))
+    mark_stage(store, "template", id=rows[i]["id"], params=params[i], part_kinds=kinds[i])
+    why = "" if i == nearest else f"; the sample nearest the mean ({rows[nearest]['id']}) has {kinds[nearest]}"
+    log(f"template: {rows[i]['id']} ({kinds[i]} kinds of part, the most of the {len(rows)} train samples{why})")

@@ -1,0 +1,143 @@
+"""The ``train`` stage: one ProcCorrNet per part group on its cage pairs, and what serves each group."""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from proctex.build.plan import Plan, run_in_process
+from proctex.store.config import BuildConfig
+from proctex.store.layout import FamilyStore, StoreLayout, digest
+from proctex.store.samples import read_pair, samples
+from proctex.store.state import mark_stage, read_state, stage_done
+
+
+def trainable_groups(store: FamilyStore) -> list[int]:
+    """Groups with at least one solved train pair."""
+    rows = store.read_table(StoreLayout.PAIRS).to_pylist() if store.exists(StoreLayout.PAIRS) else []
+    return sorted({r["group"] for r in rows if r["status"] == "done" and r["split"] == "train"})
+
+
+def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val_share: float = 0.15) -> dict[str, Any]:
+    """Train and validation pairs of one group: a seeded ``val_share`` of its train shapes is held
+    out for early stopping. Returns ``{"train": [(src, dst)], "val": [...], "train_ids", "val_ids",
+    "features"}``; ``features``: the train shapes' procedural parameters as the teacher's
+    confidence finds neighbours by (:func:`proctex.correspond.confidence.param_features`; None
+    where the shapes carry none or the confidence is off)."""
+    from proctex.correspond.confidence import param_features
+
+    rows = [r for r in store.read_table(StoreLayout.PAIRS).to_pylist() if r["status"] == "done" and r["split"] == "train" and r["group"] == group]
+    ids = sorted(r["id"] for r in rows)
+    if not ids:
+        raise ValueError(f"group {group} has no solved train pairs")
+    rng = np.random.default_rng(config.seed + group)
+    n_val = max(1, int(round(val_share * len(ids)))) if len(ids) > 2 else 0
+    val_ids = set(rng.choice(ids, size=n_val, replace=False).tolist()) if n_val else set()
+    train_ids = [i for i in ids if i not in val_ids]
+    train_pairs = [read_pair(store, i, group) for i in train_ids]
+    val_pairs = [read_pair(store, i, group) for i in sorted(val_ids)] or train_pairs[:1]
+    features = None
+    if config.train.confidence != "none":  # only the teacher's confidence reads the parameters
+        params = {r["id"]: r.get("params") for r in samples(store)}
+        features = param_features([json.loads(params.get(i) or "{}") for i in train_ids])
+    return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": sorted(val_ids), "features": features}
+
+
+def serving_choice(model: Any, data: dict[str, Any]) -> dict[str, Any]:
+    """What serves a group at run time (:func:`proctex.correspond.training.choose_serving`): its
+    network, the box map or the identity, chosen on the group's held-out train pairs (``data``, from
+    :func:`group_training_data`; never ground truth). ``held_out`` False: the group had too few
+    shapes to hold one out and the choice was made on a training pair, which favours the network."""
+    from proctex.correspond.training import choose_serving, template_extent
+
+    extent = model.template_extent.detach().cpu().numpy() if model.frame == "box" else template_extent(data["train"])
+    return {**choose_serving(model, data["val"], extent).to_dict(), "held_out": bool(data["val_ids"])}
+
+
+def serving_line(serving: dict[str, Any] | None) -> str:
+    """One line for a log: what serves the group and the held-out errors it was chosen on."""
+    if not serving:
+        return "the network serves"
+    errs = ", ".join(f"{k} {v:.4f}" for k, v in serving["errors"].items())
+    what = {"box": "box map"}.get(serving["serve"], serving["serve"])
+    return f"the {what} serves (held-out errors: {errs}{'' if serving.get('held_out', True) else '; no held-out shape'})"
+
+
+def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """Write a trained group network to ``models/group_<g>.pt`` (atomically) with its serving choice
+    (:func:`serving_choice`); returns its checksum (:func:`proctex.store.layout.digest`) and that
+    choice, which the train stage records."""
+    from proctex.correspond.corrnet import to_bytes
+
+    serving = serving_choice(result.model, data)
+    extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val, "serving": serving}
+    blob = to_bytes(result.model, cfg, extra)
+    store.write_bytes(StoreLayout.model(group), blob)
+    return digest(blob), serving
+
+
+VAL_SHARE = 0.15  # of a group's train shapes, held out for early stopping
+
+
+def fit_group(store: FamilyStore, config: BuildConfig, group: int, rank: int = 0, world: int = 1,
+              grad_hook: Callable[[Any], None] | None = None) -> dict[str, Any]:
+    """Train group ``group``'s network on its pairs and, on ``rank`` 0, store it; the one train body
+    of every executor (in process; each Ray Train worker of a team of ``world``, with ``grad_hook``
+    averaging gradients). Returns the group's train record, the same fields whoever trained it:
+    ``best_val`` (:func:`proctex.correspond.training.eval_step` of the kept state), ``iterations``,
+    ``seconds``, ``train_pairs``, ``val_pairs``, ``sha256`` and ``serving`` (None off rank 0)."""
+    from proctex.correspond.training import train
+
+    data = group_training_data(store, config, group, VAL_SHARE)
+    t = time.perf_counter()
+    result = train(data["train"], data["val"], config.train, rank=rank, world=world, grad_hook=grad_hook, features=data["features"])
+    sha, serving = save_group_model(store, group, result, config.train, data) if rank == 0 else (None, None)
+    return {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2),
+            "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving}
+
+
+def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], context: Any = None) -> list[dict[str, Any]]:
+    """Train and store the networks of ``groups`` in this process; per group its record (:func:`fit_group`)."""
+    return [fit_group(store, config, g) for g in groups]
+
+
+def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> Plan:
+    """The train stage: one ProcCorrNet per trainable group without one yet, a batch per group. A
+    resumed build keeps the record of the groups trained before. Each group can be fitted by a team of
+    workers (``team``: :func:`fit_group`); an executor may set ``info["mark"]`` (extra fields for the
+    stage's record)."""
+    before = read_state(store).stage("train").get("groups", {})
+    groups = trainable_groups(store)
+    todo = [g for g in groups if not store.exists(StoreLayout.model(g))]
+    trained: dict[Any, Any] = {}
+    for g in groups:
+        if g not in todo:
+            log(f"train: group {g} done already")
+            if str(g) in before:
+                trained[g] = before[str(g)]
+    if not todo and stage_done(store, "train"):
+        return Plan("train", [], run_train_batch, finish=lambda results: None, skip="done already")
+
+    def collect(batch: list[int], out: list[dict[str, Any] | None]) -> None:
+        for g, m in zip(batch, out):
+            if m is not None and "train_pairs" in m:
+                log(f"train: group {g}: {m['train_pairs']} train / {m['val_pairs']} val pairs, val {m['best_val']}, {m['seconds']}s; "
+                    f"{serving_line(m.get('serving'))}")
+
+    def finish(results: list[list[dict[str, Any] | None]]) -> None:
+        for g, m in zip(todo, (m for out in results for m in out)):
+            if m is not None:
+                trained[g] = {k: v for k, v in m.items() if k not in ("train_pairs", "val_pairs")}
+        if todo or not stage_done(store, "train"):
+            mark_stage(store, "train", groups=trained, **plan.info.get("mark", {}))
+
+    plan = Plan("train", [[g] for g in todo], run_train_batch, finish, collect, team=fit_group)
+    return plan
+
+
+def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
+    """One ProcCorrNet per non-degenerate group on the train pairs (:func:`plan_train`, here)."""
+    run_in_process(plan_train(store, config, log), store, config, log)

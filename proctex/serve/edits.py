@@ -1,0 +1,314 @@
+"""Edits of a built family's template textures (re-paint, HSV shift, an image placed at a UV spot):
+they change the store, so every later transfer shows them."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from proctex.fileio import encode_png
+from proctex.geometry.shape import Shape
+from proctex.store.layout import FamilyStore, StoreLayout, digest
+from proctex.store.state import stored_config
+from proctex.store.template import (
+    TemplateFiles,
+    decode_png,
+    load_template_shape,
+    png_size,
+)
+
+
+def refresh_template_glb(store: FamilyStore, files: TemplateFiles | None = None) -> None:
+    """Rewrite ``template/textured.glb`` from the stored mesh, UVs, group PNGs and PBR maps."""
+    config = stored_config(store)
+    (files or TemplateFiles(store)).write_glb(load_template_shape(store, config), config.up_axis())
+
+
+def repaint_maps(prompt: str, group: int, label: str | None, template: Shape, rep_faces: np.ndarray, rep_corner_uv: np.ndarray,
+                 size: tuple[int, int], seed: int = 0) -> Any:
+    """The PBR maps (:class:`proctex.texture.pbr.PbrMaps`, float) of a group re-painted with ``prompt``:
+    what :func:`edit_texture` does for the colour, for roughness, metalness and relief (the surface
+    painter bound to the template, so the prompt's regions apply in the part's own frame)."""
+    from proctex.texture.paint import shape_frame
+    from proctex.texture.painters import SurfacePainter
+    from proctex.texture.pbr import bake_maps
+    from proctex.texture.uv import texel_map
+
+    faces = template.faces[np.asarray(rep_faces)]
+    tm = texel_map(template.vertices, faces, np.asarray(rep_corner_uv), size[0], size[1])
+    center, scale = shape_frame(template)
+    painter = SurfacePainter(prompt, seed=seed)
+
+    def props(p, n, t, b):
+        return painter.material(p, n, t, b, group=int(group), label=label or "")
+
+    return bake_maps(tm, template.vertices, faces, np.asarray(rep_corner_uv), props, center, scale)
+
+
+def add_material_maps(store: FamilyStore, force: bool = False) -> list[int]:
+    """Give a family painted before PBR maps were made its maps, from each group's stored prompt (the
+    family's prompt, group prompts and re-paints as ``template/paint.json`` records them) on the stored
+    template, under the family's edit lock. Groups that have maps keep them unless ``force``. The
+    textures, UVs and networks are untouched, so transfers keep their colours and gain the maps.
+    Returns the groups that got maps."""
+    with edit_lock(store):
+        config = stored_config(store)
+        template = load_template_shape(store, config)
+        files = TemplateFiles(store)
+        grouping = files.grouping(template, config.seed)
+        uv = files.corner_uv()
+        made = []
+        for entry in files.summary["groups"]:
+            gi = int(entry["group"])
+            if entry.get("orm_sha256") and not force:
+                continue
+            rep = grouping.parts[grouping.groups[gi].representative].faces
+            prompt = entry.get("prompt") or config.paint.prompt
+            hw = png_size(files.texture_png(gi), f"group {gi}'s texture")
+            maps = repaint_maps(prompt, gi, entry["label"], template, rep, uv[rep], hw, seed=config.seed)
+            files.replace(gi, maps={"orm": encode_png(maps.orm_uint8()), "normal": encode_png(maps.normal_uint8())}, occlusion=False)
+            made.append(gi)
+        if made:
+            files.save()
+            refresh_template_glb(store, files)
+        return made
+
+
+def adjust_orm(orm: np.ndarray, roughness: float | None = None, metallic: float | None = None, mask: np.ndarray | None = None) -> np.ndarray:
+    """An ORM image (H, W, 3, uint8 or float in [0, 1]) with its roughness (G) and metalness (B)
+    moved to the given means over ``mask`` ((H, W) bool: the painted texels; default all): the
+    channel is shifted by the difference, so its variation (grain, rust patches) stays, and clipped
+    to [0, 1]. Occlusion (R) is untouched. Returns float32."""
+    a = np.asarray(orm)
+    out = (a.astype(np.float32) / 255.0) if a.dtype == np.uint8 else a.astype(np.float32, copy=True)
+    sel = np.ones(out.shape[:2], bool) if mask is None or np.shape(mask) != out.shape[:2] or not np.any(mask) else np.asarray(mask, bool)
+    for channel, target in ((1, roughness), (2, metallic)):
+        if target is None:
+            continue
+        if isinstance(target, bool) or not (isinstance(target, (int, float)) and np.isfinite(target) and 0.0 <= target <= 1.0):
+            raise ValueError(f"{('roughness', 'metallic')[channel - 1]} must be a number in [0, 1], got {target!r}")
+        c = out[..., channel]
+        out[..., channel] = np.clip(c + (float(target) - float(c[sel].mean())), 0.0, 1.0)
+    return out
+
+
+def edit_texture(
+    texture: np.ndarray,
+    group: int,
+    label: str | None = None,
+    hue: float = 0.0,
+    saturation: float = 1.0,
+    value: float = 1.0,
+    prompt: str | None = None,
+    template: Shape | None = None,
+    rep_faces: np.ndarray | None = None,
+    rep_corner_uv: np.ndarray | None = None,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray | None, dict[str, Any]]:
+    """One group texture after an edit: re-painted with ``prompt`` first (the surface painter,
+    ``seed``), then HSV-shifted (``hue`` degrees, ``saturation`` and ``value`` scales). Pure: the
+    store is not touched (:func:`edit_group` persists, the service previews with it).
+
+    Args:
+        texture: (H, W, 3) uint8 or float in [0, 1], the group's current texture.
+        group, label: the group (the painter takes them as hints).
+        template, rep_faces, rep_corner_uv: needed for a re-paint only: the template shape, the face
+            ids of the group's representative part and their (f, 3, 2) UVs.
+
+    Returns:
+        ``(texture, painted, record)``: (H, W, 3) float32 in [0, 1]; the (H, W) bool mask of the texels
+        the re-paint coloured (None without a prompt); the edit record (``group``, ``prompt``,
+        ``hsv`` as given, without the operations that were no-ops).
+    """
+    from proctex.texture.edit import shift_hsv
+
+    t = np.asarray(texture)
+    tex = (t.astype(np.float32) / 255) if t.dtype == np.uint8 else t.astype(np.float32)
+    tex = np.ascontiguousarray(tex[..., :3])
+    record: dict[str, Any] = {"group": int(group)}
+    painted = None
+    if prompt is not None:
+        from proctex.texture.paint import shape_frame
+        from proctex.texture.painters import SurfacePainter
+        from proctex.texture.uv import pad_seams, texel_map
+
+        if template is None or rep_faces is None or rep_corner_uv is None:
+            raise ValueError("a re-paint needs the template, its representative faces and their UVs")
+        faces = template.faces[np.asarray(rep_faces)]
+        tm = texel_map(template.vertices, faces, np.asarray(rep_corner_uv), tex.shape[0], tex.shape[1])
+        center, scale = shape_frame(template)
+        colors = SurfacePainter(prompt, seed=seed).paint((tm.points - center) / scale, tm.normals, group=int(group), label=label)
+        fresh = np.full_like(tex, 0.5)
+        fresh[tm.ij[:, 0], tm.ij[:, 1]] = colors
+        tex, painted = pad_seams(fresh, tm.mask, 8)
+        tex = np.asarray(tex, dtype=np.float32)
+        record["prompt"] = prompt
+    if hue or saturation != 1.0 or value != 1.0:
+        tex = shift_hsv(np.clip(tex, 0, 1), hue_deg=hue, saturation=saturation, value=value)
+        record["hsv"] = [hue, saturation, value]
+    return tex, painted, record
+
+
+def edit_group(
+    store: FamilyStore,
+    group: int | str,
+    hue: float = 0.0,
+    saturation: float = 1.0,
+    value: float = 1.0,
+    logo: str | None = None,
+    at: tuple[float, float] = (0.5, 0.5),
+    size: tuple[float, float] = (0.25, 0.25),
+    rotation: float = 0.0,
+    opacity: float = 1.0,
+    prompt: str | None = None,
+    record_extra: dict[str, Any] | None = None,
+    roughness: float | None = None,
+    metallic: float | None = None,
+) -> dict[str, Any]:
+    """Edit one group's template texture in the store; every later transfer or bake uses it.
+
+    Operations, applied in this order when several are given: re-paint with a new ``prompt`` (the
+    surface painter, the family's seed), HSV shift (``hue`` degrees, ``saturation`` and ``value``
+    scales) — both by :func:`edit_texture` —, and placing an image file (``logo``) centred at UV
+    ``at`` with UV ``size``, ``rotation`` (degrees) and ``opacity``. A re-paint makes the group's
+    PBR maps again from the new prompt; an HSV shift or an image leaves them as they are;
+    ``roughness`` / ``metallic`` move the group's roughness and metalness maps to those means
+    (:func:`adjust_orm`). Returns the edit record appended
+    to ``template/paint.json``; ``record_extra`` (a versioned edit's fields, :func:`stored_edit`) joins
+    it, with the digest of the new texture as ``after``.
+    """
+
+
+    from proctex.texture.edit import load_overlay, place_image
+
+    files = TemplateFiles(store)
+    entry = files.group(group)
+    gi = int(entry["group"])
+    tex = files.texture(gi)
+    template = rep_faces = rep_uv = None
+    config = stored_config(store)
+    if prompt is not None:  # the re-paint needs the template's geometry and its stored grouping
+        template = load_template_shape(store, config)
+        grouping = files.grouping(template, config.seed)
+        rep_faces = grouping.parts[grouping.groups[gi].representative].faces
+        rep_uv = files.corner_uv()[rep_faces]
+    tex, painted, record = edit_texture(tex, gi, entry["label"], hue, saturation, value, prompt,
+                                        template=template, rep_faces=rep_faces, rep_corner_uv=rep_uv, seed=config.seed)
+    masks = files.painted_masks()
+    if painted is not None and masks is not None:  # the whole group is painted now
+        masks[f"g{gi}"] = painted
+        masks[f"o{gi}"] = painted
+    if logo is not None:
+        tex = place_image(tex, load_overlay(logo), at, size, rotation_deg=rotation, opacity=opacity)
+        record["logo"] = {"file": os.path.basename(logo), "at": list(at), "size": list(size), "rotation": rotation, "opacity": opacity}
+    maps_out: dict[str, bytes] = {}
+    if prompt is not None and entry.get("orm_sha256"):  # a re-paint makes every map again
+        maps = repaint_maps(prompt, gi, entry["label"], template, rep_faces, rep_uv, tex.shape[:2], seed=config.seed)
+        maps_out = {"orm": encode_png(maps.orm_uint8()), "normal": encode_png(maps.normal_uint8())}
+    if roughness is not None or metallic is not None:
+        if not entry.get("orm_sha256"):
+            raise ValueError(f"group {gi} has no PBR maps (a family painted before they were made); re-paint it first")
+        current = maps_out.get("orm") or files.map_png(gi, "orm")
+        painted_mask = painted if painted is not None else (masks or {}).get(f"g{gi}")
+        orm = adjust_orm(decode_png(current, f"group {gi}'s ORM map"), roughness, metallic, painted_mask)
+        maps_out["orm"] = encode_png(orm)
+        record["material"] = {k: v for k, v in (("roughness", roughness), ("metallic", metallic)) if v is not None}
+    if len(record) == 1:
+        raise ValueError("no edit given (prompt, hue/saturation/value, roughness/metallic or logo)")
+    png = encode_png(tex)
+    if record_extra is not None:
+        record.update(record_extra, after=digest(png))
+    files.replace(gi, texture=png, maps=maps_out, masks=masks if painted is not None else None, record=record)
+    files.save()
+    refresh_template_glb(store, files)
+    return record
+
+
+# ------------------------------------------------------------------------------ versioned edits
+class EditConflict(ValueError):
+    """The family changed since the stamp the edit was made against (or there is nothing to undo)."""
+
+
+def edit_lock(store: FamilyStore, timeout: float = 60.0, shared: bool = False):
+    """A context manager holding the family's edit lock, across processes on one machine (a
+    ``flock`` on ``.edit.lock`` in the store folder): exclusive for an edit, ``shared`` for a reader
+    that must see the template's files of one version (a service loading the family). Stores that
+    are not local folders cannot be edited (``ValueError``); readers of them take no lock."""
+    import contextlib
+    import fcntl
+    import time
+
+    if "://" in store.uri and not store.uri.startswith("file://"):
+        if shared:
+            return contextlib.nullcontext()
+        raise ValueError(f"{store.uri}: edits need a family on a local file system (the edit lock is a file lock)")
+    mode = fcntl.LOCK_SH if shared else fcntl.LOCK_EX
+
+    @contextlib.contextmanager
+    def held():
+        path = os.path.join(store.base, StoreLayout.EDIT_LOCK)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            if shared:  # a read-only store folder: nobody edits it, nothing to wait for
+                yield
+                return
+            raise ValueError(f"{store.uri}: cannot take the edit lock ({exc})") from exc
+        try:
+            deadline = time.monotonic() + timeout
+            while True:
+                try:
+                    fcntl.flock(fd, mode | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if time.monotonic() > deadline:
+                        raise EditConflict(f"{store.uri}: another edit has held the family for over {timeout:g} s") from None
+                    time.sleep(0.01)
+            yield
+        finally:
+            os.close(fd)  # releases the lock
+
+    return held()
+
+
+def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None = None, stamp: Any = None, **edit: Any) -> dict[str, Any]:
+    """:func:`edit_group`, versioned and serialised: under the family's edit lock, check
+    ``expect_stamp`` against the family's stamp (``stamp(store)``; :class:`EditConflict` when they
+    differ), keep the files the edit replaces (its undo), apply it. The record gains ``version`` and
+    the digests of the group texture ``before`` and ``after``, so the edit history is a chain a
+    lost update would break."""
+    with edit_lock(store):
+        if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
+            raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r} (now {stamp(store)!r}); reload and edit again")
+        files = TemplateFiles(store)
+        gi = int(files.group(group)["group"])
+        version = files.version + 1
+        before = files.keep_undo(gi)
+        return edit_group(store, group, **edit, record_extra={"version": version, "before": before})
+
+
+def undo_edit(store: FamilyStore, expect_stamp: str | None = None, stamp: Any = None) -> dict[str, Any]:
+    """Undo the family's last stored edit (the files it replaced come back); returns its record.
+    :class:`EditConflict` when there is none, or when ``expect_stamp`` is stale."""
+    with edit_lock(store):
+        if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
+            raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r}; reload and try again")
+        files = TemplateFiles(store)
+        if not files.edits:
+            raise EditConflict(f"{store.uri}: no stored edit to undo")
+        try:
+            last = files.undo()
+        except ValueError as exc:
+            raise EditConflict(str(exc)) from exc
+        refresh_template_glb(store, files)
+        return last
+
+
+def reset_edits(store: FamilyStore) -> list[dict[str, Any]]:
+    """Undo every stored edit, last first: the template as it was painted. Returns the undone records."""
+    undone = []
+    while TemplateFiles(store).edits:
+        undone.append(undo_edit(store))
+    return undone

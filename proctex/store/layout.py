@@ -1,0 +1,238 @@
+"""The family store (DESIGN §3): a folder or a ``pyarrow.fs`` URI that fully describes a family.
+
+Every write is atomic: the bytes go to a temporary name next to the target, which is then renamed
+(``pyarrow.fs.FileSystem.move``), so a crash never leaves a half-written file under the real name.
+Readers only ever see complete files. Tables are Parquet, arrays ``.npz`` (no pickles), documents JSON.
+
+Layout (all paths relative to the root; :class:`StoreLayout` is the one place that spells them)::
+
+    family.json            config, stage states, package versions
+    samples.parquet        one row per sampled shape
+    meshes/<id>.obj        sampled meshes (and <id>.json, each sample job's record)
+    template/              template mesh, grouping, UVs, textures, textured.glb
+    pairs.parquet          one row per (shape, group) correspondence job
+    correspondences/       one Parquet table of (source point, template point) per pair
+    models/                one ProcCorrNet per group
+    metrics.json           evaluation
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import uuid
+import zipfile
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.fs as pafs
+import pyarrow.parquet as pq
+
+#: the PBR maps a group texture may have besides its base colour (file ``group_<g>[_<label>].<kind>.png``).
+MAP_KINDS = ("orm", "normal")
+
+
+def group_file_name(group: int, label: str, kind: str = "") -> str:
+    """``group_<index>[_<label>].png`` (label made file-name safe): a group texture's file name; with
+    ``kind`` (one of :data:`MAP_KINDS`) the name of that PBR map, ``group_<index>[_<label>].<kind>.png``
+    (labels never hold a dot, so no label makes a map's name)."""
+    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in label)
+    if kind and kind not in MAP_KINDS:
+        raise ValueError(f"map kind must be one of {', '.join(MAP_KINDS)}, got {kind!r}")
+    return f"group_{group}{'_' + safe if safe else ''}{'.' + kind if kind else ''}.png"
+
+
+def digest(data: bytes) -> str:
+    """The checksum a record keeps of a store file: the first 16 hex digits of its SHA-256."""
+    import hashlib
+
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def check_digest(data: bytes, expected: str | None, where: str) -> None:
+    """``ValueError`` naming ``where`` when ``data`` does not have the recorded checksum (None: none
+    was recorded, as in stores written before checksums)."""
+    if expected is not None and digest(data) != expected:
+        raise ValueError(f"{where}: checksum mismatch (recorded {expected}, found {digest(data)}): the file changed outside ProcTex")
+
+
+class StoreLayout:
+    """Every path of a family store (relative to its root), and nothing else spells them."""
+
+    STATE = "family.json"
+    SAMPLES = "samples.parquet"
+    PAIRS = "pairs.parquet"
+    METRICS = "metrics.json"
+    MODELS = "models"
+    TEMPLATE = "template"
+    TEMPLATE_MESH = "template/template.obj"
+    TEMPLATE_GLB = "template/textured.glb"
+    PAINT_NAME = "paint.json"  # the painter's summary, in the folder it writes (the template folder here)
+    PAINT = f"template/{PAINT_NAME}"
+    UV = "template/uv.npz"
+    PAINTED = "template/painted.npz"
+    GROUPING = "template/grouping.json"
+    EDITS = "template/edits"  # one folder per stored edit: the files it replaced (its undo)
+    EDIT_LOCK = ".edit.lock"  # held while an edit changes the store (local stores)
+
+    @staticmethod
+    def edit_snapshot(version: int, name: str) -> str:
+        """A file as it was before edit ``version`` (``name``: a template file name)."""
+        return f"{StoreLayout.EDITS}/v{int(version):05d}/{name}"
+
+    @staticmethod
+    def mesh(sid: str) -> str:
+        """A sampled mesh."""
+        return f"meshes/{sid}.obj"
+
+    @staticmethod
+    def sample_record(sid: str) -> str:
+        """A sample job's record (written after its mesh)."""
+        return f"meshes/{sid}.json"
+
+    @staticmethod
+    def pair(sid: str, group: int) -> str:
+        """A cage pair's table of (source point, template point)."""
+        return f"correspondences/{sid}__g{group}.parquet"
+
+    @staticmethod
+    def pair_record(sid: str, group: int) -> str:
+        """A pair job's record (written after its table)."""
+        return f"correspondences/{sid}__g{group}.json"
+
+    @staticmethod
+    def model(group: int) -> str:
+        """A group's ProcCorrNet checkpoint."""
+        return f"models/group_{group}.pt"
+
+    @staticmethod
+    def model_group(name: str) -> int | None:
+        """The group of a file name in ``models/`` (``group_<g>.pt``), None for anything else."""
+        stem = name[len("group_") : -len(".pt")] if name.startswith("group_") and name.endswith(".pt") else ""
+        return int(stem) if stem.isdigit() else None
+
+    @staticmethod
+    def template_file(name: str) -> str:
+        """A file of the template folder (the painter's outputs)."""
+        return f"{StoreLayout.TEMPLATE}/{name}"
+
+    @staticmethod
+    def texture(group: int, label: str, kind: str = "") -> str:
+        """A group's texture, or with ``kind`` one of its PBR maps (:func:`group_file_name`)."""
+        return StoreLayout.template_file(group_file_name(group, label, kind))
+
+
+class FamilyStore:
+    """Atomic reads and writes under a root folder or URI (``s3://bucket/prefix``, ``file:///...``)."""
+
+    def __init__(self, root: str | os.PathLike) -> None:
+        uri = os.fspath(root)
+        if not uri:
+            raise ValueError("family store root must not be empty")
+        if "://" in uri:
+            try:
+                self.fs, self.base = pafs.FileSystem.from_uri(uri)
+            except (pa.ArrowInvalid, OSError) as exc:
+                raise ValueError(f"cannot open family store {uri!r}: {exc}") from exc
+        else:
+            self.fs, self.base = pafs.LocalFileSystem(), os.path.abspath(uri)
+        self.uri = uri
+
+    def __repr__(self) -> str:
+        return f"FamilyStore({self.uri!r})"
+
+    # ------------------------------------------------------------------------------------- paths
+    def path(self, rel: str) -> str:
+        """Absolute path (in the store's file system) of a relative name; refuses escapes."""
+        rel = str(rel).replace("\\", "/")
+        parts = [p for p in rel.split("/") if p not in ("", ".")]
+        if not parts or any(p == ".." for p in parts):
+            raise ValueError(f"bad store path {rel!r}")
+        return "/".join([self.base.rstrip("/")] + parts)
+
+    def exists(self, rel: str) -> bool:
+        return self.fs.get_file_info(self.path(rel)).type != pafs.FileType.NotFound
+
+    def listdir(self, rel: str = "") -> list[str]:
+        """Names directly under a folder (``""``: the root; empty if missing), sorted."""
+        where = self.base.rstrip("/") if rel in ("", ".") else self.path(rel)
+        info = self.fs.get_file_info(pafs.FileSelector(where, allow_not_found=True))
+        return sorted(os.path.basename(i.path) for i in info if ".tmp-" not in os.path.basename(i.path))
+
+    def delete(self, rel: str) -> None:
+        p = self.path(rel)
+        t = self.fs.get_file_info(p).type
+        if t == pafs.FileType.Directory:
+            self.fs.delete_dir(p)
+        elif t == pafs.FileType.File:
+            self.fs.delete_file(p)
+
+    # ------------------------------------------------------------------------------------- bytes
+    def write_bytes(self, rel: str, data: bytes) -> str:
+        """Write atomically (temporary name, then rename); returns the full path."""
+        final = self.path(rel)
+        parent = final.rsplit("/", 1)[0]
+        self.fs.create_dir(parent, recursive=True)
+        tmp = f"{final}.tmp-{uuid.uuid4().hex[:12]}"
+        try:
+            with self.fs.open_output_stream(tmp) as fh:
+                fh.write(data)
+            self.fs.move(tmp, final)
+        except BaseException:
+            if self.fs.get_file_info(tmp).type == pafs.FileType.File:
+                self.fs.delete_file(tmp)
+            raise
+        return final
+
+    def read_bytes(self, rel: str) -> bytes:
+        p = self.path(rel)
+        if not self.exists(rel):
+            raise ValueError(f"{self.uri}: {rel} not found")
+        with self.fs.open_input_stream(p) as fh:
+            return fh.read()
+
+    # ---------------------------------------------------------------------------------- formats
+    def write_json(self, rel: str, data: Any) -> str:
+        return self.write_bytes(rel, (json.dumps(data, indent=1, sort_keys=False) + "\n").encode())
+
+    def read_json(self, rel: str) -> Any:
+        try:
+            return json.loads(self.read_bytes(rel))
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{self.uri}: {rel} is not valid JSON ({exc})") from exc
+
+    def write_table(self, rel: str, table: pa.Table | dict[str, Any]) -> str:
+        """Write a Parquet table (a ``pa.Table`` or a dict of columns)."""
+        if not isinstance(table, pa.Table):
+            table = pa.table(table)
+        buf = pa.BufferOutputStream()
+        pq.write_table(table, buf)
+        return self.write_bytes(rel, buf.getvalue().to_pybytes())
+
+    def read_table(self, rel: str) -> pa.Table:
+        """A Parquet table; ``ValueError`` naming the file when it is damaged."""
+        data = self.read_bytes(rel)
+        try:
+            return pq.read_table(pa.BufferReader(data))
+        except (pa.ArrowException, OSError) as exc:
+            raise ValueError(f"{self.uri}: {rel} is not a readable Parquet table ({exc.__class__.__name__})") from exc
+
+    def write_arrays(self, rel: str, **arrays: np.ndarray) -> str:
+        """Write numeric arrays as ``.npz`` (no object arrays: loading never unpickles)."""
+        for k, a in arrays.items():
+            if np.asarray(a).dtype == object:
+                raise ValueError(f"array {k!r} has dtype object; only numeric arrays are stored")
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        return self.write_bytes(rel, buf.getvalue())
+
+    def read_arrays(self, rel: str) -> dict[str, np.ndarray]:
+        """Arrays of an ``.npz`` (never unpickled); ``ValueError`` naming the file when it is damaged."""
+        data = self.read_bytes(rel)
+        try:
+            with np.load(io.BytesIO(data), allow_pickle=False) as z:
+                return {k: z[k] for k in z.files}
+        except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+            raise ValueError(f"{self.uri}: {rel} is not a readable array file ({exc.__class__.__name__})") from exc

@@ -1,0 +1,458 @@
+"""The family's textured template as stored (:class:`Template`): its shape, parts and groups, UVs,
+group textures and painted masks, with :meth:`Template.save` and :meth:`Template.load` on a family
+store. The stored grouping is read back as it was painted, not analysed again."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import struct
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from proctex.fileio import atomic_write
+from proctex.geometry.parts import Grouping, analyse, segment
+from proctex.geometry.shape import Shape
+from proctex.sources.registry import source_kind
+from proctex.store.config import BuildConfig
+from proctex.store.layout import (
+    MAP_KINDS,
+    FamilyStore,
+    StoreLayout,
+    check_digest,
+    digest,
+    group_file_name,
+)
+from proctex.store.samples import read_mesh
+from proctex.store.state import FamilyState, stored_config
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PNG_MODES = {0: "L", 2: "RGB", 3: "P", 4: "LA", 6: "RGBA"}  # IHDR colour type -> PIL's mode name
+
+
+def png_size(data: bytes, where: str) -> tuple[int, int]:
+    """(height, width) of an RGB or RGBA PNG from its header (nothing decoded); ``ValueError`` naming
+    ``where`` for what is not one."""
+    if len(data) < 33 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
+        raise ValueError(f"{where}: cannot read the texture (not a PNG file)")
+    w, h = struct.unpack(">II", data[16:24])
+    if PNG_MODES.get(data[25]) not in ("RGB", "RGBA"):
+        raise ValueError(f"{where}: a {PNG_MODES.get(data[25], f'colour type {data[25]}')} image; group textures are RGB")
+    if not (0 < w <= 65536 and 0 < h <= 65536):
+        raise ValueError(f"{where}: a {w}x{h} texture")
+    return int(h), int(w)
+
+
+def decode_png(data: bytes, where: str) -> np.ndarray:
+    """(H, W, 3) uint8 of stored PNG bytes; ``ValueError`` naming ``where`` for a damaged file."""
+    from PIL import Image
+
+    try:
+        image = Image.open(io.BytesIO(data))
+        image.load()
+    except Exception as exc:  # PIL raises many kinds for damaged files
+        raise ValueError(f"{where}: cannot read the texture ({type(exc).__name__}: {str(exc)[:200]})") from exc
+    if image.mode not in ("RGB", "RGBA"):
+        raise ValueError(f"{where}: a {image.mode} image; group textures are RGB")
+    return np.asarray(image.convert("RGB"))
+
+
+class StoredImages(Sequence):
+    """Per group an (H, W, 3) uint8 image decoded from its stored PNG bytes (:attr:`png`) when first
+    read, then kept: loading a family decodes nothing it does not use, and its PNGs are served as
+    they were stored, never encoded again. :meth:`hw` reads a size from the header alone."""
+
+    def __init__(self, png: Sequence[bytes], wheres: Sequence[str]) -> None:
+        self.png = list(png)
+        self.wheres = list(wheres)
+        self._decoded: dict[int, np.ndarray] = {}
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self.png)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(len(self))[i]]
+        i = range(len(self))[i]  # negative indices; IndexError past the end
+        with self._lock:
+            if i not in self._decoded:
+                self._decoded[i] = decode_png(self.png[i], self.wheres[i])
+            return self._decoded[i]
+
+    def hw(self, i: int) -> tuple[int, int]:
+        """(height, width) of image ``i`` from its PNG header."""
+        return png_size(self.png[i], self.wheres[i])
+
+
+class StoredMaps(Sequence):
+    """Per group its PBR maps (:class:`proctex.texture.pbr.PbrMaps` of uint8 images, decoded from the
+    stored PNGs when first read) or None; :attr:`png`: the same maps as the stored bytes."""
+
+    def __init__(self, maps: Sequence[Any], wheres: Sequence[str]) -> None:
+        self.png = list(maps)
+        self.wheres = list(wheres)
+        self._decoded: dict[int, Any] = {}
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self.png)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(len(self))[i]]
+        i = range(len(self))[i]
+        m = self.png[i]
+        if m is None:
+            return None
+        from proctex.texture.pbr import PbrMaps
+
+        with self._lock:
+            if i not in self._decoded:
+                self._decoded[i] = PbrMaps(decode_png(m.orm, self.wheres[i] + " (orm)"), decode_png(m.normal, self.wheres[i] + " (normal)"), m.occlusion)
+            return self._decoded[i]
+
+
+@dataclass
+class Template:
+    """A textured template.
+
+    Attributes:
+        shape: the template mesh; grouping: its parts and groups (:class:`proctex.geometry.parts.Grouping`).
+        corner_uv: (m, 3, 2) float64 per-face corner UVs; face_group: (m,) int64 group per face.
+        textures: per group an (H, W, 3) uint8 texture (read from a store: :class:`StoredImages`,
+            decoded where used); labels: per group its label ("" for none),
+            which names its texture file (:attr:`names`: the label, or ``group_<g>``).
+        painted, observed: per group (H, W) bool masks (texels holding colour; texels the painter
+            itself coloured), or None for stores written before they were kept.
+        pbr: per group its PBR maps (:class:`proctex.texture.pbr.PbrMaps`, uint8 images; read from a
+            store: :class:`StoredMaps`) or None; None as a whole for stores written before maps were made.
+    """
+
+    shape: Shape
+    grouping: Grouping
+    corner_uv: np.ndarray
+    face_group: np.ndarray
+    textures: Sequence[np.ndarray]
+    labels: list[str]
+    painted: list[np.ndarray] | None = None
+    observed: list[np.ndarray] | None = None
+    pbr: Sequence[Any] | None = None
+
+    @property
+    def names(self) -> list[str]:
+        """Per group its label, or ``group_<g>`` for a group without one (the GLB's material names)."""
+        return [label or f"group_{g}" for g, label in enumerate(self.labels)]
+
+    def save(self, store: FamilyStore) -> None:
+        """Write the grouping, UVs, masks and group textures (PNG) into ``store`` (atomically, file
+        by file). The painter's own outputs (summary, preview, textured GLB) are the paint stage's."""
+        from proctex.fileio import encode_png
+
+        store.write_json(StoreLayout.GROUPING, self.grouping.to_dict())
+        store.write_arrays(StoreLayout.UV, corner_uv=self.corner_uv, face_group=self.face_group)
+        if self.painted is not None:
+            observed = self.observed if self.observed is not None else self.painted
+            store.write_arrays(StoreLayout.PAINTED, **{f"g{k}": m for k, m in enumerate(self.painted)},
+                               **{f"o{k}": m for k, m in enumerate(observed)})
+        digests: dict[int, dict[str, Any]] = {}
+        for g, label in enumerate(self.labels):
+            # images read from a store are written back as their stored bytes, never encoded again
+            png = self.textures.png[g] if isinstance(self.textures, StoredImages) else encode_png(self.textures[g])
+            store.write_bytes(StoreLayout.texture(g, label), png)
+            digests[g] = {"sha256": digest(png)}
+            stored = self.pbr.png[g] if isinstance(self.pbr, StoredMaps) else None
+            maps = self.pbr[g] if self.pbr is not None and stored is None else stored
+            if maps is not None:
+                for kind in ("orm", "normal"):
+                    data = getattr(stored, kind) if stored is not None else encode_png(getattr(maps, f"{kind}_uint8")())
+                    store.write_bytes(StoreLayout.texture(g, label, kind), data)
+                    digests[g][f"{kind}_sha256"] = digest(data)
+                digests[g]["occlusion"] = bool(maps.occlusion)
+        if store.exists(StoreLayout.PAINT):  # the painter's summary records each texture's checksum
+            summary = store.read_json(StoreLayout.PAINT)
+            for entry in summary.get("groups", []):
+                if entry.get("group") in digests:
+                    for key in ("orm_sha256", "normal_sha256", "occlusion"):
+                        entry.pop(key, None)
+                    entry.update(digests[entry["group"]])
+            store.write_json(StoreLayout.PAINT, summary)
+
+    @classmethod
+    def load(cls, store: FamilyStore, shape: Shape, seed: int = 0) -> "Template":
+        """The template stored in ``store`` on its mesh ``shape``. Stores written before the member
+        maps were stored get their grouping analysed again (``seed``, as the paint stage did)."""
+        grouping = None
+        if store.exists(StoreLayout.GROUPING):
+            try:
+                grouping = Grouping.from_dict(store.read_json(StoreLayout.GROUPING), segment(shape))
+            except ValueError:
+                grouping = None  # an older record: analysed below
+        if grouping is None:
+            grouping = analyse(shape, seed=seed)
+        uv = store.read_arrays(StoreLayout.UV)
+        if len(uv["face_group"]) != shape.n_faces or uv["corner_uv"].shape != (shape.n_faces, 3, 2):
+            raise ValueError(f"{store.uri}: template UVs do not match the template mesh")
+        summary = store.read_json(StoreLayout.PAINT)
+        size = summary.get("texture_size") or None
+        pngs, wheres, labels, maps = [], [], [], []
+
+        def read(rel: str, recorded: str | None, hw: tuple[int, ...] | None) -> bytes:
+            """The stored PNG, its checksum and header checked; decoded later, where used."""
+            png = store.read_bytes(rel)
+            where = store.path(rel)
+            check_digest(png, recorded, where)
+            h, w = png_size(png, where)
+            if hw and [h, w] != [int(x) for x in hw][:2]:
+                raise ValueError(f"{where}: {w}x{h}, the family's textures are {hw[1]}x{hw[0]}")
+            wheres.append(where)
+            return png
+
+        for g in summary["groups"]:
+            pngs.append(read(StoreLayout.texture(g["group"], g["label"]), g.get("sha256"), size))
+            labels.append(g["label"] or "")
+            if g.get("orm_sha256") and g.get("normal_sha256"):  # the maps, where the paint stage made them
+                from proctex.texture.pbr import PbrMaps
+
+                hw = png_size(pngs[-1], wheres[-1])
+                maps.append(PbrMaps(read(StoreLayout.texture(g["group"], g["label"], "orm"), g["orm_sha256"], hw),
+                                    read(StoreLayout.texture(g["group"], g["label"], "normal"), g["normal_sha256"], hw),
+                                    bool(g.get("occlusion", False))))
+            else:
+                maps.append(None)
+        textures = StoredImages(pngs, [store.path(StoreLayout.texture(g["group"], g["label"])) for g in summary["groups"]])
+        pbr = StoredMaps(maps, [store.path(StoreLayout.texture(g["group"], g["label"], "")) for g in summary["groups"]]) \
+            if any(m is not None for m in maps) else None
+        if len(textures) != len(grouping.groups):
+            raise ValueError(f"{store.uri}: {len(textures)} group textures for {len(grouping.groups)} groups")
+        painted = observed = None
+        if store.exists(StoreLayout.PAINTED):
+            arrays = store.read_arrays(StoreLayout.PAINTED)
+            painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
+            observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
+        return cls(shape, grouping, np.asarray(uv["corner_uv"], dtype=np.float64), np.asarray(uv["face_group"], dtype=np.int64),
+                   textures, labels, painted, observed, pbr)
+
+
+def encode_textures(tex: Any) -> tuple[list[bytes], list[Any]]:
+    """The group textures of a painted template (:class:`proctex.texture.paint.TemplateTexture`) as
+    PNG bytes, and per group its PBR maps as PNG bytes (:class:`proctex.texture.pbr.PbrMaps` of
+    bytes) or None: each image encoded once, for the files, the GLB and the store alike."""
+    from proctex.fileio import encode_png
+    from proctex.texture.pbr import PbrMaps
+
+    pngs = [encode_png(g.uint8()) for g in tex.groups]
+    maps = [None if g.pbr is None else PbrMaps(encode_png(g.pbr.orm_uint8()), encode_png(g.pbr.normal_uint8()), g.pbr.occlusion) for g in tex.groups]
+    return pngs, maps
+
+
+def write_textured(tex: Any, out: str | Path, up: str = "z", obj: bool = False, preview_size: int = 256,
+                   encoded: tuple[list[bytes], list[Any]] | None = None) -> dict[str, Any]:
+    """Write a painted template (:class:`proctex.texture.paint.TemplateTexture`) into the folder ``out``: the per-group PNGs, ``textured.glb``, ``preview.png`` (six views) and ``paint.json``.
+
+    Every file is written atomically; returns the summary written to ``paint.json`` (with the
+    coverage of the result and the written paths). ``encoded``: :func:`encode_textures` of ``tex``
+    when the caller has it (each image is encoded once).
+    """
+    from proctex.geometry.preview import grid_image
+    from proctex.texture.export import write_glb, write_obj
+    from proctex.texture.metrics import coverage
+    from proctex.texture.paint import preview_views
+    from proctex.texture.render import save_png
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    pngs, maps_png = encoded if encoded is not None else encode_textures(tex)
+    written = []
+    for g, png, maps in zip(tex.groups, pngs, maps_png):
+        atomic_write(out / group_file_name(g.group, g.label), png)
+        written.append(str(out / group_file_name(g.group, g.label)))
+        if maps is not None:
+            for kind in ("orm", "normal"):
+                atomic_write(out / group_file_name(g.group, g.label, kind), getattr(maps, kind))
+                written.append(str(out / group_file_name(g.group, g.label, kind)))
+    names = [g.label or f"group_{g.group}" for g in tex.groups]
+    pbr = maps_png if any(m is not None for m in maps_png) else None
+    shape = tex.shape
+    write_glb(out / "textured.glb", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, pngs, names=names, up=up, pbr=pbr)
+    written.append(str(out / "textured.glb"))
+    if obj:
+        textures = [g.uint8() for g in tex.groups]
+        pbr_arrays = tex.pbr if any(m is not None for m in tex.pbr) else None
+        written += write_obj(out / "textured.obj", shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, textures, names=names, pbr=pbr_arrays)
+    views = preview_views(tex, up, preview_size)
+    save_png(out / "preview.png", grid_image([views[:3], views[3:]]))
+    written.append(str(out / "preview.png"))
+    cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.painted_masks, up=up)
+    summary = {**tex.summary(), "up": up, "coverage": cov.to_dict(), "files": written + [str(out / StoreLayout.PAINT_NAME)]}
+    atomic_write(out / StoreLayout.PAINT_NAME, json.dumps(summary, indent=1))
+    return summary
+
+
+def load_template_shape(store: FamilyStore, config: BuildConfig | None = None, state: FamilyState | None = None) -> Shape:
+    """The template shape (regenerated from its parameters for model families, see
+    :func:`proctex.store.samples.load_sample`); ``state``: the family state, when the caller has it."""
+    state = state if state is not None else FamilyState.load(store)
+    config = config if config is not None else stored_config(store, state)
+    if source_kind(config.source).regenerates:
+        params = state.stage("template").get("params")
+        if not isinstance(params, dict):
+            raise ValueError(f"{store.uri}: the template stage has no parameters recorded (rerun the build)")
+        shape = config.procedural_model().generate(params)
+        shape.source = StoreLayout.TEMPLATE_MESH
+        return shape
+    return read_mesh(store, StoreLayout.TEMPLATE_MESH)
+
+
+def load_template(store: FamilyStore, config: BuildConfig | None = None, state: FamilyState | None = None) -> Template:
+    """The stored :class:`Template` (its mesh regenerated for model families); ``state``: the family
+    state, when the caller has it (else read here)."""
+    state = state if state is not None else FamilyState.load(store)
+    config = config if config is not None else stored_config(store, state)
+    return Template.load(store, load_template_shape(store, config, state), seed=config.seed)
+
+
+class TemplateFiles:
+    """The template's stored files (``template/``), read and replaced here only: each group's
+    texture and PBR maps, the painted masks, the UVs and grouping, the textured GLB, and edits. An
+    edit is a new template version: the files it replaces are kept first (its undo snapshot), then
+    the new files are written, ``paint.json`` (the version record) last, so a reader never sees half
+    an edit; :meth:`undo` puts the last version's snapshot back."""
+
+    def __init__(self, store: FamilyStore) -> None:
+        self.store = store
+        self.summary = store.read_json(StoreLayout.PAINT)
+
+    @property
+    def version(self) -> int:
+        """The template version: the number of stored edits."""
+        return len(self.summary.get("edits", []))
+
+    @property
+    def edits(self) -> list[dict[str, Any]]:
+        return list(self.summary.get("edits", []))
+
+    def group(self, group: int | str) -> dict[str, Any]:
+        """The paint record of a group, by index or label; ``ValueError`` listing the groups."""
+        for g in self.summary["groups"]:
+            if str(g["group"]) == str(group) or (g["label"] and g["label"] == str(group)):
+                return g
+        names = [str(g["group"]) + (f" ({g['label']})" if g["label"] else "") for g in self.summary["groups"]]
+        raise ValueError(f"unknown group {group!r}; the template's groups are: {', '.join(names)}")
+
+    def texture_png(self, group: int) -> bytes:
+        g = self.group(group)
+        return self.store.read_bytes(StoreLayout.texture(int(g["group"]), g["label"]))
+
+    def texture(self, group: int) -> np.ndarray:
+        """(H, W, 3) uint8 of a group's texture."""
+        g = self.group(group)
+        rel = StoreLayout.texture(int(g["group"]), g["label"])
+        return decode_png(self.store.read_bytes(rel), self.store.path(rel))
+
+    def map_png(self, group: int, kind: str) -> bytes | None:
+        """A group's stored PBR map (``kind`` of :data:`proctex.store.layout.MAP_KINDS`), or None."""
+        g = self.group(group)
+        return self.store.read_bytes(StoreLayout.texture(int(g["group"]), g["label"], kind)) if g.get(f"{kind}_sha256") else None
+
+    def corner_uv(self) -> np.ndarray:
+        return np.asarray(self.store.read_arrays(StoreLayout.UV)["corner_uv"], dtype=np.float64)
+
+    def face_group(self) -> np.ndarray:
+        return np.asarray(self.store.read_arrays(StoreLayout.UV)["face_group"], dtype=np.int64)
+
+    def painted_masks(self) -> dict[str, np.ndarray] | None:
+        return dict(self.store.read_arrays(StoreLayout.PAINTED)) if self.store.exists(StoreLayout.PAINTED) else None
+
+    def grouping(self, shape: Shape, seed: int = 0) -> Grouping:
+        """The stored grouping on the template ``shape`` (analysed again, with ``seed``, only for a
+        store written before the grouping was kept)."""
+        if self.store.exists(StoreLayout.GROUPING):
+            try:
+                return Grouping.from_dict(self.store.read_json(StoreLayout.GROUPING), segment(shape))
+            except ValueError:
+                pass  # an older record
+        return analyse(shape, seed=seed)
+
+    def keep_undo(self, group: int) -> str:
+        """Keep the files an edit of ``group`` replaces as the next version's undo snapshot; returns
+        the digest of the group's texture before the edit."""
+        g = self.group(group)
+        gi, version = int(g["group"]), self.version + 1
+        rel = StoreLayout.texture(gi, g["label"])
+        maps = [StoreLayout.texture(gi, g["label"], kind) for kind in MAP_KINDS if g.get(f"{kind}_sha256")]
+        kept = [rel, *maps, StoreLayout.PAINT] + ([StoreLayout.PAINTED] if self.store.exists(StoreLayout.PAINTED) else [])
+        before = ""
+        for f in kept:
+            data = self.store.read_bytes(f)
+            self.store.write_bytes(StoreLayout.edit_snapshot(version, os.path.basename(f)), data)
+            if f == rel:
+                before = digest(data)
+        return before
+
+    def replace(self, group: int, texture: bytes | None = None, maps: dict[str, bytes] | None = None,
+                masks: dict[str, np.ndarray] | None = None, record: dict[str, Any] | None = None, occlusion: bool | None = None) -> None:
+        """Write a group's new files (PNG ``texture``, PBR ``maps`` by kind, the painted ``masks`` of
+        every group) and update its paint record; with ``record``, the edit is appended to the
+        version history. ``paint.json`` is written last (:meth:`save`)."""
+        g = self.group(group)
+        gi = int(g["group"])
+        if masks is not None:
+            self.store.write_arrays(StoreLayout.PAINTED, **masks)
+        if texture is not None:
+            self.store.write_bytes(StoreLayout.texture(gi, g["label"]), texture)
+            g["sha256"] = digest(texture)
+        for kind, data in (maps or {}).items():
+            self.store.write_bytes(StoreLayout.texture(gi, g["label"], kind), data)
+            g[f"{kind}_sha256"] = digest(data)
+        if occlusion is not None:
+            g["occlusion"] = bool(occlusion)
+        if record is not None:
+            if "prompt" in record:
+                g["prompt"] = record["prompt"]
+            self.summary.setdefault("edits", []).append(record)
+
+    def save(self) -> None:
+        """Write ``paint.json``: the new template version counts from here."""
+        self.store.write_json(StoreLayout.PAINT, self.summary)
+
+    def undo(self) -> dict[str, Any]:
+        """Put back the files the last version replaced (``paint.json`` last); returns its edit
+        record. ``ValueError`` when there is no edit, or it was stored without its snapshot."""
+        edits = self.edits
+        if not edits:
+            raise ValueError(f"{self.store.uri}: no stored edit to undo")
+        last = edits[-1]
+        version = int(last.get("version", len(edits)))
+        folder = StoreLayout.edit_snapshot(version, "")
+        names = self.store.listdir(folder.rstrip("/"))
+        if not names:
+            raise ValueError(f"{self.store.uri}: edit {version} was stored without its undo (made before edits were versioned)")
+        for name in names:  # paint.json last: until it is back, the edit still counts as stored
+            if name != StoreLayout.PAINT_NAME:
+                self.store.write_bytes(StoreLayout.template_file(name), self.store.read_bytes(folder + name))
+        self.store.write_bytes(StoreLayout.PAINT, self.store.read_bytes(folder + StoreLayout.PAINT_NAME))
+        self.store.delete(folder.rstrip("/"))
+        self.summary = self.store.read_json(StoreLayout.PAINT)
+        return last
+
+    def write_glb(self, shape: Shape, up: str) -> None:
+        """Rewrite ``template/textured.glb`` from the template ``shape``, the UVs, the group PNGs and
+        PBR maps as stored (nothing encoded again)."""
+        from proctex.texture.export import glb_bytes
+        from proctex.texture.pbr import PbrMaps
+
+        uv = self.store.read_arrays(StoreLayout.UV)
+        groups = self.summary["groups"]
+        pngs = [self.texture_png(g["group"]) for g in groups]
+        maps = [PbrMaps(self.map_png(g["group"], "orm"), self.map_png(g["group"], "normal"), bool(g.get("occlusion")))
+                if g.get("orm_sha256") else None for g in groups]
+        names = [g["label"] or f"group_{g['group']}" for g in groups]
+        self.store.write_bytes(StoreLayout.TEMPLATE_GLB, glb_bytes(shape.vertices, shape.faces, uv["corner_uv"], uv["face_group"], pngs, names=names,
+                                                                   up=up, pbr=maps if any(m is not None for m in maps) else None))

@@ -1,0 +1,198 @@
+"""Painters: the one registry of what paints a template, and the paint settings that travel whole
+(:class:`PaintConfig`, the ``[paint]`` section of a build config, as ``CageConfig`` is the
+``[cage]`` one).
+
+A :class:`Painter` entry is a name, whether it paints through the multi-view loop (``views``) or
+the surface pass, ``make`` (a :class:`PainterContext` -> the painter object) and ``check`` (what it
+needs of the settings). Adding one is one file::
+
+    from proctex.texture.painting import Painter, register_painter
+    register_painter(Painter("mine", make=lambda ctx: MyViewPainter(...), views=True, summary="..."))
+
+and ``PROCTEX_PLUGINS=path/to/that_file.py`` (:mod:`proctex.plugins`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import threading
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+from proctex.geometry.parts import Grouping
+from proctex.plugins import load_plugins
+
+NAME = re.compile(r"^[a-z][a-z0-9_]{0,39}$")
+FILLS = ("patchmatch", "surface")
+
+
+def _integer(name: str, value: Any, lo: int, hi: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {str(value)[:40]}")
+
+
+@dataclass(frozen=True)
+class PainterContext:
+    """What a painter is made from: the template's grouping, the prompt and the per-group prompts
+    (group index -> text), the seed and the paint settings."""
+
+    grouping: Grouping
+    prompt: str
+    prompts: Mapping[int, str]
+    seed: int
+    settings: "PaintConfig"
+
+
+@dataclass(frozen=True)
+class Painter:
+    """A template painter.
+
+    Attributes:
+        name: what users type (``[paint] painter``, ``--painter``).
+        make: ``PainterContext -> painter``: a surface painter (``views`` False: colours at 3D points,
+            :class:`proctex.texture.painters.SurfacePainter`'s interface) or a view painter
+            (:class:`proctex.texture.painters.base.ViewPainter`, run by the multi-view loop).
+        views: paints through the multi-view loop (else the surface pass).
+        summary: one line for help texts.
+        check: ``check(settings)`` raises ``ValueError`` for settings it cannot work with.
+    """
+
+    name: str
+    make: Callable[[PainterContext], Any]
+    views: bool = False
+    summary: str = ""
+    check: Callable[["PaintConfig"], None] | None = None
+
+
+_PAINTERS: dict[str, Painter] = {}
+_LOCK = threading.Lock()
+
+
+def register_painter(painter: Painter, replace: bool = False) -> Painter:
+    """Add ``painter`` to the registry (``replace``: over one of the same name); returns it."""
+    if not isinstance(painter.name, str) or not NAME.match(painter.name):
+        raise ValueError(f"a painter name must match {NAME.pattern}, got {str(painter.name)[:60]!r}")
+    if not callable(painter.make):
+        raise ValueError(f"painter {painter.name!r}: make must be callable")
+    with _LOCK:
+        if painter.name in _PAINTERS and not replace:
+            raise ValueError(f"painter name {painter.name!r} is already taken")
+        _PAINTERS[painter.name] = painter
+    return painter
+
+
+def unregister_painter(name: str) -> None:
+    with _LOCK:
+        _PAINTERS.pop(name, None)
+
+
+def painter_names() -> tuple[str, ...]:
+    """The registered painters (plugins loaded), in registration order."""
+    load_plugins()
+    with _LOCK:
+        return tuple(_PAINTERS)
+
+
+def get_painter(name: str) -> Painter:
+    """The painter called ``name``; ``ValueError`` listing the known ones."""
+    load_plugins()
+    with _LOCK:
+        if isinstance(name, str) and name in _PAINTERS:
+            return _PAINTERS[name]
+    raise ValueError(f"painter must be one of {', '.join(painter_names())}, got {str(name)[:60]!r}")
+
+
+def painter_help() -> str:
+    return "; ".join(f"{p.name}: {p.summary}" for p in (get_painter(n) for n in painter_names()))
+
+
+@dataclass
+class PaintConfig:
+    """How the template is painted.
+
+    Attributes:
+        prompt, group_prompts: what to paint (group prompts keyed by group label or index).
+        texture_size, painter: template texturing, one of the registered painters
+            (:func:`painter_names`): "surface" (the solid surface painter), "views" (the multi-view
+            loop with the offline view painter) or "diffusion" (the multi-view loop with a local
+            diffusers model in ``model_dir``).
+        views, view_size, paint_hidden, fill: the multi-view loop (cameras on the orbit, their size,
+            whether parts hidden from the orbit get views of their own, and how unseen texels are
+            filled: "patchmatch" or "surface"). Texels no view saw stay out of the template's
+            "already painted" mask, so transfer can detect dis-occlusion.
+        model_dir, device, steps: the diffusion painter.
+        occlusion: bake ambient occlusion into the PBR maps (the ORM's R channel).
+    """
+
+    prompt: str = "oak"
+    group_prompts: dict[str, str] = field(default_factory=dict)
+    painter: str = "surface"
+    texture_size: int = 512
+    views: int = 11
+    view_size: int = 512
+    paint_hidden: bool = True
+    fill: str = "patchmatch"
+    model_dir: str | None = None
+    device: str = "cpu"
+    steps: int = 20
+    occlusion: bool = False
+
+    def validate(self) -> "PaintConfig":
+        if not isinstance(self.prompt, str):
+            raise ValueError("prompt must be a string")
+        if not isinstance(self.group_prompts, dict) or not all(isinstance(v, str) for v in self.group_prompts.values()):
+            raise ValueError("group_prompts must be an object of prompts {group label or index: prompt}")
+        _integer("texture_size", self.texture_size, 16, 8192)
+        _integer("views", self.views, 3, 256)
+        _integer("view_size", self.view_size, 16, 4096)
+        _integer("steps", self.steps, 1, 1000)
+        painter = get_painter(self.painter)
+        if self.fill not in FILLS:
+            raise ValueError(f"fill must be patchmatch or surface, got {self.fill!r}")
+        if not isinstance(self.occlusion, bool):
+            raise ValueError(f"occlusion must be true or false, got {self.occlusion!r}")
+        if painter.check is not None:
+            painter.check(self)
+        return self
+
+
+def make_painter(name: str, grouping: Grouping, prompt: str, prompts: Mapping[int, str] | None = None, seed: int = 0,
+                 model_dir: str | None = None, device: str = "cpu", steps: int = 20, settings: PaintConfig | None = None) -> Any:
+    """The painter ``name`` of the registry (:func:`get_painter`), the one place painters are made:
+    "surface" (a :class:`~proctex.texture.painters.SurfacePainter`: colours at 3D points, ``prompts``
+    per group index), "views" (a :class:`proctex.texture.paint.SolidViewPainter` over it, for the
+    multi-view loop) or "diffusion" (a local diffusers model in ``model_dir``). ``settings``: the
+    paint settings (else made of ``model_dir``, ``device`` and ``steps``). ``ValueError`` for another name."""
+    painter = get_painter(name)
+    settings = settings if settings is not None else PaintConfig(prompt=prompt, painter=name, model_dir=model_dir, device=device, steps=steps)
+    return painter.make(PainterContext(grouping, prompt, dict(prompts or {}), seed, settings))
+
+
+def _surface(ctx: PainterContext) -> Any:
+    from proctex.texture.painters import SurfacePainter
+
+    return SurfacePainter(ctx.prompt, {str(k): v for k, v in ctx.prompts.items()}, seed=ctx.seed)
+
+
+def _views(ctx: PainterContext) -> Any:
+    from proctex.texture.paint import SolidViewPainter
+
+    return SolidViewPainter(_surface(ctx), ctx.grouping)
+
+
+def _diffusion(ctx: PainterContext) -> Any:
+    from proctex.texture.painters.diffusion import DiffusionViewPainter
+
+    return DiffusionViewPainter(ctx.settings.model_dir, device=ctx.settings.device, steps=ctx.settings.steps)
+
+
+def _needs_model_dir(settings: PaintConfig) -> None:
+    if not (settings.model_dir and os.path.isdir(settings.model_dir)):
+        raise ValueError(f"painter 'diffusion' needs model_dir, a local diffusers model folder (got {settings.model_dir!r})")
+
+
+register_painter(Painter("surface", _surface, summary="the solid surface painter (colours at 3D points; the default)"))
+register_painter(Painter("views", _views, views=True, summary="the multi-view loop with the offline view painter"))
+register_painter(Painter("diffusion", _diffusion, views=True, summary="the multi-view loop with a local diffusers model (model_dir)",
+                         check=_needs_model_dir))

@@ -1,0 +1,190 @@
+"""The template prepared for transfer (:class:`TemplateAssets`): per group its representative in
+its normalised frame with UVs, a surface index and its texture, and the slots (template parts) a
+shape's parts are assigned to (:mod:`proctex.transfer.assign`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Sequence
+
+import numpy as np
+
+from proctex.geometry.parts import Grouping, part_mesh
+from proctex.geometry.shape import Shape
+from proctex.geometry.surface import SurfaceIndex, normalised_frame
+from proctex.store.layout import FamilyStore
+from proctex.store.state import FamilyState
+from proctex.store.template import StoredImages, StoredMaps, Template, load_template
+
+if TYPE_CHECKING:  # annotations only: the lookups are built above this module
+    from proctex.transfer.uvlookup import ChartLookup
+
+
+@dataclass
+class GroupAssets:
+    """What transfer needs of one template group (its representative part, in its normalised frame).
+
+    ``vertices (k, 3)`` normalised, ``faces (f, 3)`` local, ``corner_uv (f, 3, 2)``, ``center (3,)``,
+    ``radius``, ``index`` a :class:`SurfaceIndex` over the normalised mesh. :meth:`probe` gives
+    what matching a left-over part against it needs, computed once.
+    """
+
+    group: int
+    label: str
+    rep: int
+    vertices: np.ndarray
+    faces: np.ndarray
+    corner_uv: np.ndarray
+    center: np.ndarray
+    radius: float
+    index: SurfaceIndex
+    degenerate: bool
+    _probes: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def probe(self, n: int = 300, seed: int = 0) -> tuple[np.ndarray, np.ndarray, Any]:
+        """``(moments (3,), samples (n, 3), tree)`` of the normalised representative: its exact
+        surface moments (:func:`proctex.geometry.parts.surface_moments`), ``n`` surface samples
+        (``seed``) and a cKDTree over them; computed on first use and kept."""
+        if (n, seed) not in self._probes:
+            from scipy.spatial import cKDTree
+
+            from proctex.geometry.parts import surface_moments
+            from proctex.geometry.surface import sample_surface
+
+            pts = sample_surface(self.vertices, self.faces, n, seed=seed)[0]
+            self._probes[(n, seed)] = (surface_moments(self.vertices, self.faces), pts, cKDTree(pts))
+        return self._probes[(n, seed)]
+
+
+@dataclass
+class Slot:
+    """A template part as a place a shape part can take: its group and member map (linear part)."""
+
+    part: int
+    group: int
+    R: np.ndarray  # (3, 3): x_rep = R x_member + t
+    center: np.ndarray  # (3,) part centre relative to the shape box, in [0, 1]^3
+    extents: np.ndarray  # (3,) part box extents relative to the shape box size
+
+
+@dataclass
+class TemplateAssets:
+    """The template prepared for transfer: groups, slots, textures (arrays and encoded PNGs)."""
+
+    shape: Shape
+    grouping: Grouping
+    groups: list[GroupAssets]
+    slots: list[Slot]
+    textures: Sequence[np.ndarray]  # (H, W, 3) uint8 per group (a store's: decoded where first used)
+    png: list[bytes]  # the same textures as PNG (a store's: its bytes as stored)
+    names: list[str]
+    # Per group (H, W) bool: texels holding colour, and the "already painted" ones (painted by the
+    # painter itself, not filled); None: every texel counts as both.
+    painted: list[np.ndarray] | None = None
+    observed: list[np.ndarray] | None = None
+    charts: list[np.ndarray] | None = None  # chart ids of ``painted`` (see :func:`template_charts`)
+    # Per group its PBR maps (uint8 images) and the same maps as PNG bytes, or None (no maps).
+    pbr: Sequence[Any] | None = None
+    pbr_png: list[Any] | None = None
+    lookups: list[ChartLookup] | None = None  # per group, chart and room maps for the run-time coverage check (:func:`chart_lookups`)
+
+
+def texture_hw(assets: TemplateAssets, group: int) -> tuple[int, int]:
+    """(height, width) of a group's texture, decoding nothing where it was read from a store."""
+    t = assets.textures
+    return t.hw(group) if isinstance(t, StoredImages) else tuple(t[group].shape[:2])
+
+
+def _box(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    return lo, np.maximum(hi - lo, 1e-12)
+
+
+def _placement(vertices: np.ndarray, lo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    plo, phi = vertices.min(axis=0), vertices.max(axis=0)
+    return ((plo + phi) / 2 - lo) / size, (phi - plo) / size
+
+
+def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, textures: Sequence[np.ndarray], names: Sequence[str] | None = None,
+                     pbr: Sequence[Any] | None = None) -> TemplateAssets:
+    """Build :class:`TemplateAssets` from a textured template.
+
+    Args:
+        shape, grouping: the template; corner_uv: (m, 3, 2) its UVs; textures: per group (H, W, 3)
+        uint8 (or float in [0, 1]) images, or a store's :class:`proctex.store.template.StoredImages`
+        (kept as they are: decoded where used, their PNG bytes never encoded again); names: per group
+        material names; pbr: per group its :class:`proctex.texture.pbr.PbrMaps` or None (encoded
+        once here, like the textures), or a store's :class:`proctex.store.template.StoredMaps`.
+    """
+    from proctex.texture.export import png_bytes
+
+    if len(textures) != len(grouping.groups):
+        raise ValueError(f"need one texture per group ({len(grouping.groups)}), got {len(textures)}")
+    if isinstance(textures, StoredImages):  # a store's: its PNG bytes as stored, decoded where used
+        texs, pngs = textures, textures.png
+    else:
+        texs = [np.ascontiguousarray(t if np.asarray(t).dtype == np.uint8 else (np.clip(t, 0, 1) * 255).round().astype(np.uint8))[..., :3] for t in textures]
+        pngs = [png_bytes(t) for t in texs]
+    groups = []
+    for g in grouping.groups:
+        rep = grouping.parts[g.representative]
+        v, f = part_mesh(shape, rep)
+        c, r = normalised_frame(v)
+        r = r if r > 0 else 1.0
+        vn = (v - c) / r
+        groups.append(GroupAssets(g.index, g.label, rep.index, vn, f, np.asarray(corner_uv)[rep.faces], c, r, SurfaceIndex(vn, f), g.degenerate))
+    lo, size = _box(shape.vertices)
+    slots = []
+    for g in grouping.groups:
+        if g.degenerate:
+            continue
+        for member, mmap in zip(g.members, g.maps):
+            part = grouping.parts[member]
+            centre, extents = _placement(shape.vertices[part.vertices], lo, size)
+            slots.append(Slot(member, g.index, np.asarray(mmap.R, float), centre, extents))
+    names = list(names) if names is not None else [g.label or f"group_{g.index}" for g in grouping.groups]
+    maps = maps_png = None
+    if isinstance(pbr, StoredMaps):
+        if len(pbr) != len(texs):
+            raise ValueError(f"need PBR maps (or None) per group ({len(texs)}), got {len(pbr)}")
+        maps, maps_png = pbr, pbr.png
+    elif pbr is not None and any(m is not None for m in pbr):
+        from proctex.texture.pbr import PbrMaps
+
+        if len(pbr) != len(texs):
+            raise ValueError(f"need PBR maps (or None) per group ({len(texs)}), got {len(pbr)}")
+        maps = [None if m is None else PbrMaps(m.orm_uint8(), m.normal_uint8(), m.occlusion) for m in pbr]
+        maps_png = [None if m is None else PbrMaps(png_bytes(m.orm), png_bytes(m.normal), m.occlusion) for m in maps]
+    return TemplateAssets(shape, grouping, groups, slots, texs, pngs, names, pbr=maps, pbr_png=maps_png)
+
+
+def same_topology(faces: np.ndarray, n_vertices: int, assets: GroupAssets) -> bool:
+    """Whether a part mesh (local ``faces (k, 3)`` over ``n_vertices``) has exactly the connectivity
+    of the group's representative (same vertex count and the same face array)."""
+    return n_vertices == len(assets.vertices) and faces.shape == assets.faces.shape and bool(np.array_equal(faces, assets.faces))
+
+
+def template_assets(template: Template) -> TemplateAssets:
+    """The stored template record (:class:`proctex.store.template.Template`) ready for transfer. Without
+    stored masks, the texels each group's UV charts cover plus an 8-texel gutter count as painted and
+    observed."""
+    from proctex.texture.uv import pad_seams, texel_map
+
+    assets = prepare_template(template.shape, template.grouping, template.corner_uv, template.textures, template.names, pbr=template.pbr)
+    if template.painted is not None:
+        assets.painted, assets.observed = template.painted, template.observed
+    else:
+        masks = []
+        for ga in assets.groups:
+            h, w = texture_hw(assets, ga.group)
+            tm = texel_map(ga.vertices, ga.faces, ga.corner_uv, h, w)
+            _, mask = pad_seams(np.zeros((h, w, 1)), tm.mask, 8)
+            masks.append(mask)
+        assets.painted, assets.observed = masks, masks
+    return assets
+
+
+def load_assets(store: FamilyStore, state: FamilyState | None = None) -> TemplateAssets:
+    """The template ready for transfer (:class:`TemplateAssets`), from the store; ``state``: the
+    family state, when the caller has it (else read here)."""
+    return template_assets(load_template(store, state=state))

@@ -1,0 +1,361 @@
+"""Which template slot and group each part of a shape takes, and the map of the part's normalised
+frame onto its group representative's (:func:`assign_parts`; step 2 of :mod:`proctex.transfer.apply`)."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from proctex.geometry.parts import Segmentation, part_mesh
+from proctex.geometry.shape import Shape
+from proctex.geometry.surface import SurfaceIndex, normalised_frame, sample_surface
+from proctex.transfer.assets import TemplateAssets, _box, _placement, same_topology
+from proctex.transfer.budget import Budget
+
+
+@dataclass
+class PartAssignment:
+    """Where one shape part goes: ``group`` (-1: none), the ``slot`` part of the template it took
+    (-1: an extra part matched by ICP), ``R`` (3, 3) and ``t`` (3,) the map of its normalised frame
+    into the representative's (``x -> R x + t``), ``cost`` of the assignment and ``how`` ("slot",
+    "extra", "new" — a group the template does not have — or "degenerate")."""
+
+    part: int
+    group: int
+    slot: int
+    R: np.ndarray
+    cost: float
+    how: str
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+def representative_frame(vertices: np.ndarray, assignment: PartAssignment) -> np.ndarray:
+    """A part's vertices ``(k, 3)`` (shape frame) in its group representative's normalised frame:
+    the part's own normalised frame (bounding-box centre, L∞ radius), then the assignment's map
+    ``x -> R x + t`` onto the representative's side. The one place this frame is computed: the
+    build's cage pairs, the run-time transfer and the evaluation all use it."""
+    v = np.asarray(vertices, dtype=np.float64)
+    c, r = normalised_frame(v)
+    return (v - c) / (r if r > 0 else 1.0) @ np.asarray(assignment.R, dtype=np.float64).T + np.asarray(assignment.t, dtype=np.float64)
+
+
+def representative_part(vertices: np.ndarray, faces: np.ndarray, assignment: PartAssignment) -> tuple[np.ndarray, np.ndarray]:
+    """A part mesh in its representative's normalised frame (:func:`representative_frame`) with
+    its faces wound so that their normals keep pointing out of the part: ``(vertices (k, 3)
+    float64, faces (m, 3) int64)``. A map that mirrors (``det R < 0``: a left part matched to the
+    right representative) turns every face's winding inside out; its faces come back in the
+    reverse corner order, the same faces in the same rows. Everything that reads a normal in this
+    frame (the cage teacher's normal terms, the side of a thin wall a texel is read from) takes
+    its faces from here; points alone (the networks, the projections) may use either."""
+    vn = representative_frame(vertices, assignment)
+    f = np.asarray(faces, dtype=np.int64)
+    return vn, (f[:, ::-1].copy() if np.linalg.det(np.asarray(assignment.R, dtype=np.float64)) < 0 else f)
+
+
+def choose_part(assignment: Sequence[PartAssignment], group: int) -> PartAssignment | None:
+    """The part of a shape that stands for group ``group``'s representative (it teaches the group's
+    network and carries the cage tracker): the one in the representative's own slot (a slot of the
+    group with an identity member map), else any part assigned to the group; ``None`` if none."""
+    cands = [a for a in assignment if a.group == group]
+    rep_side = [a for a in cands if a.how == "slot" and np.allclose(a.R, np.eye(3))]
+    return (rep_side or cands or [None])[0]
+
+
+def assign_parts(
+    shape: Shape, seg: Segmentation, assets: TemplateAssets, w_extent: float = 1.0, extra_cost: float = 0.6, extra_tol: float = 0.02,
+    box_cost: float = 1.2, budget: Budget | None = None,
+) -> list[PartAssignment]:
+    """Assign each part of a shape to a template slot (see the module docstring).
+
+    Cost between a part and a slot: distance between their centres plus ``w_extent`` times the mean
+    absolute log-ratio of their extents, both relative to each shape's bounding box, or both
+    relative to the template's box where that costs less (parts that kept their place in model
+    units while an optional part changed the shape's box). Pairs costing
+    more than ``extra_cost`` are not taken. Such a part ("extra") joins, in this order: the group of
+    a part of the same shape it is a rigid copy of (:func:`copy_of_sibling`), the group whose
+    representative has its connectivity (:func:`copy_of_group`), the group whose representative is
+    the same primitive in other proportions (:func:`match_box`), the group it fits by ICP
+    (:func:`match_extra`, alignment error at most ``extra_tol``); otherwise it forms a group of its
+    own ("new"), which :func:`proctex.transfer.apply.transfer` paints with the family's painter.
+
+    The ICP fit depends on the part's shape alone, so identical left-over parts (the same faces and
+    the same normalised vertices: copies that differ by a translation and a scale) are fitted once.
+    ``budget`` (:class:`proctex.transfer.budget.Budget`) is checked before each left-over part's
+    matching; past it the assignment stops with :class:`~proctex.transfer.budget.OverBudget`.
+    """
+    lo, size = _box(shape.vertices)
+    parts = [p for p in seg.parts if not p.degenerate]
+    out = [PartAssignment(p.index, -1, -1, np.eye(3), 0.0, "degenerate") for p in seg.parts if p.degenerate]
+    if not parts or not assets.slots:
+        return out + [PartAssignment(p.index, -1, -1, np.eye(3), np.inf, "unmatched") for p in parts]
+    sc = np.array([s.center for s in assets.slots])
+    se = np.array([s.extents for s in assets.slots])
+
+    def placement_cost(lo: np.ndarray, size: np.ndarray) -> np.ndarray:
+        desc = [_placement(shape.vertices[p.vertices], lo, size) for p in parts]
+        pc = np.array([d[0] for d in desc])
+        pe = np.array([d[1] for d in desc])
+        loge = np.abs(np.log(np.maximum(pe[:, None], 1e-6) / np.maximum(se[None], 1e-6))).mean(axis=2)
+        return np.linalg.norm(pc[:, None] - sc[None], axis=2) + w_extent * loge
+
+    # Placement in the shape's own box (any units, any pose of the box), or in the template's box
+    # where that is cheaper: a procedural model's parts stay where they are in model units while an
+    # optional part (a chair's back) changes the box, and a seat that did not move must keep the
+    # seat's slot. Left-over parts are placed among groups by the shape's box alone (``own``): a
+    # chair's rear legs are the lower ends of its back posts wherever the back is.
+    own = placement_cost(lo, size)
+    cost = np.minimum(own, placement_cost(*_box(assets.shape.vertices)))
+    # One "no slot" column per part at the threshold cost: a part takes a slot only where that beats
+    # leaving it out, so an extra part (an armrest the template lacks) can never win a slot from
+    # the part that belongs there and then be dropped for costing too much.
+    stay_out = np.full((len(parts), len(parts)), extra_cost + 1e-9)
+    rows, cols = linear_sum_assignment(np.hstack([cost, stay_out]))
+    taken = {}
+    for r, c in zip(rows, cols):
+        if c < cost.shape[1] and cost[r, c] <= extra_cost:
+            taken[r] = c
+    slot_of: dict[int, PartAssignment] = {}
+    for i, p in enumerate(parts):
+        if i in taken:
+            s = assets.slots[taken[i]]
+            out.append(PartAssignment(p.index, s.group, s.part, s.R, float(cost[i, taken[i]]), "slot"))
+            slot_of[i] = out[-1]
+    # Slotted parts' meshes, for copies among the left-over parts: only when there are any (the
+    # common case, every part in a slot, pays nothing).
+    slotted = [(a, *part_mesh(shape, parts[i])) for i, a in slot_of.items()] if len(taken) < len(parts) else []
+    fitted: dict[bytes, tuple[int, np.ndarray, np.ndarray, float]] = {}  # shape key -> match_extra's answer
+    n_left = len(parts) - len(taken)
+    for i, p in enumerate(parts):
+        if i not in taken:
+            if budget is not None:
+                budget.check(f"matching {n_left} parts the template has no slot for")
+            # A part the template has no place for: the group it matches best by ICP, if any. Groups
+            # whose representative has this part's exact connectivity are the only candidates when
+            # there are any (an extra slat is a copy of the slat primitive): one ICP, not one per group.
+            v, f = part_mesh(shape, p)
+            twin = copy_of_sibling(p.index, v, f, slotted, extra_tol)
+            if twin is not None:  # a rigid copy of a part that took a slot (a third small mushroom): its map, composed
+                out.append(twin)
+                continue
+            c, r = normalised_frame(v)
+            same = [ga.group for ga in assets.groups if not ga.degenerate and same_topology(f, len(v), ga)]
+            copy = copy_of_group(v, same, assets, own[i], extra_tol)
+            if copy is not None and copy[1] <= box_cost:  # another copy of a template primitive (a third cushion): its group, template UVs
+                out.append(PartAssignment(p.index, copy[0], -1, np.eye(3), copy[1], "extra"))
+                continue
+            u = (v - c) / (r if r > 0 else 1.0)
+            box = match_box(u, f, assets, own[i], extra_cost=box_cost)
+            if box is not None:  # the same primitive in other proportions (a wider tier, a longer leg)
+                out.append(PartAssignment(p.index, box.group, -1, box.A, box.score, "extra"))
+                continue
+            key = hashlib.sha1(f.tobytes() + (np.round(u, 6) + 0.0).tobytes()).digest()
+            if key not in fitted:
+                fitted[key] = match_extra(u, f, assets, groups=same or None, tol=extra_tol)
+            g, R, t, err = fitted[key]
+            if err <= extra_tol:
+                out.append(PartAssignment(p.index, g, -1, R, err, "extra", t))
+            else:
+                out.append(PartAssignment(p.index, -1, -1, np.eye(3), err, "new"))
+    return sorted(out, key=lambda a: a.part)
+
+
+def copy_of_sibling(part: int, vertices: np.ndarray, faces: np.ndarray, slotted: Sequence[tuple[PartAssignment, np.ndarray, np.ndarray]],
+                    tol: float = 0.02) -> PartAssignment | None:
+    """A part that is a rigid copy of a part of the same shape that took a slot: a procedural model
+    instances one mesh several times (a third small mushroom turned about the main stem, a sixth
+    candle), so within one shape the copies share their connectivity and vertex order, and the
+    rigid motion between them is known exactly (Kabsch with scale on the vertices, in both parts'
+    normalised frames). The copy then takes the sibling's group and its map, composed with that
+    motion: its true turn, not a guess among the box's axis permutations.
+
+    ``part``: the part's index; ``vertices (k, 3)`` (shape frame) and local ``faces``; ``slotted``:
+    ``(assignment, vertices, faces)`` of the parts that took slots. A sibling qualifies when its
+    faces are identical and the fit's RMS residual is at most ``tol`` (normalised units); the best
+    fit wins. Returns an "extra" :class:`PartAssignment`, or ``None``.
+    """
+    from proctex.geometry.align import umeyama
+
+    v = np.asarray(vertices, dtype=np.float64)
+    c, r = normalised_frame(v)
+    u = (v - c) / (r if r > 0 else 1.0)
+    best: tuple[float, PartAssignment] | None = None
+    for a, sv, sf in slotted:
+        if len(sv) != len(v) or sf.shape != faces.shape or not np.array_equal(sf, faces):
+            continue
+        sc, sr = normalised_frame(sv)
+        w = (sv - sc) / (sr if sr > 0 else 1.0)
+        R, t, s = umeyama(u, w, scale=True, reflection=False)
+        resid = float(np.sqrt(((s * u @ R.T + t - w) ** 2).sum(axis=1).mean()))
+        if resid <= tol and (best is None or resid < best[0]):
+            M = np.asarray(a.R, dtype=np.float64)
+            best = (resid, PartAssignment(part, a.group, -1, s * M @ R, resid, "extra", M @ t + np.asarray(a.t, dtype=np.float64)))
+    return None if best is None else best[1]
+
+
+def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: TemplateAssets, slot_cost: np.ndarray,
+                  tol: float = 0.02) -> tuple[int, float] | None:
+    """The group a part is another copy of, when it has the exact connectivity of group
+    representatives (``candidates``): vertex ``i`` is then the representative's vertex ``i`` of the
+    same primitive, stretched. Candidates whose representative maps onto the part by an affine map
+    (relative residual at most ``tol``) qualify; of those, the group with the cheapest slot
+    (``slot_cost (n_slots,)``, placement in the shape's box) wins, so a third seat cushion joins the
+    seat cushions even when back cushions share its connectivity. Returns ``(group, its cheapest
+    slot cost)``, or ``None`` when none qualifies.
+
+    ``vertices (k, 3)``: the part's vertices in the shape's frame.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    best, best_cost = None, np.inf
+    size = max(float(np.linalg.norm(np.ptp(v, axis=0))), 1e-12)
+    for g in candidates:
+        ga = assets.groups[g]
+        X = np.hstack([ga.vertices, np.ones((len(ga.vertices), 1))])
+        A, *_ = np.linalg.lstsq(X, v, rcond=None)
+        resid = float(np.sqrt(((X @ A - v) ** 2).sum(axis=1).mean())) / size
+        if resid > tol:
+            continue
+        slots = [k for k, s in enumerate(assets.slots) if s.group == g]
+        c = float(np.min(slot_cost[slots])) if slots else np.inf
+        if c < best_cost:
+            best, best_cost = g, c
+    return None if best is None else (best, best_cost)
+
+
+@dataclass
+class BoxMatch:
+    """A part matched to a group as the same primitive in other proportions (:func:`match_box`).
+
+    ``A (3, 3)``: the linear map of the part's normalised frame onto the representative's (a signed
+    axis permutation between per-axis scalings, both boxes centred on the origin); ``chamfer``:
+    symmetric Chamfer distance of the two surfaces once each box is scaled to the cube [-1, 1]^3;
+    ``proportion``: mean absolute log-ratio of the two boxes' half extents after the permutation;
+    ``placement``: the cheapest placement cost of a slot of the group; ``score`` the sum."""
+
+    group: int
+    A: np.ndarray
+    chamfer: float
+    proportion: float
+    placement: float
+    score: float
+
+
+def _half_extents(points: np.ndarray, min_extent: float) -> np.ndarray:
+    return np.maximum(np.ptp(points, axis=0) / 2, min_extent)
+
+
+def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, slot_cost: np.ndarray | None = None, n: int = 300,
+              seed: int = 0, min_extent: float = 1e-3, chamfer_tol: float = 0.25, proportion_tol: float = 0.7,
+              extra_cost: float = 1.2, turn_cost: float = 0.25) -> BoxMatch | None:
+    """The group a left-over part is another instance of, up to per-axis scale: a cake tier wider
+    than the template's, a leg of another length, a stem of another height. Rigid ICP cannot align
+    those; scaling each part's bounding box to the cube [-1, 1]^3 can.
+
+    For every non-degenerate group and every signed axis permutation (48), the part's box-scaled
+    surface samples are compared with the representative's by symmetric Chamfer distance (90th
+    percentiles, so a missing piece counts). Boxes are
+    alike in every box frame, so the proportions of the boxes (after the permutation) and the
+    placement of the group's slots in the shape (``slot_cost (n_slots,)``, as
+    :func:`assign_parts` computes it; ``None``: not used) decide between groups of one primitive
+    (a slat and a post are both boxes). A match needs Chamfer at most ``chamfer_tol``, proportion
+    error at most ``proportion_tol`` and placement cost at most ``extra_cost``; the lowest sum wins,
+    plus ``turn_cost`` per axis the permutation moves away from the part's own orientation. A
+    symmetric part fits turned as well as not, and a procedural parameter stretches a part along
+    its own axes rather than turning it: a desk pedestal with four drawers instead of one is the
+    same box, taller, not the template's box on its side (whose proportions would be a little
+    closer). So a turn must buy more than ``turn_cost`` (per axis moved) of Chamfer and proportion.
+
+    ``vertices (k, 3)``: the part in its normalised frame; ``faces (f, 3)`` local. Axes thinner than
+    ``min_extent`` (normalised units: a flat part) count as that thick; thin axes are scaled like
+    the others, so a thin slab matches a thin slab of another thickness. Returns ``None`` when no
+    group qualifies.
+    """
+    from itertools import permutations, product
+
+    v = np.asarray(vertices, dtype=np.float64)
+    hp = _half_extents(v, min_extent)
+    pts = sample_surface(v / hp, faces, n, seed=seed)[0]
+    part_index = SurfaceIndex(v / hp, np.asarray(faces))
+    best: BoxMatch | None = None
+    for ga in assets.groups:
+        if ga.degenerate:
+            continue
+        slots = [k for k, s in enumerate(assets.slots) if s.group == ga.group]
+        place = 0.0 if slot_cost is None else (float(np.min(np.asarray(slot_cost)[slots])) if slots else np.inf)
+        if place > extra_cost:
+            continue
+        hr = _half_extents(ga.vertices, min_extent)
+        rep = sample_surface(ga.vertices / hr, ga.faces, n, seed=seed)[0]
+        rep_index = SurfaceIndex(ga.vertices / hr, ga.faces)
+        for perm in permutations(range(3)):
+            prop = float(np.abs(np.log(hp[list(perm)] / hr)).mean())
+            if prop > proportion_tol:
+                continue
+            for signs in product((1.0, -1.0), repeat=3):
+                P = np.zeros((3, 3))
+                P[range(3), perm] = signs  # (P b)_i = s_i b_perm(i)
+                # Point-to-surface both ways (P is orthogonal: the template's samples go back by P^T),
+                # 90th percentiles: a part missing a piece of the other (a ring against a disc) shows.
+                ch = 0.5 * float(np.percentile(rep_index.query(pts @ P.T, exact=False).distance, 90)
+                                 + np.percentile(part_index.query(rep @ P, exact=False).distance, 90))
+                if ch > chamfer_tol:
+                    continue
+                # Symmetric parts (a box, a cylinder) fit several ways equally well: the one
+                # nearest the part's own orientation wins (no turn cost for the identity).
+                score = ch + prop + place + turn_cost * (3.0 - float(np.trace(P))) / 2
+                if best is None or score < best.score:
+                    A = np.diag(hr) @ P @ np.diag(1.0 / hp)
+                    best = BoxMatch(ga.group, A, ch, prop, place, score)
+    return best
+
+
+def match_extra(
+    vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, n: int = 300, seed: int = 0, groups: Sequence[int] | None = None,
+    tol: float = 0.02,
+) -> tuple[int, np.ndarray, np.ndarray, float]:
+    """Best template group for a part (normalised frame) by point-to-surface ICP.
+
+    Candidates: the non-degenerate group representatives (or those of ``groups``) whose exact
+    surface moments (:func:`proctex.geometry.parts.surface_moments`, both in their normalised frames)
+    are within :data:`~proctex.geometry.parts.MOMENT_TOLS` x ``tol`` of the part's (a fit whose mean
+    distance is within ``tol`` moves them less), at most
+    :data:`~proctex.geometry.parts.MAX_MATCH_TRIES` of them, nearest first. Per candidate the eight
+    axis sign flips are ranked by the mean distance of the part's samples to the representative's
+    samples, and ICP to the exact surface refines the good ones (within 1.5 x the best plus ``tol``),
+    at most :data:`~proctex.geometry.parts.ICP_STARTS`, in their order (the identity first).
+    Returns ``(group, R (3, 3), t (3,), error)``, error = mean distance after alignment (normalised
+    units); ``(-1, I, 0, inf)`` when no candidate passes the prefilter.
+    """
+    from itertools import product
+
+    from proctex.geometry.align import icp_to_surface
+    from proctex.geometry.parts import (
+        ICP_STARTS,
+        MAX_MATCH_TRIES,
+        MOMENT_TOLS,
+        surface_moments,
+    )
+
+    pts, _, _ = sample_surface(vertices, faces, n, seed=seed)
+    mom = surface_moments(vertices, faces)
+    near = []
+    for ga in assets.groups:
+        if ga.degenerate or (groups is not None and ga.group not in groups):
+            continue
+        gm, _, tree = ga.probe(n, seed)
+        gap = np.abs(mom - gm)
+        if np.all(gap <= MOMENT_TOLS * tol * max(mom[0], gm[0], 1e-300)):
+            near.append((float(gap.sum()), ga, tree))
+    near.sort(key=lambda c: c[0])
+    best = (-1, np.eye(3), np.zeros(3), np.inf)
+    for _, ga, tree in near[:MAX_MATCH_TRIES]:
+        starts = [(float(tree.query(pts * np.asarray(signs))[0].mean()), np.diag(signs)) for signs in product((1.0, -1.0), repeat=3)]
+        lowest = min(d for d, _ in starts)
+        for R0 in [R0 for d, R0 in starts if d <= 1.5 * lowest + tol][:ICP_STARTS]:
+            res = icp_to_surface(pts, ga.index, R0=R0, max_iter=30, exact=False)
+            if res.error < best[3]:
+                best = (ga.group, res.R, res.t, float(res.error))
+    return best

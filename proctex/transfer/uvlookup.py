@@ -1,0 +1,217 @@
+"""Per-face UVs into the template textures from a part's mapped vertices (:func:`part_uvs`), with the
+side test for thin walls and the run-time coverage check that proves each face reads only its
+chart (:func:`_inside_chart`; step 4 of :mod:`proctex.transfer.apply`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from proctex.texture.inpaint import chart_labels
+from proctex.transfer.assets import GroupAssets, TemplateAssets
+
+
+def _affine_uv(target: np.ndarray, tri: np.ndarray, tri_uv: np.ndarray) -> np.ndarray:
+    """UVs (k, 2) of points (k, 3) through the affine map of triangles (k, 3, 3) with UVs (k, 3, 2)
+    (barycentrics of the point's projection on the triangle's plane, not clamped)."""
+    a = tri[:, 0]
+    e1, e2 = tri[:, 1] - a, tri[:, 2] - a
+    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    den = d11 * d22 - d12 * d12
+    den = np.where(np.abs(den) > 1e-30, den, np.inf)
+    d = target - a
+    p1, p2 = (d * e1).sum(1), (d * e2).sum(1)
+    l1 = (d22 * p1 - d12 * p2) / den
+    l2 = (d11 * p2 - d12 * p1) / den
+    lam = np.stack([1 - l1 - l2, l1, l2], axis=1)
+    return np.einsum("ij,ijk->ik", lam, tri_uv)
+
+
+def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
+    """Per group :func:`chart_labels` of the template's painted masks (computed once, kept on the
+    assets); None when the assets carry no painted masks."""
+    if assets.painted is None:
+        return None
+    if assets.charts is None or len(assets.charts) != len(assets.painted):
+        assets.charts = [chart_labels(m) for m in assets.painted]
+    return assets.charts
+
+
+#: Template faces checked first per shape face at run time (the nearest proxies of its mapped
+#: centroid; the nearest one facing the face's own way wins, the search widening when none does).
+UV_CANDIDATES = 4
+
+
+#: ... and at most this many when none faces it (a thin wall's other side is among the nearest; a
+#: face mapped far from any facing face keeps its plain nearest one instead of a wide search).
+UV_MAX_CANDIDATES = 16
+
+
+@dataclass(frozen=True)
+class ChartLookup:
+    """What the run-time coverage check (:func:`_inside_chart`) reads of one group texture.
+
+    ``labels (H, W)``: :func:`chart_labels`. ``block_label (H*W,)``: per texel, the chart all four
+    texels of its bilinear 2x2 block share, -1 where they differ (so one read answers for a whole
+    bilinear lookup, :func:`proctex.texture.uv.bilinear_blocks`). ``block_room (H*W,)``: per texel ``T``,
+    the largest ``r`` such that the texels at offsets ``-r .. r + 1`` (rows and columns) from ``T``
+    all lie in its chart: every point within ``r`` texels (in each coordinate) of a lookup whose
+    first texel is ``T`` reads only that chart (0 when ``T``'s own block leaves it).
+    """
+
+    labels: np.ndarray
+    block_label: np.ndarray
+    block_room: np.ndarray
+
+
+def chart_lookup(labels: np.ndarray) -> ChartLookup:
+    """:class:`ChartLookup` of chart ``labels (H, W)`` (:func:`chart_labels`)."""
+    from scipy import ndimage
+
+    from proctex.texture.uv import bilinear_blocks
+
+    labels = np.asarray(labels, dtype=np.int32)
+    # Chessboard distance of each texel to the nearest texel outside its chart (unpainted, so also
+    # to any other chart); a block [-r, r + 1]^2 around T lies in the chart when the least of it
+    # over T's 2x2 block is at least r + 1.
+    cheb = ndimage.distance_transform_cdt(labels > 0, metric="chessboard").astype(np.int32)
+    room = np.maximum(bilinear_blocks(cheb, "min") - 1, 0)
+    return ChartLookup(labels, bilinear_blocks(labels, "same").ravel(), room.ravel())
+
+
+def chart_lookups(assets: TemplateAssets) -> list[ChartLookup] | None:
+    """Per group :func:`chart_lookup` of the template's charts, computed once and kept on the
+    assets; None without painted masks."""
+    charts = template_charts(assets)
+    if charts is None:
+        return None
+    if assets.lookups is None or len(assets.lookups) != len(charts):
+        assets.lookups = [chart_lookup(c) for c in charts]
+    return assets.lookups
+
+
+def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | ChartLookup | None = None,
+             normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
+
+    Each face takes the template face nearest to its mapped centroid among those facing its way
+    (:meth:`SurfaceIndex.query_facing`: a thin wall's inside never reads its outside; ``normals
+    (k, 3)``: the faces' normals in the representative's frame, default those of the mapped
+    triangles) and that face's affine UV map.
+    With ``charts`` (the group texture's :func:`chart_labels`, or their :func:`chart_lookup`, which
+    the run time keeps per template), a face whose affine UVs would leave the chart of its template
+    triangle anywhere (a large face extrapolated beyond it reading unpainted texels or another
+    chart; :func:`_inside_chart` proves every face inside) instead takes, per corner, the
+    closest point of that template triangle: its UVs then stay in the chart (squeezed, but
+    coloured). A face still reading outside the chart takes the colour at the template triangle's
+    centre (all three corners there), so real-time coverage has no unpainted pixel.
+
+    Returns (corner_uv, template face per face (k,)).
+    """
+    tri_mapped = mapped[faces]
+    centroid = tri_mapped.mean(axis=1)
+    # The template face on the face's own side: a thin wall's inside never reads its outside. The
+    # side comes from the part's own faces in the representative's frame (``normals``), which a
+    # mapper's small errors cannot fold over; else from the mapped triangles.
+    normal = np.asarray(normals, dtype=np.float64) if normals is not None else np.cross(
+        tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
+    near = assets.index.query_facing(centroid, normal, k=UV_CANDIDATES, max_k=UV_MAX_CANDIDATES).faces
+    tri = assets.vertices[assets.faces[near]]
+    tri_uv = assets.corner_uv[near]
+    out = np.empty((len(faces), 3, 2))
+    for k in range(3):
+        out[:, k] = _affine_uv(mapped[faces[:, k]], tri, tri_uv)
+    out = np.clip(out, 0.0, 1.0)
+    if charts is not None and len(faces):
+        from proctex.texture.uv import bilinear_texels
+
+        look = charts if isinstance(charts, ChartLookup) else chart_lookup(charts)
+        h, w = look.labels.shape
+        target = look.labels.ravel()[bilinear_texels(tri_uv.mean(axis=1), h, w)].max(axis=1)  # the template triangle's chart
+        bad = ~_inside_chart(out, look, target)
+        if bad.any():
+            from proctex.geometry.surface import closest_point_on_triangles
+
+            fi = np.flatnonzero(bad)
+            t = tri[fi]
+            for k in range(3):
+                _, bary = closest_point_on_triangles(mapped[faces[fi, k]], t[:, 0], t[:, 1], t[:, 2])
+                out[fi, k] = np.einsum("ij,ijk->ik", bary, tri_uv[fi])
+            # Still reading outside the chart somewhere (a probe on unpainted texels: a sliver
+            # template triangle on the chart's rim): the face takes the colour at its template
+            # triangle's centre, so no visible pixel is unpainted.
+            still = ~_inside_chart(out[fi], look, target[fi])
+            out[fi[still]] = tri_uv[fi[still]].mean(axis=1)[:, None]
+    return out, near
+
+
+def side_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k, 3) area-weighted normals of a part's faces (``vertices (j, 3)`` in the representative's
+    frame): which side of a thin wall each face is on (:func:`part_uvs`)."""
+    tri = np.asarray(vertices, dtype=np.float64)[faces]
+    return np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+
+
+@lru_cache(maxsize=64)
+def _bary_grid(n: int) -> np.ndarray:
+    """((n + 1)(n + 2) / 2, 3) barycentric points of a triangle split ``n`` times per edge
+    (corners and edge points included)."""
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    i, j = i[keep], j[keep]
+    grid = np.stack([n - i - j, i, j], axis=1) / n
+    grid.flags.writeable = False  # cached: shared by every call
+    return grid
+
+
+def _subdivide(tri: np.ndarray) -> np.ndarray:
+    """(4n, 3, 2) midpoint subdivision of triangles ``tri (n, 3, 2)``: child ``4i + c`` of triangle ``i``."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+    out = np.empty((len(tri), 4, 3, tri.shape[2]))
+    for child, corners in enumerate(((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))):
+        for k, corner in enumerate(corners):
+            out[:, child, k] = corner
+    return out.reshape(-1, 3, tri.shape[2])
+
+
+def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray | ChartLookup, chart: np.ndarray, leaf: float = 2.0, max_level: int = 12) -> np.ndarray:
+    """(k,) bool: faces with UVs ``corner_uv (k, 3, 2)`` that read (bilinearly) only texels of
+    chart ``chart (k,)`` of ``charts`` (:func:`chart_labels` (H, W), or their :func:`chart_lookup`)
+    anywhere on the face. Sound: a face reported inside is inside; one within a texel or two of its
+    chart's rim may be reported outside though every read is inside.
+
+    Every point of a triangle lies within half its longest edge ``e`` of one of its corners, edge
+    midpoints and centre. So a (sub-)triangle passes when each of those 7 probes reads its chart
+    with room ``ceil(e / 2)`` around it (:attr:`ChartLookup.block_room`), fails when a probe reads
+    another chart or an unpainted texel, and is otherwise split in four, down to triangles no
+    longer than ``leaf`` (<= 2) texels, which fail (within a texel of the rim: not proven). The
+    work grows with the length of rim a face runs along, not with its area; a face not settled
+    after ``max_level`` splits is reported outside."""
+    from proctex.texture.uv import bilinear_corner
+
+    if not 0 < leaf <= 2.0:
+        raise ValueError(f"leaf must be in (0, 2] texels, got {leaf}")
+    look = charts if isinstance(charts, ChartLookup) else chart_lookup(charts)
+    h, w = look.labels.shape
+    k = len(corner_uv)
+    ok = np.ones(k, dtype=bool)
+    grid = np.vstack([_bary_grid(2), np.full((1, 3), 1.0 / 3.0)])  # corners, midpoints, centre
+    tri, owner = np.asarray(corner_uv, dtype=np.float64), np.arange(k)
+    d = (tri - tri[:, [1, 2, 0]]) * np.array([w, h])
+    edge = np.sqrt(np.einsum("kij,kij->ki", d, d).max(axis=1))  # texels; halved by every split
+    for _ in range(int(max_level) + 1):
+        if not len(tri):
+            break
+        idx = bilinear_corner(np.matmul(grid[None], tri).reshape(-1, 2), h, w).reshape(len(tri), -1)  # (n, 7)
+        inside = (look.block_label[idx] == np.asarray(chart)[owner][:, None]).all(axis=1)
+        ok[owner[~inside]] = False
+        settled = look.block_room[idx].min(axis=1) >= np.ceil(edge / 2)
+        open_ = inside & ~settled & ok[owner]
+        ok[owner[open_ & (edge <= leaf)]] = False  # at the rim: not proven
+        split = open_ & (edge > leaf)
+        tri, owner, edge = _subdivide(tri[split]), np.repeat(owner[split], 4), np.repeat(edge[split] / 2, 4)
+    ok[owner] = False  # not settled within max_level splits
+    return ok
