@@ -16,6 +16,19 @@ def module_name(path: Path, root: Path = ROOT) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+def package_of(module: str, path: Path) -> str:
+    """The package a module's relative imports start from."""
+    return module if path.name == "__init__.py" else module.rpartition(".")[0]
+
+
+def import_target(node: ast.ImportFrom, package: str) -> str:
+    """The absolute module a ``from ... import`` names (relative imports resolved from ``package``)."""
+    if not node.level:
+        return node.module or ""
+    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
 def import_graph(root: Path = ROOT) -> tuple[dict[str, set[str]], dict[str, set[str]]]:
     """``(edges, external)``: per module of the package at ``root`` the package modules it imports
     anywhere in its body (functions included; ``from . import x`` counts as importing ``x``, not
@@ -30,7 +43,7 @@ def import_graph(root: Path = ROOT) -> tuple[dict[str, set[str]], dict[str, set[
         return name or None
 
     for mod, path in modules.items():
-        package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        package = package_of(mod, path)
         tree = ast.parse(path.read_text(), str(path))
         typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
                        for n in ast.walk(block)}  # imports for annotations only: not run
@@ -38,11 +51,7 @@ def import_graph(root: Path = ROOT) -> tuple[dict[str, set[str]], dict[str, set[
             if id(node) in typing_only:
                 continue
             if isinstance(node, ast.ImportFrom):
-                if node.level:
-                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                    target = ".".join(base + ([node.module] if node.module else []))
-                else:
-                    target = node.module or ""
+                target = import_target(node, package)
                 if target.split(".")[0] != root.name:
                     external[mod].add(target.split(".")[0])
                     continue
@@ -272,15 +281,11 @@ def private_imports(root: Path, layers: dict[str, int]) -> list[str]:
     for mod, path in sorted(modules.items()):
         if "_reference" in mod.split("."):  # the slow references test the privates they mirror
             continue
-        package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        package = package_of(mod, path)
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             if not isinstance(node, ast.ImportFrom):
                 continue
-            if node.level:
-                base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                target = ".".join(base + ([node.module] if node.module else []))
-            else:
-                target = node.module or ""
+            target = import_target(node, package)
             if target.split(".")[0] != root.name:
                 continue
             for a in node.names:

@@ -547,3 +547,14 @@ def test_linked_answers_carry_geometry_only_and_the_textures_are_cached_by_diges
     after = pygltflib.GLTF2().load_from_bytes(c2.post("/v1/families/mug/transfer?textures=linked", json=body).content).images[0].uri
     assert before != after
     assert c2.get("/v1/families/mug/" + before).headers["cache-control"] == "no-cache"
+
+
+def test_stored_images_pickle_without_their_lock_and_decode_alike(root):
+    """The template's lazily decoded images travel to other processes (a Ray task's argument) as
+    their bytes and decode there to the same pixels."""
+    import pickle
+
+    svc = FamilyService(FamilyStore(root / "mug"))
+    textures = svc.assets.textures
+    back = pickle.loads(pickle.dumps(textures))
+    assert back.png == textures.png and np.array_equal(back[0], textures[0])

@@ -63,7 +63,7 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for group in my_groups:
-            out[str(group)] = {**step(store, config, group, rank=team_rank, world=team_size, grad_hook=average), "workers": team_size}
+            out[str(group)] = step(store, config, group, rank=team_rank, world=team_size, grad_hook=average)  # its record names the team size
             if team_rank == 0:
                 with open(os.path.join(tmp, f"group_{group}.pt"), "wb") as fh:
                     fh.write(store.read_bytes(StoreLayout.model(group)))

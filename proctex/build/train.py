@@ -10,7 +10,8 @@ import numpy as np
 
 from proctex.build.plan import Plan, run_in_process
 from proctex.store.config import BuildConfig
-from proctex.store.layout import FamilyStore, StoreLayout, digest
+from proctex.store.layout import FamilyStore, StoreLayout
+from proctex.store.networks import save_network
 from proctex.store.samples import read_pair, samples
 from proctex.store.state import mark_stage, read_state, stage_done
 
@@ -74,9 +75,7 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
 
     serving = serving_choice(result.model, data)
     extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val, "serving": serving}
-    blob = to_bytes(result.model, cfg, extra)
-    store.write_bytes(StoreLayout.model(group), blob)
-    return digest(blob), serving
+    return save_network(store, group, to_bytes(result.model, cfg, extra)), serving
 
 
 VAL_SHARE = 0.15  # of a group's train shapes, held out for early stopping
@@ -88,7 +87,8 @@ def fit_group(store: FamilyStore, config: BuildConfig, group: int, rank: int = 0
     of every executor (in process; each Ray Train worker of a team of ``world``, with ``grad_hook``
     averaging gradients). Returns the group's train record, the same fields whoever trained it:
     ``best_val`` (:func:`proctex.correspond.training.eval_step` of the kept state), ``iterations``,
-    ``seconds``, ``train_pairs``, ``val_pairs``, ``sha256`` and ``serving`` (None off rank 0)."""
+    ``seconds``, ``train_pairs``, ``val_pairs``, ``sha256`` and ``serving`` (None off rank 0) and
+    ``workers`` (the team's size: 1 in process)."""
     from proctex.correspond.training import train
 
     data = group_training_data(store, config, group, VAL_SHARE)
@@ -96,7 +96,7 @@ def fit_group(store: FamilyStore, config: BuildConfig, group: int, rank: int = 0
     result = train(data["train"], data["val"], config.train, rank=rank, world=world, grad_hook=grad_hook, features=data["features"])
     sha, serving = save_group_model(store, group, result, config.train, data) if rank == 0 else (None, None)
     return {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2),
-            "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving}
+            "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving, "workers": world}
 
 
 def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], context: Any = None) -> list[dict[str, Any]]:

@@ -6,8 +6,16 @@ from typing import Any
 
 import numpy as np
 
-from proctex.store.layout import FamilyStore, StoreLayout, check_digest
+from proctex.store.layout import FamilyStore, StoreLayout, check_digest, digest
 from proctex.store.state import FamilyState
+
+
+def save_network(store: FamilyStore, group: int, blob: bytes) -> str:
+    """Store group ``group``'s network (:func:`proctex.correspond.corrnet.to_bytes`) as
+    ``models/group_<g>.pt``, atomically; returns the checksum the train stage records for it
+    (:func:`load_models` checks it)."""
+    store.write_bytes(StoreLayout.model(group), blob)
+    return digest(blob)
 
 
 def load_models(store: FamilyStore, device: str = "cpu", state: FamilyState | None = None) -> dict[int, Any]:

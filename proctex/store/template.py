@@ -63,16 +63,18 @@ def decode_png(data: bytes, where: str) -> np.ndarray:
     return np.asarray(image.convert("RGB"))
 
 
-class StoredImages(Sequence):
-    """Per group an (H, W, 3) uint8 image decoded from its stored PNG bytes (:attr:`png`) when first
-    read, then kept: loading a family decodes nothing it does not use, and its PNGs are served as
-    they were stored, never encoded again. :meth:`hw` reads a size from the header alone."""
+class _Decoded(Sequence):
+    """Per group an object made from stored PNG bytes (:meth:`_make`) when first read, then kept;
+    pickled as the bytes alone (a Ray task's argument)."""
 
-    def __init__(self, png: Sequence[bytes], wheres: Sequence[str]) -> None:
+    def __init__(self, png: Sequence[Any], wheres: Sequence[str]) -> None:
         self.png = list(png)
         self.wheres = list(wheres)
-        self._decoded: dict[int, np.ndarray] = {}
+        self._decoded: dict[int, Any] = {}
         self._lock = threading.Lock()
+
+    def _make(self, i: int) -> Any:
+        raise NotImplementedError
 
     def __len__(self) -> int:
         return len(self.png)
@@ -83,40 +85,40 @@ class StoredImages(Sequence):
         i = range(len(self))[i]  # negative indices; IndexError past the end
         with self._lock:
             if i not in self._decoded:
-                self._decoded[i] = decode_png(self.png[i], self.wheres[i])
+                self._decoded[i] = self._make(i)
             return self._decoded[i]
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"png": self.png, "wheres": self.wheres}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["png"], state["wheres"])
+
+
+class StoredImages(_Decoded):
+    """Per group an (H, W, 3) uint8 image decoded from its stored PNG bytes (:attr:`png`) when first
+    read, then kept: loading a family decodes nothing it does not use, and its PNGs are served as
+    they were stored, never encoded again. :meth:`hw` reads a size from the header alone."""
+
+    def _make(self, i: int) -> np.ndarray:
+        return decode_png(self.png[i], self.wheres[i])
 
     def hw(self, i: int) -> tuple[int, int]:
         """(height, width) of image ``i`` from its PNG header."""
         return png_size(self.png[i], self.wheres[i])
 
 
-class StoredMaps(Sequence):
+class StoredMaps(_Decoded):
     """Per group its PBR maps (:class:`proctex.texture.pbr.PbrMaps` of uint8 images, decoded from the
     stored PNGs when first read) or None; :attr:`png`: the same maps as the stored bytes."""
 
-    def __init__(self, maps: Sequence[Any], wheres: Sequence[str]) -> None:
-        self.png = list(maps)
-        self.wheres = list(wheres)
-        self._decoded: dict[int, Any] = {}
-        self._lock = threading.Lock()
+    def _make(self, i: int) -> Any:
+        from proctex.texture.pbr import PbrMaps
 
-    def __len__(self) -> int:
-        return len(self.png)
-
-    def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self[k] for k in range(len(self))[i]]
-        i = range(len(self))[i]
         m = self.png[i]
         if m is None:
             return None
-        from proctex.texture.pbr import PbrMaps
-
-        with self._lock:
-            if i not in self._decoded:
-                self._decoded[i] = PbrMaps(decode_png(m.orm, self.wheres[i] + " (orm)"), decode_png(m.normal, self.wheres[i] + " (normal)"), m.occlusion)
-            return self._decoded[i]
+        return PbrMaps(decode_png(m.orm, self.wheres[i] + " (orm)"), decode_png(m.normal, self.wheres[i] + " (normal)"), m.occlusion)
 
 
 @dataclass
