@@ -35,6 +35,7 @@ token 401, a non-JSON edit 415, a stale stamp 409; a damaged family 503; anythin
 from __future__ import annotations
 
 import asyncio
+import errno
 import hmac
 import json
 import mimetypes
@@ -53,6 +54,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from proctex.serve.catalog import Catalog, Watchdog
 from proctex.serve.edits import EditConflict
 from proctex.serve.service import BadInput, NotFound, TooLarge, Unavailable, parse_edit
+from proctex.store.layout import StoreDamaged, StoreWriteError
 from proctex.store.state import build_stamp
 from proctex.transfer.budget import Budget, OverBudget
 
@@ -97,14 +99,22 @@ def _error(status: int, message: str) -> JSONResponse:
 
 def error_response(exc: BaseException) -> JSONResponse:
     """The JSON answer to an exception: unknown family or group 404, too large 413, over the time
-    budget 422 (cancelled: 499), any other bad input (``ValueError``, a number too large for its
-    type, a body nested too deep) 422; anything else 500, with its type, never a traceback."""
+    budget 422 (cancelled: 499), a store write that did not land 507 (a full disk) or 503 (no
+    permission), a damaged or unreadable family 503, any other bad input (``ValueError``, a number
+    too large for its type, a body nested too deep) 422; anything else 500, with its type, never a
+    traceback."""
     if isinstance(exc, NotFound):
         return _error(404, str(exc))
     if isinstance(exc, TooLarge):
         return _error(413, str(exc))
     if isinstance(exc, Unavailable):
         return _error(503, str(exc))
+    if isinstance(exc, StoreWriteError):  # nothing of the change landed: the message says so and names the file
+        return _error(507 if exc.errno in (errno.ENOSPC, errno.EDQUOT) else 503, str(exc))
+    if isinstance(exc, StoreDamaged):
+        return _error(503, f"the family is damaged: {exc}"[:1000])
+    if isinstance(exc, PermissionError):
+        return _error(503, f"the family's files cannot be read: permission denied ({exc.filename or exc})"[:1000])
     if isinstance(exc, OverBudget):
         return _error(499 if exc.cancelled else 422, str(exc))
     for kind, status in ((Forbidden, 403), (Unauthorized, 401), (UnsupportedType, 415), (EditConflict, 409)):

@@ -58,16 +58,21 @@ class Catalog:
     """The families under a root folder or URI, served from a cache reloaded on rebuilds.
 
     ``check_every``: seconds between build-stamp checks of a cached family (0: every request).
+    ``recheck_after``: a family that failed to load (a damaged file) is tried again after this many
+    seconds, then twice as long each time it fails again (at most ``recheck_max``): damage repaired
+    on disk is noticed without a restart.
     """
 
-    def __init__(self, root: str, limits: Limits | None = None, check_every: float = 2.0, lazy: bool = False, device: str = "cpu") -> None:
+    def __init__(self, root: str, limits: Limits | None = None, check_every: float = 2.0, lazy: bool = False, device: str = "cpu",
+                 recheck_after: float = 5.0, recheck_max: float = 300.0) -> None:
         self.root = FamilyStore(root)
         self.limits = limits or Limits()
         self.check_every = check_every
         self.device = device  # where the families' networks run
         self.lazy = lazy  # health() loads nothing (a replica holds only the families it serves)
         self._cache: dict[str, tuple[FamilyService, float]] = {}
-        self._broken: dict[str, tuple[str, str]] = {}  # name -> (build stamp, why it cannot be served)
+        self._broken: dict[str, tuple[str, str, float, float]] = {}  # name -> (build stamp, why, next try, back-off)
+        self.recheck_after, self.recheck_max = recheck_after, recheck_max
         self._lock = threading.Lock()
         self.loads = 0
 
@@ -113,8 +118,8 @@ class Catalog:
             if not state.done("paint"):
                 raise NotFound(f"family {name!r} is not built yet (no painted template)")
             broken = self._broken.get(name)
-            if broken is not None and broken[0] == stamp:
-                raise Unavailable(broken[1])
+            if broken is not None and broken[0] == stamp and time.monotonic() < broken[2]:
+                raise Unavailable(broken[1])  # tried again once its back-off has passed
             try:
                 service = FamilyService(store, name, self.limits, device=self.device, state=state)
             except Exception as exc:  # a damaged file of this family: the others are still served
@@ -139,7 +144,9 @@ class Catalog:
 
     def _mark_broken(self, name: str, stamp: str, exc: BaseException) -> Unavailable:
         why = f"family {name!r} is unavailable: {type(exc).__name__}: {str(exc)[:500]}"
-        self._broken[name] = (stamp, why)
+        before = self._broken.get(name)
+        delay = min(2 * before[3], self.recheck_max) if before is not None and before[0] == stamp else self.recheck_after
+        self._broken[name] = (stamp, why, time.monotonic() + delay, delay)
         self._cache.pop(name, None)
         return Unavailable(why)
 

@@ -3,6 +3,7 @@ they change the store, so every later transfer shows them."""
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Any
 
@@ -10,7 +11,7 @@ import numpy as np
 
 from proctex.fileio import encode_png
 from proctex.geometry.shape import Shape
-from proctex.store.layout import FamilyStore, StoreLayout, digest
+from proctex.store.layout import FamilyStore, StoreDamaged, StoreLayout
 from proctex.store.state import stored_config
 from proctex.store.template import (
     TemplateFiles,
@@ -18,12 +19,6 @@ from proctex.store.template import (
     load_template_shape,
     png_size,
 )
-
-
-def refresh_template_glb(store: FamilyStore, files: TemplateFiles | None = None) -> None:
-    """Rewrite ``template/textured.glb`` from the stored mesh, UVs, group PNGs and PBR maps."""
-    config = stored_config(store)
-    (files or TemplateFiles(store)).write_glb(load_template_shape(store, config), config.up_axis())
 
 
 def repaint_maps(prompt: str, group: int, label: str | None, template: Shape, rep_faces: np.ndarray, rep_corner_uv: np.ndarray,
@@ -68,11 +63,9 @@ def add_material_maps(store: FamilyStore, force: bool = False) -> list[int]:
             prompt = entry.get("prompt") or config.paint.prompt
             hw = png_size(files.texture_png(gi), f"group {gi}'s texture")
             maps = repaint_maps(prompt, gi, entry["label"], template, rep, uv[rep], hw, seed=config.seed)
-            files.replace(gi, maps={"orm": encode_png(maps.orm_uint8()), "normal": encode_png(maps.normal_uint8())}, occlusion=False)
+            files.commit(gi, maps={"orm": encode_png(maps.orm_uint8()), "normal": encode_png(maps.normal_uint8())}, occlusion=False,
+                         versioned=False, glb=(template, config.up_axis()))
             made.append(gi)
-        if made:
-            files.save()
-            refresh_template_glb(store, files)
         return made
 
 
@@ -151,6 +144,23 @@ def edit_texture(
     return tex, painted, record
 
 
+def check_placement(at: Any, size: Any, rotation: Any, opacity: Any) -> None:
+    """``ValueError`` unless an image placement is meaningful: ``at`` two UV coordinates in [0, 1],
+    ``size`` two UV extents in (0, 1], ``rotation`` a finite number of degrees, ``opacity`` in [0, 1]."""
+    def pair(name: str, v: Any, lo: float, hi: float, open_low: bool) -> None:
+        ok = isinstance(v, (tuple, list)) and len(v) == 2 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and (lo < x if open_low else lo <= x) and x <= hi for x in v)
+        if not ok:
+            raise ValueError(f"{name} must be two numbers in {'(' if open_low else '['}{lo:g}, {hi:g}] (UV units), got {str(v)[:60]}")
+
+    pair("at", at, 0.0, 1.0, False)
+    pair("size", size, 0.0, 1.0, True)
+    if isinstance(rotation, bool) or not isinstance(rotation, (int, float)) or not math.isfinite(rotation):
+        raise ValueError(f"rotation must be a finite number of degrees, got {str(rotation)[:40]}")
+    if isinstance(opacity, bool) or not isinstance(opacity, (int, float)) or not 0.0 <= opacity <= 1.0:
+        raise ValueError(f"opacity must be a number in [0, 1], got {str(opacity)[:40]}")
+
+
 def edit_group(
     store: FamilyStore,
     group: int | str,
@@ -163,24 +173,37 @@ def edit_group(
     rotation: float = 0.0,
     opacity: float = 1.0,
     prompt: str | None = None,
-    record_extra: dict[str, Any] | None = None,
     roughness: float | None = None,
     metallic: float | None = None,
+    expect_stamp: str | None = None,
+    stamp: Any = None,
 ) -> dict[str, Any]:
-    """Edit one group's template texture in the store; every later transfer or bake uses it.
+    """Edit one group's template texture in the store; every later transfer or bake uses it. Every
+    edit (the CLI's, the service's, the library's) is a new template version: under the family's
+    edit lock, checked against ``expect_stamp`` (``stamp(store)``, :class:`EditConflict` when they
+    differ), built on files whose checksums hold (a file changed outside ProcTex is refused, never
+    recorded), and written as one change with its undo snapshot (:meth:`TemplateFiles.commit`: a
+    full disk leaves the family as it was).
 
     Operations, applied in this order when several are given: re-paint with a new ``prompt`` (the
     surface painter, the family's seed), HSV shift (``hue`` degrees, ``saturation`` and ``value``
     scales) — both by :func:`edit_texture` —, and placing an image file (``logo``) centred at UV
-    ``at`` with UV ``size``, ``rotation`` (degrees) and ``opacity``. A re-paint makes the group's
-    PBR maps again from the new prompt; an HSV shift or an image leaves them as they are;
-    ``roughness`` / ``metallic`` move the group's roughness and metalness maps to those means
-    (:func:`adjust_orm`). Returns the edit record appended
-    to ``template/paint.json``; ``record_extra`` (a versioned edit's fields, :func:`stored_edit`) joins
-    it, with the digest of the new texture as ``after``.
+    ``at`` with UV ``size`` (each in (0, 1]), ``rotation`` (degrees) and ``opacity``. A re-paint
+    makes the group's PBR maps again from the new prompt; an HSV shift or an image leaves them as
+    they are; ``roughness`` / ``metallic`` move the group's roughness and metalness maps to those
+    means (:func:`adjust_orm`). Returns the edit record appended to ``template/paint.json``, with
+    its ``version`` and the digests of the group texture ``before`` and ``after``.
     """
+    if logo is not None:
+        check_placement(at, size, rotation, opacity)
+    with edit_lock(store):
+        if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
+            raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r} (now {stamp(store)!r}); reload and edit again")
+        return _edit(store, group, hue, saturation, value, logo, at, size, rotation, opacity, prompt, roughness, metallic)
 
 
+def _edit(store: FamilyStore, group: int | str, hue: float, saturation: float, value: float, logo: str | None, at: Any, size: Any,
+          rotation: float, opacity: float, prompt: str | None, roughness: float | None, metallic: float | None) -> dict[str, Any]:
     from proctex.texture.edit import load_overlay, place_image
 
     files = TemplateFiles(store)
@@ -217,13 +240,10 @@ def edit_group(
         record["material"] = {k: v for k, v in (("roughness", roughness), ("metallic", metallic)) if v is not None}
     if len(record) == 1:
         raise ValueError("no edit given (prompt, hue/saturation/value, roughness/metallic or logo)")
-    png = encode_png(tex)
-    if record_extra is not None:
-        record.update(record_extra, after=digest(png))
-    files.replace(gi, texture=png, maps=maps_out, masks=masks if painted is not None else None, record=record)
-    files.save()
-    refresh_template_glb(store, files)
-    return record
+    return files.commit(gi, record, texture=encode_png(tex), maps=maps_out, masks=masks if painted is not None else None,
+                        glb=(template if template is not None else load_template_shape(store, config), config.up_axis()))
+
+
 
 
 # ------------------------------------------------------------------------------ versioned edits
@@ -274,19 +294,9 @@ def edit_lock(store: FamilyStore, timeout: float = 60.0, shared: bool = False):
 
 
 def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None = None, stamp: Any = None, **edit: Any) -> dict[str, Any]:
-    """:func:`edit_group`, versioned and serialised: under the family's edit lock, check
-    ``expect_stamp`` against the family's stamp (``stamp(store)``; :class:`EditConflict` when they
-    differ), keep the files the edit replaces (its undo), apply it. The record gains ``version`` and
-    the digests of the group texture ``before`` and ``after``, so the edit history is a chain a
-    lost update would break."""
-    with edit_lock(store):
-        if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
-            raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r} (now {stamp(store)!r}); reload and edit again")
-        files = TemplateFiles(store)
-        gi = int(files.group(group)["group"])
-        version = files.version + 1
-        before = files.keep_undo(gi)
-        return edit_group(store, group, **edit, record_extra={"version": version, "before": before})
+    """:func:`edit_group` (every edit is versioned, serialised and kept with its undo), conditional on
+    ``expect_stamp``."""
+    return edit_group(store, group, expect_stamp=expect_stamp, stamp=stamp, **edit)
 
 
 def undo_edit(store: FamilyStore, expect_stamp: str | None = None, stamp: Any = None) -> dict[str, Any]:
@@ -298,12 +308,13 @@ def undo_edit(store: FamilyStore, expect_stamp: str | None = None, stamp: Any = 
         files = TemplateFiles(store)
         if not files.edits:
             raise EditConflict(f"{store.uri}: no stored edit to undo")
+        config = stored_config(store)
         try:
-            last = files.undo()
+            return files.undo(glb=(load_template_shape(store, config), config.up_axis()))
+        except StoreDamaged:
+            raise
         except ValueError as exc:
             raise EditConflict(str(exc)) from exc
-        refresh_template_glb(store, files)
-        return last
 
 
 def reset_edits(store: FamilyStore) -> list[dict[str, Any]]:

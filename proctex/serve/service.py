@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from proctex.store.layout import MAP_KINDS, FamilyStore, StoreLayout
+from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged, StoreLayout
 from proctex.store.state import FamilyState, build_stamp
 from proctex.transfer.assets import texture_hw
 from proctex.transfer.budget import OverBudget
@@ -574,7 +574,7 @@ class FamilyService:
             try:
                 return stored_edit(self.store, g, expect_stamp=expect_stamp, stamp=build_stamp, hue=edit.hue, saturation=edit.saturation,
                                    value=edit.value, prompt=edit.prompt, roughness=edit.roughness, metallic=edit.metallic)
-            except EditConflict:
+            except (EditConflict, StoreDamaged):
                 raise
             except ValueError as exc:
                 raise BadInput(str(exc)) from exc

@@ -18,6 +18,7 @@ Layout (all paths relative to the root; :class:`StoreLayout` is the one place th
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import os
@@ -52,10 +53,37 @@ def digest(data: bytes) -> str:
 
 
 def check_digest(data: bytes, expected: str | None, where: str) -> None:
-    """``ValueError`` naming ``where`` when ``data`` does not have the recorded checksum (None: none
-    was recorded, as in stores written before checksums)."""
+    """:class:`StoreDamaged` (a ``ValueError``) naming ``where`` when ``data`` does not have the
+    recorded checksum (None: none was recorded, as in stores written before checksums)."""
     if expected is not None and digest(data) != expected:
-        raise ValueError(f"{where}: checksum mismatch (recorded {expected}, found {digest(data)}): the file changed outside ProcTex")
+        raise StoreDamaged(f"{where}: checksum mismatch (recorded {expected}, found {digest(data)}): the file changed outside ProcTex")
+
+
+class StoreWriteError(OSError):
+    """A store write that did not land (a full disk, no permission): ``errno`` says which, the
+    message names the file; nothing of the change it belonged to was written."""
+
+    @classmethod
+    def of(cls, exc: OSError, where: str) -> "StoreWriteError":
+        text = str(exc)
+        code = exc.errno or (errno.ENOSPC if "No space left" in text else errno.EACCES if "ermission denied" in text else errno.EIO)
+        why = {errno.ENOSPC: "no space left on the store's disk", errno.EACCES: "permission denied", errno.EPERM: "permission denied",
+               errno.EROFS: "the store is read-only", errno.EDQUOT: "over the disk quota"}.get(code, text[:200])
+        return cls(code, f"cannot write {where}: {why}; nothing was changed")
+
+
+class StoreDamaged(ValueError):
+    """A store file that is not what its record says (changed outside ProcTex, or damaged)."""
+
+
+def encode_arrays(**arrays: np.ndarray) -> bytes:
+    """``.npz`` bytes of numeric arrays (no object arrays: loading never unpickles)."""
+    for k, a in arrays.items():
+        if np.asarray(a).dtype == object:
+            raise ValueError(f"array {k!r} has dtype object; only numeric arrays are stored")
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
 
 
 class StoreLayout:
@@ -186,6 +214,38 @@ class FamilyStore:
             raise
         return final
 
+    def write_all(self, files: list[tuple[str, bytes]]) -> list[str]:
+        """Write several files as one change: every file is first written under a temporary name
+        (what needs space), then each is renamed into place, in order (renames need none). A write
+        that fails (a full disk, no permission) leaves the store as it was, every temporary removed,
+        and raises :class:`StoreWriteError` naming the file. Returns the full paths."""
+        staged: list[tuple[str, str]] = []
+        try:
+            for rel, data in files:
+                final = self.path(rel)
+                self.fs.create_dir(final.rsplit("/", 1)[0], recursive=True)
+                tmp = f"{final}.tmp-{uuid.uuid4().hex[:12]}"
+                staged.append((tmp, final))
+                with self.fs.open_output_stream(tmp) as fh:
+                    fh.write(data)
+        except OSError as exc:
+            self._remove(t for t, _ in staged)
+            raise StoreWriteError.of(exc, staged[-1][1] if staged else self.uri) from exc
+        except BaseException:
+            self._remove(t for t, _ in staged)
+            raise
+        for tmp, final in staged:
+            self.fs.move(tmp, final)
+        return [final for _, final in staged]
+
+    def _remove(self, paths) -> None:
+        for p in paths:
+            try:
+                if self.fs.get_file_info(p).type == pafs.FileType.File:
+                    self.fs.delete_file(p)
+            except OSError:
+                pass  # a temporary we could not remove is skipped by listdir and overwritten by no one
+
     def read_bytes(self, rel: str) -> bytes:
         p = self.path(rel)
         if not self.exists(rel):
@@ -221,12 +281,7 @@ class FamilyStore:
 
     def write_arrays(self, rel: str, **arrays: np.ndarray) -> str:
         """Write numeric arrays as ``.npz`` (no object arrays: loading never unpickles)."""
-        for k, a in arrays.items():
-            if np.asarray(a).dtype == object:
-                raise ValueError(f"array {k!r} has dtype object; only numeric arrays are stored")
-        buf = io.BytesIO()
-        np.savez(buf, **arrays)
-        return self.write_bytes(rel, buf.getvalue())
+        return self.write_bytes(rel, encode_arrays(**arrays))
 
     def read_arrays(self, rel: str) -> dict[str, np.ndarray]:
         """Arrays of an ``.npz`` (never unpickled); ``ValueError`` naming the file when it is damaged."""

@@ -21,14 +21,7 @@ from proctex.geometry.parts import Grouping, analyse, segment
 from proctex.geometry.shape import Shape
 from proctex.sources.registry import source_kind
 from proctex.store.config import BuildConfig
-from proctex.store.layout import (
-    MAP_KINDS,
-    FamilyStore,
-    StoreLayout,
-    check_digest,
-    digest,
-    group_file_name,
-)
+from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged, StoreLayout, check_digest, digest, encode_arrays, group_file_name
 from proctex.store.samples import read_mesh
 from proctex.store.state import FamilyState, stored_config
 
@@ -348,20 +341,29 @@ class TemplateFiles:
         names = [str(g["group"]) + (f" ({g['label']})" if g["label"] else "") for g in self.summary["groups"]]
         raise ValueError(f"unknown group {group!r}; the template's groups are: {', '.join(names)}")
 
+    def _read(self, rel: str, recorded: str | None) -> bytes:
+        """A template file, checked against the checksum its record keeps (:class:`StoreDamaged`
+        naming it when it changed outside ProcTex: an edit never builds on, or records, a file
+        nobody made)."""
+        data = self.store.read_bytes(rel)
+        check_digest(data, recorded, self.store.path(rel))
+        return data
+
     def texture_png(self, group: int) -> bytes:
         g = self.group(group)
-        return self.store.read_bytes(StoreLayout.texture(int(g["group"]), g["label"]))
+        return self._read(StoreLayout.texture(int(g["group"]), g["label"]), g.get("sha256"))
 
     def texture(self, group: int) -> np.ndarray:
-        """(H, W, 3) uint8 of a group's texture."""
+        """(H, W, 3) uint8 of a group's texture (its checksum checked)."""
         g = self.group(group)
-        rel = StoreLayout.texture(int(g["group"]), g["label"])
-        return decode_png(self.store.read_bytes(rel), self.store.path(rel))
+        return decode_png(self.texture_png(group), self.store.path(StoreLayout.texture(int(g["group"]), g["label"])))
 
     def map_png(self, group: int, kind: str) -> bytes | None:
-        """A group's stored PBR map (``kind`` of :data:`proctex.store.layout.MAP_KINDS`), or None."""
+        """A group's stored PBR map (``kind`` of :data:`proctex.store.layout.MAP_KINDS`, its checksum
+        checked), or None."""
         g = self.group(group)
-        return self.store.read_bytes(StoreLayout.texture(int(g["group"]), g["label"], kind)) if g.get(f"{kind}_sha256") else None
+        recorded = g.get(f"{kind}_sha256")
+        return self._read(StoreLayout.texture(int(g["group"]), g["label"], kind), recorded) if recorded else None
 
     def corner_uv(self) -> np.ndarray:
         return np.asarray(self.store.read_arrays(StoreLayout.UV)["corner_uv"], dtype=np.float64)
@@ -382,51 +384,60 @@ class TemplateFiles:
                 pass  # an older record
         return analyse(shape, seed=seed)
 
-    def keep_undo(self, group: int) -> str:
-        """Keep the files an edit of ``group`` replaces as the next version's undo snapshot; returns
-        the digest of the group's texture before the edit."""
-        g = self.group(group)
-        gi, version = int(g["group"]), self.version + 1
-        rel = StoreLayout.texture(gi, g["label"])
-        maps = [StoreLayout.texture(gi, g["label"], kind) for kind in MAP_KINDS if g.get(f"{kind}_sha256")]
-        kept = [rel, *maps, StoreLayout.PAINT] + ([StoreLayout.PAINTED] if self.store.exists(StoreLayout.PAINTED) else [])
-        before = ""
-        for f in kept:
-            data = self.store.read_bytes(f)
-            self.store.write_bytes(StoreLayout.edit_snapshot(version, os.path.basename(f)), data)
-            if f == rel:
-                before = digest(data)
-        return before
-
-    def replace(self, group: int, texture: bytes | None = None, maps: dict[str, bytes] | None = None,
-                masks: dict[str, np.ndarray] | None = None, record: dict[str, Any] | None = None, occlusion: bool | None = None) -> None:
-        """Write a group's new files (PNG ``texture``, PBR ``maps`` by kind, the painted ``masks`` of
-        every group) and update its paint record; with ``record``, the edit is appended to the
-        version history. ``paint.json`` is written last (:meth:`save`)."""
+    def commit(self, group: int, record: dict[str, Any] | None = None, texture: bytes | None = None, maps: dict[str, bytes] | None = None,
+               masks: dict[str, np.ndarray] | None = None, occlusion: bool | None = None, versioned: bool = True,
+               glb: tuple[Shape, str] | None = None) -> dict[str, Any] | None:
+        """A group's new files as one change (:meth:`FamilyStore.write_all`: everything lands, or
+        nothing does and the error names the file). ``texture``: its PNG; ``maps``: PBR maps by kind;
+        ``masks``: the painted masks of every group; ``record``: the edit, appended to the history;
+        ``versioned``: a new template version, its undo snapshot (the files it replaces) written in
+        the same change, the record gaining ``version`` and the texture digests ``before`` and
+        ``after``; ``glb``: (template shape, up axis) to rewrite ``textured.glb`` in the change too.
+        The files it builds on are checked against their checksums first. Returns the record."""
         g = self.group(group)
         gi = int(g["group"])
+        current = self.texture_png(gi)
+        current_maps = {kind: self.map_png(gi, kind) for kind in MAP_KINDS}
+        writes: list[tuple[str, bytes]] = []
+        summary = json.loads(json.dumps(self.summary))  # the new version; self.summary until it lands
+        entry = next(e for e in summary["groups"] if int(e["group"]) == gi)
+        if versioned and record is not None:
+            version = self.version + 1
+            self.store.delete(StoreLayout.edit_snapshot(version, "").rstrip("/"))  # an undone version's snapshot
+            kept = [(StoreLayout.texture(gi, g["label"]), current)]
+            kept += [(StoreLayout.texture(gi, g["label"], kind), data) for kind, data in current_maps.items() if data is not None]
+            kept += [(StoreLayout.PAINT, self.store.read_bytes(StoreLayout.PAINT))]
+            if self.store.exists(StoreLayout.PAINTED):
+                kept += [(StoreLayout.PAINTED, self.store.read_bytes(StoreLayout.PAINTED))]
+            writes += [(StoreLayout.edit_snapshot(version, os.path.basename(rel)), data) for rel, data in kept]
+            record = {**record, "version": version, "before": digest(current), "after": digest(texture if texture is not None else current)}
         if masks is not None:
-            self.store.write_arrays(StoreLayout.PAINTED, **masks)
+            writes.append((StoreLayout.PAINTED, encode_arrays(**masks)))
+        new_png = current
         if texture is not None:
-            self.store.write_bytes(StoreLayout.texture(gi, g["label"]), texture)
-            g["sha256"] = digest(texture)
+            writes.append((StoreLayout.texture(gi, g["label"]), texture))
+            entry["sha256"], new_png = digest(texture), texture
         for kind, data in (maps or {}).items():
-            self.store.write_bytes(StoreLayout.texture(gi, g["label"], kind), data)
-            g[f"{kind}_sha256"] = digest(data)
+            writes.append((StoreLayout.texture(gi, g["label"], kind), data))
+            entry[f"{kind}_sha256"] = digest(data)
+            current_maps[kind] = data
         if occlusion is not None:
-            g["occlusion"] = bool(occlusion)
+            entry["occlusion"] = bool(occlusion)
         if record is not None:
             if "prompt" in record:
-                g["prompt"] = record["prompt"]
-            self.summary.setdefault("edits", []).append(record)
+                entry["prompt"] = record["prompt"]
+            summary.setdefault("edits", []).append(record)
+        if glb is not None:
+            writes.append((StoreLayout.TEMPLATE_GLB, self._glb(summary, {gi: (new_png, current_maps)}, *glb)))
+        writes.append((StoreLayout.PAINT, json.dumps(summary, indent=1).encode() + b"\n"))  # last: the version counts from here
+        self.store.write_all(writes)
+        self.summary = summary
+        return record
 
-    def save(self) -> None:
-        """Write ``paint.json``: the new template version counts from here."""
-        self.store.write_json(StoreLayout.PAINT, self.summary)
-
-    def undo(self) -> dict[str, Any]:
-        """Put back the files the last version replaced (``paint.json`` last); returns its edit
-        record. ``ValueError`` when there is no edit, or it was stored without its snapshot."""
+    def undo(self, glb: tuple[Shape, str] | None = None) -> dict[str, Any]:
+        """Put back the files the last version replaced, as one change (``paint.json`` last; with
+        ``glb``, ``textured.glb`` rewritten in it); returns its edit record. ``ValueError`` when there
+        is no edit, it was stored without its snapshot, or the snapshot is not what it recorded."""
         edits = self.edits
         if not edits:
             raise ValueError(f"{self.store.uri}: no stored edit to undo")
@@ -434,27 +445,54 @@ class TemplateFiles:
         version = int(last.get("version", len(edits)))
         folder = StoreLayout.edit_snapshot(version, "")
         names = self.store.listdir(folder.rstrip("/"))
-        if not names:
+        if not names or StoreLayout.PAINT_NAME not in names:
             raise ValueError(f"{self.store.uri}: edit {version} was stored without its undo (made before edits were versioned)")
-        for name in names:  # paint.json last: until it is back, the edit still counts as stored
-            if name != StoreLayout.PAINT_NAME:
-                self.store.write_bytes(StoreLayout.template_file(name), self.store.read_bytes(folder + name))
-        self.store.write_bytes(StoreLayout.PAINT, self.store.read_bytes(folder + StoreLayout.PAINT_NAME))
-        self.store.delete(folder.rstrip("/"))
-        self.summary = self.store.read_json(StoreLayout.PAINT)
+        restored = {name: self.store.read_bytes(folder + name) for name in names}
+        before = json.loads(restored[StoreLayout.PAINT_NAME])
+        g = next((e for e in before["groups"] if int(e["group"]) == int(last["group"])), None)
+        if g is None:
+            raise StoreDamaged(f"{self.store.path(folder)}: the snapshot's paint record lacks group {last['group']}")
+        name = os.path.basename(StoreLayout.texture(int(g["group"]), g["label"]))
+        if name in restored:
+            check_digest(restored[name], last.get("before") or g.get("sha256"), self.store.path(folder + name))
+        writes = [(StoreLayout.template_file(n), data) for n, data in restored.items() if n != StoreLayout.PAINT_NAME]
+        if glb is not None:
+            pngs = {int(e["group"]): (restored.get(os.path.basename(StoreLayout.texture(int(e["group"]), e["label"]))),
+                                      {k: restored.get(os.path.basename(StoreLayout.texture(int(e["group"]), e["label"], k))) for k in MAP_KINDS})
+                    for e in before["groups"]}
+            writes.append((StoreLayout.TEMPLATE_GLB, self._glb(before, {k: v for k, v in pngs.items() if v[0] is not None}, *glb)))
+        writes.append((StoreLayout.PAINT, restored[StoreLayout.PAINT_NAME]))
+        self.store.write_all(writes)
+        self.summary = before
+        try:
+            self.store.delete(folder.rstrip("/"))
+        except OSError:
+            pass  # a stale snapshot is deleted before its version is made again
         return last
 
-    def write_glb(self, shape: Shape, up: str) -> None:
-        """Rewrite ``template/textured.glb`` from the template ``shape``, the UVs, the group PNGs and
-        PBR maps as stored (nothing encoded again)."""
+    def _glb(self, summary: dict[str, Any], override: dict[int, tuple[bytes, dict[str, bytes | None]]], shape: Shape, up: str) -> bytes:
+        """``textured.glb`` of the template version ``summary``: each group's PNG and maps as stored,
+        or as ``override`` gives them (group -> (PNG, {kind: PNG or None}))."""
         from proctex.texture.export import glb_bytes
         from proctex.texture.pbr import PbrMaps
 
         uv = self.store.read_arrays(StoreLayout.UV)
-        groups = self.summary["groups"]
-        pngs = [self.texture_png(g["group"]) for g in groups]
-        maps = [PbrMaps(self.map_png(g["group"], "orm"), self.map_png(g["group"], "normal"), bool(g.get("occlusion")))
-                if g.get("orm_sha256") else None for g in groups]
-        names = [g["label"] or f"group_{g['group']}" for g in groups]
-        self.store.write_bytes(StoreLayout.TEMPLATE_GLB, glb_bytes(shape.vertices, shape.faces, uv["corner_uv"], uv["face_group"], pngs, names=names,
-                                                                   up=up, pbr=maps if any(m is not None for m in maps) else None))
+        pngs, maps = [], []
+        for e in summary["groups"]:
+            gi = int(e["group"])
+            if gi in override:
+                png, m = override[gi]
+                m = m if e.get("orm_sha256") else {}
+            else:
+                png = self.store.read_bytes(StoreLayout.texture(gi, e["label"]))
+                m = {k: self.store.read_bytes(StoreLayout.texture(gi, e["label"], k)) for k in MAP_KINDS} if e.get("orm_sha256") else {}
+            pngs.append(png)
+            maps.append(PbrMaps(m["orm"], m["normal"], bool(e.get("occlusion"))) if m.get("orm") and m.get("normal") else None)
+        names = [e["label"] or f"group_{e['group']}" for e in summary["groups"]]
+        return glb_bytes(shape.vertices, shape.faces, uv["corner_uv"], uv["face_group"], pngs, names=names, up=up,
+                         pbr=maps if any(m is not None for m in maps) else None)
+
+    def write_glb(self, shape: Shape, up: str) -> None:
+        """Rewrite ``template/textured.glb`` from the template ``shape``, the UVs, the group PNGs and
+        PBR maps as stored (nothing encoded again)."""
+        self.store.write_bytes(StoreLayout.TEMPLATE_GLB, self._glb(self.summary, {}, shape, up))

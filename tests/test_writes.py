@@ -1,0 +1,172 @@
+"""Every write lands and is reported, or does not land and is reported (issue 34): edits and undos
+on a full disk change nothing and answer 507; a texture changed outside ProcTex is refused, never
+recorded; every edit path (the CLI's included) is versioned and undoable; nonsense placements are
+refused before anything is read."""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from proctex.serve.catalog import Catalog
+from proctex.serve.edits import edit_group, undo_edit
+from proctex.store.layout import FamilyStore, StoreDamaged, StoreLayout, StoreWriteError
+
+TOKEN = {"X-ProcTex-Token": "tok"}
+
+
+class FullDisk:
+    """A file system that runs out of space after ``room`` more files (``room`` None: never)."""
+
+    def __init__(self, fs, state):
+        self._fs, self._state = fs, state
+
+    def open_output_stream(self, path, *a, **k):
+        room = self._state.get("room")
+        if room is not None:
+            if room <= 0:
+                raise OSError(errno.ENOSPC, "No space left on device", path)
+            self._state["room"] = room - 1
+        return self._fs.open_output_stream(path, *a, **k)
+
+    def __getattr__(self, name):
+        return getattr(self._fs, name)
+
+
+@pytest.fixture()
+def family(painted_mug_root, tmp_path, monkeypatch):
+    """A copy of the painted mug whose stores all write through :class:`FullDisk`."""
+    root = tmp_path / "root"
+    shutil.copytree(painted_mug_root / "mug", root / "mug")
+    state: dict = {"room": None}
+    real = FamilyStore.__init__
+
+    def init(self, r):
+        real(self, r)
+        self.fs = FullDisk(self.fs, state)
+
+    monkeypatch.setattr(FamilyStore, "__init__", init)
+    return root, state
+
+
+def tree(folder: Path) -> dict[str, str]:
+    """Every file under ``folder`` (lock files aside) by its checksum."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*"))
+            if p.is_file() and not p.name.endswith(".lock")}
+
+
+@pytest.mark.parametrize("room", [0, 1, 3, 5])
+def test_an_edit_on_a_full_disk_changes_nothing_and_says_so(family, room):
+    root, state = family
+    fam = root / "mug"
+    before = tree(fam)
+    state["room"] = room  # the disk fills after `room` of the edit's files
+    with pytest.raises(StoreWriteError, match="no space left.*nothing was changed") as err:
+        edit_group(FamilyStore(fam), 0, hue=40)
+    assert err.value.errno == errno.ENOSPC
+    assert tree(fam) == before  # no texture, no record, no orphan snapshot, no temporary
+    state["room"] = None
+    record = edit_group(FamilyStore(fam), 0, hue=40)  # with room again the same edit lands
+    assert record["version"] == 1 and tree(fam) != before
+
+
+def test_an_undo_on_a_full_disk_is_not_half_applied(family):
+    root, state = family
+    st = FamilyStore(root / "mug")
+    edit_group(st, 0, hue=40)
+    edited = tree(root / "mug")
+    state["room"] = 1
+    with pytest.raises(StoreWriteError):
+        undo_edit(st)
+    assert tree(root / "mug") == edited and len(st.read_json(StoreLayout.PAINT)["edits"]) == 1
+    state["room"] = None
+    assert undo_edit(st)["version"] == 1 and not st.read_json(StoreLayout.PAINT).get("edits")
+
+
+def test_the_service_answers_507_for_a_full_disk_and_503_for_a_tampered_texture(family):
+    from fastapi.testclient import TestClient
+
+    from workers.http import create_app
+
+    root, state = family
+    cat = Catalog(str(root), check_every=0)
+    c = TestClient(create_app(lambda: cat, edit_token="tok"))
+    assert c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=TOKEN).status_code == 200
+    edited = tree(root / "mug")
+    state["room"] = 2
+    for call in (lambda: c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=TOKEN),
+                 lambda: c.delete("/v1/families/mug/edits/last", headers=TOKEN)):
+        r = call()
+        assert r.status_code == 507 and "nothing was changed" in r.json()["error"], r.text
+        assert tree(root / "mug") == edited
+    state["room"] = None
+    # Another valid PNG of the same size put in place of group 0's texture while the family is served.
+    st = FamilyStore(root / "mug")
+    g = st.read_json(StoreLayout.PAINT)["groups"][0]
+    rel = StoreLayout.texture(0, g["label"])
+    from proctex.fileio import encode_png
+    from proctex.store.template import decode_png
+
+    tampered = encode_png(255 - decode_png(st.read_bytes(rel), rel))
+    (root / "mug" / rel).write_bytes(tampered)
+    r = c.post("/v1/families/mug/edits", json={"group": 0, "hue": 20}, headers=TOKEN)
+    assert r.status_code == 503 and "checksum mismatch" in r.json()["error"] and rel.split("/")[-1] in r.json()["error"]
+    assert st.read_bytes(rel) == tampered and len(st.read_json(StoreLayout.PAINT)["edits"]) == 1  # refused, not laundered
+    with pytest.raises(StoreDamaged):
+        edit_group(st, 0, hue=20)
+
+
+def test_every_edit_path_is_versioned_the_cli_included(family, capsys):
+    from proctex.cli import main
+
+    root, _ = family
+    fam = str(root / "mug")
+    assert main(["edit", fam, "--group", "0", "--hue", "30"]) == 0
+    edits = FamilyStore(fam).read_json(StoreLayout.PAINT)["edits"]
+    assert edits[-1]["version"] == 1 and edits[-1]["before"] != edits[-1]["after"]
+    assert undo_edit(FamilyStore(fam))["version"] == 1  # an edit made from the CLI can be undone
+
+
+def test_nonsense_placements_are_refused_before_anything_changes(family, tmp_path, capsys):
+    from proctex.cli import main
+    from proctex.fileio import encode_png
+
+    root, _ = family
+    fam = root / "mug"
+    logo = tmp_path / "logo.png"
+    logo.write_bytes(encode_png(np.zeros((8, 8, 3), np.uint8)))
+    before = tree(fam)
+    for flags, message in ((["--size", "1e9,1e9"], "size must be two numbers in (0, 1]"), (["--size", "0,0.2"], "size"),
+                           (["--at", "2,0.5"], "at must be two numbers in [0, 1]"), (["--opacity", "3"], "opacity"),
+                           (["--rotation", "nan"], "rotation")):
+        assert main(["edit", str(fam), "--group", "0", "--logo", str(logo), *flags]) == 2, flags
+        assert message in capsys.readouterr().err, flags
+    assert tree(fam) == before
+
+
+def test_damage_repaired_on_disk_is_noticed_without_a_restart(family):
+    """A damaged family answers 503; once its file is put back byte for byte the catalog serves it
+    again after its back-off (and not before), with no restart."""
+    import time
+
+    from proctex.serve.service import Unavailable
+
+    root, _ = family
+    st = FamilyStore(root / "mug")
+    rel = StoreLayout.texture(0, st.read_json(StoreLayout.PAINT)["groups"][0]["label"])
+    good = st.read_bytes(rel)
+    (root / "mug" / rel).write_bytes(good[:40])  # damaged
+    cat = Catalog(str(root), check_every=0, recheck_after=0.2)
+    with pytest.raises(Unavailable, match="checksum mismatch"):
+        cat.get("mug")
+    (root / "mug" / rel).write_bytes(good)  # repaired
+    with pytest.raises(Unavailable):
+        cat.get("mug")  # within the back-off: the known answer, no reload
+    loads = cat.loads
+    time.sleep(0.25)
+    assert cat.get("mug").name == "mug" and cat.loads == loads + 1 and cat.health() == {"mug": "ok"}
