@@ -57,7 +57,7 @@ def family(painted_mug_root, tmp_path, monkeypatch):
 def tree(folder: Path) -> dict[str, str]:
     """Every file under ``folder`` (lock files aside) by its checksum."""
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*"))
-            if p.is_file() and not p.name.endswith(".lock")}
+            if p.is_file() and ".lock" not in p.name}
 
 
 @pytest.mark.parametrize("room", [0, 1, 3, 5])
@@ -170,3 +170,73 @@ def test_damage_repaired_on_disk_is_noticed_without_a_restart(family):
     loads = cat.loads
     time.sleep(0.25)
     assert cat.get("mug").name == "mug" and cat.loads == loads + 1 and cat.health() == {"mug": "ok"}
+
+
+HOLD = """
+import sys, time
+from proctex.store.layout import FamilyStore
+from proctex.store.locks import build_lock
+with build_lock(FamilyStore(sys.argv[1]), "a build"):
+    print("held", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_a_store_is_built_by_one_process_at_a_time_and_a_dead_holder_frees_it(family, tmp_path, capsys):
+    """A build (or an edit) of a store another process is building is refused, naming the holder;
+    the config check runs under the lock; once the holder dies (SIGKILL: no clean-up) the lock is
+    free and the next build takes it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from proctex.cli import main
+    from proctex.serve.edits import EditConflict
+
+    root, _ = family
+    fam = root / "mug"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(fam)], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        assert main(["build", "--model", "mug", "--prompt", "red", "--out", str(fam), "--n-train", "2", "--n-test", "0"]) == 2
+        err = capsys.readouterr().err
+        assert "held by a build" in err and f"pid {holder.pid}" in err, err
+        with pytest.raises(EditConflict, match="held by a build"):
+            edit_group(FamilyStore(fam), 0, hue=10)
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    assert edit_group(FamilyStore(fam), 0, hue=10)["version"] == 1  # the dead holder's lock is free
+
+
+def test_nonsense_numbers_and_meshes_that_cannot_be_served_get_clear_errors(family, tmp_path, capsys):
+    """`proctex transfer --bake -5 / 100000 / --seed -1` are refused before any work; a mesh whose
+    positions cannot be served as float32 without losing its shape (moved 1e9 away, scaled by
+    1e300, collapsed to a point) is refused naming the problem, and a sound one is served (the
+    check can pass)."""
+    from proctex.cli import main
+    from proctex.models import get_model
+    from proctex.serve.service import BadInput, FamilyService
+
+    root, _ = family
+    fam = str(root / "mug")
+    for flags, message in ((["--bake", "-5"], "bake"), (["--bake", "100000"], "bake size"), (["--seed", "-1"], "seed")):
+        out = tmp_path / "x.glb"
+        assert main(["transfer", fam, "--params", "{}", "--out", str(out), *flags]) == 2, flags
+        assert message in capsys.readouterr().err and not out.exists(), flags
+    svc = FamilyService(FamilyStore(fam))
+    mug = get_model("mug").generate()
+
+    def obj_text(vertices, faces):  # every digit kept, as an exporter writes a far-away mesh
+        return "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist()) + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces.tolist())
+
+    for vertices, message in ((mug.vertices + 1e9, "float32 positions would collapse it"), (mug.vertices * 1e300, "from the origin"),
+                              (mug.vertices * 0 + 1.0, "no extent")):
+        with pytest.raises(BadInput, match=message):
+            svc.shape_from_mesh(obj_text(vertices, mug.faces).encode(), "m.obj")
+    ok = svc.shape_from_mesh(obj_text(mug.vertices + 1e3, mug.faces).encode(), "m.obj")  # a kilometre away is fine
+    assert svc.textured(ok)[0].data[:4] == b"glTF"
+    with pytest.raises(BadInput, match="bake size"):
+        svc.textured(ok, bake_size=100_000)

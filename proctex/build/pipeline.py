@@ -21,6 +21,7 @@ from proctex.build.template import stage_template
 from proctex.build.train import plan_train
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
+from proctex.store.locks import build_lock
 from proctex.store.state import STAGES, read_state, write_config
 
 Planner = Callable[[FamilyStore, BuildConfig, Callable[[str], None]], Plan]
@@ -41,15 +42,18 @@ def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | lis
           executor: Executor = run_in_process) -> dict[str, Any]:
     """Run the build ``stages`` in :data:`proctex.store.state.STAGES` order: plan each (skipping what
     is complete) and run the plan with ``executor``. Returns the family state with ``wall_seconds``
-    per stage run. ``ValueError`` for a stage name the table does not know, before any work."""
+    per stage run. ``ValueError`` for a stage name the table does not know, before any work; the
+    store's build lock is held throughout (:func:`proctex.store.locks.build_lock`: a second build
+    or an edit of the same store is refused with who holds it)."""
     unknown = set(stages) - set(PLANNERS)
     if unknown:
         raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(PLANNERS)}")
-    write_config(store, config)
-    walls: dict[str, float] = {}
-    for stage in STAGES:
-        if stage in stages:
-            t = time.perf_counter()
-            executor(PLANNERS[stage](store, config, log), store, config, log)
-            walls[stage] = round(time.perf_counter() - t, 2)
-    return {**read_state(store).to_dict(), "wall_seconds": walls}
+    with build_lock(store):  # one build (and no edit) of a store at a time; the config checked under it
+        write_config(store, config)
+        walls: dict[str, float] = {}
+        for stage in STAGES:
+            if stage in stages:
+                t = time.perf_counter()
+                executor(PLANNERS[stage](store, config, log), store, config, log)
+                walls[stage] = round(time.perf_counter() - t, 2)
+        return {**read_state(store).to_dict(), "wall_seconds": walls}

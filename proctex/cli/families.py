@@ -117,7 +117,11 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     from proctex.serve.service import FamilyService
     from proctex.store.layout import FamilyStore
     from proctex.store.state import stored_config
+    from proctex.transfer.apply import check_transfer_args
 
+    check_transfer_args(args.seed, args.bake or None)  # nonsense refused before anything is read
+    if args.bake < 0:
+        raise ValueError(f"--bake must be 0 (the template's textures) or a size in texels, got {args.bake}")
     store = FamilyStore(args.family)
     config = stored_config(store)
     if bool(args.params) == bool(args.mesh):

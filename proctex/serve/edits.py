@@ -3,6 +3,7 @@ they change the store, so every later transfer shows them."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from typing import Any
@@ -12,6 +13,7 @@ import numpy as np
 from proctex.fileio import encode_png
 from proctex.geometry.shape import Shape
 from proctex.store.layout import FamilyStore, StoreDamaged, StoreLayout
+from proctex.store.locks import is_local, store_lock
 from proctex.store.state import stored_config
 from proctex.store.template import (
     TemplateFiles,
@@ -252,45 +254,25 @@ class EditConflict(ValueError):
 
 
 def edit_lock(store: FamilyStore, timeout: float = 60.0, shared: bool = False):
-    """A context manager holding the family's edit lock, across processes on one machine (a
-    ``flock`` on ``.edit.lock`` in the store folder): exclusive for an edit, ``shared`` for a reader
-    that must see the template's files of one version (a service loading the family). Stores that
-    are not local folders cannot be edited (``ValueError``); readers of them take no lock."""
-    import contextlib
-    import fcntl
-    import time
-
-    if "://" in store.uri and not store.uri.startswith("file://"):
+    """A context manager holding the family's edit lock, across processes on one machine
+    (:func:`proctex.store.locks.store_lock` on ``.edit.lock``): exclusive for an edit, which also
+    refuses to start while a build of the store runs (the build lock, shared), ``shared`` for a
+    reader that must see the template's files of one version (a service loading the family). Stores
+    that are not local folders cannot be edited (``ValueError``); readers of them take no lock."""
+    if not is_local(store):
         if shared:
             return contextlib.nullcontext()
         raise ValueError(f"{store.uri}: edits need a family on a local file system (the edit lock is a file lock)")
-    mode = fcntl.LOCK_SH if shared else fcntl.LOCK_EX
+    if shared:
+        return store_lock(store, StoreLayout.EDIT_LOCK, "a reader", shared=True, timeout=timeout, busy=EditConflict)
 
     @contextlib.contextmanager
-    def held():
-        path = os.path.join(store.base, StoreLayout.EDIT_LOCK)
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            if shared:  # a read-only store folder: nobody edits it, nothing to wait for
-                yield
-                return
-            raise ValueError(f"{store.uri}: cannot take the edit lock ({exc})") from exc
-        try:
-            deadline = time.monotonic() + timeout
-            while True:
-                try:
-                    fcntl.flock(fd, mode | fcntl.LOCK_NB)
-                    break
-                except BlockingIOError:
-                    if time.monotonic() > deadline:
-                        raise EditConflict(f"{store.uri}: another edit has held the family for over {timeout:g} s") from None
-                    time.sleep(0.01)
+    def both():
+        with store_lock(store, StoreLayout.BUILD_LOCK, "an edit", shared=True, busy=EditConflict, note=True), \
+                store_lock(store, StoreLayout.EDIT_LOCK, "an edit", timeout=timeout, busy=EditConflict):
             yield
-        finally:
-            os.close(fd)  # releases the lock
 
-    return held()
+    return both()
 
 
 def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None = None, stamp: Any = None, **edit: Any) -> dict[str, Any]:

@@ -31,6 +31,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged, StoreLayout
 from proctex.store.state import FamilyState, build_stamp
 from proctex.transfer.assets import texture_hw
@@ -179,6 +181,33 @@ _EDIT_LOCK = threading.Lock()  # persisted edits rewrite store files: one at a t
 
 
 
+#: A mesh is served when its coordinates are below this and its extent is at least this share of
+#: its distance from the origin: GLB positions are float32 (24-bit mantissa), so a shape 1e9 from
+#: the origin and a metre wide would collapse to a point, and 1e300 overflows every norm.
+MAX_COORDINATE = 1e12
+MIN_EXTENT_SHARE = 1e-5
+
+
+def check_extent(shape) -> None:
+    """:class:`BadInput` naming the problem for a mesh whose positions cannot be served without
+    losing its shape: non-finite, beyond :data:`MAX_COORDINATE`, of no extent, or so far from the
+    origin for its size that float32 positions would merge its vertices."""
+    v = shape.vertices
+    if not v.size:
+        return
+    if not np.isfinite(v).all():
+        raise BadInput("the mesh has non-finite vertex positions (NaN or infinity)")
+    reach = float(np.abs(v).max())
+    if reach > MAX_COORDINATE:
+        raise BadInput(f"the mesh reaches {reach:.3g} from the origin (at most {MAX_COORDINATE:.0e}): scale or move it near the origin")
+    extent = float((v.max(axis=0) - v.min(axis=0)).max())
+    if extent <= 0.0 or not np.isfinite(extent):
+        raise BadInput("the mesh has no extent (every vertex at one point)")
+    if extent < MIN_EXTENT_SHARE * reach:
+        raise BadInput(f"the mesh is {extent:.3g} wide but {reach:.3g} from the origin: float32 positions would collapse it; "
+                       "move it near the origin")
+
+
 class FamilyService:
     """One built family, loaded for transfer."""
 
@@ -285,6 +314,7 @@ class FamilyService:
         if shape.n_vertices > self.limits.max_vertices or shape.n_faces > self.limits.max_faces:
             raise TooLarge(f"mesh has {shape.n_vertices} vertices and {shape.n_faces} faces; limits are "
                            f"{self.limits.max_vertices} and {self.limits.max_faces}")
+        check_extent(shape)
         n_parts = parts_of(shape).n_parts if shape.n_faces else 0  # kept on the shape for the transfer
         if n_parts > self.limits.max_parts:
             raise BadInput(f"mesh has {n_parts} parts (connected components); the limit is {self.limits.max_parts}")
@@ -429,8 +459,12 @@ class FamilyService:
         textures by URI (:meth:`texture_uris`) instead of carrying them, so a client that caches
         them is sent the geometry and UVs only; ``link_base``: the folder those URIs point into
         instead of the texture route (:meth:`texture_uris`)."""
-        from proctex.transfer.apply import info, shape_to_glb
+        from proctex.transfer.apply import check_transfer_args, info, shape_to_glb
 
+        try:
+            check_transfer_args(seed, bake_size)
+        except ValueError as exc:
+            raise BadInput(str(exc)) from exc
         t0 = time.perf_counter()
         assets = self.assets
         if edits:

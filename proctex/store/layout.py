@@ -104,6 +104,7 @@ class StoreLayout:
     GROUPING = "template/grouping.json"
     EDITS = "template/edits"  # one folder per stored edit: the files it replaced (its undo)
     EDIT_LOCK = ".edit.lock"  # held while an edit changes the store (local stores)
+    BUILD_LOCK = ".build.lock"  # held while a build runs (exclusive) or an edit (shared)
 
     @staticmethod
     def edit_snapshot(version: int, name: str) -> str:

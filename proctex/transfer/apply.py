@@ -47,8 +47,22 @@ from proctex.transfer.budget import Budget
 from proctex.transfer.mappers import Mapper
 from proctex.transfer.uvlookup import chart_lookups, part_uvs, side_normals
 
-
 # ------------------------------------------------------------------------------------- transfer
+#: Bake sizes (texels per side of a shape's own atlas) and seeds a transfer takes.
+BAKE_SIZES = (8, 8192)
+SEED_MAX = 2**31 - 1
+
+
+def check_transfer_args(seed: object = 0, bake_size: object = None) -> None:
+    """``ValueError`` unless ``seed`` is an integer in [0, :data:`SEED_MAX`] and ``bake_size`` None or
+    an integer in :data:`BAKE_SIZES` (a 100000² atlas is 10¹⁰ texels: refused before any work)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= SEED_MAX:
+        raise ValueError(f"seed must be an integer in [0, {SEED_MAX}], got {str(seed)[:40]}")
+    if bake_size is not None and (isinstance(bake_size, bool) or not isinstance(bake_size, (int, np.integer))
+                                  or not BAKE_SIZES[0] <= bake_size <= BAKE_SIZES[1]):
+        raise ValueError(f"a bake size must be an integer in [{BAKE_SIZES[0]}, {BAKE_SIZES[1]}] texels, got {str(bake_size)[:40]}")
+
+
 @dataclass
 class TransferResult:
     """UVs of a shape into the template textures.
