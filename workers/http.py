@@ -41,6 +41,7 @@ import json
 import mimetypes
 import os
 import re
+import time
 import weakref
 from pathlib import Path
 from typing import Any, Awaitable, Callable
@@ -53,7 +54,14 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from proctex.serve.catalog import Catalog, Watchdog
 from proctex.serve.edits import EditConflict
-from proctex.serve.service import BadInput, NotFound, TooLarge, Unavailable, parse_edit
+from proctex.serve.service import (
+    BadInput,
+    Limits,
+    NotFound,
+    TooLarge,
+    Unavailable,
+    parse_edit,
+)
 from proctex.store.layout import StoreDamaged, StoreWriteError
 from proctex.store.state import build_stamp
 from proctex.transfer.budget import Budget, OverBudget
@@ -109,6 +117,10 @@ def error_response(exc: BaseException) -> JSONResponse:
         return _error(413, str(exc))
     if isinstance(exc, Unavailable):
         return _error(503, str(exc))
+    if isinstance(exc, SlowBody):
+        return _error(408, str(exc))
+    if isinstance(exc, Busy):
+        return JSONResponse({"error": str(exc)}, status_code=503, headers={"Retry-After": "1"})
     if isinstance(exc, StoreWriteError):  # nothing of the change landed: the message says so and names the file
         return _error(507 if exc.errno in (errno.ENOSPC, errno.EDQUOT) else 503, str(exc))
     if isinstance(exc, StoreDamaged):
@@ -125,19 +137,57 @@ def error_response(exc: BaseException) -> JSONResponse:
     return _error(500, f"internal error ({type(exc).__name__}); the request was not served")
 
 
-async def read_body(request: Request, max_bytes: int) -> bytes:
+class SlowBody(ValueError):
+    """A request body that did not arrive in time (408)."""
+
+
+class Busy(RuntimeError):
+    """Every upload slot of the replica is taken (503, retry)."""
+
+
+#: Bodies being read now, per event loop (a replica's): what ``Limits.max_uploads`` bounds.
+_READING: dict[int, int] = {}
+
+
+async def read_body(request: Request, max_bytes: int, limits: Limits | None = None) -> bytes:
     """The request body, read in chunks and refused (:class:`TooLarge`) as soon as it passes
-    ``max_bytes``, whether or not it declared a Content-Length. Later ``request.form()`` /
-    ``request.body()`` calls read these bytes again, not the socket."""
+    ``max_bytes``, whether or not it declared a Content-Length, chunked or not; within ``limits``'
+    time bounds (:class:`SlowBody` past ``body_seconds``, after a gap over ``body_idle_seconds``,
+    or below ``body_min_rate`` on average) and upload slots (:class:`Busy` when ``max_uploads``
+    bodies are being read already). Later ``request.form()`` / ``request.body()`` calls read these
+    bytes again, not the socket."""
+    limits = limits or Limits()
     length = request.headers.get("content-length")
     if length is not None and length.isdigit() and int(length) > max_bytes:
         raise TooLarge(f"request body of {length} bytes is over the limit of {max_bytes}")
+    loop = id(asyncio.get_running_loop())
+    if _READING.get(loop, 0) >= limits.max_uploads:
+        raise Busy(f"{limits.max_uploads} uploads are being read already; retry in a moment")
+    _READING[loop] = _READING.get(loop, 0) + 1
     chunks, size = [], 0
-    async for chunk in request.stream():
-        size += len(chunk)
-        if size > max_bytes:
-            raise TooLarge(f"request body over the limit of {max_bytes} bytes")
-        chunks.append(chunk)
+    t0 = time.monotonic()
+    stream = request.stream().__aiter__()
+    try:
+        while True:
+            elapsed = time.monotonic() - t0
+            wait = min(limits.body_idle_seconds, limits.body_seconds - elapsed)
+            try:
+                chunk = await asyncio.wait_for(stream.__anext__(), timeout=max(wait, 0.0))
+            except StopAsyncIteration:
+                break
+            except asyncio.TimeoutError:
+                idle = wait >= limits.body_idle_seconds
+                raise SlowBody(f"request body too slow: {size} bytes in {time.monotonic() - t0:.1f} s, then "
+                               + (f"nothing for {limits.body_idle_seconds:g} s" if idle else f"past the limit of {limits.body_seconds:g} s")) from None
+            size += len(chunk)
+            if size > max_bytes:
+                raise TooLarge(f"request body over the limit of {max_bytes} bytes")
+            chunks.append(chunk)
+            elapsed = time.monotonic() - t0
+            if elapsed > limits.body_idle_seconds and size / elapsed < limits.body_min_rate:
+                raise SlowBody(f"request body too slow: {size} bytes in {elapsed:.1f} s (at least {limits.body_min_rate} bytes/s)")
+    finally:
+        _READING[loop] -= 1
     body = b"".join(chunks)
     request._body = body  # starlette reads a consumed body from here
     return body
@@ -153,10 +203,11 @@ def _seed(raw: Any) -> int:
     return value
 
 
-async def read_transfer_request(request: Request, max_bytes: int) -> tuple[str, Any, int, Any]:
+async def read_transfer_request(request: Request, max_bytes: int, limits: Limits | None = None) -> tuple[str, Any, int, Any]:
     """``("params", dict, seed, edits)`` or ``("mesh", (bytes, filename), seed, edits)`` from a
-    request (``edits``: the raw JSON value or None; see :meth:`FamilyService.parse_edits`)."""
-    body = await read_body(request, max_bytes)
+    request (``edits``: the raw JSON value or None; see :meth:`FamilyService.parse_edits`); the body
+    read within ``limits`` (:func:`read_body`)."""
+    body = await read_body(request, max_bytes, limits)
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if ctype == "multipart/form-data":
         try:
@@ -189,8 +240,8 @@ async def read_transfer_request(request: Request, max_bytes: int) -> tuple[str, 
     return "params", req.params, req.seed, req.edits
 
 
-async def read_json_object(request: Request, max_bytes: int = 65536) -> dict[str, Any]:
-    body = await read_body(request, max_bytes)
+async def read_json_object(request: Request, max_bytes: int = 65536, limits: Limits | None = None) -> dict[str, Any]:
+    body = await read_body(request, max_bytes, limits)
     try:
         data = json.loads(body or b"null")
     except (ValueError, RecursionError) as exc:
@@ -349,7 +400,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             if textures not in ("embedded", "linked"):
                 raise BadInput(f"textures must be 'embedded' or 'linked', got {textures[:40]!r}")
             svc = await family_of(name)
-            kind, payload, seed, raw_edits = await read_transfer_request(request, svc.limits.max_bytes)
+            kind, payload, seed, raw_edits = await read_transfer_request(request, svc.limits.max_bytes, svc.limits)
             edits = svc.parse_edits(raw_edits)
 
             def work():
@@ -428,7 +479,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         try:
             svc = await family_of(name)
             check_edit_request(request)
-            body = await read_json_object(request)
+            body = await read_json_object(request, limits=svc.limits)
             expect = request.headers.get("if-match")
             record, stamp = await blocking(lambda: (svc.persist_edit(body, expect_stamp=expect), build_stamp(svc.store)))
         except Exception as exc:

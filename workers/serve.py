@@ -101,6 +101,23 @@ def deployment(max_families: int = 0, name: str = "ProcTexTransfer"):
     return serve.deployment(name=name, ray_actor_options={"num_cpus": 0}, max_ongoing_requests=16, health_check_period_s=10)(serve.ingress()(cls))
 
 
+def limits_from(args: dict[str, Any]) -> dict[str, Any]:
+    """The :class:`proctex.serve.service.Limits` fields in ``args`` (strings accepted), each read as
+    its field's type and checked (``ValueError`` naming a bad one)."""
+    import dataclasses
+
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(Limits):
+        if f.name in args:
+            kind = int if isinstance(f.default, int) and not isinstance(f.default, bool) else float
+            try:
+                out[f.name] = kind(args[f.name])
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"limit {f.name} must be a number, got {str(args[f.name])[:40]!r}") from exc
+    Limits(**out)  # checked here, before any replica starts
+    return out
+
+
 def build_app(args: dict[str, Any]) -> Any:
     """Serve application builder (``serve run workers.serve:build_app root=...``, Serve config files,
     KubeRay ``RayService``).
@@ -108,7 +125,8 @@ def build_app(args: dict[str, Any]) -> Any:
     Args (all strings accepted, as from the command line): ``root`` (store root folder or URI,
     required); ``replicas`` (fixed count) or ``min_replicas``/``max_replicas``/``target_ongoing_requests``
     (autoscaling); ``max_ongoing_requests``; ``num_cpus`` per replica; ``check_every`` seconds;
-    ``max_bytes``/``max_vertices``/``max_faces``/``max_parts``/``max_seconds`` request limits; ``preload``;
+    every field of :class:`proctex.serve.service.Limits` (``max_bytes``, ``max_vertices``, ...,
+    ``body_seconds``, ``body_idle_seconds``, ``body_min_rate``, ``max_uploads``); ``preload``;
     ``edit_token`` (default ``$PROCTEX_EDIT_TOKEN``): the secret stored edits need (none: read-only);
     ``max_families`` (default 0: every family, preloaded): multiplex the families, at most this many
     per replica (:func:`deployment`); ``device`` (default "cpu"): where the networks run, with
@@ -125,9 +143,7 @@ def build_app(args: dict[str, Any]) -> Any:
         }
     else:
         options["num_replicas"] = int(args.get("replicas", 1))
-    limits: dict[str, Any] = {k: int(args[k]) for k in ("max_bytes", "max_vertices", "max_faces", "max_parts") if k in args}
-    if "max_seconds" in args:
-        limits["max_seconds"] = float(args["max_seconds"])
+    limits = limits_from(args)
     preload = str(args.get("preload", "true")).lower() not in ("0", "false", "no")
     token = args.get("edit_token") or os.environ.get("PROCTEX_EDIT_TOKEN") or None
     device = str(args.get("device", "cpu"))

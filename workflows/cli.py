@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -38,6 +39,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from ray import serve
 
     from proctex.serve.catalog import Catalog
+    from proctex.serve.service import Limits
     from workers.serve import build_app
 
     if args.port < 1 or args.port > 65535:
@@ -53,6 +55,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise ValueError("--edit-token must be at least 8 characters")
     if token:
         app_args["edit_token"] = token
+    from workers.serve import limits_from
+
+    for item in args.limit or []:
+        key, sep, value = item.partition("=")
+        if not sep or key not in {f.name for f in dataclasses.fields(Limits)}:
+            raise ValueError(f"--limit takes NAME=VALUE with NAME one of {', '.join(f.name for f in dataclasses.fields(Limits))}, got {item!r}")
+        app_args[key] = value
+    limits_from(app_args)  # bad limits are said before Ray starts
     if args.max_families < 0:
         raise ValueError(f"--max-families must be >= 0 (0: every family, preloaded), got {args.max_families}")
     if args.max_families:
@@ -173,6 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="multiplex: load families on demand, at most this many per replica (LRU); 0: every family, preloaded")
     p.add_argument("--edit-token", help="allow stored edits to requests carrying this secret (header X-ProcTex-Token); "
                                         "default $PROCTEX_EDIT_TOKEN; none: the families are read-only")
+    p.add_argument("--limit", action="append", metavar="NAME=VALUE",
+                   help="a request limit (repeatable): max_bytes, max_vertices, max_faces, max_parts, max_prompt, max_seconds, "
+                        "body_seconds, body_idle_seconds, body_min_rate, max_uploads (docs/http-api.md)")
     p.set_defaults(func=cmd_serve)
     p = sub.add_parser("screenshot", help="a PNG of the web studio at URL (headless Chromium), e.g. http://127.0.0.1:8000/?family=sofa")
     p.add_argument("url", help="the studio's URL; ?family=NAME picks a family")

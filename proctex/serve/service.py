@@ -59,7 +59,11 @@ class Unavailable(ValueError):
 class Limits:
     """Request limits: body bytes, mesh vertices, faces and parts (connected components), characters
     of an edit prompt, and seconds of work per transfer (the request's
-    :class:`~proctex.transfer.budget.Budget`)."""
+    :class:`~proctex.transfer.budget.Budget`); and the time bounds on reading a body: at most
+    ``body_seconds`` in all, no gap between bytes longer than ``body_idle_seconds``, at least
+    ``body_min_rate`` bytes per second on average once the first ``body_idle_seconds`` have passed,
+    and at most ``max_uploads`` bodies read at once per replica (a stalled client holds one slot,
+    never the health route or other families' requests)."""
 
     max_bytes: int = 32 * 2**20
     max_vertices: int = 500_000
@@ -67,14 +71,20 @@ class Limits:
     max_prompt: int = 200
     max_parts: int = 512
     max_seconds: float = 30.0
+    body_seconds: float = 120.0
+    body_idle_seconds: float = 10.0
+    body_min_rate: int = 16_384
+    max_uploads: int = 4
 
     def __post_init__(self) -> None:
-        for name in ("max_bytes", "max_vertices", "max_faces", "max_prompt", "max_parts"):
+        for name in ("max_bytes", "max_vertices", "max_faces", "max_prompt", "max_parts", "body_min_rate", "max_uploads"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"limit {name} must be a positive integer, got {value!r}")
-        if not (isinstance(self.max_seconds, (int, float)) and math.isfinite(self.max_seconds) and self.max_seconds > 0):
-            raise ValueError(f"limit max_seconds must be a positive number, got {self.max_seconds!r}")
+        for name in ("max_seconds", "body_seconds", "body_idle_seconds"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"limit {name} must be a positive number, got {value!r}")
 
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")

@@ -1,0 +1,99 @@
+"""No client can hold the service by sending slowly (issue 34): a body that stalls, trickles or
+never ends is answered 408 within the time bounds of :class:`proctex.serve.service.Limits`, and
+bodies beyond ``max_uploads`` are refused at once (503, Retry-After) while the health route and
+other requests are answered."""
+
+from __future__ import annotations
+
+import asyncio
+import shutil
+import time
+
+import pytest
+
+httpx = pytest.importorskip("httpx")
+
+from proctex.serve.catalog import Catalog  # noqa: E402
+from proctex.serve.service import Limits  # noqa: E402
+from workers.http import create_app  # noqa: E402
+
+LIMITS = dict(body_seconds=3.0, body_idle_seconds=0.4, body_min_rate=200, max_uploads=1)
+
+
+@pytest.fixture()
+def app(painted_mug_root, tmp_path):
+    shutil.copytree(painted_mug_root / "mug", tmp_path / "root" / "mug")
+    cat = Catalog(str(tmp_path / "root"), Limits(**LIMITS), check_every=0)
+    cat.get("mug")
+    return create_app(lambda: cat)
+
+
+async def _post(client, body, length=None):
+    headers = {"content-type": "application/json"}
+    if length is not None:
+        headers["content-length"] = str(length)
+    t = time.monotonic()
+    r = await client.post("/v1/families/mug/transfer", content=body, headers=headers)
+    return r, time.monotonic() - t
+
+
+async def stalled(first: bytes = b'{"params": ', pause: float = 30.0):
+    yield first
+    await asyncio.sleep(pause)
+    yield b"{}}"
+
+
+async def trickle(n: int = 100, every: float = 0.05):
+    for _ in range(n):
+        yield b" "
+        await asyncio.sleep(every)
+
+
+def test_stalled_trickling_and_endless_bodies_are_cut_off(app):
+    async def run():
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://t", timeout=20) as c:
+            r, took = await _post(c, stalled(), length=1000)  # lies about its length, then idles
+            assert r.status_code == 408 and "nothing for 0.4 s" in r.json()["error"] and took < 5, (r.text, took)
+            r, took = await _post(c, trickle())  # chunked, 20 bytes/s: under the minimum rate
+            assert r.status_code == 408 and "bytes/s" in r.json()["error"] and took < 5, (r.text, took)
+            r, took = await _post(c, b'{"params": {}}')  # a sound body still gets through
+            assert r.status_code == 200 and r.content[:4] == b"glTF"
+
+    asyncio.run(run())
+
+
+def test_uploads_beyond_the_slots_are_refused_at_once_and_health_answers(app):
+    async def run():
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://t", timeout=20) as c:
+            holder = asyncio.create_task(_post(c, stalled(pause=1.0), length=1000))
+            await asyncio.sleep(0.1)  # the one slot is held by a stalled body
+            r, took = await _post(c, b'{"params": {}}')
+            assert r.status_code == 503 and r.headers.get("retry-after") == "1" and "uploads" in r.json()["error"] and took < 1
+            h = await c.get("/healthz")
+            assert h.status_code == 200
+            held, _ = await holder
+            assert held.status_code == 408
+            r, _ = await _post(c, b'{"params": {}}')  # the slot is free again
+            assert r.status_code == 200
+
+    asyncio.run(run())
+
+
+def test_body_limits_are_checked():
+    for bad in (dict(body_seconds=0), dict(body_idle_seconds=float("nan")), dict(max_uploads=0), dict(body_min_rate=True)):
+        with pytest.raises(ValueError, match="limit"):
+            Limits(**bad)
+
+
+def test_the_limits_are_settable_for_serve_and_checked_before_ray_starts(painted_mug_root, capsys):
+    from workers.serve import limits_from
+    from workflows.cli import main
+
+    assert limits_from({"root": "x", "body_seconds": "5", "max_uploads": "2"}) == {"body_seconds": 5.0, "max_uploads": 2}
+    with pytest.raises(ValueError, match="max_uploads"):
+        limits_from({"max_uploads": "0"})
+    for flag, message in (("bogus=1", "NAME=VALUE"), ("body_min_rate=slow", "must be a number"), ("body_idle_seconds=-1", "positive")):
+        assert main(["serve", str(painted_mug_root), "--limit", flag]) == 2
+        assert message in capsys.readouterr().err, flag
