@@ -234,6 +234,10 @@ def _read_with_trimesh(data: bytes, fmt: str, path: str) -> tuple[np.ndarray, li
     merging/reordering); ``path`` names it in errors."""
     import trimesh
 
+    if fmt in ("glb", "gltf"):
+        from .meshcounts import declared_counts
+
+        declared_counts(data, fmt, path)  # a node tree past the depth a library can walk is refused here
     try:
         loaded = trimesh.load(io.BytesIO(data), file_type=fmt, process=False, force=None)
     except Exception as exc:  # trimesh raises many types for malformed files

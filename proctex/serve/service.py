@@ -330,6 +330,22 @@ class FamilyService:
             raise BadInput(f"mesh has {n_parts} parts (connected components); the limit is {self.limits.max_parts}")
         return shape
 
+    def check_declared(self, data: bytes, suffix: str) -> None:
+        """What the upload's header declares against the limits, before any parse
+        (:func:`proctex.geometry.meshcounts.declared_counts`): :class:`TooLarge` for more vertices or
+        triangles than allowed, :class:`BadInput` for a header that cannot be read or a node tree
+        too deep."""
+        from proctex.geometry.meshcounts import declared_counts
+
+        try:
+            c = declared_counts(data, suffix.lstrip("."), "the upload")
+        except ValueError as exc:
+            raise BadInput(str(exc)) from exc
+        if c.vertices is not None and c.vertices > self.limits.max_vertices:
+            raise TooLarge(f"the upload declares {c.vertices} vertices; the limit is {self.limits.max_vertices}")
+        if c.triangles is not None and c.triangles > self.limits.max_faces:
+            raise TooLarge(f"the upload declares {c.triangles} triangles; the limit is {self.limits.max_faces}")
+
     def shape_from_mesh(self, data: bytes, filename: str = "mesh.obj"):
         from proctex.geometry.meshio import load_mesh_bytes
 
@@ -342,6 +358,7 @@ class FamilyService:
             raise BadInput("empty mesh upload")
         if suffix == ".gltf":
             _check_self_contained_gltf(data)
+        self.check_declared(data, suffix)
         name = f"upload{suffix}"
         try:
             shape, _ = load_mesh_bytes(data, name, groups=True)  # OBJ groups are parts (the add-on's part attribute)

@@ -1,0 +1,126 @@
+"""What a mesh file says it holds, read from its header alone (PLY and binary STL headers, OBJ's
+vertex and face lines, a glTF's accessors and node tree), so limits are checked before any parse:
+a 2M-face PLY or an OBJ face of 100,000 corners is refused in milliseconds, not after seconds of
+parsing and gigabytes of memory. glTF node trees are walked here, linearly, and refused past
+:data:`MAX_NODE_DEPTH` (a library that multiplies transforms along every chain is cubic in depth)."""
+
+from __future__ import annotations
+
+import json
+import re
+import struct
+from dataclasses import dataclass
+
+#: The deepest glTF node hierarchy and the most nodes a file may have.
+MAX_NODE_DEPTH = 32
+MAX_NODES = 10_000
+MAX_JSON = 16 * 2**20  # bytes of a glTF's JSON
+
+
+@dataclass(frozen=True)
+class DeclaredCounts:
+    """``vertices`` and ``triangles`` a file declares (None where its header cannot say), and for
+    glTF its node count and depth."""
+
+    vertices: int | None
+    triangles: int | None
+    nodes: int = 0
+    depth: int = 0
+
+
+def declared_counts(data: bytes, fmt: str, name: str = "mesh") -> DeclaredCounts:
+    """The counts of ``data`` (a file of format ``fmt``: obj, ply, stl, glb, gltf) from its header;
+    ``ValueError`` naming ``name`` for a header that cannot be read, a node cycle, or a node tree
+    past :data:`MAX_NODE_DEPTH` / :data:`MAX_NODES`."""
+    if fmt == "obj":
+        vertices = len(re.findall(rb"(?m)^[ \t]*v[ \t]", data))
+        triangles = sum(max(len(line.split()) - 2, 0) for line in re.findall(rb"(?m)^[ \t]*f[ \t]+([^\r\n]*)", data))
+        return DeclaredCounts(vertices, triangles)
+    if fmt == "ply":
+        end = data.find(b"end_header", 0, 65536)
+        if not data.startswith(b"ply") or end < 0:
+            raise ValueError(f"{name}: not a PLY file (no header)")
+        counts = dict(re.findall(rb"(?m)^element[ \t]+(\w+)[ \t]+(\d+)", data[:end]))
+        v, f = counts.get(b"vertex"), counts.get(b"face")
+        return DeclaredCounts(int(v) if v is not None else None, int(f) if f is not None else None)
+    if fmt == "stl":
+        if len(data) >= 84:
+            (n,) = struct.unpack("<I", data[80:84])
+            if 84 + 50 * n == len(data):  # binary: the count is the header's
+                return DeclaredCounts(None, n)
+        return DeclaredCounts(None, data.count(b"endfacet"))
+    if fmt in ("glb", "gltf"):
+        return _gltf_counts(_gltf_json(data, fmt, name), name)
+    return DeclaredCounts(None, None)
+
+
+def _gltf_json(data: bytes, fmt: str, name: str) -> dict:
+    if fmt == "glb":
+        if len(data) < 20 or data[:4] != b"glTF":
+            raise ValueError(f"{name}: not a GLB file")
+        length, kind = struct.unpack("<I4s", data[12:20])
+        if kind != b"JSON" or length > min(MAX_JSON, len(data) - 20):
+            raise ValueError(f"{name}: the GLB's first chunk is not its JSON")
+        text = data[20:20 + length]
+    else:
+        if len(data) > MAX_JSON:
+            raise ValueError(f"{name}: a glTF's JSON of over {MAX_JSON} bytes")
+        text = data
+    try:
+        doc = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise ValueError(f"{name}: cannot read the glTF's JSON ({type(exc).__name__})") from exc
+    if not isinstance(doc, dict):
+        raise ValueError(f"{name}: the glTF's JSON is not an object")
+    return doc
+
+
+def _gltf_counts(doc: dict, name: str) -> DeclaredCounts:
+    nodes = doc.get("nodes") or []
+    accessors = doc.get("accessors") or []
+    meshes = doc.get("meshes") or []
+    if not isinstance(nodes, list) or not isinstance(accessors, list) or not isinstance(meshes, list):
+        raise ValueError(f"{name}: the glTF's nodes, meshes and accessors must be lists")
+    if len(nodes) > MAX_NODES:
+        raise ValueError(f"{name}: {len(nodes)} nodes (at most {MAX_NODES})")
+
+    def count(i) -> int:
+        a = accessors[i] if isinstance(i, int) and 0 <= i < len(accessors) and isinstance(accessors[i], dict) else {}
+        c = a.get("count", 0)
+        return c if isinstance(c, int) and c >= 0 else 0
+
+    per_mesh = []
+    for m in meshes:
+        v = t = 0
+        for p in (m.get("primitives") or []) if isinstance(m, dict) else []:
+            if not isinstance(p, dict):
+                continue
+            pos = count((p.get("attributes") or {}).get("POSITION")) if isinstance(p.get("attributes"), dict) else 0
+            v += pos
+            t += (count(p["indices"]) if "indices" in p else pos) // 3
+        per_mesh.append((v, t))
+    children = [[c for c in (n.get("children") or []) if isinstance(c, int)] if isinstance(n, dict) else [] for n in nodes]
+    is_child = {c for cs in children for c in cs}
+    roots = [i for i in range(len(nodes)) if i not in is_child]
+    depth, vertices, triangles, seen = 0, 0, 0, set()
+    stack = [(r, 1) for r in roots]
+    while stack:  # every node once, by its own depth: linear in the tree
+        i, d = stack.pop()
+        if not 0 <= i < len(nodes):
+            raise ValueError(f"{name}: a node names child {i}, which does not exist")
+        if i in seen:
+            raise ValueError(f"{name}: node {i} is reached twice (a cycle or a shared child)")
+        seen.add(i)
+        depth = max(depth, d)
+        if depth > MAX_NODE_DEPTH:
+            raise ValueError(f"{name}: a node hierarchy {MAX_NODE_DEPTH + 1} or more deep (at most {MAX_NODE_DEPTH}); flatten it")
+        m = nodes[i].get("mesh") if isinstance(nodes[i], dict) else None
+        if isinstance(m, int) and 0 <= m < len(per_mesh):
+            vertices += per_mesh[m][0]
+            triangles += per_mesh[m][1]
+        stack.extend((c, d + 1) for c in children[i])
+    if len(seen) < len(nodes):
+        raise ValueError(f"{name}: nodes in a cycle (no root reaches them)")
+    if not nodes:  # meshes without a scene graph
+        vertices, triangles = sum(v for v, _ in per_mesh), sum(t for _, t in per_mesh)
+    return DeclaredCounts(vertices, triangles, len(nodes), depth)

@@ -1,0 +1,98 @@
+"""Limits checked from a mesh file's header before any parse (issue 34): the declared counts agree
+with what the parsers read on real files, and hostile files (a 2M-face PLY, an OBJ face of 100,000
+corners, a glTF node chain 1,000 deep, a node cycle) are refused in milliseconds."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import struct
+import time
+
+import numpy as np
+import pytest
+
+from proctex.geometry.meshcounts import MAX_NODE_DEPTH, declared_counts
+from proctex.geometry.meshio import load_mesh_bytes
+from proctex.models import get_model
+
+
+def chain_gltf(depth: int, cycle: bool = False) -> bytes:
+    """A self-contained .gltf: one triangle under a chain of ``depth`` nodes, each moving it up by 1."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
+    i = np.array([0, 1, 2], np.uint16).tobytes() + b"\0\0"
+    buf = v + i
+    nodes = [{"children": [k + 1], "translation": [0, 0, 1]} for k in range(depth - 1)] + [{"mesh": 0, "translation": [0, 0, 1]}]
+    if cycle:
+        nodes[-1]["children"] = [0]
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": nodes,
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+           "buffers": [{"byteLength": len(buf), "uri": "data:application/octet-stream;base64," + base64.b64encode(buf).decode()}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 6}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+                         {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"}]}
+    return json.dumps(doc).encode()
+
+
+def test_declared_counts_agree_with_the_parsers_on_real_files(sofa_dir):
+    import trimesh
+
+    sofa = (sofa_dir / "train" / "0.obj").read_bytes()
+    c = declared_counts(sofa, "obj")
+    text = sofa.decode()
+    assert c.vertices == sum(line.startswith("v ") for line in text.splitlines())
+    assert c.triangles == sum(len(line.split()) - 3 for line in text.splitlines() if line.startswith("f "))
+    mug = get_model("mug").generate()
+    m = trimesh.Trimesh(mug.vertices, mug.faces, process=False)
+    for fmt in ("ply", "stl", "glb"):
+        data = m.export(file_type=fmt)
+        data = data.encode() if isinstance(data, str) else data
+        c = declared_counts(data, fmt)
+        assert c.triangles == mug.n_faces, fmt
+        if fmt != "stl":  # an STL states triangles only
+            assert c.vertices == mug.n_vertices, fmt
+    ascii_stl = m.export(file_type="stl_ascii")
+    assert declared_counts(ascii_stl.encode() if isinstance(ascii_stl, str) else ascii_stl, "stl").triangles == mug.n_faces
+
+
+def test_a_chain_within_the_depth_loads_as_the_transforms_say():
+    data = chain_gltf(20)
+    c = declared_counts(data, "gltf")
+    assert (c.depth, c.nodes, c.vertices, c.triangles) == (20, 20, 3, 1)
+    shape, _ = load_mesh_bytes(data, "chain.gltf")
+    assert np.allclose(sorted(shape.vertices[:, 2]), [20, 20, 20])  # 20 translations of 1, composed
+
+
+@pytest.mark.parametrize("data, fmt, message", [
+    (chain_gltf(1000), "gltf", "deep"),
+    (chain_gltf(5), "gltf", None),
+    (chain_gltf(5, cycle=True), "gltf", "cycle|twice"),
+])
+def test_hostile_node_trees_are_refused_before_any_library_walks_them(data, fmt, message):
+    if message is None:
+        assert declared_counts(data, fmt).depth == 5
+        return
+    t = time.perf_counter()
+    with pytest.raises(ValueError, match=message):
+        load_mesh_bytes(data, "hostile.gltf")
+    assert time.perf_counter() - t < 5  # milliseconds in practice: trimesh never sees it
+
+
+def test_the_service_refuses_what_a_header_declares_over_its_limits(painted_mug_root):
+    from proctex.serve.service import BadInput, FamilyService, Limits, TooLarge
+    from proctex.store.layout import FamilyStore
+
+    svc = FamilyService(FamilyStore(painted_mug_root / "mug"), limits=Limits(max_faces=50_000))
+    ply = (b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000\nproperty float x\nproperty float y\nproperty float z\n"
+           b"element face 2000000\nproperty list uchar int vertex_indices\nend_header\n") + b"\0" * 1000
+    huge_face = b"".join(f"v {k} {k % 7} 0\n".encode() for k in range(100)) + b"f " + b" ".join(str(1 + k % 100).encode() for k in range(100_000)) + b"\n"
+    binary_stl = b"\0" * 80 + struct.pack("<I", 60_000) + b"\0" * (50 * 60_000)
+    for data, name, message in ((ply, "m.ply", "declares 1000000 vertices"), (huge_face, "m.obj", "declares 99998 triangles"),
+                                (binary_stl, "m.stl", "declares 60000 triangles")):
+        with pytest.raises(TooLarge, match=message):
+            svc.shape_from_mesh(data, name)
+    with pytest.raises(BadInput, match="deep"):
+        svc.shape_from_mesh(chain_gltf(100), "m.gltf")
+    ok = svc.shape_from_mesh(chain_gltf(3), "m.gltf")  # within the limits it is read
+    assert ok.n_faces == 1
