@@ -9,6 +9,7 @@ import asyncio
 import shutil
 import time
 
+import numpy as np
 import pytest
 
 httpx = pytest.importorskip("httpx")
@@ -97,3 +98,36 @@ def test_the_limits_are_settable_for_serve_and_checked_before_ray_starts(painted
     for flag, message in (("bogus=1", "NAME=VALUE"), ("body_min_rate=slow", "must be a number"), ("body_idle_seconds=-1", "positive")):
         assert main(["serve", str(painted_mug_root), "--limit", flag]) == 2
         assert message in capsys.readouterr().err, flag
+
+
+def test_uploads_are_read_in_a_process_that_is_killed_past_the_budget(painted_mug_root, sofa_dir):
+    """The mesh reader process reads exactly what the library reads; past its deadline, or when
+    its request is cancelled, it is killed (a thread cannot be) and the next read starts a new one."""
+    from proctex.geometry.meshio import load_mesh_bytes
+    from proctex.serve.parse_worker import MeshReader, ReadTimeout
+    from proctex.serve.service import FamilyService
+    from proctex.store.layout import FamilyStore
+    from proctex.transfer.budget import Budget, OverBudget
+
+    reader = MeshReader()
+    try:
+        data = (sofa_dir / "train" / "0.obj").read_bytes()
+        with pytest.raises(ReadTimeout, match="ran past"):
+            reader.read(data, "sofa.obj", seconds=0.01)  # a cold reader cannot even start in 10 ms
+        assert reader.kills == 1
+        with pytest.raises(ReadTimeout, match="cancelled"):
+            reader.read(data, "sofa.obj", seconds=30, cancelled=lambda: True)
+        assert reader.kills == 2
+        shape = reader.read(data, "sofa.obj", groups=True, seconds=60)
+        here, _ = load_mesh_bytes(data, "sofa.obj", groups=True)
+        assert np.array_equal(shape.vertices, here.vertices) and np.array_equal(shape.faces, here.faces)
+        with pytest.raises(ValueError, match="no vertices|no faces|empty"):
+            reader.read(b"# nothing\n", "x.obj", seconds=60)
+    finally:
+        reader.close()
+    svc = FamilyService(FamilyStore(painted_mug_root / "mug"))
+    budget = Budget(30.0)
+    budget.cancel()
+    with pytest.raises(OverBudget) as err:
+        svc.shape_from_mesh(data, "sofa.obj", budget=budget)
+    assert err.value.cancelled

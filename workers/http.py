@@ -404,7 +404,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             edits = svc.parse_edits(raw_edits)
 
             def work():
-                shape = svc.shape_from_params(payload) if kind == "params" else svc.shape_from_mesh(*payload)
+                shape = svc.shape_from_params(payload) if kind == "params" else svc.shape_from_mesh(*payload, budget=budget)
                 budget.check("reading the shape")
                 return svc.transfer(shape, seed=seed, edits=edits, budget=budget, linked=textures == "linked")
 

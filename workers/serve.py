@@ -14,6 +14,7 @@ from typing import Any
 from ray import serve
 
 from proctex.serve.catalog import Catalog, Watchdog
+from proctex.serve.parse_worker import READER
 from proctex.serve.service import Limits
 from workers.http import create_app
 
@@ -33,6 +34,7 @@ class TransferService:
         self.edit_token = edit_token or None
         self.catalog = Catalog(root, Limits(**(limits or {})), check_every, lazy=self.max_families > 0, device=device)
         self.watchdog = Watchdog(2 * self.catalog.limits.max_seconds + 30)
+        READER.warm()  # the mesh reader process, started before the first upload needs it
         if preload and not self.max_families:
             for name in self.catalog.names():
                 try:

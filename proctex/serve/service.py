@@ -346,7 +346,11 @@ class FamilyService:
         if c.triangles is not None and c.triangles > self.limits.max_faces:
             raise TooLarge(f"the upload declares {c.triangles} triangles; the limit is {self.limits.max_faces}")
 
-    def shape_from_mesh(self, data: bytes, filename: str = "mesh.obj"):
+    def shape_from_mesh(self, data: bytes, filename: str = "mesh.obj", budget: Any = None):
+        """The shape of an uploaded mesh file, its header checked against the limits first
+        (:meth:`check_declared`). With a ``budget`` (a request's) the file is read in the mesh
+        reader process (:mod:`proctex.serve.parse_worker`), killed when the budget runs out or is
+        cancelled (:class:`~proctex.transfer.budget.OverBudget`); without, here."""
         from proctex.geometry.meshio import load_mesh_bytes
 
         if len(data) > self.limits.max_bytes:
@@ -361,7 +365,18 @@ class FamilyService:
         self.check_declared(data, suffix)
         name = f"upload{suffix}"
         try:
-            shape, _ = load_mesh_bytes(data, name, groups=True)  # OBJ groups are parts (the add-on's part attribute)
+            if budget is not None:  # a request's: read where it can be stopped
+                from proctex.serve.parse_worker import READER, ReadTimeout
+
+                left = max(0.1, budget.seconds - budget.elapsed()) if budget.seconds is not None else self.limits.max_seconds
+                try:
+                    shape = READER.read(data, name, groups=True, seconds=left, cancelled=lambda: budget.cancelled)
+                except ReadTimeout as exc:
+                    raise OverBudget(f"{exc} (reading the mesh)", cancelled=budget.cancelled) from None
+            else:
+                shape, _ = load_mesh_bytes(data, name, groups=True)  # OBJ groups are parts (the add-on's part attribute)
+        except OverBudget:
+            raise
         except Exception as exc:  # ValueError, or a parser crashing on garbage: the client's bad mesh
             text = str(exc).replace(name, Path(filename or "mesh").name)[:300]
             raise BadInput(f"cannot read the mesh: {text if isinstance(exc, ValueError) else exc.__class__.__name__ + ': ' + text}") from exc
