@@ -311,13 +311,14 @@ def served_vase(blends, tmp_path_factory):
                 time.sleep(1.0)
         yield url, store
     finally:
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signal.SIGINT)  # Ctrl-C stops it: Serve shut down, Ray stopped, exit 0
         try:
             proc.wait(timeout=60)
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
         log.close()
+        assert proc.returncode == 0 and "stopping" in (root / "serve.log").read_text(), (root / "serve.log").read_text()[-2000:]
 
 
 def test_the_addon_client_speaks_the_api_and_reports_errors_plainly():

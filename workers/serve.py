@@ -137,7 +137,10 @@ def build_app(args: dict[str, Any]) -> Any:
     if not args.get("root"):
         raise ValueError("build_app needs args['root'], the family store root")
     options: dict[str, Any] = {"max_ongoing_requests": int(args.get("max_ongoing_requests", 16)),
-                               "ray_actor_options": {"num_cpus": float(args.get("num_cpus", 0))}}
+                               "ray_actor_options": {"num_cpus": float(args.get("num_cpus", 0))},
+                               # a replica being stopped (Ctrl-C, a scale-down) waits this long for its requests, not 20 s
+                               "graceful_shutdown_timeout_s": float(args.get("graceful_shutdown_timeout_s", 5.0)),
+                               "graceful_shutdown_wait_loop_s": 1.0}
     if "min_replicas" in args or "max_replicas" in args:
         options["autoscaling_config"] = {
             "min_replicas": int(args.get("min_replicas", 1)), "max_replicas": int(args.get("max_replicas", 2)),

@@ -8,8 +8,10 @@ import argparse
 import dataclasses
 import json
 import os
+import signal
 import sys
-import time
+import threading
+from typing import Any, Callable
 
 from proctex.cli import app as core
 from proctex.cli import families
@@ -32,6 +34,19 @@ def cmd_build(args: argparse.Namespace) -> int:
     walls = ", ".join(f"{k} {v:.1f}s" for k, v in state["wall_seconds"].items())
     print(f"family {args.out}: stages done: {', '.join(done)} (on Ray: {walls})")
     return 0
+
+
+#: Seconds ``proctex serve`` gives Serve and Ray to stop after Ctrl-C before it exits anyway.
+STOP_SECONDS = 10.0
+
+
+def shutdown_within(stop: Callable[[], Any], seconds: float) -> bool:
+    """Run ``stop`` in a thread and wait at most ``seconds``; True when it finished (a shutdown
+    that hangs must not keep the command from exiting)."""
+    t = threading.Thread(target=stop, name="shutdown", daemon=True)
+    t.start()
+    t.join(seconds)
+    return not t.is_alive()
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -86,11 +101,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
     serve.start(http_options={"host": args.host, "port": args.port})
     serve.run(build_app(app_args), name="proctex", route_prefix="/")
     print(f"serving {', '.join(names)} on http://{args.host}:{args.port} (OpenAPI: /docs); Ctrl-C stops", flush=True)
-    try:
-        while True:
-            time.sleep(3600)
-    except KeyboardInterrupt:
-        serve.shutdown()
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    while not stop.wait(1.0):
+        pass
+    print("stopping: Serve shuts down, then Ray", flush=True)
+    shutdown_within(lambda: (serve.shutdown(), ray.shutdown()), STOP_SECONDS)
     return 0
 
 
