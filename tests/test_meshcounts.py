@@ -88,10 +88,13 @@ def test_the_service_refuses_what_a_header_declares_over_its_limits(painted_mug_
            b"element face 2000000\nproperty list uchar int vertex_indices\nend_header\n") + b"\0" * 1000
     huge_face = b"".join(f"v {k} {k % 7} 0\n".encode() for k in range(100)) + b"f " + b" ".join(str(1 + k % 100).encode() for k in range(100_000)) + b"\n"
     binary_stl = b"\0" * 80 + struct.pack("<I", 60_000) + b"\0" * (50 * 60_000)
-    for data, name, message in ((ply, "m.ply", "declares 1000000 vertices"), (huge_face, "m.obj", "declares 99998 triangles"),
-                                (binary_stl, "m.stl", "declares 60000 triangles")):
+    for data, name, message in ((ply, "m.ply", "declares 1000000 vertices"), (binary_stl, "m.stl", "declares 60000 triangles")):
         with pytest.raises(TooLarge, match=message):
             svc.shape_from_mesh(data, name)
+    with pytest.raises(BadInput, match="a face of 100000 corners"):
+        svc.shape_from_mesh(huge_face, "m.obj")
+    big_cap = b"".join(f"v {np.cos(a)} {np.sin(a)} 0\n".encode() for a in np.linspace(0, 2 * np.pi, 512, endpoint=False))
+    assert svc.shape_from_mesh(big_cap + b"f " + b" ".join(str(k + 1).encode() for k in range(512)) + b"\n", "cap.obj").n_faces == 510
     with pytest.raises(BadInput, match="deep"):
         svc.shape_from_mesh(chain_gltf(100), "m.gltf")
     ok = svc.shape_from_mesh(chain_gltf(3), "m.gltf")  # within the limits it is read

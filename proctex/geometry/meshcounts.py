@@ -11,7 +11,9 @@ import re
 import struct
 from dataclasses import dataclass
 
-#: The deepest glTF node hierarchy and the most nodes a file may have.
+#: The most corners one polygon of a file may have (a cylinder cap of 256 segments has 256), the
+#: deepest glTF node hierarchy and the most nodes a file may have.
+MAX_CORNERS = 4096
 MAX_NODE_DEPTH = 32
 MAX_NODES = 10_000
 MAX_JSON = 16 * 2**20  # bytes of a glTF's JSON
@@ -26,16 +28,21 @@ class DeclaredCounts:
     triangles: int | None
     nodes: int = 0
     depth: int = 0
+    corners: int = 3  # of the largest polygon
 
 
 def declared_counts(data: bytes, fmt: str, name: str = "mesh") -> DeclaredCounts:
     """The counts of ``data`` (a file of format ``fmt``: obj, ply, stl, glb, gltf) from its header;
-    ``ValueError`` naming ``name`` for a header that cannot be read, a node cycle, or a node tree
-    past :data:`MAX_NODE_DEPTH` / :data:`MAX_NODES`."""
+    ``ValueError`` naming ``name`` for a header that cannot be read, a polygon of more than
+    :data:`MAX_CORNERS` corners, a node cycle, or a node tree past :data:`MAX_NODE_DEPTH` /
+    :data:`MAX_NODES`."""
     if fmt == "obj":
         vertices = len(re.findall(rb"(?m)^[ \t]*v[ \t]", data))
-        triangles = sum(max(len(line.split()) - 2, 0) for line in re.findall(rb"(?m)^[ \t]*f[ \t]+([^\r\n]*)", data))
-        return DeclaredCounts(vertices, triangles)
+        corners = [len(line.split()) for line in re.findall(rb"(?m)^[ \t]*f[ \t]+([^\r\n]*)", data)]
+        largest = max(corners, default=3)
+        if largest > MAX_CORNERS:
+            raise ValueError(f"{name}: a face of {largest} corners (at most {MAX_CORNERS})")
+        return DeclaredCounts(vertices, sum(max(k - 2, 0) for k in corners), corners=largest)
     if fmt == "ply":
         end = data.find(b"end_header", 0, 65536)
         if not data.startswith(b"ply") or end < 0:

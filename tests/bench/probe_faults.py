@@ -1,0 +1,258 @@
+"""The faults probe of issue 34: hostile clients, disks and neighbours against a small built family
+(the service's FastAPI app in process, small time bounds), one row per case with what it must get
+and what it got. ``tests/test_probe_faults.py`` runs it in ``make test``; the README prints its table.
+
+    .venv/bin/python tests/bench/probe_faults.py [--out out/bench/probe_faults.json]
+
+Classes: slow bodies (stalled, lying about their length, trickling, more than the upload slots),
+work bounded before it starts (a 2M-face PLY header, an OBJ face of 100,000 corners, a glTF node
+chain 1,000 deep, meshes that cannot be served as float32), writes on a full disk and over a
+tampered texture, two builds of one store, repaired damage, and nonsense numbers on the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import base64
+import contextlib
+import errno
+import hashlib
+import io
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+LIMITS = dict(body_seconds=3.0, body_idle_seconds=0.5, body_min_rate=200, max_uploads=1, max_faces=200_000)
+TOKEN = {"X-ProcTex-Token": "probe-token"}
+
+
+def build_family(root: Path) -> Path:
+    from proctex.build.paint import stage_paint
+    from proctex.build.sample import stage_sample
+    from proctex.build.template import stage_template
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import write_config
+
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="blue ceramic"))
+    st = FamilyStore(root / "mug")
+    write_config(st, cfg)
+    for stage in (stage_sample, stage_template, stage_paint):
+        stage(st, cfg, log=lambda *_: None)
+    return root / "mug"
+
+
+def tree(folder: Path) -> str:
+    h = hashlib.sha256()
+    for p in sorted(folder.rglob("*")):
+        if p.is_file() and ".lock" not in p.name:
+            h.update(str(p.relative_to(folder)).encode() + p.read_bytes())
+    return h.hexdigest()
+
+
+def chain_gltf(depth: int) -> bytes:
+    buf = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
+    nodes = [{"children": [k + 1]} for k in range(depth - 1)] + [{"mesh": 0}]
+    return json.dumps({"asset": {"version": "2.0"}, "scenes": [{"nodes": [0]}], "nodes": nodes,
+                       "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+                       "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64," + base64.b64encode(buf).decode()}],
+                       "bufferViews": [{"buffer": 0, "byteLength": 36}],
+                       "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}]}).encode()
+
+
+def obj_of(vertices: np.ndarray, faces: np.ndarray) -> bytes:
+    return ("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist()) + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces.tolist())).encode()
+
+
+class FullDisk:
+    def __init__(self, fs, state):
+        self._fs, self._state = fs, state
+
+    def open_output_stream(self, path, *a, **k):
+        if self._state.get("full"):
+            raise OSError(errno.ENOSPC, "No space left on device", path)
+        return self._fs.open_output_stream(path, *a, **k)
+
+    def __getattr__(self, name):
+        return getattr(self._fs, name)
+
+
+async def http_cases(root: Path, rows: list) -> None:
+    import httpx
+
+    from proctex.models import get_model
+    from proctex.serve.catalog import Catalog
+    from proctex.serve.service import Limits
+    from workers.http import create_app
+
+    cat = Catalog(str(root), Limits(**LIMITS), check_every=0, recheck_after=0.3)
+    app = create_app(lambda: cat, edit_token=TOKEN["X-ProcTex-Token"])
+    mug = get_model("mug").generate()
+
+    async def stalled(pause=30.0):
+        yield b'{"params": '
+        await asyncio.sleep(pause)
+        yield b"{}}"
+
+    async def trickle():
+        for _ in range(200):
+            yield b" "
+            await asyncio.sleep(0.05)
+
+    async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://probe", timeout=30) as c:
+        async def post(body, headers=None, files=None):
+            t = time.monotonic()
+            if files is not None:
+                r = await c.post("/v1/families/mug/transfer", files=files)
+            else:
+                r = await c.post("/v1/families/mug/transfer", content=body, headers={"content-type": "application/json", **(headers or {})})
+            return r, time.monotonic() - t
+
+        def row(cls, case, expect, r, took, ok_extra=True):
+            try:
+                is_json = isinstance(r.json(), dict)
+            except ValueError:
+                is_json = False
+            rows.append({"class": cls, "case": case, "expect": expect, "got": r.status_code, "seconds": round(took, 2),
+                         "json": is_json, "ok": str(r.status_code) in expect.split("/") and is_json and ok_extra})
+
+        r, t = await post(stalled(), {"content-length": "1000"})
+        row("slow bodies", "Content-Length 1000, 10 bytes, then idle", "408", r, t, t < 5)
+        r, t = await post(trickle())
+        row("slow bodies", "chunked, 20 bytes/s, never ends", "408", r, t, t < 5)
+        holder = asyncio.create_task(post(stalled(pause=1.5), {"content-length": "1000"}))
+        await asyncio.sleep(0.2)
+        r, t = await post(b'{"params": {}}')
+        h = await c.get("/healthz")
+        row("slow bodies", "a second upload while the one slot stalls (health answers: %d)" % h.status_code, "503", r, t,
+            h.status_code == 200 and r.headers.get("retry-after") == "1")
+        await holder
+        ply = (b"ply\nformat binary_little_endian 1.0\nelement vertex 100\nproperty float x\nproperty float y\nproperty float z\n"
+               b"element face 2000000\nproperty list uchar int vertex_indices\nend_header\n") + b"\0" * 1200
+        face = b"".join(f"v {k} {k % 7} 0\n".encode() for k in range(100)) + b"f " + b" ".join(str(1 + k % 100).encode() for k in range(100_000))
+        for case, name, data, expect in (("PLY header: 2,000,000 faces", "m.ply", ply, "413"),
+                                         ("OBJ face of 100,000 corners", "m.obj", face, "422"),
+                                         ("glTF node chain 1,000 deep", "m.gltf", chain_gltf(1000), "422"),
+                                         ("sofa-sized mug moved 1e9 away", "m.obj", obj_of(mug.vertices + 1e9, mug.faces), "422"),
+                                         ("mug scaled by 1e300", "m.obj", obj_of(mug.vertices * 1e300, mug.faces), "422"),
+                                         ("mug moved 1e3 away (served)", "m.obj", obj_of(mug.vertices + 1e3, mug.faces), "200")):
+            r, t = await post(None, files={"mesh": (name, data)})
+            if expect == "200":
+                rows.append({"class": "bounded work", "case": case, "expect": expect, "got": r.status_code, "seconds": round(t, 2),
+                             "json": False, "ok": r.status_code == 200 and r.content[:4] == b"glTF"})
+            else:
+                row("bounded work", case, expect, r, t, t < 5)
+
+        # writes
+        from proctex.store.layout import FamilyStore, StoreLayout
+
+        fam = root / "mug"
+        state = {"full": False}
+        real = FamilyStore.__init__
+
+        def init(self, r):
+            real(self, r)
+            self.fs = FullDisk(self.fs, state)
+
+        FamilyStore.__init__ = init
+        try:
+            r = await c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=TOKEN)
+            before = tree(fam)
+            state["full"] = True
+            t = time.monotonic()
+            r = await c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=TOKEN)
+            row("writes", "an edit on a full disk (family unchanged)", "507", r, time.monotonic() - t, tree(fam) == before)
+            t = time.monotonic()
+            r = await c.delete("/v1/families/mug/edits/last", headers=TOKEN)
+            row("writes", "an undo on a full disk (family unchanged)", "507", r, time.monotonic() - t, tree(fam) == before)
+            state["full"] = False
+        finally:
+            FamilyStore.__init__ = real
+        st = FamilyStore(fam)
+        g = st.read_json(StoreLayout.PAINT)["groups"][0]
+        rel = StoreLayout.texture(0, g["label"])
+        good = (fam / rel).read_bytes()
+        from proctex.fileio import encode_png
+        from proctex.store.template import decode_png
+
+        (fam / rel).write_bytes(encode_png(255 - decode_png(good, rel)))
+        t = time.monotonic()
+        r = await c.post("/v1/families/mug/edits", json={"group": 0, "hue": 20}, headers=TOKEN)
+        row("writes", "an edit over a texture replaced outside ProcTex", "503", r, time.monotonic() - t,
+            len(st.read_json(StoreLayout.PAINT)["edits"]) == 1)
+        (fam / rel).write_bytes(good)  # repaired
+        await asyncio.sleep(0.4)
+        t = time.monotonic()
+        r = await c.get("/v1/families/mug")
+        row("damage", "the texture put back: served again without a restart", "200", r, time.monotonic() - t)
+
+
+def store_cases(root: Path, rows: list) -> None:
+    from proctex.cli import main
+
+    fam = root / "mug"
+    hold = ("import sys, time\nfrom proctex.store.layout import FamilyStore\nfrom proctex.store.locks import build_lock\n"
+            "with build_lock(FamilyStore(sys.argv[1]), 'a build'):\n    print('held', flush=True)\n    time.sleep(60)\n")
+    proc = subprocess.Popen([sys.executable, "-c", hold, str(fam)], stdout=subprocess.PIPE, text=True)
+    try:
+        proc.stdout.readline()
+        err = io.StringIO()
+        t = time.monotonic()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            code = main(["build", "--model", "mug", "--prompt", "red", "--out", str(fam), "--n-train", "2", "--n-test", "0"])
+        rows.append({"class": "builds", "case": "a second build of a store being built", "expect": "exit 2", "got": f"exit {code}",
+                     "seconds": round(time.monotonic() - t, 2), "json": False, "ok": code == 2 and "held by a build" in err.getvalue()})
+    finally:
+        proc.kill()
+        proc.wait()
+    before = tree(fam)
+    for case, argv in (("transfer --bake -5", ["transfer", str(fam), "--params", "{}", "--out", str(root / "x.glb"), "--bake", "-5"]),
+                       ("transfer --bake 100000", ["transfer", str(fam), "--params", "{}", "--out", str(root / "x.glb"), "--bake", "100000"]),
+                       ("transfer --seed -1", ["transfer", str(fam), "--params", "{}", "--out", str(root / "x.glb"), "--seed", "-1"]),
+                       ("edit --logo L --size 1e9,1e9", ["edit", str(fam), "--group", "0", "--logo", str(root / "logo.png"), "--size", "1e9,1e9"])):
+        t = time.monotonic()
+        with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+            code = main(argv)
+        rows.append({"class": "nonsense numbers", "case": case, "expect": "exit 2", "got": f"exit {code}", "seconds": round(time.monotonic() - t, 2),
+                     "json": False, "ok": code == 2 and tree(fam) == before and not (root / "x.glb").exists()})
+
+
+def run(root: Path) -> list[dict]:
+    from proctex.fileio import encode_png
+
+    build_family(root)
+    (root / "logo.png").write_bytes(encode_png(np.zeros((8, 8, 3), np.uint8)))
+    rows: list[dict] = []
+    asyncio.run(http_cases(root, rows))
+    shutil.rmtree(root / "mug" / "template" / "edits", ignore_errors=True)
+    store_cases(root, rows)
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| class | case | must get | got | s | |", "|---|---|---|---|---|---|"]
+    lines += [f"| {r['class']} | {r['case']} | {r['expect']} | {r['got']} | {r['seconds']} | {'ok' if r['ok'] else 'FAIL'} |" for r in rows]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="out/bench/probe_faults.json")
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = run(Path(tmp))
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(rows, indent=1))
+    print(table(rows))
+    return 0 if all(r["ok"] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
