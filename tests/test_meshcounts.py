@@ -88,7 +88,7 @@ def test_the_service_refuses_what_a_header_declares_over_its_limits(painted_mug_
            b"element face 2000000\nproperty list uchar int vertex_indices\nend_header\n") + b"\0" * 1000
     huge_face = b"".join(f"v {k} {k % 7} 0\n".encode() for k in range(100)) + b"f " + b" ".join(str(1 + k % 100).encode() for k in range(100_000)) + b"\n"
     binary_stl = b"\0" * 80 + struct.pack("<I", 60_000) + b"\0" * (50 * 60_000)
-    for data, name, message in ((ply, "m.ply", "declares 1000000 vertices"), (binary_stl, "m.stl", "declares 60000 triangles")):
+    for data, name, message in ((ply, "m.ply", "declares 1000000 vertices"), (binary_stl, "m.stl", "declares 60000 faces")):
         with pytest.raises(TooLarge, match=message):
             svc.shape_from_mesh(data, name)
     with pytest.raises(BadInput, match="a face of 100000 corners"):

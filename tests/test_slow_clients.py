@@ -116,7 +116,11 @@ def test_uploads_are_read_in_a_process_that_is_killed_past_the_budget(painted_mu
             reader.read(data, "sofa.obj", seconds=0.01)  # a cold reader cannot even start in 10 ms
         assert reader.kills == 1
         with pytest.raises(ReadTimeout, match="cancelled"):
-            reader.read(data, "sofa.obj", seconds=30, cancelled=lambda: True)
+            reader.read(data, "sofa.obj", seconds=30, cancelled=lambda: True)  # cancelled before it started: nothing to kill
+        assert reader.kills == 1
+        answers = iter([False] + [True] * 100)  # cancelled while the reader reads
+        with pytest.raises(ReadTimeout, match="cancelled"):
+            reader.read(data, "sofa.obj", seconds=30, cancelled=lambda: next(answers))
         assert reader.kills == 2
         shape = reader.read(data, "sofa.obj", groups=True, seconds=60)
         here, _ = load_mesh_bytes(data, "sofa.obj", groups=True)

@@ -154,15 +154,18 @@ async def read_body(request: Request, max_bytes: int, limits: Limits | None = No
     ``max_bytes``, whether or not it declared a Content-Length, chunked or not; within ``limits``'
     time bounds (:class:`SlowBody` past ``body_seconds``, after a gap over ``body_idle_seconds``,
     or below ``body_min_rate`` on average) and upload slots (:class:`Busy` when ``max_uploads``
-    bodies are being read already). Later ``request.form()`` / ``request.body()`` calls read these
+    bodies are still being read after a short wait). Later ``request.form()`` / ``request.body()`` calls read these
     bytes again, not the socket."""
     limits = limits or Limits()
     length = request.headers.get("content-length")
     if length is not None and length.isdigit() and int(length) > max_bytes:
         raise TooLarge(f"request body of {length} bytes is over the limit of {max_bytes}")
     loop = id(asyncio.get_running_loop())
-    if _READING.get(loop, 0) >= limits.max_uploads:
-        raise Busy(f"{limits.max_uploads} uploads are being read already; retry in a moment")
+    grace = time.monotonic() + min(1.0, limits.body_idle_seconds / 2)  # a sound body reads in milliseconds: wait that long for a slot
+    while _READING.get(loop, 0) >= limits.max_uploads:
+        if time.monotonic() > grace:
+            raise Busy(f"{limits.max_uploads} uploads are being read already; retry in a moment")
+        await asyncio.sleep(0.005)
     _READING[loop] = _READING.get(loop, 0) + 1
     chunks, size = [], 0
     t0 = time.monotonic()

@@ -46,7 +46,7 @@ def declared_counts(data: bytes, fmt: str, name: str = "mesh") -> DeclaredCounts
     if fmt == "ply":
         end = data.find(b"end_header", 0, 65536)
         if not data.startswith(b"ply") or end < 0:
-            raise ValueError(f"{name}: not a PLY file (no header)")
+            raise ValueError(f"{name}: cannot read PLY file: no PLY header")
         counts = dict(re.findall(rb"(?m)^element[ \t]+(\w+)[ \t]+(\d+)", data[:end]))
         v, f = counts.get(b"vertex"), counts.get(b"face")
         return DeclaredCounts(int(v) if v is not None else None, int(f) if f is not None else None)
@@ -64,10 +64,10 @@ def declared_counts(data: bytes, fmt: str, name: str = "mesh") -> DeclaredCounts
 def _gltf_json(data: bytes, fmt: str, name: str) -> dict:
     if fmt == "glb":
         if len(data) < 20 or data[:4] != b"glTF":
-            raise ValueError(f"{name}: not a GLB file")
+            raise ValueError(f"{name}: cannot read GLB file: no GLB header")
         length, kind = struct.unpack("<I4s", data[12:20])
         if kind != b"JSON" or length > min(MAX_JSON, len(data) - 20):
-            raise ValueError(f"{name}: the GLB's first chunk is not its JSON")
+            raise ValueError(f"{name}: cannot read GLB file: its first chunk is not its JSON")
         text = data[20:20 + length]
     else:
         if len(data) > MAX_JSON:

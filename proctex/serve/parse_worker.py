@@ -102,6 +102,8 @@ class MeshReader:
         """The :class:`~proctex.geometry.shape.Shape` of ``data`` (:func:`proctex.geometry.meshio.load_mesh_bytes`
         in the reader). ``ValueError`` for a file the reader refused (its message); :class:`ReadTimeout`
         when it ran past ``seconds`` or ``cancelled()`` turned true (the reader is killed)."""
+        if cancelled():
+            raise ReadTimeout("the request was cancelled")
         with self._lock:
             proc = self._ensure()
             try:
@@ -112,12 +114,13 @@ class MeshReader:
             t0 = time.monotonic()
             fd = proc.stdout.fileno()
             while True:
+                gone = cancelled()
+                if gone or time.monotonic() - t0 > seconds:
+                    self._kill()
+                    raise ReadTimeout("the request was cancelled" if gone else f"reading the mesh ran past {seconds:g} s")
                 ready, _, _ = select.select([fd], [], [], 0.05)
                 if ready:
                     break
-                if cancelled() or time.monotonic() - t0 > seconds:
-                    self._kill()
-                    raise ReadTimeout(f"reading the mesh ran past {seconds:g} s" if not cancelled() else "the request was cancelled")
             try:
                 reply = pickle.loads(_recv_exact(proc.stdout, HEADER.unpack(_recv_exact(proc.stdout, HEADER.size))[0]))
             except (EOFError, pickle.UnpicklingError, struct.error):

@@ -344,7 +344,7 @@ class FamilyService:
         if c.vertices is not None and c.vertices > self.limits.max_vertices:
             raise TooLarge(f"the upload declares {c.vertices} vertices; the limit is {self.limits.max_vertices}")
         if c.triangles is not None and c.triangles > self.limits.max_faces:
-            raise TooLarge(f"the upload declares {c.triangles} triangles; the limit is {self.limits.max_faces}")
+            raise TooLarge(f"the upload declares {c.triangles} faces (triangles); the limit is {self.limits.max_faces}")
 
     def shape_from_mesh(self, data: bytes, filename: str = "mesh.obj", budget: Any = None):
         """The shape of an uploaded mesh file, its header checked against the limits first
@@ -368,6 +368,7 @@ class FamilyService:
             if budget is not None:  # a request's: read where it can be stopped
                 from proctex.serve.parse_worker import READER, ReadTimeout
 
+                budget.check("reading the mesh")
                 left = max(0.1, budget.seconds - budget.elapsed()) if budget.seconds is not None else self.limits.max_seconds
                 try:
                     shape = READER.read(data, name, groups=True, seconds=left, cancelled=lambda: budget.cancelled)
