@@ -1,6 +1,6 @@
 """A build stage as a plan of work, and the in-process executor.
 
-Every stage of the build (:mod:`proctex.build`, :mod:`proctex.measure.evaluate`) is a
+Every stage of the build (one module each in :mod:`proctex.build`) is a
 :class:`Plan`: its jobs in batches (a batch shares its loading: one shape's pairs, eight samples,
 one group's network), the module-level function that runs one batch anywhere (this process or a Ray
 worker), what to do with each batch's results as they arrive, and how to finish the stage. An
