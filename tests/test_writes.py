@@ -240,3 +240,29 @@ def test_nonsense_numbers_and_meshes_that_cannot_be_served_get_clear_errors(fami
     assert svc.textured(ok)[0].data[:4] == b"glTF"
     with pytest.raises(BadInput, match="bake size"):
         svc.textured(ok, bake_size=100_000)
+
+
+def test_an_unreadable_family_is_listed_and_answers_503_naming_the_permission(family, monkeypatch):
+    """A family folder the server may not read stays in /v1/families with its health saying why,
+    and its routes answer 503 (not a plain 500), while the others are served."""
+    from fastapi.testclient import TestClient
+
+    from workers.http import create_app
+
+    root, _ = family
+    shutil.copytree(root / "mug", root / "cup")
+    real = FamilyStore.exists
+
+    def exists(self, rel):
+        if "cup" in self.path(rel).split("/"):
+            raise PermissionError(errno.EACCES, "Permission denied", self.path(rel))
+        return real(self, rel)
+
+    monkeypatch.setattr(FamilyStore, "exists", exists)
+    cat = Catalog(str(root), check_every=0)
+    c = TestClient(create_app(lambda: cat))
+    listed = c.get("/v1/families").json()
+    assert listed["families"] == ["cup", "mug"] and listed["health"]["mug"] == "ok" and "Permission" in listed["health"]["cup"]
+    r = c.get("/v1/families/cup")
+    assert r.status_code == 503 and "Permission" in r.json()["error"]
+    assert c.get("/v1/families/mug").status_code == 200

@@ -6,6 +6,7 @@ a stuck transfer from a busy one."""
 
 from __future__ import annotations
 
+import errno
 import math
 import re
 import threading
@@ -84,7 +85,14 @@ class Catalog:
             return []
 
     def _is_family(self, name: str) -> bool:
-        return not name.startswith(".") and self.root.exists(f"{name}/{StoreLayout.STATE}")
+        """A sub-folder holding a family.json; one that cannot be read counts too (it is listed and
+        answers 503 naming the permission problem, rather than vanishing from the list)."""
+        if name.startswith("."):
+            return False
+        try:
+            return self.root.exists(f"{name}/{StoreLayout.STATE}")
+        except OSError as exc:
+            return isinstance(exc, PermissionError) or exc.errno in (errno.EACCES, errno.EPERM) or "ermission denied" in str(exc)
 
     def store(self, name: str) -> FamilyStore:
         if not isinstance(name, str) or not FAMILY_NAME.fullmatch(name) or not self._is_family(name):
