@@ -154,8 +154,8 @@ async def read_body(request: Request, max_bytes: int, limits: Limits | None = No
     ``max_bytes``, whether or not it declared a Content-Length, chunked or not; within ``limits``'
     time bounds (:class:`SlowBody` past ``body_seconds``, after a gap over ``body_idle_seconds``,
     or below ``body_min_rate`` on average) and upload slots (:class:`Busy` when ``max_uploads``
-    bodies are still being read after a short wait). Later ``request.form()`` / ``request.body()`` calls read these
-    bytes again, not the socket."""
+    bodies are still being read after a short wait). Later ``request.form()`` /
+    ``request.body()`` calls read these bytes again, not the socket."""
     limits = limits or Limits()
     length = request.headers.get("content-length")
     if length is not None and length.isdigit() and int(length) > max_bytes:
