@@ -182,6 +182,12 @@ class ParamSpec:
         )
 
 
+def check_integer(name: str, value: Any, lo: int, hi: int) -> None:
+    """``ValueError`` unless ``value`` is an int (not a bool, not a float) in [lo, hi]."""
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {str(value)[:40]}")
+
+
 def continuous(name: str, low: float, high: float, default: float, unit: str = "", description: str = "") -> ParamSpec:
     return ParamSpec(name, "continuous", default, low=low, high=high, unit=unit, description=description)
 

@@ -37,7 +37,12 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
             log(f"paint: {note}")
     tex = paint_with(template, grouping, config.paint, seed=config.seed, up=config.up_axis(), uv=uv,
                      on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
-    from proctex.store.template import StoredImages, StoredMaps, Template, encode_textures
+    from proctex.store.template import (
+        StoredImages,
+        StoredMaps,
+        Template,
+        encode_textures,
+    )
 
     labels = [g.label for g in tex.groups]
     pngs, maps = encoded = encode_textures(tex)  # each image encoded once: the files, the GLB and the record share the bytes

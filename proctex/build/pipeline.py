@@ -22,7 +22,7 @@ from proctex.build.train import plan_train
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
 from proctex.store.locks import build_lock
-from proctex.store.state import STAGES, read_state, write_config
+from proctex.store.state import STAGES, FamilyState, write_config
 
 Planner = Callable[[FamilyStore, BuildConfig, Callable[[str], None]], Plan]
 Executor = Callable[[Plan, FamilyStore, BuildConfig, Callable[[str], None]], Plan]
@@ -56,4 +56,4 @@ def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | lis
                 t = time.perf_counter()
                 executor(PLANNERS[stage](store, config, log), store, config, log)
                 walls[stage] = round(time.perf_counter() - t, 2)
-        return {**read_state(store).to_dict(), "wall_seconds": walls}
+        return {**FamilyState.load(store).to_dict(), "wall_seconds": walls}

@@ -13,7 +13,7 @@ from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.networks import save_network
 from proctex.store.samples import read_pair, samples
-from proctex.store.state import mark_stage, read_state, stage_done
+from proctex.store.state import FamilyState, mark_stage, stage_done
 
 
 def trainable_groups(store: FamilyStore) -> list[int]:
@@ -109,7 +109,7 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
     resumed build keeps the record of the groups trained before. Each group can be fitted by a team of
     workers (``team``: :func:`fit_group`); an executor may set ``info["mark"]`` (extra fields for the
     stage's record)."""
-    before = read_state(store).stage("train").get("groups", {})
+    before = FamilyState.load(store).stage("train").get("groups", {})
     groups = trainable_groups(store)
     todo = [g for g in groups if not store.exists(StoreLayout.model(g))]
     trained: dict[Any, Any] = {}

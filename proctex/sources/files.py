@@ -22,7 +22,6 @@ import importlib
 import importlib.util
 import json
 import os
-import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +33,7 @@ from proctex.geometry.meshio import FORMATS, load_mesh, read_params
 from proctex.geometry.shape import ProceduralModel, Shape
 from proctex.models import get_model, list_models
 from proctex.params import ParamSpace, infer_space, select_template
+from proctex.plugins import import_file
 
 SPLIT_ALIASES = {"train": "train", "inference": "test", "test": "test"}
 
@@ -143,14 +143,7 @@ def _import_module(spec: str, base: Path) -> Any:
     if spec.endswith(".py"):
         if not path.is_file():
             raise ValueError(f"generator module file {path} does not exist")
-        mod_name = f"proctex_user_{path.stem}_{abs(hash(str(path.resolve())))}"
-        module_spec = importlib.util.spec_from_file_location(mod_name, path)
-        if module_spec is None or module_spec.loader is None:
-            raise ValueError(f"cannot import {path}")
-        module = importlib.util.module_from_spec(module_spec)
-        sys.modules[mod_name] = module
-        module_spec.loader.exec_module(module)
-        return module
+        return import_file(path, "proctex_user")
     try:
         return importlib.import_module(spec)
     except ImportError as exc:

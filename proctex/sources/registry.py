@@ -24,17 +24,11 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from proctex.geometry.shape import ProceduralModel, Shape
-from proctex.params import ParamSpace, restricted_space, with_conditions
-from proctex.plugins import load_plugins
+from proctex.params import ParamSpace, check_integer, restricted_space, with_conditions
+from proctex.plugins import Registry
 
 #: The built-in kinds' own ``[source]`` fields.
 BUILT_IN_FIELDS = ("model", "folder", "generator", "blender")
-
-
-def _integer(name: str, value: Any, lo: int, hi: int) -> None:
-    """``ValueError`` unless ``value`` is an int (not a bool, not a float) in [lo, hi]."""
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {str(value)[:40]}")
 
 
 @dataclass
@@ -89,8 +83,8 @@ class SourceConfig:
         if kind.settings_key == "settings" and not isinstance(self.settings, dict):
             raise ValueError(f"settings of a {kind.name} source must be an object")
         kind.check(self.value(kind.name))
-        _integer("n_train", self.n_train, 2, 100_000)
-        _integer("n_test", self.n_test, 0, 100_000)
+        check_integer("n_train", self.n_train, 2, 100_000)
+        check_integer("n_test", self.n_test, 0, 100_000)
         if self.sampling not in ("lhs", "random"):
             raise ValueError(f"sampling must be lhs or random, got {self.sampling!r}")
         if not isinstance(self.params, dict):
@@ -196,7 +190,7 @@ class SourceKind:
         return self.name if self.name in BUILT_IN_FIELDS else "settings"
 
 
-_KINDS: dict[str, SourceKind] = {}
+_KINDS: Registry[SourceKind] = Registry("source kind", lambda name, known: f"unknown source kind {name!r}; known: {', '.join(known)}")
 _OPEN: dict[str, ShapeSource] = {}
 _LOCK = threading.RLock()
 
@@ -205,33 +199,23 @@ def register_source_kind(kind: SourceKind, replace: bool = False) -> SourceKind:
     """Add ``kind`` to the registry (``replace``: over one of the same name); returns it."""
     if not isinstance(kind.name, str) or not kind.name.isidentifier() or kind.name in ("kind", "settings"):
         raise ValueError(f"a source kind's name must be an identifier, got {str(kind.name)[:60]!r}")
-    with _LOCK:
-        if kind.name in _KINDS and not replace:
-            raise ValueError(f"source kind {kind.name!r} is already registered")
-        _KINDS[kind.name] = kind
-    return kind
+    return _KINDS.add(kind.name, kind, replace=replace)
 
 
 def unregister_source_kind(name: str) -> None:
+    _KINDS.remove(name)
     with _LOCK:
-        _KINDS.pop(name, None)
         for key in [k for k, s in _OPEN.items() if s.kind.name == name]:
             del _OPEN[key]
 
 
 def source_kinds() -> list[SourceKind]:
     """The registered kinds (plugins loaded), in registration order."""
-    load_plugins()
-    with _LOCK:
-        return list(_KINDS.values())
+    return _KINDS.entries()
 
 
 def get_source_kind(name: str) -> SourceKind:
-    load_plugins()
-    with _LOCK:
-        if name in _KINDS:
-            return _KINDS[name]
-    raise ValueError(f"unknown source kind {str(name)[:60]!r}; known: {', '.join(k.name for k in source_kinds())}")
+    return _KINDS.get(name)
 
 
 def source_kind(config: SourceConfig) -> SourceKind:

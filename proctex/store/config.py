@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from proctex.params import read_params_spec
+from proctex.params import check_integer, read_params_spec
 from proctex.sources.registry import SourceConfig, open_source, source_kind
 from proctex.texture.painting import PaintConfig
 
@@ -29,12 +29,6 @@ MAX_SETTINGS = 256  # keys in one section (a config is small; a huge one is a mi
 #: What ``--truth`` accepts: ``auto`` picks canonical for built-in models, the family config's
 #: ``truth`` otherwise; ``none`` means no ground truth (the cage tracker, pseudo-ground truth only).
 TRUTHS = ("auto", "canonical", "vertex-index", "none")
-
-
-def _integer(name: str, value: Any, lo: int, hi: int) -> None:
-    """``ValueError`` unless ``value`` is an int (not a bool, not a float) in [lo, hi]."""
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {str(value)[:40]}")
 
 
 @dataclass
@@ -80,8 +74,8 @@ class BuildConfig:
             raise ValueError(f"truth must be one of {', '.join(TRUTHS)}, got {self.truth!r}")
         if self.truth == "canonical" and not source_kind(self.source).canonical:
             raise ValueError("truth 'canonical' needs a built-in model (canonical coordinates)")
-        _integer("seed", self.seed, 0, 2**32 - 1)
-        _integer("corr_points", self.corr_points, 100, 1_000_000)
+        check_integer("seed", self.seed, 0, 2**32 - 1)
+        check_integer("corr_points", self.corr_points, 100, 1_000_000)
         return self
 
     def shapes(self):

@@ -200,20 +200,9 @@ class FamilyStore:
 
     # ------------------------------------------------------------------------------------- bytes
     def write_bytes(self, rel: str, data: bytes) -> str:
-        """Write atomically (temporary name, then rename); returns the full path."""
-        final = self.path(rel)
-        parent = final.rsplit("/", 1)[0]
-        self.fs.create_dir(parent, recursive=True)
-        tmp = f"{final}.tmp-{uuid.uuid4().hex[:12]}"
-        try:
-            with self.fs.open_output_stream(tmp) as fh:
-                fh.write(data)
-            self.fs.move(tmp, final)
-        except BaseException:
-            if self.fs.get_file_info(tmp).type == pafs.FileType.File:
-                self.fs.delete_file(tmp)
-            raise
-        return final
+        """Write atomically (temporary name, then rename: :meth:`write_all` of one file); returns
+        the full path."""
+        return self.write_all([(rel, data)])[0]
 
     def write_all(self, files: list[tuple[str, bytes]]) -> list[str]:
         """Write several files as one change: every file is first written under a temporary name

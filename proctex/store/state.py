@@ -106,11 +106,6 @@ class FamilyState:
         return self
 
 
-def read_state(store: FamilyStore) -> FamilyState:
-    """:meth:`FamilyState.load`."""
-    return FamilyState.load(store)
-
-
 def mark_stage(store: FamilyStore, stage: str, **info: Any) -> None:
     """Record ``stage`` as done in the store's state (read, marked, written)."""
     FamilyState.load(store).mark(stage, **info).save(store)

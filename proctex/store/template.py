@@ -21,7 +21,16 @@ from proctex.geometry.parts import Grouping, analyse, segment
 from proctex.geometry.shape import Shape
 from proctex.sources.registry import source_kind
 from proctex.store.config import BuildConfig
-from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged, StoreLayout, check_digest, digest, encode_arrays, group_file_name
+from proctex.store.layout import (
+    MAP_KINDS,
+    FamilyStore,
+    StoreDamaged,
+    StoreLayout,
+    check_digest,
+    digest,
+    encode_arrays,
+    group_file_name,
+)
 from proctex.store.samples import read_mesh
 from proctex.store.state import FamilyState, stored_config
 

@@ -16,20 +16,15 @@ from __future__ import annotations
 
 import os
 import re
-import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 from proctex.geometry.parts import Grouping
-from proctex.plugins import load_plugins
+from proctex.params import check_integer
+from proctex.plugins import Registry
 
 NAME = re.compile(r"^[a-z][a-z0-9_]{0,39}$")
 FILLS = ("patchmatch", "surface")
-
-
-def _integer(name: str, value: Any, lo: int, hi: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {str(value)[:40]}")
 
 
 @dataclass(frozen=True)
@@ -65,8 +60,7 @@ class Painter:
     check: Callable[["PaintConfig"], None] | None = None
 
 
-_PAINTERS: dict[str, Painter] = {}
-_LOCK = threading.Lock()
+_PAINTERS: Registry[Painter] = Registry("painter", lambda name, known: f"painter must be one of {', '.join(known)}, got {name!r}")
 
 
 def register_painter(painter: Painter, replace: bool = False) -> Painter:
@@ -75,36 +69,25 @@ def register_painter(painter: Painter, replace: bool = False) -> Painter:
         raise ValueError(f"a painter name must match {NAME.pattern}, got {str(painter.name)[:60]!r}")
     if not callable(painter.make):
         raise ValueError(f"painter {painter.name!r}: make must be callable")
-    with _LOCK:
-        if painter.name in _PAINTERS and not replace:
-            raise ValueError(f"painter name {painter.name!r} is already taken")
-        _PAINTERS[painter.name] = painter
-    return painter
+    return _PAINTERS.add(painter.name, painter, replace=replace)
 
 
 def unregister_painter(name: str) -> None:
-    with _LOCK:
-        _PAINTERS.pop(name, None)
+    _PAINTERS.remove(name)
 
 
 def painter_names() -> tuple[str, ...]:
     """The registered painters (plugins loaded), in registration order."""
-    load_plugins()
-    with _LOCK:
-        return tuple(_PAINTERS)
+    return _PAINTERS.names()
 
 
 def get_painter(name: str) -> Painter:
     """The painter called ``name``; ``ValueError`` listing the known ones."""
-    load_plugins()
-    with _LOCK:
-        if isinstance(name, str) and name in _PAINTERS:
-            return _PAINTERS[name]
-    raise ValueError(f"painter must be one of {', '.join(painter_names())}, got {str(name)[:60]!r}")
+    return _PAINTERS.get(name)
 
 
 def painter_help() -> str:
-    return "; ".join(f"{p.name}: {p.summary}" for p in (get_painter(n) for n in painter_names()))
+    return "; ".join(f"{p.name}: {p.summary}" for p in _PAINTERS.entries())
 
 
 @dataclass
@@ -143,10 +126,10 @@ class PaintConfig:
             raise ValueError("prompt must be a string")
         if not isinstance(self.group_prompts, dict) or not all(isinstance(v, str) for v in self.group_prompts.values()):
             raise ValueError("group_prompts must be an object of prompts {group label or index: prompt}")
-        _integer("texture_size", self.texture_size, 16, 8192)
-        _integer("views", self.views, 3, 256)
-        _integer("view_size", self.view_size, 16, 4096)
-        _integer("steps", self.steps, 1, 1000)
+        check_integer("texture_size", self.texture_size, 16, 8192)
+        check_integer("views", self.views, 3, 256)
+        check_integer("view_size", self.view_size, 16, 4096)
+        check_integer("steps", self.steps, 1, 1000)
         painter = get_painter(self.painter)
         if self.fill not in FILLS:
             raise ValueError(f"fill must be patchmatch or surface, got {self.fill!r}")

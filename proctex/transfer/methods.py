@@ -18,11 +18,10 @@ and ``PROCTEX_PLUGINS=path/to/that_file.py`` (or a ``proctex.plugins`` entry poi
 from __future__ import annotations
 
 import re
-import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from proctex.plugins import load_plugins
+from proctex.plugins import Registry
 from proctex.transfer.assets import TemplateAssets
 from proctex.transfer.mappers import IdentityMapper, Mapper, NetworkMapper, SolverMapper
 
@@ -81,39 +80,23 @@ class Method:
         return self
 
 
-_METHODS: dict[str, Method] = {}
-_ALIASES: dict[str, str] = {}
-_LOCK = threading.Lock()
+_METHODS: Registry[Method] = Registry("method", lambda name, known: f"unknown method {name!r}; known: {', '.join(known)}")
 
 
 def register(method: Method, replace: bool = False) -> Method:
     """Add ``method`` to the registry (``replace``: over one of the same name); a name or alias taken
     by another method is a ``ValueError``. Returns it."""
-    method.check()
-    with _LOCK:
-        taken = {n: _ALIASES.get(n, n) for n in (method.name, *method.aliases) if n in _METHODS or n in _ALIASES}
-        clash = {n: owner for n, owner in taken.items() if owner != method.name or not replace}
-        if clash:
-            raise ValueError(f"method names already taken: {', '.join(f'{n} (by {o})' for n, o in clash.items())}")
-        _METHODS[method.name] = method
-        for a in method.aliases:
-            _ALIASES[a] = method.name
-    return method
+    return _METHODS.add(method.check().name, method, method.aliases, replace)
 
 
 def unregister(name: str) -> None:
     """Remove method ``name`` and its aliases (a test's, or a plugin's being replaced)."""
-    with _LOCK:
-        method = _METHODS.pop(name, None)
-        for a in method.aliases if method else ():
-            _ALIASES.pop(a, None)
+    _METHODS.remove(name)
 
 
 def methods() -> list[Method]:
     """Every registered method (plugins loaded), in registration order."""
-    load_plugins()
-    with _LOCK:
-        return list(_METHODS.values())
+    return _METHODS.entries()
 
 
 def method_names(aliases: bool = False, evaluate: bool | None = None, solver: bool | None = None) -> tuple[str, ...]:
@@ -128,12 +111,7 @@ def method_names(aliases: bool = False, evaluate: bool | None = None, solver: bo
 
 def get_method(name: str) -> Method:
     """The method called ``name`` (or one of its aliases); ``ValueError`` listing the known names."""
-    load_plugins()
-    with _LOCK:
-        key = _ALIASES.get(name, name) if isinstance(name, str) else None
-        if key in _METHODS:
-            return _METHODS[key]
-    raise ValueError(f"unknown method {str(name)[:60]!r}; known: {', '.join(method_names(aliases=True))}")
+    return _METHODS.get(name)
 
 
 def method_help() -> str:
