@@ -224,8 +224,12 @@ class FamilyStore:
         except BaseException:
             self._remove(t for t, _ in staged)
             raise
-        for tmp, final in staged:
-            self.fs.move(tmp, final)
+        for k, (tmp, final) in enumerate(staged):
+            try:
+                self.fs.move(tmp, final)
+            except BaseException:  # a rename that fails (rarely): no temporary is left behind
+                self._remove(t for t, _ in staged[k:])
+                raise
         return [final for _, final in staged]
 
     def _remove(self, paths) -> None:

@@ -1,12 +1,18 @@
 """Loading a built family for transfer (``FamilyService``): the median load of ``--repeats``, then
-the first transfer (which decodes the template textures it reads) and a second one.
+transfers of the family's own unseen shapes as uploads (its first ``--meshes`` stored test meshes):
+their median time and one digest of every GLB answered (equal digests before and after a change:
+the same answers, byte for byte).
 
     .venv/bin/python tests/bench/bench_family_load.py --family out/demo/families/sofa
+
+Runs on older checkouts too (``PYTHONPATH=<checkout>``: the layout before issue 33).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import statistics
 import time
 
@@ -14,25 +20,32 @@ import time
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--family", required=True, help="a built family's store (e.g. out/demo/families/sofa)")
-    p.add_argument("--repeats", type=int, default=7)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--meshes", type=int, default=8)
     args = p.parse_args(argv)
-    from proctex.serve.service import FamilyService
-    from proctex.store.layout import FamilyStore
+    try:
+        from proctex.serve.service import FamilyService
+        from proctex.store.layout import FamilyStore
+    except ImportError:  # the layout before issue 33
+        from proctex.family.service import FamilyService
+        from proctex.family.store import FamilyStore
 
-    FamilyService(FamilyStore(args.family))  # imports and caches warm
+    store = FamilyStore(args.family)
     loads = []
     for _ in range(args.repeats):
         t = time.perf_counter()
-        FamilyService(FamilyStore(args.family))
+        svc = FamilyService(store)
         loads.append(time.perf_counter() - t)
-    svc = FamilyService(FamilyStore(args.family))
-    firsts = []
-    for _ in range(2):
+    rows = [r for r in store.read_table("samples.parquet").to_pylist() if r["split"] == "test"][: args.meshes]
+    times, digest = [], hashlib.sha256()
+    for r in rows:
+        shape = svc.shape_from_mesh(store.read_bytes(r["mesh"]), "mesh.obj")
         t = time.perf_counter()
-        svc.textured(svc.shape_from_params({}) if svc.model is not None else None)
-        firsts.append(time.perf_counter() - t)
-    print(f"load median {1000 * statistics.median(loads):.1f} ms ({args.repeats} loads); "
-          f"first transfer {1000 * firsts[0]:.1f} ms, second {1000 * firsts[1]:.1f} ms")
+        answer, _ = svc.textured(shape)
+        times.append(time.perf_counter() - t)
+        digest.update(answer.data)
+    print(json.dumps({"family": args.family, "load_ms": round(1000 * statistics.median(loads)), "meshes": len(rows),
+                      "transfer_ms": round(1000 * statistics.median(times), 1) if times else None, "glb_digest": digest.hexdigest()[:16]}))
     return 0
 
 
