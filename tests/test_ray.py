@@ -330,9 +330,9 @@ def test_a_multiplexed_replica_holds_at_most_its_cap_and_serves_every_family(loc
 
 
 def test_multiplexed_requests_go_to_the_replica_that_holds_their_family(local_ray, reference, tmp_path):
-    """Two replicas with room for one family each, two families: with the routing header every
-    request of a family lands on one replica and each family loads once; without it (no routing)
-    the same requests make the replicas load families over and over."""
+    """Two replicas with room for one family each, two families: every request of a family lands
+    on one replica and each family loads once. The ingress routes by the family in the path, so
+    requests without the ``serve_multiplexed_model_id`` header (curl's) are routed too."""
     import shutil
     import urllib.request
 
@@ -346,7 +346,7 @@ def test_multiplexed_requests_go_to_the_replica_that_holds_their_family(local_ra
         seen: dict[str, set[str]] = {"a": set(), "b": set()}
         for k in range(16):
             family = "ab"[k % 2]
-            code, replica, _ = _transfer(base, family, routed=True, radius=0.03 + 0.001 * k)
+            code, replica, _ = _transfer(base, family, routed=False, radius=0.03 + 0.001 * k)
             assert code == 200
             seen[family].add(replica)
             time.sleep(0.2)  # replicas report what they hold every few tenths of a second
@@ -358,3 +358,82 @@ def test_multiplexed_requests_go_to_the_replica_that_holds_their_family(local_ra
         assert max(loads) <= 2, loads
     finally:
         serve.delete("proctex-route")
+
+
+def test_serve_holds_against_stalled_clients_and_a_replica_killed_under_load(local_ray, reference, tmp_path):
+    """Issue 34, on Serve (proxy, ingress, two transfer replicas). 40 clients open transfer bodies
+    of 1,000 bytes and stall after 10: the health route and a transfer of another family are
+    answered while all 40 are held. Then 50 transfers from 10 clients, one transfer replica
+    SIGKILLed while it holds requests: Serve's proxy would answer those with a plain-text 500; the
+    ingress retries each (a transfer is idempotent) on the other replica: every answer is a GLB or
+    JSON, and the retried ones say so (``X-ProcTex-Retried``)."""
+    import shutil
+    import urllib.error
+    import urllib.request
+
+    from ray import serve
+
+    root = tmp_path / "families"
+    for name in ("mug", "cup"):
+        shutil.copytree(reference.base, root / name)
+    base = _serve_app(root, "proctex-kill", replicas=2)
+    title = b"ServeReplica:proctex-kill:ProcTexTransfer"
+    port = int(base.rsplit(":", 1)[1])
+    stalled = []
+    try:
+        for _ in range(40):
+            s = socket.create_connection(("127.0.0.1", port), timeout=10)
+            s.sendall(b"POST /v1/families/mug/transfer HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                      b"Content-Length: 1000\r\n\r\n{\"params\":")
+            stalled.append(s)
+        time.sleep(0.5)
+        with urllib.request.urlopen(base + "/healthz", timeout=30) as r:
+            assert r.status == 200
+        code, _, body = _transfer(base, "cup", routed=False)
+        assert code == 200 and body[:4] == b"glTF", body[:200]
+        for s in stalled:  # still held: nothing answered them yet
+            s.setblocking(False)
+            try:
+                got = s.recv(1)
+            except BlockingIOError:
+                got = None
+            assert got is None, "a stalled body was answered already"
+    finally:
+        for s in stalled:
+            s.close()
+    answers: list[tuple[int, str, str, bytes]] = []
+    started = threading.Event()
+
+    def one(k: int) -> None:
+        body = json.dumps({"params": {"radius": 0.03 + 0.0004 * k}}).encode()
+        req = urllib.request.Request(f"{base}/v1/families/mug/transfer", data=body, headers={"content-type": "application/json"}, method="POST")
+        started.set()
+        try:
+            with urllib.request.urlopen(req, timeout=180) as r:
+                answers.append((r.status, r.headers.get("content-type", ""), r.headers.get("x-proctex-retried", ""), r.read()))
+        except urllib.error.HTTPError as e:
+            answers.append((e.code, e.headers.get("content-type", ""), e.headers.get("x-proctex-retried", ""), e.read()))
+
+    try:
+        replicas = pids_running(title)
+        assert len(replicas) == 2, replicas
+        with ThreadPoolExecutor(10) as pool:
+            futures = [pool.submit(one, k) for k in range(50)]
+            started.wait(30)
+            while len(answers) < 4:  # both replicas busy, each holding queued requests
+                time.sleep(0.05)
+            os.kill(replicas[0], signal.SIGKILL)
+            for f in futures:
+                f.result()
+        plain = [(code, ctype, body[:80]) for code, ctype, _, body in answers if code != 200 and "json" not in ctype]
+        assert not plain, plain
+        for code, ctype, _, body in answers:
+            if code == 200:
+                assert body[:4] == b"glTF"
+            else:
+                assert "error" in json.loads(body)
+        codes = [a[0] for a in answers]
+        retried = sum(a[2] == "1" for a in answers)
+        assert len(answers) == 50 and codes.count(200) == 50 and retried >= 1, ({c: codes.count(c) for c in set(codes)}, retried)
+    finally:
+        serve.delete("proctex-kill")

@@ -1,7 +1,7 @@
 """No client can hold the service by sending slowly (issue 34): a body that stalls, trickles or
 never ends is answered 408 within the time bounds of :class:`proctex.serve.service.Limits`, and
 bodies beyond ``max_uploads`` are refused at once (503, Retry-After) while the health route and
-other requests are answered."""
+other requests are answered; small (JSON) bodies have slots of their own."""
 
 from __future__ import annotations
 
@@ -64,26 +64,49 @@ def test_stalled_trickling_and_endless_bodies_are_cut_off(app):
     asyncio.run(run())
 
 
-def test_uploads_beyond_the_slots_are_refused_at_once_and_health_answers(app):
+def test_uploads_beyond_the_slots_are_refused_at_once_and_health_and_small_bodies_answer(app):
+    big = 100_000  # over Limits.small_body: an upload
     async def run():
         transport = httpx.ASGITransport(app=app)
         async with httpx.AsyncClient(transport=transport, base_url="http://t", timeout=20) as c:
-            holder = asyncio.create_task(_post(c, stalled(pause=1.0), length=1000))
-            await asyncio.sleep(0.1)  # the one slot is held by a stalled body
-            r, took = await _post(c, b'{"params": {}}')
+            holder = asyncio.create_task(_post(c, stalled(pause=1.0), length=big))
+            await asyncio.sleep(0.1)  # the one upload slot is held by a stalled body
+            r, took = await _post(c, b" " * big)
             assert r.status_code == 503 and r.headers.get("retry-after") == "1" and "uploads" in r.json()["error"] and took < 1
             h = await c.get("/healthz")
             assert h.status_code == 200
+            r, _ = await _post(c, b'{"params": {}}')  # a small body has slots of its own
+            assert r.status_code == 200 and not holder.done()
             held, _ = await holder
             assert held.status_code == 408
-            r, _ = await _post(c, b'{"params": {}}')  # the slot is free again
-            assert r.status_code == 200
+            r, _ = await _post(c, b" " * big)  # the upload slot is free again: read, then refused as bad JSON
+            assert r.status_code == 422
+
+    asyncio.run(run())
+
+
+def test_forty_stalled_small_bodies_hold_neither_health_nor_transfers(app):
+    """The issue's attack: 40 bodies declaring 1,000 bytes, stalled after 10. Each holds one of
+    ``max_small_bodies`` slots; the health route and a transfer are answered while all 40 are
+    still held."""
+    async def run():
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://t", timeout=20) as c:
+            holders = [asyncio.create_task(_post(c, stalled(pause=2.0), length=1000)) for _ in range(40)]
+            await asyncio.sleep(0.2)
+            h = await c.get("/healthz")
+            r, _ = await _post(c, b'{"params": {}}')
+            assert h.status_code == 200 and r.status_code == 200 and r.content[:4] == b"glTF"
+            assert not any(t.done() for t in holders)  # answered while every stalled body is still held
+            held = [r for r, _ in await asyncio.gather(*holders)]
+            assert {r.status_code for r in held} == {408}
 
     asyncio.run(run())
 
 
 def test_body_limits_are_checked():
-    for bad in (dict(body_seconds=0), dict(body_idle_seconds=float("nan")), dict(max_uploads=0), dict(body_min_rate=True)):
+    for bad in (dict(body_seconds=0), dict(body_idle_seconds=float("nan")), dict(max_uploads=0), dict(body_min_rate=True),
+                dict(max_small_bodies=0), dict(small_body=-1)):
         with pytest.raises(ValueError, match="limit"):
             Limits(**bad)
 

@@ -145,28 +145,35 @@ class Busy(RuntimeError):
     """Every upload slot of the replica is taken (503, retry)."""
 
 
-#: Bodies being read now, per event loop (a replica's): what ``Limits.max_uploads`` bounds.
-_READING: dict[int, int] = {}
+#: Bodies being read now, per (event loop, pool): what ``Limits.max_uploads`` (pool "upload") and
+#: ``Limits.max_small_bodies`` (pool "small") bound.
+_READING: dict[tuple[int, str], int] = {}
 
 
 async def read_body(request: Request, max_bytes: int, limits: Limits | None = None) -> bytes:
     """The request body, read in chunks and refused (:class:`TooLarge`) as soon as it passes
     ``max_bytes``, whether or not it declared a Content-Length, chunked or not; within ``limits``'
     time bounds (:class:`SlowBody` past ``body_seconds``, after a gap over ``body_idle_seconds``,
-    or below ``body_min_rate`` on average) and upload slots (:class:`Busy` when ``max_uploads``
-    bodies are still being read after a short wait). Later ``request.form()`` /
-    ``request.body()`` calls read these bytes again, not the socket."""
+    or below ``body_min_rate`` on average) and slots (:class:`Busy` when ``max_uploads`` bodies
+    are still being read after a short wait; bodies declaring at most ``small_body`` bytes take
+    one of ``max_small_bodies`` slots instead). A request without a body takes no slot. Later
+    ``request.form()`` / ``request.body()`` calls read these bytes again, not the socket."""
     limits = limits or Limits()
     length = request.headers.get("content-length")
+    if (length is None and "transfer-encoding" not in request.headers) or length == "0":
+        request._body = b""  # no body (RFC 9112 6.3): nothing to wait for, no upload slot taken
+        return b""
     if length is not None and length.isdigit() and int(length) > max_bytes:
         raise TooLarge(f"request body of {length} bytes is over the limit of {max_bytes}")
-    loop = id(asyncio.get_running_loop())
+    small = length is not None and length.isdigit() and int(length) <= limits.small_body  # framing holds it to that length
+    pool = (id(asyncio.get_running_loop()), "small" if small else "upload")
+    cap = limits.max_small_bodies if small else limits.max_uploads
     grace = time.monotonic() + min(1.0, limits.body_idle_seconds / 2)  # a sound body reads in milliseconds: wait that long for a slot
-    while _READING.get(loop, 0) >= limits.max_uploads:
+    while _READING.get(pool, 0) >= cap:
         if time.monotonic() > grace:
-            raise Busy(f"{limits.max_uploads} uploads are being read already; retry in a moment")
+            raise Busy(f"{cap} {'small bodies' if small else 'uploads'} are being read already; retry in a moment")
         await asyncio.sleep(0.005)
-    _READING[loop] = _READING.get(loop, 0) + 1
+    _READING[pool] = _READING.get(pool, 0) + 1
     chunks, size = [], 0
     t0 = time.monotonic()
     stream = request.stream().__aiter__()
@@ -190,7 +197,7 @@ async def read_body(request: Request, max_bytes: int, limits: Limits | None = No
             if elapsed > limits.body_idle_seconds and size / elapsed < limits.body_min_rate:
                 raise SlowBody(f"request body too slow: {size} bytes in {elapsed:.1f} s (at least {limits.body_min_rate} bytes/s)")
     finally:
-        _READING[loop] -= 1
+        _READING[pool] -= 1
     body = b"".join(chunks)
     request._body = body  # starlette reads a consumed body from here
     return body

@@ -1,8 +1,14 @@
-"""Ray Serve deployment of the transfer service: the FastAPI app of :mod:`workers.http` as ingress.
+"""Ray Serve deployment of the transfer service: a thin ingress before the transfer replicas.
 
-Each replica keeps a :class:`proctex.serve.catalog.Catalog` of the families under the store root
-(reloaded when a family's build stamp changes): all of them, or, multiplexed, the few it serves. Transfers run in a worker thread of the
-replica, so one replica overlaps request parsing, encoding and I/O with the CPU-bound transfer.
+The application has two deployments. :class:`Ingress` (``ProcTexIngress``) takes every HTTP
+request from Serve's proxy, reads its body within the time bounds (a stalled client holds a cheap
+coroutine there) and forwards it whole to a :class:`TransferService` replica (``ProcTexTransfer``)
+through a Serve handle; a replica lost mid-request is answered in JSON and an idempotent request is
+retried once on another replica (:mod:`workers.ingress`). Each transfer replica keeps a
+:class:`proctex.serve.catalog.Catalog` of the families under the store root (reloaded when a
+family's build stamp changes): all of them, or, multiplexed, the few it serves; it answers a
+forwarded request with the FastAPI app of :mod:`workers.http`. Transfers run in a worker thread of
+the replica, so one replica overlaps request parsing, encoding and I/O with the CPU-bound transfer.
 """
 
 from __future__ import annotations
@@ -12,16 +18,18 @@ import os
 from typing import Any
 
 from ray import serve
+from ray.exceptions import RayActorError
 
 from proctex.serve.catalog import Catalog, Watchdog
 from proctex.serve.parse_worker import READER
 from proctex.serve.service import Limits
 from workers.http import create_app
+from workers.ingress import Answer, Forwarded, call_app, ingress_app
 
 
 class TransferService:
-    """One replica: the catalog of families under ``root`` behind the FastAPI app, which is built in
-    the replica after the constructor (``__serve_build_asgi_app__``), bound to it.
+    """One transfer replica: the catalog of families under ``root`` behind the FastAPI app, which
+    answers the requests the ingress forwards (:meth:`forward`).
 
     Without ``max_families`` every family is preloaded and kept. With it the replica is multiplexed
     (:func:`deployment`): families load on their first request and at most ``max_families`` stay,
@@ -31,7 +39,7 @@ class TransferService:
 
     def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True,
                  edit_token: str | None = None, device: str = "cpu") -> None:
-        self.edit_token = edit_token or None
+        self.edit_token, self.app = edit_token or None, None
         self.catalog = Catalog(root, Limits(**(limits or {})), check_every, lazy=self.max_families > 0, device=device)
         self.watchdog = Watchdog(2 * self.catalog.limits.max_seconds + 30)
         READER.warm()  # the mesh reader process, started before the first upload needs it
@@ -42,9 +50,13 @@ class TransferService:
                 except Exception:  # not built yet, or damaged: reported per request (503) and in /v1/families
                     pass
 
-    def __serve_build_asgi_app__(self):
-        return create_app(lambda: self.catalog, watchdog=self.watchdog, edit_token=self.edit_token,
-                          get_family=self.family if self.max_families else None, replica=_replica_name())
+    async def forward(self, request: Forwarded) -> Answer:
+        """One HTTP request forwarded by the ingress, answered by the FastAPI app of
+        :mod:`workers.http` in this replica (built on the first request, in the replica)."""
+        if self.app is None:
+            self.app = create_app(lambda: self.catalog, watchdog=self.watchdog, edit_token=self.edit_token,
+                                  get_family=self.family if self.max_families else None, replica=_replica_name())
+        return await call_app(self.app, request)
 
     def check_health(self) -> None:
         """Serve's health check: a transfer stuck far past its budget fails it, so Serve replaces
@@ -79,9 +91,8 @@ def deployment(max_families: int = 0, name: str = "ProcTexTransfer"):
     """The Serve deployment class: :class:`TransferService`, multiplexed when ``max_families`` > 0.
 
     Multiplexed, the family is Serve's model id (:func:`ray.serve.multiplexed`): a family loads on
-    its first request, a replica keeps at most ``max_families`` (LRU), and requests that carry the
-    header ``serve_multiplexed_model_id: <family>`` (the studio and the Blender add-on send it) are
-    routed to a replica that already holds the family. The catalog behind it still checks the
+    its first request, a replica keeps at most ``max_families`` (LRU), and requests about a family
+    are routed by :class:`Ingress` to a replica that already holds it. The catalog behind it still checks the
     family's build stamp, so a rebuilt or edited family is reloaded in place."""
     if max_families < 0:
         raise ValueError(f"max_families must be >= 0 (0: every family, preloaded), got {max_families}")
@@ -100,7 +111,36 @@ def deployment(max_families: int = 0, name: str = "ProcTexTransfer"):
 
         MultiplexedTransferService.max_families = max_families
         cls = MultiplexedTransferService
-    return serve.deployment(name=name, ray_actor_options={"num_cpus": 0}, max_ongoing_requests=16, health_check_period_s=10)(serve.ingress()(cls))
+    return serve.deployment(name=name, ray_actor_options={"num_cpus": 0}, max_ongoing_requests=16, health_check_period_s=10)(cls)
+
+
+def lost(exc: BaseException) -> bool:
+    """Whether a failed handle call means the replica was lost (its actor died or cannot be
+    reached), looking through the errors that wrap it (``RayTaskError``, Serve's own)."""
+    seen = 0
+    while exc is not None and seen < 8:
+        if isinstance(exc, RayActorError):
+            return True
+        exc, seen = (getattr(exc, "cause", None) or exc.__cause__), seen + 1
+    return False
+
+
+@serve.deployment(name="ProcTexIngress", ray_actor_options={"num_cpus": 0}, max_ongoing_requests=1024)
+@serve.ingress()
+class Ingress:
+    """The HTTP ingress (:func:`workers.ingress.ingress_app`) over a handle to the transfer
+    replicas; multiplexed (``max_families``), a request about a family is routed to a replica
+    that holds it (the family is Serve's model id)."""
+
+    def __init__(self, transfer: Any, limits: dict[str, Any] | None = None, multiplexed: bool = False) -> None:
+        self.transfer, self.limits, self.multiplexed = transfer, Limits(**(limits or {})), multiplexed
+
+    async def send(self, request: Forwarded, family: str | None) -> Answer:
+        handle = self.transfer.options(multiplexed_model_id=family) if (self.multiplexed and family) else self.transfer
+        return await handle.forward.remote(request)
+
+    def __serve_build_asgi_app__(self):
+        return ingress_app(self.send, self.limits, is_lost=lost)
 
 
 def limits_from(args: dict[str, Any]) -> dict[str, Any]:
@@ -132,7 +172,9 @@ def build_app(args: dict[str, Any]) -> Any:
     ``edit_token`` (default ``$PROCTEX_EDIT_TOKEN``): the secret stored edits need (none: read-only);
     ``max_families`` (default 0: every family, preloaded): multiplex the families, at most this many
     per replica (:func:`deployment`); ``device`` (default "cpu"): where the networks run, with
-    ``num_gpus`` per replica (default for "cuda": the GPU shared by the replicas).
+    ``num_gpus`` per replica (default for "cuda": the GPU shared by the replicas);
+    ``ingress_replicas`` (default 1) and ``ingress_max_ongoing_requests`` (default 1024): the
+    :class:`Ingress` in front (bodies are read there, ``max_uploads`` at a time per ingress replica).
     """
     if not args.get("root"):
         raise ValueError("build_app needs args['root'], the family store root")
@@ -155,5 +197,11 @@ def build_app(args: dict[str, Any]) -> Any:
     if device.startswith("cuda"):
         replicas = int(args.get("replicas", args.get("max_replicas", 1)))
         options["ray_actor_options"]["num_gpus"] = float(args.get("num_gpus", 1.0 / max(1, replicas)))
-    return deployment(int(args.get("max_families", 0))).options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)),
-                                                                               limits, preload, token, device)
+    max_families = int(args.get("max_families", 0))
+    transfer = deployment(max_families).options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)),
+                                                                limits, preload, token, device)
+    front = {"num_replicas": int(args.get("ingress_replicas", 1)), "max_ongoing_requests": int(args.get("ingress_max_ongoing_requests", 1024))}
+    if front["num_replicas"] < 1 or front["max_ongoing_requests"] < 1:
+        raise ValueError(f"ingress_replicas and ingress_max_ongoing_requests must be >= 1, got {front}")
+    return Ingress.options(**front, graceful_shutdown_timeout_s=options["graceful_shutdown_timeout_s"],
+                           graceful_shutdown_wait_loop_s=1.0).bind(transfer, limits, max_families > 0)

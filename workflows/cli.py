@@ -202,7 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
                                         "default $PROCTEX_EDIT_TOKEN; none: the families are read-only")
     p.add_argument("--limit", action="append", metavar="NAME=VALUE",
                    help="a request limit (repeatable): max_bytes, max_vertices, max_faces, max_parts, max_prompt, max_seconds, "
-                        "body_seconds, body_idle_seconds, body_min_rate, max_uploads (docs/http-api.md)")
+                        "body_seconds, body_idle_seconds, body_min_rate, max_uploads, max_small_bodies, small_body (docs/http-api.md)")
     p.set_defaults(func=cmd_serve)
     p = sub.add_parser("screenshot", help="a PNG of the web studio at URL (headless Chromium), e.g. http://127.0.0.1:8000/?family=sofa")
     p.add_argument("url", help="the studio's URL; ?family=NAME picks a family")

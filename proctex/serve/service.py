@@ -62,8 +62,11 @@ class Limits:
     :class:`~proctex.transfer.budget.Budget`); and the time bounds on reading a body: at most
     ``body_seconds`` in all, no gap between bytes longer than ``body_idle_seconds``, at least
     ``body_min_rate`` bytes per second on average once the first ``body_idle_seconds`` have passed,
-    and at most ``max_uploads`` bodies read at once per replica (a stalled client holds one slot,
-    never the health route or other families' requests)."""
+    and at most ``max_uploads`` bodies read at once per ingress replica (a stalled client holds one
+    slot, never the health route or other families' requests); bodies that declare at most
+    ``small_body`` bytes (JSON requests: a transfer by parameters, an edit) have their own
+    ``max_small_bodies`` slots, so stalled uploads never refuse them (at most
+    ``max_small_bodies * small_body`` bytes held)."""
 
     max_bytes: int = 32 * 2**20
     max_vertices: int = 500_000
@@ -75,9 +78,12 @@ class Limits:
     body_idle_seconds: float = 10.0
     body_min_rate: int = 16_384
     max_uploads: int = 4
+    max_small_bodies: int = 256
+    small_body: int = 65_536
 
     def __post_init__(self) -> None:
-        for name in ("max_bytes", "max_vertices", "max_faces", "max_prompt", "max_parts", "body_min_rate", "max_uploads"):
+        for name in ("max_bytes", "max_vertices", "max_faces", "max_prompt", "max_parts", "body_min_rate", "max_uploads",
+                     "max_small_bodies", "small_body"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"limit {name} must be a positive integer, got {value!r}")

@@ -1,12 +1,13 @@
 """The faults probe of issue 34: hostile clients, disks and neighbours against a small built family
-(the service's FastAPI app in process, small time bounds), one row per case with what it must get
+(the service's ingress and FastAPI app in process, small time bounds), one row per case with what it must get
 and what it got. ``tests/test_probe_faults.py`` runs it in ``make test``; the README prints its table.
 
     .venv/bin/python tests/bench/probe_faults.py [--out out/bench/probe_faults.json]
 
 Classes: slow bodies (stalled, lying about their length, trickling, more than the upload slots),
 work bounded before it starts (a 2M-face PLY header, an OBJ face of 100,000 corners, a glTF node
-chain 1,000 deep, meshes that cannot be served as float32), writes on a full disk and over a
+chain 1,000 deep, meshes that cannot be served as float32), a replica lost mid-request (a transfer
+retried, an edit not), writes on a full disk and over a
 tampered texture, two builds of one store, repaired damage, and nonsense numbers on the command line.
 """
 
@@ -92,8 +93,25 @@ async def http_cases(root: Path, rows: list) -> None:
     from proctex.serve.service import Limits
     from workers.http import create_app
 
+    from workers.ingress import call_app, ingress_app
+
     cat = Catalog(str(root), Limits(**LIMITS), check_every=0, recheck_after=0.3)
-    app = create_app(lambda: cat, edit_token=TOKEN["X-ProcTex-Token"])
+    replica = create_app(lambda: cat, edit_token=TOKEN["X-ProcTex-Token"])
+    losses = []  # the next calls a replica is lost on: "before" it works, or "after" (the work done, no answer)
+
+    class Lost(RuntimeError):
+        pass
+
+    async def forward(request, family):
+        loss = losses.pop(0) if losses else None
+        if loss == "before":
+            raise Lost("replica died")
+        answer = await call_app(replica, request)
+        if loss == "after":
+            raise Lost("replica died")
+        return answer
+
+    app = ingress_app(forward, Limits(**LIMITS), is_lost=lambda exc: isinstance(exc, Lost), retry_seconds=5)
     mug = get_model("mug").generate()
 
     async def stalled(pause=30.0):
@@ -127,11 +145,23 @@ async def http_cases(root: Path, rows: list) -> None:
         row("slow bodies", "Content-Length 1000, 10 bytes, then idle", "408", r, t, t < 5)
         r, t = await post(trickle())
         row("slow bodies", "chunked, 20 bytes/s, never ends", "408", r, t, t < 5)
-        holder = asyncio.create_task(post(stalled(pause=1.5), {"content-length": "1000"}))
+        holders = [asyncio.create_task(post(stalled(pause=1.5), {"content-length": "1000"})) for _ in range(40)]
         await asyncio.sleep(0.2)
-        r, t = await post(b'{"params": {}}')
+        t = time.monotonic()
         h = await c.get("/healthz")
-        row("slow bodies", "a second upload while the one slot stalls (health answers: %d)" % h.status_code, "503", r, t,
+        r = await c.post("/v1/families/mug2/transfer", json={"params": {}})
+        t = time.monotonic() - t
+        rows.append({"class": "slow bodies", "case": f"40 stalled bodies held: health ({h.status_code}) and another family's transfer",
+                     "expect": "200", "got": r.status_code, "seconds": round(t, 2), "json": False,
+                     "ok": h.status_code == 200 and r.status_code == 200 and r.content[:4] == b"glTF" and t < 2
+                     and not any(x.done() for x in holders)})
+        await asyncio.gather(*holders)
+        big = 100_000  # over Limits.small_body: an upload, with the one upload slot of LIMITS
+        holder = asyncio.create_task(post(stalled(pause=1.5), {"content-length": str(big)}))
+        await asyncio.sleep(0.2)
+        r, t = await post(b" " * big)
+        h = await c.get("/healthz")
+        row("slow bodies", "a second upload while the one upload slot stalls (health answers: %d)" % h.status_code, "503", r, t,
             h.status_code == 200 and r.headers.get("retry-after") == "1")
         await holder
         ply = (b"ply\nformat binary_little_endian 1.0\nelement vertex 100\nproperty float x\nproperty float y\nproperty float z\n"
@@ -149,6 +179,22 @@ async def http_cases(root: Path, rows: list) -> None:
                              "json": False, "ok": r.status_code == 200 and r.content[:4] == b"glTF"})
             else:
                 row("bounded work", case, expect, r, t, t < 5)
+
+        # a replica lost mid-request (Serve's proxy would say a plain-text 500; tests/test_ray.py kills a real one)
+        losses[:] = ["after"]
+        r, t = await post(b'{"params": {}}')
+        rows.append({"class": "lost replica", "case": "a transfer whose replica died before answering", "expect": "200 (retried)",
+                     "got": r.status_code, "seconds": round(t, 2), "json": False,
+                     "ok": r.status_code == 200 and r.content[:4] == b"glTF" and r.headers.get("x-proctex-retried") == "1"})
+        losses[:] = ["before", "before"]
+        r, t = await post(b'{"params": {}}')
+        row("lost replica", "a transfer whose retry is lost too", "503", r, t, r.headers.get("retry-after") == "5")
+        losses[:] = ["after"]
+        t = time.monotonic()
+        r = await c.post("/v1/families/mug/edits", json={"group": 0, "hue": 5}, headers=TOKEN)
+        undo = await c.delete("/v1/families/mug/edits/last", headers=TOKEN)  # it had landed: undone
+        row("lost replica", "an edit whose replica died after storing it (not retried)", "503", r, time.monotonic() - t,
+            undo.status_code == 200 and "not retried" in r.json()["error"])
 
         # writes
         from proctex.store.layout import FamilyStore, StoreLayout
@@ -228,6 +274,7 @@ def run(root: Path) -> list[dict]:
     from proctex.fileio import encode_png
 
     build_family(root)
+    shutil.copytree(root / "mug", root / "mug2")  # another family, for requests beside the hostile ones
     (root / "logo.png").write_bytes(encode_png(np.zeros((8, 8, 3), np.uint8)))
     rows: list[dict] = []
     asyncio.run(http_cases(root, rows))

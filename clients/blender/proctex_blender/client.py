@@ -95,20 +95,15 @@ def multipart(fields: dict[str, str], file_field: str, filename: str, content: b
 def transfer_mesh(url: str, name: str, obj_text: bytes, seed: int = 0, timeout: float = 120.0) -> tuple[bytes, dict[str, Any]]:
     """Texture a mesh (OBJ text): ``(GLB bytes, {"seconds", "notes"})``."""
     body, ctype = multipart({"seed": str(int(seed))}, "mesh", "mesh.obj", obj_text)
-    data, headers = _call(url, _family_path(name) + "/transfer", body, {"Content-Type": ctype, **_route(name)}, timeout=timeout)
+    data, headers = _call(url, _family_path(name) + "/transfer", body, {"Content-Type": ctype}, timeout=timeout)
     return data, _summary(headers)
 
 
 def transfer_params(url: str, name: str, params: dict[str, Any], seed: int = 0, timeout: float = 120.0) -> tuple[bytes, dict[str, Any]]:
     """Texture the family's own shape for ``params``: ``(GLB bytes, {"seconds", "notes"})``."""
     body = json.dumps({"params": params, "seed": int(seed)}).encode()
-    data, headers = _call(url, _family_path(name) + "/transfer", body, {"Content-Type": "application/json", **_route(name)}, timeout=timeout)
+    data, headers = _call(url, _family_path(name) + "/transfer", body, {"Content-Type": "application/json"}, timeout=timeout)
     return data, _summary(headers)
-
-
-def _route(name: str) -> dict[str, str]:
-    """The header that sends a request to a Serve replica already holding the family."""
-    return {"serve_multiplexed_model_id": name}
 
 
 def _summary(headers: dict[str, str]) -> dict[str, Any]:

@@ -207,8 +207,8 @@ function familyPath(fam) {
 }
 
 function transferRequest(fam, params, edits, signal, textures = 'linked') {
-  // The routing header sends the request to a Serve replica that already holds the family.
-  const options = { method: 'POST', signal, headers: { serve_multiplexed_model_id: fam.name } };
+  // A multiplexed service routes by the family in the path (workers/ingress.py): no header needed.
+  const options = { method: 'POST', signal, headers: {} };
   if (fam.inputs.includes('params')) {
     options.headers['content-type'] = 'application/json';
     options.body = JSON.stringify({ params, seed: 0, edits });
