@@ -26,6 +26,7 @@ from .families import (
     cmd_sheet,
     cmd_transfer,
 )
+from .looks import add_look_parser
 from .shapes import (
     cmd_correspond,
     cmd_match,
@@ -185,8 +186,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preview", metavar="PNG", help="also write a 512px 3/4 view of the textured shape to this .png")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out / --preview")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--look", help="the family's look to texture with (proctex look list; default: the build's)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_transfer)
+
+    add_look_parser(sub, painter_names(), painter_help())
 
     p = sub.add_parser("generate", help="textured variants by the thousand: one file per parameter row and a Parquet manifest (on Ray Data)")
     p.add_argument("family", help="the family store (path or URI)")

@@ -146,14 +146,15 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     if args.preview and os.path.abspath(args.preview) == os.path.abspath(args.out):
         raise ValueError("--preview and --out name the same file")
     t0 = time.perf_counter()
-    svc = FamilyService(store, mapper=args.mapper, device=args.device)
+    svc = FamilyService(store, mapper=args.mapper, device=args.device, look=args.look)
     t1 = time.perf_counter()
     answer, _ = svc.textured(shape, seed=args.seed, bake_size=args.bake or None)
     from proctex.fileio import atomic_write, encode_png
     from proctex.transfer.apply import info
 
     result = answer.result
-    summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(svc.mapper).__name__, "out": args.out, "bytes": len(answer.data)}
+    summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(svc.mapper).__name__, "look": svc.look.name, "out": args.out,
+               "bytes": len(answer.data)}
     preview = None
     if args.preview:  # rendered before anything is written: a failing preview leaves no GLB behind
         from proctex.texture.render import render_three_quarter

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged, StoreLayout
+from proctex.store.looks import look_paint, looks, resolve_look
 from proctex.store.state import FamilyState, build_stamp
 from proctex.transfer.assets import texture_hw
 from proctex.transfer.budget import OverBudget
@@ -228,11 +229,12 @@ class FamilyService:
     """One built family, loaded for transfer."""
 
     def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None, mapper: str = "auto",
-                 device: str = "cpu", state: FamilyState | None = None) -> None:
+                 device: str = "cpu", state: FamilyState | None = None, look: str | None = None) -> None:
         """Load the family in ``store``; ``mapper``: a :mod:`proctex.transfer.methods` name
         ("auto": the group networks where trained, the default); ``device``: where the networks and a
         cage fallback run ("cpu", "cuda", "cuda:<i>"; ``ValueError`` when CUDA is asked for and absent);
-        ``state``: the family state when the caller has read it (a catalog), else read here, once."""
+        ``state``: the family state when the caller has read it (a catalog), else read here, once;
+        ``look``: the family's look to texture with (:mod:`proctex.store.looks`; default: the build's)."""
         from proctex.correspond.corrnet import resolve_device
         from proctex.serve.edits import edit_lock
         from proctex.store.networks import load_models
@@ -253,7 +255,9 @@ class FamilyService:
             self.source = self.config.shapes()  # the open shape source (one per process)
             self.model = self.source.model  # None: a folder of meshes, which takes meshes only
             self.up = self.config.up_axis()  # GLBs stand the shape upright in glTF's +Y-up world
-            self.assets = load_assets(store, self.state)
+            self.look = resolve_look(store, look)
+            self.paint = look_paint(store, self.look, self.config.paint)  # the look's prompts paint new parts
+            self.assets = load_assets(store, self.state, self.look)
             # every method that uses the networks loads them ("auto": where there are any)
             self.models = load_models(store, self.device, self.state) if method.networks != "none" else {}
         self.texture_digests = [hashlib.sha256(png).hexdigest() for png in self.assets.png]
@@ -263,7 +267,7 @@ class FamilyService:
             raise ValueError(f"{store.uri} has no trained models (run the train stage)")
         cage = replace(self.config.cage, device=self.device) if self.config.cage is not None else None
         self.mapper: Any = make_mapper(mapper, self.assets, self.models, corr_points=self.config.corr_points, cage=cage)
-        self.painter = SurfacePainter(self.config.paint.prompt, seed=self.config.seed)
+        self.painter = SurfacePainter(self.paint.prompt, seed=self.config.seed)
         self.load_seconds = time.perf_counter() - t0
         self.lock = threading.Lock()  # transfers share the torch models and the painter
         # Edited group textures: (group, GroupEdit) -> (uint8 texture, PNG); re-paints: (group, prompt) -> float texture.
@@ -285,7 +289,7 @@ class FamilyService:
             from proctex.store.samples import samples
 
             space = infer_space([json.loads(r["params"]) for r in samples(self.store)])
-        paint = self.store.read_json(StoreLayout.PAINT) if self.store.exists(StoreLayout.PAINT) else {}
+        paint = self.store.read_json(self.look.PAINT) if self.store.exists(self.look.PAINT) else {}
         metrics = self.store.read_json(StoreLayout.METRICS) if self.store.exists(StoreLayout.METRICS) else None
         return {
             "name": self.name,
@@ -296,8 +300,10 @@ class FamilyService:
             "parts_attribute": self.source.parts_attribute,
             "up": self.up,
             "parameters": [s.to_dict() for s in space.specs],
-            "prompt": self.config.paint.prompt,
-            "group_prompts": dict(self.config.paint.group_prompts),
+            "look": self.look.name,
+            "looks": [lk.name for lk in looks(self.store)],
+            "prompt": self.paint.prompt,
+            "group_prompts": dict(self.paint.group_prompts),
             "groups": [{"group": g.group, "label": g.label, "degenerate": g.degenerate, "network": g.group in self.models,
                         "prompt": next((p.get("prompt") for p in paint.get("groups", []) if p.get("group") == g.group), None),
                         "texture_size": list(texture_hw(self.assets, g.group)), **self._material_means(g.group)}

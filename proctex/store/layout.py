@@ -22,6 +22,7 @@ import errno
 import io
 import json
 import os
+import re
 import uuid
 import zipfile
 from typing import Any
@@ -86,6 +87,61 @@ def encode_arrays(**arrays: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+#: The name of a family's first look (the one its build paints) unless the build named it.
+DEFAULT_LOOK = "default"
+#: A look's name: what a family's name may be (letters, digits, ``.``, ``_``, ``-``; 64 at most).
+LOOK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+
+
+def check_look_name(name: Any) -> str:
+    """``name`` when it can name a look (:data:`LOOK_NAME`), else a ``ValueError`` saying what can."""
+    if not isinstance(name, str) or not LOOK_NAME.fullmatch(name) or ".tmp-" in name:  # .tmp-: a staging name
+        raise ValueError(f"a look's name is 1-64 letters, digits, '.', '_' or '-' (starting with a letter or digit), got {str(name)[:80]!r}")
+    return name
+
+
+class LookLayout:
+    """Where one look of a family lies (relative to the store root): its paint record
+    (``paint.json``), group textures and PBR maps, painted masks, textured GLB, preview and edit
+    snapshots. The build's look lies in ``template/`` (where every store before looks kept it);
+    every other look in ``looks/<name>/``, with its record ``look.json`` (written last: a look
+    without it was never finished)."""
+
+    def __init__(self, name: str = DEFAULT_LOOK, folder: str = "template") -> None:
+        self.name, self.folder = name, folder
+        self.PAINT = f"{folder}/paint.json"
+        self.PAINTED = f"{folder}/painted.npz"
+        self.GLB = f"{folder}/textured.glb"
+        self.EDITS = f"{folder}/edits"
+        self.RECORD = f"{folder}/look.json"
+
+    def __repr__(self) -> str:
+        return f"LookLayout({self.name!r}, {self.folder!r})"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, LookLayout) and (self.name, self.folder) == (other.name, other.folder)
+
+    def __hash__(self) -> int:
+        return hash((self.name, self.folder))
+
+    @property
+    def built(self) -> bool:
+        """Whether this is the build's look (in ``template/``)."""
+        return self.folder == StoreLayout.TEMPLATE
+
+    def file(self, name: str) -> str:
+        """A file of the look's folder."""
+        return f"{self.folder}/{name}"
+
+    def texture(self, group: int, label: str, kind: str = "") -> str:
+        """A group's texture, or with ``kind`` one of its PBR maps (:func:`group_file_name`)."""
+        return self.file(group_file_name(group, label, kind))
+
+    def edit_snapshot(self, version: int, name: str) -> str:
+        """A file as it was before edit ``version`` (``name``: a file name of the look)."""
+        return f"{self.EDITS}/v{int(version):05d}/{name}"
+
+
 class StoreLayout:
     """Every path of a family store (relative to its root), and nothing else spells them."""
 
@@ -103,6 +159,7 @@ class StoreLayout:
     PAINTED = "template/painted.npz"
     GROUPING = "template/grouping.json"
     EDITS = "template/edits"  # one folder per stored edit: the files it replaced (its undo)
+    LOOKS = "looks"  # one folder per look besides the build's (LookLayout)
     EDIT_LOCK = ".edit.lock"  # held while an edit changes the store (local stores)
     BUILD_LOCK = ".build.lock"  # held while a build runs (exclusive) or an edit (shared)
 
@@ -110,6 +167,14 @@ class StoreLayout:
     def edit_snapshot(version: int, name: str) -> str:
         """A file as it was before edit ``version`` (``name``: a template file name)."""
         return f"{StoreLayout.EDITS}/v{int(version):05d}/{name}"
+
+    @staticmethod
+    def look(name: str, built: bool = False) -> LookLayout:
+        """The layout of look ``name``: the build's (``built``, in ``template/``) or another
+        (``looks/<name>/``, the name checked)."""
+        if built:
+            return LookLayout(name, StoreLayout.TEMPLATE)
+        return LookLayout(check_look_name(name), f"{StoreLayout.LOOKS}/{name}")
 
     @staticmethod
     def mesh(sid: str) -> str:

@@ -20,6 +20,7 @@ from proctex.store.config import (
     without_devices,
 )
 from proctex.store.layout import FamilyStore, StoreLayout
+from proctex.store.looks import other_looks
 
 STAGES = ("sample", "template", "paint", "pairs", "train", "evaluate")
 FIELDS = ("config", "stages", "versions")
@@ -100,6 +101,12 @@ class FamilyState:
         with other settings. Returns self (not saved)."""
         new = config.to_dict()
         if self.config is not None and resolved_settings(self.config) != without_devices(new):
+            old = resolved_settings(self.config)
+            if {k: v for k, v in old.items() if k != "paint"} == {k: v for k, v in without_devices(new).items() if k != "paint"}:
+                # only the paint settings differ: the geometry is built; another prompt is a look
+                raise ValueError(f"{where} was built with other paint settings (prompt {old['paint'].get('prompt')!r}); its geometry, "
+                                 f"pairs and networks do not depend on them: paint it with the new ones in seconds with "
+                                 f"`proctex look add {where} NAME --prompt ...` (a new look), or use a new folder to build again")
             raise ValueError(f"{where} was built with another config; use a new folder (or delete it) to change settings")
         self.config = new
         self.versions = library_versions()
@@ -126,11 +133,13 @@ def write_config(store: FamilyStore, config: BuildConfig) -> None:
 
 
 def build_stamp(store: FamilyStore, state: FamilyState | None = None) -> str:
-    """The family's version: its stage records and the template's paint record (edits append to
-    it). Changes whenever the family is rebuilt or edited; the service, the catalog and the Ray
-    workers' cached template all key on it."""
+    """The family's version: its stage records and every look's paint record (edits append to
+    them). Changes whenever the family is rebuilt or edited, or a look is added or removed; the
+    service, the catalog and the Ray workers' cached template all key on it."""
     state = state if state is not None else FamilyState.load(store)
     paint = store.read_bytes(StoreLayout.PAINT) if store.exists(StoreLayout.PAINT) else b""
     h = hashlib.sha256(json.dumps(state.stages, sort_keys=True).encode())
     h.update(paint)
+    for look in other_looks(store):  # a store without looks lists none
+        h.update(look.name.encode() + b"\0" + (store.read_bytes(look.PAINT) if store.exists(look.PAINT) else b""))
     return h.hexdigest()[:16]

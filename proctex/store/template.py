@@ -24,6 +24,7 @@ from proctex.store.config import BuildConfig
 from proctex.store.layout import (
     MAP_KINDS,
     FamilyStore,
+    LookLayout,
     StoreDamaged,
     StoreLayout,
     check_digest,
@@ -35,6 +36,7 @@ from proctex.store.samples import read_mesh
 from proctex.store.state import FamilyState, stored_config
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PAINT_NAME = StoreLayout.PAINT_NAME
 PNG_MODES = {0: "L", 2: "RGB", 3: "P", 4: "LA", 6: "RGBA"}  # IHDR colour type -> PIL's mode name
 
 
@@ -154,44 +156,49 @@ class Template:
         """Per group its label, or ``group_<g>`` for a group without one (the GLB's material names)."""
         return [label or f"group_{g}" for g, label in enumerate(self.labels)]
 
-    def save(self, store: FamilyStore) -> None:
+    def save(self, store: FamilyStore, look: LookLayout | None = None) -> None:
         """Write the grouping, UVs, masks and group textures (PNG) into ``store`` (atomically, file
-        by file). The painter's own outputs (summary, preview, textured GLB) are the paint stage's."""
+        by file): the textures and masks into ``look`` (default: the build's look, in ``template/``;
+        the grouping and UVs only there). The painter's own outputs (summary, preview, textured GLB) are the paint stage's."""
         from proctex.fileio import encode_png
 
-        store.write_json(StoreLayout.GROUPING, self.grouping.to_dict())
-        store.write_arrays(StoreLayout.UV, corner_uv=self.corner_uv, face_group=self.face_group)
+        look = look or LookLayout()
+        if look.built:  # another look shares the build's grouping and UVs: it writes its own folder only
+            store.write_json(StoreLayout.GROUPING, self.grouping.to_dict())
+            store.write_arrays(StoreLayout.UV, corner_uv=self.corner_uv, face_group=self.face_group)
         if self.painted is not None:
             observed = self.observed if self.observed is not None else self.painted
-            store.write_arrays(StoreLayout.PAINTED, **{f"g{k}": m for k, m in enumerate(self.painted)},
+            store.write_arrays(look.PAINTED, **{f"g{k}": m for k, m in enumerate(self.painted)},
                                **{f"o{k}": m for k, m in enumerate(observed)})
         digests: dict[int, dict[str, Any]] = {}
         for g, label in enumerate(self.labels):
             # images read from a store are written back as their stored bytes, never encoded again
             png = self.textures.png[g] if isinstance(self.textures, StoredImages) else encode_png(self.textures[g])
-            store.write_bytes(StoreLayout.texture(g, label), png)
+            store.write_bytes(look.texture(g, label), png)
             digests[g] = {"sha256": digest(png)}
             stored = self.pbr.png[g] if isinstance(self.pbr, StoredMaps) else None
             maps = self.pbr[g] if self.pbr is not None and stored is None else stored
             if maps is not None:
                 for kind in ("orm", "normal"):
                     data = getattr(stored, kind) if stored is not None else encode_png(getattr(maps, f"{kind}_uint8")())
-                    store.write_bytes(StoreLayout.texture(g, label, kind), data)
+                    store.write_bytes(look.texture(g, label, kind), data)
                     digests[g][f"{kind}_sha256"] = digest(data)
                 digests[g]["occlusion"] = bool(maps.occlusion)
-        if store.exists(StoreLayout.PAINT):  # the painter's summary records each texture's checksum
-            summary = store.read_json(StoreLayout.PAINT)
+        if store.exists(look.PAINT):  # the painter's summary records each texture's checksum
+            summary = store.read_json(look.PAINT)
             for entry in summary.get("groups", []):
                 if entry.get("group") in digests:
                     for key in ("orm_sha256", "normal_sha256", "occlusion"):
                         entry.pop(key, None)
                     entry.update(digests[entry["group"]])
-            store.write_json(StoreLayout.PAINT, summary)
+            store.write_json(look.PAINT, summary)
 
     @classmethod
-    def load(cls, store: FamilyStore, shape: Shape, seed: int = 0) -> "Template":
-        """The template stored in ``store`` on its mesh ``shape``. Stores written before the member
-        maps were stored get their grouping analysed again (``seed``, as the paint stage did)."""
+    def load(cls, store: FamilyStore, shape: Shape, seed: int = 0, look: LookLayout | None = None) -> "Template":
+        """The template stored in ``store`` on its mesh ``shape``, textured as ``look`` (default:
+        the build's look). Stores written before the member maps were stored get their grouping
+        analysed again (``seed``, as the paint stage did)."""
+        look = look or LookLayout()
         grouping = None
         if store.exists(StoreLayout.GROUPING):
             try:
@@ -203,7 +210,7 @@ class Template:
         uv = store.read_arrays(StoreLayout.UV)
         if len(uv["face_group"]) != shape.n_faces or uv["corner_uv"].shape != (shape.n_faces, 3, 2):
             raise ValueError(f"{store.uri}: template UVs do not match the template mesh")
-        summary = store.read_json(StoreLayout.PAINT)
+        summary = store.read_json(look.PAINT)
         size = summary.get("texture_size") or None
         pngs, wheres, labels, maps = [], [], [], []
 
@@ -219,25 +226,25 @@ class Template:
             return png
 
         for g in summary["groups"]:
-            pngs.append(read(StoreLayout.texture(g["group"], g["label"]), g.get("sha256"), size))
+            pngs.append(read(look.texture(g["group"], g["label"]), g.get("sha256"), size))
             labels.append(g["label"] or "")
             if g.get("orm_sha256") and g.get("normal_sha256"):  # the maps, where the paint stage made them
                 from proctex.texture.pbr import PbrMaps
 
                 hw = png_size(pngs[-1], wheres[-1])
-                maps.append(PbrMaps(read(StoreLayout.texture(g["group"], g["label"], "orm"), g["orm_sha256"], hw),
-                                    read(StoreLayout.texture(g["group"], g["label"], "normal"), g["normal_sha256"], hw),
+                maps.append(PbrMaps(read(look.texture(g["group"], g["label"], "orm"), g["orm_sha256"], hw),
+                                    read(look.texture(g["group"], g["label"], "normal"), g["normal_sha256"], hw),
                                     bool(g.get("occlusion", False))))
             else:
                 maps.append(None)
-        textures = StoredImages(pngs, [store.path(StoreLayout.texture(g["group"], g["label"])) for g in summary["groups"]])
-        pbr = StoredMaps(maps, [store.path(StoreLayout.texture(g["group"], g["label"], "")) for g in summary["groups"]]) \
+        textures = StoredImages(pngs, [store.path(look.texture(g["group"], g["label"])) for g in summary["groups"]])
+        pbr = StoredMaps(maps, [store.path(look.texture(g["group"], g["label"], "")) for g in summary["groups"]]) \
             if any(m is not None for m in maps) else None
         if len(textures) != len(grouping.groups):
             raise ValueError(f"{store.uri}: {len(textures)} group textures for {len(grouping.groups)} groups")
         painted = observed = None
-        if store.exists(StoreLayout.PAINTED):
-            arrays = store.read_arrays(StoreLayout.PAINTED)
+        if store.exists(look.PAINTED):
+            arrays = store.read_arrays(look.PAINTED)
             painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
             observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
         return cls(shape, grouping, np.asarray(uv["corner_uv"], dtype=np.float64), np.asarray(uv["face_group"], dtype=np.int64),
@@ -314,12 +321,13 @@ def load_template_shape(store: FamilyStore, config: BuildConfig | None = None, s
     return read_mesh(store, StoreLayout.TEMPLATE_MESH)
 
 
-def load_template(store: FamilyStore, config: BuildConfig | None = None, state: FamilyState | None = None) -> Template:
-    """The stored :class:`Template` (its mesh regenerated for model families); ``state``: the family
-    state, when the caller has it (else read here)."""
+def load_template(store: FamilyStore, config: BuildConfig | None = None, state: FamilyState | None = None,
+                  look: LookLayout | None = None) -> Template:
+    """The stored :class:`Template` (its mesh regenerated for model families), textured as ``look``
+    (default: the build's look); ``state``: the family state, when the caller has it (else read here)."""
     state = state if state is not None else FamilyState.load(store)
     config = config if config is not None else stored_config(store, state)
-    return Template.load(store, load_template_shape(store, config, state), seed=config.seed)
+    return Template.load(store, load_template_shape(store, config, state), seed=config.seed, look=look)
 
 
 class TemplateFiles:
@@ -329,9 +337,10 @@ class TemplateFiles:
     the new files are written, ``paint.json`` (the version record) last, so a reader never sees half
     an edit; :meth:`undo` puts the last version's snapshot back."""
 
-    def __init__(self, store: FamilyStore) -> None:
+    def __init__(self, store: FamilyStore, look: LookLayout | None = None) -> None:
         self.store = store
-        self.summary = store.read_json(StoreLayout.PAINT)
+        self.look = look or LookLayout()
+        self.summary = store.read_json(self.look.PAINT)
 
     @property
     def version(self) -> int:
@@ -360,19 +369,19 @@ class TemplateFiles:
 
     def texture_png(self, group: int) -> bytes:
         g = self.group(group)
-        return self._read(StoreLayout.texture(int(g["group"]), g["label"]), g.get("sha256"))
+        return self._read(self.look.texture(int(g["group"]), g["label"]), g.get("sha256"))
 
     def texture(self, group: int) -> np.ndarray:
         """(H, W, 3) uint8 of a group's texture (its checksum checked)."""
         g = self.group(group)
-        return decode_png(self.texture_png(group), self.store.path(StoreLayout.texture(int(g["group"]), g["label"])))
+        return decode_png(self.texture_png(group), self.store.path(self.look.texture(int(g["group"]), g["label"])))
 
     def map_png(self, group: int, kind: str) -> bytes | None:
         """A group's stored PBR map (``kind`` of :data:`proctex.store.layout.MAP_KINDS`, its checksum
         checked), or None."""
         g = self.group(group)
         recorded = g.get(f"{kind}_sha256")
-        return self._read(StoreLayout.texture(int(g["group"]), g["label"], kind), recorded) if recorded else None
+        return self._read(self.look.texture(int(g["group"]), g["label"], kind), recorded) if recorded else None
 
     def corner_uv(self) -> np.ndarray:
         return np.asarray(self.store.read_arrays(StoreLayout.UV)["corner_uv"], dtype=np.float64)
@@ -381,7 +390,7 @@ class TemplateFiles:
         return np.asarray(self.store.read_arrays(StoreLayout.UV)["face_group"], dtype=np.int64)
 
     def painted_masks(self) -> dict[str, np.ndarray] | None:
-        return dict(self.store.read_arrays(StoreLayout.PAINTED)) if self.store.exists(StoreLayout.PAINTED) else None
+        return dict(self.store.read_arrays(self.look.PAINTED)) if self.store.exists(self.look.PAINTED) else None
 
     def grouping(self, shape: Shape, seed: int = 0) -> Grouping:
         """The stored grouping on the template ``shape`` (analysed again, with ``seed``, only for a
@@ -412,22 +421,22 @@ class TemplateFiles:
         entry = next(e for e in summary["groups"] if int(e["group"]) == gi)
         if versioned and record is not None:
             version = self.version + 1
-            self.store.delete(StoreLayout.edit_snapshot(version, "").rstrip("/"))  # an undone version's snapshot
-            kept = [(StoreLayout.texture(gi, g["label"]), current)]
-            kept += [(StoreLayout.texture(gi, g["label"], kind), data) for kind, data in current_maps.items() if data is not None]
-            kept += [(StoreLayout.PAINT, self.store.read_bytes(StoreLayout.PAINT))]
-            if self.store.exists(StoreLayout.PAINTED):
-                kept += [(StoreLayout.PAINTED, self.store.read_bytes(StoreLayout.PAINTED))]
-            writes += [(StoreLayout.edit_snapshot(version, os.path.basename(rel)), data) for rel, data in kept]
+            self.store.delete(self.look.edit_snapshot(version, "").rstrip("/"))  # an undone version's snapshot
+            kept = [(self.look.texture(gi, g["label"]), current)]
+            kept += [(self.look.texture(gi, g["label"], kind), data) for kind, data in current_maps.items() if data is not None]
+            kept += [(self.look.PAINT, self.store.read_bytes(self.look.PAINT))]
+            if self.store.exists(self.look.PAINTED):
+                kept += [(self.look.PAINTED, self.store.read_bytes(self.look.PAINTED))]
+            writes += [(self.look.edit_snapshot(version, os.path.basename(rel)), data) for rel, data in kept]
             record = {**record, "version": version, "before": digest(current), "after": digest(texture if texture is not None else current)}
         if masks is not None:
-            writes.append((StoreLayout.PAINTED, encode_arrays(**masks)))
+            writes.append((self.look.PAINTED, encode_arrays(**masks)))
         new_png = current
         if texture is not None:
-            writes.append((StoreLayout.texture(gi, g["label"]), texture))
+            writes.append((self.look.texture(gi, g["label"]), texture))
             entry["sha256"], new_png = digest(texture), texture
         for kind, data in (maps or {}).items():
-            writes.append((StoreLayout.texture(gi, g["label"], kind), data))
+            writes.append((self.look.texture(gi, g["label"], kind), data))
             entry[f"{kind}_sha256"] = digest(data)
             current_maps[kind] = data
         if occlusion is not None:
@@ -437,8 +446,8 @@ class TemplateFiles:
                 entry["prompt"] = record["prompt"]
             summary.setdefault("edits", []).append(record)
         if glb is not None:
-            writes.append((StoreLayout.TEMPLATE_GLB, self._glb(summary, {gi: (new_png, current_maps)}, *glb)))
-        writes.append((StoreLayout.PAINT, json.dumps(summary, indent=1).encode() + b"\n"))  # last: the version counts from here
+            writes.append((self.look.GLB, self._glb(summary, {gi: (new_png, current_maps)}, *glb)))
+        writes.append((self.look.PAINT, json.dumps(summary, indent=1).encode() + b"\n"))  # last: the version counts from here
         self.store.write_all(writes)
         self.summary = summary
         return record
@@ -452,25 +461,25 @@ class TemplateFiles:
             raise ValueError(f"{self.store.uri}: no stored edit to undo")
         last = edits[-1]
         version = int(last.get("version", len(edits)))
-        folder = StoreLayout.edit_snapshot(version, "")
+        folder = self.look.edit_snapshot(version, "")
         names = self.store.listdir(folder.rstrip("/"))
-        if not names or StoreLayout.PAINT_NAME not in names:
+        if not names or PAINT_NAME not in names:
             raise ValueError(f"{self.store.uri}: edit {version} was stored without its undo (made before edits were versioned)")
         restored = {name: self.store.read_bytes(folder + name) for name in names}
-        before = json.loads(restored[StoreLayout.PAINT_NAME])
+        before = json.loads(restored[PAINT_NAME])
         g = next((e for e in before["groups"] if int(e["group"]) == int(last["group"])), None)
         if g is None:
             raise StoreDamaged(f"{self.store.path(folder)}: the snapshot's paint record lacks group {last['group']}")
-        name = os.path.basename(StoreLayout.texture(int(g["group"]), g["label"]))
+        name = os.path.basename(self.look.texture(int(g["group"]), g["label"]))
         if name in restored:
             check_digest(restored[name], last.get("before") or g.get("sha256"), self.store.path(folder + name))
-        writes = [(StoreLayout.template_file(n), data) for n, data in restored.items() if n != StoreLayout.PAINT_NAME]
+        writes = [(self.look.file(n), data) for n, data in restored.items() if n != PAINT_NAME]
         if glb is not None:
-            pngs = {int(e["group"]): (restored.get(os.path.basename(StoreLayout.texture(int(e["group"]), e["label"]))),
-                                      {k: restored.get(os.path.basename(StoreLayout.texture(int(e["group"]), e["label"], k))) for k in MAP_KINDS})
+            pngs = {int(e["group"]): (restored.get(os.path.basename(self.look.texture(int(e["group"]), e["label"]))),
+                                      {k: restored.get(os.path.basename(self.look.texture(int(e["group"]), e["label"], k))) for k in MAP_KINDS})
                     for e in before["groups"]}
-            writes.append((StoreLayout.TEMPLATE_GLB, self._glb(before, {k: v for k, v in pngs.items() if v[0] is not None}, *glb)))
-        writes.append((StoreLayout.PAINT, restored[StoreLayout.PAINT_NAME]))
+            writes.append((self.look.GLB, self._glb(before, {k: v for k, v in pngs.items() if v[0] is not None}, *glb)))
+        writes.append((self.look.PAINT, restored[PAINT_NAME]))
         self.store.write_all(writes)
         self.summary = before
         try:
@@ -493,8 +502,8 @@ class TemplateFiles:
                 png, m = override[gi]
                 m = m if e.get("orm_sha256") else {}
             else:
-                png = self.store.read_bytes(StoreLayout.texture(gi, e["label"]))
-                m = {k: self.store.read_bytes(StoreLayout.texture(gi, e["label"], k)) for k in MAP_KINDS} if e.get("orm_sha256") else {}
+                png = self.store.read_bytes(self.look.texture(gi, e["label"]))
+                m = {k: self.store.read_bytes(self.look.texture(gi, e["label"], k)) for k in MAP_KINDS} if e.get("orm_sha256") else {}
             pngs.append(png)
             maps.append(PbrMaps(m["orm"], m["normal"], bool(e.get("occlusion"))) if m.get("orm") and m.get("normal") else None)
         names = [e["label"] or f"group_{e['group']}" for e in summary["groups"]]
@@ -504,4 +513,4 @@ class TemplateFiles:
     def write_glb(self, shape: Shape, up: str) -> None:
         """Rewrite ``template/textured.glb`` from the template ``shape``, the UVs, the group PNGs and
         PBR maps as stored (nothing encoded again)."""
-        self.store.write_bytes(StoreLayout.TEMPLATE_GLB, self._glb(self.summary, {}, shape, up))
+        self.store.write_bytes(self.look.GLB, self._glb(self.summary, {}, shape, up))

@@ -12,7 +12,7 @@ import numpy as np
 from proctex.geometry.parts import Grouping, part_mesh
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, normalised_frame
-from proctex.store.layout import FamilyStore
+from proctex.store.layout import FamilyStore, LookLayout
 from proctex.store.state import FamilyState
 from proctex.store.template import StoredImages, StoredMaps, Template, load_template
 
@@ -184,7 +184,8 @@ def template_assets(template: Template) -> TemplateAssets:
     return assets
 
 
-def load_assets(store: FamilyStore, state: FamilyState | None = None) -> TemplateAssets:
-    """The template ready for transfer (:class:`TemplateAssets`), from the store; ``state``: the
-    family state, when the caller has it (else read here)."""
-    return template_assets(load_template(store, state=state))
+def load_assets(store: FamilyStore, state: FamilyState | None = None, look: LookLayout | None = None) -> TemplateAssets:
+    """The template ready for transfer (:class:`TemplateAssets`), from the store, textured as
+    ``look`` (default: the build's look); ``state``: the family state, when the caller has it (else
+    read here)."""
+    return template_assets(load_template(store, state=state, look=look))

@@ -1,0 +1,128 @@
+"""Looks of a built family (:mod:`proctex.store.looks`): a new prompt painted on the stored template,
+its grouping and UVs, in seconds; nothing else of the family is touched (no sampling, no pairs, no
+training: correspondence does not depend on the prompt)."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+import uuid
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from proctex.store.config import BuildConfig
+from proctex.store.layout import MAP_KINDS, FamilyStore, LookLayout, StoreLayout, check_look_name, digest, encode_arrays
+from proctex.store.locks import StoreBusy, store_lock
+from proctex.store.looks import built_look, looks, paint_record, resolve_look
+from proctex.store.state import FamilyState
+from proctex.store.template import TemplateFiles, load_template_shape
+from proctex.texture.painting import PaintConfig
+
+
+def stored_uv(files: TemplateFiles, shape: Any, grouping: Any, resolution: int) -> Any:
+    """The template's stored UVs as a :class:`proctex.texture.uv.ShapeUV` (a look paints into the
+    layout the build made: its GLB geometry and UVs stay byte for byte the build's)."""
+    from proctex.texture.uv import Atlas, ShapeUV
+
+    corner_uv, face_group = files.corner_uv(), files.face_group()
+    if corner_uv.shape != (shape.n_faces, 3, 2) or face_group.shape != (shape.n_faces,):
+        raise ValueError(f"{files.store.uri}: the stored UVs do not match the template mesh")
+    recorded = {int(g["group"]): g for g in files.summary.get("groups", [])}
+    atlases = []
+    for g in grouping.groups:
+        rep = grouping.parts[g.representative]
+        entry = recorded.get(g.index, {})
+        atlases.append(Atlas(corner_uv[rep.faces], str(entry.get("atlas", "stored")), int(entry.get("charts", 0)), resolution, 0, 0.0))
+    return ShapeUV(corner_uv, face_group, atlases, resolution)
+
+
+def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look: LookLayout, state: FamilyState | None = None,
+               log: Callable[[str], None] = print) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
+    """Paint the stored template with ``paint`` and return the files of ``look`` (paths relative to
+    the store, ``look.json`` last) and its record. Nothing is written."""
+    from proctex.store.template import encode_textures, write_textured
+    from proctex.texture.paint_loop import paint_with
+
+    t0 = time.perf_counter()
+    state = state if state is not None else FamilyState.load(store)
+    shape = load_template_shape(store, config, state)
+    files = TemplateFiles(store, built_look(store))
+    grouping = files.grouping(shape, seed=config.seed)
+    uv = stored_uv(files, shape, grouping, paint.texture_size)
+    tex = paint_with(shape, grouping, paint, seed=config.seed, up=config.up_axis(), uv=uv,
+                     on_view=lambda k, n, st: log(f"look {look.name}: view {k + 1}/{n}, {st['texels_updated']} texels"))
+    encoded = encode_textures(tex)
+    out: list[tuple[str, bytes]] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = write_textured(tex, tmp, up=config.up_axis(), encoded=encoded)
+        for name in sorted(os.listdir(tmp)):
+            if name != StoreLayout.PAINT_NAME:
+                out.append((look.file(name), (Path(tmp) / name).read_bytes()))
+    pngs, maps = encoded
+    for entry, png, m in zip(summary["groups"], pngs, maps):  # the record keeps each file's checksum
+        entry["sha256"] = digest(png)
+        if m is not None:
+            entry.update({f"{kind}_sha256": digest(getattr(m, kind)) for kind in MAP_KINDS}, occlusion=bool(m.occlusion))
+    summary["files"] = [look.file(os.path.basename(f)) for f in summary.get("files", [])]
+    summary["look"] = look.name
+    masks = {f"g{k}": m for k, m in enumerate(tex.painted_masks)}
+    masks.update({f"o{k}": m for k, m in enumerate(tex.observed_masks or tex.painted_masks)})
+    out.append((look.PAINTED, encode_arrays(**{k: np.asarray(v, dtype=bool) for k, v in masks.items()})))
+    out.append((look.PAINT, json.dumps(summary, indent=1).encode() + b"\n"))
+    record = {"name": look.name, "paint": paint_record(paint), "made": time.strftime("%Y-%m-%dT%H:%M:%S"),
+              "seconds": round(time.perf_counter() - t0, 3), "coverage": summary["coverage"]["share"]}
+    out.append((look.RECORD, json.dumps(record, indent=1).encode() + b"\n"))
+    return out, record
+
+
+def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
+             timeout: float = 60.0) -> dict[str, Any]:
+    """Paint look ``name`` of the built family in ``store`` with ``paint`` and store it in
+    ``looks/<name>/`` as one change (staged beside it, then put in place: a reader sees the whole
+    look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
+    waits up to ``timeout`` s for an edit or another look being written. Returns the look's record."""
+    check_look_name(name)
+    paint = paint.validate()
+    state = FamilyState.load(store)
+    config = state.build_config(store.uri)
+    if not (state.done("template") and state.done("paint")):
+        raise ValueError(f"{store.uri}: the family's template is not painted yet (build it first: proctex build)")
+    if name == built_look(store).name:
+        raise ValueError(f"{name!r} is the build's look; give the new look another name (or edit this one: proctex edit)")
+    look = StoreLayout.look(name)
+    if store.exists(look.RECORD) and not force:
+        raise ValueError(f"the family has a look {name!r} already; --force replaces it")
+    with store_lock(store, StoreLayout.BUILD_LOCK, f"adding look {name}", shared=True, busy=StoreBusy, note=True):
+        files, record = look_files(store, config, paint, look, state, log)
+        with store_lock(store, StoreLayout.EDIT_LOCK, f"adding look {name}", timeout=timeout, busy=StoreBusy):
+            if store.exists(look.RECORD) and not force:
+                raise ValueError(f"the family has a look {name!r} already (made meanwhile); --force replaces it")
+            staging = f"{StoreLayout.LOOKS}/{name}.tmp-{uuid.uuid4().hex[:8]}"
+            rel = [(staging + path[len(look.folder):], data) for path, data in files]
+            try:
+                store.write_all(rel)
+                if store.exists(look.folder):
+                    store.delete(look.folder)
+                store.fs.move(store.path(staging), store.path(look.folder))
+            finally:
+                if store.exists(staging):
+                    store.delete(staging)
+    log(f"look {name}: {len(files)} files in {look.folder}/, {record['seconds']:.1f} s")
+    return record
+
+
+def remove_look(store: FamilyStore, name: str, timeout: float = 60.0) -> None:
+    """Delete look ``name`` (not the build's look). ``UnknownLook`` when there is none."""
+    look = resolve_look(store, name)
+    if look.built:
+        raise ValueError(f"{name!r} is the build's look: it cannot be removed (its family would have none)")
+    with store_lock(store, StoreLayout.EDIT_LOCK, f"removing look {name}", timeout=timeout, busy=StoreBusy):
+        store.delete(look.RECORD)  # first: the look is gone for readers before its files are
+        store.delete(look.folder)
+
+
+__all__ = ["add_look", "remove_look", "look_files", "stored_uv", "looks"]

@@ -1,0 +1,167 @@
+"""A family's looks (issue 35): a new prompt painted on the built family's stored template, grouping
+and UVs, in seconds, written into its own folder only; transfers with two looks differ in their
+textures alone; stores made before looks read as one look, ``default``."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import pygltflib as gl
+import pytest
+
+from proctex.build.looks import add_look, remove_look
+from proctex.cli import main
+from proctex.store.layout import FamilyStore, StoreLayout
+from proctex.store.looks import UnknownLook, look_paint, looks, resolve_look
+from proctex.store.state import FamilyState, build_stamp, write_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture()
+def mug(painted_mug_root, tmp_path) -> FamilyStore:
+    shutil.copytree(painted_mug_root / "mug", tmp_path / "mug")
+    return FamilyStore(tmp_path / "mug")
+
+
+def tree(folder: Path, skip: str | None = None) -> dict[str, str]:
+    """Digest per file under ``folder`` (lock files aside; ``skip``: a sub-folder left out)."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*"))
+            if p.is_file() and ".lock" not in p.name and not (skip and str(p.relative_to(folder)).startswith(skip))}
+
+
+def glb_parts(data: bytes) -> tuple[dict[str, bytes], list[bytes]]:
+    """A GLB's geometry (every primitive's attribute and index bytes, by name) and its images' bytes."""
+    g = gl.GLTF2.load_from_bytes(data)
+    blob = g.binary_blob()
+
+    def view(i: int) -> bytes:
+        v = g.bufferViews[i]
+        return blob[v.byteOffset or 0 : (v.byteOffset or 0) + v.byteLength]
+
+    geometry = {}
+    for m, mesh in enumerate(g.meshes):
+        for p, prim in enumerate(mesh.primitives):
+            for name, acc in [*vars(prim.attributes).items(), ("indices", prim.indices)]:
+                if isinstance(acc, int):
+                    geometry[f"{m}/{p}/{name}"] = view(g.accessors[acc].bufferView)
+    return geometry, [view(img.bufferView) for img in g.images]
+
+
+def test_a_store_made_before_looks_reads_as_one_look_default(mug):
+    assert not (Path(mug.base) / StoreLayout.LOOKS).exists()
+    assert [lk.name for lk in looks(mug)] == ["default"] and resolve_look(mug).built
+    assert resolve_look(mug, "default").folder == "template"
+    with pytest.raises(UnknownLook, match="the family's looks are: default"):
+        resolve_look(mug, "walnut")
+
+
+def test_the_same_settings_paint_the_same_textures_and_nothing_else_is_written(mug):
+    """A look painted with the build's own settings on the stored grouping and UVs is the build's
+    look, byte for byte; the store outside ``looks/<name>/`` is untouched."""
+    before = tree(Path(mug.base))
+    config = FamilyState.load(mug).build_config()
+    record = add_look(mug, "again", config.paint, log=lambda *_: None)
+    assert record["name"] == "again" and record["paint"]["prompt"] == "blue ceramic"
+    assert tree(Path(mug.base), skip="looks/") == before  # nothing outside the new look
+    built, again = mug.read_json(StoreLayout.PAINT), mug.read_json("looks/again/paint.json")
+    for a, b in zip(built["groups"], again["groups"]):
+        assert a["sha256"] == b["sha256"] and a.get("orm_sha256") == b.get("orm_sha256")
+        assert (Path(mug.base) / StoreLayout.texture(a["group"], a["label"])).read_bytes() == \
+               (Path(mug.base) / "looks/again" / Path(StoreLayout.texture(a["group"], a["label"])).name).read_bytes()
+    assert not list(Path(mug.base).rglob("*.tmp-*"))
+
+
+def test_two_looks_transfer_the_same_geometry_and_uvs_with_other_textures(mug, tmp_path, capsys):
+    assert main(["look", "add", mug.base, "walnut", "--prompt", "dark walnut wood", "--json"]) == 0
+    added = json.loads(capsys.readouterr().out)["look"]
+    assert added["paint"]["prompt"] == "dark walnut wood" and added["seconds"] > 0
+    out = {}
+    for look in (None, "walnut"):
+        path = tmp_path / f"{look}.glb"
+        argv = ["transfer", mug.base, "--params", json.dumps({"radius": 0.045}), "--out", str(path), "--json"]
+        assert main(argv + (["--look", look] if look else [])) == 0
+        assert json.loads(capsys.readouterr().out)["look"] == (look or "default")
+        out[look] = glb_parts(path.read_bytes())
+    (geo_a, img_a), (geo_b, img_b) = out[None], out["walnut"]
+    assert geo_a.keys() == geo_b.keys() and {k.rsplit("/", 1)[1] for k in geo_a} >= {"POSITION", "TEXCOORD_0", "indices"}
+    assert all(geo_a[k] == geo_b[k] for k in geo_a)  # geometry and UVs byte for byte
+    assert len(img_a) == len(img_b) and all(a != b for a, b in zip(img_a, img_b))  # every texture differs
+    assert main(["transfer", mug.base, "--params", "{}", "--out", str(tmp_path / "x.glb"), "--look", "nope"]) == 2
+    assert "unknown look 'nope'; the family's looks are: default, walnut" in capsys.readouterr().err
+
+
+def test_look_list_add_rm_and_their_refusals(mug, capsys):
+    quiet = lambda *_: None  # noqa: E731
+    paint = replace(FamilyState.load(mug).build_config().paint, prompt="red lacquer")
+    stamp = build_stamp(mug)
+    add_look(mug, "red", paint, log=quiet)
+    assert build_stamp(mug) != stamp  # a service notices the new look
+    assert main(["look", "list", mug.base, "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["looks"]
+    assert [(r["name"], r["built"], r["prompt"]) for r in rows] == [("default", True, "blue ceramic"), ("red", False, "red lacquer")]
+    assert look_paint(mug, resolve_look(mug, "red"), paint).prompt == "red lacquer"
+    before = tree(Path(mug.base))
+    for argv, message in ((["look", "add", mug.base, "red", "--prompt", "x"], "has a look 'red' already; --force"),
+                          (["look", "add", mug.base, "default", "--prompt", "x"], "the build's look"),
+                          (["look", "add", mug.base, "a/b", "--prompt", "x"], "a look's name"),
+                          (["look", "add", mug.base, "x.tmp-1", "--prompt", "x"], "a look's name"),
+                          (["look", "add", mug.base, "ok", "--prompt", "  "], "needs --prompt"),
+                          (["look", "add", mug.base, "ok", "--prompt", "x", "--texture-size", "3"], "texture_size"),
+                          (["look", "rm", mug.base, "default"], "cannot be removed"),
+                          (["look", "rm", mug.base, "nope"], "unknown look")):
+        assert main(argv) == 2, argv
+        assert message in capsys.readouterr().err, argv
+    assert tree(Path(mug.base)) == before  # refusals write nothing
+    add_look(mug, "red", replace(paint, prompt="green lacquer"), force=True, log=quiet)
+    assert look_paint(mug, resolve_look(mug, "red"), paint).prompt == "green lacquer"
+    remove_look(mug, "red")
+    assert [lk.name for lk in looks(mug)] == ["default"] and not (Path(mug.base) / "looks" / "red").exists()
+
+
+def test_a_damaged_look_fails_alone(mug):
+    from proctex.serve.service import FamilyService
+    from proctex.store.layout import StoreDamaged
+
+    add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red"), log=lambda *_: None)
+    tex = next((Path(mug.base) / "looks" / "red").glob("group_0*.png"))
+    tex.write_bytes(tex.read_bytes()[:-8] + b"damaged!")
+    with pytest.raises(StoreDamaged):
+        FamilyService(mug, look="red")
+    assert FamilyService(mug).look.name == "default"  # the build's look still serves
+
+
+def test_two_processes_adding_looks_at_once_both_land(mug):
+    code = ("import sys\nfrom dataclasses import replace\nfrom proctex.build.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
+            "from proctex.store.state import FamilyState\nst = FamilyStore(sys.argv[1])\n"
+            "add_look(st, sys.argv[2], replace(FamilyState.load(st).build_config().paint, prompt=sys.argv[2]), log=lambda *_: None)\n")
+    procs = [subprocess.Popen([sys.executable, "-c", code, mug.base, name], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+             for name in ("oak", "teak")]
+    for p in procs:
+        _, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err[-2000:]
+    assert [lk.name for lk in looks(mug)] == ["default", "oak", "teak"]
+
+
+def test_a_build_with_another_prompt_points_at_look_add(mug):
+    config = FamilyState.load(mug).build_config()
+    with pytest.raises(ValueError, match="proctex look add"):
+        write_config(mug, replace(config, paint=replace(config.paint, prompt="white oak")))
+    with pytest.raises(ValueError, match="built with another config; use a new folder"):
+        write_config(mug, replace(config, seed=config.seed + 1))
+
+
+def test_the_look_record_keeps_what_painted_it(mug):
+    add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red", group_prompts={"0": "black"}),
+             log=lambda *_: None)
+    record = mug.read_json("looks/red/look.json")
+    assert record["paint"]["group_prompts"] == {"0": "black"} and record["coverage"] >= 0
+    summary = mug.read_json("looks/red/paint.json")
+    assert summary["look"] == "red" and summary["groups"][0]["prompt"] == "black"
+    assert record["seconds"] > 0
