@@ -165,3 +165,19 @@ def test_the_look_record_keeps_what_painted_it(mug):
     summary = mug.read_json("looks/red/paint.json")
     assert summary["look"] == "red" and summary["groups"][0]["prompt"] == "black"
     assert record["seconds"] > 0
+
+
+def test_an_edit_of_one_look_leaves_the_others_and_undoes_alone(mug, capsys):
+    from proctex.serve.edits import undo_edit
+
+    add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red"), log=lambda *_: None)
+    built = tree(Path(mug.base), skip="looks/")
+    red = tree(Path(mug.base) / "looks" / "red")
+    assert main(["edit", mug.base, "--group", "0", "--hue", "40", "--look", "red"]) == 0
+    assert "of look red" in capsys.readouterr().out
+    assert tree(Path(mug.base), skip="looks/") == built  # the build's look untouched
+    assert tree(Path(mug.base) / "looks" / "red") != red
+    assert mug.read_json("looks/red/paint.json")["edits"][0]["version"] == 1 and not mug.read_json(StoreLayout.PAINT).get("edits")
+    undo_edit(mug, look="red")
+    assert tree(Path(mug.base) / "looks" / "red") == red  # the look as it was painted
+    assert main(["edit", mug.base, "--group", "0", "--hue", "40", "--look", "nope"]) == 2

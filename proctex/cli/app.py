@@ -242,6 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", help="UV size of the image, e.g. 0.2 or 0.3,0.1")
     p.add_argument("--rotation", type=float, default=0.0)
     p.add_argument("--opacity", type=float, default=1.0)
+    p.add_argument("--look", help="the family's look to edit (proctex look list; default: the build's)")
     p.set_defaults(func=cmd_edit)
 
     p = sub.add_parser("eval", help="measure a built family on its unseen shapes, methods side by side (metrics.json + a table)")

@@ -226,6 +226,8 @@ def cmd_edit(args: argparse.Namespace) -> int:
 
         if args.group is not None:
             raise ValueError("--make-maps works on every group: leave out --group")
+        if args.look:
+            raise ValueError("--make-maps works on the build's look (looks added since have their maps): leave out --look")
         made = add_material_maps(store)
         print(f"made PBR maps for {len(made)} group(s)" + (f": {', '.join(map(str, made))}" if made else " (every group had them)"))
         return 0
@@ -237,8 +239,10 @@ def cmd_edit(args: argparse.Namespace) -> int:
         store, args.group, hue=args.hue, saturation=args.saturation, value=args.value, logo=args.logo,
         at=_pair(args.at, "--at") or (0.5, 0.5), size=_pair(args.size, "--size") or (0.25, 0.25),
         rotation=args.rotation, opacity=args.opacity, prompt=args.prompt, roughness=args.roughness, metallic=args.metallic,
+        look=args.look,
     )
-    print(f"edited group {record['group']}: {', '.join(k for k in record if k != 'group')}; transfers now use it")
+    look = f" of look {args.look}" if args.look else ""
+    print(f"edited group {record['group']}{look}: {', '.join(k for k in record if k != 'group')}; transfers now use it")
     return 0
 
 

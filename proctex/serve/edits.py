@@ -14,6 +14,7 @@ from proctex.fileio import encode_png
 from proctex.geometry.shape import Shape
 from proctex.store.layout import FamilyStore, StoreDamaged, StoreLayout
 from proctex.store.locks import is_local, store_lock
+from proctex.store.looks import resolve_look
 from proctex.store.state import stored_config
 from proctex.store.template import (
     TemplateFiles,
@@ -179,6 +180,7 @@ def edit_group(
     metallic: float | None = None,
     expect_stamp: str | None = None,
     stamp: Any = None,
+    look: str | None = None,
 ) -> dict[str, Any]:
     """Edit one group's template texture in the store; every later transfer or bake uses it. Every
     edit (the CLI's, the service's, the library's) is a new template version: under the family's
@@ -193,22 +195,24 @@ def edit_group(
     ``at`` with UV ``size`` (each in (0, 1]), ``rotation`` (degrees) and ``opacity``. A re-paint
     makes the group's PBR maps again from the new prompt; an HSV shift or an image leaves them as
     they are; ``roughness`` / ``metallic`` move the group's roughness and metalness maps to those
-    means (:func:`adjust_orm`). Returns the edit record appended to ``template/paint.json``, with
-    its ``version`` and the digests of the group texture ``before`` and ``after``.
+    means (:func:`adjust_orm`). ``look``: the family's look to edit (default: the build's; each
+    look keeps its own edits and undo history). Returns the edit record appended to the look's
+    ``paint.json``, with its ``version`` and the digests of the group texture ``before`` and ``after``.
     """
     if logo is not None:
         check_placement(at, size, rotation, opacity)
     with edit_lock(store):
         if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
             raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r} (now {stamp(store)!r}); reload and edit again")
-        return _edit(store, group, hue, saturation, value, logo, at, size, rotation, opacity, prompt, roughness, metallic)
+        return _edit(store, group, hue, saturation, value, logo, at, size, rotation, opacity, prompt, roughness, metallic, look)
 
 
 def _edit(store: FamilyStore, group: int | str, hue: float, saturation: float, value: float, logo: str | None, at: Any, size: Any,
-          rotation: float, opacity: float, prompt: str | None, roughness: float | None, metallic: float | None) -> dict[str, Any]:
+          rotation: float, opacity: float, prompt: str | None, roughness: float | None, metallic: float | None,
+          look: str | None = None) -> dict[str, Any]:
     from proctex.texture.edit import load_overlay, place_image
 
-    files = TemplateFiles(store)
+    files = TemplateFiles(store, resolve_look(store, look))
     entry = files.group(group)
     gi = int(entry["group"])
     tex = files.texture(gi)
@@ -281,13 +285,14 @@ def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None =
     return edit_group(store, group, expect_stamp=expect_stamp, stamp=stamp, **edit)
 
 
-def undo_edit(store: FamilyStore, expect_stamp: str | None = None, stamp: Any = None) -> dict[str, Any]:
-    """Undo the family's last stored edit (the files it replaced come back); returns its record.
-    :class:`EditConflict` when there is none, or when ``expect_stamp`` is stale."""
+def undo_edit(store: FamilyStore, expect_stamp: str | None = None, stamp: Any = None, look: str | None = None) -> dict[str, Any]:
+    """Undo the last stored edit of the family's ``look`` (default: the build's; the files it
+    replaced come back); returns its record. :class:`EditConflict` when there is none, or when
+    ``expect_stamp`` is stale."""
     with edit_lock(store):
         if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
             raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r}; reload and try again")
-        files = TemplateFiles(store)
+        files = TemplateFiles(store, resolve_look(store, look))
         if not files.edits:
             raise EditConflict(f"{store.uri}: no stored edit to undo")
         config = stored_config(store)
@@ -299,9 +304,9 @@ def undo_edit(store: FamilyStore, expect_stamp: str | None = None, stamp: Any = 
             raise EditConflict(str(exc)) from exc
 
 
-def reset_edits(store: FamilyStore) -> list[dict[str, Any]]:
-    """Undo every stored edit, last first: the template as it was painted. Returns the undone records."""
+def reset_edits(store: FamilyStore, look: str | None = None) -> list[dict[str, Any]]:
+    """Undo every stored edit of ``look``, last first: the look as it was painted. Returns the undone records."""
     undone = []
-    while TemplateFiles(store).edits:
-        undone.append(undo_edit(store))
+    while TemplateFiles(store, resolve_look(store, look)).edits:
+        undone.append(undo_edit(store, look=look))
     return undone
