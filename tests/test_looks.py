@@ -181,3 +181,13 @@ def test_an_edit_of_one_look_leaves_the_others_and_undoes_alone(mug, capsys):
     undo_edit(mug, look="red")
     assert tree(Path(mug.base) / "looks" / "red") == red  # the look as it was painted
     assert main(["edit", mug.base, "--group", "0", "--hue", "40", "--look", "nope"]) == 2
+
+
+def test_the_looks_benchmark_writes_its_report(painted_mug_root, tmp_path):
+    out = tmp_path / "looks.json"
+    done = subprocess.run([sys.executable, str(ROOT / "tests" / "bench" / "bench_looks.py"), "--family", str(painted_mug_root / "mug"),
+                           "--work", str(tmp_path / "work"), "--out", str(out)], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-2000:]
+    rep = json.loads(out.read_text())
+    assert len(rep["look_seconds"]) == 3 and rep["look_median_seconds"] > 0 and rep["machine"]["cpus"] >= 1
+    assert (painted_mug_root / "mug" / "looks").exists() is False  # the family given was copied, not changed

@@ -13,13 +13,14 @@ records give no wall times, so only the look times are reported). Prints a table
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import statistics
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+
+from harness import machine, write_json
 
 PROMPTS = ("dark walnut wood", "white oak", "red velvet")
 
@@ -60,13 +61,12 @@ def main(argv=None) -> int:
     report = {"family": name, "build_stage_seconds": walls, "build_seconds": round(build_total, 2),
               "look_seconds": [round(x, 2) for x in looks], "look_median_seconds": round(statistics.median(looks), 2),
               "look_share_of_build": round(statistics.median(looks) / build_total, 4) if build_total else None,
-              "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+              "machine": machine(), "time": time.strftime("%Y-%m-%d %H:%M:%S")}
     print(f"{name}: build {build_total:.1f} s ({', '.join(f'{k} {v:.1f}' for k, v in walls.items())}); "
           f"look add {', '.join(f'{x:.2f}' for x in looks)} s (median {statistics.median(looks):.2f} s"
           + (f", {100 * report['look_share_of_build']:.1f}% of the build)" if build_total else ")"))
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(report, indent=1))
+        write_json(args.out, report)
     return 0
 
 
