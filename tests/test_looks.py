@@ -191,3 +191,21 @@ def test_the_looks_benchmark_writes_its_report(painted_mug_root, tmp_path):
     rep = json.loads(out.read_text())
     assert len(rep["look_seconds"]) == 3 and rep["look_median_seconds"] > 0 and rep["machine"]["cpus"] >= 1
     assert (painted_mug_root / "mug" / "looks").exists() is False  # the family given was copied, not changed
+
+
+def test_eval_measures_a_look_and_keeps_its_figures_beside_it(mug, capsys):
+    """The colour metrics are per look: a look painted with the build's settings measures the same
+    tracked-point variance as the build's look; the family's metrics.json stays the build's."""
+    config = FamilyState.load(mug).build_config()
+    add_look(mug, "again", config.paint, log=lambda *_: None)
+    add_look(mug, "stripes", replace(config.paint, prompt="black and white zebra stripes"), log=lambda *_: None)
+    figures = {}
+    for look in (None, "again", "stripes"):
+        argv = ["eval", mug.base, "--methods", "identity", "--shapes", "train", "--limit", "1", "--tracked", "200", "--json"]
+        assert main(argv + (["--look", look] if look else [])) == 0
+        figures[look] = json.loads(capsys.readouterr().out)
+    assert figures["again"]["look"] == "again" and figures[None]["look"] == "default"
+    var = {k: v["methods"]["identity"]["tracked_point_variance"] for k, v in figures.items()}
+    assert var["again"] == pytest.approx(var[None], abs=1e-12) and var["stripes"] != pytest.approx(var[None], abs=1e-6)
+    assert mug.read_json(StoreLayout.METRICS)["look"] == "default"
+    assert mug.read_json("looks/stripes/metrics.json")["look"] == "stripes"

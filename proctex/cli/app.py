@@ -247,6 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("eval", help="measure a built family on its unseen shapes, methods side by side (metrics.json + a table)")
     p.add_argument("family")
+    p.add_argument("--look", help="the family's look to measure (its metrics.json goes into the look's folder; default: the build's)")
     _add_eval_flags(p)
     p.set_defaults(func=cmd_eval)
 

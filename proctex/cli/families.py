@@ -271,12 +271,17 @@ def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> i
     """Evaluate, write ``metrics.json`` into the store, print the table (or the JSON)."""
     from proctex.measure.evaluate import evaluate, markdown_table
     from proctex.store.layout import StoreLayout
+    from proctex.store.looks import resolve_look
 
     if not store.exists(StoreLayout.MODELS) and {"corrnet", "corrnet_all"} & set(options["methods"]):
         raise ValueError(f"{store.uri}: no trained models (run the train stage, or evaluate without corrnet)")
     log = (lambda *_: None) if (args.quiet or args.json) else (lambda m: print(m, flush=True))
-    metrics = evaluate(store, log=log, **options)
-    store.write_json(StoreLayout.METRICS, metrics)
+    look = getattr(args, "look", None)
+    metrics = evaluate(store, log=log, look=look, **options)
+    if look is None or resolve_look(store, look).built:
+        store.write_json(StoreLayout.METRICS, metrics)
+    else:  # another look's figures beside its textures; the family's metrics.json stays the build's look's
+        store.write_json(resolve_look(store, look).file(StoreLayout.METRICS), metrics)
     if args.json:
         _print_json(metrics)
     else:

@@ -39,6 +39,7 @@ import numpy as np
 
 from proctex.sources.registry import source_kind
 from proctex.store.layout import FamilyStore, StoreLayout
+from proctex.store.looks import look_paint, resolve_look
 from proctex.transfer.methods import get_method, make_mapper, method_names
 from proctex.transfer.methods import methods as registered_methods
 
@@ -131,7 +132,8 @@ class _Context:
         self.store = FamilyStore(uri)
         self.config = stored_config(self.store)
         self.settings = settings
-        self.assets = load_assets(self.store)
+        self.look = resolve_look(self.store, settings.get("look"))  # the look whose textures are measured
+        self.assets = load_assets(self.store, look=self.look)
         self.template = self.assets.shape
         self.up = self.config.up_axis()
         self.truth_kind = settings["truth"]
@@ -157,7 +159,7 @@ class _Context:
         # the evaluation.
         from proctex.texture.painters import SurfacePainter
 
-        self.painter = SurfacePainter(self.config.paint.prompt, seed=self.config.seed)
+        self.painter = SurfacePainter(look_paint(self.store, self.look, self.config.paint).prompt, seed=self.config.seed)
         self.pairs_index = self.store.read_table(StoreLayout.PAIRS).to_pylist() if self.store.exists(StoreLayout.PAIRS) else []
 
     def mapper(self, name: str) -> Any:
@@ -371,8 +373,11 @@ def evaluate(
     truth: str = "auto",
     log: Callable[[str], None] = print,
     quiet: bool = False,
+    look: str | None = None,
 ) -> dict[str, Any]:
-    """Evaluate the family in ``store`` (module docstring); returns the metrics dict (not written).
+    """Evaluate the family in ``store`` (module docstring), textured as its ``look`` (default: the
+    build's; the colour metrics, the tracked-point variance among them, are per look); returns the
+    metrics dict (not written).
 
     Args:
         methods: the methods to compare (:mod:`proctex.transfer.methods`; None: :func:`default_methods`).
@@ -419,7 +424,7 @@ def evaluate(
 
         LPIPS.load(lpips)  # a bad weights file fails before any work
     settings = {"bake_size": bake_size, "view_size": view_size, "tracked": tracked, "seed": seed, "lpips": lpips,
-                "truth": kind, "methods": list(methods)}
+                "truth": kind, "methods": list(methods), "look": resolve_look(store, look).name}
     ctx = _Context(store.uri, settings)
     log(f"evaluate: {len(jobs)} {split} shapes, {', '.join(methods)}; tracker {ctx.tracker} ({len(ctx.points)} points)"
         + (f", ground truth {kind}" if kind else ", no ground truth"))
@@ -439,7 +444,7 @@ def evaluate(
         for job in jobs:
             outs.append(evaluate_shape(ctx, job))
             bar.update()
-    metrics: dict[str, Any] = {"split": split, "shapes": len(jobs), "ids": [r["id"] for _, r in jobs], "tracker": ctx.tracker,
+    metrics: dict[str, Any] = {"split": split, "look": ctx.look.name, "shapes": len(jobs), "ids": [r["id"] for _, r in jobs], "tracker": ctx.tracker,
                                "truth": kind, "tracked_points": len(ctx.points), "lpips_weights": lpips, "shortcut": sorted(shortcut_methods()),
                                "seconds": round(time.perf_counter() - t0, 2), "methods": {}}
     for name in methods:
