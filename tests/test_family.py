@@ -112,10 +112,12 @@ def test_config_files_and_validation(tmp_path):
                 {"model": "nosuch"}, {"folder": str(tmp_path / "missing")}]:
         with pytest.raises(ValueError):
             BuildConfig.from_dict(bad)
-    with pytest.raises(ValueError, match="another config"):
-        st = FamilyStore(tmp_path / "x")
-        write_config(st, BuildConfig.from_dict(dict(model="mug")).validate())
+    st = FamilyStore(tmp_path / "x")
+    write_config(st, BuildConfig.from_dict(dict(model="mug")).validate())
+    with pytest.raises(ValueError, match="other paint settings .*proctex look add"):  # only the prompt differs: a look
         write_config(st, BuildConfig.from_dict(dict(model="mug", prompt="gold")).validate())
+    with pytest.raises(ValueError, match="another config"):
+        write_config(st, BuildConfig.from_dict(dict(model="mug", n_train=5)).validate())
 
 
 def test_parameter_bounds_restrict_sampling(tmp_path):
