@@ -15,9 +15,17 @@ from typing import Any, Callable
 import numpy as np
 
 from proctex.store.config import BuildConfig
-from proctex.store.layout import MAP_KINDS, FamilyStore, LookLayout, StoreLayout, check_look_name, digest, encode_arrays
+from proctex.store.layout import (
+    MAP_KINDS,
+    FamilyStore,
+    LookLayout,
+    StoreLayout,
+    check_look_name,
+    digest,
+    encode_arrays,
+)
 from proctex.store.locks import StoreBusy, store_lock
-from proctex.store.looks import built_look, looks, paint_record, resolve_look
+from proctex.store.looks import built_look, paint_record, resolve_look
 from proctex.store.state import FamilyState
 from proctex.store.template import TemplateFiles, load_template_shape
 from proctex.texture.painting import PaintConfig
@@ -123,6 +131,3 @@ def remove_look(store: FamilyStore, name: str, timeout: float = 60.0) -> None:
     with store_lock(store, StoreLayout.EDIT_LOCK, f"removing look {name}", timeout=timeout, busy=StoreBusy):
         store.delete(look.RECORD)  # first: the look is gone for readers before its files are
         store.delete(look.folder)
-
-
-__all__ = ["add_look", "remove_look", "look_files", "stored_uv", "looks"]

@@ -9,7 +9,13 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Any
 
-from proctex.store.layout import DEFAULT_LOOK, FamilyStore, LookLayout, StoreLayout, check_look_name
+from proctex.store.layout import (
+    DEFAULT_LOOK,
+    FamilyStore,
+    LookLayout,
+    StoreLayout,
+    check_look_name,
+)
 from proctex.texture.painting import PaintConfig
 
 
