@@ -209,3 +209,61 @@ def test_eval_measures_a_look_and_keeps_its_figures_beside_it(mug, capsys):
     assert var["again"] == pytest.approx(var[None], abs=1e-12) and var["stripes"] != pytest.approx(var[None], abs=1e-6)
     assert mug.read_json(StoreLayout.METRICS)["look"] == "default"
     assert mug.read_json("looks/stripes/metrics.json")["look"] == "stripes"
+
+
+def test_the_service_lists_adds_and_serves_looks_without_a_restart(mug):
+    """Over HTTP: a look added while serving is served at once (``?look=``); linked answers name the
+    look in their texture URIs and those URIs give the look's textures; per-look edits; clear errors."""
+    import asyncio
+    from urllib.parse import urljoin
+
+    httpx = pytest.importorskip("httpx")
+    from proctex.serve.catalog import Catalog
+    from workers.http import create_app
+
+    cat = Catalog(str(Path(mug.base).parent), check_every=0)
+    app = create_app(lambda: cat, edit_token="look-token-1")
+    token = {"X-ProcTex-Token": "look-token-1"}
+
+    async def run():
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t", timeout=60) as c:
+            first = (await c.get("/v1/families/mug/looks")).json()["looks"]
+            denied = await c.post("/v1/families/mug/looks", json={"name": "walnut", "prompt": "dark walnut"})
+            added = await c.post("/v1/families/mug/looks", json={"name": "walnut", "prompt": "dark walnut"}, headers=token)
+            again = await c.post("/v1/families/mug/looks", json={"name": "walnut", "prompt": "x"}, headers=token)
+            bad = [await c.post("/v1/families/mug/looks", json=b, headers=token) for b in (
+                {"name": "../x", "prompt": "x"}, {"name": "ok", "prompt": ""}, {"name": "ok", "prompt": "x", "texture_size": 100000},
+                {"name": "ok", "prompt": "x", "shader": 1}, {"name": "ok", "prompt": "x", "painter": "nope"})]
+            looks_after = (await c.get("/v1/families/mug/looks")).json()["looks"]
+            plain = await c.post("/v1/families/mug/transfer", json={"params": {}})
+            walnut = await c.post("/v1/families/mug/transfer?look=walnut", json={"params": {}})
+            linked = await c.post("/v1/families/mug/transfer?look=walnut&textures=linked", json={"params": {}})
+            unknown = await c.post("/v1/families/mug/transfer?look=nope", json={"params": {}})
+            described = (await c.get("/v1/families/mug?look=walnut")).json()
+            g = gl.GLTF2.load_from_bytes(linked.content)
+            uri = g.images[0].uri
+            tex = await c.get(urljoin("/v1/families/mug/transfer", uri))
+            built_tex = await c.get("/v1/families/mug/textures/0.png")
+            edit = await c.post("/v1/families/mug/edits?look=walnut", json={"group": 0, "hue": 30}, headers=token)
+            walnut_after = (await c.get("/v1/families/mug?look=walnut")).json()
+            built_after = (await c.get("/v1/families/mug")).json()
+            undo = await c.delete("/v1/families/mug/edits/last?look=walnut", headers=token)
+            return (first, denied, added, again, bad, looks_after, plain, walnut, linked, unknown, described, uri, tex, built_tex, edit,
+                    walnut_after, built_after, undo)
+
+    (first, denied, added, again, bad, looks_after, plain, walnut, linked, unknown, described, uri, tex, built_tex, edit,
+     walnut_after, built_after, undo) = asyncio.run(run())
+    assert [lk["name"] for lk in first] == ["default"]
+    assert denied.status_code == 401 and added.status_code == 200 and added.json()["look"]["paint"]["prompt"] == "dark walnut"
+    assert again.status_code == 422 and "--force" in again.json()["error"]
+    assert [r.status_code for r in bad] == [422] * 5 and all("error" in r.json() for r in bad)
+    assert [lk["name"] for lk in looks_after] == ["default", "walnut"]
+    assert plain.status_code == walnut.status_code == 200
+    (geo_a, img_a), (geo_b, img_b) = glb_parts(plain.content), glb_parts(walnut.content)
+    assert geo_a == geo_b and img_a != img_b
+    assert unknown.status_code == 404 and "the family's looks are: default, walnut" in unknown.json()["error"]
+    assert described["look"] == "walnut" and described["prompt"] == "dark walnut" and described["looks"] == ["default", "walnut"]
+    assert "look=walnut" in uri and tex.status_code == 200 and tex.content == img_b[0] and tex.content != built_tex.content
+    assert tex.headers["etag"] != built_tex.headers["etag"]
+    assert edit.status_code == 200 and walnut_after["edits"] == 1 and built_after["edits"] == 0
+    assert undo.status_code == 200 and undo.json()["undone"][0]["version"] == 1

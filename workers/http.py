@@ -24,6 +24,10 @@ Routes:
   body; ``If-Match: <stamp>`` makes it conditional (409 when the family changed).
 - ``DELETE /v1/families/{name}/edits/last``: undo the last stored edit; ``DELETE
   /v1/families/{name}/edits``: undo them all (the template as painted). Both need the token.
+- ``GET /v1/families/{name}/looks``: the family's looks (the build's first); ``POST`` (the token, JSON
+  ``{"name", "prompt", "group_prompts", "painter", "texture_size", "force"}``) paints a new look of the
+  stored template in seconds, served at once. ``?look=NAME`` on the family, transfer, texture and
+  edit routes: that look (default: the build's); linked answers name it in their texture URIs.
 
 Errors are JSON ``{"error": message}`` on every route: unknown family (or group in a path) 404, body
 over the size limit 413, bad JSON, parameters out of bounds, unknown parameters, an unreadable mesh,
@@ -261,6 +265,59 @@ async def read_json_object(request: Request, max_bytes: int = 65536, limits: Lim
     return data
 
 
+#: A look's texture size over HTTP (the CLI allows up to 8192): a request paints seconds, not minutes.
+MAX_LOOK_TEXTURE = 2048
+
+
+def parse_look(body: dict[str, Any], svc: Any) -> tuple[str, Any, bool]:
+    """``(name, PaintConfig, force)`` of a ``POST .../looks`` body: the build's paint settings with
+    the body's ``prompt`` (required, at most ``max_prompt`` characters), ``group_prompts``,
+    ``painter`` and ``texture_size`` (16..:data:`MAX_LOOK_TEXTURE`) over them (:class:`BadInput`
+    naming what is wrong)."""
+    from dataclasses import replace
+
+    from proctex.store.layout import check_look_name
+
+    unknown = set(body) - {"name", "prompt", "group_prompts", "painter", "texture_size", "force"}
+    if unknown:
+        raise BadInput(f"unknown fields {sorted(unknown)[:5]}; a look takes name, prompt, group_prompts, painter, texture_size, force")
+    name, prompt = body.get("name"), body.get("prompt")
+    check_look_name(name)
+    if not isinstance(prompt, str) or not prompt.strip() or len(prompt) > svc.limits.max_prompt:
+        raise BadInput(f"prompt must be text of 1 to {svc.limits.max_prompt} characters")
+    prompts = body.get("group_prompts") or {}
+    if not isinstance(prompts, dict) or len(prompts) > 256 or not all(
+            isinstance(k, str) and isinstance(v, str) and len(k) <= 64 and len(v) <= svc.limits.max_prompt for k, v in prompts.items()):
+        raise BadInput(f"group_prompts must be an object of at most 256 prompts of at most {svc.limits.max_prompt} characters")
+    over: dict[str, Any] = {"prompt": prompt, "group_prompts": dict(prompts)}
+    if body.get("painter") is not None:
+        over["painter"] = body["painter"]
+    if body.get("texture_size") is not None:
+        size = body["texture_size"]
+        if isinstance(size, bool) or not isinstance(size, int) or not 16 <= size <= MAX_LOOK_TEXTURE:
+            raise BadInput(f"texture_size must be an integer in [16, {MAX_LOOK_TEXTURE}], got {str(size)[:40]}")
+        over["texture_size"] = size
+    force = body.get("force", False)
+    if not isinstance(force, bool):
+        raise BadInput("force must be true or false")
+    try:
+        paint = replace(svc.config.paint, **over).validate()
+    except (TypeError, ValueError) as exc:
+        raise BadInput(str(exc)[:500]) from exc
+    return name, paint, force
+
+
+def add_look_to(svc: Any, name: str, paint: Any, force: bool) -> dict[str, Any]:
+    """:func:`proctex.build.looks.add_look` on the service's family; a busy store is a conflict (409)."""
+    from proctex.build.looks import add_look
+    from proctex.store.locks import StoreBusy
+
+    try:
+        return add_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0)
+    except StoreBusy as exc:
+        raise EditConflict(str(exc)) from exc
+
+
 def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], Any]], Any] | None = None,
                studio_dir: str | Path | None = None, watchdog: Watchdog | None = None, edit_token: str | None = None,
                get_family: Callable[[str], Awaitable[Any]] | None = None, replica: str | None = None) -> FastAPI:
@@ -299,6 +356,15 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         if get_family is not None:
             return await get_family(name)
         return await blocking(lambda: get_catalog().get(name))
+
+    async def look_of(name: str, look: str | None) -> Any:
+        """The family's service textured as its ``look`` (None: the build's look)."""
+        svc = await family_of(name)
+        if look is None:
+            return svc
+        if not isinstance(look, str) or len(look) > 200:
+            raise BadInput("look must be a look's name")
+        return await blocking(lambda: svc.look_view(look))
 
     gates: weakref.WeakKeyDictionary[Any, asyncio.Semaphore] = weakref.WeakKeyDictionary()
 
@@ -382,9 +448,9 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         return {"families": cat.names(), "health": cat.health()}
 
     @app.get("/v1/families/{name}", responses={404: {"description": "unknown family"}})
-    async def family(name: str):
+    async def family(name: str, look: str | None = None):
         try:
-            svc = await family_of(name)
+            svc = await look_of(name, look)
             return {**svc.describe(), "edits_enabled": bool(edit_token)}
         except Exception as exc:
             return error_response(exc)
@@ -402,14 +468,15 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
                 "mesh": {"type": "string", "format": "binary"}, "seed": {"type": "integer"}}}},
         }}},
     )
-    async def transfer(name: str, request: Request, textures: str = "embedded"):
+    async def transfer(name: str, request: Request, textures: str = "embedded", look: str | None = None):
         """``?textures=linked``: the GLB refers to the family's textures (``textures/<g>.png?v=...``,
-        relative to this URL) instead of carrying them; a client caches those once."""
+        relative to this URL) instead of carrying them; a client caches those once. ``?look=NAME``:
+        textured as that look of the family (``GET .../looks``; default: the build's)."""
         token = None
         try:
             if textures not in ("embedded", "linked"):
                 raise BadInput(f"textures must be 'embedded' or 'linked', got {textures[:40]!r}")
-            svc = await family_of(name)
+            svc = await look_of(name, look)
             kind, payload, seed, raw_edits = await read_transfer_request(request, svc.limits.max_bytes, svc.limits)
             edits = svc.parse_edits(raw_edits)
 
@@ -440,13 +507,14 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         responses={200: {"content": {"image/png": {}}, "description": "a template group's texture as stored"},
                    304: {"description": "not modified (If-None-Match)"}, 404: {"description": "unknown family or group"}},
     )
-    async def group_texture_file(name: str, file: str, request: Request, v: str | None = None):
-        """The texture a linked GLB refers to (``<group>.png``), with its digest as ETag. With
-        ``v`` equal to the digest's start (as the GLB writes it) it is cached as immutable."""
+    async def group_texture_file(name: str, file: str, request: Request, v: str | None = None, look: str | None = None):
+        """The texture a linked GLB refers to (``<group>.png``; ``?look=``: of that look), with its
+        digest as ETag. With ``v`` equal to the digest's start (as the GLB writes it) it is cached
+        as immutable."""
         try:
             if not file.endswith(".png"):
                 raise NotFound(f"no texture {file[:80]!r}; textures are <group>.png")
-            svc = await family_of(name)
+            svc = await look_of(name, look)
             png, digest = svc.texture_png(file[:-4])
         except Exception as exc:
             return error_response(exc)
@@ -464,10 +532,11 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
                    404: {"description": "unknown family or group"}, 422: {"description": "bad edit or size"}},
     )
     async def group_texture(name: str, group: str, size: str = "128", hue: str | None = None, saturation: str | None = None,
-                            value: str | None = None, prompt: str | None = None):
-        """The group's template texture, edited as the query says (no edit: the stored one)."""
+                            value: str | None = None, prompt: str | None = None, look: str | None = None):
+        """The group's template texture (``?look=``: of that look), edited as the query says (no
+        edit: the stored one)."""
         try:
-            svc = await family_of(name)
+            svc = await look_of(name, look)
             g = svc.group_index(group, missing=NotFound)
             edit = parse_edit({"hue": hue, "saturation": saturation, "value": value, "prompt": prompt}, svc.limits.max_prompt)
             data = await blocking(lambda: svc.thumbnail(g, edit, size))
@@ -483,11 +552,12 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
                 "group": {"type": ["integer", "string"]}, "hue": {"type": "number"}, "saturation": {"type": "number"},
                 "value": {"type": "number"}, "prompt": {"type": "string"}}}}}}},
     )
-    async def persist_edit(name: str, request: Request):
-        """Store an edit of one group texture in the family; every later transfer uses it. Needs the
-        edit token; ``If-Match: <stamp>`` makes it conditional on the family being unchanged (409)."""
+    async def persist_edit(name: str, request: Request, look: str | None = None):
+        """Store an edit of one group texture in the family (``?look=``: of that look); every later
+        transfer uses it. Needs the edit token; ``If-Match: <stamp>`` makes it conditional on the
+        family being unchanged (409)."""
         try:
-            svc = await family_of(name)
+            svc = await look_of(name, look)
             check_edit_request(request)
             body = await read_json_object(request, limits=svc.limits)
             expect = request.headers.get("if-match")
@@ -498,10 +568,10 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             get_catalog().invalidate(name)
         return {"family": name, "edit": record, "stamp": stamp}
 
-    async def undo(name: str, request: Request, **how: Any):
-        """Undo stored edits of family ``name`` (``how``: :meth:`FamilyService.undo_edit`'s arguments)."""
+    async def undo(name: str, request: Request, look: str | None = None, **how: Any):
+        """Undo stored edits of family ``name``'s ``look`` (``how``: :meth:`FamilyService.undo_edit`'s arguments)."""
         try:
-            svc = await family_of(name)
+            svc = await look_of(name, look)
             check_edit_request(request)
             undone, stamp = await blocking(lambda: (svc.undo_edit(**how), build_stamp(svc.store)))
         except Exception as exc:
@@ -511,13 +581,47 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         return {"family": name, "undone": undone, "stamp": stamp}
 
     @app.delete("/v1/families/{name}/edits/last", responses={404: {"description": "unknown family"}, 409: {"description": "nothing to undo"}})
-    async def undo_edit(name: str, request: Request):
-        """Undo the family's last stored edit (needs the edit token; ``If-Match: <stamp>`` makes it conditional)."""
-        return await undo(name, request, expect_stamp=request.headers.get("if-match"))
+    async def undo_edit(name: str, request: Request, look: str | None = None):
+        """Undo the family's (``?look=``: that look's) last stored edit (needs the edit token;
+        ``If-Match: <stamp>`` makes it conditional)."""
+        return await undo(name, request, look, expect_stamp=request.headers.get("if-match"))
 
     @app.delete("/v1/families/{name}/edits", responses={404: {"description": "unknown family"}})
-    async def reset_edits(name: str, request: Request):
-        """Undo every stored edit: the template as painted (needs the edit token)."""
-        return await undo(name, request, all_edits=True)
+    async def reset_edits(name: str, request: Request, look: str | None = None):
+        """Undo every stored edit (``?look=``: of that look): the look as painted (needs the edit token)."""
+        return await undo(name, request, look, all_edits=True)
+
+    @app.get("/v1/families/{name}/looks", responses={404: {"description": "unknown family"}})
+    async def family_looks(name: str):
+        """The family's looks: name, prompt, painter, texture size, edits; the build's first."""
+        try:
+            svc = await family_of(name)
+            return {"family": name, "looks": await blocking(svc.looks)}
+        except Exception as exc:
+            return error_response(exc)
+
+    @app.post(
+        "/v1/families/{name}/looks",
+        responses={404: {"description": "unknown family"}, 409: {"description": "a build or edit of the family is running"},
+                   422: {"description": "bad look"}},
+        openapi_extra={"requestBody": {"required": True, "content": {"application/json": {"schema": {
+            "type": "object", "required": ["name", "prompt"], "properties": {
+                "name": {"type": "string"}, "prompt": {"type": "string"}, "group_prompts": {"type": "object"},
+                "painter": {"type": "string"}, "texture_size": {"type": "integer"}, "force": {"type": "boolean"}}}}}}},
+    )
+    async def add_family_look(name: str, request: Request):
+        """Paint a new look of the family (the stored template with another prompt: seconds, no
+        rebuild) and store it; served at once (``?look=NAME``). Needs the edit token."""
+        try:
+            svc = await family_of(name)
+            check_edit_request(request)
+            body = await read_json_object(request, limits=svc.limits)
+            look, paint, force = parse_look(body, svc)
+            record, stamp = await blocking(lambda: (add_look_to(svc, look, paint, force), build_stamp(svc.store)))
+        except Exception as exc:
+            return error_response(exc)
+        finally:
+            get_catalog().invalidate(name)
+        return {"family": name, "look": record, "stamp": stamp}
 
     return app

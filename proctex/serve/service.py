@@ -276,6 +276,57 @@ class FamilyService:
         self._repaints: OrderedDict[tuple[int, str], Any] = OrderedDict()
         self._edit_lock = threading.Lock()
         self.edit_stats = {"hits": 0, "misses": 0, "repaints": 0}
+        self._views: dict[str, FamilyService] = {self.look.name: self}  # the family's looks, each made when first asked for
+        self._views_lock = threading.Lock()
+
+    # ------------------------------------------------------------------------------------ looks
+    def look_view(self, name: str | None) -> "FamilyService":
+        """This family textured as its look ``name`` (None, or this service's own look: itself):
+        the same shapes, networks and mapper, that look's textures, PBR maps, masks and prompt
+        (:func:`proctex.transfer.assets.with_look`), made on first use and kept. :class:`NotFound`
+        for a look the family does not have."""
+        import copy
+
+        from proctex.serve.edits import edit_lock
+        from proctex.store.looks import UnknownLook
+        from proctex.store.template import LookImages
+        from proctex.texture.painters import SurfacePainter
+        from proctex.transfer.assets import with_look
+
+        if name is None or name == self.look.name:
+            return self
+        with self._views_lock:
+            view = self._views.get(name)
+            if view is not None:
+                return view
+            try:
+                with edit_lock(self.store, shared=True):  # the look's files as one version
+                    look = resolve_look(self.store, name)
+                    images = LookImages.read(self.store, look)
+            except UnknownLook as exc:
+                raise NotFound(str(exc)) from None
+            view = copy.copy(self)
+            view.look, view.paint = look, look_paint(self.store, look, self.config.paint)
+            view.assets = with_look(self.assets, images)
+            view.texture_digests = [hashlib.sha256(png).hexdigest() for png in view.assets.png]
+            view.map_digests = [None if m is None else (hashlib.sha256(m.orm).hexdigest(), hashlib.sha256(m.normal).hexdigest())
+                                for m in (view.assets.pbr_png or [None] * len(view.assets.png))]
+            view.painter = SurfacePainter(view.paint.prompt, seed=self.config.seed)
+            view._edited, view._repaints, view._edit_lock = OrderedDict(), OrderedDict(), threading.Lock()
+            view.edit_stats = {"hits": 0, "misses": 0, "repaints": 0}
+            view._views, view._views_lock = self._views, self._views_lock  # one table for every look of the family
+            self._views[name] = view
+            return view
+
+    def looks(self) -> list[dict[str, Any]]:
+        """The family's looks (:func:`proctex.store.looks.look_summary`), the build's first."""
+        from proctex.store.looks import look_summary
+
+        return [look_summary(self.store, lk, self.config.paint) for lk in looks(self.store)]
+
+    def _look_query(self, sep: str = "&") -> str:
+        """The query part naming this service's look in a linked texture's URI ("" for the build's)."""
+        return "" if self.look.built else f"{sep}look={self.look.name}"
 
     # --------------------------------------------------------------------------------- describe
     def describe(self) -> dict[str, Any]:
@@ -409,7 +460,8 @@ class FamilyService:
         them, no version query: e.g. ``../textures/`` for files written next to a folder of GLBs)."""
         if base is not None:
             return [None if g in edited else f"{base}{g}.png" for g in range(len(self.texture_digests))]
-        return [None if g in edited else f"textures/{g}.png?v={d[:16]}" for g, d in enumerate(self.texture_digests)]
+        look = self._look_query()
+        return [None if g in edited else f"textures/{g}.png?v={d[:16]}{look}" for g, d in enumerate(self.texture_digests)]
 
     def shared_textures(self) -> dict[str, bytes]:
         """``{file name: PNG bytes}`` of every texture and PBR map of the family, as linked answers
@@ -445,8 +497,8 @@ class FamilyService:
             if d is None:
                 out.append(None)
                 continue
-            orm_uri = f"{base}{g}.orm.png" if base is not None else f"textures/{g}.orm.png?v={d[0][:16]}"
-            normal_uri = f"{base}{g}.normal.png" if base is not None else f"textures/{g}.normal.png?v={d[1][:16]}"
+            orm_uri = f"{base}{g}.orm.png" if base is not None else f"textures/{g}.orm.png?v={d[0][:16]}{self._look_query()}"
+            normal_uri = f"{base}{g}.normal.png" if base is not None else f"textures/{g}.normal.png?v={d[1][:16]}{self._look_query()}"
             orm = None if edit is not None and edit.changes_maps else orm_uri
             normal = None if edit is not None and edit.prompt is not None else normal_uri
             out.append((orm, normal))
@@ -662,7 +714,8 @@ class FamilyService:
         with _EDIT_LOCK:
             try:
                 return stored_edit(self.store, g, expect_stamp=expect_stamp, stamp=build_stamp, hue=edit.hue, saturation=edit.saturation,
-                                   value=edit.value, prompt=edit.prompt, roughness=edit.roughness, metallic=edit.metallic)
+                                   value=edit.value, prompt=edit.prompt, roughness=edit.roughness, metallic=edit.metallic,
+                                   look=self.look.name)
             except (EditConflict, StoreDamaged):
                 raise
             except ValueError as exc:
@@ -676,7 +729,7 @@ class FamilyService:
 
         with _EDIT_LOCK:
             if all_edits:
-                return reset_edits(self.store)
-            return [undo_edit(self.store, expect_stamp=expect_stamp, stamp=build_stamp)]
+                return reset_edits(self.store, look=self.look.name)
+            return [undo_edit(self.store, expect_stamp=expect_stamp, stamp=build_stamp, look=self.look.name)]
 
 

@@ -126,6 +126,59 @@ class StoredMaps(_Decoded):
 
 
 @dataclass
+class LookImages:
+    """A look's stored images: per group its texture (:class:`StoredImages`), label, PBR maps
+    (:class:`StoredMaps`, or None without maps) and painted / observed masks (None for stores
+    written before they were kept). :meth:`read` checks each file against its recorded checksum and
+    the family's texture size, decoding nothing."""
+
+    textures: StoredImages
+    labels: list[str]
+    pbr: StoredMaps | None
+    painted: list[np.ndarray] | None
+    observed: list[np.ndarray] | None
+
+    @classmethod
+    def read(cls, store: FamilyStore, look: LookLayout) -> "LookImages":
+        summary = store.read_json(look.PAINT)
+        size = summary.get("texture_size") or None
+        pngs, wheres, labels, maps = [], [], [], []
+
+        def read(rel: str, recorded: str | None, hw: tuple[int, ...] | None) -> bytes:
+            """The stored PNG, its checksum and header checked; decoded later, where used."""
+            png = store.read_bytes(rel)
+            where = store.path(rel)
+            check_digest(png, recorded, where)
+            h, w = png_size(png, where)
+            if hw and [h, w] != [int(x) for x in hw][:2]:
+                raise ValueError(f"{where}: {w}x{h}, the family's textures are {hw[1]}x{hw[0]}")
+            wheres.append(where)
+            return png
+
+        for g in summary["groups"]:
+            pngs.append(read(look.texture(g["group"], g["label"]), g.get("sha256"), size))
+            labels.append(g["label"] or "")
+            if g.get("orm_sha256") and g.get("normal_sha256"):  # the maps, where the paint stage made them
+                from proctex.texture.pbr import PbrMaps
+
+                hw = png_size(pngs[-1], wheres[-1])
+                maps.append(PbrMaps(read(look.texture(g["group"], g["label"], "orm"), g["orm_sha256"], hw),
+                                    read(look.texture(g["group"], g["label"], "normal"), g["normal_sha256"], hw),
+                                    bool(g.get("occlusion", False))))
+            else:
+                maps.append(None)
+        textures = StoredImages(pngs, [store.path(look.texture(g["group"], g["label"])) for g in summary["groups"]])
+        pbr = StoredMaps(maps, [store.path(look.texture(g["group"], g["label"], "")) for g in summary["groups"]]) \
+            if any(m is not None for m in maps) else None
+        painted = observed = None
+        if store.exists(look.PAINTED):
+            arrays = store.read_arrays(look.PAINTED)
+            painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
+            observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
+        return cls(textures, labels, pbr, painted, observed)
+
+
+@dataclass
 class Template:
     """A textured template.
 
@@ -210,45 +263,11 @@ class Template:
         uv = store.read_arrays(StoreLayout.UV)
         if len(uv["face_group"]) != shape.n_faces or uv["corner_uv"].shape != (shape.n_faces, 3, 2):
             raise ValueError(f"{store.uri}: template UVs do not match the template mesh")
-        summary = store.read_json(look.PAINT)
-        size = summary.get("texture_size") or None
-        pngs, wheres, labels, maps = [], [], [], []
-
-        def read(rel: str, recorded: str | None, hw: tuple[int, ...] | None) -> bytes:
-            """The stored PNG, its checksum and header checked; decoded later, where used."""
-            png = store.read_bytes(rel)
-            where = store.path(rel)
-            check_digest(png, recorded, where)
-            h, w = png_size(png, where)
-            if hw and [h, w] != [int(x) for x in hw][:2]:
-                raise ValueError(f"{where}: {w}x{h}, the family's textures are {hw[1]}x{hw[0]}")
-            wheres.append(where)
-            return png
-
-        for g in summary["groups"]:
-            pngs.append(read(look.texture(g["group"], g["label"]), g.get("sha256"), size))
-            labels.append(g["label"] or "")
-            if g.get("orm_sha256") and g.get("normal_sha256"):  # the maps, where the paint stage made them
-                from proctex.texture.pbr import PbrMaps
-
-                hw = png_size(pngs[-1], wheres[-1])
-                maps.append(PbrMaps(read(look.texture(g["group"], g["label"], "orm"), g["orm_sha256"], hw),
-                                    read(look.texture(g["group"], g["label"], "normal"), g["normal_sha256"], hw),
-                                    bool(g.get("occlusion", False))))
-            else:
-                maps.append(None)
-        textures = StoredImages(pngs, [store.path(look.texture(g["group"], g["label"])) for g in summary["groups"]])
-        pbr = StoredMaps(maps, [store.path(look.texture(g["group"], g["label"], "")) for g in summary["groups"]]) \
-            if any(m is not None for m in maps) else None
-        if len(textures) != len(grouping.groups):
-            raise ValueError(f"{store.uri}: {len(textures)} group textures for {len(grouping.groups)} groups")
-        painted = observed = None
-        if store.exists(look.PAINTED):
-            arrays = store.read_arrays(look.PAINTED)
-            painted = [np.asarray(arrays[f"g{k}"], dtype=bool) for k in range(sum(n.startswith("g") for n in arrays))]
-            observed = [np.asarray(arrays[f"o{k}"], dtype=bool) for k in range(len(painted))] if "o0" in arrays else painted
+        images = LookImages.read(store, look)
+        if len(images.textures) != len(grouping.groups):
+            raise ValueError(f"{store.uri}: {len(images.textures)} group textures for {len(grouping.groups)} groups")
         return cls(shape, grouping, np.asarray(uv["corner_uv"], dtype=np.float64), np.asarray(uv["face_group"], dtype=np.int64),
-                   textures, labels, painted, observed, pbr)
+                   images.textures, images.labels, images.painted, images.observed, images.pbr)
 
 
 def encode_textures(tex: Any) -> tuple[list[bytes], list[Any]]:

@@ -4,6 +4,7 @@ shape's parts are assigned to (:mod:`proctex.transfer.assign`)."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Sequence
 
@@ -14,7 +15,7 @@ from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, normalised_frame
 from proctex.store.layout import FamilyStore, LookLayout
 from proctex.store.state import FamilyState
-from proctex.store.template import StoredImages, StoredMaps, Template, load_template
+from proctex.store.template import LookImages, StoredImages, StoredMaps, Template, load_template
 
 if TYPE_CHECKING:  # annotations only: the lookups are built above this module
     from proctex.transfer.uvlookup import ChartLookup
@@ -168,20 +169,38 @@ def template_assets(template: Template) -> TemplateAssets:
     """The stored template record (:class:`proctex.store.template.Template`) ready for transfer. Without
     stored masks, the texels each group's UV charts cover plus an 8-texel gutter count as painted and
     observed."""
+    assets = prepare_template(template.shape, template.grouping, template.corner_uv, template.textures, template.names, pbr=template.pbr)
+    _set_masks(assets, template.painted, template.observed)
+    return assets
+
+
+def _set_masks(assets: TemplateAssets, painted: list[np.ndarray] | None, observed: list[np.ndarray] | None) -> None:
+    """The painted and observed masks of ``assets``; without stored ones, the texels each group's
+    UV charts cover plus an 8-texel gutter count as both."""
     from proctex.texture.uv import pad_seams, texel_map
 
-    assets = prepare_template(template.shape, template.grouping, template.corner_uv, template.textures, template.names, pbr=template.pbr)
-    if template.painted is not None:
-        assets.painted, assets.observed = template.painted, template.observed
-    else:
+    if painted is None:
         masks = []
         for ga in assets.groups:
             h, w = texture_hw(assets, ga.group)
             tm = texel_map(ga.vertices, ga.faces, ga.corner_uv, h, w)
             _, mask = pad_seams(np.zeros((h, w, 1)), tm.mask, 8)
             masks.append(mask)
-        assets.painted, assets.observed = masks, masks
-    return assets
+        painted = observed = masks
+    assets.painted, assets.observed = painted, observed if observed is not None else painted
+    assets.charts = assets.lookups = None  # made from the masks when first used
+
+
+def with_look(assets: TemplateAssets, images: LookImages) -> TemplateAssets:
+    """``assets`` textured as another look of the family (:class:`proctex.store.template.LookImages`):
+    the same geometry (groups, slots, surface indexes: shared, not copied), that look's textures, PBR
+    maps and masks. ``ValueError`` when the look does not have the family's groups."""
+    if len(images.textures) != len(assets.groups) or [ga.label or "" for ga in assets.groups] != list(images.labels):
+        raise ValueError(f"the look has {len(images.textures)} groups {images.labels}, the family {[ga.label for ga in assets.groups]}")
+    out = dataclasses.replace(assets, textures=images.textures, png=images.textures.png, pbr=images.pbr,
+                              pbr_png=images.pbr.png if images.pbr is not None else None)
+    _set_masks(out, images.painted, images.observed)
+    return out
 
 
 def load_assets(store: FamilyStore, state: FamilyState | None = None, look: LookLayout | None = None) -> TemplateAssets:
