@@ -36,6 +36,7 @@ from proctex.store.layout import FamilyStore
 FORMATS = ("glb", "obj")
 TEXTURE_MODES = ("embedded", "shared")
 MAX_ROWS = 10_000_000
+MAX_LOOKS = 64
 
 
 class GenerateLayout:
@@ -80,6 +81,12 @@ class GenerateSettings:
         max_failed: rows that may fail before the run stops.
         batch_size: rows per batch.
         device: where the networks run ("cpu", "cuda", "cuda:<i>").
+        looks: the family's looks each shape is made in (:mod:`proctex.store.looks`; ``["all"]``:
+            every look; None: the build's look): every parameter row crossed with them. A rows
+            file's ``look`` column names a row's one look instead.
+        random_looks: first give the family this many looks painted from prompts sampled from the
+            painter's own vocabulary (:func:`proctex.texture.painters.vocabulary.random_prompts`,
+            ``seed``), named ``random-<seed>-<k>``; each is then crossed with the shapes too.
     """
 
     family: str
@@ -94,6 +101,8 @@ class GenerateSettings:
     max_failed: int = 10
     batch_size: int = 8
     device: str = "cpu"
+    looks: tuple[str, ...] | None = None
+    random_looks: int = 0
 
     def validate(self) -> "GenerateSettings":
         if (self.n is None) == (self.rows is None):
@@ -120,6 +129,18 @@ class GenerateSettings:
             raise ValueError("shared textures are for GLB output with the template's textures (not obj, not bake)")
         if not isinstance(self.bounds, dict):
             raise ValueError('bounds must be an object {"name": [low, high]}')
+        if self.looks is not None:
+            from proctex.store.layout import check_look_name
+
+            if not self.looks or len(self.looks) > MAX_LOOKS or len(set(self.looks)) != len(self.looks):
+                raise ValueError(f"looks must name 1 to {MAX_LOOKS} different looks (or 'all'), got {list(self.looks)[:8]}")
+            for name in self.looks:
+                if name != "all":
+                    check_look_name(name)
+            if "all" in self.looks and len(self.looks) > 1:
+                raise ValueError("looks: 'all' stands alone")
+        if isinstance(self.random_looks, bool) or not isinstance(self.random_looks, int) or not 0 <= self.random_looks <= MAX_LOOKS:
+            raise ValueError(f"random_looks must be in 0..{MAX_LOOKS}, got {self.random_looks!r}")
         if self.rows is not None and self.bounds:
             raise ValueError("bounds narrow sampled rows; rows from a file are taken as they are")
         if "://" not in self.out and "://" not in self.family:
@@ -137,6 +158,7 @@ class GenerateSettings:
         d = asdict(self)
         for k in ("out", "max_failed", "batch_size", "device"):
             d.pop(k)
+        d["looks"] = list(self.looks) if self.looks is not None else None  # as JSON reads it back
         return d
 
 
@@ -176,9 +198,12 @@ def read_rows_file(path: str) -> list[dict[str, Any]]:
     return [{k: v for k, v in row.items() if v is not None} for row in table.to_pylist()]
 
 
-def plan_rows(settings: GenerateSettings, space: ParamSpace) -> list[dict[str, Any]]:
-    """The run's rows: ``{"index", "id", "params" (JSON text), "seed"}`` each. Sampled rows lie in
-    the (narrowed) space; rows from a file are checked later, row by row, so one bad row fails alone."""
+def plan_rows(settings: GenerateSettings, space: ParamSpace, looks: list[str] | None = None) -> list[dict[str, Any]]:
+    """The run's rows: ``{"index", "id", "params" (JSON text), "seed", "look"}`` each: every parameter
+    row in each of ``looks`` (default: ``[""]``, the build's look), or in the one look a rows file's
+    ``look`` column names. One look: ids ``v<row>``; several: ``v<row>-<look>``; a shape's seed is
+    the same in every look. Sampled rows lie in the (narrowed) space; rows from a file are checked
+    later, row by row, so one bad row (an unknown look included) fails alone."""
     from proctex.params import restricted_space
 
     if settings.rows is not None:
@@ -188,8 +213,14 @@ def plan_rows(settings: GenerateSettings, space: ParamSpace) -> list[dict[str, A
     else:
         space = restricted_space(space, settings.bounds) if settings.bounds else space
         params = space.sample(settings.n, seed=settings.seed, method="lhs") if len(space) else [{} for _ in range(settings.n)]
-    return [{"index": i, "id": variant_id(i), "params": json.dumps(p, sort_keys=True, default=_plain), "seed": row_seed(settings.seed, i)}
-            for i, p in enumerate(params)]
+    looks = looks or [""]
+    rows = []
+    for i, p in enumerate(params):
+        own = p.pop("look", None) if isinstance(p, dict) else None
+        for look in ([str(own)] if own is not None else looks):
+            rows.append({"index": len(rows), "id": variant_id(i) + (f"-{look}" if len(looks) > 1 or own is not None else ""),
+                         "params": json.dumps(p, sort_keys=True, default=_plain), "seed": row_seed(settings.seed, i), "look": look})
+    return rows
 
 
 def _plain(value: Any) -> Any:
@@ -211,14 +242,21 @@ def start_run(settings: GenerateSettings, log: Callable[[str], None] = print) ->
     if not family.exists(StoreLayout.STATE):
         raise ValueError(f"{settings.family}: no family here (no family.json)")
     space = family_space(family)
+    if settings.random_looks:
+        make_random_looks(family, settings.random_looks, settings.seed, log)
+    from proctex.store.looks import built_look
+
+    looks = run_looks(family, settings) or [built_look(family).name]
     stamp = build_stamp(family)
-    rows = plan_rows(settings, space)
+    rows = plan_rows(settings, space, looks)
     out = FamilyStore(settings.out)
     run = {"settings": settings.key(), "stamp": stamp, "rows": len(rows)}
     if out.exists(GenerateLayout.RUN):
         before = out.read_json(GenerateLayout.RUN)
         if isinstance(before.get("settings"), dict):
             before["settings"].setdefault("textures", "embedded")  # runs recorded before shared textures existed
+            before["settings"].setdefault("looks", None)  # and before looks
+            before["settings"].setdefault("random_looks", 0)
         if before != run:
             diff = sorted(k for k in set(before.get("settings", {})) | set(run["settings"]) if before.get("settings", {}).get(k) != run["settings"].get(k))
             why = "the family was rebuilt or edited since" if before.get("stamp") != stamp else f"settings differ: {', '.join(diff) or 'rows'}"
@@ -229,11 +267,58 @@ def start_run(settings: GenerateSettings, log: Callable[[str], None] = print) ->
     return out, rows, space
 
 
+def run_looks(family: FamilyStore, settings: GenerateSettings) -> list[str] | None:
+    """The looks a run crosses its shapes with (None: the build's look alone), each checked to exist
+    (``ValueError`` listing the family's looks, before any work)."""
+    from proctex.store.looks import looks as family_looks
+    from proctex.store.looks import resolve_look
+
+    names = list(settings.looks or [])
+    if names == ["all"]:
+        names = [lk.name for lk in family_looks(family)]
+    if settings.random_looks:
+        names += [random_look_name(settings.seed, k) for k in range(settings.random_looks) if random_look_name(settings.seed, k) not in names]
+    for name in names:
+        resolve_look(family, name)
+    return names or None
+
+
+def random_look_name(seed: int, k: int) -> str:
+    return f"random-{seed}-{k}"
+
+
+def make_random_looks(family: FamilyStore, n: int, seed: int, log: Callable[[str], None] = print) -> list[dict[str, Any]]:
+    """Give ``family`` looks ``random-<seed>-0 .. n-1`` painted from :func:`random_prompts` (the
+    build's other paint settings); a look of that name made before with the same prompt is kept,
+    with another prompt it is a ``ValueError``. Returns each look's ``{"name", "prompt"}``."""
+    from dataclasses import replace
+
+    from proctex.build.looks import add_look
+    from proctex.store.looks import look_paint, other_looks
+    from proctex.store.state import stored_config
+    from proctex.texture.painters.vocabulary import random_prompts
+
+    paint = stored_config(family).paint
+    have = {lk.name: lk for lk in other_looks(family)}
+    out = []
+    for k, prompt in enumerate(random_prompts(n, seed)):
+        name = random_look_name(seed, k)
+        if name in have:
+            made = look_paint(family, have[name], paint).prompt
+            if made != prompt:
+                raise ValueError(f"the family's look {name} was painted with {made!r}, not {prompt!r}: remove it (proctex look rm) first")
+        else:
+            add_look(family, name, replace(paint, prompt=prompt, group_prompts={}), log=log)
+        out.append({"name": name, "prompt": prompt})
+    return out
+
+
 def batches(rows: list[dict[str, Any]], size: int) -> Iterable[dict[str, np.ndarray]]:
-    """The rows as column batches (``{"index", "id", "params", "seed"}`` arrays), ``size`` rows each."""
+    """The rows as column batches (``{"index", "id", "params", "seed", "look"}`` arrays), ``size`` rows each."""
     for i in range(0, len(rows), size):
         chunk = rows[i : i + size]
-        yield {k: np.array([r[k] for r in chunk], dtype=object if k in ("id", "params") else np.int64) for k in ("index", "id", "params", "seed")}
+        yield {k: np.array([r[k] for r in chunk], dtype=object if k in ("id", "params", "look") else np.int64)
+               for k in ("index", "id", "params", "seed", "look")}
 
 
 def _record(out: FamilyStore, vid: str, fmt: str) -> dict[str, Any] | None:
@@ -249,12 +334,13 @@ def _record(out: FamilyStore, vid: str, fmt: str) -> dict[str, Any] | None:
 
 
 # ----------------------------------------------------------------------------------------- stages
-MANIFEST_FIELDS = ("index", "id", "params", "status", "file", "faces", "vertices", "parts", "groups", "notes", "error", "bytes",
+MANIFEST_FIELDS = ("index", "id", "params", "look", "status", "file", "faces", "vertices", "parts", "groups", "notes", "error", "bytes",
                    "generate_seconds", "transfer_seconds", "write_seconds", "finished")
 
 
 def _empty(row: dict[str, Any]) -> dict[str, Any]:
-    return {"index": int(row["index"]), "id": str(row["id"]), "params": str(row["params"]), "status": "", "file": "", "faces": 0, "vertices": 0,
+    return {"index": int(row["index"]), "id": str(row["id"]), "params": str(row["params"]), "look": str(row.get("look", "")),
+            "status": "", "file": "", "faces": 0, "vertices": 0,
             "parts": 0, "groups": 0, "notes": "[]", "error": "", "bytes": 0, "generate_seconds": 0.0, "transfer_seconds": 0.0, "write_seconds": 0.0,
             "finished": time.time()}
 
@@ -278,7 +364,7 @@ class ShapeStage:
     ``.npz`` bytes, empty unless made), ``record`` (a done row's record as JSON text, else empty),
     ``error`` and ``generate_seconds``."""
 
-    FIELDS = ("index", "id", "params", "seed", "status", "mesh", "record", "error", "generate_seconds")
+    FIELDS = ("index", "id", "params", "seed", "look", "status", "mesh", "record", "error", "generate_seconds")
 
     def __init__(self, family: str, out: str, fmt: str = "glb") -> None:
         from proctex.store.state import stored_config
@@ -289,7 +375,7 @@ class ShapeStage:
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         rows = []
         for row in _rows_of(batch):
-            row = {**row, "status": "made", "mesh": b"", "record": "", "error": "", "generate_seconds": 0.0}
+            row = {"look": "", **row, "status": "made", "mesh": b"", "record": "", "error": "", "generate_seconds": 0.0}
             rec = _record(self.out, str(row["id"]), self.fmt)
             if rec is not None:
                 row.update(status="done", record=json.dumps(rec))
@@ -317,11 +403,20 @@ class TextureStage:
 
         self.svc = FamilyService(FamilyStore(family), device=device)
         self.out, self.fmt, self.bake, self.textures = FamilyStore(out), fmt, bake, textures
-        if textures == "shared":  # written once per worker, atomically and identically: concurrent writers agree
-            for name, data in self.svc.shared_textures().items():
-                rel = GenerateLayout.texture(name)
+        self._shared: set[str] = set()  # looks whose shared textures this worker has written
+
+    def service(self, look: str) -> Any:
+        """The family's service in ``look`` ("": the build's), its shared textures written first
+        (``textures/``, another look's in ``textures/<look>/``: once per worker, atomically and
+        identically, so concurrent writers agree)."""
+        svc = self.svc.look_view(look or None)
+        if self.textures == "shared" and look not in self._shared:
+            for name, data in svc.shared_textures().items():
+                rel = GenerateLayout.texture(f"{look}/{name}" if look and not svc.look.built else name)
                 if not self.out.exists(rel) or self.out.read_bytes(rel) != data:
                     self.out.write_bytes(rel, data)
+            self._shared.add(look)
+        return svc
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         rows = []
@@ -340,14 +435,15 @@ class TextureStage:
     def _make(self, row: dict[str, Any]) -> dict[str, Any]:
         from proctex.geometry.shape import Shape
 
-        vid = str(row["id"])
+        vid, look = str(row["id"]), str(row.get("look", ""))
         t0 = time.perf_counter()
         try:
+            svc = self.service(look)
             with np.load(io.BytesIO(bytes(row["mesh"])), allow_pickle=False) as z:
                 shape = Shape(z["vertices"], z["faces"])
-            link = GenerateLayout.TEXTURE_LINK if self.textures == "shared" else None
-            answer, summary = self.svc.textured(shape, seed=int(row["seed"]), bake_size=self.bake, linked=link is not None, link_base=link)
-        except (ValueError, TypeError, OverflowError) as exc:
+            link = (GenerateLayout.TEXTURE_LINK + (f"{look}/" if look and not svc.look.built else "")) if self.textures == "shared" else None
+            answer, summary = svc.textured(shape, seed=int(row["seed"]), bake_size=self.bake, linked=link is not None, link_base=link)
+        except (ValueError, TypeError, OverflowError) as exc:  # a row's unknown look (NotFound) included
             return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"[:500], "transfer_seconds": time.perf_counter() - t0,
                     "finished": time.time()}
         t1 = time.perf_counter()
@@ -355,7 +451,7 @@ class TextureStage:
         main = GenerateLayout.variant(vid, self.fmt)
         for rel, data in files:  # the main file last: what it names exists before it does
             self.out.write_bytes(rel, data)
-        rec = {"index": int(row["index"]), "id": vid, "params": str(row["params"]), "status": "written", "file": main,
+        rec = {"index": int(row["index"]), "id": vid, "params": str(row["params"]), "look": look or svc.look.name, "status": "written", "file": main,
                "faces": shape.n_faces, "vertices": shape.n_vertices, "parts": len(answer.result.assignment),  # one entry per part
                "groups": int(len(set(answer.face_group[answer.face_group >= 0].tolist()))), "notes": json.dumps(summary.get("notes", [])),
                "error": "", "bytes": int(sum(len(d) for _, d in files)), "generate_seconds": float(row["generate_seconds"]),
@@ -371,7 +467,7 @@ class TextureStage:
             return [(GenerateLayout.variant(vid, "glb"), answer.data)]
         from proctex.texture.export import obj_files
 
-        names = self.svc.assets.names + [f"new_{k}" for k in range(len(answer.textures) - len(self.svc.assets.names))]
+        names = self.svc.assets.names + [f"new_{k}" for k in range(len(answer.textures) - len(self.svc.assets.names))]  # every look's
         pbr = answer.pbr if answer.pbr is not None and any(m is not None for m in answer.pbr) else None  # MTL names the PBR maps too
         made = obj_files(vid, shape.vertices, shape.faces, answer.corner_uv, answer.face_group, answer.textures, names=names[: len(answer.textures)], pbr=pbr)
         return [(f"variants/{name}", data) for name, data in made]

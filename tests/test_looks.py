@@ -267,3 +267,73 @@ def test_the_service_lists_adds_and_serves_looks_without_a_restart(mug):
     assert tex.headers["etag"] != built_tex.headers["etag"]
     assert edit.status_code == 200 and walnut_after["edits"] == 1 and built_after["edits"] == 0
     assert undo.status_code == 200 and undo.json()["undone"][0]["version"] == 1
+
+
+def test_generate_crosses_shapes_with_looks_and_every_row_wears_its_look(mug, tmp_path, capsys):
+    """Issue 35's dataset case: 2 looks x 50 shapes = 100 rows; each row's look column names the
+    look whose textures its GLB carries (byte for byte the look's stored PNGs), and the two GLBs
+    of one shape share their geometry."""
+    import pyarrow.parquet as pq
+
+    add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red lacquer"), log=lambda *_: None)
+    out = tmp_path / "gen"
+    assert main(["generate", mug.base, "--n", "50", "--looks", "default,red", "--out", str(out), "--no-ray", "--quiet", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    rows = pq.read_table(out / "manifest.parquet").to_pylist()
+    assert summary["written"] == 100 and len(rows) == 100
+    assert [r["look"] for r in rows] == ["default", "red"] * 50 and len({r["id"] for r in rows}) == 100
+    stored = {look.name: [p for p in sorted((Path(mug.base) / look.folder).glob("group_*.png")) if p.name.count(".") == 1]
+              for look in looks(mug)}
+    stored = {name: {p.read_bytes() for p in paths} for name, paths in stored.items()}
+    by_shape: dict[str, dict[str, tuple]] = {}
+    for r in rows:
+        geometry, images = glb_parts((out / r["file"]).read_bytes())
+        other = "red" if r["look"] == "default" else "default"
+        assert stored[r["look"]] <= set(images) and not stored[other] & set(images)  # its look's textures, none of the other's
+        by_shape.setdefault(r["params"], {})[r["look"]] = geometry
+    assert len(by_shape) == 50 and all(v["default"] == v["red"] for v in by_shape.values())
+
+
+def test_generate_shared_textures_per_look_rows_files_and_random_looks(mug, tmp_path, capsys):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red lacquer"), log=lambda *_: None)
+    shared = tmp_path / "shared"
+    assert main(["generate", mug.base, "--n", "2", "--looks", "all", "--textures", "shared", "--out", str(shared), "--no-ray", "--quiet"]) == 0
+    assert (shared / "textures" / "0.png").read_bytes() != (shared / "textures" / "red" / "0.png").read_bytes()
+    uris = {r["look"]: gl.GLTF2.load_from_bytes((shared / r["file"]).read_bytes()).images[0].uri
+            for r in pq.read_table(shared / "manifest.parquet").to_pylist()}
+    assert uris == {"default": "../textures/0.png", "red": "../textures/red/0.png"}
+    rows_file = tmp_path / "rows.parquet"
+    pq.write_table(pa.table({"radius": [0.04, 0.05, 0.045], "look": ["red", "nope", None]}), rows_file)
+    by_rows = tmp_path / "by_rows"
+    assert main(["generate", mug.base, "--rows", str(rows_file), "--out", str(by_rows), "--no-ray", "--quiet"]) == 0
+    rows = pq.read_table(by_rows / "manifest.parquet").to_pylist()
+    assert [(r["look"], r["status"]) for r in rows] == [("red", "written"), ("nope", "failed"), ("default", "written")]
+    assert "unknown look 'nope'" in rows[1]["error"]
+    capsys.readouterr()
+    assert main(["generate", mug.base, "--n", "2", "--looks", "walnut", "--out", str(tmp_path / "x"), "--no-ray", "--quiet"]) == 2
+    assert "unknown look 'walnut'" in capsys.readouterr().err and not (tmp_path / "x" / "variants").exists()
+    rand = tmp_path / "rand"
+    assert main(["generate", mug.base, "--n", "2", "--random-looks", "2", "--seed", "5", "--out", str(rand), "--no-ray", "--quiet"]) == 0
+    made = {lk.name: look_paint(mug, lk, FamilyState.load(mug).build_config().paint).prompt for lk in looks(mug)}
+    from proctex.texture.painters.vocabulary import random_prompts
+
+    assert [made["random-5-0"], made["random-5-1"]] == random_prompts(2, 5)
+    assert {r["look"] for r in pq.read_table(rand / "manifest.parquet").to_pylist()} == {"random-5-0", "random-5-1"}
+    assert main(["generate", mug.base, "--n", "2", "--random-looks", "2", "--seed", "5", "--out", str(rand), "--no-ray", "--quiet"]) == 0  # resumes
+
+
+def test_random_prompts_are_seeded_distinct_and_understood():
+    from proctex.texture.painters.prompt import parse_prompt
+    from proctex.texture.painters.vocabulary import random_prompts
+
+    prompts = random_prompts(100, seed=1)
+    assert prompts == random_prompts(100, seed=1) and prompts != random_prompts(100, seed=2) and len(set(prompts)) == 100
+    for p in prompts:
+        assert parse_prompt(p).ignored == (), p  # every word is the painter's
+    kinds = {parse_prompt(p).material for p in prompts}
+    assert {"wood", "metal", "ceramic"} <= kinds and len(kinds) >= 6
+    with pytest.raises(ValueError):
+        random_prompts(-1)

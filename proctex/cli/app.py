@@ -204,6 +204,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bake", type=int, default=0, help="give each variant its own atlas at this size (0: the template's textures)")
     p.add_argument("--textures", choices=["embedded", "shared"], default="embedded",
                    help="embedded: every GLB carries its textures and PBR maps; shared: written once into textures/, each GLB refers to them")
+    p.add_argument("--looks", metavar="NAMES", help="the family's looks to make every shape in, e.g. walnut,oak (or 'all'; "
+                                                  "default: the build's look); a --rows file's 'look' column names a row's look instead")
+    p.add_argument("--random-looks", type=int, default=0, metavar="N",
+                   help="first add N looks painted from prompts sampled from the painter's vocabulary (seeded by --seed), then use them too")
     p.add_argument("--max-failed", type=int, default=10, help="rows that may fail (recorded in the manifest) before the run stops")
     p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i> (on Ray the texture actors share the GPU)")
     p.add_argument("--batch-size", type=int, default=8, help="rows per batch")

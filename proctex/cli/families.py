@@ -193,9 +193,14 @@ def generate_settings(args: argparse.Namespace):
             raise ValueError('--params-bounds must be a JSON object, e.g. {"seats": [2, 3]}')
     if args.rows is not None and not os.path.isfile(args.rows):
         raise ValueError(f"--rows {args.rows}: no such file")
+    looks = None
+    if args.looks is not None:
+        looks = tuple(x.strip() for x in args.looks.split(","))
+        if not all(looks):
+            raise ValueError(f"--looks takes look names separated by commas (or 'all'), got {args.looks[:80]!r}")
     return GenerateSettings(args.family, args.out, n=args.n, rows=args.rows, seed=args.seed, bounds=bounds, format=args.format,
                             bake=args.bake or None, textures=args.textures, max_failed=args.max_failed, batch_size=args.batch_size,
-                            device=args.device).validate()
+                            device=args.device, looks=looks, random_looks=args.random_looks).validate()
 
 
 def print_generate_summary(args: argparse.Namespace, summary: dict[str, Any]) -> None:

@@ -244,3 +244,49 @@ _RUST_COLOR: RGB = _DEFAULT_COLORS["rust"][1]
 
 
 _MOSS_COLOR: RGB = _DEFAULT_COLORS["moss"][0]
+
+
+# ------------------------------------------------------------------------------- sampled prompts
+#: Words :func:`random_prompts` draws from, by what they may be combined with (each one the parser
+#: above understands: a test parses every sampled prompt back).
+RANDOM_WOODS = ("oak", "walnut", "pine", "maple", "cherry", "mahogany", "teak", "birch", "ebony", "bamboo")
+RANDOM_STONES = ("marble", "granite", "slate", "sandstone", "limestone", "concrete", "terrazzo")
+RANDOM_METALS = ("steel", "brass", "copper", "bronze", "gold", "silver", "iron", "chrome", "pewter")
+RANDOM_CERAMICS = ("ceramic", "porcelain", "terracotta", "glazed ceramic")
+RANDOM_TEXTILES = ("linen", "wool", "velvet", "leather", "denim", "silk", "tweed", "cotton", "canvas")
+RANDOM_COLORS = ("red", "navy", "teal", "olive", "mustard", "burgundy", "charcoal", "cream", "ivory", "forest green", "sky blue",
+                 "rust orange", "plum", "sand", "black", "white")
+RANDOM_PATTERNS = ("striped", "checked", "plaid", "polka dot", "floral", "patchwork")
+RANDOM_FINISHES = {"wood": ("polished", "matte", "glossy"), "stone": ("polished", "matte"), "metal": ("brushed", "polished", "hammered"),
+                   "ceramic": ("glossy", "matte")}
+
+
+def random_prompts(n: int, seed: int = 0) -> list[str]:
+    """``n`` prompts sampled (``seed``) from the painter's vocabulary: a finished wood, stone or
+    metal ("polished walnut"), a coloured ceramic ("matte teal porcelain"), or a textile in one or
+    two colours, maybe patterned ("navy and cream striped linen"); different from each other while
+    the vocabulary allows."""
+    import numpy as np
+
+    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= 1024:
+        raise ValueError(f"n must be an integer in 0..1024, got {n!r}")
+    rng = np.random.default_rng(seed)
+    pick = lambda words: str(words[int(rng.integers(len(words)))])  # noqa: E731
+    out: list[str] = []
+    while len(out) < n:
+        kind = pick(("wood", "stone", "metal", "ceramic", "textile", "textile"))
+        if kind in ("wood", "stone", "metal"):
+            words = {"wood": RANDOM_WOODS, "stone": RANDOM_STONES, "metal": RANDOM_METALS}[kind]
+            prompt = f"{pick(RANDOM_FINISHES[kind])} {pick(words)}"
+        elif kind == "ceramic":
+            prompt = f"{pick(RANDOM_FINISHES['ceramic'])} {pick(RANDOM_COLORS)} {pick(RANDOM_CERAMICS)}"
+        else:
+            colors = pick(RANDOM_COLORS)
+            if rng.random() < 0.5:
+                second = pick([c for c in RANDOM_COLORS if c != colors])
+                prompt = f"{colors} and {second} {pick(RANDOM_PATTERNS)} {pick(RANDOM_TEXTILES)}"
+            else:
+                prompt = f"{colors} {pick(RANDOM_TEXTILES)}"
+        if prompt not in out or len(out) > 200:  # distinct while it is easy to be
+            out.append(prompt)
+    return out
