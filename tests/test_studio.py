@@ -358,3 +358,54 @@ def test_the_screenshot_command_shoots_the_studio_with_parameters(server, tmp_pa
         done = run(*argv)
         assert done.returncode == 2 and message in done.stderr, (argv, done.stderr)
     assert not [p for p in tmp_path.iterdir() if p.name != "shot.png"]
+
+
+def test_the_studio_picks_and_adds_looks(server, browser):
+    """Issue 35: the look picker lists the family's looks and changes the view; the "add look" box
+    paints a new look through the service and shows it."""
+    from dataclasses import replace
+
+    from proctex.build.looks import add_look
+    from proctex.store.state import FamilyState
+
+    base, root = server
+    st = FamilyStore(root / "mug")
+    paint = FamilyState.load(st).build_config().paint
+    if not (root / "mug" / "looks" / "stripes").exists():
+        add_look(st, "stripes", replace(paint, prompt="black and white zebra stripes"), log=lambda *_: None)
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("response", lambda r: errors.append(f"{r.status} {r.url}") if r.status >= 400 else None)
+    try:
+        page.goto(base + "/?family=mug#token=" + STUDIO_TOKEN)
+        _wait_for_shape(page, 1)
+        assert page.eval_on_selector_all("#look option", "os => os.map(o => o.value)") == ["default", "stripes"]
+        assert page.evaluate("document.getElementById('look').value") == "default"
+        px0 = _canvas(page)
+        n = _requests(page)
+        page.select_option("#look", "stripes")
+        _wait_for_shape(page, n + 1)
+        px1 = _canvas(page)
+        both = _foreground(px0) & _foreground(px1)
+        assert (np.abs(px1.astype(int) - px0)[both].sum(axis=-1) > 60).mean() > 0.2, "the view did not change with the look"
+        assert "stripes" in page.evaluate("document.getElementById('prompt').textContent")
+        n = _requests(page)
+        page.fill("#look-name", "gold")
+        page.fill("#look-prompt", "polished gold")
+        page.click("#addlook button")
+        _wait_for_shape(page, n + 1, timeout=120_000)
+        assert page.eval_on_selector_all("#look option", "os => os.map(o => o.value)") == ["default", "gold", "stripes"]
+        assert page.evaluate("document.getElementById('look').value") == "gold"
+        import pygltflib
+
+        glb = pygltflib.GLTF2().load_from_bytes(bytes(page.evaluate("Array.from(window.studio.lastGlbBytes)")))
+        assert all("look=gold" in im.uri for im in glb.images)
+        px2 = _canvas(page)
+        both = _foreground(px2) & _foreground(px1)
+        assert (np.abs(px2.astype(int) - px1)[both].sum(axis=-1) > 60).mean() > 0.2, "the new look looks like the old one"
+        assert (root / "mug" / "looks" / "gold" / "look.json").is_file()
+        assert not errors, errors
+    finally:
+        context.close()

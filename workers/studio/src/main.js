@@ -12,7 +12,8 @@ const $ = (id) => document.getElementById(id);
 const body = document.body;
 
 const studio = {
-  family: null, // the family's description (GET /v1/families/{name})
+  family: null, // the family's description (GET /v1/families/{name}?look=...)
+  look: null, // the look on screen (null: the family's build look)
   params: {}, // current parameter values
   edits: {}, // {group index: {hue, prompt, roughness, metallic}} not yet saved to the family
   mesh: null, // an uploaded File (families of meshes)
@@ -206,6 +207,11 @@ function familyPath(fam) {
   return `/v1/families/${encodeURIComponent(fam.name)}/`;
 }
 
+function lookQuery(prefix = '&') {
+  // The look on screen, as the routes take it (?look=NAME); nothing for the build's look.
+  return studio.look ? `${prefix}look=${encodeURIComponent(studio.look)}` : '';
+}
+
 function transferRequest(fam, params, edits, signal, textures = 'linked') {
   // A multiplexed service routes by the family in the path (workers/ingress.py): no header needed.
   const options = { method: 'POST', signal, headers: {} };
@@ -217,7 +223,7 @@ function transferRequest(fam, params, edits, signal, textures = 'linked') {
     options.body.append('mesh', studio.mesh, studio.mesh.name);
     options.body.append('edits', JSON.stringify(edits));
   }
-  return api(`${familyPath(fam)}transfer?textures=${textures}`, options);
+  return api(`${familyPath(fam)}transfer?textures=${textures}${lookQuery()}`, options);
 }
 
 async function transfer() {
@@ -385,6 +391,7 @@ function thumbUrl(g, size = 128) {
   const e = studio.edits[g] || {};
   if (e.hue) q.set('hue', String(e.hue));
   if (e.prompt) q.set('prompt', e.prompt);
+  if (studio.look) q.set('look', studio.look);
   return `/v1/families/${encodeURIComponent(fam.name)}/groups/${g}/texture.png?${q}`;
 }
 
@@ -472,13 +479,13 @@ function groupPanel(group) {
     try {
       // The edit token comes from the page's fragment (#token=...), which never reaches a server log;
       // If-Match makes the save fail (409) if the family changed since this view loaded.
-      await api(`/v1/families/${encodeURIComponent(studio.family.name)}/edits`, {
+      await api(`/v1/families/${encodeURIComponent(studio.family.name)}/edits${lookQuery('?')}`, {
         method: 'POST',
         headers: { 'content-type': 'application/json', 'X-ProcTex-Token': editToken(), 'If-Match': studio.family.stamp },
         body: JSON.stringify(edit),
       });
       delete studio.edits[g]; // part of the family now
-      await loadFamily(studio.family.name, { keepView: true });
+      await loadFamily(studio.family.name, { keepView: true, look: studio.look });
     } catch (err) {
       showError(`save failed: ${err.message}`);
       save.disabled = false;
@@ -488,11 +495,19 @@ function groupPanel(group) {
 }
 
 // ---------------------------------------------------------------------------------- families
-async function loadFamily(name, { keepView = false } = {}) {
+async function loadFamily(name, { keepView = false, look = null } = {}) {
   body.dataset.state = 'loading';
-  const fam = await (await api(`/v1/families/${encodeURIComponent(name)}`)).json();
+  studio.look = look;
+  const fam = await (await api(`/v1/families/${encodeURIComponent(name)}${lookQuery('?')}`)).json();
   const previous = studio.family && studio.family.name === name ? studio.params : {};
   studio.family = fam;
+  const looks = $('look');
+  looks.replaceChildren(...(fam.looks || [fam.look]).map((n) => new Option(n, n)));
+  looks.value = fam.look;
+  const adding = $('addlook');
+  for (const el of adding.elements) el.disabled = !fam.edits_enabled;
+  adding.title = fam.edits_enabled ? 'paint the family with another prompt (a new look; seconds, no rebuild)'
+    : 'this service is read-only (started without an edit token)';
   if (!keepView) {
     cancelInFlight(); // nothing of the previous family may land on this one
     studio.edits = {};
@@ -516,8 +531,35 @@ async function loadFamily(name, { keepView = false } = {}) {
   $('groups').replaceChildren(...fam.groups.map(groupPanel));
   const url = new URL(window.location);
   url.searchParams.set('family', name);
+  if (studio.look) url.searchParams.set('look', studio.look);
+  else url.searchParams.delete('look');
   window.history.replaceState(null, '', url);
   scheduleTransfer(0);
+}
+
+async function addLook(event) {
+  // A new look of the family (POST .../looks, the edit token): painted by the service in seconds, then shown.
+  event.preventDefault();
+  const form = $('addlook');
+  const name = $('look-name').value.trim();
+  const prompt = $('look-prompt').value.trim();
+  if (!name || !prompt) return;
+  for (const el of form.elements) el.disabled = true;
+  setBusy(true);
+  try {
+    await api(`${familyPath(studio.family)}looks`, {
+      method: 'POST',
+      headers: { 'content-type': 'application/json', 'X-ProcTex-Token': editToken() },
+      body: JSON.stringify({ name, prompt }),
+    });
+    $('look-name').value = '';
+    $('look-prompt').value = '';
+    await loadFamily(studio.family.name, { keepView: true, look: name });
+  } catch (err) {
+    showError(err.message);
+    for (const el of form.elements) el.disabled = false;
+    setBusy(false);
+  }
 }
 
 async function start() {
@@ -529,6 +571,11 @@ async function start() {
     const wanted = new URL(window.location).searchParams.get('family');
     select.value = families.includes(wanted) ? wanted : families[0];
     select.addEventListener('change', () => loadFamily(select.value).catch((e) => showError(e.message)));
+    $('look').addEventListener('change', (ev) => {
+      const look = ev.target.value === studio.family.looks[0] ? null : ev.target.value; // the first is the build's
+      loadFamily(studio.family.name, { keepView: true, look }).catch((e) => showError(e.message));
+    });
+    $('addlook').addEventListener('submit', addLook);
     $('download').addEventListener('click', download);
     $('mesh').addEventListener('change', (ev) => {
       studio.mesh = ev.target.files[0] || null;
@@ -536,7 +583,7 @@ async function start() {
       scheduleTransfer(0);
     });
     resize();
-    await loadFamily(select.value);
+    await loadFamily(select.value, { look: new URL(window.location).searchParams.get('look') });
   } catch (err) {
     showError(err.message);
   }
