@@ -293,6 +293,11 @@ def served_vase(blends, tmp_path_factory):
                                  "cage": {"iterations": 20}, "train": {"iterations": 20}})
     store = FamilyStore(root / "vase")
     build(store, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
+    from dataclasses import replace
+
+    from proctex.build.looks import add_look
+
+    add_look(store, "red", replace(cfg.paint, prompt="red lacquer"), log=lambda *_: None)  # a second look for the add-on's picker
     port = _free_port()
     log = open(root / "serve.log", "w")
     proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "serve", str(root), "--port", str(port), "--replicas", "1"],
@@ -340,6 +345,10 @@ def test_the_addon_client_speaks_the_api_and_reports_errors_plainly():
     assert err.value.status == 0
     with pytest.raises(client.ServiceError, match="pick a family"):
         client.transfer_params("http://127.0.0.1:1", "", {})
+    assert client._transfer_path("mug", "red lacquer") == "/v1/families/mug/transfer?look=red%20lacquer"
+    assert client._transfer_path("mug", None) == "/v1/families/mug/transfer"
+    with pytest.raises(client.ServiceError, match="cannot reach"):
+        client.looks(f"http://127.0.0.1:{_free_port()}", "mug", timeout=2)
 
 
 def test_the_addon_zip_holds_the_package(tmp_path):
@@ -432,7 +441,8 @@ def test_the_addon_textures_the_selected_object_through_a_live_service(served_va
     (new inputs: a ring count no sample had) imports a textured copy with the same transform and the
     same surface, the original hidden, the family's group textures in its materials; pressing it
     again replaces the copy; "Add variant" adds the family's shape; an unreachable service is a
-    message in the panel."""
+    message in the panel; the look picker lists the family's looks and a variant in the second look
+    wears that look's textures (issue 35)."""
     import hashlib
     import io
     import json
@@ -449,7 +459,7 @@ def test_the_addon_textures_the_selected_object_through_a_live_service(served_va
     env = {**__import__("os").environ, "BLENDER_USER_SCRIPTS": str(tmp_path / "scripts"), "BLENDER_USER_CONFIG": str(tmp_path / "config"),
            "BLENDER_USER_EXTENSIONS": str(tmp_path / "extensions")}
     done = subprocess.run([PYTHON, str(DRIVER), str(zip_path), str(blends / "vase.blend"), url, "vase",
-                           json.dumps({"Resolution": 13, "Height": 1.7}), str(out)], capture_output=True, text=True, timeout=400, env=env)
+                           json.dumps({"Resolution": 13, "Height": 1.7}), str(out), "red"], capture_output=True, text=True, timeout=400, env=env)
     assert done.returncode == 0 and out.exists(), (done.stdout[-2000:], done.stderr[-3000:])
     report = json.loads(out.read_text())
     assert report["families"] == ["vase"] and all(report["timer_registered"])
@@ -472,6 +482,15 @@ def test_the_addon_textures_the_selected_object_through_a_live_service(served_va
     assert expected and expected <= seen, (expected, new["materials"])
     assert report["variant"] is not None and report["variant"]["faces"] > 0 and report["variant"]["materials"], report["variant_status"]
     assert report["unreachable_status"].startswith("error: cannot reach"), report["unreachable_status"]
+    # The look picker fills from the service (the build's look first) and a variant in the "red" look wears its textures.
+    assert report["looks"] == ["default", "red"] and report["look"] == "default"
+    red = set()
+    for g in store.read_json("looks/red/paint.json")["groups"]:
+        img = np.asarray(Image.open(io.BytesIO(store.read_bytes(f"looks/red/{Path(StoreLayout.texture(g['group'], g.get('label') or '')).name}"))).convert("RGB"))
+        red.add(hashlib.sha256(np.ascontiguousarray(img[::-1]).tobytes()).hexdigest())
+    in_red = {im["rgb_sha"] for m in report["look_variant"]["materials"] for im in m["images"]}
+    default = {im["rgb_sha"] for m in report["variant"]["materials"] for im in m["images"]}
+    assert red <= in_red and not red & default and not expected & in_red, report["look_status"]
 
 
 # ---------------------------------------------------------------------- real users' files (issue 31)

@@ -2,7 +2,8 @@
 running ProcTex service.
 
 The sidebar panel (3D view, N, "ProcTex") holds the service URL, a family picker filled from
-``/v1/families`` and the family's parameters as properties. "Texture selected" sends the selected
+``/v1/families``, a look picker filled from the family's ``/looks`` and the family's parameters as
+properties. "Texture selected" sends the selected
 object's evaluated mesh (object coordinates, modifiers applied) to the family's transfer route and
 imports the returned GLB in its place: same transform, the original hidden, a second texturing
 replacing the first copy. "Add variant" asks for the family's own shape at the panel's parameters.
@@ -34,7 +35,7 @@ bl_info = {
 }
 
 _results: queue.Queue = queue.Queue()
-_state: dict[str, Any] = {"pending": 0, "families": []}
+_state: dict[str, Any] = {"pending": 0, "families": [], "looks": []}
 _ENUM_CACHE: dict[str, list] = {}  # Blender needs the items of a dynamic enum kept alive
 
 
@@ -78,6 +79,10 @@ def drain() -> float | None:
             elif kind == "families":
                 _state["families"] = value
                 settings.status = f"{len(value)} families"
+            elif kind == "looks":
+                _state["looks"] = value
+                if value:
+                    settings.look = value[0]["name"]  # the build's look
             elif kind == "describe":
                 _fill_params(settings, value)
                 _state["parts_attribute"] = value.get("parts_attribute")
@@ -185,7 +190,15 @@ def _family_items(self, context):
 def _family_changed(self, context) -> None:
     if self.family:
         url, name = self.url, self.family
+        _state["looks"] = []
         _start("describe", lambda: client.describe(url, name), family=name, scene=context.scene.name)
+        _start("looks", lambda: client.looks(url, name), family=name, scene=context.scene.name)
+
+
+def _look_items(self, context):
+    items = [(lk["name"], lk["name"], str(lk.get("prompt", ""))[:200]) for lk in _state["looks"]]
+    _ENUM_CACHE["looks"] = items or [("", "(the build's look)", "pick a family first")]
+    return _ENUM_CACHE["looks"]
 
 
 def _choice_items(self, context):
@@ -224,6 +237,7 @@ class ProcTexParam(bpy.types.PropertyGroup):
 class ProcTexSettings(bpy.types.PropertyGroup):
     url: StringProperty(name="Service", default=client.DEFAULT_URL, description="The ProcTex service's URL")
     family: EnumProperty(name="Family", items=_family_items, update=_family_changed)
+    look: EnumProperty(name="Look", items=_look_items, description="the family's look (painted with its own prompt) to texture with")
     params: CollectionProperty(type=ProcTexParam)
     accepts_params: BoolProperty(default=False)
     seed: IntProperty(name="Seed", default=0, min=0)
@@ -282,9 +296,9 @@ class PROCTEX_OT_texture_selected(bpy.types.Operator):
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        url, name, seed = settings.url, settings.family, settings.seed
+        url, name, seed, look = settings.url, settings.family, settings.seed, settings.look or None
         settings.status = f"texturing {obj.name}..."
-        _start("glb", lambda: client.transfer_mesh(url, name, text, seed), source=obj.name, family=name, scene=context.scene.name)
+        _start("glb", lambda: client.transfer_mesh(url, name, text, seed, look=look), source=obj.name, family=name, scene=context.scene.name)
         return {"FINISHED"}
 
 
@@ -300,9 +314,9 @@ class PROCTEX_OT_add_variant(bpy.types.Operator):
             self.report({"ERROR"}, "this family takes meshes only; use Texture selected")
             return {"CANCELLED"}
         params = {p.name: p.value() for p in settings.params}
-        url, name, seed = settings.url, settings.family, settings.seed
+        url, name, seed, look = settings.url, settings.family, settings.seed, settings.look or None
         settings.status = "making a variant..."
-        _start("glb", lambda: client.transfer_params(url, name, params, seed), family=name, scene=context.scene.name)
+        _start("glb", lambda: client.transfer_params(url, name, params, seed, look=look), family=name, scene=context.scene.name)
         return {"FINISHED"}
 
 
@@ -319,6 +333,7 @@ class PROCTEX_PT_panel(bpy.types.Panel):
         row = col.row(align=True)
         row.prop(settings, "family")
         row.operator("proctex.refresh", text="", icon="FILE_REFRESH")
+        col.prop(settings, "look")
         if settings.accepts_params:
             box = col.box()
             for p in settings.params:

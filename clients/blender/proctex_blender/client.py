@@ -79,6 +79,17 @@ def describe(url: str, name: str, timeout: float = 30.0) -> dict[str, Any]:
     return _json(_call(url, _family_path(name), timeout=timeout)[0])
 
 
+def looks(url: str, name: str, timeout: float = 30.0) -> list[dict[str, Any]]:
+    """The family's looks (``GET /v1/families/{name}/looks``): ``[{"name", "prompt", ...}]``, the
+    build's first."""
+    data = _json(_call(url, _family_path(name) + "/looks", timeout=timeout)[0])
+    return [dict(lk) for lk in data.get("looks", []) if isinstance(lk, dict) and isinstance(lk.get("name"), str)]
+
+
+def _transfer_path(name: str, look: str | None) -> str:
+    return _family_path(name) + "/transfer" + (f"?look={urllib.parse.quote(look, safe='')}" if look else "")
+
+
 def multipart(fields: dict[str, str], file_field: str, filename: str, content: bytes) -> tuple[bytes, str]:
     """A ``multipart/form-data`` body and its content type."""
     boundary = "proctex-" + uuid.uuid4().hex
@@ -92,17 +103,20 @@ def multipart(fields: dict[str, str], file_field: str, filename: str, content: b
     return b"".join(out), f"multipart/form-data; boundary={boundary}"
 
 
-def transfer_mesh(url: str, name: str, obj_text: bytes, seed: int = 0, timeout: float = 120.0) -> tuple[bytes, dict[str, Any]]:
-    """Texture a mesh (OBJ text): ``(GLB bytes, {"seconds", "notes"})``."""
+def transfer_mesh(url: str, name: str, obj_text: bytes, seed: int = 0, timeout: float = 120.0,
+                  look: str | None = None) -> tuple[bytes, dict[str, Any]]:
+    """Texture a mesh (OBJ text) in the family's ``look`` (None: the build's): ``(GLB bytes, {"seconds", "notes"})``."""
     body, ctype = multipart({"seed": str(int(seed))}, "mesh", "mesh.obj", obj_text)
-    data, headers = _call(url, _family_path(name) + "/transfer", body, {"Content-Type": ctype}, timeout=timeout)
+    data, headers = _call(url, _transfer_path(name, look), body, {"Content-Type": ctype}, timeout=timeout)
     return data, _summary(headers)
 
 
-def transfer_params(url: str, name: str, params: dict[str, Any], seed: int = 0, timeout: float = 120.0) -> tuple[bytes, dict[str, Any]]:
-    """Texture the family's own shape for ``params``: ``(GLB bytes, {"seconds", "notes"})``."""
+def transfer_params(url: str, name: str, params: dict[str, Any], seed: int = 0, timeout: float = 120.0,
+                    look: str | None = None) -> tuple[bytes, dict[str, Any]]:
+    """Texture the family's own shape for ``params`` in its ``look`` (None: the build's):
+    ``(GLB bytes, {"seconds", "notes"})``."""
     body = json.dumps({"params": params, "seed": int(seed)}).encode()
-    data, headers = _call(url, _family_path(name) + "/transfer", body, {"Content-Type": "application/json"}, timeout=timeout)
+    data, headers = _call(url, _transfer_path(name, look), body, {"Content-Type": "application/json"}, timeout=timeout)
     return data, _summary(headers)
 
 
