@@ -352,8 +352,10 @@ def family_title(config: Any) -> str:
 
 def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, float], ray: bool = False, rows: int = 3,
                 per_row: int = 5, frames: int = 48, size: int = 320, gif_size: int = 320, seed: int = 0,
-                log: Callable[[str], None] = print, quiet: bool = False, started: float | None = None) -> DemoResult:
-    """Sweep, transfer, render and report a built family (of a procedural model) into ``out``.
+                log: Callable[[str], None] = print, quiet: bool = False, started: float | None = None,
+                look: str | None = None) -> DemoResult:
+    """Sweep, transfer, render and report a built family (of a procedural model) into ``out``, in
+    its ``look`` (default: the build's).
 
     Writes ``variants/<row>_<k>.glb`` (+ ``variants.json``), ``contact_sheet.png``, ``turntable.gif``,
     ``report.html`` and ``demo.json``. ``stage_seconds``: the build's wall time per stage;
@@ -373,7 +375,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
         raise ValueError("a contact sheet sweeps parameters: the family must come from a model, a generator or a .blend file, not a folder")
     (out / "variants").mkdir(parents=True, exist_ok=True)
     model = config.procedural_model()
-    svc = FamilyService(store)
+    svc = FamilyService(store, look=look)
     up = config.up_axis()
     template_params = svc.state.stage("template").get("params")
     base = model.space.validate(template_params if isinstance(template_params, dict) else model.space.defaults())
@@ -397,7 +399,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
             bar.update()
     atomic_write(out / "variants.json", json.dumps(variants, indent=1))
 
-    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{family_title(config)}: \"{config.paint.prompt}\"", quiet=quiet,
+    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{family_title(config)}: \"{svc.paint.prompt}\"", quiet=quiet,
                          maps=svc.assets.pbr, space=model.space)
     save_png(out / "contact_sheet.png", sheet)
     swept = [r.name for r in sweep if r.name != "random"][:2]
@@ -423,7 +425,7 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     stage_all = {**{k: float(v) for k, v in stage_seconds.items()}, "sweep + renders + report": time.perf_counter() - t_start}
     notes = sorted({n for v in variants for n in v["notes"]})
     summary = {
-        "model": family_title(config), "prompt": config.paint.prompt, "family": fam_rel, "serve_root": os.path.dirname(fam_rel) or ".",
+        "model": family_title(config), "prompt": svc.paint.prompt, "look": svc.look.name, "family": fam_rel, "serve_root": os.path.dirname(fam_rel) or ".",
         "seed": config.seed, "n_train": config.source.n_train, "n_test": config.source.n_test, "ray": ray,
         "groups": groups, "metrics": None if metrics is None else {"shapes": metrics["shapes"], "tracker": metrics.get("tracker"), "methods": {
             k: {kk: vv for kk, vv in m.items() if kk not in ("per_shape", "per_group")} for k, m in metrics["methods"].items()}},

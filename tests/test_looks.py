@@ -337,3 +337,31 @@ def test_random_prompts_are_seeded_distinct_and_understood():
     assert {"wood", "metal", "ceramic"} <= kinds and len(kinds) >= 6
     with pytest.raises(ValueError):
         random_prompts(-1)
+
+
+def test_sheet_shows_a_look(mug, tmp_path, capsys):
+    add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red lacquer"), log=lambda *_: None)
+    sheet = tmp_path / "sheet"
+    argv = ["sheet", mug.base, "--out", str(sheet), "--rows", "1", "--per-row", "2", "--frames", "2", "--size", "64", "--quiet"]
+    assert main(argv + ["--look", "red"]) == 0
+    s = json.loads((sheet / "demo.json").read_text())
+    assert s["look"] == "red" and s["prompt"] == "red lacquer"
+    red = {p.read_bytes() for p in (Path(mug.base) / "looks" / "red").glob("group_*.png") if p.name.count(".") == 1}
+    assert red <= set(glb_parts((sheet / s["variants"][0]["glb"]).read_bytes())[1])
+    assert main(["sheet", mug.base, "--out", str(tmp_path / "bad"), "--look", "nope", "--quiet"]) == 2
+    assert "unknown look 'nope'" in capsys.readouterr().err and not (tmp_path / "bad").exists()
+
+
+def test_a_store_without_looks_serves_as_before_and_a_new_look_changes_nothing_of_it(mug):
+    """The fixture is a store as every build made it before looks (no look key, no looks/): its
+    transfer is the same bytes through the build's look by name, and after another look is added."""
+    from proctex.serve.service import FamilyService
+
+    assert "look" not in mug.read_json(StoreLayout.PAINT)
+    shape = FamilyState.load(mug).build_config().procedural_model().generate({"radius": 0.045})
+    before = FamilyService(mug).transfer(shape)[0]
+    assert FamilyService(mug, look="default").transfer(shape)[0] == before
+    add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red"), log=lambda *_: None)
+    svc = FamilyService(mug)
+    assert svc.transfer(shape)[0] == before and svc.look_view("default") is svc
+    assert svc.look_view("red").transfer(shape)[0] != before

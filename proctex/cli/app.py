@@ -289,6 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=24, help="turntable frames")
     p.add_argument("--size", type=int, default=320, help="pixels per variant")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--look", help="the family's look to show (proctex look list; default: the build's)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_sheet)
 

@@ -398,10 +398,14 @@ def cmd_sheet(args: argparse.Namespace) -> int:
     missing = [s for s in ("template", "paint") if not state.done(s)]
     if missing:
         raise ValueError(f"{args.family}: the family is not built yet (stages not done: {', '.join(missing)}); run proctex build first")
+    if args.look is not None:
+        from proctex.store.looks import resolve_look
+
+        resolve_look(store, args.look)  # an unknown look is said before anything is written
     out = args.out or os.path.join("out", "sheets", Path(os.path.abspath(args.family)).name)
     log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
     result = finish_demo(out, args.family, {}, rows=args.rows, per_row=args.per_row, frames=args.frames, size=args.size,
-                         gif_size=args.size, seed=args.seed, log=log, quiet=args.quiet)
+                         gif_size=args.size, seed=args.seed, log=log, quiet=args.quiet, look=args.look)
     for what, where in (("contact sheet", result.contact_sheet), ("turntable", result.turntable), ("report", result.report),
                         ("variants", f"{Path(result.out) / 'variants'}/ ({len(result.variants)} GLBs)")):
         print(f"  {what:<14}{where}")
