@@ -365,3 +365,15 @@ def test_a_store_without_looks_serves_as_before_and_a_new_look_changes_nothing_o
     svc = FamilyService(mug)
     assert svc.transfer(shape)[0] == before and svc.look_view("default") is svc
     assert svc.look_view("red").transfer(shape)[0] != before
+
+
+def test_build_names_its_look(tmp_path, capsys):
+    argv = ["build", "--model", "mug", "--n-train", "2", "--n-test", "0", "--texture-size", "32", "--prompt", "blue ceramic",
+            "--stages", "sample,template,paint", "--out", str(tmp_path / "m")]
+    assert main(argv + ["--look", "a/b"]) == 2 and "a look's name" in capsys.readouterr().err
+    assert not (tmp_path / "m").exists()  # refused before any work
+    assert main(argv + ["--look", "ceramic"]) == 0 and "its look: ceramic" in capsys.readouterr().out
+    st = FamilyStore(tmp_path / "m")
+    assert [lk.name for lk in looks(st)] == ["ceramic"] and resolve_look(st, "ceramic").built
+    add_look(st, "red", replace(FamilyState.load(st).build_config().paint, prompt="red"), log=lambda *_: None)
+    assert main(argv + ["--look", "red"]) == 2 and "another look called 'red'" in capsys.readouterr().err

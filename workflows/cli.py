@@ -25,6 +25,7 @@ def cmd_build(args: argparse.Namespace) -> int:
     from .build import build_on_ray
 
     config = families._build_config(args)
+    families.check_build_look(args)
     stages = tuple(args.stages.split(",")) if args.stages else STAGES
     address = None if args.ray == "local" else args.ray
     log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
@@ -32,7 +33,7 @@ def cmd_build(args: argparse.Namespace) -> int:
                          train_workers=args.train_workers, log=log, quiet=args.quiet)
     done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
     walls = ", ".join(f"{k} {v:.1f}s" for k, v in state["wall_seconds"].items())
-    print(f"family {args.out}: stages done: {', '.join(done)} (on Ray: {walls})")
+    print(f"family {args.out}: stages done: {', '.join(done)} (on Ray: {walls}){families.named_look(args)}")
     return 0
 
 

@@ -131,3 +131,21 @@ def remove_look(store: FamilyStore, name: str, timeout: float = 60.0) -> None:
     with store_lock(store, StoreLayout.EDIT_LOCK, f"removing look {name}", timeout=timeout, busy=StoreBusy):
         store.delete(look.RECORD)  # first: the look is gone for readers before its files are
         store.delete(look.folder)
+
+
+def name_built_look(store: FamilyStore, name: str, timeout: float = 60.0) -> str:
+    """Call the build's look (``template/``) ``name`` (``proctex build --look NAME``; ``default``
+    until named). ``ValueError`` when the family has another look of that name or is not painted
+    yet. Returns the name it had."""
+    check_look_name(name)
+    with store_lock(store, StoreLayout.EDIT_LOCK, f"naming the build's look {name}", timeout=timeout, busy=StoreBusy):
+        if not store.exists(StoreLayout.PAINT):
+            raise ValueError(f"{store.uri}: the family's template is not painted yet")
+        if store.exists(StoreLayout.look(name).RECORD):
+            raise ValueError(f"the family has another look called {name!r} (looks/{name}/): choose another name for the build's look")
+        summary = store.read_json(StoreLayout.PAINT)
+        before = str(summary.get("look") or built_look(store).name)
+        if before != name:
+            summary["look"] = name
+            store.write_json(StoreLayout.PAINT, summary)
+    return before

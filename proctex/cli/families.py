@@ -67,11 +67,33 @@ def cmd_build(args: argparse.Namespace) -> int:
     config = _build_config(args)
     if args.ray is not None:
         raise ValueError("--ray runs through the Ray layer: use the installed `proctex` command (workflows.cli)")
+    check_build_look(args)
     stages = tuple(args.stages.split(",")) if args.stages else STAGES
     state = build(FamilyStore(args.out), config, stages=stages, log=(lambda *_: None) if args.quiet else (lambda m: print(m, flush=True)))
     done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
-    print(f"family {args.out}: stages done: {', '.join(done)}")
+    print(f"family {args.out}: stages done: {', '.join(done)}{named_look(args)}")
     return 0
+
+
+def check_build_look(args: argparse.Namespace) -> None:
+    """``build --look NAME``: the name checked before any work."""
+    if args.look is not None:
+        from proctex.store.layout import check_look_name
+
+        check_look_name(args.look)
+
+
+def named_look(args: argparse.Namespace) -> str:
+    """After a build: its look named as ``--look`` says (once painted); the line's tail saying so."""
+    from proctex.store.layout import FamilyStore, StoreLayout
+
+    store = FamilyStore(args.out)
+    if args.look is None or not store.exists(StoreLayout.PAINT):
+        return ""
+    from proctex.build.looks import name_built_look
+
+    name_built_look(store, args.look)
+    return f"; its look: {args.look}"
 
 
 def cmd_inputs(args: argparse.Namespace) -> int:
