@@ -512,3 +512,43 @@ def test_a_damaged_serving_choice_is_a_clear_error_and_none_means_the_network():
                 {"serve": "box", "template_extent": [1, float("nan"), 1]}, {"serve": "box"}, ["box"], "box"):
         with pytest.raises(ValueError, match="m.pt: damaged serving choice"):
             check_serving(bad, "m.pt")
+
+
+def test_a_pooled_in_process_build_solves_pairs_side_by_side_and_stores_the_same_family(tmp_path, capsys):
+    """``proctex build --workers 2``: the cage pairs run in two worker processes (one thread each),
+    every batch collected once, ``finish`` given them in batch order; the pairs are the sequential
+    build's (sources exactly, targets to float noise: one thread sums in another order)."""
+    from proctex.build.pipeline import build
+    from proctex.build.plan import Plan, local_executor, run_in_process
+    from proctex.cli import main
+    from proctex.store.samples import samples
+
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=1, corr_points=200, cage_iterations=10, texture_size=64))
+    stages = ("sample", "template", "paint", "pairs")
+    a = FamilyStore(tmp_path / "a")
+    build(a, cfg, stages=stages, log=lambda *_: None)
+    argv = ["build", "--model", "mug", "--n-train", "3", "--n-test", "1", "--points", "200", "--iterations", "10", "--texture-size", "64",
+            "--stages", ",".join(stages), "--out", str(tmp_path / "b"), "--workers", "2", "--quiet"]
+    assert main(argv) == 0
+    b = FamilyStore(tmp_path / "b")
+    assert samples(a) == samples(b) and b.read_json("family.json")["stages"]["pairs"]["pairs"] == 8
+    for row in samples(a):
+        for g in (0, 1):
+            (sa, da), (sb, db) = read_pair(a, row["id"], g), read_pair(b, row["id"], g)
+            assert np.array_equal(sa, sb) and np.allclose(da, db, atol=1e-4)
+    assert main(argv[:-3] + ["--workers", "-1"]) == 2 and "--workers" in capsys.readouterr().err
+    # the executor itself: batches finish out of order, collect sees each once, finish gets batch order
+    seen, finished = [], []
+    plan = Plan("toy", [[3], [1], [2]], _toy_batch, finish=finished.append, collect=lambda batch, out: seen.append(batch[0]), parallel=True)
+    local_executor(2)(plan, a, cfg, lambda *_: None)
+    assert sorted(seen) == [1, 2, 3] and finished == [[[30], [10], [20]]]
+    plan = Plan("toy", [[3], [1]], _toy_batch, finish=finished.append)  # not parallel: here, in order
+    run_in_process(plan, a, cfg, workers=2)
+    assert finished[-1] == [[30], [10]]
+
+
+def _toy_batch(store, config, batch, context):
+    import time
+
+    time.sleep(0.05 * batch[0])
+    return [10 * batch[0]]

@@ -208,7 +208,7 @@ def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
         finish_pairs_stage(store, jobs, records, log)
         plan.info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
 
-    plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets)
+    plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets, parallel=True)
     return plan
 
 

@@ -37,6 +37,9 @@ class Plan:
             function; ``grad_hook(model)`` averages the gradients across the team). An executor
             with teams (Ray Train, ``workflows/build.py``) runs every job so and hands ``finish``
             the same results ``run_batch`` would give; the in-process executor runs ``run_batch``.
+        parallel: its batches are independent and each is latency-bound (a cage solve gains nothing
+            from a second thread): :func:`run_in_process` with ``workers`` > 1 runs them side by
+            side in worker processes of one thread each.
     """
 
     stage: str
@@ -49,25 +52,78 @@ class Plan:
     in_place: bool = False
     info: dict[str, Any] = field(default_factory=dict)
     team: Callable[..., Any] | None = None
+    parallel: bool = False
 
     @property
     def n_jobs(self) -> int:
         return sum(len(b) for b in self.batches)
 
 
-def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], None] = print) -> Plan:
-    """Run ``plan`` here, batch after batch; returns it (``info`` filled by its ``finish``)."""
+#: Jobs a parallel plan needs before a pool of worker processes pays for starting (each imports
+#: torch and loads the family: a few seconds; a cage pair takes about one).
+POOL_MIN_JOBS = 16
+
+
+def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], None] = print, workers: int = 1,
+                   min_jobs: int = 0) -> Plan:
+    """Run ``plan`` here, batch after batch; returns it (``info`` filled by its ``finish``). With
+    ``workers`` > 1, a ``parallel`` plan of at least ``min_jobs`` jobs runs its batches side by side
+    in that many worker processes (one torch thread each; each loads what it needs, as a Ray worker
+    does), collected as they finish and handed to ``finish`` in batch order: the same artifacts as
+    one after the other."""
     if plan.skip:
         log(f"{plan.stage}: {plan.skip}")
         return plan
-    results = []
-    for batch in plan.batches:
-        out = plan.run_batch(store, config, batch, plan.context)
-        if plan.collect is not None:
-            plan.collect(batch, out)
-        results.append(out)
+    if workers > 1 and plan.parallel and len(plan.batches) > 1 and plan.n_jobs >= min_jobs:
+        results = _run_pooled(plan, store, config, min(workers, len(plan.batches)))
+    else:
+        results = []
+        for batch in plan.batches:
+            out = plan.run_batch(store, config, batch, plan.context)
+            if plan.collect is not None:
+                plan.collect(batch, out)
+            results.append(out)
     plan.finish(results)
     return plan
+
+
+def local_executor(workers: int, min_jobs: int = 0) -> Callable[..., Plan]:
+    """The in-process executor with ``workers`` processes for parallel plans of at least
+    ``min_jobs`` jobs (:func:`run_in_process`)."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 256:
+        raise ValueError(f"workers must be an integer in 1..256, got {workers!r}")
+
+    def run(plan: Plan, store: Any, config: Any, log: Callable[[str], None] = print) -> Plan:
+        return run_in_process(plan, store, config, log, workers=workers, min_jobs=min_jobs)
+
+    return run
+
+
+def _one_thread() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def _pooled_batch(uri: str, config: Any, run_batch: Callable[..., list[Any]], batch: list[Any]) -> list[Any]:
+    from proctex.store.layout import FamilyStore
+
+    return run_batch(FamilyStore(uri), config, batch, None)
+
+
+def _run_pooled(plan: Plan, store: Any, config: Any, workers: int) -> list[list[Any]]:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    results: list[list[Any] | None] = [None] * len(plan.batches)
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_one_thread) as pool:
+        futures = {pool.submit(_pooled_batch, store.uri, config, plan.run_batch, batch): k for k, batch in enumerate(plan.batches)}
+        for future in as_completed(futures):
+            k = futures[future]
+            results[k] = future.result()
+            if plan.collect is not None:
+                plan.collect(plan.batches[k], results[k])
+    return results  # type: ignore[return-value]
 
 
 def single_step(stage: str, step: Callable[[Any, Any, Callable[[str], None]], None], store: Any, config: Any,

@@ -165,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what the evaluation takes as ground truth (vertex-index: the samples share one vertex order)")
     p.add_argument("--stages", help="comma-separated subset of sample,template,paint,pairs,train,evaluate")
     p.add_argument("--look", help="the name of the look the build paints (default: default); proctex look add paints more")
+    p.add_argument("--workers", type=int, default=0, help="in process: processes solving cage pairs side by side (0: one per CPU, at most 4, from 16 pairs on)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_build)
 
