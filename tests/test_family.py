@@ -523,12 +523,13 @@ def test_a_pooled_in_process_build_solves_pairs_side_by_side_and_stores_the_same
     from proctex.cli import main
     from proctex.store.samples import samples
 
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=1, corr_points=200, cage_iterations=10, texture_size=64))
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=1, corr_points=200, cage_iterations=10, texture_size=64,
+                                     train={"iterations": 20}))
     stages = ("sample", "template", "paint", "pairs")
     a = FamilyStore(tmp_path / "a")
     build(a, cfg, stages=stages, log=lambda *_: None)
     argv = ["build", "--model", "mug", "--n-train", "3", "--n-test", "1", "--points", "200", "--iterations", "10", "--texture-size", "64",
-            "--stages", ",".join(stages), "--out", str(tmp_path / "b"), "--workers", "2", "--quiet"]
+            "--train-iterations", "20", "--stages", ",".join(stages), "--out", str(tmp_path / "b"), "--workers", "2", "--quiet"]
     assert main(argv) == 0
     b = FamilyStore(tmp_path / "b")
     assert samples(a) == samples(b) and b.read_json("family.json")["stages"]["pairs"]["pairs"] == 8
@@ -537,6 +538,10 @@ def test_a_pooled_in_process_build_solves_pairs_side_by_side_and_stores_the_same
             (sa, da), (sb, db) = read_pair(a, row["id"], g), read_pair(b, row["id"], g)
             assert np.array_equal(sa, sb) and np.allclose(da, db, atol=1e-4)
     assert main(argv[:-3] + ["--workers", "-1"]) == 2 and "--workers" in capsys.readouterr().err
+    # the networks too, a group per worker: each stored with its record
+    assert main([("train" if a == ",".join(stages) else a) for a in argv]) == 0
+    trained = b.read_json("family.json")["stages"]["train"]["groups"]
+    assert sorted(trained) == ["0", "1"] and all(b.exists(f"models/group_{g}.pt") and trained[g]["sha256"] for g in trained)
     # the executor itself: batches finish out of order, collect sees each once, finish gets batch order
     seen, finished = [], []
     plan = Plan("toy", [[3], [1], [2]], _toy_batch, finish=finished.append, collect=lambda batch, out: seen.append(batch[0]), parallel=True)

@@ -208,7 +208,8 @@ def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
         finish_pairs_stage(store, jobs, records, log)
         plan.info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
 
-    plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets, parallel=True)
+    # side by side in process from 16 pairs on (a pair takes about a second, a worker a few to start)
+    plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets, parallel=True, pool_min_jobs=16)
     return plan
 
 

@@ -37,9 +37,11 @@ class Plan:
             function; ``grad_hook(model)`` averages the gradients across the team). An executor
             with teams (Ray Train, ``workflows/build.py``) runs every job so and hands ``finish``
             the same results ``run_batch`` would give; the in-process executor runs ``run_batch``.
-        parallel: its batches are independent and each is latency-bound (a cage solve gains nothing
-            from a second thread): :func:`run_in_process` with ``workers`` > 1 runs them side by
-            side in worker processes of one thread each.
+        parallel: its batches are independent and run better side by side than one after the other
+            on more threads (a cage solve gains nothing from a second thread; a small network's
+            training little): :func:`run_in_process` with ``workers`` > 1 runs them in worker
+            processes of one thread each, once the plan has ``pool_min_jobs`` jobs (a pool costs
+            a few seconds to start: worth it for a few trainings, not for a few short pairs).
     """
 
     stage: str
@@ -53,28 +55,25 @@ class Plan:
     info: dict[str, Any] = field(default_factory=dict)
     team: Callable[..., Any] | None = None
     parallel: bool = False
+    pool_min_jobs: int = 2
 
     @property
     def n_jobs(self) -> int:
         return sum(len(b) for b in self.batches)
 
 
-#: Jobs a parallel plan needs before a pool of worker processes pays for starting (each imports
-#: torch and loads the family: a few seconds; a cage pair takes about one).
-POOL_MIN_JOBS = 16
-
-
 def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], None] = print, workers: int = 1,
-                   min_jobs: int = 0) -> Plan:
+                   min_jobs: int | None = None) -> Plan:
     """Run ``plan`` here, batch after batch; returns it (``info`` filled by its ``finish``). With
-    ``workers`` > 1, a ``parallel`` plan of at least ``min_jobs`` jobs runs its batches side by side
-    in that many worker processes (one torch thread each; each loads what it needs, as a Ray worker
-    does), collected as they finish and handed to ``finish`` in batch order: the same artifacts as
-    one after the other."""
+    ``workers`` > 1, a ``parallel`` plan of at least ``min_jobs`` jobs (None: its own
+    ``pool_min_jobs``) runs its batches side by side in that many worker processes (one torch
+    thread each; each loads what it needs, as a Ray worker does), collected as they finish and
+    handed to ``finish`` in batch order: the same artifacts as one after the other."""
     if plan.skip:
         log(f"{plan.stage}: {plan.skip}")
         return plan
-    if workers > 1 and plan.parallel and len(plan.batches) > 1 and plan.n_jobs >= min_jobs:
+    enough = plan.n_jobs >= (plan.pool_min_jobs if min_jobs is None else min_jobs)
+    if workers > 1 and plan.parallel and len(plan.batches) > 1 and enough:
         results = _run_pooled(plan, store, config, min(workers, len(plan.batches)))
     else:
         results = []
@@ -87,9 +86,9 @@ def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], Non
     return plan
 
 
-def local_executor(workers: int, min_jobs: int = 0) -> Callable[..., Plan]:
+def local_executor(workers: int, min_jobs: int | None = None) -> Callable[..., Plan]:
     """The in-process executor with ``workers`` processes for parallel plans of at least
-    ``min_jobs`` jobs (:func:`run_in_process`)."""
+    ``min_jobs`` jobs (None: each plan's ``pool_min_jobs``; :func:`run_in_process`)."""
     if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 256:
         raise ValueError(f"workers must be an integer in 1..256, got {workers!r}")
 

@@ -134,7 +134,9 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
         if todo or not stage_done(store, "train"):
             mark_stage(store, "train", groups=trained, **plan.info.get("mark", {}))
 
-    plan = Plan("train", [[g] for g in todo], run_train_batch, finish, collect, team=fit_group)
+    # in process, groups side by side on one thread each (a small network's matmuls gain less from a
+    # second thread than from a second group: demo 74.0 -> 62.0 s, sofa export 209.7 -> 194.8 s on 2 cores)
+    plan = Plan("train", [[g] for g in todo], run_train_batch, finish, collect, team=fit_group, parallel=True)
     return plan
 
 

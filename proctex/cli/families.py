@@ -61,7 +61,7 @@ def _build_config(args: argparse.Namespace):
 
 def cmd_build(args: argparse.Namespace) -> int:
     from proctex.build.pipeline import build
-    from proctex.build.plan import POOL_MIN_JOBS, local_executor
+    from proctex.build.plan import local_executor
     from proctex.store.layout import FamilyStore
     from proctex.store.state import STAGES
 
@@ -71,15 +71,15 @@ def cmd_build(args: argparse.Namespace) -> int:
     check_build_look(args)
     stages = tuple(args.stages.split(",")) if args.stages else STAGES
     state = build(FamilyStore(args.out), config, stages=stages, log=(lambda *_: None) if args.quiet else (lambda m: print(m, flush=True)),
-                  executor=local_executor(build_workers(args.workers), min_jobs=0 if args.workers else POOL_MIN_JOBS))
+                  executor=local_executor(build_workers(args.workers), min_jobs=0 if args.workers else None))
     done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
     print(f"family {args.out}: stages done: {', '.join(done)}{named_look(args)}")
     return 0
 
 
 def build_workers(workers: int) -> int:
-    """``--workers``: processes for the build's parallel stages (the cage pairs); 0: one per CPU,
-    at most 4, used from :data:`proctex.build.plan.POOL_MIN_JOBS` pairs on."""
+    """``--workers``: processes for the build's parallel stages (the cage pairs, the networks); 0:
+    one per CPU, at most 4, used where a stage has enough jobs (``Plan.pool_min_jobs``)."""
     if workers < 0 or workers > 256:
         raise ValueError(f"--workers must be in 0..256 (0: one per CPU, at most 4), got {workers}")
     return workers or max(1, min(4, os.cpu_count() or 1))
