@@ -1,34 +1,50 @@
 """Benchmark: a family's networks trained again in process, one after the other or side by side.
 
-Copies a built family without its networks, plans the train stage and runs it with WORKERS
+Copies a built family without its networks, plans the train stage and runs it with ``--workers``
 processes (:func:`proctex.build.plan.run_in_process`; 1: one after the other on every thread),
 printing the groups, the wall time and each group's held-out error (the same either way).
 
-    .venv/bin/python tests/bench/bench_train_pool.py out/bench/looks/family out/bench/train_w2 2
+    .venv/bin/python tests/bench/bench_train_pool.py out/bench/looks/family --workers 2 --work out/bench/train_w2
 """
-import sys, time, shutil
-from pathlib import Path
-from dataclasses import replace
 
-def main():
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import time
+from pathlib import Path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("family", help="a built family (copied, not changed)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--work", default="out/bench/train_pool")
+    args = ap.parse_args(argv)
+
+    from proctex.build.plan import run_in_process
+    from proctex.build.train import plan_train
     from proctex.store.layout import FamilyStore
     from proctex.store.state import FamilyState
-    from proctex.build.train import plan_train
-    from proctex.build.plan import run_in_process
-    src, work, workers = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3])
+
+    work = Path(args.work)
     shutil.rmtree(work, ignore_errors=True)
-    shutil.copytree(src, work, ignore=shutil.ignore_patterns("models", "looks", "metrics.json", "train_runs"))
+    shutil.copytree(args.family, work, ignore=shutil.ignore_patterns("models", "looks", "metrics.json", "train_runs"))
     st = FamilyStore(work)
     state = FamilyState.load(st)
-    for s in ("train", "evaluate"):
-        state.stages.pop(s, None)
+    for stage in ("train", "evaluate"):
+        state.stages.pop(stage, None)
     state.save(st)
-    cfg = state.build_config()
-    plan = plan_train(st, cfg, log=lambda *_: None)
+    config = state.build_config()
+    plan = plan_train(st, config, log=lambda *_: None)
     t = time.perf_counter()
-    run_in_process(plan, st, cfg, log=lambda *_: None, workers=workers)
-    rec = FamilyState.load(st).stage("train")["groups"]
-    print(f"workers {workers}: {plan.n_jobs} groups in {time.perf_counter() - t:.1f} s;", {g: round(r['best_val'].get('mean', 0), 5) for g, r in rec.items()})
+    run_in_process(plan, st, config, log=lambda *_: None, workers=args.workers)
+    groups = FamilyState.load(st).stage("train")["groups"]
+    errors = {g: round(r["best_val"].get("mean", 0.0), 5) for g, r in groups.items()}
+    print(f"{args.family}: {plan.n_jobs} groups with {args.workers} worker(s) in {time.perf_counter() - t:.1f} s; held-out mean error {errors}")
+    return 0
+
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
