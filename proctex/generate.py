@@ -291,10 +291,8 @@ def make_random_looks(family: FamilyStore, n: int, seed: int, log: Callable[[str
     """Give ``family`` looks ``random-<seed>-0 .. n-1`` painted from :func:`random_prompts` (the
     build's other paint settings); a look of that name made before with the same prompt is kept,
     with another prompt it is a ``ValueError``. Returns each look's ``{"name", "prompt"}``."""
-    from dataclasses import replace
-
     from proctex.build.looks import add_look
-    from proctex.store.looks import look_paint, other_looks
+    from proctex.store.looks import look_paint, new_look_paint, other_looks
     from proctex.store.state import stored_config
     from proctex.texture.painters.vocabulary import random_prompts
 
@@ -308,7 +306,7 @@ def make_random_looks(family: FamilyStore, n: int, seed: int, log: Callable[[str
             if made != prompt:
                 raise ValueError(f"the family's look {name} was painted with {made!r}, not {prompt!r}: remove it (proctex look rm) first")
         else:
-            add_look(family, name, replace(paint, prompt=prompt, group_prompts={}), log=log)
+            add_look(family, name, new_look_paint(paint, prompt), log=log)
         out.append({"name": name, "prompt": prompt})
     return out
 

@@ -274,9 +274,8 @@ def parse_look(body: dict[str, Any], svc: Any) -> tuple[str, Any, bool]:
     the body's ``prompt`` (required, at most ``max_prompt`` characters), ``group_prompts``,
     ``painter`` and ``texture_size`` (16..:data:`MAX_LOOK_TEXTURE`) over them (:class:`BadInput`
     naming what is wrong)."""
-    from dataclasses import replace
-
     from proctex.store.layout import check_look_name
+    from proctex.store.looks import new_look_paint
 
     unknown = set(body) - {"name", "prompt", "group_prompts", "painter", "texture_size", "force"}
     if unknown:
@@ -289,19 +288,14 @@ def parse_look(body: dict[str, Any], svc: Any) -> tuple[str, Any, bool]:
     if not isinstance(prompts, dict) or len(prompts) > 256 or not all(
             isinstance(k, str) and isinstance(v, str) and len(k) <= 64 and len(v) <= svc.limits.max_prompt for k, v in prompts.items()):
         raise BadInput(f"group_prompts must be an object of at most 256 prompts of at most {svc.limits.max_prompt} characters")
-    over: dict[str, Any] = {"prompt": prompt, "group_prompts": dict(prompts)}
-    if body.get("painter") is not None:
-        over["painter"] = body["painter"]
-    if body.get("texture_size") is not None:
-        size = body["texture_size"]
-        if isinstance(size, bool) or not isinstance(size, int) or not 16 <= size <= MAX_LOOK_TEXTURE:
-            raise BadInput(f"texture_size must be an integer in [16, {MAX_LOOK_TEXTURE}], got {str(size)[:40]}")
-        over["texture_size"] = size
+    size = body.get("texture_size")
+    if size is not None and (isinstance(size, bool) or not isinstance(size, int) or not 16 <= size <= MAX_LOOK_TEXTURE):
+        raise BadInput(f"texture_size must be an integer in [16, {MAX_LOOK_TEXTURE}], got {str(size)[:40]}")
     force = body.get("force", False)
     if not isinstance(force, bool):
         raise BadInput("force must be true or false")
     try:
-        paint = replace(svc.config.paint, **over).validate()
+        paint = new_look_paint(svc.config.paint, prompt, prompts, body.get("painter"), size)
     except (TypeError, ValueError) as exc:
         raise BadInput(str(exc)[:500]) from exc
     return name, paint, force

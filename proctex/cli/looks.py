@@ -4,7 +4,6 @@ on the built family in seconds."""
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 
 from .common import _group_prompts, _print_json
 
@@ -12,7 +11,7 @@ from .common import _group_prompts, _print_json
 def cmd_look(args: argparse.Namespace) -> int:
     from proctex.build.looks import add_look, remove_look
     from proctex.store.layout import FamilyStore
-    from proctex.store.looks import look_summary, looks
+    from proctex.store.looks import look_summary, looks, new_look_paint
     from proctex.store.state import FamilyState
 
     store = FamilyStore(args.family)
@@ -21,15 +20,8 @@ def cmd_look(args: argparse.Namespace) -> int:
     if args.action == "add":
         if not args.prompt or not args.prompt.strip():
             raise ValueError("look add needs --prompt")
-        over = {"prompt": args.prompt}
-        prompts = _group_prompts(args.group_prompts)
-        over["group_prompts"] = prompts if prompts is not None else {}
-        if args.painter:
-            over["painter"] = args.painter
-        if args.texture_size:
-            over["texture_size"] = args.texture_size
-        record = add_look(store, args.name, replace(config.paint, **over), force=args.force,
-                          log=(lambda *_: None) if args.json else print)
+        paint = new_look_paint(config.paint, args.prompt, _group_prompts(args.group_prompts), args.painter, args.texture_size)
+        record = add_look(store, args.name, paint, force=args.force, log=(lambda *_: None) if args.json else print)
         if args.json:
             _print_json({"family": store.uri, "look": record})
         return 0

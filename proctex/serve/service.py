@@ -260,9 +260,7 @@ class FamilyService:
             self.assets = load_assets(store, self.state, self.look)
             # every method that uses the networks loads them ("auto": where there are any)
             self.models = load_models(store, self.device, self.state) if method.networks != "none" else {}
-        self.texture_digests = [hashlib.sha256(png).hexdigest() for png in self.assets.png]
-        self.map_digests = [None if m is None else (hashlib.sha256(m.orm).hexdigest(), hashlib.sha256(m.normal).hexdigest())
-                            for m in (self.assets.pbr_png or [None] * len(self.assets.png))]
+        self._digest_textures()
         if method.networks == "required" and not self.models:
             raise ValueError(f"{store.uri} has no trained models (run the train stage)")
         cage = replace(self.config.cage, device=self.device) if self.config.cage is not None else None
@@ -272,12 +270,22 @@ class FamilyService:
         self.lock = threading.Lock()  # transfers share the torch models and the painter
         # Edited group textures: (group, GroupEdit) -> (uint8 texture, PNG); re-paints: (group, prompt) -> float texture.
         self.edit_cache_size = 32
+        self._clear_edit_caches()
+        self._views: dict[str, FamilyService] = {self.look.name: self}  # the family's looks, each made when first asked for
+        self._views_lock = threading.Lock()
+
+    def _clear_edit_caches(self) -> None:
+        """Empty caches of this look's edited textures and re-paints (each look keeps its own)."""
         self._edited: OrderedDict[tuple[int, GroupEdit], tuple[Any, bytes]] = OrderedDict()
         self._repaints: OrderedDict[tuple[int, str], Any] = OrderedDict()
         self._edit_lock = threading.Lock()
         self.edit_stats = {"hits": 0, "misses": 0, "repaints": 0}
-        self._views: dict[str, FamilyService] = {self.look.name: self}  # the family's looks, each made when first asked for
-        self._views_lock = threading.Lock()
+
+    def _digest_textures(self) -> None:
+        """The sha256 of every stored texture and PBR map (ETags, linked URIs) of this look."""
+        self.texture_digests = [hashlib.sha256(png).hexdigest() for png in self.assets.png]
+        self.map_digests = [None if m is None else (hashlib.sha256(m.orm).hexdigest(), hashlib.sha256(m.normal).hexdigest())
+                            for m in (self.assets.pbr_png or [None] * len(self.assets.png))]
 
     # ------------------------------------------------------------------------------------ looks
     def look_view(self, name: str | None) -> "FamilyService":
@@ -308,12 +316,9 @@ class FamilyService:
             view = copy.copy(self)
             view.look, view.paint = look, look_paint(self.store, look, self.config.paint)
             view.assets = with_look(self.assets, images)
-            view.texture_digests = [hashlib.sha256(png).hexdigest() for png in view.assets.png]
-            view.map_digests = [None if m is None else (hashlib.sha256(m.orm).hexdigest(), hashlib.sha256(m.normal).hexdigest())
-                                for m in (view.assets.pbr_png or [None] * len(view.assets.png))]
+            view._digest_textures()
             view.painter = SurfacePainter(view.paint.prompt, seed=self.config.seed)
-            view._edited, view._repaints, view._edit_lock = OrderedDict(), OrderedDict(), threading.Lock()
-            view.edit_stats = {"hits": 0, "misses": 0, "repaints": 0}
+            view._clear_edit_caches()
             view._views, view._views_lock = self._views, self._views_lock  # one table for every look of the family
             self._views[name] = view
             return view

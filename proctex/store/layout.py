@@ -87,6 +87,8 @@ def encode_arrays(**arrays: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+#: The paint record's file name, in a look's folder.
+PAINT_NAME = "paint.json"
 #: The name of a family's first look (the one its build paints) unless the build named it.
 DEFAULT_LOOK = "default"
 #: A look's name: what a family's name may be (letters, digits, ``.``, ``_``, ``-``; 64 at most).
@@ -109,7 +111,7 @@ class LookLayout:
 
     def __init__(self, name: str = DEFAULT_LOOK, folder: str = "template") -> None:
         self.name, self.folder = name, folder
-        self.PAINT = f"{folder}/paint.json"
+        self.PAINT = f"{folder}/{PAINT_NAME}"
         self.PAINTED = f"{folder}/painted.npz"
         self.GLB = f"{folder}/textured.glb"
         self.EDITS = f"{folder}/edits"
@@ -152,21 +154,21 @@ class StoreLayout:
     MODELS = "models"
     TEMPLATE = "template"
     TEMPLATE_MESH = "template/template.obj"
-    TEMPLATE_GLB = "template/textured.glb"
-    PAINT_NAME = "paint.json"  # the painter's summary, in the folder it writes (the template folder here)
-    PAINT = f"template/{PAINT_NAME}"
     UV = "template/uv.npz"
-    PAINTED = "template/painted.npz"
     GROUPING = "template/grouping.json"
-    EDITS = "template/edits"  # one folder per stored edit: the files it replaced (its undo)
+    PAINT_NAME = PAINT_NAME  # the painter's summary, in the folder it writes (a look's folder)
+    # The build's look (in template/): its paths are the LookLayout's, spelled there once.
+    _BUILT = LookLayout(DEFAULT_LOOK, "template")
+    TEMPLATE_GLB = _BUILT.GLB
+    PAINT = _BUILT.PAINT
+    PAINTED = _BUILT.PAINTED
+    EDITS = _BUILT.EDITS  # one folder per stored edit: the files it replaced (its undo)
+    edit_snapshot = staticmethod(_BUILT.edit_snapshot)  # a file as it was before edit ``version``
+    template_file = staticmethod(_BUILT.file)  # a file of the template folder (the painter's outputs)
+    texture = staticmethod(_BUILT.texture)  # a group's texture, or with ``kind`` one of its PBR maps
     LOOKS = "looks"  # one folder per look besides the build's (LookLayout)
     EDIT_LOCK = ".edit.lock"  # held while an edit changes the store (local stores)
     BUILD_LOCK = ".build.lock"  # held while a build runs (exclusive) or an edit (shared)
-
-    @staticmethod
-    def edit_snapshot(version: int, name: str) -> str:
-        """A file as it was before edit ``version`` (``name``: a template file name)."""
-        return f"{StoreLayout.EDITS}/v{int(version):05d}/{name}"
 
     @staticmethod
     def look(name: str, built: bool = False) -> LookLayout:
@@ -206,16 +208,6 @@ class StoreLayout:
         """The group of a file name in ``models/`` (``group_<g>.pt``), None for anything else."""
         stem = name[len("group_") : -len(".pt")] if name.startswith("group_") and name.endswith(".pt") else ""
         return int(stem) if stem.isdigit() else None
-
-    @staticmethod
-    def template_file(name: str) -> str:
-        """A file of the template folder (the painter's outputs)."""
-        return f"{StoreLayout.TEMPLATE}/{name}"
-
-    @staticmethod
-    def texture(group: int, label: str, kind: str = "") -> str:
-        """A group's texture, or with ``kind`` one of its PBR maps (:func:`group_file_name`)."""
-        return StoreLayout.template_file(group_file_name(group, label, kind))
 
 
 class FamilyStore:

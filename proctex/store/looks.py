@@ -6,7 +6,7 @@ unchanged on disk."""
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from typing import Any
 
 from proctex.store.layout import (
@@ -88,6 +88,19 @@ def look_summary(store: FamilyStore, look: LookLayout, build_paint: PaintConfig)
     return {"name": look.name, "built": look.built, "prompt": paint.prompt, "painter": paint.painter, "texture_size": paint.texture_size,
             "group_prompts": dict(paint.group_prompts), "edits": len(summary.get("edits", [])),
             **{k: record[k] for k in ("made", "seconds") if k in record}}
+
+
+def new_look_paint(build_paint: PaintConfig, prompt: str, group_prompts: dict[str, str] | None = None, painter: str | None = None,
+                   texture_size: int | None = None) -> PaintConfig:
+    """The paint settings of a new look: the build's (views, fill, ...) with ``prompt`` and, where
+    given, ``painter`` and ``texture_size`` over them; group prompts only those given (the build's
+    belong to its prompt). Checked (``ValueError``)."""
+    over: dict[str, Any] = {"prompt": prompt, "group_prompts": dict(group_prompts or {})}
+    if painter is not None:
+        over["painter"] = painter
+    if texture_size is not None:
+        over["texture_size"] = texture_size
+    return replace(build_paint, **over).validate()
 
 
 def paint_record(paint: PaintConfig) -> dict[str, Any]:
