@@ -418,3 +418,26 @@ def test_an_elongated_cage_has_cells_along_the_long_axis_and_keeps_an_exact_star
     res = correspond_parts(part.vertices, part.faces, part.vertices, part.faces, method="cage", n_points=500, seed=0,
                            cage=CageConfig(elongation=4))
     assert len(res.details["cage0"]) > 26 and float(np.linalg.norm(res.points - res.source_points, axis=1).max()) < 1e-6
+
+
+def test_oriented_nearest_neighbour_equals_asking_every_query_for_k():
+    """The cage's Chamfer match asks only the queries whose nearest point disagrees in normal for
+    more neighbours: the same indices as asking every query for k (the reference), with a share of
+    flipped normals so both branches run."""
+    from scipy.spatial import cKDTree
+
+    from proctex.correspond.cage import _oriented_nn, _oriented_nn_reference
+
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(500, 3))
+    nrm = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    nrm[rng.random(500) < 0.3] *= -1
+    query = rng.normal(size=(300, 3))
+    qn = query / np.linalg.norm(query, axis=1, keepdims=True)
+    tree = cKDTree(pts)
+    fast = _oriented_nn(tree, pts, nrm, query, qn)
+    slow = _oriented_nn_reference(tree, nrm, query, qn)
+    nearest = tree.query(query, k=1)[1]
+    assert np.array_equal(fast, slow)
+    assert (fast != nearest).sum() > 20  # the fallback ran and changed answers
+    assert np.array_equal(_oriented_nn(tree, pts, nrm, query, qn, k=1), nearest)

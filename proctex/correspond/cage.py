@@ -248,10 +248,23 @@ def _tri_normals(tri: torch.Tensor) -> torch.Tensor:
 
 
 def _oriented_nn(tree: cKDTree, pts: np.ndarray, pts_normals: np.ndarray, query: np.ndarray, query_normals: np.ndarray, k: int = 8) -> np.ndarray:
-    """Index into ``pts`` of each query's nearest point with an agreeing normal (else plain nearest)."""
+    """Index into ``pts`` of each query's nearest point with an agreeing normal among its ``k``
+    nearest (else its plain nearest). Most queries' nearest point agrees: only the others are
+    asked for ``k`` neighbours (the same answer as asking all for ``k``: :func:`_oriented_nn_reference`)."""
+    _, j = tree.query(query, k=1)
+    j = np.asarray(j, dtype=np.int64).reshape(len(query))
     k = min(k, len(pts))
+    bad = np.flatnonzero(np.einsum("qd,qd->q", pts_normals[j], query_normals) <= 0)
+    if len(bad) and k > 1:
+        j[bad] = _oriented_nn_reference(tree, pts_normals, query[bad], query_normals[bad], k)
+    return j
+
+
+def _oriented_nn_reference(tree: cKDTree, pts_normals: np.ndarray, query: np.ndarray, query_normals: np.ndarray, k: int = 8) -> np.ndarray:
+    """:func:`_oriented_nn` asking every query for its ``k`` nearest points (the slow reference)."""
+    k = min(k, len(pts_normals))
     _, j = tree.query(query, k=k)
-    j = j.reshape(len(query), k)
+    j = np.asarray(j, dtype=np.int64).reshape(len(query), k)
     ok = np.einsum("qkd,qd->qk", pts_normals[j], query_normals) > 0
     first = np.where(ok.any(1), np.argmax(ok, axis=1), 0)
     return j[np.arange(len(query)), first]
@@ -302,7 +315,7 @@ def solve_cage(
     pairs = [(a, p) for a in axes if (p := _mirror_pairs(cage0, a)) is not None]
     flips = {a: torch.as_tensor([-1.0 if i == a else 1.0 for i in range(3)], device=device, dtype=dtype) for a, _ in pairs}
     T = torch.as_tensor(template_samples, device=device, dtype=dtype)
-    t_tree = cKDTree(template_samples)
+    t_tree = cKDTree(template_samples) if cfg.chamfer == "point" else None  # the plane Chamfer asks only the deformed samples
     vn = np.asarray(template_vertex_normals, dtype=float)
     tfaces = template.faces
 
@@ -331,13 +344,13 @@ def solve_cage(
         surface = ((x - q) ** 2).sum(1).mean()
         normal = (1.0 - (nrm * torch.as_tensor(qn, device=device, dtype=dtype)).sum(1)).mean()
         # Chamfer between point sets, both directions, matches with agreeing normals.
-        fwd = _oriented_nn(t_tree, template_samples, template_sample_normals, xd, nd)
         bwd = _oriented_nn(cKDTree(xd), xd, nd, template_samples, template_sample_normals)
         if cfg.chamfer == "plane":
             # Template samples to the tangent planes of their nearest deformed source samples: zero
             # when the surfaces coincide, whatever the two sample sets (point-to-point is not).
             chamfer = (((T - x[bwd]) * nrm[bwd]).sum(1) ** 2).mean()
         else:
+            fwd = _oriented_nn(t_tree, template_samples, template_sample_normals, xd, nd)
             chamfer = ((x - T[fwd]) ** 2).sum(1).mean() + ((T - x[bwd]) ** 2).sum(1).mean()
         smooth = ((offset[triples[:, 0]] - 2 * offset[triples[:, 1]] + offset[triples[:, 2]]) ** 2).sum(1).mean() if len(triples) else torch.zeros((), device=device, dtype=dtype)
         rest = (offset ** 2).sum(1).mean()
