@@ -232,7 +232,7 @@ def test_early_stopping_keeps_best_state():
 
 def test_best_state_is_the_minimum_of_history():
     pairs = family_pairs(6, 200, seed=6)
-    res = tr.train(pairs[:4], pairs[4:], small_config(iterations=60, eval_every=10, patience=0, lr=2e-2))
+    res = tr.train(pairs[:4], pairs[4:], small_config(iterations=60, eval_every=10, patience=0, lr=2e-2, min_delta=0.0))
     best = min(res.history, key=lambda h: h["val_mean"])
     assert res.best_val["iteration"] == best["iteration"]
     assert tr.eval_step(res.model, pairs[4:])["mean"] == pytest.approx(best["val_mean"], rel=1e-6)
@@ -619,3 +619,42 @@ def test_serving_choice_refuses_a_deliberately_wrong_network():
     wrong = tr.choose_serving(res.model, val_pairs, tr.template_extent(train_pairs))
     assert wrong.serve != "network" and wrong.errors["network"] > 3 * right.errors["network"], (right, wrong)
     assert wrong.errors["network"] > 2 * wrong.errors["box"]
+
+
+# ------------------------------------------------------------------------- groups trained together
+def test_groups_trained_together_match_separate_training():
+    """Three groups (different pair counts, one stopping early) trained in one batched loop end
+    where each trained alone ends: the same evaluations, stopping step and kept state, to float
+    rounding of the batched products; a wrong pairing of groups and results would not."""
+    from proctex.correspond.grouped import train_together
+
+    sets = [family_pairs(n, 200, seed=s) for n, s in ((6, 11), (8, 12), (5, 13))]
+    groups = [(p[:-2], p[-2:]) for p in sets]
+    cfg = small_config(iterations=80, eval_every=10, patience=2, min_delta=0.02, autocast="none")  # float32: rounding stays small
+    alone = [tr.train(t, v, cfg) for t, v in groups]
+    together = train_together(groups, cfg)
+    assert len(together) == 3
+    assert len({r.iterations for r in alone}) > 1  # a group stopped early while the others trained on
+    for a, b in zip(alone, together):
+        assert b.iterations == a.iterations and b.stopped_early == a.stopped_early
+        assert b.best_val["iteration"] == a.best_val["iteration"]
+        assert b.best_val["mean"] == pytest.approx(a.best_val["mean"], rel=1e-3)
+        assert [h["iteration"] for h in b.history] == [h["iteration"] for h in a.history]
+        sa, sb = a.model.state_dict(), b.model.state_dict()
+        assert all(torch.allclose(sa[k], sb[k], atol=1e-4) for k in sa)
+    swapped = [abs(together[0].best_val["mean"] - a.best_val["mean"]) / a.best_val["mean"] for a in alone[1:]]
+    assert min(swapped) > 1e-2  # the check tells the groups apart
+
+
+def test_groups_trained_together_validate_their_input():
+    from proctex.correspond.grouped import train_together
+
+    pairs = family_pairs(4, 100, seed=1)
+    with pytest.raises(ValueError, match="no groups"):
+        train_together([], small_config())
+    with pytest.raises(ValueError, match="query_mode"):
+        train_together([(pairs, None)], small_config(query_mode="separate", query_points=64))
+    with pytest.raises(ValueError, match="rank"):
+        train_together([(pairs, None)], small_config(), rank=2, world=2)
+    with pytest.raises(ValueError, match="train pairs"):
+        train_together([(pairs, None), ([(pairs[0][0], pairs[0][1][:10])], None)], small_config())

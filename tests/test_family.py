@@ -550,6 +550,27 @@ def test_a_pooled_in_process_build_solves_pairs_side_by_side_and_stores_the_same
     plan = Plan("toy", [[3], [1]], _toy_batch, finish=finished.append)  # not parallel: here, in order
     run_in_process(plan, a, cfg, workers=2)
     assert finished[-1] == [[30], [10]]
+    # merged plans (the networks): a share of the batches per worker, dealt round robin, results split back per batch
+    seen.clear()
+    plan = Plan("toy", [[3], [1], [2], [4, 5]], _toy_merged, finish=finished.append, collect=lambda batch, out: seen.append(batch), parallel=True, merge=True)
+    local_executor(2)(plan, a, cfg, lambda *_: None)
+    assert finished[-1] == [[(30, (3, 2))], [(10, (1, 4, 5))], [(20, (3, 2))], [(40, (1, 4, 5)), (50, (1, 4, 5))]]
+    assert sorted(map(tuple, seen)) == [(1,), (2,), (3,), (4, 5)]
+    run_in_process(plan, a, cfg)  # one process: every batch in one call
+    assert finished[-1][0] == [(30, (3, 1, 2, 4, 5))] and finished[-1][3][1] == (50, (3, 1, 2, 4, 5))
+    # trained together in one batched loop (train.together "on"; "auto" does so on a GPU): the same networks as one by one (to rounding)
+    cfg.train.together = "on"
+    build(a, cfg, stages=("train",), log=lambda *_: None)
+    joint = a.read_json("family.json")["stages"]["train"]["groups"]
+    assert all(joint[g]["together"] == 2 and trained[g]["together"] == 1 for g in ("0", "1"))
+    for g in ("0", "1"):  # (bfloat16 products where the CPU has them: rounding at the third digit, amplified by 20 steps)
+        assert joint[g]["iterations"] == trained[g]["iterations"]
+        assert joint[g]["best_val"]["mean"] == pytest.approx(trained[g]["best_val"]["mean"], rel=0.1)
+    assert abs(joint["0"]["best_val"]["mean"] - trained["1"]["best_val"]["mean"]) > 0.2 * trained["1"]["best_val"]["mean"]
+
+
+def _toy_merged(store, config, batch, context):
+    return [(10 * j, tuple(batch)) for j in batch]
 
 
 def _toy_batch(store, config, batch, context):

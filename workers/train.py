@@ -5,8 +5,9 @@ Every worker runs the same pure training loop as the single-process build
 batch; a gradient hook averages the gradients across workers (gloo ``all_reduce``), so the workers
 keep identical weights and stop together. Rank 0 writes the network to the store
 (``models/group_<g>.pt``) and reports it as the run's checkpoint (under ``train_runs/`` in the
-store). Groups are trained one after another, each with all the workers: more workers than groups
-shorten every group's run instead of idling.
+store). The workers form teams (:func:`teams`); a team trains its groups together in one batched
+loop (:func:`proctex.build.train.fit_groups`), so fewer workers than groups run side by side and
+more workers than groups shorten every group's run instead of idling.
 """
 
 from __future__ import annotations
@@ -16,15 +17,15 @@ import tempfile
 import time
 from typing import Any, Callable
 
-from proctex.build.train import fit_group, serving_line, trainable_groups
+from proctex.build.train import fit_groups, serving_line, trainable_groups
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 
 
 def teams(world: int, groups: list[int]) -> list[tuple[list[int], list[int]]]:
     """Split ``world`` workers into ``min(world, len(groups))`` teams: ``[(ranks, groups)]``. Team
-    ``t`` holds ranks ``r % T == t`` and groups ``i % T == t``; each team fits its groups one after
-    another, data-parallel across its ranks. So with fewer workers than groups the groups run in
+    ``t`` holds ranks ``r % T == t`` and groups ``i % T == t``; each team fits its groups together (one
+    batched loop), data-parallel across its ranks. So with fewer workers than groups the groups run in
     parallel, and extra workers join a team instead of idling."""
     if world < 1:
         raise ValueError(f"need at least one worker, got {world}")
@@ -59,11 +60,12 @@ def train_group_loop(loop_config: dict[str, Any]) -> dict[str, Any]:
                     dist.all_reduce(p.grad, group=pg)
                     p.grad /= team_size
 
-    step = loop_config.get("step") or fit_group  # the plan's team step: the in-process train body and record
+    step = loop_config.get("step") or fit_groups  # the plan's team step: the in-process train body and records
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
+        if my_groups:  # the team's groups trained together in one loop; each record names the team size
+            out = {str(g): r for g, r in zip(my_groups, step(store, config, my_groups, rank=team_rank, world=team_size, grad_hook=average))}
         for group in my_groups:
-            out[str(group)] = step(store, config, group, rank=team_rank, world=team_size, grad_hook=average)  # its record names the team size
             if team_rank == 0:
                 with open(os.path.join(tmp, f"group_{group}.pt"), "wb") as fh:
                     fh.write(store.read_bytes(StoreLayout.model(group)))
@@ -121,7 +123,7 @@ def train_groups(
 ) -> dict[int, dict[str, Any]]:
     """Fit the networks of every trainable group that has none yet with one ``TorchTrainer`` of
     ``num_workers`` CPU workers (Ray must be initialised); ``step``: what fits one group on a team
-    (``Plan.team``; default :func:`proctex.build.train.fit_group`). Returns ``{group: metrics}``."""
+    (``Plan.team``; default :func:`proctex.build.train.fit_groups`). Returns ``{group: metrics}``."""
     from ray.train import RunConfig, ScalingConfig
     from ray.train.torch import TorchTrainer
 
@@ -137,7 +139,7 @@ def train_groups(
     t0 = time.perf_counter()
     trainer = TorchTrainer(
         train_group_loop,
-        train_loop_config={"store": store_uri, "config": config.to_dict(), "groups": todo, "step": step or fit_group},
+        train_loop_config={"store": store_uri, "config": config.to_dict(), "groups": todo, "step": step or fit_groups},
         scaling_config=ScalingConfig(num_workers=num_workers, use_gpu=False, resources_per_worker={"CPU": cpus_per_worker}),
         # A fresh run name: Ray Train resumes silently from an existing run of the same name.
         run_config=RunConfig(name=f"corrnet_{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}", storage_path=storage, storage_filesystem=store.fs),

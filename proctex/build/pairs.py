@@ -19,9 +19,9 @@ from proctex.store.state import FamilyState, build_stamp, mark_stage, stage_done
 from proctex.transfer.assets import load_assets
 
 
-def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:
-    """Cage correspondence of one (shape, template group): the training pair and its record."""
-    from proctex.correspond.dense import correspond_parts
+def pair_input(shape: Shape, assets, group: int) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """The part of ``shape`` that maps onto template ``group``: ``(part index, vertices (j, 3),
+    faces (k, 3))`` (mirrored members kept wound outward), or None when the shape lacks the group."""
     from proctex.transfer.assign import assign_parts, choose_part, representative_part
 
     seg = segment(shape)
@@ -29,11 +29,14 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int)
     if a is None:
         return None
     vn, f = representative_part(*part_mesh(shape, seg.parts[a.part]), a)  # winding kept outward under a mirror
-    ga = assets.groups[group]
-    cage = config.cage
-    res = correspond_parts(vn, f, ga.vertices, ga.faces, method="cage", n_points=config.corr_points, seed=seed, cage=cage)
+    return a.part, vn, f
+
+
+def pair_result(part: int, res) -> dict[str, Any]:
+    """A solved cage correspondence (:class:`proctex.correspond.dense.PartCorrespondence`) as the
+    training pair and its record."""
     return {
-        "part": a.part,
+        "part": part,
         "src": res.source_points.astype(np.float32),
         "dst": res.points.astype(np.float32),  # template normalised frame (the representative is stored normalised)
         "face": res.faces.astype(np.int32),
@@ -43,6 +46,19 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int)
         "iterations": res.iterations,
         "seconds": res.seconds,
     }
+
+
+def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:
+    """Cage correspondence of one (shape, template group): the training pair and its record."""
+    from proctex.correspond.dense import correspond_parts
+
+    inp = pair_input(shape, assets, group)
+    if inp is None:
+        return None
+    part, vn, f = inp
+    ga = assets.groups[group]
+    res = correspond_parts(vn, f, ga.vertices, ga.faces, method="cage", n_points=config.corr_points, seed=seed, cage=config.cage)
+    return pair_result(part, res)
 
 
 @dataclass

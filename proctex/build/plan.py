@@ -32,16 +32,21 @@ class Plan:
         context: what the in-process executor hands every batch (e.g. the loaded template assets).
         skip: "done already" when the stage is complete and nothing is to be run.
         in_place: a one-step stage that runs where the build runs (template, paint, evaluate).
-        team: for plans whose jobs can each be run by a data-parallel team of workers (one group's
-            network): ``team(store, config, job, rank, world, grad_hook) -> result`` (a module-level
-            function; ``grad_hook(model)`` averages the gradients across the team). An executor
-            with teams (Ray Train, ``workflows/build.py``) runs every job so and hands ``finish``
-            the same results ``run_batch`` would give; the in-process executor runs ``run_batch``.
+        team: for plans whose jobs can be run by a data-parallel team of workers (groups'
+            networks): ``team(store, config, jobs, rank, world, grad_hook) -> [result per job]`` (a
+            module-level function; ``grad_hook(model)`` averages the gradients across the team). An
+            executor with teams (Ray Train, ``workflows/build.py``) gives each team a share of the
+            jobs and hands ``finish`` the same results ``run_batch`` would give; the in-process
+            executor runs ``run_batch``.
         parallel: its batches are independent and run better side by side than one after the other
             on more threads (a cage solve gains nothing from a second thread; a small network's
             training little): :func:`run_in_process` with ``workers`` > 1 runs them in worker
             processes of one thread each, once the plan has ``pool_min_jobs`` jobs (a pool costs
             a few seconds to start: worth it for a few trainings, not for a few short pairs).
+        merge: its batches run better merged than one by one (the groups' networks, trained together
+            in one batched loop): :func:`run_in_process` hands ``run_batch`` every batch at once, or
+            with ``workers`` a share of them per worker (round robin), and splits the results back
+            per batch for ``collect`` and ``finish``.
     """
 
     stage: str
@@ -56,6 +61,7 @@ class Plan:
     team: Callable[..., Any] | None = None
     parallel: bool = False
     pool_min_jobs: int = 2
+    merge: bool = False
 
     @property
     def n_jobs(self) -> int:
@@ -73,17 +79,33 @@ def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], Non
         log(f"{plan.stage}: {plan.skip}")
         return plan
     enough = plan.n_jobs >= (plan.pool_min_jobs if min_jobs is None else min_jobs)
-    if workers > 1 and plan.parallel and len(plan.batches) > 1 and enough:
-        results = _run_pooled(plan, store, config, min(workers, len(plan.batches)))
+    pooled = workers > 1 and plan.parallel and len(plan.batches) > 1 and enough
+    units = merged_units(len(plan.batches), min(workers, len(plan.batches)) if pooled else 1) if plan.merge else [[k] for k in range(len(plan.batches))]
+    if pooled:
+        results = _run_pooled(plan, store, config, units, min(workers, len(units)))
     else:
-        results = []
-        for batch in plan.batches:
-            out = plan.run_batch(store, config, batch, plan.context)
-            if plan.collect is not None:
-                plan.collect(batch, out)
-            results.append(out)
+        results = [None] * len(plan.batches)
+        for unit in units:
+            _collect_unit(plan, unit, plan.run_batch(store, config, [j for k in unit for j in plan.batches[k]], plan.context), results)
     plan.finish(results)
     return plan
+
+
+def merged_units(n_batches: int, n_units: int) -> list[list[int]]:
+    """Batch indices ``0..n_batches-1`` dealt round robin into ``n_units`` units (``Plan.merge``)."""
+    n_units = max(1, min(n_units, n_batches))
+    return [list(range(u, n_batches, n_units)) for u in range(n_units) if u < n_batches]
+
+
+def _collect_unit(plan: Plan, unit: list[int], out: list[Any], results: list[Any]) -> None:
+    """Split one unit's results (its batches' jobs, in order) back per batch, collecting each."""
+    i = 0
+    for k in unit:
+        n = len(plan.batches[k])
+        results[k] = list(out[i:i + n])
+        i += n
+        if plan.collect is not None:
+            plan.collect(plan.batches[k], results[k])
 
 
 def local_executor(workers: int, min_jobs: int | None = None) -> Callable[..., Plan]:
@@ -110,19 +132,17 @@ def _pooled_batch(uri: str, config: Any, run_batch: Callable[..., list[Any]], ba
     return run_batch(FamilyStore(uri), config, batch, None)
 
 
-def _run_pooled(plan: Plan, store: Any, config: Any, workers: int) -> list[list[Any]]:
+def _run_pooled(plan: Plan, store: Any, config: Any, units: list[list[int]], workers: int) -> list[list[Any]]:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    results: list[list[Any] | None] = [None] * len(plan.batches)
+    results: list[Any] = [None] * len(plan.batches)
     with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_one_thread) as pool:
-        futures = {pool.submit(_pooled_batch, store.uri, config, plan.run_batch, batch): k for k, batch in enumerate(plan.batches)}
+        futures = {pool.submit(_pooled_batch, store.uri, config, plan.run_batch, [j for k in unit for j in plan.batches[k]]): unit
+                   for unit in units}
         for future in as_completed(futures):
-            k = futures[future]
-            results[k] = future.result()
-            if plan.collect is not None:
-                plan.collect(plan.batches[k], results[k])
-    return results  # type: ignore[return-value]
+            _collect_unit(plan, futures[future], future.result(), results)
+    return results
 
 
 def single_step(stage: str, step: Callable[[Any, Any, Callable[[str], None]], None], store: Any, config: Any,

@@ -81,33 +81,56 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
 VAL_SHARE = 0.15  # of a group's train shapes, held out for early stopping
 
 
-def fit_group(store: FamilyStore, config: BuildConfig, group: int, rank: int = 0, world: int = 1,
-              grad_hook: Callable[[Any], None] | None = None) -> dict[str, Any]:
-    """Train group ``group``'s network on its pairs and, on ``rank`` 0, store it; the one train body
-    of every executor (in process; each Ray Train worker of a team of ``world``, with ``grad_hook``
-    averaging gradients). Returns the group's train record, the same fields whoever trained it:
-    ``best_val`` (:func:`proctex.correspond.training.eval_step` of the kept state), ``iterations``,
-    ``seconds``, ``train_pairs``, ``val_pairs``, ``sha256`` and ``serving`` (None off rank 0) and
-    ``workers`` (the team's size: 1 in process)."""
+def fit_groups(store: FamilyStore, config: BuildConfig, groups: list[int], rank: int = 0, world: int = 1,
+               grad_hook: Callable[[Any], None] | None = None) -> list[dict[str, Any]]:
+    """Train the networks of ``groups`` (together in one batched loop where
+    :func:`proctex.correspond.corrnet.trains_together` says so, each keeping its own network, early
+    stopping and best state; else one after another) and, on ``rank`` 0, store each; the one train
+    body of every executor (in process; each Ray Train worker of a team of ``world``, with
+    ``grad_hook`` averaging the gradients). Returns per group its train record, the same fields
+    whoever trained it: ``best_val`` (:func:`proctex.correspond.training.eval_step` of the kept
+    state), ``iterations``, ``seconds`` (a shared loop's for groups trained together),
+    ``train_pairs``, ``val_pairs``, ``sha256`` and ``serving`` (None off rank 0), ``workers`` (the
+    team's size: 1 in process) and ``together`` (the groups trained in the same loop)."""
+    from proctex.correspond.corrnet import trains_together
+    from proctex.correspond.grouped import train_together
     from proctex.correspond.training import train
 
-    data = group_training_data(store, config, group, VAL_SHARE)
-    t = time.perf_counter()
-    result = train(data["train"], data["val"], config.train, rank=rank, world=world, grad_hook=grad_hook, features=data["features"])
+    together = trains_together(config.train, len(groups))
+    out = []
+    if together:
+        data = [group_training_data(store, config, g, VAL_SHARE) for g in groups]
+        t = time.perf_counter()
+        results = train_together([(d["train"], d["val"]) for d in data], config.train, features=[d["features"] for d in data],
+                                 rank=rank, world=world, grad_hook=grad_hook)
+        fitted = [(g, d, r, time.perf_counter() - t) for g, d, r in zip(groups, data, results)]
+    for g in ([] if together else groups):  # one after another, each stored as it finishes
+        d = group_training_data(store, config, g, VAL_SHARE)
+        t = time.perf_counter()
+        result = train(d["train"], d["val"], config.train, rank=rank, world=world, grad_hook=grad_hook, features=d["features"])
+        out.append(_group_record(store, config, g, d, result, time.perf_counter() - t, rank, world, 1))
+    if together:
+        out = [_group_record(store, config, g, d, r, s, rank, world, len(groups)) for g, d, r, s in fitted]
+    return out
+
+
+def _group_record(store: FamilyStore, config: BuildConfig, group: int, data: dict[str, Any], result, seconds: float, rank: int, world: int,
+                  together: int) -> dict[str, Any]:
     sha, serving = save_group_model(store, group, result, config.train, data) if rank == 0 else (None, None)
-    return {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(time.perf_counter() - t, 2),
-            "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving, "workers": world}
+    return {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(seconds, 2),
+            "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving, "workers": world,
+            "together": together}
 
 
 def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], context: Any = None) -> list[dict[str, Any]]:
-    """Train and store the networks of ``groups`` in this process; per group its record (:func:`fit_group`)."""
-    return [fit_group(store, config, g) for g in groups]
+    """Train and store the networks of ``groups`` in this process (:func:`fit_groups`)."""
+    return fit_groups(store, config, groups)
 
 
 def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> Plan:
     """The train stage: one ProcCorrNet per trainable group without one yet, a batch per group. A
-    resumed build keeps the record of the groups trained before. Each group can be fitted by a team of
-    workers (``team``: :func:`fit_group`); an executor may set ``info["mark"]`` (extra fields for the
+    resumed build keeps the record of the groups trained before. Groups are trained together
+    (``merge``: :func:`fit_groups`), by a team of workers each (``team``); an executor may set ``info["mark"]`` (extra fields for the
     stage's record)."""
     before = FamilyState.load(store).stage("train").get("groups", {})
     groups = trainable_groups(store)
@@ -134,9 +157,13 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
         if todo or not stage_done(store, "train"):
             mark_stage(store, "train", groups=trained, **plan.info.get("mark", {}))
 
-    # in process, groups side by side on one thread each (a small network's matmuls gain less from a
-    # second thread than from a second group: demo 74.0 -> 62.0 s, sofa export 209.7 -> 194.8 s on 2 cores)
-    plan = Plan("train", [[g] for g in todo], run_train_batch, finish, collect, team=fit_group, parallel=True)
+    # in process, groups side by side in worker processes of one thread (Plan.parallel: demo 74.0 -> 62.0 s,
+    # sofa export 209.7 -> 194.8 s on 2 cores); each worker's share trained in one batched loop where
+    # that pays (Plan.merge; CorrNetConfig.together: on a GPU)
+    from proctex.correspond.corrnet import trains_together
+
+    plan = Plan("train", [[g] for g in todo], run_train_batch, finish, collect, team=fit_groups, parallel=True,
+                merge=trains_together(config.train, len(todo)))
     return plan
 
 

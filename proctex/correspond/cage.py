@@ -68,7 +68,9 @@ class CageConfig:
         iterations: maximum Adam steps; lr: initial learning rate; lr_final: the rate reached
             (exponential decay) at ``iterations``.
         patience, tol: stop when the loss has not improved by a relative ``tol`` for ``patience``
-            steps (the run is then *converged*).
+            steps (the run is then *converged*). patience_start: the patience while the loss has
+            not improved on the start at all (the pre-alignment already fits: the best iterate
+            is the start), at most ``patience``.
         w_*: loss weights. mvc_points, mvc_every: size and period of the negative-MVC penalty's
             sample. symmetry: mirror-symmetric cage across the given planes.
         min_dot: normal agreement required of a match (cosine).
@@ -106,6 +108,7 @@ class CageConfig:
     lr: float = 0.02
     lr_final: float = 0.002
     patience: int = 25
+    patience_start: int = 25
     tol: float = 1e-3
     w_chamfer: float = 1.0
     w_surface: float = 1.0
@@ -135,6 +138,8 @@ class CageConfig:
             raise ValueError(f"cage elongation must be an integer in 1..8, got {self.elongation!r}")
         if not self.margin >= 0 or not np.isfinite(self.margin):
             raise ValueError(f"cage margin must be >= 0, got {self.margin}")
+        if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in (self.patience, self.patience_start)):
+            raise ValueError(f"cage patience and patience_start must be integers >= 1, got {self.patience!r}, {self.patience_start!r}")
         if int(self.iterations) < 1 or not self.lr > 0 or not self.lr_final > 0:
             raise ValueError("cage iterations must be >= 1 and learning rates > 0")
         if self.chamfer not in ("plane", "point"):
@@ -250,24 +255,18 @@ def _tri_normals(tri: torch.Tensor) -> torch.Tensor:
 def _oriented_nn(tree: cKDTree, pts: np.ndarray, pts_normals: np.ndarray, query: np.ndarray, query_normals: np.ndarray, k: int = 8) -> np.ndarray:
     """Index into ``pts`` of each query's nearest point with an agreeing normal among its ``k``
     nearest (else its plain nearest). Most queries' nearest point agrees: only the others are
-    asked for ``k`` neighbours (the same answer as asking all for ``k``: :func:`_oriented_nn_reference`)."""
+    asked for ``k`` neighbours (the same answer as asking all for ``k``:
+    :func:`proctex._reference.cage.oriented_nn_reference`)."""
     _, j = tree.query(query, k=1)
     j = np.asarray(j, dtype=np.int64).reshape(len(query))
     k = min(k, len(pts))
     bad = np.flatnonzero(np.einsum("qd,qd->q", pts_normals[j], query_normals) <= 0)
     if len(bad) and k > 1:
-        j[bad] = _oriented_nn_reference(tree, pts_normals, query[bad], query_normals[bad], k)
+        _, jk = tree.query(query[bad], k=k)
+        jk = np.asarray(jk, dtype=np.int64).reshape(len(bad), k)
+        ok = np.einsum("qkd,qd->qk", pts_normals[jk], query_normals[bad]) > 0
+        j[bad] = jk[np.arange(len(bad)), np.where(ok.any(1), np.argmax(ok, axis=1), 0)]
     return j
-
-
-def _oriented_nn_reference(tree: cKDTree, pts_normals: np.ndarray, query: np.ndarray, query_normals: np.ndarray, k: int = 8) -> np.ndarray:
-    """:func:`_oriented_nn` asking every query for its ``k`` nearest points (the slow reference)."""
-    k = min(k, len(pts_normals))
-    _, j = tree.query(query, k=k)
-    j = np.asarray(j, dtype=np.int64).reshape(len(query), k)
-    ok = np.einsum("qkd,qd->qk", pts_normals[j], query_normals) > 0
-    first = np.where(ok.any(1), np.argmax(ok, axis=1), 0)
-    return j[np.arange(len(query)), first]
 
 
 def solve_cage(
@@ -322,7 +321,7 @@ def solve_cage(
     opt = torch.optim.Adam([offset], lr=cfg.lr)
     gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(cfg.iterations, 1))
     sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma=gamma)
-    best, since, history = np.inf, 0, []
+    best, since, history, improved = np.inf, 0, [], False
     best_value, best_offset = np.inf, offset.detach().clone()
     converged = False
     terms: dict[str, float] = {}
@@ -375,10 +374,10 @@ def solve_cage(
         terms = {"surface": float(surface.detach()), "chamfer": float(chamfer.detach()), "normal": float(normal.detach()),
                  "smooth": float(smooth.detach()), "rest": float(rest.detach()), "negative_mvc": float(mvc_term.detach())}
         if value < best * (1 - cfg.tol):
-            best, since = value, 0
+            improved, best, since = it > 1, value, 0
         else:
             since += 1
-            if since >= cfg.patience:
+            if since >= (cfg.patience if improved else min(cfg.patience, cfg.patience_start)):
                 converged = True
                 break
     with torch.no_grad():

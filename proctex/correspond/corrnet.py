@@ -73,6 +73,8 @@ MIN_PAIR_POINTS = 16
 FRAME_LIMIT = 1.5
 
 Pair = tuple[np.ndarray, np.ndarray]
+#: Whether a build trains several groups' networks in one batched loop (:attr:`CorrNetConfig.together`).
+TOGETHER = ("auto", "on", "off")
 #: How training points are weighted by the teacher's confidence (:attr:`CorrNetConfig.confidence`).
 CONFIDENCES = ("none", "neighbours")
 
@@ -122,11 +124,20 @@ class CorrNetConfig:
             the pseudo-ground truth the paper reports). Off by default: the weights point at the
             teacher's errors on the fork, chair and sofa, but a fork trained with them ended no
             better against the truth (GT mean 0.0068 -> 0.0074; docs/results.md, "Tried, not defaults").
+        together: whether a build trains a worker's groups in one batched loop
+            (:func:`proctex.correspond.grouped.train_together`: each keeps its own network, batches,
+            early stopping and best state): "on", "off", or "auto" (on a GPU, where batched products
+            pay; off on CPUs, where one group after another in worker processes of one thread each
+            costs the same per step, 20.6 vs 22.7 ms on the demo's sofa, and a pool hands out groups
+            as workers free up: ``tests/bench/bench_train_together.py``).
         seed: weights, batch sampling and evaluation contexts.
         device: "cpu", "cuda", "cuda:<i>" or "auto" (CUDA when present); dtype: "float32" or "float64".
-        autocast: "none" or "bfloat16" (matrix products in bfloat16; about 2.3x faster training and
-            5x faster prediction on CPUs with AMX / AVX512-BF16, same accuracy on the sofa; slow on
-            CPUs without native bfloat16, hence off by default).
+        autocast: "auto" (bfloat16 where the CPU has it natively, AVX512-BF16 or AMX, float32
+            elsewhere and on GPUs: :func:`resolve_autocast`), "none" or "bfloat16" (matrix products
+            in bfloat16, the loss in float32). On 2 AVX512-BF16 cores bfloat16 trains 1.57x faster
+            on the demo's sofa and 1.88x on the real sofa export with the same errors (ground truth
+            0.01102 -> 0.01098 and 0.004504 -> 0.004500; ``tests/bench/bench_train_pool.py
+            --autocast``); emulated bfloat16 is slow, hence "auto".
 
     Defaults were chosen by measurement on CPU (``tests/bench/bench_corrnet.py`` on the real sofa
     data, chair, mug and table; one thread). Accuracy was flat (sofa pseudo-ground-truth error
@@ -160,10 +171,11 @@ class CorrNetConfig:
     confidence: str = "none"
     confidence_neighbours: int = 3
     confidence_scale: float = 1.0
+    together: str = "auto"
     seed: int = 0
     device: str = "cpu"
     dtype: str = "float32"
-    autocast: str = "none"
+    autocast: str = "auto"
 
     def validate(self) -> "CorrNetConfig":
         """Raise ``ValueError`` naming the first bad setting; returns ``self``."""
@@ -172,6 +184,8 @@ class CorrNetConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"CorrNetConfig.{name} must be a positive integer, got {v!r}")
+        if self.together not in TOGETHER:
+            raise ValueError(f"CorrNetConfig.together must be one of {TOGETHER}, got {self.together!r}")
         if self.confidence not in CONFIDENCES:
             raise ValueError(f"CorrNetConfig.confidence must be one of {CONFIDENCES}, got {self.confidence!r}")
         v = self.confidence_neighbours
@@ -202,9 +216,9 @@ class CorrNetConfig:
             raise ValueError(f"CorrNetConfig.loss must be one of {LOSSES}, got {self.loss!r}")
         if self.dtype not in DTYPES:
             raise ValueError(f"CorrNetConfig.dtype must be one of {tuple(DTYPES)}, got {self.dtype!r}")
-        if self.autocast not in AUTOCASTS:
-            raise ValueError(f"CorrNetConfig.autocast must be one of {AUTOCASTS}, got {self.autocast!r}")
-        if self.autocast != "none" and self.dtype != "float32":
+        if self.autocast not in AUTOCASTS + ("auto",):
+            raise ValueError(f"CorrNetConfig.autocast must be one of {AUTOCASTS + ('auto',)}, got {self.autocast!r}")
+        if self.autocast == "bfloat16" and self.dtype != "float32":
             raise ValueError(f"autocast {self.autocast!r} needs dtype 'float32', got {self.dtype!r}")
         if self.frame not in FRAMES:
             raise ValueError(f"CorrNetConfig.frame must be one of {FRAMES}, got {self.frame!r}")
@@ -408,6 +422,14 @@ def native_bfloat16(device: torch.device | str = "cpu") -> bool:
     except (AttributeError, RuntimeError):  # a torch without the probe: assume not
         return False
     return False
+
+
+def trains_together(config: CorrNetConfig, groups: int) -> bool:
+    """Whether ``groups`` networks with ``config`` are trained in one batched loop
+    (:attr:`CorrNetConfig.together`; only with ``query_mode`` "context")."""
+    if groups < 2 or config.query_mode != "context" or config.together == "off":
+        return False
+    return config.together == "on" or resolve_device(config.device).type == "cuda"
 
 
 def resolve_autocast(mode: str, device: torch.device | str = "cpu") -> str:

@@ -22,6 +22,7 @@ from .corrnet import (
     _model_spec,
     build_model,
     check_pairs,
+    resolve_autocast,
     predict,
     sample_indices,
 )
@@ -210,74 +211,123 @@ def train(
     if not (isinstance(world, int) and world >= 1 and isinstance(rank, int) and 0 <= rank < world):
         raise ValueError(f"need 0 <= rank < world, got rank {rank!r}, world {world!r}")
     config = (config or CorrNetConfig()).validate()
-    train_pairs = check_pairs(train_pairs, "train pairs")
-    val_pairs = check_pairs(val_pairs or [], "val pairs", allow_empty=True)
     t0 = time.perf_counter()
-    if weights is None and config.confidence == "neighbours":
-        from .confidence import confidence_weights, neighbour_disagreement
-
-        weights = confidence_weights(neighbour_disagreement(train_pairs, k=config.confidence_neighbours, seed=config.seed,
-                                                            features=features), scale=config.confidence_scale)
-    if weights is not None:
-        weights = [np.asarray(w, dtype=np.float32) for w in weights]
-        if len(weights) != len(train_pairs) or any(w.shape != (len(s),) for w, (s, _) in zip(weights, train_pairs)):
-            raise ValueError("weights must hold one (n,) array per train pair, n its number of points")
-        if any(not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0 for w in weights):
-            raise ValueError("weights must be finite, non-negative and not all zero per pair")
+    data = GroupData.prepare(train_pairs, val_pairs, config, weights, features)
     model = build_model(config)
     device, dtype = _model_spec(model)
-    if config.frame == "box":  # the template part's half extents, from every target point
-        extent = np.max([np.abs(dst).max(axis=0) for _, dst in train_pairs], axis=0)
-        model.template_extent.copy_(torch.as_tensor(np.maximum(extent, MIN_EXTENT), dtype=dtype))
+    data.set_extent(model)
+    autocast = resolve_autocast(config.autocast, device) if dtype == torch.float32 else "none"
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     rng = np.random.default_rng(config.seed if world == 1 else [config.seed, rank])
     per_rank = -(-config.shapes_per_batch // world)
-    history: list[dict[str, Any]] = []
-    best_state, best_val, best_mean, bad, stopped, step = None, {}, math.inf, 0, False, 0
-    window: list[float] = []
-    if val_pairs and config.zero_init and config.residual:
-        # The start is the frame's own map (the box map): a candidate like any other state, so a
-        # group whose network never beats it keeps it.
-        val = eval_step(model, val_pairs, seed=config.seed, autocast=config.autocast)
-        best_mean, best_state, best_val = val["mean"], copy.deepcopy(model.state_dict()), {**val, "iteration": 0}
-        entry = {"iteration": 0, "lr": learning_rate(config, 0), "train_error": float("nan"), "seconds": time.perf_counter() - t0,
-                 **{f"val_{k}": v for k, v in val.items()}}
-        history.append(entry)
-        if on_eval is not None:
-            on_eval(entry)
+    watch = EarlyStop(config, data.val, t0, on_eval)
+    if config.zero_init and config.residual:
+        watch.start(model)  # the frame's own map (the box map) is a candidate like any other state
+    step = 0
     while step < config.iterations:
         lr = learning_rate(config, step)
         for g in optimiser.param_groups:
             g["lr"] = lr
-        ctx, qry, tgt, wq = (torch.as_tensor(a, device=device, dtype=dtype) for a in sample_batch(train_pairs, config, rng, per_rank, weights))
-        wq = wq if weights is not None else None
+        ctx, qry, tgt, wq = (torch.as_tensor(a, device=device, dtype=dtype) for a in sample_batch(data.train, config, rng, per_rank, data.weights))
+        wq = wq if data.weights is not None else None
         if config.query_mode == "context":  # queries = the first Q context points: one encoder pass
-            window.append(train_step(model, optimiser, ctx, tgt, None, config.loss, config.autocast, grad_hook, wq))
+            watch.window.append(train_step(model, optimiser, ctx, tgt, None, config.loss, autocast, grad_hook, wq))
         else:
-            window.append(train_step(model, optimiser, qry, tgt, ctx, config.loss, config.autocast, grad_hook, wq))
+            watch.window.append(train_step(model, optimiser, qry, tgt, ctx, config.loss, autocast, grad_hook, wq))
         step += 1
-        if step % config.eval_every and step < config.iterations:
-            continue
-        entry: dict[str, Any] = {"iteration": step, "lr": lr, "train_error": float(np.mean(window)), "seconds": time.perf_counter() - t0}
-        window = []
-        if val_pairs:
-            val = eval_step(model, val_pairs, seed=config.seed, autocast=config.autocast)
-            entry.update({f"val_{k}": v for k, v in val.items()})
-            if best_state is None or val["mean"] < best_mean * (1 - config.min_delta):
-                best_mean, bad = val["mean"], 0
-                best_state, best_val = copy.deepcopy(model.state_dict()), {**val, "iteration": step}
-            else:
-                bad += 1
-        history.append(entry)
-        if on_eval is not None:
-            on_eval(entry)
-        if config.patience and bad >= config.patience and step >= config.min_iterations:
-            stopped = True
+        if (step % config.eval_every == 0 or step >= config.iterations) and watch.evaluate(model, step, lr):
             break
-    if best_state is not None:
-        model.load_state_dict(best_state)
-    model.eval()
-    return TrainResult(model, history, best_val, step, time.perf_counter() - t0, stopped, config)
+    return watch.result(model, step)
+
+
+@dataclass
+class GroupData:
+    """One group's checked training data (:meth:`prepare`): train and validation pairs and the
+    train points' loss weights (None: all alike)."""
+
+    train: list[Pair]
+    val: list[Pair]
+    weights: list[np.ndarray] | None
+
+    @classmethod
+    def prepare(cls, train_pairs: Sequence[Pair], val_pairs: Sequence[Pair] | None, config: CorrNetConfig,
+                weights: Sequence[np.ndarray] | None = None, features: np.ndarray | None = None) -> "GroupData":
+        """Check the pairs (:func:`check_pairs`) and the weights (default: the teacher's confidence
+        by ``config.confidence``); ``ValueError`` names what is wrong."""
+        train_pairs = check_pairs(train_pairs, "train pairs")
+        val_pairs = check_pairs(val_pairs or [], "val pairs", allow_empty=True)
+        if weights is None and config.confidence == "neighbours":
+            from .confidence import confidence_weights, neighbour_disagreement
+
+            weights = confidence_weights(neighbour_disagreement(train_pairs, k=config.confidence_neighbours, seed=config.seed,
+                                                                features=features), scale=config.confidence_scale)
+        if weights is not None:
+            weights = [np.asarray(w, dtype=np.float32) for w in weights]
+            if len(weights) != len(train_pairs) or any(w.shape != (len(s),) for w, (s, _) in zip(weights, train_pairs)):
+                raise ValueError("weights must hold one (n,) array per train pair, n its number of points")
+            if any(not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0 for w in weights):
+                raise ValueError("weights must be finite, non-negative and not all zero per pair")
+        return cls(train_pairs, val_pairs, weights)
+
+    def set_extent(self, model: ProcCorrNet) -> None:
+        """A box-frame network's template half extents, from every train target point."""
+        if model.frame == "box":
+            extent = np.max([np.abs(dst).max(axis=0) for _, dst in self.train], axis=0)
+            model.template_extent.copy_(torch.as_tensor(np.maximum(extent, MIN_EXTENT), dtype=model.template_extent.dtype))
+
+
+class EarlyStop:
+    """One network's evaluations, best state and early stopping (shared by :func:`train` and
+    :func:`proctex.correspond.grouped.train_together`): :meth:`evaluate` every ``eval_every``
+    steps keeps the best validation state and says when patience has run out. The held-out error
+    is measured in float32 whatever the training's autocast (as the serving choice measures it)."""
+
+    def __init__(self, config: CorrNetConfig, val_pairs: list[Pair], t0: float,
+                 on_eval: Callable[[dict[str, Any]], None] | None = None) -> None:
+        self.config, self.val, self.t0, self.on_eval = config, val_pairs, t0, on_eval
+        self.history: list[dict[str, Any]] = []
+        self.window: list[float] = []
+        self.best_state: dict[str, Any] | None = None
+        self.best_val: dict[str, Any] = {}
+        self.best_mean, self.bad, self.stopped = math.inf, 0, False
+
+    def _record(self, entry: dict[str, Any]) -> None:
+        self.history.append(entry)
+        if self.on_eval is not None:
+            self.on_eval(entry)
+
+    def start(self, model: ProcCorrNet) -> None:
+        """Evaluate the untrained state (a zero-initialised residual network: the frame's map)."""
+        if not self.val:
+            return
+        val = eval_step(model, self.val, seed=self.config.seed)
+        self.best_mean, self.best_state, self.best_val = val["mean"], copy.deepcopy(model.state_dict()), {**val, "iteration": 0}
+        self._record({"iteration": 0, "lr": learning_rate(self.config, 0), "train_error": float("nan"),
+                      "seconds": time.perf_counter() - self.t0, **{f"val_{k}": v for k, v in val.items()}})
+
+    def evaluate(self, model: ProcCorrNet, step: int, lr: float) -> bool:
+        """Record an evaluation after ``step`` steps; True when training should stop early."""
+        cfg = self.config
+        entry: dict[str, Any] = {"iteration": step, "lr": lr, "train_error": float(np.mean(self.window)), "seconds": time.perf_counter() - self.t0}
+        self.window = []
+        if self.val:
+            val = eval_step(model, self.val, seed=cfg.seed)
+            entry.update({f"val_{k}": v for k, v in val.items()})
+            if self.best_state is None or val["mean"] < self.best_mean * (1 - cfg.min_delta):
+                self.best_mean, self.bad = val["mean"], 0
+                self.best_state, self.best_val = copy.deepcopy(model.state_dict()), {**val, "iteration": step}
+            else:
+                self.bad += 1
+        self._record(entry)
+        self.stopped = bool(cfg.patience and self.bad >= cfg.patience and step >= cfg.min_iterations)
+        return self.stopped
+
+    def result(self, model: ProcCorrNet, step: int) -> "TrainResult":
+        """The network in its best validation state (the last without validation), in eval mode."""
+        if self.best_state is not None:
+            model.load_state_dict(self.best_state)
+        model.eval()
+        return TrainResult(model, self.history, self.best_val, step, time.perf_counter() - self.t0, self.stopped, self.config)
 
 
 # ------------------------------------------------------------------------------------ serving choice

@@ -239,13 +239,22 @@ def with_legacy(settings: dict[str, Any]) -> dict[str, Any]:
     return {**LEGACY_SETTINGS, **settings}
 
 
+#: Settings of how the networks are trained, not of what they learn (float rounding apart), read as
+#: "auto" by :func:`without_devices`.
+HOW_TRAINED = ("autocast", "together")
+
+
 def without_devices(data: dict[str, Any]) -> dict[str, Any]:
-    """A config dict (sections) with every device read as "cpu": where a family is built or used (a
-    GPU, say) is no part of what it is, and a family built on a GPU must load where there is none."""
+    """A config dict (sections) with every device read as "cpu" and how the networks are trained
+    (:data:`HOW_TRAINED`: bfloat16 or not, groups in one loop or not) as "auto": where and how a
+    family is built (a GPU, a CPU with bfloat16) is no part of what it is, and a family built on a
+    GPU must load where there is none."""
     out = dict(data)
     for section in ("paint", "cage", "train"):
         if isinstance(out.get(section), dict) and "device" in out[section]:
             out[section] = {**out[section], "device": "cpu"}
+    if isinstance(out.get("train"), dict):
+        out["train"] = {**out["train"], **{k: "auto" for k in HOW_TRAINED if k in out["train"]}}
     return out
 
 

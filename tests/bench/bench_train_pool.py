@@ -21,6 +21,7 @@ def main(argv=None) -> int:
     ap.add_argument("family", help="a built family (copied, not changed)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--work", default="out/bench/train_pool")
+    ap.add_argument("--autocast", choices=("none", "bfloat16", "auto"), help="the networks' training autocast (default: the family's)")
     args = ap.parse_args(argv)
 
     from proctex.build.plan import run_in_process
@@ -37,6 +38,8 @@ def main(argv=None) -> int:
         state.stages.pop(stage, None)
     state.save(st)
     config = state.build_config()
+    if args.autocast:
+        config.train.autocast = args.autocast
     plan = plan_train(st, config, log=lambda *_: None)
     t = time.perf_counter()
     run_in_process(plan, st, config, log=lambda *_: None, workers=args.workers)
