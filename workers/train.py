@@ -22,6 +22,10 @@ from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 
 
+#: Ray Train's controller polling interval (its environment variable) and the value a fit uses unless set.
+HEALTH_CHECK_ENV, HEALTH_CHECK_SECONDS = "RAY_TRAIN_HEALTH_CHECK_INTERVAL_S", "0.25"
+
+
 def teams(world: int, groups: list[int]) -> list[tuple[list[int], list[int]]]:
     """Split ``world`` workers into ``min(world, len(groups))`` teams: ``[(ranks, groups)]``. Team
     ``t`` holds ranks ``r % T == t`` and groups ``i % T == t``; each team fits its groups together (one
@@ -144,7 +148,16 @@ def train_groups(
         # A fresh run name: Ray Train resumes silently from an existing run of the same name.
         run_config=RunConfig(name=f"corrnet_{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}", storage_path=storage, storage_filesystem=store.fs),
     )
-    result = _fit_with_progress(trainer, store, todo, quiet=quiet)
+    # Ray Train's controller looks at its workers every 2 s by default, so a fit ended up to 2 s
+    # after its last worker returned (4.5 s from the last loop to fit() returning on 2 cores; 0.6 s
+    # at this interval). The driver's value travels to the controller (Ray propagates it).
+    before = os.environ.get(HEALTH_CHECK_ENV)
+    os.environ[HEALTH_CHECK_ENV] = before or HEALTH_CHECK_SECONDS
+    try:
+        result = _fit_with_progress(trainer, store, todo, quiet=quiet)
+    finally:
+        if before is None:
+            os.environ.pop(HEALTH_CHECK_ENV, None)
     out = {int(g): m for g, m in (result.return_value or {}).items()}
     for g, m in out.items():
         log(f"train: group {g} on {m['workers']} of {num_workers} Ray Train workers: val {(m['best_val'] or {}).get('mean', float('nan')):.4f}, "
