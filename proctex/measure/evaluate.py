@@ -215,7 +215,7 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
                        "coverage_baked": 1.0, "parts": 0, "mapped_parts": 0, "notes": []},
         }
     seconds = time.perf_counter() - t
-    baked = bake(shape, result, assets, size=st["bake_size"])
+    baked = bake(shape, result, assets, size=st["bake_size"], pbr=False)  # colours are measured, not PBR maps
     textures = list(assets.textures) + list(result.new_textures)
     masks = list(assets.painted) + [np.ones(x.shape[:2], bool) for x in result.new_textures]
     c1 = coverage(shape.vertices, shape.faces, result.corner_uv, result.face_group, masks, up=up, size=st["view_size"]).share
