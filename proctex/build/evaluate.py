@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import os
 from typing import Callable, Sequence
 
 from proctex.measure.evaluate import evaluate
 from proctex.store.layout import FamilyStore, StoreLayout
+
+
+#: The most worker processes the build's evaluate stage uses (one per CPU up to this).
+EVALUATE_WORKERS = 4
 
 
 def stage_evaluate(store: FamilyStore, config, log: Callable[[str], None] = print, methods: Sequence[str] = ("corrnet", "identity")) -> None:
@@ -16,10 +21,14 @@ def stage_evaluate(store: FamilyStore, config, log: Callable[[str], None] = prin
     if stage_done(store, "evaluate"):
         log("evaluate: done already")
         return
-    if sum(r["split"] == "test" for r in samples(store)) < 2:
+    tests = sum(r["split"] == "test" for r in samples(store))
+    if tests < 2:
         log("evaluate: fewer than two test shapes, skipped")
         return
-    metrics = evaluate(store, methods=methods, log=log, quiet=True)
+    # shapes side by side in worker processes of one thread (a pool takes a few seconds to start:
+    # from 4 shapes on); the same metrics as one after the other
+    workers = max(1, min(EVALUATE_WORKERS, os.cpu_count() or 1)) if tests >= 4 else 1
+    metrics = evaluate(store, methods=methods, log=log, quiet=True, workers=workers)
     store.write_json(StoreLayout.METRICS, metrics)
     net = metrics["methods"]["corrnet"]
     mark_stage(store, "evaluate", shapes=metrics["shapes"], tracker=metrics["tracker"], tracked_point_variance=net["tracked_point_variance"],
