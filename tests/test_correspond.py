@@ -299,7 +299,7 @@ def test_cage_keeps_identical_parts_matched_in_place(part):
     c, r = normalised_frame(v)
     vn = (v - c) / r
     drift = {}
-    old = {"normal_target": "vertex", "keep_best": False, "w_rest": 0.0, "prealign": "icp"}  # the solver before the rest term
+    old = {"normal_target": "vertex", "keep_best": False, "w_rest": 0.0, "prealign": "icp", "patience_start": 25}  # the solver before the rest term
     for mode in ("plane", "point"):
         res = correspond_parts(vn, f, vn, f, method="cage", n_points=1000, seed=0, cage=CageConfig(chamfer=mode, **old))
         drift[mode] = float(np.linalg.norm(res.points - res.source_points, axis=1).mean())
