@@ -5,9 +5,10 @@ Every worker runs the same pure training loop as the single-process build
 batch; a gradient hook averages the gradients across workers (gloo ``all_reduce``), so the workers
 keep identical weights and stop together. Rank 0 writes the network to the store
 (``models/group_<g>.pt``) and reports it as the run's checkpoint (under ``train_runs/`` in the
-store). The workers form teams (:func:`teams`); a team trains its groups together in one batched
-loop (:func:`proctex.build.train.fit_groups`), so fewer workers than groups run side by side and
-more workers than groups shorten every group's run instead of idling.
+store). The workers form teams (:func:`teams`); a team trains its groups with
+:func:`proctex.build.train.fit_groups` (in one batched loop on a GPU, one after another on CPUs), so
+fewer workers than groups run side by side and more workers than groups shorten every group's run
+instead of idling.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ HEALTH_CHECK_ENV, HEALTH_CHECK_SECONDS = "RAY_TRAIN_HEALTH_CHECK_INTERVAL_S", "0
 
 def teams(world: int, groups: list[int]) -> list[tuple[list[int], list[int]]]:
     """Split ``world`` workers into ``min(world, len(groups))`` teams: ``[(ranks, groups)]``. Team
-    ``t`` holds ranks ``r % T == t`` and groups ``i % T == t``; each team fits its groups together (one
-    batched loop), data-parallel across its ranks. So with fewer workers than groups the groups run in
+    ``t`` holds ranks ``r % T == t`` and groups ``i % T == t``; each team fits its groups
+    (:func:`proctex.build.train.fit_groups`), data-parallel across its ranks. So with fewer workers than groups the groups run in
     parallel, and extra workers join a team instead of idling."""
     if world < 1:
         raise ValueError(f"need at least one worker, got {world}")

@@ -96,22 +96,20 @@ def fit_groups(store: FamilyStore, config: BuildConfig, groups: list[int], rank:
     from proctex.correspond.grouped import train_together
     from proctex.correspond.training import train
 
-    together = trains_together(config.train, len(groups))
-    out = []
-    if together:
-        data = [group_training_data(store, config, g, VAL_SHARE) for g in groups]
-        t = time.perf_counter()
-        results = train_together([(d["train"], d["val"]) for d in data], config.train, features=[d["features"] for d in data],
-                                 rank=rank, world=world, grad_hook=grad_hook)
-        fitted = [(g, d, r, time.perf_counter() - t) for g, d, r in zip(groups, data, results)]
-    for g in ([] if together else groups):  # one after another, each stored as it finishes
-        d = group_training_data(store, config, g, VAL_SHARE)
-        t = time.perf_counter()
-        result = train(d["train"], d["val"], config.train, rank=rank, world=world, grad_hook=grad_hook, features=d["features"])
-        out.append(_group_record(store, config, g, d, result, time.perf_counter() - t, rank, world, 1))
-    if together:
-        out = [_group_record(store, config, g, d, r, s, rank, world, len(groups)) for g, d, r, s in fitted]
-    return out
+    if not trains_together(config.train, len(groups)):
+        out = []
+        for g in groups:  # one after another, each stored as it finishes
+            d = group_training_data(store, config, g, VAL_SHARE)
+            t = time.perf_counter()
+            result = train(d["train"], d["val"], config.train, rank=rank, world=world, grad_hook=grad_hook, features=d["features"])
+            out.append(_group_record(store, config, g, d, result, time.perf_counter() - t, rank, world, 1))
+        return out
+    data = [group_training_data(store, config, g, VAL_SHARE) for g in groups]
+    t = time.perf_counter()
+    results = train_together([(d["train"], d["val"]) for d in data], config.train, features=[d["features"] for d in data],
+                             rank=rank, world=world, grad_hook=grad_hook)
+    seconds = time.perf_counter() - t
+    return [_group_record(store, config, g, d, r, seconds, rank, world, len(groups)) for g, d, r in zip(groups, data, results)]
 
 
 def _group_record(store: FamilyStore, config: BuildConfig, group: int, data: dict[str, Any], result, seconds: float, rank: int, world: int,
@@ -129,9 +127,10 @@ def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], 
 
 def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> Plan:
     """The train stage: one ProcCorrNet per trainable group without one yet, a batch per group. A
-    resumed build keeps the record of the groups trained before. Groups are trained together
-    (``merge``: :func:`fit_groups`), by a team of workers each (``team``); an executor may set ``info["mark"]`` (extra fields for the
-    stage's record)."""
+    resumed build keeps the record of the groups trained before. A worker's groups go to
+    :func:`fit_groups` (in one batched loop where that pays: ``merge``), on Ray by a team of
+    workers each (``team``); an executor may set ``info["mark"]`` (extra fields for the stage's
+    record)."""
     before = FamilyState.load(store).stage("train").get("groups", {})
     groups = trainable_groups(store)
     todo = [g for g in groups if not store.exists(StoreLayout.model(g))]
