@@ -2,19 +2,15 @@
 
 from __future__ import annotations
 
-import os
 from typing import Callable, Sequence
 
 from proctex.measure.evaluate import evaluate
 from proctex.store.layout import FamilyStore, StoreLayout
 
 
-#: The most worker processes the build's evaluate stage uses (one per CPU up to this).
-EVALUATE_WORKERS = 4
-
-
 def stage_evaluate(store: FamilyStore, config, log: Callable[[str], None] = print, methods: Sequence[str] = ("corrnet", "identity")) -> None:
     """The ``evaluate`` build stage: :func:`evaluate` on the test shapes into ``metrics.json``."""
+    from proctex.build.plan import default_workers
     from proctex.store.samples import samples
     from proctex.store.state import mark_stage, stage_done
 
@@ -27,7 +23,7 @@ def stage_evaluate(store: FamilyStore, config, log: Callable[[str], None] = prin
         return
     # shapes side by side in worker processes of one thread (a pool takes a few seconds to start:
     # from 4 shapes on); the same metrics as one after the other
-    workers = max(1, min(EVALUATE_WORKERS, os.cpu_count() or 1)) if tests >= 4 else 1
+    workers = default_workers() if tests >= 4 else 1
     metrics = evaluate(store, methods=methods, log=log, quiet=True, workers=workers)
     store.write_json(StoreLayout.METRICS, metrics)
     net = metrics["methods"]["corrnet"]

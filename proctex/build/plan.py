@@ -108,6 +108,17 @@ def _collect_unit(plan: Plan, unit: list[int], out: list[Any], results: list[Any
             plan.collect(plan.batches[k], results[k])
 
 
+#: The most worker processes a default (0) ``--workers`` gives: one per CPU up to this.
+MAX_DEFAULT_WORKERS = 4
+
+
+def default_workers() -> int:
+    """Worker processes when none are asked for: one per CPU, at most :data:`MAX_DEFAULT_WORKERS`."""
+    import os
+
+    return max(1, min(MAX_DEFAULT_WORKERS, os.cpu_count() or 1))
+
+
 def local_executor(workers: int, min_jobs: int | None = None) -> Callable[..., Plan]:
     """The in-process executor with ``workers`` processes for parallel plans of at least
     ``min_jobs`` jobs (None: each plan's ``pool_min_jobs``; :func:`run_in_process`)."""

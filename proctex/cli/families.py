@@ -82,7 +82,9 @@ def build_workers(workers: int) -> int:
     one per CPU, at most 4, used where a stage has enough jobs (``Plan.pool_min_jobs``)."""
     if workers < 0 or workers > 256:
         raise ValueError(f"--workers must be in 0..256 (0: one per CPU, at most 4), got {workers}")
-    return workers or max(1, min(4, os.cpu_count() or 1))
+    from proctex.build.plan import default_workers
+
+    return workers or default_workers()
 
 
 def check_build_look(args: argparse.Namespace) -> None:
@@ -285,6 +287,7 @@ def cmd_edit(args: argparse.Namespace) -> int:
 
 def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
     """Validated keyword arguments of :func:`proctex.measure.evaluate.evaluate` from the eval flags."""
+    from proctex.build.plan import default_workers
     from proctex.transfer.methods import method_names
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -301,7 +304,7 @@ def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
     if args.tracked < 10 or args.tracked > 1_000_000:
         raise ValueError(f"--tracked must be in [10, 1000000], got {args.tracked}")
     return {"methods": methods, "split": args.shapes, "limit": args.limit, "lpips": args.lpips, "truth": args.truth, "tracked": args.tracked,
-            "workers": args.workers or max(1, min(4, os.cpu_count() or 1)), "quiet": args.quiet or args.json}
+            "workers": args.workers or default_workers(), "quiet": args.quiet or args.json}
 
 
 def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> int:

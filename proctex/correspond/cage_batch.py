@@ -69,28 +69,31 @@ def solve_cages(
     out: list[CageResult | None] = [None] * len(problems)
     axes = tuple(symmetry_axes) if cfg.symmetry else ()
     buckets: dict[tuple, list[int]] = {}
+    cages: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for i, p in enumerate(problems):
         if axes:  # a symmetric cage pairs mirrored vertices per pair: the single solver
             out[i] = solve_cage(p.points, p.tri_vertices, p.tri_faces, p.tri_index, template, template_vertex_normals,
                                 p.template_samples, p.template_sample_normals, cfg, symmetry_axes=axes, seed=p.seed)
             continue
-        cage0, _ = init_cage(np.concatenate([p.points, p.tri_vertices]), cfg.level, cfg.margin, (), cfg.elongation)
-        key = (cage_divisions(cage0.max(0) - cage0.min(0), cfg.level, cfg.elongation), len(p.points), len(p.template_samples))
+        cages[i] = init_cage(np.concatenate([p.points, p.tri_vertices]), cfg.level, cfg.margin, (), cfg.elongation)
+        size = cages[i][0].max(0) - cages[i][0].min(0)
+        key = (cage_divisions(size, cfg.level, cfg.elongation), len(p.points), len(p.template_samples))
         buckets.setdefault(key, []).append(i)
     for rows in buckets.values():
-        for i, res in zip(rows, _solve_bucket([problems[i] for i in rows], template, template_vertex_normals, cfg)):
+        for i, res in zip(rows, _solve_bucket([problems[i] for i in rows], [cages[i] for i in rows], template, template_vertex_normals, cfg)):
             out[i] = res
     return out  # type: ignore[return-value]
 
 
-def _solve_bucket(problems: list[CageProblem], template: SurfaceIndex, template_vertex_normals: np.ndarray, cfg: CageConfig) -> list[CageResult]:
+def _solve_bucket(problems: list[CageProblem], cages: list[tuple[np.ndarray, np.ndarray]], template: SurfaceIndex,
+                  template_vertex_normals: np.ndarray, cfg: CageConfig) -> list[CageResult]:
+    """One bucket's pairs (the same cage lattice and sample counts), with their initial cages."""
     t0 = time.perf_counter()
     device = torch.device(cfg.device if (cfg.device != "cuda" or torch.cuda.is_available()) else "cpu")
     dtype = torch.float64 if cfg.dtype == "float64" else torch.float32
     B = len(problems)
     n, m = len(problems[0].points), len(problems[0].template_samples)
     rngs = [np.random.default_rng(p.seed) for p in problems]
-    cages = [init_cage(np.concatenate([p.points, p.tri_vertices]), cfg.level, cfg.margin, (), cfg.elongation) for p in problems]
     cage_faces = cages[0][1]
     cage0 = np.stack([c[0] for c in cages])  # (B, V, 3)
     V = cage0.shape[1]

@@ -38,11 +38,6 @@ class StackedParameters:
         return iter(self.params.values())
 
 
-def _stack(models: Sequence[ProcCorrNet]) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
-    params, buffers = torch.func.stack_module_state(list(models))
-    return params, buffers
-
-
 def group_losses(base: ProcCorrNet, params: dict[str, torch.Tensor], buffers: dict[str, torch.Tensor], ctx: torch.Tensor,
                  tgt: torch.Tensor, weight: torch.Tensor | None, loss: str = "mse", autocast: str = "none") -> tuple[torch.Tensor, torch.Tensor]:
     """Each group's training loss and mean distance, as :func:`proctex.correspond.training.train_step`
@@ -147,7 +142,7 @@ def train_together(
     per_rank = -(-config.shapes_per_batch // world)
     base = copy.deepcopy(models[0]).to("meta")
     active = list(range(len(groups)))
-    params, buffers = _stack(models)
+    params, buffers = torch.func.stack_module_state(models)
     optimiser = torch.optim.Adam(params.values(), lr=config.lr, weight_decay=config.weight_decay)
     steps = [0] * len(groups)
     step = 0

@@ -94,8 +94,9 @@ def main(argv=None) -> int:
         report["ray_over_process"] = round(ratio, 3)
         print(f"ray / process: {ratio:.2f}")
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(report, indent=1))
+        from harness import write_json
+
+        write_json(args.out, report)
     return 0
 
 

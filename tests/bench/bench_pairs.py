@@ -12,10 +12,8 @@ this run's (sources exactly, targets' largest difference printed).
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -28,21 +26,14 @@ def main(argv=None) -> int:
     ap.add_argument("--compare", help="another run's copy to compare the pairs with")
     args = ap.parse_args(argv)
 
+    from harness import copy_family
     from proctex.build.pairs import plan_pairs
     from proctex.build.plan import run_in_process
     from proctex.store.layout import FamilyStore
     from proctex.store.samples import read_pair
-    from proctex.store.state import FamilyState
 
-    work = Path(args.work)
-    shutil.rmtree(work, ignore_errors=True)
-    shutil.copytree(args.family, work, ignore=shutil.ignore_patterns("correspondences", "pairs.parquet", "looks", "models", "metrics.json"))
-    st = FamilyStore(work)
-    state = FamilyState.load(st)
-    for stage in ("pairs", "train", "evaluate"):
-        state.stages.pop(stage, None)
-    state.save(st)
-    config = state.build_config()
+    st, config = copy_family(args.family, args.work, ("correspondences", "pairs.parquet", "looks", "models", "metrics.json"),
+                             ("pairs", "train", "evaluate"))
     t = time.perf_counter()
     plan = plan_pairs(st, config, log=lambda *_: None)
     run_in_process(plan, st, config, log=lambda *_: None, workers=args.workers)

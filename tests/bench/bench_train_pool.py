@@ -10,10 +10,8 @@ printing the groups, the wall time and each group's held-out error (the same eit
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 import time
-from pathlib import Path
 
 
 def main(argv=None) -> int:
@@ -24,20 +22,12 @@ def main(argv=None) -> int:
     ap.add_argument("--autocast", choices=("none", "bfloat16", "auto"), help="the networks' training autocast (default: the family's)")
     args = ap.parse_args(argv)
 
+    from harness import copy_family
     from proctex.build.plan import run_in_process
     from proctex.build.train import plan_train
-    from proctex.store.layout import FamilyStore
     from proctex.store.state import FamilyState
 
-    work = Path(args.work)
-    shutil.rmtree(work, ignore_errors=True)
-    shutil.copytree(args.family, work, ignore=shutil.ignore_patterns("models", "looks", "metrics.json", "train_runs"))
-    st = FamilyStore(work)
-    state = FamilyState.load(st)
-    for stage in ("train", "evaluate"):
-        state.stages.pop(stage, None)
-    state.save(st)
-    config = state.build_config()
+    st, config = copy_family(args.family, args.work, ("models", "looks", "metrics.json", "train_runs"), ("train", "evaluate"))
     if args.autocast:
         config.train.autocast = args.autocast
     plan = plan_train(st, config, log=lambda *_: None)

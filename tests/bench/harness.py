@@ -86,6 +86,24 @@ def write_json(out: str | os.PathLike, data: Any) -> None:
     os.replace(tmp, out)
 
 
+def copy_family(family: str | os.PathLike, work: str | os.PathLike, drop: tuple[str, ...], stages: tuple[str, ...]):
+    """A fresh copy of a built family at ``work`` without the files ``drop`` (glob patterns) and the
+    records of ``stages``, so those stages run again there; returns ``(store, its build config)``."""
+    import shutil
+
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import FamilyState
+
+    shutil.rmtree(work, ignore_errors=True)
+    shutil.copytree(family, work, ignore=shutil.ignore_patterns(*drop))
+    store = FamilyStore(work)
+    state = FamilyState.load(store)
+    for stage in stages:
+        state.stages.pop(stage, None)
+    state.save(store)
+    return store, state.build_config()
+
+
 def fmt(seconds: float) -> str:
     if seconds < 1e-3:
         return f"{seconds * 1e6:.0f} µs"
