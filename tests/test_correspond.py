@@ -42,7 +42,8 @@ def _identity_gt(res, tv, tf):
 
 
 # ------------------------------------------------------------------------------ geometry helpers
-def test_oriented_query_is_the_nearest_admissible_face():
+@pytest.mark.parametrize("backend", ["aabb", "proxies"])
+def test_oriented_query_is_the_nearest_admissible_face(backend):
     mug = get_model("mug").generate()
     g = analyse(mug)
     v, f = part_mesh(mug, g.parts[g.groups[0].representative])  # the thin-walled body
@@ -51,7 +52,7 @@ def test_oriented_query_is_the_nearest_admissible_face():
     q = rng.uniform(lo, hi, size=(40, 3))
     n = rng.normal(size=(40, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    hit, oriented = SurfaceIndex(v, f).query_oriented(q, n)
+    hit, oriented = SurfaceIndex(v, f, backend=backend).query_oriented(q, n)
     assert oriented.all()
     fn = face_normals(v, f)
     for i in range(len(q)):
@@ -479,3 +480,42 @@ def test_batched_cage_solves_give_each_pair_its_single_solve():
     with pytest.raises(ValueError, match="pair 1"):
         correspond_parts_batch([sources[0], (sources[1][0][:2], sources[1][1][:1], 0)], tv, tf, n_points=300, cage=cfg)
     assert correspond_parts_batch([], tv, tf) == []
+
+
+def test_a_warm_started_cage_converges_to_the_same_map():
+    """Warm starts (solve_cage's ``start``): a pair started from its own solved cage lands on the
+    same map at once (the early-stopping patience, not the 40+ steps of the cold solve); started
+    from a neighbour's cage it ends near the cold map; a wild start is judged worse than the rest
+    cage and changes nothing; a cage of another lattice is not carried over."""
+    from types import SimpleNamespace
+
+    from proctex.correspond.cage import warm_offset
+
+    m = get_model("mug")
+    tpl = m.generate()
+    tg = analyse(tpl)
+    tv, tf = part_mesh(tpl, tg.parts[tg.groups[0].representative])
+
+    def body(params):
+        s = m.generate(params)
+        g = analyse(s)
+        return part_mesh(s, g.parts[g.groups[0].representative])
+
+    a, b = (body(p) for p in m.space.sample(3, seed=3)[1:3])
+    cold_a = correspond_parts(*a, tv, tf, "cage", 2000, seed=0)
+    cold_b = correspond_parts(*b, tv, tf, "cage", 2000, seed=0)
+    assert cold_b.iterations > 30  # the cage really moves on this pair
+    again = correspond_parts(*b, tv, tf, "cage", 2000, seed=0, warm=cold_b)
+    np.testing.assert_allclose(again.points, cold_b.points, atol=1e-12)
+    assert again.iterations <= CageConfig().patience_start + 1
+    near = correspond_parts(*b, tv, tf, "cage", 2000, seed=0, warm=cold_a)
+    assert np.linalg.norm(near.points - cold_b.points, axis=1).mean() < 1e-3
+    assert near.residual < 1.1 * cold_b.residual
+    wild = SimpleNamespace(details={**cold_b.details, "cage": cold_b.details["cage0"] + np.random.default_rng(0).normal(0, 0.5, cold_b.details["cage0"].shape)})
+    np.testing.assert_allclose(correspond_parts(*b, tv, tf, "cage", 2000, seed=0, warm=wild).points, cold_b.points, atol=1e-12)
+    other, _ = init_cage(np.random.default_rng(1).normal(size=(50, 3)), level=2)
+    assert warm_offset(SimpleNamespace(cage0=other, cage=other), cold_b.details["cage0"]) is None
+    carried = warm_offset(SimpleNamespace(cage0=cold_a.details["cage0"], cage=cold_a.details["cage"]), cold_b.details["cage0"])
+    span = lambda c: np.ptp(c, axis=0)  # noqa: E731
+    d_a = cold_a.details["cage"] - cold_a.details["cage0"]
+    np.testing.assert_allclose(carried, d_a * span(cold_b.details["cage0"]) / span(cold_a.details["cage0"]), atol=1e-12)

@@ -11,7 +11,7 @@ import torch
 from proctex.build.pipeline import build
 from proctex.models import get_model
 from proctex.store.config import BuildConfig
-from proctex.store.layout import FamilyStore
+from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.texture.metrics import PSNR_CAP, view_similarity
 
 TINY_TRAIN = {"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2}
@@ -331,3 +331,45 @@ def test_a_method_from_one_file_is_offered_by_the_cli_the_evaluation_and_the_ser
     out = tmp_path / "toy.glb"
     assert main(["transfer", str(fam), "--params", "{}", "--out", str(out), "--mapper", toy_method]) == 0
     assert out.read_bytes()[:4] == b"glTF"
+
+
+@pytest.mark.slow
+def test_the_cage_tracker_reuses_the_test_pairs_solved_by_the_build(tmp_path, monkeypatch):
+    """Without a ground truth the cage tracks the points: the pairs stage keeps where each test
+    pair's cage sends its part's vertices, so the evaluation solves none again, and measures the
+    same as when it solves them all; a stored map of another part (or a damaged file) is not used."""
+    import proctex.transfer.mappers as mappers
+    from proctex.measure.evaluate import evaluate
+    from proctex.store.samples import read_pair_vertices
+
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, truth="none",
+                                     prompt="blue ceramic", train=TINY_TRAIN)).validate()
+    st = FamilyStore(tmp_path / "mug")
+    build(st, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
+    rows = st.read_table(StoreLayout.PAIRS).to_pylist()
+    kept = [r for r in rows if r["status"] == "done" and st.exists(StoreLayout.pair_vertices(r["id"], r["group"]))]
+    assert kept and {r["split"] for r in kept} == {"test"}  # train pairs: not tracked, not kept
+    solves = []
+    real = mappers.SolverMapper.map
+    monkeypatch.setattr(mappers.SolverMapper, "map", lambda self, *a, **k: solves.append(a[0]) or real(self, *a, **k))
+    run = dict(methods=("identity",), tracked=300, log=lambda *_: None, quiet=True)
+    reused = evaluate(st, **run)
+    assert reused["tracker"] == "cage" and solves == []
+    for r in kept:
+        st.delete(StoreLayout.pair_vertices(r["id"], r["group"]))
+    solved = evaluate(st, **run)
+    assert len(solves) == len(kept)
+    a, b = reused["methods"]["identity"], solved["methods"]["identity"]
+    assert a["tracked_point_variance"] == pytest.approx(b["tracked_point_variance"], rel=1e-9, abs=1e-12)
+    # the check that makes the reuse safe: a map is only read back for the part it was made for
+    r = kept[0]
+    from proctex.store.samples import part_digest, write_pair_vertices
+
+    v = np.random.default_rng(0).normal(size=(10, 3))
+    f = np.array([[0, 1, 2]])
+    write_pair_vertices(st, r["id"], r["group"], v * 2, part_digest(v, f))
+    np.testing.assert_array_equal(read_pair_vertices(st, r["id"], r["group"], v, f), v * 2)
+    assert read_pair_vertices(st, r["id"], r["group"], v + 1e-12, f) is None  # another part
+    assert read_pair_vertices(st, r["id"], r["group"], v, f[:, ::-1]) is None
+    (tmp_path / "mug" / StoreLayout.pair_vertices(r["id"], r["group"])).write_bytes(b"not a zip")
+    assert read_pair_vertices(st, r["id"], r["group"], v, f) is None

@@ -39,18 +39,43 @@ def test_degenerate_triangle():
     np.testing.assert_allclose(cp[0], [0, 0, 0])
 
 
+@pytest.mark.parametrize("backend", ["aabb", "proxies"])
 @pytest.mark.parametrize("model,spread", [("sofa", 0.05), ("mug", 0.01), ("fork", 0.5)])
-def test_surface_index_matches_bruteforce(model, spread):
+def test_surface_index_matches_bruteforce(model, spread, backend):
     shape = get_model(model).generate()
     rng = np.random.default_rng(0)
     pts, _, _ = sample_surface(shape.vertices, shape.faces, 150, seed=1)
     q = pts + rng.normal(0, spread, pts.shape)
-    fast = SurfaceIndex(shape.vertices, shape.faces).query(q)
+    fast = SurfaceIndex(shape.vertices, shape.faces, backend=backend).query(q)
     slow = closest_point_bruteforce(shape.vertices, shape.faces, q)
     np.testing.assert_allclose(fast.distance, slow.distance, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(fast.points - q, axis=1), fast.distance, atol=1e-12)
     tri = shape.vertices[shape.faces[fast.faces]]
     np.testing.assert_allclose(np.einsum("ij,ijk->ik", fast.bary, tri), fast.points, atol=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["aabb", "proxies"])
+def test_surface_index_on_degenerate_and_far_faces(backend):
+    """Zero-area faces (a point, a segment), a face far away at 1e6, points off every edge: both
+    backends give the brute-force distances and faces whose barycentrics rebuild the points."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [1e6, 1e6, 0], [1e6, 1e6 + 1, 0], [1e6 + 1, 1e6, 0]], float)
+    f = np.array([[0, 1, 3], [0, 1, 2], [2, 2, 2], [4, 5, 6]])
+    q = np.array([[0.5, 1.0, 0.0], [3.0, 0.0, 0.0], [-1.0, -1.0, -1.0], [0.2, 0.2, 0.5], [1e6 + 0.1, 1e6 + 0.1, -3.0], [0.0, 0.0, 0.0]])
+    fast = SurfaceIndex(v, f, backend=backend).query(q)
+    slow = closest_point_bruteforce(v, f, q)
+    np.testing.assert_allclose(fast.distance, slow.distance, atol=1e-9)
+    np.testing.assert_allclose(np.einsum("ij,ijk->ik", fast.bary, v[f[fast.faces]]), fast.points, atol=1e-9)
+    assert fast.faces[4] == 3 and fast.faces[1] in (1, 2)
+    assert len(SurfaceIndex(v, f, backend=backend).query(np.zeros((0, 3))).faces) == 0
+
+
+def test_surface_index_backends_and_bad_meshes():
+    shape = get_model("vase").generate()
+    assert SurfaceIndex(shape.vertices, shape.faces).backend == "aabb"  # libigl is a dependency
+    with pytest.raises(ValueError, match="backend"):
+        SurfaceIndex(shape.vertices, shape.faces, backend="bvh")
+    with pytest.raises(ValueError, match="index"):
+        SurfaceIndex(shape.vertices[:3], shape.faces)
 
 
 def test_surface_index_rejects_bad_queries():
@@ -148,7 +173,8 @@ def test_query_facing_keeps_each_side_of_a_thin_wall():
     # One candidate at first: those nearer the bottom widen the search until a facing face is found.
     np.testing.assert_allclose(idx.query_facing(pts, up, k=1).points[:, 2], 0.01)
     # ... but never beyond max_k: with one proxy allowed, each keeps its one candidate.
-    np.testing.assert_allclose(idx.query_facing(pts, up, k=1, max_k=1).points, idx.query(pts, exact=False, k=1).points)
+    proxies = SurfaceIndex(np.asarray(slab.vertices), np.asarray(slab.faces), backend="proxies")  # the AABB is always exact
+    np.testing.assert_allclose(idx.query_facing(pts, up, k=1, max_k=1).points, proxies.query(pts, exact=False, k=1).points)
 
 
 def test_split_by_face_parts_cuts_a_connected_mesh_along_part_boundaries():

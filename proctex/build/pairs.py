@@ -14,7 +14,7 @@ from proctex.geometry.parts import part_mesh, segment
 from proctex.geometry.shape import Shape
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
-from proctex.store.samples import load_sample, pair_seed, samples
+from proctex.store.samples import load_sample, pair_seed, part_digest, samples, write_pair_vertices
 from proctex.store.state import FamilyState, build_stamp, mark_stage, stage_done
 from proctex.transfer.assets import load_assets
 
@@ -32,11 +32,19 @@ def pair_input(shape: Shape, assets, group: int) -> tuple[int, np.ndarray, np.nd
     return a.part, vn, f
 
 
-def pair_result(part: int, res) -> dict[str, Any]:
+def pair_result(part: int, res, vertices: np.ndarray | None = None, faces: np.ndarray | None = None) -> dict[str, Any]:
     """A solved cage correspondence (:class:`proctex.correspond.dense.PartCorrespondence`) as the
-    training pair and its record."""
+    training pair and its record; with the source part's ``vertices (j, 3)`` and ``faces``, also
+    where the correspondence sends those vertices (``mapped``, the template's normalised frame) and
+    the part's :func:`part_digest`."""
+    from proctex.correspond.dense import deform
+
+    mapped = None
+    if vertices is not None and faces is not None:
+        mapped = {"vertices": deform(res, vertices, np.zeros(3), 1.0), "digest": part_digest(vertices, faces)}
     return {
         "part": part,
+        "mapped": mapped,
         "src": res.source_points.astype(np.float32),
         "dst": res.points.astype(np.float32),  # template normalised frame (the representative is stored normalised)
         "face": res.faces.astype(np.int32),
@@ -58,7 +66,7 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int)
     part, vn, f = inp
     ga = assets.groups[group]
     res = correspond_parts(vn, f, ga.vertices, ga.faces, method="cage", n_points=config.corr_points, seed=seed, cage=config.cage)
-    return pair_result(part, res)
+    return pair_result(part, res, vn, f)
 
 
 @dataclass
@@ -120,6 +128,9 @@ def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, 
         error = ""
     except (ValueError, RuntimeError) as exc:
         pair, status, error = None, "failed", str(exc)
+    if pair is not None and pair["mapped"] is not None and job.row["split"] == "test":
+        # the cage tracker of the evaluation (test shapes) maps these vertices: kept, not solved again
+        write_pair_vertices(store, sid, g, **pair["mapped"])
     if pair is not None:
         store.write_table(StoreLayout.pair(sid, g), {
             "sx": pair["src"][:, 0], "sy": pair["src"][:, 1], "sz": pair["src"][:, 2],

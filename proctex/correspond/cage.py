@@ -274,6 +274,35 @@ def _oriented_nn(tree: cKDTree, pts: np.ndarray, pts_normals: np.ndarray, query:
     return j
 
 
+def warm_offset(start: CageResult, cage0: np.ndarray) -> np.ndarray | None:
+    """The displacement of ``start``'s solved cage carried onto a new initial cage ``cage0 (V, 3)``:
+    per axis, scaled by the ratio of the two cages' box extents (the box map between them), so a
+    neighbour's stretch or bend lands where this pair's cage has the same lattice vertex. None when
+    the cages have different lattices (vertex counts or layouts: no warm start)."""
+    c0 = np.asarray(start.cage0, dtype=np.float64)
+    if c0.shape != cage0.shape:
+        return None
+    lo0, hi0 = c0.min(0), c0.max(0)
+    lo1, hi1 = cage0.min(0), cage0.max(0)
+    scale = (hi1 - lo1) / np.maximum(hi0 - lo0, 1e-12)
+    # the same lattice: each vertex at the same relative place in its box
+    if not np.allclose((c0 - lo0) * scale, cage0 - lo1, atol=1e-9 * max(float((hi1 - lo1).max()), 1e-9)):
+        return None
+    out = (np.asarray(start.cage, dtype=np.float64) - c0) * scale
+    return out if np.isfinite(out).all() else None
+
+
+def _data_terms(xd: np.ndarray, nd: np.ndarray, template: SurfaceIndex, template_samples: np.ndarray,
+                template_sample_normals: np.ndarray, cfg: CageConfig) -> float:
+    """The surface and plane-Chamfer terms of deformed samples ``xd`` with normals ``nd`` (what a
+    warm start is judged by: how well the cage fits, not how far it moved)."""
+    cp, _ = template.query_oriented(xd, nd, cfg.min_dot, k=8, exact=False)
+    surface = float(((xd - cp.points) ** 2).sum(1).mean())
+    bwd = _oriented_nn(cKDTree(xd), xd, nd, template_samples, template_sample_normals)
+    chamfer = float((((template_samples - xd[bwd]) * nd[bwd]).sum(1) ** 2).mean())
+    return cfg.w_surface * surface + cfg.w_chamfer * chamfer
+
+
 def solve_cage(
     points: np.ndarray,
     tri_vertices: np.ndarray,
@@ -286,6 +315,7 @@ def solve_cage(
     config: CageConfig | None = None,
     symmetry_axes: tuple[int, ...] = (),
     seed: int = 0,
+    start: CageResult | None = None,
 ) -> CageResult:
     """Optimise a cage deforming the source samples onto the template surface.
 
@@ -299,6 +329,10 @@ def solve_cage(
         template_samples, template_sample_normals: (m, 3) uniform template samples and normals.
         config: solver settings. symmetry_axes: template mirror planes ``x[axis] = 0`` (used when
             ``config.symmetry``). seed: seed of the penalty's subsamples.
+        start: a warm start: the solved cage of a neighbouring pair (its displacement carried onto
+            this pair's cage by :func:`warm_offset`, composed with the box map between the two
+            cages). The first step measures both the rest cage and the carried one and goes on
+            from the better, so a poor neighbour costs one loss evaluation, never the result.
     """
     cfg = (config or CageConfig()).validate()
     t0 = time.perf_counter()
@@ -315,6 +349,7 @@ def solve_cage(
     faces_t = torch.as_tensor(cage_faces, device=device)
     C0 = torch.as_tensor(cage0, device=device, dtype=dtype)
     offset = torch.zeros_like(C0, requires_grad=True)
+    warm = warm_offset(start, cage0) if start is not None else None
     triples = torch.as_tensor(lattice_triples(cage0, cage_divisions(cage0.max(0) - cage0.min(0), cfg.level, cfg.elongation)), device=device)
     pairs = [(a, p) for a in axes if (p := _mirror_pairs(cage0, a)) is not None]
     flips = {a: torch.as_tensor([-1.0 if i == a else 1.0 for i in range(3)], device=device, dtype=dtype) for a, _ in pairs}
@@ -332,11 +367,21 @@ def solve_cage(
     terms: dict[str, float] = {}
     mvc_term = torch.zeros((), device=device, dtype=dtype)
     it = 0
-    for it in range(1, cfg.iterations + 1):
-        C = C0 + offset
+    def fit(C: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, np.ndarray]:
         x = W_pts @ C
         nrm = _tri_normals((W_tri @ C)[tf])[tidx]
-        xd, nd = x.detach().cpu().numpy(), nrm.detach().cpu().numpy()
+        return x, nrm, x.detach().cpu().numpy(), nrm.detach().cpu().numpy()
+
+    if warm is not None:  # from the carried cage where it fits better than the rest cage
+        with torch.no_grad():
+            W = torch.as_tensor(warm, device=device, dtype=dtype)
+            fits = [_data_terms(*fit(C0 + o)[2:], template, template_samples, template_sample_normals, cfg) for o in (torch.zeros_like(W), W)]
+        if fits[1] < fits[0]:
+            with torch.no_grad():
+                offset.copy_(W)
+    for it in range(1, cfg.iterations + 1):
+        C = C0 + offset
+        x, nrm, xd, nd = fit(C)
         # Point-to-surface matches with agreeing normals (gradient of |x - q|^2 exact for fixed q).
         cp, _ = template.query_oriented(xd, nd, cfg.min_dot, k=8, exact=False)
         q = torch.as_tensor(cp.points, device=device, dtype=dtype)

@@ -1,9 +1,12 @@
 """Surface geometry: triangle areas and normals, area-weighted sampling, exact closest points.
 
-:class:`SurfaceIndex` answers nearest-surface-point queries exactly: a KD-tree over face centroids
-proposes candidates, exact point–triangle distances decide, and a bound on the triangle size proves
-no other face can be closer (falling back to a ball query for the few points where it cannot).
-:func:`closest_point_bruteforce` is the slow, obviously correct reference.
+:class:`SurfaceIndex` answers nearest-surface-point queries exactly. Plain nearest-point queries go
+to libigl's AABB tree (compiled; about 100x the speed of the proxy search on a 7k-face sofa part);
+the proxy search is the fallback where libigl is missing (``backend="proxies"``) and the engine of
+the normal-filtered queries (:meth:`SurfaceIndex.query_oriented`, :meth:`SurfaceIndex.query_facing`):
+a KD-tree over face centroids proposes candidates, exact point–triangle distances decide, and a
+bound on the triangle size proves no other face can be closer.
+:func:`closest_point_bruteforce` is the slow, obviously correct reference of both.
 """
 
 from __future__ import annotations
@@ -175,6 +178,20 @@ def _points_and_normals(points: np.ndarray, normals: np.ndarray) -> tuple[np.nda
     return pts, nrm
 
 
+_IGL: list = []
+
+
+def _igl():
+    """The ``igl`` module (libigl's Python bindings), or None where it does not import."""
+    if not _IGL:
+        try:
+            import igl
+        except ImportError:
+            igl = None
+        _IGL.append(igl)
+    return _IGL[0]
+
+
 class SurfaceIndex:
     """Exact nearest-point queries on a triangle mesh.
 
@@ -183,36 +200,74 @@ class SurfaceIndex:
     proxies exactly; the result is proven nearest when the k-th proxy is farther than the best
     distance plus the largest proxy radius, otherwise ``k`` grows for those points.
 
+    Plain :meth:`query` calls go to libigl's AABB tree instead (built on the first query), exact
+    whatever ``exact`` says (exactness costs it nothing).
+
     Args:
         vertices: (n, 3) float64; faces: (m, 3) int64 (m >= 1).
         k: proxies checked per query in the first round.
+        backend: "auto" (libigl's AABB tree for :meth:`query` where libigl imports, else the proxy
+            search), "aabb" (libigl, or ImportError) or "proxies" (the pure search everywhere).
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, k: int = 8) -> None:
-        self.vertices = np.asarray(vertices, dtype=np.float64)
-        self.faces = np.asarray(faces, dtype=np.int64)
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, k: int = 8, backend: str = "auto") -> None:
+        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         if self.faces.ndim != 2 or self.faces.shape[1] != 3 or len(self.faces) == 0:
             raise ValueError(f"SurfaceIndex needs (m >= 1, 3) faces, got {self.faces.shape}")
+        if backend not in ("auto", "aabb", "proxies"):
+            raise ValueError(f"backend must be auto, aabb or proxies, got {backend!r}")
+        if self.vertices.ndim != 2 or self.vertices.shape[1] != 3 or self.faces.min() < 0 or self.faces.max() >= len(self.vertices):
+            raise ValueError(f"SurfaceIndex needs (n, 3) vertices that the faces index, got {self.vertices.shape} for indices up to {self.faces.max()}")
+        self._aabb: object | None = None
+        self._backend = backend if backend != "auto" else ("aabb" if _igl() is not None else "proxies")
+        if self._backend == "aabb" and _igl() is None:
+            raise ImportError("SurfaceIndex(backend='aabb') needs libigl (pip install libigl)")
         tri = self.vertices[self.faces]
         self._a, self._b, self._c = tri[:, 0], tri[:, 1], tri[:, 2]
-        centroids = tri.mean(axis=1)
-        radius = np.linalg.norm(tri - centroids[:, None], axis=2).max(axis=1)
-        target = max(float(np.median(radius)), 1e-12)
-        levels = np.clip(np.ceil(radius / target).astype(np.int64), 1, 64)
-        proxies, owner, proxy_r = [], [], [0.0]
-        for n in np.unique(levels):
-            fi = np.flatnonzero(levels == n)
-            w = _subtriangle_centroids(int(n))
-            pts = np.einsum("sk,fkd->fsd", w, tri[fi])
-            proxies.append(pts.reshape(-1, 3))
-            owner.append(np.repeat(fi, len(w)))
-            proxy_r.append(float(radius[fi].max()) / n)
-        self.proxy_owner = np.concatenate(owner)
-        self.max_radius = max(proxy_r)
-        self.tree = cKDTree(np.concatenate(proxies))
-        self.n_proxies = len(self.proxy_owner)
-        self.k = int(min(k, self.n_proxies))
+        self._k = int(k)
+        self._proxy: tuple | None = None  # (tree, owner, max radius), built on first use
         self.normals = face_normals(self.vertices, self.faces)
+
+    def _proxies(self) -> tuple:
+        """The proxy search's structure ``(KD-tree of proxies, owning face (p,), max proxy radius)``,
+        built on first use (an index that only answers plain queries by the AABB never needs it)."""
+        if self._proxy is None:
+            tri = self.vertices[self.faces]
+            centroids = tri.mean(axis=1)
+            radius = np.linalg.norm(tri - centroids[:, None], axis=2).max(axis=1)
+            target = max(float(np.median(radius)), 1e-12)
+            levels = np.clip(np.ceil(radius / target).astype(np.int64), 1, 64)
+            proxies, owner, proxy_r = [], [], [0.0]
+            for n in np.unique(levels):
+                fi = np.flatnonzero(levels == n)
+                w = _subtriangle_centroids(int(n))
+                pts = np.einsum("sk,fkd->fsd", w, tri[fi])
+                proxies.append(pts.reshape(-1, 3))
+                owner.append(np.repeat(fi, len(w)))
+                proxy_r.append(float(radius[fi].max()) / n)
+            self._proxy = (cKDTree(np.concatenate(proxies)), np.concatenate(owner), max(proxy_r))
+        return self._proxy
+
+    @property
+    def tree(self) -> cKDTree:
+        return self._proxies()[0]
+
+    @property
+    def proxy_owner(self) -> np.ndarray:
+        return self._proxies()[1]
+
+    @property
+    def max_radius(self) -> float:
+        return self._proxies()[2]
+
+    @property
+    def n_proxies(self) -> int:
+        return len(self.proxy_owner)
+
+    @property
+    def k(self) -> int:
+        return min(self._k, self.n_proxies)
 
     def _candidates(self, pts: np.ndarray, k: int) -> tuple[np.ndarray, ...]:
         """Exact closest points on the faces of the ``k`` nearest proxies of each query.
@@ -237,18 +292,39 @@ class SurfaceIndex:
         sure = (cd[:, -1] >= res.distance + self.max_radius) | (k >= self.n_proxies)
         return res, sure
 
+    def _query_aabb(self, pts: np.ndarray) -> ClosestPoints:
+        """Exact closest points by libigl's AABB tree: the face from the tree, the point and its
+        barycentrics recomputed on that face (:func:`closest_point_on_triangles`, our convention)."""
+        if self._aabb is None:
+            tree = _igl().AABB()
+            tree.init(self.vertices, self.faces)
+            self._aabb = tree
+        if not len(pts):
+            return ClosestPoints(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+        _, face, _ = self._aabb.squared_distance(self.vertices, self.faces, np.ascontiguousarray(pts))
+        face = np.asarray(face, dtype=np.int64)
+        cp, bary = closest_point_on_triangles(pts, self._a[face], self._b[face], self._c[face])
+        return ClosestPoints(cp, face, bary, np.linalg.norm(cp - pts, axis=1))
+
+    @property
+    def backend(self) -> str:
+        """"aabb" or "proxies": what answers :meth:`query`."""
+        return self._backend
+
     def query(self, points: np.ndarray, exact: bool = True, k: int | None = None) -> ClosestPoints:
         """Closest surface points of ``points (q, 3)``.
 
-        Exact by default; ``exact=False`` keeps the best of the first ``k`` candidates (the index's
-        own ``k`` unless given; cheaper, and right for points near the surface; used inside
-        iterative loops and at run time).
+        Exact by default; with the proxy search, ``exact=False`` keeps the best of the first ``k``
+        candidates (the index's own ``k`` unless given; cheaper, and right for points near the
+        surface; used inside iterative loops and at run time). The AABB backend is always exact.
         """
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"query points must be (q, 3), got {pts.shape}")
         if not np.all(np.isfinite(pts)):
             raise ValueError("query points contain NaN or inf")
+        if self._backend == "aabb":
+            return self._query_aabb(pts)
         k = self.k if k is None else int(min(max(int(k), 1), self.n_proxies))
         res, sure = self._query_k(pts, k)
         if not exact:
@@ -311,7 +387,8 @@ class SurfaceIndex:
         settled); a query is settled when its closest admissible face is provably the nearest
         admissible one (the same proxy-radius bound as :meth:`query`). This keeps the inside of a
         thin wall from matching its outside. Queries with no admissible face anywhere get their
-        plain nearest point.
+        plain nearest point. With the AABB backend, a query whose nearest face of all is
+        admissible is settled by the tree first (exact, with or without ``exact``).
 
         Args:
             points: (q, 3) float64; normals: (q, 3) float64 unit query normals.
@@ -326,6 +403,14 @@ class SurfaceIndex:
         out = ClosestPoints(np.zeros((q, 3)), np.zeros(q, np.int64), np.zeros((q, 3)), np.full(q, np.inf))
         oriented = np.zeros(q, dtype=bool)
         todo = np.arange(q)
+        if self._backend == "aabb" and q:
+            # The nearest face of all, when admissible, is the nearest admissible one (exact): most
+            # queries settle here; only the others search the proxies.
+            near = self._query_aabb(pts)
+            ok = np.einsum("qd,qd->q", self.normals[near.faces], nrm) > min_dot
+            out.points[ok], out.faces[ok], out.bary[ok], out.distance[ok] = near.points[ok], near.faces[ok], near.bary[ok], near.distance[ok]
+            oriented[ok] = True
+            todo = np.flatnonzero(~ok)
         k = int(min(k, self.n_proxies))
         while len(todo):
             cd, cand, cp, bary, d = self._candidates(pts[todo], k)

@@ -112,6 +112,28 @@ def stored_pairs(store: FamilyStore, sid: str, index: list[dict[str, Any]] | Non
     return out
 
 
+class StoredPairMapper:
+    """The cage tracker's mapper for sample ``sid``: a part's vertices go where its stored pair sent
+    them (:func:`proctex.store.samples.read_pair_vertices`: the same solve, with the same seed and
+    settings) when that map was made for this very part; otherwise ``solver`` solves the pair.
+    ``stored`` / ``solved``: how many parts each answered."""
+
+    def __init__(self, store: FamilyStore, sid: str, solver: Any) -> None:
+        self.store, self.sid, self.solver = store, sid, solver
+        self.stored = self.solved = 0
+
+    def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray:
+        from proctex.store.samples import read_pair_vertices
+
+        if self.sid and query is vertices:
+            mapped = read_pair_vertices(self.store, self.sid, group, vertices, faces)
+            if mapped is not None:
+                self.stored += 1
+                return mapped
+        self.solved += 1
+        return self.solver.map(group, vertices, faces, query, seed=seed)
+
+
 class _Context:
     """What evaluating a shape needs, loaded once per process: assets, the tracker and its template
     colours, the truth, the template's reference views, mappers by name, settings."""
@@ -167,8 +189,8 @@ class _Context:
             self.mappers[name] = _mapper(name, self.store, self.assets, self.config)
         return self.mappers[name]
 
-    def locate(self, shape, seg, index: int):
-        """Where the tracked points lie on ``shape`` (sample ``index``), by the family's tracker."""
+    def locate(self, shape, seg, index: int, sid: str = ""):
+        """Where the tracked points lie on ``shape`` (sample ``index``, id ``sid``), by the family's tracker."""
         from proctex.measure.fidelity import (
             locate_by_map,
             locate_canonical,
@@ -182,10 +204,13 @@ class _Context:
             return locate_canonical(self.points, self.template, self.assets.grouping.segmentation, shape, seg)
         if self.tracker == "vertex-index":
             return locate_vertex_index(self.points, shape, seg)
-        # The cage, solved once per (shape, group) with the build's pair seeds, for every method.
+        # The cage, solved once per (shape, group) with the build's pair seeds, for every method:
+        # the pairs stage kept where it sends a test part's vertices, so only a pair without that
+        # map (a train shape, an older store, another part) is solved here.
         cage = SolverMapper(self.assets, "cage", n_points=self.config.corr_points, cage=_cage_config(self.config))
         seeds = {g.group: pair_seed(self.config, index, g.group) for g in self.assets.groups}
-        return locate_by_map(self.points, self.template, shape, seg, assign_parts(shape, seg, self.assets), self.assets, cage, seeds)
+        return locate_by_map(self.points, self.template, shape, seg, assign_parts(shape, seg, self.assets), self.assets,
+                             StoredPairMapper(self.store, sid, cage), seeds)
 
 
 def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: list[dict[str, Any]], sid: str = "") -> dict[str, Any]:
@@ -258,7 +283,7 @@ def evaluate_shape(ctx: _Context, job: tuple[int, dict[str, Any]]) -> dict[str, 
     index, row = job
     shape = load_sample(ctx.store, row, ctx.config)
     seg = segment(shape)
-    loc = ctx.locate(shape, seg, index)
+    loc = ctx.locate(shape, seg, index, row["id"])
     samples = truth_samples(shape, seg, ctx.truth_kind, n=ctx.settings["tracked"], seed=ctx.settings["seed"] + index) if ctx.truth_kind else None
     pairs = stored_pairs(ctx.store, row["id"], ctx.pairs_index)
     return {m: evaluate_method(ctx, m, shape, seg, loc, samples, pairs, row["id"]) for m in ctx.settings["methods"]}

@@ -11,7 +11,8 @@ Layout (all paths relative to the root; :class:`StoreLayout` is the one place th
     meshes/<id>.obj        sampled meshes (and <id>.json, each sample job's record)
     template/              template mesh, grouping, UVs, textures, textured.glb
     pairs.parquet          one row per (shape, group) correspondence job
-    correspondences/       one Parquet table of (source point, template point) per pair
+    correspondences/       one Parquet table of (source point, template point) per pair (and, for
+                           test shapes, where the cage sends the part's vertices: the cage tracker's)
     models/                one ProcCorrNet per group
     metrics.json           evaluation
 """
@@ -192,6 +193,12 @@ class StoreLayout:
     def pair(sid: str, group: int) -> str:
         """A cage pair's table of (source point, template point)."""
         return f"correspondences/{sid}__g{group}.parquet"
+
+    @staticmethod
+    def pair_vertices(sid: str, group: int) -> str:
+        """Where a test pair's cage sends its source part's vertices (written before its table):
+        the evaluation's cage tracker reads them instead of solving the pair again."""
+        return f"correspondences/{sid}__g{group}.vertices.npz"
 
     @staticmethod
     def pair_record(sid: str, group: int) -> str:

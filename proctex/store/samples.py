@@ -3,6 +3,7 @@ regenerated from their parameters) and the stored cage pairs."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from typing import Any
 
@@ -41,6 +42,40 @@ def pair_seed(config: BuildConfig, index: int, group: int) -> int:
     """The seed of pair (sample ``index``, ``group``): a function of the family seed and the pair only,
     so any process, in any order, solves a pair the same way."""
     return config.seed * 1_000_003 + index * 97 + group
+
+
+def part_digest(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """A short digest of a part mesh (float64 vertices, int64 faces): what a stored vertex map was
+    made for (a map of another part, or of this part computed on another machine, is not reused)."""
+    h = hashlib.sha256(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
+    return h.hexdigest()[:32]
+
+
+def write_pair_vertices(store: FamilyStore, sid: str, group: int, vertices: np.ndarray, digest: str) -> None:
+    """Store where a pair's correspondence sends its source part's vertices (``vertices (j, 3)``,
+    float64, the template's normalised frame) for the part of :func:`part_digest` ``digest``."""
+    store.write_arrays(StoreLayout.pair_vertices(sid, group), vertices=np.asarray(vertices, dtype=np.float64),
+                       digest=np.frombuffer(digest.encode("ascii"), dtype=np.uint8))
+
+
+def read_pair_vertices(store: FamilyStore, sid: str, group: int, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
+    """The stored map of the part ``(vertices (j, 3), faces)`` of pair ``(sid, group)``
+    (:func:`write_pair_vertices`): (j, 3) float64, or None when none is stored, it was made for
+    another part, or its file is damaged (the caller solves the pair instead)."""
+    rel = StoreLayout.pair_vertices(sid, group)
+    if not store.exists(rel):
+        return None
+    try:
+        arrays = store.read_arrays(rel)
+    except ValueError:
+        return None
+    mapped, digest = arrays.get("vertices"), arrays.get("digest")
+    if mapped is None or digest is None or mapped.shape != np.shape(vertices) or not np.isfinite(mapped).all():
+        return None
+    if digest.dtype != np.uint8 or digest.tobytes() != part_digest(vertices, faces).encode("ascii"):
+        return None
+    return mapped.astype(np.float64)
 
 
 def read_pair(store: FamilyStore, sid: str, group: int, faces: bool = False):
