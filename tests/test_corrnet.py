@@ -28,7 +28,8 @@ SMALL = dict(local_hidden=32, feature_dim=64, decoder_hidden=64)
 
 
 def small_config(**kw) -> CorrNetConfig:
-    base = dict(context_points=128, query_points=128, shapes_per_batch=8, iterations=40, eval_every=10, lr=3e-3, **SMALL)
+    # plain_below 0: these tests train every group (the skip has its own test)
+    base = dict(context_points=128, query_points=128, shapes_per_batch=8, iterations=40, eval_every=10, lr=3e-3, plain_below=0.0, **SMALL)
     base.update(kw)
     return CorrNetConfig(**base)
 
@@ -644,6 +645,34 @@ def test_groups_trained_together_match_separate_training():
         assert all(torch.allclose(sa[k], sb[k], atol=1e-4) for k in sa)
     swapped = [abs(together[0].best_val["mean"] - a.best_val["mean"]) / a.best_val["mean"] for a in alone[1:]]
     assert min(swapped) > 1e-2  # the check tells the groups apart
+
+
+def test_a_group_whose_plain_map_already_fits_is_not_trained():
+    """``plain_below``: stretched boxes (the box map exact) are not trained: the network stays the
+    box map (iterations 0) and the box map serves; bent boxes (the box map 0.03 off) train; so do
+    groups without held-out pairs and every group at 0. Trained together, the settled group never
+    joins the stack and the other ends where it ends alone."""
+    from proctex.correspond.grouped import train_together
+
+    stretch_t, stretch_v = _stretch_pairs(16, seed=0), _stretch_pairs(3, seed=1)
+    bent_t, bent_v = family_pairs(8, 200, seed=1), family_pairs(3, 200, seed=2)
+    cfg = small_config(iterations=20, eval_every=10, plain_below=5e-4, autocast="none")
+    res = tr.train(stretch_t, stretch_v, cfg)
+    assert res.iterations == 0 and [h["iteration"] for h in res.history] == [0] and res.best_val["mean"] < 1e-5
+    src, ext = stretch_v[0][0], tr.template_extent(stretch_t)
+    np.testing.assert_allclose(cn.predict(res.model, src, src), tr.box_map(src, tr.part_extent(src), ext), atol=1e-5)
+    assert tr.choose_serving(res.model, stretch_v, ext).serve == "box"
+    assert tr.plain_errors(bent_v, tr.template_extent(bent_t))["box"] > 1e-2
+    assert tr.train(bent_t, bent_v, cfg).iterations == 20
+    assert tr.train(stretch_t, stretch_v, small_config(iterations=20, eval_every=10)).iterations == 20  # plain_below 0
+    assert tr.train(stretch_t, [], cfg).iterations == 20  # nothing held out to judge by
+    alone = tr.train(bent_t, bent_v, cfg)
+    together = train_together([(stretch_t, stretch_v), (bent_t, bent_v)], cfg)
+    assert together[0].iterations == 0 and together[1].iterations == alone.iterations
+    assert together[1].best_val["mean"] == pytest.approx(alone.best_val["mean"], rel=1e-3)
+    assert train_together([(stretch_t, stretch_v)], cfg)[0].iterations == 0  # nothing left to stack
+    with pytest.raises(ValueError, match="plain_below"):
+        small_config(plain_below=-1.0).validate()
 
 
 def test_groups_trained_together_validate_their_input():

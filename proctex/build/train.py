@@ -146,7 +146,8 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
     def collect(batch: list[int], out: list[dict[str, Any] | None]) -> None:
         for g, m in zip(batch, out):
             if m is not None and "train_pairs" in m:
-                log(f"train: group {g}: {m['train_pairs']} train / {m['val_pairs']} val pairs, val {m['best_val']}, {m['seconds']}s; "
+                how = f"{m['iterations']} iterations" if m["iterations"] else f"not trained (a plain map within {config.train.plain_below:g})"
+                log(f"train: group {g}: {m['train_pairs']} train / {m['val_pairs']} val pairs, val {m['best_val']}, {how}, {m['seconds']}s; "
                     f"{serving_line(m.get('serving'))}")
 
     def finish(results: list[list[dict[str, Any] | None]]) -> None:

@@ -130,6 +130,13 @@ class CorrNetConfig:
             pay; off on CPUs, where one group after another in worker processes of one thread each
             costs the same per step, 20.6 vs 22.7 ms on the demo's sofa, and a pool hands out groups
             as workers free up: ``tests/bench/bench_train_together.py``).
+        plain_below: a group whose plain map (the box map or the identity, the better) lies within
+            this mean distance of its held-out cage points (normalised frame) is not trained: its
+            network stays at the frame's own map (the zero residual) and the serving choice picks
+            the plain map, as it did on every such group measured (the demo, the sofa export, the
+            Blender chair, cabinet and table: groups at 0 to 4.6e-4 all served the plain map after
+            training; the closest that a network won sat at 2.4e-3). 0 trains every group. Needs
+            ``residual`` (without it nothing is skipped).
         seed: weights, batch sampling and evaluation contexts.
         device: "cpu", "cuda", "cuda:<i>" or "auto" (CUDA when present); dtype: "float32" or "float64".
         autocast: "auto" (bfloat16 where the CPU has it natively, AVX512-BF16 or AMX, float32
@@ -172,6 +179,7 @@ class CorrNetConfig:
     confidence_neighbours: int = 3
     confidence_scale: float = 1.0
     together: str = "auto"
+    plain_below: float = 5e-4
     seed: int = 0
     device: str = "cpu"
     dtype: str = "float32"
@@ -202,7 +210,7 @@ class CorrNetConfig:
             raise ValueError(f"CorrNetConfig.lr must be a positive number, got {self.lr!r}")
         if not (isinstance(self.lr_final, (int, float)) and 0 <= self.lr_final <= 1):
             raise ValueError(f"CorrNetConfig.lr_final must be in [0, 1], got {self.lr_final!r}")
-        for name in ("weight_decay", "min_delta"):
+        for name in ("weight_decay", "min_delta", "plain_below"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"CorrNetConfig.{name} must be a finite number >= 0, got {v!r}")

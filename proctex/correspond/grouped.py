@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from .corrnet import LOSSES, CorrNetConfig, Pair, ProcCorrNet, _autocast, _model_spec, build_model, resolve_autocast
-from .training import EarlyStop, GroupData, TrainResult, learning_rate, sample_batch
+from .training import EarlyStop, GroupData, TrainResult, learning_rate, sample_batch, settle_plain
 
 
 class StackedParameters:
@@ -132,19 +132,24 @@ def train_together(
     models = [build_model(config) for _ in groups]
     device, dtype = _model_spec(models[0])
     autocast = resolve_autocast(config.autocast, device) if dtype == torch.float32 else "none"
-    watches = []
+    watches, active = [], []
     for g, (d, m) in enumerate(zip(data, models)):
         d.set_extent(m)
         watches.append(EarlyStop(config, d.val, t0, None if on_eval is None else (lambda e, g=g: on_eval(g, e))))
+        if settle_plain(m, d, config) is not None:  # not trained: it never joins the stack
+            watches[-1].start(m)
+            continue
+        active.append(g)
         if config.zero_init and config.residual:
             watches[-1].start(m)
+    steps = [0] * len(groups)
+    if not active:
+        return [w.result(m, s) for w, m, s in zip(watches, models, steps)]
     rngs = [np.random.default_rng(config.seed if world == 1 else [config.seed, rank]) for _ in groups]
     per_rank = -(-config.shapes_per_batch // world)
     base = copy.deepcopy(models[0]).to("meta")
-    active = list(range(len(groups)))
-    params, buffers = torch.func.stack_module_state(models)
+    params, buffers = torch.func.stack_module_state([models[g] for g in active])
     optimiser = torch.optim.Adam(params.values(), lr=config.lr, weight_decay=config.weight_decay)
-    steps = [0] * len(groups)
     step = 0
     while step < config.iterations and active:
         lr = learning_rate(config, step)

@@ -216,11 +216,14 @@ def train(
     model = build_model(config)
     device, dtype = _model_spec(model)
     data.set_extent(model)
+    watch = EarlyStop(config, data.val, t0, on_eval)
+    if settle_plain(model, data, config) is not None:  # the plain map is as good as any network could show
+        watch.start(model)
+        return watch.result(model, 0)
     autocast = resolve_autocast(config.autocast, device) if dtype == torch.float32 else "none"
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     rng = np.random.default_rng(config.seed if world == 1 else [config.seed, rank])
     per_rank = -(-config.shapes_per_batch // world)
-    watch = EarlyStop(config, data.val, t0, on_eval)
     if config.zero_init and config.residual:
         watch.start(model)  # the frame's own map (the box map) is a candidate like any other state
     step = 0
@@ -360,6 +363,33 @@ def template_extent(pairs: Sequence[Pair]) -> np.ndarray:
     return np.maximum(np.max([np.abs(dst).max(axis=0) for _, dst in pairs], axis=0), MIN_EXTENT)
 
 
+def plain_errors(pairs: Sequence[Pair], extent: np.ndarray) -> dict[str, float]:
+    """``{"box", "identity"}``: the mean over ``pairs`` of the per-shape mean distance from each
+    plain map's image of the source points to the cage points (the box map onto half extents
+    ``extent (3,)``)."""
+    extent = np.asarray(extent, dtype=np.float64)
+    return {"box": float(np.mean([np.linalg.norm(box_map(s, part_extent(s), extent) - d, axis=1).mean() for s, d in pairs])),
+            "identity": float(np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in pairs]))}
+
+
+def settle_plain(model: ProcCorrNet, data: "GroupData", config: CorrNetConfig) -> dict[str, float] | None:
+    """Whether a group needs no training (``config.plain_below``): when the better plain map lies
+    within ``plain_below`` of the held-out cage points, ``model`` (a residual network, its template
+    extent set) is set to the frame's own map (its last layer zeroed: the zero residual) and the
+    plain maps' held-out errors are returned; else None (train it). Never without held-out pairs."""
+    if not (config.residual and config.plain_below > 0 and data.val):
+        return None
+    extent = model.template_extent.detach().cpu().numpy() if model.frame == "box" else template_extent(data.train)
+    errors = plain_errors(data.val, extent)
+    if min(errors.values()) >= config.plain_below:
+        return None
+    last = model.decoder[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+    return errors
+
+
 @dataclass
 class ServingChoice:
     """What serves one group at run time (:func:`choose_serving`).
@@ -399,9 +429,7 @@ def choose_serving(model: ProcCorrNet, val_pairs: Sequence[Pair], extent: np.nda
     extent = np.asarray(extent, dtype=np.float64)
     if extent.shape != (3,) or not np.all(np.isfinite(extent)) or np.any(extent <= 0):
         raise ValueError(f"extent must be three positive finite half extents, got {extent!r}")
-    errors = {"network": float(eval_step(model, val_pairs, seed=seed)["mean"])}
-    errors["box"] = float(np.mean([np.linalg.norm(box_map(s, part_extent(s), extent) - d, axis=1).mean() for s, d in val_pairs]))
-    errors["identity"] = float(np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in val_pairs]))
+    errors = {"network": float(eval_step(model, val_pairs, seed=seed)["mean"]), **plain_errors(val_pairs, extent)}
     plain = min(("box", "identity"), key=lambda k: (errors[k], k != "box"))
     serve = "network" if errors["network"] < (1.0 - margin) * errors[plain] else plain
     return ServingChoice(serve, errors, extent, len(val_pairs), float(margin))
