@@ -260,9 +260,10 @@ def test_a_group_trained_by_two_ray_train_workers_averages_their_gradients(local
     st = FamilyStore(str(tmp_path / "mug"))
     st.delete("models/group_0.pt")
     quiet = lambda *_: None  # noqa: E731
-    plan = plan_train(st, config(), quiet)
+    cfg = BuildConfig.from_dict({**json.loads(json.dumps(CFG)), "train": {**CFG["train"], "plain_below": 0.0}})  # trained, whatever its box map
+    plan = plan_train(st, cfg, quiet)
     assert plan.batches == [[0]]
-    ray_executor(train_workers=2, quiet=True)(plan, st, config(), quiet)
+    ray_executor(train_workers=2, quiet=True)(plan, st, cfg, quiet)
     record = st.read_json("family.json")["stages"]["train"]
     assert record["ray"] is True and record["groups"]["0"]["workers"] == 2 and record["groups"]["0"]["sha256"]
     assert sorted(load_models(st)) == [0, 1]  # the new network's checksum is the one recorded

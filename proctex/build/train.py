@@ -120,6 +120,25 @@ def _group_record(store: FamilyStore, config: BuildConfig, group: int, data: dic
             "together": together}
 
 
+def plain_groups(store: FamilyStore, config: BuildConfig, groups: list[int]) -> list[int]:
+    """The groups of ``groups`` that need no training: their plain map lies within
+    ``train.plain_below`` of their held-out pairs (:func:`proctex.correspond.training.plain_fit`).
+    A group whose data cannot be read is left to the training, which reports why."""
+    from proctex.correspond.training import plain_fit
+
+    if config.train.plain_below <= 0 or not config.train.residual:
+        return []
+    out = []
+    for g in groups:
+        try:
+            d = group_training_data(store, config, g, VAL_SHARE)
+        except ValueError:
+            continue
+        if plain_fit(d["train"], d["val"], config.train) is not None:
+            out.append(g)
+    return out
+
+
 def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], context: Any = None) -> list[dict[str, Any]]:
     """Train and store the networks of ``groups`` in this process (:func:`fit_groups`)."""
     return fit_groups(store, config, groups)
@@ -149,6 +168,15 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
                 how = f"{m['iterations']} iterations" if m["iterations"] else f"not trained (a plain map within {config.train.plain_below:g})"
                 log(f"train: group {g}: {m['train_pairs']} train / {m['val_pairs']} val pairs, val {m['best_val']}, {how}, {m['seconds']}s; "
                     f"{serving_line(m.get('serving'))}")
+
+    # Groups whose plain map already fits (CorrNetConfig.plain_below) are settled here, before any
+    # worker starts: no pool slot or Ray Train team waits on them (teams are dealt statically).
+    settled = plain_groups(store, config, todo)
+    if settled:
+        for g, m in zip(settled, fit_groups(store, config, settled)):
+            collect([g], [m])
+            trained[g] = {k: v for k, v in m.items() if k not in ("train_pairs", "val_pairs")}
+        todo = [g for g in todo if g not in settled]
 
     def finish(results: list[list[dict[str, Any] | None]]) -> None:
         for g, m in zip(todo, (m for out in results for m in out)):

@@ -372,16 +372,22 @@ def plain_errors(pairs: Sequence[Pair], extent: np.ndarray) -> dict[str, float]:
             "identity": float(np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in pairs]))}
 
 
-def settle_plain(model: ProcCorrNet, data: "GroupData", config: CorrNetConfig) -> dict[str, float] | None:
-    """Whether a group needs no training (``config.plain_below``): when the better plain map lies
-    within ``plain_below`` of the held-out cage points, ``model`` (a residual network, its template
-    extent set) is set to the frame's own map (its last layer zeroed: the zero residual) and the
-    plain maps' held-out errors are returned; else None (train it). Never without held-out pairs."""
-    if not (config.residual and config.plain_below > 0 and data.val):
+def plain_fit(train_pairs: Sequence[Pair], val_pairs: Sequence[Pair] | None, config: CorrNetConfig) -> dict[str, float] | None:
+    """Whether a group needs no training (``config.plain_below``): the plain maps' held-out errors
+    (:func:`plain_errors`, onto the template extent of the train targets) when the better of them
+    lies within ``plain_below`` of the held-out cage points, else None (train it). Never without
+    held-out pairs or a residual network (which could not stay at the plain map)."""
+    if not (config.residual and config.plain_below > 0 and val_pairs):
         return None
-    extent = model.template_extent.detach().cpu().numpy() if model.frame == "box" else template_extent(data.train)
-    errors = plain_errors(data.val, extent)
-    if min(errors.values()) >= config.plain_below:
+    errors = plain_errors(val_pairs, template_extent(train_pairs))
+    return errors if min(errors.values()) < config.plain_below else None
+
+
+def settle_plain(model: ProcCorrNet, data: "GroupData", config: CorrNetConfig) -> dict[str, float] | None:
+    """:func:`plain_fit` of a group's data; where it needs no training, ``model`` (a residual
+    network) is set to the frame's own map (its last layer zeroed: the zero residual)."""
+    errors = plain_fit(data.train, data.val, config)
+    if errors is None:
         return None
     last = model.decoder[-1]
     with torch.no_grad():
