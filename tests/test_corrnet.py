@@ -647,7 +647,7 @@ def test_groups_trained_together_match_separate_training():
     assert min(swapped) > 1e-2  # the check tells the groups apart
 
 
-def test_a_group_whose_plain_map_already_fits_is_not_trained():
+def test_a_group_whose_plain_map_already_fits_is_not_trained(monkeypatch):
     """``plain_below``: stretched boxes (the box map exact) are not trained: the network stays the
     box map (iterations 0) and the box map serves; bent boxes (the box map 0.03 off) train; so do
     groups without held-out pairs and every group at 0. Trained together, the settled group never
@@ -662,6 +662,12 @@ def test_a_group_whose_plain_map_already_fits_is_not_trained():
     src, ext = stretch_v[0][0], tr.template_extent(stretch_t)
     np.testing.assert_allclose(cn.predict(res.model, src, src), tr.box_map(src, tr.part_extent(src), ext), atol=1e-5)
     assert tr.choose_serving(res.model, stretch_v, ext).serve == "box"
+    # a network 10% under the plain map serves only when that is more than float rounding (SERVE_FLOOR)
+    for pairs, train_pairs, serve in ((stretch_v, stretch_t, "box"), (bent_v, bent_t, "network")):
+        under = 0.9 * tr.plain_errors(pairs, tr.template_extent(train_pairs))["box"]
+        monkeypatch.setattr(tr, "eval_step", lambda *a, under=under, **k: {"mean": under})
+        assert tr.choose_serving(res.model, pairs, tr.template_extent(train_pairs)).serve == serve
+    monkeypatch.undo()
     assert tr.plain_errors(bent_v, tr.template_extent(bent_t))["box"] > 1e-2
     assert tr.train(bent_t, bent_v, cfg).iterations == 20
     assert tr.train(stretch_t, stretch_v, small_config(iterations=20, eval_every=10)).iterations == 20  # plain_below 0

@@ -2,7 +2,7 @@
 
 import pytest
 
-from workers.train import teams
+from workers.train import checkpoint_records, shared_teams, teams
 
 
 def test_teams_use_every_worker_and_every_group_once():
@@ -18,6 +18,23 @@ def test_teams_use_every_worker_and_every_group_once():
             assert all(ranks and gs for ranks, gs in plan)
     with pytest.raises(ValueError):
         teams(0, [1])
+    # only a team of several ranks needs a torch process group (a TorchTrainer)
+    assert not shared_teams(teams(2, [0, 1, 4, 5])) and not shared_teams(teams(1, [3]))
+    assert shared_teams(teams(3, [7])) and shared_teams(teams(6, [0, 1, 4, 5]))
+
+
+def test_the_records_of_a_fit_are_read_from_its_checkpoint(tmp_path):
+    """Team leaders put their groups' records in the fit's checkpoint (``records_rank<r>.json``, next
+    to the networks): the driver merges them; a fit without a checkpoint has none."""
+    import json
+
+    from ray.train import Checkpoint
+
+    (tmp_path / "records_rank0.json").write_text(json.dumps({"0": {"iterations": 20}, "4": {"iterations": 0}}))
+    (tmp_path / "records_rank1.json").write_text(json.dumps({"1": {"iterations": 30}}))
+    (tmp_path / "group_0.pt").write_bytes(b"not read")
+    assert checkpoint_records(Checkpoint.from_directory(str(tmp_path))) == {"0": {"iterations": 20}, "4": {"iterations": 0}, "1": {"iterations": 30}}
+    assert checkpoint_records(None) == {}
 
 
 def test_a_family_serve_unloads_leaves_the_catalog_once_and_only_once(painted_mug_root):

@@ -342,6 +342,9 @@ SERVING = ("network", "box", "identity")
 #: best map without it: the held-out shapes also chose the network's kept state (early stopping),
 #: which favours it a little, and a tie should cost nothing at run time.
 SERVE_MARGIN = 0.05
+#: ... and only when it gains more than this (normalised frame): below it two maps are the same map
+#: to float rounding (a network left at the box map measured 1.47e-8 against the box map's 1.63e-8).
+SERVE_FLOOR = 1e-6
 
 
 def part_extent(points: np.ndarray) -> np.ndarray:
@@ -425,8 +428,8 @@ def choose_serving(model: ProcCorrNet, val_pairs: Sequence[Pair], extent: np.nda
 
     Each candidate maps every source point of ``val_pairs`` (the network as :func:`eval_step` does);
     its error is the mean over shapes of the per-shape mean distance to the cage points. The network
-    serves when its error is below ``(1 - margin)`` x the better of the two maps without it; else
-    that map (the box map on a tie). ``extent (3,)``: the template part's half extents
+    serves when its error is below ``(1 - margin)`` x the better of the two maps without it, by more
+    than :data:`SERVE_FLOOR`; else that map (the box map on a tie). ``extent (3,)``: the template part's half extents
     (:func:`template_extent`).
     """
     if not 0.0 <= margin < 1.0:
@@ -437,5 +440,6 @@ def choose_serving(model: ProcCorrNet, val_pairs: Sequence[Pair], extent: np.nda
         raise ValueError(f"extent must be three positive finite half extents, got {extent!r}")
     errors = {"network": float(eval_step(model, val_pairs, seed=seed)["mean"]), **plain_errors(val_pairs, extent)}
     plain = min(("box", "identity"), key=lambda k: (errors[k], k != "box"))
-    serve = "network" if errors["network"] < (1.0 - margin) * errors[plain] else plain
+    gain = errors[plain] - errors["network"]
+    serve = "network" if errors["network"] < (1.0 - margin) * errors[plain] and gain > SERVE_FLOOR else plain
     return ServingChoice(serve, errors, extent, len(val_pairs), float(margin))
