@@ -367,6 +367,7 @@ def solve_cage(
     terms: dict[str, float] = {}
     mvc_term = torch.zeros((), device=device, dtype=dtype)
     it = 0
+
     def fit(C: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, np.ndarray]:
         x = W_pts @ C
         nrm = _tri_normals((W_tri @ C)[tf])[tidx]

@@ -12,11 +12,11 @@ One interface, three methods (:data:`METHODS`):
 Pre-alignment: both parts in their normalised frames (bounding-box centre, L∞ radius; DESIGN §6),
 then point-to-surface ICP with a uniform scale (Umeyama on the ICP matches) from the identity
 (families keep their orientation), or the per-axis scale of the two bounding boxes ("box"), or
-whichever of the two leaves the smaller symmetric point-to-surface distance ("auto", the cage's default). Procedural
-parts are mostly stretched versions of each other, which the box map takes exactly and a
-similarity cannot: the nearest point after the box start alone has ground-truth error 0.0000-0.005
-on the chair and table parts (up to 0.16 after ICP) and 0.015-0.020 on three vases, where the old
-cage ended at 0.044-0.067 (``tests/bench/bench_correspond.py --tessellation adaptive``). A
+whichever of the two leaves the smaller symmetric point-to-surface distance ("auto", the cage's
+default). Procedural parts are mostly stretched versions of each other, which the box map takes
+exactly and a similarity cannot: the nearest point after the box start alone has ground-truth
+error 0.0000-0.005 on the chair and table parts (up to 0.16 after ICP) and 0.015-0.020 on three
+vases, where the old cage ended at 0.044-0.067 (``tests/bench/bench_correspond.py --tessellation adaptive``). A
 sheared or tapered part is an affine image, not a per-axis stretch: "auto" refines the box map by
 facet-matched affine ICP (:func:`proctex.geometry.align.affine_icp_to_surface`) and keeps the
 refinement where it fits at least as well (issue 32: cage GT mean over 8 built-ins and the sofa,

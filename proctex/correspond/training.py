@@ -429,8 +429,8 @@ def choose_serving(model: ProcCorrNet, val_pairs: Sequence[Pair], extent: np.nda
     Each candidate maps every source point of ``val_pairs`` (the network as :func:`eval_step` does);
     its error is the mean over shapes of the per-shape mean distance to the cage points. The network
     serves when its error is below ``(1 - margin)`` x the better of the two maps without it, by more
-    than :data:`SERVE_FLOOR`; else that map (the box map on a tie). ``extent (3,)``: the template part's half extents
-    (:func:`template_extent`).
+    than :data:`SERVE_FLOOR`; else that map (the box map on a tie). ``extent (3,)``: the template
+    part's half extents (:func:`template_extent`).
     """
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"margin must be in [0, 1), got {margin!r}")

@@ -449,9 +449,11 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, bilinear: bool = True) -
     fc = (c - j0)[:, None] if W > 1 else np.zeros((len(c), 1))
     i1 = np.minimum(i0 + 1, H - 1)
     j1 = np.minimum(j0 + 1, W - 1)
-    t = tex.astype(np.float64) if tex.dtype != np.float64 else tex
-    top = t[i0, j0] * (1 - fc) + t[i0, j1] * fc
-    bot = t[i1, j0] * (1 - fc) + t[i1, j1] * fc
+    def at(i: np.ndarray, j: np.ndarray) -> np.ndarray:  # the texels read, as float64 (not the whole texture)
+        return tex[i, j].astype(np.float64)
+
+    top = at(i0, j0) * (1 - fc) + at(i0, j1) * fc
+    bot = at(i1, j0) * (1 - fc) + at(i1, j1) * fc
     return (top * (1 - fr) + bot * fr) * scale
 
 
