@@ -69,9 +69,20 @@ def test_surface_index_on_degenerate_and_far_faces(backend):
     assert len(SurfaceIndex(v, f, backend=backend).query(np.zeros((0, 3))).faces) == 0
 
 
-def test_surface_index_backends_and_bad_meshes():
+def test_surface_index_backends_and_bad_meshes(monkeypatch):
+    import proctex.geometry.surface as surface
+
     shape = get_model("vase").generate()
     assert SurfaceIndex(shape.vertices, shape.faces).backend == "aabb"  # libigl is a dependency
+    q = shape.vertices[:50] + 0.01
+    with_igl = SurfaceIndex(shape.vertices, shape.faces).query(q)
+    monkeypatch.setattr(surface, "_IGL", [None])  # where libigl does not import (Blender's Python, say)
+    index = SurfaceIndex(shape.vertices, shape.faces)
+    assert index.backend == "proxies"
+    np.testing.assert_allclose(index.query(q).distance, with_igl.distance, atol=1e-12)
+    with pytest.raises(ImportError, match="libigl"):
+        SurfaceIndex(shape.vertices, shape.faces, backend="aabb")
+    monkeypatch.undo()
     with pytest.raises(ValueError, match="backend"):
         SurfaceIndex(shape.vertices, shape.faces, backend="bvh")
     with pytest.raises(ValueError, match="index"):
