@@ -361,6 +361,16 @@ def test_the_cage_tracker_reuses_the_test_pairs_solved_by_the_build(tmp_path, mo
     assert len(solves) == len(kept)
     a, b = reused["methods"]["identity"], solved["methods"]["identity"]
     assert a["tracked_point_variance"] == pytest.approx(b["tracked_point_variance"], rel=1e-9, abs=1e-12)
+    # only test pairs of parts up to MAX_VERTEX_MAP vertices keep a map
+    import proctex.build.pairs as bp
+    from proctex.store.samples import load_sample, samples
+    from proctex.transfer.assets import load_assets
+
+    shape, assets = load_sample(st, samples(st)[0], cfg), load_assets(st)
+    assert bp.solve_pair(shape, assets, 0, cfg, 0, vertex_map=True)["mapped"] is not None
+    assert bp.solve_pair(shape, assets, 0, cfg, 0)["mapped"] is None
+    monkeypatch.setattr(bp, "MAX_VERTEX_MAP", 10)
+    assert bp.solve_pair(shape, assets, 0, cfg, 0, vertex_map=True)["mapped"] is None
     # the check that makes the reuse safe: a map is only read back for the part it was made for
     r = kept[0]
     from proctex.store.samples import part_digest, write_pair_vertices

@@ -32,6 +32,11 @@ def pair_input(shape: Shape, assets, group: int) -> tuple[int, np.ndarray, np.nd
     return a.part, vn, f
 
 
+#: Test parts with more vertices keep no vertex map (float64, 24 bytes a vertex: 6 MB at most a
+#: pair); the evaluation's tracker solves their pairs again instead.
+MAX_VERTEX_MAP = 250_000
+
+
 def pair_result(part: int, res, vertices: np.ndarray | None = None, faces: np.ndarray | None = None) -> dict[str, Any]:
     """A solved cage correspondence (:class:`proctex.correspond.dense.PartCorrespondence`) as the
     training pair and its record; with the source part's ``vertices (j, 3)`` and ``faces``, also
@@ -56,8 +61,10 @@ def pair_result(part: int, res, vertices: np.ndarray | None = None, faces: np.nd
     }
 
 
-def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int) -> dict[str, Any] | None:
-    """Cage correspondence of one (shape, template group): the training pair and its record."""
+def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int, vertex_map: bool = False) -> dict[str, Any] | None:
+    """Cage correspondence of one (shape, template group): the training pair and its record; with
+    ``vertex_map``, also where it sends the part's vertices (parts of at most
+    :data:`MAX_VERTEX_MAP` vertices; :func:`pair_result`)."""
     from proctex.correspond.dense import correspond_parts
 
     inp = pair_input(shape, assets, group)
@@ -66,7 +73,7 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int)
     part, vn, f = inp
     ga = assets.groups[group]
     res = correspond_parts(vn, f, ga.vertices, ga.faces, method="cage", n_points=config.corr_points, seed=seed, cage=config.cage)
-    return pair_result(part, res, vn, f)
+    return pair_result(part, res, vn, f) if vertex_map and len(vn) <= MAX_VERTEX_MAP else pair_result(part, res)
 
 
 @dataclass
@@ -123,13 +130,13 @@ def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, 
     t = time.perf_counter()
     try:
         shape = shape if shape is not None else load_sample(store, job.row, config)
-        pair = solve_pair(shape, assets, g, config, pair_seed(config, job.index, g))
+        # a test pair keeps where it sends its part's vertices: the evaluation's cage tracker reads them
+        pair = solve_pair(shape, assets, g, config, pair_seed(config, job.index, g), vertex_map=job.row["split"] == "test")
         status = "done" if pair is not None else "absent"
         error = ""
     except (ValueError, RuntimeError) as exc:
         pair, status, error = None, "failed", str(exc)
-    if pair is not None and pair["mapped"] is not None and job.row["split"] == "test":
-        # the cage tracker of the evaluation (test shapes) maps these vertices: kept, not solved again
+    if pair is not None and pair["mapped"] is not None:
         write_pair_vertices(store, sid, g, **pair["mapped"])
     if pair is not None:
         store.write_table(StoreLayout.pair(sid, g), {
