@@ -1,15 +1,16 @@
 """Ray Train: one ProcCorrNet per part group, fitted data-parallel by Ray Train workers on CPUs (a
-``TorchTrainer`` where a team of several workers averages gradients, else a plain data-parallel trainer).
+``TorchTrainer`` where a team of several workers averages gradients, else a plain data-parallel
+trainer).
 
 Every worker runs the same pure training loop as the single-process build
 (:func:`proctex.correspond.training.train`) on the group's pairs from the store, drawing its own share of each
 batch; a gradient hook averages the gradients across workers (gloo ``all_reduce``), so the workers
 keep identical weights and stop together. A team's first rank writes its networks to the store
 (``models/group_<g>.pt``) and puts them, with their records, in the run's checkpoint (under
-``train_runs/`` in the store), where the driver reads the records. The workers form teams (:func:`teams`); a team trains its groups with
-:func:`proctex.build.train.fit_groups` (in one batched loop on a GPU, one after another on CPUs), so
-fewer workers than groups run side by side and more workers than groups shorten every group's run
-instead of idling.
+``train_runs/`` in the store), where the driver reads the records. The workers form teams
+(:func:`teams`); a team trains its groups with :func:`proctex.build.train.fit_groups` (in one
+batched loop on a GPU, one after another on CPUs), so fewer workers than groups run side by side
+and more workers than groups shorten every group's run instead of idling.
 """
 
 from __future__ import annotations

@@ -6,8 +6,9 @@ run by a Ray executor (:func:`ray_executor`) that fans them out over a cluster.
 - ``pairs``: every (shape, group) cage pair as Ray tasks, one task per shape (its groups share the
   loaded mesh), at most ``max_in_flight`` tasks submitted at a time, each retried by Ray if its
   worker dies; records stream back, ``pairs.parquet`` is rewritten as they arrive, with progress;
-- ``train``: one Ray Train ``TorchTrainer`` per group (:mod:`workers.train`);
-- ``evaluate``: on the driver.
+- ``train``: groups whose box map or identity already fits settled on the driver, the others in
+  one Ray Train job (:mod:`workers.train`);
+- ``evaluate``: on the driver (its shapes in worker processes).
 
 Every job writes straight to the store, atomically, data before record, and skips complete work,
 so a rerun after a crash (of a worker or of the driver) does only what is missing or failed and ends
