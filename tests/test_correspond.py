@@ -514,8 +514,8 @@ def test_a_warm_started_cage_converges_to_the_same_map():
     wild = SimpleNamespace(details={**cold_b.details, "cage": cold_b.details["cage0"] + np.random.default_rng(0).normal(0, 0.5, cold_b.details["cage0"].shape)})
     np.testing.assert_allclose(correspond_parts(*b, tv, tf, "cage", 2000, seed=0, warm=wild).points, cold_b.points, atol=1e-12)
     other, _ = init_cage(np.random.default_rng(1).normal(size=(50, 3)), level=2)
-    assert warm_offset(SimpleNamespace(cage0=other, cage=other), cold_b.details["cage0"]) is None
-    carried = warm_offset(SimpleNamespace(cage0=cold_a.details["cage0"], cage=cold_a.details["cage"]), cold_b.details["cage0"])
+    assert warm_offset((other, other), cold_b.details["cage0"]) is None
+    carried = warm_offset((cold_a.details["cage0"], cold_a.details["cage"]), cold_b.details["cage0"])
     span = lambda c: np.ptp(c, axis=0)  # noqa: E731
     d_a = cold_a.details["cage"] - cold_a.details["cage0"]
     np.testing.assert_allclose(carried, d_a * span(cold_b.details["cage0"]) / span(cold_a.details["cage0"]), atol=1e-12)

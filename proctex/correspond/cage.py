@@ -274,12 +274,13 @@ def _oriented_nn(tree: cKDTree, pts: np.ndarray, pts_normals: np.ndarray, query:
     return j
 
 
-def warm_offset(start: CageResult, cage0: np.ndarray) -> np.ndarray | None:
-    """The displacement of ``start``'s solved cage carried onto a new initial cage ``cage0 (V, 3)``:
-    per axis, scaled by the ratio of the two cages' box extents (the box map between them), so a
-    neighbour's stretch or bend lands where this pair's cage has the same lattice vertex. None when
-    the cages have different lattices (vertex counts or layouts: no warm start)."""
-    c0 = np.asarray(start.cage0, dtype=np.float64)
+def warm_offset(start: tuple[np.ndarray, np.ndarray], cage0: np.ndarray) -> np.ndarray | None:
+    """The displacement of a solved cage ``start = (its initial cage, its solved cage)`` carried onto
+    a new initial cage ``cage0 (V, 3)``: per axis, scaled by the ratio of the two cages' box extents
+    (the box map between them), so a neighbour's stretch or bend lands where this pair's cage has
+    the same lattice vertex. None when the cages have different lattices (vertex counts or
+    layouts: no warm start)."""
+    c0 = np.asarray(start[0], dtype=np.float64)
     if c0.shape != cage0.shape:
         return None
     lo0, hi0 = c0.min(0), c0.max(0)
@@ -288,7 +289,7 @@ def warm_offset(start: CageResult, cage0: np.ndarray) -> np.ndarray | None:
     # the same lattice: each vertex at the same relative place in its box
     if not np.allclose((c0 - lo0) * scale, cage0 - lo1, atol=1e-9 * max(float((hi1 - lo1).max()), 1e-9)):
         return None
-    out = (np.asarray(start.cage, dtype=np.float64) - c0) * scale
+    out = (np.asarray(start[1], dtype=np.float64) - c0) * scale
     return out if np.isfinite(out).all() else None
 
 
@@ -315,7 +316,7 @@ def solve_cage(
     config: CageConfig | None = None,
     symmetry_axes: tuple[int, ...] = (),
     seed: int = 0,
-    start: CageResult | None = None,
+    start: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> CageResult:
     """Optimise a cage deforming the source samples onto the template surface.
 
@@ -329,9 +330,9 @@ def solve_cage(
         template_samples, template_sample_normals: (m, 3) uniform template samples and normals.
         config: solver settings. symmetry_axes: template mirror planes ``x[axis] = 0`` (used when
             ``config.symmetry``). seed: seed of the penalty's subsamples.
-        start: a warm start: the solved cage of a neighbouring pair (its displacement carried onto
-            this pair's cage by :func:`warm_offset`, composed with the box map between the two
-            cages). The first step measures both the rest cage and the carried one and goes on
+        start: a warm start: ``(initial cage, solved cage)`` of a neighbouring pair (its
+            displacement carried onto this pair's cage by :func:`warm_offset`, composed with the
+            box map between the two cages). The first step measures both the rest cage and the carried one and goes on
             from the better, so a poor neighbour costs one loss evaluation, never the result.
     """
     cfg = (config or CageConfig()).validate()

@@ -340,6 +340,15 @@ class ProcCorrNet(nn.Module):
         return self.head(local[:, :q], local.amax(dim=1), points[:, :q])
 
 
+def zero_residual(model: ProcCorrNet) -> None:
+    """Zero the decoder's last layer: a residual network then maps every point by its frame's own
+    map (the box map in the box frame), whatever its other weights."""
+    last = model.decoder[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+
+
 def build_model(config: CorrNetConfig) -> ProcCorrNet:
     """A freshly initialised network (seeded by ``config.seed``) on the config's device and dtype."""
     config.validate()
@@ -347,10 +356,7 @@ def build_model(config: CorrNetConfig) -> ProcCorrNet:
         torch.manual_seed(config.seed)
         model = ProcCorrNet(config.local_hidden, config.feature_dim, config.decoder_hidden, config.context_points, config.residual, config.frame)
         if config.zero_init and config.residual:
-            last = model.decoder[-1]
-            with torch.no_grad():
-                last.weight.zero_()
-                last.bias.zero_()
+            zero_residual(model)
     return model.to(device=resolve_device(config.device), dtype=DTYPES[config.dtype])
 
 

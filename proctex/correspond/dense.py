@@ -356,9 +356,7 @@ def correspond_parts(
     problem = _cage_problem(prep, aligned, tpl_s, tpl_sf, seed)
     tpl_vn = vertex_normals(prep.index.vertices, prep.index.faces)
     axes = template_symmetry_axes(prep.index.vertices, prep.index.faces, seed=seed) if (cage and cage.symmetry) else ()
-    start = None
-    if warm is not None and "cage" in warm.details and "cage0" in warm.details:
-        start = CageResult(np.zeros((0, 3)), np.zeros((0, 3)), warm.details["cage0"], warm.details["cage"], warm.details["cage_faces"], 0, False, 0.0)
+    start = (warm.details["cage0"], warm.details["cage"]) if warm is not None and "cage" in warm.details else None
     res = solve_cage(problem.points, problem.tri_vertices, problem.tri_faces, problem.tri_index, prep.index, tpl_vn, tpl_s,
                      problem.template_sample_normals, cage, symmetry_axes=axes, seed=seed, start=start)
     return _cage_finish(prep, cage, res, axes, tpl_s, t0)

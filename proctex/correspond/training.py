@@ -25,6 +25,7 @@ from .corrnet import (
     resolve_autocast,
     predict,
     sample_indices,
+    zero_residual,
 )
 
 
@@ -390,12 +391,8 @@ def settle_plain(model: ProcCorrNet, data: "GroupData", config: CorrNetConfig) -
     """:func:`plain_fit` of a group's data; where it needs no training, ``model`` (a residual
     network) is set to the frame's own map (its last layer zeroed: the zero residual)."""
     errors = plain_fit(data.train, data.val, config)
-    if errors is None:
-        return None
-    last = model.decoder[-1]
-    with torch.no_grad():
-        last.weight.zero_()
-        last.bias.zero_()
+    if errors is not None:
+        zero_residual(model)
     return errors
 
 
