@@ -337,7 +337,8 @@ def test_a_method_from_one_file_is_offered_by_the_cli_the_evaluation_and_the_ser
 def test_the_cage_tracker_reuses_the_test_pairs_solved_by_the_build(tmp_path, monkeypatch):
     """Without a ground truth the cage tracks the points: the pairs stage keeps where each test
     pair's cage sends its part's vertices, so the evaluation solves none again, and measures the
-    same as when it solves them all; a stored map of another part (or a damaged file) is not used."""
+    same as when it solves them all, and far worse when the stored maps are wrong; a stored map of
+    another part (or a damaged file) is not used."""
     import proctex.transfer.mappers as mappers
     from proctex.measure.evaluate import evaluate
     from proctex.store.samples import read_pair_vertices
@@ -355,12 +356,20 @@ def test_the_cage_tracker_reuses_the_test_pairs_solved_by_the_build(tmp_path, mo
     run = dict(methods=("identity",), tracked=300, log=lambda *_: None, quiet=True)
     reused = evaluate(st, **run)
     assert reused["tracker"] == "cage" and solves == []
+    maps = {(r["id"], r["group"]): st.read_arrays(StoreLayout.pair_vertices(r["id"], r["group"])) for r in kept}
     for r in kept:
         st.delete(StoreLayout.pair_vertices(r["id"], r["group"]))
     solved = evaluate(st, **run)
     assert len(solves) == len(kept)
     a, b = reused["methods"]["identity"], solved["methods"]["identity"]
     assert a["tracked_point_variance"] == pytest.approx(b["tracked_point_variance"], rel=1e-9, abs=1e-12)
+    # the tracker really reads them: stored maps made wrong on purpose (each part collapsed towards
+    # its centre, turned half a turn about the up axis) track other points and measure far worse
+    for (sid, g), m in maps.items():
+        wrong = 0.3 * m["vertices"] * np.array([-1.0, 1.0, -1.0])
+        st.write_arrays(StoreLayout.pair_vertices(sid, g), vertices=wrong, digest=m["digest"])
+    broken = evaluate(st, **run)["methods"]["identity"]
+    assert broken["tracked_point_variance"] > 2 * a["tracked_point_variance"], (broken["tracked_point_variance"], a["tracked_point_variance"])
     # only test pairs of parts up to MAX_VERTEX_MAP vertices keep a map
     import proctex.build.pairs as bp
     from proctex.store.samples import load_sample, samples

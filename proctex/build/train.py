@@ -144,6 +144,11 @@ def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], 
     return fit_groups(store, config, groups)
 
 
+def _stage_record(record: dict[str, Any]) -> dict[str, Any]:
+    """A group's train record as the stage keeps it (without the pair counts of the log line)."""
+    return {k: v for k, v in record.items() if k not in ("train_pairs", "val_pairs")}
+
+
 def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> Plan:
     """The train stage: one ProcCorrNet per trainable group without one yet, a batch per group. A
     resumed build keeps the record of the groups trained before. A worker's groups go to
@@ -173,15 +178,15 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
     # worker starts: no pool slot or Ray Train team waits on them (teams are dealt statically).
     settled = plain_groups(store, config, todo)
     if settled:
-        for g, m in zip(settled, fit_groups(store, config, settled)):
-            collect([g], [m])
-            trained[g] = {k: v for k, v in m.items() if k not in ("train_pairs", "val_pairs")}
+        records = fit_groups(store, config, settled)
+        collect(settled, records)
+        trained.update((g, _stage_record(m)) for g, m in zip(settled, records))
         todo = [g for g in todo if g not in settled]
 
     def finish(results: list[list[dict[str, Any] | None]]) -> None:
         for g, m in zip(todo, (m for out in results for m in out)):
             if m is not None:
-                trained[g] = {k: v for k, v in m.items() if k not in ("train_pairs", "val_pairs")}
+                trained[g] = _stage_record(m)
         if todo or not stage_done(store, "train"):
             mark_stage(store, "train", groups=trained, **plan.info.get("mark", {}))
 

@@ -115,23 +115,16 @@ def stored_pairs(store: FamilyStore, sid: str, index: list[dict[str, Any]] | Non
 class StoredPairMapper:
     """The cage tracker's mapper for sample ``sid``: a part's vertices go where its stored pair sent
     them (:func:`proctex.store.samples.read_pair_vertices`: the same solve, with the same seed and
-    settings) when that map was made for this very part; otherwise ``solver`` solves the pair.
-    ``stored`` / ``solved``: how many parts each answered."""
+    settings) when that map was made for this very part; otherwise ``solver`` solves the pair."""
 
     def __init__(self, store: FamilyStore, sid: str, solver: Any) -> None:
         self.store, self.sid, self.solver = store, sid, solver
-        self.stored = self.solved = 0
 
     def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray:
         from proctex.store.samples import read_pair_vertices
 
-        if self.sid and query is vertices:
-            mapped = read_pair_vertices(self.store, self.sid, group, vertices, faces)
-            if mapped is not None:
-                self.stored += 1
-                return mapped
-        self.solved += 1
-        return self.solver.map(group, vertices, faces, query, seed=seed)
+        mapped = read_pair_vertices(self.store, self.sid, group, vertices, faces) if self.sid and query is vertices else None
+        return mapped if mapped is not None else self.solver.map(group, vertices, faces, query, seed=seed)
 
 
 class _Context:
