@@ -82,7 +82,7 @@ VAL_SHARE = 0.15  # of a group's train shapes, held out for early stopping
 
 
 def fit_groups(store: FamilyStore, config: BuildConfig, groups: list[int], rank: int = 0, world: int = 1,
-               grad_hook: Callable[[Any], None] | None = None) -> list[dict[str, Any]]:
+               grad_hook: Callable[[Any], None] | None = None, data: dict[int, dict[str, Any]] | None = None) -> list[dict[str, Any]]:
     """Train the networks of ``groups`` (together in one batched loop where
     :func:`proctex.correspond.corrnet.trains_together` says so, each keeping its own network, early
     stopping and best state; else one after another) and, on ``rank`` 0, store each; the one train
@@ -91,25 +91,29 @@ def fit_groups(store: FamilyStore, config: BuildConfig, groups: list[int], rank:
     whoever trained it: ``best_val`` (:func:`proctex.correspond.training.eval_step` of the kept
     state), ``iterations``, ``seconds`` (a shared loop's for groups trained together),
     ``train_pairs``, ``val_pairs``, ``sha256`` and ``serving`` (None off rank 0), ``workers`` (the
-    team's size: 1 in process) and ``together`` (the groups trained in the same loop)."""
+    team's size: 1 in process) and ``together`` (the groups trained in the same loop). ``data``:
+    ``{group: group_training_data(...)}`` a caller has read already."""
     from proctex.correspond.corrnet import trains_together
     from proctex.correspond.grouped import train_together
     from proctex.correspond.training import train
 
+    def load(g: int) -> dict[str, Any]:  # ``data``: groups' training data already read by the caller
+        return data[g] if data and g in data else group_training_data(store, config, g, VAL_SHARE)
+
     if not trains_together(config.train, len(groups)):
         out = []
         for g in groups:  # one after another, each stored as it finishes
-            d = group_training_data(store, config, g, VAL_SHARE)
+            d = load(g)
             t = time.perf_counter()
             result = train(d["train"], d["val"], config.train, rank=rank, world=world, grad_hook=grad_hook, features=d["features"])
             out.append(_group_record(store, config, g, d, result, time.perf_counter() - t, rank, world, 1))
         return out
-    data = [group_training_data(store, config, g, VAL_SHARE) for g in groups]
+    loaded = [load(g) for g in groups]
     t = time.perf_counter()
-    results = train_together([(d["train"], d["val"]) for d in data], config.train, features=[d["features"] for d in data],
+    results = train_together([(d["train"], d["val"]) for d in loaded], config.train, features=[d["features"] for d in loaded],
                              rank=rank, world=world, grad_hook=grad_hook)
     seconds = time.perf_counter() - t
-    return [_group_record(store, config, g, d, r, seconds, rank, world, len(groups)) for g, d, r in zip(groups, data, results)]
+    return [_group_record(store, config, g, d, r, seconds, rank, world, len(groups)) for g, d, r in zip(groups, loaded, results)]
 
 
 def _group_record(store: FamilyStore, config: BuildConfig, group: int, data: dict[str, Any], result, seconds: float, rank: int, world: int,
@@ -120,22 +124,23 @@ def _group_record(store: FamilyStore, config: BuildConfig, group: int, data: dic
             "together": together}
 
 
-def plain_groups(store: FamilyStore, config: BuildConfig, groups: list[int]) -> list[int]:
-    """The groups of ``groups`` that need no training: their plain map lies within
-    ``train.plain_below`` of their held-out pairs (:func:`proctex.correspond.training.plain_fit`).
-    A group whose data cannot be read is left to the training, which reports why."""
+def plain_groups(store: FamilyStore, config: BuildConfig, groups: list[int]) -> dict[int, dict[str, Any]]:
+    """The groups of ``groups`` that need no training, with their training data: their plain map
+    lies within ``train.plain_below`` of their held-out pairs
+    (:func:`proctex.correspond.training.plain_fit`). A group whose data cannot be read is left to
+    the training, which reports why."""
     from proctex.correspond.training import plain_fit
 
     if config.train.plain_below <= 0 or not config.train.residual:
-        return []
-    out = []
+        return {}
+    out = {}
     for g in groups:
         try:
             d = group_training_data(store, config, g, VAL_SHARE)
         except ValueError:
             continue
         if plain_fit(d["train"], d["val"], config.train) is not None:
-            out.append(g)
+            out[g] = d
     return out
 
 
@@ -178,8 +183,8 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
     # worker starts: no pool slot or Ray Train team waits on them (teams are dealt statically).
     settled = plain_groups(store, config, todo)
     if settled:
-        records = fit_groups(store, config, settled)
-        collect(settled, records)
+        records = fit_groups(store, config, list(settled), data=settled)
+        collect(list(settled), records)
         trained.update((g, _stage_record(m)) for g, m in zip(settled, records))
         todo = [g for g in todo if g not in settled]
 
