@@ -509,6 +509,7 @@ def test_a_warm_started_cage_converges_to_the_same_map():
     np.testing.assert_allclose(again.points, cold_b.points, atol=1e-12)
     assert again.iterations <= CageConfig().patience_start + 1
     near = correspond_parts(*b, tv, tf, "cage", 2000, seed=0, warm=cold_a)
+    assert near.details["history"][0] < 0.9 * cold_b.details["history"][0]  # it did start from the neighbour's cage
     assert np.linalg.norm(near.points - cold_b.points, axis=1).mean() < 1e-3
     assert near.residual < 1.1 * cold_b.residual
     wild = SimpleNamespace(details={**cold_b.details, "cage": cold_b.details["cage0"] + np.random.default_rng(0).normal(0, 0.5, cold_b.details["cage0"].shape)})
