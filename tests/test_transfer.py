@@ -1,5 +1,7 @@
 """Family store, run-time texture transfer (assignment, UVs, GLB) and baking."""
 
+from dataclasses import replace
+
 import numpy as np
 import pyarrow as pa
 import pytest
@@ -172,6 +174,29 @@ def test_transfer_glb_is_valid_and_bake_matches(tmp_path, chair):
     c2, f2 = _visible_colours(shape, b.corner_uv, b.face_group, b.textures)
     assert (f1 == f2).all()
     assert np.median(np.abs(c1 - c2).max(axis=1)) < 0.05
+
+
+def test_bakes_of_one_shape_share_its_atlases(chair):
+    """A group's atlas depends only on its faces: bakes of one shape by two methods with a shared
+    cache equal bakes without it, and the second bake unwraps nothing."""
+    from proctex.transfer.apply import group_atlas
+
+    _, _, _, assets = chair
+    shape = get_model("chair").generate({"seat_width": 0.52, "back_height": 0.5})
+    r = transfer(shape, assets, IdentityMapper(), shortcut=False)
+    results = [r, replace(r, corner_uv=0.25 + 0.5 * r.corner_uv)]  # another method's UVs into the same textures
+    cache: dict = {}
+    for k, r in enumerate(results):
+        plain, shared = bake(shape, r, assets, size=64, pbr=False), bake(shape, r, assets, size=64, pbr=False, atlases=cache)
+        assert np.array_equal(plain.corner_uv, shared.corner_uv)
+        assert all(np.array_equal(a, b) for a, b in zip(plain.textures, shared.textures))
+        if k == 0:
+            unwrapped = len(cache)
+    assert unwrapped == sum(not d for d in plain.direct) and len(cache) == unwrapped  # the second method unwrapped nothing
+    faces = np.flatnonzero(plain.face_group == 0)
+    one = group_atlas(shape, faces, 64, 2, cache)
+    other = group_atlas(shape, faces[:-1], 64, 2, cache)  # other faces: another atlas
+    assert len(cache) == unwrapped + 1 and len(other[1]) == len(faces) - 1 and len(one[1]) == len(faces)
 
 
 def test_shape_to_glb_is_transfer_then_glb_or_bake(chair):

@@ -18,9 +18,12 @@ from proctex.texture.render import (
     default_up,
     embree_available,
     orbit_path,
+    canonical_buffers,
     render_buffers,
+    render_six_views,
     save_png,
     turntable,
+    with_labels,
 )
 from proctex.geometry.shape import Shape
 from proctex.texture.uv import fit_unit_square, pad_seams, planar_uv, sample_texture, shape_uv, source_uv, texel_map, unwrap, uv_to_pixel
@@ -187,6 +190,29 @@ def test_sample_texture_bilinear_and_nearest():
     assert np.allclose(sample_texture(tex.astype(np.uint8), centres, bilinear=False) * 255, tex.reshape(-1, 3))
 
 
+def _sample_reference(tex, uv):
+    """Bilinear lookup texel by texel (edge-clamped), the slow way."""
+    H, W = tex.shape[:2]
+    out = []
+    for u, v in uv:
+        r = min(max((1 - v) * H - 0.5, 0), H - 1)
+        c = min(max(u * W - 0.5, 0), W - 1)
+        i0, j0 = min(int(np.floor(r)), max(H - 2, 0)), min(int(np.floor(c)), max(W - 2, 0))
+        i1, j1 = min(i0 + 1, H - 1), min(j0 + 1, W - 1)
+        fr, fc = r - i0, c - j0
+        t = tex.astype(np.float64) / (255.0 if tex.dtype == np.uint8 else 1.0)
+        out.append((t[i0, j0] * (1 - fc) + t[i0, j1] * fc) * (1 - fr) + (t[i1, j0] * (1 - fc) + t[i1, j1] * fc) * fr)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("size", [(1, 1), (1, 6), (5, 1), (7, 9), (16, 16)])
+def test_sample_texture_matches_a_texel_by_texel_reference(size):
+    rng = np.random.default_rng(sum(size))
+    uv = rng.uniform(-0.2, 1.2, (300, 2))  # outside the unit square too: clamped to the edge
+    for tex in (rng.integers(0, 256, (*size, 3)).astype(np.uint8), rng.random((*size, 4))):
+        assert np.allclose(sample_texture(tex, uv), _sample_reference(tex, uv), atol=1e-12)
+
+
 def test_shape_uv_members_read_their_representatives_texture():
     shape = get_model("table").generate()
     grouping = analyse(shape)
@@ -320,3 +346,32 @@ def test_shape_without_faces_is_rejected():
         Tracer(np.zeros((3, 3)), np.zeros((0, 3), int))
     shape = Shape(np.zeros((3, 3)), np.array([[0, 1, 2]]))
     assert triangle_areas(shape.vertices, shape.faces)[0] == 0
+
+
+def test_views_traced_once_serve_every_uv_layout():
+    """One tracing of a mesh's six views gives the coverage and the renders of any UV layout exactly
+    as tracing again; views of another size or mesh are refused."""
+    from proctex.texture.metrics import coverage
+
+    shape = get_model("mug").generate()
+    uv = shape_uv(shape, analyse(shape), resolution=64)
+    rng = np.random.default_rng(0)
+    textures = [rng.integers(0, 256, (64, 64, 3)).astype(np.uint8) for _ in range(int(uv.face_group.max()) + 1)]
+    painted = [rng.random((64, 64)) > 0.3 for _ in textures]
+    views = canonical_buffers(shape.vertices, shape.faces, "z", 48)
+    for face_group in (uv.face_group, np.where(uv.face_group == 0, -1, uv.face_group)):  # and a layout with a group left bare
+        a = coverage(shape.vertices, shape.faces, uv.corner_uv, face_group, painted, size=48)
+        b = coverage(shape.vertices, shape.faces, uv.corner_uv, face_group, painted, size=48, views=views)
+        assert a == b and 0 < a.share < 1
+        imgs, _ = render_six_views(shape.vertices, shape.faces, uv.corner_uv, face_group, textures, "z", 48)
+        again, _ = render_six_views(shape.vertices, shape.faces, uv.corner_uv, face_group, textures, "z", 48, views=views)
+        assert all(np.array_equal(x, y) for x, y in zip(imgs, again))
+    labelled = with_labels(views[0], face_group=uv.face_group)
+    assert np.array_equal(labelled.group, render_buffers(Tracer(shape.vertices, shape.faces), views[0].camera, face_group=uv.face_group).group)
+    assert (views[0].group == -1).all()  # the traced views keep no labels
+    with pytest.raises(ValueError, match="six canonical"):
+        coverage(shape.vertices, shape.faces, uv.corner_uv, uv.face_group, painted, size=64, views=views)
+    with pytest.raises(ValueError, match="six canonical"):
+        coverage(shape.vertices, shape.faces[:10], uv.corner_uv[:10], uv.face_group[:10], painted, size=48, views=views)
+    with pytest.raises(ValueError, match="face_group"):
+        coverage(shape.vertices, shape.faces, uv.corner_uv, uv.face_group[:-1], painted, size=48, views=views)

@@ -35,6 +35,7 @@ def coverage(
     up: str = "z",
     size: int = 512,
     backend: str = "auto",
+    views: list | None = None,
 ) -> Coverage:
     """Share of visible surface pixels (six canonical views) landing on unpainted texels.
 
@@ -42,17 +43,21 @@ def coverage(
         vertices (n, 3), faces (m, 3), corner_uv (m, 3, 2), face_group (m,) int64: the textured mesh.
         painted: per group an (H, W) bool mask of texels holding colour.
         up: the shape's up axis; size: view size.
+        views: the six views of this mesh traced already
+            (:func:`proctex.texture.render.canonical_buffers` at ``size``): every UV layout of one
+            mesh is measured on one tracing.
     """
-    from .render import Tracer, bounding_sphere, canonical_cameras, pixel_uv, render_buffers
+    from .render import Tracer, check_views, canonical_buffers, pixel_uv, with_labels
     from .uv import bilinear_texels
 
     fg = np.asarray(face_group, dtype=np.int64)
-    tracer = Tracer(vertices, faces, backend)
-    c, r = bounding_sphere(vertices)
+    if fg.shape != (len(faces),):
+        raise ValueError(f"face_group must be ({len(faces)},), got {fg.shape}")
+    if views is None:
+        views = canonical_buffers(vertices, faces, up, size, Tracer(vertices, faces, backend))
     bad = total = 0
-    cams = canonical_cameras(c, r, up, size)
-    for cam in cams:
-        b = render_buffers(tracer, cam, face_group=fg)
+    for view in check_views(views, len(faces), size):
+        b = with_labels(view, face_group=fg)
         m = b.mask
         g = b.group[m]
         uv = pixel_uv(b, corner_uv)[m]
@@ -63,7 +68,7 @@ def coverage(
             if sel.any():
                 idx = bilinear_texels(uv[sel], mask.shape[0], mask.shape[1])
                 bad += int((~mask.ravel()[idx]).any(axis=1).sum())
-    return Coverage(bad / total if total else 0.0, bad, total, len(cams))
+    return Coverage(bad / total if total else 0.0, bad, total, len(views))
 
 
 # ------------------------------------------------------------------------------------ view similarity

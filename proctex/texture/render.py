@@ -11,7 +11,7 @@ Image conventions: row 0 at the top, pixel ``(i, j)`` centred at ``(j + 0.5, i +
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -207,11 +207,12 @@ class Tracer:
 
             self._intersector = RayMeshIntersector(trimesh.Trimesh(v, f, process=False, validate=False))
 
-    def faces_seen(self, camera: Camera) -> np.ndarray:
-        """(H, W) int64 face index per pixel, -1 where the ray misses."""
+    def faces_seen(self, camera: Camera, rays: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """(H, W) int64 face index per pixel, -1 where the ray misses. ``rays``: the camera's
+        :meth:`Camera.rays`, when the caller has them already."""
         H, W = camera.height, camera.width
         if self.backend == "embree":
-            origins, dirs = camera.rays()
+            origins, dirs = rays if rays is not None else camera.rays()
             tri, ray = self._intersector.intersects_id(origins, dirs, multiple_hits=False)
             out = np.full(H * W, -1, dtype=np.int64)
             out[ray] = tri
@@ -267,8 +268,8 @@ def render_buffers(
         if arr is not None and np.shape(arr) != (m,):
             raise ValueError(f"{name} must be ({m},), got {np.shape(arr)}")
     H, W = camera.height, camera.width
-    face = tracer.faces_seen(camera)
     origins, dirs = camera.rays()
+    face = tracer.faces_seen(camera, (origins, dirs))
     hit = np.flatnonzero(face.ravel() >= 0)
     f = face.ravel()[hit]
     tri = tracer.vertices[tracer.faces[f]]
@@ -306,6 +307,40 @@ def render_buffers(
         camera, face.reshape(shape2), part.reshape(shape2), group.reshape(shape2), bary.reshape(shape3),
         depth.reshape(shape2), points.reshape(shape3), normal.reshape(shape3), cos.reshape(shape2),
     )
+
+
+def with_labels(buffers: Buffers, face_part: np.ndarray | None = None, face_group: np.ndarray | None = None) -> Buffers:
+    """The same view with other per-face labels (``face_part``/``face_group``: (m,) int64 over the
+    traced mesh's faces; -1 where absent): one tracing serves every UV layout of a mesh."""
+    hit = buffers.mask
+    f = buffers.face[hit]
+    labels = {}
+    for name, arr in (("part", face_part), ("group", face_group)):
+        out = np.full(buffers.face.shape, -1, dtype=np.int64)
+        if arr is not None:
+            arr = np.asarray(arr, dtype=np.int64)
+            if arr.ndim != 1 or (len(f) and f.max() >= len(arr)):
+                raise ValueError(f"face_{name} must label every face of the traced mesh, got {arr.shape}")
+            out[hit] = arr[f]
+        labels[name] = out
+    return replace(buffers, **labels)
+
+
+def canonical_buffers(vertices: np.ndarray, faces: np.ndarray, up="z", size: int = 512, tracer: Tracer | None = None) -> list[Buffers]:
+    """Geometry buffers (no labels) of the six canonical views (:func:`canonical_cameras` of the
+    bounding sphere of ``vertices (n, 3)``) of the mesh ``faces (m, 3)``: traced once, they serve
+    :func:`proctex.texture.metrics.coverage` and :func:`render_six_views` of every UV layout and
+    texture set of that mesh (:func:`with_labels`)."""
+    tracer = tracer if tracer is not None else Tracer(vertices, faces)
+    c, r = bounding_sphere(vertices)
+    return [render_buffers(tracer, cam) for cam in canonical_cameras(c, r, up, size)]
+
+
+def check_views(views: list[Buffers], n_faces: int, size: int) -> list[Buffers]:
+    """``views`` (traced six canonical views) checked against a mesh of ``n_faces`` faces and a view size."""
+    if len(views) != 6 or any(b.face.shape != (size, size) or int(b.face.max()) >= n_faces for b in views):
+        raise ValueError(f"views must be the six canonical {size}x{size} views of this mesh (canonical_buffers)")
+    return views
 
 
 def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -377,6 +412,7 @@ def render_textured(
     background=(1.0, 1.0, 1.0),
     maps: list | None = None,
     normals: np.ndarray | None = None,
+    buffers: Buffers | None = None,
 ) -> np.ndarray:
     """(H, W, 3) uint8 shaded image of a textured mesh seen by ``camera``.
 
@@ -385,10 +421,14 @@ def render_textured(
     ``maps``: per texture its :class:`proctex.texture.pbr.PbrMaps` or None; with any, the view is lit
     physically (:mod:`proctex.texture.lighting`: roughness, metalness and normal maps under lights
     and a studio environment), else by the headlight of :func:`shade`; ``normals``: (m, 3, 3)
-    per-corner normals for that lighting (default: smooth vertex normals).
+    per-corner normals for that lighting (default: smooth vertex normals). ``buffers``: the view
+    traced already (this camera's, of this mesh: :func:`canonical_buffers`); nothing is traced.
     """
-    tracer = tracer if tracer is not None else Tracer(vertices, faces)
-    b = render_buffers(tracer, camera, face_group=np.asarray(face_group))
+    if buffers is not None:
+        b = with_labels(buffers, face_group=face_group)
+    else:
+        tracer = tracer if tracer is not None else Tracer(vertices, faces)
+        b = render_buffers(tracer, camera, face_group=np.asarray(face_group))
     if maps is not None and any(m is not None for m in maps):
         from .lighting import pbr_surface, shade_pbr
 
@@ -413,11 +453,18 @@ def three_quarter_camera(vertices: np.ndarray, up="z", size: int = 512, azimuth:
 
 def render_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
                  textures: list[np.ndarray], cameras: list[Camera], tracer: Tracer | None = None,
-                 background=(1.0, 1.0, 1.0), maps: list | None = None, normals: np.ndarray | None = None) -> list[np.ndarray]:
+                 background=(1.0, 1.0, 1.0), maps: list | None = None, normals: np.ndarray | None = None,
+                 buffers: list[Buffers] | None = None) -> list[np.ndarray]:
     """Shaded textured images, one (H, W, 3) uint8 per camera (inputs as in :func:`render_textured`).
 
-    One :class:`Tracer` is built for all cameras (or ``tracer`` is reused).
+    One :class:`Tracer` is built for all cameras (or ``tracer`` is reused); ``buffers``: the
+    cameras' views traced already (one per camera), then nothing is traced.
     """
+    if buffers is not None:
+        if len(buffers) != len(cameras):
+            raise ValueError(f"buffers must hold one traced view per camera: {len(buffers)} for {len(cameras)}")
+        return [render_textured(vertices, faces, corner_uv, face_group, textures, cam, None, background, maps, normals, b)
+                for cam, b in zip(cameras, buffers)]
     tracer = tracer if tracer is not None else Tracer(vertices, faces)
     return [render_textured(vertices, faces, corner_uv, face_group, textures, cam, tracer, background, maps, normals) for cam in cameras]
 
@@ -432,11 +479,14 @@ def render_three_quarter(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.
 
 def render_six_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
                      textures: list[np.ndarray], up="z", size: int = 512,
-                     tracer: Tracer | None = None, maps: list | None = None, normals: np.ndarray | None = None) -> tuple[list[np.ndarray], list[str]]:
-    """The six canonical views (:func:`canonical_cameras`): six (size, size, 3) uint8 images and their names."""
+                     tracer: Tracer | None = None, maps: list | None = None, normals: np.ndarray | None = None,
+                     views: list[Buffers] | None = None) -> tuple[list[np.ndarray], list[str]]:
+    """The six canonical views (:func:`canonical_cameras`): six (size, size, 3) uint8 images and their
+    names. ``views``: those views of this mesh traced already (:func:`canonical_buffers`)."""
     c, r = bounding_sphere(vertices)
     cams = canonical_cameras(c, r, up, size)
-    return render_views(vertices, faces, corner_uv, face_group, textures, cams, tracer, maps=maps, normals=normals), [cam.name for cam in cams]
+    views = check_views(views, len(faces), size) if views is not None else None
+    return render_views(vertices, faces, corner_uv, face_group, textures, cams, tracer, maps=maps, normals=normals, buffers=views), [cam.name for cam in cams]
 
 
 def turntable_frames(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,

@@ -447,13 +447,16 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, bilinear: bool = True) -
     j0 = np.minimum(np.floor(c).astype(np.int64), W - 2) if W > 1 else np.zeros(len(c), np.int64)
     fr = (r - i0)[:, None] if H > 1 else np.zeros((len(r), 1))
     fc = (c - j0)[:, None] if W > 1 else np.zeros((len(c), 1))
-    i1 = np.minimum(i0 + 1, H - 1)
-    j1 = np.minimum(j0 + 1, W - 1)
-    def at(i: np.ndarray, j: np.ndarray) -> np.ndarray:  # the texels read, as float64 (not the whole texture)
-        return tex[i, j].astype(np.float64)
+    # the four texels as rows of the flattened texture (take: half the time of tex[i, j]); i0 <= H - 2
+    flat = tex.reshape(H * W, -1)
+    k00 = i0 * W + j0
+    down, right = (W if H > 1 else 0), (1 if W > 1 else 0)
 
-    top = at(i0, j0) * (1 - fc) + at(i0, j1) * fc
-    bot = at(i1, j0) * (1 - fc) + at(i1, j1) * fc
+    def at(k: np.ndarray) -> np.ndarray:  # the texels read, as float64 (not the whole texture)
+        return flat.take(k, axis=0).astype(np.float64)
+
+    top = at(k00) * (1 - fc) + at(k00 + right) * fc
+    bot = at(k00 + down) * (1 - fc) + at(k00 + down + right) * fc
     return (top * (1 - fr) + bot * fr) * scale
 
 

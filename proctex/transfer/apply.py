@@ -329,9 +329,33 @@ def disoccluded_texels(uv: np.ndarray, observed: np.ndarray) -> np.ndarray:
     return ~observed.ravel()[idx].all(axis=1)
 
 
+def group_atlas(shape: Shape, faces: np.ndarray, size: int, padding: int, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray, Any, Any]:
+    """The own atlas of the faces ``faces (k,)`` of ``shape`` that :func:`bake` bakes into:
+    ``(used (u,) vertex ids, local (k, 3) faces over them, the xatlas Atlas, its TexelMap at
+    size x size)``. ``cache``: a dict kept across calls, keyed by the faces' and their vertices'
+    bytes, the size and padding (xatlas is deterministic: a hit is what unwrapping again gives)."""
+    import hashlib
+
+    used = np.unique(shape.faces[faces])
+    local = np.searchsorted(used, shape.faces[faces])
+    key = None
+    if cache is not None:
+        h = hashlib.blake2b(digest_size=16)
+        for a in (np.ascontiguousarray(local, dtype=np.int64), np.ascontiguousarray(shape.vertices[used], dtype=np.float64)):
+            h.update(a.tobytes())
+        key = (h.hexdigest(), int(size), int(padding))
+        if key in cache:
+            return (used, local, *cache[key])
+    atlas = unwrap(shape.vertices[used], local, resolution=size, padding=padding)
+    tm = texel_map(shape.vertices[used], local, atlas.corner_uv, size)
+    if cache is not None:
+        cache[key] = (atlas, tm)
+    return used, local, atlas, tm
+
+
 def bake(
     shape: Shape, result: TransferResult, assets: TemplateAssets, size: int = 512, gutter: int = -1, project: bool = False,
-    fill: str = "patchmatch", seed: int = 0, pbr: bool = True,
+    fill: str = "patchmatch", seed: int = 0, pbr: bool = True, atlases: dict | None = None,
 ) -> Baked:
     """Give a transferred shape its own UV atlas per group and bake the template textures into it.
 
@@ -351,7 +375,9 @@ def bake(
     detected and, with ``fill="patchmatch"``, re-synthesised by exemplar PatchMatch from this group's
     other texels; no other texel changes (``fill="none"`` keeps the template's colours there).
     ``pbr=False`` bakes the base colour only (``Baked.pbr`` None): what a measurement of colours needs
-    (the PBR maps were two thirds of the demo's evaluation).
+    (the PBR maps were two thirds of the demo's evaluation). ``atlases``: a dict kept by the caller
+    across bakes of the same shape (e.g. by several methods): a group's atlas and texel map depend
+    only on its faces, so each is unwrapped once (:func:`group_atlas`).
     """
     from proctex.texture.inpaint import patchmatch_fill
 
@@ -388,11 +414,8 @@ def bake(
             if out.pbr is not None:
                 out.pbr.append(maps)
             continue
-        used = np.unique(shape.faces[faces])
-        local = np.searchsorted(used, shape.faces[faces])
-        atlas = unwrap(shape.vertices[used], local, resolution=size, padding=2 if gutter < 0 else max(2, gutter // 2))
+        used, local, atlas, tm = group_atlas(shape, faces, size, 2 if gutter < 0 else max(2, gutter // 2), atlases)
         corner[faces] = atlas.corner_uv
-        tm = texel_map(shape.vertices[used], local, atlas.corner_uv, size)
         if project:
             # Mapped points per used vertex, in the representative's normalised frame.
             mapped = np.zeros((len(used), 3))
