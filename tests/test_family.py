@@ -582,3 +582,59 @@ def _toy_batch(store, config, batch, context):
 
     time.sleep(0.05 * batch[0])
     return [10 * batch[0]]
+
+
+def test_the_pairs_stage_skips_the_train_pairs_of_groups_whose_plain_map_fits(tmp_path):
+    """Two steps: the test pairs and each group's held-out and probe train pairs first; then the
+    other train pairs of a group whose plain map already fits its held-out shapes are skipped (its
+    network would not be trained) and every other group's are solved. The train stage settles the
+    same groups on the same pairs; a rerun plans nothing; without the settle every skipped pair is
+    solved after all."""
+    from proctex.build.pairs import plan_pairs, probe_keys, pair_jobs
+    from proctex.build.plan import run_in_process, run_steps
+    from proctex.build.train import VAL_SHARE, group_training_data, plain_groups
+    from proctex.store.samples import held_out_split, samples
+    from proctex.store.state import FamilyState
+
+    cfg = BuildConfig.from_dict(dict(model="sofa", n_train=8, n_test=1, corr_points=300, texture_size=64)).validate()
+    st = FamilyStore(tmp_path / "sofa")
+    write_config(st, cfg)
+    for stage in (stage_sample, stage_template, stage_paint):
+        stage(st, cfg, log=lambda *_: None)
+    ran, logs = [], []
+
+    def execute(plan, *rest):
+        ran.append(plan.n_jobs)
+        return run_in_process(plan, *rest)
+
+    run_steps(plan_pairs(st, cfg, logs.append), execute, st, cfg, logs.append)
+    rows = {(r["id"], r["group"]): r for r in st.read_table("pairs.parquet").to_pylist()}
+    groups = sorted({g for _, g in rows})
+    train = sorted(r["id"] for r in samples(st) if r["split"] == "train")
+    record = FamilyState.load(st).stage("pairs")
+    settled = {int(g) for g in record["settled"]}
+    assert record["state"] == "done" and settled and settled != set(groups), record  # some settle, some do not
+    probes = probe_keys(st, cfg, pair_jobs(st, cfg))
+    assert len(ran) == 2 and ran[0] == len(probes) == len(groups) * 3  # a group's test pair, 1 held out, 1 probe
+    for g in groups:
+        held, probe = held_out_split(train, cfg.seed, g, VAL_SHARE)
+        for sid in train:
+            status = rows[(sid, g)]["status"]
+            assert status == ("skipped" if g in settled and sid not in held + probe else "done"), (g, sid, status)
+    assert record["skipped"] == sum(r["status"] == "skipped" for r in rows.values()) == len(settled) * (len(train) - 2)
+    assert ran[1] == len(rows) - len(probes) - record["skipped"]  # the second step solves the rest of the unsettled groups
+    assert sum("train pairs skipped" in line for line in logs) == len(settled)
+    # the train stage settles the same groups on the same pairs, holding out the same shapes
+    assert set(plain_groups(st, cfg, groups)) == settled
+    for g in settled:
+        d = group_training_data(st, cfg, g, VAL_SHARE)
+        assert d["val_ids"] == held_out_split(train, cfg.seed, g, VAL_SHARE)[0] and len(d["train_ids"]) == 1
+    # a rerun plans nothing; a config that never settles solves what was skipped
+    ran.clear()
+    run_steps(plan_pairs(st, cfg, logs.append), execute, st, cfg, logs.append)
+    assert ran == [0]
+    plain = BuildConfig.from_dict({**cfg.to_dict(), "train": {**cfg.to_dict()["train"], "plain_below": 0.0}})
+    ran.clear()
+    run_steps(plan_pairs(st, plain, logs.append), execute, st, plain, logs.append)
+    assert ran == [record["skipped"]]
+    assert all(r["status"] == "done" for r in st.read_table("pairs.parquet").to_pylist())

@@ -9,12 +9,12 @@ from typing import Any, Callable
 import numpy as np
 import pyarrow as pa
 
-from proctex.build.plan import Plan, run_in_process
+from proctex.build.plan import Plan, run_in_process, run_steps
 from proctex.geometry.parts import part_mesh, segment
 from proctex.geometry.shape import Shape
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
-from proctex.store.samples import load_sample, pair_seed, part_digest, samples, write_pair_vertices
+from proctex.store.samples import held_out_split, load_sample, pair_seed, part_digest, samples, write_pair_vertices
 from proctex.store.state import FamilyState, build_stamp, mark_stage, stage_done
 from proctex.transfer.assets import load_assets
 
@@ -112,9 +112,12 @@ def pair_records(store: FamilyStore, jobs: list[PairJob]) -> dict[tuple[str, int
     return out
 
 
-def pair_complete(record: dict[str, Any] | None) -> bool:
-    """A pair needs no more work: solved, or the shape lacks the group."""
-    return record is not None and record.get("status") in ("done", "absent")
+def pair_complete(record: dict[str, Any] | None, settled: Any = ()) -> bool:
+    """A pair needs no more work: solved, the shape lacks the group, or skipped (a train pair of a
+    group whose plain map fits) while its group is among ``settled``."""
+    if record is None:
+        return False
+    return record.get("status") in ("done", "absent") or (record.get("status") == "skipped" and record.get("group") in settled)
 
 
 def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, shape: Shape | None = None) -> dict[str, Any]:
@@ -167,15 +170,20 @@ def write_pairs_index(store: FamilyStore, jobs: list[PairJob], records: dict[tup
     store.write_table(StoreLayout.PAIRS, pa.Table.from_pylist(rows))
 
 
-def finish_pairs_stage(store: FamilyStore, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]], log: Callable[[str], None] = print) -> None:
-    """Write the index; mark the stage done when every job is complete."""
+def finish_pairs_stage(store: FamilyStore, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]], log: Callable[[str], None] = print,
+                       settled: dict[int, dict[str, float]] | None = None) -> None:
+    """Write the index; mark the stage done when every job is complete (skipped pairs of the
+    ``settled`` groups included; the stage records those groups and their plain maps' errors)."""
     write_pairs_index(store, jobs, records)
+    settled = settled or {}
     failed = sum(r["status"] == "failed" for r in records.values())
-    missing = sum(job.key not in records for job in jobs)
+    missing = sum(not pair_complete(records.get(job.key), settled) and records.get(job.key, {}).get("status") != "failed" for job in jobs)
     if failed or missing:
         log(f"pairs: {failed} failed, {missing} not run (rerun to retry)")
     else:
-        mark_stage(store, "pairs", pairs=len(records))
+        skipped = sum(r["status"] == "skipped" for r in records.values())
+        mark_stage(store, "pairs", pairs=len(records), solved=len(records) - skipped, skipped=skipped,
+                   settled={str(g): {k: round(v, 6) for k, v in e.items()} for g, e in settled.items()})
 
 
 INDEX_EVERY = 5.0  # seconds between rewrites of pairs.parquet while pairs arrive
@@ -212,16 +220,106 @@ def run_pair_batch(store: FamilyStore, config: BuildConfig, jobs: list[PairJob],
     return records
 
 
+def two_step(config: BuildConfig) -> bool:
+    """Whether the pairs stage solves probe pairs first (:func:`probe_keys`): only where a group can
+    settle on its plain map (``train.plain_below`` > 0 with residual networks)."""
+    return config.train.plain_below > 0 and config.train.residual
+
+
+def probe_keys(store: FamilyStore, config: BuildConfig, jobs: list[PairJob]) -> set[tuple[str, int]]:
+    """The pairs a two-step stage solves first: every test pair and, per group, the train shapes
+    its training will hold out and as many probe shapes
+    (:func:`proctex.store.samples.held_out_split`): enough to tell whether its plain map fits."""
+    from proctex.build.train import VAL_SHARE
+
+    train = sorted({j.row["id"] for j in jobs if j.row["split"] == "train"})
+    keys = {j.key for j in jobs if j.row["split"] != "train"}
+    for g in sorted({j.group for j in jobs}):
+        held, probes = held_out_split(train, config.seed, g, VAL_SHARE)
+        keys.update((i, g) for i in held + probes)
+    return keys
+
+
+def settled_groups(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]],
+                   probes: set[tuple[str, int]], write_index: bool = True) -> dict[int, dict[str, float]]:
+    """Groups whose probe pairs are all complete and whose plain map already fits their held-out
+    shapes (:func:`proctex.build.train.plain_groups` on what is solved: the train stage decides the
+    same on the same pairs), with the plain maps' held-out errors. ``write_index``: write
+    ``pairs.parquet`` from ``records`` first (what the decision reads; a done stage's is whole)."""
+    from proctex.build.train import plain_groups
+
+    groups = sorted({j.group for j in jobs})
+    ready = [g for g in groups if all(pair_complete(records.get(j.key)) for j in jobs if j.group == g and j.key in probes)]
+    if write_index:
+        write_pairs_index(store, jobs, records)  # what group_training_data reads
+    return {g: d["plain"] for g, d in plain_groups(store, config, ready).items()}
+
+
+def skipped_record(job: PairJob, old: dict[str, Any] | None) -> dict[str, Any]:
+    """The record of a train pair not solved because its group's plain map fits."""
+    sid, g = job.key
+    return {"id": sid, "split": job.row["split"], "group": g, "status": "skipped", "error": "", "part": -1, "residual": None,
+            "chamfer": None, "converged": False, "iterations": 0, "seconds": 0.0, "attempts": (old or {}).get("attempts", 0), "path": ""}
+
+
 def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print,
                splits: tuple[str, ...] = ("train", "test")) -> Plan:
     """The pairs stage: a cage pair for every (shape, non-degenerate template group) not complete
-    yet, one batch per shape; ``pairs.parquet`` rewritten as they arrive. ``info["solved"]``: pairs run."""
+    yet, one batch per shape; ``pairs.parquet`` rewritten as they arrive. ``info["solved"]``: pairs run.
+
+    In two steps where groups can settle on their plain map (:func:`two_step`): first the test
+    pairs and each group's held-out and probe train pairs (:func:`probe_keys`); the plan's
+    ``info["then"]`` plans the rest, where the train pairs of groups whose plain map already fits
+    their held-out shapes are skipped (:func:`settled_groups`; the train stage would not train
+    them). A build runs ``info["then"]`` after the plan (:func:`proctex.build.pipeline.build`)."""
     assets = load_assets(store)
     jobs = pair_jobs(store, config, assets, splits)
     records = pair_records(store, jobs)
-    todo = [j for j in jobs if not pair_complete(records.get(j.key))]
-    if not todo and stage_done(store, "pairs"):
-        return Plan("pairs", [], run_pair_batch, finish=lambda results: None, skip="done already", info={"solved": 0})
+    if stage_done(store, "pairs") and all(pair_complete(records.get(j.key)) for j in jobs):
+        return _done_plan()
+    if not two_step(config) or "train" not in splits:
+        return _pairs_plan(store, config, log, assets, jobs, records, {})  # skipped pairs solved too
+    probes = probe_keys(store, config, jobs)
+    first = [j for j in jobs if j.key in probes and not pair_complete(records.get(j.key))]
+    if not first:
+        return plan_rest(store, config, log, assets, jobs, records, probes)
+    plan = _pairs_plan(store, config, log, assets, jobs, records, {}, only=first)
+    plan.info["then"] = lambda: plan_rest(store, config, log, assets, jobs, pair_records(store, jobs), probes)
+    return plan
+
+
+def _done_plan() -> Plan:
+    return Plan("pairs", [], run_pair_batch, finish=lambda results: None, skip="done already", info={"solved": 0})
+
+
+def plan_rest(store: FamilyStore, config: BuildConfig, log: Callable[[str], None], assets, jobs: list[PairJob],
+              records: dict[tuple[str, int], dict[str, Any]], probes: set[tuple[str, int]]) -> Plan:
+    """The second step of a two-step pairs stage (:func:`plan_pairs`): the train pairs of settled
+    groups recorded as skipped, every other pair not complete planned. The groups are settled
+    afresh each time (a store built with another ``plain_below`` solves the pairs it skipped for a
+    group that no longer settles)."""
+    done = stage_done(store, "pairs")
+    settled = settled_groups(store, config, jobs, records, probes, write_index=not done)
+    skipped: dict[int, int] = {}
+    for job in jobs:
+        if job.group in settled and job.key not in probes and job.row["split"] == "train" and not pair_complete(records.get(job.key), settled):
+            records[job.key] = skipped_record(job, records.get(job.key))
+            store.write_json(StoreLayout.pair_record(*job.key), records[job.key])
+            skipped[job.group] = skipped.get(job.group, 0) + 1
+    for g, n in skipped.items():
+        log(f"pairs: group {g}: its plain map fits its held-out shapes ({', '.join(f'{k} {v:.5f}' for k, v in settled[g].items())}): "
+            f"{n} train pairs skipped")
+    if done and all(pair_complete(records.get(j.key), settled) for j in jobs):
+        return _done_plan()
+    return _pairs_plan(store, config, log, assets, jobs, records, settled)
+
+
+def _pairs_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], None], assets, jobs: list[PairJob],
+                records: dict[tuple[str, int], dict[str, Any]], settled: dict[int, dict[str, float]], only: list[PairJob] | None = None) -> Plan:
+    """The plan solving ``only`` (default: every job not complete with groups ``settled``), one
+    batch per shape; its finish marks the stage done once every job is complete (a first step's
+    finish only writes the index)."""
+    todo = only if only is not None else [j for j in jobs if not pair_complete(records.get(j.key), settled)]
     by_shape: dict[str, list[PairJob]] = {}
     for job in todo:
         by_shape.setdefault(job.row["id"], []).append(job)
@@ -239,7 +337,10 @@ def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
         log(f"pairs: {batch[0].row['id']} ({clock['solved']}/{len(todo)} solved, {now - t0:.0f}s)")
 
     def finish(results: list[list[dict[str, Any]]]) -> None:
-        finish_pairs_stage(store, jobs, records, log)
+        if only is not None:
+            write_pairs_index(store, jobs, records)
+        else:
+            finish_pairs_stage(store, jobs, records, log, settled)
         plan.info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
 
     # side by side in process from 16 pairs on (a pair takes about a second, a worker a few to start)
@@ -249,5 +350,5 @@ def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
 
 def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, splits: tuple[str, ...] = ("train", "test")) -> None:
     """Cage pairs for every (shape, non-degenerate template group); skips pairs already complete
-    (:func:`plan_pairs`, here)."""
-    run_in_process(plan_pairs(store, config, log, splits), store, config, log)
+    (:func:`plan_pairs`, here, in its steps)."""
+    run_steps(plan_pairs(store, config, log, splits), run_in_process, store, config, log)

@@ -15,7 +15,8 @@ from typing import Any, Callable, Mapping
 from proctex.build.evaluate import stage_evaluate
 from proctex.build.paint import stage_paint
 from proctex.build.pairs import plan_pairs
-from proctex.build.plan import Plan, run_in_process, single_step
+from proctex.build.plan import Plan, run_in_process, run_steps, single_step
+from proctex.pools import shared_pool
 from proctex.build.sample import plan_sample
 from proctex.build.template import stage_template
 from proctex.build.train import plan_train
@@ -48,12 +49,14 @@ def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | lis
     unknown = set(stages) - set(PLANNERS)
     if unknown:
         raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(PLANNERS)}")
-    with build_lock(store):  # one build (and no edit) of a store at a time; the config checked under it
+    # one build (and no edit) of a store at a time, the config checked under the lock; the stages'
+    # worker processes started once (shared_pool: the demo in process ... -> ... s)
+    with build_lock(store), shared_pool():
         write_config(store, config)
         walls: dict[str, float] = {}
         for stage in STAGES:
             if stage in stages:
                 t = time.perf_counter()
-                executor(PLANNERS[stage](store, config, log), store, config, log)
+                run_steps(PLANNERS[stage](store, config, log), executor, store, config, log)  # a stage may run in steps
                 walls[stage] = round(time.perf_counter() - t, 2)
         return {**FamilyState.load(store).to_dict(), "wall_seconds": walls}

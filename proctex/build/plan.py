@@ -14,6 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from proctex.pools import process_pool
+
 
 @dataclass
 class Plan:
@@ -43,6 +45,8 @@ class Plan:
             training little): :func:`run_in_process` with ``workers`` > 1 runs them in worker
             processes of one thread each, once the plan has ``pool_min_jobs`` jobs (a pool costs
             a few seconds to start: worth it for a few trainings, not for a few short pairs).
+        info: what the stage reports (e.g. pairs solved); ``info["then"]``, where set by the planner,
+            plans the stage's next step once this plan has run (:func:`run_steps`).
         merge: its batches run better merged than one by one (the groups' networks, trained together
             in one batched loop): :func:`run_in_process` hands ``run_batch`` every batch at once, or
             with ``workers`` a share of them per worker (round robin), and splits the results back
@@ -91,6 +95,15 @@ def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], Non
     return plan
 
 
+def run_steps(plan: Plan, executor: Callable[..., Plan], store: Any, config: Any, log: Callable[[str], None] = print) -> Plan:
+    """Run ``plan`` with ``executor`` and then each next step it plans (``info["then"]``: a stage in
+    steps, the next one planned on what the last stored); returns the last plan run."""
+    plan = executor(plan, store, config, log)
+    while plan.info.get("then"):
+        plan = executor(plan.info.pop("then")(), store, config, log)
+    return plan
+
+
 def merged_units(n_batches: int, n_units: int) -> list[list[int]]:
     """Batch indices ``0..n_batches-1`` dealt round robin into ``n_units`` units (``Plan.merge``)."""
     n_units = max(1, min(n_units, n_batches))
@@ -131,12 +144,6 @@ def local_executor(workers: int, min_jobs: int | None = None) -> Callable[..., P
     return run
 
 
-def _one_thread() -> None:
-    import torch
-
-    torch.set_num_threads(1)
-
-
 def _pooled_batch(uri: str, config: Any, run_batch: Callable[..., list[Any]], batch: list[Any]) -> list[Any]:
     from proctex.store.layout import FamilyStore
 
@@ -144,11 +151,10 @@ def _pooled_batch(uri: str, config: Any, run_batch: Callable[..., list[Any]], ba
 
 
 def _run_pooled(plan: Plan, store: Any, config: Any, units: list[list[int]], workers: int) -> list[list[Any]]:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
 
     results: list[Any] = [None] * len(plan.batches)
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_one_thread) as pool:
+    with process_pool(workers) as pool:
         futures = {pool.submit(_pooled_batch, store.uri, config, plan.run_batch, [j for k in unit for j in plan.batches[k]]): unit
                    for unit in units}
         for future in as_completed(futures):

@@ -12,7 +12,7 @@ from proctex.build.plan import Plan, run_in_process
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.networks import save_network
-from proctex.store.samples import read_pair, samples
+from proctex.store.samples import held_out_split, read_pair, samples
 from proctex.store.state import FamilyState, mark_stage, stage_done
 
 
@@ -34,17 +34,22 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
     ids = sorted(r["id"] for r in rows)
     if not ids:
         raise ValueError(f"group {group} has no solved train pairs")
-    rng = np.random.default_rng(config.seed + group)
-    n_val = max(1, int(round(val_share * len(ids)))) if len(ids) > 2 else 0
-    val_ids = set(rng.choice(ids, size=n_val, replace=False).tolist()) if n_val else set()
-    train_ids = [i for i in ids if i not in val_ids]
+    rows_all = samples(store)
+    # held out: the family's draw over all its train shapes (held_out_split; the pairs stage solves
+    # these first), those with the group; the group's own draw where none of them has it
+    solved = set(ids)
+    val_ids = [i for i in held_out_split([r["id"] for r in rows_all if r["split"] == "train"], config.seed, group, val_share)[0] if i in solved]
+    if not val_ids:
+        val_ids = held_out_split(ids, config.seed, group, val_share)[0]
+    held = set(val_ids)
+    train_ids = [i for i in ids if i not in held]
     train_pairs = [read_pair(store, i, group) for i in train_ids]
-    val_pairs = [read_pair(store, i, group) for i in sorted(val_ids)] or train_pairs[:1]
+    val_pairs = [read_pair(store, i, group) for i in val_ids] or train_pairs[:1]
     features = None
     if config.train.confidence != "none":  # only the teacher's confidence reads the parameters
-        params = {r["id"]: r.get("params") for r in samples(store)}
+        params = {r["id"]: r.get("params") for r in rows_all}
         features = param_features([json.loads(params.get(i) or "{}") for i in train_ids])
-    return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": sorted(val_ids), "features": features}
+    return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": val_ids, "features": features}
 
 
 def serving_choice(model: Any, data: dict[str, Any]) -> dict[str, Any]:
@@ -125,10 +130,10 @@ def _group_record(store: FamilyStore, config: BuildConfig, group: int, data: dic
 
 
 def plain_groups(store: FamilyStore, config: BuildConfig, groups: list[int]) -> dict[int, dict[str, Any]]:
-    """The groups of ``groups`` that need no training, with their training data: their plain map
-    lies within ``train.plain_below`` of their held-out pairs
-    (:func:`proctex.correspond.training.plain_fit`). A group whose data cannot be read is left to
-    the training, which reports why."""
+    """The groups of ``groups`` that need no training, with their training data (and under
+    ``"plain"`` the plain maps' held-out errors): their plain map lies within ``train.plain_below``
+    of their held-out pairs (:func:`proctex.correspond.training.plain_fit`; never a group without
+    a held-out shape). A group whose data cannot be read is left to the training, which reports why."""
     from proctex.correspond.training import plain_fit
 
     if config.train.plain_below <= 0 or not config.train.residual:
@@ -139,8 +144,9 @@ def plain_groups(store: FamilyStore, config: BuildConfig, groups: list[int]) -> 
             d = group_training_data(store, config, g, VAL_SHARE)
         except ValueError:
             continue
-        if plain_fit(d["train"], d["val"], config.train) is not None:
-            out[g] = d
+        errors = plain_fit(d["train"], d["val"], config.train) if d["val_ids"] else None
+        if errors is not None:
+            out[g] = {**d, "plain": errors}
     return out
 
 

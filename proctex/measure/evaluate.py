@@ -296,14 +296,16 @@ def evaluate_shape(ctx: _Context, job: tuple[int, dict[str, Any]]) -> dict[str, 
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(uri: str, settings: dict[str, Any]) -> None:
-    import torch
+def _work(task: tuple[str, dict[str, Any], tuple[int, dict[str, Any]]]) -> dict[str, Any]:
+    """One shape in a worker process; the evaluation's context is built once a process and
+    evaluation (``uri`` and ``settings``) and kept for its next shapes."""
+    import json
 
-    torch.set_num_threads(1)
-    _WORKER["ctx"] = _Context(uri, settings)
-
-
-def _work(job: tuple[int, dict[str, Any]]) -> dict[str, Any]:
+    uri, settings, job = task
+    key = json.dumps([uri, settings], sort_keys=True, default=str)
+    if _WORKER.get("key") != key:
+        _WORKER.clear()
+        _WORKER.update(key=key, ctx=_Context(uri, settings))
     return evaluate_shape(_WORKER["ctx"], job)
 
 
@@ -461,12 +463,11 @@ def evaluate(
     bar = Progress("evaluate", len(jobs), quiet=quiet)
     outs: list[dict[str, Any]] = []
     if workers > 1 and len(jobs) > 1:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
+        from proctex.pools import process_pool
 
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=mp.get_context("spawn"), initializer=_init_worker,
-                                 initargs=(store.uri, settings)) as pool:
-            for out in pool.map(_work, jobs):
+        # the build's worker processes where it shares them (each keeps its context: _work)
+        with process_pool(min(workers, len(jobs))) as pool:
+            for out in pool.map(_work, [(store.uri, settings, job) for job in jobs]):
                 outs.append(out)
                 bar.update()
     else:

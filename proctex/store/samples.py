@@ -44,6 +44,22 @@ def pair_seed(config: BuildConfig, index: int, group: int) -> int:
     return config.seed * 1_000_003 + index * 97 + group
 
 
+def held_out_split(ids: list[str], seed: int, group: int, share: float) -> tuple[list[str], list[str]]:
+    """A group's held-out train shapes and as many probe shapes (sorted lists of ids) out of its
+    train shapes ``ids``: ``max(1, round(share * n))`` held out (none below three shapes), drawn by
+    the family ``seed`` and the ``group``; the probes are drawn from the rest after them. Depends
+    on ``ids`` only (not on which pairs are solved), so the pairs stage can solve these first and
+    the train stage holds the same shapes out (:func:`proctex.build.train.group_training_data`)."""
+    ids = sorted(ids)
+    rng = np.random.default_rng(seed + group)
+    n = max(1, int(round(share * len(ids)))) if len(ids) > 2 else 0
+    if not n:
+        return [], []
+    held = set(rng.choice(ids, size=n, replace=False).tolist())
+    rest = [i for i in ids if i not in held]
+    return sorted(held), sorted(rng.permutation(rest)[:n].tolist()) if rest else []
+
+
 def part_digest(vertices: np.ndarray, faces: np.ndarray) -> str:
     """A short digest of a part mesh (float64 vertices, int64 faces): what a stored vertex map was
     made for (a map of another part, or of this part computed on another machine, is not reused)."""

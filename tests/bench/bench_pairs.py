@@ -1,7 +1,7 @@
 """Benchmark: a family's cage pairs solved again in process, one after the other or side by side.
 
 Copies a built family without its pairs (and the stages after them), plans the pairs stage and runs
-it with ``--workers`` processes (:func:`proctex.build.plan.run_in_process`; 1: one after the other),
+it (both steps where groups can settle) with ``--workers`` processes (:func:`proctex.build.plan.run_in_process`; 1: one after the other),
 printing the pairs and the wall time; with ``--compare`` another copy's pairs are checked against
 this run's (sources exactly, targets' largest difference printed).
 
@@ -28,16 +28,22 @@ def main(argv=None) -> int:
 
     from harness import copy_family
     from proctex.build.pairs import plan_pairs
-    from proctex.build.plan import run_in_process
+    from proctex.build.plan import local_executor, run_steps
     from proctex.store.layout import FamilyStore
     from proctex.store.samples import read_pair
 
     st, config = copy_family(args.family, args.work, ("correspondences", "pairs.parquet", "looks", "models", "metrics.json"),
                              ("pairs", "train", "evaluate"))
     t = time.perf_counter()
-    plan = plan_pairs(st, config, log=lambda *_: None)
-    run_in_process(plan, st, config, log=lambda *_: None, workers=args.workers)
-    print(f"{args.family}: {plan.n_jobs} pairs with {args.workers} worker(s) in {time.perf_counter() - t:.1f} s", flush=True)
+    plans = []
+
+    def execute(plan, *rest):
+        plans.append(plan)
+        return local_executor(args.workers)(plan, *rest)
+
+    run_steps(plan_pairs(st, config, log=lambda *_: None), execute, st, config, log=lambda *_: None)  # both steps
+    solved = sum(p.n_jobs for p in plans)
+    print(f"{args.family}: {solved} pairs with {args.workers} worker(s) in {time.perf_counter() - t:.1f} s", flush=True)
     if args.compare:
         other = FamilyStore(args.compare)
         rows = {(r["id"], r["group"]): r for r in st.read_table("pairs.parquet").to_pylist()}
