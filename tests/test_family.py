@@ -614,7 +614,7 @@ def test_the_pairs_stage_skips_the_train_pairs_of_groups_whose_plain_map_fits(tm
     record = FamilyState.load(st).stage("pairs")
     settled = {int(g) for g in record["settled"]}
     assert record["state"] == "done" and settled and settled != set(groups), record  # some settle, some do not
-    probes = probe_keys(st, cfg, pair_jobs(st, cfg))
+    probes = probe_keys(cfg, pair_jobs(st, cfg))
     assert len(ran) == 2 and ran[0] == len(probes) == len(groups) * 3  # a group's test pair, 1 held out, 1 probe
     for g in groups:
         held, probe = held_out_split(train, cfg.seed, g, VAL_SHARE)

@@ -226,7 +226,7 @@ def two_step(config: BuildConfig) -> bool:
     return config.train.plain_below > 0 and config.train.residual
 
 
-def probe_keys(store: FamilyStore, config: BuildConfig, jobs: list[PairJob]) -> set[tuple[str, int]]:
+def probe_keys(config: BuildConfig, jobs: list[PairJob]) -> set[tuple[str, int]]:
     """The pairs a two-step stage solves first: every test pair and, per group, the train shapes
     its training will hold out and as many probe shapes
     (:func:`proctex.store.samples.held_out_split`): enough to tell whether its plain map fits."""
@@ -279,7 +279,7 @@ def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
         return _done_plan()
     if not two_step(config) or "train" not in splits:
         return _pairs_plan(store, config, log, assets, jobs, records, {})  # skipped pairs solved too
-    probes = probe_keys(store, config, jobs)
+    probes = probe_keys(config, jobs)
     first = [j for j in jobs if j.key in probes and not pair_complete(records.get(j.key))]
     if not first:
         return plan_rest(store, config, log, assets, jobs, records, probes)

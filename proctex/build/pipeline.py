@@ -1,6 +1,7 @@
 """The family build: the table of stage planners and the one loop that runs their plans.
 
-Each stage is planned when its turn comes (a plan reads what the stages before it stored) and handed
+Each stage is planned when its turn comes (a plan reads what the stages before it stored; a stage in
+steps plans the next on what the last stored, :func:`proctex.build.plan.run_steps`) and handed
 to an *executor*: :func:`proctex.build.plan.run_in_process` here, or the Ray executor of
 ``workflows/build.py``, which fans the same plans out over a cluster. The planners are the stage
 modules of :mod:`proctex.build` (one per stage); the table is assembled here, at the top, so no stage
@@ -16,10 +17,10 @@ from proctex.build.evaluate import stage_evaluate
 from proctex.build.paint import stage_paint
 from proctex.build.pairs import plan_pairs
 from proctex.build.plan import Plan, run_in_process, run_steps, single_step
-from proctex.pools import shared_pool
 from proctex.build.sample import plan_sample
 from proctex.build.template import stage_template
 from proctex.build.train import plan_train
+from proctex.pools import shared_pool
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
 from proctex.store.locks import build_lock

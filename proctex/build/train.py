@@ -6,8 +6,6 @@ import json
 import time
 from typing import Any, Callable
 
-import numpy as np
-
 from proctex.build.plan import Plan, run_in_process
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout

@@ -135,8 +135,11 @@ class CorrNetConfig:
             network stays at the frame's own map (the zero residual) and the serving choice picks
             the plain map, as it did on every such group measured (the demo, the sofa export, the
             Blender chair, cabinet and table: groups at 0 to 4.6e-4 all served the plain map after
-            training; the closest that a network won sat at 2.4e-3). 0 trains every group. Needs
-            ``residual`` (without it nothing is skipped).
+            training; the closest that a network won sat at 2.4e-3). The pairs stage decides it
+            first, on each group's held-out and as many probe train shapes, and skips the other
+            train pairs of such a group (the demo: 18 of 78 pairs, the sofa export 68 of 400).
+            0 trains every group and solves every pair. Needs ``residual`` (without it nothing is
+            skipped).
         seed: weights, batch sampling and evaluation contexts.
         device: "cpu", "cuda", "cuda:<i>" or "auto" (CUDA when present); dtype: "float32" or "float64".
         autocast: "auto" (bfloat16 where the CPU has it natively, AVX512-BF16 or AMX, float32
