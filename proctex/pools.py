@@ -4,7 +4,7 @@ of one build (:func:`shared_pool`) or started for one piece of work (:func:`proc
 from __future__ import annotations
 
 from contextlib import contextmanager
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 
 def _one_thread() -> None:
@@ -37,17 +37,17 @@ def shared_pool() -> Iterator[None]:
 
 
 @contextmanager
-def process_pool(workers: int, initializer: Callable[[], None] | None = None) -> Iterator[Any]:
+def process_pool(workers: int) -> Iterator[Any]:
     """A ``ProcessPoolExecutor`` of ``workers`` spawned processes of one torch thread each: inside
-    :func:`shared_pool` the build's (replaced when another size is asked for, or dropped when a
-    worker died), else a new one shut down on exit. ``initializer``: a new pool's extra set-up;
-    a shared pool never runs one, so work that needs per-process state keeps it in the process
-    (e.g. a module-level cache)."""
+    :func:`shared_pool` the build's (replaced when another size is asked for, or dropped when the
+    block raised: a worker died or the work was interrupted), else a new one shut down on exit.
+    Work that keeps per-process state (the evaluation's context) keeps it in a module-level cache
+    of the worker, keyed by what it was made for."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
     if not _SHARED.get("active"):
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=initializer or _one_thread) as pool:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_one_thread) as pool:
             yield pool
         return
     pool = _SHARED.get("pool")

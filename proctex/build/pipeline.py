@@ -51,7 +51,7 @@ def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | lis
     if unknown:
         raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(PLANNERS)}")
     # one build (and no edit) of a store at a time, the config checked under the lock; the stages'
-    # worker processes started once (shared_pool: the demo in process ... -> ... s)
+    # worker processes started once a build (shared_pool: a worker's start is 3-4 s on 2 cores)
     with build_lock(store), shared_pool():
         write_config(store, config)
         walls: dict[str, float] = {}
