@@ -638,3 +638,27 @@ def test_the_pairs_stage_skips_the_train_pairs_of_groups_whose_plain_map_fits(tm
     run_steps(plan_pairs(st, plain, logs.append), execute, st, plain, logs.append)
     assert ran == [record["skipped"]]
     assert all(r["status"] == "done" for r in st.read_table("pairs.parquet").to_pylist())
+
+
+def test_the_held_out_shapes_are_drawn_before_the_pairs_and_always_leave_shapes_to_train():
+    """``held_out_split`` depends only on the train shapes (so the pairs stage can solve them
+    first); a group holds out the family's draw where it was solved, its own draw where that holds
+    out none or every solved shape (the Blender table's optional part: solved only in the family's
+    held-out shapes), and nothing below three shapes. The draw as it was before: with every pair
+    solved, the same shapes as ``rng.choice`` over them."""
+    from proctex.store.samples import held_out_ids, held_out_split
+
+    train = [f"s{i:04d}" for i in range(40)]
+    held, probes = held_out_split(train, 0, 3, 0.15)
+    assert len(held) == len(probes) == 6 and not set(held) & set(probes) and set(held + probes) <= set(train)
+    assert held_out_split(list(reversed(train)), 0, 3, 0.15) == (held, probes)  # order does not matter
+    assert held_out_split(train, 0, 4, 0.15)[0] != held and held_out_split(train[:2], 0, 3, 0.15) == ([], [])
+    rng = np.random.default_rng(0 + 3)
+    assert held == sorted(rng.choice(train, size=6, replace=False).tolist())  # what group_training_data drew before
+    assert held_out_ids(train, train, 0, 3, 0.15) == held  # every pair solved: the family's draw
+    assert held_out_ids(train, held + probes, 0, 3, 0.15) == held  # the first step's pairs: the same shapes
+    own = held_out_ids(train, held, 0, 3, 0.15)  # solved only where held out: its own draw, some left to train
+    assert own and set(own) < set(held)
+    others = [i for i in train if i not in held][:10]
+    assert held_out_ids(train, others, 0, 3, 0.15) == held_out_split(others, 0, 3, 0.15)[0] != []  # none of the draw solved
+    assert held_out_ids(train, held[:2], 0, 3, 0.15) == []  # two shapes: none held out

@@ -10,7 +10,7 @@ from proctex.build.plan import Plan, run_in_process
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.networks import save_network
-from proctex.store.samples import held_out_split, read_pair, samples
+from proctex.store.samples import held_out_ids, read_pair, samples
 from proctex.store.state import FamilyState, mark_stage, stage_done
 
 
@@ -33,12 +33,8 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
     if not ids:
         raise ValueError(f"group {group} has no solved train pairs")
     rows_all = samples(store)
-    # held out: the family's draw over all its train shapes (held_out_split; the pairs stage solves
-    # these first), those with the group; the group's own draw where none of them has it
-    solved = set(ids)
-    val_ids = [i for i in held_out_split([r["id"] for r in rows_all if r["split"] == "train"], config.seed, group, val_share)[0] if i in solved]
-    if not val_ids:
-        val_ids = held_out_split(ids, config.seed, group, val_share)[0]
+    # held out: the family's draw over all its train shapes (the pairs stage solves these first)
+    val_ids = held_out_ids([r["id"] for r in rows_all if r["split"] == "train"], ids, config.seed, group, val_share)
     held = set(val_ids)
     train_ids = [i for i in ids if i not in held]
     train_pairs = [read_pair(store, i, group) for i in train_ids]

@@ -60,6 +60,20 @@ def held_out_split(ids: list[str], seed: int, group: int, share: float) -> tuple
     return sorted(held), sorted(rng.permutation(rest)[:n].tolist()) if rest else []
 
 
+def held_out_ids(train_ids: list[str], solved: list[str], seed: int, group: int, share: float) -> list[str]:
+    """The shapes a group holds out (sorted ids) among its ``solved`` train shapes: the family's
+    draw over all its ``train_ids`` (:func:`held_out_split`) where the group was solved; the
+    group's own draw over ``solved`` where that holds none out or leaves none to train on (a
+    group in few shapes); none below three solved shapes."""
+    have = set(solved)
+    if len(have) < 3:
+        return []
+    held = [i for i in held_out_split(train_ids, seed, group, share)[0] if i in have]
+    if not held or len(held) >= len(have):
+        held = held_out_split(sorted(have), seed, group, share)[0]
+    return held
+
+
 def part_digest(vertices: np.ndarray, faces: np.ndarray) -> str:
     """A short digest of a part mesh (float64 vertices, int64 faces): what a stored vertex map was
     made for (a map of another part, or of this part computed on another machine, is not reused)."""
