@@ -644,7 +644,7 @@ def test_the_held_out_shapes_are_drawn_before_the_pairs_and_always_leave_shapes_
     """``held_out_split`` depends only on the train shapes (so the pairs stage can solve them
     first); a group holds out the family's draw where it was solved, its own draw where that holds
     out none or every solved shape (the Blender table's optional part: solved only in the family's
-    held-out shapes), and nothing below three shapes. The draw as it was before: with every pair
+    held-out shapes; below three shapes that holds none out). The draw as it was before: with every pair
     solved, the same shapes as ``rng.choice`` over them."""
     from proctex.store.samples import held_out_ids, held_out_split
 
@@ -661,4 +661,5 @@ def test_the_held_out_shapes_are_drawn_before_the_pairs_and_always_leave_shapes_
     assert own and set(own) < set(held)
     others = [i for i in train if i not in held][:10]
     assert held_out_ids(train, others, 0, 3, 0.15) == held_out_split(others, 0, 3, 0.15)[0] != []  # none of the draw solved
-    assert held_out_ids(train, held[:2], 0, 3, 0.15) == []  # two shapes: none held out
+    assert held_out_ids(train, held[:2], 0, 3, 0.15) == []  # two shapes, both in the draw: none held out
+    assert held_out_ids(train, [held[0], probes[0]], 0, 3, 0.15) == [held[0]]  # one in the draw, one to train on

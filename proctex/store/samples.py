@@ -64,10 +64,8 @@ def held_out_ids(train_ids: list[str], solved: list[str], seed: int, group: int,
     """The shapes a group holds out (sorted ids) among its ``solved`` train shapes: the family's
     draw over all its ``train_ids`` (:func:`held_out_split`) where the group was solved; the
     group's own draw over ``solved`` where that holds none out or leaves none to train on (a
-    group in few shapes); none below three solved shapes."""
+    group in few shapes; that draw holds none out below three shapes)."""
     have = set(solved)
-    if len(have) < 3:
-        return []
     held = [i for i in held_out_split(train_ids, seed, group, share)[0] if i in have]
     if not held or len(held) >= len(have):
         held = held_out_split(sorted(have), seed, group, share)[0]
