@@ -375,3 +375,5 @@ def test_views_traced_once_serve_every_uv_layout():
         coverage(shape.vertices, shape.faces[:10], uv.corner_uv[:10], uv.face_group[:10], painted, size=48, views=views)
     with pytest.raises(ValueError, match="face_group"):
         coverage(shape.vertices, shape.faces, uv.corner_uv, uv.face_group[:-1], painted, size=48, views=views)
+    with pytest.raises(ValueError, match="face_group"):
+        render_six_views(shape.vertices, shape.faces, uv.corner_uv, uv.face_group[:-1], textures, "z", 48, views=views)

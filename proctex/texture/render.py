@@ -425,6 +425,8 @@ def render_textured(
     traced already (this camera's, of this mesh: :func:`canonical_buffers`); nothing is traced.
     """
     if buffers is not None:
+        if np.shape(face_group) != (len(faces),):
+            raise ValueError(f"face_group must be ({len(faces)},), got {np.shape(face_group)}")
         b = with_labels(buffers, face_group=face_group)
     else:
         tracer = tracer if tracer is not None else Tracer(vertices, faces)
