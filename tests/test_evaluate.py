@@ -311,7 +311,8 @@ def toy_method(tmp_path, monkeypatch):
 def test_a_method_from_one_file_is_offered_by_the_cli_the_evaluation_and_the_service(pinned_family, toy_method, tmp_path, capsys):
     """One new file registers a method (issue 33): ``proctex transfer --mapper`` and ``proctex eval
     --methods`` offer it, the evaluation measures it (a mirror: far from the identity, which is exact
-    on these shapes, so the figures can tell a wrong method) and the service serves with it."""
+    on these shapes, so the figures can tell a wrong method, its renders and bakes too) and the
+    service serves with it."""
     import shutil
 
     from proctex.cli import main
@@ -326,6 +327,10 @@ def test_a_method_from_one_file_is_offered_by_the_cli_the_evaluation_and_the_ser
     assert main(["eval", str(fam), "--methods", f"identity,{toy_method}", "--workers", "1", "--json", "--limit", "1"]) == 0
     m = json.loads(capsys.readouterr().out)["methods"]
     assert m["identity"]["gt_error"]["max"] < 1e-6 and m[toy_method]["gt_error"]["mean"] > 0.05
+    # the two methods of a shape share its traced views and bake atlases: the mirror still renders
+    # and bakes its own colours (SSIM 0.86 against 1.0; baked variance about 100x the identity's)
+    assert m["identity"]["ssim"] > 0.999 and m[toy_method]["ssim"] < 0.95
+    assert m[toy_method]["tracked_point_variance"] > 20 * m["identity"]["tracked_point_variance"]
     svc = FamilyService(FamilyStore(fam), mapper=toy_method)
     assert type(svc.mapper).__name__ == "MirrorMapper" and svc.models == {}
     out = tmp_path / "toy.glb"
