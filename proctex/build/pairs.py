@@ -241,17 +241,16 @@ def probe_keys(config: BuildConfig, jobs: list[PairJob]) -> set[tuple[str, int]]
 
 
 def settled_groups(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]],
-                   probes: set[tuple[str, int]], write_index: bool = True) -> dict[int, dict[str, float]]:
+                   probes: set[tuple[str, int]]) -> dict[int, dict[str, float]]:
     """Groups whose probe pairs are all complete and whose plain map already fits their held-out
     shapes (:func:`proctex.build.train.plain_groups` on what is solved: the train stage decides the
-    same on the same pairs), with the plain maps' held-out errors. ``write_index``: write
-    ``pairs.parquet`` from ``records`` first (what the decision reads; a done stage's is whole)."""
+    same on the same pairs), with the plain maps' held-out errors. Writes ``pairs.parquet`` from
+    ``records`` first: what the decision reads."""
     from proctex.build.train import plain_groups
 
     groups = sorted({j.group for j in jobs})
     ready = [g for g in groups if all(pair_complete(records.get(j.key)) for j in jobs if j.group == g and j.key in probes)]
-    if write_index:
-        write_pairs_index(store, jobs, records)  # what group_training_data reads
+    write_pairs_index(store, jobs, records)  # what group_training_data reads
     return {g: d["plain"] for g, d in plain_groups(store, config, ready).items()}
 
 
@@ -275,9 +274,12 @@ def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
     assets = load_assets(store)
     jobs = pair_jobs(store, config, assets, splits)
     records = pair_records(store, jobs)
-    if stage_done(store, "pairs") and all(pair_complete(records.get(j.key)) for j in jobs):
+    steps = two_step(config) and "train" in splits
+    # a done stage is done with the groups it settled (a store keeps its config: they stay settled)
+    settled = {int(g) for g in FamilyState.load(store).stage("pairs").get("settled", {})} if steps else set()
+    if stage_done(store, "pairs") and all(pair_complete(records.get(j.key), settled) for j in jobs):
         return _done_plan()
-    if not two_step(config) or "train" not in splits:
+    if not steps:
         return _pairs_plan(store, config, log, assets, jobs, records, {})  # skipped pairs solved too
     probes = probe_keys(config, jobs)
     first = [j for j in jobs if j.key in probes and not pair_complete(records.get(j.key))]
@@ -295,11 +297,9 @@ def _done_plan() -> Plan:
 def plan_rest(store: FamilyStore, config: BuildConfig, log: Callable[[str], None], assets, jobs: list[PairJob],
               records: dict[tuple[str, int], dict[str, Any]], probes: set[tuple[str, int]]) -> Plan:
     """The second step of a two-step pairs stage (:func:`plan_pairs`): the train pairs of settled
-    groups recorded as skipped, every other pair not complete planned. The groups are settled
-    afresh each time (a store built with another ``plain_below`` solves the pairs it skipped for a
-    group that no longer settles)."""
-    done = stage_done(store, "pairs")
-    settled = settled_groups(store, config, jobs, records, probes, write_index=not done)
+    groups recorded as skipped, every other pair not complete planned (a skipped pair of a group
+    that no longer settles among them)."""
+    settled = settled_groups(store, config, jobs, records, probes)
     skipped: dict[int, int] = {}
     for job in jobs:
         if job.group in settled and job.key not in probes and job.row["split"] == "train" and not pair_complete(records.get(job.key), settled):
@@ -309,8 +309,6 @@ def plan_rest(store: FamilyStore, config: BuildConfig, log: Callable[[str], None
     for g, n in skipped.items():
         log(f"pairs: group {g}: its plain map fits its held-out shapes ({', '.join(f'{k} {v:.5f}' for k, v in settled[g].items())}): "
             f"{n} train pairs skipped")
-    if done and all(pair_complete(records.get(j.key), settled) for j in jobs):
-        return _done_plan()
     return _pairs_plan(store, config, log, assets, jobs, records, settled)
 
 
@@ -318,7 +316,7 @@ def _pairs_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
                 records: dict[tuple[str, int], dict[str, Any]], settled: dict[int, dict[str, float]], only: list[PairJob] | None = None) -> Plan:
     """The plan solving ``only`` (default: every job not complete with groups ``settled``), one
     batch per shape; its finish marks the stage done once every job is complete (a first step's
-    finish only writes the index)."""
+    finish leaves the index to the next step, :func:`settled_groups`)."""
     todo = only if only is not None else [j for j in jobs if not pair_complete(records.get(j.key), settled)]
     by_shape: dict[str, list[PairJob]] = {}
     for job in todo:
@@ -337,9 +335,7 @@ def _pairs_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
         log(f"pairs: {batch[0].row['id']} ({clock['solved']}/{len(todo)} solved, {now - t0:.0f}s)")
 
     def finish(results: list[list[dict[str, Any]]]) -> None:
-        if only is not None:
-            write_pairs_index(store, jobs, records)
-        else:
+        if only is None:
             finish_pairs_stage(store, jobs, records, log, settled)
         plan.info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
 
