@@ -503,7 +503,7 @@ def finish(out: FamilyStore, rows: list[dict[str, Any]], space: ParamSpace | Non
     out.write_table(GenerateLayout.MANIFEST, pa.table(table))
     status = [r["status"] for r in rows]
     return {"rows": len(rows), "written": status.count("written"), "done_before": status.count("done"), "failed": status.count("failed"),
-            "manifest": out.path(GenerateLayout.MANIFEST)}
+            "manifest": out.uri_of(GenerateLayout.MANIFEST)}
 
 
 def _py(value: Any) -> Any:

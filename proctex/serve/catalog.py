@@ -98,7 +98,7 @@ class Catalog:
         if not isinstance(name, str) or not FAMILY_NAME.fullmatch(name) or not self._is_family(name):
             shown = name if isinstance(name, str) and len(name) <= 80 else f"{str(name)[:80]}..."
             raise NotFound(f"unknown family {shown!r}; families: {', '.join(self.names()) or '(none)'}")
-        return FamilyStore(self.root.uri.rstrip("/") + "/" + name)
+        return self.root.child(name)
 
     def invalidate(self, name: str) -> None:
         """Check family ``name``'s build stamp on its next :meth:`get` (after an edit here)."""

