@@ -91,13 +91,23 @@ def same_records(a: dict[str, bytes], b: dict[str, bytes]) -> list[str]:
     return differ
 
 
+@pytest.fixture(scope="module")
+def local_mug(tmp_path_factory) -> Path:
+    """The tiny mug family built into a local folder (what every S3 build must equal)."""
+    root = tmp_path_factory.mktemp("local")
+    assert main(["build", *BUILD, "--out", str(root / "mug")]) == 0
+    return root
+
+
 @pytest.mark.slow
-def test_a_build_eval_generate_and_service_on_s3_make_what_a_local_folder_makes(s3, tmp_path):
+def test_a_build_eval_generate_and_service_on_s3_make_what_a_local_folder_makes(s3, local_mug, tmp_path):
     """Every stage of a build into ``s3://``, then ``eval`` and ``generate`` (in process) and a
     service reading the family from S3: the same meshes, textures, tables and networks to the bit,
     and the same records but for their timings, as the same commands on a local folder."""
+    import shutil
+
     local, remote = tmp_path / "mug", s3.uri("build/mug")
-    assert main(["build", *BUILD, "--out", str(local)]) == 0
+    shutil.copytree(local_mug / "mug", local)
     assert main(["build", *BUILD, "--out", remote]) == 0
     a, b = files_of(FamilyStore(remote)), files_of(FamilyStore(local))
     assert len(a) > 40 and any(k.startswith("models/") for k in a) and any(k.startswith("correspondences/") for k in a)
@@ -270,3 +280,48 @@ def test_a_reader_sees_an_edit_that_ran_while_it_read(s3):
         with ReadCheck(st, ".edit.lock"):
             with hold(st, ".edit.lock", "an edit"):
                 raise RuntimeError("read half an edit")  # the reader's own error becomes "read again"
+
+
+@pytest.mark.slow
+def test_a_build_waits_for_a_killed_s3_server_and_finishes_when_it_is_back(local_mug, tmp_path):
+    """The S3 server killed (SIGKILL) while a build writes its cage pairs, then restarted on the same
+    folder and port 6 s later: the build says what it waits for, goes on when the server is back,
+    and the family is the one a local folder gets (nothing lost, nothing half-written)."""
+    server = start_server(tmp_path / "seaweedfs")
+    port = int(server.endpoint.rsplit(":", 1)[1])
+    uri = server.uri("outage/mug")
+    env = {**os.environ, **server.env(), "PROCTEX_STORE_WAIT": "120"}
+    build = subprocess.Popen([sys.executable, "-c", "import sys; from proctex.cli import main; sys.exit(main(sys.argv[1:]))",
+                              "build", *BUILD, "--out", uri], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        store = None
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and build.poll() is None:
+            with pytest.MonkeyPatch.context() as mp:
+                for k, v in server.env().items():
+                    mp.setenv(k, v)
+                store = FamilyStore(uri)
+                if any(n.endswith(".json") for n in store.listdir("correspondences")):
+                    break
+            time.sleep(0.2)
+        assert build.poll() is None, "the build ended before its pairs could be interrupted"
+        os.killpg(server.pid, signal.SIGKILL)
+        os.waitpid(server.pid, 0)
+        time.sleep(6)
+        server = start_server(tmp_path / "seaweedfs", s3_port=port)
+        out, err = build.communicate(timeout=600)
+    finally:
+        if build.poll() is None:
+            build.kill()
+        stop_server(server)
+    text = err.decode()
+    assert build.returncode == 0, text[-3000:]
+    assert "the object store does not answer" in text and "waiting for it to come back" in text, text[-2000:]
+    server = start_server(tmp_path / "seaweedfs", s3_port=port)
+    try:
+        with pytest.MonkeyPatch.context() as mp:
+            for k, v in server.env().items():
+                mp.setenv(k, v)
+            assert same_records(files_of(FamilyStore(uri)), files_of(FamilyStore(str(local_mug / "mug")))) == []
+    finally:
+        stop_server(server)

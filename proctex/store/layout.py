@@ -76,6 +76,57 @@ class StoreWriteError(OSError):
         return cls(code, f"cannot write {where}: {why}; nothing was changed")
 
 
+class StoreUnreachable(OSError):
+    """An object store that did not answer within the wait (``PROCTEX_STORE_WAIT`` seconds)."""
+
+
+#: Seconds an operation on an object store waits for the store to come back (``PROCTEX_STORE_WAIT``).
+STORE_WAIT = 600.0
+#: What an unreachable (or overloaded) object store says, as pyarrow and botocore word it.
+UNREACHABLE = ("NETWORK_CONNECTION", "curlCode: 7,", "curlCode: 28,", "Could not connect", "Connection refused", "Connect timeout",
+               "SERVICE_UNAVAILABLE", "SLOW_DOWN", "Could not connect to the endpoint", "Read timeout", "Connection was closed")
+
+
+def unreachable(exc: BaseException) -> bool:
+    """Whether ``exc`` says the object store did not answer (down, restarting, overloaded), rather
+    than that the request was wrong (a missing key, no permission)."""
+    text = f"{type(exc).__name__}: {exc}"
+    if type(exc).__name__ in ("EndpointConnectionError", "ConnectTimeoutError", "ReadTimeoutError", "ConnectionClosedError"):
+        return True  # botocore's
+    code = getattr(exc, "response", None)
+    if isinstance(code, dict) and code.get("Error", {}).get("Code") in ("SlowDown", "ServiceUnavailable", "503", "InternalError"):
+        return True
+    return isinstance(exc, (OSError, ConnectionError)) and not isinstance(exc, StoreWriteError) and any(k in text for k in UNREACHABLE)
+
+
+def wait_for(uri: str, what: str, fn, log=None):
+    """``fn()``, again (backing off from 0.5 to 10 s) while it fails because the object store at
+    ``uri`` does not answer (:func:`unreachable`), for up to ``PROCTEX_STORE_WAIT`` seconds (default
+    600); each wait is said on stderr (what it waits for, and for how long so far). Then
+    :class:`StoreUnreachable`. Any other error is raised at once."""
+    import sys
+    import time
+
+    wait = float(os.environ.get("PROCTEX_STORE_WAIT", STORE_WAIT))
+    start = None
+    delay = 0.5
+    while True:
+        try:
+            return fn()
+        except Exception as exc:
+            if not unreachable(exc):
+                raise
+            now = time.monotonic()
+            start = now if start is None else start
+            short = str(exc).split("; Details")[0][-160:]
+            if now - start >= wait:
+                raise StoreUnreachable(errno.EHOSTUNREACH, f"{uri}: the object store did not answer for {wait:.0f} s ({what}): {short}") from exc
+            (log or (lambda m: print(m, file=sys.stderr, flush=True)))(
+                f"store {uri}: the object store does not answer ({short}); waiting for it to come back to {what} ({now - start:.0f} s of {wait:.0f} s)")
+            time.sleep(delay)
+            delay = min(delay * 2, 10.0)
+
+
 class StoreDamaged(ValueError):
     """A store file that is not what its record says (changed outside ProcTex, or damaged)."""
 
@@ -227,8 +278,11 @@ class FamilyStore:
         if not uri:
             raise ValueError("family store root must not be empty")
         if "://" in uri:
+            opened = uri
+            if uri.lower().startswith("s3://") and "allow_delayed_open" not in uri:  # a small object: one PUT at close, not three requests
+                opened = uri + ("&" if "?" in uri else "?") + "allow_delayed_open=true"
             try:
-                self.fs, self.base = pafs.FileSystem.from_uri(uri)
+                self.fs, self.base = pafs.FileSystem.from_uri(opened)
             except (pa.ArrowInvalid, OSError) as exc:
                 raise ValueError(f"cannot open family store {uri!r}: {exc}") from exc
         else:
@@ -268,22 +322,31 @@ class FamilyStore:
         head, sep, query = self.uri.partition("?")
         return f"{head.rstrip('/')}/{full[len(self.base.rstrip('/')) + 1:]}{sep}{query}"
 
+    def _io(self, what: str, fn):
+        """``fn()``; on an object store, waiting for the store while it does not answer (:func:`wait_for`)."""
+        return fn() if self.local else wait_for(self.uri, what, fn)
+
     def exists(self, rel: str) -> bool:
-        return self.fs.get_file_info(self.path(rel)).type != pafs.FileType.NotFound
+        p = self.path(rel)
+        return self._io(f"look up {rel}", lambda: self.fs.get_file_info(p).type != pafs.FileType.NotFound)
 
     def listdir(self, rel: str = "") -> list[str]:
         """Names directly under a folder (``""``: the root; empty if missing), sorted."""
         where = self.base.rstrip("/") if rel in ("", ".") else self.path(rel)
-        info = self.fs.get_file_info(pafs.FileSelector(where, allow_not_found=True))
+        info = self._io(f"list {rel or 'the root'}", lambda: self.fs.get_file_info(pafs.FileSelector(where, allow_not_found=True)))
         return sorted(os.path.basename(i.path) for i in info if ".tmp-" not in os.path.basename(i.path))
 
     def delete(self, rel: str) -> None:
         p = self.path(rel)
-        t = self.fs.get_file_info(p).type
-        if t == pafs.FileType.Directory:
-            self.fs.delete_dir(p)
-        elif t == pafs.FileType.File:
-            self.fs.delete_file(p)
+
+        def delete() -> None:
+            t = self.fs.get_file_info(p).type
+            if t == pafs.FileType.Directory:
+                self.fs.delete_dir(p)
+            elif t == pafs.FileType.File:
+                self.fs.delete_file(p)
+
+        self._io(f"delete {rel}", delete)
 
     # ------------------------------------------------------------------------------------- bytes
     def write_bytes(self, rel: str, data: bytes) -> str:
@@ -328,9 +391,15 @@ class FamilyStore:
     def _put(self, rel: str, data: bytes) -> str:
         """One object written whole under its name (an object store's write is atomic)."""
         final = self.path(rel)
-        try:
+
+        def put() -> None:
             with self.fs.open_output_stream(final) as fh:
                 fh.write(data)
+
+        try:
+            self._io(f"write {rel}", put)
+        except StoreUnreachable:
+            raise
         except OSError as exc:
             raise StoreWriteError.of(exc, final) from exc
         return final
@@ -347,8 +416,12 @@ class FamilyStore:
         p = self.path(rel)
         if not self.exists(rel):
             raise ValueError(f"{self.uri}: {rel} not found")
-        with self.fs.open_input_stream(p) as fh:
-            return fh.read()
+
+        def read() -> bytes:
+            with self.fs.open_input_stream(p) as fh:
+                return fh.read()
+
+        return self._io(f"read {rel}", read)
 
     # ---------------------------------------------------------------------------------- formats
     def write_json(self, rel: str, data: Any) -> str:

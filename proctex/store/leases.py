@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 from urllib.parse import parse_qs, urlsplit
 
-from proctex.store.layout import FamilyStore
+from proctex.store.layout import FamilyStore, wait_for
 
 #: Seconds a lease lives unless renewed (renewed every third of it while its block runs).
 TTL = 30.0
@@ -52,6 +52,7 @@ class Target:
     client: Any
     bucket: str
     prefix: str
+    uri: str = ""
 
     def key(self, name: str) -> str:
         return f"{self.prefix}/{name}" if self.prefix else name
@@ -93,7 +94,7 @@ def target(store: FamilyStore) -> Target:
         endpoint = host if "://" in host else f"{query.get('scheme', 'https')}://{host}"
     region = query.get("region") or os.environ.get("AWS_REGION") or os.environ.get("AWS_DEFAULT_REGION") or "us-east-1"
     bucket, _, prefix = store.base.strip("/").partition("/")
-    return Target(s3_client(endpoint, region), bucket, prefix.strip("/"))
+    return Target(s3_client(endpoint, region), bucket, prefix.strip("/"), store.uri)
 
 
 def _server_time(response: dict[str, Any]) -> float:
@@ -137,7 +138,11 @@ class LeaseState:
 
 
 def read_lease(t: Target, name: str) -> LeaseState:
-    """The lease ``name`` as it is now (one GET)."""
+    """The lease ``name`` as it is now (one GET; waiting for the store while it does not answer)."""
+    return wait_for(t.uri, f"read the lease {name}", lambda: _read_lease(t, name))
+
+
+def _read_lease(t: Target, name: str) -> LeaseState:
     from botocore.exceptions import ClientError
 
     try:
@@ -160,8 +165,10 @@ def _put(t: Target, name: str, record: dict[str, Any], etag: str | None) -> str 
     from botocore.exceptions import ClientError
 
     cond = {"IfMatch": etag} if etag else {"IfNoneMatch": "*"}
+    body = json.dumps(record).encode()
     try:
-        return t.client.put_object(Bucket=t.bucket, Key=t.key(name), Body=json.dumps(record).encode(), ContentType="application/json", **cond)["ETag"]
+        return wait_for(t.uri, f"write the lease {name}", lambda: t.client.put_object(
+            Bucket=t.bucket, Key=t.key(name), Body=body, ContentType="application/json", **cond)["ETag"])
     except ClientError as exc:
         if _is_precondition(exc) or (etag and _is_missing(exc)):
             return None
@@ -191,7 +198,7 @@ class Lease:
                 return False
             now = read_lease(self.t, self.name).now
             record = {**self.record, "expires": now + self.ttl}
-            etag = _put(self.t, self.name, record, self.etag)
+            etag = _put(self.t, self.name, record, self.etag) or _ours(self.t, self.name, record)
             if etag is None:
                 self.lost = f"{self.name} expired and was taken by another process"
                 return False
@@ -227,10 +234,18 @@ def try_take(t: Target, name: str, what: str, ttl: float = TTL) -> tuple[Lease |
         return None, state
     token = uuid.uuid4().hex
     record = _record(what, state.now, ttl, token)
-    etag = _put(t, name, record, state.etag)
+    etag = _put(t, name, record, state.etag) or _ours(t, name, record)
     if etag is None:
         return None, read_lease(t, name)
     return Lease(t, name, what, etag, record, ttl), state
+
+
+def _ours(t: Target, name: str, record: dict[str, Any]) -> str | None:
+    """The lease's ETag if it holds ``record`` (a write that landed although its answer was lost,
+    so that its retry found its own write and was refused), else None."""
+    state = read_lease(t, name)
+    same = state.record.get("token") == record["token"] and state.record.get("expires") == record["expires"]
+    return state.etag if same else None
 
 
 def _shared_live(t: Target, name: str) -> list[LeaseState]:
