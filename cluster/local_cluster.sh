@@ -6,7 +6,8 @@
 #   cluster/local_cluster.sh stop
 #
 # Environment: RAY_PORT (6379), DASHBOARD_PORT (8265: the Jobs API), RAY (the ray executable,
-# default .venv/bin/ray), RAY_TMP (temp dir, default /tmp/ray). Prints the address to export:
+# default .venv/bin/ray), RAY_TMP (the head's temp dir, default /tmp/ray; worker node i uses RAY_TMP-w<i>).
+# Prints the address to export:
 #   export RAY_ADDRESS=http://127.0.0.1:8265   # for `ray job submit` / JobSubmissionClient
 #   ray.init(address="127.0.0.1:6379")         # for drivers on this machine (proctex build --ray 127.0.0.1:6379)
 set -euo pipefail
@@ -26,8 +27,9 @@ start() {
     --dashboard-host=127.0.0.1 --dashboard-port="$DASHBOARD_PORT" --temp-dir="$RAY_TMP" --disable-usage-stats >/dev/null
   for ((i = 0; i < workers; i++)); do
     # A second raylet on the same host: its own dashboard-agent port (the default 52365 is the head's).
+    # Its own temp dir (sessions, logs, spilled objects): nodes share no Ray files, as on separate hosts.
     "$RAY" start --address="127.0.0.1:$RAY_PORT" --node-ip-address=127.0.0.1 --num-cpus="$cpus" --dashboard-agent-listen-port=0 \
-      --min-worker-port=0 --max-worker-port=0 --disable-usage-stats >/dev/null
+      --min-worker-port=0 --max-worker-port=0 --temp-dir="${RAY_TMP}-w$i" --disable-usage-stats >/dev/null
   done
   # Wait until every node has registered its CPUs with the head.
   local want=$((cpus * (workers + 1)))

@@ -58,19 +58,39 @@ def upload(folder: Path, uri: str) -> FamilyStore:
     return store
 
 
-def without_timings(value):
-    """A record with its timings (and temporary paths) taken out, for comparing two builds."""
+def without_timings(value, ignore=frozenset()):
+    """A record with its timings (and temporary paths) taken out, and any key in ``ignore``, for
+    comparing two builds."""
     if isinstance(value, dict):
-        return {k: without_timings(v) for k, v in value.items() if k not in VOLATILE and "seconds" not in k}
+        return {k: without_timings(v, ignore) for k, v in value.items() if k not in VOLATILE and k not in ignore and "seconds" not in k}
     if isinstance(value, list):
-        return [without_timings(v) for v in value]
+        return [without_timings(v, ignore) for v in value]
     if isinstance(value, float) and np.isnan(value):
         return "nan"
     return value
 
 
-def same_records(a: dict[str, bytes], b: dict[str, bytes]) -> list[str]:
-    """The files that differ: binary files to the bit, JSON records and Parquet tables but for timings."""
+def same_network(a: bytes, b: bytes) -> bool:
+    """Whether two checkpoint files hold the same network: every tensor equal, every setting equal."""
+    import io
+
+    import torch
+
+    def same(x, y) -> bool:
+        if torch.is_tensor(x) or torch.is_tensor(y):
+            return torch.is_tensor(x) and torch.is_tensor(y) and x.dtype == y.dtype and torch.equal(x, y)
+        if isinstance(x, dict) and isinstance(y, dict):
+            return set(x) == set(y) and all(same(x[k], y[k]) for k in x)
+        if isinstance(x, (list, tuple)) and isinstance(y, (list, tuple)):
+            return len(x) == len(y) and all(same(p, q) for p, q in zip(x, y))
+        return x == y
+
+    return same(torch.load(io.BytesIO(a), weights_only=False), torch.load(io.BytesIO(b), weights_only=False))
+
+
+def same_records(a: dict[str, bytes], b: dict[str, bytes], ignore=frozenset()) -> list[str]:
+    """The files that differ: binary files to the bit, networks tensor by tensor, JSON records and
+    Parquet tables but for timings (and the keys in ``ignore``)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -78,8 +98,10 @@ def same_records(a: dict[str, bytes], b: dict[str, bytes]) -> list[str]:
     for rel in sorted(set(a) & set(b)):
         if a[rel] == b[rel]:
             continue
-        if rel.endswith(".json"):
-            same = without_timings(json.loads(a[rel])) == without_timings(json.loads(b[rel]))
+        if rel.endswith(".pt"):
+            same = same_network(a[rel], b[rel])
+        elif rel.endswith(".json"):
+            same = without_timings(json.loads(a[rel]), ignore) == without_timings(json.loads(b[rel]), ignore)
         elif rel.endswith(".parquet"):
             ta, tb = pq.read_table(pa.BufferReader(a[rel])), pq.read_table(pa.BufferReader(b[rel]))
             same = without_timings(ta.drop_columns([c for c in ta.column_names if c == "seconds"]).to_pylist()) == \
@@ -118,6 +140,17 @@ def test_a_build_eval_generate_and_service_on_s3_make_what_a_local_folder_makes(
     state = json.loads(a["family.json"])
     state["config"]["seed"] += 1
     assert same_records({**a, "family.json": json.dumps(state).encode()}, b) == ["family.json"]
+    import io
+
+    import torch
+
+    net = torch.load(io.BytesIO(a["models/group_0.pt"]), weights_only=False)
+    first = next(iter(net["state_dict"]))
+    net["state_dict"][first] = net["state_dict"][first].clone()
+    net["state_dict"][first].view(-1)[0] += 1e-6
+    buf = io.BytesIO()
+    torch.save(net, buf)
+    assert same_records({**a, "models/group_0.pt": buf.getvalue()}, b) == ["models/group_0.pt"]
 
     assert main(["eval", remote, "--methods", "identity", "--limit", "2", "--quiet"]) == 0
     assert main(["eval", str(local), "--methods", "identity", "--limit", "2", "--quiet"]) == 0
@@ -325,3 +358,96 @@ def test_a_build_waits_for_a_killed_s3_server_and_finishes_when_it_is_back(local
             assert same_records(files_of(FamilyStore(uri)), files_of(FamilyStore(str(local_mug / "mug")))) == []
     finally:
         stop_server(server)
+
+
+# --------------------------------------------------------------------------- a two-node cluster
+ROOT = Path(__file__).resolve().parents[1]
+CLUSTER_CONFIG = {"model": "mug", "n_train": 6, "n_test": 0, "corr_points": 300, "cage_iterations": 80, "texture_size": 32,
+                  "train": {"iterations": 10, "eval_every": 5, "context_points": 64, "query_points": 32, "shapes_per_batch": 2}}
+
+
+def versions(client, bucket: str, prefix: str) -> dict[str, int]:
+    """How many times each object under ``prefix`` was written (a versioned bucket keeps them all)."""
+    counts: dict[str, int] = {}
+    for page in client.get_paginator("list_object_versions").paginate(Bucket=bucket, Prefix=prefix):
+        for v in page.get("Versions", []):
+            counts[v["Key"]] = counts.get(v["Key"], 0) + 1
+    return counts
+
+
+@pytest.fixture
+def two_nodes(tmp_path):
+    """A local S3 server with a versioned bucket, and a Ray head and a worker node (one CPU each)
+    whose temp dirs are separate and which reach the family store only through S3."""
+    import tempfile
+
+    import boto3
+
+    server = start_server(tmp_path / "seaweedfs", bucket="cluster")
+    s3c = boto3.client("s3", endpoint_url=server.endpoint, region_name=server.region, aws_access_key_id=server.access_key,
+                       aws_secret_access_key=server.secret_key)
+    s3c.put_bucket_versioning(Bucket="cluster", VersioningConfiguration={"Status": "Enabled"})
+    short_tmp = tempfile.mkdtemp(prefix="rays", dir="/tmp")  # Ray's socket paths must stay short
+    env = {**os.environ, **server.env(), "RAY_PORT": "6393", "DASHBOARD_PORT": "8278", "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp}
+    if not Path(env["RAY"]).exists():
+        pytest.skip("no .venv/bin/ray")
+    script = str(ROOT / "cluster" / "local_cluster.sh")
+    start = subprocess.run(["bash", script, "start", "1", "1"], env=env, capture_output=True, text=True, timeout=180)
+    try:
+        assert start.returncode == 0, start.stderr
+        yield server, s3c, short_tmp
+    finally:
+        subprocess.run(["bash", script, "stop"], env=env, capture_output=True, timeout=120)
+        stop_server(server)
+        import shutil
+
+        shutil.rmtree(short_tmp, ignore_errors=True)
+        shutil.rmtree(short_tmp + "-w0", ignore_errors=True)
+
+
+def raylet_of(temp_dir: str) -> int:
+    """The PID of the raylet whose sockets lie in ``temp_dir``."""
+    out = subprocess.run(["pgrep", "-f", f"raylet_socket_name={temp_dir}/"], capture_output=True, text=True).stdout.split()
+    assert len(out) == 1, out
+    return int(out[0])
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_a_two_node_cluster_sharing_no_disk_builds_on_s3_through_a_lost_worker_node(two_nodes, tmp_path):
+    """A build submitted through the Jobs API to a head and a worker node that share no Ray files,
+    with the store on S3: the worker node's raylet is killed while the cage pairs run; the job
+    finishes on the head, every pair was written once (the bucket keeps every version), and the
+    family is the single-process build's."""
+    from ray.job_submission import JobStatus, JobSubmissionClient
+
+    server, s3c, ray_tmp = two_nodes
+    cfg = tmp_path / "family.json"
+    cfg.write_text(json.dumps(CLUSTER_CONFIG))
+    uri = server.uri("families/mug")
+    client = JobSubmissionClient("http://127.0.0.1:8278")
+    job = client.submit_job(entrypoint=f"{sys.executable} -m workflows.cli build {cfg} --out {uri} --ray auto --train-workers 1 --quiet",
+                            runtime_env={"env_vars": {"PYTHONPATH": str(ROOT), **server.env()}})
+    deadline = time.time() + 420
+    killed = False
+    while time.time() < deadline and not client.get_job_status(job).is_terminal():
+        if not killed and any(k.endswith(".json") for k in versions(s3c, "cluster", "families/mug/correspondences/")):
+            os.kill(raylet_of(ray_tmp + "-w0"), signal.SIGKILL)
+            killed = True
+        time.sleep(0.3)
+    logs = client.get_job_logs(job)
+    assert killed, "the pairs ended before the worker node could be killed"
+    assert client.get_job_status(job) == JobStatus.SUCCEEDED, logs[-3000:]
+    counts = versions(s3c, "cluster", "families/mug/")
+    pairs = {k: n for k, n in counts.items() if "/correspondences/" in k}
+    assert len(pairs) >= 12 and all(n == 1 for n in pairs.values()), {k: n for k, n in pairs.items() if n != 1}
+    assert main(["build", str(cfg), "--out", str(tmp_path / "local"), "--quiet"]) == 0
+    with pytest.MonkeyPatch.context() as mp:
+        for k, v in server.env().items():
+            mp.setenv(k, v)
+        remote = files_of(FamilyStore(uri))
+    assert any(k.startswith("train_runs/") for k in remote)  # Ray Train's checkpoints, in the store
+    remote = {k: v for k, v in remote.items() if not k.startswith("train_runs/")}
+    # The networks are equal tensor for tensor (their files' bytes differ: torch names the archive
+    # after the file it saved to), so their checksums differ; and the record says Ray trained them.
+    assert same_records(remote, files_of(FamilyStore(str(tmp_path / "local"))), ignore={"sha256", "ray"}) == []
