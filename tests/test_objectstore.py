@@ -375,15 +375,16 @@ def versions(client, bucket: str, prefix: str) -> dict[str, int]:
     return counts
 
 
-@pytest.fixture
-def two_nodes(tmp_path):
+@pytest.fixture(scope="module")
+def two_nodes(tmp_path_factory):
     """A local S3 server with a versioned bucket, and a Ray head and a worker node (one CPU each)
-    whose temp dirs are separate and which reach the family store only through S3."""
+    whose temp dirs are separate and which reach the family store only through S3. (The build test,
+    which kills the worker node, comes last.)"""
     import tempfile
 
     import boto3
 
-    server = start_server(tmp_path / "seaweedfs", bucket="cluster")
+    server = start_server(tmp_path_factory.mktemp("seaweedfs"), bucket="cluster")
     s3c = boto3.client("s3", endpoint_url=server.endpoint, region_name=server.region, aws_access_key_id=server.access_key,
                        aws_secret_access_key=server.secret_key)
     s3c.put_bucket_versioning(Bucket="cluster", VersioningConfiguration={"Status": "Enabled"})
@@ -410,6 +411,53 @@ def raylet_of(temp_dir: str) -> int:
     out = subprocess.run(["pgrep", "-f", f"raylet_socket_name={temp_dir}/"], capture_output=True, text=True).stdout.split()
     assert len(out) == 1, out
     return int(out[0])
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_generate_to_s3_on_two_nodes_resumes_after_a_killed_driver_writing_each_row_once(two_nodes, painted_mug_root, tmp_path):
+    """``generate`` of 200 variants from a family on S3 into S3, on Ray Data across both nodes: the
+    driver killed (SIGKILL) after 40 rows, then run again: 200 rows in the manifest, every row's
+    record written once, and no finished row's file written again (only the rows in flight at the
+    kill are made again)."""
+    server, s3c, _ = two_nodes
+    with pytest.MonkeyPatch.context() as mp:
+        for k, v in server.env().items():
+            mp.setenv(k, v)
+        upload(painted_mug_root / "mug", server.uri("painted/mug"))
+    argv = [sys.executable, "-m", "workflows.cli", "generate", server.uri("painted/mug"), "--n", "200", "--out", server.uri("variants"),
+            "--address", "127.0.0.1:6393", "--quiet"]
+    env = {**os.environ, **server.env(), "PYTHONPATH": str(ROOT)}
+    first = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 300
+    done_at_kill: set[str] = set()
+    while time.time() < deadline and first.poll() is None:
+        records = [k for k in versions(s3c, "cluster", "variants/records/")]
+        if len(records) >= 40:
+            first.send_signal(signal.SIGKILL)
+            done_at_kill = set(records)
+            break
+        time.sleep(0.3)
+    first.wait()
+    assert done_at_kill, f"the first run ended (rc {first.returncode}) before 40 rows: {first.stderr.read().decode()[-2000:]}"
+    again = subprocess.run(argv + ["--json"], env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr[-3000:]
+    summary = json.loads(again.stdout[again.stdout.index("{"):])
+    counts = versions(s3c, "cluster", "variants/")
+    records = {k: n for k, n in counts.items() if k.startswith("variants/records/")}
+    files = {k: n for k, n in counts.items() if k.startswith("variants/variants/")}
+    assert len(records) == 200 and set(records.values()) == {1}
+    assert len(files) == 200
+    redone = {k for k, n in files.items() if n > 1}
+    finished_first = {k.replace("/records/", "/variants/").replace(".json", ".glb") for k in done_at_kill}
+    assert not redone & finished_first, sorted(redone & finished_first)[:5]
+    assert len(redone) <= 8, sorted(redone)  # at most the rows in flight at the kill
+    with pytest.MonkeyPatch.context() as mp:
+        for k, v in server.env().items():
+            mp.setenv(k, v)
+        manifest = FamilyStore(server.uri("variants")).read_table("manifest.parquet")
+    assert manifest.num_rows == 200 and set(manifest.column("status").to_pylist()) == {"written", "done"}  # done: before the rerun
+    assert summary["done_before"] >= len(done_at_kill) and summary["done_before"] + summary["written"] == 200, summary
 
 
 @pytest.mark.slow
