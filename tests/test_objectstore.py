@@ -499,3 +499,96 @@ def test_a_two_node_cluster_sharing_no_disk_builds_on_s3_through_a_lost_worker_n
     # The networks are equal tensor for tensor (their files' bytes differ: torch names the archive
     # after the file it saved to), so their checksums differ; and the record says Ray trained them.
     assert same_records(remote, files_of(FamilyStore(str(tmp_path / "local"))), ignore={"sha256", "ray"}) == []
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_serve_from_s3_with_two_replicas_follows_edits_and_rebuilds_and_isolates_damage(s3, painted_mug_root, local_mug, tmp_path):
+    """``proctex serve s3://...`` with two replicas (a private Ray): an edit stored by another
+    process and a family rebuilt in place are served without a restart (the replicas read the
+    build stamp from S3), and a damaged object makes its family unavailable (503) while the other
+    family is served."""
+    import urllib.error
+    import urllib.request
+
+    from workflows.objectstore import free_ports
+
+    root = s3.uri("served")
+    mug, cup = upload(painted_mug_root / "mug", root + "/mug"), upload(painted_mug_root / "mug", root + "/cup")
+    jar = upload(painted_mug_root / "mug", root + "/jar")
+    from proctex.store.layout import StoreLayout
+
+    g = jar.read_json("template/paint.json")["groups"][0]
+    texture = StoreLayout.texture(g["group"], g["label"])
+    jar.write_bytes(texture, jar.read_bytes(texture)[:-9] + b"\x00" * 9)  # one damaged object
+    port = free_ports(1)[0]
+    log = open(tmp_path / "serve.log", "w")
+    proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "serve", root, "--port", str(port), "--replicas", "2"],
+                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    url = f"http://127.0.0.1:{port}"
+
+    def get(path):
+        try:
+            with urllib.request.urlopen(url + path, timeout=60) as r:
+                return r.status, json.loads(r.read())
+        except urllib.error.HTTPError as e:
+            return e.code, json.loads(e.read())
+
+    def transfer(name):
+        req = urllib.request.Request(url + f"/v1/families/{name}/transfer", data=b'{"params": {}}', headers={"content-type": "application/json"})
+        try:
+            with urllib.request.urlopen(req, timeout=120) as r:
+                return r.status, r.read()
+        except urllib.error.HTTPError as e:
+            return e.code, e.read()
+
+    def served_stamp(name, want, within=30.0):
+        deadline = time.monotonic() + within
+        while time.monotonic() < deadline:
+            code, body = get(f"/v1/families/{name}")
+            if code == 200 and body["stamp"] == want:
+                return True
+            time.sleep(0.5)
+        return False
+
+    try:
+        deadline = time.monotonic() + 240
+        while True:
+            assert proc.poll() is None, (tmp_path / "serve.log").read_text()[-3000:]
+            assert time.monotonic() < deadline, "proctex serve did not answer in 240 s"
+            try:
+                if get("/healthz")[0] == 200:
+                    break
+            except OSError:
+                time.sleep(1.0)
+        assert get("/v1/families")[1]["families"] == ["cup", "jar", "mug"]
+        assert get("/healthz")[1]["status"] == "ok"
+        from proctex.store.state import build_stamp
+
+        before = build_stamp(mug)
+        assert get("/v1/families/mug")[1]["stamp"] == before
+        assert main(["edit", mug.uri, "--group", "0", "--hue", "40"]) == 0  # another process (no replica) edits the family on S3
+        assert build_stamp(mug) != before and served_stamp("mug", build_stamp(mug))
+        time.sleep(3)  # each replica checks the stamp at most every 2 s
+        assert {get("/v1/families/mug")[1]["stamp"] for _ in range(8)} == {build_stamp(mug)}  # whichever replica answers
+        # the cup rebuilt in place (a trained family replaces the painted one)
+        cup.fs.delete_dir_contents(cup.base)
+        upload(local_mug / "mug", cup.uri)
+        assert served_stamp("cup", build_stamp(cup))
+        assert any(g["network"] for g in get("/v1/families/cup")[1]["groups"])
+        # one damaged object: that family alone is unavailable
+        code, body = transfer("jar")
+        assert code == 503 and "jar" in json.loads(body)["error"] and "checksum" in json.loads(body)["error"], body[:500]
+        for name in ("mug", "cup"):
+            code, body = transfer(name)
+            assert code == 200 and body[:4] == b"glTF"
+        health = get("/healthz")[1]
+        assert health["status"] == "ok" and health["unavailable"] == ["jar"], health
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        log.close()
