@@ -52,7 +52,7 @@ ours() {
     for fd in /proc/[0-9]*/fd; do
       if ls -l "$fd" 2>/dev/null | grep -q -- "$RAY_TMP"; then basename "$(dirname "$fd")"; fi
     done
-  } | { grep -vx "$$" || true; } | sort -u
+  } | { grep -vx -e "$$" -e "$PPID" || true; } | sort -u  # not this script, nor its caller (a driver that used the cluster)
 }
 
 stop() {

@@ -41,6 +41,10 @@ def test_manifests_parse_and_name_what_exists():
         app_builder({k: v for k, v in app["args"].items()})  # the builder accepts its args (binds, does not run)
     for spec in [j["spec"]["rayClusterSpec"] for j in jobs.values()] + [service["rayClusterConfig"]]:
         assert spec["headGroupSpec"]["template"]["spec"]["containers"] and spec["workerGroupSpecs"][0]["groupName"]
+        # every node reaches the S3 store with the same credentials (one Secret; no node shares a disk)
+        for pod in [spec["headGroupSpec"]] + spec["workerGroupSpecs"]:
+            for container in pod["template"]["spec"]["containers"]:
+                assert {"secretRef": {"name": "proctex-s3"}} in container.get("envFrom", []), container["name"]
     parser = importlib.import_module("workflows.cli").build_parser()
     commands = {}
     for job in jobs.values():

@@ -592,3 +592,79 @@ def test_serve_from_s3_with_two_replicas_follows_edits_and_rebuilds_and_isolates
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
         log.close()
+
+
+# ------------------------------------------------------------------------- waiting, without a server
+def test_wait_for_waits_out_an_unreachable_store_and_says_so(monkeypatch):
+    from proctex.store.layout import StoreUnreachable, StoreWriteError, unreachable, wait_for
+
+    down = OSError("When reading 'x' in bucket 'b': AWS Error NETWORK_CONNECTION during GetObject operation: curlCode: 7, Could not connect")
+    assert unreachable(down) and not unreachable(OSError("Path does not exist 'b/x'")) and not unreachable(ValueError("NETWORK_CONNECTION"))
+    assert not unreachable(StoreWriteError(5, "cannot write x: NETWORK_CONNECTION"))
+    calls, said = [], []
+
+    def flaky():
+        calls.append(1)
+        if len(calls) < 3:
+            raise down
+        return "read"
+
+    monkeypatch.setattr("time.sleep", lambda s: None)
+    assert wait_for("s3://b/p", "read x", flaky, log=said.append) == "read" and len(calls) == 3
+    assert len(said) == 2 and all("does not answer" in m and "to read x" in m for m in said)
+    monkeypatch.setenv("PROCTEX_STORE_WAIT", "0")
+    with pytest.raises(StoreUnreachable, match="did not answer for 0 s \\(read x\\)"):
+        wait_for("s3://b/p", "read x", lambda: (_ for _ in ()).throw(down), log=said.append)
+    with pytest.raises(OSError, match="Path does not exist"):  # not a network error: at once
+        wait_for("s3://b/p", "read x", lambda: (_ for _ in ()).throw(OSError("Path does not exist")), log=said.append)
+    for bad in ("soon", "-1", "nan", "1e9"):
+        monkeypatch.setenv("PROCTEX_STORE_WAIT", bad)
+        with pytest.raises(ValueError, match="PROCTEX_STORE_WAIT"):
+            wait_for("s3://b/p", "read x", lambda: (_ for _ in ()).throw(down), log=said.append)
+        assert wait_for("s3://b/p", "read x", lambda: 1) == 1  # read only when it must wait
+
+
+def test_a_server_that_ignores_conditional_writes_is_refused():
+    from proctex.store.leases import NoConditionalWrites, Target, check_conditional_writes
+
+    class Ignores:
+        def put_object(self, **kw):
+            return {"ETag": '"e"'}
+
+        def delete_object(self, **kw):
+            return {}
+
+    with pytest.raises(NoConditionalWrites, match="ignores conditional writes"):
+        check_conditional_writes(Target(Ignores(), "bucket", "fam", "s3://bucket/fam"))
+
+
+@pytest.mark.slow
+def test_looks_edits_and_undo_on_s3_from_two_processes(s3, painted_mug_root):
+    """Two processes add a look each to one family on S3 at once (both land: the edit lease
+    serialises them, no folder is moved); a look is edited, undone, and removed; a service reads
+    each look's files."""
+    from proctex.serve.service import FamilyService
+    from proctex.store.looks import looks
+
+    st = upload(painted_mug_root / "mug", s3.uri("looks/mug"))
+    code = ("import sys\nfrom dataclasses import replace\nfrom proctex.build.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
+            "from proctex.store.state import FamilyState\nst = FamilyStore(sys.argv[1])\n"
+            "add_look(st, sys.argv[2], replace(FamilyState.load(st).build_config().paint, prompt=sys.argv[2]), log=lambda *_: None)\n")
+    procs = [subprocess.Popen([sys.executable, "-c", code, st.uri, name], cwd=ROOT, stderr=subprocess.PIPE, text=True) for name in ("oak", "teak")]
+    for p in procs:
+        _, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err[-2000:]
+    assert [lk.name for lk in looks(st)] == ["default", "oak", "teak"]
+    assert not [n for n in st.listdir("looks") if ".tmp-" in n]
+    oak = st.read_bytes("looks/oak/paint.json")
+    assert main(["edit", st.uri, "--look", "oak", "--group", "0", "--hue", "90"]) == 0
+    assert st.read_json("looks/oak/paint.json")["edits"][0]["version"] == 1 and "edits" not in st.read_json("template/paint.json")
+    svc = FamilyService(st)
+    a, b = svc.look_view("oak"), svc.look_view("teak")
+    assert a.texture_digests != b.texture_digests != svc.texture_digests
+    from proctex.serve.edits import undo_edit
+
+    undo_edit(st, look="oak")
+    assert st.read_bytes("looks/oak/paint.json") == oak
+    assert main(["look", "rm", st.uri, "teak"]) == 0
+    assert [lk.name for lk in looks(st)] == ["default", "oak"] and not st.listdir("looks/teak")

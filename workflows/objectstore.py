@@ -82,6 +82,30 @@ def free_ports(n: int) -> list[int]:
             s.close()
 
 
+def admin_ports(low: int = 20000, high: int = 45000, tries: int = 200) -> tuple[int, int]:
+    """A free port ``p`` below 45000 whose ``p + 10000`` is free too: ``weed mini``'s admin server and
+    the gRPC port its plugin worker dials (the admin port plus 10000, whatever is asked), which must
+    be a valid port."""
+    import random
+
+    rng = random.Random()
+    for _ in range(tries):
+        p = rng.randrange(low, high)
+        socks = []
+        try:
+            for port in (p, p + 10000):
+                s = socket.socket()
+                socks.append(s)
+                s.bind(("127.0.0.1", port))
+            return p, p + 10000
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise OSError("no free pair of ports for weed mini's admin server")
+
+
 def _answers(endpoint: str, bucket: str, env: dict[str, str]) -> bool:
     """Whether the bucket lists through the S3 API (the server is up and the bucket exists)."""
     import pyarrow.fs as pafs
@@ -104,7 +128,16 @@ def start_server(folder: str | os.PathLike, bucket: str = "proctex", access_key:
     until :func:`stop_server`. Restarting on the same folder and port keeps the data."""
     folder = Path(folder).resolve()
     folder.mkdir(parents=True, exist_ok=True)
+    record = folder / "server.json"
+    if record.exists():
+        try:
+            earlier = LocalS3(**json.loads(record.read_text()))
+        except (ValueError, TypeError):
+            earlier = None
+        if earlier is not None and earlier.alive():
+            raise OSError(f"a weed server (pid {earlier.pid}) still runs on {folder}: stop it first")
     ports = free_ports(len(PORT_FLAGS))
+    ports[PORT_FLAGS.index("admin.port")], ports[PORT_FLAGS.index("admin.port.grpc")] = admin_ports()
     if s3_port is not None:
         ports[PORT_FLAGS.index("s3.port")] = int(s3_port)
     flags = [f"-{flag}={port}" for flag, port in zip(PORT_FLAGS, ports)]
@@ -121,7 +154,7 @@ def start_server(folder: str | os.PathLike, bucket: str = "proctex", access_key:
         if proc.poll() is not None:
             raise TimeoutError(f"weed mini stopped at start (exit {proc.returncode}); see {folder / 'weed.log'}")
         if _answers(endpoint, bucket, server.env()):
-            (folder / "server.json").write_text(json.dumps(asdict(server)))
+            record.write_text(json.dumps(asdict(server)))
             return server
         time.sleep(0.3)
     stop_server(server)
@@ -129,7 +162,14 @@ def start_server(folder: str | os.PathLike, bucket: str = "proctex", access_key:
 
 
 def stop_server(server: LocalS3, timeout: float = 10.0) -> None:
-    """End the server's process group (SIGTERM, then SIGKILL after ``timeout`` s); nothing else."""
+    """End the server's process group (SIGTERM, then SIGKILL after ``timeout`` s); nothing else.
+    Its record (``server.json`` in its folder) goes with it."""
+    record = Path(server.folder) / "server.json"
+    try:
+        if json.loads(record.read_text()).get("pid") == server.pid:
+            record.unlink()
+    except (OSError, ValueError):
+        pass
     try:
         os.killpg(server.pid, signal.SIGTERM)
     except OSError:
@@ -163,9 +203,6 @@ def main(argv: list[str] | None = None) -> int:
     record = Path(args.dir) / "server.json"
     try:
         if args.cmd == "start":
-            if record.exists() and LocalS3(**json.loads(record.read_text())).alive():
-                print(f"error: a server already runs for {args.dir} (stop it first)", file=sys.stderr)
-                return 2
             server = start_server(args.dir, bucket=args.bucket, s3_port=args.port)
             for k, v in server.env().items():
                 print(f"export {k}={v}")
@@ -175,7 +212,6 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: no server was started in {args.dir}", file=sys.stderr)
             return 2
         stop_server(LocalS3(**json.loads(record.read_text())))
-        record.unlink()
         print("stopped")
         return 0
     except (OSError, TimeoutError, ValueError) as exc:

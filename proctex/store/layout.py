@@ -99,6 +99,18 @@ def unreachable(exc: BaseException) -> bool:
     return isinstance(exc, (OSError, ConnectionError)) and not isinstance(exc, StoreWriteError) and any(k in text for k in UNREACHABLE)
 
 
+def store_wait() -> float:
+    """``PROCTEX_STORE_WAIT`` (seconds, 0..86400; default :data:`STORE_WAIT`); ``ValueError`` otherwise."""
+    raw = os.environ.get("PROCTEX_STORE_WAIT", "")
+    try:
+        wait = float(raw) if raw.strip() else STORE_WAIT
+    except ValueError:
+        wait = -1.0
+    if not 0.0 <= wait <= 86400.0:  # NaN fails too
+        raise ValueError(f"PROCTEX_STORE_WAIT must be seconds in 0..86400, got {raw[:40]!r}")
+    return wait
+
+
 def wait_for(uri: str, what: str, fn, log=None):
     """``fn()``, again (backing off from 0.5 to 10 s) while it fails because the object store at
     ``uri`` does not answer (:func:`unreachable`), for up to ``PROCTEX_STORE_WAIT`` seconds (default
@@ -107,7 +119,6 @@ def wait_for(uri: str, what: str, fn, log=None):
     import sys
     import time
 
-    wait = float(os.environ.get("PROCTEX_STORE_WAIT", STORE_WAIT))
     start = None
     delay = 0.5
     while True:
@@ -117,7 +128,8 @@ def wait_for(uri: str, what: str, fn, log=None):
             if not unreachable(exc):
                 raise
             now = time.monotonic()
-            start = now if start is None else start
+            if start is None:
+                start, wait = now, store_wait()
             short = str(exc).split("; Details")[0][-160:]
             if now - start >= wait:
                 raise StoreUnreachable(errno.EHOSTUNREACH, f"{uri}: the object store did not answer for {wait:.0f} s ({what}): {short}") from exc

@@ -252,8 +252,39 @@ def _shared_live(t: Target, name: str) -> list[LeaseState]:
     """The live shared leases under ``<name>.shared/``."""
     folder = t.key(f"{name}.shared/")
     keys = [o["Key"] for page in t.client.get_paginator("list_objects_v2").paginate(Bucket=t.bucket, Prefix=folder) for o in page.get("Contents", [])]
-    states = [read_lease(t, k[len(t.prefix) + 1:] if t.prefix else k) for k in keys]
-    return [s for s in states if s.live]
+    live = []
+    for key in keys:
+        state = read_lease(t, key[len(t.prefix) + 1:] if t.prefix else key)
+        if state.live:
+            live.append(state)
+        elif state.etag:  # a shared holder that died: its lease goes (unless it changed meanwhile)
+            with contextlib.suppress(Exception):
+                t.client.delete_object(Bucket=t.bucket, Key=key, IfMatch=state.etag)
+    return live
+
+
+_CHECKED: set[tuple[int, str]] = set()
+
+
+class NoConditionalWrites(ValueError):
+    """An S3 server that ignores conditional writes (leases would not exclude anyone)."""
+
+
+def check_conditional_writes(t: Target) -> None:
+    """Once per client and bucket: write a probe object twice with ``If-None-Match: *``; a server
+    that lets the second write through ignores conditional writes, and no lease would hold there:
+    :class:`NoConditionalWrites` (a ``ValueError``) naming the store."""
+    if (id(t.client), t.bucket) in _CHECKED:
+        return
+    probe = f".lease-probe-{uuid.uuid4().hex}"
+    first = _put(t, probe, {"probe": True}, None)
+    second = _put(t, probe, {"probe": True, "again": True}, None)
+    with contextlib.suppress(Exception):
+        t.client.delete_object(Bucket=t.bucket, Key=t.key(probe))
+    if first is None or second is not None:
+        raise NoConditionalWrites(f"{t.uri}: this S3 server ignores conditional writes (If-None-Match), so a lock there would hold no one "
+                                  "out; edit families in a local folder or on a server that has them (AWS S3, SeaweedFS, MinIO)")
+    _CHECKED.add((id(t.client), t.bucket))
 
 
 @contextlib.contextmanager
@@ -262,6 +293,7 @@ def hold(store: FamilyStore, name: str, what: str, shared: bool = False, timeout
     """Hold lease ``name`` of an S3 store while the block runs (exclusive, or ``shared`` with other
     shared holders), waiting up to ``timeout`` s, then ``busy(message naming the holder)``."""
     t = target(store)
+    check_conditional_writes(t)
     deadline = time.monotonic() + timeout
     delay = 0.02
     while True:
