@@ -486,6 +486,11 @@ def test_a_two_node_cluster_sharing_no_disk_builds_on_s3_through_a_lost_worker_n
     logs = client.get_job_logs(job)
     assert killed, "the pairs ended before the worker node could be killed"
     assert client.get_job_status(job) == JobStatus.SUCCEEDED, logs[-3000:]
+    from ray.util.state import list_tasks
+
+    batches = list_tasks(address="http://127.0.0.1:8278", filters=[("name", "=", "run_batch")], limit=10_000, detail=True,
+                         raise_on_missing_output=False)
+    assert len({t.node_id for t in batches if t.node_id}) == 2, "the pairs ran on both nodes"
     counts = versions(s3c, "cluster", "families/mug/")
     pairs = {k: n for k, n in counts.items() if "/correspondences/" in k}
     assert len(pairs) >= 12 and all(n == 1 for n in pairs.values()), {k: n for k, n in pairs.items() if n != 1}

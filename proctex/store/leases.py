@@ -16,7 +16,11 @@ waits, and a shared taker that finds the exclusive lease live removes its own an
 before they look, so two never both proceed (S3 is strongly consistent for writes and listings).
 
 Only ``s3://`` stores have these (:func:`supports_leases`); other object stores have no conditional
-writes that pyarrow or boto3 reach, and refuse edits."""
+writes that pyarrow or boto3 reach, and refuse edits.
+
+Not fenced: a holder cut off from the store (or frozen) for longer than the time to live loses its
+lease (:attr:`Lease.lost`), but what it writes afterwards is not refused by the store; a second
+holder may then write beside it. The time to live (30 s) is what bounds that window."""
 
 from __future__ import annotations
 
