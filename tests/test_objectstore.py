@@ -198,6 +198,28 @@ def test_object_store_writes_are_whole_objects_under_their_names(s3):
     assert st.read_bytes("a/one.bin") == b"1" * 10 and len(st.read_bytes("a/two.bin")) == 6 << 20
 
 
+def test_a_change_that_fails_on_an_object_store_is_put_back(s3, monkeypatch):
+    """Several files as one change, the third write failing: the first (replaced) is put back, the
+    second (new) removed, and the error names the file; the store is as it was."""
+    from proctex.store.layout import StoreWriteError
+
+    st = FamilyStore(s3.uri("rollback"))
+    st.write_bytes("a.bin", b"old a")
+    put = st._put
+
+    def failing(rel, data):
+        if rel == "c.bin":
+            raise StoreWriteError(28, "cannot write c.bin: no space left on the store's disk; nothing was changed")
+        return put(rel, data)
+
+    monkeypatch.setattr(st, "_put", failing)
+    with pytest.raises(StoreWriteError, match="c.bin"):
+        st.write_all([("a.bin", b"new a"), ("b.bin", b"new b"), ("c.bin", b"new c")])
+    assert st.read_bytes("a.bin") == b"old a" and not st.exists("b.bin") and not st.exists("c.bin")
+    st.write_all([("a.bin", b"new a"), ("b.bin", b"new b")])
+    assert st.read_bytes("a.bin") == b"new a" and st.read_bytes("b.bin") == b"new b"
+
+
 # ------------------------------------------------------------------------------------- leases
 EDITOR = """
 import sys

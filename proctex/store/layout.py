@@ -4,7 +4,8 @@ Every write is atomic. In a folder the bytes go to a temporary name next to the 
 renamed (``pyarrow.fs.FileSystem.move``), so a crash never leaves a half-written file under the real
 name. On an object store (``s3://``) an object appears whole or not at all (a single PUT, or a
 multipart upload that only its completion makes visible), so the bytes go to the real name at once
-(a rename there would be a copy and a delete). Readers only ever see complete files. Tables are Parquet, arrays ``.npz`` (no pickles), documents JSON.
+(a rename there would be a copy and a delete). Readers only ever see complete files. Tables are
+Parquet, arrays ``.npz`` (no pickles), documents JSON.
 
 Layout (all paths relative to the root; :class:`StoreLayout` is the one place that spells them)::
 
@@ -372,11 +373,11 @@ class FamilyStore:
         that fails (a full disk, no permission) leaves the store as it was, every temporary removed,
         and raises :class:`StoreWriteError` naming the file. Returns the full paths.
 
-        On an object store each file is one complete object written under its name, in order (what
-        is written before a failure stays; the records that point to files are written last and
-        keep their checksums, so a later run trusts nothing half-changed)."""
+        On an object store each file is one complete object written under its name, in order; when a
+        write fails, the objects this change already wrote are put back as they were (or removed,
+        where there was none) before the error is raised."""
         if not self.local:
-            return [self._put(rel, data) for rel, data in files]
+            return self._put_all(files)
         staged: list[tuple[str, str]] = []
         try:
             for rel, data in files:
@@ -399,6 +400,27 @@ class FamilyStore:
                 self._remove(t for t, _ in staged[k:])
                 raise
         return [final for _, final in staged]
+
+    def _put_all(self, files: list[tuple[str, bytes]]) -> list[str]:
+        """:meth:`write_all` on an object store: in order, undone on failure (what each object held
+        is read first when the change has several files)."""
+        if len(files) == 1:
+            return [self._put(*files[0])]
+        before = [(rel, self.read_bytes(rel) if self.exists(rel) else None) for rel, _ in files]
+        done: list[int] = []
+        try:
+            for k, (rel, data) in enumerate(files):
+                self._put(rel, data)
+                done.append(k)
+        except BaseException:
+            for k in reversed(done):  # put back what this change replaced (best effort: the original error is the one raised)
+                rel, old = before[k]
+                try:
+                    self._put(rel, old) if old is not None else self.delete(rel)
+                except Exception:
+                    pass
+            raise
+        return [self.path(rel) for rel, _ in files]
 
     def _put(self, rel: str, data: bytes) -> str:
         """One object written whole under its name (an object store's write is atomic)."""
