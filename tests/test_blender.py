@@ -13,6 +13,8 @@ import pytest
 from proctex.geometry.parts import segment
 from proctex.sources.blender import BlenderModel, blender_python, input_specs
 
+from .processes import free_port
+
 PYTHON = blender_python()
 needs_bpy = pytest.mark.skipif(PYTHON is None, reason="no Python with bpy (make blender makes .venv-blender; bpy not installable here?)")
 
@@ -265,24 +267,10 @@ ADDON = Path(__file__).resolve().parents[1] / "clients" / "blender"
 DRIVER = Path(__file__).parent / "fixtures" / "blend" / "drive_addon.py"
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def served_vase(blends, tmp_path_factory):
     """A vase family built from ``vase.blend`` and served by a real ``proctex serve`` (Ray Serve, one
     replica) on 127.0.0.1: ``(URL, family store)``. The server is this fixture's own process group."""
-    import os
-    import signal
-    import sys
-    import time
-    import urllib.request
-
     from proctex.build.pipeline import build
     from proctex.store.config import BuildConfig
     from proctex.store.layout import FamilyStore
@@ -298,32 +286,11 @@ def served_vase(blends, tmp_path_factory):
     from proctex.build.looks import add_look
 
     add_look(store, "red", replace(cfg.paint, prompt="red lacquer"), log=lambda *_: None)  # a second look for the add-on's picker
-    port = _free_port()
-    log = open(root / "serve.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "serve", str(root), "--port", str(port), "--replicas", "1"],
-                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=Path(__file__).resolve().parents[1])
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 240
-        while True:
-            assert proc.poll() is None, (root / "serve.log").read_text()[-3000:]
-            assert time.monotonic() < deadline, "proctex serve did not answer in 240 s"
-            try:
-                with urllib.request.urlopen(url + "/healthz", timeout=5) as answer:
-                    if answer.status == 200:
-                        break
-            except OSError:
-                time.sleep(1.0)
+    from .processes import serving
+
+    with serving(str(root), root / "serve.log", replicas=1) as (url, proc):
         yield url, store
-    finally:
-        proc.send_signal(signal.SIGINT)  # Ctrl-C stops it: Serve shut down, Ray stopped, exit 0
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        log.close()
-        assert proc.returncode == 0 and "stopping" in (root / "serve.log").read_text(), (root / "serve.log").read_text()[-2000:]
+    assert proc.returncode == 0 and "stopping" in (root / "serve.log").read_text(), (root / "serve.log").read_text()[-2000:]
 
 
 def test_the_addon_client_speaks_the_api_and_reports_errors_plainly():
@@ -341,14 +308,14 @@ def test_the_addon_client_speaks_the_api_and_reports_errors_plainly():
     with pytest.raises(client.ServiceError, match="must look like"):
         client.families("ftp://x")
     with pytest.raises(client.ServiceError, match="cannot reach") as err:
-        client.families(f"http://127.0.0.1:{_free_port()}", timeout=2)
+        client.families(f"http://127.0.0.1:{free_port()}", timeout=2)
     assert err.value.status == 0
     with pytest.raises(client.ServiceError, match="pick a family"):
         client.transfer_params("http://127.0.0.1:1", "", {})
     assert client._transfer_path("mug", "red lacquer") == "/v1/families/mug/transfer?look=red%20lacquer"
     assert client._transfer_path("mug", None) == "/v1/families/mug/transfer"
     with pytest.raises(client.ServiceError, match="cannot reach"):
-        client.looks(f"http://127.0.0.1:{_free_port()}", "mug", timeout=2)
+        client.looks(f"http://127.0.0.1:{free_port()}", "mug", timeout=2)
 
 
 def test_the_addon_zip_holds_the_package(tmp_path):

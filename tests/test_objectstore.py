@@ -538,7 +538,7 @@ def test_serve_from_s3_with_two_replicas_follows_edits_and_rebuilds_and_isolates
     import urllib.error
     import urllib.request
 
-    from workflows.objectstore import free_ports
+    from .processes import serving
 
     root = s3.uri("served")
     mug, cup = upload(painted_mug_root / "mug", root + "/mug"), upload(painted_mug_root / "mug", root + "/cup")
@@ -548,21 +548,17 @@ def test_serve_from_s3_with_two_replicas_follows_edits_and_rebuilds_and_isolates
     g = jar.read_json("template/paint.json")["groups"][0]
     texture = StoreLayout.texture(g["group"], g["label"])
     jar.write_bytes(texture, jar.read_bytes(texture)[:-9] + b"\x00" * 9)  # one damaged object
-    port = free_ports(1)[0]
-    log = open(tmp_path / "serve.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "serve", root, "--port", str(port), "--replicas", "2"],
-                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
-    url = f"http://127.0.0.1:{port}"
+    base: list[str] = []  # the server's URL, once it answers
 
     def get(path):
         try:
-            with urllib.request.urlopen(url + path, timeout=60) as r:
+            with urllib.request.urlopen(base[0] + path, timeout=60) as r:
                 return r.status, json.loads(r.read())
         except urllib.error.HTTPError as e:
             return e.code, json.loads(e.read())
 
     def transfer(name):
-        req = urllib.request.Request(url + f"/v1/families/{name}/transfer", data=b'{"params": {}}', headers={"content-type": "application/json"})
+        req = urllib.request.Request(base[0] + f"/v1/families/{name}/transfer", data=b'{"params": {}}', headers={"content-type": "application/json"})
         try:
             with urllib.request.urlopen(req, timeout=120) as r:
                 return r.status, r.read()
@@ -578,16 +574,8 @@ def test_serve_from_s3_with_two_replicas_follows_edits_and_rebuilds_and_isolates
             time.sleep(0.5)
         return False
 
-    try:
-        deadline = time.monotonic() + 240
-        while True:
-            assert proc.poll() is None, (tmp_path / "serve.log").read_text()[-3000:]
-            assert time.monotonic() < deadline, "proctex serve did not answer in 240 s"
-            try:
-                if get("/healthz")[0] == 200:
-                    break
-            except OSError:
-                time.sleep(1.0)
+    with serving(root, tmp_path / "serve.log", replicas=2, env={**os.environ, "PYTHONPATH": str(ROOT)}) as (url, _):
+        base.append(url)
         assert get("/v1/families")[1]["families"] == ["cup", "jar", "mug"]
         assert get("/healthz")[1]["status"] == "ok"
         from proctex.store.state import build_stamp
@@ -611,14 +599,6 @@ def test_serve_from_s3_with_two_replicas_follows_edits_and_rebuilds_and_isolates
             assert code == 200 and body[:4] == b"glTF"
         health = get("/healthz")[1]
         assert health["status"] == "ok" and health["unavailable"] == ["jar"], health
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        log.close()
 
 
 # ------------------------------------------------------------------------- waiting, without a server
