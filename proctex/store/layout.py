@@ -22,14 +22,16 @@ Layout (all paths relative to the root; :class:`StoreLayout` is the one place th
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import io
 import json
 import os
 import re
+import threading
 import uuid
 import zipfile
-from typing import Any
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -138,6 +140,30 @@ def wait_for(uri: str, what: str, fn, log=None):
                 f"store {uri}: the object store does not answer ({short}); waiting for it to come back to {what} ({now - start:.0f} s of {wait:.0f} s)")
             time.sleep(delay)
             delay = min(delay * 2, 10.0)
+
+
+_FENCES = threading.local()
+
+
+@contextlib.contextmanager
+def fence(base: str, check: Callable[[], None]) -> Iterator[None]:
+    """While the block runs, every write and delete this thread makes on the object store at
+    ``base`` first calls ``check`` (a lease's: it raises once the lease may have expired, so a holder
+    cut off from the store writes nothing after another may have taken its lease)."""
+    checks = _FENCES.__dict__.setdefault("checks", [])
+    entry = (base, check)
+    checks.append(entry)
+    try:
+        yield
+    finally:
+        checks.remove(entry)
+
+
+def check_fences(base: str) -> None:
+    """Run this thread's fences on the store at ``base`` (:func:`fence`)."""
+    for where, check in list(getattr(_FENCES, "checks", ())):
+        if where == base:
+            check()
 
 
 class StoreDamaged(ValueError):
@@ -353,6 +379,8 @@ class FamilyStore:
         p = self.path(rel)
 
         def delete() -> None:
+            if not self.local:
+                check_fences(self.base)  # each try: a wait for the store may outlast a lease
             t = self.fs.get_file_info(p).type
             if t == pafs.FileType.Directory:
                 self.fs.delete_dir(p)
@@ -423,10 +451,12 @@ class FamilyStore:
         return [self.path(rel) for rel, _ in files]
 
     def _put(self, rel: str, data: bytes) -> str:
-        """One object written whole under its name (an object store's write is atomic)."""
+        """One object written whole under its name (an object store's write is atomic), after this
+        thread's fences on the store (:func:`fence`)."""
         final = self.path(rel)
 
         def put() -> None:
+            check_fences(self.base)  # each try: a wait for the store may outlast a lease
             with self.fs.open_output_stream(final) as fh:
                 fh.write(data)
 

@@ -18,9 +18,12 @@ before they look, so two never both proceed (S3 is strongly consistent for write
 Only ``s3://`` stores have these (:func:`supports_leases`); other object stores have no conditional
 writes that pyarrow or boto3 reach, and refuse edits.
 
-Not fenced: a holder cut off from the store (or frozen) for longer than the time to live loses its
-lease (:attr:`Lease.lost`), but what it writes afterwards is not refused by the store; a second
-holder may then write beside it. The time to live (30 s) is what bounds that window."""
+Fenced on the holder's side: while a lease is held, every write and delete its thread makes on the
+store first checks that the lease was renewed less than its time to live minus 5 s ago (this
+process's own clock, started before the server's time was read, so never later than the server's
+expiry): a holder cut off from the store (or frozen) for longer writes nothing more and gets
+:class:`LeaseLost`. Writes by other processes on the holder's behalf (a build's Ray workers) are not
+fenced; the server itself refuses nothing to a writer that does not ask it to."""
 
 from __future__ import annotations
 
@@ -36,7 +39,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 from urllib.parse import parse_qs, urlsplit
 
-from proctex.store.layout import FamilyStore, wait_for
+from proctex.store.layout import FamilyStore, fence, wait_for
 
 #: Seconds a lease lives unless renewed (renewed every third of it while its block runs).
 TTL = 30.0
@@ -45,8 +48,12 @@ _CLIENTS: dict[tuple[str | None, str], Any] = {}
 _CLIENTS_LOCK = threading.Lock()
 
 
-class LeaseLost(RuntimeError):
-    """A lease that expired while held (its holder stalled past its time to live) and was taken."""
+#: Seconds before a lease's time to live at which its holder stops writing under it (:meth:`Lease.check`).
+FENCE_MARGIN = 5.0
+
+
+class LeaseLost(ValueError):
+    """A lease that may have expired while held (not renewed within its time to live), or was taken."""
 
 
 @dataclass(frozen=True)
@@ -187,9 +194,11 @@ def _record(what: str, now: float, ttl: float, token: str) -> dict[str, Any]:
 class Lease:
     """A held lease: renewed by a thread every ``ttl / 3`` s until :meth:`release`."""
 
-    def __init__(self, t: Target, name: str, what: str, etag: str, record: dict[str, Any], ttl: float) -> None:
+    def __init__(self, t: Target, name: str, what: str, etag: str, record: dict[str, Any], ttl: float, since: float | None = None) -> None:
         self.t, self.name, self.what, self.etag, self.record, self.ttl = t, name, what, etag, record, ttl
         self.lost: str | None = None
+        #: this process's monotonic clock before the server's time of the last take or renewal was read
+        self.renewed_at = since if since is not None else time.monotonic()
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._renew_loop, name=f"lease {name}", daemon=True)
@@ -200,14 +209,25 @@ class Lease:
         with self._lock:
             if self.lost or self.etag is None:
                 return False
+            started = time.monotonic()
             now = read_lease(self.t, self.name).now
             record = {**self.record, "expires": now + self.ttl}
             etag = _put(self.t, self.name, record, self.etag) or _ours(self.t, self.name, record)
             if etag is None:
                 self.lost = f"{self.name} expired and was taken by another process"
                 return False
-            self.etag, self.record = etag, record
+            self.etag, self.record, self.renewed_at = etag, record, started
             return True
+
+    def check(self) -> None:
+        """:class:`LeaseLost` unless the lease is still surely held: not lost, and renewed less than
+        its time to live minus :data:`FENCE_MARGIN` ago."""
+        if self.lost:
+            raise LeaseLost(f"{self.t.uri}: {self.lost}; {self.what} writes no more")
+        age = time.monotonic() - self.renewed_at
+        if age > self.ttl - min(FENCE_MARGIN, self.ttl / 3):
+            raise LeaseLost(f"{self.t.uri}: the {self.name} lease was not renewed for {age:.0f} s of its {self.ttl:.0f} s (the store did not "
+                            f"answer, or this process stalled); another process may hold it now, so {self.what} writes no more")
 
     def _renew_loop(self) -> None:
         while not self._stop.wait(self.ttl / 3):
@@ -233,6 +253,7 @@ class Lease:
 def try_take(t: Target, name: str, what: str, ttl: float = TTL) -> tuple[Lease | None, LeaseState]:
     """Take lease ``name`` if it is free (absent, released or expired): ``(lease, state)``; else
     ``(None, the live lease's state)``. Of several processes taking it at once, one gets it."""
+    started = time.monotonic()
     state = read_lease(t, name)
     if state.live:
         return None, state
@@ -241,7 +262,7 @@ def try_take(t: Target, name: str, what: str, ttl: float = TTL) -> tuple[Lease |
     etag = _put(t, name, record, state.etag) or _ours(t, name, record)
     if etag is None:
         return None, read_lease(t, name)
-    return Lease(t, name, what, etag, record, ttl), state
+    return Lease(t, name, what, etag, record, ttl, since=started), state
 
 
 def _ours(t: Target, name: str, record: dict[str, Any]) -> str | None:
@@ -327,7 +348,8 @@ def hold(store: FamilyStore, name: str, what: str, shared: bool = False, timeout
         time.sleep(delay)
         delay = min(delay * 1.5, 0.5)
     try:
-        yield lease
+        with fence(store.base, lease.check):  # this thread writes nothing once the lease may be gone
+            yield lease
     finally:
         lease.release()
         if shared:
