@@ -289,14 +289,15 @@ def test_shared_and_exclusive_holders_keep_each_other_out(s3):
         pass
 
 
-def test_a_holder_whose_lease_may_have_expired_writes_nothing_more(s3):
-    """Writes under a lease are fenced on the holder's side: renewed, a 3 s lease covers writes 4 s
-    on; not renewed (its renewals stopped, as when the store does not answer), the holder's next
-    write and delete are refused with LeaseLost once the lease is within 1 s of expiring, and
+def test_a_holder_whose_lease_was_taken_writes_nothing_more(s3):
+    """Writes under a lease are fenced on the holder's side. Renewed, a 3 s lease covers writes 4 s
+    on. Its renewals stopped (as when the store does not answer) past the 1 s margin, nobody having
+    taken it: the next write renews it and goes on. Stopped again until it expires and another
+    holder takes it: the holder's next write, delete and change are refused with LeaseLost and
     nothing is written; other threads and stores are not fenced by it."""
     import threading
 
-    from proctex.store.leases import LeaseLost, hold
+    from proctex.store.leases import LeaseLost, hold, target, try_take
 
     st = FamilyStore(s3.uri("lease/fenced"))
     with hold(st, ".edit.lock", "a renewed edit", ttl=3):
@@ -305,19 +306,26 @@ def test_a_holder_whose_lease_may_have_expired_writes_nothing_more(s3):
     with hold(st, ".edit.lock", "a stalled edit", ttl=3) as lease:
         lease._stop.set()  # no more renewals
         lease._thread.join()
-        st.write_bytes("early.bin", b"1")  # fresh: still sure
         time.sleep(2.2)
-        with pytest.raises(LeaseLost, match="not renewed for 2 s of its 3 s"):
+        st.write_bytes("renewed.bin", b"1")  # nobody took it: renewed by the write's check
+        time.sleep(4.2)  # expired in the server's clock
+        taken = []
+        thief = threading.Thread(target=lambda: taken.append(try_take(target(st), ".edit.lock", "another edit")[0]))
+        thief.start()
+        thief.join()
+        assert taken[0] is not None
+        with pytest.raises(LeaseLost, match="taken by another process"):
             st.write_bytes("late.bin", b"1")
         with pytest.raises(LeaseLost):
-            st.delete("early.bin")
+            st.delete("renewed.bin")
         with pytest.raises(LeaseLost):
             FamilyStore(st.uri).write_all([("a.bin", b"1"), ("b.bin", b"2")])  # any store object on that root
         other = []
         threading.Thread(target=lambda: other.append(st.write_bytes("other.bin", b"1"))).start()  # another thread holds no lease
         FamilyStore(s3.uri("lease/elsewhere")).write_bytes("x.bin", b"1")
+        taken[0].release()
     time.sleep(0.5)
-    assert st.exists("kept.bin") and st.exists("early.bin") and st.exists("other.bin")
+    assert st.exists("kept.bin") and st.exists("renewed.bin") and st.exists("other.bin")
     assert not st.exists("late.bin") and not st.exists("a.bin") and not st.exists("b.bin")
     st.write_bytes("after.bin", b"1")  # the lease given back: no fence left
 

@@ -21,8 +21,9 @@ writes that pyarrow or boto3 reach, and refuse edits.
 Fenced on the holder's side: while a lease is held, every write and delete its thread makes on the
 store first checks that the lease was renewed less than its time to live minus 5 s ago (this
 process's own clock, started before the server's time was read, so never later than the server's
-expiry): a holder cut off from the store (or frozen) for longer writes nothing more and gets
-:class:`LeaseLost`. Writes by other processes on the holder's behalf (a build's Ray workers) are not
+expiry), or renews it then (which succeeds only if nobody wrote the lease meanwhile): a holder whose
+lease was taken while it was cut off from the store (or frozen) writes nothing more and gets
+:class:`LeaseLost`; one whose lease nobody took goes on. Writes by other processes on the holder's behalf (a build's Ray workers) are not
 fenced; the server itself refuses nothing to a writer that does not ask it to."""
 
 from __future__ import annotations
@@ -221,11 +222,21 @@ class Lease:
 
     def check(self) -> None:
         """:class:`LeaseLost` unless the lease is still surely held: not lost, and renewed less than
-        its time to live minus :data:`FENCE_MARGIN` ago."""
+        its time to live minus :data:`FENCE_MARGIN` ago, or renewed now (a conditional replace that
+        succeeds only if nobody wrote the lease since: nobody held it meanwhile)."""
+        if self.lost:
+            raise LeaseLost(f"{self.t.uri}: {self.lost}; {self.what} writes no more")
+        limit = self.ttl - min(FENCE_MARGIN, self.ttl / 3)
+        if time.monotonic() - self.renewed_at <= limit:
+            return
+        try:
+            self.renew()
+        except Exception:
+            pass  # the store does not answer: judged by the age below
         if self.lost:
             raise LeaseLost(f"{self.t.uri}: {self.lost}; {self.what} writes no more")
         age = time.monotonic() - self.renewed_at
-        if age > self.ttl - min(FENCE_MARGIN, self.ttl / 3):
+        if age > limit:
             raise LeaseLost(f"{self.t.uri}: the {self.name} lease was not renewed for {age:.0f} s of its {self.ttl:.0f} s (the store did not "
                             f"answer, or this process stalled); another process may hold it now, so {self.what} writes no more")
 
