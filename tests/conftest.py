@@ -45,3 +45,32 @@ def painted_mug_root(tmp_path_factory) -> Path:
     for stage in (stage_sample, stage_template, stage_paint):
         stage(st, cfg, log=lambda *_: None)
     return base
+
+
+TOY_METHOD = '''"""A correspondence method in one file: the identity mirrored in x (a wrong map, on purpose)."""
+import numpy as np
+
+from proctex.transfer.methods import Method, register
+
+
+class MirrorMapper:
+    def map(self, group, vertices, faces, query, seed=0):
+        return np.asarray(query, dtype=np.float64) * np.array([-1.0, 1.0, 1.0])
+
+
+register(Method("toy_mirror", lambda ctx: MirrorMapper(), "the identity mirrored in x (a test's toy)"))
+'''
+
+
+@pytest.fixture()
+def toy_method(tmp_path, monkeypatch):
+    """The toy method's file named in PROCTEX_PLUGINS; unregistered afterwards."""
+    from proctex import plugins
+    from proctex.transfer.methods import unregister
+
+    path = tmp_path / "toy_method.py"
+    path.write_text(TOY_METHOD)
+    monkeypatch.setenv("PROCTEX_PLUGINS", str(path))
+    yield "toy_mirror"
+    unregister("toy_mirror")
+    plugins._LOADED.pop(str(path), None)

@@ -278,35 +278,6 @@ def test_every_name_of_the_networks_serves_them(pinned_family, painted_mug_root)
             FamilyService(untrained, mapper=name)
 
 
-TOY_METHOD = '''"""A correspondence method in one file: the identity mirrored in x (a wrong map, on purpose)."""
-import numpy as np
-
-from proctex.transfer.methods import Method, register
-
-
-class MirrorMapper:
-    def map(self, group, vertices, faces, query, seed=0):
-        return np.asarray(query, dtype=np.float64) * np.array([-1.0, 1.0, 1.0])
-
-
-register(Method("toy_mirror", lambda ctx: MirrorMapper(), "the identity mirrored in x (a test's toy)"))
-'''
-
-
-@pytest.fixture()
-def toy_method(tmp_path, monkeypatch):
-    """The toy method's file named in PROCTEX_PLUGINS; unregistered afterwards."""
-    from proctex import plugins
-    from proctex.transfer.methods import unregister
-
-    path = tmp_path / "toy_method.py"
-    path.write_text(TOY_METHOD)
-    monkeypatch.setenv("PROCTEX_PLUGINS", str(path))
-    yield "toy_mirror"
-    unregister("toy_mirror")
-    plugins._LOADED.pop(str(path), None)
-
-
 @pytest.mark.slow
 def test_a_method_from_one_file_is_offered_by_the_cli_the_evaluation_and_the_service(pinned_family, toy_method, tmp_path, capsys):
     """One new file registers a method (issue 33): ``proctex transfer --mapper`` and ``proctex eval

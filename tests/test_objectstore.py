@@ -122,7 +122,7 @@ def local_mug(tmp_path_factory) -> Path:
 
 
 @pytest.mark.slow
-def test_a_build_eval_generate_and_service_on_s3_make_what_a_local_folder_makes(s3, local_mug, tmp_path):
+def test_a_build_eval_generate_and_service_on_s3_make_what_a_local_folder_makes(s3, local_mug, toy_method, tmp_path):
     """Every stage of a build into ``s3://``, then ``eval`` and ``generate`` (in process) and a
     service reading the family from S3: the same meshes, textures, tables and networks to the bit,
     and the same records but for their timings, as the same commands on a local folder."""
@@ -152,9 +152,15 @@ def test_a_build_eval_generate_and_service_on_s3_make_what_a_local_folder_makes(
     torch.save(net, buf)
     assert same_records({**a, "models/group_0.pt": buf.getvalue()}, b) == ["models/group_0.pt"]
 
-    assert main(["eval", remote, "--methods", "identity", "--limit", "2", "--quiet"]) == 0
-    assert main(["eval", str(local), "--methods", "identity", "--limit", "2", "--quiet"]) == 0
-    assert same_records({"m.json": FamilyStore(remote).read_bytes("metrics.json")}, {"m.json": (local / "metrics.json").read_bytes()}) == []
+    # the evaluation on S3 measures what it measures in a folder, a deliberately wrong method (the
+    # identity mirrored in x) included, which it scores clearly worse than the identity
+    for family in (remote, str(local)):
+        assert main(["eval", family, "--methods", f"identity,{toy_method}", "--limit", "2", "--quiet"]) == 0
+    metrics = FamilyStore(remote).read_bytes("metrics.json")
+    assert same_records({"m.json": metrics}, {"m.json": (local / "metrics.json").read_bytes()}) == []
+    methods = json.loads(metrics)["methods"]
+    assert methods[toy_method]["gt_error"]["mean"] > 5 * methods["identity"]["gt_error"]["mean"]  # 0.64 against 0.055
+    assert methods[toy_method]["pgt_error"]["mean"] > 3 * methods["identity"]["pgt_error"]["mean"]  # 0.50 against 0.074
 
     out_remote, out_local = s3.uri("variants/mug"), tmp_path / "variants"
     for family, out in ((remote, out_remote), (str(local), str(out_local))):
@@ -188,13 +194,20 @@ def test_a_store_uri_with_a_query_names_its_children_before_the_query(s3):
 
 
 def test_object_store_writes_are_whole_objects_under_their_names(s3):
-    """No temporary object and no rename on S3: each file is one PUT under its name; a store's
-    listing never shows a staging name; several files land in order."""
-    st = FamilyStore(s3.uri("writes"))
+    """No temporary object and no rename on S3: each file is one write under its name. A versioned
+    bucket keeps every write and every delete, so a staging object (written, copied, deleted) would
+    show among its versions; there is exactly one version of each file and nothing else."""
+    import boto3
+
+    client = boto3.client("s3", endpoint_url=s3.endpoint, region_name=s3.region)
+    client.create_bucket(Bucket="writes")
+    client.put_bucket_versioning(Bucket="writes", VersioningConfiguration={"Status": "Enabled"})
+    st = FamilyStore("s3://writes/fam")
     assert not st.local and FamilyStore("/tmp").local
     st.write_all([("a/one.bin", b"1" * 10), ("a/two.bin", os.urandom(6 << 20))])  # the second is a multipart upload
-    names = [i.path for i in st.fs.get_file_info(pafs.FileSelector(st.base, recursive=True)) if i.type == pafs.FileType.File]
-    assert sorted(os.path.basename(n) for n in names) == ["one.bin", "two.bin"]
+    listed = client.list_object_versions(Bucket="writes", Prefix="fam/")
+    assert sorted((v["Key"], v["IsLatest"]) for v in listed.get("Versions", [])) == [("fam/a/one.bin", True), ("fam/a/two.bin", True)]
+    assert not listed.get("DeleteMarkers")
     assert st.read_bytes("a/one.bin") == b"1" * 10 and len(st.read_bytes("a/two.bin")) == 6 << 20
 
 
