@@ -8,7 +8,6 @@ import json
 import os
 import tempfile
 import time
-import uuid
 from pathlib import Path
 from typing import Any, Callable
 
@@ -109,22 +108,7 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = Fa
         with store_lock(store, StoreLayout.EDIT_LOCK, f"adding look {name}", timeout=timeout, busy=StoreBusy):
             if store.exists(look.RECORD) and not force:
                 raise ValueError(f"the family has a look {name!r} already (made meanwhile); --force replaces it")
-            if not store.local:  # an object store moves no folder: the files in place, look.json last, under the edit lease
-                if store.exists(look.folder):
-                    store.delete(look.folder)
-                store.write_all(files)
-                log(f"look {name}: {len(files)} files in {look.folder}/, {record['seconds']:.1f} s")
-                return record
-            staging = f"{StoreLayout.LOOKS}/{name}.tmp-{uuid.uuid4().hex[:8]}"
-            rel = [(staging + path[len(look.folder):], data) for path, data in files]
-            try:
-                store.write_all(rel)
-                if store.exists(look.folder):
-                    store.delete(look.folder)
-                store.fs.move(store.path(staging), store.path(look.folder))
-            finally:
-                if store.exists(staging):
-                    store.delete(staging)
+            store.replace_folder(look.folder, files)
     log(f"look {name}: {len(files)} files in {look.folder}/, {record['seconds']:.1f} s")
     return record
 

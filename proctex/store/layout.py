@@ -429,6 +429,30 @@ class FamilyStore:
                 raise
         return [final for _, final in staged]
 
+    def replace_folder(self, folder: str, files: list[tuple[str, bytes]]) -> None:
+        """Make ``folder`` hold exactly ``files`` (paths relative to the store, all under ``folder``;
+        the one that says the folder is complete last). In a folder store: written under a staging
+        name beside it, then moved into place (a crash leaves the old folder or the new one, and no
+        staging folder is listed). On an object store, which moves no folder: the old folder
+        deleted, then the files written in order (the caller holds the lock readers check)."""
+        folder = folder.rstrip("/")
+        if any(not rel.startswith(folder + "/") for rel, _ in files):
+            raise ValueError(f"every file of {folder}/ must lie in it")
+        if not self.local:
+            if self.exists(folder):
+                self.delete(folder)
+            self.write_all(files)
+            return
+        staging = f"{folder}.tmp-{uuid.uuid4().hex[:8]}"
+        try:
+            self.write_all([(staging + rel[len(folder):], data) for rel, data in files])
+            if self.exists(folder):
+                self.delete(folder)
+            self.fs.move(self.path(staging), self.path(folder))
+        finally:
+            if self.exists(staging):
+                self.delete(staging)
+
     def _put_all(self, files: list[tuple[str, bytes]]) -> list[str]:
         """:meth:`write_all` on an object store: in order, undone on failure (what each object held
         is read first when the change has several files)."""
