@@ -13,6 +13,8 @@ CPUs may land.
   than about ``2 * rel * scale * n`` (``n`` coordinates), and never for ULP-level noise.
 - :func:`no_avx512_env`: the environment under which numpy, torch and oneDNN take the paths of a CPU
   without AVX-512, so a developer's AVX-512 machine also runs them (tests/test_portability.py).
+- :func:`other_env`: kernels one tier below this CPU's own on any machine (numpy, OpenBLAS, ATen,
+  oneDNN, MKL): the environment ``make test`` runs the fast float tests under a second time.
 """
 
 from __future__ import annotations
@@ -84,14 +86,19 @@ def assert_sketch_close(a: np.ndarray, ref: dict, what: str = "array", rel: floa
 
 
 # ------------------------------------------------------------------------------ paths without AVX-512
+def _numpy_dispatch() -> tuple[list[str], dict]:
+    try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    except ImportError:  # numpy 1.x
+        from numpy.core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    return list(__cpu_dispatch__), dict(__cpu_features__)
+
+
 def numpy_avx512_targets() -> list[str]:
     """numpy's dispatch targets that need AVX-512 (``X86_V4``, ``AVX512_*``) in this numpy: the
     names ``NPY_DISABLE_CPU_FEATURES`` accepts differ between numpy 1.x and 2.x."""
-    try:
-        from numpy._core._multiarray_umath import __cpu_dispatch__
-    except ImportError:  # numpy 1.x
-        from numpy.core._multiarray_umath import __cpu_dispatch__
-    return [t for t in __cpu_dispatch__ if t.startswith("AVX512") or t == "X86_V4"]
+    targets, _ = _numpy_dispatch()
+    return [t for t in targets if t.startswith("AVX512") or t == "X86_V4"]
 
 
 def no_avx512_env(base: dict | None = None) -> dict:
@@ -102,6 +109,53 @@ def no_avx512_env(base: dict | None = None) -> dict:
     env["NPY_DISABLE_CPU_FEATURES"] = " ".join(numpy_avx512_targets())
     env["ATEN_CPU_CAPABILITY"] = "avx2"
     env["ONEDNN_MAX_CPU_ISA"] = "AVX2"
+    return env
+
+
+#: numpy 1.x names of the dispatch targets an AVX2 CPU adds to the x86-64-v2 baseline (numpy 2.x: ``X86_V3``).
+_V3_TARGETS = {"X86_V3", "AVX", "AVX2", "FMA3", "F16C", "AVX2_FMA3"}
+
+
+def cpu_tier() -> str:
+    """``"avx512"``, ``"avx2"``, ``"x86"`` (neither) or the machine name elsewhere (``"aarch64"``),
+    from numpy's view of this CPU."""
+    import platform
+
+    _, features = _numpy_dispatch()
+    if features.get("AVX512F") or features.get("X86_V4"):
+        return "avx512"
+    if features.get("AVX2") or features.get("X86_V3"):
+        return "avx2"
+    machine = platform.machine().lower()
+    return "x86" if machine in ("x86_64", "amd64", "i686") else machine
+
+
+def other_env(base: dict | None = None) -> dict:
+    """A copy of ``base`` (default ``os.environ``) under which numpy, OpenBLAS (numpy's and scipy's),
+    torch's ATen and oneDNN and MKL take other kernels than they take natively on this CPU, one tier
+    down (issue 49): what another user's machine computes.
+
+    - AVX-512 CPU: numpy without its AVX-512 targets, ``ATEN_CPU_CAPABILITY=avx2``, oneDNN and MKL at
+      AVX2, ``OPENBLAS_CORETYPE=Haswell`` (an AVX2 machine's kernels);
+    - AVX2 CPU: numpy without ``X86_V3`` (its x86-64-v2 baseline loops), ``ATEN_CPU_CAPABILITY=default``,
+      oneDNN and MKL at AVX, ``OPENBLAS_CORETYPE=Sandybridge`` (Haswell and Zen are this CPU's own);
+    - other CPUs: numpy without any dispatch target beyond its baseline, ATen's default kernels, and
+      OpenBLAS's oldest core of the architecture (Prescott on x86, ARMV8 on arm64).
+
+    tests/test_portability.py shows that it changes the last bits of numpy's, BLAS's and torch's results."""
+    env = dict(os.environ if base is None else base)
+    targets, features = _numpy_dispatch()
+    tier = cpu_tier()
+    if tier == "avx512":
+        off = numpy_avx512_targets()
+        env.update(ATEN_CPU_CAPABILITY="avx2", ONEDNN_MAX_CPU_ISA="AVX2", MKL_ENABLE_INSTRUCTIONS="AVX2", OPENBLAS_CORETYPE="Haswell")
+    elif tier == "avx2":
+        off = [t for t in targets if t in _V3_TARGETS]
+        env.update(ATEN_CPU_CAPABILITY="default", ONEDNN_MAX_CPU_ISA="AVX", MKL_ENABLE_INSTRUCTIONS="AVX", OPENBLAS_CORETYPE="Sandybridge")
+    else:
+        off = [t for t in targets if features.get(t)]
+        env.update(ATEN_CPU_CAPABILITY="default", OPENBLAS_CORETYPE="Prescott" if tier == "x86" else "ARMV8")
+    env["NPY_DISABLE_CPU_FEATURES"] = " ".join(off)
     return env
 
 

@@ -186,6 +186,15 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     lam = float(evals[order[1]])
     # level sets -> centre line; arc length of the centre line -> s
     b = int(bins) if bins else int(np.clip(nv // 20, 8, 128))
+    # Vertices a symmetry makes equal (a ring of a surface of revolution) have Fiedler values equal
+    # in exact arithmetic but apart by the eigensolver's last bits, and a bin edge falls among them:
+    # which of them land in which level set, so the centre line itself, would depend on the CPU's
+    # kernels. Values rounded to a grid far above that noise (1e-8 of the range; the solve is good to
+    # ~1e-13) and far below any real spacing of level sets keep such vertices together.
+    span = float(np.ptp(fied))
+    if span > 0:
+        grid = 1e-8 * span
+        fied = np.round(fied / grid) * grid
     edges = np.quantile(fied, np.linspace(0.0, 1.0, b + 1))
     which = np.clip(np.searchsorted(edges, fied, side="right") - 1, 0, b - 1)
     wsum = np.bincount(which, weights=mass, minlength=b)
@@ -206,7 +215,9 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     weights = seg / max(seg.sum(), 1e-300)
     align = (weights[:, None] * tang ** 2).sum(axis=0) if len(tang) else np.zeros(3)
     if reference is None:
-        reference = np.eye(3)[int(np.argmin(align))]
+        # the first of the axes that tie for the least (a straight part avoids two equally): a
+        # last-bit difference between them must not turn the chart by 90 degrees
+        reference = np.eye(3)[int(np.flatnonzero(align <= align.min() + 1e-9)[0])]
     else:
         reference = np.asarray(reference, dtype=np.float64)
         if reference.shape != (3,) or not np.isfinite(reference).all() or not np.linalg.norm(reference) > 0:

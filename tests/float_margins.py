@@ -1,0 +1,139 @@
+"""How far each float check of the suite sits from its threshold, natively, under other CPU kernels
+and under load (issue 49).
+
+    python -m tests.float_margins run --env native --out out/margins/native.jsonl [-- PYTEST ARGS]
+    python -m tests.float_margins run --env other  --out out/margins/other.jsonl  [-- PYTEST ARGS]
+    python -m tests.float_margins run --env native --load --out out/margins/load.jsonl [-- PYTEST ARGS]
+    python -m tests.float_margins report out/margins/*.jsonl [--json out/margins/report.json]
+
+``run`` runs pytest (default: the fast tests, ``-m "not slow"``) with :mod:`tests.floatrecord`, which
+writes one JSON line per float check (value, threshold); ``--env other`` takes
+:func:`tests.portable.other_env` (kernels one tier below this CPU's), ``--load`` keeps every core busy
+with as many spinning processes for the whole run. ``report`` joins the runs check by check and
+lists every check whose margin (the smallest distance between value and threshold over the runs) is
+under ``--factor`` (3) times its spread (how far its value moved between the runs), and every check
+that some run did not record (it failed there, or did not run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _spin() -> None:  # pragma: no cover - a load process
+    while True:
+        pass
+
+
+def run(env_name: str, out: Path, load: bool, pytest_args: list[str]) -> int:
+    from .portable import other_env
+
+    env = other_env() if env_name == "other" else dict(os.environ)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.unlink(missing_ok=True)
+    cache = tempfile.mkdtemp(prefix="proctex-floatrecord-")  # rewritten test modules with the pass hook, apart from the usual cache
+    env.update(PROCTEX_FLOAT_RECORD=str(out.resolve()), PYTHONPYCACHEPREFIX=cache)
+    args = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "tests.floatrecord", "-o", "enable_assertion_pass_hook=true",
+            *(pytest_args or ["-m", "not slow"])]
+    spinners = []
+    if load:
+        ctx = multiprocessing.get_context("spawn")
+        spinners = [ctx.Process(target=_spin, daemon=True) for _ in range(os.cpu_count() or 1)]
+        for p in spinners:
+            p.start()
+    try:
+        return subprocess.run(args, env=env, cwd=ROOT).returncode
+    finally:
+        for p in spinners:
+            p.kill()
+            p.join()
+
+
+def load_runs(paths: list[Path]) -> dict[str, dict[tuple, dict]]:
+    """``{run name: {(test, where, n, k): record}}``; the run's name is its file's stem."""
+    runs = {}
+    for path in paths:
+        recs = {}
+        for line in path.read_text(encoding="utf-8").splitlines():
+            r = json.loads(line)
+            recs[(r["test"], r["where"], r["n"], r["k"])] = r
+        runs[path.stem] = recs
+    return runs
+
+
+def margins(runs: dict[str, dict[tuple, dict]], factor: float = 3.0) -> dict:
+    """Per check (a test's line, its occurrence and its place in the assertion): the values in each
+    run, the margin (smallest |value - threshold| over the runs) and the spread (largest change of
+    value or threshold between runs). ``thin``: checks whose margin is under ``factor`` x spread;
+    ``missing``: checks some run did not record (per test and line, so that a check inside a loop
+    counts once)."""
+    names = list(runs)
+    keys = set().union(*(set(r) for r in runs.values()))
+    thin, missing_sites = {}, {}
+    checked = 0
+    for key in keys:
+        got = [runs[n].get(key) for n in names]
+        present = [g for g in got if g is not None]
+        site = (key[0], key[1])
+        if len(present) < len(names):
+            missing_sites.setdefault(site, [n for n, g in zip(names, got) if g is None])
+            continue
+        checked += 1
+        values = [g["value"] for g in present]
+        thresholds = [g["threshold"] for g in present]
+        spread = max(max(values) - min(values), max(thresholds) - min(thresholds))
+        margin = min(abs(v - t) for v, t in zip(values, thresholds))
+        if margin < factor * spread:
+            old = thin.get(site)
+            if old is None or margin / spread < old["margin"] / old["spread"]:
+                thin[site] = dict(test=key[0], where=key[1], occurrence=key[2], kind=present[0]["kind"], op=present[0]["op"],
+                                  threshold=thresholds[0], values=dict(zip(names, values)), margin=margin, spread=spread)
+    return dict(runs=names, checks=checked, sites=len({(k[0], k[1]) for k in keys}), thin=sorted(thin.values(), key=lambda r: r["where"]),
+                missing=[dict(test=t, where=w, missing_in=m) for (t, w), m in sorted(missing_sites.items())])
+
+
+def report(paths: list[Path], factor: float, json_out: Path | None) -> int:
+    res = margins(load_runs(paths), factor)
+    print(f"{res['checks']} checks at {res['sites']} sites in runs {', '.join(res['runs'])}")
+    print(f"margin under {factor:g} x spread: {len(res['thin'])} sites")
+    for r in res["thin"]:
+        vals = ", ".join(f"{k} {v:.6g}" for k, v in r["values"].items())
+        print(f"  {r['where']}  {r['kind']} {r['op']} {r['threshold']:.6g}: {vals}  margin {r['margin']:.3g} spread {r['spread']:.3g}  ({r['test']})")
+    print(f"recorded in some runs only: {len(res['missing'])} sites")
+    for r in res["missing"]:
+        print(f"  {r['where']}  missing in {', '.join(r['missing_in'])}  ({r['test']})")
+    if json_out:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(res, indent=1))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m tests.float_margins", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="run pytest recording every float check")
+    r.add_argument("--env", choices=("native", "other"), default="native")
+    r.add_argument("--load", action="store_true", help="keep every core busy meanwhile")
+    r.add_argument("--out", type=Path, required=True)
+    r.add_argument("pytest_args", nargs="*")
+    p = sub.add_parser("report", help="checks whose margin is thinner than their spread over the runs")
+    p.add_argument("files", nargs="+", type=Path)
+    p.add_argument("--factor", type=float, default=3.0)
+    p.add_argument("--json", type=Path)
+    a = ap.parse_args(argv)
+    if a.cmd == "run":
+        return run(a.env, a.out, a.load, a.pytest_args)
+    return report(a.files, a.factor, a.json)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
