@@ -6,13 +6,17 @@
 #   cluster/local_cluster.sh stop
 #
 # Environment: RAY_PORT (6379), DASHBOARD_PORT (8265: the Jobs API), RAY (the ray executable,
-# default .venv/bin/ray), RAY_TMP (the head's temp dir, default /tmp/ray; worker node i uses RAY_TMP-w<i>).
+# default .venv/bin/ray), RAY_TMP (the head's temp dir, default /tmp/ray; worker node i uses RAY_TMP-w<i>),
+# PROCTEX_CLUSTER_WAIT (180: seconds `start` waits for the nodes' CPUs and for the job agent).
+# `start` returns once every node's CPUs are registered and the Jobs API has run a no-op job, so a
+# submission right after it is not refused with "No available agent"; it exits 1 when that takes longer.
 # Prints the address to export:
 #   export RAY_ADDRESS=http://127.0.0.1:8265   # for `ray job submit` / JobSubmissionClient
 #   ray.init(address="127.0.0.1:6379")         # for drivers on this machine (proctex build --ray 127.0.0.1:6379)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RAY=${RAY:-.venv/bin/ray}
+PY=${PY:-$(dirname "$RAY")/python}  # the Python beside that ray, for the readiness check (workflows/jobs.py)
 RAY_PORT=${RAY_PORT:-6379}
 DASHBOARD_PORT=${DASHBOARD_PORT:-8265}
 RAY_TMP=${RAY_TMP:-/tmp/ray}
@@ -31,12 +35,17 @@ start() {
     "$RAY" start --address="127.0.0.1:$RAY_PORT" --node-ip-address=127.0.0.1 --num-cpus="$cpus" --dashboard-agent-listen-port=0 \
       --min-worker-port=0 --max-worker-port=0 --temp-dir="${RAY_TMP}-w$i" --disable-usage-stats >/dev/null
   done
-  # Wait until every node has registered its CPUs with the head.
-  local want=$((cpus * (workers + 1)))
-  for ((t = 0; t < 60; t++)); do
-    "$RAY" status --address="127.0.0.1:$RAY_PORT" 2>/dev/null | grep -q "/${want}.0 CPU" && break
+  # Wait until every node has registered its CPUs with the head, then until the head's job agent
+  # runs a job (a no-op one, deleted after): the Jobs API answers "No available agent" before that.
+  local want=$((cpus * (workers + 1))) wait_s=${PROCTEX_CLUSTER_WAIT:-180} t0=$SECONDS
+  until "$RAY" status --address="127.0.0.1:$RAY_PORT" 2>/dev/null | grep -q "/${want}.0 CPU"; do
+    if ((SECONDS - t0 > ${wait_s%.*})); then
+      echo "error: the cluster's nodes did not register ${want} CPUs within ${wait_s} s (PROCTEX_CLUSTER_WAIT)" >&2
+      exit 1
+    fi
     sleep 1
   done
+  "$PY" -m workflows.jobs wait "http://127.0.0.1:$DASHBOARD_PORT" --timeout "$wait_s" >/dev/null
   echo "ray cluster: head 127.0.0.1:$RAY_PORT + $workers worker node(s), $cpus CPU(s) each"
   echo "jobs API / dashboard: http://127.0.0.1:$DASHBOARD_PORT"
 }

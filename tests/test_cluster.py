@@ -81,7 +81,9 @@ def test_local_cluster_script_usage():
 def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
     import tempfile
 
-    from ray.job_submission import JobStatus, JobSubmissionClient
+    from ray.job_submission import JobStatus
+
+    from workflows.jobs import job_client, submit_job
 
     short_tmp = tempfile.mkdtemp(prefix="rayc", dir="/tmp")  # Ray's socket paths must stay short
     env = {**os.environ, "RAY_PORT": "6391", "DASHBOARD_PORT": "8276", "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp}
@@ -97,9 +99,11 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
         cfg.write_text(json.dumps({"model": "mug", "n_train": 3, "n_test": 0, "corr_points": 200, "cage_iterations": 20, "texture_size": 32,
                                    "train": {"iterations": 10, "eval_every": 5, "context_points": 64, "query_points": 32, "shapes_per_batch": 2}}))
         out = tmp_path / "mug"
-        client = JobSubmissionClient("http://127.0.0.1:8276")
-        job = client.submit_job(entrypoint=f"{ROOT / '.venv' / 'bin' / 'python'} -m workflows.cli build {cfg} --out {out} --ray auto --train-workers 2 --quiet",
-                                runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})
+        client = job_client("http://127.0.0.1:8276")
+        # start returned after the Jobs API ran its no-op readiness job, which it deleted
+        assert not [j for j in client.list_jobs() if (j.submission_id or "").startswith("proctex-ready")]
+        job = submit_job(client, f"{ROOT / '.venv' / 'bin' / 'python'} -m workflows.cli build {cfg} --out {out} --ray auto --train-workers 2 --quiet",
+                         runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})
         deadline = time.time() + 420
         while time.time() < deadline and not client.get_job_status(job).is_terminal():
             time.sleep(2)

@@ -543,15 +543,17 @@ def test_a_two_node_cluster_sharing_no_disk_builds_on_s3_through_a_lost_worker_n
     with the store on S3: the worker node's raylet is killed while the cage pairs run; the job
     finishes on the head, every pair was written once (the bucket keeps every version), and the
     family is the single-process build's."""
-    from ray.job_submission import JobStatus, JobSubmissionClient
+    from ray.job_submission import JobStatus
+
+    from workflows.jobs import job_client, submit_job
 
     server, s3c, ray_tmp = two_nodes
     cfg = tmp_path / "family.json"
     cfg.write_text(json.dumps(CLUSTER_CONFIG))
     uri = server.uri("families/mug")
-    client = JobSubmissionClient("http://127.0.0.1:8278")
-    job = client.submit_job(entrypoint=f"{sys.executable} -m workflows.cli build {cfg} --out {uri} --ray auto --train-workers 1 --quiet",
-                            runtime_env={"env_vars": {"PYTHONPATH": str(ROOT), **server.env()}})
+    client = job_client("http://127.0.0.1:8278")
+    job = submit_job(client, f"{sys.executable} -m workflows.cli build {cfg} --out {uri} --ray auto --train-workers 1 --quiet",
+                     runtime_env={"env_vars": {"PYTHONPATH": str(ROOT), **server.env()}})
     deadline = time.time() + 420
     killed = False
     while time.time() < deadline and not client.get_job_status(job).is_terminal():

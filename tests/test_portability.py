@@ -80,6 +80,51 @@ def test_the_no_avx512_environment_takes_the_other_paths(tmp_path):
         np.testing.assert_array_equal(a, b)
 
 
+_KERNELS = r"""
+import json, sys
+import numpy as np
+import torch
+x = np.linspace(-10.0, 10.0, 20001)
+rng = np.random.default_rng(0)
+a, b = rng.standard_normal((256, 256)), rng.standard_normal((256, 64))
+torch.manual_seed(0)
+t, u = torch.randn(256, 256), torch.randn(256, 64)
+np.savez(sys.argv[1], numpy=np.stack([np.exp(x.astype(np.float32) / 3).astype(np.float64), np.sin(x.astype(np.float32)).astype(np.float64),
+                                      np.tanh(x / 3), np.exp(x / 3)]),
+         blas=a @ b, torch=np.concatenate([(t @ u).numpy().ravel(), torch.exp(t / 3).numpy().ravel(), torch.tanh(t).numpy().ravel()]))
+print(json.dumps(dict(aten=torch.backends.cpu.get_cpu_capability())))
+"""
+
+
+def test_the_other_environment_takes_other_numpy_blas_and_torch_kernels(tmp_path):
+    """:func:`tests.portable.other_env` (what ``make test`` runs the fast tests under a second time)
+    differs from this machine's own kernels on any x86 CPU: numpy's vectorised float32 ``exp`` and
+    ``sin`` or float64 ``exp``/``tanh``, OpenBLAS's matrix product and torch's ATen kernels each give
+    other last bits (and agree to a few ULPs: the same functions)."""
+    from .portable import cpu_tier, other_env
+
+    def probe(env, name):
+        run = subprocess.run([sys.executable, "-c", _KERNELS, str(tmp_path / name)], env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr[-3000:]
+        import json
+
+        return json.loads(run.stdout.strip().splitlines()[-1]), np.load(tmp_path / f"{name}.npz")
+
+    (here_info, here), (there_info, there) = probe(None, "here"), probe(other_env(), "there")
+    tier = cpu_tier()
+    differ = {k: not np.array_equal(here[k], there[k]) for k in ("numpy", "blas", "torch")}
+    # a few ULPs of each result's precision: float32 for numpy's first rows and torch, float64 for BLAS
+    # (torch: float32 sums of 256 products of order 1, about 1e-5 apart in their last bits)
+    tol = {"numpy": (4 * 2.0**-23, 0.0), "blas": (1e-12, 1e-12), "torch": (1e-5, 1e-4)}
+    for k in differ:
+        np.testing.assert_allclose(here[k], there[k], rtol=tol[k][0], atol=tol[k][1])
+    if tier in ("avx512", "avx2"):
+        assert differ == {"numpy": True, "blas": True, "torch": True}, (tier, differ)
+        assert there_info["aten"] == ("AVX2" if tier == "avx512" else "DEFAULT") != here_info["aten"]
+    else:  # an older x86 or another architecture: at least BLAS's core type changes
+        assert any(differ.values()), (tier, differ)
+
+
 @pytest.mark.slow
 def test_machine_sensitive_tests_pass_without_avx512():
     run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *MACHINE_SENSITIVE],

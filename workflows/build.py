@@ -34,13 +34,17 @@ def store_uri(root: str) -> str:
 
 
 def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
-    """Connect to ``address`` ("auto", "host:port", "ray://...") or start a private local Ray."""
+    """Connect to ``address`` ("auto", "host:port", "ray://...") and wait (bounded) until the cluster
+    has CPUs (:func:`workflows.jobs.wait_for_cpus`), or start a private local Ray."""
     import ray
 
     if ray.is_initialized():
         return
     if address:
         ray.init(address=address, log_to_driver=False)
+        from .jobs import wait_for_cpus
+
+        wait_for_cpus()  # a head without CPUs whose worker nodes are still joining (bounded: PROCTEX_CLUSTER_WAIT)
     else:
         ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
 

@@ -50,6 +50,9 @@ def generate_on_ray(settings: GenerateSettings, concurrency: tuple[int, int] | N
     if not ray.is_initialized():
         if address:
             ray.init(address=address, log_to_driver=False)
+            from .jobs import wait_for_cpus
+
+            wait_for_cpus()  # worker nodes still joining (bounded: PROCTEX_CLUSTER_WAIT)
         else:
             ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
         started = True
