@@ -200,3 +200,26 @@ def glb_mismatch(a: bytes, b: bytes) -> str | None:
         if np.abs(u.astype(np.float64) - v.astype(np.float64)).max(initial=0.0) > (1.0 if u.dtype == np.uint8 else 1.0 / 255 + 1e-6):
             return f"image {i} differs by more than one level"
     return None
+
+
+# ------------------------------------------------------------------------------- the second pass
+def other_env_changes(base: dict | None = None) -> dict:
+    """What :func:`other_env` sets that differs from ``base`` (default ``os.environ``)."""
+    base = dict(os.environ if base is None else base)
+    return {k: v for k, v in other_env(base).items() if base.get(k) != v}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m tests.portable [PYTEST ARGS]``: pytest under :func:`other_env`, saying which
+    kernels it changes (``make test`` runs the fast tests marked ``numeric`` this way)."""
+    import subprocess
+    import sys
+
+    args = sys.argv[1:] if argv is None else argv
+    changes = other_env_changes()
+    print(f"other kernels than this CPU's own ({cpu_tier()}): " + " ".join(f"{k}={v!r}" for k, v in changes.items()), flush=True)
+    return subprocess.run([sys.executable, "-m", "pytest", *args], env=other_env()).returncode
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
