@@ -8,7 +8,7 @@
 # Environment: RAY_PORT (6379), DASHBOARD_PORT (8265: the Jobs API), RAY (the ray executable,
 # default .venv/bin/ray), RAY_TMP (the head's temp dir, default /tmp/ray; worker node i uses RAY_TMP-w<i>),
 # PROCTEX_CLUSTER_WAIT (180: seconds `start` waits for the nodes' CPUs and for the job agent).
-# `start` returns once every node's CPUs are registered and the Jobs API has run a no-op job, so a
+# `start` returns once every node's CPUs are registered and the Jobs API has run a no-op job (proctex-ready-*), so a
 # submission right after it is not refused with "No available agent"; it exits 1 when that takes longer.
 # Prints the address to export:
 #   export RAY_ADDRESS=http://127.0.0.1:8265   # for `ray job submit` / JobSubmissionClient
@@ -36,7 +36,7 @@ start() {
       --min-worker-port=0 --max-worker-port=0 --temp-dir="${RAY_TMP}-w$i" --disable-usage-stats >/dev/null
   done
   # Wait until every node has registered its CPUs with the head, then until the head's job agent
-  # runs a job (a no-op one, deleted after): the Jobs API answers "No available agent" before that.
+  # runs a job (a no-op one, left in its job list): the Jobs API answers "No available agent" before that.
   local want=$((cpus * (workers + 1))) wait_s=${PROCTEX_CLUSTER_WAIT:-180} t0=$SECONDS
   until "$RAY" status --address="127.0.0.1:$RAY_PORT" 2>/dev/null | grep -q "/${want}.0 CPU"; do
     if ((SECONDS - t0 > ${wait_s%.*})); then

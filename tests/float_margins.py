@@ -58,26 +58,35 @@ def run(env_name: str, out: Path, load: bool, pytest_args: list[str]) -> int:
             p.join()
 
 
-def load_runs(paths: list[Path]) -> dict[str, dict[tuple, dict]]:
-    """``{run name: {(test, where, n, k): record}}``; the run's name is its file's stem."""
-    runs = {}
+def load_runs(paths: list[Path]) -> tuple[dict[str, dict[tuple, dict]], dict[str, dict[str, str]]]:
+    """``({run name: {(test, where, n, k): record}}, {run name: {test: outcome}})``; the run's name is
+    its file's stem. A test's outcome is "passed" only when no phase of it failed."""
+    runs, outcomes = {}, {}
     for path in paths:
-        recs = {}
+        recs, outs = {}, {}
         for line in path.read_text(encoding="utf-8").splitlines():
             r = json.loads(line)
+            if "outcome" in r:
+                if outs.get(r["test"]) in (None, "passed"):
+                    outs[r["test"]] = r["outcome"]
+                continue
             recs[(r["test"], r["where"], r["n"], r["k"])] = r
-        runs[path.stem] = recs
-    return runs
+        runs[path.stem], outcomes[path.stem] = recs, outs
+    return runs, outcomes
 
 
-def margins(runs: dict[str, dict[tuple, dict]], factor: float = 3.0) -> dict:
-    """Per check (a test's line, its occurrence and its place in the assertion): the values in each
-    run, the margin (smallest |value - threshold| over the runs) and the spread (largest change of
-    value or threshold between runs). ``thin``: checks whose margin is under ``factor`` x spread;
-    ``missing``: checks some run did not record (per test and line, so that a check inside a loop
-    counts once)."""
+def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, str]] | None = None, factor: float = 3.0) -> dict:
+    """Per check (a test's line, its occurrence and its place in the assertion) made in every run
+    where its test ran: the values in each run, the margin (smallest |value - threshold| over the
+    runs) and the spread (largest change of value or threshold between runs). ``thin``: checks
+    whose margin is under ``factor`` x spread (per test and line, the thinnest); ``failed``: tests
+    that ran in every run and failed in some; ``missing``: checks of tests that passed everywhere,
+    made in some runs only (another path through the test)."""
     names = list(runs)
-    keys = set().union(*(set(r) for r in runs.values()))
+    outcomes = outcomes or {n: {} for n in names}
+    ran_everywhere = set.intersection(*(set(outcomes[n]) for n in names)) if names else set()
+    failed = sorted(t for t in ran_everywhere if any(outcomes[n][t] == "failed" for n in names))
+    keys = {k for r in runs.values() for k in r if k[0] in ran_everywhere or not any(outcomes.values())}
     thin, missing_sites = {}, {}
     checked = 0
     for key in keys:
@@ -85,7 +94,8 @@ def margins(runs: dict[str, dict[tuple, dict]], factor: float = 3.0) -> dict:
         present = [g for g in got if g is not None]
         site = (key[0], key[1])
         if len(present) < len(names):
-            missing_sites.setdefault(site, [n for n, g in zip(names, got) if g is None])
+            if key[0] not in failed:
+                missing_sites.setdefault(site, [n for n, g in zip(names, got) if g is None])
             continue
         checked += 1
         values = [g["value"] for g in present]
@@ -97,13 +107,18 @@ def margins(runs: dict[str, dict[tuple, dict]], factor: float = 3.0) -> dict:
             if old is None or margin / spread < old["margin"] / old["spread"]:
                 thin[site] = dict(test=key[0], where=key[1], occurrence=key[2], kind=present[0]["kind"], op=present[0]["op"],
                                   threshold=thresholds[0], values=dict(zip(names, values)), margin=margin, spread=spread)
-    return dict(runs=names, checks=checked, sites=len({(k[0], k[1]) for k in keys}), thin=sorted(thin.values(), key=lambda r: r["where"]),
+    return dict(runs=names, tests=len(ran_everywhere), checks=checked, sites=len({(k[0], k[1]) for k in keys}),
+                thin=sorted(thin.values(), key=lambda r: r["where"]),
+                failed=[dict(test=t, outcomes={n: outcomes[n][t] for n in names}) for t in failed],
                 missing=[dict(test=t, where=w, missing_in=m) for (t, w), m in sorted(missing_sites.items())])
 
 
 def report(paths: list[Path], factor: float, json_out: Path | None) -> int:
-    res = margins(load_runs(paths), factor)
-    print(f"{res['checks']} checks at {res['sites']} sites in runs {', '.join(res['runs'])}")
+    res = margins(*load_runs(paths), factor=factor)
+    print(f"{res['tests']} tests ran in every run; {res['checks']} checks at {res['sites']} sites in runs {', '.join(res['runs'])}")
+    print(f"failed in some run: {len(res['failed'])} tests")
+    for r in res["failed"]:
+        print(f"  {r['test']}: {', '.join(f'{k} {v}' for k, v in r['outcomes'].items())}")
     print(f"margin under {factor:g} x spread: {len(res['thin'])} sites")
     for r in res["thin"]:
         vals = ", ".join(f"{k} {v:.6g}" for k, v in r["values"].items())

@@ -198,6 +198,14 @@ def pytest_runtest_call(item):
             _REC.item = None
 
 
+def pytest_runtest_logreport(report):
+    """Each test's outcome (``{"test", "outcome"}``), so that a report tells a check a run did not
+    make (its test failed, or did not run there) from one a passing test skipped."""
+    if _REC is not None and (report.when == "call" or report.outcome != "passed"):
+        _REC.out.write(json.dumps(dict(test=report.nodeid, outcome=report.outcome, when=report.when)) + "\n")
+        _REC.out.flush()
+
+
 def pytest_assertion_pass(item, lineno, orig, expl):
     if _REC is None or _REC.item is None:
         return

@@ -100,8 +100,9 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
                                    "train": {"iterations": 10, "eval_every": 5, "context_points": 64, "query_points": 32, "shapes_per_batch": 2}}))
         out = tmp_path / "mug"
         client = job_client("http://127.0.0.1:8276")
-        # start returned after the Jobs API ran its no-op readiness job, which it deleted
-        assert not [j for j in client.list_jobs() if (j.submission_id or "").startswith("proctex-ready")]
+        # start returned after the Jobs API ran its no-op readiness job
+        ready = [j for j in client.list_jobs() if (j.submission_id or "").startswith("proctex-ready")]
+        assert len(ready) == 1 and ready[0].status == JobStatus.SUCCEEDED and ready[0].metadata == {"proctex": "readiness check"}
         job = submit_job(client, f"{ROOT / '.venv' / 'bin' / 'python'} -m workflows.cli build {cfg} --out {out} --ray auto --train-workers 2 --quiet",
                          runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})
         deadline = time.time() + 420

@@ -9,8 +9,11 @@ for, and then fails with an error that says what did not come:
 
 - :func:`submit_job`: a Jobs API submission, retried while the dashboard does not answer or the head
   has no job agent yet; other refusals (a bad runtime environment, a taken submission id) at once;
-- :func:`wait_for_jobs`: a cluster that runs a job: a no-op job (``true``) submitted, run and deleted
-  (``cluster/local_cluster.sh start`` returns only after it; ``python -m workflows.jobs wait URL``);
+- :func:`wait_for_jobs`: a cluster that runs a job: a no-op job (``true``, submission id
+  ``proctex-ready-...``, metadata ``{"proctex": "readiness check"}``) submitted and run to its end
+  (``cluster/local_cluster.sh start`` returns only after it; ``python -m workflows.jobs wait URL``).
+  It stays in the cluster's job list: deleting a job right after it ends races with its supervisor,
+  which then records it again as failed;
 - :func:`wait_for_cpus`: a connected driver waits until the cluster has CPUs (``build --ray ADDRESS``,
   ``generate --address``).
 """
@@ -108,8 +111,8 @@ def submit_job(client_or_address: Any, entrypoint: str, wait_s: float | None = N
 
 def wait_for_jobs(address: str, wait_s: float | None = None, say: Callable[[str], None] = _say) -> float:
     """Wait until the cluster at ``address`` runs a job: a no-op job submitted (retried as
-    :func:`submit_job` does), run to its end and deleted. Returns the seconds it took; raises
-    ``TimeoutError`` when that does not happen within ``wait_s`` (the job is stopped and deleted),
+    :func:`submit_job` does) and run to its end. Returns the seconds it took; raises
+    ``TimeoutError`` when that does not happen within ``wait_s`` (the job is stopped),
     ``RuntimeError`` when the job fails."""
     from ray.job_submission import JobStatus
 
@@ -118,24 +121,17 @@ def wait_for_jobs(address: str, wait_s: float | None = None, say: Callable[[str]
     client = job_client(address, limit, say)
     job = submit_job(client, "true", max(0.0, limit - (time.monotonic() - t0)), say,
                      submission_id=f"proctex-ready-{os.getpid()}-{time.time_ns()}", metadata={"proctex": "readiness check"})
-    try:
-        while True:
-            status = client.get_job_status(job)
-            if status.is_terminal():
-                break
-            if time.monotonic() - t0 > limit:
-                client.stop_job(job)
-                raise TimeoutError(f"the cluster at {address} accepted a no-op job but did not run it within {limit:g} s "
-                                   f"(PROCTEX_CLUSTER_WAIT; last status {status})")
-            time.sleep(0.2)
-        if status != JobStatus.SUCCEEDED:
-            raise RuntimeError(f"the cluster at {address} could not run a no-op job ({status}): {client.get_job_logs(job)[-500:]}")
-    finally:
-        try:
-            if client.get_job_status(job).is_terminal():
-                client.delete_job(job)
-        except Exception:  # noqa: BLE001 - the check's own job; nothing to lose
-            pass
+    while True:
+        status = client.get_job_status(job)
+        if status.is_terminal():
+            break
+        if time.monotonic() - t0 > limit:
+            client.stop_job(job)
+            raise TimeoutError(f"the cluster at {address} accepted a no-op job but did not run it within {limit:g} s "
+                               f"(PROCTEX_CLUSTER_WAIT; last status {status})")
+        time.sleep(0.2)
+    if status != JobStatus.SUCCEEDED:
+        raise RuntimeError(f"the cluster at {address} could not run a no-op job ({status}): {client.get_job_logs(job)[-500:]}")
     return time.monotonic() - t0
 
 
