@@ -23,7 +23,6 @@ import multiprocessing
 import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,8 +39,7 @@ def run(env_name: str, out: Path, load: bool, pytest_args: list[str]) -> int:
     env = other_env() if env_name == "other" else dict(os.environ)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.unlink(missing_ok=True)
-    cache = tempfile.mkdtemp(prefix="proctex-floatrecord-")  # rewritten test modules with the pass hook, apart from the usual cache
-    env.update(PROCTEX_FLOAT_RECORD=str(out.resolve()), PYTHONPYCACHEPREFIX=cache)
+    env["PROCTEX_FLOAT_RECORD"] = str(out.resolve())  # tests.floatrecord keeps its rewritten modules apart
     args = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "tests.floatrecord", "-o", "enable_assertion_pass_hook=true",
             *(pytest_args or ["-m", "not slow"])]
     spinners = []

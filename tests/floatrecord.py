@@ -77,6 +77,15 @@ class Recorder:
 
 _REC: Recorder | None = None
 
+if os.environ.get("PROCTEX_FLOAT_RECORD"):
+    # Test modules rewritten with the pass hook are cached under names of their own (pytest's
+    # rewrite cache has one name per module otherwise: a run would load a stale rewrite without
+    # the hook). Not PYTHONPYCACHEPREFIX: where bytecode is not written, every import of every
+    # process would then compile from source.
+    from _pytest.assertion import rewrite as _rewrite
+
+    _rewrite.PYC_TAIL = ".floatrecord" + _rewrite.PYC_TAIL
+
 
 def parse_explanation(expl: str) -> list[tuple[str, float, float, str]]:
     """The numeric comparisons in the first line of a passing assertion's explanation:
