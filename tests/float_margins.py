@@ -56,10 +56,11 @@ def run(env_name: str, out: Path, load: bool, pytest_args: list[str]) -> int:
             p.join()
 
 
-def load_runs(paths: list[Path]) -> tuple[dict[str, dict[tuple, dict]], dict[str, dict[str, str]]]:
-    """``({run name: {(test, where, n, k): record}}, {run name: {test: outcome}})``; the run's name is
-    its file's stem. A test's outcome is "passed" only when no phase of it failed."""
-    runs, outcomes = {}, {}
+def load_runs(paths: list[Path]) -> tuple[dict[str, dict[tuple, dict]], dict[str, dict[str, str]], set[str]]:
+    """``({run name: {(test, where, n, k): record}}, {run name: {test: outcome}}, fast tests without
+    the numeric marker)``; the run's name is its file's stem. A test's outcome is "passed" only when
+    no phase of it failed."""
+    runs, outcomes, unmarked = {}, {}, set()
     for path in paths:
         recs, outs = {}, {}
         for line in path.read_text(encoding="utf-8").splitlines():
@@ -67,19 +68,23 @@ def load_runs(paths: list[Path]) -> tuple[dict[str, dict[tuple, dict]], dict[str
             if "outcome" in r:
                 if outs.get(r["test"]) in (None, "passed"):
                     outs[r["test"]] = r["outcome"]
+                if r.get("numeric") is False and not r.get("slow"):
+                    unmarked.add(r["test"])
                 continue
             recs[(r["test"], r["where"], r["n"], r["k"])] = r
         runs[path.stem], outcomes[path.stem] = recs, outs
-    return runs, outcomes
+    return runs, outcomes, unmarked
 
 
-def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, str]] | None = None, factor: float = 3.0) -> dict:
+def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, str]] | None = None, unmarked: set[str] = frozenset(),
+            factor: float = 3.0) -> dict:
     """Per check (a test's line, its occurrence and its place in the assertion) made in every run
     where its test ran: the values in each run, the margin (smallest |value - threshold| over the
     runs) and the spread (largest change of value or threshold between runs). ``thin``: checks
     whose margin is under ``factor`` x spread (per test and line, the thinnest); ``failed``: tests
     that ran in every run and failed in some; ``missing``: checks of tests that passed everywhere,
-    made in some runs only (another path through the test)."""
+    made in some runs only (another path through the test); ``unmarked``: fast tests that made float
+    checks without carrying the ``numeric`` marker."""
     names = list(runs)
     outcomes = outcomes or {n: {} for n in names}
     ran_everywhere = set.intersection(*(set(outcomes[n]) for n in names)) if names else set()
@@ -105,7 +110,7 @@ def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, st
             if old is None or margin / spread < old["margin"] / old["spread"]:
                 thin[site] = dict(test=key[0], where=key[1], occurrence=key[2], kind=present[0]["kind"], op=present[0]["op"],
                                   threshold=thresholds[0], values=dict(zip(names, values)), margin=margin, spread=spread)
-    return dict(runs=names, tests=len(ran_everywhere), checks=checked, sites=len({(k[0], k[1]) for k in keys}),
+    return dict(runs=names, tests=len(ran_everywhere), unmarked=sorted({k[0] for r in runs.values() for k in r} & unmarked), checks=checked, sites=len({(k[0], k[1]) for k in keys}),
                 thin=sorted(thin.values(), key=lambda r: r["where"]),
                 failed=[dict(test=t, outcomes={n: outcomes[n][t] for n in names}) for t in failed],
                 missing=[dict(test=t, where=w, missing_in=m) for (t, w), m in sorted(missing_sites.items())])
@@ -114,6 +119,9 @@ def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, st
 def report(paths: list[Path], factor: float, json_out: Path | None) -> int:
     res = margins(*load_runs(paths), factor=factor)
     print(f"{res['tests']} tests ran in every run; {res['checks']} checks at {res['sites']} sites in runs {', '.join(res['runs'])}")
+    print(f"fast tests with float checks but without the numeric marker (make test does not run them on other kernels): {len(res['unmarked'])}")
+    for t in res["unmarked"]:
+        print(f"  {t}")
     print(f"failed in some run: {len(res['failed'])} tests")
     for r in res["failed"]:
         print(f"  {r['test']}: {', '.join(f'{k} {v}' for k, v in r['outcomes'].items())}")

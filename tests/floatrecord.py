@@ -4,8 +4,9 @@ load show which margins are thinner than the noise (``python -m tests.float_marg
 
 Recorded, for calls made from files under ``tests/`` only:
 
-- every passing ``assert`` whose explanation compares two numbers (``a < b``, ``a >= b``, chains,
-  ``and``/``or`` of comparisons; two integers are skipped: counts are exact), through pytest's
+- every passing ``assert`` whose explanation compares two numbers (``a < b``, ``a >= b``, ``and``/``or``
+  of comparisons; of a chain ``a < b < c`` pytest explains only the last link; two integers are
+  skipped: counts are exact), through pytest's
   ``pytest_assertion_pass`` hook (it needs ``-o enable_assertion_pass_hook=true`` and a fresh
   rewrite cache: :mod:`tests.float_margins` sets ``PYTHONPYCACHEPREFIX`` to a folder of its own);
 - ``x == pytest.approx(y, ...)`` (value ``|x - y|``, threshold the approx's tolerance);
@@ -25,11 +26,9 @@ import math
 import os
 import re
 import sys
-from pathlib import Path
 
 import pytest
 
-TESTS = str(Path(__file__).resolve().parent) + os.sep
 #: At most this many records per (test, line): a check inside a loop over thousands of items keeps
 #: its first ones.
 MAX_PER_SITE = 400
@@ -44,18 +43,20 @@ def _is_int(token: str, text: str) -> bool:
 
 
 class Recorder:
-    def __init__(self, path: str):
+    def __init__(self, path: str, base: str):
+        self.base = base.rstrip(os.sep) + os.sep
+        self.top = os.path.dirname(base.rstrip(os.sep))
         self.out = open(path, "a", encoding="utf-8")
         self.item = None
         self.counts: dict[tuple[str, str], int] = {}
 
     def where(self) -> str | None:
-        """``file:line`` of the innermost frame in tests/ (not this file)."""
+        """``file:line`` of the innermost frame under the recorded folder (not this file)."""
         f = sys._getframe(2)
         while f is not None:
             name = f.f_code.co_filename
-            if name.startswith(TESTS) and not name.endswith("floatrecord.py"):
-                return f"{os.path.relpath(name, os.path.dirname(TESTS.rstrip(os.sep)))}:{f.f_lineno}"
+            if name.startswith(self.base) and not name.endswith("floatrecord.py"):
+                return f"{os.path.relpath(name, self.top)}:{f.f_lineno}"
             f = f.f_back
         return None
 
@@ -191,7 +192,8 @@ def pytest_configure(config):
         return
     if not config.getini("enable_assertion_pass_hook"):
         raise pytest.UsageError("tests.floatrecord needs -o enable_assertion_pass_hook=true (python -m tests.float_margins sets it)")
-    _REC = Recorder(path)
+    tests = config.rootpath / "tests"
+    _REC = Recorder(path, str(tests if tests.is_dir() else config.rootpath))
     _wrap_numpy()
     _wrap_torch()
 
@@ -211,7 +213,8 @@ def pytest_runtest_logreport(report):
     """Each test's outcome (``{"test", "outcome"}``), so that a report tells a check a run did not
     make (its test failed, or did not run there) from one a passing test skipped."""
     if _REC is not None and (report.when == "call" or report.outcome != "passed"):
-        _REC.out.write(json.dumps(dict(test=report.nodeid, outcome=report.outcome, when=report.when)) + "\n")
+        _REC.out.write(json.dumps(dict(test=report.nodeid, outcome=report.outcome, when=report.when,
+                                       numeric="numeric" in report.keywords, slow="slow" in report.keywords)) + "\n")
         _REC.out.flush()
 
 
@@ -221,12 +224,12 @@ def pytest_assertion_pass(item, lineno, orig, expl):
     found = parse_explanation(expl)
     if not found:
         return
-    path = os.path.relpath(str(item.path), os.path.dirname(TESTS.rstrip(os.sep)))
+    path = os.path.relpath(str(item.path), _REC.top)
     # the assertion's own file and line (a helper's assert in another file: its file is not the item's)
     frame = sys._getframe(1)
     while frame is not None and frame.f_lineno != lineno:
         frame = frame.f_back
-    if frame is not None and frame.f_code.co_filename.startswith(TESTS):
-        path = os.path.relpath(frame.f_code.co_filename, os.path.dirname(TESTS.rstrip(os.sep)))
+    if frame is not None and frame.f_code.co_filename.startswith(_REC.base):
+        path = os.path.relpath(frame.f_code.co_filename, _REC.top)
     kinds = {kind for kind, *_ in found}
     _REC.write(f"{path}:{lineno}", "approx" if kinds == {"approx"} else "compare", [(v, t, op) for _, v, t, op in found])
