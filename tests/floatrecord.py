@@ -2,21 +2,22 @@
 (issue 49): how close each check sits to its limit, so that runs under other CPU kernels and under
 load show which margins are thinner than the noise (``python -m tests.float_margins``).
 
-Recorded, for calls made from files under ``tests/`` only:
+Recorded, for calls made from files under the session's ``tests/`` folder (else its root) only:
 
 - every passing ``assert`` whose explanation compares two numbers (``a < b``, ``a >= b``, ``and``/``or``
   of comparisons; of a chain ``a < b < c`` pytest explains only the last link; two integers are
-  skipped: counts are exact), through pytest's
-  ``pytest_assertion_pass`` hook (it needs ``-o enable_assertion_pass_hook=true`` and a fresh
-  rewrite cache: :mod:`tests.float_margins` sets ``PYTHONPYCACHEPREFIX`` to a folder of its own);
+  skipped: counts are exact), through pytest's ``pytest_assertion_pass`` hook (it needs
+  ``-o enable_assertion_pass_hook=true``; the modules rewritten with it are cached under names of
+  their own);
 - ``x == pytest.approx(y, ...)`` (value ``|x - y|``, threshold the approx's tolerance);
 - ``numpy.testing.assert_allclose``, ``numpy.allclose`` and ``torch.testing.assert_close``: the
   value is the largest ``|a - b| / (atol + rtol * |b|)`` over the elements, the threshold 1.
 
-A check that fails is not recorded: the report counts it as missing in that run. One line of JSON
-per check in the file named by ``PROCTEX_FLOAT_RECORD``: ``test`` (node id), ``where``
-(``file:line``), ``n`` (how many times that line ran before in the test), ``k`` (the comparison's
-place in the assertion), ``kind``, ``value``, ``threshold``, ``op``. Off unless that variable is set.
+A check that fails is not recorded (its test's outcome line says it failed). One line of JSON per
+check in the file named by ``PROCTEX_FLOAT_RECORD``: ``test`` (node id), ``where`` (``file:line``),
+``n`` (how many times that line ran before in the test), ``k`` (the comparison's place in the
+assertion), ``kind``, ``value``, ``threshold``, ``op``; and one per test: ``test``, ``outcome``,
+``numeric``, ``slow`` (its markers). Off unless that variable is set.
 """
 
 from __future__ import annotations
