@@ -80,7 +80,8 @@ def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, st
             factor: float = 3.0) -> dict:
     """Per check (a test's line, its occurrence and its place in the assertion) made in every run
     where its test ran: the values in each run, the margin (smallest |value - threshold| over the
-    runs) and the spread (largest change of value or threshold between runs). ``thin``: checks
+    runs) and the spread (how far value - threshold moved between runs: both sides may move, a
+    threshold computed from another measured value). ``thin``: checks
     whose margin is under ``factor`` x spread (per test and line, the thinnest); ``failed``: tests
     that ran in every run and failed in some; ``missing``: checks of tests that passed everywhere,
     made in some runs only (another path through the test); ``unmarked``: fast tests that made float
@@ -103,8 +104,9 @@ def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, st
         checked += 1
         values = [g["value"] for g in present]
         thresholds = [g["threshold"] for g in present]
-        spread = max(max(values) - min(values), max(thresholds) - min(thresholds))
-        margin = min(abs(v - t) for v, t in zip(values, thresholds))
+        slack = [v - t for v, t in zip(values, thresholds)]  # a check fails when its slack changes sign
+        spread = max(slack) - min(slack)
+        margin = min(abs(x) for x in slack)
         if margin < factor * spread:
             old = thin.get(site)
             if old is None or margin / spread < old["margin"] / old["spread"]:

@@ -141,7 +141,11 @@ def test_cage_recovers_a_smooth_deformation(bent_pair):
     assert e_cage.mean() < 0.045, e_cage.mean()
     assert e_cage.mean() < 0.5 * e_near.mean()
     assert cage.residual < 0.04 and cage.converged
-    assert cage.details["history"][-1] < cage.details["history"][0]
+    # The solve improved on its start and returns its best iterate (keep_best): the loss falls by
+    # 10-12% (by CPU kernels) and then wanders back up until patience stops it, so the last step is
+    # no measure of progress (0.08% below the start here, 3% on other kernels).
+    history = cage.details["history"]
+    assert cage.details["loss"] == min(history) < 0.97 * history[0]
     # The result is on the template surface: faces and barycentric coordinates reproduce the points.
     np.testing.assert_allclose(interpolate(tv, tf, cage.faces, cage.bary), cage.points, atol=1e-12)
     assert np.all(cage.bary >= -1e-12) and np.allclose(cage.bary.sum(1), 1)
