@@ -105,7 +105,7 @@ def no_avx512_env(base: dict | None = None) -> dict:
     """A copy of ``base`` (default ``os.environ``) under which numpy dispatches no AVX-512 kernel,
     torch's ATen kernels run at AVX2 and oneDNN stops at AVX2 (so bfloat16 is not native and
     ``autocast="auto"`` takes float32, as on such a CPU: :func:`proctex.correspond.corrnet.native_bfloat16`)."""
-    env = dict(os.environ if base is None else base)
+    env = native_env(base)
     env["NPY_DISABLE_CPU_FEATURES"] = " ".join(numpy_avx512_targets())
     env["ATEN_CPU_CAPABILITY"] = "avx2"
     env["ONEDNN_MAX_CPU_ISA"] = "AVX2"
@@ -118,7 +118,7 @@ _V3_TARGETS = {"X86_V3", "AVX", "AVX2", "FMA3", "F16C", "AVX2_FMA3"}
 
 def cpu_tier() -> str:
     """``"avx512"``, ``"avx2"``, ``"x86"`` (neither) or the machine name elsewhere (``"aarch64"``),
-    from numpy's view of this CPU."""
+    from numpy's view of this CPU (its feature flags, which ``NPY_DISABLE_CPU_FEATURES`` leaves alone)."""
     import platform
 
     _, features = _numpy_dispatch()
@@ -128,6 +128,16 @@ def cpu_tier() -> str:
         return "avx2"
     machine = platform.machine().lower()
     return "x86" if machine in ("x86_64", "amd64", "i686") else machine
+
+
+#: The variables :func:`other_env` and :func:`no_avx512_env` set.
+KERNEL_VARS = ("NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA", "MKL_ENABLE_INSTRUCTIONS", "OPENBLAS_CORETYPE")
+
+
+def native_env(base: dict | None = None) -> dict:
+    """A copy of ``base`` (default ``os.environ``) without the variables that choose kernels
+    (:data:`KERNEL_VARS`): this CPU's own kernels, also from inside ``make test``'s second pass."""
+    return {k: v for k, v in (os.environ if base is None else base).items() if k not in KERNEL_VARS}
 
 
 def other_env(base: dict | None = None) -> dict:
@@ -143,7 +153,7 @@ def other_env(base: dict | None = None) -> dict:
       OpenBLAS's oldest core of the architecture (Prescott on x86, ARMV8 on arm64).
 
     tests/test_portability.py shows that it changes the last bits of numpy's, BLAS's and torch's results."""
-    env = dict(os.environ if base is None else base)
+    env = native_env(base)
     targets, features = _numpy_dispatch()
     tier = cpu_tier()
     if tier == "avx512":

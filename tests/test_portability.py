@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from .portable import glb_mismatch, no_avx512_env, numpy_avx512_targets
+from .portable import glb_mismatch, native_env, no_avx512_env, numpy_avx512_targets
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -57,7 +57,7 @@ def test_the_no_avx512_environment_takes_the_other_paths(tmp_path):
     """Under :func:`no_avx512_env` numpy dispatches to no AVX-512 kernel, torch runs at AVX2, bfloat16 is
     not native ("auto" is float32); on an AVX-512 machine numpy's transcendental functions then give
     other last bits (the environment is not a no-op), within a few ULPs of this process's."""
-    here = _probe(None, tmp_path / "here.npy")
+    here = _probe(native_env(), tmp_path / "here.npy")
     there = _probe(no_avx512_env(), tmp_path / "there.npy")
     assert there["avx512"] == [] and there["native_bf16"] is False and there["auto"] == "none"
     if here["aten"].startswith("AVX"):  # x86 with AVX2 or more
@@ -100,7 +100,7 @@ def test_the_other_environment_takes_other_numpy_blas_and_torch_kernels(tmp_path
 
         return json.loads(run.stdout.strip().splitlines()[-1]), np.load(tmp_path / f"{name}.npz")
 
-    (here_info, here), (there_info, there) = probe(None, "here"), probe(other_env(), "there")
+    (here_info, here), (there_info, there) = probe(native_env(), "here"), probe(other_env(), "there")
     tier = cpu_tier()
     differ = {k: not np.array_equal(here[k], there[k]) for k in ("numpy", "blas", "torch")}
     # a few ULPs of each result's precision: float32 for numpy's first rows and torch, float64 for BLAS
