@@ -74,3 +74,57 @@ def toy_method(tmp_path, monkeypatch):
     yield "toy_mirror"
     unregister("toy_mirror")
     plugins._LOADED.pop(str(path), None)
+
+
+# ------------------------------------------------------------------------ the numeric marker
+import ast  # noqa: E402
+import re  # noqa: E402
+
+#: Modules whose float checks are about time, processes or files, not about what CPU kernels
+#: compute (timings, leases, HTTP answers, pools, docs) or that choose kernels themselves
+#: (test_portability): none of their tests is ``numeric``.
+NOT_NUMERIC = frozenset({
+    "test_architecture.py", "test_bench.py", "test_cluster.py", "test_device.py", "test_docs.py", "test_float_margins.py",
+    "test_fuzz.py", "test_hardening.py", "test_ingress.py", "test_jobs.py", "test_looks.py", "test_objectstore.py",
+    "test_pools.py", "test_portability.py", "test_probe_faults.py", "test_ray.py", "test_service.py", "test_slow_clients.py",
+    "test_studio.py", "test_workers.py", "test_writes.py",
+})
+_FLOAT_CALLS = re.compile(r"allclose|approx\(|assert_close|isclose|assert_array_less|assert_sketch_close|sketch_mismatch|glb_mismatch")
+_NUMERIC_CACHE: dict[str, dict[str, bool]] = {}
+
+
+def _compares_floats(node: ast.AST, source: str) -> bool:
+    """Whether a test function's body checks a float with a tolerance: a call of a tolerance helper,
+    or an ``assert`` with an ordering comparison (``<``, ``<=``, ``>``, ``>=``)."""
+    if _FLOAT_CALLS.search(ast.get_source_segment(source, node) or ""):
+        return True
+    return any(isinstance(c, ast.Compare) and any(isinstance(o, (ast.Lt, ast.LtE, ast.Gt, ast.GtE)) for o in c.ops)
+               for a in ast.walk(node) if isinstance(a, ast.Assert) for c in ast.walk(a.test))
+
+
+def numeric_tests(path: Path) -> dict[str, bool]:
+    """``{test function name: compares floats}`` for a test module (read once): in its own body, or
+    in a function of the module it calls (a check helper)."""
+    key = str(path)
+    if key not in _NUMERIC_CACHE:
+        source = path.read_text(encoding="utf-8")
+        funcs = [n for n in ast.walk(ast.parse(source)) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))]
+        helpers = {n.name for n in funcs if not n.name.startswith("test") and _compares_floats(n, source)}
+        found = {}
+        for node in funcs:
+            if node.name.startswith("test"):
+                calls = {c.func.id for c in ast.walk(node) if isinstance(c, ast.Call) and isinstance(c.func, ast.Name)}
+                found[node.name] = path.name not in NOT_NUMERIC and (_compares_floats(node, source) or bool(calls & helpers))
+        _NUMERIC_CACHE[key] = found
+    return _NUMERIC_CACHE[key]
+
+
+def pytest_collection_modifyitems(config, items):
+    """Every test whose body compares floats with a tolerance carries ``numeric`` (found in its
+    source, so a new test carries it as soon as it makes such a check): ``make test`` runs the fast
+    ones again on other CPU kernels (tests/portable.py ``other_env``). ``python -m
+    tests.float_margins report`` lists tests that made float checks without it (a check in a helper)."""
+    for item in items:
+        name = getattr(item, "originalname", None) or item.name.split("[")[0]
+        if numeric_tests(Path(item.path)).get(name, False):
+            item.add_marker(pytest.mark.numeric)

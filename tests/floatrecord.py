@@ -17,7 +17,8 @@ A check that fails is not recorded (its test's outcome line says it failed). One
 check in the file named by ``PROCTEX_FLOAT_RECORD``: ``test`` (node id), ``where`` (``file:line``),
 ``n`` (how many times that line ran before in the test), ``k`` (the comparison's place in the
 assertion), ``kind``, ``value``, ``threshold``, ``op``; and one per test: ``test``, ``outcome``,
-``numeric``, ``slow`` (its markers). Off unless that variable is set.
+``numeric``, ``slow`` (its markers); each line also says the ``kernels`` it ran on (``native``, or
+``other (...)`` under :func:`tests.portable.other_env`). Off unless that variable is set.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ class Recorder:
         self.base = base.rstrip(os.sep) + os.sep
         self.top = os.path.dirname(base.rstrip(os.sep))
         self.out = open(path, "a", encoding="utf-8")
+        self.kernels = os.environ.get("PROCTEX_KERNELS", "native")  # set by tests.portable.other_env
         self.item = None
         self.counts: dict[tuple[str, str], int] = {}
 
@@ -73,7 +75,7 @@ class Recorder:
             if not (math.isfinite(value) and math.isfinite(threshold)):
                 continue
             self.out.write(json.dumps(dict(test=self.item.nodeid, where=where, n=n, k=k, kind=kind, value=value,
-                                           threshold=threshold, op=op)) + "\n")
+                                           threshold=threshold, op=op, kernels=self.kernels)) + "\n")
         self.out.flush()
 
 
@@ -214,7 +216,7 @@ def pytest_runtest_logreport(report):
     """Each test's outcome (``{"test", "outcome"}``), so that a report tells a check a run did not
     make (its test failed, or did not run there) from one a passing test skipped."""
     if _REC is not None and (report.when == "call" or report.outcome != "passed"):
-        _REC.out.write(json.dumps(dict(test=report.nodeid, outcome=report.outcome, when=report.when,
+        _REC.out.write(json.dumps(dict(test=report.nodeid, outcome=report.outcome, when=report.when, kernels=_REC.kernels,
                                        numeric="numeric" in report.keywords, slow="slow" in report.keywords)) + "\n")
         _REC.out.flush()
 

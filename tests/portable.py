@@ -131,7 +131,8 @@ def cpu_tier() -> str:
 
 
 #: The variables :func:`other_env` and :func:`no_avx512_env` set.
-KERNEL_VARS = ("NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA", "MKL_ENABLE_INSTRUCTIONS", "OPENBLAS_CORETYPE")
+KERNEL_VARS = ("NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA", "MKL_ENABLE_INSTRUCTIONS", "OPENBLAS_CORETYPE",
+               "PROCTEX_KERNELS")
 
 
 def native_env(base: dict | None = None) -> dict:
@@ -166,6 +167,7 @@ def other_env(base: dict | None = None) -> dict:
         off = [t for t in targets if features.get(t)]
         env.update(ATEN_CPU_CAPABILITY="default", OPENBLAS_CORETYPE="Prescott" if tier == "x86" else "ARMV8")
     env["NPY_DISABLE_CPU_FEATURES"] = " ".join(off)
+    env["PROCTEX_KERNELS"] = f"other ({tier} CPU)"  # tests/floatrecord.py names the run's records by it
     return env
 
 
@@ -227,7 +229,8 @@ def main(argv: list[str] | None = None) -> int:
 
     args = sys.argv[1:] if argv is None else argv
     changes = other_env_changes()
-    print(f"other kernels than this CPU's own ({cpu_tier()}): " + " ".join(f"{k}={v!r}" for k, v in changes.items()), flush=True)
+    shown = {k: v for k, v in changes.items() if k != "PROCTEX_KERNELS"}
+    print(f"other kernels than this CPU's own ({cpu_tier()}): " + " ".join(f"{k}={v!r}" for k, v in shown.items()), flush=True)
     return subprocess.run([sys.executable, "-m", "pytest", *args], env=other_env()).returncode
 
 
