@@ -471,6 +471,7 @@ def _dp_worker(rank: int, world: int, port: int, out: str) -> None:
     dist.destroy_process_group()
 
 
+@pytest.mark.slow  # 10-40 s (issue 49: the fast tests run twice in make test)
 def test_data_parallel_workers_keep_identical_weights(tmp_path):
     """Two gloo workers, each drawing its own half batch, averaging gradients in the hook: they end
     with bit-identical weights and the same early-stopping history, and the model learned."""

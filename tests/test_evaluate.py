@@ -250,6 +250,7 @@ def test_pseudo_gt_flips_are_measured_against_the_teacher(pinned_family):
     assert len(pgt_errors(shape, seg, result, assets, right)) == 3  # without flips: the three arrays as before
 
 
+@pytest.mark.slow  # 10-40 s (issue 49: the fast tests run twice in make test)
 def test_every_name_of_the_networks_serves_them(pinned_family, painted_mug_root):
     """The mapper names the CLI offers are the registry's (every mapper and alias, cpd included),
     and each name of the networks ("net", "corrnet", "corrnet_all", and "auto") loads a trained

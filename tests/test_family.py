@@ -280,6 +280,7 @@ def _serving_is_followed(models, assets, shape):
     assert not everywhere.follow and make_mapper("corrnet", assets, ms).follow
 
 
+@pytest.mark.slow  # 10-40 s (issue 49: the fast tests run twice in make test)
 def test_evaluate_stage_on_identical_shapes(tmp_path):
     """Bounds pinned to the defaults: every sample is the template, so every method must give a
     tracked-point variance of exactly 0 and full coverage; errors are reported for net and cage."""
@@ -457,6 +458,7 @@ def test_bad_configs_are_clear_errors():
         BuildConfig.from_dict({"model": "mug"}, preset="nope")
 
 
+@pytest.mark.slow  # 10-40 s (issue 49: the fast tests run twice in make test)
 def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
     """The build is plans run by an executor: one that runs the batches backwards, without the
     in-process context (as a Ray worker does), stores the same family; a rerun plans nothing."""
@@ -515,6 +517,7 @@ def test_a_damaged_serving_choice_is_a_clear_error_and_none_means_the_network():
             check_serving(bad, "m.pt")
 
 
+@pytest.mark.slow  # 10-40 s (issue 49: the fast tests run twice in make test)
 def test_a_pooled_in_process_build_solves_pairs_side_by_side_and_stores_the_same_family(tmp_path, capsys):
     """``proctex build --workers 2``: the cage pairs run in two worker processes (one thread each),
     every batch collected once, ``finish`` given them in batch order; the pairs are the sequential

@@ -788,6 +788,7 @@ def _match_extra_reference(u, f, assets, n=300, seed=0):
     return best
 
 
+@pytest.mark.slow  # 10-40 s (issue 49: the fast tests run twice in make test)
 def test_match_extra_recovers_turned_copies_like_the_exhaustive_search_and_skips_unlike_parts(chair, monkeypatch):
     from scipy.spatial.transform import Rotation
 
