@@ -78,6 +78,12 @@ def load_runs(paths: list[Path]) -> tuple[dict[str, dict[tuple, dict]], dict[str
     return runs, outcomes, unmarked
 
 
+def _holds(rec: dict) -> bool:
+    """Whether a recorded passing check agrees with its own operator."""
+    v, t, op = rec["value"], rec["threshold"], rec["op"]
+    return {"<": v < t, "<=": v <= t, ">": v > t, ">=": v >= t}.get(op, True)
+
+
 def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, str]] | None = None, unmarked: set[str] = frozenset(),
             factor: float = 3.0) -> dict:
     """Per check (a test's line, its occurrence and its place in the assertion) made in every run
@@ -104,6 +110,8 @@ def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, st
                 missing_sites.setdefault(site, [n for n, g in zip(names, got) if g is None])
             continue
         checked += 1
+        if not all(_holds(g) for g in present):  # a comparison misread from its explanation (older records)
+            continue
         values = [g["value"] for g in present]
         thresholds = [g["threshold"] for g in present]
         slack = [v - t for v, t in zip(values, thresholds)]  # a check fails when its slack changes sign

@@ -35,9 +35,16 @@ import pytest
 #: its first ones.
 MAX_PER_SITE = 400
 
-_NUM = r"(?:np\.(?:float|int|uint)\d+\(|numpy\.(?:float|int)\d+\(|tensor\()?(-?(?:\d+\.\d*|\.\d+|\d+)(?:e[+-]?\d+)?|-?inf|nan)\)?"
+_BARE = r"-?(?:\d+\.\d*|\.\d+|\d+)(?:e[+-]?\d+)?|-?inf|nan"
+# a number alone or in a scalar's repr (np.float64(0.5), tensor(0.5)); a number that ends a
+# bracketed expression ("(a - 0.5) < 1") is not a side of the comparison
+_NUM = r"(?:(?:np|numpy)\.(?:float|int|uint)\d+\((" + _BARE + r")\)|tensor\((" + _BARE + r")\)|(?<![\w.)])(" + _BARE + r")(?![\w.(]))"
 _CMP = re.compile(_NUM + r"\s*(<=|>=|<|>)\s*(?=" + _NUM + r")")
 _APPROX = re.compile(_NUM + r"\s*==\s*" + _NUM + r"\s*±\s*" + _NUM)
+
+
+def _first(groups) -> str:
+    return next(g for g in groups if g is not None)
 
 
 def _is_int(token: str, text: str) -> bool:
@@ -97,7 +104,8 @@ def parse_explanation(expl: str) -> list[tuple[str, float, float, str]]:
     line = expl.split("\n", 1)[0]
     found = []
     for m in _APPROX.finditer(line):
-        x, y, tol = (float(g) for g in m.groups())
+        g = m.groups()
+        x, y, tol = float(_first(g[0:3])), float(_first(g[3:6])), float(_first(g[6:9]))
         found.append(("approx", abs(x - y), tol, "<="))
     line = _APPROX.sub("", line)
     pos = 0
@@ -106,7 +114,7 @@ def parse_explanation(expl: str) -> list[tuple[str, float, float, str]]:
         if m is None:
             break
         rest = re.match(_NUM, line[m.end():])
-        left, op, right = m.group(1), m.group(2), rest.group(1)
+        left, op, right = _first(m.groups()[0:3]), m.group(4), _first(rest.groups())
         if not (_is_int(left, m.group(0)) and _is_int(right, rest.group(0))):
             found.append(("compare", float(left), float(right), op))
         pos = m.end()  # a chain a < b < c: b starts the next

@@ -36,6 +36,10 @@ def test_explanations_give_each_numeric_comparison():
     assert parse_explanation("(np.float64(0.2) >= 0.1 and 3 < 4)") == [("compare", 0.2, 0.1, ">=")]
     assert parse_explanation("np.float64(0.25) == 0.2501 ± 1.0e-03") == [("approx", abs(0.25 - 0.2501), 1e-3, "<=")]
     assert parse_explanation("2 == 2") == [] and parse_explanation("True") == []
+    # "(time() - t) < 5": the left side is an expression, not the number before the bracket
+    assert parse_explanation("(4045.6 - 4045.5) < 5") == [] and parse_explanation("f(0.3) < 0.5") == []
+    assert parse_explanation("tensor(0.25) < 0.5") == [("compare", 0.25, 0.5, "<")]
+    assert parse_explanation("-1.5e-07 >= -inf") == [("compare", -1.5e-07, float("-inf"), ">=")]
 
 
 def test_a_run_records_every_float_check_with_its_value_and_threshold(tmp_path):
