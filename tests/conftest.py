@@ -1,4 +1,6 @@
+import ast
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -77,9 +79,6 @@ def toy_method(tmp_path, monkeypatch):
 
 
 # ------------------------------------------------------------------------ the numeric marker
-import ast  # noqa: E402
-import re  # noqa: E402
-
 #: Modules whose float checks are about time, processes or files, not about what CPU kernels
 #: compute (timings, leases, HTTP answers, pools, docs) or that choose kernels themselves
 #: (test_portability): none of their tests is ``numeric``.

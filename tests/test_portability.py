@@ -157,3 +157,35 @@ def test_glb_check_holds_under_noise_and_fails_on_changes():
     assert "image" in glb_mismatch(base, glb(textures=three_off))
     assert "faces" in glb_mismatch(base, glb(faces=f[:, [1, 2, 0]]))
     assert "materials" in glb_mismatch(base, glb(names=("a", "c")))
+
+
+def test_the_numeric_marker_is_found_in_each_tests_source(tmp_path):
+    """A test that asserts an ordering or calls a tolerance helper (itself or through a helper of
+    its module) is ``numeric``; one that compares exactly is not, nor any test of a module kept off
+    the marker; every module kept off exists."""
+    from .conftest import NOT_NUMERIC, numeric_tests
+
+    src = """
+import numpy as np
+
+def _close(a, b):
+    np.testing.assert_allclose(a, b, atol=1e-9)
+
+def test_threshold():
+    assert abs(0.1 - 0.1) < 1e-9
+
+def test_helper():
+    _close([1.0], [1.0])
+
+def test_exact():
+    assert [1, 2] == [1, 2]
+
+def test_approx():
+    import pytest
+    assert 0.1 == pytest.approx(0.1)
+"""
+    (tmp_path / "test_some.py").write_text(src)
+    assert numeric_tests(tmp_path / "test_some.py") == {"test_threshold": True, "test_helper": True, "test_exact": False, "test_approx": True}
+    (tmp_path / "test_service.py").write_text(src)  # a module kept off the marker
+    assert not any(numeric_tests(tmp_path / "test_service.py").values())
+    assert all((ROOT / "tests" / name).is_file() for name in NOT_NUMERIC)
