@@ -20,11 +20,11 @@ NO_AGENT = "No available agent to submit job, please try again later."
 class FakeHead:
     """A dashboard that has no job agent for its first ``refusals`` submissions."""
 
-    def __init__(self, refusals: int, status: int = 500, text: str = NO_AGENT):
+    def __init__(self, refusals: int, status: int = 500, text: str = NO_AGENT, drop_first: bool = False):
         import ray
 
         head = self
-        self.refusals, self.submissions, self.bodies = refusals, 0, []
+        self.refusals, self.submissions, self.bodies, self.drop_first, self.jobs = refusals, 0, [], drop_first, set()
 
         class Handler(BaseHTTPRequestHandler):
             def log_message(self, *args):
@@ -52,6 +52,13 @@ class FakeHead:
                     if head.submissions <= head.refusals:
                         return self._answer(status, text, "text/plain")
                     sid = head.bodies[-1].get("submission_id") or "raysubmit_fake"
+                    if sid in head.jobs:  # Ray's words (job_manager.py)
+                        return self._answer(500, f"Job with submission_id {sid} already exists. Please use a different submission_id.", "text/plain")
+                    head.jobs.add(sid)
+                    if head.drop_first and head.submissions == 1:  # took it, and the answer is lost
+                        self.close_connection = True
+                        self.connection.shutdown(2)
+                        return
                     return self._answer(200, json.dumps({"job_id": sid, "submission_id": sid}))
                 self._answer(404, "not found", "text/plain")
 
@@ -100,6 +107,21 @@ def test_a_submission_gives_up_after_its_bound_and_other_refusals_are_not_retrie
     with pytest.raises(RuntimeError, match="400"):
         submit_job(bad.address, "true", wait_s=20, say=lambda m: None)
     assert bad.submissions == 1
+
+
+def test_a_submission_whose_answer_was_lost_is_found_not_submitted_twice(head, monkeypatch):
+    """The head takes the job and the connection drops before its answer: the retry finds the job
+    by the id the submission made for itself; a job id taken beforehand is still refused."""
+    import workflows.jobs as jobs
+
+    monkeypatch.setattr(jobs.time, "sleep", lambda s: None)
+    h = head(0, drop_first=True)
+    sid = submit_job(h.address, "true", wait_s=30, say=lambda m: None)
+    assert sid.startswith("proctex-") and h.jobs == {sid} and h.submissions == 2
+    taken = head(0)
+    taken.jobs.add("mine")
+    with pytest.raises(RuntimeError, match="already exists"):
+        submit_job(taken.address, "true", wait_s=30, say=lambda m: None, submission_id="mine")
 
 
 def test_a_dashboard_not_up_yet_is_waited_for_then_reported(monkeypatch):

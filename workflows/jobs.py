@@ -23,6 +23,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+import uuid
 from typing import Any, Callable
 
 #: Default bound on every wait here, in seconds (``PROCTEX_CLUSTER_WAIT`` overrides it).
@@ -104,9 +105,25 @@ def submit_job(client_or_address: Any, entrypoint: str, wait_s: float | None = N
     """Submit ``entrypoint`` (with ``runtime_env``, ``submission_id``, ... as
     ``JobSubmissionClient.submit_job`` takes them) and return the job's id, retrying while the head
     has no job agent yet. A refused submission creates nothing (Ray answers before it asks the
-    agent), so a retry with the same submission id is safe."""
+    agent), so a retry with the same submission id is safe; a try whose answer was lost and that
+    landed is found by its id on the next (without ``submission_id``, one is made: ``proctex-...``)."""
     client = job_client(client_or_address, wait_s, say) if isinstance(client_or_address, str) else client_or_address
-    return retry(lambda: client.submit_job(entrypoint=entrypoint, **kwargs), "submitting a job", wait_s, say)
+    # An id of our own when none is given: a submission whose answer was lost (the connection
+    # dropped after the head took it) is then found on the retry instead of submitted twice.
+    sid = kwargs.get("submission_id") or f"proctex-{uuid.uuid4().hex[:16]}"
+    kwargs["submission_id"] = sid
+    tries = []
+
+    def submit() -> str:
+        tries.append(1)
+        try:
+            return client.submit_job(entrypoint=entrypoint, **kwargs)
+        except RuntimeError as exc:
+            if len(tries) > 1 and f"submission_id {sid} already exists" in str(exc):
+                return sid  # an earlier try of ours landed
+            raise
+
+    return retry(submit, "submitting a job", wait_s, say)
 
 
 def wait_for_jobs(address: str, wait_s: float | None = None, say: Callable[[str], None] = _say) -> float:
