@@ -21,6 +21,9 @@ RAY_PORT=${RAY_PORT:-6379}
 DASHBOARD_PORT=${DASHBOARD_PORT:-8265}
 RAY_TMP=${RAY_TMP:-/tmp/ray}
 export RAY_USAGE_STATS_ENABLED=0
+# Tasks and actors at the nodes' own priority, not Ray's default niceness 15 (behind any other work
+# on a busy machine they barely ran: workflows/__init__.py); a value you export wins.
+export RAY_worker_niceness=${RAY_worker_niceness:-0}
 # Every node of this one-machine cluster listens on 127.0.0.1 only; Ray's token authentication is
 # off unless RAY_AUTH_MODE=token is exported (then every node and client reads ~/.ray/auth_token).
 export RAY_AUTH_MODE=${RAY_AUTH_MODE:-disabled}

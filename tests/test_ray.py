@@ -68,6 +68,18 @@ def _same_pairs(a: FamilyStore, b: FamilyStore) -> int:
     return len(rows_a)
 
 
+def test_the_private_ray_runs_its_tasks_at_the_drivers_priority(local_ray):
+    """Ray's default worker niceness (15) let any other process on a busy machine starve the
+    build's tasks; the Ray the workflows start runs them at the driver's priority."""
+    import os
+
+    @ray.remote
+    def niceness() -> int:
+        return os.nice(0)
+
+    assert ray.get(niceness.remote()) == os.nice(0)
+
+
 def test_ray_build_equals_the_single_process_build(local_ray, reference, tmp_path):
     from proctex.correspond.corrnet import load
     from workflows.build import build_on_ray
