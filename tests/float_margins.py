@@ -11,8 +11,9 @@ writes one JSON line per float check (value, threshold); ``--env other`` takes
 :func:`tests.portable.other_env` (kernels one tier below this CPU's), ``--load`` keeps every core busy
 with as many spinning processes for the whole run. ``report`` joins the runs check by check and
 lists every check whose margin (the smallest distance between value and threshold over the runs) is
-under ``--factor`` (3) times its spread (how far its value moved between the runs), and every check
-that some run did not record (it failed there, or did not run).
+under ``--factor`` (3) times its spread (how far value - threshold moved between the runs), the
+tests that failed in some run, the checks of passing tests that some run did not make (another
+path through the test) and the fast tests that made float checks without the ``numeric`` marker.
 """
 
 from __future__ import annotations
