@@ -88,9 +88,9 @@ def _holds(rec: dict) -> bool:
 def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, str]] | None = None, unmarked: set[str] = frozenset(),
             factor: float = 3.0) -> dict:
     """Per check (a test's line, its occurrence and its place in the assertion) made in every run
-    where its test ran: the values in each run, the margin (smallest |value - threshold| over the
-    runs) and the spread (how far value - threshold moved between runs: both sides may move, a
-    threshold computed from another measured value). ``thin``: checks
+    where its test ran: the values in each run, the margin (smallest distance of value to threshold
+    over the runs, in units of the threshold) and the spread (how far that moved between runs: both
+    sides may move, a threshold computed from another measured value). ``thin``: checks
     whose margin is under ``factor`` x spread (per test and line, the thinnest); ``failed``: tests
     that ran in every run and failed in some; ``missing``: checks of tests that passed everywhere,
     made in some runs only (another path through the test); ``unmarked``: fast tests that made float
@@ -117,7 +117,14 @@ def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, st
             continue  # a distance exactly zero in every run (two paths agreeing to the bit): as far from failing as it gets
         values = [g["value"] for g in present]
         thresholds = [g["threshold"] for g in present]
-        slack = [v - t for v, t in zip(values, thresholds)]  # a check fails when its slack changes sign
+        # A check fails when value crosses threshold. In units of the threshold where it is not 0
+        # (a tolerance relative to a value that itself moves, pytest.approx's, moves with it):
+        # the margin is the least |value / threshold - 1| over the runs, the spread how far that
+        # ratio moved; against a threshold of 0, the same on value - threshold.
+        if all(t != 0 for t in thresholds):
+            slack = [v / t - 1.0 for v, t in zip(values, thresholds)]
+        else:
+            slack = [v - t for v, t in zip(values, thresholds)]
         spread = max(slack) - min(slack)
         margin = min(abs(x) for x in slack)
         if margin < factor * spread:
@@ -147,7 +154,8 @@ def report(paths: list[Path], factor: float, json_out: Path | None) -> int:
     print(f"margin under {factor:g} x spread: {len(res['thin'])} sites")
     for r in res["thin"]:
         vals = ", ".join(f"{k} {v:.6g}" for k, v in r["values"].items())
-        print(f"  {r['where']}  {r['kind']} {r['op']} {r['threshold']:.6g}: {vals}  margin {r['margin']:.3g} spread {r['spread']:.3g}  ({r['test']})")
+        print(f"  {r['where']}  {r['kind']} {r['op']} {r['threshold']:.6g}: {vals}  margin {r['margin']:.3g} spread {r['spread']:.3g} "
+              f"(x{r['margin'] / r['spread']:.2f})  ({r['test']})")
     print(f"recorded in some runs only: {len(res['missing'])} sites")
     for r in res["missing"]:
         print(f"  {r['where']}  missing in {', '.join(r['missing_in'])}  ({r['test']})")

@@ -80,7 +80,11 @@ def test_the_report_flags_margins_thinner_than_the_spread_and_nothing_else():
     res = margins({"native": native, "other": other}, {"native": {t: "passed"}, "other": {t: "passed"}})
     assert [r["where"] for r in res["thin"]] == ["tests/test_x.py:1"]
     thin = res["thin"][0]
-    assert abs(thin["margin"] - 0.0005) < 1e-12 and abs(thin["spread"] - 0.0172) < 1e-12
+    assert abs(thin["margin"] - 0.0005 / 0.05) < 1e-12 and abs(thin["spread"] - 0.0172 / 0.05) < 1e-12  # in units of the threshold
+    # a tolerance relative to a value that moves (pytest.approx's) moves with it: not thin
+    rel = margins({"a": _rec(t, "tests/test_x.py:5", 1e-18, 0.05 * 0.0074), "b": _rec(t, "tests/test_x.py:5", 7e-18, 0.05 * 0.0032)},
+                  {"a": {t: "passed"}, "b": {t: "passed"}})
+    assert rel["thin"] == [] and rel["checks"] == 1
     assert [m["where"] for m in res["missing"]] == ["tests/test_x.py:3"] and res["missing"][0]["missing_in"] == ["other"]
     failed = margins({"native": native, "other": other}, {"native": {t: "passed"}, "other": {t: "failed"}})
     assert failed["failed"] == [dict(test=t, outcomes={"native": "passed", "other": "failed"})] and failed["missing"] == []
