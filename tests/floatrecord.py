@@ -209,6 +209,13 @@ def pytest_configure(config):
     _wrap_torch()
 
 
+def pytest_unconfigure(config):
+    global _REC
+    if _REC is not None:
+        _REC.out.close()
+        _REC = None
+
+
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_call(item):
     if _REC is not None:
