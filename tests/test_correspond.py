@@ -143,7 +143,8 @@ def test_cage_recovers_a_smooth_deformation(bent_pair):
     assert cage.residual < 0.04 and cage.converged
     # The solve improved on its start and returns its best iterate (keep_best): the loss falls by
     # 10-12% (by CPU kernels) and then wanders back up until patience stops it, so the last step is
-    # no measure of progress (0.08% below the start here, 3% on other kernels).
+    # no measure of progress (0.08% below the start here, 3% on other kernels). Margin: the best is
+    # 0.898 / 0.878 of the start (native / other kernels), 0.072 below 0.97 against a spread of 0.02.
     history = cage.details["history"]
     assert cage.details["loss"] == min(history) < 0.97 * history[0]
     # The result is on the template surface: faces and barycentric coordinates reproduce the points.
