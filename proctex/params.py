@@ -398,6 +398,55 @@ class ParamsSpec:
     bounds: dict[str, list[float]]
     kinds: dict[str, str]
     conditions: dict[str, dict[str, list]]
+    notes: tuple[str, ...] = ()
+
+
+#: The keys a nested spec file's top level and entries may hold.
+SPEC_TOP_KEYS = ("params", "class_name", "blend_path")
+SPEC_ENTRY_KEYS = ("type", "range", "params", "or_dependencies", "not_dependencies")
+NEAR_KEY = 2  # an unknown key within this edit distance of exactly one known key is read as that key
+
+
+def edit_distance(a: str, b: str, limit: int = 64) -> int:
+    """Levenshtein distance between ``a`` and ``b`` (insertions, deletions, substitutions), capped at
+    ``limit + 1`` (strings longer than 256 characters compare by their first 256)."""
+    a, b = str(a)[:256], str(b)[:256]
+    if abs(len(a) - len(b)) > limit:
+        return limit + 1
+    prev = list(range(len(b) + 1))
+    for i, ca in enumerate(a, 1):
+        cur = [i]
+        for j, cb in enumerate(b, 1):
+            cur.append(min(prev[j] + 1, cur[j - 1] + 1, prev[j - 1] + (ca != cb)))
+        if min(cur) > limit:
+            return limit + 1
+        prev = cur
+    return min(prev[-1], limit + 1)
+
+
+def closest_key(key: str, known: Sequence[str]) -> tuple[str, int]:
+    """The known key nearest ``key`` by :func:`edit_distance` (ties: the first) and its distance."""
+    best = min(known, key=lambda k: edit_distance(key, k))
+    return best, edit_distance(key, best)
+
+
+def _read_keys(entry: Mapping[str, Any], known: Sequence[str], where: str, notes: list[str]) -> dict[str, Any]:
+    """``entry`` with every key it holds that is not in ``known`` reported in ``notes`` (by name,
+    with the closest known key) and, when that key is within :data:`NEAR_KEY` edits of exactly one
+    known key the entry does not hold already, read as that key."""
+    out = {k: v for k, v in entry.items() if k in known}
+    for key in entry:
+        if key in known:
+            continue
+        name = str(key)[:80]
+        near, d = closest_key(name, known)
+        rivals = [k for k in known if k != near and edit_distance(name, k) == d]
+        if d <= NEAR_KEY and not rivals and near not in entry and near not in out:
+            out[near] = entry[key]
+            notes.append(f"{where}: read key {name!r} as {near!r} (not a known key; {d} edit{'s' if d > 1 else ''} from it)")
+        else:
+            notes.append(f"{where}: key {name!r} was not understood and is ignored (the closest known key is {near!r})")
+    return out
 
 
 def _condition(item: Any, where: str) -> list:
@@ -424,7 +473,9 @@ def read_params_spec(spec: Any) -> ParamsSpec:
       *and* "Has Middle Support") and none of its ``not_dependencies``;
     - flat: ``{name: [low, high]}``.
 
-    Other keys of the nested form (``class_name``, ``blend_path``) are ignored. ``ValueError`` for
+    ``class_name`` and ``blend_path`` are read and ignored; any other key is reported in
+    :attr:`ParamsSpec.notes` by name with the closest known key, and read as that key when it is
+    within :data:`NEAR_KEY` edits of exactly one (a misspelt ``or_dependcies``). ``ValueError`` for
     anything else: files over :data:`MAX_SPEC_BYTES`, more than :data:`MAX_SPEC_PARAMS` inputs,
     deeper nesting, unknown types, ranges that are not two finite numbers with low <= high, a
     dependency on an input the spec does not have.
@@ -449,6 +500,7 @@ def read_params_spec(spec: Any) -> ParamsSpec:
     bounds: dict[str, list[float]] = {}
     kinds: dict[str, str] = {}
     conditions: dict[str, dict[str, list]] = {}
+    notes: list[str] = []
 
     def number_pair(value: Any, name: str, kind: str) -> list[float]:
         if not (isinstance(value, (list, tuple)) and len(value) == 2
@@ -478,6 +530,8 @@ def read_params_spec(spec: Any) -> ParamsSpec:
         for name, entry in params.items():
             if not isinstance(entry, Mapping):
                 raise ValueError(f"{where}: {str(name)[:80]!r}: an entry must be an object with a 'type'")
+            if len(notes) < MAX_SPEC_PARAMS:
+                entry = _read_keys(entry, SPEC_ENTRY_KEYS, f"{str(name)[:80]!r}", notes)
             kind = entry.get("type")
             if kind == "nested":
                 walk(entry.get("params", {}), depth + 1)
@@ -500,7 +554,11 @@ def read_params_spec(spec: Any) -> ParamsSpec:
             if cond:
                 conditions[name] = cond
 
-    if "params" in spec:
+    nested = "params" in spec or any(isinstance(v, Mapping) for v in spec.values())
+    if nested:
+        spec = _read_keys(spec, SPEC_TOP_KEYS, "the spec", notes)
+        if "params" not in spec:
+            raise ValueError(f"{where}: a nested params spec needs 'params'")
         walk(spec["params"], 1)
     else:  # flat {name: [low, high]}
         for name, value in spec.items():
@@ -513,7 +571,7 @@ def read_params_spec(spec: Any) -> ParamsSpec:
         for other, _ in cond.get("when", []) + cond.get("unless", []):
             if other not in kinds:
                 raise ValueError(f"{where}: {name!r} depends on {other!r}, which the spec does not have")
-    return ParamsSpec(bounds, kinds, conditions)
+    return ParamsSpec(bounds, kinds, conditions, tuple(notes))
 
 
 def with_conditions(space: ParamSpace, conditions: Mapping[str, Mapping[str, Any]]) -> ParamSpace:

@@ -23,6 +23,7 @@ from .families import (
     cmd_gallery,
     cmd_generate,
     cmd_inputs,
+    cmd_parts,
     cmd_sheet,
     cmd_transfer,
 )
@@ -176,6 +177,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params-spec", metavar="FILE.json", help="check a spec file against the inputs (ranges, unknown names)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_inputs)
+
+    p = sub.add_parser("parts", help="a .blend model's parts and the names its node tree gives them (frames, node groups)")
+    p.add_argument("blend", metavar="FILE.blend")
+    p.add_argument("--object", required=True, help="the object carrying the Geometry Nodes modifier")
+    p.add_argument("--modifier", default="GeometryNodes")
+    p.add_argument("--params", help="input values (JSON); the others keep the file's values")
+    p.add_argument("--parts-attribute", help="an attribute whose values are the parts (instead of the mesh's connectivity)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_parts)
 
     p = sub.add_parser("transfer", help="texture a new shape of a family: textured GLB")
     p.add_argument("family")

@@ -11,6 +11,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from proctex.geometry.meshio import load_mesh
 from proctex.models import get_model, list_models
 from proctex.progress import track
@@ -109,10 +111,12 @@ def named_look(args: argparse.Namespace) -> str:
 
 
 def cmd_inputs(args: argparse.Namespace) -> int:
-    """The modifier's inputs: name, type, default, Blender's range, whether a build needs bounds for
-    it (an unbounded float or int), and with ``--params-spec`` what the spec gives each."""
+    """The modifier's inputs: name, type, the file's value (what the modifier holds), the node
+    group's default, Blender's range, and what a build does with it: varies it, or holds it at the
+    file's value (no usable range, or a spec that does not list it); with ``--params-spec`` what the
+    spec gives each and the keys it did not understand."""
     from proctex.params import read_params_spec
-    from proctex.sources.blender import UNBOUNDED, BlenderSession
+    from proctex.sources.blender import UNBOUNDED, BlenderSession, file_value
 
     if not os.path.isfile(args.blend):
         raise ValueError(f"no such file: {args.blend}")
@@ -125,25 +129,82 @@ def cmd_inputs(args: argparse.Namespace) -> int:
     rows = []
     for s in inputs:
         row = {k: s.get(k) for k in ("name", "type", "default", "min", "max", "options") if s.get(k) is not None}
+        row["value"] = file_value(s)
         unbounded = s["type"] in ("float", "int") and max(abs(float(s.get("min", 0))), abs(float(s.get("max", 0)))) > UNBOUNDED
-        row["needs_bounds"] = bool(unbounded and not (spec and s["name"] in spec.bounds))
+        listed = spec is None or s["name"] in spec.kinds
+        row["needs_bounds"] = bool(unbounded and listed and not (spec and s["name"] in spec.bounds))
+        row["fixed"] = bool(not listed or row["needs_bounds"])
+        if row["fixed"]:
+            row["why_fixed"] = "the spec does not list it" if not listed else "no usable range in Blender: give it bounds to vary it"
         if spec is not None:
             row["spec"] = {"range": spec.bounds.get(s["name"]), **spec.conditions.get(s["name"], {})} if s["name"] in spec.kinds else None
         rows.append(row)
     unknown = sorted(set(spec.kinds) - {s["name"] for s in inputs}) if spec else []
+    notes = list(spec.notes) if spec else []
     if args.json:
-        _print_json({"object": args.object, "modifier": args.modifier, "inputs": rows, "spec_unknown": unknown})
+        _print_json({"object": args.object, "modifier": args.modifier, "inputs": rows, "spec_unknown": unknown, "spec_notes": notes})
         return 0
     for r in rows:
         rng = f"[{r['min']:g}, {r['max']:g}]" if "min" in r and "max" in r else ", ".join(map(str, r.get("options", [])))
-        extra = "  needs bounds" if r["needs_bounds"] else ""
+        extra = f"  fixed at the file's value ({r['why_fixed']})" if r["fixed"] else ""
         if r.get("spec"):
             extra += f"  spec: {r['spec']}"
-        print(f"{r['name']:<32} {r['type']:<6} default {r.get('default')!s:<10} {rng}{extra}")
+        print(f"{r['name']:<32} {r['type']:<6} value {r['value']!s:<10} default {r.get('default')!s:<8} {rng}{extra}")
     if unknown:
         print(f"the spec names inputs the modifier lacks: {', '.join(unknown)}")
-    n = sum(r["needs_bounds"] for r in rows)
-    print(f"{len(rows)} inputs; {n} need bounds" + (" (give them with --params-spec or [source.params])" if n else ""))
+    for note in notes:
+        print(f"params spec: {note}", file=sys.stderr)
+    n = sum(r["fixed"] for r in rows)
+    print(f"{len(rows)} inputs; {len(rows) - n} vary, {n} held at the file's values"
+          + (" (give ranges with --params-spec or [source.params] to vary them)" if n else ""))
+    return 0
+
+
+def cmd_parts(args: argparse.Namespace) -> int:
+    """The parts of a ``.blend`` model's shape and what its node tree calls them: per part its
+    name, the other names its faces carry, its share of the area and the nodes that made it; per
+    producing node the name it gave and the labels passed over (defaults, computations); and the
+    share of the area whose faces have a producer. Evaluated at the file's values, or ``--params``."""
+    from proctex.geometry.parts import connected_parts
+    from proctex.geometry.surface import triangle_areas
+    from proctex.sources.blender import BlenderModel
+
+    if not os.path.isfile(args.blend):
+        raise ValueError(f"no such file: {args.blend}")
+    try:
+        params = json.loads(args.params) if args.params else {}
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--params is not valid JSON ({exc})") from exc
+    if not isinstance(params, dict):
+        raise ValueError(f"--params must be a JSON object of input values, got {type(params).__name__}")
+    model = BlenderModel(args.blend, args.object, args.modifier, parts=args.parts_attribute)
+    try:
+        shape = model.generate(params)  # missing inputs: the file's values
+        named = model.last_names
+        face_part, _, count = connected_parts(shape.faces, shape.n_vertices)
+        areas = triangle_areas(shape.vertices, shape.faces)
+        total = float(areas.sum()) or 1.0
+        part_area = np.bincount(face_part, weights=areas, minlength=count)
+        producers = [{"id": n.id, "name": n.name, "from": n.where, "node": n.node, "dropped": [list(d) for d in n.dropped]}
+                     for n in model.producer_names.values()]
+        parts = [{"part": i, "name": named.names[i] if named else "", "others": named.others[i] if named else [],
+                  "area_share": round(float(part_area[i] / total), 4)} for i in range(count)]
+        report = {"object": args.object, "parts": parts, "producers": producers,
+                  "covered": named.covered if named else 0.0, "provenance_error": model.session.provenance_error}
+    finally:
+        model.close()
+    if args.json:
+        _print_json(report)
+        return 0
+    for r in parts:
+        others = f"  (also {', '.join(r['others'])})" if r["others"] else ""
+        print(f"part {r['part']:<4} {r['name'] or '(no name)':<32} {100 * r['area_share']:5.1f} % of the area{others}")
+    print("producing nodes:")
+    for r in producers:
+        dropped = "; passed over: " + ", ".join(f"{lab!r} ({why})" for lab, why in r["dropped"]) if r["dropped"] else ""
+        print(f"  {r['id']:<4} {r['node']:<48} -> {r['name'] or '(no name)'}" + (f" from its {r['from']}" if r["name"] else "") + dropped)
+    print(f"{100 * report['covered']:.1f} % of the area has a producing node"
+          + (f"; provenance unavailable: {report['provenance_error']}" if report["provenance_error"] else ""))
     return 0
 
 

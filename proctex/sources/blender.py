@@ -23,7 +23,7 @@ import select
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -36,7 +36,9 @@ SERVER = Path(__file__).with_name("blender_server.py")
 REPO = Path(__file__).resolve().parents[2]
 #: A .blend larger than this gets progress lines while its Blender process opens it.
 SLOW_FILE_BYTES = 20_000_000
-UNBOUNDED = 1e6  # a Blender input range wider than this is "no range given": the config must narrow it
+UNBOUNDED = 1e6  # a Blender input range wider than this is "no range given": held at the file's value unless bounded
+MAX_PRODUCERS = 20_000  # producers read from the Blender process (it instruments no more than this)
+FIXED = "held at the file's value"  # the description of an input a build does not vary
 
 
 def blender_python() -> str | None:
@@ -61,6 +63,10 @@ class Evaluated:
         face_parts: (m,) int64 part per triangle from the requested attribute (values renumbered
             0..k-1 in sorted order), or None.
         objects: how many objects Blender evaluated for it (the model and what its graph reads).
+        face_source: (m,) int64 producer id per triangle (0: none; :mod:`proctex.sources.provenance`),
+            or None when the tree was evaluated plain.
+        face_instance: (m,) int64 realized instance index per triangle (-1: none), or None.
+        canonical: (n, 3) float64 each vertex in its producer's own bounding box (NaN: none), or None.
     """
 
     vertices: np.ndarray
@@ -70,6 +76,9 @@ class Evaluated:
     corner_uv: np.ndarray | None = None
     face_parts: np.ndarray | None = None
     objects: int = 1
+    face_source: np.ndarray | None = None
+    face_instance: np.ndarray | None = None
+    canonical: np.ndarray | None = None
 
 
 class BlenderSession:
@@ -90,6 +99,11 @@ class BlenderSession:
         self.obj, self.modifier, self.timeout = obj, modifier, timeout
         self.restarts = -1
         self.proc: subprocess.Popen | None = None
+        #: the nodes that make geometry (:func:`proctex.sources.blender_server.instrument`), why there
+        #: are none where the tree could not be instrumented, and the model's own names
+        self.producers: list[dict[str, Any]] = []
+        self.provenance_error: str | None = None
+        self.tree, self.object_name = "", obj
         self.inputs: list[dict[str, Any]] = self._start()
 
     def _start(self) -> list[dict[str, Any]]:
@@ -101,10 +115,15 @@ class BlenderSession:
         self.proc = subprocess.Popen([self.python, str(SERVER)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      text=True, bufsize=1)
         try:
-            inputs = self._send({"op": "open", "file": self.file, "object": self.obj, "modifier": self.modifier})["inputs"]
+            opened = self._send({"op": "open", "file": self.file, "object": self.obj, "modifier": self.modifier})
+            inputs = opened["inputs"]
         except ValueError:
             self._kill()  # a file Blender cannot open (or without the object): no process is left behind
             raise
+        producers = opened.get("producers")
+        self.producers = producers[:MAX_PRODUCERS] if isinstance(producers, list) else []
+        self.provenance_error = opened.get("provenance_error")
+        self.tree, self.object_name = str(opened.get("tree") or "")[:256], str(opened.get("object") or self.obj)[:256]
         self.open_seconds = time.perf_counter() - t0
         if size > SLOW_FILE_BYTES or self.open_seconds > 5.0:
             print(f"blender: {Path(self.file).name} open in {self.open_seconds:.1f} s ({len(inputs)} inputs)", file=sys.stderr, flush=True)
@@ -145,11 +164,12 @@ class BlenderSession:
             self.proc.kill()
             self.proc.wait()
 
-    def generate(self, params: Mapping[str, Any], uv: str | None = None, parts: str | None = None) -> Evaluated:
+    def generate(self, params: Mapping[str, Any], uv: str | None = None, parts: str | None = None, plain: bool = False) -> Evaluated:
         """The evaluated mesh for ``params``, with the UV map ``uv`` and the part attribute ``parts``
-        where named (:class:`Evaluated`)."""
-        out = self.request({"op": "generate", "params": dict(params), "uv": uv, "parts": parts})
-        m = int(out["m"])
+        where named (:class:`Evaluated`); with its faces' provenance unless ``plain`` (the tree as the
+        file has it, evaluated without instrumentation)."""
+        out = self.request({"op": "generate", "params": dict(params), "uv": uv, "parts": parts, "plain": bool(plain)})
+        m, n = int(out["m"]), int(out["n"])
 
         def array(key: str, dtype: Any, shape: tuple[int, ...]) -> np.ndarray | None:
             if key not in out:
@@ -158,7 +178,8 @@ class BlenderSession:
 
         return Evaluated(array("vertices", np.float64, (-1, 3)), array("faces", np.int64, (m, 3)), float(out["seconds"]),
                          [tuple(a) for a in out.get("attributes", [])], array("corner_uv", np.float64, (m, 3, 2)),
-                         array("face_parts", np.int64, (m,)), int(out.get("objects", 1)))
+                         array("face_parts", np.int64, (m,)), int(out.get("objects", 1)), array("face_source", np.int64, (m,)),
+                         array("face_instance", np.int64, (m,)), array("canonical", np.float64, (n, 3)))
 
     def close(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
@@ -181,22 +202,75 @@ def _f32(value: Any) -> float:
     return float(f"{float(value):.7g}")
 
 
+@dataclass
+class InputPlan:
+    """How a build treats a modifier's inputs (:func:`input_specs`).
+
+    Attributes:
+        space: the parameter space: inputs that vary, and inputs held at the file's value as
+            one-value parameters (a range of one value, or a choice of one option, described as
+            :data:`FIXED`), so every input is listed where parameters are shown.
+        pins: the values the config pins (not in the space).
+        fixed: ``{name: file value}`` of the inputs held at the file's value, and ``why`` each is.
+        clamped: ``{name: (file value, low, high)}`` for file values outside the range they vary in
+            (their default is clamped into it).
+    """
+
+    space: ParamSpace
+    pins: dict[str, Any]
+    fixed: dict[str, Any] = field(default_factory=dict)
+    why: dict[str, str] = field(default_factory=dict)
+    clamped: dict[str, tuple[Any, float, float]] = field(default_factory=dict)
+
+    def notes(self) -> list[str]:
+        """One line per fixed input and per clamp, for the build's log and record."""
+        out = [f"{name!r} {FIXED} ({value!r}): {self.why[name]}" for name, value in self.fixed.items()]
+        out += [f"{name!r}: the file's value {v!r} lies outside [{lo:g}, {hi:g}]; its default is clamped to "
+                f"{min(max(float(v), lo), hi):g}" for name, (v, lo, hi) in self.clamped.items()]
+        return out
+
+
+def file_value(s: Mapping[str, Any]) -> Any:
+    """What the modifier holds for input ``s`` in the file (the node group's default when the
+    Blender side did not say)."""
+    value = s.get("value", s.get("default"))
+    if s["type"] == "float":
+        return _f32(value if value is not None else 0.0)
+    if s["type"] == "int":
+        return int(value if value is not None else 0)
+    if s["type"] == "bool":
+        return bool(value)
+    return value
+
+
 def input_specs(inputs: list[dict[str, Any]], bounds: Mapping[str, Any] | None = None,
-                pins: Mapping[str, Any] | None = None) -> tuple[ParamSpace, dict[str, Any]]:
-    """The parameter space of a modifier's inputs (:class:`ParamSpace`) and the pinned values.
+                pins: Mapping[str, Any] | None = None, listed: Any = None) -> InputPlan:
+    """The parameter space of a modifier's inputs (:class:`InputPlan`).
 
     ``bounds`` ``{name: [low, high]}`` narrow float / int ranges (within Blender's); ``pins`` fix
-    inputs (they leave the space). An input whose range is unbounded in Blender needs bounds."""
+    inputs (they leave the space). ``listed``: the inputs a params spec or ``[source.params]``
+    names (None: no list). Listed inputs vary; with a list, every other input is held at the file's
+    value. Without one, inputs whose Blender range is usable vary and the rest are held at the
+    file's value. A float or int that is to vary needs a usable range (Blender's, or its bounds).
+    Defaults are the file's values (clamped into the range, :attr:`InputPlan.clamped`). A space in
+    which nothing varies is a ``ValueError`` naming the inputs that could vary."""
     bounds, pins = dict(bounds or {}), dict(pins or {})
     names = {s["name"] for s in inputs}
     for key in list(bounds) + list(pins):
         if key not in names:
             raise ValueError(f"no input {key!r}; the modifier's inputs are {sorted(names)}")
+    wanted = None if listed is None else set(listed) | set(bounds)
+    plan = InputPlan(ParamSpace(()), pins)
     specs: list[ParamSpec] = []
+    unranged: list[str] = []
     for s in inputs:
         name = s["name"]
-        if name in pins:
+        if name in pins or s["type"] not in ("float", "int", "bool", "menu") or (s["type"] == "menu" and not s.get("options")):
             continue
+        value = file_value(s)
+        vary, why = True, ""
+        if wanted is not None and name not in wanted:
+            vary, why = False, "the spec does not list it"
         if s["type"] in ("float", "int"):
             lo, hi = _f32(s["min"]), _f32(s["max"])
             if name in bounds:
@@ -204,44 +278,93 @@ def input_specs(inputs: list[dict[str, Any]], bounds: Mapping[str, Any] | None =
                 if not (lo <= b_lo <= b_hi <= hi):
                     raise ValueError(f"bounds for {name!r} must lie within Blender's [{lo:g}, {hi:g}], got [{b_lo:g}, {b_hi:g}]")
                 lo, hi = b_lo, b_hi
-            if max(abs(lo), abs(hi)) > UNBOUNDED:
-                raise ValueError(f"input {name!r} has no usable range in Blender ([{lo:g}, {hi:g}]): give it bounds")
-            default = min(max(_f32(s["default"]), lo), hi)
+            if vary and max(abs(lo), abs(hi)) > UNBOUNDED:
+                vary, why = False, f"no usable range in Blender ([{lo:g}, {hi:g}])"
+                unranged.append(name)
+            if not vary:
+                plan.fixed[name], plan.why[name] = value, why
+                specs.append(continuous(name, value, value, value, description=FIXED) if s["type"] == "float"
+                             else integer(name, value, value, value, description=FIXED))
+                continue
+            default = min(max(value, lo), hi)
+            if default != value:
+                plan.clamped[name] = (value, lo, hi)
             specs.append(continuous(name, lo, hi, default) if s["type"] == "float" else integer(name, int(lo), int(hi), int(round(default))))
-        elif s["type"] == "bool":
-            specs.append(choice(name, (False, True), bool(s["default"])))
-        elif s["type"] == "menu" and s.get("options"):
-            default = s["default"] if s.get("default") in s["options"] else s["options"][0]
-            specs.append(choice(name, tuple(s["options"]), default))
-    return ParamSpace(tuple(specs)), pins
+        else:
+            options = (False, True) if s["type"] == "bool" else tuple(s["options"])
+            if value not in options:
+                value = options[0]
+            if not vary:
+                plan.fixed[name], plan.why[name] = value, why
+                options = (value,)
+            specs.append(choice(name, options, value, description=FIXED if not vary else ""))
+    plan.space = ParamSpace(tuple(specs))
+    if specs and all(s.name in plan.fixed for s in specs):
+        could = [s["name"] for s in inputs if s["name"] not in pins and s["type"] in ("float", "int", "bool", "menu")]
+        how = ("give their ranges in a params spec (--params-spec FILE.json) or [source.params] name = [low, high]"
+               if unranged else "list them in the params spec or [source.params]")
+        raise ValueError(f"no input varies ({len(could)} held at the file's values): inputs that could vary: "
+                         f"{', '.join(repr(n) for n in could[:20])}{' ...' if len(could) > 20 else ''}; {how}")
+    return plan
 
 
 class BlenderModel(ProceduralModel):
-    """A family from a ``.blend`` file's Geometry Nodes modifier (module docstring)."""
+    """A family from a ``.blend`` file's Geometry Nodes modifier (module docstring).
+
+    ``listed``: the inputs a params spec or ``[source.params]`` names (:func:`input_specs`); the
+    others are held at the file's values. Where the file's node tree names its parts (frames, node
+    groups, renamed nodes: :mod:`proctex.sources.provenance`), each shape's parts carry those names
+    as their labels; :attr:`last_names` holds the last shape's (with the other names each part
+    carries and the share of its area whose faces have a producer)."""
 
     def __init__(self, file: str | os.PathLike, obj: str, modifier: str = "GeometryNodes", bounds: Mapping[str, Any] | None = None,
                  pins: Mapping[str, Any] | None = None, python: str | None = None, uv: str | None = None,
-                 parts: str | None = None) -> None:
+                 parts: str | None = None, listed: Any = None) -> None:
+        from proctex.sources.provenance import model_words, producer_names
+
         super().__init__("adaptive")
         self.session = BlenderSession(file, obj, modifier, python=python)
         self.uv, self.parts = uv, parts
         self.attributes: list[tuple[str, str, str]] = []
         self.name = f"blender:{Path(file).stem}/{obj}"
         self.description = f"Geometry Nodes modifier {modifier!r} of {obj!r} in {Path(file).name}"
-        self.space, self.pins = input_specs(self.session.inputs, bounds, pins)
+        self.plan = input_specs(self.session.inputs, bounds, pins, listed)
+        self.space, self.pins = self.plan.space, self.plan.pins
+        self.file_values = {s["name"]: file_value(s) for s in self.session.inputs if s["type"] in ("float", "int", "bool", "menu")}
+        self.whole = model_words(self.session.object_name, self.session.tree)
+        self.producer_names = producer_names(self.session.producers, self.whole)
         self.last_seconds = 0.0
+        self.last_names = None
 
     def _build(self, params: Mapping[str, Any]) -> Shape:
-        values = {**self.pins, **{k: (v.item() if hasattr(v, "item") else v) for k, v in params.items()}}
+        from proctex.geometry.parts import connected_parts
+        from proctex.geometry.surface import triangle_areas
+        from proctex.sources.provenance import part_names
+
+        given = {k: (v.item() if hasattr(v, "item") else v) for k, v in params.items()}
+        if any(s.when or s.unless for s in self.space.specs):  # an input that does not act keeps the file's value exactly
+            active = set(self.space.active(given))
+            given = {k: (v if k in active or k not in self.file_values else self.file_values[k]) for k, v in given.items()}
+        values = {**self.pins, **given}
         out = self.session.generate(values, uv=self.uv, parts=self.parts)
         self.last_seconds, self.attributes = out.seconds, out.attributes
         if len(out.faces) == 0:
             raise ValueError(f"{self.name}: the evaluated mesh has no faces for {values}")
-        vertices, faces = out.vertices, out.faces
+        vertices, faces, face_source = out.vertices, out.faces, out.face_source
         if out.face_parts is not None:  # the graph's parts, not its connectivity
             faces, source = split_by_face_parts(faces, out.face_parts, len(vertices))
             vertices = vertices[source]
-        return Shape(vertices, faces, source=self.session.file, corner_uv=out.corner_uv)
+        labels, label_names = None, ()
+        self.last_names = None
+        if face_source is not None and any(n.name for n in self.producer_names.values()):
+            face_part, _, count = connected_parts(faces, len(vertices))
+            named = part_names(face_source, face_part, triangle_areas(vertices, faces), self.producer_names, count)
+            self.last_names = named
+            label_names = tuple(sorted(set(named.names) | {""}))
+            index = {name: i for i, name in enumerate(label_names)}
+            labels = np.zeros(len(vertices), dtype=np.int32)  # unreferenced vertices: "" (no name)
+            labels[faces.reshape(-1)] = np.repeat([index[named.names[p]] for p in face_part.tolist()], 3)
+        return Shape(vertices, faces, source=self.session.file, corner_uv=out.corner_uv, labels=labels, label_names=label_names)
 
     def close(self) -> None:
         self.session.close()

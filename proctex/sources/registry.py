@@ -54,6 +54,12 @@ class SourceConfig:
         up: the shapes' up axis ("auto": y for OBJ/glTF files, z otherwise).
         kind, settings: a source kind added by a plugin (:func:`register_source_kind`) and its
             settings, in place of the built-in kinds' own fields.
+        listed: the inputs a ``params_spec`` file lists (filled when the config is read; None
+            without a spec). A ``blender`` source varies the inputs listed here or bounded in
+            ``params`` and holds the others at the file's values
+            (:func:`proctex.sources.blender.input_specs`).
+        spec_notes: what reading the spec file said: keys it did not understand, keys it read as a
+            near known key.
     """
 
     model: str | None = None
@@ -69,6 +75,8 @@ class SourceConfig:
     conditions: dict[str, dict[str, list]] = field(default_factory=dict)
     kind: str | None = None
     settings: dict[str, Any] | None = None
+    listed: list[str] | None = None
+    spec_notes: list[str] = field(default_factory=list)
 
     def validate(self) -> "SourceConfig":
         if self.kind is not None:
@@ -92,6 +100,11 @@ class SourceConfig:
         if not isinstance(self.conditions, dict) or not all(
                 isinstance(c, dict) and set(c) <= {"when", "unless"} for c in self.conditions.values()):
             raise ValueError('conditions must be an object {"name": {"when": [[other, value], ...], "unless": [...]}}')
+        if self.listed is not None and not (isinstance(self.listed, list) and len(self.listed) <= 10_000
+                                            and all(isinstance(n, str) and 0 < len(n) <= 256 for n in self.listed)):
+            raise ValueError("listed must be a list of input names")
+        if not (isinstance(self.spec_notes, list) and len(self.spec_notes) <= 1000 and all(isinstance(n, str) for n in self.spec_notes)):
+            raise ValueError("spec_notes must be a list of strings")
         if self.up not in ("auto", "x", "y", "z"):
             raise ValueError(f"up must be auto, x, y or z, got {self.up!r}")
         if self.tessellation not in ("adaptive", "fixed"):
@@ -230,7 +243,7 @@ def open_source(config: SourceConfig) -> ShapeSource:
     its setting, the parameter bounds, conditions and tessellation; not the sample counts)."""
     kind = source_kind(config)
     key = json.dumps({"kind": kind.name, "value": config.value(kind.name), "params": config.params, "conditions": config.conditions,
-                      "tessellation": config.tessellation}, sort_keys=True, default=str)
+                      "tessellation": config.tessellation, "listed": config.listed}, sort_keys=True, default=str)
     with _LOCK:
         if key not in _OPEN:
             _OPEN[key] = kind.open(config)
@@ -262,8 +275,9 @@ def _open_blender(config: SourceConfig) -> ShapeSource:
     from proctex.sources.blender import BlenderModel
 
     b = config.blender
+    listed = None if config.listed is None and not config.params else [*(config.listed or []), *config.params]
     model = BlenderModel(b["file"], b["object"], b.get("modifier", "GeometryNodes"), bounds=config.params, pins=b.get("pins"),
-                         uv=b.get("uv"), parts=b.get("parts"))
+                         uv=b.get("uv"), parts=b.get("parts"), listed=listed)
     model.space = with_conditions(model.space, config.conditions)
     return ShapeSource(get_source_kind("blender"), model, model.space, uv_map=b.get("uv"), parts_attribute=b.get("parts"))
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -222,6 +223,10 @@ def resolve_params_spec(source: dict[str, Any]) -> dict[str, Any]:
         raise ValueError("params and conditions must be objects")
     out["params"] = {**spec.bounds, **params}
     out["conditions"] = {**spec.conditions, **conditions}
+    out["listed"] = sorted(set(spec.kinds) | set(out.get("listed") or []))
+    out["spec_notes"] = [*(out.get("spec_notes") or []), *spec.notes]
+    for note in spec.notes:
+        print(f"params spec: {note}", file=sys.stderr)
     return out
 
 

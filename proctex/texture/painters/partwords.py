@@ -333,6 +333,23 @@ def part_word(form: str) -> str | None:
     return _FORMS.get(str(form).lower())
 
 
+def label_hits(token: str, labels: list[str]) -> list[str]:
+    """The labels (several words each, as a node tree names parts: "Left Arm", "Back Rest") that
+    ``token`` names: one of a label's words up to a plural (:func:`proctex.sources.provenance.same_word`),
+    or, for a part word, one of its forms ("feet" names "Legs"). Qualifiers ("left", "front") and
+    words that name no part are never matched."""
+    from proctex.sources.provenance import matchable_words, same_word
+
+    token = token.lower()
+    word = part_word(token)
+    forms = (token,) + (PART_WORDS[word][0] if word else ())
+    out = []
+    for lab in dict.fromkeys(labels):
+        if any(same_word(f, w) for w in matchable_words(lab) for f in forms):
+            out.append(lab)
+    return out
+
+
 def resolve_words(words: list[str], geoms: list[GroupGeometry]) -> dict[str, tuple[list[int], str]]:
     """Groups each canonical word of ``words`` takes: ``{word: (group ids, why)}``; words no group
     passes are left out. A group passing several of the words goes to the highest score (the first
@@ -412,13 +429,20 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     labels = [g.label for g in grouping.groups if g.label]
     label_map = {lab.lower(): lab for lab in labels}
     tokens = re.findall(r"[\w'-]+", prompt.lower())
-    wanted = list(dict.fromkeys(part_word(t) for t in tokens if part_word(t) and _label_of(t, label_map) is None))
+    # A word naming a word of a group's label ("arms" for "Left Arm", "feet" for "Legs": a form of the
+    # same part word) routes by the label: labels beat geometry.
+    by_word = {t: hit for t in dict.fromkeys(tokens) if _label_of(t, label_map) is None and (hit := label_hits(t, labels))}
+    wanted = list(dict.fromkeys(part_word(t) for t in tokens if part_word(t) and _label_of(t, label_map) is None and t not in by_word))
     geoms = describe_groups(vertices, faces, grouping, up) if wanted else []
     # A word only becomes a part where the shape has more than one group: on a one-part vase "top"
     # and "base" stay regions of that part.
     resolved = resolve_words(wanted, geoms) if len(geoms) > 1 else {}
+    named = {lab for t in tokens for lab in ([_label_of(t, label_map)] if _label_of(t, label_map) else by_word.get(t, []))}
+    if named:  # a group the prompt names by its label is not also taken by a word's geometric test
+        taken = {g.index for g in grouping.groups if g.label in named}
+        resolved = {w: (kept, why) for w, (gids, why) in resolved.items() if (kept := [g for g in gids if g not in taken])}
     forms = [f for w in resolved for f in PART_WORDS[w][0]]
-    regions = split_regions(prompt, labels + forms)
+    regions = split_regions(prompt, labels + list(by_word) + forms)
     by_form = {f: w for w in resolved for f in PART_WORDS[w][0]}
     plan = PartPlan(prompt, regions, words={w: gids for w, (gids, _) in resolved.items()})
     label_groups: dict[str, list[int]] = {}
@@ -429,6 +453,10 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     for name, text in regions.parts:
         if name in label_groups:
             gids = label_groups[name]
+        elif name in by_word:
+            gids = sorted({gid for lab in by_word[name] for gid in label_groups.get(lab, [])})
+            plan.notes.append(f"{name!r} names the group(s) labelled {', '.join(repr(lab) for lab in by_word[name])}: "
+                              f"{', '.join(map(str, gids))}")
         else:
             word = by_form.get(name) or part_word(name)
             gids = resolved.get(word, ([], ""))[0] if word else []
