@@ -80,12 +80,32 @@ def test_bad_files_objects_and_modifiers_are_clear_errors(vase_blend, tmp_path):
         BlenderModel(vase_blend, "Vase", bounds={"Height": [0.0, 9.0]})
 
 
-def test_input_specs_need_bounds_for_an_unbounded_input():
-    inputs = [{"name": "Size", "identifier": "Socket_1", "type": "float", "default": 1.0, "min": -3.4e38, "max": 3.4e38}]
-    with pytest.raises(ValueError, match="give it bounds"):
-        input_specs(inputs)
-    space, pins = input_specs(inputs, bounds={"Size": [0.5, 2.0]})
-    assert space.specs[0].low == 0.5 and pins == {}
+def test_inputs_default_to_the_files_values_and_unranged_or_unlisted_ones_are_held_there():
+    """The modifier's values are the defaults; an input without a usable range, or one a spec does
+    not list, is held at the file's value (a one-value parameter, never refused); a build in which
+    nothing varies is refused, naming what could vary; a file value outside the spec's range is
+    clamped into it and reported."""
+    big = {"min": -3.4e38, "max": 3.4e38}
+    inputs = [{"name": "Size", "identifier": "S1", "type": "float", "default": 0.0, "value": 0.3, **big},
+              {"name": "Count", "identifier": "S2", "type": "int", "default": 0, "value": 4, "min": 1, "max": 9},
+              {"name": "Has Back", "identifier": "S3", "type": "bool", "default": False, "value": True},
+              {"name": "Style", "identifier": "S4", "type": "menu", "default": "B", "value": "B", "options": ["A", "B"]}]
+    plan = input_specs(inputs)  # no list: Count, Has Back and Style vary; Size has no range
+    assert plan.fixed == {"Size": 0.3} and "no usable range" in plan.why["Size"]
+    space = plan.space
+    assert (space["Size"].low, space["Size"].high, space["Size"].default) == (0.3, 0.3, 0.3)
+    assert (space["Count"].low, space["Count"].high, space["Count"].default) == (1, 9, 4)
+    assert space["Has Back"].options == (False, True) and space["Has Back"].default is True and space["Style"].default == "B"
+    assert all(p["Size"] == 0.3 for p in space.sample(5, seed=0))  # held, in every sample
+    listed = input_specs(inputs, bounds={"Size": [0.5, 2.0]}, listed=["Has Back"])  # a spec listing Size (bounded) and Has Back
+    assert set(listed.fixed) == {"Count", "Style"} and listed.why["Count"] == "the spec does not list it"
+    assert listed.space["Style"].options == ("B",) and listed.space["Count"].low == listed.space["Count"].high == 4
+    assert listed.clamped == {"Size": (0.3, 0.5, 2.0)} and listed.space["Size"].default == 0.5
+    assert any("clamped to 0.5" in n for n in listed.notes()) and any("'Count' held at the file's value" in n for n in listed.notes())
+    with pytest.raises(ValueError, match=r"no input varies .*'Size'.*params spec"):
+        input_specs(inputs[:1])
+    with pytest.raises(ValueError, match=r"no input varies .*'Count'"):
+        input_specs(inputs, listed=[])
     with pytest.raises(ValueError, match="no input 'Nope'"):
         input_specs(inputs, pins={"Nope": 1})
 
@@ -531,11 +551,13 @@ def test_the_real_chair_reads_its_spec_and_paints_the_parts_a_prompt_names():
         by_prompt.setdefault(g.prompt, []).append(c)
         assert c.max() - c.min() > 0.08, (g.group, g.prompt, c)  # no grey default
     assert set(by_prompt) == {"red velvet", "dark walnut"}
-    seat = [g for g in grouping.groups if len(g.members) == 1 and np.ptp(shape.vertices[grouping.parts[g.representative].vertices][:, 2]) < 0.1
-            and grouping.parts[g.representative].radius > 0.2]
-    assert seat and tex.groups[seat[0].index].prompt == "red velvet"
-    legs = [g for g in grouping.groups if len(g.members) == 4]
-    assert legs and tex.groups[legs[0].index].prompt == "dark walnut"
+    # The node tree names the groups (its node groups "Seat", "Legs", "Back", "Arms"): the prompt
+    # lands on the named parts.
+    assert {g.label for g in grouping.groups} == {"Seat", "Legs", "Back", "Arms"}
+    seat = [g for g in grouping.groups if g.label == "Seat"]
+    assert len(seat) == 1 and tex.groups[seat[0].index].prompt == "red velvet"
+    legs = [g for g in grouping.groups if g.label == "Legs"]
+    assert legs and all(tex.groups[g.index].prompt == "dark walnut" for g in legs)
 
 
 @needs_bpy

@@ -178,32 +178,40 @@ def _index_plus_one(ng):
     return add.outputs[0]
 
 
+def _reroute(ng, out, new, moved) -> None:
+    """The links ``moved`` (that left socket ``out`` before the stores were added) leave socket
+    ``new`` instead, as they were: their muting, and their place among the links into a multi-input
+    socket (Join Geometry joins in that order, so the order of the vertices depends on it)."""
+    ids = {link.as_pointer() for link in moved}
+    for target in {link.to_socket.as_pointer(): link.to_socket for link in moved}.values():
+        links = sorted(target.links, key=lambda link: link.multi_input_sort_id) if target.is_multi_input else list(target.links)
+        kept = [(link.from_socket, link.is_muted, link.as_pointer() in ids) for link in links]
+        for link in links:
+            ng.links.remove(link)
+        for source, muted, move in kept:
+            made = ng.links.new(new if move else source, target)
+            made.is_muted = muted
+
+
 def _mark(ng, node, pid: int) -> None:
     """Every linked geometry output of producer ``node`` goes through stores of its id (on every
     domain), its own box coordinates and, for an instancer, the instance index."""
     for out in [s for s in node.outputs if s.type == "GEOMETRY" and s.is_linked]:
-        targets = [link.to_socket for link in out.links]
-        for link in list(out.links):
-            ng.links.remove(link)
+        links = list(out.links)
         cur = out
         for domain, name in SOURCE.items():
             cur = _store(ng, cur, name, "INT", domain, value=pid)
         cur = _store(ng, cur, CANONICAL, "FLOAT_VECTOR", "POINT", value_socket=_canonical_field(ng, out))
         if node.bl_idname in INSTANCERS:
             cur = _store(ng, cur, INSTANCE, "INT", "INSTANCE", value_socket=_index_plus_one(ng))
-        for target in targets:
-            ng.links.new(cur, target)
+        _reroute(ng, out, cur, links)
 
 
 def _mark_instances(ng, node) -> None:
     """The instance index stored after an instancing node that makes no geometry of its own."""
     for out in [s for s in node.outputs if s.type == "GEOMETRY" and s.is_linked]:
-        targets = [link.to_socket for link in out.links]
-        for link in list(out.links):
-            ng.links.remove(link)
-        cur = _store(ng, out, INSTANCE, "INT", "INSTANCE", value_socket=_index_plus_one(ng))
-        for target in targets:
-            ng.links.new(cur, target)
+        links = list(out.links)
+        _reroute(ng, out, _store(ng, out, INSTANCE, "INT", "INSTANCE", value_socket=_index_plus_one(ng)), links)
 
 
 def instrument(bpy, tree, obj) -> tuple[object, list[dict]]:
