@@ -135,6 +135,29 @@ def test_labels_come_first_and_words_fill_in_what_labels_do_not_name():
     assert labels["seat"] not in plan.words["back"] and labels["leg"] not in plan.words["back"]
 
 
+def test_names_of_several_words_route_by_their_words_and_beat_geometry(chair):
+    """Names as a node tree gives them (issue 50): "arms" names "Left Arm", a part word's form names
+    a label ("backrest" the "Back Rest", "feet" the "Legs"); qualifiers and words naming no part
+    ("rest") never match; a group named by its label is not also taken by a word's geometry."""
+    import copy
+
+    shape, grouping, role = chair
+    named = copy.deepcopy(grouping)
+    labels = {"seat": "Seat Board", "legs": "Legs", "back": "Back Rest", "arms": "Left Arm"}
+    for word, gid in role.items():
+        named.groups[gid].label = labels[word]
+    plan = plan_parts("a chair with red arms, a white backrest, a green seat and brass feet", shape.vertices, shape.faces, named, "z")
+    assert {w: plan.texts[role[w]] for w in role} == {"arms": "red", "back": "white", "seat": "green", "legs": "brass"}
+    assert plan.words == {} and any("'arms' names the group(s) labelled 'Left Arm'" in n for n in plan.notes)
+    rest = plan_parts("a chair in oak with the rest in pale linen", shape.vertices, shape.faces, named, "z")
+    assert not any("labelled 'Back Rest'" in n for n in rest.notes)
+    # Labels beat geometry: with the back labelled "Legs" and the legs "Posts", "dark oak legs" paints
+    # the group labelled so, and the legs' geometric test takes nothing.
+    named.groups[role["back"]].label, named.groups[role["legs"]].label = "Legs", "Posts"
+    plan = plan_parts("a chair in green velvet with dark oak legs", shape.vertices, shape.faces, named, "z")
+    assert plan.texts[role["back"]] == "dark oak" and plan.text_for(role["legs"]) != "dark oak" and plan.words == {}
+
+
 def test_the_painted_chair_reads_back_red_velvet_seat_and_dark_walnut_legs(chair):
     shape, grouping, role = chair
     tex = paint_template(shape, grouping, PROMPT, size=48, up="z")

@@ -34,7 +34,9 @@ def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> d
     store.write_bytes(path, obj_text(shape.vertices, shape.faces).encode())
     seg = segment(shape)
     row = {"id": job.id, "split": job.split, "params": json.dumps(job.params, sort_keys=True), "mesh": path,
-           "vertices": shape.n_vertices, "faces": shape.n_faces, "parts": seg.n_parts}
+           "vertices": shape.n_vertices, "faces": shape.n_faces, "parts": seg.n_parts,
+           # the part names the source gives (a node tree's frames and groups), "" where none: for reading and painting only
+           "names": json.dumps([p.label for p in seg.parts]) if shape.labels is not None else ""}
     store.write_json(rel, row)
     return row
 

@@ -129,6 +129,8 @@ def cmd_inputs(args: argparse.Namespace) -> int:
     rows = []
     for s in inputs:
         row = {k: s.get(k) for k in ("name", "type", "default", "min", "max", "options") if s.get(k) is not None}
+        if s["type"] == "float" and isinstance(row.get("default"), (int, float)):
+            row["default"] = file_value({**s, "value": s["default"]})  # single precision as typed: 0.4, not 0.4000000059604645
         row["value"] = file_value(s)
         unbounded = s["type"] in ("float", "int") and max(abs(float(s.get("min", 0))), abs(float(s.get("max", 0)))) > UNBOUNDED
         listed = spec is None or s["name"] in spec.kinds

@@ -340,6 +340,11 @@ class Grouping:
     def parts(self) -> list[PartInfo]:
         return self.segmentation.parts
 
+    def names(self, group: PartGroup) -> list[str]:
+        """The distinct labels of a group's members, the representative's first ("Left Arm", "Right
+        Arm" for a mirrored pair a node tree names apart); [] when none carries one."""
+        return list(dict.fromkeys(lab for i in group.members if (lab := self.parts[i].label)))
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary: ``{"parts": [...], "groups": [...], "symmetry_planes": [...]}``."""
         parts = [
@@ -369,6 +374,7 @@ class Grouping:
                 "maps": [{"part": int(m.part), "R": np.asarray(m.R, dtype=float).tolist(), "t": np.asarray(m.t, dtype=float).tolist(),
                           "method": m.method, "error": float(m.error)} for m in g.maps],
                 **({"label": g.label} if g.label else {}),
+                **({"names": self.names(g)} if len(self.names(g)) > 1 else {}),
             }
             for g in self.groups
         ]

@@ -380,8 +380,20 @@ function paramControl(spec) {
   }
   input.name = spec.name;
   input.setAttribute('aria-label', spec.name);
+  if (isFixed(spec)) {
+    // held at the model file's value: shown, never changed
+    input.disabled = true;
+    row.classList.add('fixed');
+    name.textContent += ' (fixed)';
+    row.title = spec.description || 'held at the file\'s value';
+  }
   row.append(label, input);
   return row;
+}
+
+// A parameter the build holds at one value (a one-value range or a choice of one option).
+function isFixed(spec) {
+  return spec.kind === 'choice' ? spec.options.length === 1 : spec.low === spec.high;
 }
 
 // ------------------------------------------------------------------------------------- parts
