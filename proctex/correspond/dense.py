@@ -599,7 +599,7 @@ def correspond_shapes(
         tv, tf = part_mesh(template, template_grouping.parts[tp])
         res = correspond_parts(sv, sf, tv, tf, method=method, n_points=n_points, seed=seed + 7919 * gi, cage=cage, **options)
         gt = None
-        if shape.canonical is not None and template.canonical is not None:
+        if shape.canonical is not None and template.canonical is not None and shape.face_source is None:  # built-ins' (a .blend's truth is per node)
             sc = shape.canonical[grouping.parts[sp].vertices]
             src_can = interpolate(sc, sf, res.source_faces, res.source_bary)
             tc = template.canonical[template_grouping.parts[tp].vertices]

@@ -30,6 +30,10 @@ class Shape:
         source: where it came from (model name or file path), informational.
         corner_uv: (m, 3, 2) float64 UVs per face corner that the source made (a Blender graph's UV
             map), or None. Used as the template's UVs only where the user asks.
+        face_source: (m,) int64 the node that made each face (a ``.blend`` model's producing node,
+            :mod:`proctex.sources.provenance`; 0: none), or None. With ``canonical`` (each node's own
+            box coordinates) it is the canonical truth of a ``.blend`` family: a point's counterpart
+            is looked up only among faces of the same node. For measuring only.
     """
 
     vertices: np.ndarray
@@ -40,6 +44,7 @@ class Shape:
     params: dict[str, Any] = field(default_factory=dict)
     source: str = ""
     corner_uv: np.ndarray | None = None
+    face_source: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float64)
@@ -55,6 +60,10 @@ class Shape:
             self.canonical = np.ascontiguousarray(self.canonical, dtype=np.float64)
             if self.canonical.shape != (n, 3):
                 raise ValueError(f"canonical must be ({n}, 3), got {self.canonical.shape}")
+        if self.face_source is not None:
+            self.face_source = np.ascontiguousarray(self.face_source, dtype=np.int64)
+            if self.face_source.shape != (len(self.faces),):
+                raise ValueError(f"face_source must be ({len(self.faces)},), got {self.face_source.shape}")
         if self.labels is not None:
             self.labels = np.ascontiguousarray(self.labels, dtype=np.int32)
             if self.labels.shape != (n,):

@@ -88,12 +88,15 @@ def resolve_truth(config, truth: str = "auto") -> str | None:
         raise ValueError(f"truth must be one of {', '.join(TRUTHS)}, got {truth!r}")
     t = config.truth if truth == "auto" else truth
     canonical = source_kind(config.source).canonical  # its shapes carry canonical coordinates
+    if canonical and t in ("auto", "canonical") and config.source.blender:  # a .blend model's, where its tree was read
+        canonical = bool(getattr(config.procedural_model(), "has_canonical", False))
     if t == "auto":
         return "canonical" if canonical else None
     if t == "none":
         return None
     if t == "canonical" and not canonical:
-        raise ValueError("canonical truth needs a built-in model family (canonical coordinates)")
+        raise ValueError("canonical truth needs a built-in model family or a .blend model whose node tree could be read "
+                         "(canonical coordinates)")
     return t
 
 
@@ -359,7 +362,10 @@ def summarise_method(ctx_points, tracker: str, template_colours: np.ndarray, out
     if gts:
         e = np.concatenate(gts)
         worst = [float(np.nanmean(x)) for x in gts if (~np.isnan(x)).any()]
-        entry["gt_error"] = {**error_summary(e), "worst_shape_mean": max(worst)} if worst else None
+        entry["gt_error"] = {**error_summary(e), "worst_shape_mean": max(worst),
+                             # the share of the measured points that have a truth (a .blend point whose
+                             # node the template lacks has none)
+                             "with_truth": float(np.mean(~np.isnan(e))) if len(e) else 0.0} if worst else None
         groups = [o["gt_groups"] for o in outs if o["gt_groups"] is not None]
         if groups and entry["gt_error"]:
             entry["gt_error"]["per_group"] = _per_group(np.concatenate([o["gt"] for o in outs if o["gt_groups"] is not None]), np.concatenate(groups))

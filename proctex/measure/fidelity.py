@@ -4,9 +4,14 @@ depends on the method evaluated, and correspondence errors over all points.
 **Tracked-point texture variance.** Points on the template (:func:`tracked_points`) are located on
 every shape by a *tracker* that is the same for every method:
 
-- ``canonical`` (built-in models): the ground truth. Template and shape parts are paired by their
-  semantic label and placement (:func:`match_parts_by_label`); inside a part, the point with the
-  same canonical coordinates is the corresponding one (:func:`locate_canonical`).
+- ``canonical`` (built-in models, and ``.blend`` models whose node tree was read): the ground
+  truth. Template and shape parts are paired by their semantic label and placement
+  (:func:`match_parts_by_label`); inside a part, the point with the same canonical coordinates is
+  the corresponding one (:func:`locate_canonical`). A ``.blend`` shape's canonical coordinates are
+  each producing node's own box coordinates (:mod:`proctex.sources.provenance`), so its parts pair
+  by the node that made most of them and a point's counterpart is looked up **only among faces of
+  the same node** (:attr:`Shape.face_source`); a point whose node the template part lacks has no
+  truth.
 - ``vertex-index`` (folder families whose samples share one vertex order, as many procedural
   exports do): tracked points are the template's vertices, and vertex *i* of a shape is the truth
   of template vertex *i* (:func:`locate_vertex_index`).
@@ -90,6 +95,51 @@ def _placement(shape: Shape, seg: Segmentation, parts: Sequence[int]) -> tuple[n
         c.append(((plo + phi) / 2 - lo) / size)
         e.append((phi - plo) / size)
     return np.reshape(c, (-1, 3)), np.reshape(e, (-1, 3))
+
+
+def by_source(shape: Shape) -> bool:
+    """Whether ``shape``'s canonical truth is keyed by source node (a ``.blend`` shape) rather than
+    by part label (a built-in model's)."""
+    return shape.face_source is not None
+
+
+def part_sources(shape: Shape, seg: Segmentation) -> np.ndarray:
+    """(P,) int64: the source node that made most of each part's faces (0: none)."""
+    out = np.zeros(seg.n_parts, dtype=np.int64)
+    for p in seg.parts:
+        src = shape.face_source[p.faces]
+        src = src[src > 0]
+        if len(src):
+            values, counts = np.unique(src, return_counts=True)
+            out[p.index] = values[np.argmax(counts)]
+    return out
+
+
+@dataclass
+class SourceIndex:
+    """Nearest-point lookups in canonical space over the faces of one source node on one part:
+    ``index`` over those faces (their referenced vertices only), ``faces (j,)`` their indices among
+    the part's own faces (``hit.faces`` of :attr:`index` -> part-local faces)."""
+
+    index: SurfaceIndex
+    faces: np.ndarray
+
+    def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Part-local faces (k,) and barycentrics (k, 3) of the points nearest ``points`` (k, 3)."""
+        hit = self.index.query(points)
+        return self.faces[hit.faces], hit.bary
+
+
+def source_index(canonical: np.ndarray, faces: np.ndarray, face_source: np.ndarray, key: int) -> SourceIndex | None:
+    """A :class:`SourceIndex` over the faces of ``faces`` (part-local (j, 3)) whose source is ``key``
+    and whose corners all have finite canonical coordinates (``canonical`` (n_local, 3)); None when
+    there are none."""
+    ok = (face_source == key) & np.isfinite(canonical[faces]).all(axis=(1, 2))
+    sub = np.flatnonzero(ok)
+    if not len(sub):
+        return None
+    used, local = np.unique(faces[sub], return_inverse=True)
+    return SourceIndex(SurfaceIndex(canonical[used], local.reshape(-1, 3)), sub)
 
 
 # ---------------------------------------------------------------------------------- tracked points
@@ -177,13 +227,18 @@ def match_parts_by_label(template: Shape, tseg: Segmentation, shape: Shape, seg:
 
     Returns ``{template part: shape part}``.
     """
-    if template.labels is None or shape.labels is None:
+    if by_source(template) and by_source(shape):  # a .blend model's: by the node that made each part
+        tkeys, skeys = part_sources(template, tseg), part_sources(shape, seg)
+    elif template.labels is None or shape.labels is None:
         raise ValueError("pairing parts by label needs shapes with semantic labels (built-in models)")
+    else:
+        tkeys = np.array([p.label for p in tseg.parts], dtype=object)
+        skeys = np.array([p.label for p in seg.parts], dtype=object)
     out: dict[int, int] = {}
-    labels = sorted({p.label for p in tseg.parts if not p.degenerate})
+    labels = sorted({tkeys[p.index] for p in tseg.parts if not p.degenerate and (tkeys[p.index] or not by_source(template))})
     for label in labels:
-        tp = [p.index for p in tseg.parts if p.label == label and not p.degenerate]
-        sp = [p.index for p in seg.parts if p.label == label and not p.degenerate]
+        tp = [p.index for p in tseg.parts if tkeys[p.index] == label and not p.degenerate]
+        sp = [p.index for p in seg.parts if skeys[p.index] == label and not p.degenerate]
         if not tp or not sp:
             continue
         tc, te = _placement(template, tseg, tp)
@@ -203,14 +258,27 @@ def locate_canonical(tracked: TrackedPoints, template: Shape, tseg: Segmentation
     if shape.canonical is None:
         raise ValueError("the shape has no canonical coordinates")
     loc = Location.empty(len(tracked))
+    keyed = by_source(template) and by_source(shape)
     for tpart, spart in match_parts_by_label(template, tseg, shape, seg).items():
         sel = np.flatnonzero(tracked.part == tpart)
         if not len(sel):
             continue
         part = seg.parts[spart]
         _, f = part_mesh(shape, part)
-        hit = SurfaceIndex(shape.canonical[part.vertices], f).query(tracked.canonical[sel])
-        loc.face[sel], loc.bary[sel] = part.faces[hit.faces], hit.bary
+        if not keyed:
+            hit = SurfaceIndex(shape.canonical[part.vertices], f).query(tracked.canonical[sel])
+            loc.face[sel], loc.bary[sel] = part.faces[hit.faces], hit.bary
+            continue
+        # Among the faces of the same source node only; points without one stay unlocated.
+        keys = template.face_source[tracked.face[sel]]
+        finite = np.isfinite(tracked.canonical[sel]).all(axis=1)
+        for key in np.unique(keys[(keys > 0) & finite]):
+            idx = source_index(shape.canonical[part.vertices], f, shape.face_source[part.faces], int(key))
+            if idx is None:
+                continue
+            sub = sel[(keys == key) & finite]
+            faces, bary = idx.query(tracked.canonical[sub])
+            loc.face[sub], loc.bary[sub] = part.faces[faces], bary
     return loc
 
 
@@ -342,17 +410,20 @@ class TemplateTruth:
     """What the ground truth says about the template, per kind.
 
     ``canonical``: ``label_groups`` {label: template groups holding parts of that label} and per
-    group an index over its representative's canonical mesh (``rep_canonical``). ``vertex-index``:
+    group an index over its representative's canonical mesh (``rep_canonical``); keyed by source
+    node for a ``.blend`` template (``sources``): ``label_groups`` {node: groups whose
+    representative has faces of it} and ``rep_canonical`` {(group, node): :class:`SourceIndex`}. ``vertex-index``:
     ``vertex_group (n,)`` each template vertex's group (-1: none) and ``vertex_point (n, 3)`` the
     vertex carried by its member map into the group representative's normalised frame.
     """
 
     kind: str
-    label_groups: dict[str, set[int]] = field(default_factory=dict)
-    rep_canonical: dict[int, SurfaceIndex] = field(default_factory=dict)
+    label_groups: dict[Any, set[int]] = field(default_factory=dict)
+    rep_canonical: dict[Any, Any] = field(default_factory=dict)
     vertex_group: np.ndarray | None = None
     vertex_point: np.ndarray | None = None
     n_vertices: int = 0
+    sources: bool = False
 
 
 def template_truth(template: Shape, grouping: Grouping, assets, kind: str) -> TemplateTruth:
@@ -360,8 +431,23 @@ def template_truth(template: Shape, grouping: Grouping, assets, kind: str) -> Te
     grouping and its transfer assets (:class:`proctex.transfer.assets.TemplateAssets`)."""
     seg = grouping.segmentation
     if kind == "canonical":
+        if template.canonical is not None and by_source(template):
+            truth = TemplateTruth(kind, n_vertices=template.n_vertices, sources=True)
+            for g in grouping.groups:
+                if g.degenerate:
+                    continue
+                rep = seg.parts[g.representative]
+                _, f = part_mesh(template, rep)
+                src = template.face_source[rep.faces]
+                for key in np.unique(src[src > 0]).tolist():
+                    idx = source_index(template.canonical[rep.vertices], f, src, key)
+                    if idx is not None:
+                        truth.label_groups.setdefault(key, set()).add(g.index)
+                        truth.rep_canonical[(g.index, key)] = idx
+            return truth
         if template.canonical is None or template.labels is None:
-            raise ValueError("canonical truth needs a template with canonical coordinates and labels (a built-in model)")
+            raise ValueError("canonical truth needs a template with canonical coordinates: a built-in model, or a .blend model "
+                             "whose node tree was read")
         truth = TemplateTruth(kind, n_vertices=template.n_vertices)
         for g in grouping.groups:
             if g.degenerate:
@@ -462,9 +548,15 @@ def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets,
     part) are NaN: nothing is right or wrong there.
     """
     labels = np.array([p.label for p in seg.parts], dtype=object)
+    keys = None
     if truth.kind == "vertex-index":
         check_vertex_index(shape, truth.n_vertices)
         has_truth = truth.vertex_group[samples.vertex] >= 0
+    elif truth.sources:
+        if not by_source(shape):
+            raise ValueError("the template's truth is keyed by source node, the shape has none")
+        keys = shape.face_source[samples.face]
+        has_truth = np.isin(keys, list(truth.label_groups)) & np.isfinite(samples.canonical).all(axis=1)
     else:
         has_truth = np.isin(labels[samples.part], list(truth.label_groups))
     errors = np.where(has_truth, FAIL_ERROR, np.nan)
@@ -476,7 +568,20 @@ def gt_errors(shape: Shape, seg: Segmentation, samples: Samples, result, assets,
         g = method_group.get(int(part), -1)
         if g < 0 or int(part) not in result.points:
             continue
-        if truth.kind == "canonical":
+        if truth.sources:
+            # Only among the representative's faces of the point's own source node: a point whose
+            # node the method's group lacks stays failed.
+            sel = np.concatenate([sel[keys[sel] == k] for k in np.unique(keys[sel]) if (g, int(k)) in truth.rep_canonical] or [sel[:0]])
+            if not len(sel):
+                continue
+            ga = assets.groups[g]
+            true_faces = np.empty(len(sel), dtype=np.int64)
+            bary = np.empty((len(sel), 3))
+            for k in np.unique(keys[sel]):
+                at = keys[sel] == k
+                true_faces[at], bary[at] = truth.rep_canonical[(g, int(k))].query(samples.canonical[sel[at]])
+            true = interpolate(ga.vertices, ga.faces, true_faces, bary)
+        elif truth.kind == "canonical":
             if g not in truth.label_groups.get(seg.parts[int(part)].label, ()):
                 continue
             hit = truth.rep_canonical[g].query(samples.canonical[sel])

@@ -350,10 +350,11 @@ class BlenderModel(ProceduralModel):
         self.last_seconds, self.attributes = out.seconds, out.attributes
         if len(out.faces) == 0:
             raise ValueError(f"{self.name}: the evaluated mesh has no faces for {values}")
-        vertices, faces, face_source = out.vertices, out.faces, out.face_source
+        vertices, faces, face_source, canonical = out.vertices, out.faces, out.face_source, out.canonical
         if out.face_parts is not None:  # the graph's parts, not its connectivity
             faces, source = split_by_face_parts(faces, out.face_parts, len(vertices))
             vertices = vertices[source]
+            canonical = canonical[source] if canonical is not None else None
         labels, label_names = None, ()
         self.last_names = None
         if face_source is not None and any(n.name for n in self.producer_names.values()):
@@ -364,7 +365,15 @@ class BlenderModel(ProceduralModel):
             index = {name: i for i, name in enumerate(label_names)}
             labels = np.zeros(len(vertices), dtype=np.int32)  # unreferenced vertices: "" (no name)
             labels[faces.reshape(-1)] = np.repeat([index[named.names[p]] for p in face_part.tolist()], 3)
-        return Shape(vertices, faces, source=self.session.file, corner_uv=out.corner_uv, labels=labels, label_names=label_names)
+        # Each producing node's own box coordinates and the node of each face: the canonical truth
+        # (measuring only; never trained, selected or fitted on).
+        truth = {"canonical": canonical, "face_source": face_source} if face_source is not None and canonical is not None else {}
+        return Shape(vertices, faces, source=self.session.file, corner_uv=out.corner_uv, labels=labels, label_names=label_names, **truth)
+
+    @property
+    def has_canonical(self) -> bool:
+        """Whether its shapes carry canonical truth (the node tree was instrumented)."""
+        return self.session.provenance_error is None and bool(self.session.producers)
 
     def close(self) -> None:
         self.session.close()

@@ -320,4 +320,5 @@ register_source_kind(SourceKind("model", _open_model, _check_model, "a built-in 
 register_source_kind(SourceKind("folder", lambda config: FolderShapes(get_source_kind("folder"), config.folder), _check_folder,
                                 "a folder of exported meshes with their parameters (JSON beside each)", regenerates=False, default_up="y"))
 register_source_kind(SourceKind("generator", _open_generator, _check_generator, "your Python generator, named in a TOML/JSON file"))
-register_source_kind(SourceKind("blender", _open_blender, _check_blender, "a .blend file's Geometry Nodes modifier, evaluated by Blender"))
+register_source_kind(SourceKind("blender", _open_blender, _check_blender, "a .blend file's Geometry Nodes modifier, evaluated by Blender",
+                                canonical=True))

@@ -27,7 +27,7 @@ TOP_LEVEL = ("seed", "corr_points", "truth")
 MAX_SETTINGS = 256  # keys in one section (a config is small; a huge one is a mistake or an attack)
 
 
-#: What ``--truth`` accepts: ``auto`` picks canonical for built-in models, the family config's
+#: What ``--truth`` accepts: ``auto`` picks canonical for built-in and ``.blend`` models, the family config's
 #: ``truth`` otherwise; ``none`` means no ground truth (the cage tracker, pseudo-ground truth only).
 TRUTHS = ("auto", "canonical", "vertex-index", "none")
 
@@ -43,7 +43,8 @@ class BuildConfig:
         seed: the family seed; sample ``i`` and pair ``(i, g)`` derive theirs from it.
         corr_points: surface points per shape in each cage pair.
         truth: what the evaluation takes as ground truth (:data:`proctex.store.config.TRUTHS`): "auto"
-            (canonical coordinates for built-in models, none otherwise), "vertex-index" (the
+            (canonical coordinates for built-in models and ``.blend`` models whose node tree could be
+            read, none otherwise), "vertex-index" (the
             samples share one vertex order: vertex *i* is the same point in every sample; checked
             when evaluating), "canonical" or "none" (the cage solver tracks points; no GT error).
 
@@ -74,7 +75,7 @@ class BuildConfig:
         if self.truth not in TRUTHS:
             raise ValueError(f"truth must be one of {', '.join(TRUTHS)}, got {self.truth!r}")
         if self.truth == "canonical" and not source_kind(self.source).canonical:
-            raise ValueError("truth 'canonical' needs a built-in model (canonical coordinates)")
+            raise ValueError("truth 'canonical' needs a built-in model or a .blend model (canonical coordinates)")
         check_integer("seed", self.seed, 0, 2**32 - 1)
         check_integer("corr_points", self.corr_points, 100, 1_000_000)
         return self
