@@ -257,3 +257,19 @@ def test_a_spec_listing_fewer_inputs_builds_and_its_misspelt_keys_are_named(tmp_
     assert model.plan.fixed["Back Height"] == pytest.approx(0.6) and model.space["Arm Height"].when == (("Has Arms", True),)
     shape = model.generate(model.space.sample(1, seed=0)[0])
     assert shape.n_faces > 0 and "Seat" in shape.label_names
+
+
+def test_params_without_a_spec_list_their_inputs_and_older_stores_vary_every_input(tmp_path):
+    """A new config bounding some inputs of a .blend model (no spec) lists them: the others keep the
+    file's values. A family stored before lists existed is read with no list: what it varied then."""
+    from proctex.store.config import BuildConfig, with_legacy
+
+    blend = tmp_path / "m.blend"
+    blend.write_bytes(b"BLENDER")
+    source = {"blender": {"file": str(blend), "object": "M"}, "params": {"Width": [1.0, 2.0]}}
+    assert BuildConfig.from_dict({"source": source}).source.listed == ["Width"]
+    assert BuildConfig.from_dict({"source": {**source, "listed": ["Has Back"]}}).source.listed == ["Has Back"]
+    old = BuildConfig.from_dict({"source": source}).to_dict()
+    del old["source"]["listed"]  # as a store written before
+    assert BuildConfig.from_dict(with_legacy(old)).source.listed is None
+    assert BuildConfig.from_dict({"source": {"model": "chair", "params": {"seat_height": [0.4, 0.5]}}}).source.listed is None

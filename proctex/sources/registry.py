@@ -54,10 +54,11 @@ class SourceConfig:
         up: the shapes' up axis ("auto": y for OBJ/glTF files, z otherwise).
         kind, settings: a source kind added by a plugin (:func:`register_source_kind`) and its
             settings, in place of the built-in kinds' own fields.
-        listed: the inputs a ``params_spec`` file lists (filled when the config is read; None
-            without a spec). A ``blender`` source varies the inputs listed here or bounded in
-            ``params`` and holds the others at the file's values
-            (:func:`proctex.sources.blender.input_specs`).
+        listed: the inputs a ``params_spec`` file lists, or ``params`` bounds where there is no spec
+            (filled when a config is read, :func:`proctex.store.config.resolve_params_spec`); None:
+            no list. A ``blender`` source varies the inputs listed here or bounded in ``params`` and
+            holds the others at the file's values; with no list, every input with a usable range
+            varies (:func:`proctex.sources.blender.input_specs`).
         spec_notes: what reading the spec file said: keys it did not understand, keys it read as a
             near known key.
     """
@@ -275,7 +276,7 @@ def _open_blender(config: SourceConfig) -> ShapeSource:
     from proctex.sources.blender import BlenderModel
 
     b = config.blender
-    listed = None if config.listed is None and not config.params else [*(config.listed or []), *config.params]
+    listed = None if config.listed is None else [*config.listed, *config.params]
     model = BlenderModel(b["file"], b["object"], b.get("modifier", "GeometryNodes"), bounds=config.params, pins=b.get("pins"),
                          uv=b.get("uv"), parts=b.get("parts"), listed=listed)
     model.space = with_conditions(model.space, config.conditions)

@@ -207,9 +207,15 @@ def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 def resolve_params_spec(source: dict[str, Any]) -> dict[str, Any]:
     """A source section with its ``params_spec`` file (if any) read into ``params`` (bounds of the
-    spec's float and int inputs, under the section's own) and ``conditions`` (the section's own win),
-    the key itself removed: a stored family needs no spec file to be read again."""
+    spec's float and int inputs, under the section's own), ``conditions`` (the section's own win),
+    ``listed`` (the inputs the spec names) and ``spec_notes`` (keys it did not understand, printed
+    to stderr too), the key itself removed: a stored family needs no spec file to be read again.
+    A ``.blend`` source with ``params`` and neither a spec nor ``listed`` lists the inputs
+    ``params`` bounds."""
     if "params_spec" not in source:
+        if isinstance(source.get("blender"), dict) and "listed" not in source and isinstance(source.get("params"), dict) and source["params"]:
+            # [source.params] without a spec: the inputs it bounds vary, the others keep the file's values
+            return {**source, "listed": sorted(source["params"])}
         return source
     out = dict(source)
     path = out.pop("params_spec")
@@ -239,7 +245,12 @@ LEGACY_SETTINGS = {"tessellation": "fixed",
 
 def with_legacy(settings: dict[str, Any]) -> dict[str, Any]:
     """A stored config's settings with the values older stores were built with filled in. Stores
-    written with sections store every setting resolved and are returned as they are."""
+    written with sections store every setting resolved and are returned as they are, but for a
+    ``.blend`` source stored before ``listed`` existed: every input with a range varied then (no
+    list)."""
+    source = settings.get("source")
+    if isinstance(source, dict) and isinstance(source.get("blender"), dict) and "listed" not in source:
+        settings = {**settings, "source": {**source, "listed": None}}
     if any(k in settings for k in ("source", "paint")):
         return settings
     return {**LEGACY_SETTINGS, **settings}
