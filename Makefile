@@ -23,7 +23,7 @@ $(BLENDER_STAMP):
 
 blender: $(BLENDER_STAMP)
 
-# The .blend files of the Blender tests (vase, table, pumpkin), built in code into out/blend.
+# The .blend files of the Blender tests (vase, table, pumpkin, rack, bench), built in code into out/blend.
 blender-fixtures: $(BLENDER_STAMP)
 	$(BLENDER_VENV)/bin/python tests/fixtures/blend/make_fixtures.py out/blend
 
