@@ -106,9 +106,13 @@ def _score(family, mapper, n=1500):
 
 
 def test_the_shapes_carry_each_nodes_box_and_the_template_against_itself_is_exact(bench_family):
+    from proctex.store.state import FamilyState
+
     st, cfg, assets, uv, shapes = bench_family
     tpl = assets.shape
     assert tpl.face_source is not None and (tpl.face_source > 0).all() and np.isfinite(tpl.canonical).all()
+    notes = FamilyState.load(st).stages["sample"]["notes"]  # the build record says which inputs kept the file's values
+    assert any("'Seat Size' held at the file's value (0.4)" in n for n in notes)
     assert cfg.truth == "auto" and __import__("proctex.measure.evaluate", fromlist=["x"]).resolve_truth(cfg) == "canonical"
     seg = segment(tpl)
     tp = tracked_points(tpl, assets.grouping, "canonical", n=800, seed=0)

@@ -41,10 +41,22 @@ def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> d
     return row
 
 
-def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]]) -> None:
-    """Write ``samples.parquet`` (rows in sample order) and mark the stage done."""
+def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]], notes: list[str] | None = None) -> None:
+    """Write ``samples.parquet`` (rows in sample order) and mark the stage done (with ``notes``: what
+    the source said of its inputs, e.g. those held at a file's values)."""
     store.write_table(StoreLayout.SAMPLES, pa.Table.from_pylist(rows))
-    mark_stage(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows))
+    mark_stage(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows), **({"notes": notes} if notes else {}))
+
+
+def source_notes(config: BuildConfig) -> list[str]:
+    """What the family's source says of its inputs and spec file: a ``.blend`` model's inputs held at
+    the file's values and defaults clamped into their ranges, the spec's keys not understood."""
+    notes = list(config.source.spec_notes)
+    model = config.shapes().model
+    plan = getattr(model, "plan", None)
+    if plan is not None and hasattr(plan, "notes"):
+        notes += plan.notes()
+    return notes
 
 
 SAMPLE_BATCH = 8  # samples per batch (a Ray task)
@@ -61,10 +73,13 @@ def plan_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     if stage_done(store, "sample"):
         return Plan("sample", [], run_sample_batch, finish=lambda results: None, skip="done already")
     jobs = sample_jobs(config)
+    notes = source_notes(config)
+    for note in notes:
+        log(f"sample: {note}")
 
     def finish(results: list[list[dict[str, Any]]]) -> None:
         rows = [row for out in results for row in out]
-        finish_sample_stage(store, rows)
+        finish_sample_stage(store, rows, notes)
         log(f"sample: {len(rows)} shapes")
 
     return Plan("sample", [jobs[i : i + SAMPLE_BATCH] for i in range(0, len(jobs), SAMPLE_BATCH)], run_sample_batch, finish)
