@@ -230,6 +230,8 @@ def test_the_parts_and_inputs_commands_show_names_and_file_values(blends, capsys
     rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)["inputs"]}
     assert rows["Width"]["value"] == 1.2 and rows["Width"]["default"] == 1.0 and not rows["Width"]["fixed"]
     assert rows["Seat Size"]["fixed"] and rows["Seat Size"]["value"] == 0.4 and rows["Legs"]["value"] == 4
+    assert main(["inputs", str(blends / "bench.blend"), "--object", "Bench"]) == 0
+    assert "the node tree names parts: Back Rest, Seat, Legs, Rail" in capsys.readouterr().out
 
 
 @needs_bpy
@@ -243,20 +245,35 @@ def test_a_spec_listing_fewer_inputs_builds_and_its_misspelt_keys_are_named(tmp_
         pytest.skip("the shared .blend files are absent")
     spec = {"class_name": "chair", "colour": "red", "params": {"Seat": {"type": "nested", "params": {
         "Seat Height": {"type": "float", "range": [0.4, 0.8]}, "Seat Width": {"type": "float", "range": [0.4, 0.8]},
-        "Has Arms": {"type": "bool"}, "Arm Height": {"type": "float", "range": [0.1, 0.3], "or_dependcies": ["Has Arms"]}}}}}
+        "Has Arms": {"type": "bool"}, "Arm Height": {"type": "float", "range": [0.1, 0.3], "or_dependcies": ["Has Arms"]},
+        "Legs Type": {"type": "int", "range": [0, 2]},
+        "Bottom Size Scale": {"type": "float", "range": [0.7, 1.0], "or_dependencies": [["Legs Type", 1]]}}}}}
     path = tmp_path / "sp_small.json"
     path.write_text(json.dumps(spec))
     cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / "chair.blend"), "object": "Cube"}, "params_spec": str(path)}})
     err = capsys.readouterr().err
     assert "read key 'or_dependcies' as 'or_dependencies'" in err and "'colour' was not understood" in err
-    assert any("or_dependcies" in n for n in cfg.source.spec_notes) and cfg.to_dict()["source"]["listed"] == sorted(
-        ["Seat Height", "Seat Width", "Has Arms", "Arm Height"])
+    names = ["Arm Height", "Bottom Size Scale", "Has Arms", "Legs Type", "Seat Height", "Seat Width"]
+    assert any("or_dependcies" in n for n in cfg.source.spec_notes) and cfg.to_dict()["source"]["listed"] == names
     model = cfg.procedural_model()
     varying = [s.name for s in model.space.specs if s.name not in model.plan.fixed]
-    assert sorted(varying) == ["Arm Height", "Has Arms", "Seat Height", "Seat Width"]
+    assert sorted(varying) == names
+    # the file holds Bottom Size Scale 0.5, outside the spec's [0.7, 1]: its default is clamped, and said so
+    assert model.plan.clamped == {"Bottom Size Scale": (0.5, 0.7, 1.0)} and model.space["Bottom Size Scale"].default == 0.7
     assert model.plan.fixed["Back Height"] == pytest.approx(0.6) and model.space["Arm Height"].when == (("Has Arms", True),)
     shape = model.generate(model.space.sample(1, seed=0)[0])
     assert shape.n_faces > 0 and "Seat" in shape.label_names
+    # An input its condition switches off is sent with the file's value exactly (0.5), not its
+    # clamped default (0.7); switched on, with the value given.
+    sent = []
+    real = model.session.generate
+    model.session.generate = lambda values, **kw: (sent.append(dict(values)), real(values, **kw))[1]
+    try:
+        model.generate({"Legs Type": 0, "Bottom Size Scale": 0.9})
+        model.generate({"Legs Type": 1, "Bottom Size Scale": 0.9})
+    finally:
+        model.session.generate = real
+    assert sent[0]["Bottom Size Scale"] == 0.5 and sent[1]["Bottom Size Scale"] == 0.9
 
 
 def test_params_without_a_spec_list_their_inputs_and_older_stores_vary_every_input(tmp_path):

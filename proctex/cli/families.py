@@ -121,11 +121,15 @@ def cmd_inputs(args: argparse.Namespace) -> int:
     if not os.path.isfile(args.blend):
         raise ValueError(f"no such file: {args.blend}")
     spec = read_params_spec(args.params_spec) if args.params_spec else None
+    from proctex.sources.provenance import MAX_NAMES, model_words, producer_names
+
     session = BlenderSession(args.blend, args.object, args.modifier)
     try:
         inputs = session.inputs
+        named = producer_names(session.producers, model_words(session.object_name, session.tree))
     finally:
         session.close()
+    names = list(dict.fromkeys(n.name for n in named.values() if n.name))  # what the node tree calls its parts
     rows = []
     for s in inputs:
         row = {k: s.get(k) for k in ("name", "type", "default", "min", "max", "options") if s.get(k) is not None}
@@ -144,7 +148,8 @@ def cmd_inputs(args: argparse.Namespace) -> int:
     unknown = sorted(set(spec.kinds) - {s["name"] for s in inputs}) if spec else []
     notes = list(spec.notes) if spec else []
     if args.json:
-        _print_json({"object": args.object, "modifier": args.modifier, "inputs": rows, "spec_unknown": unknown, "spec_notes": notes})
+        _print_json({"object": args.object, "modifier": args.modifier, "inputs": rows, "spec_unknown": unknown, "spec_notes": notes,
+                     "part_names": names, "provenance_error": session.provenance_error})
         return 0
     for r in rows:
         rng = f"[{r['min']:g}, {r['max']:g}]" if "min" in r and "max" in r else ", ".join(map(str, r.get("options", [])))
@@ -156,6 +161,9 @@ def cmd_inputs(args: argparse.Namespace) -> int:
         print(f"the spec names inputs the modifier lacks: {', '.join(unknown)}")
     for note in notes:
         print(f"params spec: {note}", file=sys.stderr)
+    if names:
+        shown = ", ".join(names[:MAX_NAMES]) + (f" and {len(names) - MAX_NAMES} more" if len(names) > MAX_NAMES else "")
+        print(f"the node tree names parts: {shown} (proctex parts shows which)")
     n = sum(r["fixed"] for r in rows)
     print(f"{len(rows)} inputs; {len(rows) - n} vary, {n} held at the file's values"
           + (" (give ranges with --params-spec or [source.params] to vary them)" if n else ""))
