@@ -146,3 +146,25 @@ def test_the_template_covers_the_optional_parts():
     assert select_template(space, samples, coverage=[2, 4, 3, 4]) == 3  # of the two with most kinds, nearest the mean
     with pytest.raises(ValueError, match="one value per sample"):
         select_template(space, samples, coverage=[1])
+
+
+def test_keys_not_understood_are_named_and_a_near_misspelling_is_read_as_its_key():
+    """Every key outside the spec's vocabulary is reported by name with the closest known key; one
+    within two edits of exactly one known key the entry lacks is read as that key, saying so."""
+    from proctex.params import closest_key, edit_distance, read_params_spec
+
+    assert edit_distance("or_dependcies", "or_dependencies") == 2 and edit_distance("rnage", "range") == 2
+    assert edit_distance("", "abc") == 3 and edit_distance("abc", "abc") == 0 and edit_distance("a" * 300, "b", limit=4) == 5
+    assert closest_key("tpye", ["type", "range"]) == ("type", 2)
+    spec = read_params_spec({"class_name": "bed", "clas_name": "x", "params": {"Width": {
+        "type": "float", "range": [0.5, 2.0], "or_dependcies": [["Has Back", True]], "colour": "red"},
+        "Has Back": {"type": "bool"},
+        "Depth": {"tpye": "float", "range": [1.0, 2.0]}}})
+    notes = "\n".join(spec.notes)
+    assert spec.conditions["Width"] == {"when": [["Has Back", True]]} and spec.bounds["Depth"] == [1.0, 2.0]
+    assert "read key 'or_dependcies' as 'or_dependencies'" in notes and "read key 'tpye' as 'type'" in notes
+    assert "key 'colour' was not understood and is ignored (the closest known key is" in notes
+    # "clas_name" is one edit from "class_name", which the spec holds already: reported, not read
+    assert "key 'clas_name' was not understood" in notes
+    # a flat spec's keys are input names: nothing to report
+    assert read_params_spec({"Width": [0.5, 2.0]}).notes == ()
