@@ -151,6 +151,9 @@ def test_names_of_several_words_route_by_their_words_and_beat_geometry(chair):
     assert plan.words == {} and any("'arms' names the group(s) labelled 'Left Arm'" in n for n in plan.notes)
     rest = plan_parts("a chair in oak with the rest in pale linen", shape.vertices, shape.faces, named, "z")
     assert not any("labelled 'Back Rest'" in n for n in rest.notes)
+    named.groups[role["seat"]].label = "Oak Board"  # a material in a name: "oak" in a prompt stays a material
+    oak = plan_parts("a chair in red with oak legs", shape.vertices, shape.faces, named, "z")
+    assert not any("'Oak Board'" in n for n in oak.notes) and oak.texts[role["legs"]] == "oak"
     # Labels beat geometry: with the back labelled "Legs" and the legs "Posts", "dark oak legs" paints
     # the group labelled so, and the legs' geometric test takes nothing.
     named.groups[role["back"]].label, named.groups[role["legs"]].label = "Legs", "Posts"

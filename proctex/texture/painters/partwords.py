@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any, Callable
 
 import numpy as np
@@ -333,19 +334,28 @@ def part_word(form: str) -> str | None:
     return _FORMS.get(str(form).lower())
 
 
+@lru_cache(maxsize=4096)
+def _material_word(word: str) -> bool:
+    """Whether the prompt parser reads ``word`` as a colour, material or pattern ("oak", "red")."""
+    return bool(parse_prompt(word).understood)
+
+
 def label_hits(token: str, labels: list[str]) -> list[str]:
     """The labels (several words each, as a node tree names parts: "Left Arm", "Back Rest") that
     ``token`` names: one of a label's words up to a plural (:func:`proctex.sources.provenance.same_word`),
-    or, for a part word, one of its forms ("feet" names "Legs"). Qualifiers ("left", "front") and
-    words that name no part are never matched."""
+    or, for a part word, one of its forms ("feet" names "Legs"). Qualifiers ("left", "front"),
+    words that name no part and colour or material words ("Oak" of "Oak Panel": "oak" in a prompt is
+    a material) are never matched."""
     from proctex.sources.provenance import matchable_words, same_word
 
     token = token.lower()
+    if _material_word(token):
+        return []
     word = part_word(token)
     forms = (token,) + (PART_WORDS[word][0] if word else ())
     out = []
     for lab in dict.fromkeys(labels):
-        if any(same_word(f, w) for w in matchable_words(lab) for f in forms):
+        if any(same_word(f, w) for w in matchable_words(lab) if not _material_word(w) for f in forms):
             out.append(lab)
     return out
 
