@@ -63,9 +63,14 @@ def test_a_producer_takes_its_most_specific_meaningful_label():
         {"id": 6, "node": "Cube", "type": "GeometryNodeMeshCube", "bl_label": "Cube", "frames": [{"name": "Frame.001", "label": ""}],
          "groups": [{"node": "Group.002", "label": "", "tree": "Cabinet"}]},
         {"id": 7, "node": "Group Input", "type": "NodeGroupInput", "bl_label": "Group Input", "data": "Cabinet", "frames": [], "groups": []},
+        # a group left at a default name inside a frame "Arms" of its parent tree: the frame names it
+        {"id": 8, "node": "Cube", "type": "GeometryNodeMeshCube", "bl_label": "Cube", "frames": [],
+         "groups": [{"node": "Group.004", "label": "", "tree": "NodeGroup.002", "frames": [{"name": "Frame.003", "label": "Arms"}]},
+                    {"node": "Group.005", "label": "", "tree": "Furniture", "frames": []}]},
         "not a record", {"id": True}]
     names = producer_names(producers, whole)
-    assert {i: n.name for i, n in names.items()} == {1: "Handles", 2: "Knob", 3: "Top Panel", 4: "Leaf", 5: "Board Right", 6: "", 7: ""}
+    assert {i: n.name for i, n in names.items()} == {1: "Handles", 2: "Knob", 3: "Top Panel", 4: "Leaf", 5: "Board Right", 6: "", 7: "",
+                                                      8: "Arms"}
     assert names[1].where == "frame" and ("Center Z at Origin", "labels a computation") in names[1].dropped
     assert ("Cube.003", "a default name") in names[1].dropped
     assert names[5].where == "group" and names[6].dropped[-1] == ("Cabinet", "names the whole model")

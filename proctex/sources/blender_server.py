@@ -218,7 +218,8 @@ def instrument(bpy, tree, obj) -> tuple[object, list[dict]]:
     """A copy of ``tree`` (and of each nested group, once per use) in which every producing node's
     output carries its producer id, box coordinates and instance index (module docstring), and the
     producers: ``[{"id", "node", "label", "type", "bl_label", "frames", "groups", "data"}]`` (``groups``:
-    the group nodes it is nested in, innermost first, as ``{"node", "label", "tree"}``; ``data``: the
+    the group nodes it is nested in, innermost first, as ``{"node", "label", "tree", "frames"}``, the
+    frames being those the group node sits in within its parent tree; ``data``: the
     object or collection an Info node reads, the object's own name for the root's Group Input). The
     copies live in memory only (the file is never saved)."""
     producers: list[dict] = []
@@ -231,7 +232,8 @@ def instrument(bpy, tree, obj) -> tuple[object, list[dict]]:
             if node.bl_idname == "GeometryNodeGroup" and node.node_tree is not None and not node.mute:
                 original = node.node_tree.name
                 node.node_tree = node.node_tree.copy()
-                visit(node.node_tree, [{"node": node.name, "label": node.label, "tree": original}] + groups, depth + 1)
+                use = {"node": node.name, "label": node.label, "tree": original, "frames": _frames(node)}
+                visit(node.node_tree, [use] + groups, depth + 1)
         for node in nodes:
             if not _is_producer(node, root=depth == 0):
                 if node.bl_idname in INSTANCERS and not node.mute:

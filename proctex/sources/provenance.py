@@ -11,8 +11,8 @@ first) and, for Info nodes, the object or collection it reads.
 
 A producer's *name* is the most specific meaningful label among, in order: the node's own label,
 its name when the author renamed it, the object or collection an Info node reads, its frames from
-the innermost out, and its groups from the innermost out (the group node's label, else its tree's
-name). A label is not meaningful when it
+the innermost out, then each node group it is nested in from the innermost out (the group node's
+label, else its tree's name) followed by the frames that group node sits in. A label is not meaningful when it
 
 - is a default ("Cube.001" for a Cube node, "Frame.006", "NodeGroup", an object called "Plane");
 - has no words left once numbers and the model's own words (the object's and the root tree's
@@ -155,9 +155,11 @@ def _candidates(p: Mapping[str, Any]) -> Iterable[tuple[str, str, str]]:
         yield str(p["data"]), "", "object"
     for f in p.get("frames") or []:
         yield str(f.get("label") or f.get("name") or ""), "Frame", "frame"
-    for g in p.get("groups") or []:
+    for g in p.get("groups") or []:  # each group, then the frames its group node sits in, outwards
         yield str(g.get("label") or ""), "", "group"
         yield str(g.get("tree") or ""), "", "group"
+        for f in g.get("frames") or []:
+            yield str(f.get("label") or f.get("name") or ""), "Frame", "frame"
 
 
 def producer_names(producers: Sequence[Mapping[str, Any]], whole: frozenset[str] = frozenset()) -> dict[int, ProducerName]:
