@@ -38,8 +38,12 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from proctex.texture.painters.names import MAX_WORDS, NOT_PARTS, QUALIFIERS, label_words, matchable_words, same_word
+
+__all__ = ["label_words", "matchable_words", "same_word", "QUALIFIERS", "NOT_PARTS", "ProducerName", "PartNames", "producer_names",
+           "part_names", "model_words", "is_default", "is_computation", "meaningful"]
+
 MAX_NAME = 64
-MAX_WORDS = 8
 MAX_NAMES = 16
 
 #: Verbs that start a label of a computation rather than of a part.
@@ -52,31 +56,12 @@ transform translate trim
 """.split())
 #: Prepositions that tie a step to its target ("Center Z at Origin").
 PREPOSITIONS = frozenset("at to into onto by from per via based".split())
-#: Words that qualify a part rather than name it: not matched against a prompt's part words.
-QUALIFIERS = frozenset("""
-left right front rear upper lower inner outer middle mid centre center central main small big large long short
-first second third one two three four five six seven eight nine ten single double extra new old default
-""".split())
-#: Words that name no part: never matched against a prompt.
-NOT_PARTS = frozenset("""
-a an and of the with for rest part parts piece pieces geometry geo mesh meshes object objects shape shapes model node
-nodes group groups instance instances collection data output input thing things element elements item items
-""".split())
 #: Blender's default names of nodes it makes and of objects and collections in a new file.
 DEFAULT_NAMES = frozenset({
     "frame", "reroute", "nodegroup", "node group", "group", "geometry nodes", "geometrynodes", "group input", "group output",
     "cube", "plane", "circle", "cylinder", "sphere", "icosphere", "uv sphere", "uvsphere", "cone", "torus", "monkey", "suzanne",
     "empty", "camera", "light", "lamp", "text", "beziercurve", "bezier curve", "beziercircle", "nurbspath", "nurbscurve",
     "collection", "scene", "grid", "mesh", "line", "point", "points", "curve"})
-
-
-def label_words(label: str) -> list[str]:
-    """The words of a label: CamelCase split, separators (space, ``_``, ``-``, ``.``) dropped, a
-    trailing ``.001`` numbering and every number dropped. ``"CabinetBoardRight.002"`` ->
-    ``["Cabinet", "Board", "Right"]``."""
-    text = re.sub(r"\.\d+$", "", str(label)[:256])
-    text = re.sub(r"(?<=[a-z])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])", " ", text)
-    return [w for w in re.findall(r"[A-Za-z]+", text) if w][:MAX_WORDS * 2]
 
 
 def is_default(label: str, bl_label: str = "") -> bool:
@@ -234,20 +219,3 @@ def part_names(face_source: np.ndarray, face_part: np.ndarray, areas: np.ndarray
             out.names[p] = ranked[0]
             out.others[p] = ranked[1:1 + MAX_NAMES]
     return out
-
-
-def matchable_words(name: str, whole: frozenset[str] = frozenset()) -> list[str]:
-    """The lower-case words of a part name a prompt's word can match: qualifiers ("left", "front"),
-    words that name no part and the model's own words left out. ``"Left Arm"`` -> ``["arm"]``."""
-    return [w.lower() for w in label_words(name) if len(w) > 1 and w.lower() not in QUALIFIERS | NOT_PARTS and w.lower() not in whole]
-
-
-def same_word(a: str, b: str) -> bool:
-    """``a`` and ``b`` are one word, up to a plural ("arm" / "arms", "shelf" / "shelves", "box" /
-    "boxes", "body" / "bodies")."""
-    a, b = a.lower(), b.lower()
-    if a == b:
-        return True
-    short, long_ = sorted((a, b), key=len)
-    return long_ in (short + "s", short + "es") or (short.endswith("y") and long_ == short[:-1] + "ies") \
-        or (short.endswith("f") and long_ == short[:-1] + "ves") or (short.endswith("fe") and long_ == short[:-2] + "ves")

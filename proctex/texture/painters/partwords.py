@@ -62,6 +62,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .names import matchable_words, same_word
 from .prompt import parse_prompt
 from .regions import RegionPlan, _label_of, split_regions
 
@@ -342,12 +343,10 @@ def _material_word(word: str) -> bool:
 
 def label_hits(token: str, labels: list[str]) -> list[str]:
     """The labels (several words each, as a node tree names parts: "Left Arm", "Back Rest") that
-    ``token`` names: one of a label's words up to a plural (:func:`proctex.sources.provenance.same_word`),
+    ``token`` names: one of a label's words up to a plural (:func:`.names.same_word`),
     or, for a part word, one of its forms ("feet" names "Legs"). Qualifiers ("left", "front"),
     words that name no part and colour or material words ("Oak" of "Oak Panel": "oak" in a prompt is
     a material) are never matched."""
-    from proctex.sources.provenance import matchable_words, same_word
-
     token = token.lower()
     if _material_word(token):
         return []
