@@ -366,7 +366,9 @@ class FamilyService:
             "looks": [lk.name for lk in looks(self.store)],
             "prompt": self.paint.prompt,
             "group_prompts": dict(self.paint.group_prompts),
-            "groups": [{"group": g.group, "label": g.label, "degenerate": g.degenerate, "network": g.group in self.models,
+            # names: every name its parts carry (a node tree's "Left Arm", "Right Arm"), untrusted text
+            "groups": [{"group": g.group, "label": g.label, "names": self.assets.grouping.names(self.assets.grouping.groups[g.group]),
+                        "degenerate": g.degenerate, "network": g.group in self.models,
                         "prompt": next((p.get("prompt") for p in paint.get("groups", []) if p.get("group") == g.group), None),
                         "texture_size": list(texture_hw(self.assets, g.group)), **self._material_means(g.group)}
                        for g in self.assets.groups],

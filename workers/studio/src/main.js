@@ -439,6 +439,8 @@ function groupPanel(group) {
   const save = box.querySelector('.save');
   const reset = box.querySelector('.reset');
   box.querySelector('b').textContent = group.label || `group ${g}`;
+  // every name the group's parts carry (a model's own names are untrusted: text, never HTML)
+  if ((group.names || []).length > 1) box.querySelector('b').title = group.names.join(', ');
   box.querySelector('.prompt').textContent = group.prompt || studio.family.prompt || '';
   let thumbTimer = null;
   const changed = () => {
