@@ -114,10 +114,13 @@ async def http_cases(root: Path, rows: list) -> None:
     app = ingress_app(forward, Limits(**LIMITS), is_lost=lambda exc: isinstance(exc, Lost), retry_seconds=5)
     mug = get_model("mug").generate()
 
-    async def stalled(pause=30.0):
+    async def stalled(pause=30.0, release=None, rest=b"{}}"):
         yield b'{"params": '
-        await asyncio.sleep(pause)
-        yield b"{}}"
+        if release is not None:  # held until the probe lets it go, however loaded the machine
+            await release.wait()
+        else:
+            await asyncio.sleep(pause)
+        yield rest
 
     async def trickle():
         for _ in range(200):
@@ -145,13 +148,16 @@ async def http_cases(root: Path, rows: list) -> None:
         row("slow bodies", "Content-Length 1000, 10 bytes, then idle", "408", r, t, t < 5)
         r, t = await post(trickle())
         row("slow bodies", "chunked, 20 bytes/s, never ends", "408", r, t, t < 5)
-        # Held on an ingress that lets a body idle 3 s: with the probe's 0.5 s the holders ended
-        # (408) before a loaded machine's health check and transfer had answered (0.68 s), so the
-        # case measured the race, not whether stalled bodies block anyone.
-        patient = ingress_app(forward, Limits(**{**LIMITS, "body_idle_seconds": 3.0, "body_seconds": 6.0}),
+        # Held on an ingress that lets a body idle a minute, until the probe lets them go: with the
+        # probe's 0.5 s the holders ended (408) before a loaded machine's health check and transfer
+        # had answered (0.68 s; 2.07 s with both cores busy three times over), so the case measured
+        # the race, not whether stalled bodies block anyone. What it checks: both answered while all
+        # 40 were held (the seconds are reported, not judged: a loaded machine's are no verdict).
+        patient = ingress_app(forward, Limits(**{**LIMITS, "body_idle_seconds": 60.0, "body_seconds": 120.0}),
                               is_lost=lambda exc: isinstance(exc, Lost), retry_seconds=5)
-        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=patient), base_url="http://probe", timeout=30) as held:
-            holders = [asyncio.create_task(held.post("/v1/families/mug/transfer", content=stalled(pause=1.5),
+        release = asyncio.Event()
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=patient), base_url="http://probe", timeout=120) as held:
+            holders = [asyncio.create_task(held.post("/v1/families/mug/transfer", content=stalled(release=release, rest=b"}}"),
                                                      headers={"content-type": "application/json", "content-length": "1000"}))
                        for _ in range(40)]
             await asyncio.sleep(0.2)
@@ -160,10 +166,12 @@ async def http_cases(root: Path, rows: list) -> None:
             r = await held.post("/v1/families/mug2/transfer", json={"params": {}})
             t = time.monotonic() - t
             still = not any(x.done() for x in holders)
-            await asyncio.gather(*holders)
+            release.set()
+            ended = await asyncio.gather(*holders)
         rows.append({"class": "slow bodies", "case": f"40 stalled bodies held: health ({h.status_code}) and another family's transfer",
                      "expect": "200", "got": r.status_code, "seconds": round(t, 2), "json": False,
-                     "ok": h.status_code == 200 and r.status_code == 200 and r.content[:4] == b"glTF" and t < 2 and still})
+                     "ok": h.status_code == 200 and r.status_code == 200 and r.content[:4] == b"glTF" and still
+                     and {x.status_code for x in ended} == {422}})
         big = 100_000  # over Limits.small_body: an upload, with the one upload slot of LIMITS
         holder = asyncio.create_task(post(stalled(pause=1.5), {"content-length": str(big)}))
         await asyncio.sleep(0.2)
