@@ -20,6 +20,7 @@ const studio = {
   seq: 0, // sequence number of the latest transfer request
   controller: null,
   timer: null,
+  pending: false, // values changed while a transfer was in flight: the latest go when it lands
   requests: 0,
   lastGlbBytes: null, // Uint8Array of the shape on screen (its textures linked: fetched once, then cached)
   lastDownloadBytes: null, // Uint8Array of the last download (self-contained: textures embedded)
@@ -185,6 +186,12 @@ function scheduleTransfer(delay = DEBOUNCE_MS) {
   body.dataset.state = 'loading';
   setBusy(true);
   if (studio.timer !== null && delay > 0) return; // the pending request will take the new values
+  if (studio.controller !== null && delay > 0) {
+    // One in flight: let it land (a slow machine's view still follows a drag), then send the
+    // latest values; cancelling it would show nothing until the hand stops.
+    studio.pending = true;
+    return;
+  }
   clearTimeout(studio.timer);
   studio.timer = setTimeout(() => {
     studio.timer = null;
@@ -200,7 +207,7 @@ function cancelInFlight() {
 
 function settled(seq) {
   // The latest request is done and no other is scheduled.
-  return seq === studio.seq && studio.timer === null;
+  return seq === studio.seq && studio.timer === null && !studio.pending;
 }
 
 function familyPath(fam) {
@@ -229,6 +236,7 @@ function transferRequest(fam, params, edits, signal, textures = 'linked') {
 async function transfer() {
   const fam = studio.family;
   cancelInFlight();
+  studio.pending = false; // this one takes the latest values
   const seq = studio.seq;
   if (!fam || (!fam.inputs.includes('params') && !studio.mesh)) {
     // nothing to show yet (a family of meshes before an upload)
@@ -264,7 +272,9 @@ async function transfer() {
     if (err.name === 'AbortError' || seq !== studio.seq) return;
     showError(err.message);
   } finally {
-    if (settled(seq)) setBusy(false);
+    if (seq === studio.seq) studio.controller = null;
+    if (seq === studio.seq && studio.pending) transfer(); // values changed while it was in flight
+    else if (settled(seq)) setBusy(false);
   }
 }
 
