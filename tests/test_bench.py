@@ -128,9 +128,16 @@ def test_fidelity_real_suite_configs_and_pseudo_gt_verdicts():
     # The README's results table: the paper's row, the network against its teacher, the ratios.
     from bench_fidelity import results_table
 
-    net = {**m(0.1, 0.022), "seconds_per_shape": 0.05, "pgt_error": {"mean": 0.022, "worst_pair_mean": 0.05, "max": 0.2, "flipped": 0.004}}
+    net = {**m(0.1, 0.022), "seconds_per_shape": 0.05, "tracker": "cage",
+           "pgt_error": {"mean": 0.022, "worst_pair_mean": 0.05, "max": 0.2, "flipped": 0.004}}
     row = results_table({"chair.blend": {"metrics": {"methods": {"corrnet": net, "identity": m(0.2, 0.05), "nearest": m(0.4, 0.1)}}}}).splitlines()[2]
-    for cell in ("0.011 / 0.025", "0.0220 / 0.0500 / 0.200", "- / - / -", "0.1000 (0.50x, 0.25x)", "- / 0.40%", "| 50 |"):
+    for cell in ("0.011 / 0.025", "0.0220 / 0.0500 / 0.200", "| teacher-scored: no truth |", "0.1000 (0.50x, 0.25x), the cage teacher",
+                 "- / 0.40%", "| 50 |"):
+        assert cell in row, (cell, row)
+    # With a truth the row gives its GT error and the share of the points that have one.
+    net = {**net, "tracker": "canonical", "gt_error": {"mean": 0.03, "p99": 0.2, "max": 0.5, "with_truth": 0.75, "flipped": 0.0}}
+    row = results_table({"chair.blend": {"metrics": {"methods": {"corrnet": net, "identity": m(0.2, 0.05), "nearest": m(0.4, 0.1)}}}}).splitlines()[2]
+    for cell in ("| 0.0300 / 0.200 / 0.500 (75%) |", "0.1000 (0.50x, 0.25x), truth", "0.00% / 0.40%"):
         assert cell in row, (cell, row)
     bad = subprocess.run([sys.executable, str(BENCH / "bench_fidelity.py"), "--suite", "real", "--models", "spaceship"],
                          capture_output=True, text=True, timeout=120)
