@@ -21,7 +21,9 @@ every group its text:
   rest names none.
 
 The notes say which groups each word took and why. Labels, where a shape has them, come first: a
-word that names a group's label is routed by the label (as :mod:`.regions` always did).
+word that names a group's label is routed by the label (as :mod:`.regions` always did), and so is a
+word naming one word of a label of several words (a ``.blend`` node tree's "Left Arm" for "arms",
+:func:`label_hits`); a group named by its label is not taken by a word's geometric test.
 
 ========== ==================================================================================
 word       test (u: height in the shape, 0 floor, 1 top; sizes of one member)
