@@ -15,14 +15,10 @@ from proctex.geometry.parts import part_mesh, segment
 from proctex.geometry.surface import interpolate
 from proctex.measure.fidelity import (
     FAIL_ERROR,
-    Location,
-    colours_at,
-    error_summary,
     gt_errors,
     locate_canonical,
     template_truth,
     tracked_points,
-    tracked_variance,
     truth_samples,
 )
 from proctex.store.config import BuildConfig
@@ -35,6 +31,7 @@ from proctex.transfer.mappers import IdentityMapper
 
 from .test_blender import blends, needs_bpy  # noqa: F401  (blends: the fixture files, built once per module)
 from .test_fidelity import Collapse, Mirrored, _smooth_textures
+from .test_fidelity import _score as _fidelity_score
 
 pytestmark = needs_bpy
 
@@ -87,22 +84,10 @@ def bench_family(blends, tmp_path_factory):
 
 
 def _score(family, mapper, n=1500):
-    st, cfg, assets, uv, shapes = family
-    tpl = assets.shape
-    tp = tracked_points(tpl, assets.grouping, "canonical", n=n, seed=1)
-    truth = template_truth(tpl, assets.grouping, assets, "canonical")
-    c0 = colours_at(Location(tp.face, tp.bary), uv["corner_uv"], uv["face_group"], assets.textures)
-    cols, errs = [], []
-    for k, shape in enumerate(shapes):
-        if hasattr(mapper, "set_shape"):
-            mapper.set_shape(shape)
-        seg = segment(shape)
-        result = transfer(shape, assets, mapper, shortcut=False)
-        loc = locate_canonical(tp, tpl, assets.grouping.segmentation, shape, seg)
-        cols.append(colours_at(loc, result.corner_uv, result.face_group, assets.textures))
-        errs.append(gt_errors(shape, seg, truth_samples(shape, seg, "canonical", n=n, seed=k), result, assets, truth)[0])
-    e = np.concatenate(errs)
-    return tracked_variance(c0, cols, tp.group, "canonical"), error_summary(e), float(np.mean(~np.isnan(e)))
+    """test_fidelity's scoring (truth-tracked variance, GT error summary) and the share of the
+    measured points that have truth (:func:`truth_samples` gives ``n`` points a shape)."""
+    tv, gt, _ = _fidelity_score(family, mapper, n)
+    return tv, gt, gt["points"] / (n * len(family[4]))
 
 
 def test_the_shapes_carry_each_nodes_box_and_the_template_against_itself_is_exact(bench_family):
@@ -160,6 +145,7 @@ def test_a_board_scaled_and_moved_by_parameters_has_the_exact_known_truth(bench_
     got = interpolate(tpl.vertices[tpart.vertices], rep_local, faces, bary)
     points = interpolate(shape.vertices, shape.faces, sm.face[on], sm.bary[on])
     expected = (points - s_lo) / (s_hi - s_lo) * (t_hi - t_lo) + t_lo
+    # exact in exact arithmetic; Blender stores the box coordinates in float32 (eps 6e-8 of a unit box)
     assert on.sum() > 100 and np.abs(got - expected).max() < 1e-6
 
 
@@ -173,6 +159,9 @@ def test_the_true_map_scores_near_zero_and_wrong_maps_at_least_3x_worse(bench_fa
     truth = template_truth(assets.shape, assets.grouping, assets, "canonical")
     tv, gt, share = _score(bench_family, SourceTruthMapper(assets, truth))
     print(f"truth: tracked {tv.value:.5f}, GT mean {gt['mean']:.5f} p99 {gt['p99']:.5f} max {gt['max']:.5f}, with truth {share:.3f}")
+    # measured (AMD EPYC, native and the second pass's kernels): GT mean 0.0002, variance 0.00000,
+    # share 1.0; identity 0.013 / 0.0032, collapse 0.60 / 0.050, mirror 0.84 / 0.085: every bound
+    # below is 3x or more from what it is compared with
     assert gt["mean"] < 0.01 and gt["failed"] == 0.0 and tv.value < 0.01 and share > 0.5
     for name, mapper in (("mirror", Mirrored(SourceTruthMapper(assets, truth))), ("collapse", Collapse()), ("identity", IdentityMapper())):
         wtv, wgt, wshare = _score(bench_family, mapper)
