@@ -69,9 +69,16 @@ demo: setup
 # time on other kernels than this CPU's own, one tier down (numpy's dispatch, OpenBLAS's core type,
 # ATen, oneDNN, MKL: tests/portable.py other_env), so a threshold that holds only on this CPU's
 # kernels fails here and not on a user's machine (issue 49).
+# Both passes run in TEST_WORKERS processes (pytest-xdist), each test module whole in one of them
+# (--dist loadfile: a module's fixtures are built once): much of the suite waits on processes it
+# started. Three workers overload 2 cores: Ray gives a starting node 30 s (not configurable), and
+# private Rays then failed to start. Bytecode is written (the tree's __pycache__ is ignored by git),
+# so each worker does not compile and rewrite every test module again.
+TEST_WORKERS ?= 2
+PYTEST_PAR := -n $(TEST_WORKERS) --dist loadfile
 test: setup browser blender
-	$(PY) -m pytest -q
-	$(PY) -m tests.portable -q -p no:cacheprovider -m "numeric and not slow"
+	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -q $(PYTEST_PAR)
+	env -u PYTHONDONTWRITEBYTECODE $(PY) -m tests.portable -q -p no:cacheprovider -m "numeric and not slow" $(PYTEST_PAR)
 
 # The benchmark suite (not part of make test): JSON per benchmark and a summary table in out/bench.
 bench: setup

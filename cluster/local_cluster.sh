@@ -5,7 +5,7 @@
 #   cluster/local_cluster.sh status
 #   cluster/local_cluster.sh stop
 #
-# Environment: RAY_PORT (6379), DASHBOARD_PORT (8265: the Jobs API), RAY (the ray executable,
+# Environment: RAY_PORT (6379), DASHBOARD_PORT (8265: the Jobs API), RAY_CLIENT_PORT (10001: ray://; outside Ray's worker ports 10002-19999), RAY (the ray executable,
 # default .venv/bin/ray), RAY_TMP (the head's temp dir, default /tmp/ray; worker node i uses RAY_TMP-w<i>),
 # PROCTEX_CLUSTER_WAIT (180: seconds `start` waits for the nodes' CPUs and for the job agent).
 # `start` returns once every node's CPUs are registered and the Jobs API has run a no-op job (proctex-ready-*), so a
@@ -20,6 +20,7 @@ PY=${PY:-$(dirname "$RAY")/python}  # the Python beside that ray, for the readin
 RAY_PORT=${RAY_PORT:-6379}
 DASHBOARD_PORT=${DASHBOARD_PORT:-8265}
 RAY_TMP=${RAY_TMP:-/tmp/ray}
+RAY_CLIENT_PORT=${RAY_CLIENT_PORT:-10001}
 export RAY_USAGE_STATS_ENABLED=0
 # Tasks and actors at the nodes' own priority, not Ray's default niceness 15 (behind any other work
 # on a busy machine they barely ran: workflows/__init__.py); a value you export wins.
@@ -30,8 +31,13 @@ export RAY_AUTH_MODE=${RAY_AUTH_MODE:-disabled}
 
 start() {
   local workers=${1:-1} cpus=${2:-1}
+  # Two clusters on one machine (another RAY_PORT, DASHBOARD_PORT, RAY_CLIENT_PORT and RAY_TMP) must not
+  # share a port: the head's dashboard agent (the Jobs API's agent) takes a free port instead of Ray's
+  # fixed 52365, where a second head's agent could not listen and its Jobs API never took a job, and its
+  # Ray Client server takes RAY_CLIENT_PORT (Ray binds 10001 with SO_REUSEPORT: two heads would share it).
   "$RAY" start --head --node-ip-address=127.0.0.1 --port="$RAY_PORT" --num-cpus="$cpus" --include-dashboard=true \
-    --dashboard-host=127.0.0.1 --dashboard-port="$DASHBOARD_PORT" --temp-dir="$RAY_TMP" --disable-usage-stats >/dev/null
+    --dashboard-host=127.0.0.1 --dashboard-port="$DASHBOARD_PORT" --dashboard-agent-listen-port=0 \
+    --ray-client-server-port="$RAY_CLIENT_PORT" --temp-dir="$RAY_TMP" --disable-usage-stats >/dev/null
   for ((i = 0; i < workers; i++)); do
     # A second raylet on the same host: its own dashboard-agent port (the default 52365 is the head's).
     # Its own temp dir (sessions, logs, spilled objects): nodes share no Ray files, as on separate hosts.

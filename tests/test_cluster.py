@@ -86,12 +86,14 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
     from workflows.jobs import job_client, submit_job
 
     short_tmp = tempfile.mkdtemp(prefix="rayc", dir="/tmp")  # Ray's socket paths must stay short
-    env = {**os.environ, "RAY_PORT": "6391", "DASHBOARD_PORT": "8276", "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp}
+    env = {**os.environ, "RAY_PORT": "6391", "DASHBOARD_PORT": "8276", "RAY_CLIENT_PORT": "9391", "RAY": str(ROOT / ".venv" / "bin" / "ray"),
+           "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240"}
     if not Path(env["RAY"]).exists():
         pytest.skip("no .venv/bin/ray")
     script = str(CLUSTER / "local_cluster.sh")
-    start = subprocess.run(["bash", script, "start", "1", "1"], env=env, capture_output=True, text=True, timeout=180)
-    try:
+    try:  # from here on, whatever fails (a start that timed out included): the cluster is stopped
+        # the script's own bounds (PROCTEX_CLUSTER_WAIT for the CPUs, then for the job agent) end it first
+        start = subprocess.run(["bash", script, "start", "1", "1"], env=env, capture_output=True, text=True, timeout=600)
         assert start.returncode == 0, start.stderr
         status = subprocess.run(["bash", script, "status"], env=env, capture_output=True, text=True, timeout=60).stdout
         assert "2.0 CPU" in status or "0.0/2.0 CPU" in status, status

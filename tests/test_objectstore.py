@@ -464,13 +464,15 @@ def two_nodes(tmp_path_factory):
         pytest.skip("no .venv/bin/ray")
     server = start_server(tmp_path_factory.mktemp("seaweedfs"), bucket="cluster")
     short_tmp = tempfile.mkdtemp(prefix="rays", dir="/tmp")  # Ray's socket paths must stay short
-    env = {**os.environ, **server.env(), "RAY_PORT": "6393", "DASHBOARD_PORT": "8278", "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp}
+    env = {**os.environ, **server.env(), "RAY_PORT": "6393", "DASHBOARD_PORT": "8278", "RAY_CLIENT_PORT": "9393",
+           "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240"}
     script = str(ROOT / "cluster" / "local_cluster.sh")
     try:  # from here on, whatever fails: the cluster and the server are stopped
         s3c = boto3.client("s3", endpoint_url=server.endpoint, region_name=server.region, aws_access_key_id=server.access_key,
                            aws_secret_access_key=server.secret_key)
         s3c.put_bucket_versioning(Bucket="cluster", VersioningConfiguration={"Status": "Enabled"})
-        start = subprocess.run(["bash", script, "start", "1", "1"], env=env, capture_output=True, text=True, timeout=180)
+        # the script's own bounds (PROCTEX_CLUSTER_WAIT for the CPUs, then for the job agent) end it first
+        start = subprocess.run(["bash", script, "start", "1", "1"], env=env, capture_output=True, text=True, timeout=600)
         assert start.returncode == 0, start.stderr
         yield server, s3c, short_tmp
     finally:
