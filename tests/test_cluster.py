@@ -88,6 +88,8 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
     short_tmp = tempfile.mkdtemp(prefix="rayc", dir="/tmp")  # Ray's socket paths must stay short
     env = {**os.environ, "RAY_PORT": "6391", "DASHBOARD_PORT": "8276", "RAY_CLIENT_PORT": "9391", "RAY": str(ROOT / ".venv" / "bin" / "ray"),
            "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240"}
+    short_tmp2 = tempfile.mkdtemp(prefix="rayd", dir="/tmp")
+    env2 = {**env, "RAY_PORT": "6392", "DASHBOARD_PORT": "8277", "RAY_CLIENT_PORT": "9392", "RAY_TMP": short_tmp2}
     if not Path(env["RAY"]).exists():
         pytest.skip("no .venv/bin/ray")
     script = str(CLUSTER / "local_cluster.sh")
@@ -122,8 +124,17 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
         assert all(state["stages"][s]["state"] == "done" for s in ("sample", "template", "paint", "pairs", "train"))
         assert sorted(p.name for p in (out / "models").iterdir()) == ["group_0.pt", "group_1.pt"]
         assert "on Ray" in logs
+        # A second cluster beside it (its own ports and folder) starts, and its Jobs API takes jobs:
+        # with Ray's fixed agent port 52365 the second head's job agent could not listen, so its
+        # start waited out PROCTEX_CLUSTER_WAIT on "No available agent" and failed.
+        second = subprocess.run(["bash", script, "start", "0", "1"], env=env2, capture_output=True, text=True, timeout=600)
+        assert second.returncode == 0, second.stderr[-3000:]
+        assert [j.status for j in job_client("http://127.0.0.1:8277").list_jobs()] == [JobStatus.SUCCEEDED]
+        assert client.get_job_status(job) == JobStatus.SUCCEEDED  # the first one still answers
     finally:
+        subprocess.run(["bash", script, "stop"], env=env2, capture_output=True, timeout=120)
         subprocess.run(["bash", script, "stop"], env=env, capture_output=True, timeout=120)
         import shutil
 
         shutil.rmtree(short_tmp, ignore_errors=True)
+        shutil.rmtree(short_tmp2, ignore_errors=True)
