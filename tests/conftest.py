@@ -1,5 +1,4 @@
 import ast
-import os
 import re
 import shutil
 from pathlib import Path
