@@ -599,7 +599,7 @@ def test_the_pairs_stage_skips_the_train_pairs_of_groups_whose_plain_map_fits(tm
     from proctex.store.samples import held_out_split, samples
     from proctex.store.state import FamilyState
 
-    cfg = BuildConfig.from_dict(dict(model="sofa", n_train=8, n_test=1, corr_points=300, texture_size=64)).validate()
+    cfg = BuildConfig.from_dict(dict(model="sofa", n_train=8, n_test=1, corr_points=300, cage_iterations=100, texture_size=64)).validate()
     st = FamilyStore(tmp_path / "sofa")
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint):
