@@ -75,7 +75,7 @@ demo: setup
 # private Rays then failed to start. Bytecode is written (the tree's __pycache__ is ignored by git),
 # so each worker does not compile and rewrite every test module again.
 TEST_WORKERS ?= 2
-PYTEST_PAR := -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
+PYTEST_PAR := -n $(TEST_WORKERS) --dist loadfile
 test: setup browser blender
 	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -q $(PYTEST_PAR)
 	env -u PYTHONDONTWRITEBYTECODE $(PY) -m tests.portable -q -p no:cacheprovider -m "numeric and not slow" $(PYTEST_PAR)

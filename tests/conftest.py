@@ -120,48 +120,12 @@ def numeric_tests(path: Path) -> dict[str, bool]:
     return _NUMERIC_CACHE[key]
 
 
-# ------------------------------------------------------------------------ the order of modules
-#: The long modules: ``{module: (seconds, waits)}``, their wall time in ``make test``'s two workers
-#: (pytest ``--durations``, 2 free cores, 2026-11), and whether they mostly wait on processes they
-#: started (a private Ray, a cluster, Serve, an S3 server, a browser) rather than compute.
-LONG_MODULES = {
-    "test_objectstore.py": (650, True), "test_ray.py": (530, True), "test_family.py": (400, False),
-    "test_studio.py": (300, True), "test_blender.py": (250, True), "test_evaluate.py": (210, False),
-    "test_generate.py": (190, True), "test_cluster.py": (180, True), "test_looks.py": (180, False),
-    "test_bench.py": (175, False), "test_paint.py": (150, False), "test_corrnet.py": (135, False),
-    "test_sofa_family.py": (120, False), "test_portability.py": (110, False), "test_demo.py": (90, False),
-    "test_correspond.py": (90, False),
-}
-
-
-def module_order(names: list[str]) -> list[str]:
-    """The order in which ``make test``'s workers take the modules (``--dist loadfile
-    --no-loadscope-reorder``: a free worker takes the next module): the long ones first, a module
-    that waits on processes next to one that computes (the waiting one leaves its core to the
-    other), then the rest by their number of tests (their seconds are unknown), so the last
-    modules are short and both workers end together. Without the order, xdist sorts by number of
-    tests, and the long few-test modules (studio, cluster, sofa) ran last on one worker."""
-    present = set(names)
-    waits = sorted((m for m, (_, w) in LONG_MODULES.items() if w and m in present), key=lambda m: -LONG_MODULES[m][0])
-    computes = sorted((m for m, (_, w) in LONG_MODULES.items() if not w and m in present), key=lambda m: -LONG_MODULES[m][0])
-    order = [m for pair in zip(waits, computes) for m in pair]
-    order += [m for m in waits + computes if m not in order]
-    counts: dict[str, int] = {}
-    for n in names:
-        counts[n] = counts.get(n, 0) + 1
-    order += sorted((m for m in counts if m not in LONG_MODULES), key=lambda m: (-counts[m], m))
-    return order
-
-
 def pytest_collection_modifyitems(config, items):
     """Every test whose body compares floats with a tolerance carries ``numeric`` (found in its
     source, so a new test carries it as soon as it makes such a check): ``make test`` runs the fast
     ones again on other CPU kernels (tests/portable.py ``other_env``). ``python -m
-    tests.float_margins report`` lists tests that made float checks without it (a check in a helper).
-    The modules are then put in :func:`module_order` (each module's tests keep their order)."""
+    tests.float_margins report`` lists tests that made float checks without it (a check in a helper)."""
     for item in items:
         name = getattr(item, "originalname", None) or item.name.split("[")[0]
         if numeric_tests(Path(item.path)).get(name, False):
             item.add_marker(pytest.mark.numeric)
-    rank = {m: i for i, m in enumerate(module_order([Path(item.path).name for item in items]))}
-    items.sort(key=lambda item: rank[Path(item.path).name])  # stable: a module's own order is kept
