@@ -72,13 +72,13 @@ demo: setup
 # Both passes run in TEST_WORKERS processes (pytest-xdist), each test module whole in one of them
 # (--dist loadfile: a module's fixtures are built once): much of the suite waits on processes it
 # started. Three workers overload 2 cores: Ray gives a starting node 30 s (not configurable), and
-# private Rays then failed to start. Bytecode is written (the tree's __pycache__ is ignored by git),
-# so each worker does not compile and rewrite every test module again.
+# private Rays then failed to start. The second pass (compute only) runs beside the first at nice
+# 10, on the cores the first leaves idle, and again at the normal priority if the machine had none
+# (tests/suite.py). Bytecode is written (the tree's __pycache__ is ignored by git), so each worker
+# does not compile every test module again.
 TEST_WORKERS ?= 2
-PYTEST_PAR := -n $(TEST_WORKERS) --dist loadfile
 test: setup browser blender
-	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -q $(PYTEST_PAR)
-	env -u PYTHONDONTWRITEBYTECODE $(PY) -m tests.portable -q -p no:cacheprovider -m "numeric and not slow" $(PYTEST_PAR)
+	$(PY) -m tests.suite --workers $(TEST_WORKERS)
 
 # The benchmark suite (not part of make test): JSON per benchmark and a summary table in out/bench.
 bench: setup

@@ -223,15 +223,16 @@ def other_env_changes(base: dict | None = None) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m tests.portable [PYTEST ARGS]``: pytest under :func:`other_env`, saying which
-    kernels it changes (``make test`` runs the fast tests marked ``numeric`` this way)."""
-    import subprocess
+    kernels it changes (``make test`` runs the fast tests marked ``numeric`` this way). Pytest
+    replaces this process (``exec``): a signal sent to it reaches pytest."""
     import sys
 
     args = sys.argv[1:] if argv is None else argv
     changes = other_env_changes()
     shown = {k: v for k, v in changes.items() if k != "PROCTEX_KERNELS"}
     print(f"other kernels than this CPU's own ({cpu_tier()}): " + " ".join(f"{k}={v!r}" for k, v in shown.items()), flush=True)
-    return subprocess.run([sys.executable, "-m", "pytest", *args], env=other_env()).returncode
+    sys.stderr.flush()
+    os.execve(sys.executable, [sys.executable, "-m", "pytest", *args], other_env())
 
 
 if __name__ == "__main__":

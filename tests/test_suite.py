@@ -1,0 +1,83 @@
+"""``python -m tests.suite`` (what ``make test`` runs): the second pass runs beside the first on idle
+cores, is run again at the normal priority when it could not finish beside it, and either pass
+failing fails the whole; on a tiny project of its own (a few tests, its own pytest.ini)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+INI = """[pytest]
+markers =
+    numeric: compares floats
+    slow: slow
+"""
+#: The second pass (PROCTEX_KERNELS set by tests.portable.other_env) says when its session ended.
+CONFTEST = """import os
+from pathlib import Path
+
+def pytest_sessionfinish(session):
+    if os.environ.get("PROCTEX_KERNELS", "native") != "native":
+        Path(os.environ["SUITE_FLAG"]).write_text("done")
+"""
+TESTS = """import os, time
+from pathlib import Path
+import pytest
+
+pytestmark = pytest.mark.numeric
+OTHER = os.environ.get("PROCTEX_KERNELS", "native") != "native"
+
+def test_waits_as_told():
+    how = os.environ["SUITE_CASE"]
+    if how == "beside" and not OTHER:  # the first pass ends only after the second has
+        deadline = time.monotonic() + 480  # a nice-10 process on a busy machine gets little
+        while not Path(os.environ["SUITE_FLAG"]).exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+    if how == "starved" and OTHER and os.nice(0) >= int(os.environ["SUITE_NICE"]) + 10:  # beside the first: no idle core
+        time.sleep(600)
+
+def test_kernels():
+    assert not (OTHER and os.environ["SUITE_CASE"] == "fails_on_other")
+"""
+
+
+def run_suite(tmp_path: Path, case: str) -> subprocess.CompletedProcess:
+    proj = tmp_path / case
+    proj.mkdir()
+    (proj / "pytest.ini").write_text(INI)
+    (proj / "conftest.py").write_text(CONFTEST)
+    (proj / "test_tiny.py").write_text(TESTS)
+    import os
+
+    env = {**os.environ, "SUITE_CASE": case, "SUITE_FLAG": str(proj / "second.done"), "SUITE_NICE": str(os.nice(0))}
+    return subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "0", str(proj)], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=900)
+
+
+def test_the_second_pass_runs_beside_the_first(tmp_path):
+    run = run_suite(tmp_path, "beside")
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert "run beside the first" in run.stdout and "runs now" not in run.stdout, run.stdout[-3000:]
+    assert run.stdout.count("2 passed") == 2 and "first pass: exit 0; second pass: exit 0" in run.stdout
+
+
+def test_a_second_pass_starved_beside_the_first_is_run_again(tmp_path):
+    run = run_suite(tmp_path, "starved")
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert "had no idle core beside the first: it runs now" in run.stdout, run.stdout[-3000:]
+    assert run.stdout.count("2 passed") == 2
+    assert not subprocess.run(["pgrep", "-f", str(tmp_path / "starved")], capture_output=True).stdout  # the starved one is gone
+
+
+def test_a_failure_in_either_pass_fails_the_whole(tmp_path):
+    run = run_suite(tmp_path, "fails_on_other")
+    assert run.returncode == 1, run.stdout[-3000:]
+    assert "1 failed, 1 passed" in run.stdout and "first pass: exit 0; second pass: exit 1" in run.stdout
+
+
+def test_bad_worker_counts_are_refused():
+    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "-1"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "workers must be >= 0" in run.stderr
