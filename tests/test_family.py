@@ -666,3 +666,31 @@ def test_the_held_out_shapes_are_drawn_before_the_pairs_and_always_leave_shapes_
     assert held_out_ids(train, others, 0, 3, 0.15) == held_out_split(others, 0, 3, 0.15)[0] != []  # none of the draw solved
     assert held_out_ids(train, held[:2], 0, 3, 0.15) == []  # two shapes, both in the draw: none held out
     assert held_out_ids(train, [held[0], probes[0]], 0, 3, 0.15) == [held[0]]  # one in the draw, one to train on
+
+
+def test_a_shape_is_segmented_and_assigned_once_for_all_its_pairs(painted_mug_root, monkeypatch):
+    """The pairs of one shape (a batch) share its segmentation and part assignment: computed once,
+    not once per template group, with the same inputs for every group as computed afresh; a shape
+    whose arrays were replaced is assigned again."""
+    import proctex.transfer.assign as assign
+    from proctex.build.pairs import pair_input
+    from proctex.store.samples import load_sample, samples
+    from proctex.transfer.assets import load_assets
+
+    st = FamilyStore(painted_mug_root / "mug")
+    cfg = BuildConfig.from_dict(st.read_json("family.json")["config"])
+    assets = load_assets(st)
+    groups = [g.group for g in assets.groups]
+    row = samples(st)[1]
+    fresh = {g: pair_input(load_sample(st, row, cfg), assets, g) for g in groups}
+    calls = []
+    real = assign.assign_parts
+    monkeypatch.setattr(assign, "assign_parts", lambda *a, **k: calls.append(1) or real(*a, **k))
+    shape = load_sample(st, row, cfg)
+    for g in groups:
+        got = pair_input(shape, assets, g)
+        assert got[0] == fresh[g][0] and np.array_equal(got[1], fresh[g][1]) and np.array_equal(got[2], fresh[g][2])
+    assert len(groups) == 2 and len(calls) == 1
+    shape.vertices = shape.vertices * 1.0  # new arrays: assigned again
+    pair_input(shape, assets, groups[0])
+    assert len(calls) == 2

@@ -205,7 +205,9 @@ def test_ray_data_run_equals_the_single_process_run_and_survives_a_killed_actor(
     from workflows.generate import generate_on_ray
 
     out = tmp_path / "ray"
-    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    from workflows.build import start_private_ray
+
+    start_private_ray(num_cpus=2)  # again if a busy machine kept its node from starting in Ray's fixed 30 s
     killed: list[int] = []
     stop = threading.Event()
 

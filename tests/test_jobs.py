@@ -186,3 +186,57 @@ def test_the_wait_bound_must_be_a_finite_number(bad, monkeypatch):
         cluster_wait_s()
     monkeypatch.setenv("PROCTEX_CLUSTER_WAIT", "12.5")
     assert cluster_wait_s() == 12.5 and cluster_wait_s(3) == 3.0
+
+
+def test_a_private_ray_whose_node_timed_out_is_started_again_and_its_processes_stopped(monkeypatch):
+    """Ray's fixed 30 s node start fails on a busy machine: the start is tried again (at most
+    ``tries`` times), saying so, after the processes the failed start left are stopped; any other
+    failure, and the last try's, is Ray's own; a bad number of tries is refused."""
+    import os
+    import subprocess
+
+    import ray
+
+    from workflows.build import _descendants, start_private_ray
+
+    left: list[subprocess.Popen] = []
+    calls: list[dict] = []
+
+    def fake_init(fails: int, error: str):
+        def init(**kwargs):
+            calls.append(kwargs)
+            if len(calls) <= fails:
+                left.append(subprocess.Popen(["sleep", "60"]))  # stands for the failed start's GCS server
+                raise Exception(f"The current node {error}. This could happen because ...")
+        return init
+
+    monkeypatch.setattr(ray, "shutdown", lambda: None)
+    said: list[str] = []
+    mine = subprocess.Popen(["sleep", "60"])  # started before: not the failed start's
+    try:
+        monkeypatch.setattr(ray, "init", fake_init(2, "timed out during startup"))
+        start_private_ray(num_cpus=2, tries=3, log=said.append)
+        assert len(calls) == 3 and all(c["address"] == "local" and c["num_cpus"] == 2 for c in calls)
+        assert len(said) == 2 and "try 3 of 3" in said[-1] and "fixed 30 s" in said[0]
+        assert all(p.wait(timeout=10) == -9 for p in left)  # killed, and only those: this process's own live on
+        assert mine.poll() is None and mine.pid in _descendants(os.getpid()) and os.getpid() not in _descendants(os.getpid())
+        calls.clear()
+        monkeypatch.setattr(ray, "init", fake_init(5, "timed out during startup"))
+        with pytest.raises(Exception, match="timed out during startup"):
+            start_private_ray(tries=2, log=said.append)
+        assert len(calls) == 2
+        calls.clear()
+        monkeypatch.setattr(ray, "init", fake_init(1, "could not reach the GCS"))
+        with pytest.raises(Exception, match="could not reach the GCS"):
+            start_private_ray(tries=3, log=said.append)
+        assert len(calls) == 1
+    finally:
+        for p in (*left, mine):
+            p.kill()
+            p.wait()
+    for bad in (0, 21):
+        with pytest.raises(ValueError, match="1-20"):
+            start_private_ray(tries=bad)
+    monkeypatch.setenv("PROCTEX_RAY_START_TRIES", "many")
+    with pytest.raises(ValueError, match="PROCTEX_RAY_START_TRIES"):
+        start_private_ray()

@@ -35,7 +35,8 @@ def store_uri(root: str) -> str:
 
 def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
     """Connect to ``address`` ("auto", "host:port", "ray://...") and wait (bounded) until the cluster
-    has CPUs (:func:`workflows.jobs.wait_for_cpus`), or start a private local Ray."""
+    has CPUs (:func:`workflows.jobs.wait_for_cpus`), or start a private local Ray
+    (:func:`start_private_ray`)."""
     import ray
 
     if ray.is_initialized():
@@ -46,7 +47,77 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
 
         wait_for_cpus()  # a head without CPUs whose worker nodes are still joining (bounded: PROCTEX_CLUSTER_WAIT)
     else:
-        ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+        start_private_ray(num_cpus=num_cpus)
+
+
+#: Ray's own message when a starting node's raylet did not register within its fixed 30 s
+#: (``ray/_private/node.py``; not configurable).
+NODE_START_TIMEOUT = "timed out during startup"
+
+
+def _descendants(pid: int) -> set[int]:
+    """The PIDs of ``pid``'s descendant processes (Linux ``/proc``; empty elsewhere)."""
+    children: dict[int, list[int]] = {}
+    try:
+        entries = os.listdir("/proc")
+    except OSError:
+        return set()
+    for name in entries:
+        if name.isdigit():
+            try:
+                with open(f"/proc/{name}/stat", "rb") as fh:
+                    ppid = int(fh.read().rsplit(b")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+            children.setdefault(ppid, []).append(int(name))
+    out, todo = set(), [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            if child not in out:
+                out.add(child)
+                todo.append(child)
+    return out
+
+
+def start_private_ray(num_cpus: int | None = None, tries: int | None = None, log: Callable[[str], None] | None = None) -> None:
+    """``ray.init`` of a private local Ray (no dashboard, workers' output not copied here), started
+    again when its node did not come up within Ray's fixed 30 s (:data:`NODE_START_TIMEOUT`: a
+    machine whose cores are busy with other work), at most ``tries`` times (default
+    ``PROCTEX_RAY_START_TRIES`` or 3), saying so through ``log`` (default: stderr). The processes a
+    failed start left (its GCS server, raylet, agents: this process's new descendants) are
+    stopped first. Any other failure, or the last try's, is raised as Ray raised it."""
+    import signal
+    import sys
+
+    import ray
+
+    if tries is None:
+        raw = os.environ.get("PROCTEX_RAY_START_TRIES", "3")
+        try:
+            tries = int(raw)
+        except ValueError:
+            raise ValueError(f"PROCTEX_RAY_START_TRIES must be a whole number of tries, got {raw!r}") from None
+    if not 1 <= tries <= 20:
+        raise ValueError(f"the private Ray's start tries must be 1-20, got {tries}")
+    say = log or (lambda line: print(line, file=sys.stderr, flush=True))
+    for attempt in range(1, tries + 1):
+        before = _descendants(os.getpid())
+        try:
+            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+            return
+        except Exception as exc:  # Ray raises a bare Exception for this one
+            if NODE_START_TIMEOUT not in str(exc) or attempt == tries:
+                raise
+            for pid in _descendants(os.getpid()) - before:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except OSError:
+                    pass
+            try:
+                ray.shutdown()
+            except Exception:  # nothing was connected: there is nothing to shut down
+                pass
+            say(f"Ray's node did not start within Ray's fixed 30 s (a busy machine); starting it again (try {attempt + 1} of {tries})")
 
 
 def cluster_cpus() -> int:

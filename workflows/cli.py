@@ -98,7 +98,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if args.address:
         ray.init(address=args.address, log_to_driver=False)
     else:
-        ray.init(address="local", include_dashboard=False, log_to_driver=False)
+        from .build import start_private_ray
+
+        start_private_ray()
     serve.start(http_options={"host": args.host, "port": args.port})
     serve.run(build_app(app_args), name="proctex", route_prefix="/")
     print(f"serving {', '.join(names)} on http://{args.host}:{args.port} (OpenAPI: /docs); Ctrl-C stops", flush=True)

@@ -54,7 +54,9 @@ def generate_on_ray(settings: GenerateSettings, concurrency: tuple[int, int] | N
 
             wait_for_cpus()  # worker nodes still joining (bounded: PROCTEX_CLUSTER_WAIT)
         else:
-            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+            from .build import start_private_ray
+
+            start_private_ray(num_cpus=num_cpus)
         started = True
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))

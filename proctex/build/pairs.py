@@ -19,13 +19,30 @@ from proctex.store.state import FamilyState, build_stamp, mark_stage, stage_done
 from proctex.transfer.assets import load_assets
 
 
+def shape_assignment(shape: Shape, assets) -> tuple[Any, list[Any]]:
+    """``(segmentation, part assignments)`` of ``shape`` to the template ``assets``
+    (:func:`proctex.transfer.assign.assign_parts`), computed once per shape and template and kept
+    on the shape: a batch solves every group of one shape, and a template of hundreds of groups
+    (a set of trees) segmented and assigned a shape of thousands of parts again for each one.
+    Computed again when the shape's arrays or the assets object were replaced."""
+    from proctex.transfer.assign import assign_parts
+
+    cached = shape.__dict__.get("_assignment")
+    if cached is not None and cached[0] is assets and cached[1] is shape.faces and cached[2] is shape.vertices:
+        return cached[3], cached[4]
+    seg = segment(shape)
+    assignment = assign_parts(shape, seg, assets)
+    shape.__dict__["_assignment"] = (assets, shape.faces, shape.vertices, seg, assignment)
+    return seg, assignment
+
+
 def pair_input(shape: Shape, assets, group: int) -> tuple[int, np.ndarray, np.ndarray] | None:
     """The part of ``shape`` that maps onto template ``group``: ``(part index, vertices (j, 3),
     faces (k, 3))`` (mirrored members kept wound outward), or None when the shape lacks the group."""
-    from proctex.transfer.assign import assign_parts, choose_part, representative_part
+    from proctex.transfer.assign import choose_part, representative_part
 
-    seg = segment(shape)
-    a = choose_part(assign_parts(shape, seg, assets), group)
+    seg, assignment = shape_assignment(shape, assets)
+    a = choose_part(assignment, group)
     if a is None:
         return None
     vn, f = representative_part(*part_mesh(shape, seg.parts[a.part]), a)  # winding kept outward under a mirror
