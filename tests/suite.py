@@ -65,10 +65,14 @@ def main(argv: list[str] | None = None) -> int:
     log = open(scratch / "log", "w+b")
     second = subprocess.Popen([*second_cmd, "--basetemp", str(scratch / "tmp")], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
                               preexec_fn=lambda: os.nice(10), start_new_session=True)
-    first = None
+    first = other = None
+    main_pass = None
+    # SIGTERM (a CI's cancel) ends this process through the finally below, which stops both passes
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
         print("the second pass (numeric tests on other kernels) runs beside the first at nice 10; its output follows", flush=True)
-        first = subprocess.run([sys.executable, "-m", "pytest", "-q", *par, *args.pytest_args], cwd=ROOT, env=env).returncode
+        main_pass = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *par, *args.pytest_args], cwd=ROOT, env=env)
+        first = main_pass.wait()
         if second.poll() is None:
             stop(second)
             print("\n---- the second pass had no idle core beside the first: it runs now (numeric tests on other kernels)", flush=True)
@@ -81,6 +85,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 130
     finally:
+        if main_pass is not None and main_pass.poll() is None:
+            main_pass.terminate()
+            try:
+                main_pass.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                main_pass.kill()
+                main_pass.wait()
         stop(second)
         log.close()
         shutil.rmtree(scratch, ignore_errors=True)

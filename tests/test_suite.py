@@ -81,3 +81,30 @@ def test_a_failure_in_either_pass_fails_the_whole(tmp_path):
 def test_bad_worker_counts_are_refused():
     run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "-1"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "workers must be >= 0" in run.stderr
+
+
+def test_a_terminated_suite_stops_both_passes(tmp_path):
+    """SIGTERM to ``tests.suite`` (a CI's cancel) while both passes run: both are stopped."""
+    import os
+    import signal
+    import time
+
+    proj = tmp_path / "stopped"
+    proj.mkdir()
+    (proj / "pytest.ini").write_text(INI)
+    (proj / "test_sleeps.py").write_text("import time, pytest\npytestmark = pytest.mark.numeric\n\ndef test_sleeps():\n    time.sleep(300)\n")
+    suite = subprocess.Popen([sys.executable, "-m", "tests.suite", "--workers", "0", str(proj)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and len(subprocess.run(["pgrep", "-f", str(proj)], capture_output=True).stdout.split()) < 3:
+            time.sleep(0.5)  # the suite, the first pass and the second pass all name the project
+        assert len(subprocess.run(["pgrep", "-f", str(proj)], capture_output=True).stdout.split()) >= 3
+        os.kill(suite.pid, signal.SIGTERM)
+        assert suite.wait(timeout=120) != 0
+    finally:
+        if suite.poll() is None:
+            suite.kill()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and subprocess.run(["pgrep", "-f", str(proj)], capture_output=True).stdout:
+        time.sleep(0.5)
+    assert not subprocess.run(["pgrep", "-f", str(proj)], capture_output=True).stdout, "a pass outlived the suite"
