@@ -8,7 +8,7 @@ leaves idle. A machine with no idle core (another job keeps it busy) gives a nic
 almost nothing: if the second pass is still running when the first ends, it is stopped and run
 again at the normal priority. Its output follows the first's; the exit status is 0 only when both
 passed (a second pass that selects no test passes: a selection without ``numeric`` tests). PYTEST
-ARGS (paths, ``-k``, ...) go to both passes. Ctrl-C stops both.
+ARGS (paths, ``-k``, ...) go to both passes. Ctrl-C or SIGTERM stops both.
 """
 
 from __future__ import annotations
@@ -51,14 +51,14 @@ def stop(proc: subprocess.Popen, grace: float = 30.0) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tests.suite", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--workers", type=int, default=int(os.environ.get("TEST_WORKERS", "2")),
+    parser.add_argument("--workers", type=int, default=None,
                         help="pytest-xdist workers per pass (0: in one process; default TEST_WORKERS or 2)")
     parser.add_argument("pytest_args", nargs=argparse.REMAINDER, help="given to both passes (paths, -k EXPR, ...)")
     args = parser.parse_args(argv)
     try:
-        par = xdist(args.workers)
+        par = xdist(int(os.environ.get("TEST_WORKERS", "2")) if args.workers is None else args.workers)
     except ValueError as exc:
-        parser.error(str(exc))
+        parser.error(f"{exc} (--workers or TEST_WORKERS: a whole number >= 0)")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}  # workers reuse compiled modules
     second_cmd = [sys.executable, "-m", "tests.portable", *SECOND, *par, *args.pytest_args]
     scratch = Path(tempfile.mkdtemp(prefix="proctex-second-"))

@@ -79,8 +79,13 @@ def test_a_failure_in_either_pass_fails_the_whole(tmp_path):
 
 
 def test_bad_worker_counts_are_refused():
+    import os
+
     run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "-1"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "workers must be >= 0" in run.stderr
+    run = subprocess.run([sys.executable, "-m", "tests.suite"], cwd=ROOT, capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "TEST_WORKERS": "two"})
+    assert run.returncode == 2 and "TEST_WORKERS" in run.stderr and "Traceback" not in run.stderr
 
 
 def test_a_terminated_suite_stops_both_passes(tmp_path):
