@@ -15,13 +15,14 @@ markers =
     numeric: compares floats
     slow: slow
 """
-#: The second pass (PROCTEX_KERNELS set by tests.portable.other_env) says when its session ended.
+#: The second pass (PROCTEX_KERNELS set by tests.portable.other_env) says when its session ended and
+#: which process it is (tests.portable execs pytest: the process tests.suite started).
 CONFTEST = """import os
 from pathlib import Path
 
 def pytest_sessionfinish(session):
     if os.environ.get("PROCTEX_KERNELS", "native") != "native":
-        Path(os.environ["SUITE_FLAG"]).write_text("done")
+        Path(os.environ["SUITE_FLAG"]).write_text(str(os.getpid()))
 """
 TESTS = """import os, time
 from pathlib import Path
@@ -30,11 +31,18 @@ import pytest
 pytestmark = pytest.mark.numeric
 OTHER = os.environ.get("PROCTEX_KERNELS", "native") != "native"
 
+def exited(pid):
+    try:  # a child tests.suite has not reaped yet is a zombie: it has exited
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] in "ZX"
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+
 def test_waits_as_told():
     how = os.environ["SUITE_CASE"]
-    if how == "beside" and not OTHER:  # the first pass ends only after the second has
+    if how == "beside" and not OTHER:  # the first pass ends only after the second's process has exited
         deadline = time.monotonic() + 480  # a nice-10 process on a busy machine gets little
-        while not Path(os.environ["SUITE_FLAG"]).exists() and time.monotonic() < deadline:
+        flag = Path(os.environ["SUITE_FLAG"])
+        while not (flag.exists() and flag.read_text() and exited(int(flag.read_text()))) and time.monotonic() < deadline:
             time.sleep(0.2)
     if how == "starved" and OTHER and os.nice(0) >= int(os.environ["SUITE_NICE"]) + 10:  # beside the first: no idle core
         time.sleep(600)
