@@ -50,11 +50,12 @@ def stop(proc: subprocess.Popen, grace: float = 30.0) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tests.suite", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m tests.suite", description=__doc__.split("\n\n")[0], allow_abbrev=False,
+                                     epilog="Every other argument (paths, -k EXPR, --durations=N, ...) is given to both passes' pytest, in its order.")
     parser.add_argument("--workers", type=int, default=None,
                         help="pytest-xdist workers per pass (0: in one process; default TEST_WORKERS or 2)")
-    parser.add_argument("pytest_args", nargs=argparse.REMAINDER, help="given to both passes (paths, -k EXPR, ...)")
-    args = parser.parse_args(argv)
+    args, pytest_args = parser.parse_known_args(argv)
+    args.pytest_args = pytest_args
     try:
         par = xdist(int(os.environ.get("TEST_WORKERS", "2")) if args.workers is None else args.workers)
     except ValueError as exc:

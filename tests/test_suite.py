@@ -52,7 +52,7 @@ def test_kernels():
 """
 
 
-def run_suite(tmp_path: Path, case: str) -> subprocess.CompletedProcess:
+def run_suite(tmp_path: Path, case: str, *extra: str) -> subprocess.CompletedProcess:
     proj = tmp_path / case
     proj.mkdir()
     (proj / "pytest.ini").write_text(INI)
@@ -61,7 +61,7 @@ def run_suite(tmp_path: Path, case: str) -> subprocess.CompletedProcess:
     import os
 
     env = {**os.environ, "SUITE_CASE": case, "SUITE_FLAG": str(proj / "second.done"), "SUITE_NICE": str(os.nice(0))}
-    return subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "0", str(proj)], cwd=ROOT, env=env,
+    return subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "0", *extra, str(proj)], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=900)
 
 
@@ -121,3 +121,9 @@ def test_a_terminated_suite_stops_both_passes(tmp_path):
     while time.monotonic() < deadline and subprocess.run(["pgrep", "-f", str(proj)], capture_output=True).stdout:
         time.sleep(0.5)
     assert not subprocess.run(["pgrep", "-f", str(proj)], capture_output=True).stdout, "a pass outlived the suite"
+
+
+def test_options_before_the_path_reach_both_passes(tmp_path):
+    run = run_suite(tmp_path, "options", "-k", "kernels", "--durations=1")
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
+    assert run.stdout.count("1 passed, 1 deselected") == 2 and run.stdout.count("slowest 1 durations") == 2, run.stdout[-3000:]
