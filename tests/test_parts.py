@@ -174,3 +174,95 @@ def test_sofa_group_matching_sample(sofa_dir):
         sg = analyse(shape)
         m = match_groups(shape, sg, template, tg)
         assert m.pairs == [(i, i) for i in range(8)] and not m.added and not m.missing
+
+
+def test_a_uniformly_scaled_copy_joins_its_group_and_its_scale_is_recovered():
+    """A chiral block, a copy scaled by 0.5, turned and moved, and a copy stretched along one axis
+    only: the scaled copy shares the block's group (a "similar" member whose map carries it back
+    exactly, scale 2), the stretched one does not; ``similar=False`` keeps the old rigid grouping."""
+    blk = chiral_block()
+    b = ShapeBuilder()
+    b.add(blk, "block")
+    b.add(P.transform(P.transform(blk, R=P.rotation("z", 0.7)), t=(3.0, 1.0, 0.0)), "block")
+    small = chiral_block()
+    small.vertices[:] = small.vertices * 0.5 @ P.rotation("z", 0.7).T + np.array([3.0, 1.0, 0.0])
+    b.add(small, "small")
+    long = chiral_block()
+    long.vertices[:, 2] *= 1.5
+    long.vertices[:] += np.array([-3.0, 0.0, 0.0])
+    b.add(long, "long")
+    shape = b.build()
+    g = analyse(shape)
+    assert g.part_group.tolist() == [0, 0, 0, 1]
+    methods = [m.method for m in g.groups[0].maps]
+    assert methods == ["self", "topology", "similar"], methods
+    mm = g.groups[0].maps[2]
+    assert abs(mm.scale - 2.0) < 1e-9 and not mm.mirrored
+    member = shape.vertices[g.parts[2].vertices]
+    rep = shape.vertices[g.parts[0].vertices]
+    np.testing.assert_allclose(member @ mm.R.T + mm.t, rep, atol=1e-9)  # vertex i onto vertex i
+    np.testing.assert_allclose(mm.inverse(rep), member, atol=1e-9)
+    np.testing.assert_allclose(mm.rotation @ mm.rotation.T, np.eye(3), atol=1e-9)  # the map between normalised frames
+    assert analyse(shape, similar=False).part_group.tolist() == [0, 0, 1, 2]
+
+
+def bent_grid(n=5, seed=0, flip=()):
+    """An n x n vertex grid sheet, each vertex moved its own way (seeded), its quads split along
+    one diagonal except those in ``flip`` (split along the other, as an exporter splitting each
+    moved quad along its shorter diagonal does)."""
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    verts = np.stack([u.ravel(), v.ravel(), 0.3 * np.sin(3 * u.ravel()) * (1 + seed)], axis=1) + rng.normal(0, 0.03, (n * n, 3))
+    faces = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            faces += [[a, b, d], [b, c, d]] if (i, j) in flip else [[a, b, c], [a, c, d]]
+    return P.Part(verts, np.array(faces, dtype=np.int64), np.zeros_like(verts))
+
+
+def test_in_a_scene_of_many_parts_copies_moved_vertex_by_vertex_share_a_group(monkeypatch):
+    """Above ICP_PARTS parts (lowered here to 2), sheets with the same vertices moved each its own way
+    and two quads split the other way join one group ("deformed": vertex i is the representative's
+    vertex i); a sheet of another vertex count, and one with most faces on other vertices, do not.
+    A deformed member's UVs are the representative's on every face they share; its texels lie at the
+    same barycentrics on its own vertices."""
+    import proctex.geometry.parts as parts_mod
+    from proctex.texture.paint_loop import _member
+    from proctex.texture.uv import member_corner_uv, texel_map
+
+    monkeypatch.setattr(parts_mod, "ICP_PARTS", 2)
+    b = ShapeBuilder()
+    b.add(bent_grid(seed=0), "sheet")
+    b.add(P.transform(bent_grid(seed=1, flip={(0, 0), (2, 3)}), t=(2.0, 0, 0)), "sheet")
+    b.add(P.transform(bent_grid(n=6, seed=2), t=(4.0, 0, 0)), "sheet")
+    other = bent_grid(seed=3)
+    other.faces[:] = np.random.default_rng(1).permutation(len(other.vertices))[other.faces]  # the same grid, its vertices renumbered
+    b.add(P.transform(other, t=(6.0, 0, 0)), "sheet")
+    shape = b.build()
+    g = analyse(shape)
+    assert g.part_group.tolist() == [0, 0, 1, 2]
+    mm = g.groups[0].maps[1]
+    assert mm.method == "deformed" and mm.error > 0.01  # no rigid or similar copy
+    np.testing.assert_allclose(mm.rotation @ mm.rotation.T, np.eye(3), atol=1e-9)
+    with monkeypatch.context() as m:
+        m.setattr(parts_mod, "ICP_PARTS", 300)
+        assert analyse(shape).part_group.tolist() == [0, 1, 2, 3]  # few parts: rigid copies only
+    rep, mem = g.parts[0], g.parts[1]
+    xy = shape.vertices[shape.faces[rep.faces]][..., :2]
+    rep_uv = 0.05 + 0.9 * (xy - xy.min((0, 1))) / np.ptp(xy, axis=(0, 1))  # (k, 3, 2) inside [0, 1]
+    uv = member_corner_uv(shape, rep, rep_uv, mem, mm)
+    local_rep = np.sort(np.searchsorted(rep.vertices, shape.faces[rep.faces]), axis=1)
+    local_mem = np.searchsorted(mem.vertices, shape.faces[mem.faces])
+    same = [k for k in range(mem.n_faces) if any((np.sort(local_mem[k]) == local_rep).all(1))]
+    assert len(same) == mem.n_faces - 4
+    for k in same:  # the UV of each corner is the UV the representative gives that vertex
+        r = int(np.flatnonzero((np.sort(local_mem[k]) == local_rep).all(1))[0])
+        for c in range(3):
+            at = int(np.flatnonzero(np.searchsorted(rep.vertices, shape.faces[rep.faces][r]) == local_mem[k, c])[0])
+            np.testing.assert_allclose(uv[k, c], rep_uv[r, at], atol=1e-9)
+    texels = texel_map(shape.vertices, shape.faces[rep.faces], rep_uv, 32)
+    pts = _member(shape, g, g.groups[0], mm, texels).texel_points(texels)
+    local = np.searchsorted(rep.vertices, shape.faces[rep.faces])[texels.face]  # the representative's corners, member's vertices
+    np.testing.assert_allclose(pts, np.einsum("tk,tkd->td", texels.bary, shape.vertices[mem.vertices][local]), atol=1e-12)
+    assert np.abs(pts - texels.points).max() > 1.0  # not the representative's own points

@@ -296,9 +296,14 @@ def symmetry_planes(shape: Shape, tol: float = 0.01, n_samples: int = 1000, seed
 class MemberMap:
     """How a group member lies on its representative.
 
-    ``R (3, 3)``, ``t (3,)``: ``x_rep = R x_member + t`` (det R = -1 for a mirrored member);
-    ``method``: "self", "topology" (vertex i ↔ vertex i) or "icp"; ``error``: mean surface
-    distance after the map, relative to the representative's L∞ radius.
+    ``R (3, 3)``, ``t (3,)``: ``x_rep = R x_member + t`` (det R < 0 for a mirrored member);
+    ``R`` is a rotation (or reflection) times the member's uniform ``scale`` (1 but for
+    "similar" members), or for a "deformed" member the best affine fit. ``method``: "self",
+    "topology" (vertex i ↔ vertex i), "similar" (vertex i ↔ vertex i of a uniformly scaled copy:
+    an instance a procedural model scaled), "deformed" (vertex i ↔ vertex i of a copy the model
+    moved vertex by vertex: the correspondence is the shared connectivity, ``R, t`` only
+    approximate it) or "icp"; ``error``: mean distance after the map ``R, t``, relative to the
+    representative's L∞ radius.
     """
 
     part: int
@@ -310,6 +315,27 @@ class MemberMap:
     @property
     def mirrored(self) -> bool:
         return bool(np.linalg.det(self.R) < 0)
+
+    @property
+    def scale(self) -> float:
+        """The map's uniform scale, ``|det R|^(1/3)`` (1 for a rigid map)."""
+        return float(abs(np.linalg.det(np.asarray(self.R, dtype=np.float64))) ** (1.0 / 3.0))
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """The map's rotation (or reflection) alone ``(3, 3)``, the map between the member's and the
+        representative's normalised frames (each part's own centre and radius): ``R / scale``, or
+        for a "deformed" member the orthogonal factor of ``R`` (its polar decomposition)."""
+        R = np.asarray(self.R, dtype=np.float64)
+        if self.method == "deformed":
+            U, _, Vt = np.linalg.svd(R)
+            return U @ Vt
+        s = self.scale
+        return R / (s if s > 0 else 1.0)
+
+    def inverse(self, points: np.ndarray) -> np.ndarray:
+        """Representative-frame ``points (k, 3)`` back on the member: ``R^-1 (x - t)``."""
+        return np.linalg.solve(np.asarray(self.R, dtype=np.float64), (np.asarray(points, dtype=np.float64) - self.t).T).T
 
 
 @dataclass
@@ -425,6 +451,22 @@ ICP_STARTS = 3
 ICP_PARTS = 300
 
 
+#: A "deformed" copy (above :data:`ICP_PARTS` parts) has the representative's vertex count and at
+#: least this share of its faces on the same local vertices: an exporter that splits each quad of a
+#: moved copy along its shorter diagonal flips a few of them (a bent trunk: 8 of 156 faces).
+DEFORMED_SHARED = 0.75
+
+
+def shared_faces(fa: np.ndarray, fb: np.ndarray) -> float:
+    """Share of the faces ``fa (k, 3)`` whose vertex set is a face of ``fb (m, 3)`` too (local
+    vertex indices, any corner order), in [0, 1]; 0 for no faces."""
+    if len(fa) == 0:
+        return 0.0
+    n = int(max(fa.max(), fb.max() if len(fb) else 0)) + 1
+    code = lambda f: (lambda q: (q[:, 0] * n + q[:, 1]) * n + q[:, 2])(np.sort(np.asarray(f, dtype=np.int64), axis=1))  # noqa: E731
+    return float(np.isin(code(fa), code(fb)).mean())
+
+
 def _compatible(a: _PartGeom, b: _PartGeom, rel: float, tol: float = 0.01) -> bool:
     # Degenerate parts carry no surface to texture: each stays in a group of its own.
     if a.info.degenerate or b.info.degenerate:
@@ -456,15 +498,32 @@ def _surface_error(a: _PartGeom, b: _PartGeom, R: np.ndarray, t: np.ndarray) -> 
     return float(0.5 * (ab + ba) / max(b.info.radius, 1e-300))
 
 
-def match_part_rigid(a: _PartGeom, b: _PartGeom, planes: list[SymmetryPlane], tol: float, icp: bool = True) -> MemberMap | None:
+def match_part_rigid(a: _PartGeom, b: _PartGeom, planes: list[SymmetryPlane], tol: float, icp: bool = True,
+                     similar: bool = False, deformed: bool = False) -> MemberMap | None:
     """Rigid (or mirrored) map of part ``a`` onto part ``b`` with surface error below ``tol``, or None.
     ``icp=False``: only the map through their shared connectivity (copies that keep their vertex
-    order, as instancing makes them)."""
+    order, as instancing makes them). ``similar``: a copy with the same connectivity may also be
+    uniformly scaled (method "similar"; its map's ``R`` carries the scale). ``deformed``: a copy
+    with the same connectivity is a member whatever its shape (method "deformed", ``R, t`` the
+    best affine fit, its error whatever it is)."""
     if a.topo_key == b.topo_key:
         R, t, _ = umeyama(a.vertices, b.vertices, reflection=None)
         err = float(np.linalg.norm(apply(a.vertices, R, t) - b.vertices, axis=1).mean() / max(b.info.radius, 1e-300))
         if err < tol:
             return MemberMap(a.info.index, R, t, "topology", err)
+        if similar:
+            R, t, s = umeyama(a.vertices, b.vertices, scale=True, reflection=None)
+            if np.isfinite(s) and s > 0:
+                err = float(np.linalg.norm(apply(a.vertices, R, t, s) - b.vertices, axis=1).mean() / max(b.info.radius, 1e-300))
+                if err < tol:
+                    return MemberMap(a.info.index, s * R, t, "similar", err)
+    if deformed and len(a.vertices) == len(b.vertices) and shared_faces(a.faces, b.faces) >= DEFORMED_SHARED:
+        X = np.concatenate([a.vertices, np.ones((len(a.vertices), 1))], axis=1)
+        A = np.linalg.lstsq(X, b.vertices, rcond=None)[0]  # (4, 3): b ≈ a A[:3] + A[3]
+        if np.all(np.isfinite(A)):
+            err = float(np.linalg.norm(X @ A - b.vertices, axis=1).mean() / max(b.info.radius, 1e-300))
+            return MemberMap(a.info.index, A[:3].T.copy(), A[3].copy(), "deformed", err)
+    if a.topo_key == b.topo_key:
         return None  # the same indexed mesh: the map through its vertices is the best rigid map there is
     if not icp:
         return None
@@ -494,6 +553,7 @@ def group_parts(
     prefilter: float = 0.1,
     n_samples: int = 400,
     seed: int = 0,
+    similar: bool = True,
 ) -> Grouping:
     """Group the repeated and mirrored parts of a shape.
 
@@ -508,6 +568,14 @@ def group_parts(
             above :data:`ICP_PARTS` parts only copies with the same connectivity are found.
         n_samples: surface samples per part.
         seed: sampling seed.
+        similar: a part that joins no group rigidly joins the group of a uniformly scaled copy of it
+            (the same indexed mesh, vertex for vertex, within ``tol`` after the best similarity):
+            the instances a procedural model scales (a scattered set's leaves) share one texture.
+            Above :data:`ICP_PARTS` parts (a scene made by instancing), a part that is neither joins
+            the group of any part with its connectivity, vertex for vertex, however the model moved
+            its vertices (method "deformed": a scattered set's trunks, each bent its own way): a
+            scene's instances share their textures, and its groups stay as few as its meshes.
+            Parts of other connectivity are compared rigidly only.
     """
     seg = segmentation if segmentation is not None else segment(shape)
     planes = symmetry_planes(shape, seed=seed) if seg.n_parts > 1 else []
@@ -515,6 +583,8 @@ def group_parts(
     groups: list[PartGroup] = []
     part_group = -np.ones(seg.n_parts, dtype=np.int64)
     icp = sum(not p.degenerate for p in seg.parts) <= ICP_PARTS
+    by_topo: dict[bytes, list[PartGroup]] = {}  # groups by their representative's connectivity
+    by_count: dict[int, list[PartGroup]] = {}  # ... and by its vertex count
     for g in geoms:
         placed = False
         near = [grp for grp in groups if _compatible(g, geoms[grp.representative], prefilter, tol)]
@@ -528,12 +598,32 @@ def group_parts(
                 part_group[g.info.index] = grp.index
                 placed = True
                 break
+        if not placed and similar and not g.info.degenerate:
+            # scaled copies fail the size prefilter: the groups of the same connectivity, nearest size first
+            same = sorted(by_topo.get(g.topo_key, []), key=lambda grp: abs(np.log(max(geoms[grp.representative].info.radius, 1e-300)
+                                                                                      / max(g.info.radius, 1e-300))))
+            tries = [(grp, False) for grp in same[:MAX_MATCH_TRIES]]
+            if not icp:  # then a copy the model moved vertex by vertex, of the nearest size first
+                alike = sorted(by_count.get(len(g.vertices), []), key=lambda grp: abs(np.log(max(geoms[grp.representative].info.radius, 1e-300)
+                                                                                                 / max(g.info.radius, 1e-300))))
+                tries += [(grp, True) for grp in alike[:MAX_MATCH_TRIES]]
+            for grp, deformed in tries:
+                mm = match_part_rigid(g, geoms[grp.representative], planes, tol, icp=False, similar=True, deformed=deformed)
+                if mm is not None:
+                    grp.members.append(g.info.index)
+                    grp.maps.append(mm)
+                    part_group[g.info.index] = grp.index
+                    placed = True
+                    break
         if not placed:
             gi = len(groups)
             groups.append(
                 PartGroup(gi, [g.info.index], [MemberMap(g.info.index, np.eye(3), np.zeros(3), "self", 0.0)], g.info.degenerate, g.info.label)
             )
             part_group[g.info.index] = gi
+            if not g.info.degenerate:
+                by_topo.setdefault(g.topo_key, []).append(groups[-1])
+                by_count.setdefault(len(g.vertices), []).append(groups[-1])
     return Grouping(seg, groups, part_group, planes)
 
 

@@ -468,7 +468,10 @@ def template_truth(template: Shape, grouping: Grouping, assets, kind: str) -> Te
             for m in g.maps:
                 verts = seg.parts[m.part].vertices
                 group[verts] = g.index
-                point[verts] = (template.vertices[verts] @ np.asarray(m.R).T + m.t - ga.center) / ga.radius
+                if m.method == "deformed":  # its vertex i is the representative's vertex i (R, t only approximate it)
+                    point[verts] = (template.vertices[seg.parts[g.representative].vertices] - ga.center) / ga.radius
+                else:
+                    point[verts] = (template.vertices[verts] @ np.asarray(m.R).T + m.t - ga.center) / ga.radius
         return TemplateTruth(kind, vertex_group=group, vertex_point=point, n_vertices=template.n_vertices)
     raise ValueError(f"ground truth is canonical or vertex-index, got {kind!r}")
 

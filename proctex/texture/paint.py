@@ -291,7 +291,8 @@ class SolidViewPainter:
         self.surface = surface_painter
         self.maps = {}
         if grouping is not None:
-            self.maps = {m.part: (np.asarray(m.R, float), np.asarray(m.t, float)) for g in grouping.groups for m in g.maps}
+            self.maps = {m.part: (np.asarray(m.R, float), np.asarray(m.t, float), m.scale if m.method == "similar" else 1.0)
+                         for g in grouping.groups for m in g.maps}
 
     def paint_view(self, request: ViewRequest) -> np.ndarray:
         out = np.array(request.rgb, dtype=np.float32, copy=True)
@@ -302,10 +303,10 @@ class SolidViewPainter:
             part = request.part[m]
             for p in np.unique(part):
                 if int(p) in self.maps:
-                    R, t = self.maps[int(p)]
+                    R, t, scale = self.maps[int(p)]
                     sel = part == p
                     pts[sel] = pts[sel] @ R.T + t
-                    nrm[sel] = nrm[sel] @ R.T
+                    nrm[sel] = nrm[sel] @ R.T / scale  # unit normals (R is a rotation times the member's scale)
         pts = (pts - request.center) / request.scale
         grp = request.group[m]
         labels = request.extra.get("group_labels", {})

@@ -12,7 +12,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
-from proctex.geometry.parts import Grouping, PartGroup
+from proctex.geometry.parts import Grouping, MemberMap, PartGroup, part_mesh
 from proctex.geometry.shape import Shape
 from proctex.texture.painters.base import (
     BACKGROUND,
@@ -51,9 +51,28 @@ from .uv import ShapeUV, TexelMap, pad_seams, sample_texture, shape_uv
 # -------------------------------------------------------------------------------- view painting
 @dataclass
 class _Member:
+    """A group member's map ``x_rep = R x + t``; ``back (3, 3)``: ``R^-1`` (``R^T`` for a rigid map);
+    ``points (t, 3)``: where the group's texels lie on this member when ``R, t`` only approximate
+    it (a "deformed" member: the same barycentrics on its own copy of each face), else None."""
+
     part: int
     R: np.ndarray
     t: np.ndarray
+    back: np.ndarray
+    points: np.ndarray | None = None
+
+    def texel_points(self, texels: TexelMap) -> np.ndarray:
+        """``(t, 3)`` member-space points of the group's texels."""
+        return self.points if self.points is not None else (texels.points - self.t) @ self.back.T
+
+
+def _member(shape: Shape, grouping: Grouping, g: PartGroup, m: MemberMap, texels: TexelMap) -> _Member:
+    R, t = np.asarray(m.R, float), np.asarray(m.t, float)
+    if m.method == "deformed":  # vertex i of the member is vertex i of the representative
+        _, rep_faces = part_mesh(shape, grouping.parts[g.representative])
+        v_mem, _ = part_mesh(shape, grouping.parts[m.part])
+        return _Member(m.part, R, t, np.linalg.pinv(R), np.einsum("tk,tkd->td", texels.bary, v_mem[rep_faces[texels.face]]))
+    return _Member(m.part, R, t, np.linalg.inv(R) if m.method == "similar" else R.T)
 
 
 @dataclass
@@ -98,7 +117,7 @@ class _GroupState:
 def _states(shape: Shape, grouping: Grouping, uv: ShapeUV, size: int) -> list[_GroupState]:
     states = []
     for g, texels in zip(grouping.groups, group_texels(shape, grouping, uv, size)):
-        members = [_Member(m.part, np.asarray(m.R, float), np.asarray(m.t, float)) for m in g.maps]
+        members = [_member(shape, grouping, g, m, texels) for m in g.maps]
         n = len(texels.face)
         states.append(_GroupState(g, texels, members, np.zeros((n, 3)), np.zeros(n), np.zeros(n)))
     return states
@@ -198,7 +217,7 @@ def _pull(
     """Back-project one painted view into one group texture (every member); returns texels updated."""
     updated = 0
     for mem in members if members is not None else state.members:
-        x = (state.texels.points - mem.t) @ mem.R  # member-space points (x_rep = R x + t)
+        x = mem.texel_points(state.texels)  # member-space points (x_rep = R x + t)
         t_idx, c, cs = backproject(x, mem.part, buffers, tri, view, plane_tol)
         if len(t_idx) == 0:
             continue

@@ -171,17 +171,21 @@ def member_corner_uv(shape: Shape, rep: PartInfo, rep_uv: np.ndarray, member: Pa
     """(k, 3, 2) corner UVs for a group member, read off its representative's atlas.
 
     Members matched vertex-for-vertex with the same triangulation copy the UVs exactly. Otherwise each
-    member triangle is mapped onto the representative (``x_rep = R x + t``), the representative face
+    member triangle is mapped onto the representative (``x_rep = R x + t``; a "deformed" member's
+    vertex i onto the representative's vertex i), the representative face
     nearest to its centroid is found, and the triangle's corners get UVs by that face's affine map
     (barycentrics of the corners projected on the face's plane), so a triangle never spans two charts.
     """
     if member.index == rep.index:
         return rep_uv.copy()
-    if mmap.method == "topology" and member.n_faces == rep.n_faces:
+    if mmap.method in ("topology", "similar", "deformed") and member.n_faces == rep.n_faces:
         if np.array_equal(_local_faces(shape, member), _local_faces(shape, rep)):
             return rep_uv.copy()
     rep_tri = shape.vertices[shape.faces[rep.faces]]  # (kr, 3, 3)
-    mem_tri = shape.vertices[shape.faces[member.faces]] @ mmap.R.T + mmap.t  # (k, 3, 3)
+    if mmap.method == "deformed":  # its vertex i is the representative's vertex i: its faces laid on the representative's vertices
+        mem_tri = shape.vertices[rep.vertices][np.searchsorted(member.vertices, shape.faces[member.faces])]
+    else:
+        mem_tri = shape.vertices[shape.faces[member.faces]] @ mmap.R.T + mmap.t  # (k, 3, 3)
     index = SurfaceIndex(shape.vertices, shape.faces[rep.faces])
     near = index.query(mem_tri.mean(axis=1), exact=True).faces
     a, b, c = rep_tri[near, 0], rep_tri[near, 1], rep_tri[near, 2]
