@@ -125,6 +125,32 @@ def test_umeyama_recovers_known_similarity(reflect):
     np.testing.assert_allclose(R3, R, atol=1e-10)
 
 
+@pytest.mark.parametrize("reflect", [False, True])
+def test_the_batched_umeyama_is_the_single_one_per_target(reflect):
+    """Known similarities (one a reflection, one a degenerate flat target) recovered at once, and
+    every target's answer the single :func:`umeyama`'s (the slow reference) on noisy targets."""
+    from proctex.geometry.align import umeyama_batch
+
+    rng = np.random.default_rng(2)
+    src = rng.normal(size=(20, 3))
+    Rs = [random_rotation(rng) for _ in range(5)]
+    Rs[1] = Rs[1] @ np.diag([1, 1, -1])
+    dst = np.stack([s * src @ R.T + t for R, s, t in zip(Rs, [0.5, 1.0, 2.0, 3.0, 1.3], rng.normal(size=(5, 3)))])
+    dst[3, :, 2] = 0.0  # flat: a rank-2 covariance
+    noisy = dst + rng.normal(0, 0.05, dst.shape)
+    R, t, s = umeyama_batch(src, noisy, scale=True, reflection=reflect)
+    for i in range(5):
+        R1, t1, s1 = umeyama(src, noisy[i], scale=True, reflection=reflect)
+        np.testing.assert_allclose(R[i], R1, atol=1e-9)
+        np.testing.assert_allclose(t[i], t1, atol=1e-9)
+        assert abs(s[i] - s1) < 1e-9
+    R, t, s = umeyama_batch(src, dst[[0, 2]], scale=True)  # exact targets: their transforms
+    np.testing.assert_allclose(R, [Rs[0], Rs[2]], atol=1e-10)
+    np.testing.assert_allclose(s, [0.5, 2.0], atol=1e-10)
+    with pytest.raises(ValueError, match="umeyama_batch"):
+        umeyama_batch(src, dst[:, :5])
+
+
 def test_icp_recovers_small_rigid_motion():
     shape = get_model("chair").generate()  # no rotational symmetry
     idx = SurfaceIndex(shape.vertices, shape.faces)

@@ -828,3 +828,48 @@ def test_match_extra_recovers_turned_copies_like_the_exhaustive_search_and_skips
     # The same part with the prefilter's tolerance opened up is fitted (the prefilter did the work).
     g, _, _, err = assign.match_extra(tet, tf, assets, tol=10.0)
     assert g >= 0 and np.isfinite(err) and runs
+
+
+def test_more_copies_moved_vertex_by_vertex_than_the_template_has_join_its_deformed_group(monkeypatch):
+    """A scene whose template grouped its bent sheets as one group of "deformed" copies (its vertex
+    i is each copy's vertex i; ICP_PARTS lowered to 2 to make it a scene of many parts): a shape
+    with more sheets, each bent its own way, has every sheet in that group, the left-over ones
+    through :func:`copy_deformed` (the affine fit onto the representative, vertex i onto vertex
+    i); a template without deformed members gives left-over parts no such shortcut."""
+    import proctex.geometry.parts as parts_mod
+    from proctex.geometry.parts import part_mesh
+    from proctex.geometry.shape import ShapeBuilder
+    from proctex.geometry.surface import normalised_frame
+    from proctex.transfer.assign import copy_deformed
+
+    from .test_parts import P, bent_grid
+
+    def scene(seeds):
+        b = ShapeBuilder()
+        for k, s in enumerate(seeds):
+            b.add(P.transform(bent_grid(seed=s, flip={(k % 4, 1)}), t=(2.0 * k, 0, 0)), "sheet")
+        return b.build()
+
+    monkeypatch.setattr(parts_mod, "ICP_PARTS", 2)
+    template, shape = scene([0, 1, 2]), scene([3, 4, 5, 6, 7])
+    grouping = analyse(template)
+    assert len(grouping.groups) == 1 and [m.method for m in grouping.groups[0].maps] == ["self", "deformed", "deformed"]
+    tex = paint_surface(template, grouping, SurfacePainter("oak"), size=32)
+    assets = prepare_template(template, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    seg = segment(shape)
+    out = assign_parts(shape, seg, assets)
+    assert [a.group for a in out] == [0] * 5 and sorted(a.how for a in out) == ["extra", "extra", "slot", "slot", "slot"]
+    for a in out:
+        if a.how == "extra":
+            v, f = part_mesh(shape, seg.parts[a.part])
+            c, r = normalised_frame(v)
+            got = copy_deformed((v - c) / r, f, assets)
+            assert got[0] == 0 and got[3] == a.cost and 0 < a.cost < 0.2  # the fit is close, not exact: the sheets are bent
+    monkeypatch.setattr(parts_mod, "ICP_PARTS", 300)
+    rigid = analyse(template)
+    assert len(rigid.groups) == 3
+    tex = paint_surface(template, rigid, SurfacePainter("oak"), size=32)
+    plain = prepare_template(template, rigid, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
+    v, f = part_mesh(shape, seg.parts[4])
+    c, r = normalised_frame(v)
+    assert copy_deformed((v - c) / r, f, plain) is None

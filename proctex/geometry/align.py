@@ -48,6 +48,30 @@ def umeyama(src: np.ndarray, dst: np.ndarray, scale: bool = False, reflection: b
     return R, t, s
 
 
+def umeyama_batch(src: np.ndarray, dst: np.ndarray, scale: bool = False, reflection: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`umeyama` of one ``src (k, 3)`` onto each of ``dst (m, k, 3)`` at once: ``(R (m, 3, 3),
+    t (m, 3), s (m,))`` with ``dst[i] ≈ s[i] R[i] src + t[i]``. ``reflection``: ``False`` proper
+    rotations only, ``True`` reflections only."""
+    src = np.asarray(src, dtype=float)
+    dst = np.asarray(dst, dtype=float)
+    if src.ndim != 2 or src.shape[1] != 3 or len(src) == 0 or dst.ndim != 3 or dst.shape[1:] != src.shape:
+        raise ValueError(f"umeyama_batch needs src (k >= 1, 3) and dst (m, k, 3), got {src.shape} and {dst.shape}")
+    mu_s, mu_d = src.mean(0), dst.mean(1)
+    xs, xd = src - mu_s, dst - mu_d[:, None]
+    cov = np.swapaxes(xd, 1, 2) @ xs / len(src)  # (m, 3, 3)
+    U, S, Vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(U @ Vt))
+    d[d == 0] = 1.0
+    flip = (-1.0 if reflection else 1.0) * d
+    D = np.broadcast_to(np.eye(3), (len(dst), 3, 3)).copy()
+    D[:, 2, 2] = flip
+    R = U @ D @ Vt
+    var_s = (xs**2).sum() / len(src)
+    s = (S * np.diagonal(D, axis1=1, axis2=2)).sum(1) / var_s if (scale and var_s > 0) else np.ones(len(dst))
+    t = mu_d - s[:, None] * (R @ mu_s)
+    return R, t, s
+
+
 def apply(points: np.ndarray, R: np.ndarray, t: np.ndarray, s: float = 1.0) -> np.ndarray:
     """``s R x + t`` for ``points (k, 3)``."""
     return s * points @ R.T + t

@@ -77,8 +77,9 @@ def assign_parts(
     units while an optional part changed the shape's box). Pairs costing
     more than ``extra_cost`` are not taken. Such a part ("extra") joins, in this order: the group of
     a part of the same shape it is a rigid copy of (:func:`copy_of_sibling`), the group whose
-    representative has its connectivity (:func:`copy_of_group`), the group whose representative is
-    the same primitive in other proportions (:func:`match_box`), the group it fits by ICP
+    representative has its connectivity (:func:`copy_of_group`), the group of the template's copies
+    the model moved vertex by vertex whose vertices it shares (:func:`copy_deformed`), the group whose
+    representative is the same primitive in other proportions (:func:`match_box`), the group it fits by ICP
     (:func:`match_extra`, alignment error at most ``extra_tol``); otherwise it forms a group of its
     own ("new"), which :func:`proctex.transfer.apply.transfer` paints with the family's painter.
 
@@ -127,6 +128,10 @@ def assign_parts(
     # Slotted parts' meshes, for copies among the left-over parts: only when there are any (the
     # common case, every part in a slot, pays nothing).
     slotted = [(a, *part_mesh(shape, parts[i])) for i, a in slot_of.items()] if len(taken) < len(parts) else []
+    by_faces: dict[bytes, list[tuple[PartAssignment, np.ndarray, np.ndarray]]] = {}  # slotted parts by their exact connectivity
+    for entry in slotted:
+        by_faces.setdefault(len(entry[1]).to_bytes(8, "little") + entry[2].tobytes(), []).append(entry)
+    stacks: dict[bytes, np.ndarray] = {}  # ... their vertices in their normalised frames, stacked once
     fitted: dict[bytes, tuple[int, np.ndarray, np.ndarray, float]] = {}  # shape key -> match_extra's answer
     n_left = len(parts) - len(taken)
     for i, p in enumerate(parts):
@@ -137,7 +142,12 @@ def assign_parts(
             # whose representative has this part's exact connectivity are the only candidates when
             # there are any (an extra slat is a copy of the slat primitive): one ICP, not one per group.
             v, f = part_mesh(shape, p)
-            twin = copy_of_sibling(p.index, v, f, slotted, extra_tol)
+            topo = len(v).to_bytes(8, "little") + f.tobytes()
+            twin = None
+            if topo in by_faces:
+                if topo not in stacks:
+                    stacks[topo] = _normalised_stack(np.stack([sv for _, sv, _ in by_faces[topo]]))
+                twin = _best_sibling(p.index, v, [a for a, _, _ in by_faces[topo]], stacks[topo], extra_tol)
             if twin is not None:  # a rigid copy of a part that took a slot (a third small mushroom): its map, composed
                 out.append(twin)
                 continue
@@ -148,6 +158,10 @@ def assign_parts(
                 out.append(PartAssignment(p.index, copy[0], -1, np.eye(3), copy[1], "extra"))
                 continue
             u = (v - c) / (r if r > 0 else 1.0)
+            bent = copy_deformed(u, f, assets)
+            if bent is not None:  # another of the template's copies moved vertex by vertex (a scattered set's trunks)
+                out.append(PartAssignment(p.index, bent[0], -1, bent[1], bent[3], "extra", bent[2]))
+                continue
             box = match_box(u, f, assets, own[i], extra_cost=box_cost)
             if box is not None:  # the same primitive in other proportions (a wider tier, a longer leg)
                 out.append(PartAssignment(p.index, box.group, -1, box.A, box.score, "extra"))
@@ -177,23 +191,61 @@ def copy_of_sibling(part: int, vertices: np.ndarray, faces: np.ndarray, slotted:
     faces are identical and the fit's RMS residual is at most ``tol`` (normalised units); the best
     fit wins. Returns an "extra" :class:`PartAssignment`, or ``None``.
     """
-    from proctex.geometry.align import umeyama
-
     v = np.asarray(vertices, dtype=np.float64)
+    cands = [(a, sv) for a, sv, sf in slotted if len(sv) == len(v) and sf.shape == faces.shape and np.array_equal(sf, faces)]
+    if not cands:
+        return None
+    return _best_sibling(part, v, [a for a, _ in cands], _normalised_stack(np.stack([sv for _, sv in cands])), tol)
+
+
+def _normalised_stack(S: np.ndarray) -> np.ndarray:
+    """``S (m, k, 3)``, each part in its own normalised frame (:func:`normalised_frame`, all at once)."""
+    centre = (S.min(axis=1) + S.max(axis=1)) / 2
+    radius = np.abs(S - centre[:, None]).max(axis=(1, 2))
+    return (S - centre[:, None]) / np.where(radius > 0, radius, 1.0)[:, None, None]
+
+
+def _best_sibling(part: int, v: np.ndarray, siblings: Sequence[PartAssignment], W: np.ndarray, tol: float) -> PartAssignment | None:
+    """:func:`copy_of_sibling` among siblings known to share the part's connectivity, ``W (m, k, 3)``
+    their vertices in their normalised frames."""
+    from proctex.geometry.align import umeyama_batch
+
     c, r = normalised_frame(v)
     u = (v - c) / (r if r > 0 else 1.0)
-    best: tuple[float, PartAssignment] | None = None
-    for a, sv, sf in slotted:
-        if len(sv) != len(v) or sf.shape != faces.shape or not np.array_equal(sf, faces):
+    R, t, s = umeyama_batch(u, W, scale=True, reflection=False)  # every sibling at once (a scene's thousand leaves)
+    resid = np.sqrt(((s[:, None, None] * (u @ np.swapaxes(R, 1, 2)) + t[:, None] - W) ** 2).sum(axis=2).mean(axis=1))
+    i = int(np.argmin(resid))  # the first of the best
+    if not resid[i] <= tol:
+        return None
+    a = siblings[i]
+    M = np.asarray(a.R, dtype=np.float64)
+    return PartAssignment(part, a.group, -1, s[i] * M @ R[i], float(resid[i]), "extra", M @ t[i] + np.asarray(a.t, dtype=np.float64))
+
+
+def copy_deformed(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets) -> tuple[int, np.ndarray, np.ndarray, float] | None:
+    """The group a left-over part is another copy of when the template's own grouping took copies
+    the model moved vertex by vertex into it ("deformed" members, see
+    :func:`proctex.geometry.parts.group_parts`): a group whose representative has the part's vertex
+    count and at least :data:`~proctex.geometry.parts.DEFORMED_SHARED` of its faces on the same
+    vertices. Only such groups: a family whose template has no deformed members answers None.
+
+    ``vertices (k, 3)``: the part in its normalised frame; ``faces (m, 3)`` local. Returns ``(group,
+    A (3, 3), t (3,), residual)``, the least-squares affine map onto the representative's
+    normalised vertices (vertex i onto vertex i; ``residual`` its mean distance), or ``None``.
+    """
+    from proctex.geometry.parts import DEFORMED_SHARED, shared_faces
+
+    u = np.asarray(vertices, dtype=np.float64)
+    for ga in assets.groups:
+        if ga.degenerate or len(ga.vertices) != len(u) or not any(m.method == "deformed" for m in assets.grouping.groups[ga.group].maps):
             continue
-        sc, sr = normalised_frame(sv)
-        w = (sv - sc) / (sr if sr > 0 else 1.0)
-        R, t, s = umeyama(u, w, scale=True, reflection=False)
-        resid = float(np.sqrt(((s * u @ R.T + t - w) ** 2).sum(axis=1).mean()))
-        if resid <= tol and (best is None or resid < best[0]):
-            M = np.asarray(a.R, dtype=np.float64)
-            best = (resid, PartAssignment(part, a.group, -1, s * M @ R, resid, "extra", M @ t + np.asarray(a.t, dtype=np.float64)))
-    return None if best is None else best[1]
+        if shared_faces(faces, ga.faces) < DEFORMED_SHARED:
+            continue
+        X = np.concatenate([u, np.ones((len(u), 1))], axis=1)
+        A = np.linalg.lstsq(X, ga.vertices, rcond=None)[0]
+        if np.all(np.isfinite(A)):
+            return ga.group, A[:3].T.copy(), A[3].copy(), float(np.linalg.norm(X @ A - ga.vertices, axis=1).mean())
+    return None
 
 
 def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: TemplateAssets, slot_cost: np.ndarray,
