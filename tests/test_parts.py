@@ -243,7 +243,7 @@ def test_in_a_scene_of_many_parts_copies_moved_vertex_by_vertex_share_a_group(mo
     g = analyse(shape)
     assert g.part_group.tolist() == [0, 0, 1, 2]
     mm = g.groups[0].maps[1]
-    assert mm.method == "deformed" and mm.error > 0.01  # no rigid or similar copy
+    assert mm.method == "deformed" and mm.error > 0.01  # no rigid or similar copy (0.099 on both kernel sets: x10)
     np.testing.assert_allclose(mm.rotation @ mm.rotation.T, np.eye(3), atol=1e-9)
     with monkeypatch.context() as m:
         m.setattr(parts_mod, "ICP_PARTS", 300)

@@ -864,7 +864,8 @@ def test_more_copies_moved_vertex_by_vertex_than_the_template_has_join_its_defor
             v, f = part_mesh(shape, seg.parts[a.part])
             c, r = normalised_frame(v)
             got = copy_deformed((v - c) / r, f, assets)
-            assert got[0] == 0 and got[3] == a.cost and 0 < a.cost < 0.2  # the fit is close, not exact: the sheets are bent
+            # the fit is close, not exact: the sheets are bent (0.098 and 0.100 on both kernel sets: x2 below the bound)
+            assert got[0] == 0 and got[3] == a.cost and 0 < a.cost < 0.2
     monkeypatch.setattr(parts_mod, "ICP_PARTS", 300)
     rigid = analyse(template)
     assert len(rigid.groups) == 3
