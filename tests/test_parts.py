@@ -266,3 +266,13 @@ def test_in_a_scene_of_many_parts_copies_moved_vertex_by_vertex_share_a_group(mo
     local = np.searchsorted(rep.vertices, shape.faces[rep.faces])[texels.face]  # the representative's corners, member's vertices
     np.testing.assert_allclose(pts, np.einsum("tk,tkd->td", texels.bary, shape.vertices[mem.vertices][local]), atol=1e-12)
     assert np.abs(pts - texels.points).max() > 1.0  # not the representative's own points
+
+
+def test_shared_faces_counts_faces_on_the_same_vertices_in_any_corner_order():
+    from proctex.geometry.parts import shared_faces
+
+    fa = np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4], [3, 4, 5]])
+    fb = np.array([[2, 1, 0], [3, 2, 4], [0, 3, 5]])  # the first two turned, one other
+    assert shared_faces(fa, fb) == 0.5 and shared_faces(fb, fa) == 2 / 3 and shared_faces(fa[:0], fb) == 0.0
+    big = 3_000_000  # indices whose cube overflows int64: the same count another way
+    assert shared_faces(fa + big, fb + big) == 0.5

@@ -462,9 +462,13 @@ def shared_faces(fa: np.ndarray, fb: np.ndarray) -> float:
     vertex indices, any corner order), in [0, 1]; 0 for no faces."""
     if len(fa) == 0:
         return 0.0
-    n = int(max(fa.max(), fb.max() if len(fb) else 0)) + 1
-    code = lambda f: (lambda q: (q[:, 0] * n + q[:, 1]) * n + q[:, 2])(np.sort(np.asarray(f, dtype=np.int64), axis=1))  # noqa: E731
-    return float(np.isin(code(fa), code(fb)).mean())
+    qa, qb = np.sort(np.asarray(fa, dtype=np.int64), axis=1), np.sort(np.asarray(fb, dtype=np.int64), axis=1)
+    n = int(max(qa.max(), qb.max() if len(qb) else 0)) + 1
+    if n >= 2_000_000:  # n^3 would overflow int64: compare the rows as tuples
+        rows = set(map(tuple, qb.tolist()))
+        return float(np.mean([tuple(r) in rows for r in qa.tolist()]))
+    code = lambda q: (q[:, 0] * n + q[:, 1]) * n + q[:, 2]  # noqa: E731
+    return float(np.isin(code(qa), code(qb)).mean())
 
 
 def _compatible(a: _PartGeom, b: _PartGeom, rel: float, tol: float = 0.01) -> bool:

@@ -291,7 +291,9 @@ class SolidViewPainter:
         self.surface = surface_painter
         self.maps = {}
         if grouping is not None:
-            self.maps = {m.part: (np.asarray(m.R, float), np.asarray(m.t, float), m.scale if m.method == "similar" else 1.0)
+            # normals go by R's inverse transpose: R itself for a rigid map, renormalised otherwise
+            self.maps = {m.part: (np.asarray(m.R, float), np.asarray(m.t, float),
+                                  None if m.method in ("self", "topology", "icp") else np.linalg.pinv(np.asarray(m.R, float)).T)
                          for g in grouping.groups for m in g.maps}
 
     def paint_view(self, request: ViewRequest) -> np.ndarray:
@@ -303,10 +305,14 @@ class SolidViewPainter:
             part = request.part[m]
             for p in np.unique(part):
                 if int(p) in self.maps:
-                    R, t, scale = self.maps[int(p)]
+                    R, t, N = self.maps[int(p)]
                     sel = part == p
                     pts[sel] = pts[sel] @ R.T + t
-                    nrm[sel] = nrm[sel] @ R.T / scale  # unit normals (R is a rotation times the member's scale)
+                    if N is None:
+                        nrm[sel] = nrm[sel] @ R.T
+                    else:  # a scaled or deformed member: unit normals again
+                        n = nrm[sel] @ N.T
+                        nrm[sel] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
         pts = (pts - request.center) / request.scale
         grp = request.group[m]
         labels = request.extra.get("group_labels", {})

@@ -142,8 +142,8 @@ def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, te
         for member, mmap in zip(g.members, g.maps):
             part = grouping.parts[member]
             centre, extents = _placement(shape.vertices[part.vertices], lo, size)
-            # between normalised frames (each part's own centre and radius) a scaled member's map is its rotation
-            slots.append(Slot(member, g.index, mmap.rotation if mmap.method == "similar" else np.asarray(mmap.R, float), centre, extents))
+            # between normalised frames (each part's own centre and radius) a scaled or deformed member's map is its rotation
+            slots.append(Slot(member, g.index, mmap.rotation if mmap.method in ("similar", "deformed") else np.asarray(mmap.R, float), centre, extents))
     names = list(names) if names is not None else [g.label or f"group_{g.index}" for g in grouping.groups]
     maps = maps_png = None
     if isinstance(pbr, StoredMaps):
