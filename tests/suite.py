@@ -55,13 +55,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=None,
                         help="pytest-xdist workers per pass (0: in one process; default TEST_WORKERS or 2)")
     args, pytest_args = parser.parse_known_args(argv)
-    args.pytest_args = pytest_args
     try:
         par = xdist(int(os.environ.get("TEST_WORKERS", "2")) if args.workers is None else args.workers)
     except ValueError as exc:
         parser.error(f"{exc} (--workers or TEST_WORKERS: a whole number >= 0)")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}  # workers reuse compiled modules
-    second_cmd = [sys.executable, "-m", "tests.portable", *SECOND, *par, *args.pytest_args]
+    second_cmd = [sys.executable, "-m", "tests.portable", *SECOND, *par, *pytest_args]
     scratch = Path(tempfile.mkdtemp(prefix="proctex-second-"))
     log = open(scratch / "log", "w+b")
     second = subprocess.Popen([*second_cmd, "--basetemp", str(scratch / "tmp")], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
@@ -72,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
         print("the second pass (numeric tests on other kernels) runs beside the first at nice 10; its output follows", flush=True)
-        main_pass = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *par, *args.pytest_args], cwd=ROOT, env=env)
+        main_pass = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *par, *pytest_args], cwd=ROOT, env=env)
         first = main_pass.wait()
         if second.poll() is None:
             stop(second)

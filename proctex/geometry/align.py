@@ -72,6 +72,19 @@ def umeyama_batch(src: np.ndarray, dst: np.ndarray, scale: bool = False, reflect
     return R, t, s
 
 
+def affine_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares affine map of ``src (k, 3)`` onto ``dst (k, 3)`` (point i onto point i):
+    ``(A (3, 3), t (3,), fitted (k, 3))`` with ``fitted = src A^T + t ≈ dst``; not finite where the
+    points are."""
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) == 0:
+        raise ValueError(f"affine_fit needs two equal (k >= 1, 3) arrays, got {src.shape} and {dst.shape}")
+    X = np.concatenate([src, np.ones((len(src), 1))], axis=1)
+    sol = np.linalg.lstsq(X, dst, rcond=None)[0]  # (4, 3): dst ≈ src sol[:3] + sol[3]
+    return sol[:3].T.copy(), sol[3].copy(), X @ sol
+
+
 def apply(points: np.ndarray, R: np.ndarray, t: np.ndarray, s: float = 1.0) -> np.ndarray:
     """``s R x + t`` for ``points (k, 3)``."""
     return s * points @ R.T + t

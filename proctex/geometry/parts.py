@@ -26,7 +26,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .align import apply, icp_to_surface, umeyama
+from .align import affine_fit, apply, icp_to_surface, umeyama
 from .shape import Shape
 from .surface import SurfaceIndex, normalised_frame, sample_surface, triangle_areas
 
@@ -522,11 +522,10 @@ def match_part_rigid(a: _PartGeom, b: _PartGeom, planes: list[SymmetryPlane], to
                 if err < tol:
                     return MemberMap(a.info.index, s * R, t, "similar", err)
     if deformed and len(a.vertices) == len(b.vertices) and shared_faces(a.faces, b.faces) >= DEFORMED_SHARED:
-        X = np.concatenate([a.vertices, np.ones((len(a.vertices), 1))], axis=1)
-        A = np.linalg.lstsq(X, b.vertices, rcond=None)[0]  # (4, 3): b ≈ a A[:3] + A[3]
+        A, t, fitted = affine_fit(a.vertices, b.vertices)
         if np.all(np.isfinite(A)):
-            err = float(np.linalg.norm(X @ A - b.vertices, axis=1).mean() / max(b.info.radius, 1e-300))
-            return MemberMap(a.info.index, A[:3].T.copy(), A[3].copy(), "deformed", err)
+            err = float(np.linalg.norm(fitted - b.vertices, axis=1).mean() / max(b.info.radius, 1e-300))
+            return MemberMap(a.info.index, A, t, "deformed", err)
     if a.topo_key == b.topo_key:
         return None  # the same indexed mesh: the map through its vertices is the best rigid map there is
     if not icp:
@@ -590,35 +589,31 @@ def group_parts(
     by_topo: dict[bytes, list[PartGroup]] = {}  # groups by their representative's connectivity
     by_count: dict[int, list[PartGroup]] = {}  # ... and by its vertex count
     for g in geoms:
+
+        def size_gap(grp: PartGroup) -> float:  # how far a group's representative is from g's size
+            return abs(np.log(max(geoms[grp.representative].info.radius, 1e-300) / max(g.info.radius, 1e-300)))
+
+        def tries():  # (group, match_part_rigid's options), in order; the later ones only if the earlier fail
+            near = [grp for grp in groups if _compatible(g, geoms[grp.representative], prefilter, tol)]
+            near.sort(key=lambda grp: float(np.abs(g.moments - geoms[grp.representative].moments).sum()))
+            yield from ((grp, {"icp": icp}) for grp in near[:MAX_MATCH_TRIES])
+            if similar and not g.info.degenerate:
+                # scaled copies fail the size prefilter: the groups of the same connectivity, nearest size first
+                same = sorted(by_topo.get(g.topo_key, []), key=size_gap)[:MAX_MATCH_TRIES]
+                yield from ((grp, {"icp": False, "similar": True}) for grp in same)
+                if not icp:  # then a copy the model moved vertex by vertex, of the nearest size first
+                    alike = sorted(by_count.get(len(g.vertices), []), key=size_gap)[:MAX_MATCH_TRIES]
+                    yield from ((grp, {"icp": False, "similar": True, "deformed": True}) for grp in alike)
+
         placed = False
-        near = [grp for grp in groups if _compatible(g, geoms[grp.representative], prefilter, tol)]
-        near.sort(key=lambda grp: float(np.abs(g.moments - geoms[grp.representative].moments).sum()))
-        for grp in near[:MAX_MATCH_TRIES]:
-            rep = geoms[grp.representative]
-            mm = match_part_rigid(g, rep, planes, tol, icp=icp)
+        for grp, options in tries():
+            mm = match_part_rigid(g, geoms[grp.representative], planes, tol, **options)
             if mm is not None:
                 grp.members.append(g.info.index)
                 grp.maps.append(mm)
                 part_group[g.info.index] = grp.index
                 placed = True
                 break
-        if not placed and similar and not g.info.degenerate:
-            # scaled copies fail the size prefilter: the groups of the same connectivity, nearest size first
-            same = sorted(by_topo.get(g.topo_key, []), key=lambda grp: abs(np.log(max(geoms[grp.representative].info.radius, 1e-300)
-                                                                                      / max(g.info.radius, 1e-300))))
-            tries = [(grp, False) for grp in same[:MAX_MATCH_TRIES]]
-            if not icp:  # then a copy the model moved vertex by vertex, of the nearest size first
-                alike = sorted(by_count.get(len(g.vertices), []), key=lambda grp: abs(np.log(max(geoms[grp.representative].info.radius, 1e-300)
-                                                                                                 / max(g.info.radius, 1e-300))))
-                tries += [(grp, True) for grp in alike[:MAX_MATCH_TRIES]]
-            for grp, deformed in tries:
-                mm = match_part_rigid(g, geoms[grp.representative], planes, tol, icp=False, similar=True, deformed=deformed)
-                if mm is not None:
-                    grp.members.append(g.info.index)
-                    grp.maps.append(mm)
-                    part_group[g.info.index] = grp.index
-                    placed = True
-                    break
         if not placed:
             gi = len(groups)
             groups.append(

@@ -10,7 +10,8 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from proctex.geometry.parts import Segmentation, part_mesh
+from proctex.geometry.align import affine_fit, umeyama_batch
+from proctex.geometry.parts import DEFORMED_SHARED, Segmentation, part_mesh, shared_faces
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, normalised_frame, sample_surface
 from proctex.transfer.assets import TemplateAssets, _box, _placement, same_topology
@@ -208,8 +209,6 @@ def _normalised_stack(S: np.ndarray) -> np.ndarray:
 def _best_sibling(part: int, v: np.ndarray, siblings: Sequence[PartAssignment], W: np.ndarray, tol: float) -> PartAssignment | None:
     """:func:`copy_of_sibling` among siblings known to share the part's connectivity, ``W (m, k, 3)``
     their vertices in their normalised frames."""
-    from proctex.geometry.align import umeyama_batch
-
     c, r = normalised_frame(v)
     u = (v - c) / (r if r > 0 else 1.0)
     R, t, s = umeyama_batch(u, W, scale=True, reflection=False)  # every sibling at once (a scene's thousand leaves)
@@ -233,18 +232,15 @@ def copy_deformed(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAsset
     A (3, 3), t (3,), residual)``, the least-squares affine map onto the representative's
     normalised vertices (vertex i onto vertex i; ``residual`` its mean distance), or ``None``.
     """
-    from proctex.geometry.parts import DEFORMED_SHARED, shared_faces
-
     u = np.asarray(vertices, dtype=np.float64)
     for ga in assets.groups:
         if ga.degenerate or len(ga.vertices) != len(u) or not any(m.method == "deformed" for m in assets.grouping.groups[ga.group].maps):
             continue
         if shared_faces(faces, ga.faces) < DEFORMED_SHARED:
             continue
-        X = np.concatenate([u, np.ones((len(u), 1))], axis=1)
-        A = np.linalg.lstsq(X, ga.vertices, rcond=None)[0]
+        A, t, fitted = affine_fit(u, ga.vertices)
         if np.all(np.isfinite(A)):
-            return ga.group, A[:3].T.copy(), A[3].copy(), float(np.linalg.norm(X @ A - ga.vertices, axis=1).mean())
+            return ga.group, A, t, float(np.linalg.norm(fitted - ga.vertices, axis=1).mean())
     return None
 
 
@@ -265,9 +261,8 @@ def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: Templ
     size = max(float(np.linalg.norm(np.ptp(v, axis=0))), 1e-12)
     for g in candidates:
         ga = assets.groups[g]
-        X = np.hstack([ga.vertices, np.ones((len(ga.vertices), 1))])
-        A, *_ = np.linalg.lstsq(X, v, rcond=None)
-        resid = float(np.sqrt(((X @ A - v) ** 2).sum(axis=1).mean())) / size
+        fitted = affine_fit(ga.vertices, v)[2]
+        resid = float(np.sqrt(((fitted - v) ** 2).sum(axis=1).mean())) / size
         if resid > tol:
             continue
         slots = [k for k, s in enumerate(assets.slots) if s.group == g]
