@@ -51,14 +51,14 @@ from .uv import ShapeUV, TexelMap, pad_seams, sample_texture, shape_uv
 # -------------------------------------------------------------------------------- view painting
 @dataclass
 class _Member:
-    """A group member's map ``x_rep = R x + t``; ``back (3, 3)``: ``R^-1`` (``R^T`` for a rigid map);
-    ``points (t, 3)``: where the group's texels lie on this member when ``R, t`` only approximate
-    it (a "deformed" member: the same barycentrics on its own copy of each face), else None."""
+    """A group member's map ``x_rep = R x + t``; ``back (3, 3)``: ``R^-1`` (``R^T`` for a rigid map),
+    or ``points (t, 3)``: where the group's texels lie on this member when ``R, t`` only approximate
+    it (a "deformed" member: the same barycentrics on its own copy of each face; ``back`` None)."""
 
     part: int
     R: np.ndarray
     t: np.ndarray
-    back: np.ndarray
+    back: np.ndarray | None
     points: np.ndarray | None = None
 
     def texel_points(self, texels: TexelMap) -> np.ndarray:
@@ -71,7 +71,7 @@ def _member(shape: Shape, grouping: Grouping, g: PartGroup, m: MemberMap, texels
     if m.method == "deformed":  # vertex i of the member is vertex i of the representative
         _, rep_faces = part_mesh(shape, grouping.parts[g.representative])
         v_mem, _ = part_mesh(shape, grouping.parts[m.part])
-        return _Member(m.part, R, t, np.linalg.pinv(R), np.einsum("tk,tkd->td", texels.bary, v_mem[rep_faces[texels.face]]))
+        return _Member(m.part, R, t, None, np.einsum("tk,tkd->td", texels.bary, v_mem[rep_faces[texels.face]]))
     return _Member(m.part, R, t, np.linalg.inv(R) if m.method == "similar" else R.T)
 
 
