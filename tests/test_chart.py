@@ -148,6 +148,7 @@ def _along_and_around(path, u, points):
     return u[j], np.arctan2(np.einsum("kd,kd->k", d, np.cross(t, n)), np.einsum("kd,kd->k", d, n))
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_a_coil_with_more_turns_maps_along_and_around_through_the_charts():
     """Source coil: 3 turns; template: 4. The cage can only follow the volume (a point a third of
     the way along lands far from a third of the way along); the sweep teacher maps every sample to

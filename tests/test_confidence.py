@@ -48,6 +48,7 @@ def test_disagreement_finds_the_slipped_region_of_the_slipped_pairs():
         assert d[i].mean() < 0.1 and w[i].mean() > 0.5
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_weighted_training_learns_the_consistent_teacher():
     """Three of ten teachers slipped on half their points: trained alike on every point, the
     network averages the slip into a 0.2 error on clean held-out shapes; weighted by the teacher's

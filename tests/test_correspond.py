@@ -160,6 +160,7 @@ def test_cage_is_deterministic(bent_pair):
     np.testing.assert_array_equal(a.points, b.points)
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_cage_keeps_thin_walls_oriented():
     model = get_model("mug")
     shape = model.generate({"radius": 0.05, "wall": 0.006, "taper": 0.12, "height": 0.08})
@@ -219,6 +220,7 @@ def test_gt_error_is_zero_for_the_truth_and_flags_flips():
     assert wrong.mean > 0.5 and wrong.flipped > 0.5
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_correspond_shapes_builtin_all_methods():
     model = get_model("table")
     template = model.generate()
@@ -264,6 +266,7 @@ def test_cli_correspond_text_and_errors(capsys, tmp_path):
     assert "cage level" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_symmetry_option_keeps_the_cage_mirror_symmetric():
     tpl = box((1.0, 0.5, 0.4), divisions=(6, 3, 3))
     src = box((1.2, 0.45, 0.5), divisions=(5, 4, 3))
@@ -282,6 +285,7 @@ def test_symmetry_option_keeps_the_cage_mirror_symmetric():
     assert cKDTree(free.details["cage"]).query(free.details["cage"] * [-1, 1, 1])[0].max() > 0.02
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_cage_correspondence_of_a_sofa_sample_is_scored_against_the_truth(capsys):
     """What the first demo printed, now through ``correspond``: every matched group of a sofa
     sample solved by the cage onto the template, each with a ground-truth error."""
@@ -291,6 +295,7 @@ def test_cage_correspondence_of_a_sofa_sample_is_scored_against_the_truth(capsys
     assert data["groups"] and all(g["gt_error"] is not None and g["gt_error"]["mean"] < 0.2 for g in data["groups"])
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 @pytest.mark.parametrize("part", [0, 1])
 def test_cage_keeps_identical_parts_matched_in_place(part):
     """Two identical parts: the tangent-plane Chamfer has its minimum at the identity, so the cage
@@ -450,6 +455,7 @@ def test_oriented_nearest_neighbour_equals_asking_every_query_for_k():
     assert np.array_equal(_oriented_nn(tree, pts, nrm, query, qn, k=1), nearest)
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_batched_cage_solves_give_each_pair_its_single_solve():
     """Four bent boxes (other bends, tessellations and seeds) onto one box in one batched solve:
     each pair solves its own problem (the same starting loss; float rounding of the batched products,
@@ -487,6 +493,7 @@ def test_batched_cage_solves_give_each_pair_its_single_solve():
     assert correspond_parts_batch([], tv, tf) == []
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_a_warm_started_cage_converges_to_the_same_map():
     """Warm starts (solve_cage's ``start``): a pair started from its own solved cage lands on the
     same map at once (the early-stopping patience, not the 40+ steps of the cold solve); started

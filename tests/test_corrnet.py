@@ -200,6 +200,7 @@ def test_sample_indices():
 
 
 # -------------------------------------------------------------------------------------- training
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_learns_a_known_smooth_map():
     train_pairs = family_pairs(32, 256, seed=1)
     val_pairs = family_pairs(4, 256, seed=2)
@@ -520,6 +521,7 @@ def test_box_frame_residual_network_reproduces_the_box_map_exactly():
     np.testing.assert_allclose(pred, dst, atol=1e-6)  # cube faces reach the box: extents exact
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_box_frame_learns_stretches_better_than_the_uniform_frame():
     train_pairs, val_pairs = _stretch_pairs(24, seed=0), _stretch_pairs(4, seed=1)
     errors = {}
@@ -552,6 +554,7 @@ def test_checkpoints_from_before_the_box_frame_load_as_uniform(tmp_path):
 
 
 # ------------------------------------------------------------------------------- serving choice
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_serving_choice_picks_the_box_map_for_an_exactly_affine_family_and_the_network_for_a_bent_one():
     # Stretched boxes: the box map is exact (error ~0), so no trained network can beat it by the margin.
     train_pairs, val_pairs = _stretch_pairs(16, seed=0), _stretch_pairs(3, seed=1)

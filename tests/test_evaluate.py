@@ -73,6 +73,7 @@ def test_lpips_from_a_local_file_is_a_distance(tmp_path):
 
 
 # ------------------------------------------------------------------------------------ correspondence
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_cpd_field_applies_to_any_point_and_reproduces_its_samples():
     from proctex.correspond.dense import correspond_parts, deform
     from proctex.geometry.parts import part_mesh, segment

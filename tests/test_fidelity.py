@@ -430,6 +430,7 @@ def _plate(size=(1.0, 0.3, 0.05), n=6):
     return v, np.asarray(f, dtype=np.int64)
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_a_part_matched_through_a_mirror_keeps_its_faces_wound_outward(monkeypatch):
     """A part matched to its representative through a mirror (det R = -1: a left part on the right
     representative) comes into the representative's frame with its faces' winding reversed, so its

@@ -94,6 +94,7 @@ def test_chunks_dtype_and_tensor_inputs_agree():
     np.testing.assert_allclose(c.numpy(), a.numpy(), atol=2e-3)
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_differentiable_wrt_cage_vertices():
     cv, cf = CAGES["warped"]
     pts = torch.tensor(np.random.default_rng(4).uniform(-0.5, 0.5, size=(4, 3)))

@@ -104,6 +104,7 @@ def test_coverage_is_zero_on_a_sofa_sample_and_counts_holes(sofa):
 
 
 # ------------------------------------------------------------------------------ multi-view loop
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 @pytest.mark.parametrize("prompt", ["oak wood", "red velvet", "white marble"])
 def test_view_loop_reproduces_the_surface_painter(chair, prompt):
     shape, g = chair
@@ -162,6 +163,7 @@ def test_fill_unseen_interpolates_on_the_surface():
     assert np.array_equal(out[:2], col[:2])
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 def test_diffusion_painter_runs_the_whole_loop(tmp_path, chair):
     pytest.importorskip("diffusers")
     import torch

@@ -216,6 +216,7 @@ def test_instrumented_and_plain_evaluation_give_the_same_mesh(blends, where, fil
         model.close()
 
 
+@pytest.mark.slow  # over 15 s: not in make test's second pass (tests/suite.py)
 @needs_bpy
 def test_the_parts_and_inputs_commands_show_names_and_file_values(blends, capsys):
     from proctex.cli import main
