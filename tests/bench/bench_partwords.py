@@ -127,7 +127,7 @@ def taken(case: Case, texts: dict[int, str | None]) -> dict[int, str]:
 
 def resolver_texts(case: Case, shape, grouping: Grouping) -> dict[int, str | None]:
     plan = plan_parts(case.prompt, shape.vertices, shape.faces, grouping, "z")
-    return {g.index: plan.text_for(g.index) for g in grouping.groups if not g.degenerate}
+    return {g.index: plan.painted_text(g.index) for g in grouping.groups if not g.degenerate}
 
 
 def baseline_texts(case: Case, shape, grouping: Grouping) -> dict[int, str | None]:

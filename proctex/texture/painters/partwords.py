@@ -1,58 +1,32 @@
-"""Part words grounded in geometry: "a chair with a red velvet seat and dark walnut legs" on a mesh
-whose parts carry no names.
+"""Part words grounded in geometry: "a bed with a white linen mattress, a walnut headboard and black
+metal legs" on a mesh whose parts carry no names.
 
-Real exports (Blender, OBJ folders) name no parts, so a prompt's part nouns match no label. Here each
-part word has a geometric test over the part groups of the shape, in its own up frame (the shape's
-bounding box taken to [0, 1] per axis; sizes relative to the shape): what a seat, legs or a back
-*are* in furniture and objects of every family, not in one generator. One table (:data:`PART_WORDS`)
-serves every painter: :func:`plan_parts` resolves the words of a prompt to groups, splits the prompt
-into the clauses that name them (:func:`proctex.texture.painters.regions.split_regions`), and gives
-every group its text:
+Real exports (Blender, OBJ folders) name no parts, so a prompt's part nouns match no label. Each part
+word of the vocabulary (:mod:`.partvocab`: words by kinds of object, with forms, plurals and
+compounds) is a small scoring function of a part group's measured evidence in the shape's up frame
+(shape of a member from its principal axes, height band, what it rests on and what rests on it,
+repetition, place against the main mass, size). :func:`plan_parts` resolves the words of a prompt
+to groups *jointly*: every clause gets its best group and a group its best clause (one assignment
+problem over the scores, scipy's ``linear_sum_assignment``), then each group left joins the clause
+that scores it best when that score is near the clause's own; ties and weak matches are reported.
+The prompt's object noun ("a lamp") chooses the kind whose scorers are used (a mug's "handle" is not
+a cabinet's); without one, the kind whose words the prompt uses most, else the best of every kind.
 
 - a group a word took gets that word's clause ("red velvet" for the seat);
+- a clause whose part word is unknown ("a gold spout" on a chair) joins as a weak match: it takes the
+  largest group no known word took, reported as a guess; with no group left it paints nothing and
+  the notes say so. A clause's words never join another clause's material;
 - a group no word took that passes the test of a word of the same kind as a word the prompt placed
   (:data:`KINDRED`: a chair's disc base or stretchers when the prompt names its legs) gets that
   word's clause;
-- any other group no word took gets the rest of the prompt when the rest names a material ("an oak chair
-  with a red velvet seat": oak), else the clause of the taken group most alike in shape (a back panel
-  is a slab like the seat, arms are bars like the legs), so no group falls back to a plain default
-  while the prompt names a material;
-- a clause whose word no group passes (a "spout" on a chair) gives its material to the rest when the
-  rest names none.
+- any other group no word took gets the rest of the prompt when the rest names a material ("an oak
+  chair with a red velvet seat": oak), else the clause of the taken group most alike in shape (a
+  back panel is a slab like the seat, arms are bars like the legs).
 
-The notes say which groups each word took and why. Labels, where a shape has them, come first: a
-word that names a group's label is routed by the label (as :mod:`.regions` always did), and so is a
-word naming one word of a label of several words (a ``.blend`` node tree's "Left Arm" for "arms",
-:func:`label_hits`); a group named by its label is not taken by a word's geometric test.
-
-========== ==================================================================================
-word       test (u: height in the shape, 0 floor, 1 top; sizes of one member)
-========== ==================================================================================
-legs       touch the floor (u_lo <= 0.1; or the top of a flat base on it), below the top part
-           (u_hi <= 0.6) or an upright bar narrow across the shape (<= 30 % of its width and
-           depth); not a slab covering most of the footprint
-seat       a horizontal slab (thickness <= half its width) over >= 25 % of the footprint off the
-           floor (u_mid >= 0.2) with no large slab above it: the largest such (at the very top,
-           u_hi >= 0.9, it scores below "top")
-top        a horizontal slab over >= 30 % of the footprint at the top (u_hi >= 0.9): the largest
-back       upright, thin across one horizontal axis, every member at the same end of that axis
-           (within its outer 20 %), reaching the upper quarter (u_hi >= 0.75, u_mid >= 0.5)
-arms       two or more members at both ends of one horizontal axis, off the floor (u_lo >= 0.15),
-           below the top (u_hi <= 0.9)
-shelf      horizontal slabs over >= 30 % of the footprint, neither the top nor the bottom board
-door       an upright panel (thin across a horizontal axis) at one end of that axis, >= 30 % of
-           the height and >= 25 % of the width
-side       upright panels at the ends of a horizontal axis, >= 40 % of the height
-drawer     box-like members (thinnest >= 15 % of the widest) stacked or side by side (2 or more),
-           at one end of a horizontal axis
-base       on the floor (u_lo <= 0.05, u_hi <= 0.3) over >= 15 % of the footprint
-rungs      horizontal bars (longest >= 3x the others) off the floor, in the lower half
-frame      bars (longest >= 5x the thinnest)
-handle     small (<= 20 % of the shape's area, no longer than 60 % of it) and not the largest
-           group, at a horizontal end
-body       the largest group by area
-cushion    slabs over >= 10 % of the footprint at mid height (one or more)
-========== ==================================================================================
+Labels, where a shape has them, come first: a word that names a group's label is routed by the
+label (as :mod:`.regions` always did), and so is a word naming one word of a label of several words
+(a ``.blend`` node tree's "Left Arm" for "arms", :func:`label_hits`); a group named by its label is
+not taken by a word's geometric test.
 """
 
 from __future__ import annotations
@@ -60,270 +34,45 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
+from . import partvocab as V
 from .names import matchable_words, same_word
 from .prompt import parse_prompt
 from .regions import RegionPlan, _label_of, split_regions
 
 __all__ = ["PART_WORDS", "KINDRED", "GroupGeometry", "PartPlan", "describe_groups", "part_word", "resolve_words", "plan_parts",
-           "new_part_texts"]
+           "new_part_texts", "label_hits"]
+
+GroupGeometry = V.Evidence
+#: canonical word -> its forms (the vocabulary, :data:`.partvocab.WORDS`)
+PART_WORDS: dict[str, tuple[str, ...]] = {w: word.forms for w, word in V.WORDS.items()}
+#: a clause's best group is taken only with at least this score
+MIN_SCORE = 0.2
+#: another group joins a clause that scores it at least this, and at least EXTEND_SHARE of the
+#: clause's best group's score
+EXTEND_SCORE, EXTEND_SHARE = 0.45, 0.6
+#: two clauses within this of each other on a group are a tie (reported)
+TIE = 0.05
+#: shapes with more groups than this are resolved on the largest of them only (the rest take the
+#: rest of the prompt): a bound on the evidence's pairwise contacts
+MAX_GROUPS = 200
 
 
-@dataclass(frozen=True)
-class GroupGeometry:
-    """What a part group is, in the shape's frame.
-
-    Attributes:
-        group: group index.
-        members: number of member parts.
-        up: index of the up axis (0, 1, 2); ``horizontal``: the other two.
-        extent: (3,) one member's bounding-box extents relative to the shape's largest extent.
-        shape_extent: (3,) the shape's extents relative to its largest (1 on the longest axis).
-        lo, hi: (3,) the members' union box in the shape's box taken to [0, 1] per axis.
-        centers: (members, 3) member box centres in the same [0, 1] frame.
-        area_share: the group's share of the shape's surface area.
-    """
-
-    group: int
-    members: int
-    up: int
-    horizontal: tuple[int, int]
-    extent: np.ndarray
-    shape_extent: np.ndarray
-    lo: np.ndarray
-    hi: np.ndarray
-    centers: np.ndarray
-    area_share: float
-
-    @property
-    def u_lo(self) -> float:
-        return float(self.lo[self.up])
-
-    @property
-    def u_hi(self) -> float:
-        return float(self.hi[self.up])
-
-    @property
-    def u_mid(self) -> float:
-        return float(self.centers[:, self.up].mean())
-
-    def footprint(self) -> float:
-        """One member's horizontal box area over the shape's."""
-        a, b = self.horizontal
-        whole = self.shape_extent[a] * self.shape_extent[b]
-        return float(self.extent[a] * self.extent[b] / whole) if whole > 0 else 0.0
-
-    def flat(self) -> bool:
-        """A horizontal slab: thickness at most half its smaller horizontal extent."""
-        a, b = self.horizontal
-        return bool(self.extent[self.up] <= 0.5 * min(self.extent[a], self.extent[b]))
-
-    def upright_bar(self) -> bool:
-        a, b = self.horizontal
-        return bool(self.extent[self.up] >= 2.0 * max(self.extent[a], self.extent[b]))
-
-    def height_share(self) -> float:
-        """One member's height over the shape's."""
-        return float(self.extent[self.up] / self.shape_extent[self.up]) if self.shape_extent[self.up] > 0 else 0.0
-
-    def width_share(self, axis: int) -> float:
-        return float(self.extent[axis] / self.shape_extent[axis]) if self.shape_extent[axis] > 0 else 0.0
-
-    def at_one_end(self, axis: int, band: float = 0.2) -> bool:
-        """Every member's centre within the outer ``band`` of ``axis``, all at the same end."""
-        c = self.centers[:, axis]
-        return bool(np.all(c <= band) or np.all(c >= 1.0 - band))
-
-    def at_both_ends(self, axis: int, band: float = 0.25) -> bool:
-        c = self.centers[:, axis]
-        return bool(self.members >= 2 and c.min() <= band and c.max() >= 1.0 - band)
-
-    def thin_across(self, axis: int, ratio: float = 0.5) -> bool:
-        """Thin across ``axis`` compared with its other two extents (an upright panel or bar)."""
-        others = [self.extent[i] for i in range(3) if i != axis]
-        return bool(self.extent[axis] <= ratio * max(others))
-
-    def slenderness(self) -> float:
-        e = np.sort(self.extent)
-        return float(e[2] / max(e[0], 1e-12))
-
-
-def describe_groups(vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z") -> list[GroupGeometry]:
-    """One :class:`GroupGeometry` per non-degenerate group of ``grouping`` (a
+def describe_groups(vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z") -> list[V.Evidence]:
+    """One :class:`.partvocab.Evidence` per non-degenerate group of ``grouping`` (a
     :class:`proctex.geometry.parts.Grouping`) on the mesh ``vertices (n, 3) float``, ``faces (m, 3)
     int``; ``up`` is "x", "y", "z" or an axis index."""
-    u = "xyz".index(up) if isinstance(up, str) else int(up)
-    if u not in (0, 1, 2):
+    u = "xyz".index(up) if isinstance(up, str) and up in ("x", "y", "z") else up
+    if not isinstance(u, (int, np.integer)) or isinstance(u, bool) or u not in (0, 1, 2):
         raise ValueError(f"up must be x, y or z, got {up!r}")
     v = np.asarray(vertices, dtype=np.float64)
     if v.ndim != 2 or v.shape[1] != 3 or not len(v):
         raise ValueError(f"vertices must be (n, 3) with n > 0, got {v.shape}")
-    parts = grouping.segmentation.parts
-    used = np.unique(np.concatenate([p.vertices for p in parts if not p.degenerate] or [np.arange(len(v))]))
-    lo, hi = v[used].min(0), v[used].max(0)
-    span = hi - lo
-    longest = float(span.max()) or 1.0
-    safe = np.where(span > 0, span, 1.0)
-    total = sum(p.area for p in parts if not p.degenerate) or 1.0
-    horizontal = tuple(i for i in range(3) if i != u)
-    out = []
-    for g in grouping.groups:
-        if g.degenerate:
-            continue
-        boxes = []
-        for m in g.members:
-            pv = v[parts[m].vertices]
-            boxes.append((pv.min(0), pv.max(0)))
-        mlo = np.array([b[0] for b in boxes])
-        mhi = np.array([b[1] for b in boxes])
-        rep = boxes[0]
-        out.append(GroupGeometry(
-            group=g.index, members=len(g.members), up=u, horizontal=horizontal,  # type: ignore[arg-type]
-            extent=(rep[1] - rep[0]) / longest, shape_extent=span / longest,
-            lo=(mlo.min(0) - lo) / safe, hi=(mhi.max(0) - lo) / safe,
-            centers=((mlo + mhi) / 2 - lo) / safe,
-            area_share=float(sum(parts[m].area for m in g.members) / total),
-        ))
-    return out
-
-
-# ------------------------------------------------------------------------------------------ tests
-def _floor(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    """Where legs stand: the floor (0), or the top of a flat base on it (a plinth) other than ``g``."""
-    return max([h.u_hi for h in all_ if h.group != g.group and h.flat() and _base(h, all_) > 0] + [0.0])
-
-
-def _legs(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    post = g.upright_bar() and max(g.width_share(a) for a in g.horizontal) <= 0.3  # not a cabinet's side board
-    if g.u_lo > _floor(g, all_) + 0.1 or not (post or g.u_hi <= 0.6):
-        return 0.0
-    if g.flat() and g.footprint() >= 0.6:
-        return 0.0
-    return 1.0 if post else 0.7
-
-
-def _seat_like(g: GroupGeometry, all_: list[GroupGeometry]) -> bool:
-    """A slab off the floor with no other large slab above it (that would make it a shelf); the
-    highest part when nothing rises above it (a stool, a chair without back or arms)."""
-    if not g.flat() or g.footprint() < 0.25 or g.u_mid < 0.2:
-        return False
-    return not any(h.group != g.group and h.flat() and h.footprint() >= 0.3 and h.u_lo > g.u_hi for h in all_)
-
-
-def _seat(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    if not _seat_like(g, all_):
-        return 0.0
-    # A seat at the very top (a stool's) is also a top: named both, "top" takes it.
-    return (0.6 if g.u_hi >= 0.9 else 1.0) * _largest(g, all_, lambda h: _seat_like(h, all_), GroupGeometry.footprint)
-
-
-def _top(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    if not g.flat() or g.footprint() < 0.3 or g.u_hi < 0.9:
-        return 0.0
-    return _largest(g, all_, lambda h: h.flat() and h.footprint() >= 0.3 and h.u_hi >= 0.9, GroupGeometry.footprint)
-
-
-def _back(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    if g.u_hi < 0.75 or g.u_mid < 0.5:
-        return 0.0
-    ok = [a for a in g.horizontal if g.at_one_end(a) and g.thin_across(a)]
-    return 0.9 if ok else 0.0
-
-
-def _arms(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    if g.members < 2 or g.u_lo < 0.15 or g.u_hi > 0.9:
-        return 0.0
-    return 0.8 if any(g.at_both_ends(a) for a in g.horizontal) else 0.0
-
-
-def _shelf(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    if not g.flat() or g.footprint() < 0.3:
-        return 0.0
-    return 0.8 if g.u_hi < 0.97 and g.u_lo > 0.03 else 0.0
-
-
-def _door(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    for a, b in (g.horizontal, g.horizontal[::-1]):
-        if g.thin_across(a, 0.2) and g.at_one_end(a, 0.15) and g.height_share() >= 0.3 and g.width_share(b) >= 0.25:
-            return 0.8
-    return 0.0
-
-
-def _side(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    for a in g.horizontal:
-        if g.thin_across(a, 0.25) and g.height_share() >= 0.4 and (g.at_both_ends(a, 0.15) or g.at_one_end(a, 0.15)):
-            return 0.6
-    return 0.0
-
-
-def _drawer(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    e = np.sort(g.extent)
-    if g.members < 2 or e[0] < 0.15 * e[2]:
-        return 0.0
-    return 0.8 if any(g.at_one_end(a, 0.35) for a in g.horizontal) else 0.0
-
-
-def _base(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    return 0.8 if g.u_lo <= 0.05 and g.u_hi <= 0.3 and g.footprint() >= 0.15 else 0.0
-
-
-def _rungs(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    e = g.extent
-    long_axis = int(np.argmax(e))
-    if long_axis == g.up or e[long_axis] < 3.0 * np.max(np.delete(e, long_axis)):
-        return 0.0
-    return 0.9 if g.u_lo >= 0.03 and g.u_mid <= 0.5 else 0.0
-
-
-def _frame(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    return 0.5 if g.slenderness() >= 5.0 else 0.0
-
-
-def _handle(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    if len(all_) < 2 or g.area_share > 0.2 or g.area_share >= max(h.area_share for h in all_) or g.extent.max() > 0.6:
-        return 0.0
-    return 0.7 if any(g.at_one_end(a, 0.3) or g.at_both_ends(a, 0.3) for a in g.horizontal) else 0.0
-
-
-def _body(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    return 0.5 if g.area_share >= max(h.area_share for h in all_) else 0.0
-
-
-def _cushion(g: GroupGeometry, all_: list[GroupGeometry]) -> float:
-    return 0.7 if g.flat() and g.footprint() >= 0.1 and 0.2 <= g.u_mid <= 0.8 else 0.0
-
-
-def _largest(g: GroupGeometry, all_: list[GroupGeometry], passes: Callable[[GroupGeometry], bool],
-             key: Callable[[GroupGeometry], float]) -> float:
-    """1 for the largest group passing ``passes`` by ``key`` (the one seat of a chair), else 0."""
-    best = max((h for h in all_ if passes(h)), key=key, default=None)
-    return 1.0 if best is not None and best.group == g.group else 0.0
-
-
-#: canonical word -> (the forms a prompt may use, the test, why in one phrase for the notes)
-PART_WORDS: dict[str, tuple[tuple[str, ...], Callable[[GroupGeometry, list[GroupGeometry]], float], str]] = {
-    "legs": (("leg", "legs", "feet", "foot"), _legs, "stands on the floor"),
-    "seat": (("seat", "seats", "saddle"), _seat, "the largest horizontal slab off the floor with none above it"),
-    "top": (("top", "tabletop", "table-top", "worktop", "countertop", "tops"), _top, "the largest horizontal slab at the top"),
-    "back": (("back", "backrest", "backs", "backrests"), _back, "upright at one end, reaching the upper part"),
-    "arms": (("arm", "arms", "armrest", "armrests"), _arms, "a pair at both sides, off the floor"),
-    "shelf": (("shelf", "shelves", "board", "boards"), _shelf, "horizontal slabs between top and bottom"),
-    "door": (("door", "doors"), _door, "an upright panel at the front or back"),
-    "side": (("side", "sides", "panel", "panels"), _side, "upright panels at the ends"),
-    "drawer": (("drawer", "drawers"), _drawer, "box-like members at one end"),
-    "base": (("base", "pedestal", "plinth", "stand"), _base, "on the floor, covering part of the footprint"),
-    "rungs": (("rung", "rungs", "stretcher", "stretchers", "crossbar", "crossbars", "support", "supports"), _rungs,
-              "horizontal bars off the floor, in the lower half"),
-    "frame": (("frame", "frames", "bars", "bar"), _frame, "slender bars"),
-    "handle": (("handle", "handles", "knob", "knobs", "pull", "pulls"), _handle, "a small part at the side"),
-    "body": (("body",), _body, "the largest group"),
-    "cushion": (("cushion", "cushions", "pillow", "pillows"), _cushion, "slabs at mid height"),
-}
-
-_FORMS = {form: word for word, (forms, _, _) in PART_WORDS.items() for form in forms}
+    return V.evidence(v, grouping, int(u))
 
 
 #: Words of one kind: what holds a shape up. A group the prompt does not name that passes the test of
@@ -333,8 +82,8 @@ KINDRED: tuple[tuple[str, ...], ...] = (("legs", "base", "rungs"),)
 
 
 def part_word(form: str) -> str | None:
-    """The canonical word of ``form`` ("legs" for "leg", "feet"; None when not a part word)."""
-    return _FORMS.get(str(form).lower())
+    """The canonical word of ``form`` ("legs" for "leg", "feet"; "top" for "table top"; None when not a part word)."""
+    return V.word_of(form)
 
 
 @lru_cache(maxsize=4096)
@@ -353,37 +102,62 @@ def label_hits(token: str, labels: list[str]) -> list[str]:
     if _material_word(token):
         return []
     word = part_word(token)
-    forms = (token,) + (PART_WORDS[word][0] if word else ())
+    forms = (token,) + (PART_WORDS[word] if word else ())
     out = []
     for lab in dict.fromkeys(labels):
-        if any(same_word(f, w) for w in matchable_words(lab) if not _material_word(w) for f in forms):
+        if any(same_word(f, w) for w in matchable_words(lab) if not _material_word(w) for f in forms if "-" not in f):
             out.append(lab)
     return out
 
 
-def resolve_words(words: list[str], geoms: list[GroupGeometry]) -> dict[str, tuple[list[int], str]]:
-    """Groups each canonical word of ``words`` takes: ``{word: (group ids, why)}``; words no group
-    passes are left out. A group passing several of the words goes to the highest score (the first
-    word of :data:`PART_WORDS` on a tie), so "seat and legs" never share a group."""
-    scores: dict[str, dict[int, float]] = {}
-    for word in dict.fromkeys(words):
-        if word not in PART_WORDS:
-            raise ValueError(f"unknown part word {word!r}; known: {', '.join(PART_WORDS)}")
-        test = PART_WORDS[word][1]
-        got = {g.group: s for g in geoms if (s := float(test(g, geoms))) > 0}
-        if got:
-            scores[word] = got
-    order = list(PART_WORDS)
-    owner: dict[int, str] = {}
-    for word, got in scores.items():
-        for gid, s in got.items():
-            cur = owner.get(gid)
-            if cur is None or (s, -order.index(word)) > (scores[cur][gid], -order.index(cur)):
-                owner[gid] = word
-    out: dict[str, tuple[list[int], str]] = {}
-    for gid, word in sorted(owner.items()):
-        out.setdefault(word, ([], PART_WORDS[word][2]))[0].append(gid)
-    return out
+@dataclass
+class Resolved:
+    """What :func:`resolve_words` found: ``words`` word -> (group ids, why), ``scores`` group ->
+    the score its word gave it, ``ties`` (group, word, rival word) where two words scored a group
+    within :data:`TIE`, ``weak`` words whose best group scored under 0.5."""
+
+    words: dict[str, tuple[list[int], str]]
+    scores: dict[int, float] = field(default_factory=dict)
+    ties: list[tuple[int, str, str]] = field(default_factory=list)
+    weak: list[str] = field(default_factory=list)
+
+
+def resolve_words(words: list[str], geoms: list[V.Evidence], kind: str | None = None, detail: bool = False):
+    """Groups each canonical word of ``words`` takes, jointly: ``{word: (group ids, why)}`` (words
+    no group passes are left out; ``detail=True`` returns a :class:`Resolved`). Every word gets its
+    best group and a group its best word in one assignment problem over the scores (a group passing
+    two words goes to the word it fits more, and "seat and legs" never share a group); then each
+    group left joins the word that scores it best, when that score is at least
+    :data:`EXTEND_SCORE` and :data:`EXTEND_SHARE` of the word's best group's score."""
+    words = list(dict.fromkeys(words))
+    for w in words:
+        if w not in V.WORDS:
+            raise ValueError(f"unknown part word {w!r}; known: {', '.join(V.WORDS)}")
+    res = Resolved({})
+    if not words or not geoms:
+        return res if detail else res.words
+    scored = [[V.score(w, e, geoms, kind) for e in geoms] for w in words]
+    S = np.array([[s for s, _ in row] for row in scored])
+    rows, cols = linear_sum_assignment(-S)
+    owner: dict[int, int] = {}
+    for i, j in zip(rows, cols):
+        if S[i, j] >= MIN_SCORE:
+            owner[j] = i
+    best = {i: S[i, j] for j, i in owner.items()}
+    for j in range(len(geoms)):
+        if j in owner:
+            continue
+        i = int(np.argmax(S[:, j]))
+        if i in best and S[i, j] >= EXTEND_SCORE and S[i, j] >= EXTEND_SHARE * best[i]:
+            owner[j] = i
+    for j, i in sorted(owner.items(), key=lambda x: geoms[x[0]].group):
+        gid = geoms[j].group
+        res.words.setdefault(words[i], ([], scored[i][j][1]))[0].append(gid)
+        res.scores[gid] = float(S[i, j])
+        rival = [k for k in range(len(words)) if k != i and S[k, j] >= MIN_SCORE and S[i, j] - S[k, j] <= TIE]
+        res.ties += [(gid, words[i], words[k]) for k in rival]
+    res.weak = [words[i] for i, s in best.items() if s < 0.5]
+    return res if detail else res.words
 
 
 # ------------------------------------------------------------------------------------------- plan
@@ -393,13 +167,16 @@ class PartPlan:
 
     Attributes:
         prompt: the prompt as given.
-        regions: the :class:`RegionPlan` of the prompt with the resolved part words as part names.
+        regions: the :class:`RegionPlan` of the prompt with the part words as part names.
         texts: group id -> the text that group is painted with, in the group's own frame, for groups
-            that do not simply take the whole prompt (a clause naming the group, a borrowed clause,
-            or the rest joined by an unplaced clause's material).
+            that do not take the rest of the prompt (a clause naming the group, a guess for a clause
+            whose part word is unknown, or a borrowed clause).
         words: canonical word -> group ids it took.
-        notes: human-readable lines: which groups each word took and why, borrowed materials,
-            clauses that could not be placed and where their material went.
+        kind: the kind of object the words were read for (:mod:`.partvocab`), or None.
+        scores: group id -> the score of the word that took it (1: every condition met).
+        guesses: group id -> the unknown part word whose clause it took as a guess.
+        notes: human-readable lines: which groups each word took, with what score and why, ties,
+            guesses, borrowed clauses, and clauses that could not be placed.
     """
 
     prompt: str
@@ -407,10 +184,18 @@ class PartPlan:
     texts: dict[int, str] = field(default_factory=dict)
     words: dict[str, list[int]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    kind: str | None = None
+    scores: dict[int, float] = field(default_factory=dict)
+    guesses: dict[int, str] = field(default_factory=dict)
 
     def text_for(self, group: int) -> str:
         """What group ``group`` is painted with: its clause, else the whole prompt."""
         return self.texts.get(group, self.prompt)
+
+    def painted_text(self, group: int) -> str:
+        """The text a surface painter paints ``group`` with: its clause, else the rest of the prompt
+        (the whole prompt when it names no part or region)."""
+        return self.texts.get(group, self.regions.base if self.regions.has_regions else self.prompt)
 
 
 def _understood(text: str) -> bool:
@@ -418,10 +203,39 @@ def _understood(text: str) -> bool:
 
 
 def _shape_key(g: GroupGeometry) -> np.ndarray:
-    """Slab or bar: the log ratios of one member's sorted extents to its longest, the middle one
+    """Slab or bar: the log ratios of one member's principal extents to its longest, the middle one
     (flat panels near 1, bars small) weighing four times the thinnest."""
-    e = np.sort(np.maximum(g.extent, 1e-6))
+    e = np.maximum(np.asarray(g.axes, dtype=float)[::-1], 1e-6)
     return np.log(e[:2] / e[2]) * np.array([0.25, 1.0])
+
+
+_CUTS = {",", ";", ":", "with", "and", "having", "featuring", "plus"}
+_ARTICLES = {"a", "an", "the", "its", "their", "some"}
+
+
+def unknown_part_nouns(tokens: list[str]) -> list[str]:
+    """The part nouns of a prompt that the vocabulary does not know: the last word of a clause (cut
+    at commas, "with", "and", ...) that the prompt parser does not read, that is neither a part
+    word, an object noun nor a region word (:mod:`.regions`), and that follows a word the parser
+    reads ("a gold *spout*", "green *antenna*")."""
+    from .regions import REGION_WORDS
+
+    out: list[str] = []
+    clause: list[str] = []
+    for tok in [*tokens, ","]:
+        if tok in _CUTS:
+            words = [w for w in clause if w not in _ARTICLES]
+            clause = []
+            if len(words) < 2:
+                continue
+            last = words[-1]
+            if (not re.fullmatch(r"[a-z][a-z'-]*", last) or part_word(last) or last in V.NOUNS or last in REGION_WORDS
+                    or _material_word(last) or not any(_material_word(w) for w in words[:-1])):
+                continue
+            out.append(last)
+        else:
+            clause.append(tok)
+    return list(dict.fromkeys(out))
 
 
 def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z") -> PartPlan:
@@ -439,68 +253,93 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
         raise ValueError(f"prompt must be a string, got {type(prompt).__name__}")
     labels = [g.label for g in grouping.groups if g.label]
     label_map = {lab.lower(): lab for lab in labels}
-    tokens = re.findall(r"[\w'-]+", prompt.lower())
+    tokens = V.join_compounds(re.findall(r"#[0-9a-fA-F]{3,6}\b|[\w'-]+|[,;:]", prompt.lower()))
+    text = " ".join(tokens)
     # A word naming a word of a group's label ("arms" for "Left Arm", "feet" for "Legs": a form of the
     # same part word) routes by the label: labels beat geometry.
     by_word = {t: hit for t in dict.fromkeys(tokens) if _label_of(t, label_map) is None and (hit := label_hits(t, labels))}
-    wanted = list(dict.fromkeys(part_word(t) for t in tokens if part_word(t) and _label_of(t, label_map) is None and t not in by_word))
-    geoms = describe_groups(vertices, faces, grouping, up) if wanted else []
+    free = [t for t in tokens if _label_of(t, label_map) is None and t not in by_word]
+    wanted = list(dict.fromkeys(part_word(t) for t in free if part_word(t)))
+    unknown = [t for t in unknown_part_nouns(free)]
+    kind = V.kind_of(tokens, _material_word)
+    live = [g for g in grouping.groups if not g.degenerate]
     # A word only becomes a part where the shape has more than one group: on a one-part vase "top"
     # and "base" stay regions of that part.
-    resolved = resolve_words(wanted, geoms) if len(geoms) > 1 else {}
+    geoms = describe_groups(vertices, faces, grouping, up) if (wanted or unknown) and len(live) > 1 else []
+    if len(geoms) > MAX_GROUPS:
+        geoms = sorted(geoms, key=lambda e: e.rank)[:MAX_GROUPS]
+    res = resolve_words(wanted, geoms, kind, detail=True) if len(geoms) > 1 else Resolved({})
     named = {lab for t in tokens for lab in ([_label_of(t, label_map)] if _label_of(t, label_map) else by_word.get(t, []))}
     if named:  # a group the prompt names by its label is not also taken by a word's geometric test
         taken = {g.index for g in grouping.groups if g.label in named}
-        resolved = {w: (kept, why) for w, (gids, why) in resolved.items() if (kept := [g for g in gids if g not in taken])}
-    forms = [f for w in resolved for f in PART_WORDS[w][0]]
-    regions = split_regions(prompt, labels + list(by_word) + forms)
-    by_form = {f: w for w in resolved for f in PART_WORDS[w][0]}
-    plan = PartPlan(prompt, regions, words={w: gids for w, (gids, _) in resolved.items()})
+        res.words = {w: (kept, why) for w, (gids, why) in res.words.items() if (kept := [g for g in gids if g not in taken])}
+    else:
+        taken = set()
+    parts_named = len(geoms) > 1
+    forms = [f for w in wanted for f in PART_WORDS[w]] if parts_named else []
+    regions = split_regions(text, labels + list(by_word) + forms + (unknown if parts_named else []))
+    plan = PartPlan(prompt, regions, words={w: gids for w, (gids, _) in res.words.items()}, kind=kind,
+                    scores={g: round(s, 3) for g, s in res.scores.items() if any(g in gids for gids, _ in res.words.values())})
+    if kind and wanted:
+        plan.notes.append(f"part words read for {kind}" + (" (the object noun)" if any(t in V.NOUNS and not _material_word(t) for t in tokens) else " (the words the prompt uses)"))
     label_groups: dict[str, list[int]] = {}
     for g in grouping.groups:
         if g.label:
             label_groups.setdefault(g.label, []).append(g.index)
     clause_of: dict[int, str] = {}
-    for name, text in regions.parts:
+    guesses: list[tuple[str, str]] = []
+    for name, clause in regions.parts:
         if name in label_groups:
             gids = label_groups[name]
         elif name in by_word:
             gids = sorted({gid for lab in by_word[name] for gid in label_groups.get(lab, [])})
             plan.notes.append(f"{name!r} names the group(s) labelled {', '.join(repr(lab) for lab in by_word[name])}: "
                               f"{', '.join(map(str, gids))}")
+        elif part_word(name):
+            word = part_word(name)
+            gids = res.words.get(word, ([], ""))[0]
+            if not gids:
+                plan.notes.append(f"{clause!r} ({name!r}) paints nothing: no part of this shape passes the test of {word!r} "
+                                  f"({V.score(word, geoms[0], geoms, kind)[1] if geoms else 'no groups'})")
         else:
-            word = by_form.get(name) or part_word(name)
-            gids = resolved.get(word, ([], ""))[0] if word else []
+            guesses.append((name, clause))
+            continue
         for gid in gids:
-            clause_of[gid] = text
-    for word, (gids, why) in resolved.items():
+            clause_of.setdefault(gid, clause)
+    for word, (gids, why) in res.words.items():
         if any(gid in clause_of for gid in gids):
-            plan.notes.append(f"{word!r} took group(s) {', '.join(map(str, gids))}: {why}")
+            sc = ", ".join(f"{g} ({plan.scores.get(g, 0):.2f})" for g in gids)
+            plan.notes.append(f"{word!r} took group(s) {sc}: {why}" + (" (a weak match)" if word in res.weak else ""))
+    for gid, word, rival in res.ties:
+        plan.notes.append(f"group {gid}: {word!r} and {rival!r} scored it alike; it went to {word!r}")
     for word in wanted:
-        if word not in resolved:
-            plan.notes.append(f"{word!r}: no part of this shape passes its test ({PART_WORDS[word][2]})")
-    rest = regions.base
-    unplaced = [t for t in regions.unplaced if _understood(t)]
-    if unplaced and not _understood(rest):
-        plan.notes.append(f"clause(s) {', '.join(repr(t) for t in unplaced)} named no part of this shape; "
-                          "their material paints the rest")
-        rest = " ".join([rest, *unplaced]).strip()
+        if word not in res.words and not any(part_word(n) == word for n, _ in regions.parts):
+            plan.notes.append(f"{word!r}: no part of this shape passes its test")
+    # A clause whose part word is unknown: a weak match, the largest group no word took.
+    area = {e.group: e.area_share for e in geoms}
+    for name, clause in guesses:
+        free_groups = [g.index for g in live if g.index not in clause_of and g.index not in taken and g.index in area]
+        if not free_groups:
+            plan.notes.append(f"{clause!r} ({name!r}, a part word ProcTex does not know) paints nothing: every group is taken")
+            continue
+        gid = max(free_groups, key=lambda g: (area[g], -g))
+        clause_of[gid] = clause
+        plan.guesses[gid] = name
+        plan.notes.append(f"{name!r} is a part word ProcTex does not know: its clause {clause!r} goes to group {gid}, "
+                          "the largest no other word took (a guess)")
+    for t in regions.unplaced:
+        plan.notes.append(f"clause {t!r} named no part of this shape; it paints nothing")
     plan.texts.update(clause_of)
-    others = [g for g in grouping.groups if not g.degenerate and g.index not in clause_of]
+    rest = regions.base
+    others = [g for g in live if g.index not in clause_of]
     kin = _kindred_texts(others, plan.words, clause_of, geoms or describe_groups(vertices, faces, grouping, up)) if clause_of and others else {}
-    for gid, (text, word, kind) in kin.items():
-        plan.texts[gid] = text
-        plan.notes.append(f"group {gid} passes the test of {kind!r} and takes the clause of {word!r}, of the same kind: {text!r}")
+    for gid, (text_, word, kind_word) in kin.items():
+        plan.texts[gid] = text_
+        plan.notes.append(f"group {gid} passes the test of {kind_word!r} and takes the clause of {word!r}, of the same kind: {text_!r}")
     others = [g for g in others if g.index not in kin]
-    if _understood(rest):
-        # The rest of the shape: the rest of the prompt (in the whole shape's frame, with its regions,
-        # unless an unplaced clause had to join it) ...
-        if rest != regions.base:
-            for g in others:
-                plan.texts[g.index] = rest
-    elif clause_of and others and not regions.regions:
-        # ... else (when no region of the whole shape is named either) the clause of the group most
-        # alike in shape.
+    if not _understood(rest) and clause_of and others and not regions.regions:
+        # The rest of the shape takes the rest of the prompt when it names a material, else the
+        # clause of the group most alike in shape.
         key = {g.group: _shape_key(g) for g in (geoms or describe_groups(vertices, faces, grouping, up))}
         for g in others:
             if g.index not in key:
@@ -529,7 +368,7 @@ def _kindred_texts(others: list[Any], words: dict[str, list[int]], clause_of: di
             if geo is None or g.index in out:
                 continue
             for k in kin:
-                if k not in placed and PART_WORDS[k][1](geo, geoms) > 0:
+                if k not in placed and V.score(k, geo, geoms, None)[0] >= 0.5:
                     out[g.index] = (text, word, k)
                     break
     return out

@@ -1,0 +1,771 @@
+"""The words users write for parts, by kinds of object, each with a small scoring function of a
+part group's evidence (issue 51).
+
+One table (:data:`WORDS`) serves every painter. A *word* is canonical ("legs"); its *forms* are what
+a prompt may say ("leg", "feet", "table legs"); compounds of two words ("table top", "drawer
+fronts", "seat cushions") are joined before a prompt is split (:func:`join_compounds`). A word may
+mean different parts in different kinds of object ("handle": a mug's loop, a cabinet's knob, a
+hammer's shaft), so each kind that uses it has its own scorer. :data:`NOUNS` maps an object noun
+("a lamp", "a car") to its kind; without one, the kind whose words the prompt uses most is tried
+first (:func:`kind_of`), else every kind's scorer and the best of them.
+
+A scorer maps a group's :class:`Evidence` (and every group's, for relations) to [0, 1]: products of
+soft conditions on measured evidence, never a rule that names one file:
+
+- shape of one member from its principal axes: a *bar* (longest >= 3x the middle), a *plate* (thinnest
+  <= 0.3x the middle), lying flat or upright (the thinnest axis along up or across it), a *blob*
+  (thinnest >= 0.4x the longest), a *disc* (a round plate);
+- height band in the shape (u: 0 floor, 1 top), on the floor or not;
+- support: what it rests on and what rests on it (boxes touching along up, overlapping across);
+- repetition: members, at both ends of a horizontal axis (a mirrored pair), at the corners;
+- place against the main mass (the largest group by area): above it, under it, beside it,
+  protruding out of its box;
+- size: share of the area and its rank.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["Evidence", "WORDS", "NOUNS", "KINDS", "evidence", "word_of", "kind_of", "join_compounds", "score"]
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What one part group is, measured in the shape's up frame.
+
+    Attributes:
+        group: group index; members: its number of parts.
+        up: the up axis; horizontal: the other two.
+        lo, hi: (3,) the members' union box in the shape's box taken to [0, 1] per axis.
+        centers: (members, 3) member box centres in that frame.
+        extent: (3,) one member's box extents relative to the shape's largest extent.
+        shape_extent: (3,) the shape's box extents relative to its largest.
+        axes: (3,) one member's extents along its principal axes, longest first, relative to the
+            shape's largest extent.
+        long_up: |cos| between the member's longest principal axis and up (1: upright).
+        thin_up: |cos| between its thinnest principal axis and up (1: lying flat).
+        area_share: the group's share of the shape's area; rank: by area (0: the largest).
+        rise: how much one member rises towards its end farther from the main mass's middle
+            (across), over its length: > 0 when the outer end is higher (a spout), < 0 lower.
+        rests_on, holds: groups it stands on, and groups standing on it (touching along up).
+        touches: groups whose boxes touch or overlap its own.
+    """
+
+    group: int
+    members: int
+    up: int
+    horizontal: tuple[int, int]
+    lo: np.ndarray
+    hi: np.ndarray
+    centers: np.ndarray
+    extent: np.ndarray
+    shape_extent: np.ndarray
+    axes: np.ndarray
+    long_up: float
+    thin_up: float
+    area_share: float
+    rank: int
+    rise: float = 0.0
+    rests_on: tuple[int, ...] = ()
+    holds: tuple[int, ...] = ()
+    touches: tuple[int, ...] = ()
+
+    # ------------------------------------------------------------------------------- measured
+    @property
+    def u_lo(self) -> float:
+        return float(self.lo[self.up])
+
+    @property
+    def u_hi(self) -> float:
+        return float(self.hi[self.up])
+
+    @property
+    def u_mid(self) -> float:
+        return float(self.centers[:, self.up].mean())
+
+    @property
+    def slender(self) -> float:
+        """Longest over middle principal extent (a bar: >= 3)."""
+        return float(self.axes[0] / max(self.axes[1], 1e-9))
+
+    @property
+    def flatness(self) -> float:
+        """Thinnest over middle principal extent (a plate: <= 0.3)."""
+        return float(self.axes[2] / max(self.axes[1], 1e-9))
+
+    @property
+    def roundness(self) -> float:
+        """Thinnest over longest (a blob: >= 0.4)."""
+        return float(self.axes[2] / max(self.axes[0], 1e-9))
+
+    def footprint(self) -> float:
+        """One member's horizontal box area over the shape's."""
+        a, b = self.horizontal
+        whole = self.shape_extent[a] * self.shape_extent[b]
+        return float(self.extent[a] * self.extent[b] / whole) if whole > 0 else 0.0
+
+    def union_footprint(self) -> float:
+        a, b = self.horizontal
+        return float((self.hi[a] - self.lo[a]) * (self.hi[b] - self.lo[b]))
+
+    def height_share(self) -> float:
+        return float(self.extent[self.up] / self.shape_extent[self.up]) if self.shape_extent[self.up] > 0 else 0.0
+
+    def end(self, axis: int) -> float:
+        """How far every member sits towards one end of ``axis``: 0 at the middle, 1 at an end
+        (the member nearest the middle counts; members at both ends count as ends too)."""
+        c = self.centers[:, axis]
+        return float(np.clip(np.min(np.abs(c - 0.5)) * 2.0, 0.0, 1.0))
+
+    def both_ends(self, axis: int) -> float:
+        """A mirrored pair or row: members at both ends of ``axis`` (0 for one member)."""
+        c = self.centers[:, axis]
+        if self.members < 2:
+            return 0.0
+        return float(ramp(0.5 - c.min(), 0.15, 0.3) * ramp(c.max() - 0.5, 0.15, 0.3))
+
+    def corners(self) -> float:
+        """Members spread to both ends of both horizontal axes (legs at the corners)."""
+        a, b = self.horizontal
+        return float(min(self.both_ends(a), self.both_ends(b)) if self.members >= 3 else 0.0)
+
+
+def ramp(x: float, lo: float, hi: float) -> float:
+    """0 below ``lo``, 1 above ``hi``, linear between."""
+    return float(np.clip((x - lo) / (hi - lo), 0.0, 1.0))
+
+
+def fall(x: float, lo: float, hi: float) -> float:
+    """1 below ``lo``, 0 above ``hi``, linear between."""
+    return 1.0 - ramp(x, lo, hi)
+
+
+def evidence(vertices: np.ndarray, grouping, up: int, max_members: int = 400) -> list[Evidence]:
+    """One :class:`Evidence` per non-degenerate group of ``grouping`` (a
+    :class:`proctex.geometry.parts.Grouping`) on ``vertices (n, 3) float``; contacts from the
+    members' boxes (from each group's union box when the shape has over ``max_members`` parts)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    parts = grouping.segmentation.parts
+    groups = [g for g in grouping.groups if not g.degenerate]
+    used = np.unique(np.concatenate([parts[m].vertices for g in groups for m in g.members] or [np.arange(len(v))]))
+    lo, hi = v[used].min(0), v[used].max(0)
+    span = hi - lo
+    longest = float(span.max()) or 1.0
+    safe = np.where(span > 0, span, 1.0)
+    total = sum(parts[m].area for g in groups for m in g.members) or 1.0
+    horizontal = tuple(i for i in range(3) if i != up)
+    axis_up = np.eye(3)[up]
+    boxes: list[np.ndarray] = []  # per group: (members, 2, 3) world boxes
+    rows = []
+    for g in groups:
+        b = np.array([[v[parts[m].vertices].min(0), v[parts[m].vertices].max(0)] for m in g.members])
+        boxes.append(b)
+        pv = v[parts[g.members[0]].vertices]
+        pc = pv - pv.mean(0)
+        if len(pv) >= 3:
+            _, _, vt = np.linalg.svd(pc, full_matrices=False)
+            proj = pc @ vt.T
+            ext = proj.max(0) - proj.min(0)
+            order = np.argsort(-ext)
+            axes, dirs = ext[order], vt[order]
+        else:
+            axes, dirs = np.zeros(3), np.eye(3)
+        rows.append((g, b, axes / longest, float(abs(dirs[0] @ axis_up)), float(abs(dirs[2] @ axis_up)),
+                     float(sum(parts[m].area for m in g.members) / total), pv, dirs[0]))
+    order = sorted(range(len(rows)), key=lambda i: -rows[i][5])
+    rank = {rows[i][0].index: r for r, i in enumerate(order)}
+    main_box = rows[order[0]][1] if rows else np.zeros((1, 2, 3))
+    main_mid = (main_box[:, 0].min(0) + main_box[:, 1].max(0)) / 2
+    # contacts: boxes within tol of each other; "rests on": my bottom near its top, overlapping across
+    tol = 0.02 * longest
+    n_members = sum(len(b) for b in boxes)
+    coarse = n_members > max_members
+    bx = [np.array([[b[:, 0].min(0), b[:, 1].max(0)]]) if coarse else b for b in boxes]
+    rests: dict[int, set[int]] = {g.index: set() for g in groups}
+    holds: dict[int, set[int]] = {g.index: set() for g in groups}
+    touch: dict[int, set[int]] = {g.index: set() for g in groups}
+    for i, gi in enumerate(groups):
+        for j, gj in enumerate(groups):
+            if j <= i:
+                continue
+            a, b = bx[i][:, None], bx[j][None, :]  # (ma, 1, 2, 3), (1, mb, 2, 3)
+            gap = np.maximum(a[..., 0, :] - b[..., 1, :], b[..., 0, :] - a[..., 1, :])  # (ma, mb, 3): > 0 apart
+            near = (gap <= tol).all(-1)
+            if not near.any():
+                continue
+            touch[gi.index].add(gj.index)
+            touch[gj.index].add(gi.index)
+            across = (gap[..., list(horizontal)] < -tol).all(-1) & near  # overlapping across up
+            a_lo, a_hi = a[..., 0, up], a[..., 1, up]
+            b_lo, b_hi = b[..., 0, up], b[..., 1, up]
+            # a rests on b: its middle above b's top, its bottom down to b's top, overlapping across
+            a_on_b = across & ((a_lo + a_hi) / 2 >= b_hi - tol) & (a_lo <= b_hi + tol) & (a_lo >= b_lo)
+            b_on_a = across & ((b_lo + b_hi) / 2 >= a_hi - tol) & (b_lo <= a_hi + tol) & (b_lo >= a_lo)
+            if a_on_b.any():
+                rests[gi.index].add(gj.index)
+                holds[gj.index].add(gi.index)
+            if b_on_a.any():
+                rests[gj.index].add(gi.index)
+                holds[gi.index].add(gj.index)
+    out = []
+    for g, b, axes, long_up, thin_up, share, pv, d in rows:
+        rep = b[0]
+        out.append(Evidence(
+            group=g.index, members=len(g.members), up=up, horizontal=horizontal,  # type: ignore[arg-type]
+            lo=(b[:, 0].min(0) - lo) / safe, hi=(b[:, 1].max(0) - lo) / safe, centers=((b[:, 0] + b[:, 1]) / 2 - lo) / safe,
+            extent=(rep[1] - rep[0]) / longest, shape_extent=span / longest, axes=axes, long_up=long_up, thin_up=thin_up,
+            area_share=share, rank=rank[g.index], rise=_rise(pv, d, main_mid, up, axes[0] * longest), rests_on=tuple(sorted(rests[g.index])), holds=tuple(sorted(holds[g.index])),
+            touches=tuple(sorted(touch[g.index]))))
+    return out
+
+
+def _rise(pv: np.ndarray, d: np.ndarray, mid: np.ndarray, up: int, length: float) -> float:
+    """Up change from the inner to the outer end of ``pv (k, 3)`` along ``d (3,)``, over ``length``."""
+    if length <= 0 or len(pv) < 2:
+        return 0.0
+    t = pv @ d
+    k = max(1, len(t) // 20)
+    idx = np.argsort(t)
+    a, b = pv[idx[:k]].mean(0), pv[idx[-k:]].mean(0)
+    across = [i for i in range(3) if i != up]
+    if np.linalg.norm((b - mid)[across]) < np.linalg.norm((a - mid)[across]):
+        a, b = b, a
+    return float((b[up] - a[up]) / length)
+
+
+# ------------------------------------------------------------------------------ soft conditions
+def bar(e: Evidence) -> float:
+    return ramp(e.slender, 2.0, 3.5)
+
+
+def upright_bar(e: Evidence) -> float:
+    return bar(e) * ramp(e.long_up, 0.75, 0.92)
+
+
+def lying_bar(e: Evidence) -> float:
+    return bar(e) * fall(e.long_up, 0.3, 0.6)
+
+
+def plate(e: Evidence) -> float:
+    return fall(e.flatness, 0.3, 0.55) * fall(e.slender, 3.5, 6.0)
+
+
+def flat_plate(e: Evidence) -> float:
+    """A slab lying flat (a seat, a top, a mattress): thin along up."""
+    a, b = e.horizontal
+    thin = e.extent[e.up] <= 0.6 * min(e.extent[a], e.extent[b])
+    return (fall(e.flatness, 0.45, 0.8) * ramp(e.thin_up, 0.7, 0.9)) if thin else 0.0
+
+
+def upright_plate(e: Evidence) -> float:
+    """A panel standing up (a back, a door, a headboard): thin across a horizontal axis."""
+    return plate(e) * fall(e.thin_up, 0.3, 0.6)
+
+
+def blob(e: Evidence) -> float:
+    return ramp(e.roundness, 0.25, 0.45)
+
+
+def wheel_disc(e: Evidence) -> float:
+    """A round plate standing on edge (a wheel): two near-equal long axes, the thin one horizontal."""
+    return fall(e.slender, 1.25, 1.6) * fall(e.flatness, 0.7, 0.95) * fall(e.thin_up, 0.3, 0.6)
+
+
+def on_floor(e: Evidence) -> float:
+    return fall(e.u_lo, 0.03, 0.1)
+
+
+def off_floor(e: Evidence) -> float:
+    return ramp(e.u_lo, 0.04, 0.12)
+
+
+def at_top(e: Evidence) -> float:
+    return ramp(e.u_hi, 0.85, 0.97)
+
+
+def low(e: Evidence, top: float = 0.35) -> float:
+    return fall(e.u_hi, top, top + 0.2)
+
+
+def band(e: Evidence, lo: float, hi: float, soft: float = 0.1) -> float:
+    """The group's middle height within [lo, hi] (soft edges)."""
+    return ramp(e.u_mid, lo - soft, lo) * fall(e.u_mid, hi, hi + soft)
+
+
+def small(e: Evidence, share: float = 0.08) -> float:
+    return fall(e.area_share, share, 2.5 * share)
+
+
+def main_mass(e: Evidence) -> float:
+    return 1.0 if e.rank == 0 else 0.0
+
+
+def not_main(e: Evidence) -> float:
+    return 0.0 if e.rank == 0 else 1.0
+
+
+def repeated(e: Evidence) -> float:
+    return 1.0 if e.members >= 2 else 0.6
+
+
+def at_an_end(e: Evidence) -> float:
+    return max(e.end(a) for a in e.horizontal)
+
+
+def pair_at_ends(e: Evidence) -> float:
+    return max(e.both_ends(a) for a in e.horizontal)
+
+
+def holds_something(e: Evidence) -> float:
+    return 1.0 if e.holds else 0.4
+
+
+def rests(e: Evidence) -> float:
+    return 1.0 if e.rests_on else 0.5
+
+
+def by_id(all_: list[Evidence]) -> dict[int, Evidence]:
+    return {x.group: x for x in all_}
+
+
+def main_of(all_: list[Evidence]) -> Evidence:
+    return min(all_, key=lambda x: x.rank)
+
+
+def outside_main(e: Evidence, all_: list[Evidence]) -> float:
+    """How far the group's box sticks out of the main mass's box across the horizontal axes."""
+    m = main_of(all_)
+    if m.group == e.group:
+        return 0.0
+    out = 0.0
+    for a in e.horizontal:
+        width = max(m.hi[a] - m.lo[a], 1e-9)
+        out = max(out, (m.lo[a] - e.lo[a]) / width, (e.hi[a] - m.hi[a]) / width)
+    return ramp(out, 0.02, 0.15)
+
+
+def above_main(e: Evidence, all_: list[Evidence]) -> float:
+    m = main_of(all_)
+    return 0.0 if m.group == e.group else ramp(e.u_mid - m.hi[e.up], -0.05, 0.05)
+
+
+def under(e: Evidence, all_: list[Evidence]) -> float:
+    """Something larger stands on it."""
+    ids = by_id(all_)
+    return 1.0 if any(ids[h].area_share >= 0.5 * e.area_share for h in e.holds if h in ids) else 0.0
+
+
+def largest_of(e: Evidence, all_: list[Evidence], fit: Callable[[Evidence], float], key: Callable[[Evidence], float]) -> float:
+    """1 for the group with the largest ``key`` among those fitting ``fit`` (> 0.3), softly less for others."""
+    cands = [x for x in all_ if fit(x) > 0.3]
+    if not cands or e not in cands:
+        return 0.0
+    best = max(key(x) for x in cands)
+    return 1.0 if key(e) >= best else 0.6
+
+
+def lowest(e: Evidence, all_: list[Evidence]) -> float:
+    return 1.0 if e.u_lo <= min(x.u_lo for x in all_) + 0.02 else 0.5
+
+
+def highest(e: Evidence, all_: list[Evidence]) -> float:
+    return 1.0 if e.u_hi >= max(x.u_hi for x in all_) - 0.02 else 0.5
+
+
+def longest(e: Evidence, all_: list[Evidence]) -> float:
+    return 1.0 if e.axes[0] >= max(x.axes[0] for x in all_) - 1e-9 else 0.5
+
+
+# ------------------------------------------------------------------------------------- scorers
+Scorer = Callable[[Evidence, list[Evidence]], float]
+
+
+def legs(e, all_):
+    support = max(upright_bar(e), 0.8 * upright_plate(e) * pair_at_ends(e), 0.6 * fall(max(e.extent[a] for a in e.horizontal), 0.15, 0.3))
+    slab = flat_plate(e) * ramp(e.footprint(), 0.3, 0.6)
+    return on_floor(e) * support * holds_something(e) * (1.0 if e.members >= 2 else 0.6) * (1 - slab) * not_main(e)
+
+
+def seat(e, all_):
+    return flat_plate(e) * ramp(e.footprint(), 0.15, 0.3) * off_floor(e) * band(e, 0.2, 0.7) * largest_of(e, all_, flat_plate, Evidence.footprint)
+
+
+def cushions(e, all_):
+    return (0.5 + 0.5 * max(flat_plate(e), blob(e))) * off_floor(e) * band(e, 0.25, 0.75) * rests(e) * not_main(e) * fall(e.height_share(), 0.4, 0.6)
+
+
+def back(e, all_):
+    return upright_plate(e) * at_an_end(e) * ramp(e.u_hi, 0.7, 0.85) * ramp(e.height_share(), 0.15, 0.3) * fall(e.u_lo, 0.3, 0.6) \
+        * (1.0 - 0.5 * pair_at_ends(e))
+
+
+def arms(e, all_):
+    return pair_at_ends(e) * off_floor(e) * band(e, 0.3, 0.85) * not_main(e) * (1 - upright_bar(e))
+
+
+def top(e, all_):
+    return flat_plate(e) * ramp(e.footprint(), 0.25, 0.5) * at_top(e) * largest_of(e, all_, flat_plate, Evidence.footprint)
+
+
+def apron(e, all_):
+    tops = [x for x in all_ if top(x, all_) > 0.5]
+    below_top = max((fall(abs(e.u_hi - t.u_lo), 0.03, 0.1) for t in tops), default=0.0)
+    return below_top * off_floor(e) * max(lying_bar(e), upright_plate(e)) * fall(e.height_share(), 0.2, 0.35)
+
+
+def drawers(e, all_):
+    return at_an_end(e) * off_floor(e) * fall(e.u_hi, 0.97, 1.0) * not_main(e) * fall(e.height_share(), 0.4, 0.6) \
+        * (1 - upright_bar(e)) * (1 - flat_plate(e) * ramp(e.footprint(), 0.4, 0.6)) * small(e, 0.2)
+
+
+def doors(e, all_):
+    return upright_plate(e) * at_an_end(e) * ramp(e.height_share(), 0.25, 0.4) * not_main(e) * fall(e.union_footprint(), 0.5, 0.8)
+
+
+def handles(e, all_):
+    return small(e, 0.03) * not_main(e) * max(outside_main(e, all_), at_an_end(e)) * off_floor(e) * fall(e.axes[0], 0.3, 0.5)
+
+
+def body(e, all_):
+    return main_mass(e)
+
+
+def base(e, all_):
+    return low(e, 0.4) * ramp(e.footprint(), 0.08, 0.2) * holds_something(e) * (1 - bar(e)) * lowest(e, all_) \
+        * max(on_floor(e), 1.0 if e.rests_on else 0.0)
+
+
+def lamp_base(e, all_):
+    """The lowest part on the floor holding the rest up (a disc, a weight, a bulbous foot)."""
+    return on_floor(e) * low(e, 0.6) * holds_something(e) * (1 - bar(e)) * lowest(e, all_) * ramp(e.footprint(), 0.05, 0.15)
+
+
+def shelf(e, all_):
+    return flat_plate(e) * ramp(e.footprint(), 0.2, 0.4) * off_floor(e) * fall(e.u_hi, 0.9, 0.97)
+
+
+def sides(e, all_):
+    return upright_plate(e) * pair_at_ends(e) * ramp(e.height_share(), 0.3, 0.5)
+
+
+def rungs(e, all_):
+    return lying_bar(e) * off_floor(e) * fall(e.u_mid, 0.45, 0.6) * fall(e.u_lo, 0.5, 0.6)
+
+
+def frame(e, all_):
+    bed_frame = (1.0 if e.holds else 0.0) * off_floor(e) * low(e, 0.45) * ramp(e.footprint(), 0.3, 0.6)
+    return max(0.6 * bar(e), bed_frame) * not_main(e) if e.rank else max(0.6 * bar(e), bed_frame) * 0.5
+
+
+def mattress(e, all_):
+    return max(flat_plate(e), 0.7 * blob(e)) * ramp(e.footprint(), 0.3, 0.6) * off_floor(e) * band(e, 0.15, 0.6) * rests(e) \
+        * fall(e.height_share(), 0.4, 0.6)
+
+
+def headboard(e, all_):
+    return upright_plate(e) * at_an_end(e) * ramp(e.height_share(), 0.3, 0.5) * (0.5 + 0.5 * ramp(e.u_hi, 0.75, 0.98))
+
+
+def footboard(e, all_):
+    return upright_plate(e) * at_an_end(e) * ramp(e.height_share(), 0.15, 0.3) * (0.5 + 0.5 * fall(e.u_hi, 0.7, 0.97))
+
+
+def pillows(e, all_):
+    return rests(e) * off_floor(e) * small(e, 0.12) * not_main(e) * ramp(e.u_hi, 0.4, 0.6) * (1 - upright_plate(e)) * (1 - bar(e))
+
+
+def slats(e, all_):
+    return lying_bar(e) * (1.0 if e.members >= 3 else 0.3) * off_floor(e)
+
+
+def shade(e, all_):
+    return ramp(e.u_hi, 0.75, 0.95) * off_floor(e) * (1 - bar(e)) * band(e, 0.45, 1.0) * ramp(e.footprint(), 0.05, 0.2)
+
+
+def pole(e, all_):
+    return upright_bar(e) * not_main(e) * fall(e.footprint(), 0.05, 0.15) * (1.0 if e.holds or e.rests_on else 0.6)
+
+
+def lamp_arm(e, all_):
+    return bar(e) * off_floor(e) * fall(e.u_hi, 0.97, 1.0) * not_main(e) * (1 - 0.5 * upright_bar(e))
+
+
+def bulb(e, all_):
+    return blob(e) * small(e, 0.05) * off_floor(e) * ramp(e.u_mid, 0.5, 0.7)
+
+
+def vessel_body(e, all_):
+    return main_mass(e) * (0.5 + 0.5 * blob(e))
+
+
+def vessel_handle(e, all_):
+    """A part sticking out of the body at one side that does not rise outward (a loop, a grip)."""
+    return not_main(e) * off_floor(e) * outside_main(e, all_) * small(e, 0.15) * fall(e.u_hi, 0.95, 1.0) * (1 - 0.5 * at_top(e)) \
+        * fall(e.rise, 0.1, 0.4)
+
+
+def spout(e, all_):
+    """A bar sticking out of the body at one side whose outer end is higher."""
+    return not_main(e) * bar(e) * outside_main(e, all_) * fall(e.long_up, 0.9, 0.98) * off_floor(e) * ramp(e.rise, 0.1, 0.4)
+
+
+def on_top_of_main(e: Evidence, all_: list[Evidence]) -> float:
+    """Its middle in the top fifth of the main mass's height or above, within its box across."""
+    m = main_of(all_)
+    if m.group == e.group:
+        return 0.0
+    h = max(m.hi[e.up] - m.lo[e.up], 1e-9)
+    return ramp((e.u_mid - m.lo[e.up]) / h, 0.75, 0.9) * fall(outside_main(e, all_), 0.3, 0.8)
+
+
+def lid(e, all_):
+    return not_main(e) * ramp(e.u_hi, 0.9, 0.98) * on_top_of_main(e, all_) * small(e, 0.2) * (1 - bar(e))
+
+
+def cup(e, all_):
+    return at_top(e) * off_floor(e) * (1 - bar(e)) * ramp(e.footprint(), 0.2, 0.5)
+
+
+def stem(e, all_):
+    return upright_bar(e) * not_main(e) * (1 - at_top(e) * 0.7) * holds_something(e)
+
+
+def foot(e, all_):
+    return on_floor(e) * low(e, 0.25) * holds_something(e) * (1 - bar(e)) * ramp(e.footprint(), 0.2, 0.5)
+
+
+def wheels(e, all_):
+    return wheel_disc(e) * on_floor(e) * (1.0 if e.members >= 2 else 0.5) * not_main(e)
+
+
+def cabin(e, all_):
+    m = main_of(all_)
+    at_end = max(ramp(abs(e.centers[:, a].mean() - 0.5), 0.2, 0.35) for a in e.horizontal)
+    beside = at_end * (1.0 if m.group in e.touches else 0.5) * off_floor(e)
+    return not_main(e) * (1 - wheel_disc(e)) * max(above_main(e, all_), 0.8 * beside) * ramp(e.area_share, 0.05, 0.12) \
+        * fall(e.members, 1.5, 2.5)
+
+
+def bumpers(e, all_):
+    return pair_at_ends(e) * low(e, 0.45) * not_main(e) * (1 - wheel_disc(e)) * off_floor(e)
+
+
+def car_roof(e, all_):
+    return at_top(e) * not_main(e) * flat_plate(e)
+
+
+def walls(e, all_):
+    return main_mass(e) * on_floor(e)
+
+
+def roof(e, all_):
+    return at_top(e) * not_main(e) * off_floor(e) * ramp(e.footprint(), 0.4, 0.7) * rests(e)
+
+
+def house_door(e, all_):
+    return upright_plate(e) * on_floor(e) * at_an_end(e) * not_main(e) * fall(e.height_share(), 0.6, 0.8) * (1.0 if e.members == 1 else 0.7)
+
+
+def windows(e, all_):
+    return upright_plate(e) * off_floor(e) * at_an_end(e) * not_main(e) * fall(e.height_share(), 0.4, 0.6) * small(e, 0.08)
+
+
+def chimney(e, all_):
+    return at_top(e) * not_main(e) * fall(e.footprint(), 0.05, 0.15) * (1 - plate(e)) * fall(e.members, 1.5, 2.5)
+
+
+def trunk(e, all_):
+    return upright_bar(e) * on_floor(e) * holds_something(e) * not_main(e) if e.rank else upright_bar(e) * on_floor(e) * 0.7
+
+
+def canopy(e, all_):
+    return off_floor(e) * ramp(e.u_hi, 0.7, 0.9) * (1 - upright_bar(e)) * (1 - bar(e) * 0.5) * ramp(e.area_share, 0.05, 0.15)
+
+
+def branches(e, all_):
+    return bar(e) * off_floor(e) * fall(e.long_up, 0.9, 0.98) * band(e, 0.3, 0.9)
+
+
+def pot(e, all_):
+    return on_floor(e) * low(e, 0.5) * holds_something(e) * (1 - bar(e)) * ramp(e.area_share, 0.1, 0.25)
+
+
+def plant_stem(e, all_):
+    return upright_bar(e) * off_floor(e) * not_main(e)
+
+
+def cap(e, all_):
+    return at_top(e) * (1 - bar(e)) * ramp(e.footprint(), 0.3, 0.6) * rests(e)
+
+
+def mushroom_stem(e, all_):
+    return max(upright_bar(e), 0.6 * blob(e) * fall(e.footprint(), 0.2, 0.4)) * on_floor(e) * holds_something(e)
+
+
+def shaft(e, all_):
+    return bar(e) * longest(e, all_)
+
+
+def head(e, all_):
+    shafts = [x for x in all_ if x.group != e.group and bar(x) > 0.5]
+    at_shaft_end = max((1.0 if (e.u_mid > x.u_hi - 0.1 or e.u_mid < x.u_lo + 0.1) else 0.4) for x in shafts) if shafts else 0.5
+    return (1 - 0.7 * bar(e) * longest(e, all_)) * at_shaft_end * fall(e.members, 1.5, 2.5) * (1 - plate(e) * 0.3)
+
+
+def blade(e, all_):
+    return plate(e) * (1 - bar(e)) * fall(e.members, 1.5, 2.5)
+
+
+# ------------------------------------------------------------------------------------------ table
+#: kinds of object and the nouns that name them
+KINDS: dict[str, tuple[str, ...]] = {
+    "furniture": ("chair", "armchair", "stool", "bench", "table", "desk", "sofa", "couch", "settee", "cabinet", "cupboard", "wardrobe",
+                  "dresser", "sideboard", "bookcase", "bookshelf", "nightstand", "ottoman", "loveseat"),
+    "beds": ("bed", "bunk", "cot", "crib", "daybed"),
+    "lighting": ("lamp", "lantern", "chandelier", "light", "sconce", "floorlamp"),
+    "tableware": ("mug", "cup", "teapot", "kettle", "jug", "pitcher", "goblet", "glass", "vase", "bowl", "bottle", "tankard", "chalice", "teacup"),
+    "vehicles": ("car", "truck", "lorry", "van", "bus", "jeep", "wagon", "cart", "tractor", "taxi", "pickup"),
+    "buildings": ("house", "hut", "cottage", "shed", "barn", "building", "home", "villa", "bungalow", "cabin-house"),
+    "plants": ("tree", "plant", "bush", "shrub", "mushroom", "toadstool", "fungus", "flower", "sapling", "palm", "oak-tree", "pine"),
+    "tools": ("hammer", "axe", "ax", "shovel", "spade", "mallet", "hatchet", "rake", "pickaxe", "hoe", "sledgehammer"),
+}
+NOUNS: dict[str, str] = {n: k for k, nouns in KINDS.items() for n in nouns}
+
+
+@dataclass(frozen=True)
+class Word:
+    """One part word: its forms, and per kind of object a scorer and why (for the notes)."""
+
+    forms: tuple[str, ...]
+    scorers: dict[str, tuple[Scorer, str]]
+
+
+def _w(forms: str, **scorers: tuple[Scorer, str]) -> Word:
+    return Word(tuple(forms.split()), dict(scorers))
+
+
+_ANY = "any"  # a scorer for every kind without its own
+WORDS: dict[str, Word] = {
+    "legs": _w("leg legs feet table-legs chair-legs", any=(legs, "thin supports standing on the floor under something")),
+    "seat": _w("seat seats saddle", any=(seat, "the largest slab lying flat off the floor, at sitting height")),
+    "cushions": _w("cushion cushions seat-cushions seat-cushion", any=(cushions, "soft slabs resting on the frame at mid height")),
+    "back": _w("back backs backrest backrests back-rest", any=(back, "an upright panel at one end, reaching the upper part")),
+    "arms": _w("arms armrest armrests arm-rests", any=(arms, "a pair at both sides, off the floor"),
+               lighting=(lamp_arm, "a bar off the floor, below the top")),
+    "top": _w("top tops tabletop tabletops table-top worktop countertop desktop desk-top", any=(top, "the largest slab lying flat at the top"),
+              vehicles=(car_roof, "a slab lying flat at the top")),
+    "apron": _w("apron aprons rail rails skirt", any=(apron, "bars or boards right under the top"),
+                beds=(frame, "the frame under the mattress")),
+    "drawers": _w("drawer drawers drawer-front drawer-fronts", any=(drawers, "boxes or fronts at one end, off the floor")),
+    "doors": _w("door doors", any=(doors, "an upright panel at one end, a good part of the height"),
+                buildings=(house_door, "an upright panel on the floor, at a wall's face")),
+    "handles": _w("handle handles knob knobs pull pulls grip grips", any=(handles, "a small part sticking out at a side"),
+                  tableware=(vessel_handle, "a part sticking out of the body at one side"), tools=(shaft, "the longest bar")),
+    "body": _w("body bodies carcass hull", any=(body, "the main mass"), tableware=(vessel_body, "the main mass")),
+    "base": _w("base bases plinth pedestal stand", any=(base, "low and wide, under the rest"),
+               lighting=(lamp_base, "the lowest part, on the floor, holding the rest up")),
+    "shelf": _w("shelf shelves board boards", any=(shelf, "slabs lying flat between top and bottom")),
+    "sides": _w("side sides panel panels side-panels", any=(sides, "upright panels at both ends")),
+    "rungs": _w("rung rungs stretcher stretchers crossbar crossbars", any=(rungs, "bars lying across, off the floor, low")),
+    "frame": _w("frame frames bed-frame side-rails bedframe", any=(frame, "bars, or what holds the mattress")),
+    "mattress": _w("mattress mattresses", any=(mattress, "a thick slab lying flat on the frame")),
+    "headboard": _w("headboard headboards head-board", any=(headboard, "the taller upright panel at one end")),
+    "footboard": _w("footboard footboards foot-board", any=(footboard, "the lower upright panel at one end")),
+    "pillows": _w("pillow pillows", any=(pillows, "small soft parts resting on top")),
+    "slats": _w("slat slats", any=(slats, "bars lying in a row")),
+    "shade": _w("shade shades lampshade lampshades lamp-shade", any=(shade, "the wide part at the top, off the floor")),
+    "pole": _w("pole poles rod post", any=(pole, "an upright bar"), lighting=(pole, "an upright bar between base and shade")),
+    "bulb": _w("bulb bulbs", any=(bulb, "a small round part near the top")),
+    "spout": _w("spout spouts nozzle", any=(spout, "a bar rising out of the body at one side")),
+    "lid": _w("lid lids", any=(lid, "a small part on top of the body")),
+    "cup": _w("cup bowl", any=(cup, "the wide part at the top")),
+    "stem": _w("stem stems stalk", any=(stem, "an upright bar under something"), lighting=(pole, "an upright bar"),
+               plants=(lambda e, a: max(plant_stem(e, a), mushroom_stem(e, a)), "an upright bar under the top"),
+               tableware=(stem, "an upright bar between foot and cup")),
+    "foot": _w("foot", any=(foot, "a wide low part on the floor"), furniture=(legs, "thin supports on the floor")),
+    "wheels": _w("wheel wheels tyre tyres tire tires", any=(wheels, "round plates on edge, on the floor")),
+    "cabin": _w("cabin cab cockpit", any=(cabin, "a box on top of the body or at its end")),
+    "bumpers": _w("bumper bumpers", any=(bumpers, "a pair at both ends, low")),
+    "roof": _w("roof roofs", any=(roof, "at the top, covering the footprint"), vehicles=(car_roof, "a slab at the top")),
+    "walls": _w("wall walls facade", any=(walls, "the main mass on the floor")),
+    "windows": _w("window windows", any=(windows, "small upright panels on a face, off the floor")),
+    "chimney": _w("chimney chimneys", any=(chimney, "a narrow part rising at the top")),
+    "trunk": _w("trunk trunks", any=(trunk, "an upright bar on the floor holding the rest")),
+    "canopy": _w("canopy leaves foliage crown leaf", any=(canopy, "the mass at the top")),
+    "branches": _w("branch branches", any=(branches, "bars off the floor, across or slanted")),
+    "pot": _w("pot planter", any=(pot, "a container on the floor holding the plant")),
+    "cap": _w("cap caps", any=(cap, "the wide part at the top")),
+    "head": _w("head heads", any=(head, "the compact part at the end of the shaft")),
+    "blade": _w("blade blades", any=(blade, "a flat plate at one end")),
+    "shaft": _w("shaft shafts haft", any=(shaft, "the longest bar")),
+}
+# words of a kind: which kinds use a word (a word with only "any" belongs to the kinds listed here)
+WORD_KINDS: dict[str, tuple[str, ...]] = {
+    "furniture": ("legs", "seat", "cushions", "back", "arms", "top", "apron", "drawers", "doors", "handles", "body", "base", "shelf",
+                  "sides", "rungs", "frame"),
+    "beds": ("legs", "frame", "mattress", "headboard", "footboard", "pillows", "slats", "apron", "base"),
+    "lighting": ("shade", "pole", "arms", "base", "bulb", "stem"),
+    "tableware": ("body", "handles", "spout", "lid", "cup", "stem", "foot", "base"),
+    "vehicles": ("body", "cabin", "wheels", "bumpers", "roof", "doors", "windows", "top"),
+    "buildings": ("walls", "roof", "doors", "windows", "chimney"),
+    "plants": ("trunk", "canopy", "branches", "pot", "cap", "stem"),
+    "tools": ("handles", "head", "blade", "shaft"),
+}
+
+_FORMS: dict[str, str] = {f: w for w, word in WORDS.items() for f in word.forms}
+_COMPOUNDS: dict[tuple[str, str], str] = {tuple(f.split("-")): f for f in _FORMS if "-" in f and f.count("-") == 1}  # type: ignore[misc]
+
+
+def word_of(form: str) -> str | None:
+    """The canonical word of ``form`` ("legs" for "feet", "top" for "table top"/"table-top"); None when unknown."""
+    f = str(form).lower().strip().replace(" ", "-")
+    return _FORMS.get(f)
+
+
+def join_compounds(tokens: list[str]) -> list[str]:
+    """Two-word forms joined into one token: ``["table", "top"]`` -> ``["table-top"]``."""
+    out: list[str] = []
+    i = 0
+    while i < len(tokens):
+        if i + 1 < len(tokens) and (tokens[i], tokens[i + 1]) in _COMPOUNDS:
+            out.append(_COMPOUNDS[(tokens[i], tokens[i + 1])])
+            i += 2
+        else:
+            out.append(tokens[i])
+            i += 1
+    return out
+
+
+def kind_of(tokens: list[str], material: Callable[[str], bool] = lambda t: False) -> str | None:
+    """The kind a prompt is about: its object noun's ("a lamp"; a word ``material`` reads as a
+    material, the "glass" of "green glass", names no object), else the kind whose words the prompt
+    uses most (one kind only; a tie: None)."""
+    for t in tokens:
+        if t in NOUNS and not material(t):
+            return NOUNS[t]
+    words = {word_of(t) for t in tokens} - {None}
+    if not words:
+        return None
+    counts = {k: len(words & set(ws)) for k, ws in WORD_KINDS.items()}
+    best = max(counts.values())
+    top = [k for k, c in counts.items() if c == best]
+    return top[0] if best > 0 and len(top) == 1 else None
+
+
+def score(word: str, e: Evidence, all_: list[Evidence], kind: str | None) -> tuple[float, str]:
+    """``word``'s score of group ``e`` in [0, 1] and why: the kind's own scorer, else the general
+    one; with no kind, the best over every scorer of the word."""
+    entry = WORDS[word]
+    if kind is not None:
+        fn, why = entry.scorers.get(kind, entry.scorers[_ANY])
+        return float(np.clip(fn(e, all_), 0.0, 1.0)), why
+    best = (0.0, entry.scorers[_ANY][1])
+    for fn, why in entry.scorers.values():
+        s = float(np.clip(fn(e, all_), 0.0, 1.0))
+        if s > best[0]:
+            best = (s, why)
+    return best
