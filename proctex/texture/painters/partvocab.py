@@ -30,6 +30,8 @@ from typing import Callable
 
 import numpy as np
 
+from .names import same_word
+
 __all__ = ["Evidence", "WORDS", "NOUNS", "KINDS", "evidence", "word_of", "kind_of", "join_compounds", "score"]
 
 
@@ -50,7 +52,8 @@ class Evidence:
         thin_up: |cos| between its thinnest principal axis and up (1: lying flat).
         area_share: the group's share of the shape's area; rank: by area (0: the largest).
         rise: how much one member rises towards its end farther from the main mass's middle
-            (across), over its length: > 0 when the outer end is higher (a spout), < 0 lower.
+            (across), over its length, times the share of its length that runs across: > 0 when
+            the outer end is higher (a spout), < 0 lower, near 0 for an upright part.
         rests_on, holds: groups it stands on, and groups standing on it (touching along up).
         touches: groups whose boxes touch or overlap its own.
     """
@@ -234,7 +237,8 @@ def _rise(pv: np.ndarray, d: np.ndarray, mid: np.ndarray, up: int, length: float
     across = [i for i in range(3) if i != up]
     if np.linalg.norm((b - mid)[across]) < np.linalg.norm((a - mid)[across]):
         a, b = b, a
-    return float((b[up] - a[up]) / length)
+    reach = float(np.linalg.norm((b - a)[across]))
+    return float((b[up] - a[up]) / length * min(1.0, reach / length))
 
 
 # ------------------------------------------------------------------------------ soft conditions
@@ -399,12 +403,37 @@ def cushions(e, all_):
 
 
 def back(e, all_):
-    return upright_plate(e) * at_an_end(e) * ramp(e.u_hi, 0.7, 0.85) * ramp(e.height_share(), 0.15, 0.3) * fall(e.u_lo, 0.3, 0.6) \
-        * (1.0 - 0.5 * pair_at_ends(e))
+    """Upright at one end reaching the upper part: a panel, or bars (posts, slats, spindles)."""
+    tall = ramp(float(e.hi[e.up] - e.lo[e.up]), 0.15, 0.3)
+    return max(upright_plate(e), 0.8 * bar(e)) * at_an_end(e) * ramp(e.u_hi, 0.7, 0.85) * tall * off_floor(e)
+
+
+def mirrored(e: Evidence, all_: list[Evidence]) -> float:
+    """A pair: members at both ends of a horizontal axis, or another group of about its size at
+    the other end (left and right parts built a little differently)."""
+    best = pair_at_ends(e)
+    for x in all_:
+        if x.group == e.group or x.members != e.members:
+            continue
+        alike = fall(float(np.abs(np.log(np.maximum(x.axes, 1e-9) / np.maximum(e.axes, 1e-9))).max()), 0.2, 0.5)
+        for a in e.horizontal:
+            ca, cb = e.centers[:, a].mean(), x.centers[:, a].mean()
+            opposite = fall(abs(ca + cb - 1.0), 0.05, 0.15) * ramp(abs(ca - 0.5), 0.2, 0.35)
+            best = max(best, alike * opposite)
+    return best
+
+
+def outermost(e: Evidence) -> float:
+    """Its members reach both outer sides of a horizontal axis (or one member one side)."""
+    best = 0.0
+    for a in e.horizontal:
+        out = max(e.lo[a], 1 - e.hi[a]) if e.members >= 2 else min(e.lo[a], 1 - e.hi[a])
+        best = max(best, fall(out, 0.06, 0.15))
+    return best
 
 
 def arms(e, all_):
-    return pair_at_ends(e) * off_floor(e) * band(e, 0.3, 0.85) * not_main(e) * (1 - upright_bar(e))
+    return mirrored(e, all_) * outermost(e) * off_floor(e) * band(e, 0.3, 0.85) * (1 - upright_bar(e)) * fall(e.members, 2.5, 3.5)
 
 
 def top(e, all_):
@@ -412,9 +441,10 @@ def top(e, all_):
 
 
 def apron(e, all_):
-    tops = [x for x in all_ if top(x, all_) > 0.5]
+    """A shallow band right under the top (boards, rails or one frame), off the floor."""
+    tops = [x for x in all_ if x.group != e.group and top(x, all_) > 0.5]
     below_top = max((fall(abs(e.u_hi - t.u_lo), 0.03, 0.1) for t in tops), default=0.0)
-    return below_top * off_floor(e) * max(lying_bar(e), upright_plate(e)) * fall(e.height_share(), 0.2, 0.35)
+    return below_top * off_floor(e) * fall(float(e.hi[e.up] - e.lo[e.up]), 0.2, 0.35) * (1 - upright_bar(e))
 
 
 def drawers(e, all_):
@@ -435,8 +465,10 @@ def body(e, all_):
 
 
 def base(e, all_):
-    return low(e, 0.4) * ramp(e.footprint(), 0.08, 0.2) * holds_something(e) * (1 - bar(e)) * lowest(e, all_) \
-        * max(on_floor(e), 1.0 if e.rests_on else 0.0)
+    """Low and wide under the rest: on the floor, on legs, or just above the floor; no wide part under it."""
+    wide_below = any(x.group != e.group and x.footprint() >= 0.5 * e.footprint() and x.u_hi <= e.u_lo + 0.02 for x in all_)
+    return low(e, 0.4) * ramp(e.footprint(), 0.08, 0.2) * holds_something(e) * (1 - 0.5 * bar(e)) * (0.4 if wide_below else 1.0) \
+        * max(on_floor(e), 1.0 if e.rests_on else 0.0, fall(e.u_lo, 0.15, 0.3))
 
 
 def lamp_base(e, all_):
@@ -491,7 +523,8 @@ def pole(e, all_):
 
 
 def lamp_arm(e, all_):
-    return bar(e) * off_floor(e) * fall(e.u_hi, 0.97, 1.0) * not_main(e) * (1 - 0.5 * upright_bar(e))
+    return bar(e) * fall(e.u_hi, 0.97, 1.0) * not_main(e) * (1 - 0.5 * upright_bar(e)) * (1 - 0.5 * on_floor(e) * lowest(e, all_)) \
+        * (1.0 if e.touches else 0.5)
 
 
 def bulb(e, all_):
@@ -563,7 +596,9 @@ def walls(e, all_):
 
 
 def roof(e, all_):
-    return at_top(e) * not_main(e) * off_floor(e) * ramp(e.footprint(), 0.4, 0.7) * rests(e)
+    """The upper cover: over most of the footprint, no part as large above it, resting on the rest."""
+    covered = any(x.group != e.group and x.u_lo >= e.u_mid and x.area_share >= 0.5 * e.area_share for x in all_)
+    return ramp(e.u_hi, 0.6, 0.8) * not_main(e) * off_floor(e) * ramp(e.footprint(), 0.4, 0.7) * rests(e) * (0.3 if covered else 1.0)
 
 
 def house_door(e, all_):
@@ -598,12 +633,25 @@ def plant_stem(e, all_):
     return upright_bar(e) * off_floor(e) * not_main(e)
 
 
+def carried_by_bar(e: Evidence, all_: list[Evidence]) -> float:
+    """It sits on an upright bar narrower than it (a cap on its stem, a shade on its pole)."""
+    ids = by_id(all_)
+    return max((upright_bar(ids[x]) for x in e.touches if x in ids and ids[x].u_mid < e.u_mid and ids[x].footprint() < e.footprint()),
+               default=0.0)
+
+
+def carries(e: Evidence, all_: list[Evidence]) -> float:
+    """Something wider stands on it or sits on its top."""
+    ids = by_id(all_)
+    return 1.0 if e.holds or any(x in ids and ids[x].u_mid > e.u_mid and ids[x].footprint() > e.footprint() for x in e.touches) else 0.4
+
+
 def cap(e, all_):
-    return at_top(e) * (1 - bar(e)) * ramp(e.footprint(), 0.3, 0.6) * rests(e)
+    return (1 - bar(e)) * max(at_top(e) * ramp(e.footprint(), 0.3, 0.6) * rests(e), carried_by_bar(e, all_))
 
 
 def mushroom_stem(e, all_):
-    return max(upright_bar(e), 0.6 * blob(e) * fall(e.footprint(), 0.2, 0.4)) * on_floor(e) * holds_something(e)
+    return max(upright_bar(e), 0.6 * blob(e) * fall(e.footprint(), 0.2, 0.4)) * on_floor(e) * carries(e, all_)
 
 
 def shaft(e, all_):
@@ -626,8 +674,8 @@ KINDS: dict[str, tuple[str, ...]] = {
     "furniture": ("chair", "armchair", "stool", "bench", "table", "desk", "sofa", "couch", "settee", "cabinet", "cupboard", "wardrobe",
                   "dresser", "sideboard", "bookcase", "bookshelf", "nightstand", "ottoman", "loveseat"),
     "beds": ("bed", "bunk", "cot", "crib", "daybed"),
-    "lighting": ("lamp", "lantern", "chandelier", "light", "sconce", "floorlamp"),
-    "tableware": ("mug", "cup", "teapot", "kettle", "jug", "pitcher", "goblet", "glass", "vase", "bowl", "bottle", "tankard", "chalice", "teacup"),
+    "lighting": ("lamp", "lantern", "chandelier", "sconce", "floorlamp", "lamps"),
+    "tableware": ("mug", "cup", "teapot", "kettle", "jug", "pitcher", "goblet", "vase", "bowl", "bottle", "tankard", "chalice", "teacup"),
     "vehicles": ("car", "truck", "lorry", "van", "bus", "jeep", "wagon", "cart", "tractor", "taxi", "pickup"),
     "buildings": ("house", "hut", "cottage", "shed", "barn", "building", "home", "villa", "bungalow", "cabin-house"),
     "plants": ("tree", "plant", "bush", "shrub", "mushroom", "toadstool", "fungus", "flower", "sapling", "palm", "oak-tree", "pine"),
@@ -654,7 +702,7 @@ WORDS: dict[str, Word] = {
     "seat": _w("seat seats saddle", any=(seat, "the largest slab lying flat off the floor, at sitting height")),
     "cushions": _w("cushion cushions seat-cushions seat-cushion", any=(cushions, "soft slabs resting on the frame at mid height")),
     "back": _w("back backs backrest backrests back-rest", any=(back, "an upright panel at one end, reaching the upper part")),
-    "arms": _w("arms armrest armrests arm-rests", any=(arms, "a pair at both sides, off the floor"),
+    "arms": _w("arm arms armrest armrests arm-rests", any=(arms, "a pair at both sides, off the floor"),
                lighting=(lamp_arm, "a bar off the floor, below the top")),
     "top": _w("top tops tabletop tabletops table-top worktop countertop desktop desk-top", any=(top, "the largest slab lying flat at the top"),
               vehicles=(car_roof, "a slab lying flat at the top")),
@@ -723,7 +771,13 @@ _COMPOUNDS: dict[tuple[str, str], str] = {tuple(f.split("-")): f for f in _FORMS
 def word_of(form: str) -> str | None:
     """The canonical word of ``form`` ("legs" for "feet", "top" for "table top"/"table-top"); None when unknown."""
     f = str(form).lower().strip().replace(" ", "-")
-    return _FORMS.get(f)
+    if f in _FORMS:
+        return _FORMS[f]
+    # a plural or singular the table does not list ("armrest" / "armrests", "shelf" / "shelves")
+    for cand in (f + "s", f + "es", f[:-1], f[:-2], f[:-3] + "y", f[:-3] + "f", f[:-3] + "fe"):
+        if len(cand) > 2 and cand in _FORMS and same_word(cand, f):
+            return _FORMS[cand]
+    return None
 
 
 def join_compounds(tokens: list[str]) -> list[str]:
