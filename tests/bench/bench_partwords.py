@@ -74,9 +74,11 @@ class Case:
     prompt: str
 
 
-def compose(obj: C.CorpusObject, rng: np.random.Generator) -> Case:
-    """A prompt naming 2 to 4 of ``obj``'s truth words with distinct materials."""
+def compose(obj: C.CorpusObject, rng: np.random.Generator) -> Case | None:
+    """A prompt naming 2 to 4 of ``obj``'s truth words with distinct materials (None when it has fewer than two)."""
     roles = [r for r in obj.shape.label_names if r in C.FORMS]
+    if len(roles) < 2:
+        return None
     k = min(len(roles), int(rng.integers(2, 5)))
     chosen = [roles[i] for i in rng.permutation(len(roles))[:k]]
     mats: list[str] = []
@@ -214,6 +216,38 @@ BUILTIN_TRUTH: dict[str, tuple[str, str, dict[str, str]]] = {
 }
 
 
+#: The handed-out ``.blend`` files' node-tree part names -> truth words, written once (hidden from
+#: the resolver): file -> (object, kind, noun, names). Needs bpy (``make blender``) and the files.
+BLEND_TRUTH: dict[str, tuple[str, str, str, dict[str, str]]] = {
+    "chair.blend": ("Cube", "furniture", "chair", {"Legs": "legs", "Seat": "seat", "Back": "back", "Arms": "arms"}),
+    "table.blend": ("Cube", "furniture", "table", {"Top": "top", "Legs": "legs"}),
+    "cabinet.blend": ("Cabinet", "furniture", "cabinet", {"Legs": "legs", "Board Back": "back", "Board Right": "sides",
+                                                         "Dividing Boards": "shelf", "Drawers": "drawers"}),
+}
+BLENDS = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "blend"
+
+
+def blend_objects(per_file: int = 6, seed: int = 0) -> list[C.CorpusObject]:
+    """Each file of :data:`BLEND_TRUTH`: its file values and ``per_file - 1`` samples of its inputs
+    (the bounds of its ``sp_*.json``), labelled by the node tree's part names."""
+    from proctex.params import read_params_spec
+    from proctex.sources.blender import BlenderModel
+
+    out = []
+    for file, (obj, kind, noun, names) in BLEND_TRUTH.items():
+        spec = BLENDS / f"sp_{Path(file).stem}.json"
+        read = read_params_spec(spec) if spec.is_file() else None
+        model = BlenderModel(BLENDS / file, obj, bounds=read.bounds if read else {}, listed=sorted(read.kinds) if read else None)
+        try:
+            for i, params in enumerate([{}, *model.space.sample(per_file - 1, seed=seed)]):
+                shape = model.generate(params)
+                if shape.labels is not None:
+                    out.append(C.CorpusObject(i, kind, noun, relabelled(shape, names)))
+        finally:
+            model.close()
+    return out
+
+
 def relabelled(shape, names: dict[str, str]):
     """``shape`` with its labels renamed to truth words (``names``; others kept, prefixed "other:")."""
     from proctex.geometry.shape import Shape
@@ -238,13 +272,16 @@ def builtin_objects(per_model: int = 8, seed: int = 0) -> list[C.CorpusObject]:
 
 def run(split: str, n: int | None = None, seed: int = 0) -> dict[str, Any]:
     """Every method on the first ``n`` objects of ``split`` ("development", "held_out", or
-    "builtin": the built-in models' shapes, :data:`BUILTIN_TRUTH`); the tallies and the failed prompts."""
+    "builtin": the built-in models' shapes, :data:`BUILTIN_TRUTH`; "blend": the handed-out files,
+    :data:`BLEND_TRUTH`); the tallies and the failed prompts."""
     tallies = {m: Tally() for m in METHODS}
     failures = []
-    objs = builtin_objects() if split == "builtin" else [C.make_object(s) for s in C.seeds(split)]
+    objs = builtin_objects() if split == "builtin" else blend_objects() if split == "blend" else [C.make_object(s) for s in C.seeds(split)]
     for k, obj in enumerate(objs[:n]):
-        s = k if split == "builtin" else obj.seed
+        s = k if split in ("builtin", "blend") else obj.seed
         case = compose(obj, np.random.default_rng([seed, s]))
+        if case is None:
+            continue
         shape = C.unlabelled(obj.shape)
         grouping = analyse(shape)
         truth = group_truth(obj.shape, grouping)
@@ -283,13 +320,13 @@ def kind_table(tallies: dict[str, Tally]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--split", default="development", choices=("development", "held_out", "builtin", "all"))
+    ap.add_argument("--split", default="development", choices=("development", "held_out", "builtin", "blend", "all"))
     ap.add_argument("--n", type=int, default=None, help="the first N objects of each split (default all)")
     ap.add_argument("--out", default="out/bench")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    splits = ("development", "held_out", "builtin") if args.split == "all" else (args.split,)
+    splits = ("development", "held_out", "builtin", "blend") if args.split == "all" else (args.split,)
     report: dict[str, Any] = {}
     md = []
     for split in splits:

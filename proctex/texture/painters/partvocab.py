@@ -389,13 +389,16 @@ Scorer = Callable[[Evidence, list[Evidence]], float]
 
 
 def legs(e, all_):
-    support = max(upright_bar(e), 0.8 * upright_plate(e) * pair_at_ends(e), 0.6 * fall(max(e.extent[a] for a in e.horizontal), 0.15, 0.3))
+    spans = ramp(float(e.hi[e.up] - e.lo[e.up]), 0.3, 0.5) * (1 - flat_plate(e)) * (1.0 if e.holds else 0.0)  # a frame of legs in one piece
+    support = max(upright_bar(e), 0.8 * upright_plate(e) * pair_at_ends(e), 0.6 * fall(max(e.extent[a] for a in e.horizontal), 0.15, 0.3),
+                  0.7 * spans)
     slab = flat_plate(e) * ramp(e.footprint(), 0.3, 0.6)
     return on_floor(e) * support * holds_something(e) * (1.0 if e.members >= 2 else 0.6) * (1 - slab) * not_main(e)
 
 
 def seat(e, all_):
-    return flat_plate(e) * ramp(e.footprint(), 0.15, 0.3) * off_floor(e) * band(e, 0.2, 0.7) * largest_of(e, all_, flat_plate, Evidence.footprint)
+    return flat_plate(e) * ramp(e.footprint(), 0.15, 0.3) * off_floor(e) * band(e, 0.2, 0.7) \
+        * largest_of(e, all_, lambda x: flat_plate(x) * off_floor(x), Evidence.footprint)
 
 
 def cushions(e, all_):
@@ -405,7 +408,7 @@ def cushions(e, all_):
 def back(e, all_):
     """Upright at one end reaching the upper part: a panel, or bars (posts, slats, spindles)."""
     tall = ramp(float(e.hi[e.up] - e.lo[e.up]), 0.15, 0.3)
-    return max(upright_plate(e), 0.8 * bar(e)) * at_an_end(e) * ramp(e.u_hi, 0.7, 0.85) * tall * off_floor(e)
+    return max(upright_plate(e), 0.8 * bar(e)) * at_an_end(e) * ramp(e.u_hi, 0.7, 0.85) * tall
 
 
 def mirrored(e: Evidence, all_: list[Evidence]) -> float:
