@@ -95,12 +95,22 @@ def test_groups_named_by_no_clause_borrow_by_shape_or_take_the_rest(chair):
     assert oak.texts == {role["seat"]: "red velvet"} and oak.text_for(role["back"]) == oak.prompt
 
 
-def test_a_clause_with_an_unknown_word_keeps_its_material_and_the_rest_of_the_prompt(chair):
+def test_a_clause_with_an_unknown_word_keeps_its_own_material_as_a_guess(chair):
+    """Issue 51: "a gold spout" on a chair is a weak match, the largest group no known word took,
+    reported as a guess; its gold never joins another clause's material; with every group taken it
+    paints nothing and says so."""
     shape, grouping, role = chair
-    plan = plan_parts("a chair with a gold spout and dark walnut legs", shape.vertices, shape.faces, grouping, "z")
+    plan = plan_parts("a chair with a gold antenna and dark walnut legs", shape.vertices, shape.faces, grouping, "z")
     assert plan.texts[role["legs"]] == "dark walnut"
-    assert all("gold" in plan.texts[g] for g in (role["seat"], role["back"], role["arms"]))
-    assert any("named no part of this shape" in n for n in plan.notes)
+    areas = {g.index: sum(grouping.parts[m].area for m in g.members) for g in grouping.groups}
+    largest_free = max((g for g in areas if g != role["legs"]), key=areas.get)
+    assert plan.guesses == {largest_free: "antenna"} and plan.texts[largest_free] == "gold"
+    assert any("'antenna' is a part word ProcTex does not know" in n and "a guess" in n for n in plan.notes)
+    assert set(plan.texts.values()) == {"gold", "dark walnut"}  # whole clauses (borrowed by the unnamed groups), never mixed
+    full = plan_parts("a chair with a red velvet seat, dark walnut legs, a white back, brass arms and a gold antenna",
+                      shape.vertices, shape.faces, grouping, "z")
+    assert not full.guesses and "gold" not in " ".join(full.texts.values())
+    assert any("'gold' ('antenna'" in n and "paints nothing" in n for n in full.notes)
     # "nothing understood" only when no word is known at all: no text for any group.
     assert plan_parts("a chair", shape.vertices, shape.faces, grouping, "z").texts == {}
 
@@ -114,7 +124,7 @@ def test_words_no_part_passes_are_noted_and_one_part_shapes_keep_regions():
     assert sizes == {"top": [1], "legs": [4], "shelf": [1]}
     top = plan.words["top"][0]
     assert grouping.parts[grouping.groups[top].representative].center[2] > 0.7
-    assert any("'seat': no part of this shape passes" in n for n in plan.notes)
+    assert any("paints nothing: no part of this shape passes the test of 'seat'" in n for n in plan.notes)
     from proctex.models import get_model
 
     vase = get_model("vase").generate()
@@ -184,10 +194,12 @@ def test_the_painted_chair_reads_back_red_velvet_seat_and_dark_walnut_legs(chair
 
 def test_part_word_table():
     assert part_word("Legs") == "legs" and part_word("feet") == "legs" and part_word("shelves") == "shelf"
-    assert part_word("spout") is None
-    assert all(len(forms) == len(set(forms)) for forms, _, _ in PART_WORDS.values())
+    assert part_word("antenna") is None and part_word("spout") == "spout"
+    assert all(len(forms) == len(set(forms)) for forms in PART_WORDS.values())
+    forms = [f for fs in PART_WORDS.values() for f in fs]
+    assert len(forms) == len(set(forms))  # a form names one word
     with pytest.raises(ValueError, match="unknown part word"):
-        resolve_words(["spout"], [])
+        resolve_words(["antenna"], [])
     with pytest.raises(ValueError, match="prompt must be a string"):
         plan_parts(3, np.zeros((3, 3)), np.zeros((1, 3), int), None)
 
@@ -258,3 +270,110 @@ def test_a_stool_seat_is_its_seat_and_a_base_or_stretchers_take_the_legs_materia
     # Without a placed leg clause the plinth is no one's kin: it takes the rest of the prompt.
     plan = plan_parts("a walnut stool with a red velvet seat", stool.vertices, stool.faces, grouping, "z")
     assert role["base"] not in plan.texts and "of the same kind" not in " ".join(plan.notes)  # the whole prompt
+
+
+# ------------------------------------------------------------------------------------ issue 51
+def _bed():
+    """A bed of boxes: four legs, a frame, a mattress, a tall headboard at +y and a low footboard
+    at -y; returns the shape, its grouping and each role's group (by the known boxes, measuring only)."""
+    from .meshes import boxes
+
+    specs = [((0.06, 0.06, 0.2), (x, y, 0.1)) for x in (-0.7, 0.7) for y in (-0.95, 0.95)]
+    specs += [((1.5, 2.0, 0.12), (0, 0, 0.26)), ((1.44, 1.94, 0.22), (0, 0, 0.43)),
+              ((1.5, 0.05, 1.1), (0, 1.03, 0.55)), ((1.5, 0.05, 0.6), (0, -1.03, 0.3))]
+    bed = boxes(specs)
+    grouping = analyse(bed)
+    role = {}
+    for g in grouping.groups:
+        c = grouping.parts[g.representative].center
+        role["legs" if len(g.members) == 4 else "headboard" if c[1] > 1 else "footboard" if c[1] < -1 else
+             "mattress" if c[2] > 0.35 else "frame"] = g.index
+    assert len(role) == 5
+    return bed, grouping, role
+
+
+def test_two_words_competing_for_one_group_are_assigned_jointly(monkeypatch):
+    """Group 1 fits "seat" (0.9) more than "cushions" (0.8), group 2 fits only "seat" (0.7):
+    taking each group's best word alone would give both to "seat" and none to "cushions"; the joint
+    assignment gives each word a group (the largest sum), reports the close rival and leaves a
+    third word no group passes out."""
+    from types import SimpleNamespace
+
+    from proctex.texture.painters import partvocab as V
+    from proctex.texture.painters.partwords import resolve_words
+
+    table = {("seat", 1): 0.9, ("cushions", 1): 0.8, ("seat", 2): 0.7, ("cushions", 2): 0.1}
+    monkeypatch.setattr(V, "score", lambda w, e, all_, kind: (table.get((w, e.group), 0.0), f"why {w}"))
+    ev = [SimpleNamespace(group=1), SimpleNamespace(group=2)]
+    got = resolve_words(["seat", "cushions", "mattress"], ev, None, detail=True)
+    assert got.words == {"cushions": ([1], "why cushions"), "seat": ([2], "why seat")}
+    assert got.scores == {1: 0.8, 2: 0.7} and "mattress" not in got.words and got.weak == []
+
+
+def test_a_bed_named_part_by_part_takes_each_clause_where_it_belongs():
+    bed, grouping, role = _bed()
+    plan = plan_parts("a bed with a white linen mattress, a walnut headboard, an oak footboard and black metal legs",
+                      bed.vertices, bed.faces, grouping, "z")
+    assert plan.kind == "beds"
+    assert {w: plan.texts[role[w]] for w in ("mattress", "headboard", "footboard", "legs")} == {
+        "mattress": "white linen", "headboard": "walnut", "footboard": "oak", "legs": "black metal"}
+    assert all(0.5 <= plan.scores[role[w]] <= 1.0 for w in ("mattress", "headboard", "footboard", "legs"))
+
+
+def test_plurals_and_compounds_name_the_same_word():
+    from proctex.texture.painters.partvocab import join_compounds, word_of
+
+    for forms, word in ((("table top", "table-top", "tabletop", "tabletops", "Table Top"), "top"),
+                        (("armrest", "armrests", "arm", "arms"), "arms"), (("drawer fronts", "drawers", "drawer"), "drawers"),
+                        (("shelf", "shelves"), "shelf"), (("tyre", "tyres", "tire", "wheels"), "wheels"),
+                        (("leaves", "foliage", "canopy"), "canopy"), (("lampshade", "lamp shade", "shades"), "shade")):
+        assert {word_of(f) for f in forms} == {word}, forms
+    assert join_compounds(["a", "marble", "table", "top", "and", "seat", "cushions"]) == ["a", "marble", "table-top", "and", "seat-cushions"]
+    table = unlabelled_table()
+    grouping = analyse(table)
+    plan = plan_parts("a table with a white marble table top and black steel legs", table.vertices, table.faces, grouping, "z")
+    top = plan.words["top"][0]
+    assert plan.texts[top] == "white marble"  # "table" is not left in the clause's material
+    assert plan.texts[plan.words["legs"][0]] == "black steel"
+
+
+def test_the_object_noun_chooses_the_kind_of_a_word():
+    """"handle" is a mug's loop, a cabinet's knob, a hammer's shaft: the object noun (or, without
+    one, the kind whose words the prompt uses most) picks the scorer; a material word ("green
+    glass") names no object."""
+    from tests.bench.partcorpus import make_object, unlabelled
+
+    from proctex.texture.painters.partvocab import kind_of
+    from proctex.texture.painters.partwords import _material_word
+
+    assert kind_of(["a", "hammer", "with", "an", "oak", "handle"]) == "tools"
+    assert kind_of(["an", "oak", "handle", "and", "a", "steel", "head"]) == "tools"  # the words' kind
+    assert kind_of(["green", "glass", "roof", "and", "walls"], _material_word) == "buildings"
+    assert kind_of(["a", "red", "handle"]) is None  # furniture, tableware and tools all say "handle"
+    hammer = next(o for o in map(make_object, range(200)) if o.noun == "hammer")
+    shape = unlabelled(hammer.shape)
+    grouping = analyse(shape)
+    truth = {g.index: hammer.shape.label_names[hammer.shape.labels[grouping.parts[g.representative].vertices[0]]] for g in grouping.groups}
+    shaft = next(g for g, t in truth.items() if t == "shaft")
+    for prompt in ("a hammer with an oak handle and a steel head", "an oak handle and a steel head"):
+        plan = plan_parts(prompt, shape.vertices, shape.faces, grouping, "z")
+        assert plan.kind == "tools" and plan.texts[shaft] == "oak", plan.notes
+    mug = next(o for o in map(make_object, range(200)) if o.noun == "mug")
+    shape = unlabelled(mug.shape)
+    grouping = analyse(shape)
+    handle = next(g.index for g in grouping.groups
+                  if mug.shape.label_names[mug.shape.labels[grouping.parts[g.representative].vertices[0]]] == "handle")
+    plan = plan_parts("a mug with an oak handle and a white porcelain body", shape.vertices, shape.faces, grouping, "z")
+    assert plan.kind == "tableware" and plan.texts[handle] == "oak"
+
+
+def test_the_resolver_beats_the_trivial_baseline_on_the_development_corpus():
+    """The benchmark on the first 40 development objects (the held-out seeds are for the figures in
+    the docs only): most prompts pass with the resolver, few with the baseline."""
+    from tests.bench import bench_partwords as B
+
+    res = B.run("development", 40)["tallies"]
+    ours, base = res["resolver"].summary(), res["baseline"].summary()
+    # measured 40/40 and 2/40 (this machine, both kernel sets): the margins are whole prompts
+    assert ours["prompt_pass"] >= 0.85 and base["prompt_pass"] <= 0.25
+    assert ours["recall"] > base["recall"] + 0.3

@@ -388,16 +388,24 @@ def longest(e: Evidence, all_: list[Evidence]) -> float:
 Scorer = Callable[[Evidence, list[Evidence]], float]
 
 
+def grounded(e: Evidence, all_: list[Evidence]) -> float:
+    """On the floor, or on a low wide part that is (a plinth, a base board)."""
+    ids = by_id(all_)
+    on_base = any(x in ids and ids[x].u_lo <= 0.05 and ids[x].footprint() >= 0.3 and ids[x].u_hi <= 0.3 for x in e.rests_on)
+    return max(on_floor(e), 1.0 if on_base else 0.0)
+
+
 def legs(e, all_):
     spans = ramp(float(e.hi[e.up] - e.lo[e.up]), 0.3, 0.5) * (1 - flat_plate(e)) * (1.0 if e.holds else 0.0)  # a frame of legs in one piece
     support = max(upright_bar(e), 0.8 * upright_plate(e) * pair_at_ends(e), 0.6 * fall(max(e.extent[a] for a in e.horizontal), 0.15, 0.3),
                   0.7 * spans)
     slab = flat_plate(e) * ramp(e.footprint(), 0.3, 0.6)
-    return on_floor(e) * support * holds_something(e) * (1.0 if e.members >= 2 else 0.6) * (1 - slab) * not_main(e)
+    return grounded(e, all_) * support * holds_something(e) * (1.0 if e.members >= 2 else 0.6) * (1 - slab) * not_main(e)
 
 
 def seat(e, all_):
-    return flat_plate(e) * ramp(e.footprint(), 0.15, 0.3) * off_floor(e) * band(e, 0.2, 0.7) \
+    # a seat at the very top (a stool's) is also a top: named both, "top" takes it
+    return flat_plate(e) * ramp(e.footprint(), 0.15, 0.3) * off_floor(e) * max(band(e, 0.2, 0.7), 0.6 * at_top(e)) \
         * largest_of(e, all_, lambda x: flat_plate(x) * off_floor(x), Evidence.footprint)
 
 
