@@ -141,9 +141,14 @@ def test_fork_as_one_part_gets_tip_and_handle_along_its_axis(shapes):
     """The fork's parts joined into one: the tip end (the wide one) is silver and the handle end wood."""
     from proctex.geometry.shape import Shape
 
+    from proctex.geometry.parts import segment
+
     shape, _ = shapes["fork"]
-    one = Shape(shape.vertices, shape.faces)
+    parts = segment(Shape(shape.vertices, shape.faces)).parts
+    bridge = [[int(parts[0].vertices[0]), int(p.vertices[0]), int(p.vertices[1])] for p in parts[1:]]  # slivers join the parts into one
+    one = Shape(shape.vertices, np.concatenate([shape.faces, np.asarray(bridge, dtype=shape.faces.dtype).reshape(-1, 3)]))
     grouping = analyse(one)
+    assert len(grouping.groups) == 1
     sp = SurfacePainter("a silver tip and a dark wood handle").bind(one, grouping)
     y = (one.vertices[:, 1] - one.vertices[:, 1].min()) / np.ptp(one.vertices[:, 1])  # measuring only: 0 butt, 1 tines
     center = (one.vertices.max(0) + one.vertices.min(0)) / 2

@@ -211,13 +211,15 @@ def _shape_key(g: GroupGeometry) -> np.ndarray:
 
 _CUTS = {",", ";", ":", "with", "and", "having", "featuring", "plus"}
 _ARTICLES = {"a", "an", "the", "its", "their", "some"}
+_OF = {"in", "of", "made", "from"}
 
 
 def unknown_part_nouns(tokens: list[str]) -> list[str]:
     """The part nouns of a prompt that the vocabulary does not know: the last word of a clause (cut
     at commas, "with", "and", ...) that the prompt parser does not read, that is neither a part
     word, an object noun nor a region word (:mod:`.regions`), and that follows a word the parser
-    reads ("a gold *spout*", "green *antenna*")."""
+    reads ("a gold *antenna*"), in a clause that names no object and no "in"/"of"/"made" (the
+    object's own material: "a cabinet in red lacquer")."""
     from .regions import REGION_WORDS
 
     out: list[str] = []
@@ -231,6 +233,8 @@ def unknown_part_nouns(tokens: list[str]) -> list[str]:
             last = words[-1]
             if (not re.fullmatch(r"[a-z][a-z'-]*", last) or part_word(last) or last in V.NOUNS or last in REGION_WORDS
                     or _material_word(last) or not any(_material_word(w) for w in words[:-1])):
+                continue
+            if any(w in V.NOUNS or w in _OF for w in words[:-1]):  # "a cabinet in red lacquer": the object's own material
                 continue
             out.append(last)
         else:
@@ -276,7 +280,11 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     else:
         taken = set()
     parts_named = len(geoms) > 1
-    forms = [f for w in wanted for f in PART_WORDS[w]] if parts_named else []
+    # the words' forms name parts; a word no group passes stays a region word where it is one ("a
+    # dark wood handle" on a one-piece fork: the region along its axis)
+    from .regions import REGION_WORDS
+
+    forms = [f for w in wanted for f in PART_WORDS[w] if w in res.words or f not in REGION_WORDS] if parts_named else []
     regions = split_regions(text, labels + list(by_word) + forms + (unknown if parts_named else []))
     plan = PartPlan(prompt, regions, words={w: gids for w, (gids, _) in res.words.items()}, kind=kind,
                     scores={g: round(s, 3) for g, s in res.scores.items() if any(g in gids for gids, _ in res.words.values())})
