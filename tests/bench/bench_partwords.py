@@ -128,14 +128,15 @@ def taken(case: Case, texts: dict[int, str | None]) -> dict[int, str]:
 
 
 def resolver_texts(case: Case, shape, grouping: Grouping) -> dict[int, str | None]:
-    plan = plan_parts(case.prompt, shape.vertices, shape.faces, grouping, "z")
+    plan = plan_parts(case.prompt, shape.vertices, shape.faces, grouping, case.obj.up)
     return {g.index: plan.painted_text(g.index) for g in grouping.groups if not g.degenerate}
 
 
 def baseline_texts(case: Case, shape, grouping: Grouping) -> dict[int, str | None]:
     """Floor-touching groups: the clause of a ground word; the largest group: the first other clause."""
     v, f = shape.vertices, shape.faces
-    z0, z1 = v[:, 2].min(), v[:, 2].max()
+    up = "xyz".index(case.obj.up)
+    z0, z1 = v[:, up].min(), v[:, up].max()
     areas = triangle_areas(v, f)
     ground = next((m for w, form, m in case.clauses if form.split()[-1] in GROUND), None)
     other = next((m for w, form, m in case.clauses if form.split()[-1] not in GROUND), None)
@@ -144,7 +145,7 @@ def baseline_texts(case: Case, shape, grouping: Grouping) -> dict[int, str | Non
         if g.degenerate:
             continue
         faces = np.concatenate([grouping.segmentation.parts[m].faces for m in g.members])
-        zs = v[np.unique(f[faces])][:, 2]
+        zs = v[np.unique(f[faces])][:, up]
         info[g.index] = ((zs.min() - z0) / max(z1 - z0, 1e-12), float(areas[faces].sum()))
     largest = max(info, key=lambda k: info[k][1])
     out: dict[int, str | None] = {}
@@ -248,6 +249,48 @@ def blend_objects(per_file: int = 6, seed: int = 0) -> list[C.CorpusObject]:
     return out
 
 
+SOFAS = BLENDS.parent / "procedural_sofa" / "train"
+
+
+def sofa_objects(n: int = 10) -> list[C.CorpusObject]:
+    """The first ``n`` sofa exports (y up, no part names), each connected part labelled once here by
+    its box, measuring only: the mirrored pair at both ends of x the arms, the lowest thin slab the
+    base, the part reaching the top the back, the other the seat."""
+    import trimesh
+
+    from proctex.geometry.parts import segment
+    from proctex.geometry.shape import Shape
+
+    out = []
+    for i in range(n):
+        path = SOFAS / f"{i}.obj"
+        if not path.is_file():
+            break
+        mesh = trimesh.load(path, process=False)
+        shape = Shape(np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64))
+        v = shape.vertices
+        parts = [p for p in segment(shape).parts if not p.degenerate]
+        box = {p.index: (v[p.vertices].min(0), v[p.vertices].max(0)) for p in parts}
+        lo, hi = v.min(0), v.max(0)
+        role = {}
+        for p in parts:
+            b0, b1 = box[p.index]
+            if b1[0] - b0[0] < 0.25 * (hi[0] - lo[0]) and (b0[0] <= lo[0] + 1e-6 or b1[0] >= hi[0] - 1e-6):
+                role[p.index] = "arms"
+            elif b1[1] - b0[1] < 0.1 * (hi[1] - lo[1]) and b0[1] <= lo[1] + 1e-6:
+                role[p.index] = "base"
+            elif b1[1] >= hi[1] - 1e-6:
+                role[p.index] = "back"
+            else:
+                role[p.index] = "seat"
+        names = ["", "arms", "base", "back", "seat"]
+        labels = np.zeros(len(v), dtype=np.int32)
+        for p in parts:
+            labels[p.vertices] = names.index(role[p.index])
+        out.append(C.CorpusObject(i, "furniture", "sofa", Shape(v, shape.faces, labels=labels, label_names=tuple(names)), up="y"))
+    return out
+
+
 def relabelled(shape, names: dict[str, str]):
     """``shape`` with its labels renamed to truth words (``names``; others kept, prefixed "other:")."""
     from proctex.geometry.shape import Shape
@@ -273,12 +316,13 @@ def builtin_objects(per_model: int = 8, seed: int = 0) -> list[C.CorpusObject]:
 def run(split: str, n: int | None = None, seed: int = 0) -> dict[str, Any]:
     """Every method on the first ``n`` objects of ``split`` ("development", "held_out", or
     "builtin": the built-in models' shapes, :data:`BUILTIN_TRUTH`; "blend": the handed-out files,
-    :data:`BLEND_TRUTH`); the tallies and the failed prompts."""
+    :data:`BLEND_TRUTH`; "sofa": the sofa exports, :func:`sofa_objects`); the tallies and the failed prompts."""
     tallies = {m: Tally() for m in METHODS}
     failures = []
-    objs = builtin_objects() if split == "builtin" else blend_objects() if split == "blend" else [C.make_object(s) for s in C.seeds(split)]
+    objs = (builtin_objects() if split == "builtin" else blend_objects() if split == "blend" else sofa_objects() if split == "sofa"
+            else [C.make_object(s) for s in C.seeds(split)])
     for k, obj in enumerate(objs[:n]):
-        s = k if split in ("builtin", "blend") else obj.seed
+        s = k if split in ("builtin", "blend", "sofa") else obj.seed
         case = compose(obj, np.random.default_rng([seed, s]))
         if case is None:
             continue
@@ -320,13 +364,13 @@ def kind_table(tallies: dict[str, Tally]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--split", default="development", choices=("development", "held_out", "builtin", "blend", "all"))
+    ap.add_argument("--split", default="development", choices=("development", "held_out", "builtin", "blend", "sofa", "all"))
     ap.add_argument("--n", type=int, default=None, help="the first N objects of each split (default all)")
     ap.add_argument("--out", default="out/bench")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    splits = ("development", "held_out", "builtin", "blend") if args.split == "all" else (args.split,)
+    splits = ("development", "held_out", "builtin", "blend", "sofa") if args.split == "all" else (args.split,)
     report: dict[str, Any] = {}
     md = []
     for split in splits:

@@ -343,12 +343,14 @@ class CorpusObject:
     Attributes:
         seed: its seed; kind: its kind of object ("beds"); noun: what it is ("bed").
         shape: the shape with every part labelled by its truth word (``label_names`` are truth words).
+        up: its up axis (the corpus: "z").
     """
 
     seed: int
     kind: str
     noun: str
     shape: Shape
+    up: str = "z"
 
 
 def make_object(seed: int) -> CorpusObject:
