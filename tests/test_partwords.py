@@ -377,3 +377,25 @@ def test_the_resolver_beats_the_trivial_baseline_on_the_development_corpus():
     # measured 40/40 and 2/40 (this machine, both kernel sets): the margins are whole prompts
     assert ours["prompt_pass"] >= 0.85 and base["prompt_pass"] <= 0.25
     assert ours["recall"] > base["recall"] + 0.3
+
+
+def test_a_shape_of_many_groups_is_resolved_on_its_largest_groups_only():
+    """The evidence's contacts are pairwise: a shape of over 210 unlike groups is described by its 200
+    largest groups (MAX_GROUPS), the rest take the rest of the prompt; a long prompt of unknown
+    words guesses at most one group each."""
+    from proctex.texture.painters.partwords import MAX_GROUPS
+
+    from .meshes import boxes
+
+    specs = [((0.02 + 0.006 * (i % 15), 0.03, 0.05 + 0.02 * (i // 15)), (0.1 * (i % 20), 0.1 * (i // 20), 0.3)) for i in range(230)]
+    specs.append(((2.2, 1.3, 0.05), (0.95, 0.55, 0.7)))  # a top over them all
+    shape = boxes(specs)
+    grouping = analyse(shape)
+    assert len(grouping.groups) > MAX_GROUPS + 10  # (uniformly scaled copies share a group)
+    ev = describe_groups(shape.vertices, shape.faces, grouping, "z")
+    assert len(ev) == MAX_GROUPS and {e.rank for e in ev} == set(range(MAX_GROUPS))
+    plan = plan_parts("a table with a white marble top and " + ", ".join(f"red zz{i}" for i in range(300)),
+                      shape.vertices, shape.faces, grouping, "z")
+    top = max(grouping.groups, key=lambda g: grouping.parts[g.representative].area).index
+    assert plan.texts[top] == "white marble"
+    assert len(plan.guesses) <= MAX_GROUPS - 1 and set(plan.guesses) <= {e.group for e in ev}

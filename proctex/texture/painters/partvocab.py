@@ -147,9 +147,10 @@ def fall(x: float, lo: float, hi: float) -> float:
     return 1.0 - ramp(x, lo, hi)
 
 
-def evidence(vertices: np.ndarray, grouping, up: int, max_members: int = 400) -> list[Evidence]:
+def evidence(vertices: np.ndarray, grouping, up: int, max_members: int = 400, max_groups: int = 200) -> list[Evidence]:
     """One :class:`Evidence` per non-degenerate group of ``grouping`` (a
-    :class:`proctex.geometry.parts.Grouping`) on ``vertices (n, 3) float``; contacts from the
+    :class:`proctex.geometry.parts.Grouping`) on ``vertices (n, 3) float``, for the ``max_groups``
+    largest by area (a bound on the pairwise contacts; the others name no part); contacts from the
     members' boxes (from each group's union box when the shape has over ``max_members`` parts)."""
     v = np.asarray(vertices, dtype=np.float64)
     parts = grouping.segmentation.parts
@@ -183,6 +184,8 @@ def evidence(vertices: np.ndarray, grouping, up: int, max_members: int = 400) ->
     rank = {rows[i][0].index: r for r, i in enumerate(order)}
     main_box = rows[order[0]][1] if rows else np.zeros((1, 2, 3))
     main_mid = (main_box[:, 0].min(0) + main_box[:, 1].max(0)) / 2
+    keep = sorted(order[:max_groups])
+    rows, groups, boxes = [rows[i] for i in keep], [groups[i] for i in keep], [boxes[i] for i in keep]
     # contacts: boxes within tol of each other; "rests on": my bottom near its top, overlapping across
     tol = 0.02 * longest
     n_members = sum(len(b) for b in boxes)
@@ -312,10 +315,6 @@ def not_main(e: Evidence) -> float:
     return 0.0 if e.rank == 0 else 1.0
 
 
-def repeated(e: Evidence) -> float:
-    return 1.0 if e.members >= 2 else 0.6
-
-
 def at_an_end(e: Evidence) -> float:
     return max(e.end(a) for a in e.horizontal)
 
@@ -374,10 +373,6 @@ def largest_of(e: Evidence, all_: list[Evidence], fit: Callable[[Evidence], floa
 
 def lowest(e: Evidence, all_: list[Evidence]) -> float:
     return 1.0 if e.u_lo <= min(x.u_lo for x in all_) + 0.02 else 0.5
-
-
-def highest(e: Evidence, all_: list[Evidence]) -> float:
-    return 1.0 if e.u_hi >= max(x.u_hi for x in all_) - 0.02 else 0.5
 
 
 def longest(e: Evidence, all_: list[Evidence]) -> float:
@@ -501,7 +496,7 @@ def rungs(e, all_):
 
 def frame(e, all_):
     bed_frame = (1.0 if e.holds else 0.0) * off_floor(e) * low(e, 0.45) * ramp(e.footprint(), 0.3, 0.6)
-    return max(0.6 * bar(e), bed_frame) * not_main(e) if e.rank else max(0.6 * bar(e), bed_frame) * 0.5
+    return max(0.6 * bar(e), bed_frame) * (1.0 if e.rank else 0.5)
 
 
 def mattress(e, all_):
@@ -625,7 +620,7 @@ def chimney(e, all_):
 
 
 def trunk(e, all_):
-    return upright_bar(e) * on_floor(e) * holds_something(e) * not_main(e) if e.rank else upright_bar(e) * on_floor(e) * 0.7
+    return upright_bar(e) * on_floor(e) * (holds_something(e) if e.rank else 0.7)
 
 
 def canopy(e, all_):

@@ -57,7 +57,7 @@ MIN_SCORE = 0.2
 EXTEND_SCORE, EXTEND_SHARE = 0.45, 0.6
 #: two clauses within this of each other on a group are a tie (reported)
 TIE = 0.05
-#: shapes with more groups than this are resolved on the largest of them only (the rest take the
+#: shapes with more groups than this are resolved on the largest of them only (the others take the
 #: rest of the prompt): a bound on the evidence's pairwise contacts
 MAX_GROUPS = 200
 
@@ -72,7 +72,7 @@ def describe_groups(vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: 
     v = np.asarray(vertices, dtype=np.float64)
     if v.ndim != 2 or v.shape[1] != 3 or not len(v):
         raise ValueError(f"vertices must be (n, 3) with n > 0, got {v.shape}")
-    return V.evidence(v, grouping, int(u))
+    return V.evidence(v, grouping, int(u), max_groups=MAX_GROUPS)
 
 
 #: Words of one kind: what holds a shape up. A group the prompt does not name that passes the test of
@@ -264,14 +264,12 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     by_word = {t: hit for t in dict.fromkeys(tokens) if _label_of(t, label_map) is None and (hit := label_hits(t, labels))}
     free = [t for t in tokens if _label_of(t, label_map) is None and t not in by_word]
     wanted = list(dict.fromkeys(part_word(t) for t in free if part_word(t)))
-    unknown = [t for t in unknown_part_nouns(free)]
+    unknown = unknown_part_nouns(free)
     kind = V.kind_of(tokens, _material_word)
     live = [g for g in grouping.groups if not g.degenerate]
     # A word only becomes a part where the shape has more than one group: on a one-part vase "top"
     # and "base" stay regions of that part.
     geoms = describe_groups(vertices, faces, grouping, up) if (wanted or unknown) and len(live) > 1 else []
-    if len(geoms) > MAX_GROUPS:
-        geoms = sorted(geoms, key=lambda e: e.rank)[:MAX_GROUPS]
     res = resolve_words(wanted, geoms, kind, detail=True) if len(geoms) > 1 else Resolved({})
     named = {lab for t in tokens for lab in ([_label_of(t, label_map)] if _label_of(t, label_map) else by_word.get(t, []))}
     if named:  # a group the prompt names by its label is not also taken by a word's geometric test
