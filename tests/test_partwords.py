@@ -202,6 +202,13 @@ def test_part_word_table():
         resolve_words(["antenna"], [])
     with pytest.raises(ValueError, match="prompt must be a string"):
         plan_parts(3, np.zeros((3, 3)), np.zeros((1, 3), int), None)
+    table = unlabelled_table()
+    bad = table.vertices.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        describe_groups(bad, table.faces, analyse(table), "z")
+    with pytest.raises(ValueError, match="up must be"):
+        describe_groups(table.vertices, table.faces, analyse(table), "w")
 
 
 def test_parts_the_template_lacks_take_what_the_prompt_says_of_them():

@@ -13,7 +13,7 @@ The prompt's object noun ("a lamp") chooses the kind whose scorers are used (a m
 a cabinet's); without one, the kind whose words the prompt uses most, else the best of every kind.
 
 - a group a word took gets that word's clause ("red velvet" for the seat);
-- a clause whose part word is unknown ("a gold spout" on a chair) joins as a weak match: it takes the
+- a clause whose part word is unknown ("a gold antenna" on a chair) joins as a weak match: it takes the
   largest group no known word took, reported as a guess; with no group left it paints nothing and
   the notes say so. A clause's words never join another clause's material;
 - a group no word took that passes the test of a word of the same kind as a word the prompt placed
@@ -72,6 +72,8 @@ def describe_groups(vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: 
     v = np.asarray(vertices, dtype=np.float64)
     if v.ndim != 2 or v.shape[1] != 3 or not len(v):
         raise ValueError(f"vertices must be (n, 3) with n > 0, got {v.shape}")
+    if not np.isfinite(v).all():
+        raise ValueError("vertices must be finite")
     return V.evidence(v, grouping, int(u), max_groups=MAX_GROUPS)
 
 
