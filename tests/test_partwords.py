@@ -406,3 +406,24 @@ def test_a_shape_of_many_groups_is_resolved_on_its_largest_groups_only():
     top = max(grouping.groups, key=lambda g: grouping.parts[g.representative].area).index
     assert plan.texts[top] == "white marble"
     assert len(plan.guesses) <= MAX_GROUPS - 1 and set(plan.guesses) <= {e.group for e in ev}
+
+
+def test_group_prompts_take_part_words_as_keys(chair):
+    """Issue 51: ``--group-prompts`` by group number, label or part word: a word takes the groups it
+    passes on the shape (a label beats a word, a number beats both); a key that is none of them is
+    refused, saying what is valid."""
+    from proctex.texture.paint import resolve_group_prompts
+
+    shape, grouping, role = chair
+    got = resolve_group_prompts(grouping, "oak", {"legs": "black steel", "seat": "red velvet"}, shape, "z")
+    assert got[role["legs"]] == "black steel" and got[role["seat"]] == "red velvet" and got[role["back"]] == "oak"
+    got = resolve_group_prompts(grouping, "oak", {"legs": "black steel", str(role["legs"]): "brass"}, shape, "z")
+    assert got[role["legs"]] == "brass"
+    with pytest.raises(ValueError, match="part word"):
+        resolve_group_prompts(grouping, "oak", {"antenna": "gold"}, shape, "z")
+    with pytest.raises(ValueError, match="unknown group 'legs'"):
+        resolve_group_prompts(grouping, "oak", {"legs": "gold"})  # without the shape, words are not read
+    tex = paint_template(shape, grouping, "light oak", {"seat": "red velvet"}, size=32, up="z", maps=False)
+    seat = tex.groups[role["seat"]]
+    r, g, b = seat.image[seat.painted].mean(0)
+    assert r > g + 0.15 and r > b + 0.15  # the seat is red, the rest oak

@@ -109,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("paint", help="texture a template from a prompt: per-group PNGs, textured GLB, six-view preview")
     p.add_argument("mesh", help="mesh file, MODEL or MODEL:{json}")
     p.add_argument("--prompt", required=True, help='e.g. "dark walnut" or "red velvet with white polka dots"')
-    p.add_argument("--group-prompts", help='JSON (inline or a file) overriding the prompt per group label or index, e.g. {"seat": "red velvet"}')
+    p.add_argument("--group-prompts", help='JSON (inline or a file) overriding the prompt per group label, index or part word, e.g. {"seat": "red velvet"}')
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True)
     p.add_argument("--size", type=int, default=1024, help="texture size per group")

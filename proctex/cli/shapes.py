@@ -158,7 +158,7 @@ def cmd_paint(args: argparse.Namespace) -> int:
     shape = resolve_shape(args.mesh)
     up = default_up(shape.source) if args.up == "auto" else args.up
     grouping = analyse(shape, seed=args.seed)
-    resolve_group_prompts(grouping, args.prompt, group_prompts)  # validates the keys before any work
+    resolve_group_prompts(grouping, args.prompt, group_prompts, shape, up)  # validates the keys before any work
 
     def progress(k: int, n: int, st: dict[str, Any]) -> None:
         if not args.quiet:

@@ -142,29 +142,44 @@ class TemplateTexture:
 
 
 # ------------------------------------------------------------------------------------- prompts
-def resolve_group_prompts(grouping: Grouping, prompt: str, group_prompts: Mapping[str, str] | None = None) -> dict[int, str]:
-    """Prompt per group id: ``group_prompts`` keyed by group label or group index (as a string)
-    overrides the global ``prompt``. Unknown keys raise ``ValueError`` listing the valid ones."""
+def resolve_group_prompts(grouping: Grouping, prompt: str, group_prompts: Mapping[str, str] | None = None,
+                          shape: Shape | None = None, up: str = "z") -> dict[int, str]:
+    """Prompt per group id: ``group_prompts`` keyed by group label, group index (as a string) or,
+    given the ``shape``, a part word (``"legs"``, ``"table top"``: the groups the word takes on that
+    shape, :func:`proctex.texture.painters.partwords.groups_of_word`) overrides the global
+    ``prompt``; an index wins over a label, a label over a word. Unknown keys raise ``ValueError``
+    listing the valid ones."""
     if not isinstance(prompt, str):
         raise ValueError(f"prompt must be a string, got {type(prompt).__name__}")
     out = {g.index: prompt for g in grouping.groups}
     if not group_prompts:
         return out
     if not isinstance(group_prompts, Mapping):
-        raise ValueError("group prompts must be a mapping {group label or index: prompt}")
+        raise ValueError("group prompts must be a mapping {group label, index or part word: prompt}")
     valid = {str(g.index): [g.index] for g in grouping.groups}
     for g in grouping.groups:
         if g.label:
             valid.setdefault(g.label, []).append(g.index)
+    by_word: dict[str, list[int]] = {}
     for key, text in group_prompts.items():
-        if str(key) not in valid:
+        if str(key) not in valid and shape is not None:
+            from proctex.texture.painters.partwords import groups_of_word
+
+            gids = groups_of_word(str(key), prompt, shape.vertices, shape.faces, grouping, up)
+            if gids:
+                by_word[str(key)] = gids
+        if str(key) not in valid and str(key) not in by_word:
             names = sorted(valid, key=lambda k: (k.isdigit(), int(k) if k.isdigit() else 0, k))
-            raise ValueError(f"unknown group {key!r} in group prompts; this shape's groups are: {', '.join(names)}")
+            also = " (or a part word one of them passes)" if shape is not None else ""
+            raise ValueError(f"unknown group {key!r} in group prompts; this shape's groups are: {', '.join(names)}{also}")
         if not isinstance(text, str):
             raise ValueError(f"group prompt for {key!r} must be a string")
-    # Labels first, then explicit indices (more specific) win.
+    # Part words first, then labels, then explicit indices (more specific) win.
     for key, text in group_prompts.items():
-        if not str(key).isdigit():
+        for gi in by_word.get(str(key), []):
+            out[gi] = text
+    for key, text in group_prompts.items():
+        if not str(key).isdigit() and str(key) in valid:
             for gi in valid[str(key)]:
                 out[gi] = text
     for key, text in group_prompts.items():

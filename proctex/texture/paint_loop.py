@@ -479,7 +479,7 @@ def paint_template(
     per-group unwrap. ``maps``: also make each group's PBR maps (:func:`paint_material_maps`: from
     the prompts' materials, whichever painter made the colour); ``occlusion``: bake ambient occlusion
     into them too."""
-    prompts = resolve_group_prompts(grouping, prompt, group_prompts)  # validates the keys
+    prompts = resolve_group_prompts(grouping, prompt, group_prompts, shape, up)  # validates the keys (labels, indices, part words)
     # Clauses naming parts (by label or by what the parts are) become those groups' prompts, for
     # every painter and in the record; explicit group prompts win.
     parts = plan_parts(prompt, shape.vertices, shape.faces, grouping, up)

@@ -95,7 +95,7 @@ class PaintConfig:
     """How the template is painted.
 
     Attributes:
-        prompt, group_prompts: what to paint (group prompts keyed by group label or index).
+        prompt, group_prompts: what to paint (group prompts keyed by group label, index or part word).
         texture_size, painter: template texturing, one of the registered painters
             (:func:`painter_names`): "surface" (the solid surface painter), "views" (the multi-view
             loop with the offline view painter) or "diffusion" (the multi-view loop with a local

@@ -45,7 +45,7 @@ from .prompt import parse_prompt
 from .regions import RegionPlan, _label_of, split_regions
 
 __all__ = ["PART_WORDS", "KINDRED", "GroupGeometry", "PartPlan", "describe_groups", "part_word", "resolve_words", "plan_parts",
-           "new_part_texts", "label_hits"]
+           "new_part_texts", "label_hits", "groups_of_word"]
 
 GroupGeometry = V.Evidence
 #: canonical word -> its forms (the vocabulary, :data:`.partvocab.WORDS`)
@@ -160,6 +160,19 @@ def resolve_words(words: list[str], geoms: list[V.Evidence], kind: str | None = 
         res.ties += [(gid, words[i], words[k]) for k in rival]
     res.weak = [words[i] for i, s in best.items() if s < 0.5]
     return res if detail else res.words
+
+
+def groups_of_word(form: str, prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z") -> list[int]:
+    """The groups the part word ``form`` ("legs", "table top") takes on a shape, read for the kind of
+    object ``prompt`` names (:func:`.partvocab.kind_of`); [] when it is no part word or no group
+    passes it."""
+    word = part_word(form)
+    live = [g for g in grouping.groups if not g.degenerate]
+    if word is None or len(live) < 2:
+        return []
+    tokens = V.join_compounds(re.findall(r"[\w'-]+", f"{prompt} {form}".lower()))
+    got = resolve_words([word], describe_groups(vertices, faces, grouping, up), V.kind_of(tokens, _material_word))
+    return list(got.get(word, ([], ""))[0])
 
 
 # ------------------------------------------------------------------------------------------- plan
