@@ -381,7 +381,7 @@ def test_the_resolver_beats_the_trivial_baseline_on_the_development_corpus():
 
     res = B.run("development", 40)["tallies"]
     ours, base = res["resolver"].summary(), res["baseline"].summary()
-    # measured 40/40 and 2/40 (this machine, both kernel sets): the margins are whole prompts
+    # measured 39/40 and 0/40 prompts, recall 0.992 and 0.275, on both kernel sets: margins of whole prompts
     assert ours["prompt_pass"] >= 0.85 and base["prompt_pass"] <= 0.25
     assert ours["recall"] > base["recall"] + 0.3
 
