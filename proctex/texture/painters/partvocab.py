@@ -32,7 +32,7 @@ import numpy as np
 
 from .names import same_word
 
-__all__ = ["Evidence", "WORDS", "NOUNS", "KINDS", "evidence", "word_of", "kind_of", "join_compounds", "score"]
+__all__ = ["Evidence", "WORDS", "NOUNS", "KINDS", "evidence", "word_of", "kind_of", "join_compounds", "join_compounds_text", "score"]
 
 
 @dataclass(frozen=True)
@@ -797,6 +797,17 @@ def join_compounds(tokens: list[str]) -> list[str]:
         else:
             out.append(tokens[i])
             i += 1
+    return out
+
+
+def join_compounds_text(text: str) -> str:
+    """``text`` with its two-word part forms joined by a hyphen ("a marble table top" -> "a marble
+    table-top"), everything else kept as it was."""
+    import re
+
+    out = str(text)
+    for (first, second), joined in _COMPOUNDS.items():
+        out = re.sub(rf"\b{re.escape(first)}\s+{re.escape(second)}\b", joined, out, flags=re.IGNORECASE)
     return out
 
 

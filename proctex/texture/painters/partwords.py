@@ -272,8 +272,8 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
         raise ValueError(f"prompt must be a string, got {type(prompt).__name__}")
     labels = [g.label for g in grouping.groups if g.label]
     label_map = {lab.lower(): lab for lab in labels}
-    tokens = V.join_compounds(re.findall(r"#[0-9a-fA-F]{3,6}\b|[\w'-]+|[,;:]", prompt.lower()))
-    text = " ".join(tokens)
+    text = V.join_compounds_text(prompt)  # "table top" -> "table-top"; the rest as written
+    tokens = re.findall(r"#[0-9a-fA-F]{3,6}\b|[\w'-]+|[,;:]", text.lower())
     # A word naming a word of a group's label ("arms" for "Left Arm", "feet" for "Legs": a form of the
     # same part word) routes by the label: labels beat geometry.
     by_word = {t: hit for t in dict.fromkeys(tokens) if _label_of(t, label_map) is None and (hit := label_hits(t, labels))}
