@@ -64,3 +64,18 @@ def test_the_score_passes_an_oracle_and_fails_a_shifted_one():
         bad.add(case, truth, B.taken(case, _oracle(1)(case, shape, grouping)))
     assert good.passed == good.prompts == 12 and good.summary()["precision"] == 1.0 and good.summary()["recall"] == 1.0
     assert bad.passed == 0 and bad.summary()["recall"] == 0.0 and bad.summary()["precision"] == 0.0
+
+
+def test_the_readme_pictures_are_made_by_their_command(tmp_path):
+    """``python tests/bench/partword_pictures.py`` paints and draws a kind's object under 150 KB."""
+    from PIL import Image
+
+    from tests.bench import partword_pictures as pics
+
+    assert pics.main(["--out", str(tmp_path), "--kinds", "tools"]) == 0
+    path = tmp_path / "partwords_tools.png"
+    assert path.stat().st_size <= pics.MAX_BYTES
+    image = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    assert image.shape[0] > image.shape[1] and (np.abs(image - 255).sum(-1) > 60).mean() > 0.02  # something painted
+    with pytest.raises(SystemExit, match="unknown kinds"):
+        pics.main(["--out", str(tmp_path), "--kinds", "spaceships"])
