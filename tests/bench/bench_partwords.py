@@ -74,6 +74,17 @@ class Case:
     prompt: str
 
 
+def distinct_materials(k: int, rng: np.random.Generator) -> list[str]:
+    """``k`` materials of :data:`MATERIALS` in a random order, each at least :data:`MIN_DE` from the others."""
+    mats: list[str] = []
+    for m in rng.permutation(MATERIALS):
+        if all(delta_e(colour_of(m), colour_of(x)) >= MIN_DE for x in mats):
+            mats.append(str(m))
+        if len(mats) == k:
+            break
+    return mats
+
+
 def compose(obj: C.CorpusObject, rng: np.random.Generator) -> Case | None:
     """A prompt naming 2 to 4 of ``obj``'s truth words with distinct materials (None when it has fewer than two)."""
     roles = [r for r in obj.shape.label_names if r in C.FORMS]
@@ -81,12 +92,7 @@ def compose(obj: C.CorpusObject, rng: np.random.Generator) -> Case | None:
         return None
     k = min(len(roles), int(rng.integers(2, 5)))
     chosen = [roles[i] for i in rng.permutation(len(roles))[:k]]
-    mats: list[str] = []
-    for m in rng.permutation(MATERIALS):
-        if all(delta_e(colour_of(m), colour_of(x)) >= MIN_DE for x in mats):
-            mats.append(str(m))
-        if len(mats) == k:
-            break
+    mats = distinct_materials(k, rng)
     clauses = [(w, str(rng.choice(C.FORMS[w])), m) for w, m in zip(chosen, mats)]
     parts = [f"{m} {f}" for _, f, m in clauses]
     listed = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]

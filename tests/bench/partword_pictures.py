@@ -34,12 +34,7 @@ def picture(obj: C.CorpusObject, size: int = 320, texture: int = 128) -> tuple[I
     """The painted, rendered ``obj`` with its prompt under it, and the prompt."""
     roles = [r for r in obj.shape.label_names if r in C.FORMS]
     rng = np.random.default_rng(obj.seed)
-    mats: list[str] = []
-    for m in rng.permutation(B.MATERIALS):
-        if all(B.delta_e(B.colour_of(m), B.colour_of(x)) >= B.MIN_DE for x in mats):
-            mats.append(str(m))
-        if len(mats) == len(roles):
-            break
+    mats = B.distinct_materials(len(roles), rng)
     parts = [f"{m} {C.FORMS[r][0]}" for r, m in zip(roles, mats)]
     prompt = f"a {obj.noun} with " + (parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1])
     shape = C.unlabelled(obj.shape)
