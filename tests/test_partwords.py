@@ -427,3 +427,78 @@ def test_group_prompts_take_part_words_as_keys(chair):
     seat = tex.groups[role["seat"]]
     r, g, b = seat.image[seat.painted].mean(0)
     assert r > g + 0.15 and r > b + 0.15  # the seat is red, the rest oak
+
+
+def test_a_group_given_a_word_by_hand_takes_that_words_clause_over_geometry_and_labels(chair):
+    """Issue 51, the user's last word: a group given a word takes its clause whatever its test says
+    (and the word still takes its own groups), a group given another word or ``rest`` is out of the
+    word's reach, a word the vocabulary does not know names its group, and a label loses to the
+    user's word; each is a note."""
+    import copy
+
+    from proctex.texture.painters.partwords import REST, groups_of_word
+
+    shape, grouping, role = chair
+    v, f = shape.vertices, shape.faces
+    plan = plan_parts(PROMPT, v, f, grouping, "z", assigned={role["arms"]: "legs"})
+    assert plan.words["legs"] == sorted([role["legs"], role["arms"]]) and plan.texts[role["arms"]] == "dark walnut"
+    assert plan.routes[role["arms"]] == "hand" and plan.routes[role["legs"]] == "word" and plan.assigned == {role["arms"]: "legs"}
+    assert any(f"group {role['arms']} was given 'legs' by hand" in n for n in plan.notes)
+    # the seat given "back": the seat's clause has no group left that passes 'seat'; the back takes nothing of it
+    plan = plan_parts(PROMPT, v, f, grouping, "z", assigned={str(role["seat"]): "back"})
+    assert role["seat"] not in plan.words.get("seat", []) and plan.texts.get(role["seat"]) != "red velvet"
+    assert any("'red velvet' ('seat') paints nothing" in n for n in plan.notes)
+    plan = plan_parts(PROMPT, v, f, grouping, "z", assigned={role["legs"]: REST})
+    assert role["legs"] not in plan.words.get("legs", []) and plan.routes.get(role["legs"]) != "word"
+    # a noun ProcTex does not know, given by hand: its clause goes there, not to the largest free group
+    plan = plan_parts(PROMPT + " and a gold antenna", v, f, grouping, "z", assigned={role["arms"]: "antenna"})
+    assert plan.texts[role["arms"]] == "gold" and plan.guesses == {} and plan.routes[role["arms"]] == "hand"
+    guessed = plan_parts(PROMPT + " and a gold antenna", v, f, grouping, "z")
+    assert guessed.guesses and role["arms"] not in guessed.guesses  # without the user's word, the guess lands elsewhere
+    # the user's word beats a label
+    named = copy.deepcopy(grouping)
+    named.groups[role["back"]].label = "seat"
+    plan = plan_parts(PROMPT, v, f, named, "z", assigned={role["back"]: "legs"})
+    assert plan.texts[role["back"]] == "dark walnut" and plan.routes[role["back"]] == "hand"
+    # group prompts keyed by a word follow the user's words
+    assert groups_of_word("legs", PROMPT, v, f, grouping, "z", assigned={role["arms"]: "legs"}) == sorted([role["legs"], role["arms"]])
+    assert groups_of_word("legs", PROMPT, v, f, grouping, "z", assigned={role["legs"]: "seat"}) == []
+    assert groups_of_word("antenna", PROMPT, v, f, grouping, "z", assigned={role["back"]: "antenna"}) == [role["back"]]
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"x": "legs"}, "keyed by group index"), ({"9": "legs"}, "no group 9"), ({"1": "<b>"}, "a word of letters"),
+    ({"1": 3}, "must be a string"), ({True: "legs"}, "keyed by group index"), ({"1": "a" * 49}, "at most 48"),
+    (["legs"], "must be an object"), ({str(i): "legs" for i in range(201)}, "at most 200"),
+])
+def test_words_given_by_hand_are_checked(chair, bad, message):
+    from proctex.texture.painters.partwords import check_assignment
+
+    shape, grouping, _ = chair
+    with pytest.raises(ValueError, match=message):
+        check_assignment(bad, 4 if len(bad) < 200 else None)
+    assert check_assignment({"2": "  Table  Top "}, 4) == {2: "table top"}
+
+
+def test_the_parts_report_has_every_group_its_route_score_evidence_and_a_picture(chair):
+    from proctex.texture.partsview import parts_picture
+    from proctex.texture.painters.partwords import parts_report
+
+    shape, grouping, role = chair
+    report = parts_report(PROMPT, shape.vertices, shape.faces, grouping, "z", assigned={role["arms"]: "antenna"})
+    rows = {r["group"]: r for r in report["groups"]}
+    assert set(rows) == {0, 1, 2, 3} and report["assigned"] == {str(role["arms"]): "antenna"}
+    assert rows[role["seat"]]["how"] == "word" and rows[role["seat"]]["word"] == "seat" and rows[role["seat"]]["score"] > 0.5
+    assert rows[role["arms"]]["how"] == "hand" and rows[role["arms"]]["word"] == "antenna"
+    assert rows[role["legs"]]["evidence"]["members"] == 4 and rows[role["legs"]]["evidence"]["form"] == "upright bar"
+    assert rows[role["legs"]]["evidence"]["height"][0] == 0.0 and rows[role["legs"]]["evidence"]["corners"] == 1.0
+    assert rows[role["back"]]["looks_like"][0][0] in ("back", "doors")
+    assert [c["word"] for c in report["clauses"]] == ["seat", "legs"]
+    fg = np.full(shape.n_faces, -1)
+    for p in grouping.parts:
+        fg[p.faces] = grouping.part_group[p.index]
+    image = parts_picture(shape.vertices, shape.faces, fg, report, "z", 128)
+    px = np.asarray(image)
+    assert image.size[0] == 256 and px[:128].std() > 10  # the views are drawn, not blank
+    with pytest.raises(ValueError, match="size"):
+        parts_picture(shape.vertices, shape.faces, fg, report, "z", 10)

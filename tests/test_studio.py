@@ -412,3 +412,71 @@ def test_the_studio_picks_and_adds_looks(server, browser):
         assert not errors, errors
     finally:
         context.close()
+
+
+def test_the_studio_shows_each_parts_word_and_a_clause_given_by_clicking_is_stored_and_reused(server, browser):
+    """Issue 51: hovering a part shows its group and word; clicking it selects its panel, where one of
+    the prompt's clauses is given to it; saving stores the word in the family (``part_words.json``)
+    and a look added afterwards paints that part with that clause."""
+    from dataclasses import replace
+
+    from PIL import Image
+
+    from proctex.build.looks import add_look
+    from proctex.store.looks import look_paint, resolve_look
+    from proctex.store.state import FamilyState
+
+    base, root = server
+    st = FamilyStore(root / "mug")
+    paint = FamilyState.load(st).build_config().paint
+    prompt = "a white ceramic mug with a red handle"
+    if not (root / "mug" / "looks" / "redhandle").exists():
+        add_look(st, "redhandle", replace(paint, prompt=prompt), log=lambda *_: None)
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("response", lambda r: errors.append(f"{r.status} {r.url}") if r.status >= 400 else None)
+    try:
+        page.goto(base + "/?family=mug&look=redhandle#token=" + STUDIO_TOKEN)
+        _wait_for_shape(page, 1)
+        page.wait_for_function("document.body.dataset.parts === 'ready'", timeout=60_000)
+        box = page.locator("#canvas").bounding_box()
+        cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        page.mouse.move(cx, cy)
+        page.wait_for_function("document.body.dataset.hover !== undefined && document.body.dataset.hover !== ''")
+        body_group = int(page.evaluate("document.body.dataset.hover"))
+        assert body_group == 0, "the middle of the view is the mug's body"
+        tip = page.evaluate("document.getElementById('hover').textContent")
+        assert tip.startswith("group 0") and "white ceramic" in tip, tip
+        page.mouse.click(cx, cy)
+        assert page.evaluate("document.body.dataset.selected") == "0"
+        assert page.eval_on_selector('.group[data-group="0"]', "el => el.classList.contains('selected')")
+        page.mouse.move(cx + 2, cy + 2)  # the tooltip again, for the screenshot
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(ARTIFACTS / "parts.png"))
+        options = page.eval_on_selector_all('.group[data-group="0"] select.assign option', "os => os.map(o => o.value)")
+        assert options == ["", "handles", "rest"], options
+        page.select_option('.group[data-group="0"] select.assign', "handles")
+        page.click("#save-words")
+        page.wait_for_function("document.body.dataset.words === 'saved'")
+        assert json.loads((root / "mug" / "template" / "part_words.json").read_text())["groups"] == {"0": "handles"}
+        assert "0=handles" in page.evaluate("document.getElementById('words-note').textContent")
+        n = _requests(page)
+        page.fill("#look-name", "handled")
+        page.fill("#look-prompt", prompt)
+        page.click("#addlook button")
+        _wait_for_shape(page, n + 1, timeout=120_000)
+        look = resolve_look(st, "handled")
+        assert look_paint(st, look, paint).part_words == {"0": "handles"}
+        red = np.array([255, 0, 0])
+        for name, want_red in (("redhandle", False), ("handled", True)):
+            lk = resolve_look(st, name)
+            label = next(g["label"] for g in json.loads((root / "mug" / lk.PAINT).read_text())["groups"] if g["group"] == 0)
+            rgb = np.asarray(Image.open(root / "mug" / lk.texture(0, label)).convert("RGB"), dtype=float).reshape(-1, 3).mean(axis=0)
+            is_red = np.abs(rgb - red).sum() < np.abs(rgb - 255).sum()  # nearer red than white
+            assert is_red == want_red, (name, rgb)
+        assert not errors, errors
+    finally:
+        context.close()
+        (root / "mug" / "template" / "part_words.json").unlink(missing_ok=True)

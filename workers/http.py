@@ -28,6 +28,11 @@ Routes:
   ``{"name", "prompt", "group_prompts", "painter", "texture_size", "force"}``) paints a new look of the
   stored template in seconds, served at once. ``?look=NAME`` on the family, transfer, texture and
   edit routes: that look (default: the build's); linked answers name it in their texture URIs.
+- ``GET /v1/families/{name}/parts?prompt=&look=``: which group takes which part word of the prompt
+  (default: the look's), with each group's evidence and score (:func:`proctex.build.looks.family_parts`).
+  ``PUT`` (the token, JSON ``{"groups": {"3": "legs", "5": ""}, "replace": false}``) stores the
+  user's word per group in the family (an empty word clears one); every look painted afterwards
+  follows it.
 
 Errors are JSON ``{"error": message}`` on every route: unknown family (or group in a path) 404, body
 over the size limit 413, bad JSON, parameters out of bounds, unknown parameters, an unreadable mesh,
@@ -277,9 +282,10 @@ def parse_look(body: dict[str, Any], svc: Any) -> tuple[str, Any, bool]:
     from proctex.store.layout import check_look_name
     from proctex.store.looks import new_look_paint
 
-    unknown = set(body) - {"name", "prompt", "group_prompts", "painter", "texture_size", "force"}
+    unknown = set(body) - {"name", "prompt", "group_prompts", "part_words", "painter", "texture_size", "force"}
     if unknown:
-        raise BadInput(f"unknown fields {sorted(unknown)[:5]}; a look takes name, prompt, group_prompts, painter, texture_size, force")
+        raise BadInput(f"unknown fields {sorted(unknown)[:5]}; a look takes name, prompt, group_prompts, part_words, painter, "
+                       "texture_size, force")
     name, prompt = body.get("name"), body.get("prompt")
     check_look_name(name)
     if not isinstance(prompt, str) or not prompt.strip() or len(prompt) > svc.limits.max_prompt:
@@ -295,10 +301,47 @@ def parse_look(body: dict[str, Any], svc: Any) -> tuple[str, Any, bool]:
     if not isinstance(force, bool):
         raise BadInput("force must be true or false")
     try:
-        paint = new_look_paint(svc.config.paint, prompt, prompts, body.get("painter"), size)
+        words = body.get("part_words") or {}
+        if not isinstance(words, dict):
+            raise BadInput("part_words must be an object {group index: word}")
+        paint = new_look_paint(svc.config.paint, prompt, prompts, body.get("painter"), size, part_words=words)
     except (TypeError, ValueError) as exc:
         raise BadInput(str(exc)[:500]) from exc
     return name, paint, force
+
+
+def parts_of(svc: Any, prompt: str | None, look: str | None) -> dict[str, Any]:
+    """:func:`proctex.build.looks.family_parts` of the service's family (the report, without the mesh)."""
+    from proctex.build.looks import family_parts
+
+    if prompt is not None and len(prompt) > svc.limits.max_prompt:
+        raise BadInput(f"prompt must be at most {svc.limits.max_prompt} characters")
+    from proctex.store.looks import UnknownLook
+
+    if look is not None and (not isinstance(look, str) or len(look) > 200):
+        raise BadInput("look must be a look's name")
+    try:
+        return family_parts(svc.store, prompt, look)[0]
+    except UnknownLook as exc:
+        raise NotFound(str(exc)) from None
+
+
+def save_parts(svc: Any, body: dict[str, Any]) -> dict[str, str]:
+    """Store a ``PUT .../parts`` body's words (:func:`proctex.store.partwords.save_part_words`); a
+    busy store is a conflict (409)."""
+    from proctex.store.locks import StoreBusy
+    from proctex.store.partwords import save_part_words
+
+    unknown = set(body) - {"groups", "replace"}
+    if unknown:
+        raise BadInput(f"unknown fields {sorted(unknown)[:5]}; part words take groups, replace")
+    replace = body.get("replace", False)
+    if not isinstance(replace, bool):
+        raise BadInput("replace must be true or false")
+    try:
+        return save_part_words(svc.store, body.get("groups"), len(svc.assets.groups), replace=replace, timeout=10.0)
+    except StoreBusy as exc:
+        raise EditConflict(str(exc)) from exc
 
 
 def add_look_to(svc: Any, name: str, paint: Any, force: bool) -> dict[str, Any]:
@@ -601,7 +644,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         openapi_extra={"requestBody": {"required": True, "content": {"application/json": {"schema": {
             "type": "object", "required": ["name", "prompt"], "properties": {
                 "name": {"type": "string"}, "prompt": {"type": "string"}, "group_prompts": {"type": "object"},
-                "painter": {"type": "string"}, "texture_size": {"type": "integer"}, "force": {"type": "boolean"}}}}}}},
+                "part_words": {"type": "object"}, "painter": {"type": "string"}, "texture_size": {"type": "integer"}, "force": {"type": "boolean"}}}}}}},
     )
     async def add_family_look(name: str, request: Request):
         """Paint a new look of the family (the stored template with another prompt: seconds, no
@@ -617,5 +660,37 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         finally:
             get_catalog().invalidate(name)
         return {"family": name, "look": record, "stamp": stamp}
+
+    @app.get("/v1/families/{name}/parts", responses={404: {"description": "unknown family or look"}})
+    async def family_parts(name: str, prompt: str | None = None, look: str | None = None):
+        """Which group takes which part word of ``prompt`` (default: the look's prompt; ``look``
+        default: the build's): per group its word, how it got it, its score, its evidence and the
+        text it is painted with; the family's stored words (``stored``) count."""
+        try:
+            svc = await family_of(name)
+            return await blocking(lambda: parts_of(svc, prompt, look))
+        except Exception as exc:
+            return error_response(exc)
+
+    @app.put(
+        "/v1/families/{name}/parts",
+        responses={404: {"description": "unknown family"}, 409: {"description": "an edit of the family is running"},
+                   422: {"description": "bad words"}},
+        openapi_extra={"requestBody": {"required": True, "content": {"application/json": {"schema": {
+            "type": "object", "required": ["groups"], "properties": {
+                "groups": {"type": "object", "additionalProperties": {"type": "string"}}, "replace": {"type": "boolean"}}}}}}},
+    )
+    async def store_parts(name: str, request: Request):
+        """Store the user's word per group in the family (``{"groups": {"3": "legs"}}``; an empty word
+        clears a group's, ``replace`` drops the others): every look painted afterwards follows it.
+        Needs the edit token. Returns the stored words."""
+        try:
+            svc = await family_of(name)
+            check_edit_request(request)
+            body = await read_json_object(request, limits=svc.limits)
+            stored = await blocking(lambda: save_parts(svc, body))
+        except Exception as exc:
+            return error_response(exc)
+        return {"family": name, "stored": stored}
 
     return app

@@ -88,8 +88,8 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
 
 def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
              timeout: float = 60.0) -> dict[str, Any]:
-    """Paint look ``name`` of the built family in ``store`` with ``paint`` and store it in
-    ``looks/<name>/`` as one change (staged beside it, then put in place: a reader sees the whole
+    """Paint look ``name`` of the built family in ``store`` with ``paint`` (and the family's stored
+    part words, :func:`with_stored_words`) and store it in ``looks/<name>/`` as one change (staged beside it, then put in place: a reader sees the whole
     look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
     waits up to ``timeout`` s for an edit or another look being written. Returns the look's record."""
     check_look_name(name)
@@ -103,6 +103,7 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = Fa
     look = StoreLayout.look(name)
     if store.exists(look.RECORD) and not force:
         raise ValueError(f"the family has a look {name!r} already; --force replaces it")
+    paint = with_stored_words(store, config.paint, paint)
     with store_lock(store, StoreLayout.BUILD_LOCK, f"adding look {name}", shared=True, busy=StoreBusy, note=True):
         files, record = look_files(store, config, paint, look, state, log)
         with store_lock(store, StoreLayout.EDIT_LOCK, f"adding look {name}", timeout=timeout, busy=StoreBusy):
@@ -111,6 +112,21 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = Fa
             store.replace_folder(look.folder, files)
     log(f"look {name}: {len(files)} files in {look.folder}/, {record['seconds']:.1f} s")
     return record
+
+
+def with_stored_words(store: FamilyStore, build_paint: PaintConfig, paint: PaintConfig) -> PaintConfig:
+    """``paint`` with the family's stored part words (:mod:`proctex.store.partwords`: the user's
+    last word, saved after the build) laid over the build's, and those ``paint`` names beyond the
+    build's over both."""
+    from dataclasses import replace
+
+    from proctex.store.partwords import stored_part_words
+
+    stored = stored_part_words(store)
+    if not stored:
+        return paint
+    own = {k: v for k, v in paint.part_words.items() if build_paint.part_words.get(k) != v}
+    return replace(paint, part_words={**build_paint.part_words, **stored, **own}).validate()
 
 
 def remove_look(store: FamilyStore, name: str, timeout: float = 60.0) -> None:
@@ -139,3 +155,36 @@ def name_built_look(store: FamilyStore, name: str, timeout: float = 60.0) -> str
             summary["look"] = name
             store.write_json(StoreLayout.PAINT, summary)
     return before
+
+
+def family_parts(store: FamilyStore, prompt: str | None = None, look: str | None = None, assign: dict[str, str] | None = None) -> dict[str, Any]:
+    """What the part words of ``prompt`` (default: the prompt of ``look``, the build's look when
+    None) do on the family's template (:func:`proctex.texture.painters.partwords.parts_report`),
+    with the family's stored words (:mod:`proctex.store.partwords`) over the look's and ``assign``
+    over both; adds ``family``, ``look``, ``stored`` (the stored words) and ``up``. Also returns the
+    template's vertices, faces and face groups for a picture: ``(report, (vertices, faces,
+    face_group))``. Nothing is written."""
+    from proctex.store.looks import look_paint
+    from proctex.store.partwords import stored_part_words
+    from proctex.texture.painters.partwords import check_assignment, parts_report
+
+    state = FamilyState.load(store)
+    config = state.build_config(store.uri)
+    if not state.done("template"):
+        raise ValueError(f"{store.uri}: the family has no template yet (build it first: proctex build)")
+    found = resolve_look(store, look)
+    paint = look_paint(store, found, config.paint)
+    text = paint.prompt if prompt is None else prompt
+    if not isinstance(text, str):
+        raise ValueError(f"prompt must be a string, got {type(text).__name__}")
+    shape = load_template_shape(store, config, state)
+    grouping = TemplateFiles(store, built_look(store)).grouping(shape, seed=config.seed)
+    stored = stored_part_words(store)
+    given = {str(k): v for k, v in check_assignment(assign or {}, len(grouping.groups)).items()}
+    words = {**paint.part_words, **stored, **given}
+    report = parts_report(text, shape.vertices, shape.faces, grouping, config.up_axis(), assigned=words)
+    face_group = np.full(shape.n_faces, -1, dtype=np.int64)
+    for p in grouping.parts:
+        face_group[p.faces] = int(grouping.part_group[p.index])
+    report = {"family": store.uri, "look": found.name, "up": config.up_axis(), "stored": stored, **report}
+    return report, (shape.vertices, shape.faces, face_group)

@@ -178,12 +178,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_inputs)
 
-    p = sub.add_parser("parts", help="a .blend model's parts and the names its node tree gives them (frames, node groups)")
-    p.add_argument("blend", metavar="FILE.blend")
-    p.add_argument("--object", required=True, help="the object carrying the Geometry Nodes modifier")
+    p = sub.add_parser("parts", help="a family's part groups and the part word each took (a PNG and JSON; --assign gives the last word), "
+                                     "or a .blend model's parts and the names its node tree gives them")
+    p.add_argument("blend", metavar="FAMILY|FILE.blend", help="a built family (folder or URI), or a .blend file")
+    p.add_argument("--prompt", help="FAMILY: the prompt to read (default: the look's)")
+    p.add_argument("--look", help="FAMILY: the look whose prompt and words to read (default: the build's)")
+    p.add_argument("--assign", metavar="G=WORD,...", help="FAMILY: your word per group, e.g. '3=legs,5=rest' or JSON "
+                   "{\"3\": \"legs\"} ('rest': no word; an empty word clears a stored one with --save)")
+    p.add_argument("--save", action="store_true", help="FAMILY: store --assign in the family: every look painted afterwards follows it")
+    p.add_argument("--png", metavar="FILE.png", help="FAMILY: draw the template, each group with its number, word and score")
+    p.add_argument("--size", type=int, default=400, help="FAMILY: --png pixels per view (64-2048)")
+    p.add_argument("--object", help="FILE.blend: the object carrying the Geometry Nodes modifier")
     p.add_argument("--modifier", default="GeometryNodes")
-    p.add_argument("--params", help="input values (JSON); the others keep the file's values")
-    p.add_argument("--parts-attribute", help="an attribute whose values are the parts (instead of the mesh's connectivity)")
+    p.add_argument("--params", help="FILE.blend: input values (JSON); the others keep the file's values")
+    p.add_argument("--parts-attribute", help="FILE.blend: an attribute whose values are the parts (instead of the mesh's connectivity)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_parts)
 

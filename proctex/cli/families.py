@@ -179,6 +179,13 @@ def cmd_parts(args: argparse.Namespace) -> int:
     from proctex.geometry.surface import triangle_areas
     from proctex.sources.blender import BlenderModel
 
+    if not args.blend.lower().endswith(".blend"):
+        return family_parts_command(args)
+    given = [f"--{k.replace('_', '-')}" for k in ("prompt", "look", "assign", "png") if getattr(args, k) is not None] + (["--save"] if args.save else [])
+    if given:
+        raise ValueError(f"{', '.join(given)} read a family, not a .blend file")
+    if not args.object:
+        raise ValueError("a .blend file needs --object (the object carrying the Geometry Nodes modifier; proctex inputs lists them)")
     if not os.path.isfile(args.blend):
         raise ValueError(f"no such file: {args.blend}")
     try:
@@ -215,6 +222,81 @@ def cmd_parts(args: argparse.Namespace) -> int:
         print(f"  {r['id']:<4} {r['node']:<48} -> {r['name'] or '(no name)'}" + (f" from its {r['from']}" if r["name"] else "") + dropped)
     print(f"{100 * report['covered']:.1f} % of the area has a producing node"
           + (f"; provenance unavailable: {report['provenance_error']}" if report["provenance_error"] else ""))
+    return 0
+
+
+def parse_assign(text: str | None) -> dict[str, str]:
+    """``--assign``: ``"3=legs,5=rest"`` or a JSON object ``{"3": "legs"}`` -> ``{"3": "legs"}`` (an
+    empty word kept: it clears a stored one). ``ValueError`` for anything else."""
+    if not text:
+        return {}
+    if text.lstrip().startswith("{"):
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"--assign is not valid JSON ({exc})") from exc
+        if not isinstance(data, dict) or not all(isinstance(v, str) for v in data.values()):
+            raise ValueError('--assign must be a JSON object of words, e.g. {"3": "legs"}')
+        return {str(k): v for k, v in data.items()}
+    out = {}
+    for item in text.split(","):
+        if item.strip():
+            key, eq, word = item.partition("=")
+            if not eq:
+                raise ValueError(f"--assign takes GROUP=WORD pairs separated by commas, e.g. '3=legs,5=rest'; got {item.strip()[:40]!r}")
+            out[key.strip()] = word.strip()
+    return out
+
+
+def family_parts_command(args: argparse.Namespace) -> int:
+    """``proctex parts FAMILY``: which group took which word (``--png`` draws it), ``--assign`` /
+    ``--save`` the user's words."""
+    from proctex.build.looks import family_parts
+    from proctex.store.layout import FamilyStore
+    from proctex.store.partwords import save_part_words
+    from proctex.texture.partsview import parts_picture
+
+    if args.object or args.params or args.parts_attribute:
+        raise ValueError("--object, --params and --parts-attribute read a .blend file, not a family")
+    if args.png is not None and not args.png.lower().endswith(".png"):
+        raise ValueError(f"--png must name a .png file, got {args.png!r}")
+    if not isinstance(args.size, int) or not 64 <= args.size <= 2048:
+        raise ValueError(f"--size must be in [64, 2048], got {args.size}")
+    assign = parse_assign(args.assign)
+    if args.save and not assign:
+        raise ValueError("--save stores the words of --assign: give them")
+    if not os.path.isdir(args.blend) and "://" not in args.blend:
+        raise ValueError(f"no such family: {args.blend} (a folder a build wrote, or a .blend file)")
+    store = FamilyStore(args.blend)
+    shown = {k: v for k, v in assign.items() if v.strip()}
+    report, (vertices, faces, face_group) = family_parts(store, args.prompt, args.look, shown)
+    if args.save:
+        report["stored"] = save_part_words(store, assign, len(report["groups"]))
+    if args.png:
+        import io
+
+        from proctex.fileio import atomic_write
+
+        buf = io.BytesIO()
+        parts_picture(vertices, faces, face_group, report, report["up"], args.size).save(buf, format="PNG", optimize=True)
+        atomic_write(args.png, buf.getvalue())
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"{report['family']} (look {report['look']}): prompt {report['prompt']!r}" + (f", read for {report['kind']}" if report["kind"] else ""))
+    for row in report["groups"]:
+        score = f"{row['score']:.2f}" if isinstance(row["score"], (int, float)) else "    "
+        ev = row["evidence"] or {}
+        facts = f"{ev.get('members', '?')}x {ev.get('form', '')}, {100 * ev.get('area_share', 0):.0f} % area, height {ev.get('height', ['?', '?'])}" if ev else "(not measured)"
+        looks = ", ".join(f"{w} {s:.2f}" for w, s in row["looks_like"])
+        print(f"group {row['group']:<3} {(row['word'] or '-')[:20]:<20} {row['how']:<6} {score}  {row['text'][:40]!r:<44} {facts}"
+              + (f"; looks like {looks}" if looks else "") + (f"; rival {row['rival'][0]} {row['rival'][1]:.2f}" if row["rival"] else ""))
+    for note in report["notes"]:
+        print(f"  {note}")
+    if report["stored"]:
+        print("stored words: " + ", ".join(f"{k}={v}" for k, v in report["stored"].items()) + (" (saved now)" if args.save else ""))
+    if args.png:
+        print(f"picture: {args.png}")
     return 0
 
 

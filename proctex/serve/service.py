@@ -369,6 +369,7 @@ class FamilyService:
             # names: every name its parts carry (a node tree's "Left Arm", "Right Arm"), untrusted text
             "groups": [{"group": g.group, "label": g.label, "names": self.assets.grouping.names(self.assets.grouping.groups[g.group]),
                         "degenerate": g.degenerate, "network": g.group in self.models,
+                        "material": self.assets.names[g.group] if g.group < len(self.assets.names) else None,
                         "prompt": next((p.get("prompt") for p in paint.get("groups", []) if p.get("group") == g.group), None),
                         "texture_size": list(texture_hw(self.assets, g.group)), **self._material_means(g.group)}
                        for g in self.assets.groups],

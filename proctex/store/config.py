@@ -18,7 +18,7 @@ from proctex.texture.painting import PaintConfig
 #: Flat settings (the config format before sections, still read) -> (section, field).
 FLAT_KEYS: dict[str, tuple[str, str]] = {
     **{k: ("source", k) for k in ("model", "folder", "generator", "blender", "n_train", "n_test", "sampling", "params", "tessellation", "up")},
-    **{k: ("paint", k) for k in ("prompt", "group_prompts", "painter", "texture_size", "views", "view_size", "paint_hidden", "fill",
+    **{k: ("paint", k) for k in ("prompt", "group_prompts", "part_words", "painter", "texture_size", "views", "view_size", "paint_hidden", "fill",
                                  "model_dir", "device", "steps", "occlusion")},
     "cage_level": ("cage", "level"), "cage_iterations": ("cage", "iterations"),
 }

@@ -249,6 +249,7 @@ class StoreLayout:
     TEMPLATE_MESH = "template/template.obj"
     UV = "template/uv.npz"
     GROUPING = "template/grouping.json"
+    PART_WORDS = "template/part_words.json"  # the user's word per group (proctex parts --assign, the studio)
     PAINT_NAME = PAINT_NAME  # the painter's summary, in the folder it writes (a look's folder)
     # The build's look (in template/): its paths are the LookLayout's, spelled there once.
     _BUILT = LookLayout(DEFAULT_LOOK, "template")

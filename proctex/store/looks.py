@@ -81,21 +81,24 @@ def look_paint(store: FamilyStore, look: LookLayout, build_paint: PaintConfig) -
 
 def look_summary(store: FamilyStore, look: LookLayout, build_paint: PaintConfig) -> dict[str, Any]:
     """JSON-ready: ``name``, ``built`` (the build's look), ``prompt``, ``painter``, ``texture_size``,
-    ``group_prompts``, ``edits`` and, for an added look, when it was made and how long it took."""
+    ``group_prompts``, ``part_words``, ``edits`` and, for an added look, when it was made and how long it took."""
     paint = look_paint(store, look, build_paint)
     record = {} if look.built else store.read_json(look.RECORD)
     summary = store.read_json(look.PAINT) if store.exists(look.PAINT) else {}
     return {"name": look.name, "built": look.built, "prompt": paint.prompt, "painter": paint.painter, "texture_size": paint.texture_size,
-            "group_prompts": dict(paint.group_prompts), "edits": len(summary.get("edits", [])),
+            "group_prompts": dict(paint.group_prompts), "part_words": dict(paint.part_words), "edits": len(summary.get("edits", [])),
             **{k: record[k] for k in ("made", "seconds") if k in record}}
 
 
 def new_look_paint(build_paint: PaintConfig, prompt: str, group_prompts: dict[str, str] | None = None, painter: str | None = None,
-                   texture_size: int | None = None) -> PaintConfig:
+                   texture_size: int | None = None, part_words: dict[str, str] | None = None) -> PaintConfig:
     """The paint settings of a new look: the build's (views, fill, ...) with ``prompt`` and, where
     given, ``painter`` and ``texture_size`` over them; group prompts only those given (the build's
-    belong to its prompt). Checked (``ValueError``)."""
-    over: dict[str, Any] = {"prompt": prompt, "group_prompts": dict(group_prompts or {})}
+    belong to its prompt); part words (the user's word per group) those given over the build's
+    (:func:`proctex.build.looks.add_look` lays the family's stored ones between). Checked
+    (``ValueError``)."""
+    over: dict[str, Any] = {"prompt": prompt, "group_prompts": dict(group_prompts or {}),
+                            "part_words": {**build_paint.part_words, **{str(k): v for k, v in (part_words or {}).items()}}}
     if painter is not None:
         over["painter"] = painter
     if texture_size is not None:

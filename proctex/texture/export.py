@@ -237,7 +237,8 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
     The file holds one node and one mesh with one triangle primitive per non-empty group (faces of
     group -1 form a last primitive with a grey untextured material). Each primitive has its own
     vertices, split per unique (vertex, texcoord) pair, with POSITION (min/max), area-weighted smooth
-    NORMAL, TEXCOORD_0 = (u, 1 - v) and uint32 indices. Each group has a material named after it
+    NORMAL, TEXCOORD_0 = (u, 1 - v) and uint32 indices. Each group has a material (its ``extras``
+    ``{"group": g}``) named after it
     (baseColorTexture, metallic 0, roughness 0.8) and a PNG image embedded in the buffer; all
     textures share one LINEAR / LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE sampler. Textures of empty
     groups are left out. ``image_uris``: per group a URI (relative to the GLB's own URL, or absolute)
@@ -294,6 +295,7 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
 
             pbr["baseColorTexture"] = {"index": texture(texs[g], uris[g])}
             name = names[g]
+            material["extras"] = {"group": int(g)}  # which part group (a viewer's picking; names may repeat)
             material_maps = maps[g]
         else:
             material_maps = None

@@ -143,12 +143,12 @@ class TemplateTexture:
 
 # ------------------------------------------------------------------------------------- prompts
 def resolve_group_prompts(grouping: Grouping, prompt: str, group_prompts: Mapping[str, str] | None = None,
-                          shape: Shape | None = None, up: str = "z") -> dict[int, str]:
+                          shape: Shape | None = None, up: str = "z", part_words: Mapping[str, str] | None = None) -> dict[int, str]:
     """Prompt per group id: ``group_prompts`` keyed by group label, group index (as a string) or,
     given the ``shape``, a part word (``"legs"``, ``"table top"``: the groups the word takes on that
     shape, :func:`proctex.texture.painters.partwords.groups_of_word`) overrides the global
-    ``prompt``; an index wins over a label, a label over a word. Unknown keys raise ``ValueError``
-    listing the valid ones."""
+    ``prompt``; an index wins over a label, a label over a word; ``part_words`` (the user's word per
+    group) decide which groups a word takes. Unknown keys raise ``ValueError`` listing the valid ones."""
     if not isinstance(prompt, str):
         raise ValueError(f"prompt must be a string, got {type(prompt).__name__}")
     out = {g.index: prompt for g in grouping.groups}
@@ -165,7 +165,7 @@ def resolve_group_prompts(grouping: Grouping, prompt: str, group_prompts: Mappin
         if str(key) not in valid and shape is not None:
             from proctex.texture.painters.partwords import groups_of_word
 
-            gids = groups_of_word(str(key), prompt, shape.vertices, shape.faces, grouping, up)
+            gids = groups_of_word(str(key), prompt, shape.vertices, shape.faces, grouping, up, assigned=dict(part_words or {}))
             if gids:
                 by_word[str(key)] = gids
         if str(key) not in valid and str(key) not in by_word:

@@ -470,6 +470,7 @@ def paint_template(
     uv: ShapeUV | None = None,
     maps: bool = True,
     occlusion: bool = False,
+    part_words: Mapping[str, str] | None = None,
 ) -> TemplateTexture:
     """Texture a template with one of the registered painters (:mod:`proctex.texture.painting`):
     ``"surface"`` (:func:`paint_surface`), ``"views"`` (the multi-view loop with
@@ -478,11 +479,13 @@ def paint_template(
     go to :func:`paint_views`. ``uv`` (e.g. :func:`proctex.texture.uv.source_uv`) replaces the
     per-group unwrap. ``maps``: also make each group's PBR maps (:func:`paint_material_maps`: from
     the prompts' materials, whichever painter made the colour); ``occlusion``: bake ambient occlusion
-    into them too."""
-    prompts = resolve_group_prompts(grouping, prompt, group_prompts, shape, up)  # validates the keys (labels, indices, part words)
+    into them too. ``part_words``: the user's word per group (``{"3": "legs"}``), which the prompt's
+    clauses follow (:func:`proctex.texture.painters.partwords.plan_parts`)."""
+    part_words = dict(part_words or {})
+    prompts = resolve_group_prompts(grouping, prompt, group_prompts, shape, up, part_words)  # validates the keys (labels, indices, part words)
     # Clauses naming parts (by label or by what the parts are) become those groups' prompts, for
     # every painter and in the record; explicit group prompts win.
-    parts = plan_parts(prompt, shape.vertices, shape.faces, grouping, up)
+    parts = plan_parts(prompt, shape.vertices, shape.faces, grouping, up, assigned=part_words)
     prompts = {g: (parts.text_for(g) if text == prompt else text) for g, text in prompts.items()}
     kind = get_painter(painter)
     chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, model_dir=model_dir, device=device, steps=steps)
@@ -510,4 +513,4 @@ def paint_with(shape: Shape, grouping: Grouping, settings: PaintConfig, seed: in
     s = settings
     return paint_template(shape, grouping, s.prompt, s.group_prompts, painter=s.painter, size=s.texture_size, seed=seed, up=up, views=s.views,
                           view_size=s.view_size, complete_hidden=s.paint_hidden, fill=s.fill, model_dir=s.model_dir, device=s.device,
-                          steps=s.steps, on_view=on_view, uv=uv, occlusion=s.occlusion)
+                          steps=s.steps, on_view=on_view, uv=uv, occlusion=s.occlusion, part_words=s.part_words)

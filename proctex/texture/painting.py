@@ -96,6 +96,9 @@ class PaintConfig:
 
     Attributes:
         prompt, group_prompts: what to paint (group prompts keyed by group label, index or part word).
+        part_words: the user's word per group (``{"3": "legs"}``,
+            :func:`proctex.texture.painters.partwords.check_assignment`): the prompt's clause naming
+            that word paints that group, whatever the geometry or the labels say.
         texture_size, painter: template texturing, one of the registered painters
             (:func:`painter_names`): "surface" (the solid surface painter), "views" (the multi-view
             loop with the offline view painter) or "diffusion" (the multi-view loop with a local
@@ -110,6 +113,7 @@ class PaintConfig:
 
     prompt: str = "oak"
     group_prompts: dict[str, str] = field(default_factory=dict)
+    part_words: dict[str, str] = field(default_factory=dict)
     painter: str = "surface"
     texture_size: int = 512
     views: int = 11
@@ -126,6 +130,9 @@ class PaintConfig:
             raise ValueError("prompt must be a string")
         if not isinstance(self.group_prompts, dict) or not all(isinstance(v, str) for v in self.group_prompts.values()):
             raise ValueError("group_prompts must be an object of prompts {group label or index: prompt}")
+        from proctex.texture.painters.partwords import check_assignment
+
+        self.part_words = {str(k): v for k, v in check_assignment(self.part_words).items()}
         check_integer("texture_size", self.texture_size, 16, 8192)
         check_integer("views", self.views, 3, 256)
         check_integer("view_size", self.view_size, 16, 4096)

@@ -45,7 +45,7 @@ from .prompt import parse_prompt
 from .regions import RegionPlan, _label_of, split_regions
 
 __all__ = ["PART_WORDS", "KINDRED", "GroupGeometry", "PartPlan", "describe_groups", "part_word", "resolve_words", "plan_parts",
-           "new_part_texts", "label_hits", "groups_of_word"]
+           "new_part_texts", "label_hits", "groups_of_word", "check_assignment", "REST", "parts_report"]
 
 GroupGeometry = V.Evidence
 #: canonical word -> its forms (the vocabulary, :data:`.partvocab.WORDS`)
@@ -60,6 +60,40 @@ TIE = 0.05
 #: shapes with more groups than this are resolved on the largest of them only (the others take the
 #: rest of the prompt): a bound on the evidence's pairwise contacts
 MAX_GROUPS = 200
+#: the word that pins a group to no word: it takes the rest of the prompt (``proctex parts --assign 3=rest``)
+REST = "rest"
+#: a word the user gives a group: letters, then letters, spaces, hyphens or apostrophes, at most 48
+_ASSIGNED_WORD = re.compile(r"^[a-z][a-z' -]{0,47}$")
+
+
+def check_assignment(assigned: Any, groups: int | None = None) -> dict[int, str]:
+    """The user's word per group, checked: ``{group index (int or decimal string): word}`` ->
+    ``{int: word}`` with each word lower-cased and trimmed. A word is a part word of the vocabulary
+    in any form ("legs", "table top"), a part noun it does not know ("antenna": a clause naming it
+    goes to that group) or :data:`REST` (the group takes no word: the rest of the prompt). At most
+    ``MAX_GROUPS`` entries; with ``groups`` given, every index must be below it. ``ValueError``
+    naming the bad entry otherwise."""
+    if assigned is None:
+        return {}
+    if not isinstance(assigned, dict):
+        raise ValueError(f"part words must be an object {{group index: word}}, got {type(assigned).__name__}")
+    if len(assigned) > MAX_GROUPS:
+        raise ValueError(f"at most {MAX_GROUPS} part words, got {len(assigned)}")
+    out: dict[int, str] = {}
+    for key, word in assigned.items():
+        k = str(key)
+        if isinstance(key, bool) or not (isinstance(key, int) or (k.isdigit() and k.isascii() and len(k) <= 6)):
+            raise ValueError(f"part words are keyed by group index, got {str(key)[:40]!r}")
+        gid = int(k)
+        if gid < 0 or (groups is not None and gid >= groups):
+            raise ValueError(f"no group {gid}: the shape has groups 0 to {groups - 1 if groups else -1}")
+        if not isinstance(word, str):
+            raise ValueError(f"the part word for group {gid} must be a string, got {type(word).__name__}")
+        w = " ".join(word.lower().split())
+        if not _ASSIGNED_WORD.match(w):
+            raise ValueError(f"the part word for group {gid} must be a word of letters (at most 48 characters), got {word[:60]!r}")
+        out[gid] = w
+    return out
 
 
 def describe_groups(vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z") -> list[V.Evidence]:
@@ -124,21 +158,29 @@ class Resolved:
     weak: list[str] = field(default_factory=list)
 
 
-def resolve_words(words: list[str], geoms: list[V.Evidence], kind: str | None = None, detail: bool = False):
+def resolve_words(words: list[str], geoms: list[V.Evidence], kind: str | None = None, detail: bool = False,
+                  fixed: dict[int, str] | None = None):
     """Groups each canonical word of ``words`` takes, jointly: ``{word: (group ids, why)}`` (words
     no group passes are left out; ``detail=True`` returns a :class:`Resolved`). Every word gets its
     best group and a group its best word in one assignment problem over the scores (a group passing
     two words goes to the word it fits more, and "seat and legs" never share a group); then each
     group left joins the word that scores it best, when that score is at least
-    :data:`EXTEND_SCORE` and :data:`EXTEND_SHARE` of the word's best group's score."""
+    :data:`EXTEND_SCORE` and :data:`EXTEND_SHARE` of the word's best group's score. ``fixed``:
+    groups the user gave a word (``{group: word}``, :func:`check_assignment`): out of the
+    assignment, and each joins its word (score 1) when that word is one of ``words``."""
     words = list(dict.fromkeys(words))
     for w in words:
         if w not in V.WORDS:
             raise ValueError(f"unknown part word {w!r}; known: {', '.join(V.WORDS)}")
     res = Resolved({})
+    fixed = {int(g): (part_word(w) or w) for g, w in (fixed or {}).items()}
+    pinned = [(g, w) for g, w in sorted(fixed.items()) if w in words]
+    for g, w in pinned:
+        res.words.setdefault(w, ([], "given by hand"))[0].append(g)
+        res.scores[g] = 1.0
     if not words or not geoms:
         return res if detail else res.words
-    scored = [[V.score(w, e, geoms, kind) for e in geoms] for w in words]
+    scored = [[V.score(w, e, geoms, kind) if e.group not in fixed else (0.0, "") for e in geoms] for w in words]
     S = np.array([[s for s, _ in row] for row in scored])
     rows, cols = linear_sum_assignment(-S)
     owner: dict[int, int] = {}
@@ -154,24 +196,34 @@ def resolve_words(words: list[str], geoms: list[V.Evidence], kind: str | None = 
             owner[j] = i
     for j, i in sorted(owner.items(), key=lambda x: geoms[x[0]].group):
         gid = geoms[j].group
-        res.words.setdefault(words[i], ([], scored[i][j][1]))[0].append(gid)
+        got = res.words.setdefault(words[i], ([], scored[i][j][1]))
+        if got[1] == "given by hand":  # the word's own groups come first, those given by hand beside them
+            res.words[words[i]] = got = (got[0], scored[i][j][1] + "; and group(s) given by hand")
+        got[0].append(gid)
         res.scores[gid] = float(S[i, j])
         rival = [k for k in range(len(words)) if k != i and S[k, j] >= MIN_SCORE and S[i, j] - S[k, j] <= TIE]
         res.ties += [(gid, words[i], words[k]) for k in rival]
-    res.weak = [words[i] for i, s in best.items() if s < 0.5]
+    res.weak = [words[i] for i, s in best.items() if s < 0.5 and not any(w == words[i] for _, w in pinned)]
+    res.words = {w: (sorted(gids), why) for w, (gids, why) in res.words.items()}
     return res if detail else res.words
 
 
-def groups_of_word(form: str, prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z") -> list[int]:
+def groups_of_word(form: str, prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z",
+                   assigned: dict[int, str] | None = None) -> list[int]:
     """The groups the part word ``form`` ("legs", "table top") takes on a shape, read for the kind of
     object ``prompt`` names (:func:`.partvocab.kind_of`); [] when it is no part word or no group
-    passes it."""
+    passes it. ``assigned``: the user's words per group (:func:`check_assignment`), which win: a
+    group given ``form``'s word is among them, a group given another word never."""
     word = part_word(form)
+    fixed = check_assignment(assigned, len(grouping.groups))
     live = [g for g in grouping.groups if not g.degenerate]
-    if word is None or len(live) < 2:
-        return []
+    if word is None:
+        key = " ".join(str(form).lower().split())
+        return sorted(g for g, w in fixed.items() if w == key)
+    if len(live) < 2:
+        return sorted(g for g, w in fixed.items() if part_word(w) == word)
     tokens = V.join_compounds(re.findall(r"[\w'-]+", f"{prompt} {form}".lower()))
-    got = resolve_words([word], describe_groups(vertices, faces, grouping, up), V.kind_of(tokens, _material_word))
+    got = resolve_words([word], describe_groups(vertices, faces, grouping, up), V.kind_of(tokens, _material_word), fixed=fixed)
     return list(got.get(word, ([], ""))[0])
 
 
@@ -190,6 +242,11 @@ class PartPlan:
         kind: the kind of object the words were read for (:mod:`.partvocab`), or None.
         scores: group id -> the score of the word that took it (1: every condition met).
         guesses: group id -> the unknown part word whose clause it took as a guess.
+        assigned: group id -> the word the user gave it (:func:`check_assignment`), which beat the
+            scores and the labels.
+        routes: group id -> how it got its text: "hand" (a word given by hand), "label", "word" (a
+            part word's test), "guess", "kin" (a word of the same kind as a placed one), "alike" (the
+            clause of the group most alike in shape); groups missing take the rest of the prompt.
         notes: human-readable lines: which groups each word took, with what score and why, ties,
             guesses, borrowed clauses, and clauses that could not be placed.
     """
@@ -202,6 +259,8 @@ class PartPlan:
     kind: str | None = None
     scores: dict[int, float] = field(default_factory=dict)
     guesses: dict[int, str] = field(default_factory=dict)
+    assigned: dict[int, str] = field(default_factory=dict)
+    routes: dict[int, str] = field(default_factory=dict)
 
     def text_for(self, group: int) -> str:
         """What group ``group`` is painted with: its clause, else the whole prompt."""
@@ -257,7 +316,8 @@ def unknown_part_nouns(tokens: list[str]) -> list[str]:
     return list(dict.fromkeys(out))
 
 
-def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z") -> PartPlan:
+def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z",
+               assigned: dict[Any, str] | None = None) -> PartPlan:
     """Resolve ``prompt`` against the part groups of a mesh (module docstring).
 
     Args:
@@ -265,11 +325,15 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
         vertices, faces: the shape (``(n, 3)`` float, ``(m, 3)`` int).
         grouping: its :class:`proctex.geometry.parts.Grouping` (labels, where present, come first).
         up: the shape's up axis.
+        assigned: the user's last word, ``{group index: word}`` (:func:`check_assignment`): a group
+            given a word takes that word's clause whatever the scores and labels say (and no other
+            word's); a group given :data:`REST` takes no word.
     Returns:
         :class:`PartPlan`.
     """
     if not isinstance(prompt, str):
         raise ValueError(f"prompt must be a string, got {type(prompt).__name__}")
+    fixed = check_assignment(assigned, len(grouping.groups))
     labels = [g.label for g in grouping.groups if g.label]
     label_map = {lab.lower(): lab for lab in labels}
     text = V.join_compounds_text(prompt)  # "table top" -> "table-top"; the rest as written
@@ -285,14 +349,16 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     # A word only becomes a part where the shape has more than one group: on a one-part vase "top"
     # and "base" stay regions of that part.
     geoms = describe_groups(vertices, faces, grouping, up) if (wanted or unknown) and len(live) > 1 else []
-    res = resolve_words(wanted, geoms, kind, detail=True) if len(geoms) > 1 else Resolved({})
+    res = resolve_words(wanted, geoms if len(geoms) > 1 else [], kind, detail=True, fixed=fixed)
     named = {lab for t in tokens for lab in ([_label_of(t, label_map)] if _label_of(t, label_map) else by_word.get(t, []))}
     if named:  # a group the prompt names by its label is not also taken by a word's geometric test
-        taken = {g.index for g in grouping.groups if g.label in named}
+        taken = {g.index for g in grouping.groups if g.label in named and g.index not in fixed}
         res.words = {w: (kept, why) for w, (gids, why) in res.words.items() if (kept := [g for g in gids if g not in taken])}
     else:
         taken = set()
-    parts_named = len(geoms) > 1
+    # a part noun the vocabulary does not know but the user gave a group ("antenna") names that group
+    by_hand = {w: sorted(g for g, x in fixed.items() if x == w) for w in dict.fromkeys(fixed.values()) if part_word(w) is None}
+    parts_named = len(geoms) > 1 or bool(res.words) or any(w in by_hand for w in unknown)
     # the words' forms name parts; a word no group passes stays a region word where it is one ("a
     # dark wood handle" on a one-piece fork: the region along its axis)
     from .regions import REGION_WORDS
@@ -300,7 +366,10 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     forms = [f for w in wanted for f in PART_WORDS[w] if w in res.words or f not in REGION_WORDS] if parts_named else []
     regions = split_regions(text, labels + list(by_word) + forms + (unknown if parts_named else []))
     plan = PartPlan(prompt, regions, words={w: gids for w, (gids, _) in res.words.items()}, kind=kind,
-                    scores={g: round(s, 3) for g, s in res.scores.items() if any(g in gids for gids, _ in res.words.values())})
+                    scores={g: round(s, 3) for g, s in res.scores.items() if any(g in gids for gids, _ in res.words.values())},
+                    assigned=dict(fixed))
+    for gid, w in sorted(fixed.items()):
+        plan.notes.append(f"group {gid} was given {w!r} by hand" + (": it takes the rest of the prompt" if w == REST else ""))
     if kind and wanted:
         plan.notes.append(f"part words read for {kind}" + (" (the object noun)" if any(t in V.NOUNS and not _material_word(t) for t in tokens) else " (the words the prompt uses)"))
     label_groups: dict[str, list[int]] = {}
@@ -310,12 +379,14 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     clause_of: dict[int, str] = {}
     guesses: list[tuple[str, str]] = []
     for name, clause in regions.parts:
-        if name in label_groups:
-            gids = label_groups[name]
-        elif name in by_word:
-            gids = sorted({gid for lab in by_word[name] for gid in label_groups.get(lab, [])})
-            plan.notes.append(f"{name!r} names the group(s) labelled {', '.join(repr(lab) for lab in by_word[name])}: "
-                              f"{', '.join(map(str, gids))}")
+        if name in by_hand:
+            gids = by_hand[name]
+        elif name in label_groups or name in by_word:  # routed by the labels; groups given the word by hand beside them
+            labs = [name] if name in label_groups else by_word[name]
+            gids = sorted({gid for lab in labs for gid in label_groups.get(lab, []) if gid not in fixed}
+                          | {g for g, w in fixed.items() if w == name or (part_word(name) is not None and part_word(w) == part_word(name))})
+            if name not in label_groups:
+                plan.notes.append(f"{name!r} names the group(s) labelled {', '.join(repr(lab) for lab in labs)}: {', '.join(map(str, gids))}")
         elif part_word(name):
             word = part_word(name)
             gids = res.words.get(word, ([], ""))[0]
@@ -325,8 +396,11 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
         else:
             guesses.append((name, clause))
             continue
+        route = "hand" if name in by_hand else "label" if (name in label_groups or name in by_word) else "word"
         for gid in gids:
-            clause_of.setdefault(gid, clause)
+            if gid not in clause_of:
+                clause_of[gid] = clause
+                plan.routes[gid] = "hand" if gid in fixed else route
     for word, (gids, why) in res.words.items():
         if any(gid in clause_of for gid in gids):
             sc = ", ".join(f"{g} ({plan.scores.get(g, 0):.2f})" for g in gids)
@@ -339,13 +413,14 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     # A clause whose part word is unknown: a weak match, the largest group no word took.
     area = {e.group: e.area_share for e in geoms}
     for name, clause in guesses:
-        free_groups = [g.index for g in live if g.index not in clause_of and g.index not in taken and g.index in area]
+        free_groups = [g.index for g in live if g.index not in clause_of and g.index not in taken and g.index in area and g.index not in fixed]
         if not free_groups:
             plan.notes.append(f"{clause!r} ({name!r}, a part word ProcTex does not know) paints nothing: every group is taken")
             continue
         gid = max(free_groups, key=lambda g: (area[g], -g))
         clause_of[gid] = clause
         plan.guesses[gid] = name
+        plan.routes[gid] = "guess"
         plan.notes.append(f"{name!r} is a part word ProcTex does not know: its clause {clause!r} goes to group {gid}, "
                           "the largest no other word took (a guess)")
     for t in regions.unplaced:
@@ -353,9 +428,10 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
     plan.texts.update(clause_of)
     rest = regions.base
     others = [g for g in live if g.index not in clause_of]
-    kin = _kindred_texts(others, plan.words, clause_of, geoms or describe_groups(vertices, faces, grouping, up)) if clause_of and others else {}
+    kin = _kindred_texts([g for g in others if g.index not in fixed], plan.words, clause_of, geoms or describe_groups(vertices, faces, grouping, up)) if clause_of and others else {}
     for gid, (text_, word, kind_word) in kin.items():
         plan.texts[gid] = text_
+        plan.routes[gid] = "kin"
         plan.notes.append(f"group {gid} passes the test of {kind_word!r} and takes the clause of {word!r}, of the same kind: {text_!r}")
     others = [g for g in others if g.index not in kin]
     if not _understood(rest) and clause_of and others and not regions.regions:
@@ -367,6 +443,7 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
                 continue
             near = min(clause_of, key=lambda c: (float(np.abs(key[g.index] - key[c]).sum()) if c in key else np.inf, c))
             plan.texts[g.index] = clause_of[near]
+            plan.routes[g.index] = "alike"
             plan.notes.append(f"group {g.index} is named by no clause and the rest of the prompt names no material: "
                               f"it takes {clause_of[near]!r} from group {near}, the most alike in shape")
     return plan
@@ -413,3 +490,70 @@ def new_part_texts(prompt: str, shape: Any, segmentation: Any, parts: list[int],
         if g in plan.texts:
             out[int(p)] = plan.texts[g]
     return out
+
+
+# ----------------------------------------------------------------------------------------- report
+def evidence_summary(e: V.Evidence, all_: list[V.Evidence]) -> dict[str, Any]:
+    """The evidence of one group as a person reads it (JSON-ready): ``members``, ``area_share``,
+    ``rank`` (0: the largest), ``height`` [low, high] in the shape's height (0 floor, 1 top),
+    ``form`` (bar, plate or blob, with ``upright`` / ``lying``), ``rests_on`` and ``holds`` (group
+    ids), ``corners`` (its members sit at the corners, 0-1), ``mirrored`` (a pair across the shape,
+    0-1), ``outside`` (sticks out of the main mass, 0-1)."""
+    forms = {"bar": V.bar(e), "plate": V.plate(e), "blob": V.blob(e)}
+    form = max(forms, key=lambda k: forms[k]) if max(forms.values()) > 0.3 else "irregular"
+    if form == "bar":
+        form = ("upright " if e.long_up >= 0.8 else "lying " if e.long_up <= 0.45 else "slanted ") + form
+    elif form == "plate":
+        form = ("lying " if e.thin_up >= 0.8 else "upright " if e.thin_up <= 0.45 else "slanted ") + form
+    return {"members": int(e.members), "area_share": round(float(e.area_share), 4), "rank": int(e.rank),
+            "height": [round(e.u_lo, 3), round(e.u_hi, 3)], "form": form,
+            "rests_on": [int(g) for g in e.rests_on], "holds": [int(g) for g in e.holds],
+            "corners": round(float(e.corners()), 3), "mirrored": round(float(V.mirrored(e, all_)), 3),
+            "outside": round(float(V.outside_main(e, all_)), 3)}
+
+
+def parts_report(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z",
+                 assigned: dict[Any, str] | None = None) -> dict[str, Any]:
+    """What the prompt's part words do on this shape, per group (JSON-ready; ``proctex parts FAMILY``,
+    the studio's part panel): ``prompt``, ``kind``, ``assigned`` (the user's words), ``clauses``
+    (the prompt's clauses naming parts: ``name`` as written, its ``word``, its ``text``) and ``notes``
+    (:attr:`PartPlan.notes`), and per group of ``grouping``: ``group``, ``label``, ``degenerate``,
+    ``word`` (the word that took it: a part word, a guessed unknown noun, a word given by hand, or
+    None), ``how`` ("label", "word", "hand", "guess", "kin": the clause of a word of its kind, "alike":
+    the clause of the group most alike in shape, "rest": the rest of the prompt), ``text`` (what it
+    is painted with), ``score`` (the word's score, 0-1, None where no word scored it), ``rival`` (the
+    prompt's next-best word and its score), ``looks_like`` (the vocabulary's best words for it,
+    whatever the prompt says, with scores) and ``evidence`` (:func:`evidence_summary`)."""
+    fixed = check_assignment(assigned, len(grouping.groups))
+    plan = plan_parts(prompt, vertices, faces, grouping, up, assigned=fixed)
+    live = [g for g in grouping.groups if not g.degenerate]
+    geoms = describe_groups(vertices, faces, grouping, up) if len(live) > 1 else []
+    ev = {e.group: e for e in geoms}
+    word_of_group = {g: w for w, gids in plan.words.items() for g in gids}
+    tokens = V.join_compounds(re.findall(r"[\w'-]+", V.join_compounds_text(prompt).lower()))
+    in_prompt = list(dict.fromkeys(w for t in tokens if (w := part_word(t))))
+    kind = plan.kind
+    vocab = list(V.WORD_KINDS[kind]) if kind in V.WORD_KINDS else list(V.WORDS)
+    rows = []
+    for g in grouping.groups:
+        gid = g.index
+        how = plan.routes.get(gid, "rest")
+        word = {"hand": fixed.get(gid), "guess": plan.guesses.get(gid), "word": word_of_group.get(gid), "label": g.label}.get(how)
+        row: dict[str, Any] = {"group": gid, "label": g.label or "", "degenerate": bool(g.degenerate), "word": word or None,
+                               "how": how, "text": plan.painted_text(gid), "score": plan.scores.get(gid) if how in ("word", "hand") else None,
+                               "rival": None, "looks_like": [], "evidence": None}
+        if gid in fixed:  # the user's word, whether or not the prompt names it (its text says what it took)
+            row.update(word=fixed[gid], how="hand", score=1.0)
+        e = ev.get(gid)
+        if e is not None:
+            row["evidence"] = evidence_summary(e, geoms)
+            scores = sorted(((V.score(w, e, geoms, kind)[0], w) for w in vocab), reverse=True)
+            row["looks_like"] = [[w, round(s, 3)] for s, w in scores[:3] if s > 0]
+            others = [(s, w) for s, w in ((V.score(w, e, geoms, kind)[0], w) for w in in_prompt) if w not in (row["word"], part_word(row["word"] or "")) and s > 0]
+            if others:
+                s, w = max(others)
+                row["rival"] = [w, round(s, 3)]
+        rows.append(row)
+    clauses = [{"name": name, "word": part_word(name) or name, "text": text} for name, text in plan.regions.parts]
+    return {"prompt": prompt, "kind": kind, "assigned": {str(k): v for k, v in sorted(fixed.items())}, "clauses": clauses, "groups": rows,
+            "notes": list(plan.notes)}

@@ -1,7 +1,9 @@
-// ProcTex studio: pick a family, move its parameters, edit part textures, see the textured shape.
-// Talks to the API of workers/http.py on the same origin. Test hooks: document.body.dataset.state
-// ("loading" | "idle" | "error"), .busy ("1" while a request is pending), .requests (completed
-// transfers) and window.studio.
+// ProcTex studio: pick a family, move its parameters, edit part textures, see the textured shape,
+// and say which part is which (hover a part: its group and word; click it: give it a clause of the
+// prompt). Talks to the API of workers/http.py on the same origin. Test hooks:
+// document.body.dataset.state ("loading" | "idle" | "error"), .busy ("1" while a request is
+// pending), .requests (completed transfers), .hover / .selected (group under the pointer / clicked),
+// .words ("saved" after the part words were stored) and window.studio.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
@@ -17,6 +19,8 @@ const studio = {
   params: {}, // current parameter values
   edits: {}, // {group index: {hue, prompt, roughness, metallic}} not yet saved to the family
   mesh: null, // an uploaded File (families of meshes)
+  parts: null, // which group took which word of the look's prompt (GET .../parts)
+  words: {}, // {group index: word} chosen here, not yet saved ('' clears a stored word)
   seq: 0, // sequence number of the latest transfer request
   controller: null,
   timer: null,
@@ -97,6 +101,70 @@ function frame(object) {
   camera.updateProjectionMatrix();
   controls.update();
 }
+
+// ------------------------------------------------------------------------ picking parts
+// Each material of the service's GLBs carries its part group (extras.group -> userData.group).
+const raycaster = new THREE.Raycaster();
+function groupAt(event) {
+  if (!model) return null;
+  const rect = canvas.getBoundingClientRect();
+  const ndc = new THREE.Vector2(((event.clientX - rect.left) / rect.width) * 2 - 1, -((event.clientY - rect.top) / rect.height) * 2 + 1);
+  raycaster.setFromCamera(ndc, camera);
+  const hit = raycaster.intersectObject(model, true)[0];
+  const g = hit && hit.object.material ? hit.object.material.userData.group : undefined;
+  return Number.isInteger(g) ? g : null;
+}
+
+function partRow(g) {
+  return studio.parts ? studio.parts.groups.find((r) => r.group === g) : null;
+}
+
+function describePart(g) {
+  const fam = studio.family;
+  if (!fam || g >= fam.groups.length) return `a new part (group ${g}): painted from the prompt on its own`;
+  const row = partRow(g);
+  const name = fam.groups[g].label || `group ${g}`;
+  if (!row) return name;
+  const score = typeof row.score === 'number' ? ` ${row.score.toFixed(2)}` : '';
+  const word = row.word ? `${row.word} (${row.how}${score})` : 'no word: the rest of the prompt';
+  return `group ${g}${fam.groups[g].label ? ` “${name}”` : ''}: ${word} — “${row.text}”`;
+}
+
+function showHover(event) {
+  const g = groupAt(event);
+  const tip = $('hover');
+  body.dataset.hover = g === null ? '' : String(g);
+  if (g === null) {
+    tip.hidden = true;
+    return;
+  }
+  tip.textContent = describePart(g);
+  const rect = canvas.getBoundingClientRect();
+  tip.style.left = `${event.clientX - rect.left + 14}px`;
+  tip.style.top = `${event.clientY - rect.top + 14}px`;
+  tip.hidden = false;
+}
+
+function selectGroup(g) {
+  body.dataset.selected = g === null ? '' : String(g);
+  for (const box of document.querySelectorAll('.group')) box.classList.toggle('selected', box.dataset.group === String(g));
+  const box = document.querySelector(`.group[data-group="${g}"]`);
+  if (box) {
+    box.scrollIntoView({ block: 'nearest' });
+    const select = box.querySelector('select.assign');
+    if (select && !select.disabled) select.focus();
+  }
+}
+
+let pressed = null;
+canvas.addEventListener('pointermove', showHover);
+canvas.addEventListener('pointerleave', () => { $('hover').hidden = true; body.dataset.hover = ''; });
+canvas.addEventListener('pointerdown', (ev) => { pressed = [ev.clientX, ev.clientY]; });
+canvas.addEventListener('pointerup', (ev) => {
+  // a click, not an orbit drag: the part under it is selected (its word can be given in its panel)
+  if (pressed && Math.hypot(ev.clientX - pressed[0], ev.clientY - pressed[1]) < 5) selectGroup(groupAt(ev));
+  pressed = null;
+});
 
 function clearModel() {
   if (model) {
@@ -424,6 +492,8 @@ function groupPanel(group) {
   box.dataset.group = String(g);
   box.innerHTML = `
     <header><img alt="texture"><div><b></b><div class="muted prompt"></div></div></header>
+    <div class="word muted"></div>
+    <label class="assign-row">part <select class="assign" aria-label="part word"></select></label>
     <label>hue <output>0°</output><input type="range" min="-180" max="180" step="1" value="0" aria-label="hue"></label>
     <label class="pbr">roughness <output class="rough-out"></output><input class="roughness" type="range" min="0" max="1" step="0.01" aria-label="roughness"></label>
     <label class="pbr">metallic <output class="metal-out"></output><input class="metallic" type="range" min="0" max="1" step="0.01" aria-label="metallic"></label>
@@ -452,6 +522,13 @@ function groupPanel(group) {
   // every name the group's parts carry (a model's own names are untrusted: text, never HTML)
   if ((group.names || []).length > 1) box.querySelector('b').title = group.names.join(', ');
   box.querySelector('.prompt').textContent = group.prompt || studio.family.prompt || '';
+  const assign = box.querySelector('select.assign');
+  assign.disabled = !studio.family.edits_enabled;
+  assign.addEventListener('change', () => {
+    studio.words[g] = assign.value;
+    $('save-words').disabled = !studio.family.edits_enabled;
+    body.dataset.words = 'changed';
+  });
   let thumbTimer = null;
   const changed = () => {
     const e = studio.edits[g] || {};
@@ -553,12 +630,70 @@ async function loadFamily(name, { keepView = false, look = null } = {}) {
   }
   $('upload').hidden = usesParams;
   $('groups').replaceChildren(...fam.groups.map(groupPanel));
+  studio.words = {};
+  $('save-words').disabled = true;
   const url = new URL(window.location);
   url.searchParams.set('family', name);
   if (studio.look) url.searchParams.set('look', studio.look);
   else url.searchParams.delete('look');
   window.history.replaceState(null, '', url);
   scheduleTransfer(0);
+  await loadParts(); // beside the first transfer: which part took which word
+}
+
+// Which group took which word of the look's prompt, and the choices of each group's "part" menu:
+// as the prompt reads (no word of yours), each clause of the prompt that names a part, or none (the
+// rest of the prompt).
+async function loadParts() {
+  body.dataset.parts = 'loading';
+  try {
+    studio.parts = await (await api(`${familyPath(studio.family)}parts${lookQuery('?')}`)).json();
+  } catch (err) {
+    studio.parts = null;
+    $('words-note').textContent = `part words unavailable: ${err.message}`;
+    body.dataset.parts = 'error';
+    return;
+  }
+  const parts = studio.parts;
+  const stored = parts.assigned || {};
+  const clauses = [];
+  for (const c of parts.clauses || []) if (!clauses.some((x) => x.word === c.word)) clauses.push(c);
+  for (const box of document.querySelectorAll('.group')) {
+    const g = Number(box.dataset.group);
+    const row = partRow(g);
+    box.querySelector('.word').textContent = row ? describePart(g).replace(/^group \d+( “[^”]*”)?: /, '') : '';
+    const select = box.querySelector('select.assign');
+    const options = [new Option('as the prompt reads', '')];
+    for (const c of clauses) options.push(new Option(`${c.name}: “${c.text}”`, c.word));
+    const mine = stored[String(g)];
+    if (mine && !clauses.some((c) => c.word === mine) && mine !== 'rest') options.push(new Option(mine, mine));
+    options.push(new Option('no part word (the rest)', 'rest'));
+    select.replaceChildren(...options);
+    select.value = studio.words[g] !== undefined ? studio.words[g] : (mine || '');
+  }
+  const n = Object.keys(stored).length;
+  $('words-note').textContent = n ? `your words: ${Object.entries(stored).map(([g, w]) => `${g}=${w}`).join(', ')}; new looks follow them`
+    : 'hover a part to see its word; click it to give it another';
+  body.dataset.parts = 'ready';
+}
+
+async function saveWords() {
+  // PUT .../parts with the edit token: the family keeps the words; every look painted afterwards follows them.
+  const button = $('save-words');
+  button.disabled = true;
+  try {
+    await api(`${familyPath(studio.family)}parts`, {
+      method: 'PUT',
+      headers: { 'content-type': 'application/json', 'X-ProcTex-Token': editToken() },
+      body: JSON.stringify({ groups: studio.words }),
+    });
+    studio.words = {};
+    await loadParts();
+    body.dataset.words = 'saved';
+  } catch (err) {
+    showError(`saving the part words failed: ${err.message}`);
+    button.disabled = false;
+  }
 }
 
 async function addLook(event) {
@@ -600,6 +735,7 @@ async function start() {
       loadFamily(studio.family.name, { keepView: true, look }).catch((e) => showError(e.message));
     });
     $('addlook').addEventListener('submit', addLook);
+    $('save-words').addEventListener('click', saveWords);
     $('download').addEventListener('click', download);
     $('mesh').addEventListener('change', (ev) => {
       studio.mesh = ev.target.files[0] || null;
