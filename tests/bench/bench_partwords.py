@@ -13,6 +13,8 @@ a clause when its text's colour is nearer that clause's colour than any other cl
   the share that took its clause), and the confusion (truth word -> the word whose clause it took,
   or "none");
 - whole prompts: a prompt passes when every group whose truth the prompt names took its own clause;
+- the same for the groups' mean painted colours (``painted``: the surface painter at 32 texels a side,
+  a clause taken within ``PAINTED_DE`` ΔE2000 of its colour and nearer it than any other's);
 - the same for a trivial baseline beside it: groups touching the floor take the clause of a word of
   what stands on the ground (legs, feet, wheels, base, stand, trunk, foot, pot), the largest group
   the first other clause, no other group any.
@@ -49,6 +51,9 @@ MATERIALS = ("red velvet", "black metal", "white linen", "walnut", "green glass"
              "orange leather", "brass", "pink ceramic", "purple silk", "teal plastic")
 MIN_DE = 25.0  # clause colours of one prompt at least this far apart (ΔE2000)
 MATCH_DE = 12.0  # a group took a clause only within this of the clause's colour
+#: painted: a group's mean painted colour took a clause within this of the clause's colour (the
+#: colours of one prompt are at least 25 apart; a development run: own clause median 1.3, max 11.7)
+PAINTED_DE = 15.0
 GROUND = {"legs", "leg", "feet", "wheels", "tyres", "tires", "base", "plinth", "stand", "trunk", "foot", "pot", "planter"}
 
 
@@ -120,16 +125,36 @@ def group_truth(shape_labelled, grouping: Grouping) -> dict[int, str]:
 
 def taken(case: Case, texts: dict[int, str | None]) -> dict[int, str]:
     """Group id -> the truth word whose clause it took ("none": no clause's colour)."""
+    return taken_colours(case, {gid: None if text is None else colour_of(text) for gid, text in texts.items()}, MATCH_DE)
+
+
+def taken_colours(case: Case, colours: dict[int, np.ndarray | None], within: float) -> dict[int, str]:
+    """Group id -> the truth word whose clause's colour its Lab colour is nearest, within ``within``
+    ΔE2000 ("none" otherwise, or for None)."""
     cols = [colour_of(m) for _, _, m in case.clauses]
     out = {}
-    for gid, text in texts.items():
-        if text is None:
+    for gid, c in colours.items():
+        if c is None:
             out[gid] = "none"
             continue
-        c = colour_of(text)
         d = [delta_e(c, x) for x in cols]
         i = int(np.argmin(d))
-        out[gid] = case.clauses[i][0] if d[i] <= MATCH_DE else "none"
+        out[gid] = case.clauses[i][0] if d[i] <= within else "none"
+    return out
+
+
+def painted_colours(case: Case, shape, grouping: Grouping) -> dict[int, np.ndarray | None]:
+    """Group id -> the Lab mean of what the surface painter painted it with (32 texels a side: the
+    resolver's plan as the painter uses it, end to end)."""
+    from proctex.texture.paint_loop import paint_template
+
+    tex = paint_template(shape, grouping, case.prompt, size=32, up=case.obj.up, maps=False)
+    out: dict[int, np.ndarray | None] = {}
+    for g in grouping.groups:
+        if g.degenerate:
+            continue
+        gt = tex.groups[g.index]
+        out[g.index] = lab(gt.image[gt.painted].reshape(-1, 3).mean(axis=0)) if gt.painted.any() else None
     return out
 
 
@@ -209,6 +234,8 @@ class Tally:
 
 
 METHODS: dict[str, Callable] = {"resolver": resolver_texts, "baseline": baseline_texts}
+#: the resolver measured on what the painter painted (mean colours), beside its texts
+PAINTED = "painted"
 
 
 #: The built-in models' own part labels -> truth words, written once (the models' labels are hidden
@@ -323,7 +350,7 @@ def run(split: str, n: int | None = None, seed: int = 0) -> dict[str, Any]:
     """Every method on the first ``n`` objects of ``split`` ("development", "held_out", or
     "builtin": the built-in models' shapes, :data:`BUILTIN_TRUTH`; "blend": the handed-out files,
     :data:`BLEND_TRUTH`; "sofa": the sofa exports, :func:`sofa_objects`); the tallies and the failed prompts."""
-    tallies = {m: Tally() for m in METHODS}
+    tallies = {m: Tally() for m in [*METHODS, PAINTED]}
     failures = []
     objs = (builtin_objects() if split == "builtin" else blend_objects() if split == "blend" else sofa_objects() if split == "sofa"
             else [C.make_object(s) for s in C.seeds(split)])
@@ -335,8 +362,9 @@ def run(split: str, n: int | None = None, seed: int = 0) -> dict[str, Any]:
         shape = C.unlabelled(obj.shape)
         grouping = analyse(shape)
         truth = group_truth(obj.shape, grouping)
-        for name, fn in METHODS.items():
-            took = taken(case, fn(case, shape, grouping))
+        for name in tallies:
+            took = (taken_colours(case, painted_colours(case, shape, grouping), PAINTED_DE) if name == PAINTED
+                    else taken(case, METHODS[name](case, shape, grouping)))
             if not tallies[name].add(case, truth, took) and name == "resolver":
                 failures.append({"seed": s, "noun": obj.noun, "prompt": case.prompt, "truth": {str(k): v for k, v in truth.items()},
                                  "took": {str(k): v for k, v in took.items()}})
