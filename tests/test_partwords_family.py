@@ -88,7 +88,7 @@ def test_parts_cli_json_png_assign_save_and_a_look_that_follows(mug, tmp_path, c
     (["--assign", "0"], "GROUP=WORD"),
     (["--assign", "7=legs"], "no group 7"),
     (["--assign", "0=<script>"], "a word of letters"),
-    (["--assign", "{\"0\": 3}"], "JSON object of words"),
+    (["--assign", "{\"0\": 3}"], "JSON object of strings"),
     (["--assign", "x=legs"], "keyed by group index"),
     (["--save"], "--save stores the words of --assign"),
     (["--png", "out.jpg"], "--png must name a .png"),

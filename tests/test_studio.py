@@ -130,6 +130,30 @@ def _mean_colour(px: np.ndarray) -> np.ndarray:
     return px[_foreground(px)].astype(float).mean(axis=0)
 
 
+def _with_look(root: Path, name: str, prompt: str):
+    """The served mug's store with look ``name`` painted from ``prompt`` (once), and the build's paint settings."""
+    from dataclasses import replace
+
+    from proctex.build.looks import add_look
+    from proctex.store.state import FamilyState
+
+    st = FamilyStore(root / "mug")
+    paint = FamilyState.load(st).build_config().paint
+    if not (root / "mug" / "looks" / name).exists():
+        add_look(st, name, replace(paint, prompt=prompt), log=lambda *_: None)
+    return st, paint
+
+
+def _page(browser):
+    """A 1280x800 page and the list its page errors and HTTP errors go to: ``(context, page, errors)``."""
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("response", lambda r: errors.append(f"{r.status} {r.url}") if r.status >= 400 else None)
+    return context, page, errors
+
+
 def test_the_studio_textures_a_family_interactively(server, browser):
     base, root = server
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
@@ -366,21 +390,9 @@ def test_the_screenshot_command_shoots_the_studio_with_parameters(server, tmp_pa
 def test_the_studio_picks_and_adds_looks(server, browser):
     """Issue 35: the look picker lists the family's looks and changes the view; the "add look" box
     paints a new look through the service and shows it."""
-    from dataclasses import replace
-
-    from proctex.build.looks import add_look
-    from proctex.store.state import FamilyState
-
     base, root = server
-    st = FamilyStore(root / "mug")
-    paint = FamilyState.load(st).build_config().paint
-    if not (root / "mug" / "looks" / "stripes").exists():
-        add_look(st, "stripes", replace(paint, prompt="black and white zebra stripes"), log=lambda *_: None)
-    context = browser.new_context(viewport={"width": 1280, "height": 800})
-    page = context.new_page()
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.on("response", lambda r: errors.append(f"{r.status} {r.url}") if r.status >= 400 else None)
+    _with_look(root, "stripes", "black and white zebra stripes")
+    context, page, errors = _page(browser)
     try:
         page.goto(base + "/?family=mug#token=" + STUDIO_TOKEN)
         _wait_for_shape(page, 1)
@@ -418,25 +430,14 @@ def test_the_studio_shows_each_parts_word_and_a_clause_given_by_clicking_is_stor
     """Issue 51: hovering a part shows its group and word; clicking it selects its panel, where one of
     the prompt's clauses is given to it; saving stores the word in the family (``part_words.json``)
     and a look added afterwards paints that part with that clause."""
-    from dataclasses import replace
-
     from PIL import Image
 
-    from proctex.build.looks import add_look
     from proctex.store.looks import look_paint, resolve_look
-    from proctex.store.state import FamilyState
 
     base, root = server
-    st = FamilyStore(root / "mug")
-    paint = FamilyState.load(st).build_config().paint
     prompt = "a white ceramic mug with a red handle"
-    if not (root / "mug" / "looks" / "redhandle").exists():
-        add_look(st, "redhandle", replace(paint, prompt=prompt), log=lambda *_: None)
-    context = browser.new_context(viewport={"width": 1280, "height": 800})
-    page = context.new_page()
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.on("response", lambda r: errors.append(f"{r.status} {r.url}") if r.status >= 400 else None)
+    st, paint = _with_look(root, "redhandle", prompt)
+    context, page, errors = _page(browser)
     try:
         page.goto(base + "/?family=mug&look=redhandle#token=" + STUDIO_TOKEN)
         _wait_for_shape(page, 1)

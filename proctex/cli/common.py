@@ -19,12 +19,18 @@ def _group_prompts(arg: str | None) -> dict[str, str] | None:
     if not arg:
         return None
     text = Path(arg).read_text() if os.path.isfile(arg) else arg
+    return json_strings(text, "--group-prompts", '{"seat": "red velvet", "2": "oak"}')
+
+
+def json_strings(text: str, flag: str, example: str) -> dict[str, str]:
+    """A flag's JSON object of strings (``{"3": "legs"}``), keys as strings; ``ValueError`` naming
+    ``flag`` with an ``example`` otherwise."""
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"--group-prompts is not valid JSON ({exc}); expected e.g. '{{\"seat\": \"red velvet\"}}'") from exc
+        raise ValueError(f"{flag} is not valid JSON ({exc}); expected e.g. '{example}'") from exc
     if not isinstance(data, dict) or not all(isinstance(v, str) for v in data.values()):
-        raise ValueError('--group-prompts must be a JSON object of strings, e.g. {"seat": "red velvet", "2": "oak"}')
+        raise ValueError(f"{flag} must be a JSON object of strings, e.g. {example}")
     return {str(k): v for k, v in data.items()}
 
 

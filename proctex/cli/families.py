@@ -23,6 +23,7 @@ from .common import (
     _pair,
     _print_json,
     check_output_file,
+    json_strings,
 )
 
 
@@ -231,13 +232,7 @@ def parse_assign(text: str | None) -> dict[str, str]:
     if not text:
         return {}
     if text.lstrip().startswith("{"):
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"--assign is not valid JSON ({exc})") from exc
-        if not isinstance(data, dict) or not all(isinstance(v, str) for v in data.values()):
-            raise ValueError('--assign must be a JSON object of words, e.g. {"3": "legs"}')
-        return {str(k): v for k, v in data.items()}
+        return json_strings(text, "--assign", '{"3": "legs"}')
     out = {}
     for item in text.split(","):
         if item.strip():

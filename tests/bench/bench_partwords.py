@@ -19,7 +19,7 @@ a clause when its text's colour is nearer that clause's colour than any other cl
   what stands on the ground (legs, feet, wheels, base, stand, trunk, foot, pot), the largest group
   the first other clause, no other group any.
 
-``python tests/bench/bench_partwords.py [--split development|held_out|both] [--n N] [--out DIR]``
+``python tests/bench/bench_partwords.py [--split development|held_out|builtin|blend|sofa|all] [--n N] [--out DIR]``
 writes ``partwords.json`` and ``partwords.md`` (the tables) in DIR (default ``out/bench``).
 """
 
