@@ -1,0 +1,84 @@
+"""The fidelity baseline and its compare step (issue 52, tests/bench/fidelity_baseline.py): figures
+read from an evaluation, their noise over seeds, and a comparison that calls a family worse only
+beyond that noise; a wrong method (the identity in place of the network) is caught."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import pytest
+
+from tests.bench import fidelity_baseline as B
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def methods(gt_mean=0.01, pgt=0.002, var=0.004, var_id=0.01, var_near=0.02, flipped=0.001):
+    return {"corrnet": {"gt_error": {"mean": gt_mean, "p99": 5 * gt_mean, "max": 10 * gt_mean, "flipped": flipped},
+                        "pgt_error": {"mean": pgt, "flipped": 0.0}, "tracked_point_variance": var, "coverage": 0.0, "coverage_baked": 0.0},
+            "identity": {"tracked_point_variance": var_id}, "nearest": {"tracked_point_variance": var_near}}
+
+
+def record(runs: dict[str, list[dict]]) -> dict:
+    fams = {}
+    for fam, ms in runs.items():
+        per = {str(s): B.headline(m) for s, m in enumerate(ms)}
+        fams[fam] = {"seeds": list(range(len(ms))), "per_seed": per, "figures": B.summarise(per)}
+    return {"code": "x", "families": fams}
+
+
+def test_figures_are_read_and_summarised_per_seed():
+    h = B.headline(methods())
+    assert h["gt_mean"] == 0.01 and h["x_identity"] == pytest.approx(0.4) and h["x_nearest"] == pytest.approx(0.2)
+    no_truth = methods()
+    del no_truth["corrnet"]["gt_error"]
+    assert B.headline(no_truth)["gt_mean"] is None and "gt_mean" not in B.summarise({"0": B.headline(no_truth)})
+    s = B.summarise({"0": B.headline(methods(gt_mean=0.010)), "1": B.headline(methods(gt_mean=0.013)), "2": B.headline(methods(gt_mean=0.011))})
+    assert s["gt_mean"]["values"] == [0.01, 0.013, 0.011] and s["gt_mean"]["mean"] == pytest.approx(0.011333, abs=1e-6)
+    assert s["gt_mean"]["spread"] == pytest.approx(0.003)
+
+
+def test_compare_calls_worse_only_beyond_the_noise_and_catches_a_wrong_method():
+    base = record({"sofa": [methods(gt_mean=g) for g in (0.010, 0.012, 0.011)], "mug": [methods(var=v) for v in (0.004, 0.0041, 0.0039)]})
+    same = B.compare(base, copy.deepcopy(base))
+    assert {r["verdict"] for r in same} == {"same"} and B.worse_families(same) == []
+    # within the seeds' spread (0.002): the same; beyond it: worse, and only that family
+    within = record({"sofa": [methods(gt_mean=g) for g in (0.0115, 0.0125, 0.0120)], "mug": [methods(var=v) for v in (0.004, 0.0041, 0.0039)]})
+    assert B.worse_families(B.compare(base, within)) == []
+    worse = record({"sofa": [methods(gt_mean=g) for g in (0.016, 0.017, 0.016)], "mug": [methods(var=v) for v in (0.004, 0.0041, 0.0039)]})
+    rows = B.compare(base, worse)
+    assert B.worse_families(rows) == ["sofa"] and next(r for r in rows if r["figure"] == "gt_mean")["verdict"] == "worse"
+    better = record({"sofa": [methods(gt_mean=g) for g in (0.004, 0.005, 0.004)], "mug": [methods(var=v) for v in (0.004, 0.0041, 0.0039)]})
+    assert B.worse_families(B.compare(base, better)) == [] and "better" in {r["verdict"] for r in B.compare(base, better)}
+    # a wrong method: the identity mapper's variance in place of the network's -> worse on variance and its ratios
+    wrong = record({"sofa": [methods(gt_mean=g) for g in (0.010, 0.012, 0.011)], "mug": [methods(var=0.01) for _ in range(3)]})
+    rows = [r for r in B.compare(base, wrong) if r["family"] == "mug" and r["verdict"] == "worse"]
+    assert {r["figure"] for r in rows} >= {"variance", "x_identity", "x_nearest"}
+    # a family not measured again is not silently passed
+    gone = copy.deepcopy(base)
+    del gone["families"]["mug"]
+    assert B.worse_families(B.compare(base, gone)) == ["mug"]
+    # a difference under the figure's floor is never "moved", even with no spread at all
+    flat = record({"sofa": [methods(gt_mean=0.01)] * 3, "mug": [methods()] * 3})
+    nudged = record({"sofa": [methods(gt_mean=0.01 + 1e-5)] * 3, "mug": [methods()] * 3})
+    assert B.worse_families(B.compare(flat, nudged)) == []
+
+
+def test_the_compare_cli_exits_1_when_a_family_got_worse(tmp_path, capsys):
+    base = record({"sofa": [methods(gt_mean=g) for g in (0.010, 0.012, 0.011)]})
+    worse = record({"sofa": [methods(gt_mean=g) for g in (0.02, 0.021, 0.02)]})
+    (tmp_path / "base.json").write_text(json.dumps(base))
+    (tmp_path / "today.json").write_text(json.dumps(worse))
+    (tmp_path / "same.json").write_text(json.dumps(base))
+    assert B.main(["--compare", str(tmp_path / "base.json"), "--against", str(tmp_path / "today.json")]) == 1
+    assert "WORSE: sofa" in capsys.readouterr().out
+    assert B.main(["--compare", str(tmp_path / "base.json"), "--against", str(tmp_path / "same.json")]) == 0
+    assert "no family got worse" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="not in the baseline"):
+        B.main(["--compare", str(tmp_path / "base.json"), "--against", str(tmp_path / "same.json"), "--families", "nope"])
+    with pytest.raises(SystemExit, match="at least 3 seeds"):
+        B.main(["--record", str(tmp_path / "x.json"), "--families", "sofa", "--seeds", "0,1"])
+    with pytest.raises(ValueError, match="unknown family"):
+        B.main(["--record", str(tmp_path / "x.json"), "--families", "nope"])
