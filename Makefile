@@ -10,7 +10,7 @@ STUDIO     := workers/studio
 STUDIO_OUT := $(STUDIO)/dist/index.html
 STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: setup demo test test-fast test-other-kernels float-margins bench gallery clean studio browser blender blender-addon blender-fixtures docs
+.PHONY: setup demo test test-fast test-other-kernels float-margins bench bench-fidelity gallery clean studio browser blender blender-addon blender-fixtures docs
 
 # Blender's Python (bpy, which needs numpy < 2) in an environment of its own, for .blend family
 # sources (proctex/sources/blender.py). A machine where bpy cannot be installed skips those tests.
@@ -83,6 +83,12 @@ test: setup browser blender
 # The benchmark suite (not part of make test): JSON per benchmark and a summary table in out/bench.
 bench: setup
 	$(PY) tests/bench/run_all.py --out out/bench
+
+# No family got worse (issue 52): rebuild the committed fidelity baseline's families at its seeds with
+# today's code and compare; exits 1 when a family got worse beyond its noise. Hours on 2 cores for
+# every family: FAMILIES=sofa,mushroom checks those only.
+bench-fidelity: setup
+	$(PY) tests/bench/fidelity_baseline.py --compare tests/bench/fidelity_baseline.json $(if $(FAMILIES),--families $(FAMILIES))
 
 test-fast: setup
 	$(PY) -m pytest -q -m "not slow"
