@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -101,8 +102,17 @@ def test_fidelity_verdict_names_each_loss():
 
 def test_the_pbr_contact_sheet_script_runs(tmp_path):
     out = tmp_path / "sheet.png"
-    done = subprocess.run([sys.executable, str(BENCH / "pbr_sheet.py"), "--size", "64", "--view", "64", "--out", str(out)],
-                          capture_output=True, text=True, timeout=300)
+    # 3-11 s alone, beside a build or four busy loops; once past 300 s inside a loaded suite run: past
+    # 600 s it is aborted (SIGABRT: faulthandler prints every thread's stack) and the test shows where it stood
+    proc = subprocess.Popen([sys.executable, "-X", "faulthandler", str(BENCH / "pbr_sheet.py"), "--size", "64", "--view", "64",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=600)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        stdout, stderr = proc.communicate(timeout=60)
+        pytest.fail(f"pbr_sheet.py ran past 600 s; its output: {stdout[-2000:]!r}; its stacks: {stderr[-6000:]}")
+    done = subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
     assert done.returncode == 0, done.stderr
     assert out.stat().st_size > 1000 and "luma spread" in done.stdout
 
