@@ -19,6 +19,7 @@ serving choice or build shortcuts lands (``make bench-fidelity``; docs/results.m
     .venv/bin/python tests/bench/fidelity_baseline.py --record tests/bench/fidelity_baseline.json --families sofa,mushroom
     .venv/bin/python tests/bench/fidelity_baseline.py --compare tests/bench/fidelity_baseline.json
     .venv/bin/python tests/bench/fidelity_baseline.py --compare tests/bench/fidelity_baseline.json --against out/x/today.json
+    .venv/bin/python tests/bench/fidelity_baseline.py --table tests/bench/fidelity_baseline.json     # the README's table
 
 Runs are kept under ``--root`` (one family folder per seed, built from scratch) and the measured
 figures in ``ROOT/today.json``: an interrupted run resumes, reusing each seed measured with the same
@@ -164,6 +165,29 @@ def baseline_table(data: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def readme_table(data: dict[str, Any]) -> str:
+    """Markdown: the README's results table from a baseline record: per family the seeds, the
+    paper's ProcCorrNet mean / max (:data:`bench_fidelity.PAPER`), and the run-time path's pseudo-GT
+    mean, GT mean / p99 / max, variance with its ratios to identity and nearest, and flipped share
+    against the truth / the teacher, each as the mean over the seeds ± half their spread."""
+    def cell(entry: dict[str, Any], name: str, fmt: str, pct: bool = False) -> str:
+        s = entry["figures"].get(name)
+        if s is None:
+            return "-"
+        k = 100.0 if pct else 1.0
+        return f"{k * s['mean']:{fmt}}" + (f" ± {k * s['spread'] / 2:{fmt}}" if s["spread"] else "") + ("%" if pct else "")
+
+    lines = ["| family | seeds | paper mean / max | pseudo-GT mean | GT mean / p99 / max | variance (x identity, x nearest) "
+             "| flipped (truth / teacher) |", "|---|---|---|---|---|---|---|"]
+    for fam, e in data["families"].items():
+        paper = F.PAPER.get(fam)
+        lines.append(f"| {fam} | {len(e['seeds'])} | {'-' if not paper else f'{paper[0]:.3f} / {paper[1]:.3f}'} "
+                     f"| {cell(e, 'pgt_mean', '.4f')} | {cell(e, 'gt_mean', '.4f')} / {cell(e, 'gt_p99', '.3f')} / {cell(e, 'gt_max', '.3f')} "
+                     f"| {cell(e, 'variance', '.4f')} ({cell(e, 'x_identity', '.2f')}x, {cell(e, 'x_nearest', '.2f')}x) "
+                     f"| {cell(e, 'flipped_truth', '.2f', True)} / {cell(e, 'flipped_teacher', '.2f', True)} |")
+    return "\n".join(lines)
+
+
 def git_head() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True, timeout=30).stdout.strip()
@@ -209,6 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     what = ap.add_mutually_exclusive_group(required=True)
     what.add_argument("--record", metavar="FILE.json", help="measure the --families at the --seeds and write the baseline")
     what.add_argument("--compare", metavar="FILE.json", help="measure the baseline's families again and compare")
+    what.add_argument("--table", metavar="FILE.json", help="print the README's results table of a baseline")
     ap.add_argument("--against", metavar="TODAY.json", help="--compare: a record already measured (no builds)")
     ap.add_argument("--families", default=None, help=f"--record: comma-separated (default: {','.join([*F.REAL, *BUILTINS])}); "
                                                      "--compare: a subset of the baseline's")
@@ -217,6 +242,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--fresh", action="store_true", help="rebuild families found in --root")
     args = ap.parse_args(argv)
+    if args.table:
+        print(readme_table(json.loads(Path(args.table).read_text())))
+        return 0
     if args.record:
         families = [f.strip() for f in (args.families or ",".join([*F.REAL, *BUILTINS])).split(",") if f.strip()]
         for f in families:
