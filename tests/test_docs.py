@@ -255,7 +255,7 @@ def test_readme_is_short_and_opens_with_the_quickstart():
 def test_readme_keeps_the_test_count_and_todays_results():
     text = README.read_text(encoding="utf-8")
     assert re.search(r"[\d,]+ tests: (about )?\d+ minutes", text), "the Tests section states the test count and time"
-    assert "## Results today" in text and "bench_fidelity.py --suite real" in text
+    assert "## Results today" in text and "fidelity_baseline.py --table" in text and "make bench-fidelity" in text
 
 
 @pytest.mark.parametrize("path", doc_files(), ids=lambda p: p.name)

@@ -82,3 +82,19 @@ def test_the_compare_cli_exits_1_when_a_family_got_worse(tmp_path, capsys):
         B.main(["--record", str(tmp_path / "x.json"), "--families", "sofa", "--seeds", "0,1"])
     with pytest.raises(ValueError, match="unknown family"):
         B.main(["--record", str(tmp_path / "x.json"), "--families", "nope"])
+
+
+def test_the_committed_baseline_is_whole_and_the_readme_shows_it():
+    """``tests/bench/fidelity_baseline.json``: every family measured at 3 or more seeds, each figure's
+    mean and spread those of its seeds' values; the README's results table is this baseline's
+    (``fidelity_baseline.py --table``), line for line."""
+    path = ROOT / "tests" / "bench" / "fidelity_baseline.json"
+    data = json.loads(path.read_text())
+    assert data["families"], "the baseline has families"
+    for fam, entry in data["families"].items():
+        assert len(entry["seeds"]) >= 3 and sorted(entry["per_seed"], key=int) == [str(s) for s in entry["seeds"]], fam
+        assert entry["figures"] == B.summarise(entry["per_seed"]), fam
+        assert B.portable_config(B.family_config(fam, 0)) == entry["config"], f"{fam}: the baseline was recorded with another config"
+    readme = (ROOT / "README.md").read_text()
+    missing = [line for line in B.readme_table(data).splitlines() if line not in readme]
+    assert not missing, f"the README's results table is not the baseline's (fidelity_baseline.py --table): {missing[:2]}"

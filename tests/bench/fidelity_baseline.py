@@ -60,6 +60,12 @@ def family_config(name: str, seed: int) -> dict[str, Any]:
     raise ValueError(f"unknown family {name!r}; the baseline's families: {', '.join([*F.REAL, *BUILTINS])}")
 
 
+def portable_config(config: dict[str, Any]) -> dict[str, Any]:
+    """``config`` with the shared data folder's path written ``${DATA}`` (the baseline is read on
+    machines whose checkouts lie elsewhere)."""
+    return json.loads(json.dumps(config).replace(str(F.DATA), "${DATA}"))
+
+
 def _gt(key: str) -> Callable[[dict[str, Any]], float | None]:
     return lambda ms: (ms["corrnet"].get("gt_error") or {}).get(key)
 
@@ -175,7 +181,8 @@ def readme_table(data: dict[str, Any]) -> str:
         if s is None:
             return "-"
         k = 100.0 if pct else 1.0
-        return f"{k * s['mean']:{fmt}}" + (f" ± {k * s['spread'] / 2:{fmt}}" if s["spread"] else "") + ("%" if pct else "")
+        half = f"{k * s['spread'] / 2:{fmt}}"
+        return f"{k * s['mean']:{fmt}}" + (f" ± {half}" if half.strip("0.") else "") + ("%" if pct else "")
 
     lines = ["| family | seeds | paper mean / max | pseudo-GT mean | GT mean / p99 / max | variance (x identity, x nearest) "
              "| flipped (truth / teacher) |", "|---|---|---|---|---|---|---|"]
@@ -221,7 +228,7 @@ def measure(families: list[str], seeds: list[int], root: Path, fresh: bool, work
     out: dict[str, Any] = {"code": code, "made": time.strftime("%Y-%m-%d"), "methods": METHODS, "families": {}}
     for fam in families:
         runs = {str(s): per[f"{fam}/s{s}"] for s in seeds}
-        out["families"][fam] = {"config": family_config(fam, 0), "seeds": list(seeds),
+        out["families"][fam] = {"config": portable_config(family_config(fam, 0)), "seeds": list(seeds),
                                 "per_seed": {s: r["figures"] for s, r in runs.items()},
                                 "figures": summarise({s: r["figures"] for s, r in runs.items()}),
                                 "seconds": round(sum(r["seconds"] for r in runs.values()), 1)}
