@@ -89,8 +89,8 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
 def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
              timeout: float = 60.0) -> dict[str, Any]:
     """Paint look ``name`` of the built family in ``store`` with ``paint`` (and the family's stored
-    part words, :func:`with_stored_words`) and store it in ``looks/<name>/`` as one change (staged beside it, then put in place: a reader sees the whole
-    look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
+    part words, :func:`with_stored_words`) and store it in ``looks/<name>/`` as one change (staged
+    beside it, then put in place: a reader sees the whole look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
     waits up to ``timeout`` s for an edit or another look being written. Returns the look's record."""
     check_look_name(name)
     paint = paint.validate()
@@ -157,7 +157,8 @@ def name_built_look(store: FamilyStore, name: str, timeout: float = 60.0) -> str
     return before
 
 
-def family_parts(store: FamilyStore, prompt: str | None = None, look: str | None = None, assign: dict[str, str] | None = None) -> dict[str, Any]:
+def family_parts(store: FamilyStore, prompt: str | None = None, look: str | None = None,
+                 assign: dict[str, str] | None = None) -> tuple[dict[str, Any], tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """What the part words of ``prompt`` (default: the prompt of ``look``, the build's look when
     None) do on the family's template (:func:`proctex.texture.painters.partwords.parts_report`),
     with the family's stored words (:mod:`proctex.store.partwords`) over the look's and ``assign``
