@@ -487,3 +487,27 @@ def test_inside_out_is_read_from_the_normals_against_the_template():
         k = box_scale((src - sc) / sr, index.vertices)
         nearest = index.normals[index.query((pts - sc) / sr * k).faces]
         assert inside_out(face_normals(src, faces)[sf], k, nearest) is expect
+
+
+@pytest.mark.slow
+def test_the_baseline_check_calls_every_wrong_map_worse_than_the_truth(scores):
+    """Issue 52: the fidelity baseline's figures (:func:`tests.bench.fidelity_baseline.headline`) of
+    the true map, recorded as a baseline, against each deliberately wrong map (collapsed parts, a
+    rotation per shape, a mirror, the identity) measured on the same family: the compare step calls
+    each worse on the GT error and the variance, and the true map against itself the same."""
+    from tests.bench import fidelity_baseline as B
+
+    def record(name):
+        tv, gt, _ = scores[name]
+        figs = B.headline({"corrnet": {"gt_error": gt, "tracked_point_variance": tv.value}})
+        return {"families": {"chair": {"seeds": [0, 1, 2], "per_seed": {str(s): figs for s in range(3)},
+                                       "figures": B.summarise({str(s): figs for s in range(3)})}}}
+
+    truth = record("truth")
+    assert B.worse_families(B.compare(truth, record("truth"))) == []
+    for name in ("collapse", "rotation", "mirror", "identity"):
+        rows = B.compare(truth, record(name))
+        worse = {r["figure"] for r in rows if r["verdict"] == "worse"}
+        # measured above: each wrong map's GT mean is over 10x the truth's plus 0.01, its variance
+        # over 10x plus 1e-3: far past the floors (2e-4, 1e-5) on any CPU
+        assert {"gt_mean", "variance"} <= worse and B.worse_families(rows) == ["chair"], (name, worse)

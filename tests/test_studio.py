@@ -475,7 +475,8 @@ def test_the_studio_shows_each_parts_word_and_a_clause_given_by_clicking_is_stor
             lk = resolve_look(st, name)
             label = next(g["label"] for g in json.loads((root / "mug" / lk.PAINT).read_text())["groups"] if g["group"] == 0)
             rgb = np.asarray(Image.open(root / "mug" / lk.texture(0, label)).convert("RGB"), dtype=float).reshape(-1, 3).mean(axis=0)
-            is_red = np.abs(rgb - red).sum() < np.abs(rgb - 255).sum()  # nearer red than white
+            # nearer red than white; measured: red parts (231, 2, 2) 28 from red, 530 from white; white ones 509 / 2
+            is_red = np.abs(rgb - red).sum() < np.abs(rgb - 255).sum()
             assert is_red == want_red, (name, rgb)
         assert not errors, errors
     finally:
