@@ -9,7 +9,10 @@ between sessions first and applies nice only within one, so a pass in a session 
 half of a busy machine from the first whatever its nice value. A machine with no idle core
 (another job keeps it busy) gives a nice-10 process almost nothing: if the second pass is still
 running when the first ends, it goes on at the normal priority where this user may raise a
-priority (root), else it is stopped and run again at the normal priority. Its output follows the first's; the exit status is 0 only when both
+priority (root), else it is stopped and run again at the normal priority. A watchdog names a test
+running over ``PROCTEX_TEST_STALL_S`` (600) with its process's threads, and past
+``PROCTEX_SUITE_BUDGET_S`` (4500) in all names every running test with its threads and stops both
+passes (:mod:`tests.tracing`, loaded into both, keeps what each test process runs). Its output follows the first's; the exit status is 0 only when both
 passed (a second pass that selects no test passes: a selection without ``numeric`` tests). PYTEST
 ARGS (paths, ``-k``, ...) go to both passes. Ctrl-C or SIGTERM stops both.
 """
@@ -17,17 +20,104 @@ ARGS (paths, ``-k``, ...) go to both passes. Ctrl-C or SIGTERM stops both.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import signal
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SECOND = ["-q", "-p", "no:cacheprovider", "-m", "numeric and not slow"]
 NO_TESTS = 5  # pytest's exit status when nothing was selected
+#: A test running this long is named and its process's threads printed (before pytest-timeout's 900 s
+#: stops it); both passes together running this long are stopped, every test then running named with
+#: its threads: a hang is reported inside CI's 90 minutes (setup takes up to about 10 of them).
+STALL_S = 600.0
+BUDGET_S = 4500.0
+TRACING = ["-p", "tests.tracing"]  # what each test process runs, and its threads on SIGUSR1
+
+
+def in_flight(folder: Path, now: float) -> list[dict]:
+    """The tests running now per the trace files in ``folder`` (:mod:`tests.tracing` writes
+    ``<pass>-<worker>-<pid>.now``): ``[{"name", "test", "pid", "since", "running_s"}]``, longest first;
+    empty or damaged files (a test ending while read) are skipped."""
+    found = []
+    for path in sorted(folder.glob("*.now")):
+        try:
+            entry = json.loads(path.read_text() or "null")
+            test, pid, since = str(entry["test"]), int(entry["pid"]), float(entry["since"])
+        except (OSError, ValueError, TypeError, KeyError):
+            continue
+        found.append({"name": path.stem, "test": test, "pid": pid, "since": since, "running_s": now - since})
+    return sorted(found, key=lambda e: -e["running_s"])
+
+
+class Watchdog(threading.Thread):
+    """Every ``every`` s: a test running over ``stall`` s is named once with its process's threads
+    (SIGUSR1: :mod:`tests.tracing`'s faulthandler writes them to ``<name>.stacks``); past ``budget`` s
+    since the start, every running test is named with its threads and ``on_budget`` is called."""
+
+    def __init__(self, folder: Path, stall: float, budget: float, on_budget, every: float = 10.0, out=None):
+        super().__init__(daemon=True, name="suite-watchdog")
+        if stall <= 0 or budget <= 0 or every <= 0:
+            raise ValueError(f"stall, budget and every must be > 0, got {stall}, {budget}, {every}")
+        self.folder, self.stall, self.budget, self.on_budget, self.every = folder, stall, budget, on_budget, every
+        self.out = out if out is not None else sys.stdout
+        self.start_time = time.time()
+        self.named: set[tuple[str, str]] = set()
+        self.over_budget = False
+        self._halt = threading.Event()
+
+    def halt(self) -> None:
+        self._halt.set()
+
+    def threads_of(self, entry: dict) -> str:
+        """The threads of the process running ``entry``'s test, as its faulthandler wrote them."""
+        path = self.folder / f"{entry['name']}.stacks"
+        try:
+            before = path.stat().st_size
+            os.kill(entry["pid"], signal.SIGUSR1)
+        except (OSError, ProcessLookupError) as exc:
+            return f"(its threads could not be read: {exc})\n"
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and path.stat().st_size == before:
+            time.sleep(0.1)
+        time.sleep(0.3)  # the rest of the dump
+        with open(path, "rb") as f:
+            f.seek(before)
+            return f.read(200_000).decode(errors="replace")
+
+    def report(self, entry: dict, why: str) -> None:
+        self.out.write(f"\n==== tests.suite: {entry['test']} has run {entry['running_s']:.0f} s ({entry['name']}){why}; "
+                       f"its process's threads:\n{self.threads_of(entry)}==== end of {entry['name']}'s threads\n")
+        self.out.flush()
+
+    def check(self, now: float) -> None:
+        """One look: name stalled tests once; past the budget name every running test and stop."""
+        running = in_flight(self.folder, now)
+        if now - self.start_time > self.budget:
+            self.over_budget = True
+            self.out.write(f"\n==== tests.suite: the suite has run {now - self.start_time:.0f} s, past its budget of "
+                           f"{self.budget:.0f} s (PROCTEX_SUITE_BUDGET_S): {len(running)} test(s) running, then stopped\n")
+            for entry in running:
+                self.report(entry, "")
+            self.on_budget()
+            self.halt()
+            return
+        for entry in running:
+            key = (entry["name"], entry["test"])
+            if entry["running_s"] > self.stall and key not in self.named:
+                self.named.add(key)
+                self.report(entry, f", over {self.stall:.0f} s (PROCTEX_TEST_STALL_S)")
+
+    def run(self) -> None:
+        while not self._halt.wait(self.every):
+            self.check(time.time())
 
 
 def xdist(workers: int) -> list[str]:
@@ -74,24 +164,47 @@ def main(argv: list[str] | None = None) -> int:
         par = xdist(int(os.environ.get("TEST_WORKERS", "2")) if args.workers is None else args.workers)
     except ValueError as exc:
         parser.error(f"{exc} (--workers or TEST_WORKERS: a whole number >= 0)")
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}  # workers reuse compiled modules
-    second_cmd = [sys.executable, "-m", "tests.portable", *SECOND, *par, *pytest_args]
+    try:
+        stall = float(os.environ.get("PROCTEX_TEST_STALL_S", STALL_S))
+        budget = float(os.environ.get("PROCTEX_SUITE_BUDGET_S", BUDGET_S))
+        if not (0 < stall < float("inf") and 0 < budget < float("inf")):
+            raise ValueError("not a positive number")
+    except ValueError as exc:
+        parser.error(f"PROCTEX_TEST_STALL_S and PROCTEX_SUITE_BUDGET_S: seconds > 0 ({exc})")
     scratch = Path(tempfile.mkdtemp(prefix="proctex-second-"))
+    (scratch / "trace").mkdir()
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}  # workers reuse compiled modules
+    env["PROCTEX_TEST_TRACE"] = str(scratch / "trace")
+    second_cmd = [sys.executable, "-m", "tests.portable", *SECOND, *TRACING, *par, *pytest_args]
     log = open(scratch / "log", "w+b")
     second = subprocess.Popen([*second_cmd, "--basetemp", str(scratch / "tmp")], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
                               preexec_fn=lambda: os.nice(10), process_group=0)
     first = other = None
     main_pass = None
+    passes: list[subprocess.Popen] = [second]
+
+    def stop_all() -> None:
+        for proc in passes:
+            stop(proc)
+
+    watchdog = Watchdog(scratch / "trace", stall, budget, stop_all)
+    watchdog.start()
     # SIGTERM (a CI's cancel) ends this process through the finally below, which stops both passes
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
         print("the second pass (numeric tests on other kernels) runs beside the first at nice 10; its output follows", flush=True)
-        main_pass = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *par, *pytest_args], cwd=ROOT, env=env)
+        main_pass = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *TRACING, *par, *pytest_args], cwd=ROOT, env=env,
+                                     process_group=0)
+        passes.append(main_pass)
         first = main_pass.wait()
-        if second.poll() is None and not renice(second.pid, os.getpriority(os.PRIO_PROCESS, 0)):
+        if watchdog.over_budget:
+            other = second.wait()
+        elif second.poll() is None and not renice(second.pid, os.getpriority(os.PRIO_PROCESS, 0)):
             stop(second)
             print("\n---- the second pass had no idle core beside the first: it runs now (numeric tests on other kernels)", flush=True)
-            other = subprocess.run([*second_cmd, "--basetemp", str(scratch / "again")], cwd=ROOT, env=env).returncode
+            again = subprocess.Popen([*second_cmd, "--basetemp", str(scratch / "again")], cwd=ROOT, env=env, process_group=0)
+            passes.append(again)
+            other = again.wait()
         else:
             if second.poll() is None:
                 print("\n---- the second pass had no idle core beside the first: it goes on at the normal priority", flush=True)
@@ -103,17 +216,14 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 130
     finally:
-        if main_pass is not None and main_pass.poll() is None:
-            main_pass.terminate()
-            try:
-                main_pass.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                main_pass.kill()
-                main_pass.wait()
-        stop(second)
+        watchdog.halt()
+        stop_all()
         log.close()
         shutil.rmtree(scratch, ignore_errors=True)
-    print(f"first pass: exit {first}; second pass: exit {other}", flush=True)
+    print(f"first pass: exit {first}; second pass: exit {other}"
+          + (f" (stopped: past the suite's budget of {budget:.0f} s)" if watchdog.over_budget else ""), flush=True)
+    if watchdog.over_budget:
+        return 1
     return 0 if first == 0 and other in (0, NO_TESTS) else 1
 
 

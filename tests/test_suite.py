@@ -4,9 +4,11 @@ failing fails the whole; on a tiny project of its own (a few tests, its own pyte
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -133,3 +135,69 @@ def test_options_before_the_path_reach_both_passes(tmp_path):
     run = run_suite(tmp_path, "options", "-k", "kernels", "--durations=1")
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
     assert run.stdout.count("1 passed, 1 deselected") == 2 and run.stdout.count("slowest 1 durations") == 2, run.stdout[-3000:]
+
+
+def test_in_flight_reads_the_trace_files_longest_first_and_skips_damaged_ones(tmp_path):
+    from tests.suite import in_flight
+
+    (tmp_path / "first-gw0-11.now").write_text(json.dumps({"test": "t.py::a", "since": 100.0, "pid": 11}))
+    (tmp_path / "first-gw1-12.now").write_text(json.dumps({"test": "t.py::b", "since": 40.0, "pid": 12}))
+    (tmp_path / "second-gw0-13.now").write_text("")  # between two tests
+    (tmp_path / "second-gw1-14.now").write_text('{"test": "t.py::c", "si')  # read while written
+    (tmp_path / "first-gw2-15.now").write_text(json.dumps({"test": "t.py::d", "pid": "x", "since": 1.0}))
+    assert [(e["test"], e["pid"], e["running_s"]) for e in in_flight(tmp_path, 160.0)] == [("t.py::b", 12, 120.0), ("t.py::a", 11, 60.0)]
+    assert in_flight(tmp_path / "missing", 0.0) == []
+
+
+def tiny_project(tmp_path: Path, name: str, body: str, ini_extra: str = "") -> Path:
+    proj = tmp_path / name
+    proj.mkdir()
+    (proj / "pytest.ini").write_text(INI + ini_extra)
+    (proj / "test_hang.py").write_text(body)
+    return proj
+
+
+HANGS_IN_C = """import signal, time
+
+def test_stuck_where_no_signal_reaches():
+    # SIGALRM blocked in this thread: as a main thread stuck in a C call, which never runs
+    # a signal's Python handler (pytest-timeout's "signal" method)
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
+    time.sleep(240)
+
+def test_after_it():
+    pass
+"""
+
+
+def test_a_test_stuck_in_c_is_named_with_its_threads_and_stopped_and_the_rest_runs(tmp_path):
+    """The watchdog names a stalled test with its stack; pytest-timeout's method (the project's own,
+    read from pyproject.toml) stops it although no signal reaches its thread, and the module's next
+    test still runs: a hang costs one test, not the suite."""
+    method = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["timeout_method"]
+    proj = tiny_project(tmp_path, "stuck", HANGS_IN_C, f"timeout = 20\ntimeout_method = {method}\n")
+    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "1", "-rs", str(proj)], cwd=ROOT, capture_output=True, text=True,
+                         timeout=600, env={**os.environ, "PROCTEX_TEST_STALL_S": "8"})
+    out = run.stdout
+    assert run.returncode == 1, out[-4000:] + run.stderr[-2000:]
+    assert "test_hang.py::test_stuck_where_no_signal_reaches has run" in out and "over 8 s (PROCTEX_TEST_STALL_S)" in out, out[-4000:]
+    threads = out.split("its process's threads:")[1].split("==== end of")[0]
+    assert 'line 7 in test_stuck_where_no_signal_reaches' in threads, threads  # its stack, down to the stuck line
+    assert "crashed while running 'test_hang.py::test_stuck_where_no_signal_reaches'" in out, out[-4000:]
+    assert "1 failed, 1 passed, 1 skipped" in out and "not run again: it stopped worker process" in out, out[-4000:]
+    assert out.count("crashed while running") == 1  # run once: the new worker skips it and runs the next
+
+
+def test_a_suite_past_its_budget_names_every_running_test_and_stops(tmp_path):
+    proj = tiny_project(tmp_path, "budget", "import time\n\ndef test_sleeps_long():\n    time.sleep(300)\n")
+    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "0", str(proj)], cwd=ROOT, capture_output=True, text=True,
+                         timeout=600, env={**os.environ, "PROCTEX_SUITE_BUDGET_S": "15"})
+    out = run.stdout
+    assert run.returncode == 1, out[-4000:] + run.stderr[-2000:]
+    assert "past its budget of 15 s (PROCTEX_SUITE_BUDGET_S): 1 test(s) running, then stopped" in out, out[-4000:]
+    assert "test_hang.py::test_sleeps_long has run" in out and "line 4 in test_sleeps_long" in out, out[-4000:]
+    assert "(stopped: past the suite's budget of 15 s)" in out
+    assert not subprocess.run(["pgrep", "-f", str(proj)], capture_output=True).stdout, "a pass outlived the suite"
+    bad = subprocess.run([sys.executable, "-m", "tests.suite", str(proj)], cwd=ROOT, capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "PROCTEX_SUITE_BUDGET_S": "nan"})
+    assert bad.returncode == 2 and "PROCTEX_SUITE_BUDGET_S" in bad.stderr and "Traceback" not in bad.stderr

@@ -1,0 +1,98 @@
+"""A pytest plugin that ``python -m tests.suite`` loads into both passes (``-p tests.tracing``): which
+test each process runs and since when, and every thread's stack on demand, for the suite's watchdog.
+
+With ``PROCTEX_TEST_TRACE`` naming a folder, each test process (an xdist worker, or pytest itself)
+keeps ``<pass>-<worker>-<pid>.now`` there: ``{"test": nodeid, "since": epoch seconds, "pid": pid}``
+while a test runs, empty between tests; SIGUSR1 appends every thread's stack to ``<name>.stacks``
+(:mod:`faulthandler`: written from C, so also while the main thread is stuck in a C call); a test
+whose process died while running it (a timeout) is skipped when handed out again. Without the
+variable the plugin does nothing.
+"""
+
+from __future__ import annotations
+
+import faulthandler
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+_STACKS = pytest.StashKey()
+
+
+def _folder() -> Path | None:
+    trace = os.environ.get("PROCTEX_TEST_TRACE")
+    return Path(trace) if trace and Path(trace).is_dir() else None
+
+
+def trace_name() -> str:
+    """This process's name in the trace folder: its pass, its xdist worker and its pid."""
+    kind = "second" if os.environ.get("PROCTEX_KERNELS", "native") != "native" else "first"
+    return f"{kind}-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-{os.getpid()}"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    folder = _folder()
+    if folder is not None:
+        stacks = open(folder / f"{trace_name()}.stacks", "w")  # noqa: SIM115 (open while the process lives)
+        faulthandler.register(signal.SIGUSR1, file=stacks, all_threads=True, chain=False)
+        config.stash[_STACKS] = stacks
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    stacks = config.stash.get(_STACKS, None)
+    if stacks is not None:
+        faulthandler.unregister(signal.SIGUSR1)
+        stacks.close()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return Path(f"/proc/{pid}/stat").exists() and Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in "ZX"
+
+
+def crashed_before(folder: Path, nodeid: str, kind: str) -> int | None:
+    """The pid of a process of this pass (``kind``) that died while running ``nodeid``: its ``.now``
+    file still names the test. None where no such process is found."""
+    for path in folder.glob(f"{kind}-*.now"):
+        try:
+            entry = json.loads(path.read_text() or "null")
+            pid = int(entry["pid"])
+        except (OSError, ValueError, TypeError, KeyError):
+            continue
+        if entry.get("test") == nodeid and pid != os.getpid() and not _alive(pid):
+            return pid
+    return None
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """A test that stopped its worker before (pytest-timeout's thread method ends a stuck worker) is
+    not run again: pytest-xdist's ``--dist loadfile`` hands a crashed worker's test to the next
+    worker, and a hang would then cost its timeout once per replaced worker."""
+    folder = _folder()
+    if folder is not None:
+        pid = crashed_before(folder, item.nodeid, trace_name().split("-")[0])
+        if pid is not None:
+            pytest.skip(f"not run again: it stopped worker process {pid} before (its failure is reported above)")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
+    folder = _folder()
+    now = folder / f"{trace_name()}.now" if folder is not None else None
+    if now is not None:
+        now.write_text(json.dumps({"test": item.nodeid, "since": time.time(), "pid": os.getpid()}))
+    try:
+        yield
+    finally:
+        if now is not None:
+            now.write_text("")
