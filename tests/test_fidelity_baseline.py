@@ -98,3 +98,27 @@ def test_the_committed_baseline_is_whole_and_the_readme_shows_it():
     readme = (ROOT / "README.md").read_text()
     missing = [line for line in B.readme_table(data).splitlines() if line not in readme]
     assert not missing, f"the README's results table is not the baseline's (fidelity_baseline.py --table): {missing[:2]}"
+
+
+def test_a_seams_family_is_written_once_as_the_builtin_family_and_read_with_its_truth(tmp_path, monkeypatch):
+    """``fork.seams``: the built-in fork family's shapes at the seed (the same sample jobs), written
+    as seam-split files under ROOT/files once, and a folder config with canonical truth from them."""
+    from proctex.store.config import BuildConfig
+
+    monkeypatch.setitem(B.BUILTIN_SCALE, "n_train", 2)
+    monkeypatch.setitem(B.BUILTIN_SCALE, "n_test", 1)
+    cfg = B.family_config("fork.seams", 1)
+    assert "${FILES}" in json.dumps(B.portable_config(cfg))  # the record names no machine's folder
+    ready = B.materialise("fork.seams", 1, cfg, tmp_path)
+    folder = Path(ready["source"]["folder"])
+    assert folder == tmp_path / "files" / "fork.seams" / "s1"
+    built = BuildConfig.from_dict(ready).validate()
+    assert built.truth == "canonical" and built.source.up == "y"
+    assert sorted(str(p.relative_to(folder)) for p in folder.rglob("*.glb")) == ["test/2.glb", "train/0.glb", "train/1.glb"]
+    builtin = BuildConfig.from_dict({"model": "fork", "n_train": 2, "n_test": 1, "seed": 1, "tessellation": "adaptive"})
+    jobs = builtin.shapes().sample_jobs(builtin.source, 1)
+    assert [json.loads((folder / j.split / f"{j.index}.json").read_text()) for j in jobs] == [json.loads(json.dumps(j.params)) for j in jobs]
+    stamp = (folder / "export.json").stat().st_mtime_ns
+    assert B.materialise("fork.seams", 1, cfg, tmp_path) == ready and (folder / "export.json").stat().st_mtime_ns == stamp
+    with pytest.raises(ValueError, match="unknown family"):
+        B.family_config("vase.seams", 0)

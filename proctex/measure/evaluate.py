@@ -40,6 +40,7 @@ import numpy as np
 from proctex.sources.registry import source_kind
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.looks import look_paint, resolve_look
+from proctex.store.state import FamilyState
 from proctex.transfer.methods import get_method, make_mapper, method_names
 from proctex.transfer.methods import methods as registered_methods
 
@@ -79,6 +80,21 @@ def _mapper(name: str, store: FamilyStore, assets, config=None) -> Any:
     return make_mapper(name, assets, models, corr_points=config.corr_points if config is not None else 2000, cage=_cage_config(config))
 
 
+def labelled_grouping(grouping, shape):
+    """``grouping`` (the build's, of ``shape`` without labels) with its parts labelled from ``shape``'s
+    labels (a folder family's file truth); ``ValueError`` where ``shape`` does not split into the
+    same parts (a template changed since the build)."""
+    import dataclasses
+
+    from proctex.geometry.parts import segment
+
+    seg = segment(shape)
+    old = grouping.segmentation
+    if seg.n_parts != old.n_parts or any(not np.array_equal(a.vertices, b.vertices) for a, b in zip(seg.parts, old.parts)):
+        raise ValueError("the template's parts are not the build's: the family changed since it was built")
+    return dataclasses.replace(grouping, segmentation=seg)
+
+
 def resolve_truth(config, truth: str = "auto") -> str | None:
     """The ground truth an evaluation uses: "canonical", "vertex-index" or None (no truth: the cage
     tracks points). ``truth`` (:data:`proctex.store.config.TRUTHS`) overrides the family config's."""
@@ -90,13 +106,17 @@ def resolve_truth(config, truth: str = "auto") -> str | None:
     canonical = source_kind(config.source).canonical  # its shapes carry canonical coordinates
     if canonical and t in ("auto", "canonical") and config.source.blender:  # a .blend model's, where its tree was read
         canonical = bool(getattr(config.procedural_model(), "has_canonical", False))
+    if not canonical and t in ("auto", "canonical") and config.source.folder:  # files with truth beside them
+        from proctex.sources.truthfiles import folder_truth
+
+        canonical = folder_truth(config.source.folder)
     if t == "auto":
         return "canonical" if canonical else None
     if t == "none":
         return None
     if t == "canonical" and not canonical:
-        raise ValueError("canonical truth needs a built-in model family or a .blend model whose node tree could be read "
-                         "(canonical coordinates)")
+        raise ValueError("canonical truth needs a built-in model family, a .blend model whose node tree could be read "
+                         "(canonical coordinates) or a folder whose every mesh file has a truth file beside it (<stem>.truth.npz)")
     return t
 
 
@@ -152,12 +172,17 @@ class _Context:
         self.settings = settings
         self.look = resolve_look(self.store, settings.get("look"))  # the look whose textures are measured
         self.assets = load_assets(self.store, look=self.look)
-        self.template = self.assets.shape
-        self.up = self.config.up_axis()
         self.truth_kind = settings["truth"]
+        # a folder family's truth lies beside its files (proctex.sources.truthfiles): read for measuring only
+        self.file_truth = self.config.source.folder if self.truth_kind == "canonical" and self.config.source.folder else None
+        self.template = self.with_truth(self.assets.shape, FamilyState.load(self.store).stage("template").get("id", ""))
+        # the truth's own view of the template's parts (their labels, where a file's truth gave them): for
+        # locating and scoring only; the methods keep the build's grouping, which never saw the truth
+        self.truth_grouping = self.assets.grouping if not self.file_truth else labelled_grouping(self.assets.grouping, self.template)
+        self.up = self.config.up_axis()
         self.tracker = self.truth_kind or "cage"
-        self.points = tracked_points(self.template, self.assets.grouping, self.tracker, n=settings["tracked"], seed=settings["seed"])
-        self.truth = template_truth(self.template, self.assets.grouping, self.assets, self.truth_kind) if self.truth_kind else None
+        self.points = tracked_points(self.template, self.truth_grouping, self.tracker, n=settings["tracked"], seed=settings["seed"])
+        self.truth = template_truth(self.template, self.truth_grouping, self.assets, self.truth_kind) if self.truth_kind else None
         uv = self.store.read_arrays(StoreLayout.UV)
         self.template_colours = colours_at(Location(self.points.face, self.points.bary), uv["corner_uv"], uv["face_group"], self.assets.textures)
         if not np.isfinite(self.template_colours).all():
@@ -180,6 +205,14 @@ class _Context:
         self.painter = SurfacePainter(look_paint(self.store, self.look, self.config.paint).prompt, seed=self.config.seed)
         self.pairs_index = self.store.read_table(StoreLayout.PAIRS).to_pylist() if self.store.exists(StoreLayout.PAIRS) else []
 
+    def with_truth(self, shape, sample_id: str):
+        """``shape`` (folder sample ``sample_id``) with its file's truth where the family reads it there."""
+        if not self.file_truth:
+            return shape
+        from proctex.sources.truthfiles import attach_file_truth, sample_mesh_path
+
+        return attach_file_truth(shape, sample_mesh_path(self.file_truth, sample_id))
+
     def mapper(self, name: str) -> Any:
         if name not in self.mappers:
             self.mappers[name] = _mapper(name, self.store, self.assets, self.config)
@@ -197,7 +230,7 @@ class _Context:
         from proctex.transfer.mappers import SolverMapper
 
         if self.tracker == "canonical":
-            return locate_canonical(self.points, self.template, self.assets.grouping.segmentation, shape, seg)
+            return locate_canonical(self.points, self.template, self.truth_grouping.segmentation, shape, seg)
         if self.tracker == "vertex-index":
             return locate_vertex_index(self.points, shape, seg)
         # The cage, solved once per (shape, group) with the build's pair seeds, for every method:
@@ -284,7 +317,7 @@ def evaluate_shape(ctx: _Context, job: tuple[int, dict[str, Any]]) -> dict[str, 
     from proctex.texture.render import canonical_buffers
 
     index, row = job
-    shape = load_sample(ctx.store, row, ctx.config)
+    shape = ctx.with_truth(load_sample(ctx.store, row, ctx.config), row["id"])
     seg = segment(shape)
     loc = ctx.locate(shape, seg, index, row["id"])
     samples = truth_samples(shape, seg, ctx.truth_kind, n=ctx.settings["tracked"], seed=ctx.settings["seed"] + index) if ctx.truth_kind else None

@@ -43,8 +43,9 @@ class BuildConfig:
         seed: the family seed; sample ``i`` and pair ``(i, g)`` derive theirs from it.
         corr_points: surface points per shape in each cage pair.
         truth: what the evaluation takes as ground truth (:data:`proctex.store.config.TRUTHS`): "auto"
-            (canonical coordinates for built-in models and ``.blend`` models whose node tree could be
-            read, none otherwise), "vertex-index" (the
+            (canonical coordinates for built-in models, ``.blend`` models whose node tree could be
+            read and folders whose every mesh file has a truth file beside it, ``<stem>.truth.npz``:
+            :mod:`proctex.sources.truthfiles`; none otherwise), "vertex-index" (the
             samples share one vertex order: vertex *i* is the same point in every sample; checked
             when evaluating), "canonical" or "none" (the cage solver tracks points; no GT error).
 
@@ -75,7 +76,11 @@ class BuildConfig:
         if self.truth not in TRUTHS:
             raise ValueError(f"truth must be one of {', '.join(TRUTHS)}, got {self.truth!r}")
         if self.truth == "canonical" and not source_kind(self.source).canonical:
-            raise ValueError("truth 'canonical' needs a built-in model or a .blend model (canonical coordinates)")
+            from proctex.sources.truthfiles import folder_truth
+
+            if not (self.source.folder and folder_truth(self.source.folder)):
+                raise ValueError("truth 'canonical' needs a built-in model, a .blend model (canonical coordinates) or a folder "
+                                 "whose every mesh file has a truth file beside it (<stem>.truth.npz)")
         check_integer("seed", self.seed, 0, 2**32 - 1)
         check_integer("corr_points", self.corr_points, 100, 1_000_000)
         return self

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -45,6 +46,10 @@ REPO = Path(__file__).resolve().parents[2]
 #: The README's built-in scale: 24 train and 8 test shapes, 300 cage iterations, 3000 training steps.
 BUILTIN_SCALE = {"n_train": 24, "n_test": 8, "cage_iterations": 300, "train_iterations": 3000}
 BUILTINS = ("fork", "vase", "mug", "chair", "table", "mushroom", "cake", "desk")
+#: Built-ins written as a real export writes them and read back as folder families (:mod:`seamsplit`:
+#: GLB files split at UV seams, +y up, truth beside each file): thin parts through the files' path.
+SEAMS = ("fork.seams",)
+FILES = "${FILES}"  # where a SEAMS family's files are written: ROOT/files
 METHODS = ["corrnet", "identity", "nearest"]
 SEEDS = (0, 1, 2)
 
@@ -57,7 +62,27 @@ def family_config(name: str, seed: int) -> dict[str, Any]:
     if name in BUILTINS:
         return F.family_config(name, BUILTIN_SCALE["n_train"], BUILTIN_SCALE["n_test"], BUILTIN_SCALE["cage_iterations"],
                                BUILTIN_SCALE["train_iterations"], seed)
-    raise ValueError(f"unknown family {name!r}; the baseline's families: {', '.join([*F.REAL, *BUILTINS])}")
+    if name in SEAMS:  # the files of the built-in's family at this seed (24 train and 8 test shapes)
+        model = name.split(".")[0]
+        return {"source": {"folder": f"{FILES}/{name}/s{seed}", "up": "y"}, "paint": {"prompt": F.PROMPTS.get(model, "painted wood")},
+                "cage": {"iterations": BUILTIN_SCALE["cage_iterations"]}, "train": {"iterations": BUILTIN_SCALE["train_iterations"]},
+                "seed": seed, "truth": "canonical"}
+    raise ValueError(f"unknown family {name!r}; the baseline's families: {', '.join([*F.REAL, *BUILTINS, *SEAMS])}")
+
+
+def materialise(name: str, seed: int, config: dict[str, Any], root: Path) -> dict[str, Any]:
+    """``config`` ready to build: a :data:`SEAMS` family's files written under ``root/files`` (once:
+    a folder with its ``export.json`` is complete) and ``${FILES}`` resolved; other configs as they are."""
+    if name not in SEAMS:
+        return config
+    import seamsplit
+
+    folder = root / "files" / name / f"s{seed}"
+    if not (folder / "export.json").exists():
+        if folder.exists():
+            shutil.rmtree(folder)
+        seamsplit.export_family(name.split(".")[0], folder, BUILTIN_SCALE["n_train"], BUILTIN_SCALE["n_test"], seed)
+    return json.loads(json.dumps(config).replace(FILES, str(root / "files")))
 
 
 def portable_config(config: dict[str, Any]) -> dict[str, Any]:
@@ -220,7 +245,7 @@ def measure(families: list[str], seeds: list[int], root: Path, fresh: bool, work
                 continue
             log(f"{key}:")
             t0 = time.perf_counter()
-            res = F.run_family(root / fam / f"s{seed}", cfg, METHODS, workers, 5000, True)  # built by today's code, from scratch
+            res = F.run_family(root / fam / f"s{seed}", materialise(fam, seed, cfg, root), METHODS, workers, 5000, True)  # built by today's code, from scratch
             per[key] = {"config": cfg, "code": code, "figures": headline(res["metrics"]["methods"]), "build_seconds": res["build_seconds"],
                         "seconds": round(time.perf_counter() - t0, 1)}
             root.mkdir(parents=True, exist_ok=True)
@@ -242,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     what.add_argument("--compare", metavar="FILE.json", help="measure the baseline's families again and compare")
     what.add_argument("--table", metavar="FILE.json", help="print the README's results table of a baseline")
     ap.add_argument("--against", metavar="TODAY.json", help="--compare: a record already measured (no builds)")
-    ap.add_argument("--families", default=None, help=f"--record: comma-separated (default: {','.join([*F.REAL, *BUILTINS])}); "
+    ap.add_argument("--families", default=None, help=f"--record: comma-separated (default: {','.join([*F.REAL, *BUILTINS, *SEAMS])}); "
                                                      "--compare: a subset of the baseline's")
     ap.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="--record: build seeds (at least 3 make the noise a measurement)")
     ap.add_argument("--root", default=None, help="where the families are built (default out/fidelity_record or out/fidelity_compare)")
@@ -253,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
         print(readme_table(json.loads(Path(args.table).read_text())))
         return 0
     if args.record:
-        families = [f.strip() for f in (args.families or ",".join([*F.REAL, *BUILTINS])).split(",") if f.strip()]
+        families = [f.strip() for f in (args.families or ",".join([*F.REAL, *BUILTINS, *SEAMS])).split(",") if f.strip()]
         for f in families:
             family_config(f, 0)  # unknown names refused before any build
         try:
