@@ -12,7 +12,9 @@ running when the first ends, it goes on at the normal priority where this user m
 priority (root), else it is stopped and run again at the normal priority. A watchdog names a test
 running over ``PROCTEX_TEST_STALL_S`` (600) with its process's threads, and past
 ``PROCTEX_SUITE_BUDGET_S`` (4500) in all names every running test with its threads and stops both
-passes (:mod:`tests.tracing`, loaded into both, keeps what each test process runs). Its output follows the first's; the exit status is 0 only when both
+passes (:mod:`tests.tracing`, loaded into both, keeps what each test process runs). A first pass
+that failed only by tests whose worker died running them (a hang the timeout ended) runs those once
+more, alone, and takes their verdict (:func:`rerun_hung`). Its output follows the first's; the exit status is 0 only when both
 passed (a second pass that selects no test passes: a selection without ``numeric`` tests). PYTEST
 ARGS (paths, ``-k``, ...) go to both passes. Ctrl-C or SIGTERM stops both.
 """
@@ -154,6 +156,32 @@ def renice(pgid: int, niceness: int) -> bool:
         return True
 
 
+def rerun_hung(scratch: Path, env: dict[str, str], passes: list[subprocess.Popen], watchdog: "Watchdog") -> int:
+    """After a first pass that failed (exit 1): where every failed test is one whose worker died
+    running it (pytest-timeout's thread method ends a hung worker; :mod:`tests.tracing` kept which),
+    those tests run once more in a new pytest and the pass's status is theirs, the hang named loudly
+    either way; else 1 (a real failure is never run again)."""
+    from tests.tracing import crashed, failures
+
+    reported, hung = failures(scratch / "trace", "first"), crashed(scratch / "trace", "first")
+    failed = [test for test, _ in reported]
+    if not failed or not set(failed) <= set(hung):
+        return 1
+    where = [str(Path(root) / test) if root else test for test, root in reported]  # ids are relative to the rootdir
+    print(f"\n==== tests.suite: {len(failed)} test(s) stopped their worker (a hang that the timeout ended): "
+          f"{', '.join(failed)}; each runs once more, alone", flush=True)
+    again_trace = scratch / "trace-again"
+    again_trace.mkdir(exist_ok=True)
+    watchdog.folder = again_trace
+    again = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *TRACING, "-p", "no:cacheprovider", *where], cwd=ROOT,
+                             env={**env, "PROCTEX_TEST_TRACE": str(again_trace)}, process_group=0)
+    passes.append(again)
+    status = again.wait()
+    print(f"==== tests.suite: run again, {'they passed' if status == 0 else 'they failed again'} (hung once: "
+          f"{', '.join(failed)}; the threads above show where)", flush=True)
+    return 0 if status == 0 else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tests.suite", description=__doc__.split("\n\n")[0], allow_abbrev=False,
                                      epilog="Every other argument (paths, -k EXPR, --durations=N, ...) is given to both passes' pytest, in its order.")
@@ -197,6 +225,8 @@ def main(argv: list[str] | None = None) -> int:
                                      process_group=0)
         passes.append(main_pass)
         first = main_pass.wait()
+        if first == 1 and par[1] != "0" and not watchdog.over_budget:
+            first = rerun_hung(scratch, env, passes, watchdog)
         if watchdog.over_budget:
             other = second.wait()
         elif second.poll() is None and not renice(second.pid, os.getpriority(os.PRIO_PROCESS, 0)):

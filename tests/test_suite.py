@@ -11,6 +11,8 @@ import sys
 import tomllib
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 INI = """[pytest]
@@ -186,6 +188,42 @@ def test_a_test_stuck_in_c_is_named_with_its_threads_and_stopped_and_the_rest_ru
     assert "crashed while running 'test_hang.py::test_stuck_where_no_signal_reaches'" in out, out[-4000:]
     assert "1 failed, 1 passed, 1 skipped" in out and "not run again: it stopped worker process" in out, out[-4000:]
     assert out.count("crashed while running") == 1  # run once: the new worker skips it and runs the next
+    # every failure a hang: it runs once more, alone, hangs again and fails the suite
+    assert "1 test(s) stopped their worker" in out and "they failed again" in out, out[-4000:]
+
+
+HANGS_ONCE = """import os, signal, time
+from pathlib import Path
+
+def test_hangs_the_first_time():
+    flag = Path(os.environ["SUITE_FLAG"])
+    if not flag.exists():
+        flag.write_text("hung")
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
+        time.sleep(240)
+
+def test_fine():
+    pass
+"""
+
+
+@pytest.mark.parametrize("also_fails", [False, True])
+def test_a_test_that_hung_once_runs_again_and_a_real_failure_is_never_retried(tmp_path, also_fails):
+    """A pass whose only failure is a hung test (its worker ended by the timeout) runs it once more:
+    passing then, the suite passes, naming the hang. With a real failure beside it nothing is run
+    again and the suite fails."""
+    body = HANGS_ONCE + ("\ndef test_fails():\n    assert False\n" if also_fails else "")
+    proj = tiny_project(tmp_path, "once", body, "timeout = 15\ntimeout_method = thread\n")
+    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "1", str(proj)], cwd=ROOT, capture_output=True, text=True,
+                         timeout=600, env={**os.environ, "SUITE_FLAG": str(proj / "hung.flag")})
+    out = run.stdout
+    assert (proj / "hung.flag").exists() and "crashed while running 'test_hang.py::test_hangs_the_first_time'" in out, out[-4000:]
+    if also_fails:
+        assert run.returncode == 1 and "runs once more" not in out, out[-4000:]
+    else:
+        assert run.returncode == 0, out[-4000:] + run.stderr[-2000:]
+        assert "1 test(s) stopped their worker (a hang that the timeout ended): test_hang.py::test_hangs_the_first_time" in out
+        assert "they passed (hung once: test_hang.py::test_hangs_the_first_time" in out
 
 
 def test_a_suite_past_its_budget_names_every_running_test_and_stops(tmp_path):

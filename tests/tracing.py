@@ -34,7 +34,11 @@ def trace_name() -> str:
     return f"{kind}-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-{os.getpid()}"
 
 
+_ROOT: list[Path] = []  # the session's rootdir: test ids are relative to it
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    _ROOT[:] = [Path(config.rootpath)]
     folder = _folder()
     if folder is not None:
         stacks = open(folder / f"{trace_name()}.stacks", "w")  # noqa: SIM115 (open while the process lives)
@@ -83,6 +87,46 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
         pid = crashed_before(folder, item.nodeid, trace_name().split("-")[0])
         if pid is not None:
             pytest.skip(f"not run again: it stopped worker process {pid} before (its failure is reported above)")
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """In the process that reports (pytest, or xdist's controller): each failed test appended to
+    ``<pass>-failures.jsonl`` (``{"test", "when"}``), so tests.suite knows whether a pass failed only
+    by tests whose worker died (a hang its timeout ended)."""
+    folder = _folder()
+    if folder is None or not report.failed or os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    with open(folder / f"{trace_name().split('-')[0]}-failures.jsonl", "a") as fh:
+        fh.write(json.dumps({"test": report.nodeid, "when": report.when, "root": str(_ROOT[0]) if _ROOT else ""}) + "\n")
+
+
+def failures(folder: Path, kind: str) -> list[tuple[str, str]]:
+    """The tests of pass ``kind`` reported failed, ``(test id, its session's rootdir)``, in order, each once."""
+    path = folder / f"{kind}-failures.jsonl"
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        try:
+            entry = json.loads(line)
+            out.append((str(entry["test"]), str(entry.get("root", ""))))
+        except (ValueError, KeyError, TypeError):
+            continue
+    return list(dict.fromkeys(out))
+
+
+def crashed(folder: Path, kind: str) -> list[str]:
+    """The tests of pass ``kind`` whose process died while running them (their ``.now`` still names them)."""
+    out = []
+    for path in sorted(folder.glob(f"{kind}-*.now")):
+        try:
+            entry = json.loads(path.read_text() or "null")
+            test, pid = str(entry["test"]), int(entry["pid"])
+        except (OSError, ValueError, TypeError, KeyError):
+            continue
+        if not _alive(pid):
+            out.append(test)
+    return list(dict.fromkeys(out))
 
 
 @pytest.hookimpl(hookwrapper=True)
