@@ -243,13 +243,15 @@ class _Context:
 
 
 def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: list[dict[str, Any]], sid: str = "",
-                    views: list | None = None, atlases: dict | None = None) -> dict[str, Any]:
+                    views: list | None = None, atlases: dict | None = None, plain=None) -> dict[str, Any]:
     """One shape with one method: transfer (timed, GLB included), bake, coverage of both, colours at
     the tracked points (real-time and baked), ground-truth and pseudo-ground-truth errors, view
     similarity with the template. A transfer that raises counts as a failed shape. ``views``: the
     shape's six canonical views traced already (:func:`proctex.texture.render.canonical_buffers`
     at the view size), ``atlases``: its bake atlases so far (:func:`proctex.transfer.apply.bake`),
-    both shared by the methods of one shape (the same figures as tracing and unwrapping again)."""
+    both shared by the methods of one shape (the same figures as tracing and unwrapping again).
+    ``plain``: the shape as the method sees it where ``shape`` carries a truth it must not (a folder
+    family's file truth: labels and canonical coordinates); the same vertices and faces."""
     from proctex.measure.fidelity import colours_at, gt_errors, pgt_errors
     from proctex.texture.metrics import coverage, view_similarity
     from proctex.texture.render import canonical_buffers, render_six_views
@@ -259,7 +261,7 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     t = time.perf_counter()
     mapper = ctx.mapper(name)
     try:
-        result = shape_to_glb(shape, assets, mapper, seed=st["seed"], up=up, shortcut=name in shortcut_methods(), painter=ctx.painter).result
+        result = shape_to_glb(shape if plain is None else plain, assets, mapper, seed=st["seed"], up=up, shortcut=name in shortcut_methods(), painter=ctx.painter).result
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         # A failed shape counts: every located point untextured, every point with a truth failed.
         failed = np.where((loc.face >= 0)[:, None], np.inf, np.nan).repeat(3, axis=1).astype(np.float32)
@@ -317,7 +319,8 @@ def evaluate_shape(ctx: _Context, job: tuple[int, dict[str, Any]]) -> dict[str, 
     from proctex.texture.render import canonical_buffers
 
     index, row = job
-    shape = ctx.with_truth(load_sample(ctx.store, row, ctx.config), row["id"])
+    plain = load_sample(ctx.store, row, ctx.config)
+    shape = ctx.with_truth(plain, row["id"])  # for locating and scoring; the methods get the plain shape
     seg = segment(shape)
     loc = ctx.locate(shape, seg, index, row["id"])
     samples = truth_samples(shape, seg, ctx.truth_kind, n=ctx.settings["tracked"], seed=ctx.settings["seed"] + index) if ctx.truth_kind else None
@@ -326,7 +329,8 @@ def evaluate_shape(ctx: _Context, job: tuple[int, dict[str, Any]]) -> dict[str, 
     # of the sofa export's 50 test shapes on 2 workers: 68.1 -> 46.6 s, the same metrics)
     views = canonical_buffers(shape.vertices, shape.faces, ctx.up, ctx.settings["view_size"])
     atlases: dict = {}
-    return {m: evaluate_method(ctx, m, shape, seg, loc, samples, pairs, row["id"], views, atlases) for m in ctx.settings["methods"]}
+    return {m: evaluate_method(ctx, m, shape, seg, loc, samples, pairs, row["id"], views, atlases, plain if ctx.file_truth else None)
+            for m in ctx.settings["methods"]}
 
 
 _WORKER: dict[str, Any] = {}

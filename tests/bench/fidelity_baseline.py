@@ -212,7 +212,7 @@ def readme_table(data: dict[str, Any]) -> str:
     lines = ["| family | seeds | paper mean / max | pseudo-GT mean | GT mean / p99 / max | variance (x identity, x nearest) "
              "| flipped (truth / teacher) |", "|---|---|---|---|---|---|---|"]
     for fam, e in data["families"].items():
-        paper = F.PAPER.get(fam)
+        paper = F.PAPER.get(fam, F.PAPER.get(fam.split(".")[0]) if fam in SEAMS else None)  # a SEAMS family: its model's
         lines.append(f"| {fam} | {len(e['seeds'])} | {'-' if not paper else f'{paper[0]:.3f} / {paper[1]:.3f}'} "
                      f"| {cell(e, 'pgt_mean', '.4f')} | {cell(e, 'gt_mean', '.4f')} / {cell(e, 'gt_p99', '.3f')} / {cell(e, 'gt_max', '.3f')} "
                      f"| {cell(e, 'variance', '.4f')} ({cell(e, 'x_identity', '.2f')}x, {cell(e, 'x_nearest', '.2f')}x) "
