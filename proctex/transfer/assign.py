@@ -314,9 +314,10 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
     its own axes rather than turning it: a desk pedestal with four drawers instead of one is the
     same box, taller, not the template's box on its side (whose proportions would be a little
     closer). So a turn must buy more than ``turn_cost`` (per axis moved) of Chamfer and proportion.
-    Each slot's member map is a candidate too (its own placement, no turn cost): copies the model
-    turned about an axis (small caps leaning out from a stem at their own azimuths) fit the turn of
-    the slot they sit nearest, where the permutations fit only a reflection (a mirrored texture).
+    Each slot's member map that is no axis permutation is a candidate too (its own placement, no
+    turn cost): copies the model turned about an axis (small caps leaning out from a stem at their
+    own azimuths) fit the turn of the slot they sit nearest, where the permutations fit only a
+    reflection (a mirrored texture).
 
     ``vertices (k, 3)``: the part in its normalised frame; ``faces (f, 3)`` local. Axes thinner than
     ``min_extent`` (normalised units: a flat part) count as that thick; thin axes are scaled like
@@ -359,14 +360,16 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
                 if best is None or score < best.score:
                     A = np.diag(hr) @ P @ np.diag(1.0 / hp)
                     best = BoxMatch(ga.group, A, ch, prop, place, score)
-        # The turns the template's own copies take: each slot's member map (x_rep = R x_member), as
-        # the part would get it had it taken that slot. Copies placed around an axis (leaning caps
+        # The turns off the axes the template's own copies take: each such slot's member map (x_rep =
+        # R x_member), as the part would get it had it taken that slot. Copies placed around an axis (leaning caps
         # around a stem) differ from the representative by such a turn, which no axis permutation
         # makes; a reflection across the plane between the two would fit as well and mirror the
         # texture. Placement is the slot's own, and no turn cost (the template made the turn).
         for k, slot in enumerate(assets.slots):
             if slot.group != ga.group or (slot_cost is not None and float(np.asarray(slot_cost)[k]) > extra_cost):
                 continue
+            if np.allclose(np.abs(slot.R), np.round(np.abs(slot.R)), atol=1e-3):
+                continue  # an axis permutation (the representative's own slot, mirrored legs): tried above, box to box
             # the slot's map as it is (both normalised frames have L-infinity radius 1; a turn by an
             # angle off the axes has no per-axis scaling to fit): proportions are the turned part's
             # own half extents against the representative's
