@@ -201,7 +201,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"PROCTEX_TEST_STALL_S and PROCTEX_SUITE_BUDGET_S: seconds > 0 ({exc})")
     scratch = Path(tempfile.mkdtemp(prefix="proctex-second-"))
     (scratch / "trace").mkdir()
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}  # workers reuse compiled modules
+    # workers reuse compiled modules; a suite run by a test of another does not pass as its xdist worker
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE" and not k.startswith("PYTEST_XDIST")}
     env["PROCTEX_TEST_TRACE"] = str(scratch / "trace")
     second_cmd = [sys.executable, "-m", "tests.portable", *SECOND, *TRACING, *par, *pytest_args]
     log = open(scratch / "log", "w+b")

@@ -31,14 +31,17 @@ def _folder() -> Path | None:
 def trace_name() -> str:
     """This process's name in the trace folder: its pass, its xdist worker and its pid."""
     kind = "second" if os.environ.get("PROCTEX_KERNELS", "native") != "native" else "first"
-    return f"{kind}-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-{os.getpid()}"
+    return f"{kind}-{_WORKER[0] if _WORKER else 'main'}-{os.getpid()}"
 
 
 _ROOT: list[Path] = []  # the session's rootdir: test ids are relative to it
+_WORKER: list[str] = []  # this process's xdist worker id, where it is one
 
 
 def pytest_configure(config: pytest.Config) -> None:
     _ROOT[:] = [Path(config.rootpath)]
+    # from the config, not the environment: a suite run inside a test inherits its worker's variables
+    _WORKER[:] = [config.workerinput["workerid"]] if hasattr(config, "workerinput") else []
     folder = _folder()
     if folder is not None:
         stacks = open(folder / f"{trace_name()}.stacks", "w")  # noqa: SIM115 (open while the process lives)
@@ -94,7 +97,7 @@ def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     ``<pass>-failures.jsonl`` (``{"test", "when"}``), so tests.suite knows whether a pass failed only
     by tests whose worker died (a hang its timeout ended)."""
     folder = _folder()
-    if folder is None or not report.failed or os.environ.get("PYTEST_XDIST_WORKER"):
+    if folder is None or not report.failed or _WORKER:
         return
     with open(folder / f"{trace_name().split('-')[0]}-failures.jsonl", "a") as fh:
         fh.write(json.dumps({"test": report.nodeid, "when": report.when, "root": str(_ROOT[0]) if _ROOT else ""}) + "\n")
