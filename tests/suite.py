@@ -22,7 +22,6 @@ ARGS (paths, ``-k``, ...) go to both passes. Ctrl-C or SIGTERM stops both.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import signal
@@ -45,18 +44,11 @@ TRACING = ["-p", "tests.tracing"]  # what each test process runs, and its thread
 
 
 def in_flight(folder: Path, now: float) -> list[dict]:
-    """The tests running now per the trace files in ``folder`` (:mod:`tests.tracing` writes
-    ``<pass>-<worker>-<pid>.now``): ``[{"name", "test", "pid", "since", "running_s"}]``, longest first;
-    empty or damaged files (a test ending while read) are skipped."""
-    found = []
-    for path in sorted(folder.glob("*.now")):
-        try:
-            entry = json.loads(path.read_text() or "null")
-            test, pid, since = str(entry["test"]), int(entry["pid"]), float(entry["since"])
-        except (OSError, ValueError, TypeError, KeyError):
-            continue
-        found.append({"name": path.stem, "test": test, "pid": pid, "since": since, "running_s": now - since})
-    return sorted(found, key=lambda e: -e["running_s"])
+    """The tests running now per the trace files in ``folder`` (:func:`tests.tracing.running`), each
+    with ``running_s``, longest first."""
+    from tests.tracing import running
+
+    return sorted(({**e, "running_s": now - e["since"]} for e in running(folder)), key=lambda e: -e["running_s"])
 
 
 class Watchdog(threading.Thread):

@@ -66,18 +66,28 @@ def _alive(pid: int) -> bool:
     return Path(f"/proc/{pid}/stat").exists() and Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in "ZX"
 
 
-def crashed_before(folder: Path, nodeid: str, kind: str) -> int | None:
-    """The pid of a process of this pass (``kind``) that died while running ``nodeid``: its ``.now``
-    file still names the test. None where no such process is found."""
-    for path in folder.glob(f"{kind}-*.now"):
+def running(folder: Path, kind: str = "*") -> list[dict]:
+    """What the ``.now`` files of pass ``kind`` (``*``: both) in ``folder`` name, in file order:
+    ``[{"name", "test", "pid", "since"}]``; empty files (between tests) and damaged ones (read while
+    written) are skipped. A dead process's entry is the test it died running."""
+    found = []
+    for path in sorted(folder.glob(f"{kind}-*.now")):
         try:
             entry = json.loads(path.read_text() or "null")
-            pid = int(entry["pid"])
+            found.append({"name": path.stem, "test": str(entry["test"]), "pid": int(entry["pid"]), "since": float(entry["since"])})
         except (OSError, ValueError, TypeError, KeyError):
             continue
-        if entry.get("test") == nodeid and pid != os.getpid() and not _alive(pid):
-            return pid
-    return None
+    return found
+
+
+def crashed(folder: Path, kind: str) -> list[str]:
+    """The tests of pass ``kind`` whose process died while running them (their ``.now`` still names them)."""
+    return list(dict.fromkeys(e["test"] for e in running(folder, kind) if not _alive(e["pid"])))
+
+
+def crashed_before(folder: Path, nodeid: str, kind: str) -> int | None:
+    """The pid of another process of pass ``kind`` that died while running ``nodeid``, or None."""
+    return next((e["pid"] for e in running(folder, kind) if e["test"] == nodeid and e["pid"] != os.getpid() and not _alive(e["pid"])), None)
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -115,20 +125,6 @@ def failures(folder: Path, kind: str) -> list[tuple[str, str]]:
             out.append((str(entry["test"]), str(entry.get("root", ""))))
         except (ValueError, KeyError, TypeError):
             continue
-    return list(dict.fromkeys(out))
-
-
-def crashed(folder: Path, kind: str) -> list[str]:
-    """The tests of pass ``kind`` whose process died while running them (their ``.now`` still names them)."""
-    out = []
-    for path in sorted(folder.glob(f"{kind}-*.now")):
-        try:
-            entry = json.loads(path.read_text() or "null")
-            test, pid = str(entry["test"]), int(entry["pid"])
-        except (OSError, ValueError, TypeError, KeyError):
-            continue
-        if not _alive(pid):
-            out.append(test)
     return list(dict.fromkeys(out))
 
 

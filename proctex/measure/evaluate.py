@@ -175,7 +175,12 @@ class _Context:
         self.truth_kind = settings["truth"]
         # a folder family's truth lies beside its files (proctex.sources.truthfiles): read for measuring only
         self.file_truth = self.config.source.folder if self.truth_kind == "canonical" and self.config.source.folder else None
-        self.template = self.with_truth(self.assets.shape, FamilyState.load(self.store).stage("template").get("id", ""))
+        self.template = self.assets.shape
+        if self.file_truth:
+            from proctex.sources.truthfiles import sample_mesh_paths
+
+            self.truth_files = sample_mesh_paths(self.file_truth)  # read once: the samples' mesh files
+            self.template = self.with_truth(self.template, FamilyState.load(self.store).stage("template").get("id", ""))
         # the truth's own view of the template's parts (their labels, where a file's truth gave them): for
         # locating and scoring only; the methods keep the build's grouping, which never saw the truth
         self.truth_grouping = self.assets.grouping if not self.file_truth else labelled_grouping(self.assets.grouping, self.template)
@@ -209,9 +214,11 @@ class _Context:
         """``shape`` (folder sample ``sample_id``) with its file's truth where the family reads it there."""
         if not self.file_truth:
             return shape
-        from proctex.sources.truthfiles import attach_file_truth, sample_mesh_path
+        from proctex.sources.truthfiles import attach_file_truth
 
-        return attach_file_truth(shape, sample_mesh_path(self.file_truth, sample_id))
+        if sample_id not in self.truth_files:
+            raise ValueError(f"{self.file_truth}: no sample {sample_id!r} (the folder changed since the build)")
+        return attach_file_truth(shape, self.truth_files[sample_id])
 
     def mapper(self, name: str) -> Any:
         if name not in self.mappers:

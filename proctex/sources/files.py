@@ -47,6 +47,11 @@ class FolderSample:
     mesh_path: str
     params_path: str | None
 
+    @property
+    def store_id(self) -> str:
+        """The sample's id in a family store (``train_3`` for ``train/3``)."""
+        return self.id.replace("/", "_")
+
 
 class FolderSource:
     """A folder of samples (mesh files + JSON parameters), flat or split into train/inference."""

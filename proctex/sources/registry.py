@@ -169,7 +169,7 @@ class FolderShapes(ShapeSource):
         super().__init__(kind, None, self.folder.space)
 
     def sample_jobs(self, config: SourceConfig, seed: int) -> list[SampleJob]:
-        return [SampleJob(i, s.id.replace("/", "_"), s.split, self.folder.params(i)) for i, s in enumerate(self.folder.samples)]
+        return [SampleJob(i, s.store_id, s.split, self.folder.params(i)) for i, s in enumerate(self.folder.samples)]
 
     def shape(self, job: SampleJob) -> Shape:
         return self.folder.load(job.index)

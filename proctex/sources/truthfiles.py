@@ -125,12 +125,9 @@ def folder_truth(folder: str | os.PathLike) -> bool:
     return all(truth_path(s.mesh_path).is_file() for s in src.samples)
 
 
-def sample_mesh_path(folder: str | os.PathLike, sample_id: str) -> str:
-    """The mesh file of folder sample ``sample_id`` as a family stores it (``train_3`` for
-    ``train/3``); ``ValueError`` where the folder has no such sample."""
+def sample_mesh_paths(folder: str | os.PathLike) -> dict[str, str]:
+    """``{sample id as a family stores it (train_3 for train/3): its mesh file}`` of the folder family
+    at ``folder``."""
     from proctex.sources.files import FolderSource
 
-    for s in FolderSource(folder).samples:
-        if s.id.replace("/", "_") == sample_id:
-            return s.mesh_path
-    raise ValueError(f"{folder}: no sample {sample_id!r} (the folder changed since the build)")
+    return {s.store_id: s.mesh_path for s in FolderSource(folder).samples}

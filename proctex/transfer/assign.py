@@ -341,6 +341,15 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
         hr = _half_extents(ga.vertices, min_extent)
         rep = sample_surface(ga.vertices / hr, ga.faces, n, seed=seed)[0]
         rep_index = SurfaceIndex(ga.vertices / hr, ga.faces)
+
+        def chamfer(M: np.ndarray) -> float:
+            """Point-to-surface both ways under ``M`` (box-scaled part -> box-scaled representative;
+            the representative's samples go back by ``M``'s inverse), 90th percentiles: a part
+            missing a piece of the other (a ring against a disc) shows."""
+            back = M if np.allclose(M @ M.T, np.eye(3)) else np.linalg.inv(M).T  # orthogonal: M^-T = M
+            return 0.5 * float(np.percentile(rep_index.query(pts @ M.T, exact=False).distance, 90)
+                               + np.percentile(part_index.query(rep @ back, exact=False).distance, 90))
+
         for perm in permutations(range(3)):
             prop = float(np.abs(np.log(hp[list(perm)] / hr)).mean())
             if prop > proportion_tol:
@@ -348,10 +357,7 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
             for signs in product((1.0, -1.0), repeat=3):
                 P = np.zeros((3, 3))
                 P[range(3), perm] = signs  # (P b)_i = s_i b_perm(i)
-                # Point-to-surface both ways (P is orthogonal: the template's samples go back by P^T),
-                # 90th percentiles: a part missing a piece of the other (a ring against a disc) shows.
-                ch = 0.5 * float(np.percentile(rep_index.query(pts @ P.T, exact=False).distance, 90)
-                                 + np.percentile(part_index.query(rep @ P, exact=False).distance, 90))
+                ch = chamfer(P)
                 if ch > chamfer_tol:
                     continue
                 # Symmetric parts (a box, a cylinder) fit several ways equally well: the one
@@ -360,13 +366,16 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
                 if best is None or score < best.score:
                     A = np.diag(hr) @ P @ np.diag(1.0 / hp)
                     best = BoxMatch(ga.group, A, ch, prop, place, score)
-        # The turns off the axes the template's own copies take: each such slot's member map (x_rep =
-        # R x_member), as the part would get it had it taken that slot. Copies placed around an axis (leaning caps
-        # around a stem) differ from the representative by such a turn, which no axis permutation
-        # makes; a reflection across the plane between the two would fit as well and mirror the
-        # texture. Placement is the slot's own, and no turn cost (the template made the turn).
-        for k, slot in enumerate(assets.slots):
-            if slot.group != ga.group or (slot_cost is not None and float(np.asarray(slot_cost)[k]) > extra_cost):
+        # The turns off the axes the template's own copies take: each such slot's member map
+        # (x_rep = R x_member), as the part would get it had it taken that slot. Copies placed
+        # around an axis (leaning caps around a stem) differ from the representative by such a
+        # turn, which no axis permutation makes; a reflection across the plane between the two would
+        # fit as well and mirror the texture. Placement is the slot's own, and no turn cost (the
+        # template made the turn).
+        for k in slots:
+            slot = assets.slots[k]
+            slot_place = 0.0 if slot_cost is None else float(np.asarray(slot_cost)[k])
+            if slot_place > extra_cost:
                 continue
             if np.allclose(np.abs(slot.R), np.round(np.abs(slot.R)), atol=1e-3):
                 continue  # an axis permutation (the representative's own slot, mirrored legs): tried above, box to box
@@ -380,12 +389,10 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
             prop = float(np.abs(np.log(_half_extents(v @ A.T, min_extent) / hr)).mean())
             if prop > proportion_tol:
                 continue
-            ch = 0.5 * float(np.percentile(rep_index.query(pts @ Q.T, exact=False).distance, 90)
-                             + np.percentile(part_index.query(rep @ np.linalg.inv(Q).T, exact=False).distance, 90))
-            place = 0.0 if slot_cost is None else float(np.asarray(slot_cost)[k])
-            score = ch + prop + place
+            ch = chamfer(Q)
+            score = ch + prop + slot_place
             if ch <= chamfer_tol and (best is None or score < best.score):
-                best = BoxMatch(ga.group, A, ch, prop, place, score)
+                best = BoxMatch(ga.group, A, ch, prop, slot_place, score)
     return best
 
 
