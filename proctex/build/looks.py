@@ -48,9 +48,12 @@ def stored_uv(files: TemplateFiles, shape: Any, grouping: Any, resolution: int) 
 
 
 def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look: LookLayout, state: FamilyState | None = None,
-               log: Callable[[str], None] = print) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
+               log: Callable[[str], None] = print, photos: dict[str, Any] | None = None) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
     """Paint the stored template with ``paint`` and return the files of ``look`` (paths relative to
-    the store, ``look.json`` last) and its record. Nothing is written."""
+    the store, ``look.json`` last) and its record. ``photos``: the
+    :class:`proctex.texture.exemplar.Photo` of each ``paint.images`` key (a look from photos; read
+    from the entries' files where missing): each is kept in the look as ``photo-<i>.png`` and its
+    entry names that file. Nothing is written."""
     from proctex.store.template import encode_textures, write_textured
     from proctex.texture.paint_loop import paint_with
 
@@ -60,10 +63,23 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
     files = TemplateFiles(store, built_look(store))
     grouping = files.grouping(shape, seed=config.seed)
     uv = stored_uv(files, shape, grouping, paint.texture_size)
-    tex = paint_with(shape, grouping, paint, seed=config.seed, up=config.up_axis(), uv=uv,
+    kept: list[tuple[str, bytes]] = []
+    if paint.images:
+        from dataclasses import replace
+
+        from proctex.texture.exemplar import layers
+
+        read = {k: v.photo for k, v in layers(paint.images, photos).items()}
+        images = {}
+        for i, (key, entry) in enumerate(paint.images.items()):
+            png = read[key].png()
+            kept.append((look.file(f"photo-{i}.png"), png))
+            images[key] = {**entry, "file": look.file(f"photo-{i}.png"), "sha256": digest(png), "name": read[key].name, "notes": list(read[key].notes)}
+        paint, photos = replace(paint, images=images).validate(), read
+    tex = paint_with(shape, grouping, paint, seed=config.seed, up=config.up_axis(), uv=uv, photos=photos,
                      on_view=lambda k, n, st: log(f"look {look.name}: view {k + 1}/{n}, {st['texels_updated']} texels"))
     encoded = encode_textures(tex)
-    out: list[tuple[str, bytes]] = []
+    out: list[tuple[str, bytes]] = list(kept)
     with tempfile.TemporaryDirectory() as tmp:
         summary = write_textured(tex, tmp, up=config.up_axis(), encoded=encoded)
         for name in sorted(os.listdir(tmp)):
@@ -87,11 +103,12 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
 
 
 def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
-             timeout: float = 60.0) -> dict[str, Any]:
+             timeout: float = 60.0, photos: dict[str, Any] | None = None) -> dict[str, Any]:
     """Paint look ``name`` of the built family in ``store`` with ``paint`` (and the family's stored
     part words, :func:`with_stored_words`) and store it in ``looks/<name>/`` as one change (staged
     beside it, then put in place: a reader sees the whole look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
-    waits up to ``timeout`` s for an edit or another look being written. Returns the look's record."""
+    waits up to ``timeout`` s for an edit or another look being written. ``photos``: a look from
+    photos' images already read (:func:`look_files`). Returns the look's record."""
     check_look_name(name)
     paint = paint.validate()
     state = FamilyState.load(store)
@@ -105,7 +122,7 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = Fa
         raise ValueError(f"the family has a look {name!r} already; --force replaces it")
     paint = with_stored_words(store, config.paint, paint)
     with store_lock(store, StoreLayout.BUILD_LOCK, f"adding look {name}", shared=True, busy=StoreBusy, note=True):
-        files, record = look_files(store, config, paint, look, state, log)
+        files, record = look_files(store, config, paint, look, state, log, photos=photos)
         with store_lock(store, StoreLayout.EDIT_LOCK, f"adding look {name}", timeout=timeout, busy=StoreBusy):
             if store.exists(look.RECORD) and not force:
                 raise ValueError(f"the family has a look {name!r} already (made meanwhile); --force replaces it")

@@ -18,10 +18,13 @@ def cmd_look(args: argparse.Namespace) -> int:
     state = FamilyState.load(store)
     config = state.build_config(store.uri)
     if args.action == "add":
-        if not args.prompt or not args.prompt.strip():
-            raise ValueError("look add needs --prompt")
-        paint = new_look_paint(config.paint, args.prompt, _group_prompts(args.group_prompts), args.painter, args.texture_size)
-        record = add_look(store, args.name, paint, force=args.force, log=(lambda *_: None) if args.json else print)
+        images, photos = photo_args(args)
+        if not images and (not args.prompt or not args.prompt.strip()):
+            raise ValueError("look add needs --prompt, --image, or both")
+        if args.prompt is not None and not args.prompt.strip():
+            raise ValueError("--prompt is empty")
+        paint = new_look_paint(config.paint, args.prompt, _group_prompts(args.group_prompts), args.painter, args.texture_size, images=images)
+        record = add_look(store, args.name, paint, force=args.force, log=(lambda *_: None) if args.json else print, photos=photos)
         if args.json:
             _print_json({"family": store.uri, "look": record})
         return 0
@@ -43,13 +46,83 @@ def cmd_look(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pairs(items: list[str] | None, flag: str) -> dict[str, str]:
+    """``PART=VALUE`` items of a repeated flag (``PART`` a group number, label or part word, or ``*``
+    for the photo of the rest) -> {part: value}; a part given twice is an error."""
+    out: dict[str, str] = {}
+    for item in items or []:
+        part, sep, value = item.partition("=")
+        if not sep or not part.strip() or not value.strip():
+            raise ValueError(f"{flag} takes PART=VALUE (PART a group number, label or part word), got {item[:80]!r}")
+        part = part.strip()
+        if part in out:
+            raise ValueError(f"{flag} names {part[:40]!r} twice")
+        out[part] = value.strip()
+    return out
+
+
+def photo_args(args: argparse.Namespace) -> tuple[dict[str, dict], dict]:
+    """``--image [PART=]FILE`` (repeated), ``--image-scale PART=LENGTH``, ``--image-rotate PART=DEG``,
+    ``--units``, ``--normal-strength``, ``--roughness-strength`` -> the look's ``images`` entries and
+    each photo read (:func:`proctex.texture.exemplar.read_photo`: refused before anything is painted
+    or written). A FILE without ``PART=`` (an existing file's whole name) is the photo of every group
+    the prompt does not name (with no ``--prompt``: every group no other photo has)."""
+    import os
+
+    from proctex.texture.exemplar import parse_length, read_photo
+
+    files: dict[str, str] = {}
+    for item in args.image or []:
+        if os.path.isfile(item) or "=" not in item:
+            key, path = "*", item
+        else:
+            key, _, path = item.partition("=")
+            key, path = key.strip(), path.strip()
+            if not key or not path:
+                raise ValueError(f"--image takes [PART=]FILE, got {item[:80]!r}")
+        if key in files:
+            raise ValueError("--image gives the photo of the rest twice" if key == "*" else f"--image names {key[:40]!r} twice")
+        files[key] = path
+    scales, turns = _pairs(args.image_scale, "--image-scale"), _pairs(args.image_rotate, "--image-rotate")
+    for flag, given in (("--image-scale", scales), ("--image-rotate", turns)):
+        unknown = sorted(set(given) - set(files))
+        if unknown:
+            raise ValueError(f"{flag} names {', '.join(repr(u[:40]) for u in unknown)}, which no --image gives a photo")
+    images: dict[str, dict] = {}
+    photos = {}
+    for key, path in files.items():
+        photos[key] = read_photo(path)
+        entry = {"file": path, "scale": parse_length(scales[key], args.units) if key in scales else None, "units": args.units,
+                 "normal": args.normal_strength, "roughness": args.roughness_strength}
+        if key in turns:
+            try:
+                entry["rotate"] = float(turns[key])
+            except ValueError:
+                raise ValueError(f"--image-rotate {key[:40]}= takes degrees, got {turns[key][:40]!r}") from None
+        if key == "*":
+            entry["under_prompt"] = args.prompt is not None
+        images[key] = entry
+    return images, photos
+
+
 def add_look_parser(sub: argparse._SubParsersAction, painters: list[str], painter_help: str) -> None:
     p = sub.add_parser("look", help="a family's looks: paint a built family with another prompt in seconds (no rebuild), list or remove them")
     acts = p.add_subparsers(dest="action", required=True)
     a = acts.add_parser("add", help="paint a new look: the stored template, grouping and UVs with another prompt")
     a.add_argument("family")
     a.add_argument("name", help="the look's name (letters, digits, '.', '_', '-')")
-    a.add_argument("--prompt", required=True)
+    a.add_argument("--prompt", help="the look's words (optional with --image: then the build's prompt covers what no photo does)")
+    a.add_argument("--image", action="append", metavar="[PART=]FILE",
+                   help="a photo synthesised on PART (a group number, part name or part word; repeat for more); a FILE alone "
+                        "covers every group the prompt does not name (PNG, JPEG, WebP, TIFF, BMP, TGA)")
+    a.add_argument("--image-scale", action="append", metavar="PART=LENGTH",
+                   help="how much surface the photo's width spans: 0.5 (family units), 50cm, 2in (default: half the part's longest side)")
+    a.add_argument("--image-rotate", action="append", metavar="PART=DEGREES",
+                   help="turn the photo against the part's long axis (default 0: the photo's width along it)")
+    a.add_argument("--units", default="m", choices=["m", "cm", "mm", "in", "ft"], help="the family's units (default m)")
+    a.add_argument("--normal-strength", type=float, default=1.0, help="relief from the photos: 0 flat, 1 default, up to 10")
+    a.add_argument("--roughness-strength", type=float, default=1.0,
+                   help="how far the photos' local contrast moves the prompt's roughness: 0 not at all, 1 default, up to 10")
     a.add_argument("--group-prompts", help='JSON (inline or a file) overriding the prompt per group label or index')
     a.add_argument("--painter", choices=painters, help=f"default: the build's painter; {painter_help}")
     a.add_argument("--texture-size", type=int, help="default: the build's")

@@ -90,19 +90,27 @@ def look_summary(store: FamilyStore, look: LookLayout, build_paint: PaintConfig)
             **{k: record[k] for k in ("made", "seconds") if k in record}}
 
 
-def new_look_paint(build_paint: PaintConfig, prompt: str, group_prompts: dict[str, str] | None = None, painter: str | None = None,
-                   texture_size: int | None = None, part_words: dict[str, str] | None = None) -> PaintConfig:
+def new_look_paint(build_paint: PaintConfig, prompt: str | None, group_prompts: dict[str, str] | None = None, painter: str | None = None,
+                   texture_size: int | None = None, part_words: dict[str, str] | None = None,
+                   images: dict[str, dict[str, Any]] | None = None) -> PaintConfig:
     """The paint settings of a new look: the build's (views, fill, ...) with ``prompt`` and, where
     given, ``painter`` and ``texture_size`` over them; group prompts only those given (the build's
     belong to its prompt); part words (the user's word per group) those given over the build's
-    (:func:`proctex.build.looks.add_look` lays the family's stored ones between). Checked
-    (``ValueError``)."""
-    over: dict[str, Any] = {"prompt": prompt, "group_prompts": dict(group_prompts or {}),
+    (:func:`proctex.build.looks.add_look` lays the family's stored ones between). ``images``: a look
+    from photos (:attr:`PaintConfig.images`); it paints with the surface painter, and without a
+    ``prompt`` keeps the build's (for the groups no photo covers and every group's metalness).
+    Checked (``ValueError``)."""
+    if prompt is None and not images:
+        raise ValueError("a new look needs a prompt, photos, or both")
+    over: dict[str, Any] = {"prompt": build_paint.prompt if prompt is None else prompt, "group_prompts": dict(group_prompts or {}),
                             "part_words": {**build_paint.part_words, **{str(k): v for k, v in (part_words or {}).items()}}}
     if painter is not None:
         over["painter"] = painter
     if texture_size is not None:
         over["texture_size"] = texture_size
+    over["images"] = dict(images or {})
+    if images and painter is None:
+        over["painter"] = "surface"
     return replace(build_paint, **over).validate()
 
 

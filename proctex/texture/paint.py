@@ -188,6 +188,27 @@ def resolve_group_prompts(grouping: Grouping, prompt: str, group_prompts: Mappin
     return out
 
 
+def resolve_photos(grouping: Grouping, prompt: str, photos: Mapping[str, Any], shape: Shape | None = None, up: str = "z",
+                   part_words: Mapping[str, str] | None = None, named: set[int] | frozenset[int] = frozenset()) -> dict[int, Any]:
+    """The photo of each group: ``photos`` keyed as group prompts are (a group number, label or part
+    word, :func:`resolve_group_prompts`'s rules: a number beats a label, a label a word), and ``"*"``
+    for every group no key reaches and ``named`` does not hold (the groups the prompt's clauses or
+    group prompts name). Returns group index -> photo; ``ValueError`` for an unknown key."""
+    keyed = {str(k): v for k, v in photos.items() if k != "*"}
+    tags = {k: f"\x00photo{i}" for i, k in enumerate(keyed)}
+    out: dict[int, Any] = {}
+    if keyed:
+        by_tag = {t: k for k, t in tags.items()}
+        for g, text in resolve_group_prompts(grouping, prompt, tags, shape, up, part_words).items():
+            if text in by_tag:
+                out[g] = keyed[by_tag[text]]
+    if "*" in photos:
+        for g in grouping.groups:
+            if g.index not in out and g.index not in named:
+                out[g.index] = photos["*"]
+    return out
+
+
 def shape_frame(shape: Shape) -> tuple[np.ndarray, float]:
     """The shape's normalised frame ``(centre (3,), L∞ radius)`` (radius 1 for a single point)."""
     center, radius = normalised_frame(shape.vertices)

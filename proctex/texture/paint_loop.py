@@ -32,6 +32,7 @@ from .paint import (
     paint_material_maps,
     paint_surface,
     resolve_group_prompts,
+    resolve_photos,
     shape_frame,
 )
 from .painting import PaintConfig, get_painter, make_painter
@@ -471,6 +472,8 @@ def paint_template(
     maps: bool = True,
     occlusion: bool = False,
     part_words: Mapping[str, str] | None = None,
+    photos: Mapping[str, Any] | None = None,
+    under_prompt: bool = True,
 ) -> TemplateTexture:
     """Texture a template with one of the registered painters (:mod:`proctex.texture.painting`):
     ``"surface"`` (:func:`paint_surface`), ``"views"`` (the multi-view loop with
@@ -480,15 +483,28 @@ def paint_template(
     per-group unwrap. ``maps``: also make each group's PBR maps (:func:`paint_material_maps`: from
     the prompts' materials, whichever painter made the colour); ``occlusion``: bake ambient occlusion
     into them too. ``part_words``: the user's word per group (``{"3": "legs"}``), which the prompt's
-    clauses follow (:func:`proctex.texture.painters.partwords.plan_parts`)."""
+    clauses follow (:func:`proctex.texture.painters.partwords.plan_parts`). ``photos``: a look from
+    photos (:class:`proctex.texture.exemplar.PhotoLayer` by part key, ``"*"`` for the rest; the
+    surface painter only): their groups are synthesised from the photos (:func:`resolve_photos`;
+    ``under_prompt``: the prompt's named parts keep their clauses instead of the ``"*"`` photo)."""
     part_words = dict(part_words or {})
     prompts = resolve_group_prompts(grouping, prompt, group_prompts, shape, up, part_words)  # validates the keys (labels, indices, part words)
+    named = {g for g, text in prompts.items() if text != prompt}  # groups a group prompt names
     # Clauses naming parts (by label or by what the parts are) become those groups' prompts, for
     # every painter and in the record; explicit group prompts win.
     parts = plan_parts(prompt, shape.vertices, shape.faces, grouping, up, assigned=part_words)
     prompts = {g: (parts.text_for(g) if text == prompt else text) for g, text in prompts.items()}
     kind = get_painter(painter)
     chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, model_dir=model_dir, device=device, steps=steps)
+    if photos:
+        if kind.views:
+            raise ValueError(f"a look from photos paints with the surface painter, not {painter!r}")
+        from proctex.texture.exemplar import PhotoPainter
+
+        named |= {g for g in parts.texts if parts.routes.get(g) != "alike"}  # a clause borrowed for want of one names nothing
+        by_group = resolve_photos(grouping, prompt, photos, shape, up, part_words, named if under_prompt else set())
+        chosen = PhotoPainter(chosen, by_group, seed=seed, texture_size=size)
+        prompts = {g: (f"photo {by_group[g].photo.name}" if g in by_group else text) for g, text in prompts.items()}
     surface = chosen if not kind.views else getattr(chosen, "surface", None)
     if surface is not None:
         surface.bind(shape, grouping, up, parts=parts)  # places the prompt's regions on this shape
@@ -507,10 +523,18 @@ def paint_template(
 
 
 def paint_with(shape: Shape, grouping: Grouping, settings: PaintConfig, seed: int = 0, up: str = "z", uv: ShapeUV | None = None,
-               on_view: Callable[[int, int, dict[str, Any]], None] | None = None) -> TemplateTexture:
+               on_view: Callable[[int, int, dict[str, Any]], None] | None = None, photos: Mapping[str, Any] | None = None) -> TemplateTexture:
     """:func:`paint_template` with the paint settings as they travel (a build config's ``[paint]``
-    section, :class:`proctex.texture.painting.PaintConfig`), whole."""
+    section, :class:`proctex.texture.painting.PaintConfig`), whole. ``photos``: the
+    :class:`proctex.texture.exemplar.Photo` of each ``settings.images`` key already read (the others are
+    read from their files)."""
     s = settings
+    layers = None
+    if s.images:
+        from proctex.texture.exemplar import layers as photo_layers
+
+        layers = photo_layers(s.images, photos)
     return paint_template(shape, grouping, s.prompt, s.group_prompts, painter=s.painter, size=s.texture_size, seed=seed, up=up, views=s.views,
                           view_size=s.view_size, complete_hidden=s.paint_hidden, fill=s.fill, model_dir=s.model_dir, device=s.device,
-                          steps=s.steps, on_view=on_view, uv=uv, occlusion=s.occlusion, part_words=s.part_words)
+                          steps=s.steps, on_view=on_view, uv=uv, occlusion=s.occlusion, part_words=s.part_words,
+                          photos=layers, under_prompt=bool((s.images.get("*") or {}).get("under_prompt", True)))

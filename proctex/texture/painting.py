@@ -109,6 +109,10 @@ class PaintConfig:
             "already painted" mask, so transfer can detect dis-occlusion.
         model_dir, device, steps: the diffusion painter.
         occlusion: bake ambient occlusion into the PBR maps (the ORM's R channel).
+        images: photos painted on groups (a look from photos, :mod:`proctex.texture.exemplar`): key
+            (a group number, label or part word, or ``"*"``: the groups nothing else names) ->
+            ``{"file", "scale", "rotate", "normal", "roughness", ...}`` (:func:`proctex.texture.exemplar.check_images`);
+            such a look paints with the surface painter.
     """
 
     prompt: str = "oak"
@@ -124,6 +128,7 @@ class PaintConfig:
     device: str = "cpu"
     steps: int = 20
     occlusion: bool = False
+    images: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def validate(self) -> "PaintConfig":
         if not isinstance(self.prompt, str):
@@ -144,6 +149,14 @@ class PaintConfig:
             raise ValueError(f"occlusion must be true or false, got {self.occlusion!r}")
         if painter.check is not None:
             painter.check(self)
+        if self.images:
+            from proctex.texture.exemplar import check_images
+
+            self.images = check_images(self.images)
+            if painter.views:
+                raise ValueError(f"a look from photos paints with the surface painter, not {self.painter!r}")
+        elif self.images != {}:
+            raise ValueError("images must be an object {part: photo}")
         return self
 
 

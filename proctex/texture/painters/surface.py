@@ -213,7 +213,7 @@ class SurfacePainter:
         return out
 
     def material(self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray,
-                 group: int | None = None, label: str = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 group: int | None = None, label: str = "", relief: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """PBR properties of surface points: the twin of :meth:`paint` for the other maps.
 
         Args:
@@ -221,6 +221,8 @@ class SurfacePainter:
             tangents, bitangents: ``(n, 3)`` unit surface directions of increasing u and v (the frame
                 the normal map is expressed in; :func:`proctex.texture.pbr.texel_frames`).
             group, label: which group prompt applies.
+            relief: differentiate the relief (False: the normal is flat (0, 0, 1), for a caller that
+                makes its own, at a fifth of the cost).
         Returns:
             ``(roughness (n,), metallic (n,), normal (n, 3))`` float32: roughness and metalness in
             [0, 1] and the unit tangent-space normal of the relief, ``normalize(-dh/dT, -dh/dB, 1)``
@@ -256,13 +258,16 @@ class SurfacePainter:
             t = _unit(tan[s : s + CHUNK].astype(np.float32))
             b = _unit(bit[s : s + CHUNK].astype(np.float32))
             rm = _blend(layers, p, n, props)
+            rough[s : s + CHUNK], metal[s : s + CHUNK] = rm[0], rm[1]
+            if not relief:
+                out_n[s : s + CHUNK] = (0.0, 0.0, 1.0)
+                continue
             dh = []
             for d in (t, b):
                 hp = _blend(layers, p + step * d, n, relief)[0]
                 hm = _blend(layers, p - step * d, n, relief)[0]
                 dh.append((hp - hm) / (np.float32(2.0) * step))
             nt = np.stack([-dh[0], -dh[1], np.ones_like(dh[0])], axis=1)
-            rough[s : s + CHUNK], metal[s : s + CHUNK] = rm[0], rm[1]
             out_n[s : s + CHUNK] = nt / np.linalg.norm(nt, axis=1, keepdims=True)
         return rough, metal, out_n
 

@@ -1,0 +1,737 @@
+"""Looks from photos: a photo (an *exemplar*) per part group, synthesised on the surface (issue 53).
+
+Reading (:func:`read_photo`): a photo's bytes become an sRGB ``(H, W, 3)`` float32 image. Its size is
+checked from the header before any pixel is decoded (:data:`MAX_PHOTO_PIXELS`, :data:`MAX_PHOTO_BYTES`);
+corrupt or truncated files, animated images and formats other than :data:`FORMATS` are refused with a
+``ValueError``; alpha, CMYK, 16-bit greys, palettes and embedded colour profiles are converted, each
+said in the photo's ``notes``.
+
+Preparing (:func:`prepare`): the photo at the size one texel's footprint asks for (a minified photo
+is resampled first, so the synthesis never aliases), and five channels made from it: the colour in
+its principal axes (decorrelated, as Heitz and Neyret 2018 do), a height (the high-passed luminance)
+and a local contrast (for roughness). Each channel is *Gaussianised*: every value is replaced by the
+normal quantile of its rank, and a table of the channel's quantiles takes a Gaussian value back.
+
+Synthesis (:func:`synthesise`): histogram-preserving tiling and blending (Heitz and Neyret 2018, "High-
+Performance By-Example Noise using a Histogram-Preserving Blending Operator"). The plane is covered
+by a triangle grid; each grid vertex takes a random patch of the Gaussianised photo (its offset a hash
+of the vertex and the seed), and a point blends the three patches of its triangle with its barycentric
+weights, divided by the root of their squares (so the blend keeps the Gaussian's variance: no washed-
+out mixtures), before the quantile table restores the photo's own histogram. The patches never cross
+the photo's border (the offsets keep a margin of the triangle's size), so no seam of the photo is
+ever shown, and no two neighbouring vertices share an offset: nothing repeats on a grid.
+
+On a part (:class:`PhotoPainter`): points are expressed in the group's principal frame (its
+representative part's axes, longest first: a photo's horizontal axis runs along the part's long axis
+unless rotated) at the photo's physical scale, and the three axis-aligned projections are blended by
+the normal's components (tri-planar) with the same variance-keeping blend. Colour is a function of the
+3D point alone, so it is continuous across UV charts: the texture has no seams of its own.
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+__all__ = ["Photo", "PhotoLayer", "Exemplar", "PhotoPainter", "read_photo", "prepare", "synthesise", "tiled", "parse_length",
+           "MAX_PHOTO_PIXELS", "MAX_PHOTO_BYTES", "FORMATS", "UNITS"]
+
+#: the most pixels a photo may have (width x height, read from its header before decoding).
+MAX_PHOTO_PIXELS = 40_000_000
+#: the most bytes a photo file may have.
+MAX_PHOTO_BYTES = 64 * 1024 * 1024
+#: the smallest side a photo may have, in pixels.
+MIN_PHOTO_SIDE = 16
+#: image formats read (Pillow's names); others (EPS, PDF, ...) are refused before decoding.
+FORMATS = ("PNG", "JPEG", "WEBP", "TIFF", "BMP", "TGA")
+#: the longest side (pixels) a photo is kept at for synthesis: a larger one is resampled (said in its notes).
+WORK_SIDE = 512
+#: lengths a photo scale may be written in, and their size in metres.
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
+#: the grid's edge (photo pixels per grid unit) as a share of the photo's shorter side: each vertex's
+#: patch spans about 0.6 of the photo, and every patch lies inside it.
+CELL = 0.25
+#: how far a point may lie from a vertex of its triangle (grid units: the triangles' edge).
+REACH = 1.0
+#: the tri-planar blend's sharpness (weights |n_k|^SHARP).
+SHARP = 4.0
+#: points per evaluation chunk (bounds the temporaries).
+CHUNK = 65536
+#: the quantile table's length per channel.
+LUT = 1024
+
+
+# ----------------------------------------------------------------------------------------- reading
+@dataclass(frozen=True)
+class Photo:
+    """A photo read for a look.
+
+    Attributes:
+        rgb: ``(H, W, 3)`` float32 sRGB in [0, 1].
+        name: where it came from (a file name), for messages.
+        notes: what was converted on reading (alpha, CMYK, 16-bit, a colour profile, a resample).
+    """
+
+    rgb: np.ndarray
+    name: str = "photo"
+    notes: tuple[str, ...] = ()
+
+    def png(self) -> bytes:
+        """The photo as an 8-bit sRGB PNG (what a look stores)."""
+        from PIL import Image
+
+        buf = io.BytesIO()
+        Image.fromarray(np.round(np.clip(self.rgb, 0, 1) * 255).astype(np.uint8), "RGB").save(buf, "PNG", optimize=False)
+        return buf.getvalue()
+
+
+def read_photo(source: bytes | str | Path, name: str | None = None, max_pixels: int = MAX_PHOTO_PIXELS,
+               max_bytes: int = MAX_PHOTO_BYTES, work_side: int = WORK_SIDE) -> Photo:
+    """Read a photo (a file path or its bytes) into a :class:`Photo`.
+
+    The byte count and the pixel count (from the header, before decoding) are checked first, then the
+    format (:data:`FORMATS`) and the frame count (an animated image is refused); the pixels are then
+    decoded. Converted and said in ``notes``: an embedded ICC profile (to sRGB), CMYK, 16-bit and
+    float greys, palettes and alpha (dropped: a photo is a material, not a cut-out). A photo whose
+    longer side exceeds ``work_side`` is resampled to it (Lanczos).
+
+    Raises:
+        ValueError: a missing, empty, too large, corrupt, truncated, animated or unsupported file.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    label = name or (Path(source).name if isinstance(source, (str, Path)) else "photo")
+    label = str(label)[:120]
+    if isinstance(source, (str, Path)):
+        p = Path(source)
+        try:
+            size = p.stat().st_size
+        except OSError as e:
+            raise ValueError(f"cannot read photo {label!r}: {e.strerror or e}") from None
+        if not p.is_file():
+            raise ValueError(f"photo {label!r} is not a file")
+        if size > max_bytes:
+            raise ValueError(f"photo {label!r} has {size:,} bytes, over the limit of {max_bytes:,}")
+        data = p.read_bytes()
+    elif isinstance(source, (bytes, bytearray, memoryview)):
+        data = bytes(source)
+    else:
+        raise ValueError(f"a photo is a file path or bytes, got {type(source).__name__}")
+    if not data:
+        raise ValueError(f"photo {label!r} is empty")
+    if len(data) > max_bytes:
+        raise ValueError(f"photo {label!r} has {len(data):,} bytes, over the limit of {max_bytes:,}")
+    notes: list[str] = []
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            im = Image.open(io.BytesIO(data), formats=list(FORMATS))
+            w, h = im.size
+            if w * h > max_pixels:
+                raise ValueError(f"photo {label!r} is {w} x {h} pixels, over the limit of {max_pixels:,} (checked before decoding)")
+            if min(w, h) < MIN_PHOTO_SIDE:
+                raise ValueError(f"photo {label!r} is {w} x {h} pixels; a photo needs at least {MIN_PHOTO_SIDE} a side")
+            if getattr(im, "is_animated", False) or getattr(im, "n_frames", 1) > 1:
+                raise ValueError(f"photo {label!r} is animated ({getattr(im, 'n_frames', '?')} frames); give one still image")
+            im.load()
+            rgb = _to_srgb(im, notes)
+    except ValueError:
+        raise
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as e:
+        raise ValueError(f"photo {label!r} has too many pixels, over the limit of {max_pixels:,} (checked before decoding): {e}") from None
+    except UnidentifiedImageError as e:
+        raise ValueError(f"photo {label!r} is not an image ProcTex reads ({', '.join(FORMATS)}): {e}") from None
+    except (OSError, SyntaxError, EOFError, MemoryError, IndexError, TypeError, KeyError, ZeroDivisionError) as e:
+        raise ValueError(f"photo {label!r} is corrupt or truncated: {e}") from None
+    H, W = rgb.shape[:2]
+    if max(H, W) > work_side:
+        k = work_side / max(H, W)
+        rgb = _resize(rgb, max(1, round(W * k)), max(1, round(H * k)))
+        notes.append(f"resampled from {W} x {H} to {rgb.shape[1]} x {rgb.shape[0]} pixels")
+    if not np.isfinite(rgb).all():
+        raise ValueError(f"photo {label!r} has non-finite pixels")
+    return Photo(np.ascontiguousarray(rgb, dtype=np.float32), label, tuple(notes))
+
+
+def _to_srgb(im: Any, notes: list[str]) -> np.ndarray:
+    """A decoded Pillow image -> (H, W, 3) float32 sRGB in [0, 1], saying what was converted."""
+    from PIL import Image
+
+    icc = im.info.get("icc_profile")
+    if icc:
+        try:
+            from PIL import ImageCms
+
+            src = ImageCms.ImageCmsProfile(io.BytesIO(icc))
+            mode = "RGB" if im.mode in ("RGB", "RGBA", "CMYK", "P", "PA", "LA", "L") else None
+            if mode is not None:
+                base = im.convert("RGB") if im.mode in ("P", "PA", "LA", "L", "RGBA") else im
+                im = ImageCms.profileToProfile(base, src, ImageCms.createProfile("sRGB"), outputMode="RGB")
+                notes.append("colour profile converted to sRGB")
+        except Exception as e:  # a damaged profile: the pixels are still usable as they are
+            notes.append(f"colour profile ignored ({str(e)[:60]})")
+    mode = im.mode
+    if mode in ("I", "I;16", "I;16B", "I;16L", "I;16N", "F"):
+        g = np.asarray(im, dtype=np.float64)
+        if mode == "F":
+            g = np.nan_to_num(g, nan=0.0, posinf=1.0, neginf=0.0)
+            notes.append("float grey clipped to [0, 1]")
+        else:
+            g = g / 65535.0
+            notes.append("16-bit grey converted to 8-bit sRGB range")
+        g = np.clip(g, 0.0, 1.0)
+        return np.repeat(g[..., None], 3, axis=2).astype(np.float32)
+    if mode == "CMYK":
+        notes.append("CMYK converted to RGB")
+    if mode in ("RGBA", "LA", "PA", "La", "RGBa") or (mode == "P" and "transparency" in im.info):
+        a = np.asarray(im.convert("RGBA"), dtype=np.float32)[..., 3]
+        notes.append(f"alpha dropped ({float((a < 255).mean()) * 100:.0f}% of pixels not opaque)")
+    elif mode == "P":
+        notes.append("palette converted to RGB")
+    if mode not in ("RGB",):
+        im = im.convert("RGB")
+    if not isinstance(im, Image.Image):  # pragma: no cover - Pillow always returns images
+        raise ValueError("not an image")
+    return np.asarray(im, dtype=np.float32) / 255.0
+
+
+def _resize(rgb: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(H, W, C) float image resampled to ``height`` x ``width`` (Lanczos, per channel)."""
+    from PIL import Image
+
+    chans = [np.asarray(Image.fromarray(np.ascontiguousarray(rgb[..., c], dtype=np.float32), "F").resize((width, height), Image.LANCZOS))
+             for c in range(rgb.shape[2])]
+    return np.clip(np.stack(chans, axis=2), 0.0, 1.0).astype(np.float32)
+
+
+def parse_length(text: str | float | int, units: str = "m") -> float:
+    """A length as the user writes it, in the family's ``units``: ``0.5`` (already in them), ``"50cm"``,
+    ``"0.5 m"``, ``"2in"``. ``ValueError`` for anything else, a non-positive or non-finite value."""
+    if units not in UNITS:
+        raise ValueError(f"units must be one of {', '.join(UNITS)}, got {str(units)[:20]!r}")
+    if isinstance(text, bool):
+        raise ValueError(f"a length is a number, got {text!r}")
+    if isinstance(text, (int, float)):
+        value = float(text)
+    else:
+        s = str(text).strip().lower()
+        unit = next((u for u in sorted(UNITS, key=len, reverse=True) if s.endswith(u)), None)
+        num = s[: -len(unit)].strip() if unit else s
+        try:
+            value = float(num)
+        except ValueError:
+            raise ValueError(f"a length is a number with an optional unit ({', '.join(UNITS)}), got {str(text)[:40]!r}") from None
+        if unit is not None:
+            value = value * UNITS[unit] / UNITS[units]
+    if not np.isfinite(value) or value <= 0 or value > 1e6:
+        raise ValueError(f"a length must be positive and finite (at most 1e6), got {str(text)[:40]!r}")
+    return value
+
+
+# --------------------------------------------------------------------------------------- preparing
+@dataclass(frozen=True)
+class Exemplar:
+    """A photo ready to synthesise from (:func:`prepare`).
+
+    Attributes:
+        gauss: ``(h, w, 7)`` float32 channels: the Gaussianised colour along its 3 principal axes
+            and local contrast (:data:`COLOUR`, :data:`CONTRAST`), then the height (high-passed
+            luminance at unit variance) and its two derivatives per photo pixel along the columns and
+            rows (:data:`RELIEF`), kept as they are (blending keeps their variance).
+        lut: ``(4, LUT)`` float32, the Gaussianised channels' quantiles (at the normal CDF of evenly
+            spaced Gaussian values :data:`_GRID`): a Gaussian value back to the channel's own.
+        mean: ``(3,)`` and ``axes`` ``(3, 3)``: the colour's mean and principal axes (rows).
+        contrast: the median local contrast (roughness is read relative to it).
+        pixel: the physical size of one of its pixels, in the family's units.
+    """
+
+    gauss: np.ndarray
+    lut: np.ndarray
+    mean: np.ndarray
+    axes: np.ndarray
+    contrast: float
+    pixel: float
+
+    _quads: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.gauss.shape[0], self.gauss.shape[1]
+
+    def quads(self, channels: list[int]) -> np.ndarray:
+        """:func:`quads` of ``channels`` (made once per channel set)."""
+        key = tuple(channels)
+        if key not in self._quads:
+            self._quads[key] = quads(self.gauss[..., list(channels)])
+        return self._quads[key]
+
+
+_GRID = np.linspace(-4.0, 4.0, LUT)
+#: the channels of :attr:`Exemplar.gauss`: colour (Gaussianised), contrast (Gaussianised), relief
+#: (height, d/dx, d/dy as they are).
+COLOUR, CONTRAST, RELIEF = [0, 1, 2], [3], [4, 5, 6]
+
+
+def _ndtr(x: np.ndarray) -> np.ndarray:
+    from scipy.special import ndtr
+
+    return ndtr(x)
+
+
+def prepare(photo: Photo | np.ndarray, pixel: float, texel: float | None = None) -> Exemplar:
+    """Get a photo ready to synthesise from.
+
+    Args:
+        photo: a :class:`Photo` (or its ``(H, W, 3)`` float RGB in [0, 1]).
+        pixel: the physical size of one photo pixel (the photo's scale / its width), family units.
+        texel: the physical size of one texel where it is painted; a photo finer than that is
+            resampled first to one pixel per texel (at least 32 pixels a side), so its detail is
+            averaged as a texel would average it instead of aliasing.
+    Returns:
+        :class:`Exemplar`.
+    """
+    from scipy.ndimage import gaussian_filter
+    from scipy.special import ndtri
+
+    rgb = np.asarray(photo.rgb if isinstance(photo, Photo) else photo, dtype=np.float32)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or min(rgb.shape[:2]) < 2:
+        raise ValueError(f"a photo is (H, W, 3), got {rgb.shape}")
+    if not (np.isfinite(pixel) and pixel > 0):
+        raise ValueError(f"pixel size must be positive, got {pixel!r}")
+    H, W = rgb.shape[:2]
+    if texel is not None and np.isfinite(texel) and texel > pixel * 1.25:
+        k = max(pixel / texel, 32.0 / min(H, W))
+        if k < 1.0:
+            rgb = _resize(rgb, max(2, round(W * k)), max(2, round(H * k)))
+            pixel = pixel * W / rgb.shape[1]
+            H, W = rgb.shape[:2]
+    flat = rgb.reshape(-1, 3).astype(np.float64)
+    mean = flat.mean(axis=0)
+    cov = np.cov((flat - mean).T) + np.eye(3) * 1e-9
+    _, vecs = np.linalg.eigh(cov)
+    axes = vecs[:, ::-1].T  # rows: principal axes, largest first
+    colour = (flat - mean) @ axes.T
+    lum = rgb @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    height = lum - gaussian_filter(lum, max(H, W) / 32.0, mode="reflect")
+    height = height / max(float(height.std()), 1e-6)  # unit variance: the relief's strength is the layer's
+    hy, hx = np.gradient(height)  # per photo pixel
+    m1 = gaussian_filter(lum, 2.0, mode="reflect")
+    contrast = np.sqrt(np.maximum(gaussian_filter(lum * lum, 2.0, mode="reflect") - m1 * m1, 0.0))
+    chans = np.concatenate([colour, contrast.reshape(-1, 1)], axis=1)
+    n = len(chans)
+    gauss = np.empty((n, 7), dtype=np.float32)
+    lut = np.empty((4, LUT), np.float32)
+    qs = _ndtr(_GRID)
+    for c in range(4):
+        order = np.argsort(chans[:, c], kind="stable")
+        g = np.empty(n)
+        g[order] = ndtri((np.arange(n) + 0.5) / n)
+        gauss[:, c] = g
+        lut[c] = np.quantile(chans[:, c], qs)
+    gauss[:, 4], gauss[:, 5], gauss[:, 6] = height.ravel(), hx.ravel(), hy.ravel()
+    return Exemplar(gauss.reshape(H, W, -1), lut, mean.astype(np.float32), axes.astype(np.float32),
+                    float(np.median(contrast)) + 1e-6, float(pixel))
+
+
+# --------------------------------------------------------------------------------------- synthesis
+_SKEW = np.array([[1.0, -1.0 / np.sqrt(3.0)], [0.0, 2.0 / np.sqrt(3.0)]])  # equilateral triangles of edge 1
+_UNSKEW = np.linalg.inv(_SKEW)
+
+
+def _hash2(i: np.ndarray, j: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two uniform [0, 1) values per integer lattice vertex ``(i, j)`` (int64 arrays) and ``seed``
+    (splitmix64 of the packed vertex: the same vertex and seed always give the same values)."""
+    with np.errstate(over="ignore"):
+        z = (i.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) ^ (j.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F))
+        z = z ^ np.uint64((int(seed) * 0x165667B19E3779F9) & 0xFFFFFFFFFFFFFFFF)
+        out = []
+        for salt in (0x94D049BB133111EB, 0xBF58476D1CE4E5B9):
+            x = z + np.uint64(salt)
+            x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+            x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+            x = x ^ (x >> np.uint64(31))
+            out.append((x >> np.uint64(11)).astype(np.float64) / float(1 << 53))
+    return out[0], out[1]
+
+
+def quads(image: np.ndarray) -> np.ndarray:
+    """``image`` (h, w, C) as ``(h * w, 4, C)``: each pixel with its right, lower and lower-right
+    neighbours (the edge repeated), so a bilinear read is one gather (:func:`_bilinear`)."""
+    p = np.pad(np.asarray(image, dtype=np.float32), ((0, 1), (0, 1), (0, 0)), mode="edge")
+    h, w, c = image.shape
+    return np.ascontiguousarray(np.stack([p[:-1, :-1], p[:-1, 1:], p[1:, :-1], p[1:, 1:]], axis=2).reshape(h * w, 4, c))
+
+
+def _bilinear(q: np.ndarray, shape: tuple[int, int], x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """An image read bilinearly at pixel coordinates ``x`` (columns), ``y`` (rows) (n,), clamped to
+    the image: ``q`` its :func:`quads`, ``shape`` its (h, w). Returns (n, C) float32."""
+    h, w = shape
+    x = np.clip(x, 0.0, w - 1.000001)
+    y = np.clip(y, 0.0, h - 1.000001)
+    x0 = x.astype(np.int64)
+    y0 = y.astype(np.int64)
+    fx = (x - x0).astype(np.float32)[:, None]
+    fy = (y - y0).astype(np.float32)[:, None]
+    v = q[y0 * w + x0]  # (n, 4, C)
+    top = v[:, 0] + (v[:, 1] - v[:, 0]) * fx
+    bot = v[:, 2] + (v[:, 3] - v[:, 2]) * fx
+    return top + (bot - top) * fy
+
+
+def tile_blend(ex: Exemplar, uv: np.ndarray, seed: int, channels: list[int]) -> np.ndarray:
+    """Histogram-preserving tiling and blending in the plane.
+
+    Args:
+        ex: the exemplar.
+        uv: ``(n, 2)`` float positions in photo pixels (x along the photo's columns, y along its rows).
+        seed: the patches' offsets (same seed: same texture).
+        channels: which channels of ``ex.gauss`` to read.
+    Returns:
+        ``(n, c)`` float32 blended values (unit variance where the channel has it, whatever the
+        weights; :func:`from_gauss` takes Gaussianised channels back to the photo's own values).
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    h, w = ex.shape
+    cell = CELL * min(h, w)
+    reach = REACH * cell + 1.0
+    span = np.array([max(w - 1 - 2 * reach, 0.0), max(h - 1 - 2 * reach, 0.0)])
+    skew = (uv / cell) @ _SKEW.T
+    base = np.floor(skew)
+    frac = skew - base
+    f3 = 1.0 - frac[:, 0] - frac[:, 1]
+    up = (f3 <= 0).astype(np.int64)
+    upf = up.astype(np.float64)
+    bi, bj = base[:, 0].astype(np.int64), base[:, 1].astype(np.int64)
+    # the triangle's vertices (skewed lattice) and barycentric weights
+    verts = ((bi + up, bj + up), (bi + up, bj + 1 - up), (bi + 1 - up, bj + up))
+    wts = (np.abs(f3), upf + (1 - 2 * upf) * frac[:, 1], upf + (1 - 2 * upf) * frac[:, 0])
+    q = ex.quads(channels)
+    out = np.zeros((len(uv), len(channels)), np.float32)
+    norm = np.zeros(len(uv))
+    for (vi, vj), wt in zip(verts, wts):
+        ox, oy = _hash2(vi, vj, seed)
+        # the point's place in the vertex's patch: from the vertex (unskewed), plus the patch's offset
+        dx = uv[:, 0] - (vi + 0.5 * vj) * cell
+        dy = uv[:, 1] - (np.sqrt(3.0) / 2.0) * vj * cell
+        out += _bilinear(q, (h, w), reach + ox * span[0] + dx, reach + oy * span[1] + dy) * wt[:, None].astype(np.float32)
+        norm += wt * wt
+    out /= np.sqrt(np.maximum(norm, 1e-12)).astype(np.float32)[:, None]
+    return out
+
+
+def from_gauss(ex: Exemplar, g: np.ndarray, channels: list[int]) -> np.ndarray:
+    """Gaussian values ``g`` (n, c) of ``channels`` back to the photo's own values (each channel's
+    quantile table)."""
+    out = np.empty(g.shape, np.float32)
+    for k, c in enumerate(channels):
+        out[:, k] = np.interp(g[:, k], _GRID, ex.lut[c])
+    return out
+
+
+def to_rgb(ex: Exemplar, colour: np.ndarray) -> np.ndarray:
+    """Colour in the photo's principal axes (n, 3) -> sRGB (n, 3) float32 in [0, 1]."""
+    return np.clip(colour @ ex.axes + ex.mean, 0.0, 1.0).astype(np.float32)
+
+
+def synthesise(ex: Exemplar, uv: np.ndarray, seed: int = 0) -> np.ndarray:
+    """A texture at plane positions ``uv`` (n, 2) in photo pixels: ``(n, 3)`` float32 sRGB."""
+    g = tile_blend(ex, uv, seed, [0, 1, 2])
+    return to_rgb(ex, from_gauss(ex, g, [0, 1, 2]))
+
+
+def tiled(ex: Exemplar, uv: np.ndarray) -> np.ndarray:
+    """The photo repeated as tiles (no synthesis): (n, 3) sRGB at ``uv`` in photo pixels. The wrong
+    way a naive look would go, kept for the measures that must tell the two apart."""
+    h, w = ex.shape
+    x, y = np.mod(uv[:, 0], w - 1), np.mod(uv[:, 1], h - 1)
+    g = _bilinear(ex.quads(COLOUR), (h, w), x, y)
+    return to_rgb(ex, from_gauss(ex, g, [0, 1, 2]))
+
+
+# ----------------------------------------------------------------------------------------- on parts
+@dataclass(frozen=True)
+class PhotoLayer:
+    """A photo placed on a group: the photo, its physical width (family units; None: half the part's
+    longest side), its turn in degrees against the part's long axis, and the strengths of the maps
+    made from it (``normal``: the relief's slope, 0 flat; ``roughness``: how far the photo's local
+    contrast moves the roughness from the prompt's)."""
+
+    photo: Photo
+    scale: float | None = None
+    rotate: float = 0.0
+    normal: float = 1.0
+    roughness: float = 1.0
+
+    def check(self) -> "PhotoLayer":
+        if self.scale is not None and not (np.isfinite(self.scale) and 0 < self.scale <= 1e6):
+            raise ValueError(f"a photo's scale must be positive and finite, got {self.scale!r}")
+        if not np.isfinite(self.rotate) or abs(self.rotate) > 1e6:
+            raise ValueError(f"a photo's rotation is degrees, got {self.rotate!r}")
+        for k in ("normal", "roughness"):
+            v = getattr(self, k)
+            if not (np.isfinite(v) and 0.0 <= v <= 10.0):
+                raise ValueError(f"the {k} strength must be within [0, 10], got {v!r}")
+        return self
+
+
+@dataclass
+class _Bound:
+    """A photo bound to one group: the exemplar, the group's frame (centre (3,), axes (3, 3) rows,
+    longest first) and the in-plane turn."""
+
+    ex: Exemplar
+    layer: PhotoLayer
+    centre: np.ndarray
+    axes: np.ndarray
+    turn: np.ndarray
+    seed: int
+    scale: float
+
+
+@dataclass
+class PhotoPainter:
+    """A surface painter that paints the groups given a photo from it and the rest as ``surface`` (a
+    :class:`proctex.texture.painters.SurfacePainter`) does. Metalness always comes from the prompt's
+    words (``surface``); colour, roughness and relief of a photo's groups from the photo.
+
+    Args:
+        surface: the prompt's painter (the groups without a photo, and the metalness of every group).
+        photos: group index -> :class:`PhotoLayer`.
+        seed: the synthesis seed.
+        texture_size: the texture's side (the texel footprint the photos are prefiltered for).
+    """
+
+    surface: Any
+    photos: Mapping[int, PhotoLayer]
+    seed: int = 0
+    texture_size: int = 512
+    _bound: dict[int, _Bound] = field(default_factory=dict)
+    _notes: list[str] = field(default_factory=list)
+    _frame: tuple[np.ndarray, float] | None = None
+
+    def bind(self, shape, grouping, up: str = "z", parts=None) -> "PhotoPainter":
+        """Place each photo on its group's representative part (frame, scale, prefiltering)."""
+        from proctex.texture.paint import shape_frame
+
+        self.surface.bind(shape, grouping, up, parts=parts)
+        self._frame = shape_frame(shape)
+        self._bound = {}
+        groups = {g.index: g for g in grouping.groups}
+        for gi, layer in self.photos.items():
+            if gi not in groups:
+                raise ValueError(f"a photo is given for group {gi}; the shape's groups are 0..{len(groups) - 1}")
+            layer.check()
+            rep = grouping.parts[groups[gi].representative]
+            v = np.asarray(shape.vertices[rep.vertices], dtype=np.float64)
+            centre = v.mean(axis=0)
+            _, s, vt = np.linalg.svd(v - centre, full_matrices=False)
+            axes = _right_handed(vt)
+            extent = np.ptp((v - centre) @ axes.T, axis=0)
+            scale = float(layer.scale) if layer.scale is not None else max(float(extent.max()), 1e-9) / 2.0
+            H, W = layer.photo.rgb.shape[:2]
+            area = _area(shape.vertices, shape.faces[rep.faces])
+            texel = np.sqrt(max(area, 1e-18) / (0.6 * self.texture_size ** 2))  # about 60 % of an atlas is covered
+            ex = prepare(layer.photo, scale / W, texel)
+            a = np.deg2rad(layer.rotate)
+            turn = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+            self._bound[gi] = _Bound(ex, layer, centre, axes, turn, int(self.seed) * 1000003 + 7919 * gi, scale)
+            how = "given" if layer.scale is not None else "half the part's longest side"
+            self._notes.append(f"group {gi}: photo {layer.photo.name!r} {W} x {H} px spans {scale:.4g} units ({how}), "
+                               f"turned {layer.rotate:g} deg, synthesised at {ex.shape[1]} x {ex.shape[0]} px"
+                               + "".join(f"; {n}" for n in layer.photo.notes))
+        return self
+
+    # the SurfacePainter interface the paint loop and the looks use
+    def spec_for(self, group: int | None = None, label: str = ""):
+        return self.surface.spec_for(group, label)
+
+    def region_notes(self) -> list[str]:
+        return self.surface.region_notes()
+
+    def notes(self) -> list[str]:
+        return [*self.surface.notes(), *self._notes]
+
+    def _world(self, points: np.ndarray) -> np.ndarray:
+        if self._frame is None:
+            raise ValueError("bind the photo painter to its shape first")
+        centre, radius = self._frame
+        return np.asarray(points, dtype=np.float64) * radius + centre
+
+    def _field(self, b: _Bound, points: np.ndarray, normals: np.ndarray, channels: list[int]) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+        """Tri-planar values (n, c) of ``channels`` at world ``points`` with ``normals`` (the three
+        planes across the part's axes, weights |n_k|^SHARP below 1 % dropped, blended keeping the
+        variance), and per plane ``(selected points, weight, plane index)`` for the derivatives."""
+        local = (points - b.centre) @ b.axes.T / b.ex.pixel  # photo pixels along the part's axes
+        wts = np.abs(np.asarray(normals, dtype=np.float64) @ b.axes.T) ** SHARP
+        wts /= np.maximum(wts.sum(axis=1, keepdims=True), 1e-12)
+        wts[wts < 0.01] = 0.0
+        out = np.zeros((len(points), len(channels)), np.float32)
+        norm = np.zeros(len(points))
+        planes = []
+        for k, (i, j) in enumerate(((0, 1), (0, 2), (1, 2))):  # planes across axes 2, 1, 0
+            wk = wts[:, 2 - k]
+            sel = np.flatnonzero(wk > 0)
+            if not len(sel):
+                continue
+            uv = local[sel][:, [i, j]] @ b.turn.T
+            out[sel] += tile_blend(b.ex, uv, b.seed + 101 * k, channels) * wk[sel, None].astype(np.float32)
+            norm[sel] += wk[sel] ** 2
+            planes.append((sel, wk[sel], (i, j)))
+        out /= np.sqrt(np.maximum(norm, 1e-12)).astype(np.float32)[:, None]
+        return out, planes
+
+    def paint(self, points: np.ndarray, normals: np.ndarray, group: int | None = None, label: str = "", text: str | None = None) -> np.ndarray:
+        """Colours (n, 3) float32 of points (normalised frame) of ``group``: from its photo, else the prompt's."""
+        b = self._bound.get(group) if text is None and group is not None else None
+        if b is None:
+            return self.surface.paint(points, normals, group=group, label=label, text=text)
+        pts, nrm = _checked(points, normals)
+        out = np.empty((len(pts), 3), np.float32)
+        for s in range(0, len(pts), CHUNK):
+            g, _ = self._field(b, self._world(pts[s:s + CHUNK]), nrm[s:s + CHUNK], COLOUR)
+            out[s:s + CHUNK] = to_rgb(b.ex, from_gauss(b.ex, g, COLOUR))
+        return out
+
+    def material(self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray,
+                 group: int | None = None, label: str = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(roughness (n,), metallic (n,), normal (n, 3))`` as :meth:`SurfacePainter.material`: for
+        a photo's group the roughness is the prompt's moved by the photo's local contrast (``roughness``
+        strength 1: up to 0.3 either way, rougher where the photo's local contrast is above its median), the relief is the photo's height (``normal`` strength: its
+        slope, with the height's spread at half a photo pixel), and the metalness is the prompt's alone."""
+        b = self._bound.get(group) if group is not None else None
+        if b is None:
+            return self.surface.material(points, normals, tangents, bitangents, group=group, label=label)
+        rough, metal, _ = self.surface.material(points, normals, tangents, bitangents, group=group, label=label, relief=False)
+        pts, nrm = _checked(points, normals)
+        tan = np.asarray(tangents, dtype=np.float64)
+        bit = np.asarray(bitangents, dtype=np.float64)
+        n = len(pts)
+        rough = np.asarray(rough, np.float32).copy()
+        nts = np.empty((n, 3), np.float32)
+        amp = 0.5 * b.layer.normal  # height spread in photo pixels
+        for s in range(0, n, CHUNK):
+            sl = slice(s, s + CHUNK)
+            vals, planes = self._field(b, self._world(pts[sl]), nrm[sl], [*CONTRAST, 5, 6])
+            c = from_gauss(b.ex, vals[:, :1], CONTRAST)[:, 0]
+            rough[sl] = np.clip(rough[sl] + b.layer.roughness * 0.3 * np.tanh(2.0 * (c / b.ex.contrast - 1.0)), 0.02, 1.0)
+            # the height's gradient in 3D (per unit length): each plane's (d/dx, d/dy) in photo pixels
+            # turned back to its two part axes, weighted as the values were
+            grad = np.zeros((len(vals), 3))
+            norm = np.zeros(len(vals))
+            for sel, wk, (i, j) in planes:
+                norm[sel] += wk ** 2
+            for sel, wk, (i, j) in planes:
+                g2 = np.asarray(vals[sel][:, 1:3], dtype=np.float64) @ b.turn  # d/d(local i, local j)
+                scale = (wk / np.sqrt(np.maximum(norm[sel], 1e-12)))[:, None]
+                grad[sel] += scale * (g2[:, :1] * b.axes[i] + g2[:, 1:2] * b.axes[j])
+            grad *= amp  # height units per photo pixel == per pixel of length: slope is dimensionless
+            dt = np.einsum("kd,kd->k", grad, tan[sl])
+            db = np.einsum("kd,kd->k", grad, bit[sl])
+            nt = np.stack([-dt, -db, np.ones(len(dt))], axis=1)
+            nts[sl] = nt / np.linalg.norm(nt, axis=1, keepdims=True)
+        return rough, np.asarray(metal, np.float32), nts
+
+
+def _right_handed(vt: np.ndarray) -> np.ndarray:
+    """Principal axes (3, 3) rows, longest first, each pointing to its positive majority direction
+    (the sign of its largest component positive) and forming a right-handed frame."""
+    axes = np.array(vt, dtype=np.float64)
+    for k in range(3):
+        if axes[k, np.argmax(np.abs(axes[k]))] < 0:
+            axes[k] = -axes[k]
+    if np.linalg.det(axes) < 0:
+        axes[2] = -axes[2]
+    return axes
+
+
+def _area(vertices: np.ndarray, faces: np.ndarray) -> float:
+    v = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    return float(0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1).sum())
+
+
+def _checked(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    pts = np.asarray(points, dtype=np.float64)
+    nrm = np.asarray(normals, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or nrm.shape != pts.shape:
+        raise ValueError(f"points and normals must be (n, 3) alike, got {pts.shape} and {nrm.shape}")
+    if not (np.isfinite(pts).all() and np.isfinite(nrm).all()):
+        raise ValueError("points and normals must be finite")
+    return pts, nrm
+
+
+# ------------------------------------------------------------------------------ the paint settings
+#: the most photos one look may name.
+MAX_IMAGES = 64
+#: what a photo entry of :attr:`proctex.texture.painting.PaintConfig.images` may hold.
+_ENTRY_KEYS = {"file", "scale", "rotate", "normal", "roughness", "sha256", "name", "notes", "units", "under_prompt"}
+
+
+def check_images(images: Any) -> dict[str, dict[str, Any]]:
+    """The ``images`` of paint settings, checked: ``{key: entry}`` with at most :data:`MAX_IMAGES`
+    keys (a group number, label or part word of at most 200 characters, or ``"*"``) and entries
+    ``{"file": str, "scale": positive number or None, "rotate": degrees, "normal": [0, 10],
+    "roughness": [0, 10]}`` (and the record's ``sha256``, ``name``, ``notes``, ``units``,
+    ``under_prompt``). Returns a normalised copy; ``ValueError`` names what is wrong."""
+    if not isinstance(images, Mapping):
+        raise ValueError("images must be an object {part: photo}")
+    if len(images) > MAX_IMAGES:
+        raise ValueError(f"a look takes at most {MAX_IMAGES} photos, got {len(images)}")
+    out: dict[str, dict[str, Any]] = {}
+    for key, entry in images.items():
+        if not isinstance(key, str) or not key.strip() or len(key) > 200:
+            raise ValueError(f"a photo's part is a group number, label or part word of 1-200 characters, got {str(key)[:40]!r}")
+        if not isinstance(entry, Mapping):
+            raise ValueError(f"photo {key[:40]!r}: an entry is an object with its file, got {type(entry).__name__}")
+        extra = set(entry) - _ENTRY_KEYS
+        if extra:
+            raise ValueError(f"photo {key[:40]!r}: unknown settings {', '.join(sorted(map(str, extra)))[:120]}")
+        f = entry.get("file")
+        if not isinstance(f, str) or not f or len(f) > 4096:
+            raise ValueError(f"photo {key[:40]!r}: its file must be a path")
+        scale = entry.get("scale")
+        if scale is not None:
+            scale = parse_length(scale)
+        e = {"file": f, "scale": scale, "rotate": _number(entry.get("rotate", 0.0), f"photo {key[:40]!r}: rotate", -1e6, 1e6)}
+        for k in ("normal", "roughness"):
+            e[k] = _number(entry.get(k, 1.0), f"photo {key[:40]!r}: the {k} strength", 0.0, 10.0)
+        for k in ("sha256", "name", "units"):
+            if k in entry:
+                if not isinstance(entry[k], str) or len(entry[k]) > 400:
+                    raise ValueError(f"photo {key[:40]!r}: {k} must be a short string")
+                e[k] = entry[k]
+        if "notes" in entry:
+            notes = entry["notes"]
+            if not isinstance(notes, (list, tuple)) or len(notes) > 32 or not all(isinstance(n, str) and len(n) <= 400 for n in notes):
+                raise ValueError(f"photo {key[:40]!r}: notes must be a short list of strings")
+            e["notes"] = list(notes)
+        if "under_prompt" in entry:
+            if not isinstance(entry["under_prompt"], bool):
+                raise ValueError(f"photo {key[:40]!r}: under_prompt must be true or false")
+            e["under_prompt"] = entry["under_prompt"]
+        out[key] = e
+    return out
+
+
+def _number(v: Any, what: str, lo: float, hi: float) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or not lo <= v <= hi:
+        raise ValueError(f"{what} must be a number within [{lo:g}, {hi:g}], got {str(v)[:40]!r}")
+    return float(v)
+
+
+def layers(images: Mapping[str, Mapping[str, Any]], photos: Mapping[str, Photo] | None = None,
+           read: Any = None) -> dict[str, PhotoLayer]:
+    """The :class:`PhotoLayer` of each checked ``images`` entry: its photo from ``photos`` (by key)
+    or read from its file (``read(path) -> bytes``, default the file system)."""
+    out = {}
+    for key, e in images.items():
+        if photos is not None and key in photos:
+            photo = photos[key]
+        else:
+            photo = read_photo(read(e["file"]) if read is not None else e["file"], name=e.get("name") or Path(e["file"]).name)
+        out[key] = PhotoLayer(photo, e.get("scale"), float(e.get("rotate", 0.0)), float(e.get("normal", 1.0)), float(e.get("roughness", 1.0))).check()
+    return out
