@@ -424,3 +424,51 @@ def test_look_add_refuses_bad_photos_and_flags_and_writes_nothing(mug, tmp_path,
         err = capsys.readouterr().err
         assert message in err and "Traceback" not in err, (extra, err)
     assert _files(base) == before
+
+
+def test_a_look_from_photos_over_http_multipart_with_bounds(mug, tmp_path):
+    """``POST .../looks`` multipart: a ``look`` JSON field and ``image.<part>`` files; served at once;
+    bad photos and fields are a 422 naming the problem and write nothing."""
+    import asyncio
+
+    httpx = pytest.importorskip("httpx")
+    from proctex.serve.catalog import Catalog
+    from workers.http import MAX_LOOK_PHOTOS, create_app
+
+    cat = Catalog(str(Path(mug.base).parent), check_every=0)
+    app = create_app(lambda: cat, edit_token="photo-token-1")
+    token = {"X-ProcTex-Token": "photo-token-1"}
+    red, green = png(blobs(13, (1.0, 0.1, 0.1))), png(blobs(14, (0.1, 1.0, 0.1)))
+    look = json.dumps({"name": "photos", "images": {"handle": {"scale": "4cm", "rotate": 45}}})
+
+    async def run():
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t", timeout=60) as c:
+            before = _files(Path(mug.base))
+            bad = [await c.post("/v1/families/mug/looks", data=d, files=f, headers=token) for d, f in (
+                ({"look": look}, {"image.handle": ("x.png", red[:200], "image/png")}),  # truncated
+                ({"look": look}, {"image.handle": ("bomb.png", _png_header_only(100_000, 100_000), "image/png")}),
+                ({"look": look}, {"image.body": ("g.png", green, "image/png")}),  # settings for a part sent no photo
+                ({"look": "{nope"}, {"image.handle": ("r.png", red, "image/png")}),
+                ({}, {"image.handle": ("r.png", red, "image/png")}),
+                ({"look": look, "other": "1"}, {"image.handle": ("r.png", red, "image/png")}),
+                ({"look": json.dumps({"name": "photos"})}, {"image.cushion": ("r.png", red, "image/png")}),
+                ({"look": look}, {f"image.{k}": ("r.png", red, "image/png") for k in range(MAX_LOOK_PHOTOS + 1)}),
+            )]
+            nothing = _files(Path(mug.base)) == before
+            denied = await c.post("/v1/families/mug/looks", data={"look": look}, files={"image.handle": ("r.png", red, "image/png")})
+            added = await c.post("/v1/families/mug/looks", data={"look": look},
+                                 files={"image.handle": ("red.png", red, "image/png"), "image.*": ("green.png", green, "image/png")}, headers=token)
+            served = await c.post("/v1/families/mug/transfer?look=photos", json={"params": {}})
+            return bad, nothing, denied, added, served
+
+    bad, nothing, denied, added, served = asyncio.run(run())
+    assert [r.status_code for r in bad] == [422] * len(bad), [(r.status_code, r.text[:200]) for r in bad]
+    for r, message in zip(bad, ("corrupt or truncated", "over the limit", "sent no photo", "must be JSON", "needs a 'look' field",
+                                "unknown multipart field", "unknown group 'cushion'", "at most 8 photos")):
+        assert message in r.json()["error"], (message, r.json())
+    assert nothing
+    assert denied.status_code == 401
+    assert added.status_code == 200, added.text
+    images = added.json()["look"]["paint"]["images"]
+    assert images["handle"]["scale"] == pytest.approx(0.04) and images["handle"]["rotate"] == 45.0 and images["*"]["under_prompt"] is False
+    assert added.json()["look"]["paint"]["prompt"] == "blue ceramic" and served.status_code == 200

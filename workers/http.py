@@ -274,21 +274,91 @@ async def read_json_object(request: Request, max_bytes: int = 65536, limits: Lim
 MAX_LOOK_TEXTURE = 2048
 
 
-def parse_look(body: dict[str, Any], svc: Any) -> tuple[str, Any, bool]:
-    """``(name, PaintConfig, force)`` of a ``POST .../looks`` body: the build's paint settings with
-    the body's ``prompt`` (required, at most ``max_prompt`` characters), ``group_prompts``,
-    ``painter`` and ``texture_size`` (16..:data:`MAX_LOOK_TEXTURE`) over them (:class:`BadInput`
-    naming what is wrong)."""
+#: photos one look may carry over HTTP (multipart file fields ``image.<part>``).
+MAX_LOOK_PHOTOS = 8
+#: a photo look's whole multipart body, at most (each photo's pixels are bounded from its header).
+MAX_LOOK_BODY = 24 * 2**20
+
+
+async def read_look_request(request: Request, limits: Limits | None = None) -> tuple[dict[str, Any], dict[str, tuple[bytes, str]]]:
+    """``(body, photos)`` of a ``POST .../looks``: a JSON object, or ``multipart/form-data`` with a
+    ``look`` field holding that JSON and a file field ``image.<part>`` per photo (``image.*``: the
+    photo of the rest); ``photos``: part -> (bytes, file name). Sizes bounded before anything is
+    decoded: the body (:data:`MAX_LOOK_BODY`), the photo count (:data:`MAX_LOOK_PHOTOS`)."""
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype != "multipart/form-data":
+        return await read_json_object(request, limits=limits), {}
+    await read_body(request, MAX_LOOK_BODY, limits)
+    try:
+        form = await request.form(max_files=MAX_LOOK_PHOTOS, max_fields=MAX_LOOK_PHOTOS + 2)
+    except Exception as exc:  # malformed multipart, too many parts
+        raise BadInput(f"cannot read the multipart body (at most {MAX_LOOK_PHOTOS} photos): {str(exc)[:200]}") from exc
+    text, photos = None, {}
+    for key, value in form.multi_items():
+        if key == "look" and isinstance(value, str):
+            if text is not None:
+                raise BadInput("the 'look' field is given twice")
+            text = value
+        elif key.startswith("image.") and not isinstance(value, str):
+            part = key[len("image."):]
+            if not part or len(part) > 200 or part in photos:
+                raise BadInput(f"photo fields are image.<part> (a group number, part name or word, or *), each once; got {key[:60]!r}")
+            photos[part] = (await value.read(MAX_LOOK_BODY + 1), str(value.filename or part)[:120])
+        else:
+            raise BadInput(f"unknown multipart field {key[:60]!r}; a photo look sends 'look' (JSON) and image.<part> files")
+    if text is None:
+        raise BadInput("a multipart look needs a 'look' field: the look's JSON ({\"name\": ..., \"prompt\": ...})")
+    try:
+        body = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise BadInput(f"the 'look' field must be JSON: {str(exc)[:200] or type(exc).__name__}") from exc
+    if not isinstance(body, dict):
+        raise BadInput("the 'look' field must be a JSON object")
+    return body, photos
+
+
+def parse_photos(body: dict[str, Any], files: dict[str, tuple[bytes, str]], under_prompt: bool) -> tuple[dict[str, dict], dict[str, Any]]:
+    """The ``images`` entries and photos of a look request: ``files`` (part -> bytes, name), each
+    read by :func:`proctex.texture.exemplar.read_photo` (pixels checked from the header before
+    decoding), and ``body["images"]`` (optional: part -> ``{"scale", "rotate", "normal",
+    "roughness"}``), which may name only parts sent a photo."""
+    from proctex.texture.exemplar import read_photo
+
+    settings = body.get("images") or {}
+    if not isinstance(settings, dict) or not all(isinstance(v, dict) for v in settings.values()):
+        raise BadInput("images must be an object {part: {scale, rotate, normal, roughness}}")
+    extra = sorted(set(settings) - set(files))
+    if extra:
+        raise BadInput(f"images names {', '.join(repr(str(k)[:40]) for k in extra[:5])}, sent no photo (a file field image.<part>)")
+    images, photos = {}, {}
+    for part, (data, name) in files.items():
+        given = settings.get(part, {})
+        unknown = set(given) - {"scale", "rotate", "normal", "roughness"}
+        if unknown:
+            raise BadInput(f"photo {part[:40]!r}: unknown settings {sorted(map(str, unknown))[:5]}; a photo takes scale, rotate, normal, roughness")
+        photos[part] = read_photo(data, name=name)
+        images[part] = {"file": name, **given, **({"under_prompt": under_prompt} if part == "*" else {})}
+    return images, photos
+
+
+def parse_look(body: dict[str, Any], svc: Any, files: dict[str, tuple[bytes, str]] | None = None) -> tuple[str, Any, bool, dict[str, Any]]:
+    """``(name, PaintConfig, force, photos)`` of a ``POST .../looks`` body: the build's paint settings
+    with the body's ``prompt`` (at most ``max_prompt`` characters; required unless photos are sent),
+    ``group_prompts``, ``painter``, ``texture_size`` (16..:data:`MAX_LOOK_TEXTURE`) and, with photo
+    files (:func:`read_look_request`), ``images`` over them (:class:`BadInput` naming what is wrong)."""
     from proctex.store.layout import check_look_name
     from proctex.store.looks import new_look_paint
 
-    unknown = set(body) - {"name", "prompt", "group_prompts", "part_words", "painter", "texture_size", "force"}
+    files = files or {}
+    unknown = set(body) - {"name", "prompt", "group_prompts", "part_words", "painter", "texture_size", "force", "images"}
     if unknown:
         raise BadInput(f"unknown fields {sorted(unknown)[:5]}; a look takes name, prompt, group_prompts, part_words, painter, "
-                       "texture_size, force")
+                       "texture_size, force, images")
     name, prompt = body.get("name"), body.get("prompt")
     check_look_name(name)
-    if not isinstance(prompt, str) or not prompt.strip() or len(prompt) > svc.limits.max_prompt:
+    if files and prompt is None:
+        pass  # a look from photos alone: the build's prompt covers what no photo does
+    elif not isinstance(prompt, str) or not prompt.strip() or len(prompt) > svc.limits.max_prompt:
         raise BadInput(f"prompt must be text of 1 to {svc.limits.max_prompt} characters")
     prompts = body.get("group_prompts") or {}
     if not isinstance(prompts, dict) or len(prompts) > 256 or not all(
@@ -304,10 +374,13 @@ def parse_look(body: dict[str, Any], svc: Any) -> tuple[str, Any, bool]:
         words = body.get("part_words") or {}
         if not isinstance(words, dict):
             raise BadInput("part_words must be an object {group index: word}")
-        paint = new_look_paint(svc.config.paint, prompt, prompts, body.get("painter"), size, part_words=words)
+        images, photos = parse_photos(body, files, under_prompt=prompt is not None) if files else ({}, {})
+        if body.get("images") and not files:
+            raise BadInput("images are settings of photos: send them as multipart file fields image.<part>")
+        paint = new_look_paint(svc.config.paint, prompt, prompts, body.get("painter"), size, part_words=words, images=images)
     except (TypeError, ValueError) as exc:
         raise BadInput(str(exc)[:500]) from exc
-    return name, paint, force
+    return name, paint, force, photos
 
 
 def parts_of(svc: Any, prompt: str | None, look: str | None) -> dict[str, Any]:
@@ -344,13 +417,13 @@ def save_parts(svc: Any, body: dict[str, Any]) -> dict[str, str]:
         raise EditConflict(str(exc)) from exc
 
 
-def add_look_to(svc: Any, name: str, paint: Any, force: bool) -> dict[str, Any]:
+def add_look_to(svc: Any, name: str, paint: Any, force: bool, photos: dict[str, Any] | None = None) -> dict[str, Any]:
     """:func:`proctex.build.looks.add_look` on the service's family; a busy store is a conflict (409)."""
     from proctex.build.looks import add_look
     from proctex.store.locks import StoreBusy
 
     try:
-        return add_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0)
+        return add_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0, photos=photos)
     except StoreBusy as exc:
         raise EditConflict(str(exc)) from exc
 
@@ -415,9 +488,11 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             if not budget.cancelled and await request.is_disconnected():
                 budget.cancel()
 
-    def check_edit_request(request: Request) -> None:
+    def check_edit_request(request: Request, multipart: bool = False) -> None:
         """Stored edits need the service's token and a JSON body (a cross-site form cannot send
-        either): 403 when edits are off, 401 for a missing or wrong token, 415 for another body type."""
+        either; ``multipart``: a look's photos may come as multipart/form-data, still behind the
+        token header a form cannot set): 403 when edits are off, 401 for a missing or wrong token,
+        415 for another body type."""
         if not edit_token:
             raise Forbidden("this service is read-only: stored edits are off (start it with an edit token)")
         given = request.headers.get("x-proctex-token") or ""
@@ -428,8 +503,9 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             raise Unauthorized("stored edits need the service's edit token (header X-ProcTex-Token)")
         if request.method == "POST":
             ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
-            if ctype != "application/json":
-                raise UnsupportedType(f"send the edit as application/json, not {ctype or 'no content type'!r}")
+            if ctype != "application/json" and not (multipart and ctype == "multipart/form-data"):
+                also = " or multipart/form-data (photos)" if multipart else ""
+                raise UnsupportedType(f"send the edit as application/json{also}, not {ctype or 'no content type'!r}")
 
     @app.exception_handler(Exception)
     async def any_error(request: Request, exc: Exception):
@@ -644,17 +720,21 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         openapi_extra={"requestBody": {"required": True, "content": {"application/json": {"schema": {
             "type": "object", "required": ["name", "prompt"], "properties": {
                 "name": {"type": "string"}, "prompt": {"type": "string"}, "group_prompts": {"type": "object"},
-                "part_words": {"type": "object"}, "painter": {"type": "string"}, "texture_size": {"type": "integer"}, "force": {"type": "boolean"}}}}}}},
+                "part_words": {"type": "object"}, "painter": {"type": "string"}, "texture_size": {"type": "integer"}, "force": {"type": "boolean"}}}},
+            "multipart/form-data": {"schema": {"type": "object", "required": ["look"], "properties": {
+                "look": {"type": "string", "description": "the look's JSON (prompt optional), with images: {part: {scale, rotate, normal, roughness}}"},
+                "image.*": {"type": "string", "format": "binary", "description": "a photo per part: fields image.<part>"}}}}}}},
     )
     async def add_family_look(name: str, request: Request):
-        """Paint a new look of the family (the stored template with another prompt: seconds, no
-        rebuild) and store it; served at once (``?look=NAME``). Needs the edit token."""
+        """Paint a new look of the family (the stored template with another prompt, or photos sent
+        as multipart ``image.<part>`` files: seconds, no rebuild) and store it; served at once
+        (``?look=NAME``). Needs the edit token."""
         try:
             svc = await family_of(name)
-            check_edit_request(request)
-            body = await read_json_object(request, limits=svc.limits)
-            look, paint, force = parse_look(body, svc)
-            record, stamp = await blocking(lambda: (add_look_to(svc, look, paint, force), build_stamp(svc.store)))
+            check_edit_request(request, multipart=True)
+            body, files = await read_look_request(request, limits=svc.limits)
+            look, paint, force, photos = await blocking(lambda: parse_look(body, svc, files))  # photos decode off the loop
+            record, stamp = await blocking(lambda: (add_look_to(svc, look, paint, force, photos), build_stamp(svc.store)))
         except Exception as exc:
             return error_response(exc)
         finally:
