@@ -327,12 +327,11 @@ def prepare(photo: Photo | np.ndarray, pixel: float, texel: float | None = None)
     gauss = np.empty((n, 7), dtype=np.float32)
     lut = np.empty((4, LUT), np.float32)
     qs = _ndtr(_GRID)
+    ranks = ndtri((np.arange(n) + 0.5) / n)
     for c in range(4):
         order = np.argsort(chans[:, c], kind="stable")
-        g = np.empty(n)
-        g[order] = ndtri((np.arange(n) + 0.5) / n)
-        gauss[:, c] = g
-        lut[c] = np.quantile(chans[:, c], qs)
+        gauss[order, c] = ranks
+        lut[c] = np.interp(qs * (n - 1), np.arange(n), chans[order, c])  # the channel's quantiles (linear, as np.quantile)
     gauss[:, 4], gauss[:, 5], gauss[:, 6] = height.ravel(), hx.ravel(), hy.ravel()
     return Exemplar(gauss.reshape(H, W, -1), lut, mean.astype(np.float32), axes.astype(np.float32),
                     float(np.median(contrast)) + 1e-6, float(pixel))
@@ -510,6 +509,10 @@ class PhotoPainter:
     photos: Mapping[int, PhotoLayer]
     seed: int = 0
     texture_size: int = 512
+    #: asks :func:`proctex.texture.paint.paint_surface` and :func:`~proctex.texture.paint.paint_material_maps`
+    #: for a smooth normal field (:func:`proctex.texture.paint.blend_normals`) rather than face normals:
+    #: the tri-planar weights then vary continuously across faces, creases and UV seams.
+    smooth_normals = True
     _bound: dict[int, _Bound] = field(default_factory=dict)
     _notes: list[str] = field(default_factory=list)
     _frame: tuple[np.ndarray, float] | None = None
@@ -564,8 +567,10 @@ class PhotoPainter:
 
     def _field(self, b: _Bound, points: np.ndarray, normals: np.ndarray, channels: list[int]) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
         """Tri-planar values (n, c) of ``channels`` at world ``points`` with ``normals`` (the three
-        planes across the part's axes, weights |n_k|^SHARP below 1 % dropped, blended keeping the
-        variance), and per plane ``(selected points, weight, plane index)`` for the derivatives."""
+        planes across the part's axes, weighted |n_k|^SHARP; weights below 1 % dropped; blended
+        keeping the variance), and per plane ``(selected points, weight, plane axes)`` for the
+        derivatives. The normals are the smooth ones (:attr:`smooth_normals`), so the weights are
+        continuous wherever the surface is smooth, UV seams included."""
         local = (points - b.centre) @ b.axes.T / b.ex.pixel  # photo pixels along the part's axes
         wts = np.abs(np.asarray(normals, dtype=np.float64) @ b.axes.T) ** SHARP
         wts /= np.maximum(wts.sum(axis=1, keepdims=True), 1e-12)
@@ -598,8 +603,9 @@ class PhotoPainter:
         return out
 
     def material(self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray,
-                 group: int | None = None, label: str = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(roughness (n,), metallic (n,), normal (n, 3))`` as :meth:`SurfacePainter.material`: for
+                 group: int | None = None, label: str = "", blend: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(roughness (n,), metallic (n,), normal (n, 3))`` as :meth:`SurfacePainter.material`
+        (``blend``: the normals the projections follow, as :meth:`paint` got them; default ``normals``): for
         a photo's group the roughness is the prompt's moved by the photo's local contrast (``roughness``
         strength 1: up to 0.3 either way, rougher where the photo's local contrast is above its median), the relief is the photo's height (``normal`` strength: its
         slope, with the height's spread at half a photo pixel), and the metalness is the prompt's alone."""
@@ -607,7 +613,7 @@ class PhotoPainter:
         if b is None:
             return self.surface.material(points, normals, tangents, bitangents, group=group, label=label)
         rough, metal, _ = self.surface.material(points, normals, tangents, bitangents, group=group, label=label, relief=False)
-        pts, nrm = _checked(points, normals)
+        pts, nrm = _checked(points, normals if blend is None else blend)
         tan = np.asarray(tangents, dtype=np.float64)
         bit = np.asarray(bitangents, dtype=np.float64)
         n = len(pts)

@@ -37,7 +37,7 @@ from proctex.texture.painters.base import ViewRequest
 
 from .pbr import PbrMaps, bake_maps
 from .render import Tracer, bounding_sphere, canonical_cameras, render_buffers, textured_albedo
-from .uv import ShapeUV, TexelMap, pad_seams, shape_uv, texel_map
+from .uv import ShapeUV, TexelMap, pad_seams, ring_texels, shape_uv, texel_map
 
 UNPAINTED = 0.5  # grey shown where nothing is painted yet
 
@@ -233,6 +233,7 @@ def paint_surface(
     uv: ShapeUV | None = None,
     gutter: int = 8,
     prompts: Mapping[int, str] | None = None,
+    ring: int = 0,
 ) -> TemplateTexture:
     """Paint every group texture with a surface painter.
 
@@ -243,6 +244,9 @@ def paint_surface(
         size: texture size (square); uv: a precomputed layout (else unwrapped here at ``size``).
         gutter: seam padding in texels.
         prompts: prompt per group for the record (defaults to what the painter reports, if anything).
+        ring: also paint the texels within this many texels of a chart at their place on the surface
+            extended past its edge (:func:`proctex.texture.uv.ring_texels`) before the gutter is
+            filled: chart borders read true colours (0: the gutter copies the nearest texel only).
 
     Returns:
         :class:`TemplateTexture` (method "surface").
@@ -257,14 +261,28 @@ def paint_surface(
     timings: dict[str, float] = {"uv": t1 - t0, "texels": time.perf_counter() - t1}
     out = []
     t_paint = 0.0
+    smooth = bool(getattr(painter, "smooth_normals", False))
     for g, texels in zip(grouping.groups, maps):
         t1 = time.perf_counter()
-        colors = np.asarray(painter.paint((texels.points - center) / scale, texels.normals, group=g.index, label=g.label), dtype=np.float32)
+        rep = grouping.parts[g.representative]
+        normals = blend_normals(shape, rep.faces, texels) if smooth else texels.normals
+        colors = np.asarray(painter.paint((texels.points - center) / scale, normals, group=g.index, label=g.label), dtype=np.float32)
         if colors.shape != (len(texels.face), 3) or not np.isfinite(colors).all():
             raise ValueError(f"painter returned {colors.shape} (finite required), expected ({len(texels.face)}, 3)")
         image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
         image[texels.ij[:, 0], texels.ij[:, 1]] = np.clip(colors, 0, 1)
-        image, painted = pad_seams(image, texels.mask, gutter)
+        held = texels.mask
+        if ring > 0:
+            extra = ring_texels(texels, shape.vertices, shape.faces[rep.faces], uv.corner_uv[rep.faces], ring)
+            if len(extra.face):
+                en = blend_normals(shape, rep.faces, extra) if smooth else extra.normals
+                more = np.asarray(painter.paint((extra.points - center) / scale, en, group=g.index, label=g.label), dtype=np.float32)
+                if more.shape != (len(extra.face), 3) or not np.isfinite(more).all():
+                    raise ValueError(f"painter returned {more.shape} (finite required), expected ({len(extra.face)}, 3)")
+                image[extra.ij[:, 0], extra.ij[:, 1]] = np.clip(more, 0, 1)
+                held = held.copy()
+                held[extra.ij[:, 0], extra.ij[:, 1]] = True
+        image, painted = pad_seams(image, held, gutter)
         t_paint += time.perf_counter() - t1
         prompt = (prompts or {}).get(g.index, _painter_prompt(painter, g))
         out.append(GroupTexture(g.index, g.label, prompt, image, painted, texels))
@@ -273,6 +291,43 @@ def paint_surface(
     for gi, a in enumerate(uv.atlases):
         notes.extend(f"group {gi}: {n}" for n in a.notes)
     return TemplateTexture(shape, grouping, uv, out, "surface", time.perf_counter() - t0, notes, {"timings": timings})
+
+
+#: rounds of neighbour averaging of the blend normals (:func:`blend_normals`): each widens the band
+#: over which a projection hands over to the next by about one edge.
+SMOOTH_ROUNDS = 8
+
+
+def blend_normals(shape: Shape, faces: np.ndarray, texels: TexelMap, rounds: int = SMOOTH_ROUNDS) -> np.ndarray:
+    """(t, 3) a smooth normal field at ``texels`` of ``shape``'s ``faces`` (a part's face indices), for
+    painters that blend projections by the normal (:attr:`proctex.texture.exemplar.PhotoPainter.smooth_normals`):
+    the area-weighted vertex normals with vertices at one place welded (an export splits them at UV
+    seams and hard edges), averaged with their neighbours ``rounds`` times (so a crease hands over
+    across a few faces, not at the edge), interpolated by the texels' barycentrics."""
+    from scipy.sparse import coo_matrix
+
+    from .pbr import vertex_normals
+
+    f = shape.faces[faces]
+    used, local = np.unique(f, return_inverse=True)
+    v = shape.vertices[used]
+    size = max(float(np.ptp(v, axis=0).max()), 1e-12)
+    _, weld = np.unique(np.round((v - v.min(axis=0)) / (size * 1e-6)).astype(np.int64), axis=0, return_inverse=True)
+    welded = weld.ravel()[local.reshape(f.shape)]
+    k = int(weld.max()) + 1
+    first = np.zeros(k, dtype=np.int64)
+    first[weld.ravel()] = np.arange(len(used))
+    vn = vertex_normals(v[first], welded)
+    if rounds > 0:
+        e = np.concatenate([welded[:, [0, 1]], welded[:, [1, 2]], welded[:, [2, 0]]])
+        adj = coo_matrix((np.ones(2 * len(e)), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))), shape=(k, k)).tocsr()
+        adj.data[:] = 1.0
+        for _ in range(int(rounds)):
+            vn = vn + adj @ vn
+            vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
+    n = np.einsum("kc,kcd->kd", texels.bary, vn[welded][texels.face])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(length > 1e-12, n / np.maximum(length, 1e-12), texels.normals)
 
 
 def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occlusion: bool = False, seed: int = 0) -> TemplateTexture:
@@ -297,7 +352,11 @@ def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occ
     for g, gt in zip(tex.grouping.groups, tex.groups):
         rep = tex.grouping.parts[g.representative]
 
-        def props(p, n, t, b, g=g):
+        blend = blend_normals(tex.shape, rep.faces, gt.texels) if getattr(painter, "smooth_normals", False) else None
+
+        def props(p, n, t, b, g=g, blend=blend):
+            if blend is not None:  # the field the colour's projections followed, for the relief's
+                return painter.material(p, n, t, b, group=g.index, label=g.label, blend=blend)
             return painter.material(p, n, t, b, group=g.index, label=g.label)
 
         faces = tex.shape.faces[rep.faces]

@@ -509,7 +509,7 @@ def paint_template(
     if surface is not None:
         surface.bind(shape, grouping, up, parts=parts)  # places the prompt's regions on this shape
     if not kind.views:
-        tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv)
+        tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv, ring=2 if photos else 0)
     else:
         tex = paint_views(shape, grouping, chosen, prompt, {str(g): t for g, t in prompts.items()}, n_views=views,
                           view_size=view_size, size=size, up=up, seed=seed, complete_hidden=complete_hidden, fill=fill,

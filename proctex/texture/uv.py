@@ -397,6 +397,45 @@ def texel_map(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, he
     return TexelMap(H, W, ij, fid, bary, points, normals)
 
 
+def ring_texels(texels: TexelMap, vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, ring: int = 2) -> TexelMap:
+    """The texels within ``ring`` texels of a chart that no chart covers, each placed on the surface
+    extended past the chart's edge: the nearest covered texel's face, at the texel centre's
+    barycentrics in that face's UV triangle (extrapolated; each at least -1, so a point lies at most
+    a triangle's size beyond its edge). A painter that colours 3D points paints them as it would the
+    surface there, so a bilinear read at a chart's border blends true colours instead of copies
+    (:func:`pad_seams` still fills the rest of the gutter). Same fields as ``texels``; ``faces`` and
+    ``corner_uv`` are those ``texels`` was made from."""
+    mask = texels.mask
+    if ring < 1 or not mask.any():
+        return TexelMap(texels.height, texels.width, np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
+                        np.zeros((0, 3)), np.zeros((0, 3)))
+    H, W = texels.height, texels.width
+    dist, (ri, rj) = ndimage.distance_transform_edt(~mask, return_indices=True)
+    sel = (~mask) & (dist <= ring)
+    ii, jj = np.nonzero(sel)
+    owner = np.full((H, W), -1, dtype=np.int64)
+    owner[texels.ij[:, 0], texels.ij[:, 1]] = texels.face
+    fid = owner[ri[ii, jj], rj[ii, jj]]
+    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    tri_uv = uv_to_pixel(np.asarray(corner_uv, dtype=np.float64)[fid], H, W)  # (k, 3, 2)
+    p = np.stack([jj + 0.5, ii + 0.5], axis=1)
+    a, b, c = tri_uv[:, 0], tri_uv[:, 1], tri_uv[:, 2]
+    v0, v1, v2 = b - a, c - a, p - a
+    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+    den = d00 * d11 - d01 * d01
+    ok = np.abs(den) > 1e-18
+    den = np.where(ok, den, 1.0)
+    l1 = np.where(ok, (d11 * d20 - d01 * d21) / den, 1.0 / 3.0)
+    l2 = np.where(ok, (d00 * d21 - d01 * d20) / den, 1.0 / 3.0)
+    bary = np.stack([1.0 - l1 - l2, l1, l2], axis=1)
+    bary = np.maximum(bary, -1.0)
+    bary /= bary.sum(axis=1, keepdims=True)
+    tri = v[f[fid]]
+    points = np.einsum("kc,kcd->kd", bary, tri)
+    return TexelMap(H, W, np.stack([ii, jj], axis=1).astype(np.int64), fid, bary, points, face_normals(v, f)[fid])
+
+
 # ------------------------------------------------------------------------------------ seam padding
 def pad_seams(image: np.ndarray, mask: np.ndarray, gutter: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Fill a gutter around every chart from the nearest covered texel.
