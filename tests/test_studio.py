@@ -482,3 +482,56 @@ def test_the_studio_shows_each_parts_word_and_a_clause_given_by_clicking_is_stor
     finally:
         context.close()
         (root / "mug" / "template" / "part_words.json").unlink(missing_ok=True)
+
+
+def test_the_studio_makes_a_look_from_photos_chosen_in_a_panel_and_dropped_on_a_part(server, browser, tmp_path):
+    """Issue 53: a photo chosen in the handle's panel and another dropped on the body in the view go
+    with "add look" (no prompt: the build's covers the rest) as multipart ``image.<group>`` files;
+    the new look paints each part from its own photo and is shown."""
+    from PIL import Image
+
+    from proctex.store.looks import look_paint, resolve_look
+
+    base, root = server
+    colours = {"red": (220, 30, 30), "green": (30, 200, 40)}
+    for name, rgb in colours.items():
+        noise = np.random.default_rng(len(name)).integers(-20, 20, size=(64, 64, 3))
+        Image.fromarray(np.clip(np.array(rgb) + noise, 0, 255).astype(np.uint8)).save(tmp_path / f"{name}.png")
+    context, page, errors = _page(browser)
+    try:
+        page.goto(base + "/?family=mug#token=" + STUDIO_TOKEN)
+        _wait_for_shape(page, 1)
+        page.set_input_files('.group[data-group="1"] input.photo', str(tmp_path / "red.png"))
+        data = base64.b64encode((tmp_path / "green.png").read_bytes()).decode()
+        page.evaluate("""([b64, name]) => {
+            const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+            const dt = new DataTransfer();
+            dt.items.add(new File([bytes], name, { type: 'image/png' }));
+            const c = document.getElementById('canvas');
+            const r = c.getBoundingClientRect();
+            c.dispatchEvent(new DragEvent('drop', { dataTransfer: dt, clientX: r.left + r.width / 2, clientY: r.top + r.height / 2,
+                                                   bubbles: true, cancelable: true }));
+        }""", [data, "green.png"])
+        assert page.evaluate("document.body.dataset.photos") == "2"
+        assert page.evaluate("document.body.dataset.selected") == "0", "the drop lands on the body in the middle of the view"
+        assert "green.png" in page.evaluate("document.querySelector('.group[data-group=\"0\"] .photo-note').textContent")
+        n = _requests(page)
+        page.fill("#look-name", "photos")
+        page.click("#addlook button")
+        _wait_for_shape(page, n + 1, timeout=120_000)
+        assert page.evaluate("document.getElementById('look').value") == "photos"
+        assert page.evaluate("document.body.dataset.photos") == "0"
+        st = FamilyStore(root / "mug")
+        from proctex.store.state import FamilyState
+
+        paint = look_paint(st, resolve_look(st, "photos"), FamilyState.load(st).build_config().paint)
+        assert set(paint.images) == {"0", "1"} and paint.prompt == "blue ceramic"
+        look = resolve_look(st, "photos")
+        for g, want in ((1, "red"), (0, "green")):
+            label = next(x["label"] for x in json.loads((root / "mug" / look.PAINT).read_text())["groups"] if x["group"] == g)
+            rgb = np.asarray(Image.open(root / "mug" / look.texture(g, label)).convert("RGB"), dtype=float).reshape(-1, 3).mean(axis=0)
+            nearest = min(colours, key=lambda k: np.abs(rgb - colours[k]).sum())
+            assert nearest == want, (g, rgb)
+        assert not errors, errors
+    finally:
+        context.close()

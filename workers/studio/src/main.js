@@ -21,6 +21,7 @@ const studio = {
   mesh: null, // an uploaded File (families of meshes)
   parts: null, // which group took which word of the look's prompt (GET .../parts)
   words: {}, // {group index: word} chosen here, not yet saved ('' clears a stored word)
+  photos: {}, // {group index: File} photos for the next look (sent as multipart with "add look")
   seq: 0, // sequence number of the latest transfer request
   controller: null,
   timer: null,
@@ -155,6 +156,30 @@ function selectGroup(g) {
     if (select && !select.disabled) select.focus();
   }
 }
+
+// A photo per part for the next look (POST .../looks as multipart: image.<group> files): chosen in a
+// part's panel or dropped on the part in the view; "add look" sends them with its name (its prompt
+// is then optional: the build's covers the parts without a photo).
+function setPhoto(g, file) {
+  if (file) studio.photos[g] = file;
+  else delete studio.photos[g];
+  const box = document.querySelector(`.group[data-group="${g}"]`);
+  if (box) box.querySelector('.photo-note').textContent = file ? `${file.name}: sent with the next look` : '';
+  const n = Object.keys(studio.photos).length;
+  $('look-prompt').required = n === 0;
+  $('look-prompt').placeholder = n ? `prompt (optional: ${n} photo${n > 1 ? 's' : ''})` : 'prompt, e.g. white oak';
+  body.dataset.photos = String(n);
+}
+
+canvas.addEventListener('dragover', (ev) => { if (studio.family && studio.family.edits_enabled) ev.preventDefault(); });
+canvas.addEventListener('drop', (ev) => {
+  ev.preventDefault();
+  const g = groupAt(ev);
+  if (g !== null && ev.dataTransfer.files.length && studio.family.edits_enabled) {
+    setPhoto(g, ev.dataTransfer.files[0]);
+    selectGroup(g);
+  }
+});
 
 let pressed = null;
 canvas.addEventListener('pointermove', showHover);
@@ -498,7 +523,9 @@ function groupPanel(group) {
     <label class="pbr">roughness <output class="rough-out"></output><input class="roughness" type="range" min="0" max="1" step="0.01" aria-label="roughness"></label>
     <label class="pbr">metallic <output class="metal-out"></output><input class="metallic" type="range" min="0" max="1" step="0.01" aria-label="metallic"></label>
     <div class="row"><input type="text" placeholder="new prompt" aria-label="prompt"><button class="secondary repaint">re-paint</button></div>
-    <div class="row"><button class="save" disabled>save to family</button><button class="secondary reset" disabled>reset</button></div>`;
+    <div class="row"><button class="save" disabled>save to family</button><button class="secondary reset" disabled>reset</button></div>
+    <label class="photo-row">photo <input class="photo" type="file" accept="image/png,image/jpeg,image/webp,image/tiff,image/bmp" aria-label="photo"></label>
+    <div class="photo-note muted"></div>`;
   const img = box.querySelector('img');
   const hue = box.querySelector('input[type=range]');
   const hueOut = box.querySelector('output');
@@ -522,6 +549,14 @@ function groupPanel(group) {
   // every name the group's parts carry (a model's own names are untrusted: text, never HTML)
   if ((group.names || []).length > 1) box.querySelector('b').title = group.names.join(', ');
   box.querySelector('.prompt').textContent = group.prompt || studio.family.prompt || '';
+  const photo = box.querySelector('input.photo');
+  photo.disabled = !studio.family.edits_enabled;
+  photo.addEventListener('change', () => setPhoto(g, photo.files[0] || null));
+  box.addEventListener('dragover', (ev) => { if (studio.family.edits_enabled) ev.preventDefault(); });
+  box.addEventListener('drop', (ev) => {
+    ev.preventDefault();
+    if (studio.family.edits_enabled && ev.dataTransfer.files.length) setPhoto(g, ev.dataTransfer.files[0]);
+  });
   const assign = box.querySelector('select.assign');
   assign.disabled = !studio.family.edits_enabled;
   assign.addEventListener('change', () => {
@@ -629,7 +664,9 @@ async function loadFamily(name, { keepView = false, look = null } = {}) {
     }
   }
   $('upload').hidden = usesParams;
+  if (!keepView) studio.photos = {};
   $('groups').replaceChildren(...fam.groups.map(groupPanel));
+  for (const g of Object.keys(studio.photos)) setPhoto(Number(g), studio.photos[g]);
   studio.words = {};
   $('save-words').disabled = true;
   const url = new URL(window.location);
@@ -702,17 +739,25 @@ async function addLook(event) {
   const form = $('addlook');
   const name = $('look-name').value.trim();
   const prompt = $('look-prompt').value.trim();
-  if (!name || !prompt) return;
+  const photos = Object.entries(studio.photos);
+  if (!name || (!prompt && !photos.length)) return;
   for (const el of form.elements) el.disabled = true;
   setBusy(true);
   try {
-    await api(`${familyPath(studio.family)}looks`, {
-      method: 'POST',
-      headers: { 'content-type': 'application/json', 'X-ProcTex-Token': editToken() },
-      body: JSON.stringify({ name, prompt }),
-    });
+    const look = prompt ? { name, prompt } : { name };
+    let request;
+    if (photos.length) { // multipart: the look's JSON and a file per photographed group
+      const data = new FormData();
+      data.append('look', JSON.stringify(look));
+      for (const [g, file] of photos) data.append(`image.${g}`, file, file.name);
+      request = { method: 'POST', headers: { 'X-ProcTex-Token': editToken() }, body: data };
+    } else {
+      request = { method: 'POST', headers: { 'content-type': 'application/json', 'X-ProcTex-Token': editToken() }, body: JSON.stringify(look) };
+    }
+    await api(`${familyPath(studio.family)}looks`, request);
     $('look-name').value = '';
     $('look-prompt').value = '';
+    for (const g of Object.keys(studio.photos)) setPhoto(Number(g), null);
     await loadFamily(studio.family.name, { keepView: true, look: name });
   } catch (err) {
     showError(err.message);
