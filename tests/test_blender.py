@@ -285,6 +285,7 @@ def test_a_blend_family_fans_out_on_ray_like_any_other_source(vase_blend, tmp_pa
 # ------------------------------------------------------------------------------- the Blender add-on
 ADDON = Path(__file__).resolve().parents[1] / "clients" / "blender"
 DRIVER = Path(__file__).parent / "fixtures" / "blend" / "drive_addon.py"
+ADDON_TOKEN = "addon-test-token"  # the served vase's edit token: the add-on's photo looks need it
 
 
 @pytest.fixture(scope="module")
@@ -308,7 +309,9 @@ def served_vase(blends, tmp_path_factory):
     add_look(store, "red", replace(cfg.paint, prompt="red lacquer"), log=lambda *_: None)  # a second look for the add-on's picker
     from .processes import serving
 
-    with serving(str(root), root / "serve.log", replicas=1) as (url, proc):
+    import os
+
+    with serving(str(root), root / "serve.log", replicas=1, env={**os.environ, "PROCTEX_EDIT_TOKEN": ADDON_TOKEN}) as (url, proc):
         yield url, store
     assert proc.returncode == 0 and "stopping" in (root / "serve.log").read_text(), (root / "serve.log").read_text()[-2000:]
 
@@ -336,6 +339,27 @@ def test_the_addon_client_speaks_the_api_and_reports_errors_plainly():
     assert client._transfer_path("mug", None) == "/v1/families/mug/transfer"
     with pytest.raises(client.ServiceError, match="cannot reach"):
         client.looks(f"http://127.0.0.1:{free_port()}", "mug", timeout=2)
+    # a photo look's multipart body (issue 53) reads back as the service reads it: the look's JSON and each file
+    import asyncio
+    import json
+
+    from starlette.requests import Request
+
+    body, ctype = client.multipart_files({"look": json.dumps({"name": "p"})},
+                                         [("image.*", 'odd"name\r\n.png', b"\x89PNG-bytes"), ("image.3", "b.jpg", b"\xff\xd8")])
+
+    async def parse():
+        async def receive():
+            return {"type": "http.request", "body": body, "more_body": False}
+
+        form = await Request({"type": "http", "method": "POST", "headers": [(b"content-type", ctype.encode())]}, receive).form()
+        return {k: (v if isinstance(v, str) else (v.filename, await v.read())) for k, v in form.multi_items()}
+
+    assert asyncio.run(parse()) == {"look": '{"name": "p"}', "image.*": ("oddname.png", b"\x89PNG-bytes"), "image.3": ("b.jpg", b"\xff\xd8")}
+    with pytest.raises(client.ServiceError, match="edit token"):
+        client.add_photo_look("http://127.0.0.1:1", "mug", "", "p", {"*": ("a.png", b"x")})
+    with pytest.raises(client.ServiceError, match="at least one photo"):
+        client.add_photo_look("http://127.0.0.1:1", "mug", "secret-token", "p", {})
 
 
 def test_the_addon_zip_holds_the_package(tmp_path):
@@ -444,7 +468,7 @@ def test_the_addon_textures_the_selected_object_through_a_live_service(served_va
     assert done.returncode == 0, done.stderr
     out = tmp_path / "report.json"
     env = {**__import__("os").environ, "BLENDER_USER_SCRIPTS": str(tmp_path / "scripts"), "BLENDER_USER_CONFIG": str(tmp_path / "config"),
-           "BLENDER_USER_EXTENSIONS": str(tmp_path / "extensions")}
+           "BLENDER_USER_EXTENSIONS": str(tmp_path / "extensions"), "PROCTEX_TEST_TOKEN": ADDON_TOKEN}
     done = subprocess.run([PYTHON, str(DRIVER), str(zip_path), str(blends / "vase.blend"), url, "vase",
                            json.dumps({"Resolution": 13, "Height": 1.7}), str(out), "red"], capture_output=True, text=True, timeout=400, env=env)
     assert done.returncode == 0 and out.exists(), (done.stdout[-2000:], done.stderr[-3000:])
@@ -478,6 +502,15 @@ def test_the_addon_textures_the_selected_object_through_a_live_service(served_va
     in_red = {im["rgb_sha"] for m in report["look_variant"]["materials"] for im in m["images"]}
     default = {im["rgb_sha"] for m in report["variant"]["materials"] for im in m["images"]}
     assert red <= in_red and not red & default and not expected & in_red, report["look_status"]
+    # Issue 53: the active object's image texture (a generated red image) sent as the photo of every
+    # part paints a new look; without the token the operator refuses and sends nothing.
+    assert report["photo_without_token"] == ["CANCELLED"] and report["photo_ops"] == ["FINISHED"]
+    assert "painted from the photo" in report["photo_status"], report["photo_status"]
+    assert report["looks_after_photo"] == ["default", "photo", "red"]
+    for g in store.read_json("looks/photo/paint.json")["groups"]:
+        img = np.asarray(Image.open(io.BytesIO(store.read_bytes(f"looks/photo/{Path(StoreLayout.texture(g['group'], g.get('label') or '')).name}"))).convert("RGB"), float)
+        mean = img.reshape(-1, 3).mean(axis=0)
+        assert mean[0] > 150 and mean[1] < 80 and mean[2] < 80, mean  # the photo's red (0.9, 0.1, 0.1 linear, as Blender saves it)
 
 
 # ---------------------------------------------------------------------- real users' files (issue 31)

@@ -87,6 +87,10 @@ def drain() -> float | None:
                 _fill_params(settings, value)
                 _state["parts_attribute"] = value.get("parts_attribute")
                 settings.status = f"{meta['family']}: {len(value.get('parameters', []))} parameters, {len(value.get('groups', []))} groups"
+            elif kind == "photo_look":
+                settings.status = f"look {value.get('name', '?')} painted from the photo in {value.get('seconds', 0):.1f} s"
+                url, family = meta["url"], meta["family"]
+                _start("looks", lambda: client.looks(url, family), family=family, scene=meta.get("scene"))
             elif kind == "glb":
                 data, summary = value
                 obj = _import_glb(data, meta)
@@ -242,6 +246,12 @@ class ProcTexSettings(bpy.types.PropertyGroup):
     accepts_params: BoolProperty(default=False)
     seed: IntProperty(name="Seed", default=0, min=0)
     status: StringProperty(name="Status", default="")
+    token: StringProperty(name="Edit token", subtype="PASSWORD", description="the service's edit token (new looks need it)")
+    photo_look: StringProperty(name="New look", default="photo", description="the name of the look the photo paints")
+    photo_part: StringProperty(name="Part", default="*", description="the part the photo goes on: a group number, part name or "
+                                                                       "part word, or * for every part")
+    photo_scale: StringProperty(name="Photo width", default="", description="how much surface the photo's width spans (0.5, 50cm); "
+                                                                             "empty: half the part's longest side")
 
 
 def _fill_params(settings, description: dict[str, Any]) -> None:
@@ -302,6 +312,61 @@ class PROCTEX_OT_texture_selected(bpy.types.Operator):
         return {"FINISHED"}
 
 
+def active_image(obj) -> tuple[str, bytes]:
+    """``(file name, bytes)`` of the image texture on ``obj``'s active material (the active node when it
+    is an Image Texture, else the first one with an image): its packed data, its file, or (a generated
+    or edited image) a PNG written from its pixels. ``ValueError`` when it has none."""
+    mat = obj.active_material if obj is not None else None
+    tree = mat.node_tree if mat is not None and mat.use_nodes else None
+    if tree is None:
+        raise ValueError("the active object has no material with nodes: give it an Image Texture")
+    nodes = [n for n in ([tree.nodes.active] if tree.nodes.active is not None else []) + list(tree.nodes)
+             if n.type == "TEX_IMAGE" and n.image is not None]
+    if not nodes:
+        raise ValueError(f"material {mat.name!r} has no Image Texture node with an image")
+    img = nodes[0].image
+    name = bpy.path.basename(img.filepath) or f"{img.name}.png"
+    if img.packed_file is not None and not img.is_dirty:
+        return name, bytes(img.packed_file.data)
+    path = bpy.path.abspath(img.filepath) if img.filepath else ""
+    if path and os.path.isfile(path) and not img.is_dirty:
+        with open(path, "rb") as fh:
+            return name, fh.read()
+    with tempfile.TemporaryDirectory() as tmp:  # generated or painted in Blender: its pixels as a PNG
+        out = os.path.join(tmp, "photo.png")
+        img.save_render(out, scene=bpy.context.scene)
+        with open(out, "rb") as fh:
+            return f"{img.name}.png", fh.read()
+
+
+class PROCTEX_OT_photo_look(bpy.types.Operator):
+    """Send the active object's image texture to the service as a part's photo: a new look of the family"""
+
+    bl_idname = "proctex.photo_look"
+    bl_label = "Photo look from image"
+
+    def execute(self, context):
+        settings = context.scene.proctex
+        if not settings.family:
+            self.report({"ERROR"}, "pick a family first (Refresh families)")
+            return {"CANCELLED"}
+        if not settings.token:
+            self.report({"ERROR"}, "a new look needs the service's edit token")
+            return {"CANCELLED"}
+        try:
+            filename, data = active_image(context.active_object)
+        except ValueError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        part = settings.photo_part.strip() or "*"
+        extra = {part: {"scale": settings.photo_scale.strip()}} if settings.photo_scale.strip() else None
+        url, name, token, look = settings.url, settings.family, settings.token, settings.photo_look.strip()
+        settings.status = f"painting look {look} from {filename}..."
+        _start("photo_look", lambda: client.add_photo_look(url, name, token, look, {part: (filename, data)}, settings=extra),
+               url=url, family=name, scene=context.scene.name)
+        return {"FINISHED"}
+
+
 class PROCTEX_OT_add_variant(bpy.types.Operator):
     """Add the family's shape at the panel's parameters, textured, at the 3D cursor"""
 
@@ -342,11 +407,19 @@ class PROCTEX_PT_panel(bpy.types.Panel):
         col.prop(settings, "seed")
         col.operator("proctex.texture_selected")
         col.operator("proctex.add_variant")
+        box = col.box()
+        box.label(text="A look from the active object's image")
+        box.prop(settings, "token")
+        box.prop(settings, "photo_look")
+        box.prop(settings, "photo_part")
+        box.prop(settings, "photo_scale")
+        box.operator("proctex.photo_look")
         if settings.status:
             col.label(text=settings.status)
 
 
-CLASSES = (ProcTexParam, ProcTexSettings, PROCTEX_OT_refresh, PROCTEX_OT_texture_selected, PROCTEX_OT_add_variant, PROCTEX_PT_panel)
+CLASSES = (ProcTexParam, ProcTexSettings, PROCTEX_OT_refresh, PROCTEX_OT_texture_selected, PROCTEX_OT_add_variant, PROCTEX_OT_photo_look,
+           PROCTEX_PT_panel)
 
 
 def register() -> None:

@@ -103,6 +103,43 @@ def multipart(fields: dict[str, str], file_field: str, filename: str, content: b
     return b"".join(out), f"multipart/form-data; boundary={boundary}"
 
 
+def multipart_files(fields: dict[str, str], files: list[tuple[str, str, bytes]]) -> tuple[bytes, str]:
+    """A ``multipart/form-data`` body of text ``fields`` and ``files`` (field, file name, bytes), and its content type."""
+    boundary = "proctex-" + uuid.uuid4().hex
+    out = []
+    for key, value in fields.items():
+        out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{key}"\r\n\r\n{value}\r\n'.encode())
+    for field, filename, content in files:
+        safe = "".join(c for c in filename if c.isprintable() and c not in '"\\\r\n')[:120] or "photo"
+        out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{field}"; filename="{safe}"\r\n'
+                   f"Content-Type: application/octet-stream\r\n\r\n".encode())
+        out.append(content)
+        out.append(b"\r\n")
+    out.append(f"--{boundary}--\r\n".encode())
+    return b"".join(out), f"multipart/form-data; boundary={boundary}"
+
+
+def add_photo_look(url: str, name: str, token: str, look: str, photos: dict[str, tuple[str, bytes]], prompt: str | None = None,
+                   settings: dict[str, dict[str, Any]] | None = None, timeout: float = 120.0) -> dict[str, Any]:
+    """Paint a new look of the family from photos (``POST /v1/families/{name}/looks``, multipart):
+    ``photos`` part -> (file name, bytes), a part being a group number, part name or word, or ``*``
+    for the rest; ``settings`` part -> ``{"scale", "rotate", "normal", "roughness"}``; ``token``
+    the service's edit token. Returns the look's record."""
+    if not token:
+        raise ServiceError("a new look needs the service's edit token")
+    if not look or not photos:
+        raise ServiceError("a photo look needs a name and at least one photo")
+    body_json: dict[str, Any] = {"name": look}
+    if prompt:
+        body_json["prompt"] = prompt
+    if settings:
+        body_json["images"] = settings
+    files = [(f"image.{part}", fname, data) for part, (fname, data) in photos.items()]
+    body, ctype = multipart_files({"look": json.dumps(body_json)}, files)
+    data, _ = _call(url, _family_path(name) + "/looks", body, {"Content-Type": ctype, "X-ProcTex-Token": token}, timeout=timeout)
+    return _json(data).get("look") or {}
+
+
 def transfer_mesh(url: str, name: str, obj_text: bytes, seed: int = 0, timeout: float = 120.0,
                   look: str | None = None) -> tuple[bytes, dict[str, Any]]:
     """Texture a mesh (OBJ text) in the family's ``look`` (None: the build's): ``(GLB bytes, {"seconds", "notes"})``."""
