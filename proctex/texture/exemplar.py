@@ -18,14 +18,16 @@ by a triangle grid; each grid vertex takes a random patch of the Gaussianised ph
 of the vertex and the seed), and a point blends the three patches of its triangle with its barycentric
 weights, divided by the root of their squares (so the blend keeps the Gaussian's variance: no washed-
 out mixtures), before the quantile table restores the photo's own histogram. The patches never cross
-the photo's border (the offsets keep a margin of the triangle's size), so no seam of the photo is
-ever shown, and no two neighbouring vertices share an offset: nothing repeats on a grid.
+the photo's border (the offsets keep a margin of the triangle's size), so no edge of the photo is
+ever shown, and each vertex draws its own offset: nothing repeats on a grid.
 
 On a part (:class:`PhotoPainter`): points are expressed in the group's principal frame (its
 representative part's axes, longest first: a photo's horizontal axis runs along the part's long axis
 unless rotated) at the photo's physical scale, and the three axis-aligned projections are blended by
-the normal's components (tri-planar) with the same variance-keeping blend. Colour is a function of the
-3D point alone, so it is continuous across UV charts: the texture has no seams of its own.
+a smooth normal field's components (tri-planar) with the same variance-keeping blend. Colour is a
+function of the 3D point and that field, both continuous across UV charts: the texture has no seams
+of its own (and :func:`proctex.texture.paint.paint_surface` paints a ring of texels past each chart's
+edge, so chart borders read true colours too).
 """
 
 from __future__ import annotations
@@ -62,6 +64,9 @@ REACH = 1.0
 SHARP = 4.0
 #: points per evaluation chunk (bounds the temporaries).
 CHUNK = 65536
+#: the most bytes of contrast and relief a painter keeps from :meth:`PhotoPainter.paint` for
+#: :meth:`PhotoPainter.material` (16 per texel: every group of a 1024² look; larger looks recompute).
+KEEP_BYTES = 128 * 2**20
 #: the quantile table's length per channel.
 LUT = 1024
 
@@ -370,8 +375,8 @@ def _bilinear(q: np.ndarray, shape: tuple[int, int], x: np.ndarray, y: np.ndarra
     """An image read bilinearly at pixel coordinates ``x`` (columns), ``y`` (rows) (n,), clamped to
     the image: ``q`` its :func:`quads`, ``shape`` its (h, w). Returns (n, C) float32."""
     h, w = shape
-    x = np.clip(x, 0.0, w - 1.000001)
-    y = np.clip(y, 0.0, h - 1.000001)
+    x = np.clip(x, 0.0, w - 1.001)
+    y = np.clip(y, 0.0, h - 1.001)
     x0 = x.astype(np.int64)
     y0 = y.astype(np.int64)
     fx = (x - x0).astype(np.float32)[:, None]
@@ -401,25 +406,31 @@ def tile_blend(ex: Exemplar, uv: np.ndarray, seed: int, channels: list[int]) -> 
     span = np.array([max(w - 1 - 2 * reach, 0.0), max(h - 1 - 2 * reach, 0.0)])
     skew = (uv / cell) @ _SKEW.T
     base = np.floor(skew)
-    frac = skew - base
-    f3 = 1.0 - frac[:, 0] - frac[:, 1]
-    up = (f3 <= 0).astype(np.int64)
-    upf = up.astype(np.float64)
+    frac = (skew - base).astype(np.float32)  # in [0, 1): float32 is exact enough, and faster
+    f3 = np.float32(1.0) - frac[:, 0] - frac[:, 1]
+    up = f3 <= 0
+    upi = up.astype(np.int64)
     bi, bj = base[:, 0].astype(np.int64), base[:, 1].astype(np.int64)
     # the triangle's vertices (skewed lattice) and barycentric weights
-    verts = ((bi + up, bj + up), (bi + up, bj + 1 - up), (bi + 1 - up, bj + up))
-    wts = (np.abs(f3), upf + (1 - 2 * upf) * frac[:, 1], upf + (1 - 2 * upf) * frac[:, 0])
+    verts = ((bi + upi, bj + upi), (bi + upi, bj + 1 - upi), (bi + 1 - upi, bj + upi))
+    wts = (np.abs(f3), np.where(up, 1 - frac[:, 1], frac[:, 1]), np.where(up, 1 - frac[:, 0], frac[:, 0]))
+    # a point's place from its vertex: the vertex's own (unskewed) place is a whole number of cells
+    # from the base vertex's, so only the fraction is carried (small numbers: float32 is exact enough)
+    fx = (frac[:, 0] + np.float32(0.5) * frac[:, 1]) * np.float32(cell)
+    fy = frac[:, 1] * np.float32(np.sqrt(3.0) / 2.0 * cell)
     q = ex.quads(channels)
     out = np.zeros((len(uv), len(channels)), np.float32)
-    norm = np.zeros(len(uv))
+    norm = np.zeros(len(uv), np.float32)
     for (vi, vj), wt in zip(verts, wts):
         ox, oy = _hash2(vi, vj, seed)
-        # the point's place in the vertex's patch: from the vertex (unskewed), plus the patch's offset
-        dx = uv[:, 0] - (vi + 0.5 * vj) * cell
-        dy = uv[:, 1] - (np.sqrt(3.0) / 2.0) * vj * cell
-        out += _bilinear(q, (h, w), reach + ox * span[0] + dx, reach + oy * span[1] + dy) * wt[:, None].astype(np.float32)
+        di, dj = (vi - bi).astype(np.float32), (vj - bj).astype(np.float32)  # 0 or 1
+        dx = fx - (di + np.float32(0.5) * dj) * np.float32(cell)
+        dy = fy - dj * np.float32(np.sqrt(3.0) / 2.0 * cell)
+        px = (reach + ox * span[0]).astype(np.float32) + dx
+        py = (reach + oy * span[1]).astype(np.float32) + dy
+        out += _bilinear(q, (h, w), px, py) * wt[:, None]
         norm += wt * wt
-    out /= np.sqrt(np.maximum(norm, 1e-12)).astype(np.float32)[:, None]
+    out /= np.sqrt(np.maximum(norm, np.float32(1e-12)))[:, None]
     return out
 
 
@@ -515,6 +526,7 @@ class PhotoPainter:
     smooth_normals = True
     _bound: dict[int, _Bound] = field(default_factory=dict)
     _notes: list[str] = field(default_factory=list)
+    _kept: dict[tuple, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     _frame: tuple[np.ndarray, float] | None = None
 
     def bind(self, shape, grouping, up: str = "z", parts=None) -> "PhotoPainter":
@@ -565,49 +577,76 @@ class PhotoPainter:
         centre, radius = self._frame
         return np.asarray(points, dtype=np.float64) * radius + centre
 
-    def _field(self, b: _Bound, points: np.ndarray, normals: np.ndarray, channels: list[int]) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-        """Tri-planar values (n, c) of ``channels`` at world ``points`` with ``normals`` (the three
-        planes across the part's axes, weighted |n_k|^SHARP; weights below 1 % dropped; blended
-        keeping the variance), and per plane ``(selected points, weight, plane axes)`` for the
-        derivatives. The normals are the smooth ones (:attr:`smooth_normals`), so the weights are
-        continuous wherever the surface is smooth, UV seams included."""
+    def _fields(self, b: _Bound, points: np.ndarray, normals: np.ndarray, colour: bool = True) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+        """The photo at world ``points`` with ``normals``, tri-planar: the three planes across the
+        part's axes weighted |n_k|^SHARP (weights below 1 % dropped), each plane's values blended
+        keeping the variance. Returns ``(rgb (n, 3) or None without colour, contrast (n,), height
+        gradient (n, 3) per unit length in photo-pixel heights)``: the gradient of each plane turned
+        back to its two part axes before the planes are blended. The normals are the smooth ones
+        (:attr:`smooth_normals`), so the weights are continuous wherever the surface is."""
         local = (points - b.centre) @ b.axes.T / b.ex.pixel  # photo pixels along the part's axes
-        wts = np.abs(np.asarray(normals, dtype=np.float64) @ b.axes.T) ** SHARP
+        along = np.asarray(normals, dtype=np.float64) @ b.axes.T
+        wts = np.abs(along) ** SHARP
         wts /= np.maximum(wts.sum(axis=1, keepdims=True), 1e-12)
         wts[wts < 0.01] = 0.0
-        out = np.zeros((len(points), len(channels)), np.float32)
-        norm = np.zeros(len(points))
-        planes = []
+        norm = np.sqrt(np.maximum((wts ** 2).sum(axis=1), 1e-12))
+        channels = [*(COLOUR if colour else []), *CONTRAST, 5, 6]
+        vals = np.zeros((len(points), len(channels)), np.float32)
+        grad = np.zeros((len(points), 3))
         for k, (i, j) in enumerate(((0, 1), (0, 2), (1, 2))):  # planes across axes 2, 1, 0
             wk = wts[:, 2 - k]
             sel = np.flatnonzero(wk > 0)
             if not len(sel):
                 continue
             uv = local[sel][:, [i, j]] @ b.turn.T
-            out[sel] += tile_blend(b.ex, uv, b.seed + 101 * k, channels) * wk[sel, None].astype(np.float32)
-            norm[sel] += wk[sel] ** 2
-            planes.append((sel, wk[sel], (i, j)))
-        out /= np.sqrt(np.maximum(norm, 1e-12)).astype(np.float32)[:, None]
-        return out, planes
+            # the two sides of a plane (a box's top and bottom) get their own patches, or each would
+            # show the other's texture; the side flips only where the plane's weight is nil
+            back = along[sel, 2 - k] < 0
+            got = np.empty((len(sel), len(channels)), np.float32)
+            for side in (False, True):
+                at = back == side
+                if at.any():
+                    got[at] = tile_blend(b.ex, uv[at], b.seed + 101 * k + 53 * side, channels)
+            scale = wk[sel] / norm[sel]
+            vals[sel] += got * scale[:, None].astype(np.float32)
+            g2 = np.asarray(got[:, -2:], dtype=np.float64) @ b.turn  # d/d(local i, local j) of this plane's height
+            grad[sel] += scale[:, None] * (g2[:, :1] * b.axes[i] + g2[:, 1:2] * b.axes[j])
+        rgb = to_rgb(b.ex, from_gauss(b.ex, vals[:, :3], COLOUR)) if colour else None
+        contrast = from_gauss(b.ex, vals[:, -3:-2], CONTRAST)[:, 0]
+        return rgb, contrast, grad
+
+    @staticmethod
+    def _key(points: np.ndarray) -> tuple:
+        """A fingerprint of a point array (its length and sums): the maps ask for the texels the
+        colour was painted at, with the same values."""
+        return (len(points), float(points.sum()), float(np.abs(points).sum()), float(points[:1].sum()), float(points[-1:].sum()))
 
     def paint(self, points: np.ndarray, normals: np.ndarray, group: int | None = None, label: str = "", text: str | None = None) -> np.ndarray:
-        """Colours (n, 3) float32 of points (normalised frame) of ``group``: from its photo, else the prompt's."""
+        """Colours (n, 3) float32 of points (normalised frame) of ``group``: from its photo, else the
+        prompt's. A photo's contrast and relief at the same points are kept for :meth:`material`
+        (one synthesis for both)."""
         b = self._bound.get(group) if text is None and group is not None else None
         if b is None:
             return self.surface.paint(points, normals, group=group, label=label, text=text)
         pts, nrm = _checked(points, normals)
         out = np.empty((len(pts), 3), np.float32)
+        contrast = np.empty(len(pts), np.float32)
+        grad = np.empty((len(pts), 3))
         for s in range(0, len(pts), CHUNK):
-            g, _ = self._field(b, self._world(pts[s:s + CHUNK]), nrm[s:s + CHUNK], COLOUR)
-            out[s:s + CHUNK] = to_rgb(b.ex, from_gauss(b.ex, g, COLOUR))
+            sl = slice(s, s + CHUNK)
+            out[sl], contrast[sl], grad[sl] = self._fields(b, self._world(pts[sl]), nrm[sl])
+        self._kept[(group, self._key(pts))] = (contrast, grad.astype(np.float32))
+        while sum(c.nbytes + g.nbytes for c, g in self._kept.values()) > KEEP_BYTES:  # the oldest go first
+            self._kept.pop(next(iter(self._kept)))
         return out
 
     def material(self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray,
                  group: int | None = None, label: str = "", blend: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(roughness (n,), metallic (n,), normal (n, 3))`` as :meth:`SurfacePainter.material`
-        (``blend``: the normals the projections follow, as :meth:`paint` got them; default ``normals``): for
-        a photo's group the roughness is the prompt's moved by the photo's local contrast (``roughness``
-        strength 1: up to 0.3 either way, rougher where the photo's local contrast is above its median), the relief is the photo's height (``normal`` strength: its
+        (``blend``: the normals the projections follow, as :meth:`paint` got them; default
+        ``normals``): for a photo's group the roughness is the prompt's moved by the photo's local
+        contrast (``roughness`` strength 1: up to 0.3 either way, rougher where the photo's local
+        contrast is above its median), the relief is the photo's height (``normal`` strength: its
         slope, with the height's spread at half a photo pixel), and the metalness is the prompt's alone."""
         b = self._bound.get(group) if group is not None else None
         if b is None:
@@ -616,30 +655,21 @@ class PhotoPainter:
         pts, nrm = _checked(points, normals if blend is None else blend)
         tan = np.asarray(tangents, dtype=np.float64)
         bit = np.asarray(bitangents, dtype=np.float64)
-        n = len(pts)
-        rough = np.asarray(rough, np.float32).copy()
-        nts = np.empty((n, 3), np.float32)
-        amp = 0.5 * b.layer.normal  # height spread in photo pixels
-        for s in range(0, n, CHUNK):
-            sl = slice(s, s + CHUNK)
-            vals, planes = self._field(b, self._world(pts[sl]), nrm[sl], [*CONTRAST, 5, 6])
-            c = from_gauss(b.ex, vals[:, :1], CONTRAST)[:, 0]
-            rough[sl] = np.clip(rough[sl] + b.layer.roughness * 0.3 * np.tanh(2.0 * (c / b.ex.contrast - 1.0)), 0.02, 1.0)
-            # the height's gradient in 3D (per unit length): each plane's (d/dx, d/dy) in photo pixels
-            # turned back to its two part axes, weighted as the values were
-            grad = np.zeros((len(vals), 3))
-            norm = np.zeros(len(vals))
-            for sel, wk, (i, j) in planes:
-                norm[sel] += wk ** 2
-            for sel, wk, (i, j) in planes:
-                g2 = np.asarray(vals[sel][:, 1:3], dtype=np.float64) @ b.turn  # d/d(local i, local j)
-                scale = (wk / np.sqrt(np.maximum(norm[sel], 1e-12)))[:, None]
-                grad[sel] += scale * (g2[:, :1] * b.axes[i] + g2[:, 1:2] * b.axes[j])
-            grad *= amp  # height units per photo pixel == per pixel of length: slope is dimensionless
-            dt = np.einsum("kd,kd->k", grad, tan[sl])
-            db = np.einsum("kd,kd->k", grad, bit[sl])
-            nt = np.stack([-dt, -db, np.ones(len(dt))], axis=1)
-            nts[sl] = nt / np.linalg.norm(nt, axis=1, keepdims=True)
+        kept = self._kept.pop((group, self._key(pts)), None)
+        if kept is None:
+            contrast, grad = np.empty(len(pts), np.float32), np.empty((len(pts), 3))
+            for s in range(0, len(pts), CHUNK):
+                sl = slice(s, s + CHUNK)
+                _, contrast[sl], grad[sl] = self._fields(b, self._world(pts[sl]), nrm[sl], colour=False)
+        else:
+            contrast, grad = kept[0], kept[1].astype(np.float64)
+        rough = np.clip(np.asarray(rough, np.float32) + b.layer.roughness * 0.3 * np.tanh(2.0 * (contrast / b.ex.contrast - 1.0)),
+                        0.02, 1.0).astype(np.float32)
+        grad = grad * (0.5 * b.layer.normal)  # heights spread half a photo pixel: the slope is dimensionless
+        dt = np.einsum("kd,kd->k", grad, tan)
+        db = np.einsum("kd,kd->k", grad, bit)
+        nt = np.stack([-dt, -db, np.ones(len(dt))], axis=1)
+        nts = (nt / np.linalg.norm(nt, axis=1, keepdims=True)).astype(np.float32)
         return rough, np.asarray(metal, np.float32), nts
 
 

@@ -11,8 +11,9 @@ script makes two photos in code (a woven fabric and a wood grain; nothing is dow
   step between neighbouring pixels in the same chart (1: no seam shows). Beside it the wrong way,
   the same photo synthesised per chart in UV space, which a seam-aware metric must call worse;
 - **repeats**: the highest normalised autocorrelation away from zero shift (beyond 24 texels) of
-  the largest group's texture over its charts (masked), for the look and for the photo tiled on
-  the surface in the same frame (the wrong way: periodic).
+  the largest group's texture over its charts (masked), painted from a stone photo made in code
+  (no period of its own) spanning a tenth of the part: synthesised, and tiled on the surface in the
+  same frame (the wrong way: periodic).
 
     .venv/bin/python tests/bench/bench_photolooks.py --family out/sofa --part legs --repeats 3
 
@@ -67,6 +68,18 @@ def wood(size: int = 256, seed: int = 1) -> np.ndarray:
     t = np.clip(0.55 * rings + 0.25 + fine, 0, 1)
     light, dark = np.array([0.72, 0.52, 0.32]), np.array([0.36, 0.21, 0.11])
     return (dark + (light - dark) * t[..., None]).astype(np.float32)
+
+
+def stone(size: int = 256, seed: int = 2) -> np.ndarray:
+    """A stone made in code, with no period of its own: mottled grains at three scales and a few
+    veins; (size, size, 3). The repeats are measured on it (a woven photo repeats by itself)."""
+    from scipy.ndimage import gaussian_filter
+
+    r = np.random.default_rng(seed)
+    t = sum(gaussian_filter(r.standard_normal((size, size)), s) * s ** 0.5 for s in (1.0, 4.0, 16.0))
+    veins = np.abs(gaussian_filter(r.standard_normal((size, size)), 10.0))
+    t = (t - t.mean()) / t.std() * 0.12 + 0.55 - 2.0 * np.clip(0.02 - veins, 0, None) * 10
+    return np.clip(t[..., None] * np.array([0.95, 0.92, 0.86]), 0, 1).astype(np.float32)
 
 
 def chart_ids(faces: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
@@ -203,7 +216,7 @@ def main(argv: list[str] | None = None) -> dict:
     per_group = resolve_photos(grouping, config.paint.prompt, layers, shape, config.up_axis(), {}, set())
     size = config.paint.texture_size
     texels = group_texels(shape, grouping, files_uv(files, shape, grouping, size), size)
-    uv_space, tiled_space = [], []
+    uv_space = []
     painter = E.PhotoPainter(_Plain(), per_group, seed=config.seed, texture_size=size).bind(shape, grouping, config.up_axis())
     c0, r0 = painter._frame
     for g, tx in zip(grouping.groups, texels):
@@ -212,20 +225,31 @@ def main(argv: list[str] | None = None) -> dict:
         img = np.zeros((size, size, 3), np.float32)
         img[tx.ij[:, 0], tx.ij[:, 1]] = E.synthesise(b.ex, uv, seed=1)
         uv_space.append(pad_seams(img, tx.mask, 8)[0])
-        # tiled on the surface: the same frame and projection as the look, the photo repeated
-        local = (tx.points - b.centre) @ b.axes.T / b.ex.pixel
-        cols = np.empty((len(tx.face), 3), np.float32)
-        for k, (i, j) in enumerate(((1, 2), (0, 2), (0, 1))):  # the dominant projection, not blended
-            sel = np.argmax(np.abs(tx.normals @ b.axes.T), axis=1) == k
-            if sel.any():
-                cols[sel] = E.tiled(b.ex, local[sel][:, [i, j]])
-        img = np.zeros((size, size, 3), np.float32)
-        img[tx.ij[:, 0], tx.ij[:, 1]] = cols
-        tiled_space.append(pad_seams(img, tx.mask, 8)[0])
     report["seams"]["per_chart_uv_synthesis"] = seam_ratio(views, albedos(uv_space), charts, face_group)
+    # repeats: the largest group painted from a stone photo (no period of its own) at a tenth of the
+    # part's longest side (so the part holds many photo widths), synthesised and tiled
     big = max(range(len(texels)), key=lambda g: len(texels[g].face))
-    report["repeats"] = {"group": big, "exclude_texels": 24, "look": repeat_peak(textures[big], texels[big].mask),
-                         "tiled": repeat_peak(tiled_space[big], texels[big].mask)}
+    rock = E.Photo(stone(), "stone.png")
+    probe = E.PhotoPainter(_Plain(), {big: E.PhotoLayer(rock)}, seed=config.seed, texture_size=size).bind(shape, grouping, config.up_axis())
+    b = probe._bound[big]
+    probe = E.PhotoPainter(_Plain(), {big: E.PhotoLayer(rock, scale=b.scale / 5.0)}, seed=config.seed, texture_size=size).bind(shape, grouping, config.up_axis())
+    b, tx = probe._bound[big], texels[big]
+    from proctex.texture.paint import blend_normals, shape_frame
+
+    c0, r0 = shape_frame(shape)
+    normals = blend_normals(shape, grouping.parts[grouping.groups[big].representative].faces, tx)
+    synth = np.zeros((size, size, 3), np.float32)
+    synth[tx.ij[:, 0], tx.ij[:, 1]] = probe.paint((tx.points - c0) / r0, normals, group=big)
+    local = (tx.points - b.centre) @ b.axes.T / b.ex.pixel  # tiled on the surface: the same frame, the photo repeated
+    cols = np.empty((len(tx.face), 3), np.float32)
+    for k, (i, j) in enumerate(((1, 2), (0, 2), (0, 1))):  # the dominant projection, not blended
+        sel = np.argmax(np.abs(normals @ b.axes.T), axis=1) == k
+        if sel.any():
+            cols[sel] = E.tiled(b.ex, local[sel][:, [i, j]])
+    tiled = np.zeros((size, size, 3), np.float32)
+    tiled[tx.ij[:, 0], tx.ij[:, 1]] = cols
+    report["repeats"] = {"group": big, "exclude_texels": 24, "photo_widths_on_the_part": 10.0,
+                         "synthesised": repeat_peak(synth, tx.mask), "tiled": repeat_peak(tiled, tx.mask)}
     for kind in ("prompt", "photos"):
         remove_look(store, f"bench-{kind}")
     text = json.dumps(report, indent=1)
