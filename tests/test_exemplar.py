@@ -263,6 +263,19 @@ def test_the_prompts_named_parts_keep_their_clauses_under_the_photo_of_the_rest(
     assert np.linalg.norm(_mean_colour(over, leg) - photo.rgb.reshape(-1, 3).mean(0)) < 0.12
 
 
+def test_the_groups_without_a_photo_are_painted_as_the_prompt_alone_paints_them(chair):
+    """A photo on the legs changes nothing else: every other group's texture and maps equal a
+    prompt-only paint's, texel for texel (gutter included)."""
+    shape, grouping = chair
+    leg = next(g.index for g in grouping.groups if g.label == "leg")
+    prompt = "a chair with a red velvet seat"
+    plain = paint_template(shape, grouping, prompt, size=64)
+    photo = paint_template(shape, grouping, prompt, size=64, photos={"leg": E.PhotoLayer(E.Photo(blobs(15), "p"))})
+    for a, b in zip(plain.groups, photo.groups):
+        same = np.array_equal(a.image, b.image) and np.array_equal(a.pbr.orm, b.pbr.orm) and np.array_equal(a.pbr.normal, b.pbr.normal)
+        assert same == (a.group != leg), a.group
+
+
 def _grain_axis(shape, grouping, group: int, layer) -> float:
     """|cos| between the photo's grain (the direction colour varies least along) on the group's
     largest face and the group's long axis."""

@@ -520,14 +520,20 @@ class PhotoPainter:
     photos: Mapping[int, PhotoLayer]
     seed: int = 0
     texture_size: int = 512
-    #: asks :func:`proctex.texture.paint.paint_surface` and :func:`~proctex.texture.paint.paint_material_maps`
-    #: for a smooth normal field (:func:`proctex.texture.paint.blend_normals`) rather than face normals:
-    #: the tri-planar weights then vary continuously across faces, creases and UV seams.
-    smooth_normals = True
+
     _bound: dict[int, _Bound] = field(default_factory=dict)
     _notes: list[str] = field(default_factory=list)
     _kept: dict[tuple, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     _frame: tuple[np.ndarray, float] | None = None
+
+    @property
+    def blend_groups(self) -> set[int]:
+        """The photographed groups: :func:`proctex.texture.paint.paint_surface` and
+        :func:`~proctex.texture.paint.paint_material_maps` give their texels a smooth normal field
+        (:func:`proctex.texture.paint.blend_normals`) rather than face normals, so the tri-planar
+        weights vary continuously across faces, creases and UV seams, and paint a ring of texels
+        past their charts; the other groups are painted exactly as the prompt alone paints them."""
+        return set(self.photos)
 
     def bind(self, shape, grouping, up: str = "z", parts=None) -> "PhotoPainter":
         """Place each photo on its group's representative part (frame, scale, prefiltering)."""
@@ -583,7 +589,7 @@ class PhotoPainter:
         keeping the variance. Returns ``(rgb (n, 3) or None without colour, contrast (n,), height
         gradient (n, 3) per unit length in photo-pixel heights)``: the gradient of each plane turned
         back to its two part axes before the planes are blended. The normals are the smooth ones
-        (:attr:`smooth_normals`), so the weights are continuous wherever the surface is."""
+        (:attr:`blend_groups`), so the weights are continuous wherever the surface is."""
         local = (points - b.centre) @ b.axes.T / b.ex.pixel  # photo pixels along the part's axes
         along = np.asarray(normals, dtype=np.float64) @ b.axes.T
         wts = np.abs(along) ** SHARP

@@ -244,9 +244,12 @@ def paint_surface(
         size: texture size (square); uv: a precomputed layout (else unwrapped here at ``size``).
         gutter: seam padding in texels.
         prompts: prompt per group for the record (defaults to what the painter reports, if anything).
-        ring: also paint the texels within this many texels of a chart at their place on the surface
+        ring: for the painter's ``blend_groups`` (a :class:`proctex.texture.exemplar.PhotoPainter`'s
+            photographed groups, which also get :func:`blend_normals` instead of face normals), also
+            paint the texels within this many texels of a chart at their place on the surface
             extended past its edge (:func:`proctex.texture.uv.ring_texels`) before the gutter is
-            filled: chart borders read true colours (0: the gutter copies the nearest texel only).
+            filled: chart borders read true colours (0, and every other group: the gutter copies
+            the nearest texel only, as ever).
 
     Returns:
         :class:`TemplateTexture` (method "surface").
@@ -261,10 +264,11 @@ def paint_surface(
     timings: dict[str, float] = {"uv": t1 - t0, "texels": time.perf_counter() - t1}
     out = []
     t_paint = 0.0
-    smooth = bool(getattr(painter, "smooth_normals", False))
+    blended = set(getattr(painter, "blend_groups", ()))  # groups painted by projections that follow a smooth normal field
     for g, texels in zip(grouping.groups, maps):
         t1 = time.perf_counter()
         rep = grouping.parts[g.representative]
+        smooth = g.index in blended
         normals = blend_normals(shape, rep.faces, texels) if smooth else texels.normals
         colors = np.asarray(painter.paint((texels.points - center) / scale, normals, group=g.index, label=g.label), dtype=np.float32)
         if colors.shape != (len(texels.face), 3) or not np.isfinite(colors).all():
@@ -272,7 +276,7 @@ def paint_surface(
         image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
         image[texels.ij[:, 0], texels.ij[:, 1]] = np.clip(colors, 0, 1)
         held = texels.mask
-        if ring > 0:
+        if ring > 0 and smooth:
             extra = ring_texels(texels, shape.vertices, shape.faces[rep.faces], uv.corner_uv[rep.faces], ring)
             if len(extra.face):
                 en = blend_normals(shape, rep.faces, extra) if smooth else extra.normals
@@ -300,7 +304,7 @@ SMOOTH_ROUNDS = 8
 
 def blend_normals(shape: Shape, faces: np.ndarray, texels: TexelMap, rounds: int = SMOOTH_ROUNDS) -> np.ndarray:
     """(t, 3) a smooth normal field at ``texels`` of ``shape``'s ``faces`` (a part's face indices), for
-    painters that blend projections by the normal (:attr:`proctex.texture.exemplar.PhotoPainter.smooth_normals`):
+    painters that blend projections by the normal (:attr:`proctex.texture.exemplar.PhotoPainter.blend_groups`):
     the area-weighted vertex normals with vertices at one place welded (an export splits them at UV
     seams and hard edges), averaged with their neighbours ``rounds`` times (so a crease hands over
     across a few faces, not at the edge), interpolated by the texels' barycentrics."""
@@ -352,7 +356,7 @@ def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occ
     for g, gt in zip(tex.grouping.groups, tex.groups):
         rep = tex.grouping.parts[g.representative]
 
-        blend = blend_normals(tex.shape, rep.faces, gt.texels) if getattr(painter, "smooth_normals", False) else None
+        blend = blend_normals(tex.shape, rep.faces, gt.texels) if g.index in set(getattr(painter, "blend_groups", ())) else None
 
         def props(p, n, t, b, g=g, blend=blend):
             if blend is not None:  # the field the colour's projections followed, for the relief's
