@@ -48,7 +48,8 @@ def stored_uv(files: TemplateFiles, shape: Any, grouping: Any, resolution: int) 
 
 
 def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look: LookLayout, state: FamilyState | None = None,
-               log: Callable[[str], None] = print, photos: dict[str, Any] | None = None) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
+               log: Callable[[str], None] = print, photos: dict[str, Any] | None = None,
+               glb: bytes | None = None) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
     """Paint the stored template with ``paint`` and return the files of ``look`` (paths relative to
     the store, ``look.json`` last) and its record. ``photos``: the
     :class:`proctex.texture.exemplar.Photo` of each ``paint.images`` key (a look from photos; read
@@ -76,8 +77,12 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
             kept.append((look.file(f"photo-{i}.png"), png))
             images[key] = {**entry, "file": look.file(f"photo-{i}.png"), "sha256": digest(png), "name": read[key].name, "notes": list(read[key].notes)}
         paint, photos = replace(paint, images=images).validate(), read
-    tex = paint_with(shape, grouping, paint, seed=config.seed, up=config.up_axis(), uv=uv, photos=photos,
-                     on_view=lambda k, n, st: log(f"look {look.name}: view {k + 1}/{n}, {st['texels_updated']} texels"))
+    if glb is not None:
+        tex = glb_texture(store, files, shape, grouping, uv, paint.texture_size, glb, config.up_axis())
+        paint = replace_settings(paint, glb={**paint.glb, "faces": len(shape.faces), "extra_triangles": tex.stats["extra_triangles"]})
+    else:
+        tex = paint_with(shape, grouping, paint, seed=config.seed, up=config.up_axis(), uv=uv, photos=photos,
+                         on_view=lambda k, n, st: log(f"look {look.name}: view {k + 1}/{n}, {st['texels_updated']} texels"))
     encoded = encode_textures(tex)
     out: list[tuple[str, bytes]] = list(kept)
     with tempfile.TemporaryDirectory() as tmp:
@@ -102,13 +107,50 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
     return out, record
 
 
+def replace_settings(paint: PaintConfig, **over: Any) -> PaintConfig:
+    from dataclasses import replace
+
+    return replace(paint, **over).validate()
+
+
+def glb_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: Any, uv: Any, size: int, data: bytes, up: str) -> Any:
+    """The look a repainted template GLB (``data``) holds (:func:`proctex.texture.fromglb.textures_from_glb`),
+    the build's maps kept where the file's materials have none; the template ``shape`` back in its
+    own frame in the result."""
+    import io
+
+    from PIL import Image
+
+    from proctex.geometry.shape import Shape
+    from proctex.texture.fromglb import glb_frame, textures_from_glb
+    from proctex.texture.gltf_read import read_textured_glb
+    from proctex.texture.pbr import PbrMaps
+
+    glb = read_textured_glb(data)
+    base = []
+    for g in grouping.groups:
+        orm, normal = files.map_png(g.index, "orm"), files.map_png(g.index, "normal")
+        if orm is None or normal is None:
+            base.append(None)
+            continue
+        read = [np.asarray(Image.open(io.BytesIO(b)).convert("RGB").resize((size, size)), dtype=np.float32) / 255.0 for b in (orm, normal)]
+        base.append(PbrMaps(read[0], read[1], bool(files.group(g.index).get("occlusion", False))))
+    turned = Shape(glb_frame(shape.vertices, up), shape.faces)
+    tex, match, notes = textures_from_glb(turned, grouping, uv, glb, size, base)
+    tex.shape = shape
+    tex.stats["extra_triangles"] = match.extra
+    tex.notes.extend(notes)
+    return tex
+
+
 def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
-             timeout: float = 60.0, photos: dict[str, Any] | None = None) -> dict[str, Any]:
+             timeout: float = 60.0, photos: dict[str, Any] | None = None, glb: bytes | None = None) -> dict[str, Any]:
     """Paint look ``name`` of the built family in ``store`` with ``paint`` (and the family's stored
     part words, :func:`with_stored_words`) and store it in ``looks/<name>/`` as one change (staged
     beside it, then put in place: a reader sees the whole look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
     waits up to ``timeout`` s for an edit or another look being written. ``photos``: a look from
-    photos' images already read (:func:`look_files`). Returns the look's record."""
+    photos' images already read; ``glb``: a repainted template GLB's bytes (:func:`look_files`).
+    Returns the look's record."""
     check_look_name(name)
     paint = paint.validate()
     state = FamilyState.load(store)
@@ -122,7 +164,7 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = Fa
         raise ValueError(f"the family has a look {name!r} already; --force replaces it")
     paint = with_stored_words(store, config.paint, paint)
     with store_lock(store, StoreLayout.BUILD_LOCK, f"adding look {name}", shared=True, busy=StoreBusy, note=True):
-        files, record = look_files(store, config, paint, look, state, log, photos=photos)
+        files, record = look_files(store, config, paint, look, state, log, photos=photos, glb=glb)
         with store_lock(store, StoreLayout.EDIT_LOCK, f"adding look {name}", timeout=timeout, busy=StoreBusy):
             if store.exists(look.RECORD) and not force:
                 raise ValueError(f"the family has a look {name!r} already (made meanwhile); --force replaces it")

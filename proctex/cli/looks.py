@@ -4,6 +4,7 @@ on the built family in seconds."""
 from __future__ import annotations
 
 import argparse
+import os
 
 from .common import _group_prompts, _print_json
 
@@ -17,6 +18,18 @@ def cmd_look(args: argparse.Namespace) -> int:
     store = FamilyStore(args.family)
     state = FamilyState.load(store)
     config = state.build_config(store.uri)
+    if args.action == "add" and args.from_glb:
+        if args.image or args.prompt or args.group_prompts:
+            raise ValueError("--from reads a look from a repainted template GLB: it takes no --prompt, --image or --group-prompts")
+        data = read_glb_file(args.from_glb)
+        from proctex.store.layout import digest
+
+        paint = new_look_paint(config.paint, None, texture_size=args.texture_size,
+                               glb={"name": os.path.basename(args.from_glb)[:200], "sha256": digest(data)})
+        record = add_look(store, args.name, paint, force=args.force, log=(lambda *_: None) if args.json else print, glb=data)
+        if args.json:
+            _print_json({"family": store.uri, "look": record})
+        return 0
     if args.action == "add":
         images, photos = photo_args(args)
         if not images and (not args.prompt or not args.prompt.strip()):
@@ -44,6 +57,22 @@ def cmd_look(args: argparse.Namespace) -> int:
         made = "built" if r["built"] else f"added {r.get('made', '?')} ({r.get('seconds', 0):.1f} s)"
         print(f"{r['name']:<{width}}  {r['painter']:<9} {r['texture_size']:>5}px  {r['edits']} edits  {made}  {r['prompt']!r}")
     return 0
+
+
+#: the largest GLB ``look add --from`` reads.
+MAX_GLB_BYTES = 512 * 2**20
+
+
+def read_glb_file(path: str) -> bytes:
+    """A GLB file's bytes, its size checked first (:data:`MAX_GLB_BYTES`); ``ValueError`` naming it."""
+    try:
+        size = os.path.getsize(path)
+    except OSError as exc:
+        raise ValueError(f"cannot read {path!r}: {exc.strerror or exc}") from None
+    if size > MAX_GLB_BYTES:
+        raise ValueError(f"{path!r} has {size:,} bytes, over the limit of {MAX_GLB_BYTES:,}")
+    with open(path, "rb") as fh:
+        return fh.read()
 
 
 def _pairs(items: list[str] | None, flag: str) -> dict[str, str]:
@@ -112,6 +141,9 @@ def add_look_parser(sub: argparse._SubParsersAction, painters: list[str], painte
     a.add_argument("family")
     a.add_argument("name", help="the look's name (letters, digits, '.', '_', '-')")
     a.add_argument("--prompt", help="the look's words (optional with --image: then the build's prompt covers what no photo does)")
+    a.add_argument("--from", dest="from_glb", metavar="TEMPLATE.glb",
+                   help="a look from the family's template GLB painted elsewhere (Blender, Substance, ...): its textures "
+                        "resampled into the template's atlases; faces matched by position and UV")
     a.add_argument("--image", action="append", metavar="[PART=]FILE",
                    help="a photo synthesised on PART (a group number, part name or part word; repeat for more); a FILE alone "
                         "covers every group the prompt does not name (PNG, JPEG, WebP, TIFF, BMP, TGA)")

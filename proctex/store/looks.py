@@ -92,16 +92,17 @@ def look_summary(store: FamilyStore, look: LookLayout, build_paint: PaintConfig)
 
 def new_look_paint(build_paint: PaintConfig, prompt: str | None, group_prompts: dict[str, str] | None = None, painter: str | None = None,
                    texture_size: int | None = None, part_words: dict[str, str] | None = None,
-                   images: dict[str, dict[str, Any]] | None = None) -> PaintConfig:
+                   images: dict[str, dict[str, Any]] | None = None, glb: dict[str, Any] | None = None) -> PaintConfig:
     """The paint settings of a new look: the build's (views, fill, ...) with ``prompt`` and, where
     given, ``painter`` and ``texture_size`` over them; group prompts only those given (the build's
     belong to its prompt); part words (the user's word per group) those given over the build's
     (:func:`proctex.build.looks.add_look` lays the family's stored ones between). ``images``: a look
     from photos (:attr:`PaintConfig.images`); it paints with the surface painter, and without a
     ``prompt`` keeps the build's (for the groups no photo covers and every group's metalness).
+    ``glb``: a look read from a repainted template GLB (its name and checksum, for the record).
     Checked (``ValueError``)."""
-    if prompt is None and not images:
-        raise ValueError("a new look needs a prompt, photos, or both")
+    if prompt is None and not images and not glb:
+        raise ValueError("a new look needs a prompt, photos, or both (or a repainted template GLB)")
     over: dict[str, Any] = {"prompt": build_paint.prompt if prompt is None else prompt, "group_prompts": dict(group_prompts or {}),
                             "part_words": {**build_paint.part_words, **{str(k): v for k, v in (part_words or {}).items()}}}
     if painter is not None:
@@ -109,6 +110,7 @@ def new_look_paint(build_paint: PaintConfig, prompt: str | None, group_prompts: 
     if texture_size is not None:
         over["texture_size"] = texture_size
     over["images"] = dict(images or {})
+    over["glb"] = dict(glb or {})
     if images and painter is None:
         over["painter"] = "surface"
     return replace(build_paint, **over).validate()

@@ -113,6 +113,8 @@ class PaintConfig:
             (a group number, label or part word, or ``"*"``: the groups nothing else names) ->
             ``{"file", "scale", "rotate", "normal", "roughness", ...}`` (:func:`proctex.texture.exemplar.check_images`);
             such a look paints with the surface painter.
+        glb: a look read from a repainted template GLB (:mod:`proctex.texture.fromglb`): its file's
+            ``name``, ``sha256`` and match counts, for the record.
     """
 
     prompt: str = "oak"
@@ -129,6 +131,7 @@ class PaintConfig:
     steps: int = 20
     occlusion: bool = False
     images: dict[str, dict[str, Any]] = field(default_factory=dict)
+    glb: dict[str, Any] = field(default_factory=dict)
 
     def validate(self) -> "PaintConfig":
         if not isinstance(self.prompt, str):
@@ -157,6 +160,11 @@ class PaintConfig:
                 raise ValueError(f"a look from photos paints with the surface painter, not {self.painter!r}")
         elif self.images != {}:
             raise ValueError("images must be an object {part: photo}")
+        if not isinstance(self.glb, dict) or len(self.glb) > 8 or not all(
+                isinstance(k, str) and isinstance(v, (str, int, float, bool)) and len(str(v)) <= 400 for k, v in self.glb.items()):
+            raise ValueError("glb must be a short object (the repainted template GLB's name, checksum and match counts)")
+        if self.glb and self.images:
+            raise ValueError("a look comes from a repainted template GLB or from photos, not both")
         return self
 
 
