@@ -220,3 +220,42 @@ def test_a_template_glb_through_blender_reads_back_within_a_bound(mug, tmp_path,
     built, back = _images(base / "template"), _images(base / "looks" / "blender")
     for name in built:
         assert np.abs(built[name] - back[name]).max() <= 1, name  # measured: identical (Blender keeps the PNGs)
+
+
+def test_a_repainted_template_over_http(mug, tmp_path):
+    """``POST .../looks`` multipart with a ``look`` field and a ``glb`` file: the look, served at
+    once; a GLB of other geometry is a 422 naming the counts and writes nothing."""
+    import asyncio
+
+    httpx = pytest.importorskip("httpx")
+    from proctex.serve.catalog import Catalog
+    from workers.http import create_app
+
+    base = Path(mug.base)
+    cat = Catalog(str(base.parent), check_every=0)
+    app = create_app(lambda: cat, edit_token="glb-token-123")
+    token = {"X-ProcTex-Token": "glb-token-123"}
+    src = (base / "template" / "textured.glb").read_bytes()
+    m = read_textured_glb(src)
+    moved = glb_bytes(m.vertices + 0.05, m.faces, m.corner_uv, m.face_group, m.textures, names=m.names, up="y")
+
+    async def run():
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t", timeout=60) as c:
+            before = _files(base)
+            bad = await c.post("/v1/families/mug/looks", data={"look": json.dumps({"name": "moved"})},
+                               files={"glb": ("moved.glb", moved, "model/gltf-binary")}, headers=token)
+            mixed = await c.post("/v1/families/mug/looks", data={"look": json.dumps({"name": "x", "prompt": "oak"})},
+                                 files={"glb": ("t.glb", src, "model/gltf-binary")}, headers=token)
+            nothing = _files(base) == before
+            good = await c.post("/v1/families/mug/looks", data={"look": json.dumps({"name": "back"})},
+                                files={"glb": ("t.glb", src, "model/gltf-binary")}, headers=token)
+            served = await c.post("/v1/families/mug/transfer?look=back", json={"params": {}})
+            return bad, mixed, nothing, good, served
+
+    bad, mixed, nothing, good, served = asyncio.run(run())
+    assert bad.status_code == 422 and "have no triangle at their place" in bad.json()["error"], bad.text
+    assert mixed.status_code == 422 and "takes only name" in mixed.json()["error"]
+    assert nothing and good.status_code == 200 and served.status_code == 200, good.text
+    assert good.json()["look"]["paint"]["glb"]["name"] == "t.glb"
+    built, back = _images(base / "template"), _images(base / "looks" / "back")
+    assert all(np.array_equal(built[n], back[n]) for n in built)

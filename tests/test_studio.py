@@ -535,3 +535,32 @@ def test_the_studio_makes_a_look_from_photos_chosen_in_a_panel_and_dropped_on_a_
         assert not errors, errors
     finally:
         context.close()
+
+
+def test_the_studio_makes_a_look_from_a_repainted_template_glb(server, browser, tmp_path):
+    """Issue 53: the family's template GLB chosen in the "add look" box (no prompt) becomes a look
+    whose textures are the GLB's, texel for texel, and is shown."""
+    from PIL import Image
+
+    base, root = server
+    glb = tmp_path / "repainted.glb"
+    glb.write_bytes((root / "mug" / "template" / "textured.glb").read_bytes())
+    context, page, errors = _page(browser)
+    try:
+        page.goto(base + "/?family=mug#token=" + STUDIO_TOKEN)
+        _wait_for_shape(page, 1)
+        page.set_input_files("#look-glb", str(glb))
+        n = _requests(page)
+        page.fill("#look-name", "fromglb")
+        page.click("#addlook button[type=submit]")
+        _wait_for_shape(page, n + 1, timeout=120_000)
+        assert page.evaluate("document.getElementById('look').value") == "fromglb"
+        look = json.loads((root / "mug" / "looks" / "fromglb" / "look.json").read_text())
+        assert look["paint"]["glb"]["name"] == "repainted.glb"
+        for png in (root / "mug" / "template").glob("group_*.png"):
+            a = np.asarray(Image.open(png).convert("RGB"))
+            b = np.asarray(Image.open(root / "mug" / "looks" / "fromglb" / png.name).convert("RGB"))
+            assert np.array_equal(a, b), png.name
+        assert not errors, errors
+    finally:
+        context.close()

@@ -276,15 +276,18 @@ MAX_LOOK_TEXTURE = 2048
 
 #: photos one look may carry over HTTP (multipart file fields ``image.<part>``).
 MAX_LOOK_PHOTOS = 8
-#: a photo look's whole multipart body, at most (each photo's pixels are bounded from its header).
-MAX_LOOK_BODY = 24 * 2**20
+#: a photo look's or a repainted template GLB's whole multipart body, at most (each photo's pixels
+#: are bounded from its header).
+MAX_LOOK_BODY = 64 * 2**20
 
 
 async def read_look_request(request: Request, limits: Limits | None = None) -> tuple[dict[str, Any], dict[str, tuple[bytes, str]]]:
     """``(body, photos)`` of a ``POST .../looks``: a JSON object, or ``multipart/form-data`` with a
     ``look`` field holding that JSON and a file field ``image.<part>`` per photo (``image.*``: the
     photo of the rest); ``photos``: part -> (bytes, file name). Sizes bounded before anything is
-    decoded: the body (:data:`MAX_LOOK_BODY`), the photo count (:data:`MAX_LOOK_PHOTOS`)."""
+    decoded: the body (:data:`MAX_LOOK_BODY`), the photo count (:data:`MAX_LOOK_PHOTOS`). A file field
+    ``glb`` instead: the family's template GLB painted elsewhere (a look read from it), under the key
+    ``"glb"``."""
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if ctype != "multipart/form-data":
         return await read_json_object(request, limits=limits), {}
@@ -299,13 +302,18 @@ async def read_look_request(request: Request, limits: Limits | None = None) -> t
             if text is not None:
                 raise BadInput("the 'look' field is given twice")
             text = value
+        elif key == "glb" and not isinstance(value, str):
+            if "glb" in photos:
+                raise BadInput("the 'glb' file is given twice")
+            photos["glb"] = (await value.read(MAX_LOOK_BODY + 1), str(value.filename or "template.glb")[:120])
         elif key.startswith("image.") and not isinstance(value, str):
             part = key[len("image."):]
             if not part or len(part) > 200 or part in photos:
                 raise BadInput(f"photo fields are image.<part> (a group number, part name or word, or *), each once; got {key[:60]!r}")
             photos[part] = (await value.read(MAX_LOOK_BODY + 1), str(value.filename or part)[:120])
         else:
-            raise BadInput(f"unknown multipart field {key[:60]!r}; a photo look sends 'look' (JSON) and image.<part> files")
+            raise BadInput(f"unknown multipart field {key[:60]!r}; a photo look sends 'look' (JSON) and image.<part> files, "
+                           "a repainted template 'look' and a 'glb' file")
     if text is None:
         raise BadInput("a multipart look needs a 'look' field: the look's JSON ({\"name\": ..., \"prompt\": ...})")
     try:
@@ -349,15 +357,19 @@ def parse_look(body: dict[str, Any], svc: Any, files: dict[str, tuple[bytes, str
     from proctex.store.layout import check_look_name
     from proctex.store.looks import new_look_paint
 
-    files = files or {}
+    files = dict(files or {})
+    glb = files.pop("glb", None)
+    if glb is not None:
+        if files or set(body) - {"name", "texture_size", "force"}:
+            raise BadInput("a look from a repainted template GLB takes only name, texture_size and force, and no photos")
     unknown = set(body) - {"name", "prompt", "group_prompts", "part_words", "painter", "texture_size", "force", "images"}
     if unknown:
         raise BadInput(f"unknown fields {sorted(unknown)[:5]}; a look takes name, prompt, group_prompts, part_words, painter, "
                        "texture_size, force, images")
     name, prompt = body.get("name"), body.get("prompt")
     check_look_name(name)
-    if files and prompt is None:
-        pass  # a look from photos alone: the build's prompt covers what no photo does
+    if (files or glb is not None) and prompt is None:
+        pass  # a look from photos alone (the build's prompt covers what no photo does) or from a GLB
     elif not isinstance(prompt, str) or not prompt.strip() or len(prompt) > svc.limits.max_prompt:
         raise BadInput(f"prompt must be text of 1 to {svc.limits.max_prompt} characters")
     prompts = body.get("group_prompts") or {}
@@ -377,7 +389,15 @@ def parse_look(body: dict[str, Any], svc: Any, files: dict[str, tuple[bytes, str
         images, photos = parse_photos(body, files, under_prompt=prompt is not None) if files else ({}, {})
         if body.get("images") and not files:
             raise BadInput("images are settings of photos: send them as multipart file fields image.<part>")
-        paint = new_look_paint(svc.config.paint, prompt, prompts, body.get("painter"), size, part_words=words, images=images)
+        glb_record = None
+        if glb is not None:
+            from proctex.store.layout import digest
+
+            if len(glb[0]) > MAX_LOOK_BODY:
+                raise TooLarge(f"the GLB is over the limit of {MAX_LOOK_BODY} bytes")
+            glb_record = {"name": glb[1], "sha256": digest(glb[0])}
+            photos = {"glb": glb[0]}
+        paint = new_look_paint(svc.config.paint, prompt, prompts, body.get("painter"), size, part_words=words, images=images, glb=glb_record)
     except (TypeError, ValueError) as exc:
         raise BadInput(str(exc)[:500]) from exc
     return name, paint, force, photos
@@ -418,12 +438,15 @@ def save_parts(svc: Any, body: dict[str, Any]) -> dict[str, str]:
 
 
 def add_look_to(svc: Any, name: str, paint: Any, force: bool, photos: dict[str, Any] | None = None) -> dict[str, Any]:
-    """:func:`proctex.build.looks.add_look` on the service's family; a busy store is a conflict (409)."""
+    """:func:`proctex.build.looks.add_look` on the service's family (``photos``: a photo look's photos,
+    or ``{"glb": bytes}`` for a repainted template); a busy store is a conflict (409)."""
     from proctex.build.looks import add_look
     from proctex.store.locks import StoreBusy
 
+    glb = (photos or {}).get("glb") if paint.glb else None
     try:
-        return add_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0, photos=photos)
+        return add_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0, photos=None if glb is not None else photos,
+                        glb=glb)
     except StoreBusy as exc:
         raise EditConflict(str(exc)) from exc
 

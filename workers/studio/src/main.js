@@ -740,13 +740,19 @@ async function addLook(event) {
   const name = $('look-name').value.trim();
   const prompt = $('look-prompt').value.trim();
   const photos = Object.entries(studio.photos);
-  if (!name || (!prompt && !photos.length)) return;
+  const glb = $('look-glb').files[0] || null;
+  if (!name || (!prompt && !photos.length && !glb)) return;
   for (const el of form.elements) el.disabled = true;
   setBusy(true);
   try {
     const look = prompt ? { name, prompt } : { name };
     let request;
-    if (photos.length) { // multipart: the look's JSON and a file per photographed group
+    if (glb) { // the family's template GLB painted elsewhere: its textures read back into the atlases
+      const data = new FormData();
+      data.append('look', JSON.stringify({ name }));
+      data.append('glb', glb, glb.name);
+      request = { method: 'POST', headers: { 'X-ProcTex-Token': editToken() }, body: data };
+    } else if (photos.length) { // multipart: the look's JSON and a file per photographed group
       const data = new FormData();
       data.append('look', JSON.stringify(look));
       for (const [g, file] of photos) data.append(`image.${g}`, file, file.name);
@@ -757,6 +763,8 @@ async function addLook(event) {
     await api(`${familyPath(studio.family)}looks`, request);
     $('look-name').value = '';
     $('look-prompt').value = '';
+    $('look-glb').value = '';
+    $('look-prompt').required = true;
     for (const g of Object.keys(studio.photos)) setPhoto(Number(g), null);
     await loadFamily(studio.family.name, { keepView: true, look: name });
   } catch (err) {
@@ -780,6 +788,11 @@ async function start() {
       loadFamily(studio.family.name, { keepView: true, look }).catch((e) => showError(e.message));
     });
     $('addlook').addEventListener('submit', addLook);
+    $('look-glb').addEventListener('change', (ev) => { // a GLB needs no prompt
+      const file = ev.target.files[0];
+      $('look-prompt').required = !file && !Object.keys(studio.photos).length;
+      $('look-prompt').placeholder = file ? `from ${file.name}` : 'prompt, e.g. white oak';
+    });
     $('save-words').addEventListener('click', saveWords);
     $('download').addEventListener('click', download);
     $('mesh').addEventListener('change', (ev) => {
