@@ -259,3 +259,60 @@ def test_a_repainted_template_over_http(mug, tmp_path):
     assert good.json()["look"]["paint"]["glb"]["name"] == "t.glb"
     built, back = _images(base / "template"), _images(base / "looks" / "back")
     assert all(np.array_equal(built[n], back[n]) for n in built)
+
+
+# ------------------------------------------------------------------------- a textured member (item 3)
+def _look_error(base: Path, reference: str, look: str) -> dict[str, float]:
+    """Mean absolute error (0-255 levels) per group texture of ``look`` against ``reference``'s, on
+    the reference's painted texels."""
+    ref = base / "looks" / reference
+    masks = np.load(ref / "painted.npz")
+    out = {}
+    for name, img in _images(ref).items():
+        g = int(name.split("_")[1])
+        other = _images(base / "looks" / look)[name]
+        out[name] = float(np.abs(img - other)[masks[f"g{g}"]].mean())
+    return out
+
+
+def test_a_member_textured_by_the_family_reads_back_as_its_look_and_a_mirrored_one_does_not(mug, tmp_path, capsys):
+    """The template's own shape transferred in a striped look (our own transfer: a member textured in
+    its own UVs) and read back with its parameters, or as a mesh: the look's textures again within
+    3 levels, nothing filled; the same member mirrored reads back clearly worse, and with the
+    parameters it is refused (it is not that shape)."""
+    from proctex.build.looks import add_look
+    from proctex.store.samples import samples
+    from proctex.store.state import FamilyState
+
+    base = Path(mug.base)
+    paint = FamilyState.load(mug).build_config().paint
+    from dataclasses import replace
+
+    add_look(mug, "zebra", replace(paint, prompt="black and white zebra stripes", texture_size=64), log=lambda *_: None)
+    tid = FamilyState.load(mug).stage("template")["id"]
+    params = next(r for r in samples(mug) if r["id"] == tid)["params"]
+    params = params if isinstance(params, str) else json.dumps(params)
+    member = tmp_path / "member.glb"
+    assert main(["transfer", str(base), "--params", params, "--look", "zebra", "--out", str(member)]) == 0
+    m = read_textured_glb(member.read_bytes())
+    mirror = tmp_path / "mirror.glb"
+    mirror.write_bytes(glb_bytes(m.vertices * np.array([-1.0, 1.0, 1.0]), m.faces[:, ::-1], m.corner_uv[:, ::-1], m.face_group, m.textures,
+                                 names=m.names, up="y"))
+    capsys.readouterr()
+    for name, argv in (("byparams", ["--params", params]), ("bymesh", ["--member"]), ("mirrored", ["--member"])):
+        src = mirror if name == "mirrored" else member
+        assert main(["look", "add", str(base), name, "--from", str(src), "--texture-size", "64", *argv]) == 0, capsys.readouterr().err
+    errors = {name: _look_error(base, "zebra", name) for name in ("byparams", "bymesh", "mirrored")}
+    body = next(n for n in errors["byparams"] if "body" in n)
+    # measured: 0.22 and 0.0 levels both ways back; the mirrored member's body 60 levels
+    assert max(errors["byparams"].values()) < 3.0 and max(errors["bymesh"].values()) < 3.0, errors
+    assert errors["mirrored"][body] > 10.0, errors
+    record = json.loads((base / "looks" / "byparams" / "look.json").read_text())["paint"]["glb"]
+    assert record["member"] is True and record["filled_share"] < 0.01
+    assert main(["look", "add", str(base), "refused", "--from", str(mirror), "--params", params]) != 0
+    err = capsys.readouterr().err
+    assert "is not the family's shape for these parameters" in err and "Traceback" not in err, err
+    for argv, message in ((["--from", str(member), "--params", "{nope"], "not valid JSON"), (["--member", "--prompt", "oak"], "go with --from")):
+        assert main(["look", "add", str(base), "bad", *argv]) != 0
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, (argv, err)

@@ -49,7 +49,7 @@ def stored_uv(files: TemplateFiles, shape: Any, grouping: Any, resolution: int) 
 
 def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look: LookLayout, state: FamilyState | None = None,
                log: Callable[[str], None] = print, photos: dict[str, Any] | None = None,
-               glb: bytes | None = None) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
+               glb: bytes | None = None, member: dict[str, Any] | None = None) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
     """Paint the stored template with ``paint`` and return the files of ``look`` (paths relative to
     the store, ``look.json`` last) and its record. ``photos``: the
     :class:`proctex.texture.exemplar.Photo` of each ``paint.images`` key (a look from photos; read
@@ -77,7 +77,10 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
             kept.append((look.file(f"photo-{i}.png"), png))
             images[key] = {**entry, "file": look.file(f"photo-{i}.png"), "sha256": digest(png), "name": read[key].name, "notes": list(read[key].notes)}
         paint, photos = replace(paint, images=images).validate(), read
-    if glb is not None:
+    if member is not None:
+        tex, report = member_texture(store, files, shape, grouping, uv, paint.texture_size, member["glb"], member.get("params"), config)
+        paint = replace_settings(paint, glb={**paint.glb, "member": True, "filled_share": round(report.filled_share, 4)})
+    elif glb is not None:
         tex = glb_texture(store, files, shape, grouping, uv, paint.texture_size, glb, config.up_axis())
         paint = replace_settings(paint, glb={**paint.glb, "faces": len(shape.faces), "extra_triangles": tex.stats["extra_triangles"]})
     else:
@@ -113,20 +116,15 @@ def replace_settings(paint: PaintConfig, **over: Any) -> PaintConfig:
     return replace(paint, **over).validate()
 
 
-def glb_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: Any, uv: Any, size: int, data: bytes, up: str) -> Any:
-    """The look a repainted template GLB (``data``) holds (:func:`proctex.texture.fromglb.textures_from_glb`),
-    the build's maps kept where the file's materials have none; the template ``shape`` back in its
-    own frame in the result."""
+def _base_maps(files: TemplateFiles, grouping: Any, size: int) -> list:
+    """Per group the build look's PBR maps at ``size`` (None where it has none): what a look read from
+    a file keeps where the file brings no maps."""
     import io
 
     from PIL import Image
 
-    from proctex.geometry.shape import Shape
-    from proctex.texture.fromglb import glb_frame, textures_from_glb
-    from proctex.texture.gltf_read import read_textured_glb
     from proctex.texture.pbr import PbrMaps
 
-    glb = read_textured_glb(data)
     base = []
     for g in grouping.groups:
         orm, normal = files.map_png(g.index, "orm"), files.map_png(g.index, "normal")
@@ -135,8 +133,46 @@ def glb_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: 
             continue
         read = [np.asarray(Image.open(io.BytesIO(b)).convert("RGB").resize((size, size)), dtype=np.float32) / 255.0 for b in (orm, normal)]
         base.append(PbrMaps(read[0], read[1], bool(files.group(g.index).get("occlusion", False))))
+    return base
+
+
+def member_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: Any, uv: Any, size: int, data: bytes,
+                   params: dict[str, Any] | None, config: BuildConfig) -> tuple[Any, Any]:
+    """The look a textured member GLB (``data``) holds (:func:`proctex.texture.frommember.textures_from_member`),
+    mapped by the family's run-time path (:class:`proctex.serve.service.FamilyService`): with
+    ``params`` the family's own shape for them, else the file's mesh welded."""
+    from proctex.serve.service import FamilyService
+    from proctex.texture.fromglb import glb_frame
+    from proctex.texture.frommember import member_from_mesh, member_from_params, textures_from_member
+    from proctex.texture.gltf_read import read_textured_glb
+
+    glb = read_textured_glb(data)
+    up = config.up_axis()
+    if params is not None:
+        generated = config.procedural_model().generate(params)
+        member_uv, material, _ = member_from_params(generated, glb_frame(generated.vertices, up), glb)
+        member = generated
+    else:
+        turn = glb_frame(np.eye(3), up)  # the turn as a matrix applied to rows (v @ turn); its transpose turns the file back
+        member, member_uv, material = member_from_mesh(glb, glb.vertices @ turn.T)
+    svc = FamilyService(store)
+    tex, report = textures_from_member(shape, grouping, uv, svc.assets, member, member_uv, material, glb.textures, svc.mapper, size,
+                                       seed=config.seed, base_maps=_base_maps(files, grouping, size))
+    tex.notes.extend(f"member: group {g} {100 * f:.1f}% of its texels filled from neighbours" for g, f in report.filled.items())
+    return tex, report
+
+
+def glb_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: Any, uv: Any, size: int, data: bytes, up: str) -> Any:
+    """The look a repainted template GLB (``data``) holds (:func:`proctex.texture.fromglb.textures_from_glb`),
+    the build's maps kept where the file's materials have none; the template ``shape`` back in its
+    own frame in the result."""
+    from proctex.geometry.shape import Shape
+    from proctex.texture.fromglb import glb_frame, textures_from_glb
+    from proctex.texture.gltf_read import read_textured_glb
+
+    glb = read_textured_glb(data)
     turned = Shape(glb_frame(shape.vertices, up), shape.faces)
-    tex, match, notes = textures_from_glb(turned, grouping, uv, glb, size, base)
+    tex, match, notes = textures_from_glb(turned, grouping, uv, glb, size, _base_maps(files, grouping, size))
     tex.shape = shape
     tex.stats["extra_triangles"] = match.extra
     tex.notes.extend(notes)
@@ -144,12 +180,14 @@ def glb_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: 
 
 
 def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
-             timeout: float = 60.0, photos: dict[str, Any] | None = None, glb: bytes | None = None) -> dict[str, Any]:
+             timeout: float = 60.0, photos: dict[str, Any] | None = None, glb: bytes | None = None,
+             member: dict[str, Any] | None = None) -> dict[str, Any]:
     """Paint look ``name`` of the built family in ``store`` with ``paint`` (and the family's stored
     part words, :func:`with_stored_words`) and store it in ``looks/<name>/`` as one change (staged
     beside it, then put in place: a reader sees the whole look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
     waits up to ``timeout`` s for an edit or another look being written. ``photos``: a look from
-    photos' images already read; ``glb``: a repainted template GLB's bytes (:func:`look_files`).
+    photos' images already read; ``glb``: a repainted template GLB's bytes; ``member``: a textured
+    member's (:func:`look_files`).
     Returns the look's record."""
     check_look_name(name)
     paint = paint.validate()
@@ -164,7 +202,7 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = Fa
         raise ValueError(f"the family has a look {name!r} already; --force replaces it")
     paint = with_stored_words(store, config.paint, paint)
     with store_lock(store, StoreLayout.BUILD_LOCK, f"adding look {name}", shared=True, busy=StoreBusy, note=True):
-        files, record = look_files(store, config, paint, look, state, log, photos=photos, glb=glb)
+        files, record = look_files(store, config, paint, look, state, log, photos=photos, glb=glb, member=member)
         with store_lock(store, StoreLayout.EDIT_LOCK, f"adding look {name}", timeout=timeout, busy=StoreBusy):
             if store.exists(look.RECORD) and not force:
                 raise ValueError(f"the family has a look {name!r} already (made meanwhile); --force replaces it")

@@ -24,12 +24,28 @@ def cmd_look(args: argparse.Namespace) -> int:
         data = read_glb_file(args.from_glb)
         from proctex.store.layout import digest
 
+        member = None
+        if args.params is not None or args.member:
+            params = None
+            if args.params is not None:
+                import json
+
+                try:
+                    params = json.loads(args.params)
+                except (json.JSONDecodeError, RecursionError) as exc:
+                    raise ValueError(f"--params is not valid JSON ({str(exc)[:200]})") from None
+                if not isinstance(params, dict):
+                    raise ValueError(f"--params must be a JSON object of parameter values, got {type(params).__name__}")
+            member = {"glb": data, "params": params}
         paint = new_look_paint(config.paint, None, texture_size=args.texture_size,
                                glb={"name": os.path.basename(args.from_glb)[:200], "sha256": digest(data)})
-        record = add_look(store, args.name, paint, force=args.force, log=(lambda *_: None) if args.json else print, glb=data)
+        record = add_look(store, args.name, paint, force=args.force, log=(lambda *_: None) if args.json else print,
+                          glb=None if member else data, member=member)
         if args.json:
             _print_json({"family": store.uri, "look": record})
         return 0
+    if args.action == "add" and (args.params is not None or args.member):
+        raise ValueError("--params and --member go with --from MEMBER.glb")
     if args.action == "add":
         images, photos = photo_args(args)
         if not images and (not args.prompt or not args.prompt.strip()):
@@ -141,9 +157,12 @@ def add_look_parser(sub: argparse._SubParsersAction, painters: list[str], painte
     a.add_argument("family")
     a.add_argument("name", help="the look's name (letters, digits, '.', '_', '-')")
     a.add_argument("--prompt", help="the look's words (optional with --image: then the build's prompt covers what no photo does)")
-    a.add_argument("--from", dest="from_glb", metavar="TEMPLATE.glb",
+    a.add_argument("--from", dest="from_glb", metavar="FILE.glb",
                    help="a look from the family's template GLB painted elsewhere (Blender, Substance, ...): its textures "
-                        "resampled into the template's atlases; faces matched by position and UV")
+                        "resampled into the template's atlases; faces matched by position and UV. With --params or --member: "
+                        "any textured member of the family, in any UVs")
+    a.add_argument("--params", help="with --from: the member's parameters (JSON): the family's own shape for them")
+    a.add_argument("--member", action="store_true", help="with --from: a textured member of the family without its parameters")
     a.add_argument("--image", action="append", metavar="[PART=]FILE",
                    help="a photo synthesised on PART (a group number, part name or part word; repeat for more); a FILE alone "
                         "covers every group the prompt does not name (PNG, JPEG, WebP, TIFF, BMP, TGA)")

@@ -1,0 +1,192 @@
+"""A look from any textured member of the family (issue 53, item 3): a GLB of one of the family's
+shapes, textured in any UVs, read back into the template's atlases through the family's own
+correspondence.
+
+The member is first made a shape of the family: with its parameters, the family's model generates
+that shape and each of its faces takes the file's triangle at its place (:func:`proctex.texture.fromglb.match_faces`
+by position only: the file's UVs may be anything), so its parts are the model's own; without them,
+the file's vertices are welded by position and its connected pieces are its parts. The member is
+then transferred to the template as any shape is (:func:`proctex.transfer.apply.transfer`: its parts
+assigned to the template's groups and mapped by the family's networks or cage), which puts every
+member triangle where it lands on the template. Each covered texel of a group's atlas takes the
+member's colour at the nearest landed triangle of a part of that group (its barycentrics carried
+to the member's own UVs, read from the member's texture); texels farther than :data:`COVER_TOL` of
+the part's size from any landed triangle are filled from the nearest covered ones on the surface,
+and the share filled is reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["MemberLook", "member_from_params", "member_from_mesh", "textures_from_member", "COVER_TOL"]
+
+#: a template texel is covered when a landed member triangle lies within this share of its part's
+#: size (the networks' errors on unseen shapes are about 0.01 of it).
+COVER_TOL = 0.03
+
+
+@dataclass
+class MemberLook:
+    """What a member gave each group: ``filled`` (group -> share of its covered texels filled from
+    neighbours, no member triangle near), ``parts`` (group -> member parts read), ``notes``."""
+
+    filled: dict[int, float] = field(default_factory=dict)
+    parts: dict[int, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def filled_share(self) -> float:
+        return float(np.mean(list(self.filled.values()))) if self.filled else 1.0
+
+
+def member_from_params(generated, glb_shape_vertices: np.ndarray, glb) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The member's UVs and materials on the family's own shape for its parameters: ``generated``
+    (the model's :class:`~proctex.geometry.shape.Shape`), ``glb_shape_vertices`` its vertices in the
+    file's frame, ``glb`` the file (:class:`proctex.texture.gltf_read.TexturedMesh`). Returns
+    ``(corner_uv (m, 3, 2), material (m,), matched (m,) bool)`` per generated face; ``ValueError``
+    when under 95 % of the faces find the file's triangle at their place."""
+    from .fromglb import match_faces
+
+    corners = np.asarray(glb_shape_vertices, dtype=np.float64)[generated.faces]
+    dummy = np.zeros((len(corners), 3, 2))
+    file_uv0 = np.zeros((len(glb.faces), 3, 2))
+    match = match_faces(corners, dummy, glb.vertices[glb.faces], file_uv0, uv_tol=np.inf)
+    ok = match.face >= 0
+    if ok.mean() < 0.95:
+        raise ValueError(f"the GLB is not the family's shape for these parameters: {int((~ok).sum())} of its {len(ok)} faces have no "
+                         "triangle at their place (the parameters or the file's geometry differ)")
+    ff = np.where(ok, match.face, 0)
+    uv = np.take_along_axis(glb.corner_uv[ff], match.corner[..., None].repeat(2, axis=-1), axis=1)
+    return uv, np.where(ok, glb.face_group[ff], -1), ok
+
+
+def member_from_mesh(glb, vertices: np.ndarray):
+    """The member as a shape of its own: ``vertices`` (the file's, in the family's frame) welded by
+    position (to 1e-6 of its size); faces kept in the file's order. Returns ``(Shape, corner_uv, material)``."""
+    from proctex.geometry.shape import Shape
+
+    v = np.asarray(vertices, dtype=np.float64)
+    size = max(float(np.ptp(v, axis=0).max()), 1e-12)
+    _, first, inverse = np.unique(np.round((v - v.min(axis=0)) / (size * 1e-6)).astype(np.int64), axis=0, return_index=True,
+                                  return_inverse=True)
+    return Shape(v[first], inverse.ravel()[glb.faces]), glb.corner_uv.copy(), glb.face_group.copy()
+
+
+def textures_from_member(template, grouping, uv, assets, member, member_uv: np.ndarray, member_material: np.ndarray,
+                         textures: list[np.ndarray], mapper, size: int, seed: int = 0, base_maps: list | None = None,
+                         gutter: int = 8, cover_tol: float = COVER_TOL):
+    """The look a textured member holds, in the template's atlases.
+
+    Args:
+        template: the template shape; grouping, uv: its grouping and stored :class:`proctex.texture.uv.ShapeUV`.
+        assets: the family's :class:`proctex.transfer.assets.TemplateAssets`; mapper: how it maps parts.
+        member: the member :class:`~proctex.geometry.shape.Shape` (the family's frame); member_uv
+            (m, 3, 2) and member_material (m,) its faces' UVs and texture (-1: none); textures: its images.
+        size: the look's texture side; base_maps: per group the maps to keep (None: flat).
+        cover_tol: :data:`COVER_TOL`.
+    Returns:
+        ``(TemplateTexture, MemberLook)``.
+    """
+    from proctex.geometry.parts import part_mesh, parts_of
+    from proctex.geometry.surface import SurfaceIndex
+    from proctex.transfer.apply import transfer
+
+    from .paint import GroupTexture, TemplateTexture, group_texels
+    from .paint_loop import fill_unseen
+    from .pbr import PbrMaps, flat_maps
+    from .uv import pad_seams, sample_texture
+
+    result = transfer(member, assets, mapper, seed=seed, shortcut=True)
+    seg = parts_of(member)
+    report = MemberLook(notes=list(result.notes))
+    texels = group_texels(template, grouping, uv, size)
+    groups = []
+    for g, tx in zip(grouping.groups, texels):
+        rep = grouping.parts[g.representative]
+        rv = template.vertices[rep.vertices]
+        scale = max(float(np.ptp(rv, axis=0).max()), 1e-12)
+        landed_v, landed_f, owner = [], [], []
+        offset = 0
+        for a in result.assignment:
+            if a.group != g.index or a.part not in result.points:
+                continue
+            part = seg.parts[a.part]
+            _, f = part_mesh(member, part)
+            pts = np.asarray(result.points[a.part], dtype=np.float64)
+            landed_v.append(pts)
+            landed_f.append(f + offset)
+            owner.append(part.faces)  # the member's own face of each landed triangle
+            offset += len(pts)
+        report.parts[g.index] = len(landed_v)
+        colour = np.zeros((len(tx.face), 3))
+        covered = np.zeros(len(tx.face), dtype=bool)
+        if landed_v:
+            lv, lf = np.concatenate(landed_v), np.concatenate(landed_f)
+            hit = SurfaceIndex(lv, lf).query(tx.points)
+            mf = np.concatenate(owner)[hit.faces]
+            covered = (hit.distance <= cover_tol * scale) & (member_material[mf] >= 0)
+            # the texel's centre itself (its face's plane, past the face's edge for a texel on a chart's
+            # border) in the landed triangle's plane: where a texel reads the member, as a painted texel
+            # is where its centre lies (a clamped point would read the texel's neighbour)
+            centre = _texel_centres(template, rep.faces, uv.corner_uv[rep.faces], tx)
+            bary = _plane_bary(centre, lv[lf[hit.faces]])
+            at = np.einsum("tc,tcd->td", bary, member_uv[mf])
+            for mi in np.unique(member_material[mf][covered]):
+                sel = covered & (member_material[mf] == mi)
+                colour[sel] = sample_texture(textures[mi], at[sel])[:, :3]
+        report.filled[g.index] = float(1.0 - covered.mean()) if len(covered) else 1.0
+        if covered.any() and not covered.all():
+            colour = fill_unseen(tx.points, colour, covered)
+        elif not covered.any():
+            colour[:] = 0.5
+            report.notes.append(f"group {g.index}: no part of the member lands on it; painted grey")
+        image = np.full((size, size, 3), 0.5, dtype=np.float32)
+        image[tx.ij[:, 0], tx.ij[:, 1]] = colour
+        image, painted = pad_seams(image, tx.mask, gutter)
+        kept = base_maps[g.index] if base_maps is not None and base_maps[g.index] is not None else flat_maps(size, size)
+        pbr = PbrMaps(kept.orm.copy(), kept.normal.copy(), bool(kept.occlusion))
+        groups.append(GroupTexture(g.index, g.label, f"from a member ({report.parts[g.index]} parts, {100 * report.filled[g.index]:.1f}% filled)",
+                                   image, painted, tx, pbr=pbr))
+    return TemplateTexture(template, grouping, uv, groups, "member", 0.0, list(report.notes)), report
+
+
+def _texel_centres(shape, faces: np.ndarray, corner_uv: np.ndarray, tx) -> np.ndarray:
+    """(t, 3) each texel centre on its face's plane (barycentrics from the UV triangle, not clamped:
+    a border texel's centre may lie past its face's edge), ``faces`` the part's face indices and
+    ``corner_uv`` their UVs."""
+    from .uv import uv_to_pixel
+
+    tri_uv = uv_to_pixel(np.asarray(corner_uv, dtype=np.float64)[tx.face], tx.height, tx.width)
+    p = np.stack([tx.ij[:, 1] + 0.5, tx.ij[:, 0] + 0.5], axis=1)
+    a, b, c = tri_uv[:, 0], tri_uv[:, 1], tri_uv[:, 2]
+    v0, v1, v2 = b - a, c - a, p - a
+    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+    den = d00 * d11 - d01 * d01
+    ok = np.abs(den) > 1e-18
+    den = np.where(ok, den, 1.0)
+    l1 = np.where(ok, (d11 * d20 - d01 * d21) / den, tx.bary[:, 1])
+    l2 = np.where(ok, (d00 * d21 - d01 * d20) / den, tx.bary[:, 2])
+    bary = np.maximum(np.stack([1.0 - l1 - l2, l1, l2], axis=1), -1.0)
+    bary /= bary.sum(axis=1, keepdims=True)
+    corners = np.asarray(shape.vertices, dtype=np.float64)[np.asarray(shape.faces)[faces][tx.face]]
+    return np.einsum("tc,tcd->td", bary, corners)
+
+
+def _plane_bary(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """(t, 3) barycentrics of ``points`` (t, 3) projected on the planes of triangles ``tri`` (t, 3, 3),
+    not clamped (at least -1 each); a degenerate triangle gives its centre."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    v0, v1, v2 = b - a, c - a, points - a
+    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+    den = d00 * d11 - d01 * d01
+    ok = np.abs(den) > 1e-30
+    den = np.where(ok, den, 1.0)
+    l1 = np.where(ok, (d11 * d20 - d01 * d21) / den, 1.0 / 3.0)
+    l2 = np.where(ok, (d00 * d21 - d01 * d20) / den, 1.0 / 3.0)
+    bary = np.maximum(np.stack([1.0 - l1 - l2, l1, l2], axis=1), -1.0)
+    return bary / bary.sum(axis=1, keepdims=True)
