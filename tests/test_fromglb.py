@@ -316,3 +316,43 @@ def test_a_member_textured_by_the_family_reads_back_as_its_look_and_a_mirrored_o
         assert main(["look", "add", str(base), "bad", *argv]) != 0
         err = capsys.readouterr().err
         assert message in err and "Traceback" not in err, (argv, err)
+
+
+def test_a_textured_member_over_http(mug, tmp_path):
+    """``POST .../looks`` multipart: a ``glb`` file and ``{"name", "member": true}`` (or ``"params"``)."""
+    import asyncio
+
+    httpx = pytest.importorskip("httpx")
+    from proctex.serve.catalog import Catalog
+    from proctex.store.samples import samples
+    from proctex.store.state import FamilyState
+    from workers.http import create_app
+
+    base = Path(mug.base)
+    tid = FamilyState.load(mug).stage("template")["id"]
+    params = next(r for r in samples(mug) if r["id"] == tid)["params"]
+    params = json.loads(params) if isinstance(params, str) else params
+    member = tmp_path / "member.glb"
+    assert main(["transfer", str(base), "--params", json.dumps(params), "--out", str(member)]) == 0
+    cat = Catalog(str(base.parent), check_every=0)
+    app = create_app(lambda: cat, edit_token="member-token-1")
+    token = {"X-ProcTex-Token": "member-token-1"}
+    data = member.read_bytes()
+
+    async def run():
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t", timeout=60) as c:
+            post = lambda look: c.post("/v1/families/mug/looks", data={"look": json.dumps(look)},  # noqa: E731
+                                       files={"glb": ("m.glb", data, "model/gltf-binary")}, headers=token)
+            return (await post({"name": "bymesh", "member": True}), await post({"name": "byparams", "params": params}),
+                    await post({"name": "bad", "params": [1]}), await c.post("/v1/families/mug/looks", json={"name": "x", "prompt": "oak", "member": True},
+                                                                               headers=token))
+
+    mesh, byparams, bad, stray = asyncio.run(run())
+    assert mesh.status_code == 200 and byparams.status_code == 200, (mesh.text, byparams.text)
+    assert mesh.json()["look"]["paint"]["glb"]["member"] is True
+    assert bad.status_code == 422 and "params must be an object" in bad.json()["error"]
+    assert stray.status_code == 422 and "go with a 'glb' file" in stray.json()["error"]
+    built = _images(base / "template")
+    for look in ("bymesh", "byparams"):
+        back = _images(base / "looks" / look)
+        assert all(np.abs(built[n] - back[n]).mean() < 3.0 for n in built), look

@@ -359,9 +359,18 @@ def parse_look(body: dict[str, Any], svc: Any, files: dict[str, tuple[bytes, str
 
     files = dict(files or {})
     glb = files.pop("glb", None)
+    member_params, member = body.get("params"), bool(body.get("member", False))
     if glb is not None:
-        if files or set(body) - {"name", "texture_size", "force"}:
-            raise BadInput("a look from a repainted template GLB takes only name, texture_size and force, and no photos")
+        if files or set(body) - {"name", "texture_size", "force", "params", "member"}:
+            raise BadInput("a look from a GLB takes only name, texture_size, force and (a textured member of the family) params or "
+                           "member, and no photos")
+        if member_params is not None and not isinstance(member_params, dict):
+            raise BadInput("params must be an object of the member's parameter values")
+        if not isinstance(body.get("member", False), bool):
+            raise BadInput("member must be true or false")
+        body = {k: v for k, v in body.items() if k not in ("params", "member")}
+    elif "params" in body or "member" in body:
+        raise BadInput("params and member go with a 'glb' file (a textured member of the family)")
     unknown = set(body) - {"name", "prompt", "group_prompts", "part_words", "painter", "texture_size", "force", "images"}
     if unknown:
         raise BadInput(f"unknown fields {sorted(unknown)[:5]}; a look takes name, prompt, group_prompts, part_words, painter, "
@@ -397,6 +406,8 @@ def parse_look(body: dict[str, Any], svc: Any, files: dict[str, tuple[bytes, str
                 raise TooLarge(f"the GLB is over the limit of {MAX_LOOK_BODY} bytes")
             glb_record = {"name": glb[1], "sha256": digest(glb[0])}
             photos = {"glb": glb[0]}
+            if member_params is not None or member:
+                photos["member"] = {"glb": glb[0], "params": member_params}
         paint = new_look_paint(svc.config.paint, prompt, prompts, body.get("painter"), size, part_words=words, images=images, glb=glb_record)
     except (TypeError, ValueError) as exc:
         raise BadInput(str(exc)[:500]) from exc
@@ -439,14 +450,16 @@ def save_parts(svc: Any, body: dict[str, Any]) -> dict[str, str]:
 
 def add_look_to(svc: Any, name: str, paint: Any, force: bool, photos: dict[str, Any] | None = None) -> dict[str, Any]:
     """:func:`proctex.build.looks.add_look` on the service's family (``photos``: a photo look's photos,
-    or ``{"glb": bytes}`` for a repainted template); a busy store is a conflict (409)."""
+    ``{"glb": bytes}`` for a repainted template, with ``"member": {"glb", "params"}`` for a textured
+    member); a busy store is a conflict (409)."""
     from proctex.build.looks import add_look
     from proctex.store.locks import StoreBusy
 
-    glb = (photos or {}).get("glb") if paint.glb else None
+    member = (photos or {}).get("member") if paint.glb else None
+    glb = (photos or {}).get("glb") if paint.glb and member is None else None
     try:
-        return add_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0, photos=None if glb is not None else photos,
-                        glb=glb)
+        return add_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0,
+                        photos=None if paint.glb else photos, glb=glb, member=member)
     except StoreBusy as exc:
         raise EditConflict(str(exc)) from exc
 
