@@ -73,6 +73,23 @@ def sample_surface(
     return pts, fi.astype(np.int64), bary
 
 
+def plane_barycentric(points: np.ndarray, tri: np.ndarray, floor: float = 0.0) -> np.ndarray:
+    """(k, 3) barycentrics of ``points`` (k, d) in triangles ``tri`` (k, 3, d), d = 2 or 3 (least
+    squares in the triangle's plane: a 3D point is projected on it), each at least ``floor`` (0:
+    clamped into the triangle; -1: up to a triangle's size past an edge) and renormalised to sum 1;
+    a degenerate triangle gives its centre."""
+    e1, e2, d = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], points - tri[:, 0]
+    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    p1, p2 = (d * e1).sum(1), (d * e2).sum(1)
+    den = d11 * d22 - d12 * d12
+    ok = np.abs(den) > 1e-30
+    den = np.where(ok, den, 1.0)
+    l1 = np.where(ok, (d22 * p1 - d12 * p2) / den, 1 / 3)
+    l2 = np.where(ok, (d11 * p2 - d12 * p1) / den, 1 / 3)
+    lam = np.clip(np.stack([1 - l1 - l2, l1, l2], axis=1), floor, None)
+    return lam / lam.sum(axis=1, keepdims=True)
+
+
 def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact closest points on triangles (Ericson, Real-Time Collision Detection §5.1.5), vectorised.
 

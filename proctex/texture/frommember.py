@@ -91,7 +91,7 @@ def textures_from_member(template, grouping, uv, assets, member, member_uv: np.n
         ``(TemplateTexture, MemberLook)``.
     """
     from proctex.geometry.parts import part_mesh, parts_of
-    from proctex.geometry.surface import SurfaceIndex
+    from proctex.geometry.surface import SurfaceIndex, plane_barycentric
     from proctex.transfer.apply import transfer
 
     from .paint import GroupTexture, TemplateTexture, group_texels
@@ -132,7 +132,7 @@ def textures_from_member(template, grouping, uv, assets, member, member_uv: np.n
             # border) in the landed triangle's plane: where a texel reads the member, as a painted texel
             # is where its centre lies (a clamped point would read the texel's neighbour)
             centre = _texel_centres(template, rep.faces, uv.corner_uv[rep.faces], tx)
-            bary = _plane_bary(centre, lv[lf[hit.faces]])
+            bary = plane_barycentric(centre, lv[lf[hit.faces]], floor=-1.0)
             at = np.einsum("tc,tcd->td", bary, member_uv[mf])
             for mi in np.unique(member_material[mf][covered]):
                 sel = covered & (member_material[mf] == mi)
@@ -154,39 +154,11 @@ def textures_from_member(template, grouping, uv, assets, member, member_uv: np.n
 
 
 def _texel_centres(shape, faces: np.ndarray, corner_uv: np.ndarray, tx) -> np.ndarray:
-    """(t, 3) each texel centre on its face's plane (barycentrics from the UV triangle, not clamped:
-    a border texel's centre may lie past its face's edge), ``faces`` the part's face indices and
+    """(t, 3) each texel centre on its face's plane (:func:`proctex.texture.uv.texel_barycentric`: a
+    border texel's centre may lie past its face's edge), ``faces`` the part's face indices and
     ``corner_uv`` their UVs."""
-    from .uv import uv_to_pixel
+    from .uv import texel_barycentric
 
-    tri_uv = uv_to_pixel(np.asarray(corner_uv, dtype=np.float64)[tx.face], tx.height, tx.width)
-    p = np.stack([tx.ij[:, 1] + 0.5, tx.ij[:, 0] + 0.5], axis=1)
-    a, b, c = tri_uv[:, 0], tri_uv[:, 1], tri_uv[:, 2]
-    v0, v1, v2 = b - a, c - a, p - a
-    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
-    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
-    den = d00 * d11 - d01 * d01
-    ok = np.abs(den) > 1e-18
-    den = np.where(ok, den, 1.0)
-    l1 = np.where(ok, (d11 * d20 - d01 * d21) / den, tx.bary[:, 1])
-    l2 = np.where(ok, (d00 * d21 - d01 * d20) / den, tx.bary[:, 2])
-    bary = np.maximum(np.stack([1.0 - l1 - l2, l1, l2], axis=1), -1.0)
-    bary /= bary.sum(axis=1, keepdims=True)
+    bary = texel_barycentric(tx.ij, np.asarray(corner_uv, dtype=np.float64)[tx.face], tx.height, tx.width)
     corners = np.asarray(shape.vertices, dtype=np.float64)[np.asarray(shape.faces)[faces][tx.face]]
     return np.einsum("tc,tcd->td", bary, corners)
-
-
-def _plane_bary(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """(t, 3) barycentrics of ``points`` (t, 3) projected on the planes of triangles ``tri`` (t, 3, 3),
-    not clamped (at least -1 each); a degenerate triangle gives its centre."""
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    v0, v1, v2 = b - a, c - a, points - a
-    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
-    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
-    den = d00 * d11 - d01 * d01
-    ok = np.abs(den) > 1e-30
-    den = np.where(ok, den, 1.0)
-    l1 = np.where(ok, (d11 * d20 - d01 * d21) / den, 1.0 / 3.0)
-    l2 = np.where(ok, (d00 * d21 - d01 * d20) / den, 1.0 / 3.0)
-    bary = np.maximum(np.stack([1.0 - l1 - l2, l1, l2], axis=1), -1.0)
-    return bary / bary.sum(axis=1, keepdims=True)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from proctex.geometry.raster import rasterise
-from proctex.geometry.surface import face_normals
+from proctex.geometry.surface import face_normals, plane_barycentric
 
 AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -284,7 +284,7 @@ def render_buffers(
     if bad.any():  # grazing hit on a (nearly) edge-on triangle: fall back to its centroid distance
         t[bad] = np.linalg.norm(tri[bad].mean(axis=1) - o[bad], axis=1)
     p = o + d * t[:, None]
-    lam = _barycentric(p, tri)
+    lam = plane_barycentric(p, tri)
     depth = np.full(H * W, np.inf)
     depth[hit] = t
     points = np.zeros((H * W, 3))
@@ -341,20 +341,6 @@ def check_views(views: list[Buffers], n_faces: int, size: int) -> list[Buffers]:
     if len(views) != 6 or any(b.face.shape != (size, size) or int(b.face.max()) >= n_faces for b in views):
         raise ValueError(f"views must be the six canonical {size}x{size} views of this mesh (canonical_buffers)")
     return views
-
-
-def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """(k, 3) barycentrics of points (k, 3) in triangles (k, 3, 3) (least squares in the plane, clamped)."""
-    e1, e2, d = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], p - tri[:, 0]
-    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
-    p1, p2 = (d * e1).sum(1), (d * e2).sum(1)
-    den = d11 * d22 - d12 * d12
-    ok = np.abs(den) > 1e-30
-    den = np.where(ok, den, 1.0)
-    l1 = np.where(ok, (d22 * p1 - d12 * p2) / den, 1 / 3)
-    l2 = np.where(ok, (d11 * p2 - d12 * p1) / den, 1 / 3)
-    lam = np.clip(np.stack([1 - l1 - l2, l1, l2], axis=1), 0, None)
-    return lam / lam.sum(axis=1, keepdims=True)
 
 
 # ---------------------------------------------------------------------------------------- shading

@@ -397,6 +397,17 @@ def texel_map(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, he
     return TexelMap(H, W, ij, fid, bary, points, normals)
 
 
+def texel_barycentric(ij: np.ndarray, corner_uv: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(t, 3) barycentrics of texel centres ``ij`` (t, 2) (row, column) in their faces' UV triangles
+    ``corner_uv`` (t, 3, 2), not clamped (at least -1 each: a texel on a chart's border may lie past
+    its face's edge, up to the face's size)."""
+    from proctex.geometry.surface import plane_barycentric
+
+    tri = uv_to_pixel(np.asarray(corner_uv, dtype=np.float64), height, width)
+    centre = np.stack([ij[:, 1] + 0.5, ij[:, 0] + 0.5], axis=1)
+    return plane_barycentric(centre, tri, floor=-1.0)
+
+
 def ring_texels(texels: TexelMap, vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, ring: int = 2) -> TexelMap:
     """The texels within ``ring`` texels of a chart that no chart covers, each placed on the surface
     extended past the chart's edge: the nearest covered texel's face, at the texel centre's
@@ -417,20 +428,7 @@ def ring_texels(texels: TexelMap, vertices: np.ndarray, faces: np.ndarray, corne
     owner[texels.ij[:, 0], texels.ij[:, 1]] = texels.face
     fid = owner[ri[ii, jj], rj[ii, jj]]
     v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
-    tri_uv = uv_to_pixel(np.asarray(corner_uv, dtype=np.float64)[fid], H, W)  # (k, 3, 2)
-    p = np.stack([jj + 0.5, ii + 0.5], axis=1)
-    a, b, c = tri_uv[:, 0], tri_uv[:, 1], tri_uv[:, 2]
-    v0, v1, v2 = b - a, c - a, p - a
-    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
-    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
-    den = d00 * d11 - d01 * d01
-    ok = np.abs(den) > 1e-18
-    den = np.where(ok, den, 1.0)
-    l1 = np.where(ok, (d11 * d20 - d01 * d21) / den, 1.0 / 3.0)
-    l2 = np.where(ok, (d00 * d21 - d01 * d20) / den, 1.0 / 3.0)
-    bary = np.stack([1.0 - l1 - l2, l1, l2], axis=1)
-    bary = np.maximum(bary, -1.0)
-    bary /= bary.sum(axis=1, keepdims=True)
+    bary = texel_barycentric(np.stack([ii, jj], axis=1), np.asarray(corner_uv, dtype=np.float64)[fid], H, W)
     tri = v[f[fid]]
     points = np.einsum("kc,kcd->kd", bary, tri)
     return TexelMap(H, W, np.stack([ii, jj], axis=1).astype(np.int64), fid, bary, points, face_normals(v, f)[fid])
