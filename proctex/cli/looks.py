@@ -1,5 +1,6 @@
-"""``proctex look add|list|rm``: a family's looks (:mod:`proctex.store.looks`), a new prompt painted
-on the built family in seconds."""
+"""``proctex look add|list|rm``: a family's looks (:mod:`proctex.store.looks`): a new prompt, photos
+(``--image``), the template GLB painted elsewhere or a textured member (``--from``), painted on the
+built family in seconds."""
 
 from __future__ import annotations
 
@@ -18,29 +19,10 @@ def cmd_look(args: argparse.Namespace) -> int:
     store = FamilyStore(args.family)
     state = FamilyState.load(store)
     config = state.build_config(store.uri)
+    log = (lambda *_: None) if args.json else print
     if args.action == "add" and args.from_glb:
-        if args.image or args.prompt or args.group_prompts:
-            raise ValueError("--from reads a look from a repainted template GLB: it takes no --prompt, --image or --group-prompts")
-        data = read_glb_file(args.from_glb)
-        from proctex.store.layout import digest
-
-        member = None
-        if args.params is not None or args.member:
-            params = None
-            if args.params is not None:
-                import json
-
-                try:
-                    params = json.loads(args.params)
-                except (json.JSONDecodeError, RecursionError) as exc:
-                    raise ValueError(f"--params is not valid JSON ({str(exc)[:200]})") from None
-                if not isinstance(params, dict):
-                    raise ValueError(f"--params must be a JSON object of parameter values, got {type(params).__name__}")
-            member = {"glb": data, "params": params}
-        paint = new_look_paint(config.paint, None, texture_size=args.texture_size,
-                               glb={"name": os.path.basename(args.from_glb)[:200], "sha256": digest(data)})
-        record = add_look(store, args.name, paint, force=args.force, log=(lambda *_: None) if args.json else print,
-                          glb=None if member else data, member=member)
+        paint, glb, member = glb_args(args, config.paint)
+        record = add_look(store, args.name, paint, force=args.force, log=log, glb=glb, member=member)
         if args.json:
             _print_json({"family": store.uri, "look": record})
         return 0
@@ -53,7 +35,7 @@ def cmd_look(args: argparse.Namespace) -> int:
         if args.prompt is not None and not args.prompt.strip():
             raise ValueError("--prompt is empty")
         paint = new_look_paint(config.paint, args.prompt, _group_prompts(args.group_prompts), args.painter, args.texture_size, images=images)
-        record = add_look(store, args.name, paint, force=args.force, log=(lambda *_: None) if args.json else print, photos=photos)
+        record = add_look(store, args.name, paint, force=args.force, log=log, photos=photos)
         if args.json:
             _print_json({"family": store.uri, "look": record})
         return 0
@@ -89,6 +71,33 @@ def read_glb_file(path: str) -> bytes:
         raise ValueError(f"{path!r} has {size:,} bytes, over the limit of {MAX_GLB_BYTES:,}")
     with open(path, "rb") as fh:
         return fh.read()
+
+
+def glb_args(args: argparse.Namespace, build_paint) -> tuple:
+    """``--from FILE.glb`` (with ``--params JSON`` or ``--member``: a textured member) -> the look's
+    paint settings and either the repainted template's bytes or the member ``{"glb", "params"}``."""
+    import json
+
+    from proctex.store.layout import digest
+    from proctex.store.looks import new_look_paint
+
+    if args.image or args.prompt or args.group_prompts:
+        raise ValueError("--from reads a look from a GLB: it takes no --prompt, --image or --group-prompts")
+    data = read_glb_file(args.from_glb)
+    member = None
+    if args.params is not None or args.member:
+        params = None
+        if args.params is not None:
+            try:
+                params = json.loads(args.params)
+            except (json.JSONDecodeError, RecursionError) as exc:
+                raise ValueError(f"--params is not valid JSON ({str(exc)[:200]})") from None
+            if not isinstance(params, dict):
+                raise ValueError(f"--params must be a JSON object of parameter values, got {type(params).__name__}")
+        member = {"glb": data, "params": params}
+    paint = new_look_paint(build_paint, None, texture_size=args.texture_size,
+                           glb={"name": os.path.basename(args.from_glb)[:200], "sha256": digest(data)})
+    return paint, (None if member else data), member
 
 
 def _pairs(items: list[str] | None, flag: str) -> dict[str, str]:
