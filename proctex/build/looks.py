@@ -138,13 +138,15 @@ def _base_maps(files: TemplateFiles, grouping: Any, size: int) -> list:
 
 def member_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: Any, uv: Any, size: int, data: bytes,
                    params: dict[str, Any] | None, config: BuildConfig) -> tuple[Any, Any]:
-    """The look a textured member GLB (``data``) holds (:func:`proctex.texture.frommember.textures_from_member`),
-    mapped by the family's run-time path (:class:`proctex.serve.service.FamilyService`): with
-    ``params`` the family's own shape for them, else the file's mesh welded."""
-    from proctex.serve.service import FamilyService
+    """The look a textured member GLB (``data``) holds (:func:`proctex.transfer.frommember.textures_from_member`),
+    mapped as the service maps shapes (the group networks where trained, ``auto``): with ``params``
+    the family's own shape for them, else the file's mesh welded."""
+    from proctex.store.networks import load_models
     from proctex.texture.fromglb import glb_frame
-    from proctex.texture.frommember import member_from_mesh, member_from_params, textures_from_member
     from proctex.texture.gltf_read import read_textured_glb
+    from proctex.transfer.assets import load_assets
+    from proctex.transfer.frommember import member_from_mesh, member_from_params, textures_from_member
+    from proctex.transfer.methods import get_method, make_mapper
 
     glb = read_textured_glb(data)
     up = config.up_axis()
@@ -155,8 +157,11 @@ def member_texture(store: FamilyStore, files: TemplateFiles, shape: Any, groupin
     else:
         turn = glb_frame(np.eye(3), up)  # the turn as a matrix applied to rows (v @ turn); its transpose turns the file back
         member, member_uv, material = member_from_mesh(glb, glb.vertices @ turn.T)
-    svc = FamilyService(store)
-    tex, report = textures_from_member(shape, grouping, uv, svc.assets, member, member_uv, material, glb.textures, svc.mapper, size,
+    state = FamilyState.load(store)
+    assets = load_assets(store, state, built_look(store))
+    models = load_models(store, "cpu", state) if get_method("auto").networks != "none" else {}
+    mapper = make_mapper("auto", assets, models, corr_points=config.corr_points, cage=config.cage)
+    tex, report = textures_from_member(shape, grouping, uv, assets, member, member_uv, material, glb.textures, mapper, size,
                                        seed=config.seed, base_maps=_base_maps(files, grouping, size))
     tex.notes.extend(f"member: group {g} {100 * f:.1f}% of its texels filled from neighbours" for g, f in report.filled.items())
     return tex, report

@@ -48,7 +48,7 @@ def member_from_params(generated, glb_shape_vertices: np.ndarray, glb) -> tuple[
     file's frame, ``glb`` the file (:class:`proctex.texture.gltf_read.TexturedMesh`). Returns
     ``(corner_uv (m, 3, 2), material (m,), matched (m,) bool)`` per generated face; ``ValueError``
     when under 95 % of the faces find the file's triangle at their place."""
-    from .fromglb import match_faces
+    from proctex.texture.fromglb import match_faces
 
     corners = np.asarray(glb_shape_vertices, dtype=np.float64)[generated.faces]
     dummy = np.zeros((len(corners), 3, 2))
@@ -94,10 +94,10 @@ def textures_from_member(template, grouping, uv, assets, member, member_uv: np.n
     from proctex.geometry.surface import SurfaceIndex, plane_barycentric
     from proctex.transfer.apply import transfer
 
-    from .paint import GroupTexture, TemplateTexture, group_texels
-    from .paint_loop import fill_unseen
-    from .pbr import PbrMaps, flat_maps
-    from .uv import pad_seams, sample_texture
+    from proctex.texture.paint import GroupTexture, TemplateTexture, group_texels
+    from proctex.texture.paint_loop import fill_unseen
+    from proctex.texture.pbr import PbrMaps, flat_maps
+    from proctex.texture.uv import pad_seams, sample_texture
 
     result = transfer(member, assets, mapper, seed=seed, shortcut=True)
     seg = parts_of(member)
@@ -157,7 +157,7 @@ def _texel_centres(shape, faces: np.ndarray, corner_uv: np.ndarray, tx) -> np.nd
     """(t, 3) each texel centre on its face's plane (:func:`proctex.texture.uv.texel_barycentric`: a
     border texel's centre may lie past its face's edge), ``faces`` the part's face indices and
     ``corner_uv`` their UVs."""
-    from .uv import texel_barycentric
+    from proctex.texture.uv import texel_barycentric
 
     bary = texel_barycentric(tx.ij, np.asarray(corner_uv, dtype=np.float64)[tx.face], tx.height, tx.width)
     corners = np.asarray(shape.vertices, dtype=np.float64)[np.asarray(shape.faces)[faces][tx.face]]
