@@ -539,7 +539,8 @@ def test_the_studio_makes_a_look_from_photos_chosen_in_a_panel_and_dropped_on_a_
 
 def test_the_studio_makes_a_look_from_a_repainted_template_glb(server, browser, tmp_path):
     """Issue 53: the family's template GLB chosen in the "add look" box (no prompt) becomes a look
-    whose textures are the GLB's, texel for texel, and is shown."""
+    whose textures are the GLB's, texel for texel, and is shown; the same GLB sent as a member (the
+    box's "member" switch) is read through the family's correspondence, within 3 levels."""
     from PIL import Image
 
     base, root = server
@@ -561,6 +562,20 @@ def test_the_studio_makes_a_look_from_a_repainted_template_glb(server, browser, 
             a = np.asarray(Image.open(png).convert("RGB"))
             b = np.asarray(Image.open(root / "mug" / "looks" / "fromglb" / png.name).convert("RGB"))
             assert np.array_equal(a, b), png.name
+        page.set_input_files("#look-glb", str(glb))
+        page.check("#look-member")
+        n = _requests(page)
+        page.fill("#look-name", "asmember")
+        page.click("#addlook button[type=submit]")
+        _wait_for_shape(page, n + 1, timeout=120_000)
+        look = json.loads((root / "mug" / "looks" / "asmember" / "look.json").read_text())
+        assert look["paint"]["glb"]["member"] is True
+        for png in (root / "mug" / "template").glob("group_*.png"):
+            if png.name.count(".") > 1:
+                continue
+            a = np.asarray(Image.open(png).convert("RGB"), float)
+            b = np.asarray(Image.open(root / "mug" / "looks" / "asmember" / png.name).convert("RGB"), float)
+            assert np.abs(a - b).mean() < 3.0, png.name  # the template as a member: its own textures back
         assert not errors, errors
     finally:
         context.close()

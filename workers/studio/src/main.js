@@ -749,7 +749,7 @@ async function addLook(event) {
     let request;
     if (glb) { // the family's template GLB painted elsewhere: its textures read back into the atlases
       const data = new FormData();
-      data.append('look', JSON.stringify({ name }));
+      data.append('look', JSON.stringify($('look-member').checked ? { name, member: true } : { name }));
       data.append('glb', glb, glb.name);
       request = { method: 'POST', headers: { 'X-ProcTex-Token': editToken() }, body: data };
     } else if (photos.length) { // multipart: the look's JSON and a file per photographed group
@@ -764,6 +764,7 @@ async function addLook(event) {
     $('look-name').value = '';
     $('look-prompt').value = '';
     $('look-glb').value = '';
+    $('look-member').checked = false;
     $('look-prompt').required = true;
     for (const g of Object.keys(studio.photos)) setPhoto(Number(g), null);
     await loadFamily(studio.family.name, { keepView: true, look: name });
