@@ -111,6 +111,7 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
 
 
 def replace_settings(paint: PaintConfig, **over: Any) -> PaintConfig:
+    """``paint`` with the fields ``over`` replaced, checked (``ValueError``)."""
     from dataclasses import replace
 
     return replace(paint, **over).validate()
