@@ -356,3 +356,26 @@ def test_a_textured_member_over_http(mug, tmp_path):
     for look in ("bymesh", "byparams"):
         back = _images(base / "looks" / look)
         assert all(np.abs(built[n] - back[n]).mean() < 3.0 for n in built), look
+
+
+def test_a_glb_whose_texture_is_a_pixel_bomb_is_refused_before_decoding(mug, tmp_path, capsys):
+    """A GLB carrying a texture that claims 9,000 x 9,000 pixels (a few bytes of header; over the
+    8192² a family paints, under Pillow's own bomb limit): refused from the header, before any pixel
+    is decoded, and nothing is written."""
+    import struct
+    import zlib
+
+    import pygltflib as gl
+
+    base = Path(mug.base)
+    src = (base / "template" / "textured.glb").read_bytes()
+    g = gl.GLTF2.load_from_bytes(src)
+    ihdr = struct.pack(">IIBBBBB", 9000, 9000, 8, 2, 0, 0, 0)
+    idat = zlib.compress(b"\0" * 64)
+    bomb = (b"\x89PNG\r\n\x1a\n" + struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+            + struct.pack(">I", len(idat)) + b"IDAT" + idat + struct.pack(">I", zlib.crc32(b"IDAT" + idat)))
+    g.images[0].bufferView, g.images[0].uri, g.images[0].mimeType = None, "data:image/png;base64," + __import__("base64").b64encode(bomb).decode(), "image/png"
+    before = _files(base)
+    rc, err = _add(base, "bomb", b"".join(g.save_to_bytes()), tmp_path, capsys)
+    assert rc != 0 and "9000 x 9000 pixels, over the limit of 67,108,864" in err and "Traceback" not in err, err
+    assert _files(base) == before

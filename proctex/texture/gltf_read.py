@@ -20,6 +20,9 @@ from .export import GREY, UNTEXTURED_NAME
 _COMPONENT_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32,
                      5126: np.float32}
 _TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+#: the most pixels a texture of a read glTF may have (checked from its header before decoding): an
+#: 8192 x 8192 atlas, the largest a family paints.
+MAX_IMAGE_PIXELS = 8192 * 8192
 _MODE_NAMES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP", 4: "TRIANGLES",
                5: "TRIANGLE_STRIP", 6: "TRIANGLE_FAN"}
 
@@ -150,7 +153,10 @@ class _GltfReader:
         else:
             raise ValueError(f"image {i} has neither a bufferView nor a URI")
         try:
-            with Image.open(io.BytesIO(data)) as pil:
+            with Image.open(io.BytesIO(data), formats=["PNG", "JPEG", "WEBP"]) as pil:
+                w, h = pil.size
+                if w * h > MAX_IMAGE_PIXELS:  # read from the header: never decoded
+                    raise ValueError(f"{w} x {h} pixels, over the limit of {MAX_IMAGE_PIXELS:,}")
                 return np.asarray(pil.convert("RGB"), dtype=np.uint8).copy()
         except Exception as exc:  # PIL raises several types for undecodable data
             raise ValueError(f"image {i} ({im.mimeType or 'unknown type'}) cannot be decoded: {exc}") from exc
