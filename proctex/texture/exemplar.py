@@ -7,10 +7,11 @@ corrupt or truncated files, animated images and formats other than :data:`FORMAT
 said in the photo's ``notes``.
 
 Preparing (:func:`prepare`): the photo at the size one texel's footprint asks for (a minified photo
-is resampled first, so the synthesis never aliases), and five channels made from it: the colour in
-its principal axes (decorrelated, as Heitz and Neyret 2018 do), a height (the high-passed luminance)
-and a local contrast (for roughness). Each channel is *Gaussianised*: every value is replaced by the
-normal quantile of its rank, and a table of the channel's quantiles takes a Gaussian value back.
+is resampled first, so the synthesis never aliases), and seven channels made from it: the colour in
+its principal axes (decorrelated, as Heitz and Neyret 2018 do) and a local contrast (for roughness),
+each *Gaussianised* (every value replaced by the normal quantile of its rank; a table of the
+channel's quantiles takes a Gaussian value back), and a height (the high-passed luminance at unit
+variance) with its two derivatives (for the relief), kept as they are.
 
 Synthesis (:func:`synthesise`): histogram-preserving tiling and blending (Heitz and Neyret 2018, "High-
 Performance By-Example Noise using a Histogram-Preserving Blending Operator"). The plane is covered
