@@ -277,8 +277,9 @@ def test_the_groups_without_a_photo_are_painted_as_the_prompt_alone_paints_them(
 
 
 def _grain_axis(shape, grouping, group: int, layer) -> float:
-    """|cos| between the photo's grain (the direction colour varies least along) on the group's
-    largest face and the group's long axis."""
+    """On a patch through the group's centre across its shortest axis, the mean luminance step along
+    the group's long axis over the step along its second axis (small: the grain runs along the long
+    axis)."""
     painter = E.PhotoPainter(_plain(), {group: layer}).bind(shape, grouping)
     b = painter._bound[group]
     centre, axes = b.centre, b.axes

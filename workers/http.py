@@ -259,15 +259,20 @@ async def read_transfer_request(request: Request, max_bytes: int, limits: Limits
     return "params", req.params, req.seed, req.edits
 
 
-async def read_json_object(request: Request, max_bytes: int = 65536, limits: Limits | None = None) -> dict[str, Any]:
-    body = await read_body(request, max_bytes, limits)
+def json_object(text: str | bytes, not_json: str = "bad JSON body", what: str = "the body") -> dict[str, Any]:
+    """``text`` read as a JSON object; :class:`BadInput` otherwise (``not_json``: the message's start
+    for text that is no JSON, ``what``: what must be an object)."""
     try:
-        data = json.loads(body or b"null")
+        data = json.loads(text or b"null")
     except (ValueError, RecursionError) as exc:
-        raise BadInput(f"bad JSON body: {str(exc)[:200] or type(exc).__name__}") from exc
+        raise BadInput(f"{not_json}: {str(exc)[:200] or type(exc).__name__}") from exc
     if not isinstance(data, dict):
-        raise BadInput("the body must be a JSON object")
+        raise BadInput(f"{what} must be a JSON object")
     return data
+
+
+async def read_json_object(request: Request, max_bytes: int = 65536, limits: Limits | None = None) -> dict[str, Any]:
+    return json_object(await read_body(request, max_bytes, limits))
 
 
 #: A look's texture size over HTTP (the CLI allows up to 8192): a request paints seconds, not minutes.
@@ -316,13 +321,7 @@ async def read_look_request(request: Request, limits: Limits | None = None) -> t
                            "a repainted template 'look' and a 'glb' file")
     if text is None:
         raise BadInput("a multipart look needs a 'look' field: the look's JSON ({\"name\": ..., \"prompt\": ...})")
-    try:
-        body = json.loads(text)
-    except (ValueError, RecursionError) as exc:
-        raise BadInput(f"the 'look' field must be JSON: {str(exc)[:200] or type(exc).__name__}") from exc
-    if not isinstance(body, dict):
-        raise BadInput("the 'look' field must be a JSON object")
-    return body, photos
+    return json_object(text, "the 'look' field must be JSON", "the 'look' field"), photos
 
 
 def parse_photos(body: dict[str, Any], files: dict[str, tuple[bytes, str]], under_prompt: bool) -> tuple[dict[str, dict], dict[str, Any]]:
