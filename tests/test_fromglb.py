@@ -379,3 +379,24 @@ def test_a_glb_whose_texture_is_a_pixel_bomb_is_refused_before_decoding(mug, tmp
     rc, err = _add(base, "bomb", b"".join(g.save_to_bytes()), tmp_path, capsys)
     assert rc != 0 and "9000 x 9000 pixels, over the limit of 67,108,864" in err and "Traceback" not in err, err
     assert _files(base) == before
+
+
+def test_collapsed_faces_are_paired_as_a_whole_order_and_never_refused():
+    """A real export (the sofa's) carries collapsed triangles, two corners at one place, several at the
+    same place. Pairing corners one by one cannot tell two coincident corners apart; pairing a whole
+    corner order can: every collapsed face finds its own triangle, in any order or turn; a file
+    without them is said (``collapsed``), not refused."""
+    tri = np.array([[[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]])
+    flat = np.array([[[2.0, 2, 2], [2.0, 2, 2], [3.0, 2, 2]]] * 3)  # three coincident collapsed faces
+    tpl = np.concatenate([tri, flat])
+    uv = np.array([[[0.0, 0], [1, 0], [0, 1]], [[0.5, 0.5], [0.5, 0.5], [0.6, 0.5]], [[0.5, 0.5], [0.5, 0.5], [0.6, 0.5]],
+                   [[0.5, 0.5], [0.5, 0.5], [0.6, 0.5]]])
+    order = [3, 0, 2, 1]
+    turn = np.array([[1, 2, 0], [2, 0, 1], [0, 1, 2], [1, 2, 0]])
+    file_c = np.take_along_axis(tpl[order], turn[..., None].repeat(3, axis=-1), axis=1)
+    file_uv = np.take_along_axis(uv[order], turn[..., None].repeat(2, axis=-1), axis=1)
+    got = match_faces(tpl, uv, file_c, file_uv)
+    assert got.ok and (got.face >= 0).all() and len(set(got.face.tolist())) == 4 and got.collapsed == 0 and got.extra == 0
+    assert np.allclose(file_c[got.face[:, None], got.corner], tpl) and np.allclose(file_uv[got.face[:, None], got.corner], uv)
+    without = match_faces(tpl, uv, tri[:, [1, 2, 0]], uv[:1, [1, 2, 0]])
+    assert without.ok and without.collapsed == 3 and without.face[0] == 0 and (without.face[1:] < 0).all()

@@ -141,23 +141,29 @@ def member_texture(store: FamilyStore, files: TemplateFiles, shape: Any, groupin
                    params: dict[str, Any] | None, config: BuildConfig) -> tuple[Any, Any]:
     """The look a textured member GLB (``data``) holds (:func:`proctex.transfer.frommember.textures_from_member`),
     mapped as the service maps shapes (the group networks where trained, ``auto``): with ``params``
-    the family's own shape for them, else the file's mesh welded."""
+    the family's own shape for them, else the file read as ``proctex transfer --mesh`` reads it."""
     from proctex.store.networks import load_models
     from proctex.texture.fromglb import glb_frame
     from proctex.texture.gltf_read import read_textured_glb
     from proctex.transfer.assets import load_assets
-    from proctex.transfer.frommember import member_from_mesh, member_from_params, textures_from_member
+    from proctex.transfer.frommember import member_surface, textures_from_member
     from proctex.transfer.methods import get_method, make_mapper
 
     glb = read_textured_glb(data)
     up = config.up_axis()
     if params is not None:
-        generated = config.procedural_model().generate(params)
-        member_uv, material, _ = member_from_params(generated, glb_frame(generated.vertices, up), glb)
-        member = generated
-    else:
+        member = config.procedural_model().generate(params)
+        what = "the family's shape for these parameters"
+    else:  # read as `proctex transfer --mesh` reads it (its parts as a transfer finds them), turned into the family's frame
+        from dataclasses import replace
+
+        from proctex.geometry.meshio import load_mesh_bytes
+
+        read, _ = load_mesh_bytes(data, "member.glb")
         turn = glb_frame(np.eye(3), up)  # the turn as a matrix applied to rows (v @ turn); its transpose turns the file back
-        member, member_uv, material = member_from_mesh(glb, glb.vertices @ turn.T)
+        member = replace(read, vertices=read.vertices @ turn.T)
+        what = "a mesh of the family's kind"
+    member_uv, material, _ = member_surface(member, glb_frame(member.vertices, up), glb, what)
     state = FamilyState.load(store)
     assets = load_assets(store, state, built_look(store))
     models = load_models(store, "cpu", state) if get_method("auto").networks != "none" else {}

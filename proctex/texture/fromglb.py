@@ -28,6 +28,8 @@ __all__ = ["FaceMatch", "match_faces", "glb_frame", "textures_from_glb", "POSITI
 POSITION_TOL = 2e-5
 #: how far a file's UV may lie from the template's (a 2048 texel is 4.9e-4 wide).
 UV_TOL = 1e-4
+#: the six orders of a triangle's corners: the three turns, then the three of the reversed winding.
+_ORDERS = np.array([[0, 1, 2], [1, 2, 0], [2, 0, 1], [0, 2, 1], [2, 1, 0], [1, 0, 2]])
 
 
 @dataclass
@@ -40,6 +42,7 @@ class FaceMatch:
         missing: template faces no triangle lies at.
         uv_mismatch: template faces a triangle lies at whose UVs differ.
         extra: file triangles no template face took.
+        collapsed: template faces without area left unmatched (no triangle needed: they cover no texel).
     """
 
     face: np.ndarray
@@ -47,6 +50,7 @@ class FaceMatch:
     missing: int
     uv_mismatch: int
     extra: int
+    collapsed: int = 0
 
     @property
     def ok(self) -> bool:
@@ -71,7 +75,7 @@ def glb_frame(vertices: np.ndarray, up: str) -> np.ndarray:
 
 
 def match_faces(tpl_corners: np.ndarray, tpl_uv: np.ndarray, file_corners: np.ndarray, file_uv: np.ndarray,
-                position_tol: float = POSITION_TOL, uv_tol: float = UV_TOL, candidates: int = 6) -> FaceMatch:
+                position_tol: float = POSITION_TOL, uv_tol: float = UV_TOL, candidates: int = 8) -> FaceMatch:
     """Match template faces to a file's triangles by position and UV.
 
     Args:
@@ -104,15 +108,22 @@ def match_faces(tpl_corners: np.ndarray, tpl_uv: np.ndarray, file_corners: np.nd
     _, near = cKDTree(fc.mean(axis=1)).query(tc.mean(axis=1), k=q)
     near = near.reshape(m, q)
     taken = np.zeros(k, dtype=bool)
-    # every corner of the template face against every corner of each candidate: (m, q, 3, 3)
-    d = np.linalg.norm(tc[:, None, :, None, :] - fc[near][:, :, None, :, :], axis=-1)
-    pair = d.argmin(axis=3)  # (m, q, 3): the candidate's corner nearest each template corner
-    close = (np.take_along_axis(d, pair[..., None], axis=3)[..., 0] <= tol).all(axis=2)
-    distinct = (pair[..., 0] != pair[..., 1]) & (pair[..., 1] != pair[..., 2]) & (pair[..., 0] != pair[..., 2])
-    at_place = close & distinct  # (m, q)
-    fuv = fu[near]  # (m, q, 3, 2)
-    uv_at = np.take_along_axis(fuv, pair[..., None].repeat(2, axis=-1), axis=2)  # the candidate's UVs at the template's corners
-    uv_ok = (np.linalg.norm(uv_at - tu[:, None], axis=-1) <= uv_tol).all(axis=2)
+    # each candidate's corners in each of the 6 orders (a reflection reverses the winding; a collapsed
+    # triangle has coincident corners, so corners are paired as a whole order, never one by one):
+    # the order whose UVs lie nearest among those whose corners all lie at the template's
+    at_place = np.zeros((m, q), dtype=bool)
+    uv_ok = np.zeros((m, q), dtype=bool)
+    pair = np.zeros((m, q, 3), dtype=np.int64)
+    for s in range(0, m, 20000):  # bounded temporaries: (chunk, q, 6, 3, 3)
+        sl = slice(s, s + 20000)
+        cand, cuv = fc[near[sl]][:, :, _ORDERS], fu[near[sl]][:, :, _ORDERS]  # (c, q, 6, 3, 3|2)
+        pos = np.linalg.norm(cand - tc[sl, None, None], axis=-1).max(axis=-1)  # (c, q, 6)
+        uvd = np.linalg.norm(cuv - tu[sl, None, None], axis=-1).max(axis=-1)
+        fits = pos <= tol
+        best = np.where(fits, uvd, np.inf).argmin(axis=2)  # (c, q)
+        at_place[sl] = fits.any(axis=2)
+        uv_ok[sl] = np.take_along_axis(np.where(fits, uvd, np.inf), best[..., None], axis=2)[..., 0] <= uv_tol
+        pair[sl] = _ORDERS[best]
     good = at_place & uv_ok
     pending = np.flatnonzero(good.any(axis=1))
     while len(pending):  # the first free candidate of each face; faces that chose the same triangle try again
@@ -127,8 +138,11 @@ def match_faces(tpl_corners: np.ndarray, tpl_uv: np.ndarray, file_corners: np.nd
         taken[chosen[first]] = True
         pending = np.setdiff1d(pending, win)
     uv_bad = (face < 0) & at_place.any(axis=1)
-    missing = int(((face < 0) & ~uv_bad).sum())
-    return FaceMatch(face, corner, missing, int(uv_bad.sum()), int((~taken).sum()))
+    # a collapsed face (no area) covers no texel of its own: left unmatched it is said, not refused
+    area = np.linalg.norm(np.cross(tc[:, 1] - tc[:, 0], tc[:, 2] - tc[:, 0]), axis=1)
+    collapsed = (face < 0) & (area <= tol * tol)
+    missing = int(((face < 0) & ~uv_bad & ~collapsed).sum())
+    return FaceMatch(face, corner, missing, int((uv_bad & ~collapsed).sum()), int((~taken).sum()), int(collapsed.sum()))
 
 
 def textures_from_glb(tex_shape, grouping, uv, glb, size: int, base_maps: list | None = None, gutter: int = 8):
@@ -157,12 +171,15 @@ def textures_from_glb(tex_shape, grouping, uv, glb, size: int, base_maps: list |
     notes = []
     if match.extra:
         notes.append(f"{match.extra} triangles of the GLB are not the template's: left out")
+    if match.collapsed:
+        notes.append(f"{match.collapsed} faces of the template without area found no triangle: their texels are filled from their neighbours")
     texels = group_texels(shape, grouping, uv, size)
     groups = []
     for g, tx in zip(grouping.groups, texels):
         rep = grouping.parts[g.representative]
         tf = rep.faces[tx.face]  # the template face of each covered texel
-        ff = match.face[tf]
+        held = match.face[tf] >= 0  # not a collapsed face left unmatched
+        ff = np.where(held, match.face[tf], 0)
         cuv = glb.corner_uv[ff]  # (t, 3, 2) the file's UVs, reordered to the template's corners
         cuv = np.take_along_axis(cuv, match.corner[tf][..., None].repeat(2, axis=-1), axis=1)
         at = np.einsum("tc,tcd->td", tx.bary, cuv)
@@ -180,8 +197,8 @@ def textures_from_glb(tex_shape, grouping, uv, glb, size: int, base_maps: list |
                 return px.astype(np.float64) / 255.0 if px.dtype == np.uint8 else px.astype(np.float64)
             return sample_texture(image, at[sel])[:, :3]
 
-        for mi in np.unique(mat):
-            sel = mat == mi
+        for mi in np.unique(mat[held]):
+            sel = held & (mat == mi)
             colour[sel] = read(glb.textures[mi], sel)
             maps = glb.pbr[mi] if mi < len(glb.pbr) else None
             if maps is not None:
@@ -190,15 +207,18 @@ def textures_from_glb(tex_shape, grouping, uv, glb, size: int, base_maps: list |
                 from_file[sel] = True
         image = np.full((size, size, 3), 0.5, dtype=np.float32)
         image[tx.ij[:, 0], tx.ij[:, 1]] = colour
-        image, painted = pad_seams(image, tx.mask, gutter)
+        mask = tx.mask.copy()
+        mask[tx.ij[~held, 0], tx.ij[~held, 1]] = False
+        image, painted = pad_seams(image, mask, gutter)
+        painted |= tx.mask
         o, n = kept.orm.copy(), kept.normal.copy()
         if from_file.any():
             ij = tx.ij[from_file]
             o[ij[:, 0], ij[:, 1]] = orm[from_file]
             n[ij[:, 0], ij[:, 1]] = normal[from_file]
-            o, _ = pad_seams(o, tx.mask, gutter)
-            n, _ = pad_seams(n, tx.mask, gutter)
+            o, _ = pad_seams(o, mask, gutter)
+            n, _ = pad_seams(n, mask, gutter)
         pbr = PbrMaps(o.astype(np.float32), n.astype(np.float32), bool(kept.occlusion))
-        names = sorted({glb.names[i] for i in np.unique(mat)})
+        names = sorted({glb.names[i] for i in np.unique(mat[held])})
         groups.append(GroupTexture(g.index, g.label, f"from GLB material {', '.join(names)[:120]}", image, painted, tx, pbr=pbr))
     return TemplateTexture(shape, grouping, uv, groups, "glb", 0.0, notes), match, notes

@@ -3,9 +3,9 @@ shapes, textured in any UVs, read back into the template's atlases through the f
 correspondence.
 
 The member is first made a shape of the family: with its parameters, the family's model generates
-that shape and each of its faces takes the file's triangle at its place (:func:`proctex.texture.fromglb.match_faces`
-by position only: the file's UVs may be anything), so its parts are the model's own; without them,
-the file's vertices are welded by position and its connected pieces are its parts. The member is
+that shape; without them, the file is read as the family reads any mesh (its parts as a transfer
+of it finds them). Each face then takes the file's triangle at its place (:func:`member_surface`,
+by position only: the file's UVs may be anything). The member is
 then transferred to the template as any shape is (:func:`proctex.transfer.apply.transfer`: its parts
 assigned to the template's groups and mapped by the family's networks or cage), which puts every
 member triangle where it lands on the template. Each covered texel of a group's atlas takes the
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["MemberLook", "member_from_params", "member_from_mesh", "textures_from_member", "COVER_TOL"]
+__all__ = ["MemberLook", "member_surface", "textures_from_member", "COVER_TOL"]
 
 #: a template texel is covered when a landed member triangle lies within this share of its part's
 #: size (the networks' errors on unseen shapes are about 0.01 of it).
@@ -42,37 +42,24 @@ class MemberLook:
         return float(np.mean(list(self.filled.values()))) if self.filled else 1.0
 
 
-def member_from_params(generated, glb_shape_vertices: np.ndarray, glb) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The member's UVs and materials on the family's own shape for its parameters: ``generated``
-    (the model's :class:`~proctex.geometry.shape.Shape`), ``glb_shape_vertices`` its vertices in the
-    file's frame, ``glb`` the file (:class:`proctex.texture.gltf_read.TexturedMesh`). Returns
-    ``(corner_uv (m, 3, 2), material (m,), matched (m,) bool)`` per generated face; ``ValueError``
-    when under 95 % of the faces find the file's triangle at their place."""
+def member_surface(shape, file_frame_vertices: np.ndarray, glb, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The member's UVs and materials on ``shape``, a shape of the family standing for it (the model's
+    for its parameters, or the file read as the family reads meshes): each face takes the file's
+    triangle at its place (:func:`proctex.texture.fromglb.match_faces` by position only).
+    ``file_frame_vertices``: the shape's vertices in the file's frame; ``glb`` the file
+    (:class:`proctex.texture.gltf_read.TexturedMesh`). Returns ``(corner_uv (m, 3, 2), material (m,),
+    matched (m,) bool)`` per face (an unmatched face: material -1); ``ValueError`` naming ``what``
+    when under 95 % of the faces find a triangle."""
     from proctex.texture.fromglb import match_faces
 
-    corners = np.asarray(glb_shape_vertices, dtype=np.float64)[generated.faces]
-    dummy = np.zeros((len(corners), 3, 2))
-    file_uv0 = np.zeros((len(glb.faces), 3, 2))
-    match = match_faces(corners, dummy, glb.vertices[glb.faces], file_uv0, uv_tol=np.inf)
+    corners = np.asarray(file_frame_vertices, dtype=np.float64)[shape.faces]
+    match = match_faces(corners, np.zeros((len(corners), 3, 2)), glb.vertices[glb.faces], np.zeros((len(glb.faces), 3, 2)), uv_tol=np.inf)
     ok = match.face >= 0
     if ok.mean() < 0.95:
-        raise ValueError(f"the GLB is not the family's shape for these parameters: {int((~ok).sum())} of its {len(ok)} faces have no "
-                         "triangle at their place (the parameters or the file's geometry differ)")
+        raise ValueError(f"the GLB is not {what}: {int((~ok).sum())} of its {len(ok)} faces have no triangle at their place")
     ff = np.where(ok, match.face, 0)
     uv = np.take_along_axis(glb.corner_uv[ff], match.corner[..., None].repeat(2, axis=-1), axis=1)
     return uv, np.where(ok, glb.face_group[ff], -1), ok
-
-
-def member_from_mesh(glb, vertices: np.ndarray):
-    """The member as a shape of its own: ``vertices`` (the file's, in the family's frame) welded by
-    position (to 1e-6 of its size); faces kept in the file's order. Returns ``(Shape, corner_uv, material)``."""
-    from proctex.geometry.shape import Shape
-
-    v = np.asarray(vertices, dtype=np.float64)
-    size = max(float(np.ptp(v, axis=0).max()), 1e-12)
-    _, first, inverse = np.unique(np.round((v - v.min(axis=0)) / (size * 1e-6)).astype(np.int64), axis=0, return_index=True,
-                                  return_inverse=True)
-    return Shape(v[first], inverse.ravel()[glb.faces]), glb.corner_uv.copy(), glb.face_group.copy()
 
 
 def textures_from_member(template, grouping, uv, assets, member, member_uv: np.ndarray, member_material: np.ndarray,
