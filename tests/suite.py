@@ -10,9 +10,12 @@ half of a busy machine from the first whatever its nice value. A machine with no
 (another job keeps it busy) gives a nice-10 process almost nothing: if the second pass is still
 running when the first ends, it goes on at the normal priority where this user may raise a
 priority (root), else it is stopped and run again at the normal priority. A watchdog names a test
-running over ``PROCTEX_TEST_STALL_S`` (600) with its process's threads, and past
-``PROCTEX_SUITE_BUDGET_S`` (4500) in all names every running test with its threads and stops both
-passes (:mod:`tests.tracing`, loaded into both, keeps what each test process runs). A first pass
+running over ``PROCTEX_TEST_STALL_S`` (600) with its process's threads, kills the process of a test
+still running past ``PROCTEX_TEST_KILL_S`` (960: pytest-timeout's 900 s could not end it, a hang
+in C that holds the GIL, so its timer thread never runs), and past ``PROCTEX_SUITE_BUDGET_S``
+(4500) in all names every running test with its threads and stops both passes (:mod:`tests.tracing`,
+loaded into both, keeps what each test process runs). The last lines name every test the watchdog
+named, with the innermost frames of the thread it stalled in (a CI log's tail shows them). A first pass
 that failed only by tests whose worker died running them (a hang the timeout ended) runs those once
 more, alone, and takes their verdict (:func:`rerun_hung`). Its output follows the first's; the exit status is 0 only when both
 passed (a second pass that selects no test passes: a selection without ``numeric`` tests). PYTEST
@@ -23,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -39,6 +43,9 @@ NO_TESTS = 5  # pytest's exit status when nothing was selected
 #: stops it); both passes together running this long are stopped, every test then running named with
 #: its threads: a hang is reported inside CI's 90 minutes (setup takes up to about 10 of them).
 STALL_S = 600.0
+#: pytest-timeout's 900 s (pyproject.toml) and a minute: a test still running then is one the timeout
+#: could not end, and its process is killed (pytest-xdist starts another worker and reports the test).
+KILL_S = 960.0
 BUDGET_S = 4500.0
 TRACING = ["-p", "tests.tracing"]  # what each test process runs, and its threads on SIGUSR1
 
@@ -51,19 +58,38 @@ def in_flight(folder: Path, now: float) -> list[dict]:
     return sorted(({**e, "running_s": now - e["since"]} for e in running(folder)), key=lambda e: -e["running_s"])
 
 
+def innermost(threads: str, frames: int = 8) -> str:
+    """The first ``frames`` frames (most recent call first) of the thread that runs pytest in a dump
+    as :meth:`Watchdog.threads_of` returns it (faulthandler's format; the block whose frames pass
+    through ``_pytest``, else the "Current thread"), one ``path:line in function`` each, joined by
+    " <- "; "" when the dump has none."""
+    blocks = [b for b in re.split(r"\n(?=(?:Current thread|Thread) 0x)", "\n" + threads) if re.match(r"(Current thread|Thread) 0x", b)]
+    chosen = next((b for b in blocks if "_pytest" in b), next((b for b in blocks if b.startswith("Current")), None))
+    if chosen is None:
+        return ""
+    found = re.findall(r'^\s*File "(.*)", line (\d+) in (.*)$', chosen, flags=re.M)
+    return " <- ".join(f"{path}:{line} in {func}" for path, line, func in found[:frames])
+
+
 class Watchdog(threading.Thread):
     """Every ``every`` s: a test running over ``stall`` s is named once with its process's threads
-    (SIGUSR1: :mod:`tests.tracing`'s faulthandler writes them to ``<name>.stacks``); past ``budget`` s
-    since the start, every running test is named with its threads and ``on_budget`` is called."""
+    (SIGUSR1: :mod:`tests.tracing`'s faulthandler writes them to ``<name>.stacks``); one running over
+    ``kill`` s has its process killed (SIGKILL: a hang nothing else ends); past ``budget`` s since the
+    start, every running test is named with its threads and ``on_budget`` is called. :attr:`stalls`
+    keeps ``(test, seconds, what happened, innermost frames)`` of each one named, for :meth:`summary`."""
 
-    def __init__(self, folder: Path, stall: float, budget: float, on_budget, every: float = 10.0, out=None):
+    def __init__(self, folder: Path, stall: float, budget: float, on_budget, every: float = 10.0, out=None,
+                 kill: float = float("inf")):
         super().__init__(daemon=True, name="suite-watchdog")
-        if stall <= 0 or budget <= 0 or every <= 0:
-            raise ValueError(f"stall, budget and every must be > 0, got {stall}, {budget}, {every}")
+        if stall <= 0 or budget <= 0 or every <= 0 or not kill > stall:
+            raise ValueError(f"stall, budget and every must be > 0 and kill > stall, got {stall}, {budget}, {every}, {kill}")
         self.folder, self.stall, self.budget, self.on_budget, self.every = folder, stall, budget, on_budget, every
+        self.kill = kill
         self.out = out if out is not None else sys.stdout
         self.start_time = time.time()
         self.named: set[tuple[str, str]] = set()
+        self.killed: set[tuple[str, str]] = set()
+        self.stalls: list[tuple[str, float, str, str]] = []
         self.over_budget = False
         self._halt = threading.Event()
 
@@ -86,10 +112,18 @@ class Watchdog(threading.Thread):
             f.seek(before)
             return f.read(200_000).decode(errors="replace")
 
-    def report(self, entry: dict, why: str) -> None:
+    def report(self, entry: dict, why: str, what: str) -> None:
+        threads = self.threads_of(entry)
         self.out.write(f"\n==== tests.suite: {entry['test']} has run {entry['running_s']:.0f} s ({entry['name']}){why}; "
-                       f"its process's threads:\n{self.threads_of(entry)}==== end of {entry['name']}'s threads\n")
+                       f"its process's threads:\n{threads}==== end of {entry['name']}'s threads\n")
         self.out.flush()
+        self.stalls.append((entry["test"], entry["running_s"], what, innermost(threads)))
+
+    def summary(self) -> str:
+        """A line per test the watchdog named (what happened, where it was), "" when none: printed
+        last, where a CI log's tail shows it."""
+        return "".join(f"==== tests.suite: {test}: {what} at {seconds:.0f} s; innermost frames: {frames or '(none read)'}\n"
+                       for test, seconds, what, frames in self.stalls)
 
     def check(self, now: float) -> None:
         """One look: name stalled tests once; past the budget name every running test and stop."""
@@ -99,15 +133,25 @@ class Watchdog(threading.Thread):
             self.out.write(f"\n==== tests.suite: the suite has run {now - self.start_time:.0f} s, past its budget of "
                            f"{self.budget:.0f} s (PROCTEX_SUITE_BUDGET_S): {len(running)} test(s) running, then stopped\n")
             for entry in running:
-                self.report(entry, "")
+                self.report(entry, "", "running past the suite's budget")
             self.on_budget()
             self.halt()
             return
         for entry in running:
             key = (entry["name"], entry["test"])
-            if entry["running_s"] > self.stall and key not in self.named:
+            if entry["running_s"] > self.kill and key not in self.killed:
+                self.killed.add(key)
+                self.report(entry, f", over {self.kill:.0f} s (PROCTEX_TEST_KILL_S): a hang its timeout could not end",
+                            "killed (a hang the timeout could not end)")
+                try:
+                    os.kill(entry["pid"], signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
+                self.out.write(f"==== tests.suite: its process {entry['pid']} killed; the pass goes on without it\n")
+                self.out.flush()
+            elif entry["running_s"] > self.stall and key not in self.named:
                 self.named.add(key)
-                self.report(entry, f", over {self.stall:.0f} s (PROCTEX_TEST_STALL_S)")
+                self.report(entry, f", over {self.stall:.0f} s (PROCTEX_TEST_STALL_S)", "stalled")
 
     def run(self) -> None:
         while not self._halt.wait(self.every):
@@ -186,11 +230,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"{exc} (--workers or TEST_WORKERS: a whole number >= 0)")
     try:
         stall = float(os.environ.get("PROCTEX_TEST_STALL_S", STALL_S))
+        kill = float(os.environ.get("PROCTEX_TEST_KILL_S", KILL_S))
         budget = float(os.environ.get("PROCTEX_SUITE_BUDGET_S", BUDGET_S))
-        if not (0 < stall < float("inf") and 0 < budget < float("inf")):
-            raise ValueError("not a positive number")
+        if not (0 < stall < kill < float("inf") and 0 < budget < float("inf")):
+            raise ValueError("not positive numbers, or the kill not after the stall")
     except ValueError as exc:
-        parser.error(f"PROCTEX_TEST_STALL_S and PROCTEX_SUITE_BUDGET_S: seconds > 0 ({exc})")
+        parser.error(f"PROCTEX_TEST_STALL_S, PROCTEX_TEST_KILL_S and PROCTEX_SUITE_BUDGET_S: seconds > 0, the kill after the stall ({exc})")
     scratch = Path(tempfile.mkdtemp(prefix="proctex-second-"))
     (scratch / "trace").mkdir()
     # workers reuse compiled modules; a suite run by a test of another does not pass as its xdist worker
@@ -208,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
         for proc in passes:
             stop(proc)
 
-    watchdog = Watchdog(scratch / "trace", stall, budget, stop_all)
+    watchdog = Watchdog(scratch / "trace", stall, budget, stop_all, kill=kill)
     watchdog.start()
     # SIGTERM (a CI's cancel) ends this process through the finally below, which stops both passes
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
@@ -243,6 +288,7 @@ def main(argv: list[str] | None = None) -> int:
         stop_all()
         log.close()
         shutil.rmtree(scratch, ignore_errors=True)
+    sys.stdout.write(watchdog.summary())
     print(f"first pass: exit {first}; second pass: exit {other}"
           + (f" (stopped: past the suite's budget of {budget:.0f} s)" if watchdog.over_budget else ""), flush=True)
     if watchdog.over_budget:

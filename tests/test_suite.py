@@ -192,6 +192,42 @@ def test_a_test_stuck_in_c_is_named_with_its_threads_and_stopped_and_the_rest_ru
     assert "1 test(s) stopped their worker" in out and "they failed again" in out, out[-4000:]
 
 
+HOLDS_THE_GIL = """import ctypes, time
+
+class Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+def test_stuck_in_c_holding_the_gil():
+    # a mutex locked twice, the second time through PyDLL (which keeps the GIL): no thread of this
+    # process runs Python for 90 s, pytest-timeout's timer among them, and no signal ends the wait
+    libc = ctypes.PyDLL(None)
+    mutex = ctypes.create_string_buffer(64)  # zeroed: a default mutex (PTHREAD_MUTEX_INITIALIZER)
+    libc.pthread_mutex_lock(mutex)
+    libc.pthread_mutex_timedlock(mutex, ctypes.byref(Timespec(int(time.time()) + 90, 0)))
+
+def test_after_it():
+    pass
+"""
+
+
+def test_a_test_holding_the_gil_past_the_kill_limit_is_killed_named_last_and_the_rest_runs(tmp_path):
+    """A hang that pytest-timeout cannot end (its timer thread needs the GIL) is named at the stall
+    limit, its process killed at the kill limit (the next test still runs, the hung one runs once
+    more alone and is killed again), and the suite's last lines name it with its innermost frames.
+    Without the kill the pass would wait the lock's 90 s out, twice."""
+    proj = tiny_project(tmp_path, "gil", HOLDS_THE_GIL, "timeout = 5\ntimeout_method = thread\n")
+    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "1", str(proj)], cwd=ROOT, capture_output=True, text=True,
+                         timeout=600, env={**os.environ, "PROCTEX_TEST_STALL_S": "4", "PROCTEX_TEST_KILL_S": "12"})
+    out = run.stdout
+    assert run.returncode == 1, out[-4000:] + run.stderr[-2000:]
+    assert "over 4 s (PROCTEX_TEST_STALL_S)" in out and "over 12 s (PROCTEX_TEST_KILL_S)" in out, out[-4000:]
+    assert "crashed while running 'test_hang.py::test_stuck_in_c_holding_the_gil'" in out, out[-4000:]
+    assert "1 failed, 1 passed" in out and "they failed again" in out, out[-4000:]
+    tail = out[out.rindex("they failed again"):]
+    assert tail.count("test_hang.py::test_stuck_in_c_holding_the_gil: killed (a hang the timeout could not end)") == 2, tail
+    assert "test_hang.py:12 in test_stuck_in_c_holding_the_gil" in tail, tail  # the innermost frame, in the last lines
+
+
 HANGS_ONCE = """import os, signal, time
 from pathlib import Path
 
