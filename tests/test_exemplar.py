@@ -276,6 +276,36 @@ def test_the_groups_without_a_photo_are_painted_as_the_prompt_alone_paints_them(
         assert same == (a.group != leg), a.group
 
 
+def test_groups_painted_side_by_side_give_the_same_textures_and_maps_as_one_at_a_time(chair, monkeypatch):
+    """Two threads painting groups (proctex.texture.paint.per_group) change no texel of a photo
+    look or a prompt look, colour or maps: the painters' caches hold values independent of order,
+    and each photographed group's kept contrast and relief reach its own maps."""
+    from proctex.texture import paint as P
+
+    shape, grouping = chair
+    photos = {"leg": E.PhotoLayer(E.Photo(blobs(15), "p")), "*": E.PhotoLayer(E.Photo(blobs(16, (0.2, 0.5, 0.9)), "q"))}
+    looks = {}
+    for threads in (1, 2):
+        monkeypatch.setattr(P, "PAINT_THREADS", threads)
+        looks[threads] = [paint_template(shape, grouping, "a chair with black metal legs", size=64, photos=photos),
+                          paint_template(shape, grouping, "a chair with a red velvet seat", size=64)]
+    for one, two in zip(looks[1], looks[2]):
+        for a, b in zip(one.groups, two.groups):
+            assert np.array_equal(a.image, b.image) and np.array_equal(a.painted, b.painted), a.group
+            assert np.array_equal(a.pbr.orm, b.pbr.orm) and np.array_equal(a.pbr.normal, b.pbr.normal), a.group
+    # and two threads did paint side by side: both wait at one barrier (one thread would time out)
+    import threading
+
+    barrier, names = threading.Barrier(2, timeout=30), []
+
+    def meet(a, b):
+        barrier.wait()
+        names.append(threading.current_thread().name)
+        return a + b
+
+    assert P.per_group(meet, [(1, 2), (3, 4)], threads=2) == [3, 7] and len(set(names)) == 2
+
+
 def _grain_axis(shape, grouping, group: int, layer) -> float:
     """On a patch through the group's centre across its shortest axis, the mean luminance step along
     the group's long axis over the step along its second axis (small: the grain runs along the long

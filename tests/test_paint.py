@@ -399,3 +399,37 @@ def test_a_painter_from_one_file_paints_a_build_and_is_offered_by_the_cli(tmp_pa
     finally:
         unregister_painter("toy_crimson")
         plugins._LOADED.pop(str(path), None)
+
+
+def test_a_painter_installed_as_a_package_is_found_by_its_entry_point_once_per_import_path(tmp_path, monkeypatch):
+    """An installed package's ``proctex.plugins`` entry point registers its painter; the installed
+    packages are read once per import path (a lookup reads none again), and a package on a path added
+    later is found."""
+    import importlib.metadata
+    import sys
+
+    from proctex import plugins
+    from proctex.texture.painting import get_painter, unregister_painter
+
+    site = tmp_path / "site"
+    (site / "toy_pkg-1.0.dist-info").mkdir(parents=True)
+    (site / "toy_pkg-1.0.dist-info" / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-pkg\nVersion: 1.0\n")
+    (site / "toy_pkg-1.0.dist-info" / "entry_points.txt").write_text("[proctex.plugins]\ntoy = toy_pkg_painter\n")
+    (site / "toy_pkg_painter.py").write_text(TOY_PAINTER)
+    reads = []
+    real = importlib.metadata.entry_points
+    monkeypatch.setattr(importlib.metadata, "entry_points", lambda **kw: reads.append(kw) or real(**kw))
+    try:
+        plugins.load_plugins()
+        before = len(reads)
+        plugins.load_plugins()
+        assert len(reads) == before  # the same import path: nothing read again
+        with pytest.raises(ValueError):
+            get_painter("toy_crimson")  # not on the path yet
+        monkeypatch.syspath_prepend(str(site))
+        assert get_painter("toy_crimson").name == "toy_crimson" and "entry point toy" in plugins.load_plugins()
+        assert len(reads) == before + 1
+    finally:
+        unregister_painter("toy_crimson")
+        plugins._LOADED.pop("entry point toy", None)
+        sys.modules.pop("toy_pkg_painter", None)

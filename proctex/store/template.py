@@ -273,12 +273,20 @@ class Template:
 def encode_textures(tex: Any) -> tuple[list[bytes], list[Any]]:
     """The group textures of a painted template (:class:`proctex.texture.paint.TemplateTexture`) as
     PNG bytes, and per group its PBR maps as PNG bytes (:class:`proctex.texture.pbr.PbrMaps` of
-    bytes) or None: each image encoded once, for the files, the GLB and the store alike."""
+    bytes) or None: each image encoded once, for the files, the GLB and the store alike. Up to two
+    images are encoded at a time (zlib lets go of the GIL: a look's 18 PNGs at 512² take half the
+    time on 2 cores)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from proctex.fileio import encode_png
     from proctex.texture.pbr import PbrMaps
 
-    pngs = [encode_png(g.uint8()) for g in tex.groups]
-    maps = [None if g.pbr is None else PbrMaps(encode_png(g.pbr.orm_uint8()), encode_png(g.pbr.normal_uint8()), g.pbr.occlusion) for g in tex.groups]
+    images = [g.uint8() for g in tex.groups]
+    images += [img for g in tex.groups if g.pbr is not None for img in (g.pbr.orm_uint8(), g.pbr.normal_uint8())]
+    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
+        encoded = iter(list(pool.map(encode_png, images)))
+    pngs = [next(encoded) for _ in tex.groups]
+    maps = [None if g.pbr is None else PbrMaps(next(encoded), next(encoded), g.pbr.occlusion) for g in tex.groups]
     return pngs, maps
 
 

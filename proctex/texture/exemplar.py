@@ -34,6 +34,7 @@ edge, so chart borders read true colours too).
 from __future__ import annotations
 
 import io
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -525,6 +526,7 @@ class PhotoPainter:
     _bound: dict[int, _Bound] = field(default_factory=dict)
     _notes: list[str] = field(default_factory=list)
     _kept: dict[tuple, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    _lock: Any = field(default_factory=threading.Lock)
     _frame: tuple[np.ndarray, float] | None = None
 
     @property
@@ -642,9 +644,10 @@ class PhotoPainter:
         for s in range(0, len(pts), CHUNK):
             sl = slice(s, s + CHUNK)
             out[sl], contrast[sl], grad[sl] = self._fields(b, self._world(pts[sl]), nrm[sl])
-        self._kept[(group, self._key(pts))] = (contrast, grad.astype(np.float32))
-        while sum(c.nbytes + g.nbytes for c, g in self._kept.values()) > KEEP_BYTES:  # the oldest go first
-            self._kept.pop(next(iter(self._kept)))
+        with self._lock:  # groups are painted side by side (proctex.texture.paint.per_group)
+            self._kept[(group, self._key(pts))] = (contrast, grad.astype(np.float32))
+            while sum(c.nbytes + g.nbytes for c, g in self._kept.values()) > KEEP_BYTES:  # the oldest go first
+                self._kept.pop(next(iter(self._kept)))
         return out
 
     def material(self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray,
@@ -662,7 +665,8 @@ class PhotoPainter:
         pts, nrm = _checked(points, normals if blend is None else blend)
         tan = np.asarray(tangents, dtype=np.float64)
         bit = np.asarray(bitangents, dtype=np.float64)
-        kept = self._kept.pop((group, self._key(pts)), None)
+        with self._lock:
+            kept = self._kept.pop((group, self._key(pts)), None)
         if kept is None:
             contrast, grad = np.empty(len(pts), np.float32), np.empty((len(pts), 3))
             for s in range(0, len(pts), CHUNK):
