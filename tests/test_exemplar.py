@@ -585,3 +585,32 @@ def test_blend_normals_are_continuous_across_split_vertices_and_exact_on_a_plane
     plane = Shape(np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]), np.array([[0, 1, 2], [0, 2, 3]]))
     ptx = texel_map(plane.vertices, plane.faces, np.array([[[0.1, 0.1], [0.9, 0.1], [0.9, 0.9]], [[0.1, 0.1], [0.9, 0.9], [0.1, 0.9]]]), 32)
     assert np.array_equal(blend_normals(plane, np.arange(2), ptx), np.tile([0.0, 0.0, 1.0], (len(ptx.face), 1)))
+
+
+def test_the_seam_measure_matches_distances_on_the_surface_and_still_sees_a_colour_step():
+    """The benchmark's seam measure (tests/bench/bench_photolooks.py) on a hand-built view: a smooth
+    colour field over a plane whose pixels lie twice as far apart around every chart seam (as where
+    charts are cut, at bends seen at a slant). The plain ratio calls the continuous field a seam (2.2
+    measured); matched by distance it is 1 (0.998). A step of 0.1 per channel across the seams, a
+    visible seam, moves the matched ratio to 1.37."""
+    from types import SimpleNamespace
+
+    from tests.bench import bench_photolooks as B
+
+    H, W = 80, 400
+    col = np.arange(W)
+    near = np.isin(col % 20, (16, 17, 18, 19, 0, 1, 2, 3))  # the slant around each seam (seams every 20 columns)
+    x = np.cumsum(np.where(near, 2.0, 1.0))[None, :].repeat(H, 0)
+    y = np.arange(H, dtype=float)[:, None].repeat(W, 1)
+    pts = np.stack([x, y, np.zeros_like(x)], -1)
+    face = (col // 2)[None, :].repeat(H, 0)  # faces two pixels wide
+    view = SimpleNamespace(face=face, points=pts, normal=np.broadcast_to([0.0, 0.0, 1.0], pts.shape))
+    charts, groups = (np.arange(W // 2) * 2 // 20).astype(np.int64), np.zeros(W // 2, np.int64)
+    rng = np.random.default_rng(0)
+    field = 0.5 + sum(0.08 * np.sin(f * x + g * y + p)[..., None] * rng.random(3)
+                      for f, g, p in zip(rng.uniform(0.5, 1.2, 6), rng.uniform(-0.4, 0.4, 6), rng.uniform(0, 6.3, 6)))
+    smooth = B.seam_ratio([view], [field], charts, groups)
+    seam = B.seam_ratio([view], [field + 0.1 * (charts[face] % 2)[..., None]], charts, groups)
+    assert smooth["ratio"] > 1.8 and abs(smooth["ratio_matched"] - 1.0) < 0.05, smooth  # measured 2.20, 0.998
+    assert seam["ratio_matched"] > 1.25 > 1.2, seam  # measured 1.37
+    assert smooth["pairs_across"] == seam["pairs_across"] == 19 * H  # 19 seams, one pair per row

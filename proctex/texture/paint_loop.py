@@ -67,6 +67,10 @@ class _Member:
         return self.points if self.points is not None else (texels.points - self.t) @ self.back.T
 
 
+
+#: texels past each chart's edge that a photo look paints on the surface extended (paint_surface's ``ring``)
+PHOTO_RING = 2
+
 def _member(shape: Shape, grouping: Grouping, g: PartGroup, m: MemberMap, texels: TexelMap) -> _Member:
     R, t = np.asarray(m.R, float), np.asarray(m.t, float)
     if m.method == "deformed":  # vertex i of the member is vertex i of the representative
@@ -509,7 +513,7 @@ def paint_template(
     if surface is not None:
         surface.bind(shape, grouping, up, parts=parts)  # places the prompt's regions on this shape
     if not kind.views:
-        tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv, ring=2 if photos else 0)
+        tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv, ring=PHOTO_RING if photos else 0)
     else:
         tex = paint_views(shape, grouping, chosen, prompt, {str(g): t for g, t in prompts.items()}, n_views=views,
                           view_size=view_size, size=size, up=up, seed=seed, complete_hidden=complete_hidden, fill=fill,

@@ -8,8 +8,11 @@ script makes two photos in code (a woven fabric and a wood grain; nothing is dow
   times each, medians;
 - **seams**: the photo look rendered in the six canonical views (albedo, no light): the mean colour
   step between neighbouring pixels of one group whose faces lie in *different* UV charts, over the
-  step between neighbouring pixels in the same chart (1: no seam shows). Beside it the wrong way,
-  the same photo synthesised per chart in UV space, which a seam-aware metric must call worse;
+  step between neighbouring pixels in the same chart (1: no seam shows), and the same at matched
+  distances on the surface (``ratio_matched``: seams lie where the surface bends, seen at a slant).
+  Beside it the wrong way, the same photo synthesised per chart in UV space, which a seam-aware
+  metric must call worse, and the control, the synthesis evaluated at each pixel's own surface
+  point (no atlas: what is left is the atlas's sampling);
 - **repeats**: the highest normalised autocorrelation away from zero shift (beyond 24 texels) of
   the largest group's texture over its charts (masked), painted from a stone photo made in code
   (no period of its own) spanning a tenth of the part: synthesised, and tiled on the surface in the
@@ -106,12 +109,20 @@ def chart_ids(faces: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def seam_ratio(views: list, albedos: list[np.ndarray], charts: np.ndarray, face_group: np.ndarray, crease: float | None = None) -> dict[str, float]:
+def seam_ratio(views: list, albedos: list[np.ndarray], charts: np.ndarray, face_group: np.ndarray, crease: float | None = None,
+               bins: int = 10) -> dict[str, float]:
     """Mean colour step (RGB, 0-1) between neighbouring pixels of one group across UV charts over the
     step inside one chart, over all views (neighbours on the surface only: not across an occluding
     edge; with ``crease``, also not across a crease sharper than that many degrees); with both means
-    and the pair counts."""
-    across, inside = [], []
+    and the pair counts.
+
+    ``ratio_matched`` compares pairs at the same distance on the surface: charts are cut where the
+    surface bends, which the canonical views see at a slant, so neighbouring pixels across a seam
+    lie further apart on the surface (1.5-3 footprints against about 1 inside) and differ more for
+    any texture that varies. The across pairs' distances are cut into ``bins`` deciles, and the mean
+    across step over the mean inside step is taken over the deciles that hold both (each decile
+    weighing alike): 1 where a seam shows nothing the distance does not explain."""
+    across, inside, gap_a, gap_i = [], [], [], []
     for b, a in zip(views, albedos):
         f = b.face
         for axis in (0, 1):
@@ -132,10 +143,22 @@ def seam_ratio(views: list, albedos: list[np.ndarray], charts: np.ndarray, face_
             same = charts[np.maximum(fa, 0)] == charts[np.maximum(fb, 0)]
             across.append(step[ok & ~same])
             inside.append(step[ok & same])
+            gap_a.append(gap[ok & ~same] / footprint)
+            gap_i.append(gap[ok & same] / footprint)
     across_v, inside_v = np.concatenate(across), np.concatenate(inside)
+    ga, gi = np.concatenate(gap_a), np.concatenate(gap_i)
+    matched = float("nan")
+    if len(across_v) >= bins:
+        edges = np.quantile(ga, np.linspace(0.0, 1.0, bins + 1))
+        ka, ki = np.clip(np.searchsorted(edges, ga, side="right") - 1, 0, bins - 1), np.clip(np.searchsorted(edges, gi, side="right") - 1, 0, bins - 1)
+        ki = np.where((gi >= edges[0]) & (gi <= edges[-1]), ki, -1)
+        pairs = [(across_v[ka == k].mean(), inside_v[ki == k].mean()) for k in range(bins) if (ka == k).any() and (ki == k).any()]
+        if pairs:
+            matched = float(np.mean([p[0] for p in pairs]) / max(np.mean([p[1] for p in pairs]), 1e-12))
     return {"across": float(across_v.mean()) if len(across_v) else float("nan"), "inside": float(inside_v.mean()),
             "ratio": float(across_v.mean() / max(inside_v.mean(), 1e-12)) if len(across_v) else float("nan"),
-            "pairs_across": int(len(across_v)), "pairs_inside": int(len(inside_v))}
+            "ratio_matched": matched, "pairs_across": int(len(across_v)), "pairs_inside": int(len(inside_v)),
+            "across_gap_median": float(np.median(ga)) if len(ga) else float("nan"), "inside_gap_median": float(np.median(gi))}
 
 
 def repeat_peak(image: np.ndarray, mask: np.ndarray, exclude: int = 24) -> float:
@@ -226,6 +249,10 @@ def main(argv: list[str] | None = None) -> dict:
         img[tx.ij[:, 0], tx.ij[:, 1]] = E.synthesise(b.ex, uv, seed=1)
         uv_space.append(pad_seams(img, tx.mask, 8)[0])
     report["seams"]["per_chart_uv_synthesis"] = seam_ratio(views, albedos(uv_space), charts, face_group)
+    # the control: the same synthesis evaluated at each pixel's own surface point (no atlas), on the
+    # pixels of each group's representative (the other members read its texture through their maps)
+    direct = E.PhotoPainter(_Plain(), per_group, seed=config.seed, texture_size=size).bind(shape, grouping, config.up_axis())
+    report["seams"]["synthesis_at_the_pixels"] = seam_ratio(*direct_views(views, shape, grouping, direct), charts, face_group)
     # repeats: the largest group painted from a stone photo (no period of its own) at a tenth of the
     # part's longest side (so the part holds many photo widths), synthesised and tiled
     big = max(range(len(texels)), key=lambda g: len(texels[g].face))
@@ -257,6 +284,37 @@ def main(argv: list[str] | None = None) -> dict:
     if args.out:
         Path(args.out).write_text(text + "\n")
     return report
+
+
+def direct_views(views: list, shape, grouping, painter) -> tuple[list, list[np.ndarray]]:
+    """The views with only the groups' representatives' pixels kept (others: face -1), and per view
+    the painter's colours at those pixels' surface points, with the smooth normal field its colour
+    follows in a look (:func:`proctex.texture.paint.blend_normals`): the synthesis with no atlas."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from proctex.texture.paint import blend_normals, shape_frame
+
+    c0, r0 = shape_frame(shape)
+    owner = np.full(len(shape.faces), -1)  # representative faces: their group
+    local = np.zeros(len(shape.faces), np.int64)  # ... and their index among the representative's faces
+    for g in grouping.groups:
+        faces = np.asarray(grouping.parts[g.representative].faces)
+        owner[faces], local[faces] = g.index, np.arange(len(faces))
+    kept, colours = [], []
+    for b in views:
+        face = np.where((b.face >= 0) & (owner[np.maximum(b.face, 0)] >= 0), b.face, -1)
+        img = np.zeros(face.shape + (3,), np.float32)
+        for g in grouping.groups:
+            sel = (face >= 0) & (owner[np.maximum(face, 0)] == g.index)
+            if not sel.any():
+                continue
+            at = SimpleNamespace(face=local[face[sel]], bary=b.bary[sel], normals=b.normal[sel])  # the pixels as the representative's texels
+            normals = blend_normals(shape, grouping.parts[g.representative].faces, at)
+            img[sel] = painter.paint((b.points[sel] - c0) / r0, normals, group=g.index)
+        kept.append(replace(b, face=face))
+        colours.append(img)
+    return kept, colours
 
 
 def files_uv(files, shape, grouping, size):
