@@ -55,9 +55,10 @@ def family(painted_mug_root, tmp_path, monkeypatch):
 
 
 def tree(folder: Path) -> dict[str, str]:
-    """Every file under ``folder`` (lock files aside) by its checksum."""
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*"))
-            if p.is_file() and ".lock" not in p.name}
+    """Every file under ``folder`` (lock files aside) by its checksum, and every folder (a failed
+    write leaves no empty folder either)."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "folder"
+            for p in sorted(folder.rglob("*")) if (p.is_file() and ".lock" not in p.name) or p.is_dir()}
 
 
 @pytest.mark.parametrize("room", [0, 1, 3, 5])
@@ -119,6 +120,26 @@ def test_the_service_answers_507_for_a_full_disk_and_503_for_a_tampered_texture(
     assert st.read_bytes(rel) == tampered and len(st.read_json(StoreLayout.PAINT)["edits"]) == 1  # refused, not laundered
     with pytest.raises(StoreDamaged):
         edit_group(st, 0, hue=20)
+
+
+@pytest.mark.parametrize("damaged", ["template/uv.npz", "family.json"])
+def test_an_edit_over_a_truncated_store_file_answers_503_like_any_damage(family, damaged):
+    """A store file an edit reads cut short (uv.npz, family.json) is damage (503, the file
+    named), not the client's error (422), and nothing is written."""
+    from fastapi.testclient import TestClient
+
+    from workers.http import create_app
+
+    root, _ = family
+    cat = Catalog(str(root), check_every=0)
+    c = TestClient(create_app(lambda: cat, edit_token="tok"))
+    assert c.get("/v1/families/mug").status_code == 200  # served, then damaged underneath
+    path = root / "mug" / damaged
+    path.write_bytes(path.read_bytes()[: max(1, path.stat().st_size // 2)])
+    before = tree(root / "mug")
+    r = c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=TOKEN)
+    assert r.status_code == 503 and damaged.split("/")[-1] in r.json()["error"], r.text
+    assert tree(root / "mug") == before
 
 
 def test_every_edit_path_is_versioned_the_cli_included(family, capsys):

@@ -408,19 +408,22 @@ class FamilyStore:
         if not self.local:
             return self._put_all(files)
         staged: list[tuple[str, str]] = []
+        made: list[str] = []  # folders this change created, outermost first: removed again when it fails
         try:
             for rel, data in files:
                 final = self.path(rel)
-                self.fs.create_dir(final.rsplit("/", 1)[0], recursive=True)
+                made += self._make_dirs(final.rsplit("/", 1)[0])
                 tmp = f"{final}.tmp-{uuid.uuid4().hex[:12]}"
                 staged.append((tmp, final))
                 with self.fs.open_output_stream(tmp) as fh:
                     fh.write(data)
         except OSError as exc:
             self._remove(t for t, _ in staged)
+            self._remove_dirs(made)
             raise StoreWriteError.of(exc, staged[-1][1] if staged else self.uri) from exc
         except BaseException:
             self._remove(t for t, _ in staged)
+            self._remove_dirs(made)
             raise
         for k, (tmp, final) in enumerate(staged):
             try:
@@ -429,6 +432,29 @@ class FamilyStore:
                 self._remove(t for t, _ in staged[k:])
                 raise
         return [final for _, final in staged]
+
+    def _make_dirs(self, folder: str) -> list[str]:
+        """Create ``folder`` (a full path) and its missing parents; returns those created, outermost first."""
+        missing = []
+        at = folder
+        while at and at not in ("/", ".") and self.fs.get_file_info(at).type == pafs.FileType.NotFound:
+            missing.append(at)
+            parent = at.rsplit("/", 1)[0] if "/" in at else ""
+            if parent == at:
+                break
+            at = parent
+        if missing:
+            self.fs.create_dir(folder, recursive=True)
+        return missing[::-1]
+
+    def _remove_dirs(self, made: list[str]) -> None:
+        """Remove the folders a failed change created (innermost first), each only while empty."""
+        for d in reversed(made):
+            try:
+                if not self.fs.get_file_info(pafs.FileSelector(d)):
+                    self.fs.delete_dir(d)
+            except OSError:
+                pass
 
     def replace_folder(self, folder: str, files: list[tuple[str, bytes]]) -> None:
         """Make ``folder`` hold exactly ``files`` (paths relative to the store, all under ``folder``;
@@ -520,7 +546,7 @@ class FamilyStore:
         try:
             return json.loads(self.read_bytes(rel))
         except json.JSONDecodeError as exc:
-            raise ValueError(f"{self.uri}: {rel} is not valid JSON ({exc})") from exc
+            raise StoreDamaged(f"{self.uri}: {rel} is not valid JSON ({exc})") from exc
 
     def write_table(self, rel: str, table: pa.Table | dict[str, Any]) -> str:
         """Write a Parquet table (a ``pa.Table`` or a dict of columns)."""
@@ -536,7 +562,7 @@ class FamilyStore:
         try:
             return pq.read_table(pa.BufferReader(data))
         except (pa.ArrowException, OSError) as exc:
-            raise ValueError(f"{self.uri}: {rel} is not a readable Parquet table ({exc.__class__.__name__})") from exc
+            raise StoreDamaged(f"{self.uri}: {rel} is not a readable Parquet table ({exc.__class__.__name__})") from exc
 
     def write_arrays(self, rel: str, **arrays: np.ndarray) -> str:
         """Write numeric arrays as ``.npz`` (no object arrays: loading never unpickles)."""
@@ -549,4 +575,4 @@ class FamilyStore:
             with np.load(io.BytesIO(data), allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
         except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
-            raise ValueError(f"{self.uri}: {rel} is not a readable array file ({exc.__class__.__name__})") from exc
+            raise StoreDamaged(f"{self.uri}: {rel} is not a readable array file ({exc.__class__.__name__})") from exc
