@@ -100,3 +100,40 @@ def test_the_service_refuses_what_a_header_declares_over_its_limits(painted_mug_
         svc.shape_from_mesh(chain_gltf(100), "m.gltf")
     ok = svc.shape_from_mesh(chain_gltf(3), "m.gltf")  # within the limits it is read
     assert ok.n_faces == 1
+
+
+def _with_accessor(data: bytes, index: int, **change) -> bytes:
+    """The GLB ``data`` with accessor ``index``'s fields changed (None: removed)."""
+    n = struct.unpack_from("<I", data, 12)[0]
+    doc = json.loads(data[20:20 + n])
+    for k, v in change.items():
+        if v is None:
+            doc["accessors"][index].pop(k, None)
+        else:
+            doc["accessors"][index][k] = v
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    out = data[:12] + struct.pack("<I", len(js)) + b"JSON" + js + data[20 + n:]
+    return out[:8] + struct.pack("<I", len(out)) + out[12:]
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"count": -3}, "count -3"), ({"count": 0}, "count 0"), ({"count": 1.5}, "count 1.5"), ({"count": "7"}, 'count "7"'),
+    ({"count": True}, "count true"), ({"count": None}, "count null"), ({"count": 10**12}, "past the end of bufferView"),
+    ({"byteOffset": -4}, "byteOffset -4"), ({"componentType": 5127}, "componentType 5127"), ({"bufferView": 99}, "bufferView 99"),
+])
+def test_a_glb_whose_index_accessor_lies_is_refused_not_read_short(change, message):
+    """An index accessor with ``count: -3`` was read as all but the last three indices (a triangle
+    dropped, the mesh served); every accessor's count, type, offset and reach is checked before a
+    library reads it, and the file is refused naming the accessor."""
+    from proctex.texture.export import glb_bytes
+
+    mug = get_model("mug").generate()
+    data = glb_bytes(mug.vertices, mug.faces, np.zeros((len(mug.faces), 3, 2)), np.zeros(len(mug.faces), np.int64), [np.zeros((8, 8, 3), np.uint8)])
+    n = struct.unpack_from("<I", data, 12)[0]
+    indices = json.loads(data[20:20 + n])["meshes"][0]["primitives"][0]["indices"]
+    shape, _ = load_mesh_bytes(data, "m.glb")
+    assert len(shape.faces) == len(mug.faces)  # the file as written reads whole
+    bad = _with_accessor(data, indices, **change)
+    with pytest.raises(ValueError, match=f"accessor {indices} .*{message}".replace("(", r"\(").replace(")", r"\)")):
+        load_mesh_bytes(bad, "m.glb")

@@ -94,6 +94,8 @@ def test_routes(client, root):
         ({"files": {"mesh": ("m.obj", b"v 0 0 0")}, "data": {"edits": '{"lid": {"hue": 5}}'}}, 422, "unknown group 'lid'"),
         ({"files": {"mesh": ("m.obj", b"v 0 0 0\n" * 300_000)}}, 413, "limit"),
         ({"content": b"x" * 3_000_000, "headers": {"content-type": "application/json"}}, 413, "limit"),
+        ({"json": {"params": {}, "seed": True}}, 422, "bad JSON body"),  # was taken as seed 1
+        ({"json": {"params": {}, "seed": 1.5}}, 422, "bad JSON body"),
     ],
 )
 def test_bad_requests_get_clear_json_errors(client, kwargs, status, message):
@@ -558,3 +560,17 @@ def test_stored_images_pickle_without_their_lock_and_decode_alike(root):
     textures = svc.assets.textures
     back = pickle.loads(pickle.dumps(textures))
     assert back.png == textures.png and np.array_equal(back[0], textures[0])
+
+
+@pytest.mark.parametrize("path, message", [
+    ("/v1/families/%2e%2e%2f", "no route"),  # was a 307 to /v1/families/.. with an empty body
+    ("/v1/families/..%2f", "no route"),
+    ("/v1/families/mug/", "no route"),
+    ("/v1/families/mug/textures/0.normal.orm.png", "unknown group '0.normal'"),  # served the normal map
+    ("/v1/families/mug/textures/0.orm.orm.png", "unknown group '0.orm'"),
+])
+def test_odd_paths_answer_a_json_404_not_a_redirect_or_another_file(client, path, message):
+    c, _ = client
+    r = c.get(path, follow_redirects=False)
+    assert r.status_code == 404 and message in r.json()["error"], (r.status_code, r.text[:200])
+    assert c.get("/v1/families/mug/textures/0.png").status_code == 200

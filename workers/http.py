@@ -93,7 +93,7 @@ class TransferRequest(BaseModel):
     """JSON body of a transfer by parameters."""
 
     params: dict[str, Any] = Field(default_factory=dict, description="parameter values (missing ones take their defaults)")
-    seed: int = Field(0, ge=0, le=2**31 - 1, description="seed of the network's context samples and of painting new parts")
+    seed: int = Field(0, ge=0, le=2**31 - 1, strict=True, description="seed (a whole number, not true or 1.0) of the network's context samples and of painting new parts")
     edits: dict[str, Any] | None = Field(None, description='non-destructive edits: {"<group index or label>": '
                                          '{"hue": degrees, "saturation": scale, "value": scale, "prompt": text}}')
 
@@ -487,6 +487,9 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         title="ProcTex transfer service",
         version="1",
         description="Texture any member of a procedural shape family from its family's template in real time.",
+        # no redirect to the path with or without its last slash: "/v1/families/%2e%2e%2f" was a 307
+        # with an empty body; every unknown path is a JSON 404
+        redirect_slashes=False,
     )
 
     async def blocking(fn: Callable[[], Any]) -> Any:

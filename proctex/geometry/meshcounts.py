@@ -82,6 +82,52 @@ def _gltf_json(data: bytes, fmt: str, name: str) -> dict:
     return doc
 
 
+#: bytes per component of each glTF componentType, and components per element of each type
+_COMPONENT = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_ELEMENT = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+def _shown(value) -> str:
+    """A JSON value as the file wrote it, cut to 20 characters (for messages)."""
+    try:
+        return json.dumps(value)[:20]
+    except (TypeError, ValueError):
+        return type(value).__name__
+
+
+def check_accessors(doc: dict, name: str) -> None:
+    """``ValueError`` naming the first accessor of a glTF ``doc`` that a reader could misread: a
+    count that is not a whole number of at least 1 (the spec's; -3 was read as "all but the last
+    three"), an unknown componentType or type, a negative offset, or elements past the end of their
+    bufferView (its stride counted)."""
+    accessors = doc.get("accessors") or []
+    views = doc.get("bufferViews") or []
+    if not isinstance(views, list):
+        raise ValueError(f"{name}: the glTF's bufferViews must be a list")
+    for i, a in enumerate(accessors):
+        if not isinstance(a, dict):
+            raise ValueError(f"{name}: accessor {i} is not an object")
+        count, ctype, kind, offset = a.get("count"), a.get("componentType"), a.get("type"), a.get("byteOffset", 0)
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise ValueError(f"{name}: accessor {i} has count {_shown(count)} (a whole number of at least 1)")
+        if ctype not in _COMPONENT or kind not in _ELEMENT:
+            raise ValueError(f"{name}: accessor {i} has componentType {_shown(ctype)} and type {_shown(kind)}, not a glTF pair")
+        if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
+            raise ValueError(f"{name}: accessor {i} has byteOffset {_shown(offset)} (a whole number of at least 0)")
+        v = a.get("bufferView")
+        if v is None:
+            continue  # all zeros (or sparse): nothing to read past
+        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < len(views) or not isinstance(views[v], dict):
+            raise ValueError(f"{name}: accessor {i} names bufferView {_shown(v)}, which does not exist")
+        view = views[v]
+        length, stride = view.get("byteLength"), view.get("byteStride") or 0
+        if isinstance(length, bool) or not isinstance(length, int) or length < 0 or isinstance(stride, bool) or not isinstance(stride, int) or stride < 0:
+            raise ValueError(f"{name}: bufferView {v} has byteLength {_shown(length)} and byteStride {_shown(stride)}")
+        size = _COMPONENT[ctype] * _ELEMENT[kind]
+        if offset + (count - 1) * max(stride, size) + size > length:
+            raise ValueError(f"{name}: accessor {i} reads {count} elements past the end of bufferView {v} ({length} bytes)")
+
+
 def _gltf_counts(doc: dict, name: str) -> DeclaredCounts:
     nodes = doc.get("nodes") or []
     accessors = doc.get("accessors") or []
@@ -90,6 +136,7 @@ def _gltf_counts(doc: dict, name: str) -> DeclaredCounts:
         raise ValueError(f"{name}: the glTF's nodes, meshes and accessors must be lists")
     if len(nodes) > MAX_NODES:
         raise ValueError(f"{name}: {len(nodes)} nodes (at most {MAX_NODES})")
+    check_accessors(doc, name)
 
     def count(i) -> int:
         a = accessors[i] if isinstance(i, int) and 0 <= i < len(accessors) and isinstance(accessors[i], dict) else {}

@@ -520,12 +520,14 @@ class FamilyService:
 
     def texture_png(self, group: Any) -> tuple[bytes, str]:
         """``(PNG bytes, sha256 digest)`` of a template group's texture as stored (edits included);
-        ``group`` may end in ``.orm`` or ``.normal`` for one of its PBR maps."""
+        ``group`` may end in one ``.orm`` or ``.normal`` for one of its PBR maps (``0.normal.orm`` is
+        no group)."""
         kind = ""
         text = str(group)
         for k in MAP_KINDS:
             if text.endswith("." + k):
                 text, kind = text[: -len(k) - 1], k
+                break
         g = self.group_index(text, missing=NotFound)
         if not kind:
             return self.assets.png[g], self.texture_digests[g]
