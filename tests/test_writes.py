@@ -287,3 +287,45 @@ def test_an_unreadable_family_is_listed_and_answers_503_naming_the_permission(fa
     r = c.get("/v1/families/cup")
     assert r.status_code == 503 and "Permission" in r.json()["error"]
     assert c.get("/v1/families/mug").status_code == 200
+
+
+def test_the_command_line_takes_what_http_takes_and_a_refused_build_leaves_out_as_it_was(family, tmp_path, capsys):
+    """One set of bounds on both sides: a 201-character prompt, 257 group prompts, a 1.5 MB
+    --group-prompts file are refused by `look add` before any work (exit 2, the family unchanged)
+    as by POST .../looks (422); a build refused for its --params-spec (bounds of a parameter the
+    model lacks) leaves --out as it was: a new folder not made, an empty one still empty (it left
+    family.json and lock files, and the corrected build was then refused)."""
+    import json
+
+    from fastapi.testclient import TestClient
+
+    from proctex.cli import main
+    from workers.http import create_app
+
+    root, _ = family
+    fam = root / "mug"
+    before = tree(fam)
+    many = tmp_path / "many.json"
+    many.write_text(json.dumps({str(k): "oak" for k in range(257)}))
+    huge = tmp_path / "huge.json"
+    huge.write_text(json.dumps({str(k): "oak" for k in range(100_000)}))
+    for flags, message in ((["--prompt", "x" * 201], "at most 200"), (["--prompt", "oak", "--group-prompts", str(many)], "at most 256"),
+                           (["--prompt", "oak", "--group-prompts", str(huge)], "at most 262144")):
+        assert main(["look", "add", str(fam), "big", *flags]) == 2, flags
+        assert message in capsys.readouterr().err, flags
+        assert tree(fam) == before
+    c = TestClient(create_app(lambda: Catalog(str(root), check_every=0), edit_token="tok"))
+    for body in ({"name": "big", "prompt": "x" * 201}, {"name": "big", "prompt": "oak", "group_prompts": {str(k): "oak" for k in range(257)}}):
+        r = c.post("/v1/families/mug/looks", json=body, headers=TOKEN)
+        assert r.status_code == 422 and "200 characters" in r.json()["error"], r.text
+    assert main(["look", "add", str(fam), "fine", "--prompt", "x" * 200]) == 0  # the bound itself is taken
+    spec = tmp_path / "spec.json"
+    spec.write_text(json.dumps({"nope": [0, 1]}))
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for out in (tmp_path / "new", empty):
+        argv = ["build", "--model", "mug", "--prompt", "red", "--out", str(out), "--n-train", "2", "--n-test", "0", "--stages", "sample"]
+        assert main([*argv, "--params-spec", str(spec)]) == 2
+        assert "unknown parameters: nope" in capsys.readouterr().err
+        assert (not out.exists()) if out.name == "new" else list(out.iterdir()) == []
+        assert main(argv) == 0  # the corrected build is not refused as "built with another config"

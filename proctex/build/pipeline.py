@@ -50,14 +50,47 @@ def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | lis
     unknown = set(stages) - set(PLANNERS)
     if unknown:
         raise ValueError(f"unknown stages: {', '.join(sorted(unknown))}; known: {', '.join(PLANNERS)}")
-    # one build (and no edit) of a store at a time, the config checked under the lock; the stages'
-    # worker processes started once a build (shared_pool: a worker's start is 3-4 s on 2 cores)
-    with build_lock(store), shared_pool():
-        write_config(store, config)
-        walls: dict[str, float] = {}
-        for stage in STAGES:
-            if stage in stages:
-                t = time.perf_counter()
-                run_steps(PLANNERS[stage](store, config, log), executor, store, config, log)  # a stage may run in steps
-                walls[stage] = round(time.perf_counter() - t, 2)
-        return {**FamilyState.load(store).to_dict(), "wall_seconds": walls}
+    fresh = _fresh_folder(store)
+    walls: dict[str, float] = {}
+    try:
+        # one build (and no edit) of a store at a time, the config checked under the lock; the stages'
+        # worker processes started once a build (shared_pool: a worker's start is 3-4 s on 2 cores)
+        with build_lock(store), shared_pool():
+            write_config(store, config)
+            for stage in STAGES:
+                if stage in stages:
+                    t = time.perf_counter()
+                    run_steps(PLANNERS[stage](store, config, log), executor, store, config, log)  # a stage may run in steps
+                    walls[stage] = round(time.perf_counter() - t, 2)
+            return {**FamilyState.load(store).to_dict(), "wall_seconds": walls}
+    except ValueError:
+        if fresh is not None and not walls:  # refused before its first stage ended: --out as it was
+            _remove_fresh(fresh)
+        raise
+
+
+def _fresh_folder(store: FamilyStore) -> tuple[str, bool] | None:
+    """For a local store whose folder is missing or empty: ``(its path, whether it exists)``, so a
+    build refused before its first stage ends leaves it as it was (:func:`_remove_fresh`); else None."""
+    import os
+
+    if not store.local:
+        return None
+    path = store.base
+    if not os.path.exists(path):
+        return path, False
+    return (path, True) if os.path.isdir(path) and not os.listdir(path) else None
+
+
+def _remove_fresh(fresh: tuple[str, bool]) -> None:
+    """Put a folder :func:`_fresh_folder` saw back as it was: removed, or emptied."""
+    import os
+    import shutil
+
+    path, existed = fresh
+    if not existed:
+        shutil.rmtree(path, ignore_errors=True)
+        return
+    for name in os.listdir(path):
+        full = os.path.join(path, name)
+        shutil.rmtree(full, ignore_errors=True) if os.path.isdir(full) and not os.path.islink(full) else os.remove(full)

@@ -18,8 +18,18 @@ def _group_prompts(arg: str | None) -> dict[str, str] | None:
     """``--group-prompts``: inline JSON or the path of a JSON file, ``{"group label or index": prompt}``."""
     if not arg:
         return None
-    text = Path(arg).read_text() if os.path.isfile(arg) else arg
+    if os.path.isfile(arg):
+        size = os.path.getsize(arg)
+        if size > MAX_JSON_ARG:
+            raise ValueError(f"--group-prompts: {arg} has {size} bytes (at most {MAX_JSON_ARG}: at most 256 prompts of 200 characters)")
+        text = Path(arg).read_text(errors="replace")
+    else:
+        text = arg
     return json_strings(text, "--group-prompts", '{"seat": "red velvet", "2": "oak"}')
+
+
+#: bytes of a JSON file a flag names (``--group-prompts``), checked before it is read
+MAX_JSON_ARG = 256 * 1024
 
 
 def json_strings(text: str, flag: str, example: str) -> dict[str, str]:

@@ -36,6 +36,7 @@ import numpy as np
 from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged, StoreLayout
 from proctex.store.looks import look_paint, looks, resolve_look
 from proctex.store.state import FamilyState, build_stamp
+from proctex.texture.painting import MAX_PROMPT
 from proctex.transfer.assets import texture_hw
 from proctex.transfer.budget import OverBudget
 
@@ -72,7 +73,7 @@ class Limits:
     max_bytes: int = 32 * 2**20
     max_vertices: int = 500_000
     max_faces: int = 1_000_000
-    max_prompt: int = 200
+    max_prompt: int = MAX_PROMPT
     max_parts: int = 512
     max_seconds: float = 30.0
     body_seconds: float = 120.0
@@ -167,7 +168,7 @@ def _number(name: str, raw: Any, default: float | None, lo: float, hi: float) ->
     return v
 
 
-def parse_edit(raw: Any, max_prompt: int = 200, extra: tuple[str, ...] = ()) -> GroupEdit:
+def parse_edit(raw: Any, max_prompt: int = MAX_PROMPT, extra: tuple[str, ...] = ()) -> GroupEdit:
     """A :class:`GroupEdit` from a JSON object or query parameters (strings accepted); raises
     :class:`BadInput` with a clear message. Keys in ``extra`` are allowed and ignored."""
     if not isinstance(raw, dict):

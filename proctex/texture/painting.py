@@ -90,6 +90,15 @@ def painter_help() -> str:
     return "; ".join(f"{p.name}: {p.summary}" for p in _PAINTERS.entries())
 
 
+#: The bounds of what a look or a build is told to paint, the same on the command line and over
+#: HTTP (the service's ``Limits.max_prompt`` defaults to it): characters of a prompt and of each
+#: group prompt, group prompts, and characters of a group prompt's key (a group number, label or
+#: part word).
+MAX_PROMPT = 200
+MAX_GROUP_PROMPTS = 256
+MAX_GROUP_KEY = 64
+
+
 @dataclass
 class PaintConfig:
     """How the template is painted.
@@ -136,8 +145,14 @@ class PaintConfig:
     def validate(self) -> "PaintConfig":
         if not isinstance(self.prompt, str):
             raise ValueError("prompt must be a string")
+        if len(self.prompt) > MAX_PROMPT:
+            raise ValueError(f"the prompt has {len(self.prompt)} characters (at most {MAX_PROMPT})")
         if not isinstance(self.group_prompts, dict) or not all(isinstance(v, str) for v in self.group_prompts.values()):
             raise ValueError("group_prompts must be an object of prompts {group label or index: prompt}")
+        if len(self.group_prompts) > MAX_GROUP_PROMPTS or not all(
+                len(str(k)) <= MAX_GROUP_KEY and len(v) <= MAX_PROMPT for k, v in self.group_prompts.items()):
+            raise ValueError(f"group_prompts takes at most {MAX_GROUP_PROMPTS} prompts of at most {MAX_PROMPT} characters, "
+                             f"keyed by names of at most {MAX_GROUP_KEY}")
         from proctex.texture.painters.partwords import check_assignment
 
         self.part_words = {str(k): v for k, v in check_assignment(self.part_words).items()}
