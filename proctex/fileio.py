@@ -13,13 +13,31 @@ from pathlib import Path
 import numpy as np
 
 
+def current_umask() -> int:
+    """The process's umask: Linux says it in ``/proc/self/status``; elsewhere it is read by setting
+    it and setting it back (POSIX's only way, which another thread could see for a moment)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write(path: str | os.PathLike, data: bytes | str) -> Path:
     """Write ``data`` (bytes, or text as UTF-8) to ``path`` atomically; returns the path. The
-    folder must exist; the temporary file is removed if the write fails."""
+    folder must exist; the temporary file is removed if the write fails. The file's mode is what
+    an ordinary new file gets (0666 less the umask: 0644 by default), not the temporary's private
+    0600, so another user or a web server can read what the tool made where the umask allows."""
     path = Path(path)
     payload = data.encode("utf-8") if isinstance(data, str) else bytes(data)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, "wb") as fh:
             fh.write(payload)
             fh.flush()

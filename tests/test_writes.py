@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import errno
 import hashlib
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -329,3 +332,25 @@ def test_the_command_line_takes_what_http_takes_and_a_refused_build_leaves_out_a
         assert "unknown parameters: nope" in capsys.readouterr().err
         assert (not out.exists()) if out.name == "new" else list(out.iterdir()) == []
         assert main(argv) == 0  # the corrected build is not refused as "built with another config"
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o027, 0o640)])
+def test_files_the_tool_writes_honour_the_umask(family, tmp_path, umask, mode):
+    """A transfer's GLB and preview and a look's store files get 0666 less the umask (0644 by
+    default), as any new file does: they were 0600 (the atomic write's private temporary kept its
+    mode), so another user or a web server could not read what the tool made."""
+    root, _ = family
+    fam = root / "mug"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    code = ("import os, sys\nos.umask(int(sys.argv[1], 8))\nfrom proctex.cli import main\n"
+            "sys.exit(main(sys.argv[2:]))\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    for argv in (["transfer", str(fam), "--params", "{}", "--out", str(out / "x.glb"), "--preview", str(out / "x.png")],
+                 ["look", "add", str(fam), "modes", "--prompt", "oak"]):
+        done = subprocess.run([sys.executable, "-c", code, oct(umask), *argv], env=env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr[-2000:]
+    made = [out / "x.glb", out / "x.png", *sorted(p for p in (fam / "looks" / "modes").rglob("*") if p.is_file())]
+    assert len(made) > 4
+    assert {str(p.relative_to(tmp_path if p.is_relative_to(tmp_path) else root)): oct(p.stat().st_mode & 0o777) for p in made} == \
+        {str(p.relative_to(tmp_path if p.is_relative_to(tmp_path) else root)): oct(mode) for p in made}
