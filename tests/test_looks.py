@@ -377,3 +377,83 @@ def test_build_names_its_look(tmp_path, capsys):
     assert [lk.name for lk in looks(st)] == ["ceramic"] and resolve_look(st, "ceramic").built
     add_look(st, "red", replace(FamilyState.load(st).build_config().paint, prompt="red"), log=lambda *_: None)
     assert main(argv + ["--look", "red"]) == 2 and "another look called 'red'" in capsys.readouterr().err
+
+
+def test_a_look_is_painted_under_its_limits_and_nothing_is_written_past_them(mug, tmp_path):
+    """A look's texels and the family's count are checked before any work, its time while it paints
+    (a budget cancelled, as when the client leaves, or run out: it stops between groups) and its
+    bytes before anything is written; each refusal leaves the family as it was."""
+    import threading
+
+    from proctex.build.looks import LookLimits, LookOverLimit
+    from proctex.store.looks import new_look_paint
+    from proctex.transfer.budget import Budget, OverBudget
+
+    root = Path(mug.base)
+    build = FamilyState.load(mug).build_config(mug.uri).paint
+    paint = new_look_paint(build, "red oak")
+    before = tree(root)
+    with pytest.raises(LookOverLimit, match="texels, over the limit") as err:
+        add_look(mug, "big", replace(paint, texture_size=2048), limits=LookLimits(texels=2048 * 2048))
+    assert err.value.kind == "size" and tree(root) == before
+    with pytest.raises(LookOverLimit, match="bytes of files, over the limit"):
+        add_look(mug, "fat", paint, limits=LookLimits(bytes=1000))
+    assert tree(root) == before
+    gone = Budget(60.0)
+    gone.cancel()  # the client left before the paint began
+    with pytest.raises(OverBudget, match="cancelled") as err:
+        add_look(mug, "left", paint, budget=gone)
+    assert err.value.cancelled and tree(root) == before
+    # cancelled while painting: the groups under way finish, no other starts
+    late, seen = Budget(60.0), []
+    real = late.check
+
+    def check(what):
+        seen.append(what)
+        if what.startswith("painting part group 2"):
+            threading.Thread(target=late.cancel).start()
+            threading.Event().wait(0.2)
+        real(what)
+
+    late.check = check
+    with pytest.raises(OverBudget, match="cancelled"):
+        add_look(mug, "late", paint, budget=late)
+    assert tree(root) == before and not any(w.startswith("encoding") for w in seen), seen
+    with pytest.raises(OverBudget, match="over the time budget of 1e-06 s"):
+        add_look(mug, "slow", paint, limits=LookLimits(seconds=1e-6))
+    assert tree(root) == before
+    add_look(mug, "one", paint, limits=LookLimits(looks=1))
+    with pytest.raises(LookOverLimit, match="its most \\(1\\)") as err:
+        add_look(mug, "two", paint, limits=LookLimits(looks=1))
+    assert err.value.kind == "count"
+    add_look(mug, "one", new_look_paint(build, "blue oak"), force=True, limits=LookLimits(looks=1))  # a replacement counts once
+    for bad in ({"seconds": 0}, {"texels": 0}, {"bytes": -1}, {"looks": True}):
+        with pytest.raises(ValueError):
+            LookLimits(**bad)
+
+
+def test_the_service_paints_looks_under_its_limits(mug):
+    """Over HTTP the same limits come from the service's Limits: over the texels 413, over the count
+    409, over the time 422, each with nothing written."""
+    from fastapi.testclient import TestClient
+
+    from proctex.serve.catalog import Catalog
+    from proctex.serve.service import Limits
+    from workers.http import create_app
+
+    root = Path(mug.base)
+    head = {"X-ProcTex-Token": "tok"}
+    before = tree(root)
+
+    def client(**limits):
+        cat = Catalog(str(root.parent), Limits(**limits), check_every=0)
+        return TestClient(create_app(lambda: cat, edit_token="tok"))
+
+    r = client(look_texels=1000).post(f"/v1/families/{root.name}/looks", json={"name": "a", "prompt": "oak"}, headers=head)
+    assert r.status_code == 413 and "texels" in r.json()["error"] and tree(root) == before, r.text
+    r = client(look_seconds=1e-6).post(f"/v1/families/{root.name}/looks", json={"name": "a", "prompt": "oak"}, headers=head)
+    assert r.status_code == 422 and "time budget" in r.json()["error"] and tree(root) == before, r.text
+    c = client(max_looks=1)
+    assert c.post(f"/v1/families/{root.name}/looks", json={"name": "a", "prompt": "oak"}, headers=head).status_code == 200
+    r = c.post(f"/v1/families/{root.name}/looks", json={"name": "b", "prompt": "oak"}, headers=head)
+    assert r.status_code == 409 and "most (1)" in r.json()["error"], r.text

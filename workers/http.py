@@ -447,20 +447,25 @@ def save_parts(svc: Any, body: dict[str, Any]) -> dict[str, str]:
         raise EditConflict(str(exc)) from exc
 
 
-def add_look_to(svc: Any, name: str, paint: Any, force: bool, photos: dict[str, Any] | None = None) -> dict[str, Any]:
+def add_look_to(svc: Any, name: str, paint: Any, force: bool, photos: dict[str, Any] | None = None, budget: Any = None) -> dict[str, Any]:
     """:func:`proctex.build.looks.add_look` on the service's family (``photos``: a photo look's photos,
     ``{"glb": bytes}`` for a repainted template, with ``"member": {"glb", "params"}`` for a textured
-    member); a busy store is a conflict (409)."""
-    from proctex.build.looks import add_look
+    member) under the service's look limits (``Limits.look_*``) and ``budget``; a busy store or a
+    family at its most looks is a conflict (409), a look over its size 413."""
+    from proctex.build.looks import LookLimits, LookOverLimit, add_look
     from proctex.store.locks import StoreBusy
 
+    lim = svc.limits
+    limits = LookLimits(seconds=lim.look_seconds, texels=lim.look_texels, bytes=lim.look_bytes, looks=lim.max_looks)
     member = (photos or {}).get("member") if paint.glb else None
     glb = (photos or {}).get("glb") if paint.glb and member is None else None
     try:
         return add_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0,
-                        photos=None if paint.glb else photos, glb=glb, member=member)
+                        photos=None if paint.glb else photos, glb=glb, member=member, limits=limits, budget=budget)
     except StoreBusy as exc:
         raise EditConflict(str(exc)) from exc
+    except LookOverLimit as exc:
+        raise (EditConflict(str(exc)) if exc.kind == "count" else TooLarge(str(exc))) from exc
 
 
 def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], Any]], Any] | None = None,
@@ -515,6 +520,7 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         return await blocking(lambda: svc.look_view(look))
 
     gates: weakref.WeakKeyDictionary[Any, asyncio.Semaphore] = weakref.WeakKeyDictionary()
+    look_gates: dict[str, asyncio.Semaphore] = {}  # per family store: the looks being painted
 
     async def watched(fn: Callable[[], Any], request: Request, budget: Budget) -> Any:
         """Run ``fn`` off the event loop; cancel its budget if the client disconnects meanwhile."""
@@ -772,7 +778,13 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             check_edit_request(request, multipart=True)
             body, files = await read_look_request(request, limits=svc.limits)
             look, paint, force, photos = await blocking(lambda: parse_look(body, svc, files))  # photos decode off the loop
-            record, stamp = await blocking(lambda: (add_look_to(svc, look, paint, force, photos), build_stamp(svc.store)))
+            gate = look_gates.setdefault(svc.store.uri, asyncio.Semaphore(svc.limits.look_paints))
+            async with gate:  # at most look_paints paints of this family at a time; the others wait here, not in a thread
+                if await request.is_disconnected():
+                    return _error(499, "the client went away before its look was painted")
+                budget = Budget(svc.limits.look_seconds)
+                record, stamp = await watched(lambda: (add_look_to(svc, look, paint, force, photos, budget), build_stamp(svc.store)),
+                                              request, budget)
         except Exception as exc:
             return error_response(exc)
         finally:

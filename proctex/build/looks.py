@@ -8,6 +8,7 @@ import json
 import os
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -30,6 +31,52 @@ from proctex.store.template import TemplateFiles, load_template_shape
 from proctex.texture.painting import PaintConfig
 
 
+class LookOverLimit(ValueError):
+    """A look refused by :class:`LookLimits` before it was written: ``kind`` "size" (texels, bytes)
+    or "count" (the family holds its most looks)."""
+
+    def __init__(self, message: str, kind: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+@dataclass(frozen=True)
+class LookLimits:
+    """What one look may cost, the same from the command line and over HTTP (the service's
+    ``Limits.look_*`` set them there): ``seconds`` of painting start to files (None: no limit;
+    :class:`proctex.transfer.budget.Budget`: cancelled or past it, nothing is written), ``texels``
+    (texture side squared times the family's groups, checked before any work), ``bytes`` of the
+    look's files (checked once encoded, before anything is written) and ``looks`` per family (the
+    build's not counted; a look replaced with ``force`` not counted twice). The defaults take a
+    2048² look of 8 groups (about 100 MB and 100 s on 2 cores)."""
+
+    seconds: float | None = 600.0
+    texels: int = 8 * 2048 * 2048
+    bytes: int = 256 * 2**20
+    looks: int = 32
+
+    def __post_init__(self) -> None:
+        if self.seconds is not None and not (isinstance(self.seconds, (int, float)) and not isinstance(self.seconds, bool) and 0 < self.seconds < float("inf")):
+            raise ValueError(f"look seconds must be a positive number (or None), got {self.seconds!r}")
+        for name in ("texels", "bytes", "looks"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"look {name} must be a positive integer, got {value!r}")
+
+    def check_start(self, store: FamilyStore, name: str, paint: PaintConfig, force: bool) -> None:
+        """:class:`LookOverLimit` for a look over the family's count or the texel bound, before any work."""
+        from proctex.store.looks import looks as family_looks
+
+        others = [lk for lk in family_looks(store) if not lk.built and not (force and lk.name == name)]
+        if len(others) >= self.looks:
+            raise LookOverLimit(f"the family has {len(others)} looks, its most ({self.looks}); remove one first "
+                                f"(proctex look remove, DELETE .../looks/NAME)", "count")
+        groups = len(store.read_json(StoreLayout.PAINT).get("groups", [])) if store.exists(StoreLayout.PAINT) else 1
+        texels = int(paint.texture_size) ** 2 * max(groups, 1)
+        if texels > self.texels:
+            raise LookOverLimit(f"a look of {groups} groups at {paint.texture_size}² is {texels} texels, over the limit of {self.texels}", "size")
+
+
 def stored_uv(files: TemplateFiles, shape: Any, grouping: Any, resolution: int) -> Any:
     """The template's stored UVs as a :class:`proctex.texture.uv.ShapeUV` (a look paints into the
     layout the build made: its GLB geometry and UVs stay byte for byte the build's)."""
@@ -49,12 +96,15 @@ def stored_uv(files: TemplateFiles, shape: Any, grouping: Any, resolution: int) 
 
 def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look: LookLayout, state: FamilyState | None = None,
                log: Callable[[str], None] = print, photos: dict[str, Any] | None = None,
-               glb: bytes | None = None, member: dict[str, Any] | None = None) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
+               glb: bytes | None = None, member: dict[str, Any] | None = None,
+               check: Callable[[str], None] | None = None) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
     """Paint the stored template with ``paint`` and return the files of ``look`` (paths relative to
     the store, ``look.json`` last) and its record. ``photos``: the
     :class:`proctex.texture.exemplar.Photo` of each ``paint.images`` key (a look from photos; read
     from the entries' files where missing): each is kept in the look as ``photo-<i>.png`` and its
-    entry names that file. Nothing is written."""
+    entry names that file. ``check(what)`` between the steps (and each group's painting) may raise
+    to stop (a budget). Nothing is written."""
+    check = check if check is not None else (lambda what: None)
     from proctex.store.template import encode_textures, write_textured
     from proctex.texture.paint_loop import paint_with
 
@@ -77,6 +127,7 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
             kept.append((look.file(f"photo-{i}.png"), png))
             images[key] = {**entry, "file": look.file(f"photo-{i}.png"), "sha256": digest(png), "name": read[key].name, "notes": list(read[key].notes)}
         paint, photos = replace(paint, images=images).validate(), read
+    check("reading the template")
     if member is not None:
         tex, report = member_texture(store, files, shape, grouping, uv, paint.texture_size, member["glb"], member.get("params"), config)
         paint = replace_settings(paint, glb={**paint.glb, "member": True, "filled_share": round(report.filled_share, 4)})
@@ -84,9 +135,11 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
         tex = glb_texture(store, files, shape, grouping, uv, paint.texture_size, glb, config.up_axis())
         paint = replace_settings(paint, glb={**paint.glb, "faces": len(shape.faces), "extra_triangles": tex.stats["extra_triangles"]})
     else:
-        tex = paint_with(shape, grouping, paint, seed=config.seed, up=config.up_axis(), uv=uv, photos=photos,
+        tex = paint_with(shape, grouping, paint, seed=config.seed, up=config.up_axis(), uv=uv, photos=photos, check=check,
                          on_view=lambda k, n, st: log(f"look {look.name}: view {k + 1}/{n}, {st['texels_updated']} texels"))
+    check("encoding the look's images")
     encoded = encode_textures(tex)
+    check("writing the look's files")
     out: list[tuple[str, bytes]] = list(kept)
     with tempfile.TemporaryDirectory() as tmp:
         summary = write_textured(tex, tmp, up=config.up_axis(), encoded=encoded)
@@ -193,16 +246,24 @@ def glb_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: 
 
 def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
              timeout: float = 60.0, photos: dict[str, Any] | None = None, glb: bytes | None = None,
-             member: dict[str, Any] | None = None) -> dict[str, Any]:
+             member: dict[str, Any] | None = None, limits: LookLimits | None = None, budget: Any = None) -> dict[str, Any]:
     """Paint look ``name`` of the built family in ``store`` with ``paint`` (and the family's stored
     part words, :func:`with_stored_words`) and store it in ``looks/<name>/`` as one change (staged
     beside it, then put in place: a reader sees the whole look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
     waits up to ``timeout`` s for an edit or another look being written. ``photos``: a look from
     photos' images already read; ``glb``: a repainted template GLB's bytes; ``member``: a textured
-    member's (:func:`look_files`).
+    member's (:func:`look_files`). ``limits`` (default :class:`LookLimits`): the look's count and
+    texels are checked before any work, its time while it paints (``budget``, a
+    :class:`proctex.transfer.budget.Budget` the caller may cancel, default one of ``limits.seconds``)
+    and its bytes before anything is written (:class:`LookOverLimit`, or
+    :class:`~proctex.transfer.budget.OverBudget`: nothing written either way).
     Returns the look's record."""
+    from proctex.transfer.budget import Budget
+
     check_look_name(name)
     paint = paint.validate()
+    limits = limits if limits is not None else LookLimits()
+    budget = budget if budget is not None else Budget(limits.seconds)
     state = FamilyState.load(store)
     config = state.build_config(store.uri)
     if not (state.done("template") and state.done("paint")):
@@ -213,9 +274,15 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = Fa
     if store.exists(look.RECORD) and not force:
         raise ValueError(f"the family has a look {name!r} already; --force replaces it")
     paint = with_stored_words(store, config.paint, paint)
+    limits.check_start(store, name, paint, force)
     with store_lock(store, StoreLayout.BUILD_LOCK, f"adding look {name}", shared=True, busy=StoreBusy, note=True):
-        files, record = look_files(store, config, paint, look, state, log, photos=photos, glb=glb, member=member)
+        files, record = look_files(store, config, paint, look, state, log, photos=photos, glb=glb, member=member, check=budget.check)
+        size = sum(len(data) for _, data in files)
+        if size > limits.bytes:
+            raise LookOverLimit(f"look {name!r} came to {size} bytes of files, over the limit of {limits.bytes}; nothing was written", "size")
+        budget.check("writing the look")
         with store_lock(store, StoreLayout.EDIT_LOCK, f"adding look {name}", timeout=timeout, busy=StoreBusy):
+            limits.check_start(store, name, paint, force)  # another look may have landed meanwhile
             if store.exists(look.RECORD) and not force:
                 raise ValueError(f"the family has a look {name!r} already (made meanwhile); --force replaces it")
             store.replace_folder(look.folder, files)

@@ -68,7 +68,11 @@ class Limits:
     slot, never the health route or other families' requests); bodies that declare at most
     ``small_body`` bytes (JSON requests: a transfer by parameters, an edit) have their own
     ``max_small_bodies`` slots, so stalled uploads never refuse them (at most
-    ``max_small_bodies * small_body`` bytes held)."""
+    ``max_small_bodies * small_body`` bytes held). A new look (``POST .../looks``) paints for at most
+    ``look_seconds`` (cancelled, nothing written, when its client leaves), of at most ``look_texels``
+    (texture side squared times groups) and ``look_bytes`` of files, into a family of at most
+    ``max_looks`` looks, ``look_paints`` of one family at a time per replica (the others wait their
+    turn holding no thread): :class:`proctex.build.looks.LookLimits`."""
 
     max_bytes: int = 32 * 2**20
     max_vertices: int = 500_000
@@ -82,14 +86,19 @@ class Limits:
     max_uploads: int = 4
     max_small_bodies: int = 256
     small_body: int = 65_536
+    look_seconds: float = 600.0
+    look_texels: int = 8 * 2048 * 2048
+    look_bytes: int = 256 * 2**20
+    max_looks: int = 32
+    look_paints: int = 1
 
     def __post_init__(self) -> None:
         for name in ("max_bytes", "max_vertices", "max_faces", "max_prompt", "max_parts", "body_min_rate", "max_uploads",
-                     "max_small_bodies", "small_body"):
+                     "max_small_bodies", "small_body", "look_texels", "look_bytes", "max_looks", "look_paints"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"limit {name} must be a positive integer, got {value!r}")
-        for name in ("max_seconds", "body_seconds", "body_idle_seconds"):
+        for name in ("max_seconds", "body_seconds", "body_idle_seconds", "look_seconds"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"limit {name} must be a positive number, got {value!r}")

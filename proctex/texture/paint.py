@@ -237,6 +237,7 @@ def paint_surface(
     gutter: int = 8,
     prompts: Mapping[int, str] | None = None,
     ring: int = 0,
+    check: Any = None,
 ) -> TemplateTexture:
     """Paint every group texture with a surface painter.
 
@@ -253,6 +254,7 @@ def paint_surface(
             extended past its edge (:func:`proctex.texture.uv.ring_texels`) before the gutter is
             filled: chart borders read true colours (0, and every other group: the gutter copies
             the nearest texel only, as ever).
+        check: ``check(what)`` before each group (:func:`per_group`): raises to stop (a budget).
 
     Returns:
         :class:`TemplateTexture` (method "surface").
@@ -292,7 +294,7 @@ def paint_surface(
         return GroupTexture(g.index, g.label, prompt, image, painted, texels, blend=normals if smooth else None)
 
     t1 = time.perf_counter()
-    out = per_group(one, list(zip(grouping.groups, maps)))
+    out = per_group(one, list(zip(grouping.groups, maps)), check=check)
     t_paint = time.perf_counter() - t1
     timings["paint"] = t_paint
     notes = list(painter.notes()) if hasattr(painter, "notes") else []
@@ -306,21 +308,29 @@ def paint_surface(
 PAINT_THREADS = 2
 
 
-def per_group(fn: Any, items: list[tuple[Any, Any]], threads: int | None = None) -> list[Any]:
+def per_group(fn: Any, items: list[tuple[Any, Any]], threads: int | None = None, check: Any = None) -> list[Any]:
     """``[fn(a, b) for a, b in items]``, up to ``threads`` at a time (default :data:`PAINT_THREADS`,
     at most the CPUs), results in order; the first error is raised. ``fn`` must be safe to run
     beside itself (the painters keep per-call state, and their caches hold values that do not depend
-    on the order they were made in, so the textures are the same bit for bit)."""
+    on the order they were made in, so the textures are the same bit for bit). ``check(what)``, where
+    given, runs before each item and may raise to stop the work (a look's budget: the items under
+    way finish, no other starts)."""
     import os
 
     n = min(PAINT_THREADS, os.cpu_count() or 1) if threads is None else int(threads)
     n = max(1, min(n, len(items)))
+
+    def run(k: int) -> Any:
+        if check is not None:
+            check(f"painting part group {k + 1} of {len(items)}")
+        return fn(*items[k])
+
     if n == 1:
-        return [fn(a, b) for a, b in items]
+        return [run(k) for k in range(len(items))]
     from concurrent.futures import ThreadPoolExecutor
 
     with ThreadPoolExecutor(n, thread_name_prefix="paint") as pool:
-        return list(pool.map(lambda ab: fn(*ab), items))
+        return list(pool.map(run, range(len(items))))
 
 
 #: rounds of neighbour averaging of the blend normals (:func:`blend_normals`): each widens the band
@@ -360,7 +370,8 @@ def blend_normals(shape: Shape, faces: np.ndarray, texels: TexelMap, rounds: int
     return np.where(length > 1e-12, n / np.maximum(length, 1e-12), texels.normals)
 
 
-def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occlusion: bool = False, seed: int = 0) -> TemplateTexture:
+def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occlusion: bool = False, seed: int = 0,
+                        check: Any = None) -> TemplateTexture:
     """Give every group texture of ``tex`` its PBR maps (:class:`proctex.texture.pbr.PbrMaps`), in place.
 
     ``painter`` has ``material(points, normals, tangents, bitangents, group=, label=)`` (a
@@ -369,8 +380,8 @@ def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occ
     materials, evaluated at each covered texel's surface point in the representative's tangent frame
     (the frame the GLB's TANGENT attribute carries). ``occlusion``: also bake ambient occlusion into
     the maps' R channel (:func:`proctex.texture.lighting.vertex_occlusion` on the whole shape, so parts
-    shade each other, interpolated to the texels; ``seed`` fixes its rays). Returns ``tex``; its stats
-    get ``timings.maps``.
+    shade each other, interpolated to the texels; ``seed`` fixes its rays). ``check(what)`` before each
+    group (:func:`per_group`). Returns ``tex``; its stats get ``timings.maps``.
     """
     t0 = time.perf_counter()
     center, scale = shape_frame(tex.shape)
@@ -396,7 +407,7 @@ def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occ
         texel_ao = None if ao is None else (gt.texels.bary * ao[faces[gt.texels.face]]).sum(1)
         gt.pbr = bake_maps(gt.texels, tex.shape.vertices, faces, tex.uv.corner_uv[rep.faces], props, center, scale, gutter, occlusion=texel_ao)
 
-    per_group(one, list(zip(tex.grouping.groups, tex.groups)))
+    per_group(one, list(zip(tex.grouping.groups, tex.groups)), check=check)
     tex.stats.setdefault("timings", {})["maps"] = time.perf_counter() - t0
     return tex
 

@@ -478,6 +478,7 @@ def paint_template(
     part_words: Mapping[str, str] | None = None,
     photos: Mapping[str, Any] | None = None,
     under_prompt: bool = True,
+    check: Callable[[str], None] | None = None,
 ) -> TemplateTexture:
     """Texture a template with one of the registered painters (:mod:`proctex.texture.painting`):
     ``"surface"`` (:func:`paint_surface`), ``"views"`` (the multi-view loop with
@@ -490,8 +491,18 @@ def paint_template(
     clauses follow (:func:`proctex.texture.painters.partwords.plan_parts`). ``photos``: a look from
     photos (:class:`proctex.texture.exemplar.PhotoLayer` by part key, ``"*"`` for the rest; the
     surface painter only): their groups are synthesised from the photos (:func:`resolve_photos`;
-    ``under_prompt``: the prompt's named parts keep their clauses instead of the ``"*"`` photo)."""
+    ``under_prompt``: the prompt's named parts keep their clauses instead of the ``"*"`` photo).
+    ``check(what)``: called before each group and each view, and may raise to stop the work (a
+    look's budget, :class:`proctex.build.looks.LookLimits`)."""
     part_words = dict(part_words or {})
+    if check is not None:
+        check("planning the parts")
+        seen = on_view
+
+        def on_view(k: int, n: int, stats: dict[str, Any]) -> None:  # noqa: F811 (the budget's check beside the caller's)
+            check(f"painting view {k + 1} of {n}")
+            if seen is not None:
+                seen(k, n, stats)
     prompts = resolve_group_prompts(grouping, prompt, group_prompts, shape, up, part_words)  # validates the keys (labels, indices, part words)
     named = {g for g, text in prompts.items() if text != prompt}  # groups a group prompt names
     # Clauses naming parts (by label or by what the parts are) become those groups' prompts, for
@@ -513,7 +524,7 @@ def paint_template(
     if surface is not None:
         surface.bind(shape, grouping, up, parts=parts)  # places the prompt's regions on this shape
     if not kind.views:
-        tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv, ring=PHOTO_RING if photos else 0)
+        tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv, ring=PHOTO_RING if photos else 0, check=check)
     else:
         tex = paint_views(shape, grouping, chosen, prompt, {str(g): t for g, t in prompts.items()}, n_views=views,
                           view_size=view_size, size=size, up=up, seed=seed, complete_hidden=complete_hidden, fill=fill,
@@ -521,17 +532,18 @@ def paint_template(
     tex.notes.extend(line for line in (f"prompt {prompt!r} parts: {n}" for n in parts.notes) if line not in tex.notes)
     if maps:
         materials = surface if surface is not None else make_painter("surface", grouping, prompt, prompts, seed=seed).bind(shape, grouping, up, parts=parts)
-        paint_material_maps(tex, materials, occlusion=occlusion, seed=seed)
+        paint_material_maps(tex, materials, occlusion=occlusion, seed=seed, check=check)
         tex.notes.extend(n for n in materials.region_notes() if n not in tex.notes)  # the surface painter's notes hold them already
     return tex
 
 
 def paint_with(shape: Shape, grouping: Grouping, settings: PaintConfig, seed: int = 0, up: str = "z", uv: ShapeUV | None = None,
-               on_view: Callable[[int, int, dict[str, Any]], None] | None = None, photos: Mapping[str, Any] | None = None) -> TemplateTexture:
+               on_view: Callable[[int, int, dict[str, Any]], None] | None = None, photos: Mapping[str, Any] | None = None,
+               check: Callable[[str], None] | None = None) -> TemplateTexture:
     """:func:`paint_template` with the paint settings as they travel (a build config's ``[paint]``
     section, :class:`proctex.texture.painting.PaintConfig`), whole. ``photos``: the
     :class:`proctex.texture.exemplar.Photo` of each ``settings.images`` key already read (the others are
-    read from their files)."""
+    read from their files). ``check``: see :func:`paint_template`."""
     s = settings
     layers = None
     if s.images:
@@ -541,4 +553,4 @@ def paint_with(shape: Shape, grouping: Grouping, settings: PaintConfig, seed: in
     return paint_template(shape, grouping, s.prompt, s.group_prompts, painter=s.painter, size=s.texture_size, seed=seed, up=up, views=s.views,
                           view_size=s.view_size, complete_hidden=s.paint_hidden, fill=s.fill, model_dir=s.model_dir, device=s.device,
                           steps=s.steps, on_view=on_view, uv=uv, occlusion=s.occlusion, part_words=s.part_words,
-                          photos=layers, under_prompt=bool((s.images.get("*") or {}).get("under_prompt", True)))
+                          photos=layers, under_prompt=bool((s.images.get("*") or {}).get("under_prompt", True)), check=check)
