@@ -6,6 +6,7 @@ other requests are answered; small (JSON) bodies have slots of their own."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import shutil
 import time
 
@@ -24,6 +25,12 @@ LIMITS = dict(body_seconds=3.0, body_idle_seconds=0.4, body_min_rate=200, max_up
 #: Stalled bodies held until the test lets them go, however loaded the machine: what "answered
 #: while they are held" needs (under LIMITS, a transfer slower than 0.4 s outlived them).
 PATIENT = dict(LIMITS, body_seconds=120.0, body_idle_seconds=60.0)
+
+
+def _client(app, address: str) -> httpx.AsyncClient:
+    """A client of ``app`` in process whose requests come from ``address`` (the ASGI scope's peer:
+    no packet leaves the process)."""
+    return httpx.AsyncClient(transport=httpx.ASGITransport(app=app, client=(address, 40000)), base_url="http://t", timeout=120)
 
 
 def _app(root, tmp_path, limits):
@@ -89,10 +96,9 @@ def test_uploads_beyond_the_slots_are_refused_at_once_and_health_and_small_bodie
     held body ends), and the health route and a small body are answered."""
     big = 100_000  # over Limits.small_body: an upload
     async def run():
-        transport = httpx.ASGITransport(app=patient_app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://t", timeout=120) as c:
+        async with _client(patient_app, "192.0.2.1") as a, _client(patient_app, "192.0.2.2") as c:
             release = asyncio.Event()
-            holder = asyncio.create_task(_post(c, stalled(release=release, rest=b"}}"), length=big))
+            holder = asyncio.create_task(_post(a, stalled(release=release, rest=b"}}"), length=big))  # another client holds the slot
             await asyncio.sleep(0.05)
             r, took = await _post(c, b" " * big)
             # the wait for a slot is min(1 s, half the idle bound): refused after it, long before the held body ends
@@ -118,10 +124,11 @@ def test_forty_stalled_small_bodies_hold_neither_health_nor_transfers(patient_ap
     are answered while all 40 are still held. (That a stalled body is cut off in time is the first
     test's.)"""
     async def run():
-        transport = httpx.ASGITransport(app=patient_app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://t", timeout=120) as c:
+        async with contextlib.AsyncExitStack() as stack:  # forty clients (one's share is client_small_bodies)
+            senders = [await stack.enter_async_context(_client(patient_app, f"198.51.100.{k + 1}")) for k in range(40)]
+            c = await stack.enter_async_context(_client(patient_app, "192.0.2.2"))
             release = asyncio.Event()
-            holders = [asyncio.create_task(_post(c, stalled(release=release, rest=b"}}"), length=1000)) for _ in range(40)]
+            holders = [asyncio.create_task(_post(s, stalled(release=release, rest=b"}}"), length=1000)) for s in senders]
             await asyncio.sleep(0.05)
             h = await c.get("/healthz")
             r, _ = await _post(c, b'{"params": {}}')
@@ -188,3 +195,52 @@ def test_uploads_are_read_in_a_process_that_is_killed_past_the_budget(painted_mu
     with pytest.raises(OverBudget) as err:
         svc.shape_from_mesh(data, "sofa.obj", budget=budget)
     assert err.value.cancelled
+
+
+def test_one_client_holds_its_share_of_the_slots_and_every_other_client_is_served(patient_app):
+    """The attack of issue 54: one client opens 260 connections that each send a header declaring
+    1,000 bytes and 9 of them. It holds client_small_bodies (64 of the 256) slots; its other bodies wait a
+    moment and are refused (429, Retry-After), while another client's transfers and edits answer
+    (before, the one client took all 256 small-body slots and every other client got 503)."""
+    async def run():
+        async with _client(patient_app, "192.0.2.1") as bad, _client(patient_app, "192.0.2.2") as good:
+            release = asyncio.Event()
+            holders = [asyncio.create_task(_post(bad, stalled(release=release, rest=b"}}"), length=1000)) for _ in range(260)]
+            deadline = time.monotonic() + 60  # past the wait for a slot (1 s) the ones over the share are answered
+            while sum(t.done() for t in holders) < 260 - 64 and time.monotonic() < deadline:
+                await asyncio.sleep(0.1)
+            await asyncio.sleep(0.3)  # and no more than those
+            refused = [t.result()[0] for t in holders if t.done()]
+            assert len(refused) == 260 - 64 and {r.status_code for r in refused} == {429}, len(refused)
+            assert all(r.headers.get("retry-after") == "1" and "its share" in r.json()["error"] for r in refused)
+            for _ in range(3):
+                r, _ = await _post(good, b'{"params": {}}')
+                assert r.status_code == 200 and r.content[:4] == b"glTF"
+            r, _ = await _post(bad, b'{"params": {}}')  # the attacker's own sound request waits its share too
+            assert r.status_code == 429
+            release.set()
+            held = await asyncio.wait_for(asyncio.gather(*[t for t in holders if not t.done()]), 60)
+            assert len(held) == 64 and {r.status_code for r, _ in held} == {422}  # let go: read, then refused as bad JSON
+
+    asyncio.run(run())
+
+
+def test_the_client_is_its_peer_or_what_trusted_proxies_forward_and_ipv6_counts_by_64():
+    from starlette.requests import Request
+
+    from workers.http import client_of
+
+    def req(peer, xff=None):
+        headers = [(b"x-forwarded-for", xff.encode())] if xff else []
+        return Request({"type": "http", "method": "GET", "path": "/", "headers": headers, "client": (peer, 1), "query_string": b""})
+
+    proxies = Limits(trusted_proxies="10.1.0.0/16, 2001:db8:ffff::1").proxies()
+    assert client_of(req("192.0.2.7")) == "192.0.2.7"
+    assert client_of(req("192.0.2.7", "203.0.113.9")) == "192.0.2.7"  # not a trusted proxy: its header is the client's word
+    assert client_of(req("10.1.2.3", "203.0.113.9"), proxies) == "203.0.113.9"
+    assert client_of(req("10.1.2.3", "198.51.100.1, 203.0.113.9, 10.1.9.9"), proxies) == "203.0.113.9"  # the last hop not a proxy
+    assert client_of(req("2001:db8:1:2:aaaa::1")) == client_of(req("2001:db8:1:2:bbbb::2")) == "2001:db8:1:2::/64"
+    assert client_of(req("2001:db8:1:3::1")) != client_of(req("2001:db8:1:2::1"))
+    assert client_of(req("::ffff:192.0.2.7")) == "192.0.2.7"
+    with pytest.raises(ValueError, match="trusted_proxies"):
+        Limits(trusted_proxies="not-an-address")

@@ -128,6 +128,8 @@ def error_response(exc: BaseException) -> JSONResponse:
         return _error(503, str(exc))
     if isinstance(exc, SlowBody):
         return _error(408, str(exc))
+    if isinstance(exc, TooManyFromClient):
+        return JSONResponse({"error": str(exc)}, status_code=429, headers={"Retry-After": "1"})
     if isinstance(exc, Busy):
         return JSONResponse({"error": str(exc)}, status_code=503, headers={"Retry-After": "1"})
     if isinstance(exc, StoreWriteError):  # nothing of the change landed: the message says so and names the file
@@ -155,8 +157,45 @@ class Busy(RuntimeError):
 
 
 #: Bodies being read now, per (event loop, pool): what ``Limits.max_uploads`` (pool "upload") and
-#: ``Limits.max_small_bodies`` (pool "small") bound.
+#: ``Limits.max_small_bodies`` (pool "small") bound; and per (event loop, pool, client), what
+#: ``Limits.client_uploads`` and ``Limits.client_small_bodies`` bound.
 _READING: dict[tuple[int, str], int] = {}
+_CLIENT_READING: dict[tuple[int, str, str], int] = {}
+
+
+class TooManyFromClient(Busy):
+    """One client holds its share of the body slots already (429, retry)."""
+
+
+def client_of(request: Request, proxies: tuple = ()) -> str:
+    """Who sent ``request``, for fairness: its TCP peer; when the peer is one of ``proxies``
+    (:meth:`Limits.proxies`), the last address of ``X-Forwarded-For`` that is not itself a trusted
+    proxy (a client cannot pose as another by writing the header: only what the trusted proxies
+    appended counts). An IPv6 client is its /64 (one host holds a whole /64); "" when unknown."""
+    import ipaddress
+
+    peer = request.client.host if request.client else ""
+
+    def parse(text: str):
+        try:
+            return ipaddress.ip_address(text.strip().strip("[]"))
+        except ValueError:
+            return None
+
+    addr = parse(peer)
+    if addr is not None and proxies and any(addr in net for net in proxies):
+        chain = [parse(x) for x in request.headers.get("x-forwarded-for", "").split(",")[-32:]]
+        for hop in reversed([a for a in chain if a is not None]):
+            if not any(hop in net for net in proxies):
+                addr = hop
+                break
+    if addr is None:
+        return peer[:64]
+    if addr.version == 6:
+        if addr.ipv4_mapped is not None:
+            return str(addr.ipv4_mapped)
+        return str(ipaddress.ip_network(f"{addr}/64", strict=False))
+    return str(addr)
 
 
 async def read_body(request: Request, max_bytes: int, limits: Limits | None = None) -> bytes:
@@ -177,12 +216,18 @@ async def read_body(request: Request, max_bytes: int, limits: Limits | None = No
     small = length is not None and length.isdigit() and int(length) <= limits.small_body  # framing holds it to that length
     pool = (id(asyncio.get_running_loop()), "small" if small else "upload")
     cap = limits.max_small_bodies if small else limits.max_uploads
+    mine = (*pool, client_of(request, limits.proxies()))
+    share = min(cap, limits.client_small_bodies if small else limits.client_uploads)
+    kind = "small bodies" if small else "uploads"
     grace = time.monotonic() + min(1.0, limits.body_idle_seconds / 2)  # a sound body reads in milliseconds: wait that long for a slot
-    while _READING.get(pool, 0) >= cap:
-        if time.monotonic() > grace:
-            raise Busy(f"{cap} {'small bodies' if small else 'uploads'} are being read already; retry in a moment")
+    while _CLIENT_READING.get(mine, 0) >= share or _READING.get(pool, 0) >= cap:
+        if time.monotonic() > grace:  # every slot taken (503), or this client's share while others are free (429)
+            if _READING.get(pool, 0) >= cap:
+                raise Busy(f"{cap} {kind} are being read already; retry in a moment")
+            raise TooManyFromClient(f"this client has {share} {kind} being read already (its share); retry in a moment")
         await asyncio.sleep(0.005)
     _READING[pool] = _READING.get(pool, 0) + 1
+    _CLIENT_READING[mine] = _CLIENT_READING.get(mine, 0) + 1
     chunks, size = [], 0
     t0 = time.monotonic()
     stream = request.stream().__aiter__()
@@ -207,6 +252,9 @@ async def read_body(request: Request, max_bytes: int, limits: Limits | None = No
                 raise SlowBody(f"request body too slow: {size} bytes in {elapsed:.1f} s (at least {limits.body_min_rate} bytes/s)")
     finally:
         _READING[pool] -= 1
+        _CLIENT_READING[mine] -= 1
+        if not _CLIENT_READING[mine]:
+            del _CLIENT_READING[mine]
     body = b"".join(chunks)
     request._body = body  # starlette reads a consumed body from here
     return body

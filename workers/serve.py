@@ -151,7 +151,7 @@ def limits_from(args: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for f in dataclasses.fields(Limits):
         if f.name in args:
-            kind = int if isinstance(f.default, int) and not isinstance(f.default, bool) else float
+            kind = str if isinstance(f.default, str) else int if isinstance(f.default, int) and not isinstance(f.default, bool) else float
             try:
                 out[f.name] = kind(args[f.name])
             except (TypeError, ValueError) as exc:

@@ -72,7 +72,10 @@ class Limits:
     ``look_seconds`` (cancelled, nothing written, when its client leaves), of at most ``look_texels``
     (texture side squared times groups) and ``look_bytes`` of files, into a family of at most
     ``max_looks`` looks, ``look_paints`` of one family at a time per replica (the others wait their
-    turn holding no thread): :class:`proctex.build.looks.LookLimits`."""
+    turn holding no thread): :class:`proctex.build.looks.LookLimits`. One client (its TCP peer;
+    behind ``trusted_proxies``, the address they forward; IPv6 grouped by /64) holds at most
+    ``client_small_bodies`` and ``client_uploads`` of those slots: one more waits a moment, then is
+    refused (429), and every other client is served."""
 
     max_bytes: int = 32 * 2**20
     max_vertices: int = 500_000
@@ -91,10 +94,14 @@ class Limits:
     look_bytes: int = 256 * 2**20
     max_looks: int = 32
     look_paints: int = 1
+    client_small_bodies: int = 64
+    client_uploads: int = 2
+    trusted_proxies: str = ""
 
     def __post_init__(self) -> None:
         for name in ("max_bytes", "max_vertices", "max_faces", "max_prompt", "max_parts", "body_min_rate", "max_uploads",
-                     "max_small_bodies", "small_body", "look_texels", "look_bytes", "max_looks", "look_paints"):
+                     "max_small_bodies", "small_body", "look_texels", "look_bytes", "max_looks", "look_paints",
+                     "client_small_bodies", "client_uploads"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"limit {name} must be a positive integer, got {value!r}")
@@ -102,6 +109,18 @@ class Limits:
             value = getattr(self, name)
             if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"limit {name} must be a positive number, got {value!r}")
+        self.proxies()  # checked here
+
+    def proxies(self) -> tuple:
+        """``trusted_proxies`` (comma-separated addresses or networks) as :mod:`ipaddress` networks."""
+        import ipaddress
+
+        if not isinstance(self.trusted_proxies, str) or len(self.trusted_proxies) > 4096:
+            raise ValueError("limit trusted_proxies must be text: addresses or networks separated by commas")
+        try:
+            return tuple(ipaddress.ip_network(x.strip(), strict=False) for x in self.trusted_proxies.split(",") if x.strip())
+        except ValueError as exc:
+            raise ValueError(f"limit trusted_proxies: {exc}") from None
 
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
