@@ -51,11 +51,28 @@ def build_family(root: Path) -> Path:
 
 
 def tree(folder: Path) -> str:
+    """One digest of every file (lock files aside) and every folder under ``folder``: a failed write
+    leaves neither a file nor an empty folder."""
     h = hashlib.sha256()
     for p in sorted(folder.rglob("*")):
         if p.is_file() and ".lock" not in p.name:
             h.update(str(p.relative_to(folder)).encode() + p.read_bytes())
+        elif p.is_dir():
+            h.update(str(p.relative_to(folder)).encode() + b"/")
     return h.hexdigest()
+
+
+def glb_with_index_count(data: bytes, count) -> bytes:
+    """A GLB whose first primitive's index accessor says ``count``."""
+    import struct
+
+    n = struct.unpack_from("<I", data, 12)[0]
+    doc = json.loads(data[20:20 + n])
+    doc["accessors"][doc["meshes"][0]["primitives"][0]["indices"]]["count"] = count
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    out = data[:12] + struct.pack("<I", len(js)) + b"JSON" + js + data[20 + n:]
+    return out[:8] + struct.pack("<I", len(out)) + out[12:]
 
 
 def chain_gltf(depth: int) -> bytes:
@@ -254,6 +271,64 @@ async def http_cases(root: Path, rows: list) -> None:
         t = time.monotonic()
         r = await c.get("/v1/families/mug")
         row("damage", "the texture put back: served again without a restart", "200", r, time.monotonic() - t)
+        assert (await c.get("/v1/families/mug2")).status_code == 200  # served, then its UVs cut short underneath
+        uv = root / "mug2" / "template" / "uv.npz"
+        whole = uv.read_bytes()
+        uv.write_bytes(whole[: len(whole) // 2])
+        before = tree(root / "mug2")
+        t = time.monotonic()
+        r = await c.post("/v1/families/mug2/edits", json={"group": 0, "hue": 10}, headers=TOKEN)
+        row("damage", "an edit over a truncated template/uv.npz (family unchanged)", "503", r, time.monotonic() - t, tree(root / "mug2") == before)
+        uv.write_bytes(whole)
+
+        # odd paths and values
+        from proctex.texture.export import glb_bytes
+
+        for case, path in (("/v1/families/%2e%2e%2f (was a 307, empty)", "/v1/families/%2e%2e%2f"),
+                           ("textures/0.normal.orm.png (served the normal map)", "/v1/families/mug/textures/0.normal.orm.png")):
+            t = time.monotonic()
+            r = await c.get(path)
+            row("odd input", case, "404", r, time.monotonic() - t)
+        r, t = await post(b'{"params": {}, "seed": true}')
+        row("odd input", '"seed": true (was taken as 1)', "422", r, t)
+        glb = glb_bytes(mug.vertices, mug.faces, np.zeros((len(mug.faces), 3, 2)), np.zeros(len(mug.faces), np.int64), [np.zeros((8, 8, 3), np.uint8)])
+        r, t = await post(None, files={"mesh": ("m.glb", glb_with_index_count(glb, -3))})
+        row("odd input", "a GLB whose index accessor says count -3 (a triangle was dropped, 200)", "422", r, t)
+
+    # one client's stalled bodies against another client's transfer (issue 54)
+    fair = ingress_app(forward, Limits(**{**LIMITS, "body_idle_seconds": 60.0, "body_seconds": 120.0}), is_lost=lambda exc: isinstance(exc, Lost), retry_seconds=5)
+    release = asyncio.Event()
+
+    def peer(address):
+        return httpx.AsyncClient(transport=httpx.ASGITransport(app=fair, client=(address, 40000)), base_url="http://probe", timeout=120)
+
+    async with peer("192.0.2.1") as bad, peer("192.0.2.2") as good:
+        holders = [asyncio.create_task(bad.post("/v1/families/mug/transfer", content=stalled(release=release, rest=b"}}"),
+                                                headers={"content-type": "application/json", "content-length": "1000"})) for _ in range(260)]
+        share = Limits().client_small_bodies
+        deadline = time.monotonic() + 60
+        while sum(h.done() for h in holders) < 260 - share and time.monotonic() < deadline:
+            await asyncio.sleep(0.1)
+        t = time.monotonic()
+        r = await good.post("/v1/families/mug2/transfer", json={"params": {}})
+        t = time.monotonic() - t
+        refused = [h.result() for h in holders if h.done()]
+        release.set()
+        await asyncio.gather(*holders)
+    rows.append({"class": "fairness", "case": f"260 stalled bodies from one client ({len(refused)} over its share of {share}: 429) and another client's transfer",
+                 "expect": "200", "got": r.status_code, "seconds": round(t, 2), "json": False,
+                 "ok": r.status_code == 200 and r.content[:4] == b"glTF" and len(refused) == 260 - share and {x.status_code for x in refused} == {429}})
+
+    # looks under their limits (issue 54): over the time budget, over the texels; nothing written
+    for case, limits, expect in (("a look past its time budget (look_seconds 1e-6)", {"look_seconds": 1e-6}, "422"),
+                                 ("a look over its texels (look_texels 1000)", {"look_texels": 1000}, "413")):
+        cat2 = Catalog(str(root), Limits(**{**LIMITS, **limits}), check_every=0)
+        app2 = create_app(lambda cat2=cat2: cat2, edit_token=TOKEN["X-ProcTex-Token"])
+        before = tree(root / "mug2")
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app2), base_url="http://probe", timeout=60) as c2:
+            t = time.monotonic()
+            r = await c2.post("/v1/families/mug2/looks", json={"name": "probe", "prompt": "red oak"}, headers=TOKEN)
+        row("looks", case + ", nothing written", expect, r, time.monotonic() - t, tree(root / "mug2") == before)
 
 
 def store_cases(root: Path, rows: list) -> None:
@@ -284,6 +359,48 @@ def store_cases(root: Path, rows: list) -> None:
             code = main(argv)
         rows.append({"class": "nonsense numbers", "case": case, "expect": "exit 2", "got": f"exit {code}", "seconds": round(time.monotonic() - t, 2),
                      "json": False, "ok": code == 2 and tree(fam) == before and not (root / "x.glb").exists()})
+    # one set of bounds: what HTTP refuses, the command line refuses before any work (issue 54)
+    huge = root / "huge.json"
+    huge.write_text(json.dumps({str(k): "oak" for k in range(100_000)}))
+    for case, argv in (("look add --prompt of 201 characters", ["look", "add", str(fam), "big", "--prompt", "x" * 201]),
+                       ("look add --group-prompts of 1.5 MB", ["look", "add", str(fam), "big", "--prompt", "oak", "--group-prompts", str(huge)])):
+        t = time.monotonic()
+        with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+            code = main(argv)
+        rows.append({"class": "bounds", "case": case, "expect": "exit 2", "got": f"exit {code}", "seconds": round(time.monotonic() - t, 2),
+                     "json": False, "ok": code == 2 and tree(fam) == before})
+    spec = root / "spec.json"
+    spec.write_text(json.dumps({"nope": [0, 1]}))
+    out = root / "refused"
+    t = time.monotonic()
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+        code = main(["build", "--model", "mug", "--prompt", "red", "--out", str(out), "--n-train", "2", "--n-test", "0", "--params-spec", str(spec)])
+    rows.append({"class": "bounds", "case": "a build refused for its --params-spec (left family.json and locks)", "expect": "exit 2, no --out",
+                 "got": f"exit {code}" + ("" if out.exists() else ", no --out"), "seconds": round(time.monotonic() - t, 2), "json": False,
+                 "ok": code == 2 and not out.exists()})
+    # units: the mug uploaded in other units takes the same UVs (issue 54)
+    from proctex.models import get_model
+    from proctex.serve.service import FamilyService
+    from proctex.store.layout import FamilyStore
+
+    svc = FamilyService(FamilyStore(root / "mug2"))
+    mug = get_model("mug").generate({"radius": 0.045, "height": 0.11})
+    t = time.monotonic()
+    uvs = {s: svc.textured(svc.shape_from_mesh(obj_of(mug.vertices * s, mug.faces), "m.obj"))[0].result.corner_uv for s in (1.0, 1e-6, 1e3, 1e6)}
+    moved = max(float(np.abs(uvs[s] - uvs[1.0]).max()) for s in (1e-6, 1e3, 1e6))
+    rows.append({"class": "units", "case": "the mug uploaded in mm, um or km: UVs moved at most", "expect": "<= 1e-5", "got": f"{moved:.1e}",
+                 "seconds": round(time.monotonic() - t, 2), "json": False, "ok": moved <= 1e-5})
+    # files honour the umask
+    import os
+
+    from proctex.fileio import current_umask
+
+    t = time.monotonic()
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+        code = main(["transfer", str(fam), "--params", "{}", "--out", str(root / "mode.glb")])
+    mode = os.stat(root / "mode.glb").st_mode & 0o777 if code == 0 else 0
+    rows.append({"class": "files", "case": f"a transfer's GLB under umask {current_umask():03o} (was 600)", "expect": f"mode {0o666 & ~current_umask():o}",
+                 "got": f"mode {mode:o}", "seconds": round(time.monotonic() - t, 2), "json": False, "ok": code == 0 and mode == 0o666 & ~current_umask()})
 
 
 def run(root: Path) -> list[dict]:
