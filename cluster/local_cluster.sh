@@ -25,12 +25,29 @@ export RAY_USAGE_STATS_ENABLED=0
 # Tasks and actors at the nodes' own priority, not Ray's default niceness 15 (behind any other work
 # on a busy machine they barely ran: workflows/__init__.py); a value you export wins.
 export RAY_worker_niceness=${RAY_worker_niceness:-0}
-# Every node of this one-machine cluster listens on 127.0.0.1 only; Ray's token authentication is
-# off unless RAY_AUTH_MODE=token is exported (then every node and client reads ~/.ray/auth_token).
-export RAY_AUTH_MODE=${RAY_AUTH_MODE:-disabled}
+# Not loopback only: Ray 2.60 rewrites --node-ip-address=127.0.0.1 to the machine's routable address
+# (only RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 keeps it, and then no worker node may join), so the GCS,
+# the raylets, the workers and the agents listen on that address or on every interface; the
+# dashboard (the Jobs API) and the Ray Client server listen on 127.0.0.1. What guards the rest is
+# Ray's token authentication, on, with a token of this cluster's own: RAY_TMP/auth_token (0600, made
+# by `start`), unless you export RAY_AUTH_TOKEN or RAY_AUTH_TOKEN_PATH. A driver, `ray status` and
+# the Jobs API need the same variables; `start` prints them.
+export RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=1
+export RAY_AUTH_MODE=token
+if [ -z "${RAY_AUTH_TOKEN:-}" ] && [ -z "${RAY_AUTH_TOKEN_PATH:-}" ]; then
+  export RAY_AUTH_TOKEN_PATH="$RAY_TMP/auth_token"
+fi
+
+make_token() {
+  [ -n "${RAY_AUTH_TOKEN:-}" ] && return
+  [ -s "$RAY_AUTH_TOKEN_PATH" ] && return
+  mkdir -p "$(dirname "$RAY_AUTH_TOKEN_PATH")"
+  (umask 077; "$PY" -c 'import secrets; print(secrets.token_hex(32))' > "$RAY_AUTH_TOKEN_PATH")
+}
 
 start() {
   local workers=${1:-1} cpus=${2:-1}
+  make_token
   # Two clusters on one machine (another RAY_PORT, DASHBOARD_PORT, RAY_CLIENT_PORT and RAY_TMP) must not
   # share a port: the head's dashboard agent (the Jobs API's agent) takes a free port instead of Ray's
   # fixed 52365, where a second head's agent could not listen and its Jobs API never took a job, and its
@@ -57,6 +74,7 @@ start() {
   "$PY" -m workflows.jobs wait "http://127.0.0.1:$DASHBOARD_PORT" --timeout "$wait_s" >/dev/null
   echo "ray cluster: head 127.0.0.1:$RAY_PORT + $workers worker node(s), $cpus CPU(s) each"
   echo "jobs API / dashboard: http://127.0.0.1:$DASHBOARD_PORT"
+  echo "clients need: export RAY_AUTH_MODE=token RAY_AUTH_TOKEN_PATH=${RAY_AUTH_TOKEN_PATH:-}"
 }
 
 # Stop only this cluster's processes: the Ray processes it started name its temp dir (RAY_TMP) or its

@@ -6,6 +6,8 @@ import json
 import os
 import subprocess
 import time
+import urllib.error
+import urllib.request
 import tomllib
 from pathlib import Path
 
@@ -76,6 +78,47 @@ def test_local_cluster_script_usage():
     assert r.returncode == 2 and "usage" in r.stderr
 
 
+#: The processes of a multi-node Ray 2.60 cluster on one machine that listen on its routable address
+#: or every interface, with no option to keep them on loopback (cluster/local_cluster.sh): the GCS,
+#: the raylets, core workers, the dashboard's and runtime-env agents, metrics exporters.
+RAY_NODE_LISTENERS = {"gcs_server", "raylet", "ray::IDLE", "ray::DashboardAgent", "ray::RuntimeEnvAgent", "python", "python3",
+                      "ray::JobSupervisor", "ray::_wrapped", "default_worker.py", "ray::RayTrainWorker"}
+
+
+def listeners_of(ray_tmp: str) -> list[tuple[str, int, str]]:
+    """``(address, port, process name)`` of every listening TCP socket of the Ray processes of the
+    cluster whose temp dir is ``ray_tmp`` (a process naming it on its command line, or holding a file
+    under it or its worker nodes' ``ray_tmp-wN`` open)."""
+    import psutil
+
+    pids = set()
+    for proc in psutil.process_iter(["pid", "cmdline"]):
+        if any(ray_tmp in (part or "") for part in (proc.info["cmdline"] or [])):
+            pids.add(proc.info["pid"])
+    for fd in Path("/proc").glob("[0-9]*/fd/*"):
+        try:
+            if os.readlink(fd).startswith(ray_tmp):
+                pids.add(int(fd.parts[2]))
+        except OSError:
+            continue
+    out = []
+    for c in psutil.net_connections(kind="tcp"):
+        if c.status == psutil.CONN_LISTEN and c.pid in pids:
+            try:
+                name = psutil.Process(c.pid).name()
+            except psutil.Error:
+                name = "?"
+            out.append((c.laddr.ip, c.laddr.port, name))
+    return out
+
+
+def loopback(address: str) -> bool:
+    import ipaddress
+
+    a = ipaddress.ip_address(address)
+    return a.is_loopback or (a.version == 6 and a.ipv4_mapped is not None and a.ipv4_mapped.is_loopback)
+
+
 @pytest.mark.slow
 @pytest.mark.ray
 def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
@@ -83,13 +126,14 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
 
     from ray.job_submission import JobStatus
 
-    from workflows.jobs import job_client, submit_job
+    from workflows.jobs import cluster_env, job_client, submit_job
 
     short_tmp = tempfile.mkdtemp(prefix="rayc", dir="/tmp")  # Ray's socket paths must stay short
     env = {**os.environ, "RAY_PORT": "6391", "DASHBOARD_PORT": "8276", "RAY_CLIENT_PORT": "9391", "RAY": str(ROOT / ".venv" / "bin" / "ray"),
-           "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240"}
+           "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240", **cluster_env(short_tmp)}
     short_tmp2 = tempfile.mkdtemp(prefix="rayd", dir="/tmp")
-    env2 = {**env, "RAY_PORT": "6392", "DASHBOARD_PORT": "8277", "RAY_CLIENT_PORT": "9392", "RAY_TMP": short_tmp2}
+    env2 = {**env, "RAY_PORT": "6392", "DASHBOARD_PORT": "8277", "RAY_CLIENT_PORT": "9392", "RAY_TMP": short_tmp2, **cluster_env(short_tmp2)}
+
     if not Path(env["RAY"]).exists():
         pytest.skip("no .venv/bin/ray")
     script = str(CLUSTER / "local_cluster.sh")
@@ -99,11 +143,25 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
         assert start.returncode == 0, start.stderr
         status = subprocess.run(["bash", script, "status"], env=env, capture_output=True, text=True, timeout=60).stdout
         assert "2.0 CPU" in status or "0.0/2.0 CPU" in status, status
+        # what listens beyond loopback is only what Ray 2.60 puts on the node address of a multi-node
+        # cluster (cluster/local_cluster.sh says why), and it is all behind the cluster's token
+        heard = listeners_of(short_tmp)
+        wide = {name for address, _, name in heard if not loopback(address)}
+        assert heard and wide <= RAY_NODE_LISTENERS, (wide - RAY_NODE_LISTENERS, heard)
+        assert all(loopback(address) for address, port, _ in heard if port == 8276), heard  # the Jobs API: --dashboard-host
+        with urllib.request.urlopen("http://127.0.0.1:8276/api/authentication_mode", timeout=30) as r:
+            assert json.loads(r.read())["authentication_mode"] == "token"
+        try:
+            urllib.request.urlopen("http://127.0.0.1:8276/api/jobs/", timeout=30)
+            raise AssertionError("the Jobs API answered a request without the token")
+        except urllib.error.HTTPError as exc:
+            assert exc.code == 401, exc.code
+        assert oct(os.stat(Path(short_tmp) / "auth_token").st_mode & 0o777) == "0o600"
         cfg = tmp_path / "family.json"
         cfg.write_text(json.dumps({"model": "mug", "n_train": 3, "n_test": 0, "corr_points": 200, "cage_iterations": 20, "texture_size": 32,
                                    "train": {"iterations": 10, "eval_every": 5, "context_points": 64, "query_points": 32, "shapes_per_batch": 2}}))
         out = tmp_path / "mug"
-        client = job_client("http://127.0.0.1:8276")
+        client = job_client("http://127.0.0.1:8276", token_path=cluster_env(short_tmp)["RAY_AUTH_TOKEN_PATH"])
         # start returned after the Jobs API ran its no-op readiness job
         ready = [j for j in client.list_jobs() if (j.submission_id or "").startswith("proctex-ready")]
         assert len(ready) == 1 and ready[0].status == JobStatus.SUCCEEDED and ready[0].metadata == {"proctex": "readiness check"}
@@ -129,7 +187,8 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
         # start waited out PROCTEX_CLUSTER_WAIT on "No available agent" and failed.
         second = subprocess.run(["bash", script, "start", "0", "1"], env=env2, capture_output=True, text=True, timeout=600)
         assert second.returncode == 0, second.stderr[-3000:]
-        assert [j.status for j in job_client("http://127.0.0.1:8277").list_jobs()] == [JobStatus.SUCCEEDED]
+        second_client = job_client("http://127.0.0.1:8277", token_path=cluster_env(short_tmp2)["RAY_AUTH_TOKEN_PATH"])  # a token of its own
+        assert [j.status for j in second_client.list_jobs()] == [JobStatus.SUCCEEDED]
         assert client.get_job_status(job) == JobStatus.SUCCEEDED  # the first one still answers
     finally:
         subprocess.run(["bash", script, "stop"], env=env2, capture_output=True, timeout=120)

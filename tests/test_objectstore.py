@@ -474,8 +474,10 @@ def two_nodes(tmp_path_factory):
         pytest.skip("no .venv/bin/ray")
     server = start_server(tmp_path_factory.mktemp("seaweedfs"), bucket="cluster")
     short_tmp = tempfile.mkdtemp(prefix="rays", dir="/tmp")  # Ray's socket paths must stay short
+    from workflows.jobs import cluster_env
+
     env = {**os.environ, **server.env(), "RAY_PORT": "6393", "DASHBOARD_PORT": "8278", "RAY_CLIENT_PORT": "9393",
-           "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240"}
+           "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240", **cluster_env(short_tmp)}
     script = str(ROOT / "cluster" / "local_cluster.sh")
     try:  # from here on, whatever fails: the cluster and the server are stopped
         s3c = boto3.client("s3", endpoint_url=server.endpoint, region_name=server.region, aws_access_key_id=server.access_key,
@@ -508,14 +510,16 @@ def test_generate_to_s3_on_two_nodes_resumes_after_a_killed_driver_writing_each_
     driver killed (SIGKILL) after 40 rows, then run again: 120 rows in the manifest, every row's
     record written once, and no finished row's file written again (only the rows in flight at the
     kill are made again)."""
-    server, s3c, _ = two_nodes
+    from workflows.jobs import cluster_env
+
+    server, s3c, ray_tmp = two_nodes
     with pytest.MonkeyPatch.context() as mp:
         for k, v in server.env().items():
             mp.setenv(k, v)
         upload(painted_mug_root / "mug", server.uri("painted/mug"))
     argv = [sys.executable, "-m", "workflows.cli", "generate", server.uri("painted/mug"), "--n", "120", "--out", server.uri("variants"),
             "--address", "127.0.0.1:6393", "--quiet"]
-    env = {**os.environ, **server.env(), "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, **server.env(), "PYTHONPATH": str(ROOT), **cluster_env(ray_tmp)}  # the cluster's token
     first = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 300
     done_at_kill: set[str] = set()
@@ -557,13 +561,13 @@ def test_a_two_node_cluster_sharing_no_disk_builds_on_s3_through_a_lost_worker_n
     family is the single-process build's."""
     from ray.job_submission import JobStatus
 
-    from workflows.jobs import job_client, submit_job
+    from workflows.jobs import cluster_env, job_client, submit_job
 
     server, s3c, ray_tmp = two_nodes
     cfg = tmp_path / "family.json"
     cfg.write_text(json.dumps(CLUSTER_CONFIG))
     uri = server.uri("families/mug")
-    client = job_client("http://127.0.0.1:8278")
+    client = job_client("http://127.0.0.1:8278", token_path=cluster_env(ray_tmp)["RAY_AUTH_TOKEN_PATH"])
     job = submit_job(client, f"{sys.executable} -m workflows.cli build {cfg} --out {uri} --ray auto --train-workers 1 --quiet",
                      runtime_env={"env_vars": {"PYTHONPATH": str(ROOT), **server.env()}})
     deadline = time.time() + 420
@@ -576,9 +580,12 @@ def test_a_two_node_cluster_sharing_no_disk_builds_on_s3_through_a_lost_worker_n
     logs = client.get_job_logs(job)
     assert killed, "the pairs ended before the worker node could be killed"
     assert client.get_job_status(job) == JobStatus.SUCCEEDED, logs[-3000:]
-    from ray.util.state import list_tasks
+    from ray.util.state.api import StateApiClient
+    from ray.util.state.common import ListApiOptions, StateResource
 
-    batches = list_tasks(address="http://127.0.0.1:8278", filters=[("name", "=", "run_batch")], limit=10_000, detail=True,
+    token = Path(cluster_env(ray_tmp)["RAY_AUTH_TOKEN_PATH"]).read_text().strip()  # the cluster's (list_tasks reads this process's)
+    state = StateApiClient(address="http://127.0.0.1:8278", headers={"Content-Type": "application/json", "Authorization": f"Bearer {token}"})
+    batches = state.list(StateResource.TASKS, options=ListApiOptions(filters=[("name", "=", "run_batch")], limit=10_000, detail=True),
                          raise_on_missing_output=False)
     assert len({t.node_id for t in batches if t.node_id}) == 2, "the pairs ran on both nodes"
     counts = versions(s3c, "cluster", "families/mug/")

@@ -457,3 +457,36 @@ def test_serve_holds_against_stalled_clients_and_a_replica_killed_under_load(loc
         assert len(answers) == 50 and codes.count(200) == 50 and retried >= 1, ({c: codes.count(c) for c in set(codes)}, retried)
     finally:
         serve.delete("proctex-kill")
+
+
+def test_a_private_ray_serving_a_family_listens_on_loopback_behind_its_own_token(local_ray, reference, tmp_path):
+    """Every socket this test's private Ray listens on while it serves a family is on loopback, but
+    the one Ray 2.60 binds to every interface with no option (a Serve replica's gRPC server, "[::]:0"),
+    and token authentication is on with a token of its own (a file of mode 0600, not the shared
+    ~/.ray/auth_token): a client without it is refused."""
+    import ipaddress
+    import shutil
+    import subprocess
+
+    import psutil
+
+    from workflows.build import _descendants
+
+    root = tmp_path / "families"
+    shutil.copytree(reference.base, root / "mug")
+    base = _serve_app(root, "proctex-ports", replicas=1)
+    assert _transfer(base, "mug", routed=False)[0] == 200
+    ours = _descendants(os.getpid()) | {os.getpid()}
+    wide = set()
+    for c in psutil.net_connections(kind="tcp"):
+        if c.status == psutil.CONN_LISTEN and c.pid in ours:
+            a = ipaddress.ip_address(c.laddr.ip)
+            if not (a.is_loopback or (a.version == 6 and a.ipv4_mapped is not None and a.ipv4_mapped.is_loopback)):
+                wide.add(psutil.Process(c.pid).name())
+    assert wide and all(name.startswith("ray::ServeReplica") for name in wide), wide
+    token = Path(os.environ["RAY_AUTH_TOKEN_PATH"])
+    assert os.environ["RAY_AUTH_MODE"] == "token" and token.parent != Path.home() / ".ray" and oct(token.stat().st_mode & 0o777) == "0o600"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_AUTH")}
+    gcs = ray.get_runtime_context().gcs_address
+    done = subprocess.run([str(Path(sys.executable).parent / "ray"), "status", f"--address={gcs}"], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0 and "uthentication" in done.stdout + done.stderr, (done.stdout + done.stderr)[-2000:]

@@ -79,8 +79,50 @@ def _descendants(pid: int) -> set[int]:
     return out
 
 
+#: What makes a private Ray private (:func:`private_ray_env`): its node address stays loopback
+#: (Ray 2.60 rewrites 127.0.0.1 to the machine's routable address unless this is "0"; every
+#: listener that follows the node address then binds loopback), and token authentication is on.
+LOOPBACK = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
+
+
+def private_ray_env() -> dict[str, str]:
+    """Set (in this process's environment, which Ray's processes inherit) what a private local Ray
+    needs to be reachable from no other host and usable by no other user: the loopback node address
+    (:data:`LOOPBACK`) and, unless the user chose a token mode, Ray's token authentication with a
+    token of its own (64 hex characters in a file of mode 0600 in a private folder, not the shared
+    ``~/.ray/auth_token``, which Ray writes 0644). Returns the variables set. The listener Ray
+    binds to every interface whatever its options (a Serve replica's gRPC server, ``[::]:0``)
+    refuses connections without the token."""
+    import secrets
+    import tempfile
+
+    out = dict(LOOPBACK)
+    if "RAY_AUTH_MODE" not in os.environ and "RAY_AUTH_TOKEN" not in os.environ and "RAY_AUTH_TOKEN_PATH" not in os.environ:
+        folder = tempfile.mkdtemp(prefix="proctex-ray-auth-")  # 0700
+        path = os.path.join(folder, "auth_token")
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(secrets.token_hex(32) + "\n")
+        out.update(RAY_AUTH_MODE="token", RAY_AUTH_TOKEN_PATH=path)
+    for key, value in out.items():
+        os.environ.setdefault(key, value)
+    # Ray reads the mode and the token once per process (when it is imported): as ray.init does when
+    # it turns token authentication on itself, refresh them (Ray's own internals; no public call)
+    try:
+        from ray._private import ray_constants
+        from ray._raylet import AuthenticationTokenLoader, Config
+
+        Config.initialize("")
+        AuthenticationTokenLoader.instance().reset_cache()
+        ray_constants.ENABLE_RAY_CLUSTER = os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] not in ("0", "false", "False")
+    except (ImportError, AttributeError):  # another Ray: what it reads at ray.init is what is set
+        pass
+    return out
+
+
 def start_private_ray(num_cpus: int | None = None, tries: int | None = None, log: Callable[[str], None] | None = None) -> None:
-    """``ray.init`` of a private local Ray (no dashboard, workers' output not copied here), started
+    """``ray.init`` of a private local Ray (no dashboard, workers' output not copied here; loopback
+    only, behind a token of its own: :func:`private_ray_env`), started
     again when its node did not come up within Ray's fixed 30 s (:data:`NODE_START_TIMEOUT`: a
     machine whose cores are busy with other work), at most ``tries`` times (default
     ``PROCTEX_RAY_START_TRIES`` or 3), saying so through ``log`` (default: stderr). The processes a
@@ -100,6 +142,7 @@ def start_private_ray(num_cpus: int | None = None, tries: int | None = None, log
     if not 1 <= tries <= 20:
         raise ValueError(f"the private Ray's start tries must be 1-20, got {tries}")
     say = log or (lambda line: print(line, file=sys.stderr, flush=True))
+    private_ray_env()
     for attempt in range(1, tries + 1):
         before = _descendants(os.getpid())
         try:

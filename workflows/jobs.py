@@ -92,12 +92,24 @@ def retry(call: Callable[[], Any], what: str, wait_s: float | None = None, say: 
             delay = min(5.0, delay * 2)
 
 
-def job_client(address: str, wait_s: float | None = None, say: Callable[[str], None] = _say):
+def cluster_env(ray_tmp: str = "/tmp/ray") -> dict[str, str]:
+    """What a client of ``cluster/local_cluster.sh``'s cluster (its ``RAY_TMP``) needs in its
+    environment: the cluster's token (``RAY_TMP/auth_token``), and the node address Ray resolves
+    for a multi-node cluster (not the loopback one a private Ray keeps: :data:`workflows.build.LOOPBACK`)."""
+    return {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "1", "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN_PATH": f"{ray_tmp}/auth_token"}
+
+
+def job_client(address: str, wait_s: float | None = None, say: Callable[[str], None] = _say, token_path: str | None = None):
     """A ``JobSubmissionClient`` for ``address`` (``http://host:8265``), waiting while the dashboard
-    does not answer yet."""
+    does not answer yet. ``token_path``: a file holding the cluster's token, sent as a bearer token
+    (Ray reads ``RAY_AUTH_MODE`` once a process: set later, it is not seen; default: what Ray reads)."""
     from ray.job_submission import JobSubmissionClient
 
-    return retry(lambda: JobSubmissionClient(address), f"connecting to {address}", wait_s, say)
+    headers = None
+    if token_path is not None:
+        with open(token_path) as fh:
+            headers = {"Authorization": f"Bearer {fh.readline().strip()}"}
+    return retry(lambda: JobSubmissionClient(address, headers=headers), f"connecting to {address}", wait_s, say)
 
 
 def submit_job(client_or_address: Any, entrypoint: str, wait_s: float | None = None, say: Callable[[str], None] = _say,
