@@ -457,3 +457,16 @@ def test_the_service_paints_looks_under_its_limits(mug):
     assert c.post(f"/v1/families/{root.name}/looks", json={"name": "a", "prompt": "oak"}, headers=head).status_code == 200
     r = c.post(f"/v1/families/{root.name}/looks", json={"name": "b", "prompt": "oak"}, headers=head)
     assert r.status_code == 409 and "most (1)" in r.json()["error"], r.text
+
+
+def test_look_add_takes_its_limits_on_the_command_line(mug, capsys):
+    root = Path(mug.base)
+    assert main(["look", "add", str(root), "a", "--prompt", "oak"]) == 0
+    before = tree(root)
+    assert main(["look", "add", str(root), "b", "--prompt", "oak", "--max-looks", "1"]) == 2
+    assert "its most (1)" in capsys.readouterr().err and tree(root) == before
+    assert main(["look", "add", str(root), "b", "--prompt", "oak", "--max-seconds", "0.000001"]) == 2
+    assert "time budget" in capsys.readouterr().err and tree(root) == before
+    assert main(["look", "add", str(root), "b", "--prompt", "oak", "--max-seconds", "-1"]) == 2
+    assert "positive" in capsys.readouterr().err
+    assert main(["look", "add", str(root), "b", "--prompt", "oak", "--max-looks", "2"]) == 0

@@ -70,7 +70,7 @@ class LookLimits:
         others = [lk for lk in family_looks(store) if not lk.built and not (force and lk.name == name)]
         if len(others) >= self.looks:
             raise LookOverLimit(f"the family has {len(others)} looks, its most ({self.looks}); remove one first "
-                                f"(proctex look remove, DELETE .../looks/NAME)", "count")
+                                f"(proctex look rm FAMILY NAME)", "count")
         groups = len(store.read_json(StoreLayout.PAINT).get("groups", [])) if store.exists(StoreLayout.PAINT) else 1
         texels = int(paint.texture_size) ** 2 * max(groups, 1)
         if texels > self.texels:

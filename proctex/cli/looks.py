@@ -22,7 +22,7 @@ def cmd_look(args: argparse.Namespace) -> int:
     log = (lambda *_: None) if args.json else print
     if args.action == "add" and args.from_glb:
         paint, glb, member = glb_args(args, config.paint)
-        record = add_look(store, args.name, paint, force=args.force, log=log, glb=glb, member=member)
+        record = add_look(store, args.name, paint, force=args.force, log=log, glb=glb, member=member, limits=look_limits(args))
         if args.json:
             _print_json({"family": store.uri, "look": record})
         return 0
@@ -35,7 +35,7 @@ def cmd_look(args: argparse.Namespace) -> int:
         if args.prompt is not None and not args.prompt.strip():
             raise ValueError("--prompt is empty")
         paint = new_look_paint(config.paint, args.prompt, _group_prompts(args.group_prompts), args.painter, args.texture_size, images=images)
-        record = add_look(store, args.name, paint, force=args.force, log=log, photos=photos)
+        record = add_look(store, args.name, paint, force=args.force, log=log, photos=photos, limits=look_limits(args))
         if args.json:
             _print_json({"family": store.uri, "look": record})
         return 0
@@ -187,6 +187,8 @@ def add_look_parser(sub: argparse._SubParsersAction, painters: list[str], painte
     a.add_argument("--painter", choices=painters, help=f"default: the build's painter; {painter_help}")
     a.add_argument("--texture-size", type=int, help="default: the build's")
     a.add_argument("--force", action="store_true", help="replace a look of that name")
+    a.add_argument("--max-seconds", type=float, help="stop painting past this (default 600; nothing is written)")
+    a.add_argument("--max-looks", type=int, help="looks the family may hold, the build's not counted (default 32)")
     a.add_argument("--json", action="store_true")
     ls = acts.add_parser("list", help="the family's looks")
     ls.add_argument("family")
@@ -196,3 +198,13 @@ def add_look_parser(sub: argparse._SubParsersAction, painters: list[str], painte
     rm.add_argument("name")
     rm.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_look)
+
+
+def look_limits(args):
+    """:class:`proctex.build.looks.LookLimits` with ``--max-seconds`` and ``--max-looks`` over its defaults."""
+    from dataclasses import replace
+
+    from proctex.build.looks import LookLimits
+
+    over = {k: v for k, v in (("seconds", args.max_seconds), ("looks", args.max_looks)) if v is not None}
+    return replace(LookLimits(), **over)
