@@ -24,9 +24,8 @@ from proctex.measure.fidelity import (
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
 from proctex.store.samples import load_sample, samples
-from proctex.transfer.apply import transfer
+from proctex.transfer.apply import canonical_points, transfer
 from proctex.transfer.assets import load_assets
-from proctex.transfer.apply import canonical_points
 from proctex.transfer.assign import assign_parts, representative_frame
 from proctex.transfer.mappers import IdentityMapper
 

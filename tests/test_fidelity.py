@@ -37,9 +37,8 @@ from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
 from proctex.store.samples import load_sample, samples
 from proctex.texture.uv import pad_seams, texel_map
-from proctex.transfer.apply import transfer
+from proctex.transfer.apply import canonical_points, transfer
 from proctex.transfer.assets import load_assets
-from proctex.transfer.apply import canonical_points
 from proctex.transfer.assign import PartAssignment, assign_parts, representative_frame
 from proctex.transfer.mappers import IdentityMapper
 
