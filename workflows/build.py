@@ -98,7 +98,11 @@ def private_ray_env() -> dict[str, str]:
 
     out = dict(LOOPBACK)
     if "RAY_AUTH_MODE" not in os.environ and "RAY_AUTH_TOKEN" not in os.environ and "RAY_AUTH_TOKEN_PATH" not in os.environ:
+        import atexit
+        import shutil
+
         folder = tempfile.mkdtemp(prefix="proctex-ray-auth-")  # 0700
+        atexit.register(shutil.rmtree, folder, True)  # this process's private Ray ends with it
         path = os.path.join(folder, "auth_token")
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
         with os.fdopen(fd, "w") as fh:
