@@ -1,5 +1,5 @@
 """The house rules the code must keep: ``proctex`` imports no module of its own in a circle (at
-module level or inside functions) and never imports Ray (DESIGN §2: Ray lives in ``workers/`` and
+module level or inside functions) and never imports Ray (docs/architecture.md: Ray lives in ``workers/`` and
 ``workflows/``)."""
 
 from __future__ import annotations

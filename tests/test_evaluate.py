@@ -1,4 +1,4 @@
-"""Evaluation metrics on cases with known answers, and the methods side by side (DESIGN §6)."""
+"""Evaluation metrics on cases with known answers, and the methods side by side (docs/results.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Honest fidelity measures (proctex.measure.fidelity, DESIGN §6): every metric must be able to fail.
+"""Honest fidelity measures (proctex.measure.fidelity, docs/results.md): every metric must be able to fail.
 
 On a built-in family (the chair, canonical ground truth), the true correspondence must score far
 better than deliberately wrong ones (every part collapsed to a point, a random rotation per shape,

@@ -4,7 +4,7 @@ The offline cage solver (:mod:`proctex.correspond`) maps surface samples of a sh
 template part. ProcCorrNet learns that map over the family, so that at run time a new shape's part is
 mapped in one forward pass.
 
-Frames (DESIGN §6): inputs are points of the shape's part in *that part's* normalised frame (centre =
+Frames (docs/correspondence.md): inputs are points of the shape's part in *that part's* normalised frame (centre =
 bounding-box centre, divided by the L∞ radius; :func:`proctex.geometry.surface.normalised_frame`), outputs are
 points in the *template part's* normalised frame. Both lie in [-1, 1]³, which is the only input
 normalisation the network needs (the checkpoint records it as ``extra["frame"]``).

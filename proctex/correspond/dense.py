@@ -9,7 +9,7 @@ One interface, three methods (:data:`METHODS`):
 - ``"cpd"``: the same pre-alignment, then non-rigid Coherent Point Drift (:mod:`proctex.correspond.cpd`) and
   the nearest template surface point.
 
-Pre-alignment: both parts in their normalised frames (bounding-box centre, L∞ radius; DESIGN §6),
+Pre-alignment: both parts in their normalised frames (bounding-box centre, L∞ radius; docs/correspondence.md),
 then point-to-surface ICP with a uniform scale (Umeyama on the ICP matches) from the identity
 (families keep their orientation), or the per-axis scale of the two bounding boxes ("box"), or
 whichever of the two leaves the smaller symmetric point-to-surface distance ("auto", the cage's

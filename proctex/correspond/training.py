@@ -132,7 +132,7 @@ def _error_summary(per_shape: list[np.ndarray]) -> dict[str, float]:
 
 
 def eval_step(model: ProcCorrNet, pairs: Sequence[Pair], seed: int = 0, chunk: int = 8192, autocast: str = "none") -> dict[str, float]:
-    """Pseudo-ground-truth error of the network on ``pairs`` (DESIGN §6).
+    """Pseudo-ground-truth error of the network on ``pairs`` (docs/results.md).
 
     For every pair the global feature is pooled over ``model.context_points`` samples of ``src``
     (seeded by ``seed``) and every ``src`` point is predicted; the error is the Euclidean distance to

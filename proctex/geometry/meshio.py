@@ -1,4 +1,4 @@
-"""Mesh I/O (OBJ, PLY, STL, GLB/glTF) that keeps the source's connectivity (DESIGN §4).
+"""Mesh I/O (OBJ, PLY, STL, GLB/glTF) that keeps the source's connectivity (docs/correspondence.md).
 
 Parts are connected components by *shared vertex indices*, so the loader never welds by position
 unless the file gives it no choice:

@@ -12,7 +12,7 @@
   solved as one assignment problem (scipy's ``linear_sum_assignment``), reporting matched, added
   and missing groups.
 
-The normalised part frame (DESIGN §6): points minus the part's bounding-box centre, divided by its
+The normalised part frame (docs/correspondence.md): points minus the part's bounding-box centre, divided by its
 L∞ radius (max |coordinate|).
 """
 

@@ -3,7 +3,7 @@
 Every primitive returns a :class:`Part`: ``vertices (n, 3) float64``, ``faces (m, 3) int64`` with
 outward-facing winding, and ``canonical (n, 3) float64``. Canonical coordinates are a continuous
 embedding of the part's parameter domain that does not depend on the model's parameters, so the same
-canonical point means the same surface point across a family (DESIGN §6):
+canonical point means the same surface point across a family (docs/correspondence.md):
 
 - boxes: the normalised position inside the box, in ``[0, 1]^3``;
 - ring surfaces (surfaces of revolution, swept tubes): a point on the unit sphere,

@@ -1,8 +1,8 @@
 """The shape record and the procedural-model interface.
 
-A procedural model is a black box ``params -> mesh`` (DESIGN §1). Built-in models additionally
+A procedural model is a black box ``params -> mesh`` (docs/architecture.md). Built-in models additionally
 return, per vertex, canonical coordinates and a semantic part label, our ground truth for
-correspondence (DESIGN §6).
+correspondence (docs/correspondence.md).
 """
 
 from __future__ import annotations

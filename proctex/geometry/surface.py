@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 
 def normalised_frame(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """``(centre (3,), L∞ radius)`` of ``points (n, 3)``: the normalised part frame of DESIGN §6."""
+    """``(centre (3,), L∞ radius)`` of ``points (n, 3)``: the normalised part frame (docs/correspondence.md)."""
     lo, hi = points.min(0), points.max(0)
     center = (lo + hi) / 2
     return center, float(np.abs(points - center).max())

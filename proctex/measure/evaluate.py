@@ -1,4 +1,4 @@
-"""Evaluate a built family on its unseen shapes (DESIGN §6): ``proctex eval`` and the ``evaluate``
+"""Evaluate a built family on its unseen shapes (docs/results.md): ``proctex eval`` and the ``evaluate``
 build stage.
 
 Methods, side by side on the same shapes: ``corrnet`` (ProcTex's run-time path: parts with the
@@ -197,7 +197,7 @@ class _Context:
             from proctex.texture.lpips import LPIPS
 
             self.lpips = LPIPS.load(settings["lpips"])
-        # The template's own six views: what every transferred shape is compared with (DESIGN §6).
+        # The template's own six views: what every transferred shape is compared with (docs/results.md).
         tpl = transfer(self.template, self.assets, IdentityMapper(), seed=settings["seed"])
         self.reference, _ = render_six_views(self.template.vertices, self.template.faces, tpl.corner_uv, tpl.face_group,
                                              self.assets.textures, self.up, settings["view_size"])
@@ -373,7 +373,7 @@ def summarise_method(ctx_points, tracker: str, template_colours: np.ndarray, out
     parts = sum(r["parts"] for r in per_shape)
     entry: dict[str, Any] = {
         "tracker": tracker,
-        # DESIGN §6: colours from each shape's own baked texture; also through the real-time UVs.
+        # Colours from each shape's own baked texture (docs/results.md); also through the real-time UVs.
         "tracked_point_variance": tvb.value,
         "tracked_point_variance_realtime": tv.value,
         "tracked_point_variance_per_group": tvb.to_dict()["per_group"],

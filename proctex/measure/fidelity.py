@@ -1,4 +1,4 @@
-"""Honest fidelity measures (DESIGN §6): points tracked by a reference correspondence that never
+"""Honest fidelity measures (docs/results.md): points tracked by a reference correspondence that never
 depends on the method evaluated, and correspondence errors over all points.
 
 **Tracked-point texture variance.** Points on the template (:func:`tracked_points`) are located on

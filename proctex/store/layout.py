@@ -1,4 +1,4 @@
-"""The family store (DESIGN §3): a folder or a ``pyarrow.fs`` URI that fully describes a family.
+"""The family store (docs/architecture.md): a folder or a ``pyarrow.fs`` URI that fully describes a family.
 
 Every write is atomic. In a folder the bytes go to a temporary name next to the target, which is then
 renamed (``pyarrow.fs.FileSystem.move``), so a crash never leaves a half-written file under the real

@@ -1,4 +1,4 @@
-"""Exemplar PatchMatch fill of unpainted texels (dis-occlusion, DESIGN §5; issue 5 item 4).
+"""Exemplar PatchMatch fill of unpainted texels (dis-occlusion, docs/texturing.md; issue 5 item 4).
 
 A part group's texture is an atlas of charts. After re-baking or re-texturing, some texels of a chart
 were never painted (surface the template never showed). :func:`patchmatch_fill` synthesises them from

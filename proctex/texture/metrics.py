@@ -1,4 +1,4 @@
-"""Texture measures (DESIGN §6): coverage (:func:`coverage`, visible pixels that read an unpainted
+"""Texture measures (docs/results.md): coverage (:func:`coverage`, visible pixels that read an unpainted
 texel) and view similarity (:func:`view_similarity`: SSIM, PSNR and optionally LPIPS between renders).
 The ground-truth correspondence error is :mod:`proctex.correspond.metrics`'s.
 """
@@ -14,7 +14,7 @@ import numpy as np
 # ---------------------------------------------------------------------------------------- coverage
 @dataclass
 class Coverage:
-    """Coverage of a textured shape (DESIGN §6): ``share`` of visible pixels that read an unpainted
+    """Coverage of a textured shape (docs/results.md): ``share`` of visible pixels that read an unpainted
     texel (any of the four a bilinear lookup touches), out of ``pixels`` visible pixels in ``views``."""
 
     share: float

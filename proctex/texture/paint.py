@@ -1,4 +1,4 @@
-"""Texturing the template: one UV texture per part group (DESIGN §5).
+"""Texturing the template: one UV texture per part group (docs/texturing.md).
 
 Two ways to fill the group textures:
 

@@ -140,7 +140,7 @@ def orbit_camera(center, radius, up, azimuth: float, elevation: float, size: int
 
 
 def canonical_cameras(center, radius, up="z", size: int = 512, fov_deg: float = 40.0) -> list[Camera]:
-    """The six canonical views of DESIGN §6: front, back, left, right, top, bottom."""
+    """The six canonical views (docs/results.md): front, back, left, right, top, bottom."""
     views = [("front", 0, 0), ("back", 180, 0), ("left", -90, 0), ("right", 90, 0), ("top", 0, 90), ("bottom", 0, -90)]
     return [orbit_camera(center, radius, up, az, el, size, fov_deg, name) for name, az, el in views]
 

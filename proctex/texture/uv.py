@@ -1,4 +1,4 @@
-"""UV atlases per part group, texel <-> surface maps and seam padding (DESIGN §5).
+"""UV atlases per part group, texel <-> surface maps and seam padding (docs/texturing.md).
 
 Conventions used everywhere in ProcTex:
 

@@ -1,6 +1,6 @@
 """Texture transfer: any shape of the family textured from the template's group textures.
 
-The run-time path (DESIGN §1, step 3), per shape:
+The run-time path (docs/architecture.md, "What happens"), per shape:
 
 The steps live in their own modules, in the order they run: :mod:`proctex.transfer.assets` (the template
 side), :mod:`proctex.transfer.assign` (step 2), :mod:`proctex.transfer.mappers` (step 3), :mod:`proctex.transfer.uvlookup`

@@ -8,7 +8,7 @@ normalised frame) / ``dst`` (template part's normalised frame). The real sofa sa
 testing. Pairs are cached in ``out/`` (``.npz``) so reruns only train.
 
 Per template group a network is trained on the train shapes (a few of them held out for early
-stopping) and evaluated on the test shapes: pseudo-ground-truth error (network vs cage, DESIGN §6)
+stopping) and evaluated on the test shapes: pseudo-ground-truth error (network vs cage, docs/results.md)
 and, on built-in models, the ground-truth error of the network's prediction projected onto the
 template surface next to the cage solver's own ground-truth error on the same shapes.
 

@@ -1,4 +1,4 @@
-"""Benchmark of template texturing (DESIGN §7): surface painting, rendering, the multi-view loop.
+"""Benchmark of template texturing (docs/texturing.md): surface painting, rendering, the multi-view loop.
 
     .venv/bin/python tests/bench/bench_paint.py --out out/bench_paint.json
 

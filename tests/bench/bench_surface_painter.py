@@ -2,7 +2,7 @@
 
 Paints ``--points`` uniform points on a sphere of radius 0.9 (normals radial) for each prompt,
 ``--repeats`` times, and reports the median seconds and millions of points per second. The budget
-(DESIGN §7, sofa template: ~3 M texels in < 10 s with rasterisation) is 1 M points in <= 1.5 s per prompt.
+(the sofa template: ~3 M texels in < 10 s with rasterisation) is 1 M points in <= 1.5 s per prompt.
 
     python tests/bench/bench_surface_painter.py --points 1000000 --repeats 3 --out out/bench_surface_painter.json
 """

@@ -1,4 +1,4 @@
-"""Painters: turn a prompt into colour (DESIGN §5).
+"""Painters: turn a prompt into colour (docs/texturing.md).
 
 - :class:`SurfacePainter` (offline default): colours texels from their 3D position and normal with solid
   procedural materials read from the prompt (:func:`parse_prompt` -> :class:`MaterialSpec`).

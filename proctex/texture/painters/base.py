@@ -1,4 +1,4 @@
-"""What painters see and return: the view-painter interface of the multi-view paint loop (DESIGN §5).
+"""What painters see and return: the view-painter interface of the multi-view paint loop (docs/texturing.md).
 
 A *view painter* is asked, for one camera, to paint the rendered view of the template. It receives the
 current render of the texture, a trimap saying which pixels must be generated, refined or kept, and the

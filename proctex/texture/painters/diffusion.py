@@ -1,4 +1,4 @@
-"""A view painter backed by a local diffusers pipeline: depth-conditioned inpainting, InTex style (DESIGN §5).
+"""A view painter backed by a local diffusers pipeline: depth-conditioned inpainting, InTex style (docs/texturing.md).
 
 The multi-view paint loop asks :class:`DiffusionViewPainter` to paint one rendered view at a time
 (:class:`~proctex.texture.painters.base.ViewRequest`). The painter conditions a Stable-Diffusion-style model on
