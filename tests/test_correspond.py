@@ -13,7 +13,6 @@ from proctex.correspond.dense import METHODS, correspond_parts, correspond_shape
 from proctex.correspond.metrics import gt_correspondence_error
 from proctex.geometry.parts import analyse, part_mesh
 from proctex.geometry.primitives import box
-from proctex.geometry.shape import Shape
 from proctex.geometry.surface import (
     SurfaceIndex,
     closest_point_bruteforce,

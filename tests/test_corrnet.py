@@ -13,7 +13,7 @@ import torch
 from proctex._reference.corrnet import decode_reference
 from proctex.correspond import corrnet as cn
 from proctex.correspond import training as tr
-from proctex.correspond.corrnet import CorrNetConfig, ProcCorrNet
+from proctex.correspond.corrnet import CorrNetConfig
 
 
 @pytest.fixture(autouse=True)

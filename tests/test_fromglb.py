@@ -68,7 +68,7 @@ def _rewrite(data: bytes, shuffle: int | None = None, edit=None, jpeg: bool = Fa
 
         g = gl.GLTF2.load_from_bytes(out)
         blob = bytearray(g.binary_blob())
-        chunks, offset = [], 0
+        chunks = []
         for view in g.bufferViews:
             chunks.append(bytes(blob[view.byteOffset or 0:(view.byteOffset or 0) + view.byteLength]))
         for image in g.images:

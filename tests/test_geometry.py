@@ -168,7 +168,6 @@ def test_affine_fit_recovers_a_known_affine_map():
 def test_icp_recovers_small_rigid_motion():
     shape = get_model("chair").generate()  # no rotational symmetry
     idx = SurfaceIndex(shape.vertices, shape.faces)
-    rng = np.random.default_rng(2)
     pts, _, _ = sample_surface(shape.vertices, shape.faces, 500, seed=3)
     angle = 0.15
     from proctex.geometry.primitives import rotation

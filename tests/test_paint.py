@@ -12,7 +12,7 @@ from proctex.models import get_model, list_models
 from proctex.store.template import write_textured
 from proctex.texture.metrics import coverage
 from proctex.texture.paint import SolidViewPainter, paint_surface, resolve_group_prompts
-from proctex.texture.paint_loop import fill_unseen, paint_views, trimap
+from proctex.texture.paint_loop import fill_unseen, paint_views
 from proctex.texture.painters import GENERATE, KEEP, SurfacePainter
 from proctex.texture.render import Tracer, bounding_sphere, orbit_path, render_buffers
 from proctex.texture.uv import sample_texture

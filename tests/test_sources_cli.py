@@ -69,7 +69,7 @@ def test_cli_sample_then_segment_folder(tmp_path, generator_config, capsys):
     src = FolderSource(out)
     assert len(src) == 4 and src.space.names == ["legs"]
     for i in range(4):
-        shape = src.load(i)
+        src.load(i)  # each sample loads
         legs = src.params(i)["legs"]
         assert main(["segment", src.samples[i].mesh_path, "--json"]) == 0
         data = json.loads(capsys.readouterr().out)

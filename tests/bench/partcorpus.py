@@ -197,7 +197,7 @@ def desk_lamp(rng) -> tuple[str, Parts]:
 
 
 def table_lamp(rng) -> tuple[str, Parts]:
-    bh, br = rng.uniform(0.2, 0.35), rng.uniform(0.06, 0.1)
+    bh, _br = rng.uniform(0.2, 0.35), rng.uniform(0.06, 0.1)  # _br: drawn, so the stream stays the corpus's
     sr = rng.uniform(0.14, 0.22)
     return "lamp", [(_ball((0, 0, bh / 2), bh / 2, squash=1.0), "base"), (_rod((0, 0, bh), (0, 0, bh + 0.12), 0.01), "pole"),
                     (_frustum(sr, sr * 0.65, bh + 0.08, bh + 0.08 + sr * 1.2), "shade")]

@@ -1,0 +1,34 @@
+"""The linter (ruff, configured in pyproject.toml) finds no error in the project's Python (syntax,
+undefined and unused names), and reads every package folder, ``proctex/build`` among them: the
+config gives its exclude list whole, so no release's default exclude of folders named ``build``
+can drop the build package (ruff 0.17 reads it either way)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def ruff() -> str:
+    found = shutil.which("ruff", path=str(Path(sys.executable).parent)) or shutil.which("ruff")
+    if found is None:
+        pytest.skip("ruff is not installed (make setup installs it)")
+    return found
+
+
+def test_the_linter_reads_the_build_package_and_finds_no_error():
+    files = subprocess.run([ruff(), "check", "--show-files", "proctex", "workers", "workflows", "tests"], cwd=ROOT,
+                           capture_output=True, text=True, timeout=300).stdout
+    listed = {Path(line.strip()).resolve() for line in files.splitlines() if line.strip().endswith(".py")}
+    build = {p.resolve() for p in (ROOT / "proctex" / "build").glob("*.py")}
+    assert build and build <= listed, sorted(str(p) for p in build - listed)
+    assert not any("node_modules" in str(p) or ".venv" in str(p) for p in listed)
+    done = subprocess.run([ruff(), "check", "--output-format", "concise", "proctex", "workers", "workflows", "tests"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
