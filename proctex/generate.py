@@ -291,7 +291,7 @@ def make_random_looks(family: FamilyStore, n: int, seed: int, log: Callable[[str
     """Give ``family`` looks ``random-<seed>-0 .. n-1`` painted from :func:`random_prompts` (the
     build's other paint settings); a look of that name made before with the same prompt is kept,
     with another prompt it is a ``ValueError``. Returns each look's ``{"name", "prompt"}``."""
-    from proctex.build.looks import add_look
+    from proctex.build.looks import LookLimits, add_look
     from proctex.store.looks import look_paint, new_look_paint, other_looks
     from proctex.store.state import stored_config
     from proctex.texture.painters.vocabulary import random_prompts
@@ -306,7 +306,8 @@ def make_random_looks(family: FamilyStore, n: int, seed: int, log: Callable[[str
             if made != prompt:
                 raise ValueError(f"the family's look {name} was painted with {made!r}, not {prompt!r}: remove it (proctex look rm) first")
         else:
-            add_look(family, name, new_look_paint(paint, prompt), log=log)
+            # the looks asked for are made whatever the family holds besides (the count bound is for looks added one by one)
+            add_look(family, name, new_look_paint(paint, prompt), log=log, limits=LookLimits(looks=max(LookLimits().looks, len(have) + n)))
         out.append({"name": name, "prompt": prompt})
     return out
 

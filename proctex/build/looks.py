@@ -53,7 +53,7 @@ class LookLimits:
     seconds: float | None = 600.0
     texels: int = 8 * 2048 * 2048
     bytes: int = 256 * 2**20
-    looks: int = 32
+    looks: int = 64
 
     def __post_init__(self) -> None:
         if self.seconds is not None and not (isinstance(self.seconds, (int, float)) and not isinstance(self.seconds, bool) and 0 < self.seconds < float("inf")):

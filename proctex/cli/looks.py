@@ -188,7 +188,7 @@ def add_look_parser(sub: argparse._SubParsersAction, painters: list[str], painte
     a.add_argument("--texture-size", type=int, help="default: the build's")
     a.add_argument("--force", action="store_true", help="replace a look of that name")
     a.add_argument("--max-seconds", type=float, help="stop painting past this (default 600; nothing is written)")
-    a.add_argument("--max-looks", type=int, help="looks the family may hold, the build's not counted (default 32)")
+    a.add_argument("--max-looks", type=int, help="looks the family may hold, the build's not counted (default 64)")
     a.add_argument("--json", action="store_true")
     ls = acts.add_parser("list", help="the family's looks")
     ls.add_argument("family")

@@ -92,7 +92,7 @@ class Limits:
     look_seconds: float = 600.0
     look_texels: int = 8 * 2048 * 2048
     look_bytes: int = 256 * 2**20
-    max_looks: int = 32
+    max_looks: int = 64
     look_paints: int = 1
     client_small_bodies: int = 64
     client_uploads: int = 2
