@@ -24,7 +24,7 @@ from proctex.measure.fidelity import (
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
 from proctex.store.samples import load_sample, samples
-from proctex.transfer.apply import canonical_points, transfer
+from proctex.transfer.apply import transfer
 from proctex.transfer.assets import load_assets
 from proctex.transfer.assign import assign_parts, representative_frame
 from proctex.transfer.mappers import IdentityMapper
@@ -53,7 +53,7 @@ class SourceTruthMapper:
             v, f = part_mesh(shape, part)
             key = np.zeros(len(v), dtype=np.int64)
             key[f.reshape(-1)] = np.repeat(shape.face_source[part.faces], 3)
-            self._parts.append((canonical_points(representative_frame(v, a)), shape.canonical[part.vertices], key))  # as transfer snaps them
+            self._parts.append((representative_frame(v, a), shape.canonical[part.vertices], key))
 
     def map(self, group, vertices, faces, query, seed=0):
         for vn, can, key in self._parts:

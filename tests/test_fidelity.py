@@ -37,7 +37,7 @@ from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
 from proctex.store.samples import load_sample, samples
 from proctex.texture.uv import pad_seams, texel_map
-from proctex.transfer.apply import canonical_points, transfer
+from proctex.transfer.apply import transfer
 from proctex.transfer.assets import load_assets
 from proctex.transfer.assign import PartAssignment, assign_parts, representative_frame
 from proctex.transfer.mappers import IdentityMapper
@@ -60,7 +60,7 @@ class TruthMapper:
             if a.group >= 0:
                 part = seg.parts[a.part]
                 v, _ = part_mesh(shape, part)
-                self._parts.append((canonical_points(representative_frame(v, a)), shape.canonical[part.vertices]))  # as transfer snaps them
+                self._parts.append((representative_frame(v, a), shape.canonical[part.vertices]))
 
     def map(self, group, vertices, faces, query, seed=0):
         for vn, can in self._parts:

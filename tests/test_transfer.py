@@ -484,8 +484,7 @@ def test_stretched_copies_join_their_group_by_box_shape():
     out); matched in box-scaled frames they join the tier and candle groups, and the map ``A``
     takes each one's bounding box exactly onto its representative's."""
     from proctex.geometry.parts import part_mesh
-    from proctex.geometry.surface import normalised_frame
-    from proctex.transfer.assign import match_box
+    from proctex.transfer.assign import match_box, representative_frame
 
     model = get_model("cake", tessellation="adaptive")
     shape_t = model.generate({"tiers": 1, "candles": 3})
@@ -505,8 +504,7 @@ def test_stretched_copies_join_their_group_by_box_shape():
         assert a.group == want, (label, a)
         if a.how == "extra" and label != "candle":
             v, f = part_mesh(shape, seg.parts[a.part])
-            c, rad = normalised_frame(v)
-            mapped = (v - c) / rad @ a.R.T + a.t
+            mapped = representative_frame(v, a)
             ga = assets.groups[a.group]
             np.testing.assert_allclose(np.abs(mapped).max(axis=0), np.abs(ga.vertices).max(axis=0), atol=1e-9)
     # Parts unlike every group (a ball, a cone against a plate, tiers and candles) match none.
@@ -893,7 +891,7 @@ def test_more_copies_moved_vertex_by_vertex_than_the_template_has_join_its_defor
     import proctex.geometry.parts as parts_mod
     from proctex.geometry.parts import part_mesh
     from proctex.geometry.shape import ShapeBuilder
-    from proctex.geometry.surface import normalised_frame
+    from proctex.geometry.surface import normalised_points
     from proctex.transfer.assign import copy_deformed
 
     from .test_parts import P, bent_grid
@@ -916,8 +914,7 @@ def test_more_copies_moved_vertex_by_vertex_than_the_template_has_join_its_defor
     for a in out:
         if a.how == "extra":
             v, f = part_mesh(shape, seg.parts[a.part])
-            c, r = normalised_frame(v)
-            got = copy_deformed((v - c) / r, f, assets)
+            got = copy_deformed(normalised_points(v), f, assets)  # the part's frame as assign_parts computes it
             # the fit is close, not exact: the sheets are bent (0.098 and 0.100 on both kernel sets: x2 below the bound)
             assert got[0] == 0 and got[3] == a.cost and 0 < a.cost < 0.2
     monkeypatch.setattr(parts_mod, "ICP_PARTS", 300)
@@ -926,8 +923,7 @@ def test_more_copies_moved_vertex_by_vertex_than_the_template_has_join_its_defor
     tex = paint_surface(template, rigid, SurfacePainter("oak"), size=32)
     plain = prepare_template(template, rigid, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
     v, f = part_mesh(shape, seg.parts[4])
-    c, r = normalised_frame(v)
-    assert copy_deformed((v - c) / r, f, plain) is None
+    assert copy_deformed(normalised_points(v), f, plain) is None
 
 
 class _BoxMapper:
@@ -960,10 +956,11 @@ def sofa_template():
 def test_a_shape_uploaded_in_other_units_takes_the_same_uvs(sofa_template, mapper):
     """The sofa uploaded as an OBJ in millimetres, micrometres or kilometres takes the UVs it takes in
     metres, exactly (within 1e-5 texture units): every step of the run time works in normalised
-    frames, where the units leave only float64 rounding noise (1e-16), and the points are snapped
-    to a grid there (proctex.transfer.apply.canonical_points) before the noise meets an exact tie
-    (a box cushion's edge halfway between two template faces of different charts). Without the
-    snap, 4-11 faces of a sofa's cushions jumped by up to 0.9 texture units at 1e3."""
+    frames, where the units leave only float64 rounding noise (1e-16), and a part's points are
+    snapped to a grid there (proctex.geometry.surface.normalised_points) before the noise meets an
+    exact tie (a box cushion's edge halfway between two template faces of different charts) or an
+    ill-determined fit. Without the snap, 4-12 faces of a sofa's cushions jumped by up to 0.9
+    texture units at 1e3."""
     from proctex.geometry.meshio import load_mesh_bytes
 
     shape, grouping, tex, assets = sofa_template

@@ -138,7 +138,6 @@ def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0
             # (procedural models), so the part takes the template UVs directly, no mapping.
             return part, ga.corner_uv.copy(), ga.vertices.copy(), True, time.perf_counter() - ta, 0.0
         vn, fo = representative_part(v, f, a)  # fo: f wound outward in this frame (reversed under a mirror)
-        vn = canonical_points(vn)
         mapped = np.asarray(mapper.map(a.group, vn, fo, vn, seed=seed), dtype=np.float64)
         if mapped.shape != vn.shape or not np.isfinite(mapped).all():
             raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
@@ -494,22 +493,6 @@ class TexturedGLB:
     textures: list[Any]
     baked: Baked | None = None
     pbr: list[Any] | None = None
-
-
-#: the grid the run time snaps a part's points to in its representative's normalised frame
-#: (:func:`canonical_points`): 2^-32 of the part's size, far below any texel.
-CANONICAL_GRID = 2.0 ** -32
-
-
-def canonical_points(points: np.ndarray) -> np.ndarray:
-    """``points (k, 3)`` (a part in its representative's normalised frame, coordinates of order 1)
-    snapped to :data:`CANONICAL_GRID`. The same shape uploaded in other units (x 1e3, x 1e-6) reaches
-    this frame with float64 rounding noise (about 1e-16) that exact ties downstream turn into
-    visible jumps (a face centroid halfway between two template faces of different UV charts, as
-    the box map puts a box part's edges); snapped, the noise is gone (it crosses a grid midpoint
-    about once in 10^6 coordinates) and the mapper and UV lookup see the same numbers."""
-    p = np.asarray(points, dtype=np.float64)
-    return np.round(p / CANONICAL_GRID) * CANONICAL_GRID
 
 
 def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, up: str = "y",

@@ -13,7 +13,7 @@ from scipy.optimize import linear_sum_assignment
 from proctex.geometry.align import affine_fit, umeyama_batch
 from proctex.geometry.parts import DEFORMED_SHARED, Segmentation, part_mesh, shared_faces
 from proctex.geometry.shape import Shape
-from proctex.geometry.surface import SurfaceIndex, normalised_frame, sample_surface
+from proctex.geometry.surface import SurfaceIndex, normalised_points, sample_surface, snap_to_frame_grid
 from proctex.transfer.assets import TemplateAssets, _box, _placement, same_topology
 from proctex.transfer.budget import Budget
 
@@ -38,10 +38,10 @@ def representative_frame(vertices: np.ndarray, assignment: PartAssignment) -> np
     """A part's vertices ``(k, 3)`` (shape frame) in its group representative's normalised frame:
     the part's own normalised frame (bounding-box centre, L∞ radius), then the assignment's map
     ``x -> R x + t`` onto the representative's side. The one place this frame is computed: the
-    build's cage pairs, the run-time transfer and the evaluation all use it."""
-    v = np.asarray(vertices, dtype=np.float64)
-    c, r = normalised_frame(v)
-    return (v - c) / (r if r > 0 else 1.0) @ np.asarray(assignment.R, dtype=np.float64).T + np.asarray(assignment.t, dtype=np.float64)
+    build's cage pairs, the run-time transfer and the evaluation all use it. The part's own frame is
+    :func:`~proctex.geometry.surface.normalised_points` (snapped): a shape in other units gives the
+    same numbers, bit for bit, as every fit that made ``R`` and ``t`` saw them."""
+    return normalised_points(vertices) @ np.asarray(assignment.R, dtype=np.float64).T + np.asarray(assignment.t, dtype=np.float64)
 
 
 def representative_part(vertices: np.ndarray, faces: np.ndarray, assignment: PartAssignment) -> tuple[np.ndarray, np.ndarray]:
@@ -152,13 +152,12 @@ def assign_parts(
             if twin is not None:  # a rigid copy of a part that took a slot (a third small mushroom): its map, composed
                 out.append(twin)
                 continue
-            c, r = normalised_frame(v)
             same = [ga.group for ga in assets.groups if not ga.degenerate and same_topology(f, len(v), ga)]
             copy = copy_of_group(v, same, assets, own[i], extra_tol)
             if copy is not None and copy[1] <= box_cost:  # another copy of a template primitive (a third cushion): its group, template UVs
                 out.append(PartAssignment(p.index, copy[0], -1, np.eye(3), copy[1], "extra"))
                 continue
-            u = (v - c) / (r if r > 0 else 1.0)
+            u = normalised_points(v)
             bent = copy_deformed(u, f, assets)
             if bent is not None:  # another of the template's copies moved vertex by vertex (a scattered set's trunks)
                 out.append(PartAssignment(p.index, bent[0], -1, bent[1], bent[3], "extra", bent[2]))
@@ -200,17 +199,16 @@ def copy_of_sibling(part: int, vertices: np.ndarray, faces: np.ndarray, slotted:
 
 
 def _normalised_stack(S: np.ndarray) -> np.ndarray:
-    """``S (m, k, 3)``, each part in its own normalised frame (:func:`normalised_frame`, all at once)."""
+    """``S (m, k, 3)``, each part in its own normalised frame, snapped (:func:`normalised_points`, all at once)."""
     centre = (S.min(axis=1) + S.max(axis=1)) / 2
     radius = np.abs(S - centre[:, None]).max(axis=(1, 2))
-    return (S - centre[:, None]) / np.where(radius > 0, radius, 1.0)[:, None, None]
+    return snap_to_frame_grid((S - centre[:, None]) / np.where(radius > 0, radius, 1.0)[:, None, None])
 
 
 def _best_sibling(part: int, v: np.ndarray, siblings: Sequence[PartAssignment], W: np.ndarray, tol: float) -> PartAssignment | None:
     """:func:`copy_of_sibling` among siblings known to share the part's connectivity, ``W (m, k, 3)``
     their vertices in their normalised frames."""
-    c, r = normalised_frame(v)
-    u = (v - c) / (r if r > 0 else 1.0)
+    u = normalised_points(v)
     R, t, s = umeyama_batch(u, W, scale=True, reflection=False)  # every sibling at once (a scene's thousand leaves)
     resid = np.sqrt(((s[:, None, None] * (u @ np.swapaxes(R, 1, 2)) + t[:, None] - W) ** 2).sum(axis=2).mean(axis=1))
     i = int(np.argmin(resid))  # the first of the best
