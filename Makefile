@@ -10,7 +10,7 @@ STUDIO     := workers/studio
 STUDIO_OUT := $(STUDIO)/dist/index.html
 STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: setup demo test test-fast test-other-kernels float-margins bench bench-fidelity gallery clean studio browser blender blender-addon blender-fixtures docs
+.PHONY: xatlas-single-threaded setup demo test test-fast test-other-kernels float-margins bench bench-fidelity gallery clean studio browser blender blender-addon blender-fixtures docs
 
 # Blender's Python (bpy, which needs numpy < 2) in an environment of its own, for .blend family
 # sources (proctex/sources/blender.py). A machine where bpy cannot be installed skips those tests.
@@ -41,10 +41,18 @@ $(STAMP): pyproject.toml Makefile $(STUDIO)/package.json $(STUDIO)/package-lock.
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet $(TORCH)
 	$(PY) -m pip install --quiet -e ".[dev,viz,embree,diffusion]"
+	$(MAKE) --no-print-directory xatlas-single-threaded
 	if command -v npm >/dev/null 2>&1; then npm install --silent --no-audit --no-fund --prefix $(VENV)/node gltf-validator@2.0.0-dev.3.10; fi
 	if command -v npm >/dev/null 2>&1; then npm ci --loglevel=error --no-audit --no-fund --prefix $(STUDIO) && npm run --silent --prefix $(STUDIO) build; \
 	else echo "npm not found: the web studio is not built (the service's / page says so)"; fi
 	touch $(STAMP)
+
+# xatlas again, the same version, built from its source without threads (XA_MULTITHREADED=0): the
+# wheel's task scheduler can hang for ever when an Atlas is destroyed (a lost wake-up in its
+# destructor; proctex/texture/uv.py). Needs a C++ compiler and CMake; tests/test_uv.py checks the result.
+xatlas-single-threaded:
+	CMAKE_ARGS="-DCMAKE_CXX_FLAGS=-DXA_MULTITHREADED=0" $(PY) -m pip install --quiet --no-cache-dir --force-reinstall --no-deps \
+	  --no-binary xatlas "xatlas==$$($(PY) -c "import importlib.metadata as m; print(m.version('xatlas'))")"
 
 # Rebundle the studio when its sources change after setup.
 $(STUDIO_OUT): $(STUDIO_SRC)

@@ -1,5 +1,7 @@
 """UV atlases, texel maps, seam padding, rasteriser and renderer."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -131,6 +133,59 @@ def test_unwrap_validates():
     with pytest.raises(ValueError):
         unwrap(np.zeros((3, 3)), np.array([[0, 1, 5]]))
 
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="threads are counted in /proc (Linux)")
+def test_xatlas_is_built_without_threads():
+    """The xatlas make setup installs starts no thread: its threaded scheduler's destructor can miss a
+    worker's wake-up and hang for ever (proctex/texture/uv.py). A wheel from PyPI starts one or more."""
+    from proctex.texture.uv import xatlas_threads
+
+    assert xatlas_threads() == 0, "xatlas starts threads: `make xatlas-single-threaded` builds it without (needs g++ and cmake)"
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="thread states are read in /proc (Linux)")
+def test_a_threaded_xatlas_is_destroyed_only_once_its_workers_sleep(monkeypatch):
+    """_release destroys the Atlas once every worker was seen asleep twice in a row, and keeps it when
+    they never settle: with real threads blocked on an event (asleep), and with states given in turn."""
+    import threading
+    import weakref
+
+    from proctex.texture import uv as U
+
+    class Thing:
+        pass
+
+    go, ids, threads = threading.Event(), [], []
+    for _ in range(2):
+        t = threading.Thread(target=lambda: (ids.append(str(threading.get_native_id())), go.wait()), daemon=True)
+        t.start()
+        threads.append(t)
+    while len(ids) < 2:
+        pass
+    holder = [Thing()]
+    ref = weakref.ref(holder[0])
+    assert U._release(holder, set(ids), settle_s=5.0) and ref() is None and holder == []
+    go.set()
+    for t in threads:
+        t.join()
+    # A worker awake, then asleep twice: destroyed after the second sleeping look, not before.
+    looks = iter([False, True, False, True, True])
+    monkeypatch.setattr(U, "_sleeping", lambda tid: next(looks))
+    holder = [Thing()]
+    ref = weakref.ref(holder[0])
+    assert U._release(holder, {"1"}, settle_s=5.0) and ref() is None
+    assert next(looks, "spent") == "spent"
+    # Never asleep: kept, not destroyed.
+    monkeypatch.setattr(U, "_sleeping", lambda tid: False)
+    monkeypatch.setattr(U, "_KEPT", [])
+    holder = [Thing()]
+    ref = weakref.ref(holder[0])
+    assert not U._release(holder, {"1"}, settle_s=0.05) and ref() is not None and U._KEPT == [ref()]
+    # No workers (the single-threaded build): destroyed at once.
+    holder = [Thing()]
+    ref = weakref.ref(holder[0])
+    assert U._release(holder, set()) and ref() is None
 
 # ------------------------------------------------------------------------------------ texel maps
 def test_texel_map_matches_reference_and_lies_on_surface():

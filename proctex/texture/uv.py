@@ -14,6 +14,7 @@ triangles make it return NaN) fall back to a planar projection, so UVs are alway
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -91,6 +92,93 @@ def planar_uv(vertices: np.ndarray, faces: np.ndarray, margin: float = 0.05) -> 
     return q[f]
 
 
+# xatlas's default (multi-threaded) build can hang for ever when an Atlas is destroyed: its task
+# scheduler's destructor wakes each worker thread with notify_one without holding the worker's mutex,
+# so a worker that has just found its wake-up flag unset and not yet gone to sleep misses the wake-up
+# and join() never returns. CI saw it under load: a bake stuck 16 minutes in the Atlas's destructor
+# (the innermost Python frame the caller of unwrap, whose locals were being freed). `make setup`
+# builds xatlas with XA_MULTITHREADED=0: it starts no thread, so there is nothing to miss (and the
+# binding holds the GIL throughout generate, so its threads never ran beside Python's anyway). With a
+# threaded xatlas (the PyPI wheel), :func:`_release` lets an Atlas go only once each of its workers
+# sleeps, as the kernel reports it, and keeps an Atlas whose workers never settle (idle threads) rather
+# than risk the hang.
+XATLAS_SETTLE_S = 2.0
+_KEPT: list = []  # threaded xatlas Atlases whose workers never settled (see above)
+
+
+def _tasks() -> set[str]:
+    """This process's thread ids (Linux ``/proc/self/task``; empty elsewhere)."""
+    try:
+        return set(os.listdir("/proc/self/task"))
+    except OSError:
+        return set()
+
+
+def _sleeping(tid: str) -> bool:
+    """Whether thread ``tid`` of this process sleeps (state S: xatlas's workers sleep only in their
+    condition variable's wait) or is gone."""
+    try:
+        with open(f"/proc/self/task/{tid}/stat", "rb") as fh:
+            return fh.read().rsplit(b") ", 1)[1][:1] == b"S"
+    except (OSError, IndexError):
+        return True
+
+
+def _release(holder: list, workers: set[str], settle_s: float = XATLAS_SETTLE_S) -> bool:
+    """Destroy the xatlas Atlas in ``holder`` (a one-item list: the caller keeps no other reference),
+    once each thread of ``workers`` (the ids it started) was seen asleep twice in a row; after
+    ``settle_s`` s the Atlas is kept instead (:data:`_KEPT`). True when it was destroyed."""
+    if workers:
+        deadline, settled = time.monotonic() + settle_s, 0
+        while settled < 2:
+            settled = settled + 1 if all(_sleeping(t) for t in workers) else 0
+            if settled < 2 and time.monotonic() > deadline:
+                _KEPT.append(holder.pop())
+                return False
+            time.sleep(0.0002)
+    holder.clear()
+    return True
+
+
+def xatlas_threads() -> int:
+    """How many threads an xatlas Atlas starts here: 0 for the single-threaded build ``make setup``
+    makes, -1 where the platform cannot tell (no ``/proc``)."""
+    import xatlas
+
+    if not _tasks():
+        return -1
+    before = _tasks()
+    holder = [xatlas.Atlas()]
+    started = _tasks() - before
+    _release(holder, started)
+    return len(started)
+
+
+def _xatlas_run(v32: np.ndarray, f32: np.ndarray, resolution: int | None, padding: int) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """One xatlas unwrap of ``v32 (n, 3) float32``, ``f32 (k, 3) uint32``, packed for ``resolution``
+    (None: xatlas picks it, one page): ``(indices (k, 3) int64 into uvs, uvs (m, 2) float64, pages,
+    charts)``. The Atlas is destroyed by :func:`_release` whatever happens."""
+    import xatlas
+
+    before = _tasks()
+    holder = [xatlas.Atlas()]
+    workers = _tasks() - before
+    try:
+        holder[0].add_mesh(v32, f32)
+        pack = xatlas.PackOptions()
+        if resolution is not None:
+            pack.resolution = int(resolution)
+        pack.padding = int(padding)
+        pack.bilinear = True
+        holder[0].generate(xatlas.ChartOptions(), pack)
+        pages, charts = int(holder[0].atlas_count), int(holder[0].chart_count)
+        _, indices, uvs = holder[0][0]  # copies (the binding fills new arrays)
+        return np.asarray(indices, dtype=np.int64), np.asarray(uvs, dtype=np.float64), pages, charts
+    finally:
+        _release(holder, workers)
+
+
+
 def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int = 1024, padding: int = 4) -> Atlas:
     """UV atlas of one part with xatlas (planar fallback when xatlas fails or returns NaN).
 
@@ -102,8 +190,6 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int = 1024, padd
     Returns:
         :class:`Atlas` with finite ``corner_uv`` in [0, 1].
     """
-    import xatlas
-
     v, f = _check_mesh(vertices, faces)
     if resolution < 8 or padding < 0:
         raise ValueError(f"resolution must be >= 8 and padding >= 0, got {resolution}, {padding}")
@@ -120,25 +206,13 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int = 1024, padd
         return Atlas(uv, "planar", 1, resolution, padding, time.perf_counter() - t0, ["all triangles have zero area: planar UVs"])
     corner = np.empty((len(f), 3, 2))
     try:
-        atlas = xatlas.Atlas()
-        atlas.add_mesh(v.astype(np.float32), f[good].astype(np.uint32))
-        pack = xatlas.PackOptions()
-        pack.resolution = int(resolution)
-        pack.padding = int(padding)
-        pack.bilinear = True
-        atlas.generate(xatlas.ChartOptions(), pack)
-        if atlas.atlas_count != 1:
+        v32, f32 = v.astype(np.float32), f[good].astype(np.uint32)
+        indices, uvs, pages, charts = _xatlas_run(v32, f32, resolution, padding)
+        if pages != 1:
             # Did not fit one page at that density: repack without a fixed resolution (one page).
-            notes.append(f"xatlas made {atlas.atlas_count} pages at {resolution}: repacked into one")
-            atlas = xatlas.Atlas()
-            atlas.add_mesh(v.astype(np.float32), f[good].astype(np.uint32))
-            pack = xatlas.PackOptions()
-            pack.padding = int(padding)
-            pack.bilinear = True
-            atlas.generate(xatlas.ChartOptions(), pack)
-        _, indices, uvs = atlas[0]
-        charts = int(atlas.chart_count)
-        uv_good = np.asarray(uvs, dtype=np.float64)[np.asarray(indices, dtype=np.int64)]
+            notes.append(f"xatlas made {pages} pages at {resolution}: repacked into one")
+            indices, uvs, pages, charts = _xatlas_run(v32, f32, None, padding)
+        uv_good = uvs[indices]
         if not np.isfinite(uv_good).all():
             raise ValueError("xatlas returned non-finite UVs")
         corner[good] = uv_good
