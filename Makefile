@@ -10,7 +10,7 @@ STUDIO     := workers/studio
 STUDIO_OUT := $(STUDIO)/dist/index.html
 STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: xatlas-single-threaded setup demo test test-fast test-other-kernels float-margins bench bench-fidelity gallery clean studio browser blender blender-addon blender-fixtures docs
+.PHONY: xatlas-single-threaded wheel image setup demo test test-fast test-other-kernels float-margins bench bench-fidelity gallery clean studio browser blender blender-addon blender-fixtures docs
 
 # Blender's Python (bpy, which needs numpy < 2) in an environment of its own, for .blend family
 # sources (proctex/sources/blender.py). A machine where bpy cannot be installed skips those tests.
@@ -87,6 +87,16 @@ demo: setup
 TEST_WORKERS ?= 2
 test: setup browser blender
 	$(PY) -m tests.suite --workers $(TEST_WORKERS)
+
+# The wheel (dist/proctex-VERSION-py3-none-any.whl: the packages, the studio's bundle, the Blender
+# server script) and the cluster image cluster/Dockerfile makes of it, tagged with the version the
+# KubeRay manifests name (docker is needed for the image only).
+VERSION = $(shell sed -n 's/^version = "\(.*\)"/\1/p' pyproject.toml)
+wheel: setup
+	rm -rf dist && $(PY) -m pip wheel --quiet --no-deps --no-build-isolation . -w dist
+
+image: wheel
+	docker build -f cluster/Dockerfile -t ghcr.io/proctex/proctex:$(VERSION) .
 
 # The benchmark suite (not part of make test): JSON per benchmark and a summary table in out/bench.
 bench: setup

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-SOFA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "procedural_sofa"
+from tests.data import SOFA
 
 
 @pytest.fixture(scope="session")

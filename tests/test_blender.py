@@ -555,7 +555,7 @@ def test_the_inputs_command_says_which_inputs_need_bounds(blends, tmp_path, caps
     assert "no object 'Nothing'" in capsys.readouterr().err
 
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "blend"
+from tests.data import BLENDS as REAL  # noqa: E402
 
 
 @needs_bpy

@@ -4,6 +4,7 @@ multi-node script starts a head + worker cluster that runs a build submitted thr
 import importlib
 import json
 import os
+import re
 import subprocess
 import time
 import urllib.error
@@ -78,6 +79,69 @@ def test_local_cluster_script_usage():
     assert r.returncode == 2 and "usage" in r.stderr
 
 
+
+def _dockerfile() -> tuple[dict[str, str], list[list[str]]]:
+    """cluster/Dockerfile as ``(ARG defaults, [instruction, rest] per instruction)``, continuation
+    lines joined and comments dropped."""
+    text = (CLUSTER / "Dockerfile").read_text()
+    joined = re.sub(r"\\\n\s*", " ", "\n".join(line for line in text.splitlines() if not line.lstrip().startswith("#")))
+    steps = [line.strip().split(None, 1) for line in joined.splitlines() if line.strip()]
+    args = dict(rest.split("=", 1) for op, rest in steps if op == "ARG")
+    return args, steps
+
+
+def test_the_cluster_image_recipe_installs_this_wheel_on_the_manifests_ray():
+    """The container recipe the KubeRay manifests name (it cannot be built here: checked as text):
+    the official Ray image of the manifests' Ray version and of this environment's, Python 3.11, CPU;
+    torch at pyproject's pin from the CPU index; the wheel `make wheel` writes, with an extra that
+    exists; xatlas without threads as make setup builds it; the build config where the RayJob reads
+    it; every manifest's image tagged with pyproject's version, which `make image` builds; and a
+    .dockerignore that lets in what is copied and nothing else."""
+    import fnmatch
+
+    import ray
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    version = project["version"]
+    args, steps = _dockerfile()
+    ops = [op for op, _ in steps]
+    assert ops[0] == "ARG" and ops[1] == "FROM" and ops.count("FROM") == 1
+    docs = [d for f in sorted((CLUSTER / "kuberay").glob("*.yaml")) for d in yaml.safe_load_all(f.read_text())]
+    specs = [d["spec"]["rayClusterSpec"] if d["kind"] == "RayJob" else d["spec"]["rayClusterConfig"] for d in docs]
+    assert {s["rayVersion"] for s in specs} == {args["RAY_VERSION"]} == {ray.__version__}
+    assert steps[1][1] == "rayproject/ray:${RAY_VERSION}-py311-cpu"
+    torch_pin = next(d for d in project["dependencies"] if d.startswith("torch"))
+    runs = [rest for op, rest in steps if op == "RUN"]
+    assert f"pip install --no-cache-dir {torch_pin} --index-url https://download.pytorch.org/whl/cpu" in runs[0]  # before the wheel
+    copies = [rest.split() for op, rest in steps if op == "COPY"]
+    assert [c[-2:] for c in copies] == [["dist/", "/tmp/dist/"], ["cluster/family.toml", "/app/cluster/family.toml"]]
+    wheel_run = next(r for r in runs if "/tmp/dist/proctex-*.whl" in r)
+    extras = re.findall(r"proctex-\*\.whl\)\[([a-z,]+)\]", wheel_run)
+    assert extras and set(extras[0].split(",")) <= set(project["optional-dependencies"])
+    assert runs.index(wheel_run) == 1
+    makefile = (ROOT / "Makefile").read_text()
+    xatlas_run = next(r for r in runs if "--no-binary xatlas" in r)
+    assert 'CMAKE_ARGS="-DCMAKE_CXX_FLAGS=-DXA_MULTITHREADED=0"' in xatlas_run and 'CMAKE_ARGS="-DCMAKE_CXX_FLAGS=-DXA_MULTITHREADED=0"' in makefile
+    build = next(d for d in docs if d["kind"] == "RayJob" and " build " in d["spec"]["entrypoint"])
+    assert "/app/cluster/family.toml" in build["spec"]["entrypoint"].split()
+    images = {c["image"] for s in specs for pod in [s["headGroupSpec"], *s["workerGroupSpecs"]] for c in pod["template"]["spec"]["containers"]}
+    assert images == {f"ghcr.io/proctex/proctex:{version}"}
+    assert "docker build -f cluster/Dockerfile -t ghcr.io/proctex/proctex:$(VERSION) ." in makefile
+    assert "-w dist" in makefile
+    # .dockerignore: everything out but the wheel and the build config
+    patterns = [p for p in (ROOT / ".dockerignore").read_text().splitlines() if p and not p.startswith("#")]
+
+    def sent(path: str) -> bool:
+        keep = True
+        for p in patterns:
+            neg = p.startswith("!")
+            if fnmatch.fnmatch(path, p.lstrip("!")):
+                keep = neg
+        return keep
+
+    assert sent(f"dist/proctex-{version}-py3-none-any.whl") and sent("cluster/family.toml")
+    assert not any(sent(p) for p in ("README.md", "proctex/__init__.py", ".venv/bin/python", "workers/studio/node_modules/x.js", "dist/other.tar.gz"))
+
 #: The processes of a multi-node Ray 2.60 cluster on one machine that listen on its routable address
 #: or every interface, with no option to keep them on loopback (cluster/local_cluster.sh): the GCS,
 #: the raylets, core workers, the dashboard's and runtime-env agents, metrics exporters.
@@ -128,9 +192,20 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
 
     from workflows.jobs import cluster_env, job_client, submit_job
 
+    from tests.wheels import STUDIO_INDEX, build_wheel
+
+    if not STUDIO_INDEX.is_file():
+        pytest.skip("the studio is not bundled (no npm): the wheel would lack it")
+    # The code reaches the nodes as a wheel in the job's runtime environment (py_modules: Ray uploads
+    # it and pip-installs it on each node), as on a stock Ray cluster. These nodes already hold the
+    # dependencies (this environment), so their pip takes the wheel alone (PIP_NO_DEPS), as make
+    # test's wheel install does; a stock cluster's pip installs them too.
+    wheel = build_wheel(tmp_path / "src", tmp_path)
     short_tmp = tempfile.mkdtemp(prefix="rayc", dir="/tmp")  # Ray's socket paths must stay short
     env = {**os.environ, "RAY_PORT": "6391", "DASHBOARD_PORT": "8276", "RAY_CLIENT_PORT": "9391", "RAY": str(ROOT / ".venv" / "bin" / "ray"),
-           "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240", **cluster_env(short_tmp)}
+           "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240", "PIP_NO_DEPS": "1", "PIP_NO_INDEX": "1",
+           "PATH": f"{ROOT / '.venv' / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}", **cluster_env(short_tmp)}
+    env.pop("PYTHONPATH", None)
     short_tmp2 = tempfile.mkdtemp(prefix="rayd", dir="/tmp")
     env2 = {**env, "RAY_PORT": "6392", "DASHBOARD_PORT": "8277", "RAY_CLIENT_PORT": "9392", "RAY_TMP": short_tmp2, **cluster_env(short_tmp2)}
 
@@ -171,11 +246,25 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
         while time.time() < deadline and not client.get_job_status(niceness).is_terminal():
             time.sleep(1)
         assert "nice 0" in client.get_job_logs(niceness), client.get_job_logs(niceness)[-2000:]
-        job = submit_job(client, f"{ROOT / '.venv' / 'bin' / 'python'} -m workflows.cli build {cfg} --out {out} --ray auto --train-workers 2 --quiet",
-                         runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})
+        # From a folder outside this tree, without PYTHONPATH: the driver and its tasks import the
+        # wheel's copy that the runtime environment installed, and the build runs on it.
+        python, here = ROOT / ".venv" / "bin" / "python", tmp_path / "job"
+        here.mkdir()
+        runtime = {"py_modules": [str(wheel)]}
+        probe = ("import json, ray, proctex; ray.init(); "
+                 "print('where', json.dumps([proctex.__file__, proctex.__version__, ray.get(ray.remote(lambda: __import__('proctex').__file__).remote())]))")
+        where = submit_job(client, f"cd {here} && {python} -c \"{probe}\"", runtime_env=runtime)
+        job = submit_job(client, f"cd {here} && {python} -m workflows.cli build {cfg} --out {out} --ray auto --train-workers 2 --quiet",
+                         runtime_env=runtime)
         deadline = time.time() + 420
-        while time.time() < deadline and not client.get_job_status(job).is_terminal():
+        while time.time() < deadline and not all(client.get_job_status(j).is_terminal() for j in (where, job)):
             time.sleep(2)
+        where_logs = client.get_job_logs(where)
+        assert client.get_job_status(where) == JobStatus.SUCCEEDED, where_logs[-3000:]
+        driver, version, task = json.loads(where_logs.split("where ", 1)[1].splitlines()[0])
+        project_version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+        assert version == project_version and "runtime_resources" in driver and "runtime_resources" in task, (driver, task)
+        assert not Path(driver).is_relative_to(ROOT) and not Path(task).is_relative_to(ROOT)
         logs = client.get_job_logs(job)
         assert client.get_job_status(job) == JobStatus.SUCCEEDED, logs[-3000:]
         state = json.loads((out / "family.json").read_text())

@@ -33,6 +33,7 @@ def test_build_writes_the_store(mug_family):
     st, cfg = mug_family
     state = st.read_json("family.json")
     assert state["config"]["source"]["model"] == "mug" and "torch" in state["versions"]
+    assert state["versions"]["proctex"] == __import__("proctex").__version__ != "0+unknown"  # the version that built it
     for stage in ("sample", "template", "paint", "pairs"):
         assert stage_done(st, stage)
     rows = st.read_table("samples.parquet").to_pylist()

@@ -60,7 +60,10 @@ def _add_eval_flags(p: argparse.ArgumentParser) -> None:
 
 # ------------------------------------------------------------------------------------------ main
 def build_parser() -> argparse.ArgumentParser:
+    from proctex import __version__
+
     parser = argparse.ArgumentParser(prog="proctex", description="Consistent texturing of procedural shape families.")
+    parser.add_argument("--version", action="version", version=f"proctex {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     parser.subparsers = sub  # type: ignore[attr-defined]  # the Ray layer (workflows.cli) extends them
 

@@ -27,14 +27,16 @@ FIELDS = ("config", "stages", "versions")
 
 
 def library_versions() -> dict[str, str]:
-    """The versions of the libraries a build ran with (recorded in ``family.json``)."""
+    """The versions of ProcTex and the libraries a build ran with (recorded in ``family.json``)."""
     import numpy
     import scipy
     import torch
     import trimesh
 
-    return {"python": platform.python_version(), "numpy": numpy.__version__, "scipy": scipy.__version__, "torch": torch.__version__,
-            "trimesh": trimesh.__version__, "pyarrow": pa.__version__}
+    from proctex import __version__
+
+    return {"proctex": __version__, "python": platform.python_version(), "numpy": numpy.__version__, "scipy": scipy.__version__,
+            "torch": torch.__version__, "trimesh": trimesh.__version__, "pyarrow": pa.__version__}
 
 
 @dataclass

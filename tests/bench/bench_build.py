@@ -8,7 +8,7 @@ mean error, tracked-point variance), so a faster build shows it is no worse. ``-
 each run that many times and reports the median total.
 
     .venv/bin/python tests/bench/bench_build.py --preset demo --runs process,ray --out out/bench/build_demo.json
-    .venv/bin/python tests/bench/bench_build.py --folder ../shared/data/procedural_sofa --runs process,ray --out out/bench/build_sofa.json
+    .venv/bin/python tests/bench/bench_build.py --folder $PROCTEX_DATA/procedural_sofa --runs process,ray --out out/bench/build_sofa.json
     .venv/bin/python tests/bench/bench_build.py --preset demo --runs process --store s3 --out out/bench/build_demo_s3.json   # the S3 overhead
     .venv/bin/python tests/bench/bench_build.py --preset demo --runs head,cluster --store s3 --out out/bench/build_demo_nodes.json  # one node vs two
 """

@@ -18,6 +18,8 @@ import os
 import sys
 import time
 from pathlib import Path
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
+from tests.data import SOFA  # noqa: E402
 
 THIN_WALLED = ("mug", "vase")
 DEFAULT_MODELS = "mug,vase,desk,chair,stair,fork,table,mushroom"
@@ -30,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default="cage,nearest,cpd")
     ap.add_argument("--points", type=int, default=2000)
     ap.add_argument("--level", type=int, default=None, help="cage subdivision level (default: the solver's)")
-    ap.add_argument("--sofa-dir", default=str(Path(__file__).resolve().parents[3] / "shared" / "data" / "procedural_sofa"))
+    ap.add_argument("--sofa-dir", default=str(SOFA))
     ap.add_argument("--sofa-pairs", type=int, default=3)
     ap.add_argument("--chamfer", default=None, choices=("point", "plane"), help="cage Chamfer term (default: the solver's)")
     ap.add_argument("--cpd-beta", type=float, default=None)

@@ -26,9 +26,11 @@ import os
 import sys
 import time
 from pathlib import Path
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
+from tests.data import SOFA  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-SOFA_DIR = ROOT.parent / "shared" / "data" / "procedural_sofa"
+SOFA_DIR = SOFA
 
 
 # --------------------------------------------------------------------------------------------- data

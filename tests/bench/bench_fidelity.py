@@ -41,7 +41,7 @@ PROMPTS = {"vase": "blue and white porcelain with floral patterns", "mug": "blue
            "cake": "strawberry cream layer cake", "desk": "white oak with brass handles", "sofa": "a patchwork bohemian sofa",
            "stair": "worn stone steps", "pumpkin": "orange ribbed pumpkin", "fork": "brushed steel", "shell": "pink spiral seashell"}
 COMPARED = ("corrnet", "identity", "nearest")
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
+from tests.data import DATA  # noqa: E402  ($PROCTEX_DATA)
 #: The real families (``--suite real``): exports and third-party Geometry Nodes files nobody here
 #: wrote, built with the default settings (24 train and 8 test shapes for a model; every shape of
 #: the sofa folder). The sofa shares one vertex order (vertex-index truth); the .blend files carry

@@ -11,6 +11,7 @@ Measures, median of ``--repeats`` runs:
 
 from __future__ import annotations
 
+import sys
 import argparse
 import json
 import statistics
@@ -33,7 +34,8 @@ from proctex.texture.render import (
     render_buffers,
 )
 
-SOFA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "procedural_sofa"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
+from tests.data import SOFA  # noqa: E402
 
 
 def median_time(fn, repeats: int) -> tuple[float, object]:

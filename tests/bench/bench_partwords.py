@@ -25,6 +25,7 @@ writes ``partwords.json`` and ``partwords.md`` (the tables) in DIR (default ``ou
 
 from __future__ import annotations
 
+import sys
 import argparse
 import json
 import time
@@ -258,7 +259,8 @@ BLEND_TRUTH: dict[str, tuple[str, str, str, dict[str, str]]] = {
     "cabinet.blend": ("Cabinet", "furniture", "cabinet", {"Legs": "legs", "Board Back": "back", "Board Right": "sides",
                                                          "Dividing Boards": "shelf", "Drawers": "drawers"}),
 }
-BLENDS = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "blend"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
+from tests.data import BLENDS  # noqa: E402
 
 
 def blend_objects(per_file: int = 6, seed: int = 0) -> list[C.CorpusObject]:

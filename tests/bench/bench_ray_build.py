@@ -5,7 +5,7 @@ Ray Train job uses N workers). Reports the wall seconds of every stage and the s
 largest CPU count over the smallest, as JSON.
 
     .venv/bin/python tests/bench/bench_ray_build.py --model sofa --n-train 16 --n-test 0 --stages sample,template,paint,pairs,train --out out/bench_ray_build.json
-    .venv/bin/python tests/bench/bench_ray_build.py --folder ../shared/data/procedural_sofa --cpus 2 --out out/bench_ray_sofa.json
+    .venv/bin/python tests/bench/bench_ray_build.py --folder $PROCTEX_DATA/procedural_sofa --cpus 2 --out out/bench_ray_sofa.json
 """
 
 from __future__ import annotations

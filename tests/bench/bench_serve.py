@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-SOFA = ROOT.parent / "shared" / "data" / "procedural_sofa"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
+from tests.data import SOFA  # noqa: E402
 
 
 def _free_port() -> int:

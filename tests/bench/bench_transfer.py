@@ -13,6 +13,7 @@ and baking into the shape's own 512² atlas for comparison.
 
 from __future__ import annotations
 
+import sys
 import argparse
 import json
 import statistics
@@ -31,7 +32,8 @@ from proctex.transfer.apply import bake, glb, transfer
 from proctex.transfer.assets import prepare_template
 from proctex.transfer.mappers import IdentityMapper, NetworkMapper
 
-SOFA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "procedural_sofa"
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
+from tests.data import SOFA  # noqa: E402
 
 
 def main(argv=None) -> int:

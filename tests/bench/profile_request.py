@@ -17,7 +17,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
-SOFA = HERE.parents[2] / "shared" / "data" / "procedural_sofa"
+from tests.data import SOFA  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -20,6 +20,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
+from tests.data import SOFA  # noqa: E402
 
 
 def scan(name: str, template, shapes, aspect: float, turns: float) -> dict:
@@ -63,7 +65,7 @@ def scan(name: str, template, shapes, aspect: float, turns: float) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", default="mug,vase,desk,chair,stair,fork,table,mushroom,cake,pumpkin,shell,sofa")
-    ap.add_argument("--sofa-dir", default=str(Path(__file__).resolve().parents[3] / "shared" / "data" / "procedural_sofa"))
+    ap.add_argument("--sofa-dir", default=str(SOFA))
     ap.add_argument("--store", action="append", default=[], help="a built family folder (its meshes/*.obj)")
     args = ap.parse_args(argv)
     from proctex.correspond.cage import CageConfig
