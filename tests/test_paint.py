@@ -12,7 +12,7 @@ from proctex.models import get_model, list_models
 from proctex.store.template import write_textured
 from proctex.texture.metrics import coverage
 from proctex.texture.paint import SolidViewPainter, paint_surface, resolve_group_prompts
-from proctex.texture.paint_loop import fill_unseen, paint_views
+from proctex.texture.paint_loop import fill_unseen, paint_template, paint_views
 from proctex.texture.painters import GENERATE, KEEP, SurfacePainter
 from proctex.texture.render import Tracer, bounding_sphere, orbit_path, render_buffers
 from proctex.texture.uv import sample_texture
@@ -400,6 +400,48 @@ def test_a_painter_from_one_file_paints_a_build_and_is_offered_by_the_cli(tmp_pa
         unregister_painter("toy_crimson")
         plugins._LOADED.pop(str(path), None)
 
+
+
+def test_a_plugin_painter_sees_the_builds_paint_settings_whole(tmp_path):
+    """A registered painter is made with the paint settings the build holds, every field (issue 55:
+    they went whole -> keywords -> a new PaintConfig of 5 of them, so a plugin saw the default
+    texture_size, views, fill, occlusion and group prompts); painting from keywords (the `paint`
+    command's path) hands it settings made of every keyword."""
+    from dataclasses import asdict
+
+    from proctex.build.paint import stage_paint
+    from proctex.build.sample import stage_sample
+    from proctex.build.template import stage_template
+    from proctex.store.config import BuildConfig
+    from proctex.store.layout import FamilyStore
+    from proctex.store.state import write_config
+    from proctex.texture.painters import SurfacePainter
+    from proctex.texture.painting import Painter, register_painter, unregister_painter
+
+    seen = []
+
+    def make(ctx):
+        seen.append(ctx.settings)
+        return SurfacePainter(ctx.prompt, {str(k): v for k, v in ctx.prompts.items()}, seed=ctx.seed)
+
+    register_painter(Painter("toy_settings", make, summary="records what it was made with"))
+    try:
+        paint = {"prompt": "pale blue ceramic", "painter": "toy_settings", "texture_size": 32, "views": 5, "view_size": 64,
+                 "paint_hidden": False, "fill": "surface", "occlusion": True, "steps": 7, "group_prompts": {"0": "red glaze"}}
+        cfg = BuildConfig.from_dict({"source": {"model": "mug", "n_train": 2, "n_test": 0}, "paint": paint})
+        st = FamilyStore(tmp_path / "mug")
+        write_config(st, cfg)
+        for stage in (stage_sample, stage_template, stage_paint):
+            stage(st, cfg, log=lambda *_: None)
+        assert len(seen) == 1 and asdict(seen[0]) == asdict(cfg.paint) and seen[0].texture_size == 32 and seen[0].occlusion
+        shape = get_model("mug").generate({})
+        paint_template(shape, analyse(shape), "oak", {"0": "red"}, painter="toy_settings", size=32, views=4, view_size=48,
+                       fill="surface", occlusion=True, steps=3, maps=False)
+        got = seen[1]
+        assert (got.texture_size, got.views, got.view_size, got.fill, got.occlusion, got.steps, got.group_prompts, got.painter) == \
+            (32, 4, 48, "surface", True, 3, {"0": "red"}, "toy_settings")
+    finally:
+        unregister_painter("toy_settings")
 
 def test_a_painter_installed_as_a_package_is_found_by_its_entry_point_once_per_import_path(tmp_path, monkeypatch):
     """An installed package's ``proctex.plugins`` entry point registers its painter; the installed

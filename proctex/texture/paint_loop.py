@@ -479,6 +479,7 @@ def paint_template(
     photos: Mapping[str, Any] | None = None,
     under_prompt: bool = True,
     check: Callable[[str], None] | None = None,
+    settings: PaintConfig | None = None,
 ) -> TemplateTexture:
     """Texture a template with one of the registered painters (:mod:`proctex.texture.painting`):
     ``"surface"`` (:func:`paint_surface`), ``"views"`` (the multi-view loop with
@@ -493,8 +494,14 @@ def paint_template(
     surface painter only): their groups are synthesised from the photos (:func:`resolve_photos`;
     ``under_prompt``: the prompt's named parts keep their clauses instead of the ``"*"`` photo).
     ``check(what)``: called before each group and each view, and may raise to stop the work (a
-    look's budget, :class:`proctex.build.looks.LookLimits`)."""
+    look's budget, :class:`proctex.build.looks.LookLimits`). ``settings``: the paint settings these
+    arguments came from (:func:`paint_with` hands them whole), which the painter is made with; without
+    them they are made of these arguments, so a plugin painter sees every one of them."""
     part_words = dict(part_words or {})
+    if settings is None:
+        settings = PaintConfig(prompt=prompt, group_prompts={str(k): v for k, v in (group_prompts or {}).items()}, part_words=part_words,
+                               painter=painter, texture_size=size, views=views, view_size=view_size, paint_hidden=complete_hidden,
+                               fill=fill, model_dir=model_dir, device=device, steps=steps, occlusion=occlusion)
     if check is not None:
         check("planning the parts")
         seen = on_view
@@ -510,7 +517,7 @@ def paint_template(
     parts = plan_parts(prompt, shape.vertices, shape.faces, grouping, up, assigned=part_words)
     prompts = {g: (parts.text_for(g) if text == prompt else text) for g, text in prompts.items()}
     kind = get_painter(painter)
-    chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, model_dir=model_dir, device=device, steps=steps)
+    chosen = make_painter(painter, grouping, prompt, prompts, seed=seed, settings=settings)
     if photos:
         if kind.views:
             raise ValueError(f"a look from photos paints with the surface painter, not {painter!r}")
@@ -553,4 +560,5 @@ def paint_with(shape: Shape, grouping: Grouping, settings: PaintConfig, seed: in
     return paint_template(shape, grouping, s.prompt, s.group_prompts, painter=s.painter, size=s.texture_size, seed=seed, up=up, views=s.views,
                           view_size=s.view_size, complete_hidden=s.paint_hidden, fill=s.fill, model_dir=s.model_dir, device=s.device,
                           steps=s.steps, on_view=on_view, uv=uv, occlusion=s.occlusion, part_words=s.part_words,
-                          photos=layers, under_prompt=bool((s.images.get("*") or {}).get("under_prompt", True)), check=check)
+                          photos=layers, under_prompt=bool((s.images.get("*") or {}).get("under_prompt", True)), check=check,
+                          settings=s)
