@@ -13,6 +13,22 @@ def _one_thread() -> None:
     torch.set_num_threads(1)
 
 
+@contextmanager
+def torch_threads(n: int | None) -> Iterator[None]:
+    """Inside the block torch uses ``n`` threads (None: unchanged); the count before is restored."""
+    if n is None:
+        yield
+        return
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(int(n))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 # The pool shared by the stages of one build (:func:`shared_pool`): its size and executor.
 _SHARED: dict[str, Any] = {}
 

@@ -357,7 +357,7 @@ def _pairs_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
         plan.info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
 
     # side by side in process from 16 pairs on (a pair takes about a second, a worker a few to start)
-    plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets, parallel=True, pool_min_jobs=16)
+    plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets, parallel=True, pool_min_jobs=16, threads=1)
     return plan
 
 

@@ -51,6 +51,10 @@ class Plan:
             in one batched loop): :func:`run_in_process` hands ``run_batch`` every batch at once, or
             with ``workers`` a share of them per worker (round robin), and splits the results back
             per batch for ``collect`` and ``finish``.
+        threads: torch threads for the batches :func:`run_in_process` runs here rather than in its
+            pool (None: as they are). One for the cage pairs: what a pool's worker and a Ray task use,
+            so a pair's figures are the same bits wherever it was solved (a residual's mean moved by
+            one ULP between 2 threads here and 1 on Ray).
     """
 
     stage: str
@@ -66,6 +70,7 @@ class Plan:
     parallel: bool = False
     pool_min_jobs: int = 2
     merge: bool = False
+    threads: int | None = None
 
     @property
     def n_jobs(self) -> int:
@@ -88,9 +93,12 @@ def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], Non
     if pooled:
         results = _run_pooled(plan, store, config, units, min(workers, len(units)))
     else:
+        from proctex.pools import torch_threads
+
         results = [None] * len(plan.batches)
-        for unit in units:
-            _collect_unit(plan, unit, plan.run_batch(store, config, [j for k in unit for j in plan.batches[k]], plan.context), results)
+        with torch_threads(plan.threads):
+            for unit in units:
+                _collect_unit(plan, unit, plan.run_batch(store, config, [j for k in unit for j in plan.batches[k]], plan.context), results)
     plan.finish(results)
     return plan
 
