@@ -30,7 +30,7 @@ def test_cuda_asked_for_without_cuda_is_a_clear_error_before_any_work(mug, tmp_p
     cases = [
         ["build", "--model", "mug", "--device", "cuda", "--out", str(tmp_path / "b")],
         ["transfer", mug, "--params", "{}", "--out", str(tmp_path / "t.glb"), "--device", "cuda"],
-        ["generate", mug, "--n", "2", "--out", str(tmp_path / "g"), "--device", "cuda", "--no-ray"],
+        ["generate", mug, "--n", "2", "--out", str(tmp_path / "g"), "--device", "cuda"],
     ]
     for argv in cases:
         assert main(argv) == 2
@@ -90,6 +90,6 @@ def test_cage_training_and_transfer_on_cuda_agree_with_the_cpu(tmp_path):
     print(f"GPU vs CPU corner UVs: {np.mean(off > 1.0 / 64):.3%} more than a texel apart, median {np.median(off):.2e}, max {off.max():.3f}")
     assert np.mean(off > 1.0 / 64) < 0.01, f"{np.mean(off > 1.0 / 64):.2%} of corners are more than a texel apart"
     assert np.median(off) < 1e-3
-    assert main(["generate", str(out), "--n", "3", "--out", str(tmp_path / "g"), "--device", "cuda", "--no-ray", "--quiet"]) == 0
+    assert main(["generate", str(out), "--n", "3", "--out", str(tmp_path / "g"), "--device", "cuda", "--quiet"]) == 0
     assert len(list((tmp_path / "g" / "variants").glob("*.glb"))) == 3
     assert json.loads((out / "family.json").read_text())["config"]["train"]["device"] == "cuda"

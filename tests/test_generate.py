@@ -150,12 +150,12 @@ def test_bad_settings_are_clear_errors_before_any_work(mug, tmp_path, capsys):
     rows_file.write_text("height\n0.1\n")
     cases.append((["--rows", str(rows_file), "--params-bounds", '{"height": [0.08, 0.09]}'], "taken as they are"))
     for flags, message in cases:
-        assert main(["generate", mug, "--out", str(out), "--no-ray", *flags]) == 2
+        assert main(["generate", mug, "--out", str(out), *flags]) == 2
         assert message in capsys.readouterr().err, flags
     (tmp_path / "empty").mkdir()
-    assert main(["generate", str(tmp_path / "empty"), "--n", "2", "--out", str(out), "--no-ray"]) == 2
+    assert main(["generate", str(tmp_path / "empty"), "--n", "2", "--out", str(out)]) == 2
     assert "no family here" in capsys.readouterr().err
-    assert main(["generate", mug, "--n", "2", "--out", str(Path(mug) / "variants"), "--no-ray"]) == 2
+    assert main(["generate", mug, "--n", "2", "--out", str(Path(mug) / "variants")]) == 2
     assert "lies in the family" in capsys.readouterr().err and not (Path(mug) / "variants").exists()
     assert not out.exists()
 

@@ -277,7 +277,7 @@ def test_generate_crosses_shapes_with_looks_and_every_row_wears_its_look(mug, tm
 
     add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red lacquer"), log=lambda *_: None)
     out = tmp_path / "gen"
-    assert main(["generate", mug.base, "--n", "50", "--looks", "default,red", "--out", str(out), "--no-ray", "--quiet", "--json"]) == 0
+    assert main(["generate", mug.base, "--n", "50", "--looks", "default,red", "--out", str(out), "--quiet", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     rows = pq.read_table(out / "manifest.parquet").to_pylist()
     assert summary["written"] == 100 and len(rows) == 100
@@ -300,7 +300,7 @@ def test_generate_shared_textures_per_look_rows_files_and_random_looks(mug, tmp_
 
     add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red lacquer"), log=lambda *_: None)
     shared = tmp_path / "shared"
-    assert main(["generate", mug.base, "--n", "2", "--looks", "all", "--textures", "shared", "--out", str(shared), "--no-ray", "--quiet"]) == 0
+    assert main(["generate", mug.base, "--n", "2", "--looks", "all", "--textures", "shared", "--out", str(shared), "--quiet"]) == 0
     assert (shared / "textures" / "0.png").read_bytes() != (shared / "textures" / "red" / "0.png").read_bytes()
     uris = {r["look"]: gl.GLTF2.load_from_bytes((shared / r["file"]).read_bytes()).images[0].uri
             for r in pq.read_table(shared / "manifest.parquet").to_pylist()}
@@ -308,21 +308,21 @@ def test_generate_shared_textures_per_look_rows_files_and_random_looks(mug, tmp_
     rows_file = tmp_path / "rows.parquet"
     pq.write_table(pa.table({"radius": [0.04, 0.05, 0.045], "look": ["red", "nope", None]}), rows_file)
     by_rows = tmp_path / "by_rows"
-    assert main(["generate", mug.base, "--rows", str(rows_file), "--out", str(by_rows), "--no-ray", "--quiet"]) == 0
+    assert main(["generate", mug.base, "--rows", str(rows_file), "--out", str(by_rows), "--quiet"]) == 0
     rows = pq.read_table(by_rows / "manifest.parquet").to_pylist()
     assert [(r["look"], r["status"]) for r in rows] == [("red", "written"), ("nope", "failed"), ("default", "written")]
     assert "unknown look 'nope'" in rows[1]["error"]
     capsys.readouterr()
-    assert main(["generate", mug.base, "--n", "2", "--looks", "walnut", "--out", str(tmp_path / "x"), "--no-ray", "--quiet"]) == 2
+    assert main(["generate", mug.base, "--n", "2", "--looks", "walnut", "--out", str(tmp_path / "x"), "--quiet"]) == 2
     assert "unknown look 'walnut'" in capsys.readouterr().err and not (tmp_path / "x" / "variants").exists()
     rand = tmp_path / "rand"
-    assert main(["generate", mug.base, "--n", "2", "--random-looks", "2", "--seed", "5", "--out", str(rand), "--no-ray", "--quiet"]) == 0
+    assert main(["generate", mug.base, "--n", "2", "--random-looks", "2", "--seed", "5", "--out", str(rand), "--quiet"]) == 0
     made = {lk.name: look_paint(mug, lk, FamilyState.load(mug).build_config().paint).prompt for lk in looks(mug)}
     from proctex.texture.painters.vocabulary import random_prompts
 
     assert [made["random-5-0"], made["random-5-1"]] == random_prompts(2, 5)
     assert {r["look"] for r in pq.read_table(rand / "manifest.parquet").to_pylist()} == {"random-5-0", "random-5-1"}
-    assert main(["generate", mug.base, "--n", "2", "--random-looks", "2", "--seed", "5", "--out", str(rand), "--no-ray", "--quiet"]) == 0  # resumes
+    assert main(["generate", mug.base, "--n", "2", "--random-looks", "2", "--seed", "5", "--out", str(rand), "--quiet"]) == 0  # resumes
 
 
 def test_random_prompts_are_seeded_distinct_and_understood():

@@ -164,7 +164,7 @@ def test_a_build_eval_generate_and_service_on_s3_make_what_a_local_folder_makes(
 
     out_remote, out_local = s3.uri("variants/mug"), tmp_path / "variants"
     for family, out in ((remote, out_remote), (str(local), str(out_local))):
-        assert main(["generate", family, "--n", "3", "--out", out, "--no-ray", "--quiet"]) == 0
+        assert main(["generate", family, "--n", "3", "--out", out, "--quiet"]) == 0
     va, vb = files_of(FamilyStore(out_remote)), files_of(FamilyStore(str(out_local)))
     assert sorted(va) == sorted(vb) and sum(k.endswith(".glb") for k in va) == 3
     assert all(va[k] == vb[k] for k in va if k.endswith(".glb"))

@@ -223,9 +223,32 @@ def test_ray_commands_reject_bad_input_before_starting_anything(tmp_path, capsys
         assert main(argv) == 2, argv
         assert message in capsys.readouterr().err, argv
     assert not (tmp_path / "b").exists()
-    # The Ray-free command names the one to use.
-    assert core_main(["build", "--model", "mug", "--out", str(tmp_path / "c"), "--ray"]) == 2
-    assert "workflows.cli" in capsys.readouterr().err and not (tmp_path / "c").exists()
+    # The library's command line has no Ray option (the Ray layer adds them): --ray is unknown there.
+    with pytest.raises(SystemExit) as exc:
+        core_main(["build", "--model", "mug", "--out", str(tmp_path / "c"), "--ray"])
+    assert exc.value.code == 2 and "unrecognized arguments: --ray" in capsys.readouterr().err and not (tmp_path / "c").exists()
+
+
+def test_the_library_command_line_never_mentions_ray_and_the_ray_layer_adds_to_it():
+    """proctex.cli's parser declares no Ray option and no help of it says Ray (one command registry:
+    workflows.cli takes the library's commands and adds its own options and commands); the installed
+    command has every option of the library's, and the Ray ones."""
+    import re
+
+    from proctex.cli.app import build_parser as core_parser
+    from workflows.cli import build_parser as ray_parser
+
+    core, full = core_parser(), ray_parser()
+    said = [(name, a.option_strings, a.help) for name, sp in core.subparsers.choices.items() for a in sp._actions
+            if re.search(r"\bray\b", " ".join(a.option_strings) + " " + (a.help or ""), flags=re.I)]
+    said += [("command", a.dest, a.help) for a in core.subparsers._choices_actions if re.search(r"\bRay\b", a.help or "")]
+    assert said == []
+    options = lambda p, name: {o for a in p.subparsers.choices[name]._actions for o in a.option_strings}  # noqa: E731
+    for name in core.subparsers.choices:
+        assert options(core, name) <= options(full, name), name
+    assert options(full, "build") - options(core, "build") == {"--ray", "--train-workers", "--max-in-flight"}
+    assert options(full, "generate") - options(core, "generate") == {"--no-ray", "--concurrency", "--cpus", "--address"}
+    assert {"serve", "screenshot"} <= set(full.subparsers.choices) - set(core.subparsers.choices)
 
 
 def test_the_core_never_imports_ray():

@@ -24,7 +24,7 @@ def cmd_build(args: argparse.Namespace) -> int:
 
     from .build import build_on_ray
 
-    config = families._build_config(args)
+    config = families.build_config_of(args)
     families.check_build_look(args)
     stages = tuple(args.stages.split(",")) if args.stages else STAGES
     address = None if args.ray == "local" else args.ray
@@ -182,8 +182,19 @@ def cmd_eval_folder(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = core.build_parser()
     sub = parser.subparsers  # type: ignore[attr-defined]
-    sub.choices["build"].set_defaults(func=cmd_build)
-    sub.choices["generate"].set_defaults(func=cmd_generate)
+    build = sub.choices["build"]  # the library's commands, with what Ray adds to them
+    build.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+                       help="run on Ray: a private local instance, or the cluster at ADDRESS ('auto', 'host:port')")
+    build.add_argument("--train-workers", type=int, help="Ray Train workers per group network (--ray; default min(2, CPUs))")
+    build.add_argument("--max-in-flight", type=int, help="Ray tasks submitted at a time (--ray; default 2 x CPUs)")
+    build.set_defaults(func=cmd_build)
+    generate = sub.choices["generate"]
+    generate.description = "on Ray Data (a private local Ray unless --address), or in this process with --no-ray"
+    generate.add_argument("--no-ray", action="store_true", help="run in this process (the files are the same)")
+    generate.add_argument("--concurrency", metavar="SHAPES,TEXTURES", help="Ray Data actors per stage (default 1,<CPUs>; the texture actors share a GPU)")
+    generate.add_argument("--cpus", type=int, help="CPUs of the private local Ray (default: all)")
+    generate.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
+    generate.set_defaults(func=cmd_generate)
     demo = sub.choices["demo"]
     demo.add_argument("--no-ray", action="store_true", help="build in this process instead of on Ray")
     demo.add_argument("--address", help="build on an existing Ray cluster (default: a private local one)")

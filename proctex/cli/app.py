@@ -65,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="proctex", description="Consistent texturing of procedural shape families.")
     parser.add_argument("--version", action="version", version=f"proctex {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-    parser.subparsers = sub  # type: ignore[attr-defined]  # the Ray layer (workflows.cli) extends them
+    parser.subparsers = sub  # type: ignore[attr-defined]  # a layer above (workflows.cli) adds its commands and options
 
     p = sub.add_parser("models", help="list built-in models and their parameter specs")
     p.add_argument("--json", action="store_true")
@@ -145,10 +145,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("config_file", nargs="?", metavar="CONFIG", help="JSON or TOML build config (same as --config)")
     p.add_argument("--config", help="JSON or TOML build config, in sections or flat keys (flags override it)")
     p.add_argument("--preset", choices=sorted(PRESETS), help="start from a named config (the config file and flags override it)")
-    p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
-                   help="run on Ray: a private local instance, or the cluster at ADDRESS ('auto', 'host:port')")
-    p.add_argument("--train-workers", type=int, help="Ray Train workers per group network (--ray; default min(2, CPUs))")
-    p.add_argument("--max-in-flight", type=int, help="Ray tasks submitted at a time (--ray; default 2 x CPUs)")
     p.add_argument("--prompt")
     p.add_argument("--group-prompts")
     p.add_argument("--out", required=True, help="family folder or URI")
@@ -215,7 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_look_parser(sub, painter_names(), painter_help())
 
-    p = sub.add_parser("generate", help="textured variants by the thousand: one file per parameter row and a Parquet manifest (on Ray Data)")
+    p = sub.add_parser("generate", help="textured variants by the thousand: one file per parameter row and a Parquet manifest")
     p.add_argument("family", help="the family store (path or URI)")
     rows = p.add_mutually_exclusive_group(required=True)
     rows.add_argument("--n", type=int, help="parameter rows to sample (Latin hypercube over the family's space)")
@@ -232,12 +228,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--random-looks", type=int, default=0, metavar="N",
                    help="first add N looks painted from prompts sampled from the painter's vocabulary (seeded by --seed), then use them too")
     p.add_argument("--max-failed", type=int, default=10, help="rows that may fail (recorded in the manifest) before the run stops")
-    p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i> (on Ray the texture actors share the GPU)")
+    p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i>")
     p.add_argument("--batch-size", type=int, default=8, help="rows per batch")
-    p.add_argument("--no-ray", action="store_true", help="run in this process (the files are the same)")
-    p.add_argument("--concurrency", metavar="SHAPES,TEXTURES", help="Ray Data actors per stage (default 1,<CPUs>)")
-    p.add_argument("--cpus", type=int, help="CPUs of the private local Ray (default: all)")
-    p.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_generate)

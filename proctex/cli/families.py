@@ -27,7 +27,7 @@ from .common import (
 )
 
 
-def _build_config(args: argparse.Namespace):
+def build_config_of(args: argparse.Namespace):
     """The build config of ``proctex build``: the ``--preset``, the config file over it, the flags over both."""
     from proctex.store.config import BuildConfig, merge, sections
 
@@ -68,9 +68,7 @@ def cmd_build(args: argparse.Namespace) -> int:
     from proctex.store.layout import FamilyStore
     from proctex.store.state import STAGES
 
-    config = _build_config(args)
-    if args.ray is not None:
-        raise ValueError("--ray runs through the Ray layer: use the installed `proctex` command (workflows.cli)")
+    config = build_config_of(args)
     check_build_look(args)
     stages = tuple(args.stages.split(",")) if args.stages else STAGES
     state = build(FamilyStore(args.out), config, stages=stages, log=(lambda *_: None) if args.quiet else (lambda m: print(m, flush=True)),
