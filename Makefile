@@ -49,7 +49,7 @@ $(STAMP): pyproject.toml Makefile $(STUDIO)/package.json $(STUDIO)/package-lock.
 
 # xatlas again, the same version, built from its source without threads (XA_MULTITHREADED=0): the
 # wheel's task scheduler can hang for ever when an Atlas is destroyed (a lost wake-up in its
-# destructor; proctex/texture/uv.py). Needs a C++ compiler and CMake; tests/test_uv.py checks the result.
+# destructor; proctex/texture/uv.py). Needs a C++ compiler and CMake; tests/test_uv_render.py checks the result.
 xatlas-single-threaded:
 	CMAKE_ARGS="-DCMAKE_CXX_FLAGS=-DXA_MULTITHREADED=0" $(PY) -m pip install --quiet --no-cache-dir --force-reinstall --no-deps \
 	  --no-binary xatlas "xatlas==$$($(PY) -c "import importlib.metadata as m; print(m.version('xatlas'))")"

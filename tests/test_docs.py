@@ -442,3 +442,47 @@ def test_field_help_reads_every_kind_of_documentation():
     assert help_["above"] == "from a comment above, two lines long"
     assert help_["trailing"] == "from a comment after it"
     assert "hashed" not in help_ and "nothing" not in help_ and "folder" not in help_
+
+
+# --------------------------------------------------------------------------- figures that agree
+def build_speed_rows(readme: str) -> dict[str, dict[str, float]]:
+    """The README's build-speed table: ``{row label: {stage or "total": seconds}}``."""
+    lines = [l for l in readme.splitlines() if l.startswith("| ") and ("demo," in l or "sofa export," in l)]
+    head = ["sample", "paint", "pairs", "train", "evaluate", "total"]
+    out = {}
+    for line in lines:
+        cells = [c.strip().strip("*") for c in line.strip("|").split("|")]
+        out[cells[0]] = dict(zip(head, map(float, cells[1:7])))
+    return out
+
+
+def test_the_same_build_figures_say_the_same_everywhere():
+    """Figures of one quantity given in two places agree (issue 55): the README's build-speed table
+    is the source; the README's own prose on Ray's train stage, docs/build-speed.md's Ray costs and
+    the look's share of a build (README and docs/texturing.md) follow from it or from each other."""
+    readme = README.read_text()
+    rows = build_speed_rows(readme)
+    demo, demo_ray = rows["demo, in process, today (median of 3)"], rows["demo, on Ray, today (median of 3)"]
+    sofa, sofa_ray = rows["sofa export, in process, today"], rows["sofa export, on Ray, today"]
+    train_demo, train_sofa = demo_ray["train"] - demo["train"], sofa_ray["train"] - sofa["train"]
+    assert f"the train stage takes {train_demo:.1f} s (demo) and {train_sofa:.1f} s (sofa)" in " ".join(readme.split())
+    speed = " ".join((ROOT / "docs" / "build-speed.md").read_text().split())
+    for (ray, proc), name in (((demo_ray, demo), "demo"), ((sofa_ray, sofa), "sofa export")):
+        share = round(100 * (ray["total"] / proc["total"] - 1))
+        assert f"{ray['total']:.1f} against {proc['total']:.1f} s" in speed, name
+        assert re.search(rf"\b{share}% (over the in-process build )?on the {name}", speed), (name, share)
+    texturing = " ".join((ROOT / "docs" / "texturing.md").read_text().split())
+    build, look = (float(x) for x in re.search(r"the build ([\d.]+) s \(pairs [^)]*\), a look [\d.-]+ s \(median ([\d.]+) s", texturing).groups())
+    share = 100 * look / build
+    assert f"{share:.1f}% of the build" in texturing
+    assert f"build {build:.1f} s, a look {look:.1f} s, {share:.0f}% of it" in " ".join(readme.split())
+
+
+def test_the_figures_check_fails_on_a_figure_that_disagrees():
+    """The check above reads what it compares: a table whose train stage changed no longer matches the prose."""
+    readme = README.read_text()
+    rows = build_speed_rows(readme)
+    changed = readme.replace("| demo, on Ray, today (median of 3) | 1.9 | 3.9 | 8.6 | 39.3 |", "| demo, on Ray, today (median of 3) | 1.9 | 3.9 | 8.6 | 41.3 |")
+    assert changed != readme and build_speed_rows(changed)["demo, on Ray, today (median of 3)"]["train"] == 41.3
+    train = build_speed_rows(changed)["demo, on Ray, today (median of 3)"]["train"] - rows["demo, in process, today (median of 3)"]["train"]
+    assert f"the train stage takes {train:.1f} s (demo)" not in " ".join(changed.split())
