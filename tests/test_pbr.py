@@ -351,7 +351,7 @@ def test_edits_carry_the_maps(painted_mug_root, tmp_path):
     edits move those channels; undo brings the maps back; the service answers with them, linked."""
     import shutil
 
-    from proctex.serve.edits import adjust_orm, stored_edit, undo_edit
+    from proctex.serve.edits import adjust_orm, edit_group, undo_edit
     from proctex.serve.service import FamilyService, GroupEdit
     from proctex.store.layout import FamilyStore, StoreLayout
     from proctex.store.state import build_stamp
@@ -362,12 +362,12 @@ def test_edits_carry_the_maps(painted_mug_root, tmp_path):
     orm_path = root / "mug" / StoreLayout.texture(0, "body", "orm")
     normal_path = root / "mug" / StoreLayout.texture(0, "body", "normal")
     orm0, normal0 = orm_path.read_bytes(), normal_path.read_bytes()
-    stored_edit(st, 0, hue=120.0)
+    edit_group(st, 0, hue=120.0)
     assert orm_path.read_bytes() == orm0 and normal_path.read_bytes() == normal0
-    stored_edit(st, 0, prompt="brushed steel")
+    edit_group(st, 0, prompt="brushed steel")
     metal = np.asarray(Image.open(orm_path))[..., 2]
     assert metal.max() == 255 and np.asarray(Image.open(io.BytesIO(orm0)))[..., 2].max() == 0
-    stored_edit(st, "body", roughness=0.9, metallic=0.0)
+    edit_group(st, "body", roughness=0.9, metallic=0.0)
     orm = np.asarray(Image.open(orm_path)) / 255.0
     painted = np.asarray(st.read_arrays(StoreLayout.PAINTED)["g0"], bool)  # the means are over the painted texels
     assert abs(orm[..., 1][painted].mean() - 0.9) < 0.01 and orm[..., 2].max() == 0
@@ -376,7 +376,7 @@ def test_edits_carry_the_maps(painted_mug_root, tmp_path):
     glb = (root / "mug" / StoreLayout.TEMPLATE_GLB).read_bytes()
     assert np.array_equal(glb_material_images(glb)[0]["orm"], np.asarray(Image.open(orm_path).convert("RGB")))
     for _ in range(3):
-        undo_edit(st, stamp=build_stamp)
+        undo_edit(st, expect_stamp=build_stamp(st))
     assert orm_path.read_bytes() == orm0 and normal_path.read_bytes() == normal0
     with pytest.raises(ValueError, match="roughness must be"):
         adjust_orm(np.zeros((2, 2, 3)), roughness=1.5)

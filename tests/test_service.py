@@ -504,6 +504,51 @@ def test_stored_edits_need_the_token_a_json_body_and_the_current_stamp(root, tmp
     assert c.delete("/v1/families/mug/edits", headers=ok).json()["undone"][0]["hsv"][2] == 0.0  # a blackened texture comes back
 
 
+
+def test_a_change_answers_its_own_version_read_under_its_lock(root, tmp_path, monkeypatch):
+    """One version value (issue 55): an edit, an undo or a new look answers the family's stamp read
+    under the edit lock it was written under, so a client that conditions its next change on it is
+    refused when another change landed in between. The HTTP routes read the stamp after the lock
+    (a change landing between answered the newer stamp, and a conditional change built on it would
+    have overwritten that change unseen). Here another edit lands right after each lock is let go."""
+    import contextlib
+
+    from proctex.serve import edits
+    from proctex.store.state import build_stamp
+
+    base = tmp_path / "root"
+    shutil.copytree(root / "mug", base / "mug")
+    st = FamilyStore(base / "mug")
+    real, inside = edits.edit_lock, []
+
+    @contextlib.contextmanager
+    def lock_then_a_neighbour(store, *a, **k):
+        with real(store, *a, **k):
+            yield
+        if not inside and not k.get("shared"):  # the lock is free: another client's edit lands now
+            inside.append(1)
+            try:
+                edits.edit_group(store, 1, hue=5)
+            finally:
+                inside.pop()
+
+    monkeypatch.setattr(edits, "edit_lock", lock_then_a_neighbour)
+    cat = Catalog(str(base), check_every=0)
+    c = TestClient(create_app(lambda: cat, edit_token="t0ken"))
+    ok = {"X-ProcTex-Token": "t0ken"}
+    for send in (lambda: c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=ok),
+                 lambda: c.delete("/v1/families/mug/edits/last", headers=ok)):
+        r = send()
+        assert r.status_code == 200, r.text
+        answered = r.json()["stamp"]
+        assert answered != build_stamp(st)  # the neighbour's edit came after this change
+        refused = c.post("/v1/families/mug/edits", json={"group": 0, "hue": 20}, headers={**ok, "If-Match": answered})
+        assert refused.status_code == 409 and "changed since" in refused.json()["error"]
+    monkeypatch.setattr(edits, "edit_lock", real)
+    r = c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=ok)  # nobody in between: the stamp is the family's
+    assert r.json()["stamp"] == build_stamp(st) == c.get("/v1/families/mug").json()["stamp"]
+    assert c.post("/v1/families/mug/edits", json={"group": 0, "hue": 20}, headers={**ok, "If-Match": r.json()["stamp"]}).status_code == 200
+
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     """The pure texture edit and the persisted one are the same code: equal results."""
     from proctex.fileio import encode_png

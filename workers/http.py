@@ -72,7 +72,6 @@ from proctex.serve.service import (
     parse_edit,
 )
 from proctex.store.layout import StoreDamaged, StoreWriteError
-from proctex.store.state import build_stamp
 from proctex.transfer.budget import Budget, OverBudget
 
 GLB_MEDIA_TYPE = "model/gltf-binary"
@@ -495,12 +494,13 @@ def save_parts(svc: Any, body: dict[str, Any]) -> dict[str, str]:
         raise EditConflict(str(exc)) from exc
 
 
-def add_look_to(svc: Any, name: str, paint: Any, force: bool, photos: dict[str, Any] | None = None, budget: Any = None) -> dict[str, Any]:
-    """:func:`proctex.build.looks.add_look` on the service's family (``photos``: a photo look's photos,
+def add_look_to(svc: Any, name: str, paint: Any, force: bool, photos: dict[str, Any] | None = None, budget: Any = None) -> Any:
+    """:func:`proctex.build.looks.changed_look` on the service's family (its record and the family's
+    stamp after it, read under the lock it was written under) (``photos``: a photo look's photos,
     ``{"glb": bytes}`` for a repainted template, with ``"member": {"glb", "params"}`` for a textured
     member) under the service's look limits (``Limits.look_*``) and ``budget``; a busy store or a
     family at its most looks is a conflict (409), a look over its size 413."""
-    from proctex.build.looks import LookLimits, LookOverLimit, add_look
+    from proctex.build.looks import LookLimits, LookOverLimit, changed_look
     from proctex.store.locks import StoreBusy
 
     lim = svc.limits
@@ -508,7 +508,7 @@ def add_look_to(svc: Any, name: str, paint: Any, force: bool, photos: dict[str, 
     member = (photos or {}).get("member") if paint.glb else None
     glb = (photos or {}).get("glb") if paint.glb and member is None else None
     try:
-        return add_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0,
+        return changed_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0,
                         photos=None if paint.glb else photos, glb=glb, member=member, limits=limits, budget=budget)
     except StoreBusy as exc:
         raise EditConflict(str(exc)) from exc
@@ -766,24 +766,24 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
             check_edit_request(request)
             body = await read_json_object(request, limits=svc.limits)
             expect = request.headers.get("if-match")
-            record, stamp = await blocking(lambda: (svc.persist_edit(body, expect_stamp=expect), build_stamp(svc.store)))
+            changed = await blocking(lambda: svc.persist_edit(body, expect_stamp=expect))  # the stamp read under the edit's lock
         except Exception as exc:
             return error_response(exc)
         finally:
             get_catalog().invalidate(name)
-        return {"family": name, "edit": record, "stamp": stamp}
+        return {"family": name, "edit": changed.record, "stamp": changed.version}
 
     async def undo(name: str, request: Request, look: str | None = None, **how: Any):
         """Undo stored edits of family ``name``'s ``look`` (``how``: :meth:`FamilyService.undo_edit`'s arguments)."""
         try:
             svc = await look_of(name, look)
             check_edit_request(request)
-            undone, stamp = await blocking(lambda: (svc.undo_edit(**how), build_stamp(svc.store)))
+            changed = await blocking(lambda: svc.undo_edit(**how))
         except Exception as exc:
             return error_response(exc)
         finally:
             get_catalog().invalidate(name)
-        return {"family": name, "undone": undone, "stamp": stamp}
+        return {"family": name, "undone": changed.record, "stamp": changed.version}
 
     @app.delete("/v1/families/{name}/edits/last", responses={404: {"description": "unknown family"}, 409: {"description": "nothing to undo"}})
     async def undo_edit(name: str, request: Request, look: str | None = None):
@@ -831,13 +831,12 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
                 if await request.is_disconnected():
                     return _error(499, "the client went away before its look was painted")
                 budget = Budget(svc.limits.look_seconds)
-                record, stamp = await watched(lambda: (add_look_to(svc, look, paint, force, photos, budget), build_stamp(svc.store)),
-                                              request, budget)
+                changed = await watched(lambda: add_look_to(svc, look, paint, force, photos, budget), request, budget)
         except Exception as exc:
             return error_response(exc)
         finally:
             get_catalog().invalidate(name)
-        return {"family": name, "look": record, "stamp": stamp}
+        return {"family": name, "look": changed.record, "stamp": changed.version}
 
     @app.get("/v1/families/{name}/parts", responses={404: {"description": "unknown family or look"}})
     async def family_parts(name: str, prompt: str | None = None, look: str | None = None):

@@ -26,7 +26,7 @@ from proctex.store.layout import (
 )
 from proctex.store.locks import StoreBusy, store_lock
 from proctex.store.looks import built_look, paint_record, resolve_look
-from proctex.store.state import FamilyState
+from proctex.store.state import Changed, FamilyState, build_stamp
 from proctex.store.template import TemplateFiles, load_template_shape
 from proctex.texture.painting import PaintConfig
 
@@ -244,9 +244,14 @@ def glb_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: 
     return tex
 
 
-def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
-             timeout: float = 60.0, photos: dict[str, Any] | None = None, glb: bytes | None = None,
-             member: dict[str, Any] | None = None, limits: LookLimits | None = None, budget: Any = None) -> dict[str, Any]:
+def add_look(store: FamilyStore, name: str, paint: PaintConfig, **how: Any) -> dict[str, Any]:
+    """:func:`changed_look`'s record: the new look's, as the command line and the library make it."""
+    return changed_look(store, name, paint, **how).record
+
+
+def changed_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
+                 timeout: float = 60.0, photos: dict[str, Any] | None = None, glb: bytes | None = None,
+                 member: dict[str, Any] | None = None, limits: LookLimits | None = None, budget: Any = None) -> Changed:
     """Paint look ``name`` of the built family in ``store`` with ``paint`` (and the family's stored
     part words, :func:`with_stored_words`) and store it in ``looks/<name>/`` as one change (staged
     beside it, then put in place: a reader sees the whole look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
@@ -257,7 +262,8 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = Fa
     :class:`proctex.transfer.budget.Budget` the caller may cancel, default one of ``limits.seconds``)
     and its bytes before anything is written (:class:`LookOverLimit`, or
     :class:`~proctex.transfer.budget.OverBudget`: nothing written either way).
-    Returns the look's record."""
+    Returns the look's record and the family's version after it, read under the lock it was written
+    under (:class:`~proctex.store.state.Changed`)."""
     from proctex.transfer.budget import Budget
 
     check_look_name(name)
@@ -286,8 +292,9 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = Fa
             if store.exists(look.RECORD) and not force:
                 raise ValueError(f"the family has a look {name!r} already (made meanwhile); --force replaces it")
             store.replace_folder(look.folder, files)
+            version = build_stamp(store)
     log(f"look {name}: {len(files)} files in {look.folder}/, {record['seconds']:.1f} s")
-    return record
+    return Changed(record, version)
 
 
 def with_stored_words(store: FamilyStore, build_paint: PaintConfig, paint: PaintConfig) -> PaintConfig:

@@ -16,7 +16,7 @@ from proctex.geometry.shape import Shape
 from proctex.store.layout import FamilyStore, StoreDamaged, StoreLayout
 from proctex.store.locks import is_local, store_lock
 from proctex.store.looks import resolve_look
-from proctex.store.state import stored_config
+from proctex.store.state import Changed, build_stamp, stored_config
 from proctex.store.template import (
     TemplateFiles,
     decode_png,
@@ -167,7 +167,7 @@ def check_placement(at: Any, size: Any, rotation: Any, opacity: Any) -> None:
         raise ValueError(f"opacity must be a number in [0, 1], got {str(opacity)[:40]}")
 
 
-def edit_group(
+def changed_edit(
     store: FamilyStore,
     group: int | str,
     hue: float = 0.0,
@@ -182,13 +182,12 @@ def edit_group(
     roughness: float | None = None,
     metallic: float | None = None,
     expect_stamp: str | None = None,
-    stamp: Any = None,
     look: str | None = None,
-) -> dict[str, Any]:
+) -> Changed:
     """Edit one group's template texture in the store; every later transfer or bake uses it. Every
     edit (the CLI's, the service's, the library's) is a new template version: under the family's
-    edit lock, checked against ``expect_stamp`` (``stamp(store)``, :class:`EditConflict` when they
-    differ), built on files whose checksums hold (a file changed outside ProcTex is refused, never
+    edit lock, checked against ``expect_stamp`` (the family's :func:`~proctex.store.state.build_stamp`,
+    :class:`EditConflict` when they differ), built on files whose checksums hold (a file changed outside ProcTex is refused, never
     recorded), and written as one change with its undo snapshot (:meth:`TemplateFiles.commit`: a
     full disk leaves the family as it was).
 
@@ -200,14 +199,29 @@ def edit_group(
     they are; ``roughness`` / ``metallic`` move the group's roughness and metalness maps to those
     means (:func:`adjust_orm`). ``look``: the family's look to edit (default: the build's; each
     look keeps its own edits and undo history). Returns the edit record appended to the look's
-    ``paint.json``, with its ``version`` and the digests of the group texture ``before`` and ``after``.
+    ``paint.json`` (its ``version`` and the digests of the group texture ``before`` and ``after``)
+    and the family's version after it, read under the same lock (:class:`~proctex.store.state.Changed`).
     """
     if logo is not None:
         check_placement(at, size, rotation, opacity)
     with edit_lock(store):
-        if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
-            raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r} (now {stamp(store)!r}); reload and edit again")
-        return _edit(store, group, hue, saturation, value, logo, at, size, rotation, opacity, prompt, roughness, metallic, look)
+        _expect(store, expect_stamp, "edit")
+        record = _edit(store, group, hue, saturation, value, logo, at, size, rotation, opacity, prompt, roughness, metallic, look)
+        return Changed(record, build_stamp(store))
+
+
+def edit_group(store: FamilyStore, group: int | str, **edit: Any) -> dict[str, Any]:
+    """:func:`changed_edit`'s record: the edit, as the command line and the library make it."""
+    return changed_edit(store, group, **edit).record
+
+
+def _expect(store: FamilyStore, expect_stamp: str | None, what: str) -> None:
+    """:class:`EditConflict` unless the family's version is ``expect_stamp`` (None: no condition);
+    called under the edit lock."""
+    if expect_stamp is not None:
+        now = build_stamp(store)
+        if now != expect_stamp:
+            raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r} (now {now!r}); reload and {what} again")
 
 
 def _edit(store: FamilyStore, group: int | str, hue: float, saturation: float, value: float, logo: str | None, at: Any, size: Any,
@@ -303,34 +317,38 @@ def read_again(read: Callable[[], T], attempts: int = 8) -> T:
     raise AssertionError("unreachable")
 
 
-def stored_edit(store: FamilyStore, group: int | str, expect_stamp: str | None = None, stamp: Any = None, **edit: Any) -> dict[str, Any]:
-    """:func:`edit_group` (every edit is versioned, serialised and kept with its undo), conditional on
-    ``expect_stamp``."""
-    return edit_group(store, group, expect_stamp=expect_stamp, stamp=stamp, **edit)
-
-
-def undo_edit(store: FamilyStore, expect_stamp: str | None = None, stamp: Any = None, look: str | None = None) -> dict[str, Any]:
+def undo_edits(store: FamilyStore, expect_stamp: str | None = None, look: str | None = None, all_edits: bool = False) -> Changed:
     """Undo the last stored edit of the family's ``look`` (default: the build's; the files it
-    replaced come back); returns its record. :class:`EditConflict` when there is none, or when
-    ``expect_stamp`` is stale."""
+    replaced come back), or with ``all_edits`` every one, last first (the look as it was painted),
+    under one edit lock; returns the undone records and the family's version after them
+    (:class:`~proctex.store.state.Changed`). :class:`EditConflict` when ``expect_stamp`` is stale,
+    or when there is no edit to undo (``all_edits``: nothing undone is no conflict)."""
     with edit_lock(store):
-        if expect_stamp is not None and stamp is not None and stamp(store) != expect_stamp:
-            raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r}; reload and try again")
-        files = TemplateFiles(store, resolve_look(store, look))
-        if not files.edits:
-            raise EditConflict(f"{store.uri}: no stored edit to undo")
-        config = stored_config(store)
-        try:
-            return files.undo(glb=(load_template_shape(store, config), config.up_axis()))
-        except StoreDamaged:
-            raise
-        except ValueError as exc:
-            raise EditConflict(str(exc)) from exc
+        _expect(store, expect_stamp, "undo")
+        undone = []
+        while True:
+            files = TemplateFiles(store, resolve_look(store, look))
+            if not files.edits:
+                if not undone and not all_edits:
+                    raise EditConflict(f"{store.uri}: no stored edit to undo")
+                break
+            config = stored_config(store)
+            try:
+                undone.append(files.undo(glb=(load_template_shape(store, config), config.up_axis())))
+            except StoreDamaged:
+                raise
+            except ValueError as exc:
+                raise EditConflict(str(exc)) from exc
+            if not all_edits:
+                break
+        return Changed(undone, build_stamp(store))
+
+
+def undo_edit(store: FamilyStore, expect_stamp: str | None = None, look: str | None = None) -> dict[str, Any]:
+    """The record of the last stored edit of ``look``, undone (:func:`undo_edits`)."""
+    return undo_edits(store, expect_stamp, look).record[0]
 
 
 def reset_edits(store: FamilyStore, look: str | None = None) -> list[dict[str, Any]]:
     """Undo every stored edit of ``look``, last first: the look as it was painted. Returns the undone records."""
-    undone = []
-    while TemplateFiles(store, resolve_look(store, look)).edits:
-        undone.append(undo_edit(store, look=look))
-    return undone
+    return undo_edits(store, look=look, all_edits=True).record

@@ -35,7 +35,7 @@ import numpy as np
 
 from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged, StoreLayout
 from proctex.store.looks import look_paint, looks, resolve_look
-from proctex.store.state import FamilyState, build_stamp
+from proctex.store.state import Changed, FamilyState, build_stamp
 from proctex.texture.painting import MAX_PROMPT
 from proctex.transfer.assets import texture_hw
 from proctex.transfer.budget import OverBudget
@@ -742,13 +742,14 @@ class FamilyService:
         img.save(buf, format="PNG")
         return buf.getvalue()
 
-    def persist_edit(self, raw: Any, expect_stamp: str | None = None) -> dict[str, Any]:
-        """Store an edit into the family (:func:`proctex.serve.edits.stored_edit`: versioned, under
+    def persist_edit(self, raw: Any, expect_stamp: str | None = None) -> Changed:
+        """Store an edit into the family (:func:`proctex.serve.edits.changed_edit`: versioned, under
         the family's edit lock, undoable): ``{"group": index or label, "hue", "saturation", "value",
         "prompt"}``. ``expect_stamp``: the build stamp the edit was made against
         (:class:`~proctex.serve.edits.EditConflict` when the family changed since). Returns the edit
-        record; this service is stale afterwards (the catalog reloads the family on its new stamp)."""
-        from proctex.serve.edits import EditConflict, stored_edit
+        record and the family's stamp after it, read under the same lock; this service is stale
+        afterwards (the catalog reloads the family on its new stamp)."""
+        from proctex.serve.edits import EditConflict, changed_edit
 
         if not isinstance(raw, dict) or "group" not in raw:
             raise BadInput('send {"group": <index or label>, "hue": deg, "saturation": s, "value": v, "prompt": text}')
@@ -758,23 +759,21 @@ class FamilyService:
             raise BadInput("no edit given: send a prompt, a hue, saturation or value change, or a roughness or metallic")
         with _EDIT_LOCK:
             try:
-                return stored_edit(self.store, g, expect_stamp=expect_stamp, stamp=build_stamp, hue=edit.hue, saturation=edit.saturation,
-                                   value=edit.value, prompt=edit.prompt, roughness=edit.roughness, metallic=edit.metallic,
-                                   look=self.look.name)
+                return changed_edit(self.store, g, expect_stamp=expect_stamp, hue=edit.hue, saturation=edit.saturation, value=edit.value,
+                                    prompt=edit.prompt, roughness=edit.roughness, metallic=edit.metallic, look=self.look.name)
             except (EditConflict, StoreDamaged):
                 raise
             except ValueError as exc:
                 raise BadInput(str(exc)) from exc
 
-    def undo_edit(self, expect_stamp: str | None = None, all_edits: bool = False) -> list[dict[str, Any]]:
+    def undo_edit(self, expect_stamp: str | None = None, all_edits: bool = False) -> Changed:
         """Undo the family's last stored edit (``all_edits``: every one, back to the painted
-        template); returns the undone records. :class:`~proctex.serve.edits.EditConflict` when there
-        is nothing to undo or ``expect_stamp`` is stale."""
-        from proctex.serve.edits import reset_edits, undo_edit
+        template); returns the undone records and the family's stamp after them, read under the same
+        lock. :class:`~proctex.serve.edits.EditConflict` when there is nothing to undo or
+        ``expect_stamp`` is stale."""
+        from proctex.serve.edits import undo_edits
 
         with _EDIT_LOCK:
-            if all_edits:
-                return reset_edits(self.store, look=self.look.name)
-            return [undo_edit(self.store, expect_stamp=expect_stamp, stamp=build_stamp, look=self.look.name)]
+            return undo_edits(self.store, expect_stamp=expect_stamp, look=self.look.name, all_edits=all_edits)
 
 

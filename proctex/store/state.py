@@ -134,6 +134,17 @@ def write_config(store: FamilyStore, config: BuildConfig) -> None:
     FamilyState.load(store).with_config(config, store.uri).save(store)
 
 
+@dataclass(frozen=True)
+class Changed:
+    """What a stored change of a family gives back: its ``record`` (an edit's record, the undone
+    records, a new look's record) and ``version``, the family's :func:`build_stamp` right after it,
+    read under the same edit lock as the change (no other change can come between: the one version
+    value a client conditions its next change on)."""
+
+    record: Any
+    version: str
+
+
 def build_stamp(store: FamilyStore, state: FamilyState | None = None) -> str:
     """The family's version: its stage records and every look's paint record (edits append to
     them). Changes whenever the family is rebuilt or edited, or a look is added or removed; the
