@@ -549,6 +549,31 @@ def test_a_change_answers_its_own_version_read_under_its_lock(root, tmp_path, mo
     assert r.json()["stamp"] == build_stamp(st) == c.get("/v1/families/mug").json()["stamp"]
     assert c.post("/v1/families/mug/edits", json={"group": 0, "hue": 20}, headers={**ok, "If-Match": r.json()["stamp"]}).status_code == 200
 
+
+def test_describe_reads_no_store_file_and_describes_the_version_loaded(root, tmp_path, monkeypatch):
+    """describe() (every GET of a family) answers from what the service read when it loaded, under
+    the same lock as its textures: no store file is read per call, and an edit stored meanwhile (which
+    the catalog answers by loading the family again) does not half-show in the old service's answer."""
+    base = tmp_path / "root"
+    shutil.copytree(root / "mug", base / "mug")
+    st = FamilyStore(base / "mug")
+    svc = FamilyService(st, "mug")
+    first = svc.describe()
+    view = svc.look_view(None)
+    assert view is svc
+    edit_group(st, 0, hue=30)  # stored after the service loaded
+    read = []
+    for name in ("read_json", "read_bytes", "exists", "list", "read_table", "read_arrays"):
+        if hasattr(st, name):
+            monkeypatch.setattr(st, name, lambda *a, _n=name, **k: read.append(_n))
+    again = svc.describe()
+    assert read == [] and again == first and again["edits"] == 0 and again["stamp"] == svc.stamp
+    again["groups"].clear()  # a caller's changes stay its own
+    assert svc.describe() == first
+    monkeypatch.undo()
+    fresh = FamilyService(st, "mug").describe()
+    assert fresh["edits"] == 1 and fresh["stamp"] != first["stamp"]
+
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     """The pure texture edit and the persisted one are the same code: equal results."""
     from proctex.fileio import encode_png

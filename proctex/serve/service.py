@@ -20,6 +20,7 @@ cache per service so that a client dragging a hue slider costs one HSV shift per
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import io
 import json
@@ -33,8 +34,10 @@ from typing import Any
 
 import numpy as np
 
+from proctex.params import infer_space
 from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged, StoreLayout
 from proctex.store.looks import look_paint, looks, resolve_look
+from proctex.store.samples import samples
 from proctex.store.state import Changed, FamilyState, build_stamp
 from proctex.texture.painting import MAX_PROMPT
 from proctex.transfer.assets import texture_hw
@@ -277,6 +280,8 @@ class FamilyService:
         self.store = store
         self.name = name or Path(store.base).name
         self.limits = limits or Limits()
+        self._description: dict[str, Any] | None = None  # describe()'s, made once
+
         def read() -> None:
             with edit_lock(store, shared=True):  # the template's files as one version, never half an edit
                 self.state = state if state is not None else FamilyState.load(store)
@@ -290,6 +295,11 @@ class FamilyService:
                 self.assets = load_assets(store, self.state, self.look)
                 # every method that uses the networks loads them ("auto": where there are any)
                 self.models = load_models(store, self.device, self.state) if method.networks != "none" else {}
+                # what describe() says, read with the rest: the description is of the version loaded
+                self.paint_record = store.read_json(self.look.PAINT) if store.exists(self.look.PAINT) else {}
+                self.metrics_record = store.read_json(StoreLayout.METRICS) if store.exists(StoreLayout.METRICS) else None
+                self.look_names = [lk.name for lk in looks(store)]
+                self.space = self.model.space if self.model is not None else infer_space([json.loads(r["params"]) for r in samples(store)])
 
         read_again(read)  # on an object store, again if an edit ran while it read
         self._digest_textures()
@@ -325,8 +335,6 @@ class FamilyService:
         the same shapes, networks and mapper, that look's textures, PBR maps, masks and prompt
         (:func:`proctex.transfer.assets.with_look`), made on first use and kept. :class:`NotFound`
         for a look the family does not have."""
-        import copy
-
         from proctex.serve.edits import edit_lock, read_again
         from proctex.store.looks import UnknownLook
         from proctex.store.template import LookImages
@@ -339,17 +347,18 @@ class FamilyService:
             view = self._views.get(name)
             if view is not None:
                 return view
-            def read() -> tuple[Any, Any]:
+            def read() -> tuple[Any, Any, Any]:
                 with edit_lock(self.store, shared=True):  # the look's files as one version
                     found = resolve_look(self.store, name)
-                    return found, LookImages.read(self.store, found)
+                    return found, LookImages.read(self.store, found), self.store.read_json(found.PAINT) if self.store.exists(found.PAINT) else {}
 
             try:
-                look, images = read_again(read)
+                look, images, paint_record = read_again(read)
             except UnknownLook as exc:
                 raise NotFound(str(exc)) from None
             view = copy.copy(self)
             view.look, view.paint = look, look_paint(self.store, look, self.config.paint)
+            view.paint_record, view._description = paint_record, None
             view.assets = with_look(self.assets, images)
             view._digest_textures()
             view.painter = SurfacePainter(view.paint.prompt, seed=self.config.seed)
@@ -370,18 +379,16 @@ class FamilyService:
 
     # --------------------------------------------------------------------------------- describe
     def describe(self) -> dict[str, Any]:
-        """Parameter specs, groups, prompts and state of the family (JSON-ready)."""
-        from proctex.params import infer_space
+        """Parameter specs, groups, prompts and state of the family (JSON-ready): of the version this
+        service loaded, from what it read then (no store file is read here; a new dict each call)."""
+        if self._description is None:
+            self._description = self._describe()
+        return copy.deepcopy(self._description)
+
+    def _describe(self) -> dict[str, Any]:
         from proctex.sources.registry import source_kinds
 
-        if self.model is not None:
-            space = self.model.space
-        else:
-            from proctex.store.samples import samples
-
-            space = infer_space([json.loads(r["params"]) for r in samples(self.store)])
-        paint = self.store.read_json(self.look.PAINT) if self.store.exists(self.look.PAINT) else {}
-        metrics = self.store.read_json(StoreLayout.METRICS) if self.store.exists(StoreLayout.METRICS) else None
+        space, paint, metrics = self.space, self.paint_record, self.metrics_record
         return {
             "name": self.name,
             "source": {**{k.name: bool(self.config.source.value(k.name)) for k in source_kinds()}, "model": self.config.source.model,
@@ -392,7 +399,7 @@ class FamilyService:
             "up": self.up,
             "parameters": [s.to_dict() for s in space.specs],
             "look": self.look.name,
-            "looks": [lk.name for lk in looks(self.store)],
+            "looks": list(self.look_names),
             "prompt": self.paint.prompt,
             "group_prompts": dict(self.paint.group_prompts),
             # names: every name its parts carry (a node tree's "Left Arm", "Right Arm"), untrusted text
