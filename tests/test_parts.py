@@ -276,3 +276,24 @@ def test_shared_faces_counts_faces_on_the_same_vertices_in_any_corner_order():
     assert shared_faces(fa, fb) == 0.5 and shared_faces(fb, fa) == 2 / 3 and shared_faces(fa[:0], fb) == 0.0
     big = 3_000_000  # indices whose cube overflows int64: the same count another way
     assert shared_faces(fa + big, fb + big) == 0.5
+
+
+def test_a_shapes_segmentation_is_a_declared_field_a_new_shape_starts_without():
+    """What is computed once per shape lives in its declared ``derived`` field (issue 55: the
+    segmentation hid in an undeclared attribute): parts_of fills it once, a replaced array is seen, a
+    copy made by ``dataclasses.replace`` starts empty, and it is in no comparison or repr."""
+    from dataclasses import fields, replace
+
+    from proctex.geometry.parts import parts_of
+    from proctex.models import get_model
+
+    shape = get_model("mug").generate({})
+    assert "derived" in {f.name for f in fields(Shape)} and shape.derived == {}
+    seg = parts_of(shape)
+    assert parts_of(shape) is seg and shape.derived["parts"][2] is seg
+    moved = replace(shape, vertices=shape.vertices + 1.0)
+    assert moved.derived == {} and parts_of(moved) is not seg and len(parts_of(moved).parts) == len(seg.parts)
+    shape.faces = shape.faces.copy()  # an array replaced: computed again
+    assert parts_of(shape) is not seg
+    (field,) = [f for f in fields(Shape) if f.name == "derived"]
+    assert (field.init, field.compare, field.repr) == (False, False, False) and "derived=" not in repr(shape)

@@ -27,12 +27,12 @@ def shape_assignment(shape: Shape, assets) -> tuple[Any, list[Any]]:
     Computed again when the shape's arrays or the assets object were replaced."""
     from proctex.transfer.assign import assign_parts
 
-    cached = shape.__dict__.get("_assignment")
+    cached = shape.derived.get("assignment")
     if cached is not None and cached[0] is assets and cached[1] is shape.faces and cached[2] is shape.vertices:
         return cached[3], cached[4]
     seg = segment(shape)
     assignment = assign_parts(shape, seg, assets)
-    shape.__dict__["_assignment"] = (assets, shape.faces, shape.vertices, seg, assignment)
+    shape.derived["assignment"] = (assets, shape.faces, shape.vertices, seg, assignment)
     return seg, assignment
 
 

@@ -630,11 +630,11 @@ def parts_of(shape: Shape) -> Segmentation:
     """:func:`segment` of ``shape`` with the default settings, computed once and kept on the shape
     (a request checks, transfers and bakes one segmentation). Computed again when the shape's vertex
     or face array was replaced; an array changed in place is not seen."""
-    cached = shape.__dict__.get("_parts")
+    cached = shape.derived.get("parts")
     if cached is not None and cached[0] is shape.faces and cached[1] is shape.vertices:
         return cached[2]
     seg = segment(shape)
-    shape.__dict__["_parts"] = (shape.faces, shape.vertices, seg)
+    shape.derived["parts"] = (shape.faces, shape.vertices, seg)
     return seg
 
 

@@ -34,6 +34,11 @@ class Shape:
             :mod:`proctex.sources.provenance`; 0: none), or None. With ``canonical`` (each node's own
             box coordinates) it is the canonical truth of a ``.blend`` family: a point's counterpart
             is looked up only among faces of the same node. For measuring only.
+        derived: what is computed from the shape once and kept with it (not an argument: a new
+            shape, ``dataclasses.replace`` included, starts empty; left out of comparisons and
+            ``repr``): ``"parts"``, its segmentation (:func:`proctex.geometry.parts.parts_of`), and in a
+            build ``"assignment"``, its parts assigned to a template (``proctex.build.pairs``), each
+            with the arrays it was computed from, so a replaced array is seen.
     """
 
     vertices: np.ndarray
@@ -45,6 +50,7 @@ class Shape:
     source: str = ""
     corner_uv: np.ndarray | None = None
     face_source: np.ndarray | None = None
+    derived: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float64)
