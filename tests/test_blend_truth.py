@@ -7,6 +7,7 @@ identity clearly worse; points of a node the template part lacks have no truth."
 
 from __future__ import annotations
 
+from dataclasses import replace
 import numpy as np
 import pytest
 
@@ -25,7 +26,7 @@ from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
 from proctex.store.samples import load_sample, samples
 from proctex.transfer.apply import transfer
-from proctex.transfer.assets import load_assets
+from proctex.transfer.assets import load_assets, with_textures
 from proctex.transfer.assign import assign_parts, representative_frame
 from proctex.transfer.mappers import IdentityMapper
 
@@ -76,8 +77,7 @@ def bench_family(blends, tmp_path_factory):
     st = FamilyStore(tmp_path_factory.mktemp("blendtruth") / "bench")
     build(st, cfg, stages=("sample", "template", "paint"), log=lambda *_: None)
     assets = load_assets(st)
-    assets.textures = _smooth_textures(assets)
-    assets.painted = assets.observed = None
+    assets = replace(with_textures(assets, _smooth_textures(assets)), painted=None, observed=None)
     uv = st.read_arrays("template/uv.npz")
     shapes = [load_sample(st, r, cfg) for r in samples(st) if r["split"] == "test"]
     return st, cfg, assets, uv, shapes

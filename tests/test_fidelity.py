@@ -9,6 +9,7 @@ its own map) is rebuilt here to show that it rewarded the collapsed map.
 
 from __future__ import annotations
 
+from dataclasses import replace
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -38,7 +39,7 @@ from proctex.store.layout import FamilyStore
 from proctex.store.samples import load_sample, samples
 from proctex.texture.uv import pad_seams, texel_map
 from proctex.transfer.apply import transfer
-from proctex.transfer.assets import load_assets
+from proctex.transfer.assets import load_assets, with_textures
 from proctex.transfer.assign import PartAssignment, assign_parts, representative_frame
 from proctex.transfer.mappers import IdentityMapper
 
@@ -128,8 +129,7 @@ def chair_family(tmp_path_factory):
     st = FamilyStore(tmp_path_factory.mktemp("fid") / "chair")
     build(st, cfg, stages=("sample", "template", "paint"), log=lambda *_: None)
     assets = load_assets(st)
-    assets.textures = _smooth_textures(assets)
-    assets.painted = assets.observed = None  # every texel holds colour
+    assets = replace(with_textures(assets, _smooth_textures(assets)), painted=None, observed=None)  # every texel holds colour
     uv = st.read_arrays("template/uv.npz")
     shapes = [load_sample(st, r, cfg) for r in samples(st) if r["split"] == "test"]
     return st, cfg, assets, uv, shapes

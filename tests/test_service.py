@@ -574,6 +574,32 @@ def test_describe_reads_no_store_file_and_describes_the_version_loaded(root, tmp
     fresh = FamilyService(st, "mug").describe()
     assert fresh["edits"] == 1 and fresh["stamp"] != first["stamp"]
 
+
+def test_the_served_snapshot_is_immutable_and_an_edited_preview_bakes_its_edit(root, tmp_path):
+    """The loaded family's images are one snapshot (issue 55: ``TemplateAssets`` kept the texture
+    arrays and their PNGs apart, and an edited preview replaced the PNGs only): its fields cannot be
+    reassigned, and a preview edit replaces arrays and bytes together, so a baked preview samples the
+    edited colours: the same bake as after storing that edit (it baked the unedited ones)."""
+    import dataclasses
+
+    from proctex.serve.service import GroupEdit
+    from tests.test_pbr import glb_material_images
+
+    shutil.copytree(root / "mug", tmp_path / "mug")
+    st = FamilyStore(tmp_path / "mug")
+    svc = FamilyService(st, "mug")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        svc.assets.textures = svc.assets.textures
+    shape = svc.shape_from_params({})
+    bases = lambda answer: [m["base"] for m in glb_material_images(answer.data)]  # noqa: E731
+    plain = bases(svc.textured(shape, seed=0, bake_size=64)[0])
+    preview = bases(svc.textured(shape, seed=0, edits={0: GroupEdit(hue=120.0)}, bake_size=64)[0])
+    edit_group(st, 0, hue=120.0)
+    stored = bases(FamilyService(st, "mug").textured(shape, seed=0, bake_size=64)[0])
+    assert len(plain) == len(preview) == len(stored) >= 2
+    assert not np.array_equal(preview[0], plain[0]) and np.array_equal(preview[0], stored[0])
+    assert all(np.array_equal(a, b) for a, b in zip(preview[1:], stored[1:]))
+
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     """The pure texture edit and the persisted one are the same code: equal results."""
     from proctex.fileio import encode_png

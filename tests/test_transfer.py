@@ -248,7 +248,7 @@ def test_a_group_the_template_lacks_is_painted_without_touching_the_template():
     arm_faces = np.concatenate([seg.parts[a.part].faces for a in new])
     assert (r.face_group[arm_faces] == G).all()
     assert all(np.array_equal(a, b) for a, b in zip(before, assets.textures))
-    textures = assets.textures + r.new_textures
+    textures = list(assets.textures) + r.new_textures
     cov = coverage(shape.vertices, shape.faces, r.corner_uv, r.face_group, [np.ones(t.shape[:2], bool) for t in textures])
     assert cov.share == 0.0
     if require_validator():
@@ -292,7 +292,7 @@ def cake_views():
     tex = paint_views(tpl, grouping, SolidViewPainter(SurfacePainter("red velvet cake"), grouping), size=128, view_size=128,
                       n_views=6, complete_hidden=False, up="z")
     assets = prepare_template(tpl, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
-    assets.painted, assets.observed = tex.painted_masks, tex.observed_masks
+    assets = replace(assets, painted=tex.painted_masks, observed=tex.observed_masks)
     return tpl, grouping, tex, assets
 
 

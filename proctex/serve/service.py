@@ -626,14 +626,14 @@ class FamilyService:
             raise BadInput(str(exc)) from exc
         t0 = time.perf_counter()
         assets = self.assets
-        if edits:
-            png = list(assets.png)
-            maps = list(assets.pbr_png) if assets.pbr_png is not None else None
-            for g, edit in edits.items():
-                png[g] = self.edited_texture(g, edit)[1]
-                if maps is not None and edit.changes_maps:
-                    maps[g] = self.edited_maps(g, edit)
-            assets = replace(assets, png=png, pbr_png=maps)  # only the encoded images differ: the transfer is the same
+        if edits:  # an edited copy of those groups' images, arrays and bytes together (a bake samples the edited colours)
+            edited = {g: self.edited_texture(g, edit) for g, edit in edits.items()}
+            textures = assets.textures.with_items({g: png for g, (_, png) in edited.items()}, {g: tex for g, (tex, _) in edited.items()})
+            maps = assets.pbr
+            if maps is not None:
+                changed = {g: self.edited_maps(g, edit) for g, edit in edits.items() if edit.changes_maps and assets.pbr_png[g] is not None}
+                maps = maps.with_items(changed) if changed else maps
+            assets = replace(assets, textures=textures, pbr=maps)
         t_edit = time.perf_counter() - t0
         with self.lock:
             try:

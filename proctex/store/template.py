@@ -9,7 +9,7 @@ import json
 import os
 import struct
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -91,6 +91,31 @@ class _Decoded(Sequence):
             if i not in self._decoded:
                 self._decoded[i] = self._make(i)
             return self._decoded[i]
+
+    @classmethod
+    def of_decoded(cls, items: Sequence[Any], encode: Callable[[Any], Any], where: str = "texture"):
+        """Made from decoded objects (``items``: arrays, or PbrMaps or None), each encoded once by
+        ``encode`` and kept decoded: what a template painted in this process serves, the same as a
+        store's."""
+        out = cls([encode(x) if x is not None else None for x in items], [f"{where} {k}" for k in range(len(items))])
+        out._decoded = dict(enumerate(items))
+        return out
+
+    def with_items(self, encoded: Mapping[int, Any], decoded: Mapping[int, Any] | None = None):
+        """A copy with the items ``encoded`` ({i: PNG bytes, or PbrMaps of them}) replaced, the others
+        shared (decoded or not); a replaced item is decoded from its new bytes when first read, or is
+        ``decoded[i]`` where given (the array the bytes were encoded from): what is sampled and what
+        is embedded come from one change, so the two cannot disagree."""
+        out = type(self)(self.png, self.wheres)
+        with self._lock:
+            out._decoded = dict(self._decoded)
+        for i, data in encoded.items():
+            i = range(len(self))[i]
+            out.png[i] = data
+            out._decoded.pop(i, None)
+            if decoded is not None and i in decoded:
+                out._decoded[i] = decoded[i]
+        return out
 
     def __getstate__(self) -> dict[str, Any]:
         return {"png": self.png, "wheres": self.wheres}

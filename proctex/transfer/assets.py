@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -16,9 +16,6 @@ from proctex.geometry.surface import SurfaceIndex, normalised_frame
 from proctex.store.layout import FamilyStore, LookLayout
 from proctex.store.state import FamilyState
 from proctex.store.template import LookImages, StoredImages, StoredMaps, Template, load_template
-
-if TYPE_CHECKING:  # annotations only: the lookups are built above this module
-    from proctex.transfer.uvlookup import ChartLookup
 
 
 @dataclass
@@ -68,26 +65,60 @@ class Slot:
     extents: np.ndarray  # (3,) part box extents relative to the shape box size
 
 
-@dataclass
+@dataclass(frozen=True)
 class TemplateAssets:
-    """The template prepared for transfer: groups, slots, textures (arrays and encoded PNGs)."""
+    """The template prepared for transfer: groups, slots and its images, one snapshot that is not
+    changed after it is made (a new look, masks or an edited preview is a new one,
+    :func:`dataclasses.replace`). The textures and PBR maps are one object each that holds both the
+    arrays (decoded when first used) and their PNG bytes (:attr:`png`, :attr:`pbr_png`): an edit
+    replaces both together (:meth:`proctex.store.template.StoredImages.with_items`), so what is
+    sampled and what is embedded cannot disagree.
+
+    Attributes:
+        textures: per group its (H, W, 3) uint8 image and PNG (:class:`~proctex.store.template.StoredImages`).
+        names: per group its material name.
+        painted, observed: per group (H, W) bool: texels holding colour, and the "already painted"
+            ones (painted by the painter itself, not filled); None: every texel counts as both.
+        pbr: per group its PBR maps and their PNGs (:class:`~proctex.store.template.StoredMaps`),
+            or None (no maps).
+    """
 
     shape: Shape
     grouping: Grouping
     groups: list[GroupAssets]
     slots: list[Slot]
-    textures: Sequence[np.ndarray]  # (H, W, 3) uint8 per group (a store's: decoded where first used)
-    png: list[bytes]  # the same textures as PNG (a store's: its bytes as stored)
+    textures: StoredImages
     names: list[str]
-    # Per group (H, W) bool: texels holding colour, and the "already painted" ones (painted by the
-    # painter itself, not filled); None: every texel counts as both.
     painted: list[np.ndarray] | None = None
     observed: list[np.ndarray] | None = None
-    charts: list[np.ndarray] | None = None  # chart ids of ``painted`` (see :func:`template_charts`)
-    # Per group its PBR maps (uint8 images) and the same maps as PNG bytes, or None (no maps).
-    pbr: Sequence[Any] | None = None
-    pbr_png: list[Any] | None = None
-    lookups: list[ChartLookup] | None = None  # per group, chart and room maps for the run-time coverage check (:func:`chart_lookups`)
+    pbr: StoredMaps | None = None
+    # made from the fields above when first needed (charts and run-time lookups of the painted
+    # masks, :mod:`proctex.transfer.uvlookup`); a new snapshot starts without
+    derived: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.textures, StoredImages) or (self.pbr is not None and not isinstance(self.pbr, StoredMaps)):
+            raise ValueError("TemplateAssets holds its images as StoredImages / StoredMaps (their arrays and PNGs together)")
+
+    @property
+    def png(self) -> list[bytes]:
+        """Per group the texture's PNG bytes (a store's as stored)."""
+        return self.textures.png
+
+    @property
+    def pbr_png(self) -> list[Any] | None:
+        """Per group its PBR maps as PNG bytes (:class:`proctex.texture.pbr.PbrMaps`) or None; None without maps."""
+        return None if self.pbr is None else self.pbr.png
+
+
+def with_textures(assets: TemplateAssets, textures: Sequence[np.ndarray]) -> TemplateAssets:
+    """``assets`` with other (H, W, 3) uint8 group textures (encoded here, arrays and bytes together;
+    e.g. a measurement's smooth colour field), everything else shared."""
+    from proctex.texture.export import png_bytes
+
+    if len(textures) != len(assets.groups):
+        raise ValueError(f"need one texture per group ({len(assets.groups)}), got {len(textures)}")
+    return dataclasses.replace(assets, textures=StoredImages.of_decoded([np.ascontiguousarray(t, dtype=np.uint8) for t in textures], png_bytes))
 
 
 def texture_hw(assets: TemplateAssets, group: int) -> tuple[int, int]:
@@ -122,10 +153,11 @@ def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, te
     if len(textures) != len(grouping.groups):
         raise ValueError(f"need one texture per group ({len(grouping.groups)}), got {len(textures)}")
     if isinstance(textures, StoredImages):  # a store's: its PNG bytes as stored, decoded where used
-        texs, pngs = textures, textures.png
+        texs = textures
     else:
-        texs = [np.ascontiguousarray(t if np.asarray(t).dtype == np.uint8 else (np.clip(t, 0, 1) * 255).round().astype(np.uint8))[..., :3] for t in textures]
-        pngs = [png_bytes(t) for t in texs]
+        arrays = [np.ascontiguousarray(t if np.asarray(t).dtype == np.uint8 else (np.clip(t, 0, 1) * 255).round().astype(np.uint8))[..., :3]
+                  for t in textures]
+        texs = StoredImages.of_decoded(arrays, png_bytes)
     groups = []
     for g in grouping.groups:
         rep = grouping.parts[g.representative]
@@ -145,19 +177,19 @@ def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, te
             # between normalised frames (each part's own centre and radius) a scaled or deformed member's map is its rotation
             slots.append(Slot(member, g.index, mmap.rotation if mmap.method in ("similar", "deformed") else np.asarray(mmap.R, float), centre, extents))
     names = list(names) if names is not None else [g.label or f"group_{g.index}" for g in grouping.groups]
-    maps = maps_png = None
+    maps = None
     if isinstance(pbr, StoredMaps):
         if len(pbr) != len(texs):
             raise ValueError(f"need PBR maps (or None) per group ({len(texs)}), got {len(pbr)}")
-        maps, maps_png = pbr, pbr.png
+        maps = pbr
     elif pbr is not None and any(m is not None for m in pbr):
         from proctex.texture.pbr import PbrMaps
 
         if len(pbr) != len(texs):
             raise ValueError(f"need PBR maps (or None) per group ({len(texs)}), got {len(pbr)}")
-        maps = [None if m is None else PbrMaps(m.orm_uint8(), m.normal_uint8(), m.occlusion) for m in pbr]
-        maps_png = [None if m is None else PbrMaps(png_bytes(m.orm), png_bytes(m.normal), m.occlusion) for m in maps]
-    return TemplateAssets(shape, grouping, groups, slots, texs, pngs, names, pbr=maps, pbr_png=maps_png)
+        decoded = [None if m is None else PbrMaps(m.orm_uint8(), m.normal_uint8(), m.occlusion) for m in pbr]
+        maps = StoredMaps.of_decoded(decoded, lambda m: PbrMaps(png_bytes(m.orm), png_bytes(m.normal), m.occlusion), where="maps")
+    return TemplateAssets(shape, grouping, groups, slots, texs, names, pbr=maps)
 
 
 def same_topology(faces: np.ndarray, n_vertices: int, assets: GroupAssets) -> bool:
@@ -171,12 +203,11 @@ def template_assets(template: Template) -> TemplateAssets:
     stored masks, the texels each group's UV charts cover plus an 8-texel gutter count as painted and
     observed."""
     assets = prepare_template(template.shape, template.grouping, template.corner_uv, template.textures, template.names, pbr=template.pbr)
-    _set_masks(assets, template.painted, template.observed)
-    return assets
+    return _with_masks(assets, template.painted, template.observed)
 
 
-def _set_masks(assets: TemplateAssets, painted: list[np.ndarray] | None, observed: list[np.ndarray] | None) -> None:
-    """The painted and observed masks of ``assets``; without stored ones, the texels each group's
+def _with_masks(assets: TemplateAssets, painted: list[np.ndarray] | None, observed: list[np.ndarray] | None) -> TemplateAssets:
+    """``assets`` with the painted and observed masks; without stored ones, the texels each group's
     UV charts cover plus an 8-texel gutter count as both."""
     from proctex.texture.uv import pad_seams, texel_map
 
@@ -188,8 +219,7 @@ def _set_masks(assets: TemplateAssets, painted: list[np.ndarray] | None, observe
             _, mask = pad_seams(np.zeros((h, w, 1)), tm.mask, 8)
             masks.append(mask)
         painted = observed = masks
-    assets.painted, assets.observed = painted, observed if observed is not None else painted
-    assets.charts = assets.lookups = None  # made from the masks when first used
+    return dataclasses.replace(assets, painted=painted, observed=observed if observed is not None else painted)  # charts made anew when first used
 
 
 def with_look(assets: TemplateAssets, images: LookImages) -> TemplateAssets:
@@ -198,10 +228,7 @@ def with_look(assets: TemplateAssets, images: LookImages) -> TemplateAssets:
     maps and masks. ``ValueError`` when the look does not have the family's groups."""
     if len(images.textures) != len(assets.groups) or [ga.label or "" for ga in assets.groups] != list(images.labels):
         raise ValueError(f"the look has {len(images.textures)} groups {images.labels}, the family {[ga.label for ga in assets.groups]}")
-    out = dataclasses.replace(assets, textures=images.textures, png=images.textures.png, pbr=images.pbr,
-                              pbr_png=images.pbr.png if images.pbr is not None else None)
-    _set_masks(out, images.painted, images.observed)
-    return out
+    return _with_masks(dataclasses.replace(assets, textures=images.textures, pbr=images.pbr), images.painted, images.observed)
 
 
 def load_assets(store: FamilyStore, state: FamilyState | None = None, look: LookLayout | None = None) -> TemplateAssets:

@@ -34,9 +34,9 @@ def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
     assets); None when the assets carry no painted masks."""
     if assets.painted is None:
         return None
-    if assets.charts is None or len(assets.charts) != len(assets.painted):
-        assets.charts = [chart_labels(m) for m in assets.painted]
-    return assets.charts
+    if "charts" not in assets.derived:
+        assets.derived["charts"] = [chart_labels(m) for m in assets.painted]
+    return assets.derived["charts"]
 
 
 #: Template faces checked first per shape face at run time (the nearest proxies of its mapped
@@ -87,9 +87,9 @@ def chart_lookups(assets: TemplateAssets) -> list[ChartLookup] | None:
     charts = template_charts(assets)
     if charts is None:
         return None
-    if assets.lookups is None or len(assets.lookups) != len(charts):
-        assets.lookups = [chart_lookup(c) for c in charts]
-    return assets.lookups
+    if "lookups" not in assets.derived:
+        assets.derived["lookups"] = [chart_lookup(c) for c in charts]
+    return assets.derived["lookups"]
 
 
 def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | ChartLookup | None = None,

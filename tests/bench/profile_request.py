@@ -63,7 +63,7 @@ def main(argv=None) -> int:
     if svc.assets.pbr_png is not None:  # the same GLBs without the maps: what the maps cost
         from dataclasses import replace
 
-        plain = replace(svc.assets, pbr=None, pbr_png=None)
+        plain = replace(svc.assets, pbr=None)
         rows["GLB, embedded, colour only"] = median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], plain, up=svc.up))
         rows["GLB, linked, colour only"] = median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], plain, up=svc.up,
                                                                    texture_uris=svc.texture_uris()))
