@@ -10,6 +10,7 @@ dependency, done by hand.
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import sysconfig
@@ -66,8 +67,6 @@ def test_the_wheel_installs_into_a_fresh_environment_and_runs_from_it(wheel, tmp
              "print(json.dumps([proctex.__file__, str(h.STUDIO_DIST / 'index.html'), (h.STUDIO_DIST / 'index.html').is_file(), b.SERVER.is_file()]))")
     r = run(str(venv / "bin" / "python"), "-c", probe)
     assert r.returncode == 0, r.stderr
-    import json
-
     module, studio, studio_there, server_there = json.loads(r.stdout)
     assert Path(module).is_relative_to(venv) and Path(studio).is_relative_to(venv)  # the installed copy, not this tree
     assert studio_there and server_there
