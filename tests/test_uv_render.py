@@ -156,13 +156,12 @@ def test_a_threaded_xatlas_is_destroyed_only_once_its_workers_sleep(monkeypatch)
     class Thing:
         pass
 
-    go, ids, threads = threading.Event(), [], []
+    go, ids, threads, started = threading.Event(), [], [], threading.Semaphore(0)
     for _ in range(2):
-        t = threading.Thread(target=lambda: (ids.append(str(threading.get_native_id())), go.wait()), daemon=True)
+        t = threading.Thread(target=lambda: (ids.append(str(threading.get_native_id())), started.release(), go.wait()), daemon=True)
         t.start()
         threads.append(t)
-    while len(ids) < 2:
-        pass
+    assert started.acquire(timeout=30) and started.acquire(timeout=30)  # both threads run (then sleep on the event)
     holder = [Thing()]
     ref = weakref.ref(holder[0])
     assert U._release(holder, set(ids), settle_s=5.0) and ref() is None and holder == []

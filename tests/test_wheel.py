@@ -26,12 +26,11 @@ from tests.wheels import STUDIO_INDEX, build_wheel, clean_env
 ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 VERSION = PYPROJECT["project"]["version"]
-STUDIO = STUDIO_INDEX
 
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
-    if not STUDIO.is_file():
+    if not STUDIO_INDEX.is_file():
         pytest.skip("the studio is not bundled (no npm): `make studio` first")
     return build_wheel(tmp_path_factory.mktemp("src"), tmp_path_factory.mktemp("wheel"))
 
@@ -42,7 +41,7 @@ def test_the_wheel_carries_what_the_tool_needs_at_run_time(wheel):
         names = set(z.namelist())
         meta = Parser().parsestr(z.read(f"proctex-{VERSION}.dist-info/METADATA").decode())
         entry = z.read(f"proctex-{VERSION}.dist-info/entry_points.txt").decode()
-    built = {f"workers/studio/dist/{p.name}" for p in STUDIO.parent.iterdir() if p.is_file()}
+    built = {f"workers/studio/dist/{p.name}" for p in STUDIO_INDEX.parent.iterdir() if p.is_file()}
     assert built and built <= names  # the studio's bundle, every file of it
     assert "proctex/sources/blender_server.py" in names and f"proctex-{VERSION}.dist-info/licenses/LICENSE" in names
     assert not any("node_modules" in n or n.startswith("tests/") or n.startswith("workers/studio/src") for n in names)
