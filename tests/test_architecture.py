@@ -136,7 +136,7 @@ def test_proctex_has_no_import_circle():
 #: out), ``measure`` scores it, ``build`` makes a family stage by stage, ``serve`` answers requests
 #: on top of records and transfer (never the build), ``generate`` makes variants in bulk.
 #: ``_reference`` (for the tests) may import anything and is imported by nothing shipped.
-LAYERS = {"proctex.fileio": 0, "proctex.params": 0, "proctex.progress": 0, "proctex.plugins": 0, "proctex.pools": 0, "proctex.geometry": 1, "proctex.models": 2,
+LAYERS = {"proctex.fileio": 0, "proctex.params": 0, "proctex.progress": 0, "proctex.plugins": 0, "proctex.pools": 0, "proctex.torch_kernels": 0, "proctex.geometry": 1, "proctex.models": 2,
           "proctex.texture": 2, "proctex.correspond": 3, "proctex.sources": 4, "proctex.store": 5, "proctex.transfer": 6,
           "proctex.measure": 7, "proctex.build": 8, "proctex.serve": 8, "proctex.generate": 9, "proctex.demo": 10, "proctex.cli": 11}
 

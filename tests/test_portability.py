@@ -74,6 +74,8 @@ _KERNELS = r"""
 import json, sys
 import numpy as np
 import torch
+from proctex.torch_kernels import resolve_vml
+resolve_vml()  # as the project's modules do: else MKL may pick a low-accuracy exp for one thread (issue 188792)
 x = np.linspace(-10.0, 10.0, 20001)
 rng = np.random.default_rng(0)
 a, b = rng.standard_normal((256, 256)), rng.standard_normal((256, 64))
@@ -194,3 +196,61 @@ def test_approx():
     (tmp_path / "test_service.py").write_text(src)  # a module kept off the marker
     assert not any(numeric_tests(tmp_path / "test_service.py").values())
     assert all((ROOT / "tests" / name).is_file() for name in NOT_NUMERIC)
+
+
+def test_modules_that_import_torch_resolve_mkl_kernels_first():
+    """Every module of ``proctex`` that imports torch at its top calls
+    :func:`proctex.torch_kernels.resolve_vml` at its top too (a fresh process's first ``torch.exp``
+    on two threads can otherwise be 1e-4 off in one thread's chunk: CI saw it in this file's kernel
+    probe); the check finds a module that forgets."""
+    import ast
+
+    def forgets(source: str) -> bool:
+        tree = ast.parse(source)
+        imports = any(isinstance(n, ast.Import) and any(a.name == "torch" for a in n.names) for n in tree.body)
+        calls = any(isinstance(n, ast.Expr) and isinstance(n.value, ast.Call) and getattr(n.value.func, "id", None) == "resolve_vml"
+                    for n in tree.body)
+        return imports and not calls
+
+    assert forgets("import torch\nx = torch.exp(torch.ones(3))\n")
+    assert not forgets("import torch\nfrom proctex.torch_kernels import resolve_vml\nresolve_vml()\n")
+    assert not forgets("def f():\n    import torch\n")
+    found = [str(p.relative_to(ROOT)) for p in sorted((ROOT / "proctex").rglob("*.py")) if forgets(p.read_text())]
+    assert found == [], found
+    assert len([p for p in (ROOT / "proctex").rglob("*.py") if "\nimport torch\n" in p.read_text()]) >= 8  # the check saw them
+
+
+_RESOLVE = r"""
+import json
+import torch
+from torch.overrides import TorchFunctionMode
+import proctex.torch_kernels as k
+
+calls = []
+class Record(TorchFunctionMode):
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        if func.__name__ in k.VML_FUNCTIONS:
+            calls.append((func.__name__, str(args[0].dtype), tuple(args[0].shape)))
+        return func(*args, **(kwargs or {}))
+
+with Record():
+    first, second = k.resolve_vml(), k.resolve_vml()
+import proctex.correspond.mvc  # noqa: F401  (resolves again: nothing to do)
+print(json.dumps(dict(first=first, second=second, calls=calls, after=k.resolve_vml())))
+"""
+
+
+def test_resolve_vml_calls_each_mkl_function_once_per_precision_on_one_element():
+    """In a fresh process :func:`resolve_vml` calls each of :data:`VML_FUNCTIONS` exactly once on a
+    one-element float32 and float64 tensor (one thread's work), and only the first time."""
+    import json
+
+    from proctex.torch_kernels import VML_FUNCTIONS
+
+    run = subprocess.run([sys.executable, "-c", _RESOLVE], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    got = json.loads(run.stdout.strip().splitlines()[-1])
+    assert got["first"] is True and got["second"] is False and got["after"] is False
+    want = sorted((f, d, [1]) for f in VML_FUNCTIONS for d in ("torch.float32", "torch.float64"))
+    assert sorted(tuple(c) for c in got["calls"]) == [tuple(w) for w in want]
+    assert len(VML_FUNCTIONS) == 16 and "exp" in VML_FUNCTIONS and "sqrt" in VML_FUNCTIONS

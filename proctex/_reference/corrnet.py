@@ -6,6 +6,9 @@ from __future__ import annotations
 import torch
 
 from proctex.correspond.corrnet import ProcCorrNet
+from proctex.torch_kernels import resolve_vml
+
+resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 
 def decode_reference(model: ProcCorrNet, query: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:

@@ -51,6 +51,9 @@ from proctex.geometry.primitives import box
 from proctex.geometry.surface import SurfaceIndex
 from proctex.geometry.surface import interpolate
 from .mvc import mean_value_coordinates
+from proctex.torch_kernels import resolve_vml
+
+resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 #: Pre-alignments of a source part (:attr:`CageConfig.prealign`).
 PREALIGNS = ("icp", "box", "affine", "auto")

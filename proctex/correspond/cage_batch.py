@@ -29,6 +29,9 @@ from scipy.spatial import cKDTree
 from proctex.geometry.surface import SurfaceIndex, interpolate
 from .cage import CageConfig, CageResult, _oriented_nn, _tri_normals, cage_divisions, init_cage, lattice_triples, solve_cage
 from .mvc import mean_value_coordinates
+from proctex.torch_kernels import resolve_vml
+
+resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 #: Adam's constants (``torch.optim.Adam``'s defaults, which the single solver uses).
 BETA1, BETA2, EPS = 0.9, 0.999, 1e-8

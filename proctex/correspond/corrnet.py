@@ -57,6 +57,9 @@ import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
+from proctex.torch_kernels import resolve_vml
+
+resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 FORMAT = "proctex.corrnet/1"  # the checkpoint format name (kept from before the subpackages: old files load)
 LOSSES = ("mse", "l2")

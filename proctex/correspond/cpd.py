@@ -15,6 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from proctex.torch_kernels import resolve_vml
+
+resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 
 @dataclass

@@ -25,6 +25,9 @@ import torch
 
 from .corrnet import LOSSES, CorrNetConfig, Pair, ProcCorrNet, _autocast, _model_spec, build_model, resolve_autocast
 from .training import EarlyStop, GroupData, TrainResult, learning_rate, sample_batch, settle_plain
+from proctex.torch_kernels import resolve_vml
+
+resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 
 class StackedParameters:

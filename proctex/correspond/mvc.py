@@ -21,6 +21,9 @@ import math
 
 import numpy as np
 import torch
+from proctex.torch_kernels import resolve_vml
+
+resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 
 def _check_cage(cage_vertices: np.ndarray | torch.Tensor, cage_faces: np.ndarray | torch.Tensor) -> None:

@@ -27,6 +27,9 @@ from .corrnet import (
     sample_indices,
     zero_residual,
 )
+from proctex.torch_kernels import resolve_vml
+
+resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 
 def sample_batch(

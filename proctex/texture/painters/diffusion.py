@@ -46,6 +46,7 @@ import numpy as np
 from PIL import Image
 
 from .base import BACKGROUND, GENERATE, KEEP, REFINE, ViewRequest
+from proctex.torch_kernels import resolve_vml
 
 __all__ = [
     "DEFAULT_NEGATIVE_PROMPT",
@@ -411,6 +412,7 @@ class DiffusionViewPainter:
 
         import torch
 
+        resolve_vml()
         self._torch = torch
         self.dtype = _resolve_dtype(dtype, self.device)
         self.pipeline, self.mode = self._load(controlnet_dir)
