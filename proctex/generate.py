@@ -233,7 +233,7 @@ def start_run(settings: GenerateSettings, log: Callable[[str], None] = print) ->
     """Validate, read the family, plan the rows and write (or check) ``generate.json``: a rerun
     into an output made with other settings or another build of the family is refused.
     Returns ``(output store, rows, the family's parameter space)``."""
-    from proctex.store.state import build_stamp
+    from proctex.store.family import Family
 
     settings.validate()
     family = FamilyStore(settings.family)
@@ -247,7 +247,7 @@ def start_run(settings: GenerateSettings, log: Callable[[str], None] = print) ->
     from proctex.store.looks import built_look
 
     looks = run_looks(family, settings) or [built_look(family).name]
-    stamp = build_stamp(family)
+    stamp = Family.open(family).version
     rows = plan_rows(settings, space, looks)
     out = FamilyStore(settings.out)
     run = {"settings": settings.key(), "stamp": stamp, "rows": len(rows)}

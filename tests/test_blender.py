@@ -244,6 +244,21 @@ def test_a_blend_family_builds_and_transfers_new_parameters(vase_blend, tmp_path
         faces = template.grouping.parts[g.representative].faces
         assert np.allclose(template.corner_uv[faces], made[faces])
     assert all(state["stages"][s]["state"] == "done" for s in ("sample", "template", "paint", "pairs", "train"))
+    # loading the family for serving starts no Blender: its space and template shape are records
+    import proctex.sources.blender as blender
+    import proctex.sources.registry as registry
+    from proctex.serve.service import FamilyService
+
+    def no_blender(*a, **k):
+        raise AssertionError("Blender was started to load the family")
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(blender.BlenderSession, "__init__", no_blender)
+        m.setattr(registry, "_OPEN", {})  # not even one this process already has open
+        svc = FamilyService(store, "vase")
+        described = svc.describe()
+    assert {p["name"] for p in described["parameters"]} >= {"Height", "Resolution"} and described["parts_attribute"] == "part_id"
+    assert svc.assets.grouping.segmentation.n_parts == 2
     glb = tmp_path / "v.glb"
     code = main(["transfer", str(out), "--params", json.dumps({"Height": 2.0, "Resolution": 24}), "--out", str(glb)])
     assert code == 0, capsys.readouterr().err

@@ -697,3 +697,105 @@ def test_a_shape_is_segmented_and_assigned_once_for_all_its_pairs(painted_mug_ro
     shape.vertices = shape.vertices * 1.0  # new arrays: assigned again
     pair_input(shape, assets, groups[0])
     assert len(calls) == 2
+
+
+def test_the_template_shape_is_read_whole_and_never_made_again(mug_family, tmp_path, monkeypatch):
+    """The template stage records the template shape whole (labels, part names, canonical truth,
+    parameters): loading the family reads it and makes no shape (a model that raises is never
+    called), equal to the shape its parameters make. A damaged or missing record is an error naming
+    it; a family built before the record reads its mesh or makes it again, unless making a shape
+    starts another program (Blender): then it asks for a rebuild rather than start one."""
+    import dataclasses
+
+    import proctex.sources.registry as reg
+    from proctex.store.config import BuildConfig as Config
+    from proctex.store.layout import StoreDamaged, StoreLayout
+    from proctex.store.samples import read_shape_record, shape_record
+    from proctex.store.state import FamilyState
+    from proctex.store.template import load_template_shape
+
+    st, cfg = mug_family
+    made = cfg.procedural_model().generate(FamilyState.load(st).stage("template")["params"])
+
+    def no_shapes(self, *a, **k):
+        raise AssertionError("a shape was made while loading the family")
+
+    with monkeypatch.context() as m:
+        m.setattr(Config, "procedural_model", no_shapes)
+        shape = load_template_shape(st, cfg)
+    for k in ("vertices", "faces", "canonical", "labels"):
+        np.testing.assert_array_equal(getattr(shape, k), getattr(made, k))
+    assert shape.label_names == made.label_names and shape.params == made.params and shape.source == StoreLayout.TEMPLATE_MESH
+    assert shape.corner_uv is None and shape.derived == {}
+
+    # the record round-trips any shape (optional arrays present or absent) and refuses other files
+    other = FamilyStore(tmp_path / "other")
+    odd = dataclasses.replace(made, corner_uv=np.zeros((made.n_faces, 3, 2)), face_source=np.arange(made.n_faces), params={"ü": [1.5]})
+    other.write_bytes("s.npz", shape_record(odd))
+    back = read_shape_record(other, "s.npz")
+    for k in ("vertices", "faces", "canonical", "labels", "corner_uv", "face_source"):
+        np.testing.assert_array_equal(getattr(back, k), getattr(odd, k))
+        assert getattr(back, k).dtype == getattr(odd, k).dtype
+    assert (back.label_names, back.params, back.source) == (odd.label_names, odd.params, odd.source)
+    other.write_arrays("bad.npz", vertices=made.vertices, faces=made.faces)
+    with pytest.raises(StoreDamaged, match="bad.npz is not a shape record"):
+        read_shape_record(other, "bad.npz")
+
+    copy = FamilyStore(tmp_path / "copy")
+    for rel in (StoreLayout.STATE, StoreLayout.TEMPLATE_MESH, StoreLayout.TEMPLATE_SHAPE):
+        copy.write_bytes(rel, st.read_bytes(rel))
+    data = bytearray(copy.read_bytes(StoreLayout.TEMPLATE_SHAPE))
+    data[-40] ^= 1
+    copy.write_bytes(StoreLayout.TEMPLATE_SHAPE, bytes(data))
+    with pytest.raises(StoreDamaged, match="shape.npz: checksum mismatch"):
+        load_template_shape(copy)
+    copy.delete(StoreLayout.TEMPLATE_SHAPE)
+    with pytest.raises(StoreDamaged, match="shape.npz is missing"):
+        load_template_shape(copy)
+    # built before the record: the stage record has no digest
+    state = FamilyState.load(copy)
+    del state.stages["template"]["shape"]
+    state.save(copy)
+    again = load_template_shape(copy)
+    np.testing.assert_array_equal(again.labels, made.labels)
+    kind = reg.get_source_kind("model")
+    with monkeypatch.context() as m:
+        import proctex.store.template as tm
+
+        m.setattr(tm, "source_kind", lambda source: dataclasses.replace(kind, starts_program=True))
+        m.setattr(Config, "procedural_model", no_shapes)
+        with pytest.raises(ValueError, match="built before ProcTex 0.16.*build it again"):
+            load_template_shape(copy)
+
+
+def test_loading_a_family_opens_no_shape_source_and_one_version_value(mug_family, monkeypatch):
+    """A service loads and describes a model family from its records alone (the parameter space as
+    the sample stage recorded it, the template shape as recorded): its source is opened only by
+    the first transfer by parameters (for a ``.blend`` family, that is when Blender starts). The
+    family's version is one value: the handle's, the service's and the description's."""
+    from proctex.serve.service import FamilyService
+    from proctex.store.config import BuildConfig as Config
+    from proctex.store.family import Family
+    from proctex.store.state import FamilyState
+
+    st, cfg = mug_family
+    recorded = FamilyState.load(st).stage("sample")["space"]
+    assert recorded == cfg.procedural_model().space.to_list()
+
+    def opened(self, *a, **k):
+        raise AssertionError("the shape source was opened")
+
+    with monkeypatch.context() as m:
+        m.setattr(Config, "shapes", opened)
+        m.setattr(Config, "procedural_model", opened)
+        family = Family.open(st)
+        assert family.space.to_list() == recorded and family.template_shape.n_faces > 0
+        svc = FamilyService(st, "mug")
+        described = svc.describe()
+        assert described["parameters"] == recorded and described["inputs"] == ["params", "mesh"]
+        assert described["source"]["kind"] == "model" and described["parts_attribute"] is None
+        assert family.version == svc.stamp == described["stamp"]
+        with pytest.raises(AssertionError, match="source was opened"):
+            svc.shape_from_params({})
+    shape = svc.shape_from_params({})  # opened now
+    assert shape.n_faces > 0

@@ -26,7 +26,8 @@ from proctex.store.layout import (
 )
 from proctex.store.locks import StoreBusy, store_lock
 from proctex.store.looks import built_look, paint_record, resolve_look
-from proctex.store.state import Changed, FamilyState, build_stamp
+from proctex.store.family import Family
+from proctex.store.state import Changed, FamilyState
 from proctex.store.template import TemplateFiles, load_template_shape
 from proctex.texture.painting import PaintConfig
 
@@ -292,7 +293,7 @@ def changed_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool 
             if store.exists(look.RECORD) and not force:
                 raise ValueError(f"the family has a look {name!r} already (made meanwhile); --force replaces it")
             store.replace_folder(look.folder, files)
-            version = build_stamp(store)
+            version = Family.open(store).version
     log(f"look {name}: {len(files)} files in {look.folder}/, {record['seconds']:.1f} s")
     return Changed(record, version)
 

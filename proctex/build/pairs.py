@@ -15,7 +15,8 @@ from proctex.geometry.shape import Shape
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.samples import held_out_split, load_sample, pair_seed, part_digest, samples, write_pair_vertices
-from proctex.store.state import FamilyState, build_stamp, mark_stage, stage_done
+from proctex.store.family import Family
+from proctex.store.state import FamilyState, mark_stage, stage_done
 from proctex.transfer.assets import load_assets
 
 
@@ -212,9 +213,9 @@ _ASSETS: dict[tuple[str, str], Any] = {}
 
 
 def cached_assets(store: FamilyStore) -> Any:
-    """The store's template assets, loaded once per process and family version (:func:`build_stamp`)."""
+    """The store's template assets, loaded once per process and family version (:attr:`Family.version`)."""
     state = FamilyState.load(store)
-    key = (store.uri, build_stamp(store, state))
+    key = (store.uri, Family.open(store, state).version)
     if key not in _ASSETS:
         _ASSETS.clear()
         _ASSETS[key] = load_assets(store, state)

@@ -41,11 +41,14 @@ def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> d
     return row
 
 
-def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]], notes: list[str] | None = None) -> None:
+def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]], notes: list[str] | None = None, space: list[dict] | None = None) -> None:
     """Write ``samples.parquet`` (rows in sample order) and mark the stage done (with ``notes``: what
-    the source said of its inputs, e.g. those held at a file's values)."""
+    the source said of its inputs, e.g. those held at a file's values; ``space``: the procedural
+    model's parameter space, :meth:`ParamSpace.to_list`, which readers take from the record instead
+    of opening the model)."""
     store.write_table(StoreLayout.SAMPLES, pa.Table.from_pylist(rows))
-    mark_stage(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows), **({"notes": notes} if notes else {}))
+    mark_stage(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows), **({"notes": notes} if notes else {}),
+               **({"space": space} if space is not None else {}))
 
 
 def source_notes(config: BuildConfig) -> list[str]:
@@ -74,12 +77,14 @@ def plan_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
         return Plan("sample", [], run_sample_batch, finish=lambda results: None, skip="done already")
     jobs = sample_jobs(config)
     notes = source_notes(config)
+    model = config.shapes().model
+    space = model.space.to_list() if model is not None else None
     for note in notes:
         log(f"sample: {note}")
 
     def finish(results: list[list[dict[str, Any]]]) -> None:
         rows = [row for out in results for row in out]
-        finish_sample_stage(store, rows, notes)
+        finish_sample_stage(store, rows, notes, space)
         log(f"sample: {len(rows)} shapes")
 
     return Plan("sample", [jobs[i : i + SAMPLE_BATCH] for i in range(0, len(jobs), SAMPLE_BATCH)], run_sample_batch, finish)

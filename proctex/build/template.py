@@ -1,4 +1,5 @@
-"""The ``template`` stage: the train sample with the most kinds of part, nearest the mean parameters."""
+"""The ``template`` stage: the train sample with the most kinds of part, nearest the mean parameters,
+recorded whole (``template/shape.npz``, with its labels and part names) so that no reader makes it again."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from typing import Callable
 import numpy as np
 
 from proctex.store.config import BuildConfig
-from proctex.store.layout import FamilyStore, StoreLayout
-from proctex.store.samples import read_mesh, samples
+from proctex.store.layout import FamilyStore, StoreLayout, digest
+from proctex.store.samples import load_sample, read_mesh, samples, shape_record
 from proctex.store.state import mark_stage, stage_done
 
 
@@ -30,7 +31,10 @@ def stage_template(store: FamilyStore, config: BuildConfig, log: Callable[[str],
     kinds = [part_kinds(read_mesh(store, r["mesh"])) for r in rows]
     i = select_template(space, params, coverage=kinds) if len(space) else int(np.argmax(kinds))
     nearest = select_template(space, params) if len(space) else 0
-    store.write_bytes(StoreLayout.TEMPLATE_MESH, store.read_bytes(rows[i]["mesh"]))
-    mark_stage(store, "template", id=rows[i]["id"], params=params[i], part_kinds=kinds[i])
+    shape = load_sample(store, rows[i], config)  # model families: made again from its parameters, labels included
+    shape.source = StoreLayout.TEMPLATE_MESH
+    record = shape_record(shape)  # what readers load: never made again (no reader starts Blender)
+    store.write_all([(StoreLayout.TEMPLATE_MESH, store.read_bytes(rows[i]["mesh"])), (StoreLayout.TEMPLATE_SHAPE, record)])
+    mark_stage(store, "template", id=rows[i]["id"], params=params[i], part_kinds=kinds[i], shape=digest(record))
     why = "" if i == nearest else f"; the sample nearest the mean ({rows[nearest]['id']}) has {kinds[nearest]}"
     log(f"template: {rows[i]['id']} ({kinds[i]} kinds of part, the most of the {len(rows)} train samples{why})")

@@ -14,7 +14,7 @@ import time
 
 from proctex.serve.service import FamilyService, Limits, NotFound, Unavailable
 from proctex.store.layout import FamilyStore, StoreLayout
-from proctex.store.state import FamilyState, build_stamp
+from proctex.store.family import Family
 
 
 class Watchdog:
@@ -116,20 +116,20 @@ class Catalog:
                 return cached[0]
             store = self.store(name)
             try:
-                state = FamilyState.load(store)  # read once: the stamp, the check and the load share it
-                stamp = build_stamp(store, state)
+                family = Family.open(store)  # read once: the version, the check and the load share it
+                stamp = family.version
             except Exception as exc:  # family.json itself damaged
                 raise self._mark_broken(name, "", exc) from exc
             if cached is not None and stamp == cached[0].stamp:
                 self._cache[name] = (cached[0], now)
                 return cached[0]
-            if not state.done("paint"):
+            if not family.done("paint"):
                 raise NotFound(f"family {name!r} is not built yet (no painted template)")
             broken = self._broken.get(name)
             if broken is not None and broken[0] == stamp and time.monotonic() < broken[2]:
                 raise Unavailable(broken[1])  # tried again once its back-off has passed
             try:
-                service = FamilyService(store, name, self.limits, device=self.device, state=state)
+                service = FamilyService(store, name, self.limits, device=self.device, family=family)
             except Exception as exc:  # a damaged file of this family: the others are still served
                 raise self._mark_broken(name, stamp, exc) from exc
             self._broken.pop(name, None)
@@ -179,10 +179,10 @@ class Catalog:
     def _unloaded_health(self, name: str) -> str:
         store = self.store(name)
         try:
-            state = FamilyState.load(store)
-            if not state.done("paint"):
+            family = Family.open(store)
+            if not family.done("paint"):
                 return "not built"
             broken = self._broken.get(name)
-            return broken[1] if broken is not None and broken[0] == build_stamp(store, state) else "ok"
+            return broken[1] if broken is not None and broken[0] == family.version else "ok"
         except Exception as exc:  # family.json itself damaged
             return f"family {name!r} is unavailable: {type(exc).__name__}: {str(exc)[:500]}"

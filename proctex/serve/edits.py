@@ -16,7 +16,8 @@ from proctex.geometry.shape import Shape
 from proctex.store.layout import FamilyStore, StoreDamaged, StoreLayout
 from proctex.store.locks import is_local, store_lock
 from proctex.store.looks import resolve_look
-from proctex.store.state import Changed, build_stamp, stored_config
+from proctex.store.family import Family
+from proctex.store.state import Changed, stored_config
 from proctex.store.template import (
     TemplateFiles,
     decode_png,
@@ -186,7 +187,7 @@ def changed_edit(
 ) -> Changed:
     """Edit one group's template texture in the store; every later transfer or bake uses it. Every
     edit (the CLI's, the service's, the library's) is a new template version: under the family's
-    edit lock, checked against ``expect_stamp`` (the family's :func:`~proctex.store.state.build_stamp`,
+    edit lock, checked against ``expect_stamp`` (the family's version, :attr:`proctex.store.family.Family.version`,
     :class:`EditConflict` when they differ), built on files whose checksums hold (a file changed outside ProcTex is refused, never
     recorded), and written as one change with its undo snapshot (:meth:`TemplateFiles.commit`: a
     full disk leaves the family as it was).
@@ -207,7 +208,7 @@ def changed_edit(
     with edit_lock(store):
         _expect(store, expect_stamp, "edit")
         record = _edit(store, group, hue, saturation, value, logo, at, size, rotation, opacity, prompt, roughness, metallic, look)
-        return Changed(record, build_stamp(store))
+        return Changed(record, Family.open(store).version)
 
 
 def edit_group(store: FamilyStore, group: int | str, **edit: Any) -> dict[str, Any]:
@@ -219,7 +220,7 @@ def _expect(store: FamilyStore, expect_stamp: str | None, what: str) -> None:
     """:class:`EditConflict` unless the family's version is ``expect_stamp`` (None: no condition);
     called under the edit lock."""
     if expect_stamp is not None:
-        now = build_stamp(store)
+        now = Family.open(store).version
         if now != expect_stamp:
             raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r} (now {now!r}); reload and {what} again")
 
@@ -341,7 +342,7 @@ def undo_edits(store: FamilyStore, expect_stamp: str | None = None, look: str | 
                 raise EditConflict(str(exc)) from exc
             if not all_edits:
                 break
-        return Changed(undone, build_stamp(store))
+        return Changed(undone, Family.open(store).version)
 
 
 def undo_edit(store: FamilyStore, expect_stamp: str | None = None, look: str | None = None) -> dict[str, Any]:

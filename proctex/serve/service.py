@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from proctex.params import infer_space
-from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged, StoreLayout
+from proctex.store.layout import MAP_KINDS, FamilyStore, StoreDamaged
 from proctex.store.looks import look_paint, looks, resolve_look
-from proctex.store.samples import samples
-from proctex.store.state import Changed, FamilyState, build_stamp
+from proctex.sources.registry import source_kind
+from proctex.store.family import Family
+from proctex.store.state import Changed
 from proctex.texture.painting import MAX_PROMPT
 from proctex.transfer.assets import texture_hw
 from proctex.transfer.budget import OverBudget
@@ -261,17 +261,17 @@ class FamilyService:
     """One built family, loaded for transfer."""
 
     def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None, mapper: str = "auto",
-                 device: str = "cpu", state: FamilyState | None = None, look: str | None = None) -> None:
+                 device: str = "cpu", family: Family | None = None, look: str | None = None) -> None:
         """Load the family in ``store``; ``mapper``: a :mod:`proctex.transfer.methods` name
         ("auto": the group networks where trained, the default); ``device``: where the networks and a
         cage fallback run ("cpu", "cuda", "cuda:<i>"; ``ValueError`` when CUDA is asked for and absent);
-        ``state``: the family state when the caller has read it (a catalog), else read here, once;
+        ``family``: the family's records when the caller has opened them (a catalog, :class:`Family`),
+        else opened here, once, under the edit lock;
         ``look``: the family's look to texture with (:mod:`proctex.store.looks`; default: the build's)."""
         from proctex.correspond.corrnet import resolve_device
         from proctex.serve.edits import edit_lock, read_again
-        from proctex.store.networks import load_models
         from proctex.texture.painters import SurfacePainter
-        from proctex.transfer.assets import load_assets
+        from proctex.transfer.assets import template_assets
         from proctex.transfer.methods import get_method, make_mapper
 
         t0 = time.perf_counter()
@@ -284,22 +284,21 @@ class FamilyService:
 
         def read() -> None:
             with edit_lock(store, shared=True):  # the template's files as one version, never half an edit
-                self.state = state if state is not None else FamilyState.load(store)
-                self.stamp = build_stamp(store, self.state)
-                self.config = self.state.build_config(store.uri)
-                self.source = self.config.shapes()  # the open shape source (one per process)
-                self.model = self.source.model  # None: a folder of meshes, which takes meshes only
+                opened = Family.open(store, family.state if family is not None else None)  # its version hashed under the lock
+                self.family, self.state, self.stamp = opened, opened.state, opened.version  # one version value
+                self.config = opened.config
+                self.source_kind = source_kind(self.config.source)  # the source is opened on first use (model)
                 self.up = self.config.up_axis()  # GLBs stand the shape upright in glTF's +Y-up world
                 self.look = resolve_look(store, look)
                 self.paint = look_paint(store, self.look, self.config.paint)  # the look's prompts paint new parts
-                self.assets = load_assets(store, self.state, self.look)
+                self.assets = template_assets(opened.template(self.look))
                 # every method that uses the networks loads them ("auto": where there are any)
-                self.models = load_models(store, self.device, self.state) if method.networks != "none" else {}
+                self.models = opened.networks(self.device) if method.networks != "none" else {}
                 # what describe() says, read with the rest: the description is of the version loaded
                 self.paint_record = store.read_json(self.look.PAINT) if store.exists(self.look.PAINT) else {}
-                self.metrics_record = store.read_json(StoreLayout.METRICS) if store.exists(StoreLayout.METRICS) else None
-                self.look_names = [lk.name for lk in looks(store)]
-                self.space = self.model.space if self.model is not None else infer_space([json.loads(r["params"]) for r in samples(store)])
+                self.metrics_record = opened.metrics
+                self.look_names = [lk.name for lk in opened.looks]
+                self.space = opened.space  # recorded: a .blend family's Blender is not started to read it
 
         read_again(read)  # on an object store, again if an edit ran while it read
         self._digest_textures()
@@ -315,6 +314,13 @@ class FamilyService:
         self._clear_edit_caches()
         self._views: dict[str, FamilyService] = {self.look.name: self}  # the family's looks, each made when first asked for
         self._views_lock = threading.Lock()
+
+    @property
+    def model(self) -> Any:
+        """The family's procedural model (None for a folder of meshes, which takes meshes only),
+        opened on first use, once per process: loading a ``.blend`` family starts no Blender; its
+        first transfer by parameters does."""
+        return self.config.procedural_model() if self.source_kind.regenerates else None
 
     def _clear_edit_caches(self) -> None:
         """Empty caches of this look's edited textures and re-paints (each look keeps its own)."""
@@ -392,10 +398,10 @@ class FamilyService:
         return {
             "name": self.name,
             "source": {**{k.name: bool(self.config.source.value(k.name)) for k in source_kinds()}, "model": self.config.source.model,
-                       "kind": self.source.kind.name},
-            "inputs": ["params", "mesh"] if self.model is not None else ["mesh"],
+                       "kind": self.source_kind.name},
+            "inputs": ["params", "mesh"] if self.source_kind.regenerates else ["mesh"],
             # the attribute whose values are the parts: a mesh sent with it as OBJ groups keeps them apart
-            "parts_attribute": self.source.parts_attribute,
+            "parts_attribute": self.config.source.parts_attribute,
             "up": self.up,
             "parameters": [s.to_dict() for s in space.specs],
             "look": self.look.name,
@@ -419,7 +425,7 @@ class FamilyService:
 
     # --------------------------------------------------------------------------------- transfer
     def shape_from_params(self, params: Any):
-        if self.model is None:
+        if not self.source_kind.regenerates:
             raise BadInput(f"family {self.name!r} comes from a folder of meshes: send a mesh, not parameters")
         if not isinstance(params, dict):
             raise BadInput("params must be a JSON object of parameter values")

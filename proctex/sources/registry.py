@@ -127,6 +127,11 @@ class SourceConfig:
                 return k.name
         raise ValueError("the source names no kind")
 
+    @property
+    def parts_attribute(self) -> str | None:
+        """The attribute whose values are the shapes' parts (a ``.blend`` model's ``parts``), or None."""
+        return (self.blender or {}).get("parts")
+
 
 @dataclass(frozen=True)
 class SampleJob:
@@ -189,6 +194,8 @@ class SourceKind:
             labels and canonical coordinates included) rather than read back from its mesh.
         canonical: its shapes carry canonical coordinates (the evaluation's "canonical" truth).
         default_up: the up axis of its shapes when the source says "auto".
+        starts_program: making a shape starts another program (Blender): readers of a built family
+            never make shapes of such a source (a family records its template whole).
     """
 
     name: str
@@ -198,6 +205,7 @@ class SourceKind:
     regenerates: bool = True
     canonical: bool = False
     default_up: str = "z"
+    starts_program: bool = False
 
     @property
     def settings_key(self) -> str:
@@ -280,7 +288,7 @@ def _open_blender(config: SourceConfig) -> ShapeSource:
     model = BlenderModel(b["file"], b["object"], b.get("modifier", "GeometryNodes"), bounds=config.params, pins=b.get("pins"),
                          uv=b.get("uv"), parts=b.get("parts"), listed=listed)
     model.space = with_conditions(model.space, config.conditions)
-    return ShapeSource(get_source_kind("blender"), model, model.space, uv_map=b.get("uv"), parts_attribute=b.get("parts"))
+    return ShapeSource(get_source_kind("blender"), model, model.space, uv_map=b.get("uv"), parts_attribute=config.parts_attribute)
 
 
 def _check_model(name: Any) -> None:
@@ -322,4 +330,4 @@ register_source_kind(SourceKind("folder", lambda config: FolderShapes(get_source
                                 "a folder of exported meshes with their parameters (JSON beside each)", regenerates=False, default_up="y"))
 register_source_kind(SourceKind("generator", _open_generator, _check_generator, "your Python generator, named in a TOML/JSON file"))
 register_source_kind(SourceKind("blender", _open_blender, _check_blender, "a .blend file's Geometry Nodes modifier, evaluated by Blender",
-                                canonical=True))
+                                canonical=True, starts_program=True))

@@ -247,6 +247,7 @@ class StoreLayout:
     MODELS = "models"
     TEMPLATE = "template"
     TEMPLATE_MESH = "template/template.obj"
+    TEMPLATE_SHAPE = "template/shape.npz"  # the template shape whole (labels, part names): read, never regenerated
     UV = "template/uv.npz"
     GROUPING = "template/grouping.json"
     PART_WORDS = "template/part_words.json"  # the user's word per group (proctex parts --assign, the studio)
@@ -570,7 +571,10 @@ class FamilyStore:
 
     def read_arrays(self, rel: str) -> dict[str, np.ndarray]:
         """Arrays of an ``.npz`` (never unpickled); ``ValueError`` naming the file when it is damaged."""
-        data = self.read_bytes(rel)
+        return self.read_arrays_of(self.read_bytes(rel), rel)
+
+    def read_arrays_of(self, data: bytes, rel: str) -> dict[str, np.ndarray]:
+        """:meth:`read_arrays` of bytes already read from ``rel`` (which names the file in errors)."""
         try:
             with np.load(io.BytesIO(data), allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}

@@ -13,7 +13,7 @@ from proctex.geometry.meshio import load_mesh_bytes
 from proctex.geometry.shape import Shape
 from proctex.sources.registry import source_kind
 from proctex.store.config import BuildConfig
-from proctex.store.layout import FamilyStore, StoreLayout
+from proctex.store.layout import FamilyStore, StoreDamaged, StoreLayout, check_digest, encode_arrays
 
 
 def samples(store: FamilyStore) -> list[dict[str, Any]]:
@@ -36,6 +36,35 @@ def load_sample(store: FamilyStore, row: dict[str, Any], config: BuildConfig | N
     shape = read_mesh(store, row["mesh"])
     shape.params = params
     return shape
+
+
+#: The arrays of a shape record besides ``vertices`` and ``faces``, each stored when the shape has it.
+_SHAPE_OPTIONAL = ("canonical", "labels", "corner_uv", "face_source")
+
+
+def shape_record(shape: Shape) -> bytes:
+    """A :class:`Shape` whole as ``.npz`` bytes: its arrays, and its label names, parameters and
+    source as UTF-8 JSON in a ``meta`` byte array (numeric arrays only: reading never unpickles).
+    :func:`read_shape_record` gives back an equal shape (``derived`` starts empty)."""
+    meta = {"label_names": list(shape.label_names), "params": shape.params, "source": shape.source}
+    arrays = {"vertices": shape.vertices, "faces": shape.faces,
+              "meta": np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8)}
+    arrays.update({k: getattr(shape, k) for k in _SHAPE_OPTIONAL if getattr(shape, k) is not None})
+    return encode_arrays(**arrays)
+
+
+def read_shape_record(store: FamilyStore, rel: str, expected: str | None = None) -> Shape:
+    """The shape stored at ``rel`` by :func:`shape_record`; ``expected``: its recorded sha256 digest
+    (checked when given). A file that is not such a record is :class:`StoreDamaged`, naming it."""
+    data = store.read_bytes(rel)
+    check_digest(data, expected, f"{store.uri}: {rel}")
+    arrays = store.read_arrays_of(data, rel)
+    try:
+        meta = json.loads(arrays.pop("meta").tobytes().decode())
+        return Shape(arrays.pop("vertices"), arrays.pop("faces"), label_names=tuple(meta["label_names"]), params=dict(meta["params"]),
+                     source=str(meta["source"]), **{k: arrays[k] for k in _SHAPE_OPTIONAL if k in arrays})
+    except (KeyError, TypeError, ValueError, UnicodeDecodeError) as exc:
+        raise StoreDamaged(f"{store.uri}: {rel} is not a shape record ({type(exc).__name__}: {str(exc)[:200]})") from exc
 
 
 def pair_seed(config: BuildConfig, index: int, group: int) -> int:

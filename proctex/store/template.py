@@ -32,7 +32,7 @@ from proctex.store.layout import (
     encode_arrays,
     group_file_name,
 )
-from proctex.store.samples import read_mesh
+from proctex.store.samples import read_mesh, read_shape_record
 from proctex.store.state import FamilyState, stored_config
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -359,18 +359,31 @@ def write_textured(tex: Any, out: str | Path, up: str = "z", obj: bool = False, 
 
 
 def load_template_shape(store: FamilyStore, config: BuildConfig | None = None, state: FamilyState | None = None) -> Shape:
-    """The template shape (regenerated from its parameters for model families, see
-    :func:`proctex.store.samples.load_sample`); ``state``: the family state, when the caller has it."""
+    """The template shape as the template stage recorded it (``template/shape.npz``, checked against
+    its digest): read, never made again, so loading a family never starts another program (Blender).
+    A family built before ProcTex 0.16 has no record: a folder family's template is read from its
+    mesh, a model family's made again from its parameters, unless making a shape starts another
+    program (:attr:`proctex.sources.registry.SourceKind.starts_program`): then a ``ValueError`` asks
+    for the template stage to run again. ``state``: the family state, when the caller has it."""
     state = state if state is not None else FamilyState.load(store)
+    record = state.stage("template")
+    if store.exists(StoreLayout.TEMPLATE_SHAPE):
+        return read_shape_record(store, StoreLayout.TEMPLATE_SHAPE, record.get("shape"))
+    if record.get("shape") is not None:
+        raise StoreDamaged(f"{store.uri}: {StoreLayout.TEMPLATE_SHAPE} is missing (the template stage recorded it)")
     config = config if config is not None else stored_config(store, state)
-    if source_kind(config.source).regenerates:
-        params = state.stage("template").get("params")
-        if not isinstance(params, dict):
-            raise ValueError(f"{store.uri}: the template stage has no parameters recorded (rerun the build)")
-        shape = config.procedural_model().generate(params)
-        shape.source = StoreLayout.TEMPLATE_MESH
-        return shape
-    return read_mesh(store, StoreLayout.TEMPLATE_MESH)
+    kind = source_kind(config.source)
+    if not kind.regenerates:
+        return read_mesh(store, StoreLayout.TEMPLATE_MESH)
+    if kind.starts_program:
+        raise ValueError(f"{store.uri}: built before ProcTex 0.16, it has no recorded template shape, and making one starts "
+                         f"{kind.summary or kind.name}: build it again (proctex build) to record it")
+    params = record.get("params")
+    if not isinstance(params, dict):
+        raise ValueError(f"{store.uri}: the template stage has no parameters recorded (rerun the build)")
+    shape = config.procedural_model().generate(params)
+    shape.source = StoreLayout.TEMPLATE_MESH
+    return shape
 
 
 def load_template(store: FamilyStore, config: BuildConfig | None = None, state: FamilyState | None = None,
