@@ -291,7 +291,7 @@ def make_random_looks(family: FamilyStore, n: int, seed: int, log: Callable[[str
     """Give ``family`` looks ``random-<seed>-0 .. n-1`` painted from :func:`random_prompts` (the
     build's other paint settings); a look of that name made before with the same prompt is kept,
     with another prompt it is a ``ValueError``. Returns each look's ``{"name", "prompt"}``."""
-    from proctex.build.looks import LookLimits, add_look
+    from proctex.looks import LookLimits, add_look
     from proctex.store.looks import look_paint, new_look_paint, other_looks
     from proctex.store.state import stored_config
     from proctex.texture.painters.vocabulary import random_prompts

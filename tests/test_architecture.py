@@ -138,7 +138,7 @@ def test_proctex_has_no_import_circle():
 #: ``_reference`` (for the tests) may import anything and is imported by nothing shipped.
 LAYERS = {"proctex.fileio": 0, "proctex.params": 0, "proctex.progress": 0, "proctex.plugins": 0, "proctex.pools": 0, "proctex.torch_kernels": 0, "proctex.geometry": 1, "proctex.models": 2,
           "proctex.texture": 2, "proctex.correspond": 3, "proctex.sources": 4, "proctex.store": 5, "proctex.transfer": 6,
-          "proctex.measure": 7, "proctex.build": 8, "proctex.serve": 8, "proctex.generate": 9, "proctex.demo": 10, "proctex.cli": 11}
+          "proctex.measure": 7, "proctex.looks": 8, "proctex.build": 9, "proctex.serve": 9, "proctex.generate": 10, "proctex.demo": 11, "proctex.cli": 12}
 
 
 def unit_of(module: str, layers: dict[str, int]) -> str | None:
@@ -336,3 +336,53 @@ def test_the_house_figures_count_deferred_imports_and_sizes_exactly():
     f = figures(top=3)
     assert f["function_level_imports_in_proctex"] > 0 and len(f["largest_modules"]) == 3
     assert f["private_imports_across_units"] == []
+
+
+def build_imports(root: Path) -> list[str]:
+    """``"module -> target"`` for every import (functions included) of a build step under ``root``:
+    ``proctex.build``, ``proctex.looks`` (painting a look), ``proctex.measure``."""
+    steps = ("proctex.build", "proctex.looks", "proctex.measure")
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        mod = module_name(path, root)
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [import_target(node, package_of(mod, path))] if isinstance(node, ast.ImportFrom) else []
+            found += [f"{mod} -> {n}" for n in names if any(n == s or n.startswith(s + ".") for s in steps)]
+    return found
+
+
+def test_the_http_layer_runs_no_build_step_and_has_one_router_per_resource(tmp_path):
+    """``workers/http`` reads requests and writes answers: it imports no build step (the service
+    paints a look, :mod:`proctex.serve.lookviews`); each module of ``routes/`` makes one router
+    whose paths no other router has, and the app serves exactly their union. The check finds a
+    route module that imports the build."""
+    import importlib
+
+    from proctex.serve.catalog import Catalog
+    from workers.http import create_app
+    from workers.http.context import AppContext
+    from workers.http.routes import studio
+
+    http = ROOT.parent / "workers" / "http"
+    assert build_imports(http) == []
+    bad = tmp_path / "workers" / "http"
+    bad.mkdir(parents=True)
+    (bad / "r.py").write_text("def f():\n    from proctex.looks import changed_look\n")
+    assert build_imports(bad) == ["http.r -> proctex.looks"]
+
+    ctx = AppContext(lambda: Catalog(tmp_path), None, None, None, None, None)
+    seen: dict[str, str] = {}
+    for path in sorted((http / "routes").glob("*.py")):
+        if path.stem == "__init__":
+            continue
+        module = importlib.import_module(f"workers.http.routes.{path.stem}")
+        router = module.router(ctx, tmp_path) if module is studio else module.router(ctx)
+        paths = {r.path for r in router.routes}
+        assert paths, path.stem
+        for p in paths:
+            assert p not in seen, f"{p} in routes/{path.stem} and routes/{seen[p]}"
+            seen[p] = path.stem
+    app = create_app(lambda: Catalog(tmp_path), studio_dir=tmp_path)
+    assert set(app.openapi()["paths"]) == {p for p, m in seen.items() if m != "studio"}
+    assert len(set(seen.values())) == 8

@@ -319,7 +319,7 @@ def served_vase(blends, tmp_path_factory):
     build(store, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
     from dataclasses import replace
 
-    from proctex.build.looks import add_look
+    from proctex.looks import add_look
 
     add_look(store, "red", replace(cfg.paint, prompt="red lacquer"), log=lambda *_: None)  # a second look for the add-on's picker
     from .processes import serving

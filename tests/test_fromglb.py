@@ -280,7 +280,7 @@ def test_a_member_textured_by_the_family_reads_back_as_its_look_and_a_mirrored_o
     its own UVs) and read back with its parameters, or as a mesh: the look's textures again within
     3 levels, nothing filled; the same member mirrored reads back clearly worse, and with the
     parameters it is refused (it is not that shape)."""
-    from proctex.build.looks import add_look
+    from proctex.looks import add_look
     from proctex.store.samples import samples
     from proctex.store.state import FamilyState
 

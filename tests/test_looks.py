@@ -15,7 +15,7 @@ from pathlib import Path
 import pygltflib as gl
 import pytest
 
-from proctex.build.looks import add_look, remove_look
+from proctex.looks import add_look, remove_look
 from proctex.cli import main
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.looks import UnknownLook, look_paint, looks, resolve_look
@@ -138,7 +138,7 @@ def test_a_damaged_look_fails_alone(mug):
 
 
 def test_two_processes_adding_looks_at_once_both_land(mug):
-    code = ("import sys\nfrom dataclasses import replace\nfrom proctex.build.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
+    code = ("import sys\nfrom dataclasses import replace\nfrom proctex.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
             "from proctex.store.state import FamilyState\nst = FamilyStore(sys.argv[1])\n"
             "add_look(st, sys.argv[2], replace(FamilyState.load(st).build_config().paint, prompt=sys.argv[2]), log=lambda *_: None)\n")
     procs = [subprocess.Popen([sys.executable, "-c", code, mug.base, name], cwd=ROOT, stderr=subprocess.PIPE, text=True)
@@ -385,7 +385,7 @@ def test_a_look_is_painted_under_its_limits_and_nothing_is_written_past_them(mug
     bytes before anything is written; each refusal leaves the family as it was."""
     import threading
 
-    from proctex.build.looks import LookLimits, LookOverLimit
+    from proctex.looks import LookLimits, LookOverLimit
     from proctex.store.looks import new_look_paint
     from proctex.transfer.budget import Budget, OverBudget
 

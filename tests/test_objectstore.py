@@ -729,7 +729,7 @@ def test_looks_edits_and_undo_on_s3_from_two_processes(s3, painted_mug_root):
     from proctex.store.looks import looks
 
     st = upload(painted_mug_root / "mug", s3.uri("looks/mug"))
-    code = ("import sys\nfrom dataclasses import replace\nfrom proctex.build.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
+    code = ("import sys\nfrom dataclasses import replace\nfrom proctex.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
             "from proctex.store.state import FamilyState\nst = FamilyStore(sys.argv[1])\n"
             "add_look(st, sys.argv[2], replace(FamilyState.load(st).build_config().paint, prompt=sys.argv[2]), log=lambda *_: None)\n")
     procs = [subprocess.Popen([sys.executable, "-c", code, st.uri, name], cwd=ROOT, stderr=subprocess.PIPE, text=True) for name in ("oak", "teak")]

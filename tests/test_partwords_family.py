@@ -15,7 +15,7 @@ import pygltflib as gl
 import pytest
 from PIL import Image
 
-from proctex.build.looks import add_look, family_parts
+from proctex.looks import add_look, family_parts
 from proctex.cli import main
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.looks import look_paint, new_look_paint, resolve_look

@@ -134,7 +134,7 @@ def _with_look(root: Path, name: str, prompt: str):
     """The served mug's store with look ``name`` painted from ``prompt`` (once), and the build's paint settings."""
     from dataclasses import replace
 
-    from proctex.build.looks import add_look
+    from proctex.looks import add_look
     from proctex.store.state import FamilyState
 
     st = FamilyStore(root / "mug")

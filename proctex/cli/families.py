@@ -103,7 +103,7 @@ def named_look(args: argparse.Namespace) -> str:
     store = FamilyStore(args.out)
     if args.look is None or not store.exists(StoreLayout.PAINT):
         return ""
-    from proctex.build.looks import name_built_look
+    from proctex.looks import name_built_look
 
     name_built_look(store, args.look)
     return f"; its look: {args.look}"
@@ -244,7 +244,7 @@ def parse_assign(text: str | None) -> dict[str, str]:
 def family_parts_command(args: argparse.Namespace) -> int:
     """``proctex parts FAMILY``: which group took which word (``--png`` draws it), ``--assign`` /
     ``--save`` the user's words."""
-    from proctex.build.looks import family_parts
+    from proctex.looks import family_parts
     from proctex.store.layout import FamilyStore
     from proctex.store.partwords import save_part_words
     from proctex.texture.partsview import parts_picture

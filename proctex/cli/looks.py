@@ -11,7 +11,7 @@ from .common import _group_prompts, _print_json
 
 
 def cmd_look(args: argparse.Namespace) -> int:
-    from proctex.build.looks import add_look, remove_look
+    from proctex.looks import add_look, remove_look
     from proctex.store.layout import FamilyStore
     from proctex.store.looks import look_summary, looks, new_look_paint
     from proctex.store.state import FamilyState
@@ -201,10 +201,10 @@ def add_look_parser(sub: argparse._SubParsersAction, painters: list[str], painte
 
 
 def look_limits(args):
-    """:class:`proctex.build.looks.LookLimits` with ``--max-seconds`` and ``--max-looks`` over its defaults."""
+    """:class:`proctex.looks.LookLimits` with ``--max-seconds`` and ``--max-looks`` over its defaults."""
     from dataclasses import replace
 
-    from proctex.build.looks import LookLimits
+    from proctex.looks import LookLimits
 
     over = {k: v for k, v in (("seconds", args.max_seconds), ("looks", args.max_looks)) if v is not None}
     return replace(LookLimits(), **over)

@@ -96,7 +96,7 @@ def new_look_paint(build_paint: PaintConfig, prompt: str | None, group_prompts: 
     """The paint settings of a new look: the build's (views, fill, ...) with ``prompt`` and, where
     given, ``painter`` and ``texture_size`` over them; group prompts only those given (the build's
     belong to its prompt); part words (the user's word per group) those given over the build's
-    (:func:`proctex.build.looks.add_look` lays the family's stored ones between). ``images``: a look
+    (:func:`proctex.looks.add_look` lays the family's stored ones between). ``images``: a look
     from photos (:attr:`PaintConfig.images`); it paints with the surface painter, and without a
     ``prompt`` keeps the build's (for the groups no photo covers and every group's metalness).
     ``glb``: a look read from a repainted template GLB (its name and checksum, for the record).

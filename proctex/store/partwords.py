@@ -1,6 +1,6 @@
 """The user's last word on which group is which part (``template/part_words.json``): ``{"groups":
 {"3": "legs", ...}, "saved": time}``. Stored by ``proctex parts FAMILY --assign`` and the studio;
-every look painted afterwards follows it (:func:`proctex.build.looks.add_look`), as do transfers of
+every look painted afterwards follows it (:func:`proctex.looks.add_look`), as do transfers of
 those looks. Group indices are the template's (:class:`proctex.geometry.parts.Grouping`)."""
 
 from __future__ import annotations

@@ -494,7 +494,7 @@ def paint_template(
     surface painter only): their groups are synthesised from the photos (:func:`resolve_photos`;
     ``under_prompt``: the prompt's named parts keep their clauses instead of the ``"*"`` photo).
     ``check(what)``: called before each group and each view, and may raise to stop the work (a
-    look's budget, :class:`proctex.build.looks.LookLimits`). ``settings``: the paint settings these
+    look's budget, :class:`proctex.looks.LookLimits`). ``settings``: the paint settings these
     arguments came from (:func:`paint_with` hands them whole), which the painter is made with; without
     them they are made of these arguments, so a plugin painter sees every one of them."""
     part_words = dict(part_words or {})

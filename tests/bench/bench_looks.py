@@ -2,7 +2,7 @@
 
 Builds a family in process (the demo preset by default: the sofa model, 10 training shapes, every
 stage but the evaluation), timing each stage, then adds looks with other prompts and times each
-(``proctex.build.looks.add_look``: the stored template painted again, nothing else). With
+(``proctex.looks.add_look``: the stored template painted again, nothing else). With
 ``--family``, a family built before is copied and given looks (its build is not rerun: its stage
 records give no wall times, so only the look times are reported). Prints a table and writes JSON.
 
@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="")
     args = ap.parse_args(argv)
 
-    from proctex.build.looks import add_look
+    from proctex.looks import add_look
     from proctex.build.pipeline import build
     from proctex.store.config import BuildConfig
     from proctex.store.layout import FamilyStore

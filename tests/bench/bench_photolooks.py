@@ -4,7 +4,7 @@ On a painted family (``--family STORE``: the stages sample, template and paint a
 script makes two photos in code (a woven fabric and a wood grain; nothing is downloaded), then:
 
 - **time**: a prompt look and a photo look (``--part`` takes the wood, the fabric covers the rest),
-  both through :func:`proctex.build.looks.add_look` as ``proctex look add`` runs it, ``--repeats``
+  both through :func:`proctex.looks.add_look` as ``proctex look add`` runs it, ``--repeats``
   times each, medians;
 - **seams**: the photo look rendered in the six canonical views (albedo, no light): the mean colour
   step between neighbouring pixels of one group whose faces lie in *different* UV charts, over the
@@ -36,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from proctex.build.looks import add_look, remove_look  # noqa: E402
+from proctex.looks import add_look, remove_look  # noqa: E402
 from proctex.store.layout import FamilyStore, StoreLayout  # noqa: E402
 from proctex.store.looks import new_look_paint  # noqa: E402
 from proctex.store.state import FamilyState  # noqa: E402
@@ -318,7 +318,7 @@ def direct_views(views: list, shape, grouping, painter) -> tuple[list, list[np.n
 
 
 def files_uv(files, shape, grouping, size):
-    from proctex.build.looks import stored_uv
+    from proctex.looks import stored_uv
 
     return stored_uv(files, shape, grouping, size)
 

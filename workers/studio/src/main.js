@@ -1,6 +1,6 @@
 // ProcTex studio: pick a family, move its parameters, edit part textures, see the textured shape,
 // and say which part is which (hover a part: its group and word; click it: give it a clause of the
-// prompt). Talks to the API of workers/http.py on the same origin. Test hooks:
+// prompt). Talks to the API of workers/http/ on the same origin. Test hooks:
 // document.body.dataset.state ("loading" | "idle" | "error"), .busy ("1" while a request is
 // pending), .requests (completed transfers), .hover / .selected (group under the pointer / clicked),
 // .words ("saved" after the part words were stored) and window.studio.

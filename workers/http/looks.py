@@ -1,15 +1,12 @@
-"""Looks and part words of a served family, for the HTTP routes (:mod:`workers.http`): a ``POST
-.../looks`` body parsed into paint settings (prompts, photos, a repainted template or a textured
-member), the look painted and stored under the service's limits
-(:func:`proctex.build.looks.changed_look`), and the part-word report and its stored words. The HTTP
-module reads requests and answers; what a look does is here."""
+"""A ``POST .../looks`` body parsed into paint settings (prompts, photos, a repainted template or a
+textured member) and its bounds over HTTP; the service paints and stores the look
+(:meth:`proctex.serve.service.FamilyService.add_look`)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from proctex.serve.edits import EditConflict
-from proctex.serve.service import BadInput, NotFound, TooLarge
+from proctex.serve.service import BadInput, TooLarge
 
 #: A look's texture size over HTTP (the CLI allows up to 8192): a request paints seconds, not minutes.
 MAX_LOOK_TEXTURE = 2048
@@ -109,59 +106,3 @@ def parse_look(body: dict[str, Any], svc: Any, files: dict[str, tuple[bytes, str
     except (TypeError, ValueError) as exc:
         raise BadInput(str(exc)[:500]) from exc
     return name, paint, force, photos
-
-
-def parts_of(svc: Any, prompt: str | None, look: str | None) -> dict[str, Any]:
-    """:func:`proctex.build.looks.family_parts` of the service's family (the report, without the mesh)."""
-    from proctex.build.looks import family_parts
-
-    if prompt is not None and len(prompt) > svc.limits.max_prompt:
-        raise BadInput(f"prompt must be at most {svc.limits.max_prompt} characters")
-    from proctex.store.looks import UnknownLook
-
-    if look is not None and (not isinstance(look, str) or len(look) > 200):
-        raise BadInput("look must be a look's name")
-    try:
-        return family_parts(svc.store, prompt, look)[0]
-    except UnknownLook as exc:
-        raise NotFound(str(exc)) from None
-
-
-def save_parts(svc: Any, body: dict[str, Any]) -> dict[str, str]:
-    """Store a ``PUT .../parts`` body's words (:func:`proctex.store.partwords.save_part_words`); a
-    busy store is a conflict (409)."""
-    from proctex.store.locks import StoreBusy
-    from proctex.store.partwords import save_part_words
-
-    unknown = set(body) - {"groups", "replace"}
-    if unknown:
-        raise BadInput(f"unknown fields {sorted(unknown)[:5]}; part words take groups, replace")
-    replace = body.get("replace", False)
-    if not isinstance(replace, bool):
-        raise BadInput("replace must be true or false")
-    try:
-        return save_part_words(svc.store, body.get("groups"), len(svc.assets.groups), replace=replace, timeout=10.0)
-    except StoreBusy as exc:
-        raise EditConflict(str(exc)) from exc
-
-
-def add_look_to(svc: Any, name: str, paint: Any, force: bool, photos: dict[str, Any] | None = None, budget: Any = None) -> Any:
-    """:func:`proctex.build.looks.changed_look` on the service's family (its record and the family's
-    stamp after it, read under the lock it was written under) (``photos``: a photo look's photos,
-    ``{"glb": bytes}`` for a repainted template, with ``"member": {"glb", "params"}`` for a textured
-    member) under the service's look limits (``Limits.look_*``) and ``budget``; a busy store or a
-    family at its most looks is a conflict (409), a look over its size 413."""
-    from proctex.build.looks import LookLimits, LookOverLimit, changed_look
-    from proctex.store.locks import StoreBusy
-
-    lim = svc.limits
-    limits = LookLimits(seconds=lim.look_seconds, texels=lim.look_texels, bytes=lim.look_bytes, looks=lim.max_looks)
-    member = (photos or {}).get("member") if paint.glb else None
-    glb = (photos or {}).get("glb") if paint.glb and member is None else None
-    try:
-        return changed_look(svc.store, name, paint, force=force, log=lambda *_: None, timeout=10.0,
-                        photos=None if paint.glb else photos, glb=glb, member=member, limits=limits, budget=budget)
-    except StoreBusy as exc:
-        raise EditConflict(str(exc)) from exc
-    except LookOverLimit as exc:
-        raise (EditConflict(str(exc)) if exc.kind == "count" else TooLarge(str(exc))) from exc

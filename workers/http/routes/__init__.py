@@ -1,0 +1,1 @@
+"""One FastAPI router per resource of the HTTP API (each ``router(ctx)``, see :mod:`workers.http.app`)."""

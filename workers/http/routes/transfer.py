@@ -1,0 +1,70 @@
+"""A textured GLB of new parameters or an uploaded mesh, one transfer of a family at a time, within its budget."""
+
+from __future__ import annotations
+
+import json
+
+from fastapi import APIRouter, Request
+from fastapi.responses import Response
+
+from proctex.serve.service import BadInput
+from proctex.transfer.budget import Budget
+
+from ..bodies import TransferRequest, read_transfer_request
+from ..context import AppContext
+from ..errors import error, error_response
+
+GLB_MEDIA_TYPE = "model/gltf-binary"
+
+
+def router(ctx: AppContext) -> APIRouter:
+    """The routes of this resource over ``ctx``."""
+    router = APIRouter()
+
+    @router.post(
+        "/v1/families/{name}/transfer",
+        response_class=Response,
+        responses={
+            200: {"content": {GLB_MEDIA_TYPE: {}}, "description": "the textured shape (binary glTF)"},
+            404: {"description": "unknown family"}, 413: {"description": "body too large"}, 422: {"description": "bad parameters or mesh"},
+        },
+        openapi_extra={"requestBody": {"required": True, "content": {
+            "application/json": {"schema": TransferRequest.model_json_schema()},
+            "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {
+                "mesh": {"type": "string", "format": "binary"}, "seed": {"type": "integer"}}}},
+        }}},
+    )
+    async def transfer(name: str, request: Request, textures: str = "embedded", look: str | None = None):
+        """``?textures=linked``: the GLB refers to the family's textures (``textures/<g>.png?v=...``,
+        relative to this URL) instead of carrying them; a client caches those once. ``?look=NAME``:
+        textured as that look of the family (``GET .../looks``; default: the build's)."""
+        token = None
+        try:
+            if textures not in ("embedded", "linked"):
+                raise BadInput(f"textures must be 'embedded' or 'linked', got {textures[:40]!r}")
+            svc = await ctx.look_of(name, look)
+            kind, payload, seed, raw_edits = await read_transfer_request(request, svc.limits.max_bytes, svc.limits)
+            edits = svc.parse_edits(raw_edits)
+
+            def work():
+                shape = svc.shape_from_params(payload) if kind == "params" else svc.shape_from_mesh(*payload, budget=budget)
+                budget.check("reading the shape")
+                return svc.transfer(shape, seed=seed, edits=edits, budget=budget, linked=textures == "linked")
+
+            gate = ctx.gate(svc)
+            async with gate:  # one transfer of this family at a time; the others wait here, not in a thread
+                if await request.is_disconnected():
+                    return error(499, "the client went away before its transfer started")
+                budget = Budget(svc.limits.max_seconds)  # the budget counts from the turn, not the queue
+                token = ctx.watchdog.begin()
+                data, summary = await ctx.watched(work, request, budget)
+        except Exception as exc:
+            return error_response(exc)
+        finally:
+            if token is not None:
+                ctx.watchdog.end(token)
+        headers = {"X-ProcTex-Seconds": str(summary["seconds"]), "X-ProcTex-Notes": json.dumps(summary["notes"])[:2000],
+                   "Content-Disposition": f'inline; filename="{name}.glb"', **ctx.served_by}
+        return Response(content=data, media_type=GLB_MEDIA_TYPE, headers=headers)
+
+    return router
