@@ -18,6 +18,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from proctex.build.pipeline import build
+from proctex.serve.service import FamilyService
+from proctex.store.config import BuildConfig, PRESETS, merge, resolved_settings, sections
+from proctex.store.layout import FamilyStore, StoreLayout
+from proctex.store.state import FamilyState, stored_config
+from proctex.texture.render import Tracer, bounding_sphere, orbit_camera, render_textured, save_gif, save_png
+from proctex.transfer.apply import shape_to_glb, transfer
+
 from .fileio import atomic_write
 from .params import ParamSpace, ParamSpec
 from .progress import Progress
@@ -32,8 +40,6 @@ def demo_config(model: str = DEMO_MODEL, prompt: str = DEMO_PROMPT, seed: int = 
                 group_prompts: dict[str, str] | None = None) -> dict[str, Any]:
     """The demo's build config as sections: the ``demo`` preset (:data:`proctex.store.config.PRESETS`)
     with this model, prompt, seed and shape counts. A few minutes on 2 cores."""
-    from proctex.store.config import PRESETS, merge, sections
-
     return merge(sections(PRESETS["demo"]), {"seed": seed, "source": {"model": model, "n_train": n_train, "n_test": n_test},
                                              "paint": {"prompt": prompt, "group_prompts": dict(group_prompts or {})}})
 
@@ -278,8 +284,6 @@ def render_sheet(sweep: list[SweepRow], rendered: list[tuple[Any, Any]], texture
     of ``sweep``'s rows: one camera fitted to every variant (sizes compare truthfully), crops shared.
     ``maps``: the template's PBR maps per texture (None: colour only), lit physically. ``space``:
     random settings are captioned with the parameters that matter there (:meth:`ParamSpace.active`)."""
-    from proctex.texture.render import bounding_sphere, orbit_camera, render_textured
-
     center, radius = bounding_sphere(np.concatenate([s.vertices for s, _ in rendered]))
     cam = orbit_camera(center, radius, up, -35.0, 22.0, size, fov_deg=32.0)
     bar = Progress("render", len(rendered), quiet=quiet)
@@ -304,14 +308,6 @@ def render_turntable(model: Any, base: dict[str, Any], names: Sequence[str], svc
                      seed: int = 0, quiet: bool = False) -> list[np.ndarray]:
     """Frames of the sweep's turntable: the camera circles once while ``names`` follow
     :func:`turntable_path`; every frame is a real-time transfer by ``svc`` (a ``FamilyService``)."""
-    from proctex.texture.render import (
-        Tracer,
-        bounding_sphere,
-        orbit_camera,
-        render_textured,
-    )
-    from proctex.transfer.apply import transfer
-
     shapes = [model.generate(p) for p in turntable_path(model.space, base, names, frames)]
     center, radius = bounding_sphere(np.concatenate([s.vertices for s in shapes]))
     bar = Progress("turntable", frames, quiet=quiet)
@@ -361,12 +357,6 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
     ``report.html`` and ``demo.json``. ``stage_seconds``: the build's wall time per stage;
     ``started``: ``time.perf_counter()`` when the whole job began (for its total wall time).
     """
-    from proctex.serve.service import FamilyService
-    from proctex.store.layout import FamilyStore, StoreLayout
-    from proctex.store.state import stored_config
-    from proctex.texture.render import save_gif, save_png
-    from proctex.transfer.apply import shape_to_glb
-
     t_start = time.perf_counter()
     out = Path(out)
     store = FamilyStore(family)
@@ -444,10 +434,6 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
 
 def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str], None] = print) -> dict[str, float]:
     """Build a family in this process; returns wall seconds per stage."""
-    from proctex.build.pipeline import build
-    from proctex.store.config import BuildConfig
-    from proctex.store.layout import FamilyStore
-
     return build(FamilyStore(root), BuildConfig.from_dict(config_dict), log=log)["wall_seconds"]
 
 
@@ -467,13 +453,8 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
     """
     import shutil
 
-    from proctex.store.config import BuildConfig
-    from proctex.store.layout import FamilyStore, StoreLayout
-    from proctex.store.state import FamilyState
-
     if not prompt or not prompt.strip():
         raise ValueError("the prompt must not be empty")
-    from proctex.store.config import merge, resolved_settings, sections
 
     config = merge(demo_config(model, prompt, seed=seed, n_train=n_train, n_test=n_test, group_prompts=group_prompts),
                    sections(overrides or {}, where="overrides"))

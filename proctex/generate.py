@@ -30,8 +30,18 @@ from typing import Any, Callable, Iterable
 import numpy as np
 import pyarrow as pa
 
-from proctex.params import ParamSpace
-from proctex.store.layout import FamilyStore
+from proctex.correspond.corrnet import resolve_device
+from proctex.geometry.shape import Shape
+from proctex.looks import LookLimits, add_look
+from proctex.params import ParamSpace, restricted_space
+from proctex.progress import Progress
+from proctex.serve.service import FamilyService
+from proctex.store.family import Family
+from proctex.store.layout import FamilyStore, StoreLayout, check_look_name
+from proctex.store.looks import built_look, look_paint, looks as family_looks, new_look_paint, other_looks, resolve_look
+from proctex.store.state import stored_config
+from proctex.texture.export import obj_files
+from proctex.texture.painters.vocabulary import random_prompts
 
 FORMATS = ("glb", "obj")
 TEXTURE_MODES = ("embedded", "shared")
@@ -130,8 +140,6 @@ class GenerateSettings:
         if not isinstance(self.bounds, dict):
             raise ValueError('bounds must be an object {"name": [low, high]}')
         if self.looks is not None:
-            from proctex.store.layout import check_look_name
-
             if not self.looks or len(self.looks) > MAX_LOOKS or len(set(self.looks)) != len(self.looks):
                 raise ValueError(f"looks must name 1 to {MAX_LOOKS} different looks (or 'all'), got {list(self.looks)[:8]}")
             for name in self.looks:
@@ -147,7 +155,6 @@ class GenerateSettings:
             fam, out = os.path.realpath(self.family), os.path.realpath(self.out)
             if out == fam or out.startswith(fam + os.sep):
                 raise ValueError(f"the output {self.out} lies in the family {self.family}: give another folder")
-        from proctex.correspond.corrnet import resolve_device
 
         resolve_device(self.device)  # CUDA asked for and absent: said before any work
         return self
@@ -175,8 +182,6 @@ def variant_id(index: int) -> str:
 def family_space(family: FamilyStore) -> ParamSpace:
     """The parameter space of a family that can make shapes (a procedural model); ``ValueError``
     for a folder family."""
-    from proctex.store.state import stored_config
-
     model = stored_config(family).shapes().model
     if model is None:
         raise ValueError(f"{family.uri} is a folder family: it has no model to make new shapes from parameters")
@@ -204,8 +209,6 @@ def plan_rows(settings: GenerateSettings, space: ParamSpace, looks: list[str] | 
     ``look`` column names. One look: ids ``v<row>``; several: ``v<row>-<look>``; a shape's seed is
     the same in every look. Sampled rows lie in the (narrowed) space; rows from a file are checked
     later, row by row, so one bad row (an unknown look included) fails alone."""
-    from proctex.params import restricted_space
-
     if settings.rows is not None:
         params = read_rows_file(settings.rows)
         if not params:
@@ -233,18 +236,14 @@ def start_run(settings: GenerateSettings, log: Callable[[str], None] = print) ->
     """Validate, read the family, plan the rows and write (or check) ``generate.json``: a rerun
     into an output made with other settings or another build of the family is refused.
     Returns ``(output store, rows, the family's parameter space)``."""
-    from proctex.store.family import Family
-
     settings.validate()
     family = FamilyStore(settings.family)
-    from proctex.store.layout import StoreLayout
 
     if not family.exists(StoreLayout.STATE):
         raise ValueError(f"{settings.family}: no family here (no family.json)")
     space = family_space(family)
     if settings.random_looks:
         make_random_looks(family, settings.random_looks, settings.seed, log)
-    from proctex.store.looks import built_look
 
     looks = run_looks(family, settings) or [built_look(family).name]
     stamp = Family.open(family).version
@@ -270,9 +269,6 @@ def start_run(settings: GenerateSettings, log: Callable[[str], None] = print) ->
 def run_looks(family: FamilyStore, settings: GenerateSettings) -> list[str] | None:
     """The looks a run crosses its shapes with (None: the build's look alone), each checked to exist
     (``ValueError`` listing the family's looks, before any work)."""
-    from proctex.store.looks import looks as family_looks
-    from proctex.store.looks import resolve_look
-
     names = list(settings.looks or [])
     if names == ["all"]:
         names = [lk.name for lk in family_looks(family)]
@@ -291,11 +287,6 @@ def make_random_looks(family: FamilyStore, n: int, seed: int, log: Callable[[str
     """Give ``family`` looks ``random-<seed>-0 .. n-1`` painted from :func:`random_prompts` (the
     build's other paint settings); a look of that name made before with the same prompt is kept,
     with another prompt it is a ``ValueError``. Returns each look's ``{"name", "prompt"}``."""
-    from proctex.looks import LookLimits, add_look
-    from proctex.store.looks import look_paint, new_look_paint, other_looks
-    from proctex.store.state import stored_config
-    from proctex.texture.painters.vocabulary import random_prompts
-
     paint = stored_config(family).paint
     have = {lk.name: lk for lk in other_looks(family)}
     out = []
@@ -366,8 +357,6 @@ class ShapeStage:
     FIELDS = ("index", "id", "params", "seed", "look", "status", "mesh", "record", "error", "generate_seconds")
 
     def __init__(self, family: str, out: str, fmt: str = "glb") -> None:
-        from proctex.store.state import stored_config
-
         self.model = stored_config(FamilyStore(family)).procedural_model()
         self.out, self.fmt = FamilyStore(out), fmt
 
@@ -398,8 +387,6 @@ class TextureStage:
     earlier come back from their records."""
 
     def __init__(self, family: str, out: str, fmt: str = "glb", bake: int | None = None, device: str = "cpu", textures: str = "embedded") -> None:
-        from proctex.serve.service import FamilyService
-
         self.svc = FamilyService(FamilyStore(family), device=device)
         self.out, self.fmt, self.bake, self.textures = FamilyStore(out), fmt, bake, textures
         self._shared: set[str] = set()  # looks whose shared textures this worker has written
@@ -432,8 +419,6 @@ class TextureStage:
         return _columns(rows, MANIFEST_FIELDS)
 
     def _make(self, row: dict[str, Any]) -> dict[str, Any]:
-        from proctex.geometry.shape import Shape
-
         vid, look = str(row["id"]), str(row.get("look", ""))
         t0 = time.perf_counter()
         try:
@@ -464,7 +449,6 @@ class TextureStage:
         """``[(relative path, bytes)]`` of the row's output, the main file last."""
         if self.fmt == "glb":
             return [(GenerateLayout.variant(vid, "glb"), answer.data)]
-        from proctex.texture.export import obj_files
 
         names = self.svc.assets.names + [f"new_{k}" for k in range(len(answer.textures) - len(self.svc.assets.names))]  # every look's
         pbr = answer.pbr if answer.pbr is not None and any(m is not None for m in answer.pbr) else None  # MTL names the PBR maps too
@@ -477,8 +461,6 @@ class Tally:
     """Counts rows as they finish, prints progress (rate, ETA) and stops the run past ``max_failed``."""
 
     def __init__(self, total: int, max_failed: int, quiet: bool = False) -> None:
-        from proctex.progress import Progress
-
         self.progress = Progress("generate", total, quiet=quiet, interval=2.0)
         self.max_failed, self.rows, self.failed = max_failed, [], []
 

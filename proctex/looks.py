@@ -14,22 +14,29 @@ from typing import Any, Callable
 
 import numpy as np
 
+from proctex.geometry.meshio import load_mesh_bytes
+from proctex.geometry.shape import Shape
 from proctex.store.config import BuildConfig
-from proctex.store.layout import (
-    MAP_KINDS,
-    FamilyStore,
-    LookLayout,
-    StoreLayout,
-    check_look_name,
-    digest,
-    encode_arrays,
-)
-from proctex.store.locks import StoreBusy, store_lock
-from proctex.store.looks import built_look, paint_record, resolve_look
 from proctex.store.family import Family
+from proctex.store.layout import FamilyStore, LookLayout, MAP_KINDS, StoreLayout, check_look_name, digest, encode_arrays
+from proctex.store.locks import StoreBusy, store_lock
+from proctex.store.looks import built_look, look_paint, looks as family_looks, paint_record, resolve_look
+from proctex.store.networks import load_models
+from proctex.store.partwords import stored_part_words
 from proctex.store.state import Changed, FamilyState
-from proctex.store.template import TemplateFiles, load_template_shape
+from proctex.store.template import TemplateFiles, encode_textures, load_template_shape, write_textured
+from proctex.texture.exemplar import layers
+from proctex.texture.fromglb import glb_frame, textures_from_glb
+from proctex.texture.gltf_read import read_textured_glb
+from proctex.texture.paint_loop import paint_with
+from proctex.texture.painters.partwords import check_assignment, parts_report
 from proctex.texture.painting import PaintConfig
+from proctex.texture.pbr import PbrMaps
+from proctex.texture.uv import Atlas, ShapeUV
+from proctex.transfer.assets import load_assets
+from proctex.transfer.budget import Budget
+from proctex.transfer.frommember import member_surface, textures_from_member
+from proctex.transfer.methods import get_method, make_mapper
 
 
 class LookOverLimit(ValueError):
@@ -66,8 +73,6 @@ class LookLimits:
 
     def check_start(self, store: FamilyStore, name: str, paint: PaintConfig, force: bool) -> None:
         """:class:`LookOverLimit` for a look over the family's count or the texel bound, before any work."""
-        from proctex.store.looks import looks as family_looks
-
         others = [lk for lk in family_looks(store) if not lk.built and not (force and lk.name == name)]
         if len(others) >= self.looks:
             raise LookOverLimit(f"the family has {len(others)} looks, its most ({self.looks}); remove one first "
@@ -81,8 +86,6 @@ class LookLimits:
 def stored_uv(files: TemplateFiles, shape: Any, grouping: Any, resolution: int) -> Any:
     """The template's stored UVs as a :class:`proctex.texture.uv.ShapeUV` (a look paints into the
     layout the build made: its GLB geometry and UVs stay byte for byte the build's)."""
-    from proctex.texture.uv import Atlas, ShapeUV
-
     corner_uv, face_group = files.corner_uv(), files.face_group()
     if corner_uv.shape != (shape.n_faces, 3, 2) or face_group.shape != (shape.n_faces,):
         raise ValueError(f"{files.store.uri}: the stored UVs do not match the template mesh")
@@ -106,8 +109,6 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
     entry names that file. ``check(what)`` between the steps (and each group's painting) may raise
     to stop (a budget). Nothing is written."""
     check = check if check is not None else (lambda what: None)
-    from proctex.store.template import encode_textures, write_textured
-    from proctex.texture.paint_loop import paint_with
 
     t0 = time.perf_counter()
     state = state if state is not None else FamilyState.load(store)
@@ -118,8 +119,6 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
     kept: list[tuple[str, bytes]] = []
     if paint.images:
         from dataclasses import replace
-
-        from proctex.texture.exemplar import layers
 
         read = {k: v.photo for k, v in layers(paint.images, photos).items()}
         images = {}
@@ -178,8 +177,6 @@ def _base_maps(files: TemplateFiles, grouping: Any, size: int) -> list:
 
     from PIL import Image
 
-    from proctex.texture.pbr import PbrMaps
-
     base = []
     for g in grouping.groups:
         orm, normal = files.map_png(g.index, "orm"), files.map_png(g.index, "normal")
@@ -196,13 +193,6 @@ def member_texture(store: FamilyStore, files: TemplateFiles, shape: Any, groupin
     """The look a textured member GLB (``data``) holds (:func:`proctex.transfer.frommember.textures_from_member`),
     mapped as the service maps shapes (the group networks where trained, ``auto``): with ``params``
     the family's own shape for them, else the file read as ``proctex transfer --mesh`` reads it."""
-    from proctex.store.networks import load_models
-    from proctex.texture.fromglb import glb_frame
-    from proctex.texture.gltf_read import read_textured_glb
-    from proctex.transfer.assets import load_assets
-    from proctex.transfer.frommember import member_surface, textures_from_member
-    from proctex.transfer.methods import get_method, make_mapper
-
     glb = read_textured_glb(data)
     up = config.up_axis()
     if params is not None:
@@ -210,8 +200,6 @@ def member_texture(store: FamilyStore, files: TemplateFiles, shape: Any, groupin
         what = "the family's shape for these parameters"
     else:  # read as `proctex transfer --mesh` reads it (its parts as a transfer finds them), turned into the family's frame
         from dataclasses import replace
-
-        from proctex.geometry.meshio import load_mesh_bytes
 
         read, _ = load_mesh_bytes(data, "member.glb")
         turn = glb_frame(np.eye(3), up)  # the turn as a matrix applied to rows (v @ turn); its transpose turns the file back
@@ -232,10 +220,6 @@ def glb_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: 
     """The look a repainted template GLB (``data``) holds (:func:`proctex.texture.fromglb.textures_from_glb`),
     the build's maps kept where the file's materials have none; the template ``shape`` back in its
     own frame in the result."""
-    from proctex.geometry.shape import Shape
-    from proctex.texture.fromglb import glb_frame, textures_from_glb
-    from proctex.texture.gltf_read import read_textured_glb
-
     glb = read_textured_glb(data)
     turned = Shape(glb_frame(shape.vertices, up), shape.faces)
     tex, match, notes = textures_from_glb(turned, grouping, uv, glb, size, _base_maps(files, grouping, size))
@@ -265,8 +249,6 @@ def changed_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool 
     :class:`~proctex.transfer.budget.OverBudget`: nothing written either way).
     Returns the look's record and the family's version after it, read under the lock it was written
     under (:class:`~proctex.store.state.Changed`)."""
-    from proctex.transfer.budget import Budget
-
     check_look_name(name)
     paint = paint.validate()
     limits = limits if limits is not None else LookLimits()
@@ -303,8 +285,6 @@ def with_stored_words(store: FamilyStore, build_paint: PaintConfig, paint: Paint
     last word, saved after the build) laid over the build's, and those ``paint`` names beyond the
     build's over both."""
     from dataclasses import replace
-
-    from proctex.store.partwords import stored_part_words
 
     stored = stored_part_words(store)
     if not stored:
@@ -349,10 +329,6 @@ def family_parts(store: FamilyStore, prompt: str | None = None, look: str | None
     over both; adds ``family``, ``look``, ``stored`` (the stored words) and ``up``. Also returns the
     template's vertices, faces and face groups for a picture: ``(report, (vertices, faces,
     face_group))``. Nothing is written."""
-    from proctex.store.looks import look_paint
-    from proctex.store.partwords import stored_part_words
-    from proctex.texture.painters.partwords import check_assignment, parts_report
-
     state = FamilyState.load(store)
     config = state.build_config(store.uri)
     if not state.done("template"):

@@ -265,6 +265,23 @@ def test_the_core_never_imports_ray():
     assert out.stdout.strip() == "False"
 
 
+def test_the_command_line_the_http_app_and_the_ingress_start_without_torch():
+    """What starts often stays light: the ``proctex`` command's parser, the HTTP app and the Serve
+    ingress import no torch (a family's service imports it when it loads one); the check sees a
+    module that does."""
+    import subprocess
+    import sys
+
+    def imports_torch(module: str) -> bool:
+        out = subprocess.run([sys.executable, "-c", f"import sys, {module}; print('torch' in sys.modules)"], capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-2000:]
+        return out.stdout.strip() == "True"
+
+    assert imports_torch("proctex.correspond.mvc")
+    for module in ("proctex.cli.app", "workflows.cli", "workers.http", "workers.ingress", "proctex.serve.catalog"):
+        assert not imports_torch(module), module
+
+
 # ------------------------------------------------------------------------------- studio routes
 def test_the_studio_page_and_its_assets_are_served_safely(root, tmp_path):
     cat = Catalog(str(root), check_every=0)

@@ -4,16 +4,15 @@ from __future__ import annotations
 
 from typing import Callable, Sequence
 
+from proctex.build.plan import default_workers
 from proctex.measure.evaluate import evaluate
 from proctex.store.layout import FamilyStore, StoreLayout
+from proctex.store.samples import samples
+from proctex.store.state import mark_stage, stage_done
 
 
 def stage_evaluate(store: FamilyStore, config, log: Callable[[str], None] = print, methods: Sequence[str] = ("corrnet", "identity")) -> None:
     """The ``evaluate`` build stage: :func:`evaluate` on the test shapes into ``metrics.json``."""
-    from proctex.build.plan import default_workers
-    from proctex.store.samples import samples
-    from proctex.store.state import mark_stage, stage_done
-
     if stage_done(store, "evaluate"):
         log("evaluate: done already")
         return

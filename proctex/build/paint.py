@@ -8,9 +8,11 @@ from typing import Callable
 
 from proctex.geometry.parts import analyse
 from proctex.store.config import BuildConfig
-from proctex.store.layout import MAP_KINDS, FamilyStore, StoreLayout
+from proctex.store.layout import FamilyStore, MAP_KINDS, StoreLayout
 from proctex.store.state import mark_stage, stage_done
-from proctex.store.template import load_template_shape
+from proctex.store.template import StoredImages, StoredMaps, Template, encode_textures, load_template_shape, write_textured
+from proctex.texture.paint_loop import paint_with
+from proctex.texture.uv import source_uv
 
 
 def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
@@ -20,16 +22,11 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
         return
     import tempfile
 
-    from proctex.store.template import write_textured
-    from proctex.texture.paint_loop import paint_with
-
     template = load_template_shape(store, config)
     grouping = analyse(template, seed=config.seed)
     uv = None
     uv_map = config.shapes().uv_map
     if uv_map:  # the source's own UVs (a .blend graph's UV map), as the user asked
-        from proctex.texture.uv import source_uv
-
         if template.corner_uv is None:
             raise ValueError(f"the template has no UV map {uv_map!r}")
         uv = source_uv(template, grouping, template.corner_uv, resolution=config.paint.texture_size)
@@ -37,12 +34,6 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
             log(f"paint: {note}")
     tex = paint_with(template, grouping, config.paint, seed=config.seed, up=config.up_axis(), uv=uv,
                      on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
-    from proctex.store.template import (
-        StoredImages,
-        StoredMaps,
-        Template,
-        encode_textures,
-    )
 
     labels = [g.label for g in tex.groups]
     pngs, maps = encoded = encode_textures(tex)  # each image encoded once: the files, the GLB and the record share the bytes

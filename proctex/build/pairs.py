@@ -10,14 +10,17 @@ import numpy as np
 import pyarrow as pa
 
 from proctex.build.plan import Plan, run_in_process, run_steps
+from proctex.build.train import VAL_SHARE, plain_groups
+from proctex.correspond.dense import correspond_parts, deform
 from proctex.geometry.parts import part_mesh, segment
 from proctex.geometry.shape import Shape
 from proctex.store.config import BuildConfig
+from proctex.store.family import Family
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.samples import held_out_split, load_sample, pair_seed, part_digest, samples, write_pair_vertices
-from proctex.store.family import Family
 from proctex.store.state import FamilyState, mark_stage, stage_done
 from proctex.transfer.assets import load_assets
+from proctex.transfer.assign import assign_parts, choose_part, representative_part
 
 
 def shape_assignment(shape: Shape, assets) -> tuple[Any, list[Any]]:
@@ -26,8 +29,6 @@ def shape_assignment(shape: Shape, assets) -> tuple[Any, list[Any]]:
     on the shape: a batch solves every group of one shape, and a template of hundreds of groups
     (a set of trees) segmented and assigned a shape of thousands of parts again for each one.
     Computed again when the shape's arrays or the assets object were replaced."""
-    from proctex.transfer.assign import assign_parts
-
     cached = shape.derived.get("assignment")
     if cached is not None and cached[0] is assets and cached[1] is shape.faces and cached[2] is shape.vertices:
         return cached[3], cached[4]
@@ -40,8 +41,6 @@ def shape_assignment(shape: Shape, assets) -> tuple[Any, list[Any]]:
 def pair_input(shape: Shape, assets, group: int) -> tuple[int, np.ndarray, np.ndarray] | None:
     """The part of ``shape`` that maps onto template ``group``: ``(part index, vertices (j, 3),
     faces (k, 3))`` (mirrored members kept wound outward), or None when the shape lacks the group."""
-    from proctex.transfer.assign import choose_part, representative_part
-
     seg, assignment = shape_assignment(shape, assets)
     a = choose_part(assignment, group)
     if a is None:
@@ -60,8 +59,6 @@ def pair_result(part: int, res, vertices: np.ndarray | None = None, faces: np.nd
     training pair and its record; with the source part's ``vertices (j, 3)`` and ``faces``, also
     where the correspondence sends those vertices (``mapped``, the template's normalised frame) and
     the part's :func:`part_digest`."""
-    from proctex.correspond.dense import deform
-
     mapped = None
     if vertices is not None and faces is not None:
         mapped = {"vertices": deform(res, vertices, np.zeros(3), 1.0), "digest": part_digest(vertices, faces)}
@@ -83,8 +80,6 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int,
     """Cage correspondence of one (shape, template group): the training pair and its record; with
     ``vertex_map``, also where it sends the part's vertices (parts of at most
     :data:`MAX_VERTEX_MAP` vertices; :func:`pair_result`)."""
-    from proctex.correspond.dense import correspond_parts
-
     inp = pair_input(shape, assets, group)
     if inp is None:
         return None
@@ -248,8 +243,6 @@ def probe_keys(config: BuildConfig, jobs: list[PairJob]) -> set[tuple[str, int]]
     """The pairs a two-step stage solves first: every test pair and, per group, the train shapes
     its training will hold out and as many probe shapes
     (:func:`proctex.store.samples.held_out_split`): enough to tell whether its plain map fits."""
-    from proctex.build.train import VAL_SHARE
-
     train = sorted({j.row["id"] for j in jobs if j.row["split"] == "train"})
     keys = {j.key for j in jobs if j.row["split"] != "train"}
     for g in sorted({j.group for j in jobs}):
@@ -264,8 +257,6 @@ def settled_groups(store: FamilyStore, config: BuildConfig, jobs: list[PairJob],
     shapes (:func:`proctex.build.train.plain_groups` on what is solved: the train stage decides the
     same on the same pairs), with the plain maps' held-out errors. Writes ``pairs.parquet`` from
     ``records`` first: what the decision reads."""
-    from proctex.build.train import plain_groups
-
     groups = sorted({j.group for j in jobs})
     ready = [g for g in groups if all(pair_complete(records.get(j.key)) for j in jobs if j.group == g and j.key in probes)]
     write_pairs_index(store, jobs, records)  # what group_training_data reads

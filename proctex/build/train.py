@@ -7,6 +7,10 @@ import time
 from typing import Any, Callable
 
 from proctex.build.plan import Plan, run_in_process
+from proctex.correspond.confidence import param_features
+from proctex.correspond.corrnet import to_bytes, trains_together
+from proctex.correspond.grouped import train_together
+from proctex.correspond.training import choose_serving, plain_fit, template_extent, train
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.networks import save_network
@@ -26,8 +30,6 @@ def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val
     "features"}``; ``features``: the train shapes' procedural parameters as the teacher's
     confidence finds neighbours by (:func:`proctex.correspond.confidence.param_features`; None
     where the shapes carry none or the confidence is off)."""
-    from proctex.correspond.confidence import param_features
-
     rows = [r for r in store.read_table(StoreLayout.PAIRS).to_pylist() if r["status"] == "done" and r["split"] == "train" and r["group"] == group]
     ids = sorted(r["id"] for r in rows)
     if not ids:
@@ -51,8 +53,6 @@ def serving_choice(model: Any, data: dict[str, Any]) -> dict[str, Any]:
     network, the box map or the identity, chosen on the group's held-out train pairs (``data``, from
     :func:`group_training_data`; never ground truth). ``held_out`` False: the group had too few
     shapes to hold one out and the choice was made on a training pair, which favours the network."""
-    from proctex.correspond.training import choose_serving, template_extent
-
     extent = model.template_extent.detach().cpu().numpy() if model.frame == "box" else template_extent(data["train"])
     return {**choose_serving(model, data["val"], extent).to_dict(), "held_out": bool(data["val_ids"])}
 
@@ -70,8 +70,6 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
     """Write a trained group network to ``models/group_<g>.pt`` (atomically) with its serving choice
     (:func:`serving_choice`); returns its checksum (:func:`proctex.store.layout.digest`) and that
     choice, which the train stage records."""
-    from proctex.correspond.corrnet import to_bytes
-
     serving = serving_choice(result.model, data)
     extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val, "serving": serving}
     return save_network(store, group, to_bytes(result.model, cfg, extra)), serving
@@ -92,10 +90,6 @@ def fit_groups(store: FamilyStore, config: BuildConfig, groups: list[int], rank:
     ``train_pairs``, ``val_pairs``, ``sha256`` and ``serving`` (None off rank 0), ``workers`` (the
     team's size: 1 in process) and ``together`` (the groups trained in the same loop). ``data``:
     ``{group: group_training_data(...)}`` a caller has read already."""
-    from proctex.correspond.corrnet import trains_together
-    from proctex.correspond.grouped import train_together
-    from proctex.correspond.training import train
-
     def load(g: int) -> dict[str, Any]:  # ``data``: groups' training data already read by the caller
         return data[g] if data and g in data else group_training_data(store, config, g, VAL_SHARE)
 
@@ -128,8 +122,6 @@ def plain_groups(store: FamilyStore, config: BuildConfig, groups: list[int]) -> 
     ``"plain"`` the plain maps' held-out errors): their plain map lies within ``train.plain_below``
     of their held-out pairs (:func:`proctex.correspond.training.plain_fit`; never a group without
     a held-out shape). A group whose data cannot be read is left to the training, which reports why."""
-    from proctex.correspond.training import plain_fit
-
     if config.train.plain_below <= 0 or not config.train.residual:
         return {}
     out = {}
@@ -198,7 +190,6 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
     # in process, groups side by side in worker processes of one thread (Plan.parallel: demo 74.0 -> 62.0 s,
     # sofa export 209.7 -> 194.8 s on 2 cores); each worker's share trained in one batched loop where
     # that pays (Plan.merge; CorrNetConfig.together: on a GPU)
-    from proctex.correspond.corrnet import trains_together
 
     plan = Plan("train", [[g] for g in todo], run_train_batch, finish, collect, team=fit_groups, parallel=True,
                 merge=trains_together(config.train, len(todo)))

@@ -37,12 +37,42 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from proctex.geometry.parts import segment
+from proctex.measure.fidelity import (
+    Location,
+    check_vertex_index,
+    colours_at,
+    error_summary,
+    gt_errors,
+    locate_by_map,
+    locate_canonical,
+    locate_vertex_index,
+    pgt_errors,
+    template_truth,
+    tracked_points,
+    tracked_variance,
+    truth_samples,
+)
+from proctex.pools import process_pool
+from proctex.progress import Progress
 from proctex.sources.registry import source_kind
+from proctex.sources.truthfiles import attach_file_truth, folder_truth, sample_mesh_paths
+from proctex.store.config import TRUTHS
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.looks import look_paint, resolve_look
-from proctex.store.state import FamilyState
-from proctex.transfer.methods import get_method, make_mapper, method_names
-from proctex.transfer.methods import methods as registered_methods
+from proctex.store.networks import load_models
+from proctex.store.samples import load_sample, pair_seed, read_pair, read_pair_vertices, samples
+from proctex.store.state import FamilyState, stored_config
+from proctex.store.template import load_template_shape
+from proctex.texture.lpips import LPIPS
+from proctex.texture.metrics import coverage, view_similarity
+from proctex.texture.painters import SurfacePainter
+from proctex.texture.render import canonical_buffers, render_six_views
+from proctex.transfer.apply import bake, shape_to_glb, transfer
+from proctex.transfer.assets import load_assets
+from proctex.transfer.assign import assign_parts
+from proctex.transfer.mappers import IdentityMapper, SolverMapper
+from proctex.transfer.methods import get_method, make_mapper, method_names, methods as registered_methods
 
 
 def default_methods() -> tuple[str, ...]:
@@ -70,8 +100,6 @@ def _cage_config(config) -> Any:
 
 
 def _mapper(name: str, store: FamilyStore, assets, config=None) -> Any:
-    from proctex.store.networks import load_models
-
     method = get_method(name)
     models = load_models(store) if method.networks != "none" else None
     if method.networks == "required" and not models:
@@ -86,8 +114,6 @@ def labelled_grouping(grouping, shape):
     same parts (a template changed since the build)."""
     import dataclasses
 
-    from proctex.geometry.parts import segment
-
     seg = segment(shape)
     old = grouping.segmentation
     if seg.n_parts != old.n_parts or any(not np.array_equal(a.vertices, b.vertices) for a, b in zip(seg.parts, old.parts)):
@@ -98,8 +124,6 @@ def labelled_grouping(grouping, shape):
 def resolve_truth(config, truth: str = "auto") -> str | None:
     """The ground truth an evaluation uses: "canonical", "vertex-index" or None (no truth: the cage
     tracks points). ``truth`` (:data:`proctex.store.config.TRUTHS`) overrides the family config's."""
-    from proctex.store.config import TRUTHS
-
     if truth not in TRUTHS:
         raise ValueError(f"truth must be one of {', '.join(TRUTHS)}, got {truth!r}")
     t = config.truth if truth == "auto" else truth
@@ -107,8 +131,6 @@ def resolve_truth(config, truth: str = "auto") -> str | None:
     if canonical and t in ("auto", "canonical") and config.source.blender:  # a .blend model's, where its tree was read
         canonical = bool(getattr(config.procedural_model(), "has_canonical", False))
     if not canonical and t in ("auto", "canonical") and config.source.folder:  # files with truth beside them
-        from proctex.sources.truthfiles import folder_truth
-
         canonical = folder_truth(config.source.folder)
     if t == "auto":
         return "canonical" if canonical else None
@@ -123,8 +145,6 @@ def resolve_truth(config, truth: str = "auto") -> str | None:
 def stored_pairs(store: FamilyStore, sid: str, index: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
     """The solved cage pairs of sample ``sid``: ``[{"group", "part", "src", "dst"}]``; ``index``: the
     rows of ``pairs.parquet`` when already read."""
-    from proctex.store.samples import read_pair
-
     if index is None:
         index = store.read_table(StoreLayout.PAIRS).to_pylist() if store.exists(StoreLayout.PAIRS) else []
     out = []
@@ -144,8 +164,6 @@ class StoredPairMapper:
         self.store, self.sid, self.solver = store, sid, solver
 
     def map(self, group: int, vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, seed: int = 0) -> np.ndarray:
-        from proctex.store.samples import read_pair_vertices
-
         mapped = read_pair_vertices(self.store, self.sid, group, vertices, faces) if self.sid and query is vertices else None
         return mapped if mapped is not None else self.solver.map(group, vertices, faces, query, seed=seed)
 
@@ -155,18 +173,6 @@ class _Context:
     colours, the truth, the template's reference views, mappers by name, settings."""
 
     def __init__(self, uri: str, settings: dict[str, Any]) -> None:
-        from proctex.measure.fidelity import (
-            Location,
-            colours_at,
-            template_truth,
-            tracked_points,
-        )
-        from proctex.store.state import stored_config
-        from proctex.texture.render import render_six_views
-        from proctex.transfer.apply import transfer
-        from proctex.transfer.assets import load_assets
-        from proctex.transfer.mappers import IdentityMapper
-
         self.store = FamilyStore(uri)
         self.config = stored_config(self.store)
         self.settings = settings
@@ -177,8 +183,6 @@ class _Context:
         self.file_truth = self.config.source.folder if self.truth_kind == "canonical" and self.config.source.folder else None
         self.template = self.assets.shape
         if self.file_truth:
-            from proctex.sources.truthfiles import sample_mesh_paths
-
             self.truth_files = sample_mesh_paths(self.file_truth)  # read once: the samples' mesh files
             self.template = self.with_truth(self.template, FamilyState.load(self.store).stage("template").get("id", ""))
         # the truth's own view of the template's parts (their labels, where a file's truth gave them): for
@@ -194,8 +198,6 @@ class _Context:
             raise ValueError(f"{uri}: the template itself is untextured at some tracked points (template/uv.npz)")
         self.lpips = None
         if settings.get("lpips"):
-            from proctex.texture.lpips import LPIPS
-
             self.lpips = LPIPS.load(settings["lpips"])
         # The template's own six views: what every transferred shape is compared with (docs/results.md).
         tpl = transfer(self.template, self.assets, IdentityMapper(), seed=settings["seed"])
@@ -205,7 +207,6 @@ class _Context:
         # Parts of a kind the template lacks are painted as the service paints them (the family's
         # prompt, read on the new shape), so coverage measures the run-time path, not a gap of
         # the evaluation.
-        from proctex.texture.painters import SurfacePainter
 
         self.painter = SurfacePainter(look_paint(self.store, self.look, self.config.paint).prompt, seed=self.config.seed)
         self.pairs_index = self.store.read_table(StoreLayout.PAIRS).to_pylist() if self.store.exists(StoreLayout.PAIRS) else []
@@ -214,7 +215,6 @@ class _Context:
         """``shape`` (folder sample ``sample_id``) with its file's truth where the family reads it there."""
         if not self.file_truth:
             return shape
-        from proctex.sources.truthfiles import attach_file_truth
 
         if sample_id not in self.truth_files:
             raise ValueError(f"{self.file_truth}: no sample {sample_id!r} (the folder changed since the build)")
@@ -227,15 +227,6 @@ class _Context:
 
     def locate(self, shape, seg, index: int, sid: str = ""):
         """Where the tracked points lie on ``shape`` (sample ``index``, id ``sid``), by the family's tracker."""
-        from proctex.measure.fidelity import (
-            locate_by_map,
-            locate_canonical,
-            locate_vertex_index,
-        )
-        from proctex.store.samples import pair_seed
-        from proctex.transfer.assign import assign_parts
-        from proctex.transfer.mappers import SolverMapper
-
         if self.tracker == "canonical":
             return locate_canonical(self.points, self.template, self.truth_grouping.segmentation, shape, seg)
         if self.tracker == "vertex-index":
@@ -259,11 +250,6 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     both shared by the methods of one shape (the same figures as tracing and unwrapping again).
     ``plain``: the shape as the method sees it where ``shape`` carries a truth it must not (a folder
     family's file truth: labels and canonical coordinates); the same vertices and faces."""
-    from proctex.measure.fidelity import colours_at, gt_errors, pgt_errors
-    from proctex.texture.metrics import coverage, view_similarity
-    from proctex.texture.render import canonical_buffers, render_six_views
-    from proctex.transfer.apply import bake, shape_to_glb
-
     st, assets, up = ctx.settings, ctx.assets, ctx.up
     t = time.perf_counter()
     mapper = ctx.mapper(name)
@@ -320,11 +306,6 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
 def evaluate_shape(ctx: _Context, job: tuple[int, dict[str, Any]]) -> dict[str, Any]:
     """Every method of ``ctx.settings["methods"]`` on one shape (``job``: its sample index and
     row); the tracker's locations, the truth samples and the stored pairs are found once."""
-    from proctex.geometry.parts import segment
-    from proctex.measure.fidelity import truth_samples
-    from proctex.store.samples import load_sample
-    from proctex.texture.render import canonical_buffers
-
     index, row = job
     plain = load_sample(ctx.store, row, ctx.config)
     shape = ctx.with_truth(plain, row["id"])  # for locating and scoring; the methods get the plain shape
@@ -362,8 +343,6 @@ def _per_group(errors: np.ndarray, groups: np.ndarray) -> dict[str, dict[str, fl
 
 def summarise_method(ctx_points, tracker: str, template_colours: np.ndarray, outs: list[dict[str, Any]]) -> dict[str, Any]:
     """One method's entry of ``metrics.json`` from its per-shape outputs (:func:`evaluate_method`)."""
-    from proctex.measure.fidelity import error_summary, tracked_variance
-
     per_shape = [o["record"] for o in outs]
     ok = [o for o in outs if o["sim"] is not None]
     tv = tracked_variance(template_colours, [o["colours"] for o in outs], ctx_points.group, tracker)
@@ -471,11 +450,6 @@ def evaluate(
         truth: the ground truth (:func:`resolve_truth`); "auto": the family config's.
         quiet: no progress lines.
     """
-    from proctex.measure.fidelity import check_vertex_index
-    from proctex.progress import Progress
-    from proctex.store.samples import load_sample, samples
-    from proctex.store.state import stored_config
-
     methods = default_methods() if methods is None else tuple(methods)
     known = method_names(aliases=True)
     unknown = [m for m in methods if m not in known]
@@ -494,15 +468,11 @@ def evaluate(
     if len(jobs) < 1:
         raise ValueError(f"{store.uri}: evaluation needs at least one {split} shape besides the template, found none")
     if kind == "vertex-index":  # a clear error before any work: every sample must share the template's vertex order
-        from proctex.store.template import load_template_shape
-
         n = load_template_shape(store, config).n_vertices
         bad = next((r for _, r in jobs if r["vertices"] != n), None)  # the sample stage records vertex counts
         if bad is not None:
             check_vertex_index(load_sample(store, bad, config), n, name=f"sample {bad['id']}")
     if lpips:
-        from proctex.texture.lpips import LPIPS
-
         LPIPS.load(lpips)  # a bad weights file fails before any work
     settings = {"bake_size": bake_size, "view_size": view_size, "tracked": tracked, "seed": seed, "lpips": lpips,
                 "truth": kind, "methods": list(methods), "look": resolve_look(store, look).name}
@@ -513,8 +483,6 @@ def evaluate(
     bar = Progress("evaluate", len(jobs), quiet=quiet)
     outs: list[dict[str, Any]] = []
     if workers > 1 and len(jobs) > 1:
-        from proctex.pools import process_pool
-
         # the build's worker processes where it shares them (each keeps its context: _work)
         with process_pool(min(workers, len(jobs))) as pool:
             for out in pool.map(_work, [(store.uri, settings, job) for job in jobs]):

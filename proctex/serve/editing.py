@@ -11,11 +11,15 @@ import threading
 from collections import OrderedDict
 from typing import Any
 
+from proctex.fileio import encode_png
+from proctex.serve.edits import EditConflict, adjust_orm, changed_edit, edit_texture, repaint_maps, undo_edits
 from proctex.store.layout import StoreDamaged
 from proctex.store.state import Changed
+from proctex.texture.pbr import PbrMaps
 from proctex.transfer.assets import texture_hw
 
-from .inputs import THUMB_SIZES, BadInput, GroupEdit, parse_edit
+from .inputs import BadInput, GroupEdit, THUMB_SIZES, parse_edit
+
 
 _EDIT_LOCK = threading.Lock()  # persisted edits rewrite store files: one at a time per process
 
@@ -35,9 +39,6 @@ class Editing:
         """``(uint8 (H, W, 3) texture, PNG bytes)`` of template group ``group`` after ``edit``, the same
         texture :func:`proctex.serve.edits.edit_group` would store (an identity edit: the template's own)."""
         import numpy as np
-
-        from proctex.fileio import encode_png
-        from proctex.serve.edits import edit_texture
 
         if not edit.changes_colour:  # identity, or roughness / metalness only
             return self.assets.textures[group], self.assets.png[group]
@@ -61,8 +62,6 @@ class Editing:
 
     def _repainted(self, group: int, prompt: str):
         """The group's texture re-painted with ``prompt`` (float, before any HSV shift; cached)."""
-        from proctex.serve.edits import edit_texture
-
         key = (group, prompt)
         with self._edit_lock:
             if key in self._repaints:
@@ -82,10 +81,6 @@ class Editing:
         """The group's PBR maps after ``edit`` as PNGs (:class:`proctex.texture.pbr.PbrMaps`), the
         maps :func:`proctex.serve.edits.edit_group` would store: a re-paint makes them again, a
         roughness / metallic edit moves those channels; None when the family has no maps."""
-        from proctex.fileio import encode_png
-        from proctex.serve.edits import adjust_orm, repaint_maps
-        from proctex.texture.pbr import PbrMaps
-
         if self.assets.pbr_png is None or self.assets.pbr_png[group] is None:
             return None
         if not edit.changes_maps:
@@ -139,8 +134,6 @@ class Editing:
         (:class:`~proctex.serve.edits.EditConflict` when the family changed since). Returns the edit
         record and the family's stamp after it, read under the same lock; this service is stale
         afterwards (the catalog reloads the family on its new stamp)."""
-        from proctex.serve.edits import EditConflict, changed_edit
-
         if not isinstance(raw, dict) or "group" not in raw:
             raise BadInput('send {"group": <index or label>, "hue": deg, "saturation": s, "value": v, "prompt": text}')
         g = self.group_index(raw["group"])
@@ -161,7 +154,5 @@ class Editing:
         template); returns the undone records and the family's stamp after them, read under the same
         lock. :class:`~proctex.serve.edits.EditConflict` when there is nothing to undo or
         ``expect_stamp`` is stale."""
-        from proctex.serve.edits import undo_edits
-
         with _EDIT_LOCK:
             return undo_edits(self.store, expect_stamp=expect_stamp, look=self.look.name, all_edits=all_edits)

@@ -13,17 +13,18 @@ import numpy as np
 
 from proctex.fileio import encode_png
 from proctex.geometry.shape import Shape
+from proctex.store.family import Family
 from proctex.store.layout import FamilyStore, StoreDamaged, StoreLayout
+from proctex.store.leases import StoreChanged, supports_leases
 from proctex.store.locks import is_local, store_lock
 from proctex.store.looks import resolve_look
-from proctex.store.family import Family
 from proctex.store.state import Changed, stored_config
-from proctex.store.template import (
-    TemplateFiles,
-    decode_png,
-    load_template_shape,
-    png_size,
-)
+from proctex.store.template import TemplateFiles, decode_png, load_template_shape, png_size
+from proctex.texture.edit import load_overlay, place_image, shift_hsv
+from proctex.texture.paint import shape_frame
+from proctex.texture.painters import SurfacePainter
+from proctex.texture.pbr import bake_maps
+from proctex.texture.uv import pad_seams, texel_map
 
 T = TypeVar("T")
 
@@ -33,11 +34,6 @@ def repaint_maps(prompt: str, group: int, label: str | None, template: Shape, re
     """The PBR maps (:class:`proctex.texture.pbr.PbrMaps`, float) of a group re-painted with ``prompt``:
     what :func:`edit_texture` does for the colour, for roughness, metalness and relief (the surface
     painter bound to the template, so the prompt's regions apply in the part's own frame)."""
-    from proctex.texture.paint import shape_frame
-    from proctex.texture.painters import SurfacePainter
-    from proctex.texture.pbr import bake_maps
-    from proctex.texture.uv import texel_map
-
     faces = template.faces[np.asarray(rep_faces)]
     tm = texel_map(template.vertices, faces, np.asarray(rep_corner_uv), size[0], size[1])
     center, scale = shape_frame(template)
@@ -122,18 +118,12 @@ def edit_texture(
         the re-paint coloured (None without a prompt); the edit record (``group``, ``prompt``,
         ``hsv`` as given, without the operations that were no-ops).
     """
-    from proctex.texture.edit import shift_hsv
-
     t = np.asarray(texture)
     tex = (t.astype(np.float32) / 255) if t.dtype == np.uint8 else t.astype(np.float32)
     tex = np.ascontiguousarray(tex[..., :3])
     record: dict[str, Any] = {"group": int(group)}
     painted = None
     if prompt is not None:
-        from proctex.texture.paint import shape_frame
-        from proctex.texture.painters import SurfacePainter
-        from proctex.texture.uv import pad_seams, texel_map
-
         if template is None or rep_faces is None or rep_corner_uv is None:
             raise ValueError("a re-paint needs the template, its representative faces and their UVs")
         faces = template.faces[np.asarray(rep_faces)]
@@ -228,8 +218,6 @@ def _expect(store: FamilyStore, expect_stamp: str | None, what: str) -> None:
 def _edit(store: FamilyStore, group: int | str, hue: float, saturation: float, value: float, logo: str | None, at: Any, size: Any,
           rotation: float, opacity: float, prompt: str | None, roughness: float | None, metallic: float | None,
           look: str | None = None) -> dict[str, Any]:
-    from proctex.texture.edit import load_overlay, place_image
-
     files = TemplateFiles(store, resolve_look(store, look))
     entry = files.group(group)
     gi = int(entry["group"])
@@ -284,8 +272,6 @@ def edit_lock(store: FamilyStore, timeout: float = 60.0, shared: bool = False):
     :class:`~proctex.store.leases.StoreChanged` when an edit ran while it read (read again:
     :func:`read_again`). Other object stores cannot be edited (``ValueError``); readers of them take
     no lock."""
-    from proctex.store.leases import supports_leases
-
     if not is_local(store) and not supports_leases(store):
         if shared:
             return contextlib.nullcontext()
@@ -306,8 +292,6 @@ def read_again(read: Callable[[], T], attempts: int = 8) -> T:
     """``read()`` (a reader of the store under ``edit_lock(shared=True)``), again while it raises
     :class:`~proctex.store.leases.StoreChanged` (an edit on an object store ran while it read), at
     most ``attempts`` times."""
-    from proctex.store.leases import StoreChanged
-
     for attempt in range(attempts):
         try:
             return read()

@@ -14,6 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from proctex.geometry.meshcounts import declared_counts
+from proctex.geometry.meshio import load_mesh_bytes
+from proctex.geometry.parts import parts_of
 from proctex.texture.painting import MAX_PROMPT
 from proctex.transfer.budget import OverBudget
 
@@ -244,8 +247,6 @@ class Inputs:
     def check_shape(self, shape):
         """``shape`` if within the limits on vertices, faces (:class:`TooLarge`) and parts
         (:class:`BadInput`: every part beyond the template's is matched on its own)."""
-        from proctex.geometry.parts import parts_of
-
         if shape.n_vertices > self.limits.max_vertices or shape.n_faces > self.limits.max_faces:
             raise TooLarge(f"mesh has {shape.n_vertices} vertices and {shape.n_faces} faces; limits are "
                            f"{self.limits.max_vertices} and {self.limits.max_faces}")
@@ -260,8 +261,6 @@ class Inputs:
         (:func:`proctex.geometry.meshcounts.declared_counts`): :class:`TooLarge` for more vertices or
         triangles than allowed, :class:`BadInput` for a header that cannot be read or a node tree
         too deep."""
-        from proctex.geometry.meshcounts import declared_counts
-
         try:
             c = declared_counts(data, suffix.lstrip("."), "the upload")
         except ValueError as exc:
@@ -276,8 +275,6 @@ class Inputs:
         (:meth:`check_declared`). With a ``budget`` (a request's) the file is read in the mesh
         reader process (:mod:`proctex.serve.parse_worker`), killed when the budget runs out or is
         cancelled (:class:`~proctex.transfer.budget.OverBudget`); without, here."""
-        from proctex.geometry.meshio import load_mesh_bytes
-
         if len(data) > self.limits.max_bytes:
             raise TooLarge(f"mesh of {len(data)} bytes is over the limit of {self.limits.max_bytes}")
         suffix = Path(filename or "mesh.obj").suffix.lower() or ".obj"

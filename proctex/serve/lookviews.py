@@ -9,10 +9,17 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-from proctex.store.looks import look_paint, looks, resolve_look
+from proctex.looks import LookLimits, LookOverLimit, changed_look, family_parts
+from proctex.serve.edits import edit_lock, read_again
+from proctex.store.locks import StoreBusy
+from proctex.store.looks import UnknownLook, look_paint, look_summary, looks, resolve_look
+from proctex.store.partwords import save_part_words
+from proctex.store.template import LookImages
+from proctex.texture.painters import SurfacePainter
 
 from .edits import EditConflict
 from .inputs import BadInput, NotFound, TooLarge
+
 
 
 class LookViews:
@@ -23,11 +30,6 @@ class LookViews:
         the same shapes, networks and mapper, that look's textures, PBR maps, masks and prompt
         (:func:`proctex.transfer.assets.with_look`), made on first use and kept. :class:`NotFound`
         for a look the family does not have."""
-        from proctex.serve.edits import edit_lock, read_again
-        from proctex.store.looks import UnknownLook
-        from proctex.store.template import LookImages
-        from proctex.texture.painters import SurfacePainter
-
         if name is None or name == self.look.name:
             return self
         with self._views_lock:
@@ -55,8 +57,6 @@ class LookViews:
 
     def looks(self) -> list[dict[str, Any]]:
         """The family's looks (:func:`proctex.store.looks.look_summary`), the build's first."""
-        from proctex.store.looks import look_summary
-
         return [look_summary(self.store, lk, self.config.paint) for lk in looks(self.store)]
 
     def _look_query(self, sep: str = "&") -> str:
@@ -69,9 +69,6 @@ class LookViews:
         ``{"glb": bytes}`` for a repainted template, with ``"member": {"glb", "params"}`` for a
         textured member) under the service's look limits (``Limits.look_*``) and ``budget``; a busy
         store or a family at its most looks is a conflict (409), a look over its size 413."""
-        from proctex.looks import LookLimits, LookOverLimit, changed_look
-        from proctex.store.locks import StoreBusy
-
         lim = self.limits
         limits = LookLimits(seconds=lim.look_seconds, texels=lim.look_texels, bytes=lim.look_bytes, looks=lim.max_looks)
         member = (photos or {}).get("member") if paint.glb else None
@@ -87,9 +84,6 @@ class LookViews:
     def parts(self, prompt: str | None = None, look: str | None = None) -> dict[str, Any]:
         """:func:`proctex.looks.family_parts` of this family (the report, without the mesh): which
         group takes which part word of ``prompt`` (default: ``look``'s prompt)."""
-        from proctex.looks import family_parts
-        from proctex.store.looks import UnknownLook
-
         if prompt is not None and (not isinstance(prompt, str) or len(prompt) > self.limits.max_prompt):
             raise BadInput(f"prompt must be at most {self.limits.max_prompt} characters")
         if look is not None and (not isinstance(look, str) or len(look) > 200):
@@ -102,9 +96,6 @@ class LookViews:
     def store_parts(self, body: dict[str, Any]) -> dict[str, str]:
         """Store the user's word per group (``{"groups": {"3": "legs"}, "replace": false}``,
         :func:`proctex.store.partwords.save_part_words`); a busy store is a conflict (409)."""
-        from proctex.store.locks import StoreBusy
-        from proctex.store.partwords import save_part_words
-
         unknown = set(body) - {"groups", "replace"}
         if unknown:
             raise BadInput(f"unknown fields {sorted(unknown)[:5]}; part words take groups, replace")

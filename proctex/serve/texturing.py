@@ -10,9 +10,11 @@ from dataclasses import replace
 from typing import Any
 
 from proctex.store.layout import MAP_KINDS
+from proctex.transfer.apply import check_transfer_args, info, shape_to_glb
 from proctex.transfer.budget import OverBudget
 
 from .inputs import BadInput, GroupEdit, NotFound
+
 
 
 class Texturing:
@@ -38,8 +40,6 @@ class Texturing:
         textures by URI (:meth:`texture_uris`) instead of carrying them, so a client that caches
         them is sent the geometry and UVs only; ``link_base``: the folder those URIs point into
         instead of the texture route (:meth:`texture_uris`)."""
-        from proctex.transfer.apply import check_transfer_args, info, shape_to_glb
-
         try:
             check_transfer_args(seed, bake_size)
         except ValueError as exc:

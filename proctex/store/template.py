@@ -16,15 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from proctex.fileio import atomic_write
+from proctex.fileio import atomic_write, encode_png
 from proctex.geometry.parts import Grouping, analyse, segment
+from proctex.geometry.preview import grid_image
 from proctex.geometry.shape import Shape
 from proctex.sources.registry import source_kind
 from proctex.store.config import BuildConfig
 from proctex.store.layout import (
-    MAP_KINDS,
     FamilyStore,
     LookLayout,
+    MAP_KINDS,
     StoreDamaged,
     StoreLayout,
     check_digest,
@@ -34,6 +35,11 @@ from proctex.store.layout import (
 )
 from proctex.store.samples import read_mesh, read_shape_record
 from proctex.store.state import FamilyState, stored_config
+from proctex.texture.export import glb_bytes, write_glb, write_obj
+from proctex.texture.metrics import coverage
+from proctex.texture.paint import preview_views
+from proctex.texture.pbr import PbrMaps
+from proctex.texture.render import save_png
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PAINT_NAME = StoreLayout.PAINT_NAME
@@ -142,8 +148,6 @@ class StoredMaps(_Decoded):
     stored PNGs when first read) or None; :attr:`png`: the same maps as the stored bytes."""
 
     def _make(self, i: int) -> Any:
-        from proctex.texture.pbr import PbrMaps
-
         m = self.png[i]
         if m is None:
             return None
@@ -184,8 +188,6 @@ class LookImages:
             pngs.append(read(look.texture(g["group"], g["label"]), g.get("sha256"), size))
             labels.append(g["label"] or "")
             if g.get("orm_sha256") and g.get("normal_sha256"):  # the maps, where the paint stage made them
-                from proctex.texture.pbr import PbrMaps
-
                 hw = png_size(pngs[-1], wheres[-1])
                 maps.append(PbrMaps(read(look.texture(g["group"], g["label"], "orm"), g["orm_sha256"], hw),
                                     read(look.texture(g["group"], g["label"], "normal"), g["normal_sha256"], hw),
@@ -238,8 +240,6 @@ class Template:
         """Write the grouping, UVs, masks and group textures (PNG) into ``store`` (atomically, file
         by file): the textures and masks into ``look`` (default: the build's look, in ``template/``;
         the grouping and UVs only there). The painter's own outputs (summary, preview, textured GLB) are the paint stage's."""
-        from proctex.fileio import encode_png
-
         look = look or LookLayout()
         if look.built:  # another look shares the build's grouping and UVs: it writes its own folder only
             store.write_json(StoreLayout.GROUPING, self.grouping.to_dict())
@@ -303,9 +303,6 @@ def encode_textures(tex: Any) -> tuple[list[bytes], list[Any]]:
     time on 2 cores)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from proctex.fileio import encode_png
-    from proctex.texture.pbr import PbrMaps
-
     images = [g.uint8() for g in tex.groups]
     images += [img for g in tex.groups if g.pbr is not None for img in (g.pbr.orm_uint8(), g.pbr.normal_uint8())]
     with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
@@ -323,12 +320,6 @@ def write_textured(tex: Any, out: str | Path, up: str = "z", obj: bool = False, 
     coverage of the result and the written paths). ``encoded``: :func:`encode_textures` of ``tex``
     when the caller has it (each image is encoded once).
     """
-    from proctex.geometry.preview import grid_image
-    from proctex.texture.export import write_glb, write_obj
-    from proctex.texture.metrics import coverage
-    from proctex.texture.paint import preview_views
-    from proctex.texture.render import save_png
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     pngs, maps_png = encoded if encoded is not None else encode_textures(tex)
@@ -556,9 +547,6 @@ class TemplateFiles:
     def _glb(self, summary: dict[str, Any], override: dict[int, tuple[bytes, dict[str, bytes | None]]], shape: Shape, up: str) -> bytes:
         """``textured.glb`` of the template version ``summary``: each group's PNG and maps as stored,
         or as ``override`` gives them (group -> (PNG, {kind: PNG or None}))."""
-        from proctex.texture.export import glb_bytes
-        from proctex.texture.pbr import PbrMaps
-
         uv = self.store.read_arrays(StoreLayout.UV)
         pngs, maps = [], []
         for e in summary["groups"]:

@@ -34,10 +34,13 @@ from proctex.geometry.parts import Grouping, PartGroup
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import normalised_frame
 from proctex.texture.painters.base import ViewRequest
+from proctex.texture.painters.partwords import groups_of_word
 
-from .pbr import PbrMaps, bake_maps
-from .render import Tracer, bounding_sphere, canonical_cameras, render_buffers, textured_albedo
+from .lighting import pbr_surface, shade_pbr, vertex_occlusion
+from .pbr import PbrMaps, bake_maps, vertex_normals
+from .render import Tracer, bounding_sphere, canonical_cameras, render_buffers, shade, textured_albedo
 from .uv import ShapeUV, TexelMap, pad_seams, ring_texels, shape_uv, texel_map
+
 
 UNPAINTED = 0.5  # grey shown where nothing is painted yet
 
@@ -81,7 +84,6 @@ class GroupTexture:
         Texels of ``painted`` outside it hold fill (PatchMatch or surface fill of unseen texels)."""
         if self.direct is None:
             return self.painted.copy()
-        from .uv import pad_seams
 
         flag = np.zeros(self.painted.shape + (1,), dtype=np.float32)
         ij = self.texels.ij[self.direct]
@@ -166,8 +168,6 @@ def resolve_group_prompts(grouping: Grouping, prompt: str, group_prompts: Mappin
     by_word: dict[str, list[int]] = {}
     for key, text in group_prompts.items():
         if str(key) not in valid and shape is not None:
-            from proctex.texture.painters.partwords import groups_of_word
-
             gids = groups_of_word(str(key), prompt, shape.vertices, shape.faces, grouping, up, assigned=dict(part_words or {}))
             if gids:
                 by_word[str(key)] = gids
@@ -346,8 +346,6 @@ def blend_normals(shape: Shape, faces: np.ndarray, texels: TexelMap, rounds: int
     across a few faces, not at the edge), interpolated by the texels' barycentrics."""
     from scipy.sparse import coo_matrix
 
-    from .pbr import vertex_normals
-
     f = shape.faces[faces]
     used, local = np.unique(f, return_inverse=True)
     v = shape.vertices[used]
@@ -387,8 +385,6 @@ def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occ
     center, scale = shape_frame(tex.shape)
     ao = None
     if occlusion:
-        from .lighting import vertex_occlusion
-
         ao = vertex_occlusion(tex.shape.vertices, tex.shape.faces, seed=seed)
     blended = set(getattr(painter, "blend_groups", ()))
 
@@ -469,8 +465,6 @@ class SolidViewPainter:
 def preview_views(tex: TemplateTexture, up: str = "z", size: int = 256, backend: str = "auto") -> list[np.ndarray]:
     """The six canonical views of the textured template, shaded (lit physically when it has PBR
     maps): list of (size, size, 3) uint8."""
-    from .render import shade
-
     shape = tex.shape
     tracer = Tracer(shape.vertices, shape.faces, backend)
     c, r = bounding_sphere(shape.vertices)
@@ -479,8 +473,6 @@ def preview_views(tex: TemplateTexture, up: str = "z", size: int = 256, backend:
     for cam in canonical_cameras(c, r, up, size):
         b = render_buffers(tracer, cam, face_group=tex.uv.face_group)
         if maps is not None:
-            from .lighting import pbr_surface, shade_pbr
-
             images.append(shade_pbr(b, pbr_surface(b, shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.images, maps)))
         else:
             images.append(shade(b, textured_albedo(b, tex.uv.corner_uv, tex.uv.face_group, tex.images)))

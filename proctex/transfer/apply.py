@@ -39,8 +39,12 @@ import numpy as np
 
 from proctex.geometry.parts import part_mesh, parts_of
 from proctex.geometry.shape import Shape
+from proctex.texture.export import glb_bytes
+from proctex.texture.inpaint import patchmatch_fill
+from proctex.texture.paint import UNPAINTED, shape_frame
 from proctex.texture.painters.partwords import new_part_texts
-from proctex.texture.uv import pad_seams, sample_texture, texel_map, unwrap
+from proctex.texture.pbr import PbrMaps, corner_normals, corner_tangents, decode_normal, encode_normal, flat_maps, texel_frames
+from proctex.texture.uv import bilinear_texels, pad_seams, sample_texture, texel_map, unwrap
 from proctex.transfer.assets import TemplateAssets, same_topology
 from proctex.transfer.assign import PartAssignment, assign_parts, representative_part
 from proctex.transfer.budget import Budget
@@ -204,8 +208,6 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
     ``face_texts``: (k,) object, per face a text the painter paints there (``paint(..., text=)``) or
     None (its default). Returns (corner_uv (k, 3, 2), texture (size, size, 3) uint8).
     """
-    from proctex.texture.paint import UNPAINTED, shape_frame
-
     used = np.unique(shape.faces[faces])
     local = np.searchsorted(used, shape.faces[faces])
     atlas = unwrap(shape.vertices[used], local, resolution=size, padding=2)
@@ -232,8 +234,6 @@ def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = 
     template group a URI its texture is read from instead of being embedded (None: embedded);
     ``map_uris``: the same for its PBR maps, ``(orm URI, normal URI)`` (an edit replaces
     ``assets.pbr_png``). Textures painted for new parts are always embedded (colour only)."""
-    from proctex.texture.export import glb_bytes
-
     extra = [f"new_{k}" for k in range(len(result.new_textures))]
     uris = (list(texture_uris) + [None] * len(extra)) if texture_uris is not None else None
     maps = (list(assets.pbr_png) + [None] * len(extra)) if assets.pbr_png is not None else None
@@ -289,16 +289,6 @@ def bake_pbr(maps: Any, vertices: np.ndarray, faces: np.ndarray, template_uv: np
     so each texel's normal is decoded in the frame the template UVs give this surface (what the
     un-baked GLB shows) and encoded again in the atlas's frame: the relief stays where it was.
     """
-    from proctex.texture.pbr import (
-        PbrMaps,
-        corner_normals,
-        corner_tangents,
-        decode_normal,
-        encode_normal,
-        flat_maps,
-        texel_frames,
-    )
-
     size = tm.height
     out = flat_maps(size, tm.width)
     orm = out.orm.copy()
@@ -323,8 +313,6 @@ def bake_pbr(maps: Any, vertices: np.ndarray, faces: np.ndarray, template_uv: np
 def disoccluded_texels(uv: np.ndarray, observed: np.ndarray) -> np.ndarray:
     """(k,) bool: which template lookups at ``uv (k, 2)`` touch a texel outside ``observed (H, W)``
     (any of the four texels of the bilinear footprint)."""
-    from proctex.texture.uv import bilinear_texels
-
     idx = bilinear_texels(np.asarray(uv, dtype=np.float64), observed.shape[0], observed.shape[1])
     return ~observed.ravel()[idx].all(axis=1)
 
@@ -379,8 +367,6 @@ def bake(
     across bakes of the same shape (e.g. by several methods): a group's atlas and texel map depend
     only on its faces, so each is unwrapped once (:func:`group_atlas`).
     """
-    from proctex.texture.inpaint import patchmatch_fill
-
     if fill not in ("patchmatch", "none"):
         raise ValueError(f"fill must be patchmatch or none, got {fill!r}")
     t0 = time.perf_counter()
@@ -503,8 +489,6 @@ def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int
     with ``bake_size`` the shape's own atlas and textures (:func:`bake`). The command line, the
     service, the demo and the evaluation all answer with this. ``budget``: see :func:`transfer`.
     ``texture_uris``, ``map_uris``: see :func:`glb` (not with ``bake_size``: a baked atlas is the shape's own)."""
-    from proctex.texture.export import glb_bytes
-
     result = transfer(shape, assets, mapper, seed=seed, painter=painter, shortcut=shortcut, budget=budget, up=up)
     if budget is not None:
         budget.check("encoding the answer")

@@ -10,12 +10,15 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from proctex.geometry.parts import Grouping, part_mesh
+from proctex.geometry.parts import Grouping, part_mesh, surface_moments
 from proctex.geometry.shape import Shape
-from proctex.geometry.surface import SurfaceIndex, normalised_frame
+from proctex.geometry.surface import SurfaceIndex, normalised_frame, sample_surface
 from proctex.store.layout import FamilyStore, LookLayout
 from proctex.store.state import FamilyState
 from proctex.store.template import LookImages, StoredImages, StoredMaps, Template, load_template
+from proctex.texture.export import png_bytes
+from proctex.texture.pbr import PbrMaps
+from proctex.texture.uv import pad_seams, texel_map
 
 
 @dataclass
@@ -45,9 +48,6 @@ class GroupAssets:
         (``seed``) and a cKDTree over them; computed on first use and kept."""
         if (n, seed) not in self._probes:
             from scipy.spatial import cKDTree
-
-            from proctex.geometry.parts import surface_moments
-            from proctex.geometry.surface import sample_surface
 
             pts = sample_surface(self.vertices, self.faces, n, seed=seed)[0]
             self._probes[(n, seed)] = (surface_moments(self.vertices, self.faces), pts, cKDTree(pts))
@@ -114,8 +114,6 @@ class TemplateAssets:
 def with_textures(assets: TemplateAssets, textures: Sequence[np.ndarray]) -> TemplateAssets:
     """``assets`` with other (H, W, 3) uint8 group textures (encoded here, arrays and bytes together;
     e.g. a measurement's smooth colour field), everything else shared."""
-    from proctex.texture.export import png_bytes
-
     if len(textures) != len(assets.groups):
         raise ValueError(f"need one texture per group ({len(assets.groups)}), got {len(textures)}")
     return dataclasses.replace(assets, textures=StoredImages.of_decoded([np.ascontiguousarray(t, dtype=np.uint8) for t in textures], png_bytes))
@@ -148,8 +146,6 @@ def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, te
         material names; pbr: per group its :class:`proctex.texture.pbr.PbrMaps` or None (encoded
         once here, like the textures), or a store's :class:`proctex.store.template.StoredMaps`.
     """
-    from proctex.texture.export import png_bytes
-
     if len(textures) != len(grouping.groups):
         raise ValueError(f"need one texture per group ({len(grouping.groups)}), got {len(textures)}")
     if isinstance(textures, StoredImages):  # a store's: its PNG bytes as stored, decoded where used
@@ -183,8 +179,6 @@ def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, te
             raise ValueError(f"need PBR maps (or None) per group ({len(texs)}), got {len(pbr)}")
         maps = pbr
     elif pbr is not None and any(m is not None for m in pbr):
-        from proctex.texture.pbr import PbrMaps
-
         if len(pbr) != len(texs):
             raise ValueError(f"need PBR maps (or None) per group ({len(texs)}), got {len(pbr)}")
         decoded = [None if m is None else PbrMaps(m.orm_uint8(), m.normal_uint8(), m.occlusion) for m in pbr]
@@ -209,8 +203,6 @@ def template_assets(template: Template) -> TemplateAssets:
 def _with_masks(assets: TemplateAssets, painted: list[np.ndarray] | None, observed: list[np.ndarray] | None) -> TemplateAssets:
     """``assets`` with the painted and observed masks; without stored ones, the texels each group's
     UV charts cover plus an 8-texel gutter count as both."""
-    from proctex.texture.uv import pad_seams, texel_map
-
     if painted is None:
         masks = []
         for ga in assets.groups:

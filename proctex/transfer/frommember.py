@@ -20,6 +20,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from proctex.geometry.parts import part_mesh, parts_of
+from proctex.geometry.surface import SurfaceIndex, plane_barycentric
+from proctex.texture.fromglb import match_faces
+from proctex.texture.paint import GroupTexture, TemplateTexture, group_texels
+from proctex.texture.paint_loop import fill_unseen
+from proctex.texture.pbr import PbrMaps, flat_maps
+from proctex.texture.uv import pad_seams, sample_texture, texel_barycentric
+from proctex.transfer.apply import transfer
 
 __all__ = ["MemberLook", "member_surface", "textures_from_member", "COVER_TOL"]
 
@@ -50,8 +58,6 @@ def member_surface(shape, file_frame_vertices: np.ndarray, glb, what: str) -> tu
     (:class:`proctex.texture.gltf_read.TexturedMesh`). Returns ``(corner_uv (m, 3, 2), material (m,),
     matched (m,) bool)`` per face (an unmatched face: material -1); ``ValueError`` naming ``what``
     when under 95 % of the faces find a triangle."""
-    from proctex.texture.fromglb import match_faces
-
     corners = np.asarray(file_frame_vertices, dtype=np.float64)[shape.faces]
     match = match_faces(corners, np.zeros((len(corners), 3, 2)), glb.vertices[glb.faces], np.zeros((len(glb.faces), 3, 2)), uv_tol=np.inf)
     ok = match.face >= 0
@@ -77,15 +83,6 @@ def textures_from_member(template, grouping, uv, assets, member, member_uv: np.n
     Returns:
         ``(TemplateTexture, MemberLook)``.
     """
-    from proctex.geometry.parts import part_mesh, parts_of
-    from proctex.geometry.surface import SurfaceIndex, plane_barycentric
-    from proctex.transfer.apply import transfer
-
-    from proctex.texture.paint import GroupTexture, TemplateTexture, group_texels
-    from proctex.texture.paint_loop import fill_unseen
-    from proctex.texture.pbr import PbrMaps, flat_maps
-    from proctex.texture.uv import pad_seams, sample_texture
-
     result = transfer(member, assets, mapper, seed=seed, shortcut=True)
     seg = parts_of(member)
     report = MemberLook(notes=list(result.notes))
@@ -144,8 +141,6 @@ def _texel_centres(shape, faces: np.ndarray, corner_uv: np.ndarray, tx) -> np.nd
     """(t, 3) each texel centre on its face's plane (:func:`proctex.texture.uv.texel_barycentric`: a
     border texel's centre may lie past its face's edge), ``faces`` the part's face indices and
     ``corner_uv`` their UVs."""
-    from proctex.texture.uv import texel_barycentric
-
     bary = texel_barycentric(tx.ij, np.asarray(corner_uv, dtype=np.float64)[tx.face], tx.height, tx.width)
     corners = np.asarray(shape.vertices, dtype=np.float64)[np.asarray(shape.faces)[faces][tx.face]]
     return np.einsum("tc,tcd->td", bary, corners)
