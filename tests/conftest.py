@@ -32,9 +32,9 @@ def require_validator() -> bool:
 def painted_mug_root(tmp_path_factory) -> Path:
     """A store root holding ``mug``: a painted mug family without networks (the identity mapper
     serves it), built once per test session. Tests that change it work on a copy."""
-    from proctex.build.paint import stage_paint
-    from proctex.build.sample import stage_sample
-    from proctex.build.template import stage_template
+    from proctex.build.pipeline import stage_paint
+    from proctex.build.pipeline import stage_sample
+    from proctex.build.pipeline import stage_template
     from proctex.store.config import BuildConfig
     from proctex.store.layout import FamilyStore
     from proctex.store.state import write_config

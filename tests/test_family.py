@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.build.paint import stage_paint
-from proctex.build.pairs import stage_pairs
-from proctex.build.sample import stage_sample
-from proctex.build.template import stage_template
+from proctex.build.pipeline import stage_paint
+from proctex.build.pipeline import stage_pairs
+from proctex.build.pipeline import stage_sample
+from proctex.build.pipeline import stage_template
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
 from proctex.store.samples import read_pair
@@ -219,7 +219,7 @@ def test_cli_transfer_and_edit(mug_family, tmp_path, capsys):
 def test_train_stage_and_network_transfer(mug_family, tmp_path):
     import shutil
 
-    from proctex.build.train import stage_train
+    from proctex.build.pipeline import stage_train
     from proctex.models import get_model
     from proctex.store.networks import load_models
     from proctex.transfer.apply import transfer
@@ -464,7 +464,7 @@ def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
     """The build is plans run by an executor: one that runs the batches backwards, without the
     in-process context (as a Ray worker does), stores the same family; a rerun plans nothing."""
     from proctex.build.pipeline import build
-    from proctex.build.plan import run_in_process
+    from proctex.build.plan import Placement, run_in_process
     from proctex.store.networks import load_models
     from proctex.store.samples import samples
 
@@ -474,20 +474,20 @@ def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
     ran = []
 
     def backwards(plan, store, config, log):
-        if plan.skip or plan.in_place:
+        if plan.skip or plan.placement is Placement.HERE:
             return run_in_process(plan, store, config, log)
-        ran.append((plan.stage, plan.n_jobs))
+        ran.append((plan.stage, plan.n_jobs, plan.placement.value))
         out = {i: plan.run_batch(store, config, plan.batches[i], None) for i in reversed(range(len(plan.batches)))}
         for i in reversed(range(len(plan.batches))):
             plan.collect(plan.batches[i], out[i]) if plan.collect else None
-        plan.finish([out[i] for i in range(len(plan.batches))])
+        plan.record = plan.finish([out[i] for i in range(len(plan.batches))])
         return plan
 
     stages = ("sample", "template", "paint", "pairs", "train")
     a, b = FamilyStore(tmp_path / "a"), FamilyStore(tmp_path / "b")
     build(a, cfg, stages=stages, log=lambda *_: None)
     build(b, cfg, stages=stages, log=lambda *_: None, executor=backwards)
-    assert ran == [("sample", 4), ("pairs", 8), ("train", 2)]
+    assert ran == [("sample", 4, "tasks"), ("pairs", 8, "tasks"), ("train", 2, "team")]  # placed by the stage table
     assert samples(a) == samples(b)
     for row in samples(a):
         for g in (0, 1):
@@ -594,9 +594,10 @@ def test_the_pairs_stage_skips_the_train_pairs_of_groups_whose_plain_map_fits(tm
     network would not be trained) and every other group's are solved. The train stage settles the
     same groups on the same pairs; a rerun plans nothing; without the settle every skipped pair is
     solved after all."""
-    from proctex.build.pairs import plan_pairs, probe_keys, pair_jobs
-    from proctex.build.plan import run_in_process, run_steps
-    from proctex.build.train import VAL_SHARE, group_training_data, plain_groups
+    from proctex.build.pairs import pair_jobs, probe_keys
+    from proctex.build.pipeline import run_stage
+    from proctex.build.plan import run_in_process
+    from proctex.build.groupdata import VAL_SHARE, group_training_data, plain_groups
     from proctex.store.samples import held_out_split, samples
     from proctex.store.state import FamilyState
 
@@ -613,7 +614,7 @@ def test_the_pairs_stage_skips_the_train_pairs_of_groups_whose_plain_map_fits(tm
         ran.append(plan.n_jobs)
         return run_in_process(plan, *rest)
 
-    run_steps(plan_pairs(st, cfg, logs.append), execute, st, cfg, logs.append)
+    run_stage(st, cfg, "pairs", logs.append, execute)  # in its two steps, recorded by the pipeline
     rows = {(r["id"], r["group"]): r for r in st.read_table("pairs.parquet").to_pylist()}
     groups = sorted({g for _, g in rows})
     train = sorted(r["id"] for r in samples(st) if r["split"] == "train")
@@ -637,11 +638,11 @@ def test_the_pairs_stage_skips_the_train_pairs_of_groups_whose_plain_map_fits(tm
         assert d["val_ids"] == held_out_split(train, cfg.seed, g, VAL_SHARE)[0] and len(d["train_ids"]) == 1
     # a rerun plans nothing; a config that never settles solves what was skipped
     ran.clear()
-    run_steps(plan_pairs(st, cfg, logs.append), execute, st, cfg, logs.append)
+    run_stage(st, cfg, "pairs", logs.append, execute)
     assert ran == [0]
     plain = BuildConfig.from_dict({**cfg.to_dict(), "train": {**cfg.to_dict()["train"], "plain_below": 0.0}})
     ran.clear()
-    run_steps(plan_pairs(st, plain, logs.append), execute, st, plain, logs.append)
+    run_stage(st, plain, "pairs", logs.append, execute)
     assert ran == [record["skipped"]]
     assert all(r["status"] == "done" for r in st.read_table("pairs.parquet").to_pylist())
 
@@ -675,7 +676,7 @@ def test_a_shape_is_segmented_and_assigned_once_for_all_its_pairs(painted_mug_ro
     """The pairs of one shape (a batch) share its segmentation and part assignment: computed once,
     not once per template group, with the same inputs for every group as computed afresh; a shape
     whose arrays were replaced is assigned again."""
-    import proctex.transfer.assign as assign
+    import proctex.build.pairs as pairs
     from proctex.build.pairs import pair_input
     from proctex.store.samples import load_sample, samples
     from proctex.transfer.assets import load_assets
@@ -687,8 +688,8 @@ def test_a_shape_is_segmented_and_assigned_once_for_all_its_pairs(painted_mug_ro
     row = samples(st)[1]
     fresh = {g: pair_input(load_sample(st, row, cfg), assets, g) for g in groups}
     calls = []
-    real = assign.assign_parts
-    monkeypatch.setattr(assign, "assign_parts", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = pairs.assign_parts
+    monkeypatch.setattr(pairs, "assign_parts", lambda *a, **k: calls.append(1) or real(*a, **k))
     shape = load_sample(st, row, cfg)
     for g in groups:
         got = pair_input(shape, assets, g)
@@ -799,3 +800,58 @@ def test_loading_a_family_opens_no_shape_source_and_one_version_value(mug_family
             svc.shape_from_params({})
     shape = svc.shape_from_params({})  # opened now
     assert shape.n_faces > 0
+
+
+def undeclared_writes(before: set[str], after: set[str], declared: tuple[str, ...]) -> list[str]:
+    """Files in ``after`` but not in ``before`` that match none of the ``declared`` patterns
+    (``family.json``, the pipeline's record, and lock files aside)."""
+    import fnmatch
+
+    new = sorted(after - before)
+    return [f for f in new if f != "family.json" and not f.startswith(".") and not any(fnmatch.fnmatch(f, p) for p in declared)]
+
+
+def store_files(root: Path) -> set[str]:
+    return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file()}
+
+
+def test_each_stage_writes_only_what_it_declares_and_the_pipeline_alone_records_it(tmp_path):
+    """The stage table (:data:`proctex.build.pipeline.STAGES_TABLE`) lists the stages in build order
+    with their placement; run one by one, each stage writes only files its table entry declares
+    (the check finds a file nobody declared), and its record in ``family.json`` appears when the
+    pipeline writes it: no module of ``proctex`` but the pipeline marks a stage done."""
+    import ast
+
+    from proctex.build.pipeline import STAGES_TABLE, run_stage
+    from proctex.build.plan import Placement
+    from proctex.store.state import STAGES, FamilyState
+
+    assert tuple(STAGES_TABLE) == STAGES
+    assert {s.name: s.placement for s in STAGES_TABLE.values()} == {
+        "sample": Placement.TASKS, "template": Placement.HERE, "paint": Placement.HERE, "pairs": Placement.TASKS,
+        "train": Placement.TEAM, "evaluate": Placement.HERE}
+    assert undeclared_writes({"a"}, {"a", "models/group_0.pt", "notes.txt"}, ("models/*",)) == ["notes.txt"]
+
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=2, corr_points=200, cage_iterations=10, texture_size=64,
+                                     train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64})).validate()
+    root = tmp_path / "mug"
+    st = FamilyStore(root)
+    write_config(st, cfg)
+    for name in STAGES:
+        before = store_files(root)
+        run_stage(st, cfg, name, log=lambda *_: None)
+        after = store_files(root)
+        assert undeclared_writes(before, after, STAGES_TABLE[name].writes) == [], name
+        assert after - before, f"{name} wrote nothing"
+        assert FamilyState.load(st).done(name), name
+
+    markers = []
+    package = Path(__file__).resolve().parents[1] / "proctex"
+    for path in sorted(package.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call):
+                fn = node.func
+                name = fn.id if isinstance(fn, ast.Name) else fn.attr if isinstance(fn, ast.Attribute) else ""
+                if name == "mark_stage" or (name == "mark" and isinstance(fn, ast.Attribute) and "state" in ast.unparse(fn.value).lower()):
+                    markers.append(path.relative_to(package).as_posix())
+    assert sorted(set(markers)) == ["build/pipeline.py", "store/state.py"], markers

@@ -371,9 +371,9 @@ def test_a_painter_from_one_file_paints_a_build_and_is_offered_by_the_cli(tmp_pa
     it, and the paint stage paints with it (red where the family's prompt says blue: the registry's
     painter ran, not a default)."""
     from proctex import plugins
-    from proctex.build.paint import stage_paint
-    from proctex.build.sample import stage_sample
-    from proctex.build.template import stage_template
+    from proctex.build.pipeline import stage_paint
+    from proctex.build.pipeline import stage_sample
+    from proctex.build.pipeline import stage_template
     from proctex.cli.app import build_parser
     from proctex.store.config import BuildConfig
     from proctex.store.layout import FamilyStore
@@ -409,9 +409,9 @@ def test_a_plugin_painter_sees_the_builds_paint_settings_whole(tmp_path):
     command's path) hands it settings made of every keyword."""
     from dataclasses import asdict
 
-    from proctex.build.paint import stage_paint
-    from proctex.build.sample import stage_sample
-    from proctex.build.template import stage_template
+    from proctex.build.pipeline import stage_paint
+    from proctex.build.pipeline import stage_sample
+    from proctex.build.pipeline import stage_template
     from proctex.store.config import BuildConfig
     from proctex.store.layout import FamilyStore
     from proctex.store.state import write_config

@@ -311,9 +311,9 @@ def test_bad_pbr_input_is_a_clear_error(painted):
 
 # ------------------------------------------------------------------------------------ the store
 def test_template_store_keeps_the_maps(tmp_path):
-    from proctex.build.paint import stage_paint
-    from proctex.build.sample import stage_sample
-    from proctex.build.template import stage_template
+    from proctex.build.pipeline import stage_paint
+    from proctex.build.pipeline import stage_sample
+    from proctex.build.pipeline import stage_template
     from proctex.store.config import BuildConfig
     from proctex.store.layout import FamilyStore, StoreLayout
     from proctex.store.state import write_config

@@ -312,9 +312,9 @@ def test_cli_render_bad_input(argv, message, mug_glb, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def mug_family(tmp_path_factory):
     """A small built mug family (sample, template, paint; no correspondences needed by --mapper identity/nearest)."""
-    from proctex.build.paint import stage_paint
-    from proctex.build.sample import stage_sample
-    from proctex.build.template import stage_template
+    from proctex.build.pipeline import stage_paint
+    from proctex.build.pipeline import stage_sample
+    from proctex.build.pipeline import stage_template
     from proctex.store.config import BuildConfig
     from proctex.store.layout import FamilyStore
     from proctex.store.state import write_config

@@ -8,9 +8,9 @@ import shutil
 import numpy as np
 import pytest
 
-from proctex.build.paint import stage_paint
-from proctex.build.sample import stage_sample
-from proctex.build.template import stage_template
+from proctex.build.pipeline import stage_paint
+from proctex.build.pipeline import stage_sample
+from proctex.build.pipeline import stage_template
 from proctex.serve.catalog import Catalog
 from proctex.serve.edits import edit_group
 from proctex.serve.service import FamilyService, Limits, NotFound
@@ -193,9 +193,10 @@ def test_folder_families_take_meshes_only(tmp_path, sofa_dir):
     write_config(st, cfg)
     # Three samples are enough for a painted template.
     from proctex.build.sample import finish_sample_stage, run_sample_job, sample_jobs
+    from proctex.store.state import mark_stage
 
     jobs = [j for j in sample_jobs(cfg) if j.split == "train"][:3]
-    finish_sample_stage(st, [run_sample_job(st, cfg, j) for j in jobs])
+    mark_stage(st, "sample", **finish_sample_stage(st, [run_sample_job(st, cfg, j) for j in jobs]))  # what the pipeline records
     stage_template(st, cfg, log=lambda *_: None)
     stage_paint(st, cfg, log=lambda *_: None)
     svc = FamilyService(st, "sofa")

@@ -201,9 +201,9 @@ def test_a_source_kind_from_one_file_builds_and_serves_a_family(tmp_path, monkey
     ``[source] kind`` with its settings, the build samples and paints its shapes, the service makes
     new ones from parameters, and its own check rejects bad settings."""
     from proctex import plugins
-    from proctex.build.paint import stage_paint
-    from proctex.build.sample import stage_sample
-    from proctex.build.template import stage_template
+    from proctex.build.pipeline import stage_paint
+    from proctex.build.pipeline import stage_sample
+    from proctex.build.pipeline import stage_template
     from proctex.models import get_model
     from proctex.serve.service import FamilyService
     from proctex.sources.registry import unregister_source_kind

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proctex.build.paint import stage_paint
-from proctex.build.sample import stage_sample
-from proctex.build.template import stage_template
+from proctex.build.pipeline import stage_paint
+from proctex.build.pipeline import stage_sample
+from proctex.build.pipeline import stage_template
 from proctex.serve.catalog import Catalog
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
@@ -317,13 +317,14 @@ def test_the_studio_uploads_a_mesh_for_families_of_meshes(server, browser, sofa_
     """A family from a folder of meshes takes meshes only: after choosing it in the family select,
     the page shows a file field instead of sliders, and an uploaded mesh comes back textured."""
     from proctex.build.sample import finish_sample_stage, run_sample_job, sample_jobs
+    from proctex.store.state import mark_stage
 
     base, root = server
     st = FamilyStore(root / "sofa")
     cfg = BuildConfig.from_dict(dict(folder=str(sofa_dir), texture_size=64, prompt="green velvet")).validate()
     write_config(st, cfg)
     jobs = [j for j in sample_jobs(cfg) if j.split == "train"][:3]  # three samples make a painted template
-    finish_sample_stage(st, [run_sample_job(st, cfg, j) for j in jobs])
+    mark_stage(st, "sample", **finish_sample_stage(st, [run_sample_job(st, cfg, j) for j in jobs]))  # what the pipeline records
     stage_template(st, cfg, log=lambda *_: None)
     stage_paint(st, cfg, log=lambda *_: None)
     context = browser.new_context(viewport={"width": 1000, "height": 700})

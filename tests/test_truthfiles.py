@@ -91,9 +91,9 @@ def test_damaged_or_mismatched_truth_files_are_refused_by_name(tmp_path):
 @pytest.fixture(scope="module")
 def seam_family(tmp_path_factory):
     """A mug family of seam-split files whose every shape is the default mug (pinned), painted."""
-    from proctex.build.paint import stage_paint
-    from proctex.build.sample import stage_sample
-    from proctex.build.template import stage_template
+    from proctex.build.pipeline import stage_paint
+    from proctex.build.pipeline import stage_sample
+    from proctex.build.pipeline import stage_template
     from proctex.store.config import BuildConfig
     from proctex.store.layout import FamilyStore
     from proctex.store.state import write_config

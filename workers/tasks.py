@@ -1,7 +1,7 @@
 """Ray tasks of the preprocessing workflow: thin wrappers around the build's job functions.
 
-A task takes a stage plan's batch function, the store URI, the build config (a dict) and a batch of
-jobs, runs the same function the single-process build runs, and returns the job records. The
+A task takes a stage plan's batch function, the store URI, the build config (put in Ray's object
+store once per plan, never rebuilt from a dict) and a batch of jobs, runs the same function the single-process build runs, and returns the job records. The
 job functions write their outputs straight to the store (atomically, data before record) and skip
 work that is already complete, so a task that Ray retries after its worker died redoes only the jobs
 that had not finished. Application failures (a pair the solver cannot do) come back as "failed"
@@ -29,9 +29,11 @@ def _single_thread() -> None:
 
 
 @ray.remote(num_cpus=1, max_retries=MAX_RETRIES)
-def run_batch(run: Callable[..., list[Any]], store_uri: str, config: dict[str, Any], batch: list[Any]) -> list[Any]:
+def run_batch(run: Callable[..., list[Any]], store_uri: str, config: BuildConfig, batch: list[Any]) -> list[Any]:
     """Run one batch of a stage plan (:class:`proctex.build.plan.Plan`): ``run`` is the plan's
     module-level batch function (e.g. :func:`proctex.build.pairs.run_pair_batch`), which loads what it
     needs itself (template assets once per worker process). Returns its results."""
     _single_thread()
-    return run(FamilyStore(store_uri), BuildConfig.from_dict(config), batch, None)
+    if not isinstance(config, BuildConfig):
+        raise TypeError(f"run_batch takes a BuildConfig, got {type(config).__name__}")
+    return run(FamilyStore(store_uri), config, batch, None)

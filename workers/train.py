@@ -21,7 +21,8 @@ import tempfile
 import time
 from typing import Any, Callable
 
-from proctex.build.train import fit_groups, serving_line, trainable_groups
+from proctex.build.groupdata import trainable_groups
+from proctex.build.train import fit_groups, serving_line
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 

@@ -21,7 +21,7 @@ import os
 from typing import Any, Callable, Sequence
 
 from proctex.build.pipeline import build
-from proctex.build.plan import Plan, run_in_process
+from proctex.build.plan import Placement, Plan, run_in_process
 from proctex.progress import Progress
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore
@@ -190,21 +190,24 @@ def _fan_out(submit: Callable[[Any], Any], batches: Sequence[Any], max_in_flight
 
 
 def ray_executor(max_in_flight: int | None = None, train_workers: int | None = None, quiet: bool = False):
-    """An executor for :func:`proctex.build.pipeline.build` that runs each plan's batches as Ray
-    tasks (:func:`workers.tasks.run_batch`; at most ``max_in_flight`` submitted at a time, default 2 x
-    CPUs), the jobs of a plan with a team step (``Plan.team``: the train plan's groups) as Ray
-    Train jobs through :func:`run_teams` (``train_workers`` workers, default min(2, CPUs)), and
-    one-step plans here on the driver."""
+    """An executor for :func:`proctex.build.pipeline.build` that runs a plan by its placement
+    (:class:`proctex.build.plan.Placement`, the stage table's): ``TASKS`` batches as Ray tasks
+    (:func:`workers.tasks.run_batch`; at most ``max_in_flight`` submitted at a time, default 2 x
+    CPUs), a ``TEAM`` plan's jobs (the train plan's groups, each by ``Plan.team``) as Ray Train
+    jobs through :func:`run_teams` (``train_workers`` workers, default min(2, CPUs)), and ``HERE``
+    plans here on the driver."""
 
     def execute(plan: Plan, store: FamilyStore, config: BuildConfig, log: Callable[[str], None]) -> Plan:
-        if plan.skip or plan.in_place or not plan.batches:
+        if plan.skip or plan.placement is Placement.HERE or not plan.batches:
             return run_in_process(plan, store, config, log)
-        if plan.team is not None:
+        if plan.placement is Placement.TEAM:
             return run_teams(plan, store, config, log, train_workers or min(2, cluster_cpus()), quiet)
+        import ray
+
         from workers.tasks import run_batch
 
         bar = Progress(plan.stage, plan.n_jobs, quiet=quiet)
-        cfg = config.to_dict()
+        cfg = ray.put(config)  # the config once in the object store: every task gets it as it is, never rebuilt
         results: dict[int, list[Any]] = {}
 
         def collect(i: int, out: list[Any]) -> None:
@@ -215,7 +218,7 @@ def ray_executor(max_in_flight: int | None = None, train_workers: int | None = N
 
         _fan_out(lambda i: run_batch.remote(plan.run_batch, store.uri, cfg, plan.batches[i]), list(range(len(plan.batches))),
                  max_in_flight or 2 * cluster_cpus(), collect)
-        plan.finish([results[i] for i in range(len(plan.batches))])
+        plan.record = plan.finish([results[i] for i in range(len(plan.batches))])
         return plan
 
     return execute
@@ -231,7 +234,7 @@ def run_teams(plan: Plan, store: FamilyStore, config: BuildConfig, log: Callable
     jobs = [job for batch in plan.batches for job in batch]
     out = train_groups(store.uri, config, num_workers=workers, groups=jobs, log=log, quiet=quiet, step=plan.team)
     plan.info["mark"] = {"ray": True}
-    plan.finish([[out.get(job) for job in batch] for batch in plan.batches])
+    plan.record = plan.finish([[out.get(job) for job in batch] for batch in plan.batches])
     return plan
 
 

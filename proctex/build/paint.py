@@ -4,22 +4,23 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from proctex.geometry.parts import analyse
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, MAP_KINDS, StoreLayout
-from proctex.store.state import mark_stage, stage_done
+from proctex.store.state import stage_done
 from proctex.store.template import StoredImages, StoredMaps, Template, encode_textures, load_template_shape, write_textured
 from proctex.texture.paint_loop import paint_with
 from proctex.texture.uv import source_uv
 
 
-def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
-    """Parts, groups, UVs and textures of the template into ``template/``."""
+def paint_step(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> dict[str, Any] | None:
+    """Parts, groups, UVs and textures of the template into ``template/``; returns the stage's
+    record (None: done already)."""
     if stage_done(store, "paint"):
         log("paint: done already")
-        return
+        return None
     import tempfile
 
     template = load_template_shape(store, config)
@@ -47,5 +48,5 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
             if StoreLayout.template_file(name) not in textures:
                 store.write_bytes(StoreLayout.template_file(name), (Path(tmp) / name).read_bytes())
     record.save(store)
-    mark_stage(store, "paint", coverage=summary["coverage"]["share"], groups=len(grouping.groups), seconds=round(tex.seconds, 3))
     log(f"paint: {len(grouping.groups)} groups, unpainted visible pixels {100 * summary['coverage']['share']:.3f}%")
+    return {"coverage": summary["coverage"]["share"], "groups": len(grouping.groups), "seconds": round(tex.seconds, 3)}

@@ -9,8 +9,8 @@ from typing import Any, Callable
 import numpy as np
 import pyarrow as pa
 
-from proctex.build.plan import Plan, run_in_process, run_steps
-from proctex.build.train import VAL_SHARE, plain_groups
+from proctex.build.plan import Plan
+from proctex.build.groupdata import VAL_SHARE, plain_groups
 from proctex.correspond.dense import correspond_parts, deform
 from proctex.geometry.parts import part_mesh, segment
 from proctex.geometry.shape import Shape
@@ -18,7 +18,7 @@ from proctex.store.config import BuildConfig
 from proctex.store.family import Family
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.samples import held_out_split, load_sample, pair_seed, part_digest, samples, write_pair_vertices
-from proctex.store.state import FamilyState, mark_stage, stage_done
+from proctex.store.state import FamilyState, stage_done
 from proctex.transfer.assets import load_assets
 from proctex.transfer.assign import assign_parts, choose_part, representative_part
 
@@ -184,19 +184,19 @@ def write_pairs_index(store: FamilyStore, jobs: list[PairJob], records: dict[tup
 
 
 def finish_pairs_stage(store: FamilyStore, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]], log: Callable[[str], None] = print,
-                       settled: dict[int, dict[str, float]] | None = None) -> None:
-    """Write the index; mark the stage done when every job is complete (skipped pairs of the
-    ``settled`` groups included; the stage records those groups and their plain maps' errors)."""
+                       settled: dict[int, dict[str, float]] | None = None) -> dict[str, Any] | None:
+    """Write the index; returns the stage's record when every job is complete (skipped pairs of the
+    ``settled`` groups included; the record keeps those groups and their plain maps' errors), else None."""
     write_pairs_index(store, jobs, records)
     settled = settled or {}
     failed = sum(r["status"] == "failed" for r in records.values())
     missing = sum(not pair_complete(records.get(job.key), settled) and records.get(job.key, {}).get("status") != "failed" for job in jobs)
     if failed or missing:
         log(f"pairs: {failed} failed, {missing} not run (rerun to retry)")
-    else:
-        skipped = sum(r["status"] == "skipped" for r in records.values())
-        mark_stage(store, "pairs", pairs=len(records), solved=len(records) - skipped, skipped=skipped,
-                   settled={str(g): {k: round(v, 6) for k, v in e.items()} for g, e in settled.items()})
+        return None
+    skipped = sum(r["status"] == "skipped" for r in records.values())
+    return {"pairs": len(records), "solved": len(records) - skipped, "skipped": skipped,
+            "settled": {str(g): {k: round(v, 6) for k, v in e.items()} for g, e in settled.items()}}
 
 
 INDEX_EVERY = 5.0  # seconds between rewrites of pairs.parquet while pairs arrive
@@ -254,7 +254,7 @@ def probe_keys(config: BuildConfig, jobs: list[PairJob]) -> set[tuple[str, int]]
 def settled_groups(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]],
                    probes: set[tuple[str, int]]) -> dict[int, dict[str, float]]:
     """Groups whose probe pairs are all complete and whose plain map already fits their held-out
-    shapes (:func:`proctex.build.train.plain_groups` on what is solved: the train stage decides the
+    shapes (:func:`proctex.build.groupdata.plain_groups` on what is solved: the train stage decides the
     same on the same pairs), with the plain maps' held-out errors. Writes ``pairs.parquet`` from
     ``records`` first: what the decision reads."""
     groups = sorted({j.group for j in jobs})
@@ -324,8 +324,8 @@ def plan_rest(store: FamilyStore, config: BuildConfig, log: Callable[[str], None
 def _pairs_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], None], assets, jobs: list[PairJob],
                 records: dict[tuple[str, int], dict[str, Any]], settled: dict[int, dict[str, float]], only: list[PairJob] | None = None) -> Plan:
     """The plan solving ``only`` (default: every job not complete with groups ``settled``), one
-    batch per shape; its finish marks the stage done once every job is complete (a first step's
-    finish leaves the index to the next step, :func:`settled_groups`)."""
+    batch per shape; its finish returns the stage's record once every job is complete (a first
+    step's finish leaves the index to the next step, :func:`settled_groups`)."""
     todo = only if only is not None else [j for j in jobs if not pair_complete(records.get(j.key), settled)]
     by_shape: dict[str, list[PairJob]] = {}
     for job in todo:
@@ -343,17 +343,11 @@ def _pairs_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
             clock["index"] = now
         log(f"pairs: {batch[0].row['id']} ({clock['solved']}/{len(todo)} solved, {now - t0:.0f}s)")
 
-    def finish(results: list[list[dict[str, Any]]]) -> None:
-        if only is None:
-            finish_pairs_stage(store, jobs, records, log, settled)
+    def finish(results: list[list[dict[str, Any]]]) -> dict[str, Any] | None:
         plan.info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
+        return finish_pairs_stage(store, jobs, records, log, settled) if only is None else None
 
     # side by side in process from 16 pairs on (a pair takes about a second, a worker a few to start)
     plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets, parallel=True, pool_min_jobs=16, threads=1)
     return plan
 
-
-def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, splits: tuple[str, ...] = ("train", "test")) -> None:
-    """Cage pairs for every (shape, non-degenerate template group); skips pairs already complete
-    (:func:`plan_pairs`, here, in its steps)."""
-    run_steps(plan_pairs(store, config, log, splits), run_in_process, store, config, log)

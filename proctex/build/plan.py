@@ -12,9 +12,25 @@ the same plans, so both builds write the same artifacts.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Any, Callable
 
 from proctex.pools import process_pool
+
+
+class Placement(str, Enum):
+    """Where a stage's batches may run (each stage declares its own, :mod:`proctex.build.pipeline`).
+
+    - ``HERE``: one step where the build runs (the template, the paint, the evaluation);
+    - ``TASKS``: independent batches anywhere: one after another here, worker processes of one
+      thread, or Ray tasks on a cluster (samples, cage pairs);
+    - ``TEAM``: jobs a data-parallel team may fit together: worker processes here, a Ray Train job
+      on a cluster (the groups' networks, :attr:`Plan.team`).
+    """
+
+    HERE = "here"
+    TASKS = "tasks"
+    TEAM = "team"
 
 
 @dataclass
@@ -29,11 +45,13 @@ class Plan:
             module-level function, so a Ray worker can run it (with ``context`` None: it loads what
             it needs itself).
         collect: ``collect(batch, results)`` as each batch finishes (progress, partial indexes).
-        finish: ``finish(results)`` once, with every batch's results in batch order; marks the
-            stage done.
+        finish: ``finish(results)`` once, with every batch's results in batch order; returns the
+            stage's record when the stage is complete (the pipeline writes it into ``family.json``:
+            no stage marks itself done), else None. Every executor keeps it in :attr:`record`.
         context: what the in-process executor hands every batch (e.g. the loaded template assets).
         skip: "done already" when the stage is complete and nothing is to be run.
-        in_place: a one-step stage that runs where the build runs (template, paint, evaluate).
+        placement: where its batches may run (:class:`Placement`): what an executor decides by.
+        record: what ``finish`` returned (None: the stage is not complete, or nothing ran).
         team: for plans whose jobs can be run by a data-parallel team of workers (groups'
             networks): ``team(store, config, jobs, rank, world, grad_hook) -> [result per job]`` (a
             module-level function; ``grad_hook(model)`` averages the gradients across the team). An
@@ -64,7 +82,8 @@ class Plan:
     collect: Callable[[list[Any], list[Any]], None] | None = None
     context: Any = None
     skip: str | None = None
-    in_place: bool = False
+    placement: Placement = Placement.TASKS
+    record: dict[str, Any] | None = None
     info: dict[str, Any] = field(default_factory=dict)
     team: Callable[..., Any] | None = None
     parallel: bool = False
@@ -99,7 +118,7 @@ def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], Non
         with torch_threads(plan.threads):
             for unit in units:
                 _collect_unit(plan, unit, plan.run_batch(store, config, [j for k in unit for j in plan.batches[k]], plan.context), results)
-    plan.finish(results)
+    plan.record = plan.finish(results)
     return plan
 
 
@@ -170,7 +189,9 @@ def _run_pooled(plan: Plan, store: Any, config: Any, units: list[list[int]], wor
     return results
 
 
-def single_step(stage: str, step: Callable[[Any, Any, Callable[[str], None]], None], store: Any, config: Any,
+def single_step(stage: str, step: Callable[[Any, Any, Callable[[str], None]], dict[str, Any] | None], store: Any, config: Any,
                 log: Callable[[str], None]) -> Plan:
-    """A one-step stage as a plan: ``step(store, config, log)`` runs in place (it skips what is done)."""
-    return Plan(stage, [[None]], lambda st, cfg, batch, context: [step(st, cfg, log)], finish=lambda results: None, in_place=True)
+    """A one-step stage as a plan placed :attr:`Placement.HERE`: ``step(store, config, log)`` runs
+    where the build runs and returns the stage's record (None: done already, nothing to record)."""
+    return Plan(stage, [[None]], lambda st, cfg, batch, context: [step(st, cfg, log)], finish=lambda results: results[0][0],
+                placement=Placement.HERE)

@@ -8,13 +8,13 @@ from typing import Any, Callable
 
 import pyarrow as pa
 
-from proctex.build.plan import Plan, run_in_process
+from proctex.build.plan import Plan
 from proctex.geometry.meshio import obj_text
 from proctex.geometry.parts import segment
 from proctex.sources.registry import SampleJob
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
-from proctex.store.state import mark_stage, stage_done
+from proctex.store.state import stage_done
 
 
 def sample_jobs(config: BuildConfig) -> list[SampleJob]:
@@ -41,14 +41,15 @@ def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> d
     return row
 
 
-def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]], notes: list[str] | None = None, space: list[dict] | None = None) -> None:
-    """Write ``samples.parquet`` (rows in sample order) and mark the stage done (with ``notes``: what
+def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]], notes: list[str] | None = None,
+                        space: list[dict] | None = None) -> dict[str, Any]:
+    """Write ``samples.parquet`` (rows in sample order); returns the stage's record (``notes``: what
     the source said of its inputs, e.g. those held at a file's values; ``space``: the procedural
     model's parameter space, :meth:`ParamSpace.to_list`, which readers take from the record instead
-    of opening the model)."""
+    of opening the model), which the pipeline writes."""
     store.write_table(StoreLayout.SAMPLES, pa.Table.from_pylist(rows))
-    mark_stage(store, "sample", samples=len(rows), train=sum(r["split"] == "train" for r in rows), **({"notes": notes} if notes else {}),
-               **({"space": space} if space is not None else {}))
+    return {"samples": len(rows), "train": sum(r["split"] == "train" for r in rows), **({"notes": notes} if notes else {}),
+            **({"space": space} if space is not None else {})}
 
 
 def source_notes(config: BuildConfig) -> list[str]:
@@ -82,14 +83,10 @@ def plan_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     for note in notes:
         log(f"sample: {note}")
 
-    def finish(results: list[list[dict[str, Any]]]) -> None:
+    def finish(results: list[list[dict[str, Any]]]) -> dict[str, Any]:
         rows = [row for out in results for row in out]
-        finish_sample_stage(store, rows, notes, space)
         log(f"sample: {len(rows)} shapes")
+        return finish_sample_stage(store, rows, notes, space)
 
     return Plan("sample", [jobs[i : i + SAMPLE_BATCH] for i in range(0, len(jobs), SAMPLE_BATCH)], run_sample_batch, finish)
 
-
-def stage_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
-    """Sample shapes (or read the folder) into ``meshes/`` and ``samples.parquet`` (:func:`plan_sample`, here)."""
-    run_in_process(plan_sample(store, config, log), store, config, log)

@@ -4,23 +4,24 @@ recorded whole (``template/shape.npz``, with its labels and part names) so that 
 from __future__ import annotations
 
 import json
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout, digest
 from proctex.store.samples import load_sample, read_mesh, samples, shape_record
-from proctex.store.state import mark_stage, stage_done
+from proctex.store.state import stage_done
 
 
-def stage_template(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
+def template_step(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> dict[str, Any] | None:
     """Pick the template among the train samples: of those with the most kinds of part
     (:func:`proctex.geometry.parts.part_kinds`, so a family with optional parts gets a template
-    that carries them), the one nearest the mean parameters."""
+    that carries them), the one nearest the mean parameters. Returns the stage's record (None: done
+    already)."""
     if stage_done(store, "template"):
         log("template: done already")
-        return
+        return None
     from proctex.geometry.parts import part_kinds
     from proctex.params import infer_space, select_template
 
@@ -35,6 +36,6 @@ def stage_template(store: FamilyStore, config: BuildConfig, log: Callable[[str],
     shape.source = StoreLayout.TEMPLATE_MESH
     record = shape_record(shape)  # what readers load: never made again (no reader starts Blender)
     store.write_all([(StoreLayout.TEMPLATE_MESH, store.read_bytes(rows[i]["mesh"])), (StoreLayout.TEMPLATE_SHAPE, record)])
-    mark_stage(store, "template", id=rows[i]["id"], params=params[i], part_kinds=kinds[i], shape=digest(record))
     why = "" if i == nearest else f"; the sample nearest the mean ({rows[nearest]['id']}) has {kinds[nearest]}"
     log(f"template: {rows[i]['id']} ({kinds[i]} kinds of part, the most of the {len(rows)} train samples{why})")
+    return {"id": rows[i]["id"], "params": params[i], "part_kinds": kinds[i], "shape": digest(record)}

@@ -2,50 +2,18 @@
 
 from __future__ import annotations
 
-import json
 import time
 from typing import Any, Callable
 
-from proctex.build.plan import Plan, run_in_process
-from proctex.correspond.confidence import param_features
+from proctex.build.groupdata import VAL_SHARE, group_training_data, plain_groups, trainable_groups
+from proctex.build.plan import Plan
 from proctex.correspond.corrnet import to_bytes, trains_together
 from proctex.correspond.grouped import train_together
-from proctex.correspond.training import choose_serving, plain_fit, template_extent, train
+from proctex.correspond.training import choose_serving, template_extent, train
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.networks import save_network
-from proctex.store.samples import held_out_ids, read_pair, samples
-from proctex.store.state import FamilyState, mark_stage, stage_done
-
-
-def trainable_groups(store: FamilyStore) -> list[int]:
-    """Groups with at least one solved train pair."""
-    rows = store.read_table(StoreLayout.PAIRS).to_pylist() if store.exists(StoreLayout.PAIRS) else []
-    return sorted({r["group"] for r in rows if r["status"] == "done" and r["split"] == "train"})
-
-
-def group_training_data(store: FamilyStore, config: BuildConfig, group: int, val_share: float = 0.15) -> dict[str, Any]:
-    """Train and validation pairs of one group: a seeded ``val_share`` of its train shapes is held
-    out for early stopping. Returns ``{"train": [(src, dst)], "val": [...], "train_ids", "val_ids",
-    "features"}``; ``features``: the train shapes' procedural parameters as the teacher's
-    confidence finds neighbours by (:func:`proctex.correspond.confidence.param_features`; None
-    where the shapes carry none or the confidence is off)."""
-    rows = [r for r in store.read_table(StoreLayout.PAIRS).to_pylist() if r["status"] == "done" and r["split"] == "train" and r["group"] == group]
-    ids = sorted(r["id"] for r in rows)
-    if not ids:
-        raise ValueError(f"group {group} has no solved train pairs")
-    rows_all = samples(store)
-    # held out: the family's draw over all its train shapes (the pairs stage solves these first)
-    val_ids = held_out_ids([r["id"] for r in rows_all if r["split"] == "train"], ids, config.seed, group, val_share)
-    held = set(val_ids)
-    train_ids = [i for i in ids if i not in held]
-    train_pairs = [read_pair(store, i, group) for i in train_ids]
-    val_pairs = [read_pair(store, i, group) for i in val_ids] or train_pairs[:1]
-    features = None
-    if config.train.confidence != "none":  # only the teacher's confidence reads the parameters
-        params = {r["id"]: r.get("params") for r in rows_all}
-        features = param_features([json.loads(params.get(i) or "{}") for i in train_ids])
-    return {"train": train_pairs, "val": val_pairs, "train_ids": train_ids, "val_ids": val_ids, "features": features}
+from proctex.store.state import FamilyState, stage_done
 
 
 def serving_choice(model: Any, data: dict[str, Any]) -> dict[str, Any]:
@@ -73,9 +41,6 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
     serving = serving_choice(result.model, data)
     extra = {"group": group, "train_ids": data["train_ids"], "val_ids": data["val_ids"], "best_val": result.best_val, "serving": serving}
     return save_network(store, group, to_bytes(result.model, cfg, extra)), serving
-
-
-VAL_SHARE = 0.15  # of a group's train shapes, held out for early stopping
 
 
 def fit_groups(store: FamilyStore, config: BuildConfig, groups: list[int], rank: int = 0, world: int = 1,
@@ -115,25 +80,6 @@ def _group_record(store: FamilyStore, config: BuildConfig, group: int, data: dic
     return {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(seconds, 2),
             "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving, "workers": world,
             "together": together}
-
-
-def plain_groups(store: FamilyStore, config: BuildConfig, groups: list[int]) -> dict[int, dict[str, Any]]:
-    """The groups of ``groups`` that need no training, with their training data (and under
-    ``"plain"`` the plain maps' held-out errors): their plain map lies within ``train.plain_below``
-    of their held-out pairs (:func:`proctex.correspond.training.plain_fit`; never a group without
-    a held-out shape). A group whose data cannot be read is left to the training, which reports why."""
-    if config.train.plain_below <= 0 or not config.train.residual:
-        return {}
-    out = {}
-    for g in groups:
-        try:
-            d = group_training_data(store, config, g, VAL_SHARE)
-        except ValueError:
-            continue
-        errors = plain_fit(d["train"], d["val"], config.train) if d["val_ids"] else None
-        if errors is not None:
-            out[g] = {**d, "plain": errors}
-    return out
 
 
 def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], context: Any = None) -> list[dict[str, Any]]:
@@ -180,12 +126,13 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
         trained.update((g, _stage_record(m)) for g, m in zip(settled, records))
         todo = [g for g in todo if g not in settled]
 
-    def finish(results: list[list[dict[str, Any] | None]]) -> None:
+    def finish(results: list[list[dict[str, Any] | None]]) -> dict[str, Any] | None:
         for g, m in zip(todo, (m for out in results for m in out)):
             if m is not None:
                 trained[g] = _stage_record(m)
         if todo or not stage_done(store, "train"):
-            mark_stage(store, "train", groups=trained, **plan.info.get("mark", {}))
+            return {"groups": trained, **plan.info.get("mark", {})}
+        return None
 
     # in process, groups side by side in worker processes of one thread (Plan.parallel: demo 74.0 -> 62.0 s,
     # sofa export 209.7 -> 194.8 s on 2 cores); each worker's share trained in one batched loop where
@@ -196,6 +143,3 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
     return plan
 
 
-def stage_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print) -> None:
-    """One ProcCorrNet per non-degenerate group on the train pairs (:func:`plan_train`, here)."""
-    run_in_process(plan_train(store, config, log), store, config, log)

@@ -78,7 +78,7 @@ def held_out_split(ids: list[str], seed: int, group: int, share: float) -> tuple
     train shapes ``ids``: ``max(1, round(share * n))`` held out (none below three shapes), drawn by
     the family ``seed`` and the ``group``; the probes are drawn from the rest after them. Depends
     on ``ids`` only (not on which pairs are solved), so the pairs stage can solve these first and
-    the train stage holds the same shapes out (:func:`proctex.build.train.group_training_data`)."""
+    the train stage holds the same shapes out (:func:`proctex.build.groupdata.group_training_data`)."""
     ids = sorted(ids)
     rng = np.random.default_rng(seed + group)
     n = max(1, int(round(share * len(ids)))) if len(ids) > 2 else 0

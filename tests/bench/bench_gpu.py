@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     import torch
 
     from proctex.build.pipeline import build
-    from proctex.build.train import group_training_data
+    from proctex.build.groupdata import group_training_data
     from proctex.correspond.cage import CageConfig
     from proctex.correspond.corrnet import CorrNetConfig
     from proctex.correspond.dense import correspond_parts

@@ -1,6 +1,6 @@
 """Benchmark: a family's group networks trained one by one or together in one batched loop.
 
-Reads a built family's train pairs (:func:`proctex.build.train.group_training_data`) and trains
+Reads a built family's train pairs (:func:`proctex.build.groupdata.group_training_data`) and trains
 every group for ``--iterations`` steps (no early stopping; the best evaluation kept) with the
 family's network settings (``--seeds``: several network seeds, to see the spread):
 ``alone`` (:func:`proctex.correspond.training.train`, one group after another) and ``together``
@@ -32,7 +32,7 @@ def main(argv=None) -> int:
 
     import torch
 
-    from proctex.build.train import VAL_SHARE, group_training_data, trainable_groups
+    from proctex.build.groupdata import VAL_SHARE, group_training_data, trainable_groups
     from proctex.correspond.grouped import train_together
     from proctex.correspond.training import train
     from proctex.store.layout import FamilyStore

@@ -27,9 +27,9 @@ from fuzz_cases import cli_cases, http_cases  # noqa: E402
 
 def build_family(root: Path) -> None:
     try:
-        from proctex.build.paint import stage_paint
-        from proctex.build.sample import stage_sample
-        from proctex.build.template import stage_template
+        from proctex.build.pipeline import stage_paint
+        from proctex.build.pipeline import stage_sample
+        from proctex.build.pipeline import stage_template
         from proctex.store.config import BuildConfig
         from proctex.store.layout import FamilyStore
         from proctex.store.state import write_config
