@@ -10,7 +10,7 @@ STUDIO     := workers/studio
 STUDIO_OUT := $(STUDIO)/dist/index.html
 STUDIO_SRC := $(STUDIO)/package.json $(STUDIO)/package-lock.json $(STUDIO)/build.mjs $(STUDIO)/index.html $(STUDIO)/style.css $(wildcard $(STUDIO)/src/*.js)
 
-.PHONY: xatlas-single-threaded wheel image setup demo test test-fast test-other-kernels float-margins bench bench-fidelity gallery clean studio browser blender blender-addon blender-fixtures docs
+.PHONY: xatlas-single-threaded wheel image setup demo format test test-fast test-other-kernels float-margins bench bench-fidelity gallery clean studio browser blender blender-addon blender-fixtures docs
 
 # Blender's Python (bpy, which needs numpy < 2) in an environment of its own, for .blend family
 # sources (proctex/sources/blender.py). A machine where bpy cannot be installed skips those tests.
@@ -87,6 +87,12 @@ demo: setup
 TEST_WORKERS ?= 2
 test: setup browser blender
 	$(PY) -m tests.suite --workers $(TEST_WORKERS)
+
+# The formatter and the linter over every Python folder ([tool.ruff] in pyproject.toml); `make
+# test` checks both (tests/test_lint.py).
+format: setup
+	$(VENV)/bin/ruff format proctex workers workflows tests clients
+	$(VENV)/bin/ruff check proctex workers workflows tests clients
 
 # The wheel (dist/proctex-VERSION-py3-none-any.whl: the packages, the studio's bundle, the Blender
 # server script) and the cluster image cluster/Dockerfile makes of it, tagged with the version the

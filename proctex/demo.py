@@ -36,12 +36,10 @@ DEMO_MODEL = "sofa"
 DEMO_PROMPT = "a patchwork bohemian sofa"
 
 
-def demo_config(model: str = DEMO_MODEL, prompt: str = DEMO_PROMPT, seed: int = 0, n_train: int = 10, n_test: int = 3,
-                group_prompts: dict[str, str] | None = None) -> dict[str, Any]:
+def demo_config(model: str = DEMO_MODEL, prompt: str = DEMO_PROMPT, seed: int = 0, n_train: int = 10, n_test: int = 3, group_prompts: dict[str, str] | None = None) -> dict[str, Any]:
     """The demo's build config as sections: the ``demo`` preset (:data:`proctex.store.config.PRESETS`)
     with this model, prompt, seed and shape counts. A few minutes on 2 cores."""
-    return merge(sections(PRESETS["demo"]), {"seed": seed, "source": {"model": model, "n_train": n_train, "n_test": n_test},
-                                             "paint": {"prompt": prompt, "group_prompts": dict(group_prompts or {})}})
+    return merge(sections(PRESETS["demo"]), {"seed": seed, "source": {"model": model, "n_train": n_train, "n_test": n_test}, "paint": {"prompt": prompt, "group_prompts": dict(group_prompts or {})}})
 
 
 # ------------------------------------------------------------------------------------------ sweep
@@ -88,8 +86,9 @@ def parameter_effects(space: ParamSpace, base: dict[str, Any], generate: Callabl
     return scores
 
 
-def sweep_settings(space: ParamSpace, base: dict[str, Any], effects: dict[str, float], rows: int = 3, per_row: int = 5,
-                   names: Sequence[str] | None = None, random_row: bool = True, seed: int = 0) -> list[SweepRow]:
+def sweep_settings(
+    space: ParamSpace, base: dict[str, Any], effects: dict[str, float], rows: int = 3, per_row: int = 5, names: Sequence[str] | None = None, random_row: bool = True, seed: int = 0
+) -> list[SweepRow]:
     """Rows of parameter settings around ``base``: the ``rows`` parameters with the largest
     ``effects`` (or ``names``), each swept over its range with the others at ``base``, then a row of
     ``per_row`` random (Latin-hypercube) settings of every parameter, seeded."""
@@ -134,6 +133,7 @@ def caption(params: dict[str, Any], varied: str | None, max_lines: int = 6, show
     """Caption lines of a variant: the varied parameter, or every parameter (random row; only those
     in ``shown`` when given, e.g. the ones that matter there), at most ``max_lines`` of them and a
     "+k more" line."""
+
     def fmt(v: Any) -> str:
         return f"{v:.3g}" if isinstance(v, float) else str(v)
 
@@ -170,8 +170,7 @@ def crop_to_content(images: Sequence[np.ndarray], background: int = 255, margin:
     return [np.ascontiguousarray(np.asarray(im)[r0:r1, c0:c1]) for im in images]
 
 
-def contact_sheet(rows: list[list[np.ndarray]], captions: list[list[list[str]]], row_titles: list[str], title: str = "",
-                  pad: int = 8) -> np.ndarray:
+def contact_sheet(rows: list[list[np.ndarray]], captions: list[list[list[str]]], row_titles: list[str], title: str = "", pad: int = 8) -> np.ndarray:
     """(H, W, 3) uint8 sheet: rows of equally sized images, each with caption lines below it, a
     title line per row and an optional sheet title."""
     from PIL import Image, ImageDraw
@@ -222,9 +221,16 @@ def report_html(summary: dict[str, Any]) -> str:
     s = summary
     groups = _table(
         ["group", "label", "prompt", "texture", "network"],
-        [[str(g["group"]), e(g["label"] or "–"), e(g["prompt"] or ""),
-          f'<a href="{e(g["texture"])}"><img class="tex" src="{e(g["texture"])}" alt="group {g["group"]} texture"></a>',
-          e(g["network"])] for g in s["groups"]],
+        [
+            [
+                str(g["group"]),
+                e(g["label"] or "–"),
+                e(g["prompt"] or ""),
+                f'<a href="{e(g["texture"])}"><img class="tex" src="{e(g["texture"])}" alt="group {g["group"]} texture"></a>',
+                e(g["network"]),
+            ]
+            for g in s["groups"]
+        ],
     )
     stage_rows = [[e(k), f"{v:.1f}"] for k, v in s["stage_seconds"].items()]
     stages = _table(["stage", "seconds"], stage_rows + [["<b>total wall time</b>", f"<b>{s['total_seconds']:.1f}</b>"]])
@@ -234,36 +240,50 @@ def report_html(summary: dict[str, Any]) -> str:
         for name, m in s["metrics"]["methods"].items():
             pgt, gt = m.get("pgt_error") or {}, m.get("gt_error") or {}
             ms = "–" if m.get("seconds_per_shape") is None else f"{1000 * m['seconds_per_shape']:.0f}"
-            mrows.append([e(name), _num(m.get("tracked_point_variance")), _num(m.get("tracked_point_variance_realtime")),
-                          _num(gt.get("mean")), _num(gt.get("max")), _num(pgt.get("mean")), _num(pgt.get("max")),
-                          _num(m.get("coverage")), f"{m.get('mapped_share', 0.0):.0%}" if name.startswith("corrnet") else "–", ms])
-        metrics = (f"<p>{s['metrics']['shapes']} unseen test shapes; points tracked by {e(str(s['metrics'].get('tracker')))} "
-                   f"(never by the method's own map); errors in the template part's normalised frame, max over all points.</p>"
-                   + _table(["method", "tracked-point variance (baked)", "(real-time)", "GT error mean", "GT max", "pseudo-GT error mean", "max",
-                             "coverage", "networks on parts", "ms per shape"], mrows))
+            mrows.append(
+                [
+                    e(name),
+                    _num(m.get("tracked_point_variance")),
+                    _num(m.get("tracked_point_variance_realtime")),
+                    _num(gt.get("mean")),
+                    _num(gt.get("max")),
+                    _num(pgt.get("mean")),
+                    _num(pgt.get("max")),
+                    _num(m.get("coverage")),
+                    f"{m.get('mapped_share', 0.0):.0%}" if name.startswith("corrnet") else "–",
+                    ms,
+                ]
+            )
+        metrics = (
+            f"<p>{s['metrics']['shapes']} unseen test shapes; points tracked by {e(str(s['metrics'].get('tracker')))} "
+            f"(never by the method's own map); errors in the template part's normalised frame, max over all points.</p>"
+            + _table(["method", "tracked-point variance (baked)", "(real-time)", "GT error mean", "GT max", "pseudo-GT error mean", "max", "coverage", "networks on parts", "ms per shape"], mrows)
+        )
     variants = _table(
         ["row", "parameters", "transfer ms", "faces", "GLB"],
-        [[e(v["row"]), "<code>" + e(json.dumps(v["params"])) + "</code>", f"{1000 * v['seconds']:.0f}", str(v["faces"]),
-          f'<a href="{e(v["glb"])}">{e(Path(v["glb"]).name)}</a>'] for v in s["variants"]],
+        [
+            [e(v["row"]), "<code>" + e(json.dumps(v["params"])) + "</code>", f"{1000 * v['seconds']:.0f}", str(v["faces"]), f'<a href="{e(v["glb"])}">{e(Path(v["glb"]).name)}</a>']
+            for v in s["variants"]
+        ],
     )
     notes = "".join(f"<li>{e(n)}</li>" for n in s.get("notes", [])) or "<li>none</li>"
     return f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>ProcTex demo: {e(s['model'])}</title>
+<html lang="en"><head><meta charset="utf-8"><title>ProcTex demo: {e(s["model"])}</title>
 <style>
 body {{ font: 14px/1.45 system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }}
 table {{ border-collapse: collapse; margin: .5em 0 1.5em; }} td, th {{ border: 1px solid #ccc; padding: 4px 8px; vertical-align: middle; }}
 th {{ background: #f3f3f3; }} img.tex {{ width: 96px; height: 96px; image-rendering: auto; }} img.wide {{ max-width: 100%; }}
 code {{ font-size: 12px; }}
 </style></head><body>
-<h1>ProcTex demo: <i>{e(s['model'])}</i></h1>
-<p>Prompt: <b>{e(s['prompt'])}</b>. Family store: <code>{e(s['family'])}</code> ({s['n_train']} training shapes, {s['n_test']} test shapes,
-seed {s['seed']}, built {'on Ray' if s['ray'] else 'in one process'}). {len(s['variants'])} unseen variants transferred,
-median {1000 * s['transfer_median_seconds']:.0f} ms each.</p>
+<h1>ProcTex demo: <i>{e(s["model"])}</i></h1>
+<p>Prompt: <b>{e(s["prompt"])}</b>. Family store: <code>{e(s["family"])}</code> ({s["n_train"]} training shapes, {s["n_test"]} test shapes,
+seed {s["seed"]}, built {"on Ray" if s["ray"] else "in one process"}). {len(s["variants"])} unseen variants transferred,
+median {1000 * s["transfer_median_seconds"]:.0f} ms each.</p>
 <h2>Contact sheet</h2>
 <p>Every row sweeps one parameter from the template's setting (the last row: random unseen settings); one camera for all.</p>
-<img class="wide" src="{e(s['contact_sheet'])}" alt="contact sheet">
+<img class="wide" src="{e(s["contact_sheet"])}" alt="contact sheet">
 <h2>Turntable of the sweep</h2>
-<img src="{e(s['turntable'])}" alt="turntable">
+<img src="{e(s["turntable"])}" alt="turntable">
 <h2>Groups and their textures</h2>
 {groups}
 <h2>Metrics</h2>
@@ -273,13 +293,22 @@ median {1000 * s['transfer_median_seconds']:.0f} ms each.</p>
 <h2>Variants</h2>
 {variants}
 <h2>Notes</h2><ul>{notes}</ul>
-<p>Open the family in the studio: <code>proctex serve {e(s['serve_root'])}</code>, then <code>http://127.0.0.1:8000/</code>.</p>
+<p>Open the family in the studio: <code>proctex serve {e(s["serve_root"])}</code>, then <code>http://127.0.0.1:8000/</code>.</p>
 </body></html>
 """
 
 
-def render_sheet(sweep: list[SweepRow], rendered: list[tuple[Any, Any]], textures: list[np.ndarray], up: str, size: int,
-                 title: str = "", quiet: bool = False, maps: list | None = None, space: ParamSpace | None = None) -> np.ndarray:
+def render_sheet(
+    sweep: list[SweepRow],
+    rendered: list[tuple[Any, Any]],
+    textures: list[np.ndarray],
+    up: str,
+    size: int,
+    title: str = "",
+    quiet: bool = False,
+    maps: list | None = None,
+    space: ParamSpace | None = None,
+) -> np.ndarray:
     """The contact sheet of transferred variants ``rendered`` [(Shape, TransferResult)], in the order
     of ``sweep``'s rows: one camera fitted to every variant (sizes compare truthfully), crops shared.
     ``maps``: the template's PBR maps per texture (None: colour only), lit physically. ``space``:
@@ -289,23 +318,29 @@ def render_sheet(sweep: list[SweepRow], rendered: list[tuple[Any, Any]], texture
     bar = Progress("render", len(rendered), quiet=quiet)
     images = []
     for shape, result in rendered:
-        images.append(render_textured(shape.vertices, shape.faces, result.corner_uv, result.face_group,
-                                      list(textures) + list(result.new_textures), cam,
-                                      maps=None if maps is None else list(maps) + [None] * len(result.new_textures)))
+        images.append(
+            render_textured(
+                shape.vertices,
+                shape.faces,
+                result.corner_uv,
+                result.face_group,
+                list(textures) + list(result.new_textures),
+                cam,
+                maps=None if maps is None else list(maps) + [None] * len(result.new_textures),
+            )
+        )
         bar.update()
     images = crop_to_content(images)
     grid, caps, titles, i = [], [], [], 0
     for r in sweep:
         grid.append(images[i : i + len(r.settings)])
-        caps.append([caption(p, None if r.name == "random" else r.name, shown=None if space is None else space.active(p))
-                     for p in r.settings])
+        caps.append([caption(p, None if r.name == "random" else r.name, shown=None if space is None else space.active(p)) for p in r.settings])
         titles.append("random unseen settings" if r.name == "random" else f"sweep of {r.name}")
         i += len(r.settings)
     return contact_sheet(grid, caps, titles, title=title)
 
 
-def render_turntable(model: Any, base: dict[str, Any], names: Sequence[str], svc: Any, up: str, frames: int, size: int,
-                     seed: int = 0, quiet: bool = False) -> list[np.ndarray]:
+def render_turntable(model: Any, base: dict[str, Any], names: Sequence[str], svc: Any, up: str, frames: int, size: int, seed: int = 0, quiet: bool = False) -> list[np.ndarray]:
     """Frames of the sweep's turntable: the camera circles once while ``names`` follow
     :func:`turntable_path`; every frame is a real-time transfer by ``svc`` (a ``FamilyService``)."""
     shapes = [model.generate(p) for p in turntable_path(model.space, base, names, frames)]
@@ -316,8 +351,11 @@ def render_turntable(model: Any, base: dict[str, Any], names: Sequence[str], svc
         result = transfer(shape, svc.assets, svc.mapper, seed=seed, painter=svc.painter)
         cam = orbit_camera(center, radius, up, -35.0 + 360.0 * f / frames, 20.0, size, fov_deg=32.0)
         maps = None if svc.assets.pbr is None else list(svc.assets.pbr) + [None] * len(result.new_textures)
-        out.append(render_textured(shape.vertices, shape.faces, result.corner_uv, result.face_group,
-                                   list(svc.assets.textures) + list(result.new_textures), cam, tracer=Tracer(shape.vertices, shape.faces), maps=maps))
+        out.append(
+            render_textured(
+                shape.vertices, shape.faces, result.corner_uv, result.face_group, list(svc.assets.textures) + list(result.new_textures), cam, tracer=Tracer(shape.vertices, shape.faces), maps=maps
+            )
+        )
         bar.update()
     return out
 
@@ -346,10 +384,22 @@ def family_title(config: Any) -> str:
     return "generator"
 
 
-def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, float], ray: bool = False, rows: int = 3,
-                per_row: int = 5, frames: int = 48, size: int = 320, gif_size: int = 320, seed: int = 0,
-                log: Callable[[str], None] = print, quiet: bool = False, started: float | None = None,
-                look: str | None = None) -> DemoResult:
+def finish_demo(
+    out: str | os.PathLike,
+    family: str,
+    stage_seconds: dict[str, float],
+    ray: bool = False,
+    rows: int = 3,
+    per_row: int = 5,
+    frames: int = 48,
+    size: int = 320,
+    gif_size: int = 320,
+    seed: int = 0,
+    log: Callable[[str], None] = print,
+    quiet: bool = False,
+    started: float | None = None,
+    look: str | None = None,
+) -> DemoResult:
     """Sweep, transfer, render and report a built family (of a procedural model) into ``out``, in
     its ``look`` (default: the build's).
 
@@ -383,14 +433,12 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
             result = answer.result
             rel = f"variants/{r.name}_{k}.glb"
             atomic_write(out / rel, answer.data)
-            variants.append({"row": r.name, "index": k, "params": params, "glb": rel, "seconds": round(result.seconds, 4),
-                             "faces": int(shape.n_faces), "notes": result.notes})
+            variants.append({"row": r.name, "index": k, "params": params, "glb": rel, "seconds": round(result.seconds, 4), "faces": int(shape.n_faces), "notes": result.notes})
             rendered.append((shape, result))
             bar.update()
     atomic_write(out / "variants.json", json.dumps(variants, indent=1))
 
-    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f"{family_title(config)}: \"{svc.paint.prompt}\"", quiet=quiet,
-                         maps=svc.assets.pbr, space=model.space)
+    sheet = render_sheet(sweep, rendered, svc.assets.textures, up, size, title=f'{family_title(config)}: "{svc.paint.prompt}"', quiet=quiet, maps=svc.assets.pbr, space=model.space)
     save_png(out / "contact_sheet.png", sheet)
     swept = [r.name for r in sweep if r.name != "random"][:2]
     spin = render_turntable(model, base, swept, svc, up, frames, gif_size, seed=seed, quiet=quiet)
@@ -408,28 +456,43 @@ def finish_demo(out: str | os.PathLike, family: str, stage_seconds: dict[str, fl
         net = "trained" if gi in svc.models else "none (same connectivity everywhere: template UVs)"
         if isinstance(info, dict) and info.get("iterations"):
             net = f"trained, {info['iterations']} iterations"
-        groups.append({"group": gi, "label": g.get("label"), "prompt": g.get("prompt"),
-                       "texture": f"{fam_rel}/{StoreLayout.texture(gi, g.get('label') or '')}", "network": net})
+        groups.append({"group": gi, "label": g.get("label"), "prompt": g.get("prompt"), "texture": f"{fam_rel}/{StoreLayout.texture(gi, g.get('label') or '')}", "network": net})
     metrics = store.read_json(StoreLayout.METRICS) if store.exists(StoreLayout.METRICS) else None
     secs = [v["seconds"] for v in variants]
     stage_all = {**{k: float(v) for k, v in stage_seconds.items()}, "sweep + renders + report": time.perf_counter() - t_start}
     notes = sorted({n for v in variants for n in v["notes"]})
     summary = {
-        "model": family_title(config), "prompt": svc.paint.prompt, "look": svc.look.name, "family": fam_rel, "serve_root": os.path.dirname(fam_rel) or ".",
-        "seed": config.seed, "n_train": config.source.n_train, "n_test": config.source.n_test, "ray": ray,
-        "groups": groups, "metrics": None if metrics is None else {"shapes": metrics["shapes"], "tracker": metrics.get("tracker"), "methods": {
-            k: {kk: vv for kk, vv in m.items() if kk not in ("per_shape", "per_group")} for k, m in metrics["methods"].items()}},
+        "model": family_title(config),
+        "prompt": svc.paint.prompt,
+        "look": svc.look.name,
+        "family": fam_rel,
+        "serve_root": os.path.dirname(fam_rel) or ".",
+        "seed": config.seed,
+        "n_train": config.source.n_train,
+        "n_test": config.source.n_test,
+        "ray": ray,
+        "groups": groups,
+        "metrics": None
+        if metrics is None
+        else {
+            "shapes": metrics["shapes"],
+            "tracker": metrics.get("tracker"),
+            "methods": {k: {kk: vv for kk, vv in m.items() if kk not in ("per_shape", "per_group")} for k, m in metrics["methods"].items()},
+        },
         "stage_seconds": {k: round(v, 2) for k, v in stage_all.items()},
         "total_seconds": round(time.perf_counter() - started if started is not None else sum(stage_all.values()), 2),
-        "variants": variants, "transfer_median_seconds": float(np.median(secs)), "contact_sheet": "contact_sheet.png",
-        "turntable": "turntable.gif", "sweep": [{"row": r.name, "n": len(r.settings)} for r in sweep],
-        "effects": {k: round(v, 4) for k, v in effects.items()}, "notes": notes,
+        "variants": variants,
+        "transfer_median_seconds": float(np.median(secs)),
+        "contact_sheet": "contact_sheet.png",
+        "turntable": "turntable.gif",
+        "sweep": [{"row": r.name, "n": len(r.settings)} for r in sweep],
+        "effects": {k: round(v, 4) for k, v in effects.items()},
+        "notes": notes,
     }
     atomic_write(out / "demo.json", json.dumps(summary, indent=1, default=str))
     atomic_write(out / "report.html", report_html(summary))
     log(f"demo: {len(variants)} variants, median transfer {1000 * summary['transfer_median_seconds']:.0f} ms, outputs in {out}")
-    return DemoResult(str(out), str(out / "report.html"), str(out / "contact_sheet.png"), str(out / "turntable.gif"),
-                      [str(out / v["glb"]) for v in variants], summary)
+    return DemoResult(str(out), str(out / "report.html"), str(out / "contact_sheet.png"), str(out / "turntable.gif"), [str(out / v["glb"]) for v in variants], summary)
 
 
 def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str], None] = print) -> dict[str, float]:
@@ -440,10 +503,24 @@ def build_in_process(root: str, config_dict: dict[str, Any], log: Callable[[str]
 Builder = Callable[[str, dict[str, Any]], dict[str, float]]
 
 
-def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO_PROMPT, group_prompts: dict[str, str] | None = None,
-             seed: int = 0, n_train: int = 10, n_test: int = 3, rows: int = 3, per_row: int = 5, frames: int = 48,
-             fresh: bool = False, builder: Builder | None = None, ray: bool = False, log: Callable[[str], None] = print,
-             quiet: bool = False, overrides: dict[str, Any] | None = None) -> DemoResult:
+def run_demo(
+    out: str | os.PathLike,
+    model: str = DEMO_MODEL,
+    prompt: str = DEMO_PROMPT,
+    group_prompts: dict[str, str] | None = None,
+    seed: int = 0,
+    n_train: int = 10,
+    n_test: int = 3,
+    rows: int = 3,
+    per_row: int = 5,
+    frames: int = 48,
+    fresh: bool = False,
+    builder: Builder | None = None,
+    ray: bool = False,
+    log: Callable[[str], None] = print,
+    quiet: bool = False,
+    overrides: dict[str, Any] | None = None,
+) -> DemoResult:
     """The main job: build a family of ``model`` painted with ``prompt`` into ``out/families/<model>``
     (``builder(root, config) -> stage seconds``; default: in this process), then :func:`finish_demo`.
 
@@ -456,8 +533,7 @@ def run_demo(out: str | os.PathLike, model: str = DEMO_MODEL, prompt: str = DEMO
     if not prompt or not prompt.strip():
         raise ValueError("the prompt must not be empty")
 
-    config = merge(demo_config(model, prompt, seed=seed, n_train=n_train, n_test=n_test, group_prompts=group_prompts),
-                   sections(overrides or {}, where="overrides"))
+    config = merge(demo_config(model, prompt, seed=seed, n_train=n_train, n_test=n_test, group_prompts=group_prompts), sections(overrides or {}, where="overrides"))
     checked = BuildConfig.from_dict(config).to_dict()  # validates the model name and settings before any work
     out = Path(out)
     root = out / "families" / model

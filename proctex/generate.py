@@ -194,8 +194,7 @@ def read_rows_file(path: str) -> list[dict[str, Any]]:
     import pyarrow.parquet as pq
 
     try:
-        table = (pq.read_table(path) if str(path).lower().endswith(".parquet")
-                 else pacsv.read_csv(path, convert_options=pacsv.ConvertOptions(strings_can_be_null=True)))
+        table = pq.read_table(path) if str(path).lower().endswith(".parquet") else pacsv.read_csv(path, convert_options=pacsv.ConvertOptions(strings_can_be_null=True))
     except (OSError, pa.ArrowException) as exc:
         raise ValueError(f"cannot read parameter rows from {path}: {exc}") from exc
     if table.num_rows > MAX_ROWS:
@@ -220,9 +219,16 @@ def plan_rows(settings: GenerateSettings, space: ParamSpace, looks: list[str] | 
     rows = []
     for i, p in enumerate(params):
         own = p.pop("look", None) if isinstance(p, dict) else None
-        for look in ([str(own)] if own is not None else looks):
-            rows.append({"index": len(rows), "id": variant_id(i) + (f"-{look}" if len(looks) > 1 or own is not None else ""),
-                         "params": json.dumps(p, sort_keys=True, default=_plain), "seed": row_seed(settings.seed, i), "look": look})
+        for look in [str(own)] if own is not None else looks:
+            rows.append(
+                {
+                    "index": len(rows),
+                    "id": variant_id(i) + (f"-{look}" if len(looks) > 1 or own is not None else ""),
+                    "params": json.dumps(p, sort_keys=True, default=_plain),
+                    "seed": row_seed(settings.seed, i),
+                    "look": look,
+                }
+            )
     return rows
 
 
@@ -307,8 +313,7 @@ def batches(rows: list[dict[str, Any]], size: int) -> Iterable[dict[str, np.ndar
     """The rows as column batches (``{"index", "id", "params", "seed", "look"}`` arrays), ``size`` rows each."""
     for i in range(0, len(rows), size):
         chunk = rows[i : i + size]
-        yield {k: np.array([r[k] for r in chunk], dtype=object if k in ("id", "params", "look") else np.int64)
-               for k in ("index", "id", "params", "seed", "look")}
+        yield {k: np.array([r[k] for r in chunk], dtype=object if k in ("id", "params", "look") else np.int64) for k in ("index", "id", "params", "seed", "look")}
 
 
 def _record(out: FamilyStore, vid: str, fmt: str) -> dict[str, Any] | None:
@@ -324,15 +329,47 @@ def _record(out: FamilyStore, vid: str, fmt: str) -> dict[str, Any] | None:
 
 
 # ----------------------------------------------------------------------------------------- stages
-MANIFEST_FIELDS = ("index", "id", "params", "look", "status", "file", "faces", "vertices", "parts", "groups", "notes", "error", "bytes",
-                   "generate_seconds", "transfer_seconds", "write_seconds", "finished")
+MANIFEST_FIELDS = (
+    "index",
+    "id",
+    "params",
+    "look",
+    "status",
+    "file",
+    "faces",
+    "vertices",
+    "parts",
+    "groups",
+    "notes",
+    "error",
+    "bytes",
+    "generate_seconds",
+    "transfer_seconds",
+    "write_seconds",
+    "finished",
+)
 
 
 def _empty(row: dict[str, Any]) -> dict[str, Any]:
-    return {"index": int(row["index"]), "id": str(row["id"]), "params": str(row["params"]), "look": str(row.get("look", "")),
-            "status": "", "file": "", "faces": 0, "vertices": 0,
-            "parts": 0, "groups": 0, "notes": "[]", "error": "", "bytes": 0, "generate_seconds": 0.0, "transfer_seconds": 0.0, "write_seconds": 0.0,
-            "finished": time.time()}
+    return {
+        "index": int(row["index"]),
+        "id": str(row["id"]),
+        "params": str(row["params"]),
+        "look": str(row.get("look", "")),
+        "status": "",
+        "file": "",
+        "faces": 0,
+        "vertices": 0,
+        "parts": 0,
+        "groups": 0,
+        "notes": "[]",
+        "error": "",
+        "bytes": 0,
+        "generate_seconds": 0.0,
+        "transfer_seconds": 0.0,
+        "write_seconds": 0.0,
+        "finished": time.time(),
+    }
 
 
 def _rows_of(batch: dict[str, np.ndarray]) -> list[dict[str, Any]]:
@@ -428,18 +465,30 @@ class TextureStage:
             link = (GenerateLayout.TEXTURE_LINK + (f"{look}/" if look and not svc.look.built else "")) if self.textures == "shared" else None
             answer, summary = svc.textured(shape, seed=int(row["seed"]), bake_size=self.bake, linked=link is not None, link_base=link)
         except (ValueError, TypeError, OverflowError) as exc:  # a row's unknown look (NotFound) included
-            return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"[:500], "transfer_seconds": time.perf_counter() - t0,
-                    "finished": time.time()}
+            return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"[:500], "transfer_seconds": time.perf_counter() - t0, "finished": time.time()}
         t1 = time.perf_counter()
         files = self._files(vid, shape, answer)
         main = GenerateLayout.variant(vid, self.fmt)
         for rel, data in files:  # the main file last: what it names exists before it does
             self.out.write_bytes(rel, data)
-        rec = {"index": int(row["index"]), "id": vid, "params": str(row["params"]), "look": look or svc.look.name, "status": "written", "file": main,
-               "faces": shape.n_faces, "vertices": shape.n_vertices, "parts": len(answer.result.assignment),  # one entry per part
-               "groups": int(len(set(answer.face_group[answer.face_group >= 0].tolist()))), "notes": json.dumps(summary.get("notes", [])),
-               "error": "", "bytes": int(sum(len(d) for _, d in files)), "generate_seconds": float(row["generate_seconds"]),
-               "transfer_seconds": t1 - t0, "write_seconds": 0.0}
+        rec = {
+            "index": int(row["index"]),
+            "id": vid,
+            "params": str(row["params"]),
+            "look": look or svc.look.name,
+            "status": "written",
+            "file": main,
+            "faces": shape.n_faces,
+            "vertices": shape.n_vertices,
+            "parts": len(answer.result.assignment),  # one entry per part
+            "groups": int(len(set(answer.face_group[answer.face_group >= 0].tolist()))),
+            "notes": json.dumps(summary.get("notes", [])),
+            "error": "",
+            "bytes": int(sum(len(d) for _, d in files)),
+            "generate_seconds": float(row["generate_seconds"]),
+            "transfer_seconds": t1 - t0,
+            "write_seconds": 0.0,
+        }
         rec["write_seconds"] = time.perf_counter() - t1
         rec["finished"] = time.time()  # wall clock: throughput over a run, across workers
         self.out.write_json(GenerateLayout.record(vid), rec)
@@ -485,8 +534,7 @@ def finish(out: FamilyStore, rows: list[dict[str, Any]], space: ParamSpace | Non
             table[f"param.{spec.name}"] = [p.get(spec.name) for p in parsed]
     out.write_table(GenerateLayout.MANIFEST, pa.table(table))
     status = [r["status"] for r in rows]
-    return {"rows": len(rows), "written": status.count("written"), "done_before": status.count("done"), "failed": status.count("failed"),
-            "manifest": out.uri_of(GenerateLayout.MANIFEST)}
+    return {"rows": len(rows), "written": status.count("written"), "done_before": status.count("done"), "failed": status.count("failed"), "manifest": out.uri_of(GenerateLayout.MANIFEST)}
 
 
 def _py(value: Any) -> Any:

@@ -75,8 +75,7 @@ class LookLimits:
         """:class:`LookOverLimit` for a look over the family's count or the texel bound, before any work."""
         others = [lk for lk in family_looks(store) if not lk.built and not (force and lk.name == name)]
         if len(others) >= self.looks:
-            raise LookOverLimit(f"the family has {len(others)} looks, its most ({self.looks}); remove one first "
-                                f"(proctex look rm FAMILY NAME)", "count")
+            raise LookOverLimit(f"the family has {len(others)} looks, its most ({self.looks}); remove one first (proctex look rm FAMILY NAME)", "count")
         groups = len(store.read_json(StoreLayout.PAINT).get("groups", [])) if store.exists(StoreLayout.PAINT) else 1
         texels = int(paint.texture_size) ** 2 * max(groups, 1)
         if texels > self.texels:
@@ -98,10 +97,18 @@ def stored_uv(files: TemplateFiles, shape: Any, grouping: Any, resolution: int) 
     return ShapeUV(corner_uv, face_group, atlases, resolution)
 
 
-def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look: LookLayout, state: FamilyState | None = None,
-               log: Callable[[str], None] = print, photos: dict[str, Any] | None = None,
-               glb: bytes | None = None, member: dict[str, Any] | None = None,
-               check: Callable[[str], None] | None = None) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
+def look_files(
+    store: FamilyStore,
+    config: BuildConfig,
+    paint: PaintConfig,
+    look: LookLayout,
+    state: FamilyState | None = None,
+    log: Callable[[str], None] = print,
+    photos: dict[str, Any] | None = None,
+    glb: bytes | None = None,
+    member: dict[str, Any] | None = None,
+    check: Callable[[str], None] | None = None,
+) -> tuple[list[tuple[str, bytes]], dict[str, Any]]:
     """Paint the stored template with ``paint`` and return the files of ``look`` (paths relative to
     the store, ``look.json`` last) and its record. ``photos``: the
     :class:`proctex.texture.exemplar.Photo` of each ``paint.images`` key (a look from photos; read
@@ -135,8 +142,17 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
         tex = glb_texture(store, files, shape, grouping, uv, paint.texture_size, glb, config.up_axis())
         paint = replace_settings(paint, glb={**paint.glb, "faces": len(shape.faces), "extra_triangles": tex.stats["extra_triangles"]})
     else:
-        tex = paint_with(shape, grouping, paint, seed=config.seed, up=config.up_axis(), uv=uv, photos=photos, check=check,
-                         on_view=lambda k, n, st: log(f"look {look.name}: view {k + 1}/{n}, {st['texels_updated']} texels"))
+        tex = paint_with(
+            shape,
+            grouping,
+            paint,
+            seed=config.seed,
+            up=config.up_axis(),
+            uv=uv,
+            photos=photos,
+            check=check,
+            on_view=lambda k, n, st: log(f"look {look.name}: view {k + 1}/{n}, {st['texels_updated']} texels"),
+        )
     check("encoding the look's images")
     encoded = encode_textures(tex)
     check("writing the look's files")
@@ -157,8 +173,7 @@ def look_files(store: FamilyStore, config: BuildConfig, paint: PaintConfig, look
     masks.update({f"o{k}": m for k, m in enumerate(tex.observed_masks or tex.painted_masks)})
     out.append((look.PAINTED, encode_arrays(**{k: np.asarray(v, dtype=bool) for k, v in masks.items()})))
     out.append((look.PAINT, json.dumps(summary, indent=1).encode() + b"\n"))
-    record = {"name": look.name, "paint": paint_record(paint), "made": time.strftime("%Y-%m-%dT%H:%M:%S"),
-              "seconds": round(time.perf_counter() - t0, 3), "coverage": summary["coverage"]["share"]}
+    record = {"name": look.name, "paint": paint_record(paint), "made": time.strftime("%Y-%m-%dT%H:%M:%S"), "seconds": round(time.perf_counter() - t0, 3), "coverage": summary["coverage"]["share"]}
     out.append((look.RECORD, json.dumps(record, indent=1).encode() + b"\n"))
     return out, record
 
@@ -188,8 +203,7 @@ def _base_maps(files: TemplateFiles, grouping: Any, size: int) -> list:
     return base
 
 
-def member_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: Any, uv: Any, size: int, data: bytes,
-                   params: dict[str, Any] | None, config: BuildConfig) -> tuple[Any, Any]:
+def member_texture(store: FamilyStore, files: TemplateFiles, shape: Any, grouping: Any, uv: Any, size: int, data: bytes, params: dict[str, Any] | None, config: BuildConfig) -> tuple[Any, Any]:
     """The look a textured member GLB (``data``) holds (:func:`proctex.transfer.frommember.textures_from_member`),
     mapped as the service maps shapes (the group networks where trained, ``auto``): with ``params``
     the family's own shape for them, else the file read as ``proctex transfer --mesh`` reads it."""
@@ -210,8 +224,7 @@ def member_texture(store: FamilyStore, files: TemplateFiles, shape: Any, groupin
     assets = load_assets(store, state, built_look(store))
     models = load_models(store, "cpu", state) if get_method("auto").networks != "none" else {}
     mapper = make_mapper("auto", assets, models, corr_points=config.corr_points, cage=config.cage)
-    tex, report = textures_from_member(shape, grouping, uv, assets, member, member_uv, material, glb.textures, mapper, size,
-                                       seed=config.seed, base_maps=_base_maps(files, grouping, size))
+    tex, report = textures_from_member(shape, grouping, uv, assets, member, member_uv, material, glb.textures, mapper, size, seed=config.seed, base_maps=_base_maps(files, grouping, size))
     tex.notes.extend(f"member: group {g} {100 * f:.1f}% of its texels filled from neighbours" for g, f in report.filled.items())
     return tex, report
 
@@ -234,9 +247,19 @@ def add_look(store: FamilyStore, name: str, paint: PaintConfig, **how: Any) -> d
     return changed_look(store, name, paint, **how).record
 
 
-def changed_look(store: FamilyStore, name: str, paint: PaintConfig, force: bool = False, log: Callable[[str], None] = print,
-                 timeout: float = 60.0, photos: dict[str, Any] | None = None, glb: bytes | None = None,
-                 member: dict[str, Any] | None = None, limits: LookLimits | None = None, budget: Any = None) -> Changed:
+def changed_look(
+    store: FamilyStore,
+    name: str,
+    paint: PaintConfig,
+    force: bool = False,
+    log: Callable[[str], None] = print,
+    timeout: float = 60.0,
+    photos: dict[str, Any] | None = None,
+    glb: bytes | None = None,
+    member: dict[str, Any] | None = None,
+    limits: LookLimits | None = None,
+    budget: Any = None,
+) -> Changed:
     """Paint look ``name`` of the built family in ``store`` with ``paint`` (and the family's stored
     part words, :func:`with_stored_words`) and store it in ``looks/<name>/`` as one change (staged
     beside it, then put in place: a reader sees the whole look or none). ``force`` replaces a look of that name. Refused while a build of the store runs;
@@ -321,8 +344,7 @@ def name_built_look(store: FamilyStore, name: str, timeout: float = 60.0) -> str
     return before
 
 
-def family_parts(store: FamilyStore, prompt: str | None = None, look: str | None = None,
-                 assign: dict[str, str] | None = None) -> tuple[dict[str, Any], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def family_parts(store: FamilyStore, prompt: str | None = None, look: str | None = None, assign: dict[str, str] | None = None) -> tuple[dict[str, Any], tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """What the part words of ``prompt`` (default: the prompt of ``look``, the build's look when
     None) do on the family's template (:func:`proctex.texture.painters.partwords.parts_report`),
     with the family's stored words (:mod:`proctex.store.partwords`) over the look's and ``assign``

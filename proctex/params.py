@@ -80,8 +80,7 @@ class ParamSpec:
                 raise ValueError(f"parameter {self.name!r}: options must be distinct, got {self.options}")
         for key in ("when", "unless"):
             conds = getattr(self, key)
-            if not isinstance(conds, (tuple, list)) or not all(
-                    isinstance(c, (tuple, list)) and len(c) == 2 and isinstance(c[0], str) and c[0] for c in conds):
+            if not isinstance(conds, (tuple, list)) or not all(isinstance(c, (tuple, list)) and len(c) == 2 and isinstance(c[0], str) and c[0] for c in conds):
                 raise ValueError(f"parameter {self.name!r}: {key} must be a list of [name, value] pairs, got {conds!r}")
             if len(conds) > MAX_CONDITIONS:
                 raise ValueError(f"parameter {self.name!r}: at most {MAX_CONDITIONS} conditions in {key}")
@@ -110,10 +109,7 @@ class ParamSpec:
         # A small relative tolerance so values that round-tripped through JSON/text still pass.
         tol = 1e-9 * max(1.0, abs(self.low), abs(self.high))
         if v < self.low - tol or v > self.high + tol:
-            raise ValueError(
-                f"parameter {self.name!r}: expected a value in [{self.low}, {self.high}]"
-                f"{' ' + self.unit if self.unit else ''}, got {value!r}"
-            )
+            raise ValueError(f"parameter {self.name!r}: expected a value in [{self.low}, {self.high}]{' ' + self.unit if self.unit else ''}, got {value!r}")
         if self.kind == "integer":
             return int(v)
         return float(min(max(v, self.low), self.high))
@@ -215,8 +211,7 @@ class ParamSpace:
         for spec in self.specs:
             for other, value in spec.when + spec.unless:
                 if other == spec.name or other not in names:
-                    raise ValueError(f"parameter {spec.name!r}: its condition names {other!r}, "
-                                     f"{'itself' if other == spec.name else 'which is not a parameter'}")
+                    raise ValueError(f"parameter {spec.name!r}: its condition names {other!r}, {'itself' if other == spec.name else 'which is not a parameter'}")
                 try:
                     self[other].validate(value)
                 except ValueError as exc:
@@ -232,8 +227,7 @@ class ParamSpace:
         on = {s.name: True for s in self.specs}
         for _ in range(len(self.specs) + 1):
             cur = {n: (p[n] if on[n] else self[n].default) for n in p}
-            new = {s.name: all(cur[n] == v for n, v in s.when) and not any(cur[n] == v for n, v in s.unless)
-                   for s in self.specs}
+            new = {s.name: all(cur[n] == v for n, v in s.when) and not any(cur[n] == v for n, v in s.unless) for s in self.specs}
             if new == on:
                 break
             on = new
@@ -453,8 +447,14 @@ def _condition(item: Any, where: str) -> list:
     """``"Name"`` (a bool input that must be on) or ``["Name", value]`` as ``[name, value]``."""
     if isinstance(item, str) and item:
         return [item, True]
-    if isinstance(item, (list, tuple)) and len(item) == 2 and isinstance(item[0], str) and item[0] \
-            and isinstance(item[1], (bool, int, float, str)) and not (isinstance(item[1], float) and not math.isfinite(item[1])):
+    if (
+        isinstance(item, (list, tuple))
+        and len(item) == 2
+        and isinstance(item[0], str)
+        and item[0]
+        and isinstance(item[1], (bool, int, float, str))
+        and not (isinstance(item[1], float) and not math.isfinite(item[1]))
+    ):
         return [item[0], item[1]]
     raise ValueError(f"{where}: a dependency must be a name or [name, value], got {str(item)[:80]}")
 
@@ -503,8 +503,7 @@ def read_params_spec(spec: Any) -> ParamsSpec:
     notes: list[str] = []
 
     def number_pair(value: Any, name: str, kind: str) -> list[float]:
-        if not (isinstance(value, (list, tuple)) and len(value) == 2
-                and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)):
+        if not (isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)):
             raise ValueError(f"{where}: {name!r}: range must be two finite numbers, got {str(value)[:80]}")
         lo, hi = float(value[0]), float(value[1])
         if lo > hi:

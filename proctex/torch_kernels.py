@@ -23,8 +23,7 @@ from __future__ import annotations
 import threading
 
 #: The unary functions ATen hands to MKL's VML for float32 and float64 tensors (``aten/src/ATen/cpu/vml.h``).
-VML_FUNCTIONS = ("acos", "asin", "atan", "cos", "erf", "erfc", "erfinv", "exp", "log", "log10", "log2",
-                 "sin", "sqrt", "tan", "tanh", "trunc")
+VML_FUNCTIONS = ("acos", "asin", "atan", "cos", "erf", "erfc", "erfinv", "exp", "log", "log10", "log2", "sin", "sqrt", "tan", "tanh", "trunc")
 
 _LOCK = threading.Lock()
 _DONE: list[bool] = []

@@ -81,12 +81,31 @@ def toy_method(tmp_path, monkeypatch):
 #: Modules whose float checks are about time, processes or files, not about what CPU kernels
 #: compute (timings, leases, HTTP answers, pools, docs) or that choose kernels themselves
 #: (test_portability): none of their tests is ``numeric``.
-NOT_NUMERIC = frozenset({
-    "test_architecture.py", "test_bench.py", "test_cluster.py", "test_device.py", "test_docs.py", "test_float_margins.py",
-    "test_fuzz.py", "test_hardening.py", "test_ingress.py", "test_jobs.py", "test_looks.py", "test_objectstore.py",
-    "test_pools.py", "test_portability.py", "test_probe_faults.py", "test_ray.py", "test_service.py", "test_slow_clients.py",
-    "test_studio.py", "test_workers.py", "test_writes.py",
-})
+NOT_NUMERIC = frozenset(
+    {
+        "test_architecture.py",
+        "test_bench.py",
+        "test_cluster.py",
+        "test_device.py",
+        "test_docs.py",
+        "test_float_margins.py",
+        "test_fuzz.py",
+        "test_hardening.py",
+        "test_ingress.py",
+        "test_jobs.py",
+        "test_looks.py",
+        "test_objectstore.py",
+        "test_pools.py",
+        "test_portability.py",
+        "test_probe_faults.py",
+        "test_ray.py",
+        "test_service.py",
+        "test_slow_clients.py",
+        "test_studio.py",
+        "test_workers.py",
+        "test_writes.py",
+    }
+)
 _FLOAT_CALLS = re.compile(r"allclose|approx\(|assert_close|isclose|assert_array_less|assert_sketch_close|sketch_mismatch|glb_mismatch")
 _NUMERIC_CACHE: dict[str, dict[str, bool]] = {}
 
@@ -96,10 +115,9 @@ def _compares_floats(node: ast.AST, lines: list[str]) -> bool:
     or an ``assert`` with an ordering comparison (``<``, ``<=``, ``>``, ``>=``). ``lines``: the
     module's source lines (the function's own are sliced by line number: ``ast.get_source_segment``
     splits the whole source again per call, a quarter of the suite's collection time)."""
-    if _FLOAT_CALLS.search("".join(lines[node.lineno - 1:node.end_lineno])):
+    if _FLOAT_CALLS.search("".join(lines[node.lineno - 1 : node.end_lineno])):
         return True
-    return any(isinstance(c, ast.Compare) and any(isinstance(o, (ast.Lt, ast.LtE, ast.Gt, ast.GtE)) for o in c.ops)
-               for a in ast.walk(node) if isinstance(a, ast.Assert) for c in ast.walk(a.test))
+    return any(isinstance(c, ast.Compare) and any(isinstance(o, (ast.Lt, ast.LtE, ast.Gt, ast.GtE)) for o in c.ops) for a in ast.walk(node) if isinstance(a, ast.Assert) for c in ast.walk(a.test))
 
 
 def numeric_tests(path: Path) -> dict[str, bool]:

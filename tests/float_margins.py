@@ -41,8 +41,7 @@ def run(env_name: str, out: Path, load: bool, pytest_args: list[str]) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.unlink(missing_ok=True)
     env["PROCTEX_FLOAT_RECORD"] = str(out.resolve())  # tests.floatrecord keeps its rewritten modules apart
-    args = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "tests.floatrecord", "-o", "enable_assertion_pass_hook=true",
-            *(pytest_args or ["-m", "not slow"])]
+    args = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "tests.floatrecord", "-o", "enable_assertion_pass_hook=true", *(pytest_args or ["-m", "not slow"])]
     spinners = []
     if load:
         ctx = multiprocessing.get_context("spawn")
@@ -85,8 +84,7 @@ def _holds(rec: dict) -> bool:
     return {"<": v < t, "<=": v <= t, ">": v > t, ">=": v >= t}.get(op, True)
 
 
-def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, str]] | None = None, unmarked: set[str] = frozenset(),
-            factor: float = 3.0) -> dict:
+def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, str]] | None = None, unmarked: set[str] = frozenset(), factor: float = 3.0) -> dict:
     """Per check (a test's line, its occurrence and its place in the assertion) made in every run
     where its test ran: the values in each run, the margin (smallest distance of value to threshold
     over the runs, in units of the threshold) and the spread (how far that moved between runs: both
@@ -130,22 +128,28 @@ def margins(runs: dict[str, dict[tuple, dict]], outcomes: dict[str, dict[str, st
         if margin < factor * spread:
             old = thin.get(site)
             if old is None or margin / spread < old["margin"] / old["spread"]:
-                thin[site] = dict(test=key[0], where=key[1], occurrence=key[2], kind=present[0]["kind"], op=present[0]["op"],
-                                  threshold=thresholds[0], values=dict(zip(names, values)), margin=margin, spread=spread)
+                thin[site] = dict(
+                    test=key[0], where=key[1], occurrence=key[2], kind=present[0]["kind"], op=present[0]["op"], threshold=thresholds[0], values=dict(zip(names, values)), margin=margin, spread=spread
+                )
     from .conftest import NOT_NUMERIC
 
     unmarked = {t for t in unmarked if t.split("::")[0].rsplit("/", 1)[-1] not in NOT_NUMERIC}  # those by choice
-    return dict(runs=names, tests=len(ran_everywhere), unmarked=sorted({k[0] for r in runs.values() for k in r} & unmarked), checks=checked, sites=len({(k[0], k[1]) for k in keys}),
-                thin=sorted(thin.values(), key=lambda r: r["where"]),
-                failed=[dict(test=t, outcomes={n: outcomes[n][t] for n in names}) for t in failed],
-                missing=[dict(test=t, where=w, missing_in=m) for (t, w), m in sorted(missing_sites.items())])
+    return dict(
+        runs=names,
+        tests=len(ran_everywhere),
+        unmarked=sorted({k[0] for r in runs.values() for k in r} & unmarked),
+        checks=checked,
+        sites=len({(k[0], k[1]) for k in keys}),
+        thin=sorted(thin.values(), key=lambda r: r["where"]),
+        failed=[dict(test=t, outcomes={n: outcomes[n][t] for n in names}) for t in failed],
+        missing=[dict(test=t, where=w, missing_in=m) for (t, w), m in sorted(missing_sites.items())],
+    )
 
 
 def report(paths: list[Path], factor: float, json_out: Path | None) -> int:
     res = margins(*load_runs(paths), factor=factor)
     print(f"{res['tests']} tests ran in every run; {res['checks']} checks at {res['sites']} sites in runs {', '.join(res['runs'])}")
-    print(f"fast tests with float checks (in a fixture or another module's helper) but without the numeric marker, "
-          f"outside the modules tests/conftest.py keeps off it: {len(res['unmarked'])}")
+    print(f"fast tests with float checks (in a fixture or another module's helper) but without the numeric marker, outside the modules tests/conftest.py keeps off it: {len(res['unmarked'])}")
     for t in res["unmarked"]:
         print(f"  {t}")
     print(f"failed in some run: {len(res['failed'])} tests")
@@ -154,8 +158,7 @@ def report(paths: list[Path], factor: float, json_out: Path | None) -> int:
     print(f"margin under {factor:g} x spread: {len(res['thin'])} sites")
     for r in res["thin"]:
         vals = ", ".join(f"{k} {v:.6g}" for k, v in r["values"].items())
-        print(f"  {r['where']}  {r['kind']} {r['op']} {r['threshold']:.6g}: {vals}  margin {r['margin']:.3g} spread {r['spread']:.3g} "
-              f"(x{r['margin'] / r['spread']:.2f})  ({r['test']})")
+        print(f"  {r['where']}  {r['kind']} {r['op']} {r['threshold']:.6g}: {vals}  margin {r['margin']:.3g} spread {r['spread']:.3g} (x{r['margin'] / r['spread']:.2f})  ({r['test']})")
     print(f"recorded in some runs only: {len(res['missing'])} sites")
     for r in res["missing"]:
         print(f"  {r['where']}  missing in {', '.join(r['missing_in'])}  ({r['test']})")

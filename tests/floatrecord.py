@@ -81,8 +81,7 @@ class Recorder:
         for k, (value, threshold, op) in enumerate(pairs):
             if not (math.isfinite(value) and math.isfinite(threshold)):
                 continue
-            self.out.write(json.dumps(dict(test=self.item.nodeid, where=where, n=n, k=k, kind=kind, value=value,
-                                           threshold=threshold, op=op, kernels=self.kernels)) + "\n")
+            self.out.write(json.dumps(dict(test=self.item.nodeid, where=where, n=n, k=k, kind=kind, value=value, threshold=threshold, op=op, kernels=self.kernels)) + "\n")
         self.out.flush()
 
 
@@ -113,7 +112,7 @@ def parse_explanation(expl: str) -> list[tuple[str, float, float, str]]:
         m = _CMP.search(line, pos)
         if m is None:
             break
-        rest = re.match(_NUM, line[m.end():])
+        rest = re.match(_NUM, line[m.end() :])
         left, op, right = _first(m.groups()[0:3]), m.group(4), _first(rest.groups())
         if not (_is_int(left, m.group(0)) and _is_int(right, rest.group(0))):
             found.append(("compare", float(left), float(right), op))
@@ -231,8 +230,9 @@ def pytest_runtest_logreport(report):
     """Each test's outcome (``{"test", "outcome"}``), so that a report tells a check a run did not
     make (its test failed, or did not run there) from one a passing test skipped."""
     if _REC is not None and (report.when == "call" or report.outcome != "passed"):
-        _REC.out.write(json.dumps(dict(test=report.nodeid, outcome=report.outcome, when=report.when, kernels=_REC.kernels,
-                                       numeric="numeric" in report.keywords, slow="slow" in report.keywords)) + "\n")
+        _REC.out.write(
+            json.dumps(dict(test=report.nodeid, outcome=report.outcome, when=report.when, kernels=_REC.kernels, numeric="numeric" in report.keywords, slow="slow" in report.keywords)) + "\n"
+        )
         _REC.out.flush()
 
 

@@ -11,8 +11,7 @@ import json
 import random
 from typing import Any
 
-ODD_NAMES = ["", ".", "..", "a" * 1500, "a\\b", "a\x00b", "mug/../mug", "%2e%2e", "MUG", "mug ", " mug", "m\u00fcg", "mug.json", "-mug",
-             "mug;rm", "<script>", "mug\nx", "x" * 129]
+ODD_NAMES = ["", ".", "..", "a" * 1500, "a\\b", "a\x00b", "mug/../mug", "%2e%2e", "MUG", "mug ", " mug", "m\u00fcg", "mug.json", "-mug", "mug;rm", "<script>", "mug\nx", "x" * 129]
 HUGE = ["9" * 400, "-" + "9" * 400, "1e999", "-1e999", "nan", "NaN", "inf", "-inf", "1e308", "0x10", "", " ", "true", "[]", "{}", "null"]
 
 
@@ -34,8 +33,7 @@ def _json_value(rng: random.Random, depth: int = 0) -> Any:
         return rng.choice(["radius", "height", "seed", "hue"])
     if pick in (6, 7):
         return [_json_value(rng, depth + 1) for _ in range(rng.randrange(4))]
-    return {rng.choice(["params", "seed", "edits", "radius", "height", "group", "hue", "x" * 50]): _json_value(rng, depth + 1)
-            for _ in range(rng.randrange(4))}
+    return {rng.choice(["params", "seed", "edits", "radius", "height", "group", "hue", "x" * 50]): _json_value(rng, depth + 1) for _ in range(rng.randrange(4))}
 
 
 def _mesh_bytes(rng: random.Random) -> tuple[str, bytes]:
@@ -46,8 +44,7 @@ def _mesh_bytes(rng: random.Random) -> tuple[str, bytes]:
     elif pick == 1:
         n = rng.choice([1, 3, 50])
         data = "".join(f"v {rng.uniform(-1, 1)} {rng.uniform(-1, 1)} {rng.uniform(-1, 1)}\n" for _ in range(n)).encode()
-        data += "".join(f"f {rng.randrange(-5, n + 5)} {rng.randrange(1, n + 2)} {rng.choice(['9' * 30, '1', '2', '-1'])}\n"
-                        for _ in range(n)).encode()
+        data += "".join(f"f {rng.randrange(-5, n + 5)} {rng.randrange(1, n + 2)} {rng.choice(['9' * 30, '1', '2', '-1'])}\n" for _ in range(n)).encode()
     elif pick == 2:
         data = b"solid x\nfacet normal 0 0 1\nouter loop\nvertex nan 0 0\nvertex 1 0 0\nvertex 0 1e999 0\nendloop\nendfacet\nendsolid\n"
     elif pick == 3:
@@ -74,16 +71,20 @@ def http_cases(family: str = "mug", n: int = 200, seed: int = 0) -> list[tuple[s
         q = quote(name, safe="")
         cases += [("name", "get", f"/v1/families/{q}", {}), ("name", "post", f"/v1/families/{q}/transfer", {"json": {"params": {}}})]
     for h in HUGE:
-        cases += [("number", "post", f"{base}/transfer", {"content": ('{"params": {"radius": %s}}' % h).encode(), "headers": {"content-type": "application/json"}}),
-                  ("number", "post", f"{base}/transfer", {"content": ('{"params": {}, "seed": %s}' % h).encode(), "headers": {"content-type": "application/json"}}),
-                  ("number", "get", f"{base}/groups/0/texture.png?size={h}", {}),
-                  ("number", "get", f"{base}/groups/0/texture.png?hue={h}&value={h}", {}),
-                  ("number", "post", f"{base}/transfer", {"files": {"mesh": ("m.obj", b"v 0 0 0\n")}, "data": {"seed": h}})]
+        cases += [
+            ("number", "post", f"{base}/transfer", {"content": ('{"params": {"radius": %s}}' % h).encode(), "headers": {"content-type": "application/json"}}),
+            ("number", "post", f"{base}/transfer", {"content": ('{"params": {}, "seed": %s}' % h).encode(), "headers": {"content-type": "application/json"}}),
+            ("number", "get", f"{base}/groups/0/texture.png?size={h}", {}),
+            ("number", "get", f"{base}/groups/0/texture.png?hue={h}&value={h}", {}),
+            ("number", "post", f"{base}/transfer", {"files": {"mesh": ("m.obj", b"v 0 0 0\n")}, "data": {"seed": h}}),
+        ]
     for depth in (100, 2000, 20000):
         for kind in ("list", "dict"):
             body = ('{"params": ' + _deep(depth, kind) + "}").encode()
-            cases += [("nesting", "post", f"{base}/transfer", {"content": body, "headers": {"content-type": "application/json"}}),
-                      ("nesting", "post", f"{base}/edits", {"content": body, "headers": {"content-type": "application/json"}})]
+            cases += [
+                ("nesting", "post", f"{base}/transfer", {"content": body, "headers": {"content-type": "application/json"}}),
+                ("nesting", "post", f"{base}/edits", {"content": body, "headers": {"content-type": "application/json"}}),
+            ]
     for ctype in ("text/plain", "application/x-www-form-urlencoded", "application/xml", "multipart/form-data", "application/json; charset=utf-16"):
         cases.append(("content-type", "post", f"{base}/transfer", {"content": b'{"params": {}}', "headers": {"content-type": ctype}}))
     for _ in range(n):

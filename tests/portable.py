@@ -60,8 +60,7 @@ def sketch(a: np.ndarray) -> dict:
     if not np.all(np.isfinite(a)):
         raise ValueError("sketch: the array holds NaN or infinite values")
     flat = a.ravel()
-    return dict(shape=list(a.shape), scale=float(np.abs(flat).max(initial=0.0)) or 1.0,
-                sums=[float(s) for s in sketch_weights(flat.size) @ flat])
+    return dict(shape=list(a.shape), scale=float(np.abs(flat).max(initial=0.0)) or 1.0, sums=[float(s) for s in sketch_weights(flat.size) @ flat])
 
 
 def sketch_mismatch(a: np.ndarray, ref: dict, rel: float = SKETCH_REL) -> str | None:
@@ -131,8 +130,7 @@ def cpu_tier() -> str:
 
 
 #: The variables :func:`other_env` and :func:`no_avx512_env` set.
-KERNEL_VARS = ("NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA", "MKL_ENABLE_INSTRUCTIONS", "OPENBLAS_CORETYPE",
-               "PROCTEX_KERNELS")
+KERNEL_VARS = ("NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA", "MKL_ENABLE_INSTRUCTIONS", "OPENBLAS_CORETYPE", "PROCTEX_KERNELS")
 
 
 def native_env(base: dict | None = None) -> dict:

@@ -65,8 +65,14 @@ def serving(root: str, log: Path, replicas: int = 1, env: dict | None = None, wa
 
     url = f"http://127.0.0.1:{free_port()}"
     with open(log, "w") as out:
-        proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "serve", root, "--port", url.rsplit(":", 1)[1], "--replicas", str(replicas)],
-                                stdout=out, stderr=subprocess.STDOUT, start_new_session=True, cwd=Path(__file__).resolve().parents[1], env=env)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "workflows.cli", "serve", root, "--port", url.rsplit(":", 1)[1], "--replicas", str(replicas)],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            cwd=Path(__file__).resolve().parents[1],
+            env=env,
+        )
         try:
             deadline = time.monotonic() + wait
             while True:

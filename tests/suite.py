@@ -78,8 +78,7 @@ class Watchdog(threading.Thread):
     start, every running test is named with its threads and ``on_budget`` is called. :attr:`stalls`
     keeps ``(test, seconds, what happened, innermost frames)`` of each one named, for :meth:`summary`."""
 
-    def __init__(self, folder: Path, stall: float, budget: float, on_budget, every: float = 10.0, out=None,
-                 kill: float = float("inf")):
+    def __init__(self, folder: Path, stall: float, budget: float, on_budget, every: float = 10.0, out=None, kill: float = float("inf")):
         super().__init__(daemon=True, name="suite-watchdog")
         if stall <= 0 or budget <= 0 or every <= 0 or not kill > stall:
             raise ValueError(f"stall, budget and every must be > 0 and kill > stall, got {stall}, {budget}, {every}, {kill}")
@@ -114,24 +113,23 @@ class Watchdog(threading.Thread):
 
     def report(self, entry: dict, why: str, what: str) -> None:
         threads = self.threads_of(entry)
-        self.out.write(f"\n==== tests.suite: {entry['test']} has run {entry['running_s']:.0f} s ({entry['name']}){why}; "
-                       f"its process's threads:\n{threads}==== end of {entry['name']}'s threads\n")
+        self.out.write(f"\n==== tests.suite: {entry['test']} has run {entry['running_s']:.0f} s ({entry['name']}){why}; its process's threads:\n{threads}==== end of {entry['name']}'s threads\n")
         self.out.flush()
         self.stalls.append((entry["test"], entry["running_s"], what, innermost(threads)))
 
     def summary(self) -> str:
         """A line per test the watchdog named (what happened, where it was), "" when none: printed
         last, where a CI log's tail shows it."""
-        return "".join(f"==== tests.suite: {test}: {what} at {seconds:.0f} s; innermost frames: {frames or '(none read)'}\n"
-                       for test, seconds, what, frames in self.stalls)
+        return "".join(f"==== tests.suite: {test}: {what} at {seconds:.0f} s; innermost frames: {frames or '(none read)'}\n" for test, seconds, what, frames in self.stalls)
 
     def check(self, now: float) -> None:
         """One look: name stalled tests once; past the budget name every running test and stop."""
         running = in_flight(self.folder, now)
         if now - self.start_time > self.budget:
             self.over_budget = True
-            self.out.write(f"\n==== tests.suite: the suite has run {now - self.start_time:.0f} s, past its budget of "
-                           f"{self.budget:.0f} s (PROCTEX_SUITE_BUDGET_S): {len(running)} test(s) running, then stopped\n")
+            self.out.write(
+                f"\n==== tests.suite: the suite has run {now - self.start_time:.0f} s, past its budget of {self.budget:.0f} s (PROCTEX_SUITE_BUDGET_S): {len(running)} test(s) running, then stopped\n"
+            )
             for entry in running:
                 self.report(entry, "", "running past the suite's budget")
             self.on_budget()
@@ -141,8 +139,7 @@ class Watchdog(threading.Thread):
             key = (entry["name"], entry["test"])
             if entry["running_s"] > self.kill and key not in self.killed:
                 self.killed.add(key)
-                self.report(entry, f", over {self.kill:.0f} s (PROCTEX_TEST_KILL_S): a hang its timeout could not end",
-                            "killed (a hang the timeout could not end)")
+                self.report(entry, f", over {self.kill:.0f} s (PROCTEX_TEST_KILL_S): a hang its timeout could not end", "killed (a hang the timeout could not end)")
                 try:
                     os.kill(entry["pid"], signal.SIGKILL)
                 except (ProcessLookupError, PermissionError):
@@ -204,25 +201,25 @@ def rerun_hung(scratch: Path, env: dict[str, str], passes: list[subprocess.Popen
     if not failed or not set(failed) <= set(hung):
         return 1
     where = [str(Path(root) / test) if root else test for test, root in reported]  # ids are relative to the rootdir
-    print(f"\n==== tests.suite: {len(failed)} test(s) stopped their worker (a hang that the timeout ended): "
-          f"{', '.join(failed)}; each runs once more, alone", flush=True)
+    print(f"\n==== tests.suite: {len(failed)} test(s) stopped their worker (a hang that the timeout ended): {', '.join(failed)}; each runs once more, alone", flush=True)
     again_trace = scratch / "trace-again"
     again_trace.mkdir(exist_ok=True)
     watchdog.folder = again_trace
-    again = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *TRACING, "-p", "no:cacheprovider", *where], cwd=ROOT,
-                             env={**env, "PROCTEX_TEST_TRACE": str(again_trace)}, process_group=0)
+    again = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *TRACING, "-p", "no:cacheprovider", *where], cwd=ROOT, env={**env, "PROCTEX_TEST_TRACE": str(again_trace)}, process_group=0)
     passes.append(again)
     status = again.wait()
-    print(f"==== tests.suite: run again, {'they passed' if status == 0 else 'they failed again'} (hung once: "
-          f"{', '.join(failed)}; the threads above show where)", flush=True)
+    print(f"==== tests.suite: run again, {'they passed' if status == 0 else 'they failed again'} (hung once: {', '.join(failed)}; the threads above show where)", flush=True)
     return 0 if status == 0 else 1
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tests.suite", description=__doc__.split("\n\n")[0], allow_abbrev=False,
-                                     epilog="Every other argument (paths, -k EXPR, --durations=N, ...) is given to both passes' pytest, in its order.")
-    parser.add_argument("--workers", type=int, default=None,
-                        help="pytest-xdist workers per pass (0: in one process; default TEST_WORKERS or 2)")
+    parser = argparse.ArgumentParser(
+        prog="python -m tests.suite",
+        description=__doc__.split("\n\n")[0],
+        allow_abbrev=False,
+        epilog="Every other argument (paths, -k EXPR, --durations=N, ...) is given to both passes' pytest, in its order.",
+    )
+    parser.add_argument("--workers", type=int, default=None, help="pytest-xdist workers per pass (0: in one process; default TEST_WORKERS or 2)")
     args, pytest_args = parser.parse_known_args(argv)
     try:
         par = xdist(int(os.environ.get("TEST_WORKERS", "2")) if args.workers is None else args.workers)
@@ -243,8 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     env["PROCTEX_TEST_TRACE"] = str(scratch / "trace")
     second_cmd = [sys.executable, "-m", "tests.portable", *SECOND, *TRACING, *par, *pytest_args]
     log = open(scratch / "log", "w+b")
-    second = subprocess.Popen([*second_cmd, "--basetemp", str(scratch / "tmp")], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
-                              preexec_fn=lambda: os.nice(10), process_group=0)
+    second = subprocess.Popen([*second_cmd, "--basetemp", str(scratch / "tmp")], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT, preexec_fn=lambda: os.nice(10), process_group=0)
     first = other = None
     main_pass = None
     passes: list[subprocess.Popen] = [second]
@@ -259,8 +255,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
         print("the second pass (numeric tests on other kernels) runs beside the first at nice 10; its output follows", flush=True)
-        main_pass = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *TRACING, *par, *pytest_args], cwd=ROOT, env=env,
-                                     process_group=0)
+        main_pass = subprocess.Popen([sys.executable, "-m", "pytest", "-q", *TRACING, *par, *pytest_args], cwd=ROOT, env=env, process_group=0)
         passes.append(main_pass)
         first = main_pass.wait()
         if first == 1 and par[1] != "0" and not watchdog.over_budget:
@@ -289,8 +284,7 @@ def main(argv: list[str] | None = None) -> int:
         log.close()
         shutil.rmtree(scratch, ignore_errors=True)
     sys.stdout.write(watchdog.summary())
-    print(f"first pass: exit {first}; second pass: exit {other}"
-          + (f" (stopped: past the suite's budget of {budget:.0f} s)" if watchdog.over_budget else ""), flush=True)
+    print(f"first pass: exit {first}; second pass: exit {other}" + (f" (stopped: past the suite's budget of {budget:.0f} s)" if watchdog.over_budget else ""), flush=True)
     if watchdog.over_budget:
         return 1
     return 0 if first == 0 and other in (0, NO_TESTS) else 1

@@ -45,8 +45,7 @@ def import_graph(root: Path = ROOT) -> tuple[dict[str, set[str]], dict[str, set[
     for mod, path in modules.items():
         package = package_of(mod, path)
         tree = ast.parse(path.read_text(), str(path))
-        typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
-                       for n in ast.walk(block)}  # imports for annotations only: not run
+        typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test) for n in ast.walk(block)}  # imports for annotations only: not run
         for node in ast.walk(tree):
             if id(node) in typing_only:
                 continue
@@ -136,9 +135,28 @@ def test_proctex_has_no_import_circle():
 #: out), ``measure`` scores it, ``build`` makes a family stage by stage, ``serve`` answers requests
 #: on top of records and transfer (never the build), ``generate`` makes variants in bulk.
 #: ``_reference`` (for the tests) may import anything and is imported by nothing shipped.
-LAYERS = {"proctex.fileio": 0, "proctex.params": 0, "proctex.progress": 0, "proctex.plugins": 0, "proctex.pools": 0, "proctex.torch_kernels": 0, "proctex.geometry": 1, "proctex.models": 2,
-          "proctex.texture": 2, "proctex.correspond": 3, "proctex.sources": 4, "proctex.store": 5, "proctex.transfer": 6,
-          "proctex.measure": 7, "proctex.looks": 8, "proctex.build": 9, "proctex.serve": 9, "proctex.generate": 10, "proctex.demo": 11, "proctex.cli": 12}
+LAYERS = {
+    "proctex.fileio": 0,
+    "proctex.params": 0,
+    "proctex.progress": 0,
+    "proctex.plugins": 0,
+    "proctex.pools": 0,
+    "proctex.torch_kernels": 0,
+    "proctex.geometry": 1,
+    "proctex.models": 2,
+    "proctex.texture": 2,
+    "proctex.correspond": 3,
+    "proctex.sources": 4,
+    "proctex.store": 5,
+    "proctex.transfer": 6,
+    "proctex.measure": 7,
+    "proctex.looks": 8,
+    "proctex.build": 9,
+    "proctex.serve": 9,
+    "proctex.generate": 10,
+    "proctex.demo": 11,
+    "proctex.cli": 12,
+}
 
 
 def unit_of(module: str, layers: dict[str, int]) -> str | None:
@@ -189,8 +207,7 @@ def test_proctex_never_imports_ray():
 
 #: What runs inside someone else's Python: the Blender add-on (Blender's own interpreter, nothing
 #: of ours installed) and the Blender side of a .blend source (``.venv-blender``: bpy and numpy).
-FOREIGN = {Path(__file__).resolve().parents[1] / "clients" / "blender" / "proctex_blender": {"bpy", "addon_utils", "mathutils"},
-           ROOT / "sources" / "blender_server.py": {"bpy", "numpy"}}
+FOREIGN = {Path(__file__).resolve().parents[1] / "clients" / "blender" / "proctex_blender": {"bpy", "addon_utils", "mathutils"}, ROOT / "sources" / "blender_server.py": {"bpy", "numpy"}}
 
 
 def foreign_imports(path: Path, allowed: set[str]) -> list[str]:
@@ -205,8 +222,7 @@ def foreign_imports(path: Path, allowed: set[str]) -> list[str]:
             if isinstance(node, ast.ImportFrom) and node.level:
                 continue
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""] if isinstance(node, ast.ImportFrom) else []
-            bad += [f"{f.name}: {n}" for n in names
-                    if n.split(".")[0] not in sys.stdlib_module_names and n.split(".")[0] not in allowed and n != "__future__"]
+            bad += [f"{f.name}: {n}" for n in names if n.split(".")[0] not in sys.stdlib_module_names and n.split(".")[0] not in allowed and n != "__future__"]
     return bad
 
 
@@ -223,17 +239,14 @@ def test_the_library_never_imports_its_slow_references():
     """The ``*_reference`` implementations are for the tests (``proctex/_reference``): the shipped
     modules read as the product and never call them."""
     edges, _ = import_graph()
-    offenders = sorted(m for m, targets in edges.items() if not m.startswith("proctex._reference")
-                       and any(t.startswith("proctex._reference") for t in targets))
+    offenders = sorted(m for m, targets in edges.items() if not m.startswith("proctex._reference") and any(t.startswith("proctex._reference") for t in targets))
     assert not offenders, f"shipped modules importing proctex._reference: {offenders}"
     shipped = [p for p in ROOT.rglob("*.py") if "_reference" not in p.parts]
-    defined = [f"{module_name(p)}.{n.name}" for p in shipped for n in ast.walk(ast.parse(p.read_text()))
-               if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.name.endswith("_reference")]
+    defined = [f"{module_name(p)}.{n.name}" for p in shipped for n in ast.walk(ast.parse(p.read_text())) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.name.endswith("_reference")]
     assert not defined, f"reference implementations in shipped modules: {defined}"
 
 
-STORE_NAMES = ("family.json", "samples.parquet", "pairs.parquet", "metrics.json", "template/", "models/", "meshes/", "correspondences/",
-               "paint.json", "uv.npz", "painted.npz", "grouping.json")
+STORE_NAMES = ("family.json", "samples.parquet", "pairs.parquet", "metrics.json", "template/", "models/", "meshes/", "correspondences/", "paint.json", "uv.npz", "painted.npz", "grouping.json")
 
 
 def store_literals(paths) -> list[str]:
@@ -244,9 +257,13 @@ def store_literals(paths) -> list[str]:
         tree = ast.parse(p.read_text())
         prose = {id(n.value) for n in ast.walk(tree) if isinstance(n, ast.Expr) and isinstance(n.value, ast.Constant)}  # docstrings
         for node in ast.walk(tree):
-            if (isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in prose
-                    and not any(c.isspace() for c in node.value)  # messages and help texts may name files
-                    and any(n in node.value for n in STORE_NAMES)):
+            if (
+                isinstance(node, ast.Constant)
+                and isinstance(node.value, str)
+                and id(node) not in prose
+                and not any(c.isspace() for c in node.value)  # messages and help texts may name files
+                and any(n in node.value for n in STORE_NAMES)
+            ):
                 found.append(f"{p.name}:{node.lineno}: {node.value!r}")
     return found
 
@@ -256,8 +273,7 @@ def test_only_the_store_layout_spells_store_paths(tmp_path):
     bad.write_text('x = f"models/group_{3}.pt"\ny = "samples.parquet"\n"""Docstring naming family.json."""\nraise ValueError("no family.json here")\n')
     assert len(store_literals([bad])) == 2  # the check can fail
     repo = ROOT.parent
-    files = [p for d in ("proctex", "workers", "workflows") for p in (repo / d).rglob("*.py")
-             if p.relative_to(repo).as_posix() != "proctex/store/layout.py" and "node_modules" not in p.parts]
+    files = [p for d in ("proctex", "workers", "workflows") for p in (repo / d).rglob("*.py") if p.relative_to(repo).as_posix() != "proctex/store/layout.py" and "node_modules" not in p.parts]
     assert not store_literals(files), "store paths spelled outside proctex/store/layout.py's StoreLayout:\n" + "\n".join(store_literals(files))
 
 
@@ -346,8 +362,7 @@ def build_imports(root: Path) -> list[str]:
     for path in sorted(root.rglob("*.py")):
         mod = module_name(path, root)
         for node in ast.walk(ast.parse(path.read_text())):
-            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
-                [import_target(node, package_of(mod, path))] if isinstance(node, ast.ImportFrom) else []
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [import_target(node, package_of(mod, path))] if isinstance(node, ast.ImportFrom) else []
             found += [f"{mod} -> {n}" for n in names if any(n == s or n.startswith(s + ".") for s in steps)]
     return found
 

@@ -27,14 +27,17 @@ def test_timeit_reports_order_statistics():
     assert "| b | x |" in table
 
 
-@pytest.mark.parametrize("script, argv", [
-    ("bench_mvc.py", ["--points", "200", "--levels", "0", "--repeats", "1"]),
-    ("bench_forward.py", ["--context", "256", "--queries", "100", "--repeats", "1"]),
-    ("bench_projection.py", ["--model", "mug", "--points", "200", "--repeats", "1"]),
-    ("bench_texel_map.py", ["--model", "mug", "--sizes", "64", "--repeats", "1"]),
-    ("bench_cage_iteration.py", ["--points", "200", "--short", "2", "--long", "4", "--repeats", "1"]),
-    ("bench_bake.py", ["--model", "mug", "--shapes", "1", "--texture", "64", "--size", "64", "--repeats", "1"]),
-])
+@pytest.mark.parametrize(
+    "script, argv",
+    [
+        ("bench_mvc.py", ["--points", "200", "--levels", "0", "--repeats", "1"]),
+        ("bench_forward.py", ["--context", "256", "--queries", "100", "--repeats", "1"]),
+        ("bench_projection.py", ["--model", "mug", "--points", "200", "--repeats", "1"]),
+        ("bench_texel_map.py", ["--model", "mug", "--sizes", "64", "--repeats", "1"]),
+        ("bench_cage_iteration.py", ["--points", "200", "--short", "2", "--long", "4", "--repeats", "1"]),
+        ("bench_bake.py", ["--model", "mug", "--shapes", "1", "--texture", "64", "--size", "64", "--repeats", "1"]),
+    ],
+)
 def test_each_benchmark_writes_its_report(tmp_path, script, argv):
     out = tmp_path / "r.json"
     done = subprocess.run([sys.executable, str(BENCH / script), *argv, "--out", str(out)], capture_output=True, text=True, timeout=300)
@@ -49,9 +52,28 @@ def test_fidelity_benchmark_builds_evaluates_and_resumes(tmp_path):
     """The smallest honest family run: a mug built with the adaptive tessellation, evaluated with
     canonical truth; the JSON holds every method, the table a verdict, and a second run with the
     same settings measures nothing again."""
-    argv = [sys.executable, str(BENCH / "bench_fidelity.py"), "--models", "mug", "--root", str(tmp_path / "fam"), "--n-train", "3",
-            "--n-test", "1", "--cage-iterations", "5", "--train-iterations", "20", "--methods", "corrnet,identity,nearest",
-            "--tracked", "200", "--set", 'train={"eval_every": 10}']
+    argv = [
+        sys.executable,
+        str(BENCH / "bench_fidelity.py"),
+        "--models",
+        "mug",
+        "--root",
+        str(tmp_path / "fam"),
+        "--n-train",
+        "3",
+        "--n-test",
+        "1",
+        "--cage-iterations",
+        "5",
+        "--train-iterations",
+        "20",
+        "--methods",
+        "corrnet,identity,nearest",
+        "--tracked",
+        "200",
+        "--set",
+        'train={"eval_every": 10}',
+    ]
     done = subprocess.run(argv, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     rep = json.loads((tmp_path / "fam" / "fidelity.json").read_text())
@@ -79,8 +101,7 @@ def test_fidelity_goals_name_each_miss():
     from bench_fidelity import goals
 
     def m(var, gt_mean, gt_max, cov=0.0):
-        return {"tracked_point_variance": var, "tracked_point_variance_realtime": var, "coverage": cov, "coverage_baked": 0.0,
-                "gt_error": {"mean": gt_mean, "max": gt_max, "flipped": 0.0}}
+        return {"tracked_point_variance": var, "tracked_point_variance_realtime": var, "coverage": cov, "coverage_baked": 0.0, "gt_error": {"mean": gt_mean, "max": gt_max, "flipped": 0.0}}
 
     ok = goals("mug", {"corrnet": m(0.04, 0.005, 0.01), "identity": m(0.1, 0.02, 0.1), "nearest": m(0.1, 0.03, 0.2)})
     assert ok["missed"] == [] and ok["ratio_nearest_baked"] == pytest.approx(0.4)
@@ -96,16 +117,16 @@ def test_fidelity_verdict_names_each_loss():
         return {"tracked_point_variance": var, "gt_error": {"mean": gt}}
 
     assert verdict({"corrnet": m(0.1, 0.01), "identity": m(0.2, 0.02), "nearest": m(0.3, 0.03)}) == "beats both"
-    assert verdict({"corrnet": m(0.1, 0.05), "identity": m(0.2, 0.02), "nearest": m(0.05, 0.03)}) == \
-        "loses: GT vs identity, variance vs nearest, GT vs nearest"
+    assert verdict({"corrnet": m(0.1, 0.05), "identity": m(0.2, 0.02), "nearest": m(0.05, 0.03)}) == "loses: GT vs identity, variance vs nearest, GT vs nearest"
 
 
 def test_the_pbr_contact_sheet_script_runs(tmp_path):
     out = tmp_path / "sheet.png"
     # 3-11 s alone, beside a build or four busy loops; once past 300 s inside a loaded suite run: past
     # 600 s it is aborted (SIGABRT: faulthandler prints every thread's stack) and the test shows where it stood
-    proc = subprocess.Popen([sys.executable, "-X", "faulthandler", str(BENCH / "pbr_sheet.py"), "--size", "64", "--view", "64",
-                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-X", "faulthandler", str(BENCH / "pbr_sheet.py"), "--size", "64", "--view", "64", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     try:
         stdout, stderr = proc.communicate(timeout=600)
     except subprocess.TimeoutExpired:
@@ -130,33 +151,35 @@ def test_fidelity_real_suite_configs_and_pseudo_gt_verdicts():
     chair = BuildConfig.from_dict(real_config("chair.blend", {"train": {"iterations": 50}}))
     assert chair.train.iterations == 50 and chair.source.params["Seat Height"] == [0.3, 0.9]
     # Without a truth, the verdict and the goals read the pseudo-GT (the network against its teacher).
-    m = lambda var, pgt: {"tracked_point_variance": var, "tracked_point_variance_realtime": var, "coverage": 0.0,  # noqa: E731
-                          "coverage_baked": 0.0, "gt_error": None, "pgt_error": {"mean": pgt}}
+    m = lambda var, pgt: {
+        "tracked_point_variance": var,
+        "tracked_point_variance_realtime": var,
+        "coverage": 0.0,  # noqa: E731
+        "coverage_baked": 0.0,
+        "gt_error": None,
+        "pgt_error": {"mean": pgt},
+    }
     assert verdict({"corrnet": m(0.1, 0.05), "identity": m(0.2, 0.02), "nearest": m(0.3, 0.1)}) == "loses: pseudo-GT vs identity"
     g = goals("chair.blend", {"corrnet": m(0.1, 0.022), "identity": m(0.2, 0.05), "nearest": m(0.3, 0.1)})
     assert g["missed"] == ["pseudo-GT mean 2.0x paper"] and g["pgt_mean"] == 0.022
     # The README's results table: the paper's row, the network against its teacher, the ratios.
     from bench_fidelity import results_table
 
-    net = {**m(0.1, 0.022), "seconds_per_shape": 0.05, "tracker": "cage",
-           "pgt_error": {"mean": 0.022, "worst_pair_mean": 0.05, "max": 0.2, "flipped": 0.004}}
+    net = {**m(0.1, 0.022), "seconds_per_shape": 0.05, "tracker": "cage", "pgt_error": {"mean": 0.022, "worst_pair_mean": 0.05, "max": 0.2, "flipped": 0.004}}
     row = results_table({"chair.blend": {"metrics": {"methods": {"corrnet": net, "identity": m(0.2, 0.05), "nearest": m(0.4, 0.1)}}}}).splitlines()[2]
-    for cell in ("0.011 / 0.025", "0.0220 / 0.0500 / 0.200", "| teacher-scored: no truth |", "0.1000 (0.50x, 0.25x), the cage teacher",
-                 "- / 0.40%", "| 50 |"):
+    for cell in ("0.011 / 0.025", "0.0220 / 0.0500 / 0.200", "| teacher-scored: no truth |", "0.1000 (0.50x, 0.25x), the cage teacher", "- / 0.40%", "| 50 |"):
         assert cell in row, (cell, row)
     # With a truth the row gives its GT error and the share of the points that have one.
     net = {**net, "tracker": "canonical", "gt_error": {"mean": 0.03, "p99": 0.2, "max": 0.5, "with_truth": 0.75, "flipped": 0.0}}
     row = results_table({"chair.blend": {"metrics": {"methods": {"corrnet": net, "identity": m(0.2, 0.05), "nearest": m(0.4, 0.1)}}}}).splitlines()[2]
     for cell in ("| 0.0300 / 0.200 / 0.500 (75%) |", "0.1000 (0.50x, 0.25x), truth", "0.00% / 0.40%"):
         assert cell in row, (cell, row)
-    bad = subprocess.run([sys.executable, str(BENCH / "bench_fidelity.py"), "--suite", "real", "--models", "spaceship"],
-                         capture_output=True, text=True, timeout=120)
+    bad = subprocess.run([sys.executable, str(BENCH / "bench_fidelity.py"), "--suite", "real", "--models", "spaceship"], capture_output=True, text=True, timeout=120)
     assert bad.returncode != 0 and "unknown real families" in bad.stderr
 
 
 def test_the_sweep_pairs_scan_runs():
-    done = subprocess.run([sys.executable, str(BENCH / "sweep_pairs.py"), "--models", "fork", "--sofa-dir", ""],
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, str(BENCH / "sweep_pairs.py"), "--models", "fork", "--sofa-dir", ""], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     row = [line for line in done.stdout.splitlines() if line.startswith("| fork |")]
     assert len(row) == 1 and row[0].endswith("| 0 |")  # no fork pair changes its winding

@@ -71,9 +71,19 @@ class SourceTruthMapper:
 
 @pytest.fixture(scope="module")
 def bench_family(blends, tmp_path_factory):
-    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(blends / "bench.blend"), "object": "Bench"}, "n_train": 2, "n_test": 4,
-                                            "params": {"Width": [0.8, 2.0], "Legs": [2, 6], "Leg Height": [0.3, 0.6]}, "listed": ["Has Back"]},
-                                 "paint": {"prompt": "oak", "texture_size": 128}, "seed": 3})
+    cfg = BuildConfig.from_dict(
+        {
+            "source": {
+                "blender": {"file": str(blends / "bench.blend"), "object": "Bench"},
+                "n_train": 2,
+                "n_test": 4,
+                "params": {"Width": [0.8, 2.0], "Legs": [2, 6], "Leg Height": [0.3, 0.6]},
+                "listed": ["Has Back"],
+            },
+            "paint": {"prompt": "oak", "texture_size": 128},
+            "seed": 3,
+        }
+    )
     st = FamilyStore(tmp_path_factory.mktemp("blendtruth") / "bench")
     build(st, cfg, stages=("sample", "template", "paint"), log=lambda *_: None)
     assets = load_assets(st)

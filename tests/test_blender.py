@@ -86,10 +86,12 @@ def test_inputs_default_to_the_files_values_and_unranged_or_unlisted_ones_are_he
     nothing varies is refused, naming what could vary; a file value outside the spec's range is
     clamped into it and reported."""
     big = {"min": -3.4e38, "max": 3.4e38}
-    inputs = [{"name": "Size", "identifier": "S1", "type": "float", "default": 0.0, "value": 0.3, **big},
-              {"name": "Count", "identifier": "S2", "type": "int", "default": 0, "value": 4, "min": 1, "max": 9},
-              {"name": "Has Back", "identifier": "S3", "type": "bool", "default": False, "value": True},
-              {"name": "Style", "identifier": "S4", "type": "menu", "default": "B", "value": "B", "options": ["A", "B"]}]
+    inputs = [
+        {"name": "Size", "identifier": "S1", "type": "float", "default": 0.0, "value": 0.3, **big},
+        {"name": "Count", "identifier": "S2", "type": "int", "default": 0, "value": 4, "min": 1, "max": 9},
+        {"name": "Has Back", "identifier": "S3", "type": "bool", "default": False, "value": True},
+        {"name": "Style", "identifier": "S4", "type": "menu", "default": "B", "value": "B", "options": ["A", "B"]},
+    ]
     plan = input_specs(inputs)  # no list: Count, Has Back and Style vary; Size has no range
     assert plan.fixed == {"Size": 0.3} and "no usable range" in plan.why["Size"]
     space = plan.space
@@ -226,14 +228,42 @@ def test_a_blend_family_builds_and_transfers_new_parameters(vase_blend, tmp_path
     from proctex.texture.gltf_read import read_textured_glb
 
     out = tmp_path / "fam"
-    code = main(["build", "--blend", str(vase_blend), "--object", "Vase", "--prompt", "blue ceramic", "--n-train", "3", "--n-test", "0",
-                 "--texture-size", "64", "--points", "200", "--iterations", "20", "--train-iterations", "20", "--out", str(out), "--quiet",
-                 "--stages", "sample,template,paint,pairs,train", "--parts-attribute", "part_id", "--keep-uv", "UVMap"])
+    code = main(
+        [
+            "build",
+            "--blend",
+            str(vase_blend),
+            "--object",
+            "Vase",
+            "--prompt",
+            "blue ceramic",
+            "--n-train",
+            "3",
+            "--n-test",
+            "0",
+            "--texture-size",
+            "64",
+            "--points",
+            "200",
+            "--iterations",
+            "20",
+            "--train-iterations",
+            "20",
+            "--out",
+            str(out),
+            "--quiet",
+            "--stages",
+            "sample,template,paint,pairs,train",
+            "--parts-attribute",
+            "part_id",
+            "--keep-uv",
+            "UVMap",
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     store = FamilyStore(out)
     state = store.read_json("family.json")
-    assert state["config"]["source"]["blender"] == {"file": str(vase_blend), "object": "Vase", "modifier": "GeometryNodes",
-                                                    "parts": "part_id", "uv": "UVMap"}
+    assert state["config"]["source"]["blender"] == {"file": str(vase_blend), "object": "Vase", "modifier": "GeometryNodes", "parts": "part_id", "uv": "UVMap"}
     # the graph's parts (two halves) and its UV map (kept for each group's representative)
     from proctex.store.template import load_template
 
@@ -280,8 +310,14 @@ def test_a_blend_family_fans_out_on_ray_like_any_other_source(vase_blend, tmp_pa
     from proctex.store.samples import samples
     from workflows.build import build_on_ray
 
-    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(vase_blend), "object": "Vase"}, "n_train": 4, "n_test": 0},
-                                 "paint": {"prompt": "blue ceramic", "texture_size": 32}, "corr_points": 200, "cage": {"iterations": 10}})
+    cfg = BuildConfig.from_dict(
+        {
+            "source": {"blender": {"file": str(vase_blend), "object": "Vase"}, "n_train": 4, "n_test": 0},
+            "paint": {"prompt": "blue ceramic", "texture_size": 32},
+            "corr_points": 200,
+            "cage": {"iterations": 10},
+        }
+    )
     stages = ("sample", "template", "paint", "pairs")
     local = FamilyStore(tmp_path / "local")
     build(local, cfg, stages=stages, log=lambda *_: None)
@@ -312,9 +348,15 @@ def served_vase(blends, tmp_path_factory):
     from proctex.store.layout import FamilyStore
 
     root = tmp_path_factory.mktemp("served")
-    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(blends / "vase.blend"), "object": "Vase"}, "n_train": 3, "n_test": 0},
-                                 "paint": {"prompt": "blue ceramic", "texture_size": 64}, "corr_points": 200,
-                                 "cage": {"iterations": 20}, "train": {"iterations": 20}})
+    cfg = BuildConfig.from_dict(
+        {
+            "source": {"blender": {"file": str(blends / "vase.blend"), "object": "Vase"}, "n_train": 3, "n_test": 0},
+            "paint": {"prompt": "blue ceramic", "texture_size": 64},
+            "corr_points": 200,
+            "cage": {"iterations": 20},
+            "train": {"iterations": 20},
+        }
+    )
     store = FamilyStore(root / "vase")
     build(store, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
     from dataclasses import replace
@@ -360,8 +402,7 @@ def test_the_addon_client_speaks_the_api_and_reports_errors_plainly():
 
     from starlette.requests import Request
 
-    body, ctype = client.multipart_files({"look": json.dumps({"name": "p"})},
-                                         [("image.*", 'odd"name\r\n.png', b"\x89PNG-bytes"), ("image.3", "b.jpg", b"\xff\xd8")])
+    body, ctype = client.multipart_files({"look": json.dumps({"name": "p"})}, [("image.*", 'odd"name\r\n.png', b"\x89PNG-bytes"), ("image.3", "b.jpg", b"\xff\xd8")])
 
     async def parse():
         async def receive():
@@ -416,8 +457,7 @@ def _manifest_problems(manifest: dict) -> list[str]:
     if not manifest.get("license") or not all(str(x).startswith("SPDX:") for x in manifest["license"]):
         out.append("license")
     perms = manifest.get("permissions", {})
-    if not isinstance(perms, dict) or not all(k in ("files", "network", "clipboard", "camera", "microphone") and isinstance(v, str) and v
-                                              for k, v in perms.items()):
+    if not isinstance(perms, dict) or not all(k in ("files", "network", "clipboard", "camera", "microphone") and isinstance(v, str) and v for k, v in perms.items()):
         out.append("permissions")
     return out
 
@@ -482,10 +522,20 @@ def test_the_addon_textures_the_selected_object_through_a_live_service(served_va
     done = subprocess.run([PYTHON, str(ADDON / "build_zip.py"), str(zip_path)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     out = tmp_path / "report.json"
-    env = {**__import__("os").environ, "BLENDER_USER_SCRIPTS": str(tmp_path / "scripts"), "BLENDER_USER_CONFIG": str(tmp_path / "config"),
-           "BLENDER_USER_EXTENSIONS": str(tmp_path / "extensions"), "PROCTEX_TEST_TOKEN": ADDON_TOKEN}
-    done = subprocess.run([PYTHON, str(DRIVER), str(zip_path), str(blends / "vase.blend"), url, "vase",
-                           json.dumps({"Resolution": 13, "Height": 1.7}), str(out), "red"], capture_output=True, text=True, timeout=400, env=env)
+    env = {
+        **__import__("os").environ,
+        "BLENDER_USER_SCRIPTS": str(tmp_path / "scripts"),
+        "BLENDER_USER_CONFIG": str(tmp_path / "config"),
+        "BLENDER_USER_EXTENSIONS": str(tmp_path / "extensions"),
+        "PROCTEX_TEST_TOKEN": ADDON_TOKEN,
+    }
+    done = subprocess.run(
+        [PYTHON, str(DRIVER), str(zip_path), str(blends / "vase.blend"), url, "vase", json.dumps({"Resolution": 13, "Height": 1.7}), str(out), "red"],
+        capture_output=True,
+        text=True,
+        timeout=400,
+        env=env,
+    )
     assert done.returncode == 0 and out.exists(), (done.stdout[-2000:], done.stderr[-3000:])
     report = json.loads(out.read_text())
     assert report["families"] == ["vase"] and all(report["timer_registered"])
@@ -584,8 +634,7 @@ def test_the_real_chair_reads_its_spec_and_paints_the_parts_a_prompt_names():
 
     if not (REAL / "chair.blend").is_file():
         pytest.skip("the shared .blend files are absent")
-    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / "chair.blend"), "object": "Cube"},
-                                            "params_spec": str(REAL / "sp_chair.json")}})
+    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / "chair.blend"), "object": "Cube"}, "params_spec": str(REAL / "sp_chair.json")}})
     model = cfg.procedural_model()
     space = model.space
     assert space["Middle Offset"].when == (("Legs Type", 0), ("Has Middle Support", True))
@@ -626,8 +675,7 @@ def test_the_real_chair_keeps_its_seat_red_and_legs_dark_on_every_variant():
     if not (REAL / "chair.blend").is_file():
         pytest.skip("the shared .blend files are absent")
     prompt = "a chair with a red velvet seat and dark walnut legs"
-    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / "chair.blend"), "object": "Cube"},
-                                            "params_spec": str(REAL / "sp_chair.json")}})
+    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / "chair.blend"), "object": "Cube"}, "params_spec": str(REAL / "sp_chair.json")}})
     model = cfg.procedural_model()
     base = {**model.space.defaults(), "Has Back": True, "Has Arms": True, "Legs Type": 0, "Back Height": 0.6, "Backrest Scale": 0.7}
     template = model.generate(base)
@@ -635,8 +683,7 @@ def test_the_real_chair_keeps_its_seat_red_and_legs_dark_on_every_variant():
     tex = paint_template(template, grouping, prompt, size=48, up="z")
     assets = prepare_template(template, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
     painter = SurfacePainter(prompt)
-    variants = [{"Has Back": False}, {"Has Arms": False}, {"Legs Type": 1}, {"Legs Type": 2, "Has Back": False, "Has Arms": False},
-                {"Seat Width": 0.7, "Seat Height": 0.75}]
+    variants = [{"Has Back": False}, {"Has Arms": False}, {"Legs Type": 1}, {"Legs Type": 2, "Has Back": False, "Has Arms": False}, {"Seat Width": 0.7, "Seat Height": 0.75}]
     for change in variants:
         shape = model.generate({**base, **change})
         r = transfer(shape, assets, IdentityMapper(), painter=painter, up="z")

@@ -158,16 +158,14 @@ def test_a_coil_with_more_turns_maps_along_and_around_through_the_charts():
     from proctex.correspond.dense import correspond_parts, deform
 
     (src, sp, su), (tpl, tp, tu) = _fixed_coil(3.0), _fixed_coil(4.0)
-    swept = correspond_parts(src.vertices, src.faces, tpl.vertices, tpl.faces, method="cage", n_points=800, seed=0,
-                             cage=CageConfig(sweep=True, iterations=30))
+    swept = correspond_parts(src.vertices, src.faces, tpl.vertices, tpl.faces, method="cage", n_points=800, seed=0, cage=CageConfig(sweep=True, iterations=30))
     assert swept.details["teacher"] == "sweep"
     assert abs(swept.details["turns"] - 3.0) < 0.05 and abs(swept.details["template_turns"] - 4.0) < 0.05
     u_s, a_s = _along_and_around(sp, su, swept.source_points)
     u_t, a_t = _along_and_around(tp, tu, swept.points)
     assert np.abs(u_s - u_t).mean() < 0.005 and np.abs(u_s - u_t).max() < 0.02
     assert np.abs(np.angle(np.exp(1j * (a_s - a_t)))).mean() < 0.1
-    caged = correspond_parts(src.vertices, src.faces, tpl.vertices, tpl.faces, method="cage", n_points=800, seed=0,
-                             cage=CageConfig(sweep=False, iterations=30))
+    caged = correspond_parts(src.vertices, src.faces, tpl.vertices, tpl.faces, method="cage", n_points=800, seed=0, cage=CageConfig(sweep=False, iterations=30))
     assert "teacher" not in caged.details
     u_c, _ = _along_and_around(tp, tu, caged.points)
     assert np.abs(u_s - u_c).mean() > 0.03

@@ -79,7 +79,6 @@ def test_local_cluster_script_usage():
     assert r.returncode == 2 and "usage" in r.stderr
 
 
-
 def _dockerfile() -> tuple[dict[str, str], list[list[str]]]:
     """cluster/Dockerfile as ``(ARG defaults, [instruction, rest] per instruction)``, continuation
     lines joined and comments dropped."""
@@ -142,11 +141,23 @@ def test_the_cluster_image_recipe_installs_this_wheel_on_the_manifests_ray():
     assert sent(f"dist/proctex-{version}-py3-none-any.whl") and sent("cluster/family.toml")
     assert not any(sent(p) for p in ("README.md", "proctex/__init__.py", ".venv/bin/python", "workers/studio/node_modules/x.js", "dist/other.tar.gz"))
 
+
 #: The processes of a multi-node Ray 2.60 cluster on one machine that listen on its routable address
 #: or every interface, with no option to keep them on loopback (cluster/local_cluster.sh): the GCS,
 #: the raylets, core workers, the dashboard's and runtime-env agents, metrics exporters.
-RAY_NODE_LISTENERS = {"gcs_server", "raylet", "ray::IDLE", "ray::DashboardAgent", "ray::RuntimeEnvAgent", "python", "python3",
-                      "ray::JobSupervisor", "ray::_wrapped", "default_worker.py", "ray::RayTrainWorker"}
+RAY_NODE_LISTENERS = {
+    "gcs_server",
+    "raylet",
+    "ray::IDLE",
+    "ray::DashboardAgent",
+    "ray::RuntimeEnvAgent",
+    "python",
+    "python3",
+    "ray::JobSupervisor",
+    "ray::_wrapped",
+    "default_worker.py",
+    "ray::RayTrainWorker",
+}
 
 
 def listeners_of(ray_tmp: str) -> list[tuple[str, int, str]]:
@@ -202,9 +213,19 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
     # test's wheel install does; a stock cluster's pip installs them too.
     wheel = build_wheel(tmp_path / "src", tmp_path)
     short_tmp = tempfile.mkdtemp(prefix="rayc", dir="/tmp")  # Ray's socket paths must stay short
-    env = {**os.environ, "RAY_PORT": "6391", "DASHBOARD_PORT": "8276", "RAY_CLIENT_PORT": "9391", "RAY": str(ROOT / ".venv" / "bin" / "ray"),
-           "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240", "PIP_NO_DEPS": "1", "PIP_NO_INDEX": "1",
-           "PATH": f"{ROOT / '.venv' / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}", **cluster_env(short_tmp)}
+    env = {
+        **os.environ,
+        "RAY_PORT": "6391",
+        "DASHBOARD_PORT": "8276",
+        "RAY_CLIENT_PORT": "9391",
+        "RAY": str(ROOT / ".venv" / "bin" / "ray"),
+        "RAY_TMP": short_tmp,
+        "PROCTEX_CLUSTER_WAIT": "240",
+        "PIP_NO_DEPS": "1",
+        "PIP_NO_INDEX": "1",
+        "PATH": f"{ROOT / '.venv' / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
+        **cluster_env(short_tmp),
+    }
     env.pop("PYTHONPATH", None)
     short_tmp2 = tempfile.mkdtemp(prefix="rayd", dir="/tmp")
     env2 = {**env, "RAY_PORT": "6392", "DASHBOARD_PORT": "8277", "RAY_CLIENT_PORT": "9392", "RAY_TMP": short_tmp2, **cluster_env(short_tmp2)}
@@ -233,8 +254,19 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
             assert exc.code == 401, exc.code
         assert oct(os.stat(Path(short_tmp) / "auth_token").st_mode & 0o777) == "0o600"
         cfg = tmp_path / "family.json"
-        cfg.write_text(json.dumps({"model": "mug", "n_train": 3, "n_test": 0, "corr_points": 200, "cage_iterations": 20, "texture_size": 32,
-                                   "train": {"iterations": 10, "eval_every": 5, "context_points": 64, "query_points": 32, "shapes_per_batch": 2}}))
+        cfg.write_text(
+            json.dumps(
+                {
+                    "model": "mug",
+                    "n_train": 3,
+                    "n_test": 0,
+                    "corr_points": 200,
+                    "cage_iterations": 20,
+                    "texture_size": 32,
+                    "train": {"iterations": 10, "eval_every": 5, "context_points": 64, "query_points": 32, "shapes_per_batch": 2},
+                }
+            )
+        )
         out = tmp_path / "mug"
         client = job_client("http://127.0.0.1:8276", token_path=cluster_env(short_tmp)["RAY_AUTH_TOKEN_PATH"])
         # start returned after the Jobs API ran its no-op readiness job
@@ -251,11 +283,9 @@ def test_a_job_submitted_to_a_head_and_worker_cluster_builds_a_family(tmp_path):
         python, here = ROOT / ".venv" / "bin" / "python", tmp_path / "job"
         here.mkdir()
         runtime = {"py_modules": [str(wheel)]}
-        probe = ("import json, ray, proctex; ray.init(); "
-                 "print('where', json.dumps([proctex.__file__, proctex.__version__, ray.get(ray.remote(lambda: __import__('proctex').__file__).remote())]))")
-        where = submit_job(client, f"cd {here} && {python} -c \"{probe}\"", runtime_env=runtime)
-        job = submit_job(client, f"cd {here} && {python} -m workflows.cli build {cfg} --out {out} --ray auto --train-workers 2 --quiet",
-                         runtime_env=runtime)
+        probe = "import json, ray, proctex; ray.init(); print('where', json.dumps([proctex.__file__, proctex.__version__, ray.get(ray.remote(lambda: __import__('proctex').__file__).remote())]))"
+        where = submit_job(client, f'cd {here} && {python} -c "{probe}"', runtime_env=runtime)
+        job = submit_job(client, f"cd {here} && {python} -m workflows.cli build {cfg} --out {out} --ray auto --train-workers 2 --quiet", runtime_env=runtime)
         deadline = time.time() + 420
         while time.time() < deadline and not all(client.get_job_status(j).is_terminal() for j in (where, job)):
             time.sleep(2)

@@ -58,8 +58,7 @@ def test_weighted_training_learns_the_consistent_teacher():
     held_out = [_box_pair(np.array([1.0, 0.45, 0.28]), rng), _box_pair(np.array([1.0, 0.52, 0.3]), rng)]
     errors = {}
     for conf in ("none", "neighbours"):
-        cfg = CorrNetConfig(iterations=250, local_hidden=32, feature_dim=64, decoder_hidden=64, context_points=128, query_points=64,
-                            eval_every=50, patience=0, confidence=conf)
+        cfg = CorrNetConfig(iterations=250, local_hidden=32, feature_dim=64, decoder_hidden=64, context_points=128, query_points=64, eval_every=50, patience=0, confidence=conf)
         errors[conf] = eval_step(train(pairs, [], cfg).model, held_out)["mean"]
     assert errors["none"] > 0.1
     assert errors["neighbours"] < 0.1 * errors["none"]
@@ -138,8 +137,7 @@ def test_parameter_features_and_neighbours_by_them():
     shape). Given features, the neighbours are the nearest in them, not in shape."""
     from proctex.correspond.confidence import param_features
 
-    f = param_features([{"w": 1.0, "legs": 3, "apron": True, "top": "round"}, {"w": 3.0, "legs": 3, "apron": False, "top": "square"},
-                        {"w": 2.0, "legs": 3, "apron": True, "top": "round"}])
+    f = param_features([{"w": 1.0, "legs": 3, "apron": True, "top": "round"}, {"w": 3.0, "legs": 3, "apron": False, "top": "square"}, {"w": 2.0, "legs": 3, "apron": True, "top": "round"}])
     assert f.shape == (3, 4)  # w, apron, top one-hot (2); legs is constant: dropped
     assert np.allclose(f.std(axis=0), 1.0) and np.allclose(f.mean(axis=0), 0.0)
     assert param_features([{"w": 1.0}, {"h": 1.0}]) is None

@@ -288,8 +288,7 @@ def test_symmetry_option_keeps_the_cage_mirror_symmetric():
 def test_cage_correspondence_of_a_sofa_sample_is_scored_against_the_truth(capsys):
     """What the first demo printed, now through ``correspond``: every matched group of a sofa
     sample solved by the cage onto the template, each with a ground-truth error."""
-    assert main(["correspond", 'sofa:{"seats": 2, "seat_width": 0.55}', "sofa", "--method", "cage", "--points", "200",
-                 "--iterations", "60", "--json"]) == 0
+    assert main(["correspond", 'sofa:{"seats": 2, "seat_width": 0.55}', "sofa", "--method", "cage", "--points", "200", "--iterations", "60", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["groups"] and all(g["gt_error"] is not None and g["gt_error"]["mean"] < 0.2 for g in data["groups"])
 
@@ -399,9 +398,21 @@ def test_box_scale_keeps_flat_axes():
     np.testing.assert_allclose(box_scale(src, tpl), [0.5, 2.0, 1.0])  # z: the source is flat
 
 
-@pytest.mark.parametrize("bad", [{"normal_target": "edge"}, {"prealign": "rigid"}, {"w_rest": -1.0}, {"w_rest": float("nan")},
-                                 {"keep_best": "yes"}, {"elongation": 0}, {"elongation": 2.5}, {"sweep": "yes"},
-                                 {"sweep_turns": float("inf")}, {"sweep_aspect": 0.0}])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"normal_target": "edge"},
+        {"prealign": "rigid"},
+        {"w_rest": -1.0},
+        {"w_rest": float("nan")},
+        {"keep_best": "yes"},
+        {"elongation": 0},
+        {"elongation": 2.5},
+        {"sweep": "yes"},
+        {"sweep_turns": float("inf")},
+        {"sweep_aspect": 0.0},
+    ],
+)
 def test_cage_config_rejects_bad_settings(bad):
     with pytest.raises(ValueError):
         CageConfig(**bad).validate()
@@ -425,8 +436,7 @@ def test_an_elongated_cage_has_cells_along_the_long_axis_and_keeps_an_exact_star
     D = v @ A.T - v
     assert len(tri) and np.abs(D[tri[:, 0]] - 2 * D[tri[:, 1]] + D[tri[:, 2]]).max() < 1e-12
     part = box((4.0, 1.0, 0.5), divisions=(8, 2, 2))
-    res = correspond_parts(part.vertices, part.faces, part.vertices, part.faces, method="cage", n_points=500, seed=0,
-                           cage=CageConfig(elongation=4))
+    res = correspond_parts(part.vertices, part.faces, part.vertices, part.faces, method="cage", n_points=500, seed=0, cage=CageConfig(elongation=4))
     assert len(res.details["cage0"]) > 26 and float(np.linalg.norm(res.points - res.source_points, axis=1).max()) < 1e-6
 
 

@@ -148,7 +148,7 @@ def test_bfloat16_autocast_predict_and_train():
 
 @pytest.mark.parametrize("native", [True, False])
 def test_auto_autocast_on_either_cpu_agrees_with_float32(native, monkeypatch):
-    """"auto" resolves by the CPU (native bfloat16 or not), so a user's machine may take either path:
+    """ "auto" resolves by the CPU (native bfloat16 or not), so a user's machine may take either path:
     both are forced here, whatever this CPU is, and both agree with float32. bfloat16 runs (emulated)
     on every CPU, so both paths run everywhere."""
     from proctex.transfer.mappers import NetworkMapper
@@ -528,8 +528,7 @@ def test_box_frame_learns_stretches_better_than_the_uniform_frame():
     for frame in ("uniform", "box"):
         res = tr.train(train_pairs, val_pairs, small_config(frame=frame, iterations=150, patience=0))
         errors[frame] = res.best_val["mean"]
-        np.testing.assert_allclose(res.model.template_extent.numpy() if frame == "box" else [1.0, 1.0, 1.0],
-                                   [1.0, 0.6, 0.4] if frame == "box" else [1.0, 1.0, 1.0], atol=1e-6)
+        np.testing.assert_allclose(res.model.template_extent.numpy() if frame == "box" else [1.0, 1.0, 1.0], [1.0, 0.6, 0.4] if frame == "box" else [1.0, 1.0, 1.0], atol=1e-6)
     assert errors["box"] < 0.5 * errors["uniform"], errors
 
 

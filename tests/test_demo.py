@@ -26,8 +26,7 @@ from proctex.texture.gltf_read import read_textured_glb
 
 SPACE = ParamSpace((continuous("width", 1.0, 2.0, 1.5), integer("legs", 3, 6, 4), choice("arms", [True, False], True)))
 # A tiny build: every stage runs, in seconds.
-TINY = {"corr_points": 200, "cage_iterations": 30, "texture_size": 64,
-        "train": {"iterations": 30, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2}}
+TINY = {"corr_points": 200, "cage_iterations": 30, "texture_size": 64, "train": {"iterations": 30, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2}}
 
 
 def test_row_values_span_each_kind_of_parameter():
@@ -88,11 +87,25 @@ def test_crop_keeps_one_box_for_every_image_and_the_sheet_has_every_cell():
 
 
 def test_report_escapes_user_text():
-    summary = {"model": "mug", "prompt": "<script>alert(1)</script>", "family": "families/mug", "serve_root": "families",
-               "seed": 0, "n_train": 2, "n_test": 0, "ray": False,
-               "groups": [{"group": 0, "label": "<b>", "prompt": "a & b", "texture": "t.png", "network": "none"}],
-               "metrics": None, "stage_seconds": {"sample": 1.0}, "total_seconds": 1.0, "variants": [],
-               "transfer_median_seconds": 0.01, "contact_sheet": "c.png", "turntable": "t.gif", "notes": []}
+    summary = {
+        "model": "mug",
+        "prompt": "<script>alert(1)</script>",
+        "family": "families/mug",
+        "serve_root": "families",
+        "seed": 0,
+        "n_train": 2,
+        "n_test": 0,
+        "ray": False,
+        "groups": [{"group": 0, "label": "<b>", "prompt": "a & b", "texture": "t.png", "network": "none"}],
+        "metrics": None,
+        "stage_seconds": {"sample": 1.0},
+        "total_seconds": 1.0,
+        "variants": [],
+        "transfer_median_seconds": 0.01,
+        "contact_sheet": "c.png",
+        "turntable": "t.gif",
+        "notes": [],
+    }
     page = report_html(summary)
     assert "<script>" not in page and "&lt;script&gt;" in page and "a &amp; b" in page and "&lt;b&gt;" in page
 
@@ -100,8 +113,7 @@ def test_report_escapes_user_text():
 @pytest.fixture(scope="module")
 def demo_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo")
-    result = run_demo(out, model="mug", prompt="blue and white striped ceramic", n_train=3, n_test=2, rows=2, per_row=3,
-                      frames=6, log=lambda *_: None, quiet=True, overrides=TINY)
+    result = run_demo(out, model="mug", prompt="blue and white striped ceramic", n_train=3, n_test=2, rows=2, per_row=3, frames=6, log=lambda *_: None, quiet=True, overrides=TINY)
     return out, result
 
 
@@ -134,8 +146,7 @@ def test_demo_writes_every_output(demo_run):
 def test_a_second_run_reuses_the_family_and_other_settings_need_fresh(demo_run):
     out, first = demo_run
     logs: list[str] = []
-    again = run_demo(out, model="mug", prompt="blue and white striped ceramic", n_train=3, n_test=2, rows=1, per_row=2,
-                     frames=2, log=logs.append, quiet=True, overrides=TINY)
+    again = run_demo(out, model="mug", prompt="blue and white striped ceramic", n_train=3, n_test=2, rows=1, per_row=2, frames=2, log=logs.append, quiet=True, overrides=TINY)
     for stage in ("sample", "template", "paint", "pairs", "evaluate"):  # every stage skipped, nothing redone
         assert f"{stage}: done already" in logs, (stage, logs)
     assert len(again.variants) == 2 + 2
@@ -177,8 +188,12 @@ def test_sheet_renders_a_built_family_and_refuses_what_it_cannot_sweep(demo_run,
     assert "contact sheet" in capsys.readouterr().out
     # Bad input: an error line and exit 2, nothing written.
     (tmp_path / "empty").mkdir()
-    for argv, needle in ((["sheet", str(tmp_path / "nothing")], "no such folder"), (["sheet", str(tmp_path / "empty")], "family"),
-                         (["sheet", str(family), "--per-row", "0"], "--per-row"), (["sheet", str(family), "--size", "9999"], "--size")):
+    for argv, needle in (
+        (["sheet", str(tmp_path / "nothing")], "no such folder"),
+        (["sheet", str(tmp_path / "empty")], "family"),
+        (["sheet", str(family), "--per-row", "0"], "--per-row"),
+        (["sheet", str(family), "--size", "9999"], "--size"),
+    ):
         assert main(argv + ["--out", str(tmp_path / "bad"), "--quiet"]) == 2, argv
         assert needle in capsys.readouterr().err, argv
     assert not (tmp_path / "bad").exists()
@@ -187,8 +202,7 @@ def test_sheet_renders_a_built_family_and_refuses_what_it_cannot_sweep(demo_run,
     import sys
 
     bench = Path(__file__).parent / "bench" / "bench_family_transfer.py"
-    done = subprocess.run([sys.executable, str(bench), str(family), "--settings", "2", "--repeats", "1", "--out", str(tmp_path / "t.json")],
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, str(bench), str(family), "--settings", "2", "--repeats", "1", "--out", str(tmp_path / "t.json")], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     figures = json.loads((tmp_path / "t.json").read_text())
     assert figures["max_ms"] >= figures["median_ms"] >= figures["min_ms"] > 0 and sum(figures["parts"].values()) > 0

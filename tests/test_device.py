@@ -74,8 +74,35 @@ def test_cage_training_and_transfer_on_cuda_agree_with_the_cpu(tmp_path):
     from proctex.serve.service import FamilyService
 
     out = tmp_path / "mug"
-    assert main(["build", "--model", "mug", "--prompt", "blue ceramic", "--n-train", "3", "--n-test", "0", "--texture-size", "64",
-                 "--points", "300", "--iterations", "30", "--train-iterations", "60", "--device", "cuda", "--out", str(out), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "build",
+                "--model",
+                "mug",
+                "--prompt",
+                "blue ceramic",
+                "--n-train",
+                "3",
+                "--n-test",
+                "0",
+                "--texture-size",
+                "64",
+                "--points",
+                "300",
+                "--iterations",
+                "30",
+                "--train-iterations",
+                "60",
+                "--device",
+                "cuda",
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     store = FamilyStore(out)
     gpu, cpu = FamilyService(store, device="cuda"), FamilyService(store, device="cpu")
     assert next(iter(gpu.models.values())).parameters().__next__().is_cuda

@@ -237,8 +237,7 @@ def quickstart_problems(text: str, max_lines: int = MAX_README_LINES) -> list[st
     quick = quick.split("\n## ", 1)[0]
     if fenced_blocks(head):
         problems.append("a code block comes before the Quickstart's")
-    commands = [" ".join(w) for _, block in [(i, b) for i, _, b in fenced_blocks(quick)]
-                for _, line in command_lines(block) if (w := shell_words(line))]
+    commands = [" ".join(w) for _, block in [(i, b) for i, _, b in fenced_blocks(quick)] for _, line in command_lines(block) if (w := shell_words(line))]
     if commands != ["make demo", "make test"]:
         problems.append(f"the Quickstart's commands are {commands}, not make demo and make test")
     return problems

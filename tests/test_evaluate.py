@@ -118,8 +118,9 @@ def test_a_wrong_correspondence_gives_large_errors():
 def pinned_family(tmp_path_factory):
     """Bounds pinned to the defaults: every sample is the template."""
     pinned = {s.name: [s.default, s.default] for s in get_model("mug").space.specs}
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, params=pinned,
-                      prompt="red and white checkered fabric", train=TINY_TRAIN)).validate()
+    cfg = BuildConfig.from_dict(
+        dict(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, params=pinned, prompt="red and white checkered fabric", train=TINY_TRAIN)
+    ).validate()
     st = FamilyStore(tmp_path_factory.mktemp("pinned") / "mug")
     build(st, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
     return st
@@ -135,8 +136,7 @@ def test_methods_side_by_side_on_identical_shapes(pinned_family, tmp_path):
     _random_lpips_file(tmp_path / "alex.pt")
 
     methods = ("corrnet", "corrnet_all", "cage", "nearest", "cpd", "identity")
-    m = evaluate(pinned_family, methods=methods, lpips=str(tmp_path / "alex.pt"),
-                 view_size=96, tracked=500, bake_size=128, log=lambda *_: None, quiet=True)
+    m = evaluate(pinned_family, methods=methods, lpips=str(tmp_path / "alex.pt"), view_size=96, tracked=500, bake_size=128, log=lambda *_: None, quiet=True)
     json.dumps(m, allow_nan=False)  # finite, valid JSON
     assert list(m["methods"]) == list(methods) and m["tracker"] == "canonical" and m["tracked_points"] == 500
     for name, e in m["methods"].items():
@@ -175,8 +175,12 @@ def test_eval_cli_and_eval_folder(pinned_family, tmp_path, capsys):
     # shapes side by side (the build's evaluate stage does so from 4 shapes on) measure what one after the other does
     assert main(["eval", str(fam), "--methods", "corrnet,nearest", "--workers", "1", "--json", "--limit", "2"]) == 0
     one = json.loads(capsys.readouterr().out)
-    figures = lambda d, p="": {p + k: v for k, v in d.items() if isinstance(v, float)} | {  # noqa: E731
-        x: y for k, v in d.items() if isinstance(v, dict) for x, y in figures(v, p + k + ".").items()}
+    figures = lambda d, p="": (
+        {p + k: v for k, v in d.items() if isinstance(v, float)}
+        | {  # noqa: E731
+            x: y for k, v in d.items() if isinstance(v, dict) for x, y in figures(v, p + k + ".").items()
+        }
+    )
     measured = lambda d: {k: v for k, v in figures(d).items() if "second" not in k}  # noqa: E731  (timings differ)
     assert len(measured(m["methods"])) > 20 and measured(one["methods"]) == pytest.approx(measured(m["methods"]), rel=1e-6)
     assert main(["eval", str(fam), "--methods", "corrnet", "--workers", "1"]) == 0
@@ -205,8 +209,7 @@ def test_eval_folder_builds_then_evaluates(tmp_path, capsys):
             save_params(p, tmp_path / "data" / split / f"{i}.json")
     out = tmp_path / "fam"
     (tmp_path / "tiny.json").write_text(json.dumps({"corr_points": 200, "cage_iterations": 20, "texture_size": 64, "train": TINY_TRAIN}))
-    assert main(["eval-folder", str(tmp_path / "data"), "--prompt", "blue ceramic", "--out", str(out), "--methods", "corrnet,nearest",
-                 "--config", str(tmp_path / "tiny.json"), "--quiet"]) == 0
+    assert main(["eval-folder", str(tmp_path / "data"), "--prompt", "blue ceramic", "--out", str(out), "--methods", "corrnet,nearest", "--config", str(tmp_path / "tiny.json"), "--quiet"]) == 0
     text = capsys.readouterr().out
     assert "| corrnet |" in text and "| nearest |" in text and "2 test shapes" in text
     state = json.loads((out / "family.json").read_text())
@@ -321,8 +324,7 @@ def test_the_cage_tracker_reuses_the_test_pairs_solved_by_the_build(tmp_path, mo
     from proctex.measure.evaluate import evaluate
     from proctex.store.samples import read_pair_vertices
 
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, truth="none",
-                                     prompt="blue ceramic", train=TINY_TRAIN)).validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, truth="none", prompt="blue ceramic", train=TINY_TRAIN)).validate()
     st = FamilyStore(tmp_path / "mug")
     build(st, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
     rows = st.read_table(StoreLayout.PAIRS).to_pylist()

@@ -158,7 +158,7 @@ def _repeat_peak(image: np.ndarray, exclude: int = 24) -> float:
     ac = np.fft.fftshift(ac / ac.flat[0])
     c = np.array(lum.shape) // 2
     yy, xx = np.ogrid[: lum.shape[0], : lum.shape[1]]
-    ac[(yy - c[0]) ** 2 + (xx - c[1]) ** 2 < exclude ** 2] = 0.0
+    ac[(yy - c[0]) ** 2 + (xx - c[1]) ** 2 < exclude**2] = 0.0
     return float(ac.max())
 
 
@@ -237,8 +237,7 @@ def test_each_part_takes_its_own_photo_and_swapping_the_photos_swaps_the_parts(c
     red, blue = E.Photo(blobs(6, (1.0, 0.1, 0.1)), "red"), E.Photo(blobs(7, (0.1, 0.1, 1.0)), "blue")
 
     def look(a, b):
-        return paint_template(shape, grouping, "a chair", size=64, maps=False, photos={"leg": E.PhotoLayer(a), "*": E.PhotoLayer(b)},
-                              under_prompt=False)
+        return paint_template(shape, grouping, "a chair", size=64, maps=False, photos={"leg": E.PhotoLayer(a), "*": E.PhotoLayer(b)}, under_prompt=False)
 
     first, swapped = look(red, blue), look(blue, red)
     means = {"red": red.rgb.reshape(-1, 3).mean(0), "blue": blue.rgb.reshape(-1, 3).mean(0)}
@@ -287,8 +286,7 @@ def test_groups_painted_side_by_side_give_the_same_textures_and_maps_as_one_at_a
     looks = {}
     for threads in (1, 2):
         monkeypatch.setattr(P, "PAINT_THREADS", threads)
-        looks[threads] = [paint_template(shape, grouping, "a chair with black metal legs", size=64, photos=photos),
-                          paint_template(shape, grouping, "a chair with a red velvet seat", size=64)]
+        looks[threads] = [paint_template(shape, grouping, "a chair with black metal legs", size=64, photos=photos), paint_template(shape, grouping, "a chair with a red velvet seat", size=64)]
     for one, two in zip(looks[1], looks[2]):
         for a, b in zip(one.groups, two.groups):
             assert np.array_equal(a.image, b.image) and np.array_equal(a.painted, b.painted), a.group
@@ -419,8 +417,26 @@ def test_look_add_from_photos_stores_them_and_paints_each_part_from_its_own(mug,
     base = Path(mug.base)
     (tmp_path / "red.png").write_bytes(png(blobs(10, (1.0, 0.1, 0.1))))
     (tmp_path / "green.png").write_bytes(png(blobs(11, (0.1, 1.0, 0.1))))
-    assert main(["look", "add", str(base), "photos", "--image", f"handle={tmp_path / 'red.png'}", "--image", str(tmp_path / "green.png"),
-                 "--image-scale", "handle=5cm", "--image-rotate", "handle=90", "--json"]) == 0
+    assert (
+        main(
+            [
+                "look",
+                "add",
+                str(base),
+                "photos",
+                "--image",
+                f"handle={tmp_path / 'red.png'}",
+                "--image",
+                str(tmp_path / "green.png"),
+                "--image-scale",
+                "handle=5cm",
+                "--image-rotate",
+                "handle=90",
+                "--json",
+            ]
+        )
+        == 0
+    )
     record = json.loads(capsys.readouterr().out)["look"]
     images = record["paint"]["images"]
     assert record["paint"]["prompt"] == "blue ceramic"  # no --prompt: the build's, for what no photo covers
@@ -488,27 +504,30 @@ def test_a_look_from_photos_over_http_multipart_with_bounds(mug, tmp_path):
     async def run():
         async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t", timeout=60) as c:
             before = _files(Path(mug.base))
-            bad = [await c.post("/v1/families/mug/looks", data=d, files=f, headers=token) for d, f in (
-                ({"look": look}, {"image.handle": ("x.png", red[:200], "image/png")}),  # truncated
-                ({"look": look}, {"image.handle": ("bomb.png", _png_header_only(100_000, 100_000), "image/png")}),
-                ({"look": look}, {"image.body": ("g.png", green, "image/png")}),  # settings for a part sent no photo
-                ({"look": "{nope"}, {"image.handle": ("r.png", red, "image/png")}),
-                ({}, {"image.handle": ("r.png", red, "image/png")}),
-                ({"look": look, "other": "1"}, {"image.handle": ("r.png", red, "image/png")}),
-                ({"look": json.dumps({"name": "photos"})}, {"image.cushion": ("r.png", red, "image/png")}),
-                ({"look": look}, {f"image.{k}": ("r.png", red, "image/png") for k in range(MAX_LOOK_PHOTOS + 1)}),
-            )]
+            bad = [
+                await c.post("/v1/families/mug/looks", data=d, files=f, headers=token)
+                for d, f in (
+                    ({"look": look}, {"image.handle": ("x.png", red[:200], "image/png")}),  # truncated
+                    ({"look": look}, {"image.handle": ("bomb.png", _png_header_only(100_000, 100_000), "image/png")}),
+                    ({"look": look}, {"image.body": ("g.png", green, "image/png")}),  # settings for a part sent no photo
+                    ({"look": "{nope"}, {"image.handle": ("r.png", red, "image/png")}),
+                    ({}, {"image.handle": ("r.png", red, "image/png")}),
+                    ({"look": look, "other": "1"}, {"image.handle": ("r.png", red, "image/png")}),
+                    ({"look": json.dumps({"name": "photos"})}, {"image.cushion": ("r.png", red, "image/png")}),
+                    ({"look": look}, {f"image.{k}": ("r.png", red, "image/png") for k in range(MAX_LOOK_PHOTOS + 1)}),
+                )
+            ]
             nothing = _files(Path(mug.base)) == before
             denied = await c.post("/v1/families/mug/looks", data={"look": look}, files={"image.handle": ("r.png", red, "image/png")})
-            added = await c.post("/v1/families/mug/looks", data={"look": look},
-                                 files={"image.handle": ("red.png", red, "image/png"), "image.*": ("green.png", green, "image/png")}, headers=token)
+            added = await c.post("/v1/families/mug/looks", data={"look": look}, files={"image.handle": ("red.png", red, "image/png"), "image.*": ("green.png", green, "image/png")}, headers=token)
             served = await c.post("/v1/families/mug/transfer?look=photos", json={"params": {}})
             return bad, nothing, denied, added, served
 
     bad, nothing, denied, added, served = asyncio.run(run())
     assert [r.status_code for r in bad] == [422] * len(bad), [(r.status_code, r.text[:200]) for r in bad]
-    for r, message in zip(bad, ("corrupt or truncated", "over the limit", "sent no photo", "must be JSON", "needs a 'look' field",
-                                "unknown multipart field", "unknown group 'cushion'", "at most 8 photos")):
+    for r, message in zip(
+        bad, ("corrupt or truncated", "over the limit", "sent no photo", "must be JSON", "needs a 'look' field", "unknown multipart field", "unknown group 'cushion'", "at most 8 photos")
+    ):
         assert message in r.json()["error"], (message, r.json())
     assert nothing
     assert denied.status_code == 401
@@ -607,8 +626,7 @@ def test_the_seam_measure_matches_distances_on_the_surface_and_still_sees_a_colo
     view = SimpleNamespace(face=face, points=pts, normal=np.broadcast_to([0.0, 0.0, 1.0], pts.shape))
     charts, groups = (np.arange(W // 2) * 2 // 20).astype(np.int64), np.zeros(W // 2, np.int64)
     rng = np.random.default_rng(0)
-    field = 0.5 + sum(0.08 * np.sin(f * x + g * y + p)[..., None] * rng.random(3)
-                      for f, g, p in zip(rng.uniform(0.5, 1.2, 6), rng.uniform(-0.4, 0.4, 6), rng.uniform(0, 6.3, 6)))
+    field = 0.5 + sum(0.08 * np.sin(f * x + g * y + p)[..., None] * rng.random(3) for f, g, p in zip(rng.uniform(0.5, 1.2, 6), rng.uniform(-0.4, 0.4, 6), rng.uniform(0, 6.3, 6)))
     smooth = B.seam_ratio([view], [field], charts, groups)
     seam = B.seam_ratio([view], [field + 0.1 * (charts[face] % 2)[..., None]], charts, groups)
     assert smooth["ratio"] > 1.8 and abs(smooth["ratio_matched"] - 1.0) < 0.05, smooth  # measured 2.20, 0.998

@@ -14,11 +14,14 @@ from PIL import Image
 from proctex.texture import export as ex
 
 # Quadrant colours per group: PALETTE[g][top/bottom][left/right]; texture row 0 is the top.
-PALETTE = np.array([
-    [[(255, 0, 0), (0, 255, 0)], [(0, 0, 255), (255, 255, 0)]],
-    [[(0, 255, 255), (255, 0, 255)], [(40, 80, 120), (200, 150, 100)]],
-    [[(10, 20, 30), (60, 70, 80)], [(110, 120, 130), (160, 170, 180)]],
-], dtype=np.uint8)
+PALETTE = np.array(
+    [
+        [[(255, 0, 0), (0, 255, 0)], [(0, 0, 255), (255, 255, 0)]],
+        [[(0, 255, 255), (255, 0, 255)], [(40, 80, 120), (200, 150, 100)]],
+        [[(10, 20, 30), (60, 70, 80)], [(110, 120, 130), (160, 170, 180)]],
+    ],
+    dtype=np.uint8,
+)
 CENTRES = np.array([[0.25, 0.25], [0.75, 0.25], [0.75, 0.75], [0.25, 0.75]])
 
 
@@ -27,7 +30,7 @@ def quadrant_texture(g: int, channels: int = 3, size: int = 64) -> np.ndarray:
     h = size // 2
     for r in range(2):
         for c in range(2):
-            img[r * h:(r + 1) * h, c * h:(c + 1) * h, :3] = PALETTE[g, r, c]
+            img[r * h : (r + 1) * h, c * h : (c + 1) * h, :3] = PALETTE[g, r, c]
     return img
 
 
@@ -93,6 +96,7 @@ def grey_only_shape():
 
 # --------------------------------------------------------------------------- pygltflib reading
 
+
 def parse(data: bytes):
     gltf = gl.GLTF2.load_from_bytes(data)
     return gltf, gltf.binary_blob()
@@ -110,7 +114,7 @@ def accessor(gltf, blob, i) -> np.ndarray:
 def image_of(gltf, blob, material) -> np.ndarray:
     tex = gltf.textures[material.pbrMetallicRoughness.baseColorTexture.index]
     bv = gltf.bufferViews[gltf.images[tex.source].bufferView]
-    return np.asarray(Image.open(io.BytesIO(blob[bv.byteOffset:bv.byteOffset + bv.byteLength])))
+    return np.asarray(Image.open(io.BytesIO(blob[bv.byteOffset : bv.byteOffset + bv.byteLength])))
 
 
 def primitives_by_group(gltf, names):
@@ -122,6 +126,7 @@ def primitives_by_group(gltf, names):
 
 
 # --------------------------------------------------------------------------- GLB
+
 
 def test_sampler_helpers_agree_with_convention():
     img = quadrant_texture(0)
@@ -250,6 +255,7 @@ def test_trimesh_glb_round_trip(tmp_path):
 
 # --------------------------------------------------------------------------- OBJ
 
+
 def test_obj_round_trip(tmp_path):
     V, F, UV, G, tex, names = tricky_shape()
     names = ["a x", "unused", "c"]
@@ -289,6 +295,7 @@ def test_writes_are_atomic_and_overwrite(tmp_path):
 
 # --------------------------------------------------------------------------- validator
 
+
 @pytest.fixture()
 def validator():
     """The Khronos validator: required where npm exists (``conftest.require_validator``), skipped elsewhere."""
@@ -321,6 +328,7 @@ def test_validator_detects_errors():
 
 # --------------------------------------------------------------------------- bad input and scale
 
+
 def _bad(**kw):
     V, F, UV, G, tex, names = make_shape()
     args = dict(vertices=V, faces=F, corner_uv=UV, face_group=G, textures=tex, names=names)
@@ -328,25 +336,28 @@ def _bad(**kw):
     return args
 
 
-@pytest.mark.parametrize("kw, match", [
-    (dict(vertices=np.zeros((12, 2))), "vertices"),
-    (dict(vertices=np.full((12, 3), np.nan)), "vertices"),
-    (dict(faces=np.zeros((14, 4), np.int64)), "faces"),
-    (dict(faces=np.zeros((14, 3))), "faces"),
-    (dict(faces=np.full((14, 3), 12)), "faces"),
-    (dict(faces=np.zeros((0, 3), np.int64)), "faces"),
-    (dict(corner_uv=np.zeros((14, 3))), "corner_uv"),
-    (dict(corner_uv=np.full((14, 3, 2), np.nan)), "corner_uv"),
-    (dict(face_group=np.full(14, 2)), "face_group"),
-    (dict(face_group=np.full(14, -2)), "face_group"),
-    (dict(face_group=np.zeros(13, np.int64)), "face_group"),
-    (dict(textures=[np.zeros((4, 4, 3), np.float32)] * 2), "textures"),
-    (dict(textures=[np.zeros((4, 4), np.uint8)] * 2), "textures"),
-    (dict(textures=[np.zeros((4, 4, 2), np.uint8)] * 2), "textures"),
-    (dict(textures=np.zeros((2, 4, 4, 3), np.uint8)), "textures"),
-    (dict(names=["only one"]), "names"),
-    (dict(names="ab"), "names"),
-])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(vertices=np.zeros((12, 2))), "vertices"),
+        (dict(vertices=np.full((12, 3), np.nan)), "vertices"),
+        (dict(faces=np.zeros((14, 4), np.int64)), "faces"),
+        (dict(faces=np.zeros((14, 3))), "faces"),
+        (dict(faces=np.full((14, 3), 12)), "faces"),
+        (dict(faces=np.zeros((0, 3), np.int64)), "faces"),
+        (dict(corner_uv=np.zeros((14, 3))), "corner_uv"),
+        (dict(corner_uv=np.full((14, 3, 2), np.nan)), "corner_uv"),
+        (dict(face_group=np.full(14, 2)), "face_group"),
+        (dict(face_group=np.full(14, -2)), "face_group"),
+        (dict(face_group=np.zeros(13, np.int64)), "face_group"),
+        (dict(textures=[np.zeros((4, 4, 3), np.float32)] * 2), "textures"),
+        (dict(textures=[np.zeros((4, 4), np.uint8)] * 2), "textures"),
+        (dict(textures=[np.zeros((4, 4, 2), np.uint8)] * 2), "textures"),
+        (dict(textures=np.zeros((2, 4, 4, 3), np.uint8)), "textures"),
+        (dict(names=["only one"]), "names"),
+        (dict(names="ab"), "names"),
+    ],
+)
 def test_bad_input_raises(kw, match, tmp_path):
     args = _bad(**kw)
     with pytest.raises(ValueError, match=match):

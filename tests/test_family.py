@@ -20,8 +20,7 @@ from proctex.transfer.assets import load_assets
 @pytest.fixture(scope="module")
 def mug_family(tmp_path_factory):
     root = tmp_path_factory.mktemp("fam") / "mug"
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=1, corr_points=200, cage_iterations=20, texture_size=64,
-                      prompt="glazed blue ceramic", group_prompts={"handle": "gold"})).validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=1, corr_points=200, cage_iterations=20, texture_size=64, prompt="glazed blue ceramic", group_prompts={"handle": "gold"})).validate()
     st = FamilyStore(root)
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint, stage_pairs):
@@ -109,8 +108,7 @@ def test_config_files_and_validation(tmp_path):
     (tmp_path / "data").mkdir()
     (tmp_path / "f.json").write_text(json.dumps({"folder": "data", "prompt": "x"}))
     assert BuildConfig.from_file(tmp_path / "f.json").source.folder == str((tmp_path / "data").resolve())
-    for bad in [{"prompt": "x"}, {"model": "mug", "folder": "x"}, {"model": "mug", "n_train": 1}, {"model": "mug", "nonsense": 1},
-                {"model": "nosuch"}, {"folder": str(tmp_path / "missing")}]:
+    for bad in [{"prompt": "x"}, {"model": "mug", "folder": "x"}, {"model": "mug", "n_train": 1}, {"model": "mug", "nonsense": 1}, {"model": "nosuch"}, {"folder": str(tmp_path / "missing")}]:
         with pytest.raises(ValueError):
             BuildConfig.from_dict(bad)
     st = FamilyStore(tmp_path / "x")
@@ -289,8 +287,18 @@ def test_evaluate_stage_on_identical_shapes(tmp_path):
     from proctex.models import get_model
 
     pinned = {s.name: [s.default, s.default] for s in get_model("mug").space.specs}
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=2, corr_points=200, cage_iterations=20, texture_size=64, params=pinned,
-                      train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2})).validate()
+    cfg = BuildConfig.from_dict(
+        dict(
+            model="mug",
+            n_train=2,
+            n_test=2,
+            corr_points=200,
+            cage_iterations=20,
+            texture_size=64,
+            params=pinned,
+            train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2},
+        )
+    ).validate()
     st = FamilyStore(tmp_path / "fam")
     logs = []
     state = build(st, cfg, log=logs.append)
@@ -358,8 +366,20 @@ def test_view_painted_family_keeps_its_already_painted_mask(tmp_path):
     from proctex.transfer.apply import bake, transfer
     from proctex.transfer.mappers import IdentityMapper
 
-    cfg = BuildConfig.from_dict(dict(model="cake", n_train=2, n_test=0, texture_size=64, painter="views", views=6, view_size=96,
-                      paint_hidden=False, params={"candles": [0, 0], "tiers": [2, 2], "shrink": [0.7, 0.72]}, prompt="red velvet cake")).validate()
+    cfg = BuildConfig.from_dict(
+        dict(
+            model="cake",
+            n_train=2,
+            n_test=0,
+            texture_size=64,
+            painter="views",
+            views=6,
+            view_size=96,
+            paint_hidden=False,
+            params={"candles": [0, 0], "tiers": [2, 2], "shrink": [0.7, 0.72]},
+            prompt="red velvet cake",
+        )
+    ).validate()
     st = FamilyStore(tmp_path / "cake")
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint):
@@ -399,8 +419,7 @@ def test_cage_settings_reach_the_solver_and_bad_ones_are_refused():
     assert BuildConfig.from_dict({"model": "mug"}).cage.prealign == "auto"
     with pytest.raises(ValueError, match="once"):
         BuildConfig.from_dict({"model": "mug", "cage_level": 2, "cage": {"level": 3}})
-    for bad, msg in (({"level": 9}, "level"), ({"nope": 1}, "bad cage"), ({"w_rest": -1.0}, "weights"),
-                     ({"normal_target": "edge"}, "normal_target"), ("w_rest=1", "object")):
+    for bad, msg in (({"level": 9}, "level"), ({"nope": 1}, "bad cage"), ({"w_rest": -1.0}, "weights"), ({"normal_target": "edge"}, "normal_target"), ("w_rest=1", "object")):
         with pytest.raises(ValueError, match=msg):
             BuildConfig.from_dict({"model": "mug", "cage": bad})
 
@@ -424,10 +443,8 @@ def test_a_store_built_before_the_cage_settings_keeps_its_old_solver(tmp_path):
 def test_configs_in_sections_and_flat_keys_are_the_same_config_and_round_trip():
     from proctex.store.config import PRESETS, BuildConfig, resolved_settings
 
-    flat = {"model": "chair", "prompt": "oak", "seed": 3, "n_train": 5, "cage_iterations": 40, "cage": {"w_rest": 0.3},
-            "train": {"iterations": 50}, "texture_size": 64}
-    nested = {"seed": 3, "source": {"model": "chair", "n_train": 5}, "paint": {"prompt": "oak", "texture_size": 64},
-              "cage": {"iterations": 40, "w_rest": 0.3}, "train": {"iterations": 50}}
+    flat = {"model": "chair", "prompt": "oak", "seed": 3, "n_train": 5, "cage_iterations": 40, "cage": {"w_rest": 0.3}, "train": {"iterations": 50}, "texture_size": 64}
+    nested = {"seed": 3, "source": {"model": "chair", "n_train": 5}, "paint": {"prompt": "oak", "texture_size": 64}, "cage": {"iterations": 40, "w_rest": 0.3}, "train": {"iterations": 50}}
     a, b = BuildConfig.from_dict(flat), BuildConfig.from_dict(nested)
     assert a == b and a.cage.iterations == 40 and a.train.iterations == 50 and a.source.n_train == 5
     assert a.train.seed == 3  # the network's seed follows the family seed unless set
@@ -448,11 +465,17 @@ def test_bad_configs_are_clear_errors():
     deep: dict = {}
     for _ in range(3000):
         deep = {"x": deep}
-    for bad, msg in (({"source": "mug"}, "source must be an object"), ({"source": {"model": "mug", "colour": 1}}, "bad config"),
-                     ({"model": "mug", "extra": 1}, "unknown config keys"), ({"model": "mug", "paint": {"texture_size": 8}}, "texture_size"),
-                     ({"model": "mug", "train": {"nope": 1}}, "unknown CorrNetConfig"), ([1, 2], "object of settings"),
-                     ({"model": "mug", "source": {"n_train": 1}}, "n_train"), ({"model": "mug", "deep": deep}, "unknown config keys"),
-                     ({"source": {"model": "mug", **{f"k{i}": i for i in range(300)}}}, "at most")):
+    for bad, msg in (
+        ({"source": "mug"}, "source must be an object"),
+        ({"source": {"model": "mug", "colour": 1}}, "bad config"),
+        ({"model": "mug", "extra": 1}, "unknown config keys"),
+        ({"model": "mug", "paint": {"texture_size": 8}}, "texture_size"),
+        ({"model": "mug", "train": {"nope": 1}}, "unknown CorrNetConfig"),
+        ([1, 2], "object of settings"),
+        ({"model": "mug", "source": {"n_train": 1}}, "n_train"),
+        ({"model": "mug", "deep": deep}, "unknown config keys"),
+        ({"source": {"model": "mug", **{f"k{i}": i for i in range(300)}}}, "at most"),
+    ):
         with pytest.raises(ValueError, match=msg):
             BuildConfig.from_dict(bad)
     with pytest.raises(ValueError, match="unknown preset"):
@@ -468,9 +491,17 @@ def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
     from proctex.store.networks import load_models
     from proctex.store.samples import samples
 
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=1, corr_points=200, cage_iterations=10, texture_size=64,
-                                     train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64,
-                                            "plain_below": 0.0}))  # both groups trained, whatever their plain maps
+    cfg = BuildConfig.from_dict(
+        dict(
+            model="mug",
+            n_train=3,
+            n_test=1,
+            corr_points=200,
+            cage_iterations=10,
+            texture_size=64,
+            train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "plain_below": 0.0},
+        )
+    )  # both groups trained, whatever their plain maps
     ran = []
 
     def backwards(plan, store, config, log):
@@ -512,8 +543,14 @@ def test_a_damaged_serving_choice_is_a_clear_error_and_none_means_the_network():
 
     good = {"serve": "box", "template_extent": [1.0, 0.5, 0.25], "errors": {}}
     assert check_serving(good, "m.pt") is good and check_serving(None, "m.pt") is None
-    for bad in ({"serve": "magic", "template_extent": [1, 1, 1]}, {"serve": "box", "template_extent": [1, 0, 1]},
-                {"serve": "box", "template_extent": [1, float("nan"), 1]}, {"serve": "box"}, ["box"], "box"):
+    for bad in (
+        {"serve": "magic", "template_extent": [1, 1, 1]},
+        {"serve": "box", "template_extent": [1, 0, 1]},
+        {"serve": "box", "template_extent": [1, float("nan"), 1]},
+        {"serve": "box"},
+        ["box"],
+        "box",
+    ):
         with pytest.raises(ValueError, match="m.pt: damaged serving choice"):
             check_serving(bad, "m.pt")
 
@@ -529,15 +566,37 @@ def test_a_pooled_in_process_build_solves_pairs_side_by_side_and_stores_the_same
     from proctex.store.samples import samples
 
     # both groups trained, whatever their plain maps (the networks' part of this test is how they are run)
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=1, corr_points=200, cage_iterations=10, texture_size=64,
-                                     train={"iterations": 20, "plain_below": 0.0}))
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=1, corr_points=200, cage_iterations=10, texture_size=64, train={"iterations": 20, "plain_below": 0.0}))
     (tmp_path / "train.json").write_text(json.dumps({"train": {"plain_below": 0.0}}))
     stages = ("sample", "template", "paint", "pairs")
     a = FamilyStore(tmp_path / "a")
     build(a, cfg, stages=stages, log=lambda *_: None)
-    argv = ["build", "--model", "mug", "--n-train", "3", "--n-test", "1", "--points", "200", "--iterations", "10", "--texture-size", "64",
-            "--train-iterations", "20", "--config", str(tmp_path / "train.json"), "--stages", ",".join(stages), "--out", str(tmp_path / "b"),
-            "--workers", "2", "--quiet"]
+    argv = [
+        "build",
+        "--model",
+        "mug",
+        "--n-train",
+        "3",
+        "--n-test",
+        "1",
+        "--points",
+        "200",
+        "--iterations",
+        "10",
+        "--texture-size",
+        "64",
+        "--train-iterations",
+        "20",
+        "--config",
+        str(tmp_path / "train.json"),
+        "--stages",
+        ",".join(stages),
+        "--out",
+        str(tmp_path / "b"),
+        "--workers",
+        "2",
+        "--quiet",
+    ]
     assert main(argv) == 0
     b = FamilyStore(tmp_path / "b")
     assert samples(a) == samples(b) and b.read_json("family.json")["stages"]["pairs"]["pairs"] == 8
@@ -828,12 +887,18 @@ def test_each_stage_writes_only_what_it_declares_and_the_pipeline_alone_records_
 
     assert tuple(STAGES_TABLE) == STAGES
     assert {s.name: s.placement for s in STAGES_TABLE.values()} == {
-        "sample": Placement.TASKS, "template": Placement.HERE, "paint": Placement.HERE, "pairs": Placement.TASKS,
-        "train": Placement.TEAM, "evaluate": Placement.HERE}
+        "sample": Placement.TASKS,
+        "template": Placement.HERE,
+        "paint": Placement.HERE,
+        "pairs": Placement.TASKS,
+        "train": Placement.TEAM,
+        "evaluate": Placement.HERE,
+    }
     assert undeclared_writes({"a"}, {"a", "models/group_0.pt", "notes.txt"}, ("models/*",)) == ["notes.txt"]
 
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=2, corr_points=200, cage_iterations=10, texture_size=64,
-                                     train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64})).validate()
+    cfg = BuildConfig.from_dict(
+        dict(model="mug", n_train=3, n_test=2, corr_points=200, cage_iterations=10, texture_size=64, train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64})
+    ).validate()
     root = tmp_path / "mug"
     st = FamilyStore(root)
     write_config(st, cfg)

@@ -117,7 +117,8 @@ def _smooth_textures(assets, size=128):
         image = np.zeros((size, size, 3))
         p = tm.points
         image[tm.ij[:, 0], tm.ij[:, 1]] = 0.5 + 0.4 * np.stack(
-            [np.sin(1.3 * p[:, 0] + 0.4 * p[:, 1] + 0.3), np.sin(1.1 * p[:, 1] - 0.5 * p[:, 2] + 1.0), np.sin(0.9 * p[:, 2] + 0.7 * p[:, 0] - 0.6)], axis=1)
+            [np.sin(1.3 * p[:, 0] + 0.4 * p[:, 1] + 0.3), np.sin(1.1 * p[:, 1] - 0.5 * p[:, 2] + 1.0), np.sin(0.9 * p[:, 2] + 0.7 * p[:, 0] - 0.6)], axis=1
+        )
         image, _ = pad_seams(image, tm.mask, -1)
         out.append((np.clip(image, 0, 1) * 255).round().astype(np.uint8))
     return out
@@ -233,8 +234,7 @@ def test_the_old_self_tracked_variance_rewarded_a_collapsed_map(chair_family, sc
     tracked by the truth it scores far worse."""
     old_collapse = _self_tracked_variance(chair_family, Collapse())
     old_identity = _self_tracked_variance(chair_family, IdentityMapper())
-    print(f"self-tracked: collapse {old_collapse:.5f}, identity {old_identity:.5f}; truth-tracked: collapse {scores['collapse'][0].value:.5f}, "
-          f"identity {scores['identity'][0].value:.5f}")
+    print(f"self-tracked: collapse {old_collapse:.5f}, identity {old_identity:.5f}; truth-tracked: collapse {scores['collapse'][0].value:.5f}, identity {scores['identity'][0].value:.5f}")
     assert old_collapse < old_identity
     assert scores["collapse"][0].value > 3 * scores["identity"][0].value
 
@@ -500,8 +500,7 @@ def test_the_baseline_check_calls_every_wrong_map_worse_than_the_truth(scores):
     def record(name):
         tv, gt, _ = scores[name]
         figs = B.headline({"corrnet": {"gt_error": gt, "tracked_point_variance": tv.value}})
-        return {"families": {"chair": {"seeds": [0, 1, 2], "per_seed": {str(s): figs for s in range(3)},
-                                       "figures": B.summarise({str(s): figs for s in range(3)})}}}
+        return {"families": {"chair": {"seeds": [0, 1, 2], "per_seed": {str(s): figs for s in range(3)}, "figures": B.summarise({str(s): figs for s in range(3)})}}}
 
     truth = record("truth")
     assert B.worse_families(B.compare(truth, record("truth"))) == []

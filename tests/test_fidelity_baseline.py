@@ -16,9 +16,17 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def methods(gt_mean=0.01, pgt=0.002, var=0.004, var_id=0.01, var_near=0.02, flipped=0.001):
-    return {"corrnet": {"gt_error": {"mean": gt_mean, "p99": 5 * gt_mean, "max": 10 * gt_mean, "flipped": flipped},
-                        "pgt_error": {"mean": pgt, "flipped": 0.0}, "tracked_point_variance": var, "coverage": 0.0, "coverage_baked": 0.0},
-            "identity": {"tracked_point_variance": var_id}, "nearest": {"tracked_point_variance": var_near}}
+    return {
+        "corrnet": {
+            "gt_error": {"mean": gt_mean, "p99": 5 * gt_mean, "max": 10 * gt_mean, "flipped": flipped},
+            "pgt_error": {"mean": pgt, "flipped": 0.0},
+            "tracked_point_variance": var,
+            "coverage": 0.0,
+            "coverage_baked": 0.0,
+        },
+        "identity": {"tracked_point_variance": var_id},
+        "nearest": {"tracked_point_variance": var_near},
+    }
 
 
 def record(runs: dict[str, list[dict]]) -> dict:

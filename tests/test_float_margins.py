@@ -12,7 +12,7 @@ from .floatrecord import parse_explanation
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SAMPLE = '''
+SAMPLE = """
 import numpy as np
 import pytest
 
@@ -27,7 +27,7 @@ def test_sample():
         assert abs(i * 0.1 - i * 0.1) < 1e-9
     np.testing.assert_allclose([1.0, 2.0], [1.0, 2.0 + 1e-8], rtol=1e-7)
     assert np.allclose([1.0], [1.0 + 5e-6], rtol=1e-5, atol=0)
-'''
+"""
 
 
 def test_explanations_give_each_numeric_comparison():
@@ -45,10 +45,28 @@ def test_explanations_give_each_numeric_comparison():
 def test_a_run_records_every_float_check_with_its_value_and_threshold(tmp_path):
     (tmp_path / "test_sample.py").write_text(SAMPLE)
     out = tmp_path / "rec.jsonl"
-    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "tests.floatrecord",
-                          "-o", "enable_assertion_pass_hook=true", "--rootdir", str(tmp_path), str(tmp_path / "test_sample.py")],
-                         env={**__import__("os").environ, "PROCTEX_FLOAT_RECORD": str(out), "PYTHONPATH": str(ROOT)},
-                         cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-p",
+            "tests.floatrecord",
+            "-o",
+            "enable_assertion_pass_hook=true",
+            "--rootdir",
+            str(tmp_path),
+            str(tmp_path / "test_sample.py"),
+        ],
+        env={**__import__("os").environ, "PROCTEX_FLOAT_RECORD": str(out), "PYTHONPATH": str(ROOT)},
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-2000:]
     lines = [json.loads(x) for x in out.read_text().splitlines()]
     checks = [r for r in lines if "value" in r]
@@ -82,8 +100,7 @@ def test_the_report_flags_margins_thinner_than_the_spread_and_nothing_else():
     thin = res["thin"][0]
     assert abs(thin["margin"] - 0.0005 / 0.05) < 1e-12 and abs(thin["spread"] - 0.0172 / 0.05) < 1e-12  # in units of the threshold
     # a tolerance relative to a value that moves (pytest.approx's) moves with it: not thin
-    rel = margins({"a": _rec(t, "tests/test_x.py:5", 1e-18, 0.05 * 0.0074), "b": _rec(t, "tests/test_x.py:5", 7e-18, 0.05 * 0.0032)},
-                  {"a": {t: "passed"}, "b": {t: "passed"}})
+    rel = margins({"a": _rec(t, "tests/test_x.py:5", 1e-18, 0.05 * 0.0074), "b": _rec(t, "tests/test_x.py:5", 7e-18, 0.05 * 0.0032)}, {"a": {t: "passed"}, "b": {t: "passed"}})
     assert rel["thin"] == [] and rel["checks"] == 1
     assert [m["where"] for m in res["missing"]] == ["tests/test_x.py:3"] and res["missing"][0]["missing_in"] == ["other"]
     failed = margins({"native": native, "other": other}, {"native": {t: "passed"}, "other": {t: "failed"}})

@@ -30,8 +30,7 @@ def mug(painted_mug_root, tmp_path) -> FamilyStore:
 
 def _images(folder: Path, kind: str = "") -> dict[str, np.ndarray]:
     suffix = f".{kind}.png" if kind else ".png"
-    return {p.name: np.asarray(Image.open(p).convert("RGB"), dtype=np.int64) for p in sorted(folder.glob(f"group_*{suffix}"))
-            if kind or p.name.count(".") == 1}
+    return {p.name: np.asarray(Image.open(p).convert("RGB"), dtype=np.int64) for p in sorted(folder.glob(f"group_*{suffix}")) if kind or p.name.count(".") == 1}
 
 
 def _files(folder: Path) -> dict[str, bytes]:
@@ -70,7 +69,7 @@ def _rewrite(data: bytes, shuffle: int | None = None, edit=None, jpeg: bool = Fa
         blob = bytearray(g.binary_blob())
         chunks = []
         for view in g.bufferViews:
-            chunks.append(bytes(blob[view.byteOffset or 0:(view.byteOffset or 0) + view.byteLength]))
+            chunks.append(bytes(blob[view.byteOffset or 0 : (view.byteOffset or 0) + view.byteLength]))
         for image in g.images:
             png = chunks[image.bufferView]
             buf = io.BytesIO()
@@ -163,10 +162,8 @@ def test_a_glb_of_other_geometry_or_uvs_is_refused_saying_how_many_and_nothing_i
     moved[m.faces[:5].ravel()] += np.ptp(m.vertices, axis=0).max() * 0.01  # five faces' corners moved 1 %
     cases = {
         "moved": glb_bytes(moved, m.faces, m.corner_uv, m.face_group, m.textures, names=m.names, up="y"),
-        "uvs": glb_bytes(m.vertices, m.faces, np.where(np.arange(len(m.faces))[:, None, None] < 4, m.corner_uv[..., ::-1], m.corner_uv),
-                         m.face_group, m.textures, names=m.names, up="y"),
-        "mirrored": glb_bytes(m.vertices * np.array([-1.0, 1.0, 1.0]), m.faces[:, ::-1], m.corner_uv[:, ::-1], m.face_group, m.textures,
-                              names=m.names, up="y"),
+        "uvs": glb_bytes(m.vertices, m.faces, np.where(np.arange(len(m.faces))[:, None, None] < 4, m.corner_uv[..., ::-1], m.corner_uv), m.face_group, m.textures, names=m.names, up="y"),
+        "mirrored": glb_bytes(m.vertices * np.array([-1.0, 1.0, 1.0]), m.faces[:, ::-1], m.corner_uv[:, ::-1], m.face_group, m.textures, names=m.names, up="y"),
     }
     rc, err = _add(base, "moved", cases["moved"], tmp_path, capsys)
     assert rc != 0 and "have no triangle at their place" in err and "Traceback" not in err, err
@@ -175,8 +172,11 @@ def test_a_glb_of_other_geometry_or_uvs_is_refused_saying_how_many_and_nothing_i
     assert rc != 0 and "have other UVs there" in err, err
     rc, err = _add(base, "mirrored", cases["mirrored"], tmp_path, capsys)
     assert rc != 0 and "have no triangle at their place" in err, err
-    for argv, message in ((["--from", str(tmp_path / "nope.glb")], "cannot read"), (["--from", __file__], "not a GLB"),
-                          (["--from", str(tmp_path / "moved.glb"), "--prompt", "oak"], "takes no --prompt")):
+    for argv, message in (
+        (["--from", str(tmp_path / "nope.glb")], "cannot read"),
+        (["--from", __file__], "not a GLB"),
+        (["--from", str(tmp_path / "moved.glb"), "--prompt", "oak"], "takes no --prompt"),
+    ):
         assert main(["look", "add", str(base), "bad", *argv]) != 0
         err = capsys.readouterr().err
         assert message in err and "Traceback" not in err, (argv, err)
@@ -210,8 +210,7 @@ def test_a_template_glb_through_blender_reads_back_within_a_bound(mug, tmp_path,
         pytest.skip("Blender's Python (bpy) is not installed: make blender")
     base = Path(mug.base)
     out = tmp_path / "through_blender.glb"
-    script = ("import sys, bpy; bpy.ops.wm.read_factory_settings(use_empty=True); "
-              "bpy.ops.import_scene.gltf(filepath=sys.argv[1]); bpy.ops.export_scene.gltf(filepath=sys.argv[2], export_format='GLB')")
+    script = "import sys, bpy; bpy.ops.wm.read_factory_settings(use_empty=True); bpy.ops.import_scene.gltf(filepath=sys.argv[1]); bpy.ops.export_scene.gltf(filepath=sys.argv[2], export_format='GLB')"
     done = subprocess.run([python, "-c", script, str(base / "template" / "textured.glb"), str(out)], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and out.exists(), done.stderr[-2000:]
     assert out.read_bytes() != (base / "template" / "textured.glb").read_bytes()
@@ -242,13 +241,10 @@ def test_a_repainted_template_over_http(mug, tmp_path):
     async def run():
         async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t", timeout=60) as c:
             before = _files(base)
-            bad = await c.post("/v1/families/mug/looks", data={"look": json.dumps({"name": "moved"})},
-                               files={"glb": ("moved.glb", moved, "model/gltf-binary")}, headers=token)
-            mixed = await c.post("/v1/families/mug/looks", data={"look": json.dumps({"name": "x", "prompt": "oak"})},
-                                 files={"glb": ("t.glb", src, "model/gltf-binary")}, headers=token)
+            bad = await c.post("/v1/families/mug/looks", data={"look": json.dumps({"name": "moved"})}, files={"glb": ("moved.glb", moved, "model/gltf-binary")}, headers=token)
+            mixed = await c.post("/v1/families/mug/looks", data={"look": json.dumps({"name": "x", "prompt": "oak"})}, files={"glb": ("t.glb", src, "model/gltf-binary")}, headers=token)
             nothing = _files(base) == before
-            good = await c.post("/v1/families/mug/looks", data={"look": json.dumps({"name": "back"})},
-                                files={"glb": ("t.glb", src, "model/gltf-binary")}, headers=token)
+            good = await c.post("/v1/families/mug/looks", data={"look": json.dumps({"name": "back"})}, files={"glb": ("t.glb", src, "model/gltf-binary")}, headers=token)
             served = await c.post("/v1/families/mug/transfer?look=back", json={"params": {}})
             return bad, mixed, nothing, good, served
 
@@ -296,8 +292,7 @@ def test_a_member_textured_by_the_family_reads_back_as_its_look_and_a_mirrored_o
     assert main(["transfer", str(base), "--params", params, "--look", "zebra", "--out", str(member)]) == 0
     m = read_textured_glb(member.read_bytes())
     mirror = tmp_path / "mirror.glb"
-    mirror.write_bytes(glb_bytes(m.vertices * np.array([-1.0, 1.0, 1.0]), m.faces[:, ::-1], m.corner_uv[:, ::-1], m.face_group, m.textures,
-                                 names=m.names, up="y"))
+    mirror.write_bytes(glb_bytes(m.vertices * np.array([-1.0, 1.0, 1.0]), m.faces[:, ::-1], m.corner_uv[:, ::-1], m.face_group, m.textures, names=m.names, up="y"))
     capsys.readouterr()
     for name, argv in (("byparams", ["--params", params]), ("bymesh", ["--member"]), ("mirrored", ["--member"])):
         src = mirror if name == "mirrored" else member
@@ -341,11 +336,18 @@ def test_a_textured_member_over_http(mug, tmp_path):
 
     async def run():
         async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t", timeout=60) as c:
-            post = lambda look: c.post("/v1/families/mug/looks", data={"look": json.dumps(look)},  # noqa: E731
-                                       files={"glb": ("m.glb", data, "model/gltf-binary")}, headers=token)
-            return (await post({"name": "bymesh", "member": True}), await post({"name": "byparams", "params": params}),
-                    await post({"name": "bad", "params": [1]}), await c.post("/v1/families/mug/looks", json={"name": "x", "prompt": "oak", "member": True},
-                                                                               headers=token))
+            post = lambda look: c.post(
+                "/v1/families/mug/looks",
+                data={"look": json.dumps(look)},  # noqa: E731
+                files={"glb": ("m.glb", data, "model/gltf-binary")},
+                headers=token,
+            )
+            return (
+                await post({"name": "bymesh", "member": True}),
+                await post({"name": "byparams", "params": params}),
+                await post({"name": "bad", "params": [1]}),
+                await c.post("/v1/families/mug/looks", json={"name": "x", "prompt": "oak", "member": True}, headers=token),
+            )
 
     mesh, byparams, bad, stray = asyncio.run(run())
     assert mesh.status_code == 200 and byparams.status_code == 200, (mesh.text, byparams.text)
@@ -372,8 +374,17 @@ def test_a_glb_whose_texture_is_a_pixel_bomb_is_refused_before_decoding(mug, tmp
     g = gl.GLTF2.load_from_bytes(src)
     ihdr = struct.pack(">IIBBBBB", 9000, 9000, 8, 2, 0, 0, 0)
     idat = zlib.compress(b"\0" * 64)
-    bomb = (b"\x89PNG\r\n\x1a\n" + struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
-            + struct.pack(">I", len(idat)) + b"IDAT" + idat + struct.pack(">I", zlib.crc32(b"IDAT" + idat)))
+    bomb = (
+        b"\x89PNG\r\n\x1a\n"
+        + struct.pack(">I", len(ihdr))
+        + b"IHDR"
+        + ihdr
+        + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+        + struct.pack(">I", len(idat))
+        + b"IDAT"
+        + idat
+        + struct.pack(">I", zlib.crc32(b"IDAT" + idat))
+    )
     g.images[0].bufferView, g.images[0].uri, g.images[0].mimeType = None, "data:image/png;base64," + __import__("base64").b64encode(bomb).decode(), "image/png"
     before = _files(base)
     rc, err = _add(base, "bomb", b"".join(g.save_to_bytes()), tmp_path, capsys)
@@ -389,8 +400,7 @@ def test_collapsed_faces_are_paired_as_a_whole_order_and_never_refused():
     tri = np.array([[[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]])
     flat = np.array([[[2.0, 2, 2], [2.0, 2, 2], [3.0, 2, 2]]] * 3)  # three coincident collapsed faces
     tpl = np.concatenate([tri, flat])
-    uv = np.array([[[0.0, 0], [1, 0], [0, 1]], [[0.5, 0.5], [0.5, 0.5], [0.6, 0.5]], [[0.5, 0.5], [0.5, 0.5], [0.6, 0.5]],
-                   [[0.5, 0.5], [0.5, 0.5], [0.6, 0.5]]])
+    uv = np.array([[[0.0, 0], [1, 0], [0, 1]], [[0.5, 0.5], [0.5, 0.5], [0.6, 0.5]], [[0.5, 0.5], [0.5, 0.5], [0.6, 0.5]], [[0.5, 0.5], [0.5, 0.5], [0.6, 0.5]]])
     order = [3, 0, 2, 1]
     turn = np.array([[1, 2, 0], [2, 0, 1], [0, 1, 2], [1, 2, 0]])
     file_c = np.take_along_axis(tpl[order], turn[..., None].repeat(3, axis=-1), axis=1)

@@ -241,9 +241,14 @@ def test_ray_data_run_equals_the_single_process_run_and_survives_a_killed_actor(
 def test_a_killed_generate_driver_resumes_without_redoing_rows(mug, reference, tmp_path):
     out = tmp_path / "killed"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "generate", mug, "--n", "24", "--seed", "5", "--batch-size", "2",
-                             "--out", str(out), "--cpus", "2", "--quiet"], cwd=ROOT, env=env, start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "workflows.cli", "generate", mug, "--n", "24", "--seed", "5", "--batch-size", "2", "--out", str(out), "--cpus", "2", "--quiet"],
+        cwd=ROOT,
+        env=env,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 240
     while time.time() < deadline and proc.poll() is None:
         if (out / "records").exists() and len(list((out / "records").glob("*.json"))) >= 4:

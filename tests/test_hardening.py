@@ -182,8 +182,7 @@ def test_a_transfer_past_its_budget_is_a_422_and_the_other_routes_answer_meanwhi
     [
         ("post", "/v1/families/mug/transfer", {"json": {"params": {"radius": int("9" * 400)}}}, 422),
         ("post", "/v1/families/mug/transfer", {"json": {"params": {}, "seed": int("9" * 400)}}, 422),
-        ("post", "/v1/families/mug/transfer", {"content": b'{"params": ' + b"[" * 3000 + b"]" * 3000 + b"}",
-                                                "headers": {"content-type": "application/json"}}, 422),
+        ("post", "/v1/families/mug/transfer", {"content": b'{"params": ' + b"[" * 3000 + b"]" * 3000 + b"}", "headers": {"content-type": "application/json"}}, 422),
         ("post", "/v1/families/mug/transfer", {"files": {"mesh": ("m.obj", b"v 0 0 0\n")}, "data": {"seed": "9" * 400}}, 422),
         ("post", "/v1/families/mug/transfer", {"files": {"mesh": ("m.obj", b"v 0 0 0\n")}, "data": {"edits": "[" * 5000}}, 422),
         ("get", "/v1/families/mug/groups/0/texture.png?hue=" + "9" * 400, {}, 422),
@@ -387,10 +386,26 @@ def _damage(folder, how):
         (folder / "family.json").write_text('{"config": {"source": {"model": "nosuch"}}, "stages": {"paint": {"state": "done"}}}')
 
 
-@pytest.mark.parametrize("how", ["truncated png", "greyscale png", "wrong size png", "changed png", "damaged family.json", "missing uv",
-                                 "truncated uv", "truncated painted masks", "damaged paint.json", "paint.json without groups",
-                                 "missing texture", "png that is a jpeg", "wrong uv shape", "garbage model",
-                                 "family.json of another shape"])
+@pytest.mark.parametrize(
+    "how",
+    [
+        "truncated png",
+        "greyscale png",
+        "wrong size png",
+        "changed png",
+        "damaged family.json",
+        "missing uv",
+        "truncated uv",
+        "truncated painted masks",
+        "damaged paint.json",
+        "paint.json without groups",
+        "missing texture",
+        "png that is a jpeg",
+        "wrong uv shape",
+        "garbage model",
+        "family.json of another shape",
+    ],
+)
 def test_a_damaged_family_is_unavailable_and_the_others_are_served(root, tmp_path, how):
     import shutil
 
@@ -413,8 +428,9 @@ def test_a_swapped_or_altered_network_is_refused_on_load(tmp_path):
     from proctex.build.pipeline import build
     from proctex.store.networks import load_models
 
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, corr_points=200, cage_iterations=5, texture_size=32,
-                                     train={"iterations": 5, "eval_every": 5, "context_points": 64, "query_points": 32}))
+    cfg = BuildConfig.from_dict(
+        dict(model="mug", n_train=2, n_test=0, corr_points=200, cage_iterations=5, texture_size=32, train={"iterations": 5, "eval_every": 5, "context_points": 64, "query_points": 32})
+    )
     st = FamilyStore(tmp_path / "mug")
     build(st, cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
     assert sorted(load_models(st)) == [0, 1]

@@ -76,10 +76,14 @@ def test_every_route_answers_through_the_ingress_as_the_app_does(replica):
     async def go(c):
         direct = httpx.AsyncClient(transport=httpx.ASGITransport(app=replica), base_url="http://t", timeout=20)
         out = []
-        for method, path, kw in (("GET", "/healthz", {}), ("GET", "/v1/families", {}), ("GET", "/v1/families/nope", {}),
-                                 ("POST", "/v1/families/mug/transfer", {"json": {"params": {}}}),
-                                 ("POST", "/v1/families/mug/transfer", {"json": {"params": {"radius": 99}}}),
-                                 ("GET", "/v1/families/mug/groups/0/texture.png?size=16", {})):
+        for method, path, kw in (
+            ("GET", "/healthz", {}),
+            ("GET", "/v1/families", {}),
+            ("GET", "/v1/families/nope", {}),
+            ("POST", "/v1/families/mug/transfer", {"json": {"params": {}}}),
+            ("POST", "/v1/families/mug/transfer", {"json": {"params": {"radius": 99}}}),
+            ("GET", "/v1/families/mug/groups/0/texture.png?size=16", {}),
+        ):
             a, b = await c.request(method, path, **kw), await direct.request(method, path, **kw)
             out.append((a.status_code, b.status_code, a.headers.get("content-type"), b.headers.get("content-type"), a.content == b.content))
         await direct.aclose()
@@ -124,8 +128,7 @@ def test_bodies_are_read_within_the_time_bounds_at_the_ingress(replica):
         yield b"{}}"
 
     async def go(c):
-        holder = asyncio.create_task(c.post("/v1/families/mug/transfer", content=stalled(),
-                                            headers={"content-type": "application/json", "content-length": "100000"}))
+        holder = asyncio.create_task(c.post("/v1/families/mug/transfer", content=stalled(), headers={"content-type": "application/json", "content-length": "100000"}))
         await asyncio.sleep(0.1)
         busy = await c.post("/v1/families/mug/transfer", content=b" " * 100_000)  # the one upload slot is held
         health = await c.get("/healthz")  # no body: no slot needed

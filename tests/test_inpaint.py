@@ -125,10 +125,7 @@ def test_patch_distance_matches_reference():
     labels = chart_labels(valid | targets)
     res = patchmatch_nnf(img, valid, source, targets, patch=3, iterations=2, seed=0, min_source_share=0.5)
     pen = ip._penalty(img.astype(np.float32), source)
-    ref = [
-        patch_distance_reference(img, valid, source, labels, tuple(t), tuple(s), 3, pen)
-        for t, s in zip(np.argwhere(targets), res.nnf)
-    ]
+    ref = [patch_distance_reference(img, valid, source, labels, tuple(t), tuple(s), 3, pen) for t, s in zip(np.argwhere(targets), res.nnf)]
     np.testing.assert_allclose(res.cost, ref, rtol=1e-5, atol=1e-6)
 
 
@@ -140,11 +137,7 @@ def test_valid_centres_match_explicit_count():
         r = patch // 2
         slow = np.zeros_like(fast)
         for i, j in np.argwhere(source):
-            n = sum(
-                source[a, b] and labels[a, b] == labels[i, j]
-                for a in range(max(0, i - r), min(16, i + r + 1))
-                for b in range(max(0, j - r), min(16, j + r + 1))
-            )
+            n = sum(source[a, b] and labels[a, b] == labels[i, j] for a in range(max(0, i - r), min(16, i + r + 1)) for b in range(max(0, j - r), min(16, j + r + 1)))
             slow[i, j] = n >= share * patch * patch
         np.testing.assert_array_equal(fast, slow)
 
@@ -203,7 +196,7 @@ def test_vote_matches_per_texel_reference():
     got = lv.image()
     sr, sc = lv.rc(nnf)
     r = P // 2
-    for (y, x) in zip(ii, jj):
+    for y, x in zip(ii, jj):
         votes = []
         for k, (ty, tx) in enumerate(zip(ii, jj)):
             dy, dx = y - ty, x - tx

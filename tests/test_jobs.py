@@ -208,6 +208,7 @@ def test_a_private_ray_whose_node_timed_out_is_started_again_and_its_processes_s
             if len(calls) <= fails:
                 left.append(subprocess.Popen(["sleep", "60"]))  # stands for the failed start's GCS server
                 raise Exception(f"The current node {error}. This could happen because ...")
+
         return init
 
     monkeypatch.setattr(ray, "shutdown", lambda: None)

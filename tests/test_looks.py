@@ -32,8 +32,11 @@ def mug(painted_mug_root, tmp_path) -> FamilyStore:
 
 def tree(folder: Path, skip: str | None = None) -> dict[str, str]:
     """Digest per file under ``folder`` (lock files aside; ``skip``: a sub-folder left out)."""
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*"))
-            if p.is_file() and ".lock" not in p.name and not (skip and str(p.relative_to(folder)).startswith(skip))}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and ".lock" not in p.name and not (skip and str(p.relative_to(folder)).startswith(skip))
+    }
 
 
 def glb_parts(data: bytes) -> tuple[dict[str, bytes], list[bytes]]:
@@ -73,8 +76,7 @@ def test_the_same_settings_paint_the_same_textures_and_nothing_else_is_written(m
     built, again = mug.read_json(StoreLayout.PAINT), mug.read_json("looks/again/paint.json")
     for a, b in zip(built["groups"], again["groups"]):
         assert a["sha256"] == b["sha256"] and a.get("orm_sha256") == b.get("orm_sha256")
-        assert (Path(mug.base) / StoreLayout.texture(a["group"], a["label"])).read_bytes() == \
-               (Path(mug.base) / "looks/again" / Path(StoreLayout.texture(a["group"], a["label"])).name).read_bytes()
+        assert (Path(mug.base) / StoreLayout.texture(a["group"], a["label"])).read_bytes() == (Path(mug.base) / "looks/again" / Path(StoreLayout.texture(a["group"], a["label"])).name).read_bytes()
     assert not list(Path(mug.base).rglob("*.tmp-*"))
 
 
@@ -108,14 +110,16 @@ def test_look_list_add_rm_and_their_refusals(mug, capsys):
     assert [(r["name"], r["built"], r["prompt"]) for r in rows] == [("default", True, "blue ceramic"), ("red", False, "red lacquer")]
     assert look_paint(mug, resolve_look(mug, "red"), paint).prompt == "red lacquer"
     before = tree(Path(mug.base))
-    for argv, message in ((["look", "add", mug.base, "red", "--prompt", "x"], "has a look 'red' already; --force"),
-                          (["look", "add", mug.base, "default", "--prompt", "x"], "the build's look"),
-                          (["look", "add", mug.base, "a/b", "--prompt", "x"], "a look's name"),
-                          (["look", "add", mug.base, "x.tmp-1", "--prompt", "x"], "a look's name"),
-                          (["look", "add", mug.base, "ok", "--prompt", "  "], "needs --prompt"),
-                          (["look", "add", mug.base, "ok", "--prompt", "x", "--texture-size", "3"], "texture_size"),
-                          (["look", "rm", mug.base, "default"], "cannot be removed"),
-                          (["look", "rm", mug.base, "nope"], "unknown look")):
+    for argv, message in (
+        (["look", "add", mug.base, "red", "--prompt", "x"], "has a look 'red' already; --force"),
+        (["look", "add", mug.base, "default", "--prompt", "x"], "the build's look"),
+        (["look", "add", mug.base, "a/b", "--prompt", "x"], "a look's name"),
+        (["look", "add", mug.base, "x.tmp-1", "--prompt", "x"], "a look's name"),
+        (["look", "add", mug.base, "ok", "--prompt", "  "], "needs --prompt"),
+        (["look", "add", mug.base, "ok", "--prompt", "x", "--texture-size", "3"], "texture_size"),
+        (["look", "rm", mug.base, "default"], "cannot be removed"),
+        (["look", "rm", mug.base, "nope"], "unknown look"),
+    ):
         assert main(argv) == 2, argv
         assert message in capsys.readouterr().err, argv
     assert tree(Path(mug.base)) == before  # refusals write nothing
@@ -138,11 +142,12 @@ def test_a_damaged_look_fails_alone(mug):
 
 
 def test_two_processes_adding_looks_at_once_both_land(mug):
-    code = ("import sys\nfrom dataclasses import replace\nfrom proctex.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
-            "from proctex.store.state import FamilyState\nst = FamilyStore(sys.argv[1])\n"
-            "add_look(st, sys.argv[2], replace(FamilyState.load(st).build_config().paint, prompt=sys.argv[2]), log=lambda *_: None)\n")
-    procs = [subprocess.Popen([sys.executable, "-c", code, mug.base, name], cwd=ROOT, stderr=subprocess.PIPE, text=True)
-             for name in ("oak", "teak")]
+    code = (
+        "import sys\nfrom dataclasses import replace\nfrom proctex.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
+        "from proctex.store.state import FamilyState\nst = FamilyStore(sys.argv[1])\n"
+        "add_look(st, sys.argv[2], replace(FamilyState.load(st).build_config().paint, prompt=sys.argv[2]), log=lambda *_: None)\n"
+    )
+    procs = [subprocess.Popen([sys.executable, "-c", code, mug.base, name], cwd=ROOT, stderr=subprocess.PIPE, text=True) for name in ("oak", "teak")]
     for p in procs:
         _, err = p.communicate(timeout=300)
         assert p.returncode == 0, err[-2000:]
@@ -158,8 +163,7 @@ def test_a_build_with_another_prompt_points_at_look_add(mug):
 
 
 def test_the_look_record_keeps_what_painted_it(mug):
-    add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red", group_prompts={"0": "black"}),
-             log=lambda *_: None)
+    add_look(mug, "red", replace(FamilyState.load(mug).build_config().paint, prompt="red", group_prompts={"0": "black"}), log=lambda *_: None)
     record = mug.read_json("looks/red/look.json")
     assert record["paint"]["group_prompts"] == {"0": "black"} and record["coverage"] >= 0
     summary = mug.read_json("looks/red/paint.json")
@@ -185,8 +189,13 @@ def test_an_edit_of_one_look_leaves_the_others_and_undoes_alone(mug, capsys):
 
 def test_the_looks_benchmark_writes_its_report(painted_mug_root, tmp_path):
     out = tmp_path / "looks.json"
-    done = subprocess.run([sys.executable, str(ROOT / "tests" / "bench" / "bench_looks.py"), "--family", str(painted_mug_root / "mug"),
-                           "--work", str(tmp_path / "work"), "--out", str(out)], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "tests" / "bench" / "bench_looks.py"), "--family", str(painted_mug_root / "mug"), "--work", str(tmp_path / "work"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=ROOT,
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     rep = json.loads(out.read_text())
     assert len(rep["look_seconds"]) == 3 and rep["look_median_seconds"] > 0 and rep["machine"]["cpus"] >= 1
@@ -231,9 +240,16 @@ def test_the_service_lists_adds_and_serves_looks_without_a_restart(mug):
             denied = await c.post("/v1/families/mug/looks", json={"name": "walnut", "prompt": "dark walnut"})
             added = await c.post("/v1/families/mug/looks", json={"name": "walnut", "prompt": "dark walnut"}, headers=token)
             again = await c.post("/v1/families/mug/looks", json={"name": "walnut", "prompt": "x"}, headers=token)
-            bad = [await c.post("/v1/families/mug/looks", json=b, headers=token) for b in (
-                {"name": "../x", "prompt": "x"}, {"name": "ok", "prompt": ""}, {"name": "ok", "prompt": "x", "texture_size": 100000},
-                {"name": "ok", "prompt": "x", "shader": 1}, {"name": "ok", "prompt": "x", "painter": "nope"})]
+            bad = [
+                await c.post("/v1/families/mug/looks", json=b, headers=token)
+                for b in (
+                    {"name": "../x", "prompt": "x"},
+                    {"name": "ok", "prompt": ""},
+                    {"name": "ok", "prompt": "x", "texture_size": 100000},
+                    {"name": "ok", "prompt": "x", "shader": 1},
+                    {"name": "ok", "prompt": "x", "painter": "nope"},
+                )
+            ]
             looks_after = (await c.get("/v1/families/mug/looks")).json()["looks"]
             plain = await c.post("/v1/families/mug/transfer", json={"params": {}})
             walnut = await c.post("/v1/families/mug/transfer?look=walnut", json={"params": {}})
@@ -248,11 +264,9 @@ def test_the_service_lists_adds_and_serves_looks_without_a_restart(mug):
             walnut_after = (await c.get("/v1/families/mug?look=walnut")).json()
             built_after = (await c.get("/v1/families/mug")).json()
             undo = await c.delete("/v1/families/mug/edits/last?look=walnut", headers=token)
-            return (first, denied, added, again, bad, looks_after, plain, walnut, linked, unknown, described, uri, tex, built_tex, edit,
-                    walnut_after, built_after, undo)
+            return (first, denied, added, again, bad, looks_after, plain, walnut, linked, unknown, described, uri, tex, built_tex, edit, walnut_after, built_after, undo)
 
-    (first, denied, added, again, bad, looks_after, plain, walnut, linked, unknown, described, uri, tex, built_tex, edit,
-     walnut_after, built_after, undo) = asyncio.run(run())
+    (first, denied, added, again, bad, looks_after, plain, walnut, linked, unknown, described, uri, tex, built_tex, edit, walnut_after, built_after, undo) = asyncio.run(run())
     assert [lk["name"] for lk in first] == ["default"]
     assert denied.status_code == 401 and added.status_code == 200 and added.json()["look"]["paint"]["prompt"] == "dark walnut"
     assert again.status_code == 422 and "--force" in again.json()["error"]
@@ -282,8 +296,7 @@ def test_generate_crosses_shapes_with_looks_and_every_row_wears_its_look(mug, tm
     rows = pq.read_table(out / "manifest.parquet").to_pylist()
     assert summary["written"] == 100 and len(rows) == 100
     assert [r["look"] for r in rows] == ["default", "red"] * 50 and len({r["id"] for r in rows}) == 100
-    stored = {look.name: [p for p in sorted((Path(mug.base) / look.folder).glob("group_*.png")) if p.name.count(".") == 1]
-              for look in looks(mug)}
+    stored = {look.name: [p for p in sorted((Path(mug.base) / look.folder).glob("group_*.png")) if p.name.count(".") == 1] for look in looks(mug)}
     stored = {name: {p.read_bytes() for p in paths} for name, paths in stored.items()}
     by_shape: dict[str, dict[str, tuple]] = {}
     for r in rows:
@@ -302,8 +315,7 @@ def test_generate_shared_textures_per_look_rows_files_and_random_looks(mug, tmp_
     shared = tmp_path / "shared"
     assert main(["generate", mug.base, "--n", "2", "--looks", "all", "--textures", "shared", "--out", str(shared), "--quiet"]) == 0
     assert (shared / "textures" / "0.png").read_bytes() != (shared / "textures" / "red" / "0.png").read_bytes()
-    uris = {r["look"]: gl.GLTF2.load_from_bytes((shared / r["file"]).read_bytes()).images[0].uri
-            for r in pq.read_table(shared / "manifest.parquet").to_pylist()}
+    uris = {r["look"]: gl.GLTF2.load_from_bytes((shared / r["file"]).read_bytes()).images[0].uri for r in pq.read_table(shared / "manifest.parquet").to_pylist()}
     assert uris == {"default": "../textures/0.png", "red": "../textures/red/0.png"}
     rows_file = tmp_path / "rows.parquet"
     pq.write_table(pa.table({"radius": [0.04, 0.05, 0.045], "look": ["red", "nope", None]}), rows_file)
@@ -368,8 +380,7 @@ def test_a_store_without_looks_serves_as_before_and_a_new_look_changes_nothing_o
 
 
 def test_build_names_its_look(tmp_path, capsys):
-    argv = ["build", "--model", "mug", "--n-train", "2", "--n-test", "0", "--texture-size", "32", "--prompt", "blue ceramic",
-            "--stages", "sample,template,paint", "--out", str(tmp_path / "m")]
+    argv = ["build", "--model", "mug", "--n-train", "2", "--n-test", "0", "--texture-size", "32", "--prompt", "blue ceramic", "--stages", "sample,template,paint", "--out", str(tmp_path / "m")]
     assert main(argv + ["--look", "a/b"]) == 2 and "a look's name" in capsys.readouterr().err
     assert not (tmp_path / "m").exists()  # refused before any work
     assert main(argv + ["--look", "ceramic"]) == 0 and "its look: ceramic" in capsys.readouterr().out

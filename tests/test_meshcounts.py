@@ -25,12 +25,16 @@ def chain_gltf(depth: int, cycle: bool = False) -> bytes:
     nodes = [{"children": [k + 1], "translation": [0, 0, 1]} for k in range(depth - 1)] + [{"mesh": 0, "translation": [0, 0, 1]}]
     if cycle:
         nodes[-1]["children"] = [0]
-    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": nodes,
-           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
-           "buffers": [{"byteLength": len(buf), "uri": "data:application/octet-stream;base64," + base64.b64encode(buf).decode()}],
-           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 6}],
-           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
-                         {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"}]}
+    doc = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": nodes,
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "buffers": [{"byteLength": len(buf), "uri": "data:application/octet-stream;base64," + base64.b64encode(buf).decode()}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 6}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}, {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"}],
+    }
     return json.dumps(doc).encode()
 
 
@@ -63,12 +67,15 @@ def test_a_chain_within_the_depth_loads_as_the_transforms_say():
     assert np.allclose(sorted(shape.vertices[:, 2]), [20, 20, 20])  # 20 translations of 1, composed
 
 
-@pytest.mark.parametrize("data, fmt, message", [
-    (chain_gltf(1000), "gltf", "deep"),
-    (chain_gltf(MAX_NODE_DEPTH + 1), "gltf", "deep"),
-    (chain_gltf(MAX_NODE_DEPTH), "gltf", None),
-    (chain_gltf(5, cycle=True), "gltf", "cycle|twice"),
-])
+@pytest.mark.parametrize(
+    "data, fmt, message",
+    [
+        (chain_gltf(1000), "gltf", "deep"),
+        (chain_gltf(MAX_NODE_DEPTH + 1), "gltf", "deep"),
+        (chain_gltf(MAX_NODE_DEPTH), "gltf", None),
+        (chain_gltf(5, cycle=True), "gltf", "cycle|twice"),
+    ],
+)
 def test_hostile_node_trees_are_refused_before_any_library_walks_them(data, fmt, message):
     if message is None:  # the deepest tree allowed is read, to the exact boundary
         assert declared_counts(data, fmt).depth == MAX_NODE_DEPTH
@@ -85,8 +92,10 @@ def test_the_service_refuses_what_a_header_declares_over_its_limits(painted_mug_
     from proctex.store.layout import FamilyStore
 
     svc = FamilyService(FamilyStore(painted_mug_root / "mug"), limits=Limits(max_faces=50_000))
-    ply = (b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000\nproperty float x\nproperty float y\nproperty float z\n"
-           b"element face 2000000\nproperty list uchar int vertex_indices\nend_header\n") + b"\0" * 1000
+    ply = (
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000\nproperty float x\nproperty float y\nproperty float z\n"
+        b"element face 2000000\nproperty list uchar int vertex_indices\nend_header\n"
+    ) + b"\0" * 1000
     huge_face = b"".join(f"v {k} {k % 7} 0\n".encode() for k in range(100)) + b"f " + b" ".join(str(1 + k % 100).encode() for k in range(100_000)) + b"\n"
     binary_stl = b"\0" * 80 + struct.pack("<I", 60_000) + b"\0" * (50 * 60_000)
     for data, name, message in ((ply, "m.ply", "declares 1000000 vertices"), (binary_stl, "m.stl", "declares 60000 faces")):
@@ -105,7 +114,7 @@ def test_the_service_refuses_what_a_header_declares_over_its_limits(painted_mug_
 def _with_accessor(data: bytes, index: int, **change) -> bytes:
     """The GLB ``data`` with accessor ``index``'s fields changed (None: removed)."""
     n = struct.unpack_from("<I", data, 12)[0]
-    doc = json.loads(data[20:20 + n])
+    doc = json.loads(data[20 : 20 + n])
     for k, v in change.items():
         if v is None:
             doc["accessors"][index].pop(k, None)
@@ -113,15 +122,25 @@ def _with_accessor(data: bytes, index: int, **change) -> bytes:
             doc["accessors"][index][k] = v
     js = json.dumps(doc).encode()
     js += b" " * (-len(js) % 4)
-    out = data[:12] + struct.pack("<I", len(js)) + b"JSON" + js + data[20 + n:]
+    out = data[:12] + struct.pack("<I", len(js)) + b"JSON" + js + data[20 + n :]
     return out[:8] + struct.pack("<I", len(out)) + out[12:]
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"count": -3}, "count -3"), ({"count": 0}, "count 0"), ({"count": 1.5}, "count 1.5"), ({"count": "7"}, 'count "7"'),
-    ({"count": True}, "count true"), ({"count": None}, "count null"), ({"count": 10**12}, "past the end of bufferView"),
-    ({"byteOffset": -4}, "byteOffset -4"), ({"componentType": 5127}, "componentType 5127"), ({"bufferView": 99}, "bufferView 99"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"count": -3}, "count -3"),
+        ({"count": 0}, "count 0"),
+        ({"count": 1.5}, "count 1.5"),
+        ({"count": "7"}, 'count "7"'),
+        ({"count": True}, "count true"),
+        ({"count": None}, "count null"),
+        ({"count": 10**12}, "past the end of bufferView"),
+        ({"byteOffset": -4}, "byteOffset -4"),
+        ({"componentType": 5127}, "componentType 5127"),
+        ({"bufferView": 99}, "bufferView 99"),
+    ],
+)
 def test_a_glb_whose_index_accessor_lies_is_refused_not_read_short(change, message):
     """An index accessor with ``count: -3`` was read as all but the last three indices (a triangle
     dropped, the mesh served); every accessor's count, type, offset and reach is checked before a
@@ -131,7 +150,7 @@ def test_a_glb_whose_index_accessor_lies_is_refused_not_read_short(change, messa
     mug = get_model("mug").generate()
     data = glb_bytes(mug.vertices, mug.faces, np.zeros((len(mug.faces), 3, 2)), np.zeros(len(mug.faces), np.int64), [np.zeros((8, 8, 3), np.uint8)])
     n = struct.unpack_from("<I", data, 12)[0]
-    indices = json.loads(data[20:20 + n])["meshes"][0]["primitives"][0]["indices"]
+    indices = json.loads(data[20 : 20 + n])["meshes"][0]["primitives"][0]["indices"]
     shape, _ = load_mesh_bytes(data, "m.glb")
     assert len(shape.faces) == len(mug.faces)  # the file as written reads whole
     bad = _with_accessor(data, indices, **change)

@@ -227,8 +227,13 @@ def test_vectorised_obj_reader_agrees_with_the_line_reader():
     v, f = fast
     np.testing.assert_array_equal(v, [[0, 0, 0], [1.5, 0, 0], [0, 1, -2e-3], [1, 1, 0]])
     np.testing.assert_array_equal(f, [[0, 1, 2], [1, 3, 2]])
-    for other in ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4 3\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",
-                  "v\t0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 1\nf 1 2 3\n"):
+    for other in (
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4 3\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",
+        "v\t0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n",
+        "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 1\nf 1 2 3\n",
+    ):
         assert _read_obj_triangles(other) is None
     assert np.asarray(read_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n")[1]).tolist() == [[0, 1, 2]]
     with pytest.raises(ValueError, match="bad face index"):
@@ -263,9 +268,14 @@ OBJ_CASES = [
     "v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
 ]
 OBJ_DECLINED = [  # the column reader leaves these to the others (a quad, a tab, a relative index, ...)
-    "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3 4\n", "v\t0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",
-    "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 1\nf 1 2 3\n", " v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
-    "vx 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "v 0  0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3 4\n",
+    "v\t0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",
+    "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 1\nf 1 2 3\n",
+    " v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    "vx 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    "v 0  0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    "",
 ]
 
 

@@ -97,10 +97,7 @@ def test_different_labels_are_not_congruent(name):
     model = get_model(name)
     for params in model.space.sample(20, seed=5):
         shape = model.generate(params)
-        sigs = {
-            label: rigid_signature(shape.vertices[parts[0][0]], parts[0][1])
-            for label, parts in parts_by_label(shape).items()
-        }
+        sigs = {label: rigid_signature(shape.vertices[parts[0][0]], parts[0][1]) for label, parts in parts_by_label(shape).items()}
         labels = sorted(sigs)
         for i, a in enumerate(labels):
             for b in labels[i + 1 :]:
@@ -134,16 +131,14 @@ def test_cake_counts_follow_tiers_and_candles():
         assert n_parts == 1 + tiers + candles
         assert n_groups == 1 + tiers + (candles > 0)
         assert len(split_parts(shape)) == n_parts
-        assert sorted(shape.label_names) == sorted(
-            ["plate", *(tier_label(i, tiers) for i in range(tiers))] + (["candle"] if candles else [])
-        )
+        assert sorted(shape.label_names) == sorted(["plate", *(tier_label(i, tiers) for i in range(tiers))] + (["candle"] if candles else []))
 
 
 def test_mug_canonical_anchor_is_outer_top_rim():
     model = get_model("mug")
     for params in model.space.sample(10, seed=6):
         shape = model.generate(params)
-        (ids, _), = parts_by_label(shape)["body"]
+        ((ids, _),) = parts_by_label(shape)["body"]
         rim = nearest_canonical(shape, ids, 0.45, 0.0)
         top_radius = params["radius"] * (1 + params["taper"])
         np.testing.assert_allclose(rim, [top_radius, 0.0, params["height"]], atol=1e-9)
@@ -174,12 +169,12 @@ def test_pumpkin_canonical_anchors():
     model = get_model("pumpkin")
     for params in model.space.sample(10, seed=8):
         shape = model.generate(params)
-        (ids, _), = parts_by_label(shape)["body"]
+        ((ids, _),) = parts_by_label(shape)["body"]
         # The equator at angle 0 is the middle of a lobe, at the full radius.
         equator = nearest_canonical(shape, ids, 0.5, 0.0)
         np.testing.assert_allclose(equator[:2], [params["radius"], 0.0], atol=1e-9)
         # The stem's start pole sits in the body's top dimple.
-        (stem_ids, _), = parts_by_label(shape)["stem"]
+        ((stem_ids, _),) = parts_by_label(shape)["stem"]
         foot = nearest_canonical(shape, stem_ids, 0.0, 0.0)
         top = nearest_canonical(shape, ids, 1.0, 0.0)
         np.testing.assert_allclose(foot[:2], [0.0, 0.0], atol=1e-9)
@@ -190,7 +185,7 @@ def test_mushroom_cap_top_pole_is_highest_point_of_main_cap():
     model = get_model("mushroom")
     for params in model.space.sample(10, seed=9):
         shape = model.generate(params)
-        (ids, _), = parts_by_label(shape)["cap"]
+        ((ids, _),) = parts_by_label(shape)["cap"]
         top = nearest_canonical(shape, ids, 1.0, 0.0)
         np.testing.assert_allclose(top[:2], [0.0, 0.0], atol=1e-9)
         assert top[2] == pytest.approx(shape.vertices[ids, 2].max())
@@ -200,7 +195,7 @@ def test_cake_tier_top_centre_anchor():
     model = get_model("cake")
     for params in model.space.sample(10, seed=10):
         shape = model.generate(params)
-        (ids, _), = parts_by_label(shape)[tier_label(0, params["tiers"])]
+        ((ids, _),) = parts_by_label(shape)[tier_label(0, params["tiers"])]
         centre = nearest_canonical(shape, ids, 1.0, 0.0)
         np.testing.assert_allclose(centre[:2], [0.0, 0.0], atol=1e-9)
         assert centre[2] == pytest.approx(shape.vertices[ids, 2].max())

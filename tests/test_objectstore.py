@@ -21,8 +21,7 @@ from proctex.cli import main
 from proctex.store.layout import FamilyStore
 from workflows.objectstore import start_server, stop_server
 
-BUILD = ["--model", "mug", "--prompt", "blue ceramic", "--n-train", "3", "--n-test", "2", "--texture-size", "64", "--points", "300",
-         "--iterations", "30", "--train-iterations", "60", "--quiet"]
+BUILD = ["--model", "mug", "--prompt", "blue ceramic", "--n-train", "3", "--n-test", "2", "--texture-size", "64", "--points", "300", "--iterations", "30", "--train-iterations", "60", "--quiet"]
 #: Record fields that say when and how long (and the painter's scratch folder), not what was made.
 VOLATILE = {"seconds", "finished", "started", "wall_seconds", "seconds_per_shape", "per_shape", "timings", "since", "files", "load_seconds"}
 
@@ -44,7 +43,7 @@ def files_of(store: FamilyStore) -> dict[str, bytes]:
     """Every file of a store by its relative name (lock and lease files left out)."""
     out = {}
     for info in store.fs.get_file_info(pafs.FileSelector(store.base, recursive=True)):
-        rel = info.path[len(store.base.rstrip("/")) + 1:]
+        rel = info.path[len(store.base.rstrip("/")) + 1 :]
         if info.type == pafs.FileType.File and not any(p.startswith(".") for p in rel.split("/")):
             with store.fs.open_input_stream(info.path) as fh:
                 out[rel] = fh.read()
@@ -104,8 +103,9 @@ def same_records(a: dict[str, bytes], b: dict[str, bytes], ignore=frozenset()) -
             same = without_timings(json.loads(a[rel]), ignore) == without_timings(json.loads(b[rel]), ignore)
         elif rel.endswith(".parquet"):
             ta, tb = pq.read_table(pa.BufferReader(a[rel])), pq.read_table(pa.BufferReader(b[rel]))
-            same = without_timings(ta.drop_columns([c for c in ta.column_names if c == "seconds"]).to_pylist()) == \
-                without_timings(tb.drop_columns([c for c in tb.column_names if c == "seconds"]).to_pylist())
+            same = without_timings(ta.drop_columns([c for c in ta.column_names if c == "seconds"]).to_pylist()) == without_timings(
+                tb.drop_columns([c for c in tb.column_names if c == "seconds"]).to_pylist()
+            )
         else:
             same = False
         if not same:
@@ -404,8 +404,9 @@ def test_a_build_waits_for_a_killed_s3_server_and_finishes_when_it_is_back(local
     port = int(server.endpoint.rsplit(":", 1)[1])
     uri = server.uri("outage/mug")
     env = {**os.environ, **server.env(), "PROCTEX_STORE_WAIT": "120"}
-    build = subprocess.Popen([sys.executable, "-c", "import sys; from proctex.cli import main; sys.exit(main(sys.argv[1:]))",
-                              "build", *BUILD, "--out", uri], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    build = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from proctex.cli import main; sys.exit(main(sys.argv[1:]))", "build", *BUILD, "--out", uri], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
     try:
         store = None
         deadline = time.monotonic() + 120
@@ -448,8 +449,15 @@ def test_a_build_waits_for_a_killed_s3_server_and_finishes_when_it_is_back(local
 
 # --------------------------------------------------------------------------- a two-node cluster
 ROOT = Path(__file__).resolve().parents[1]
-CLUSTER_CONFIG = {"model": "mug", "n_train": 6, "n_test": 0, "corr_points": 300, "cage_iterations": 80, "texture_size": 32,
-                  "train": {"iterations": 10, "eval_every": 5, "context_points": 64, "query_points": 32, "shapes_per_batch": 2}}
+CLUSTER_CONFIG = {
+    "model": "mug",
+    "n_train": 6,
+    "n_test": 0,
+    "corr_points": 300,
+    "cage_iterations": 80,
+    "texture_size": 32,
+    "train": {"iterations": 10, "eval_every": 5, "context_points": 64, "query_points": 32, "shapes_per_batch": 2},
+}
 
 
 def versions(client, bucket: str, prefix: str) -> dict[str, int]:
@@ -476,12 +484,20 @@ def two_nodes(tmp_path_factory):
     short_tmp = tempfile.mkdtemp(prefix="rays", dir="/tmp")  # Ray's socket paths must stay short
     from workflows.jobs import cluster_env
 
-    env = {**os.environ, **server.env(), "RAY_PORT": "6393", "DASHBOARD_PORT": "8278", "RAY_CLIENT_PORT": "9393",
-           "RAY": str(ROOT / ".venv" / "bin" / "ray"), "RAY_TMP": short_tmp, "PROCTEX_CLUSTER_WAIT": "240", **cluster_env(short_tmp)}
+    env = {
+        **os.environ,
+        **server.env(),
+        "RAY_PORT": "6393",
+        "DASHBOARD_PORT": "8278",
+        "RAY_CLIENT_PORT": "9393",
+        "RAY": str(ROOT / ".venv" / "bin" / "ray"),
+        "RAY_TMP": short_tmp,
+        "PROCTEX_CLUSTER_WAIT": "240",
+        **cluster_env(short_tmp),
+    }
     script = str(ROOT / "cluster" / "local_cluster.sh")
     try:  # from here on, whatever fails: the cluster and the server are stopped
-        s3c = boto3.client("s3", endpoint_url=server.endpoint, region_name=server.region, aws_access_key_id=server.access_key,
-                           aws_secret_access_key=server.secret_key)
+        s3c = boto3.client("s3", endpoint_url=server.endpoint, region_name=server.region, aws_access_key_id=server.access_key, aws_secret_access_key=server.secret_key)
         s3c.put_bucket_versioning(Bucket="cluster", VersioningConfiguration={"Status": "Enabled"})
         # the script's own bounds (PROCTEX_CLUSTER_WAIT for the CPUs, then for the job agent) end it first
         start = subprocess.run(["bash", script, "start", "1", "1"], env=env, capture_output=True, text=True, timeout=600)
@@ -517,8 +533,7 @@ def test_generate_to_s3_on_two_nodes_resumes_after_a_killed_driver_writing_each_
         for k, v in server.env().items():
             mp.setenv(k, v)
         upload(painted_mug_root / "mug", server.uri("painted/mug"))
-    argv = [sys.executable, "-m", "workflows.cli", "generate", server.uri("painted/mug"), "--n", "120", "--out", server.uri("variants"),
-            "--address", "127.0.0.1:6393", "--quiet"]
+    argv = [sys.executable, "-m", "workflows.cli", "generate", server.uri("painted/mug"), "--n", "120", "--out", server.uri("variants"), "--address", "127.0.0.1:6393", "--quiet"]
     env = {**os.environ, **server.env(), "PYTHONPATH": str(ROOT), **cluster_env(ray_tmp)}  # the cluster's token
     first = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 300
@@ -534,7 +549,7 @@ def test_generate_to_s3_on_two_nodes_resumes_after_a_killed_driver_writing_each_
     assert done_at_kill, f"the first run ended (rc {first.returncode}) before 40 rows: {first.stderr.read().decode()[-2000:]}"
     again = subprocess.run(argv + ["--json"], env=env, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-3000:]
-    summary = json.loads(again.stdout[again.stdout.index("{"):])
+    summary = json.loads(again.stdout[again.stdout.index("{") :])
     counts = versions(s3c, "cluster", "variants/")
     records = {k: n for k, n in counts.items() if k.startswith("variants/records/")}
     files = {k: n for k, n in counts.items() if k.startswith("variants/variants/")}
@@ -568,8 +583,7 @@ def test_a_two_node_cluster_sharing_no_disk_builds_on_s3_through_a_lost_worker_n
     cfg.write_text(json.dumps(CLUSTER_CONFIG))
     uri = server.uri("families/mug")
     client = job_client("http://127.0.0.1:8278", token_path=cluster_env(ray_tmp)["RAY_AUTH_TOKEN_PATH"])
-    job = submit_job(client, f"{sys.executable} -m workflows.cli build {cfg} --out {uri} --ray auto --train-workers 1 --quiet",
-                     runtime_env={"env_vars": {"PYTHONPATH": str(ROOT), **server.env()}})
+    job = submit_job(client, f"{sys.executable} -m workflows.cli build {cfg} --out {uri} --ray auto --train-workers 1 --quiet", runtime_env={"env_vars": {"PYTHONPATH": str(ROOT), **server.env()}})
     deadline = time.time() + 420
     killed = False
     while time.time() < deadline and not client.get_job_status(job).is_terminal():
@@ -585,8 +599,7 @@ def test_a_two_node_cluster_sharing_no_disk_builds_on_s3_through_a_lost_worker_n
 
     token = Path(cluster_env(ray_tmp)["RAY_AUTH_TOKEN_PATH"]).read_text().strip()  # the cluster's (list_tasks reads this process's)
     state = StateApiClient(address="http://127.0.0.1:8278", headers={"Content-Type": "application/json", "Authorization": f"Bearer {token}"})
-    batches = state.list(StateResource.TASKS, options=ListApiOptions(filters=[("name", "=", "run_batch")], limit=10_000, detail=True),
-                         raise_on_missing_output=False)
+    batches = state.list(StateResource.TASKS, options=ListApiOptions(filters=[("name", "=", "run_batch")], limit=10_000, detail=True), raise_on_missing_output=False)
     assert len({t.node_id for t in batches if t.node_id}) == 2, "the pairs ran on both nodes"
     counts = versions(s3c, "cluster", "families/mug/")
     pairs = {k: n for k, n in counts.items() if "/correspondences/" in k}
@@ -729,9 +742,11 @@ def test_looks_edits_and_undo_on_s3_from_two_processes(s3, painted_mug_root):
     from proctex.store.looks import looks
 
     st = upload(painted_mug_root / "mug", s3.uri("looks/mug"))
-    code = ("import sys\nfrom dataclasses import replace\nfrom proctex.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
-            "from proctex.store.state import FamilyState\nst = FamilyStore(sys.argv[1])\n"
-            "add_look(st, sys.argv[2], replace(FamilyState.load(st).build_config().paint, prompt=sys.argv[2]), log=lambda *_: None)\n")
+    code = (
+        "import sys\nfrom dataclasses import replace\nfrom proctex.looks import add_look\nfrom proctex.store.layout import FamilyStore\n"
+        "from proctex.store.state import FamilyState\nst = FamilyStore(sys.argv[1])\n"
+        "add_look(st, sys.argv[2], replace(FamilyState.load(st).build_config().paint, prompt=sys.argv[2]), log=lambda *_: None)\n"
+    )
     procs = [subprocess.Popen([sys.executable, "-c", code, st.uri, name], cwd=ROOT, stderr=subprocess.PIPE, text=True) for name in ("oak", "teak")]
     for p in procs:
         _, err = p.communicate(timeout=300)

@@ -307,10 +307,7 @@ def test_unseen_texels_are_filled_without_repainting_seen_ones(chair):
     surface = SurfacePainter("red and white striped fabric", seed=2)
     c, r = bounding_sphere(shape.vertices)
     cams = orbit_path(c, r, "z", 11, 128)[:1]
-    runs = {
-        fill: paint_views(shape, g, SolidViewPainter(surface, g), cameras=cams, size=128, complete_hidden=False, fill=fill)
-        for fill in ("patchmatch", "surface")
-    }
+    runs = {fill: paint_views(shape, g, SolidViewPainter(surface, g), cameras=cams, size=128, complete_hidden=False, fill=fill) for fill in ("patchmatch", "surface")}
     some_unseen = False
     for a, b in zip(runs["patchmatch"].groups, runs["surface"].groups):
         ij = a.texels.ij
@@ -386,8 +383,7 @@ def test_a_painter_from_one_file_paints_a_build_and_is_offered_by_the_cli(tmp_pa
     monkeypatch.setenv("PROCTEX_PLUGINS", str(path))
     try:
         assert build_parser().parse_args(["paint", "mug", "--prompt", "x", "--out", "o", "--painter", "toy_crimson"]).painter == "toy_crimson"
-        cfg = BuildConfig.from_dict({"source": {"model": "mug", "n_train": 2, "n_test": 0},
-                                     "paint": {"prompt": "pale blue ceramic", "painter": "toy_crimson", "texture_size": 32}})
+        cfg = BuildConfig.from_dict({"source": {"model": "mug", "n_train": 2, "n_test": 0}, "paint": {"prompt": "pale blue ceramic", "painter": "toy_crimson", "texture_size": 32}})
         st = FamilyStore(tmp_path / "mug")
         write_config(st, cfg)
         for stage in (stage_sample, stage_template, stage_paint):
@@ -399,7 +395,6 @@ def test_a_painter_from_one_file_paints_a_build_and_is_offered_by_the_cli(tmp_pa
     finally:
         unregister_painter("toy_crimson")
         plugins._LOADED.pop(str(path), None)
-
 
 
 def test_a_plugin_painter_sees_the_builds_paint_settings_whole(tmp_path):
@@ -426,8 +421,18 @@ def test_a_plugin_painter_sees_the_builds_paint_settings_whole(tmp_path):
 
     register_painter(Painter("toy_settings", make, summary="records what it was made with"))
     try:
-        paint = {"prompt": "pale blue ceramic", "painter": "toy_settings", "texture_size": 32, "views": 5, "view_size": 64,
-                 "paint_hidden": False, "fill": "surface", "occlusion": True, "steps": 7, "group_prompts": {"0": "red glaze"}}
+        paint = {
+            "prompt": "pale blue ceramic",
+            "painter": "toy_settings",
+            "texture_size": 32,
+            "views": 5,
+            "view_size": 64,
+            "paint_hidden": False,
+            "fill": "surface",
+            "occlusion": True,
+            "steps": 7,
+            "group_prompts": {"0": "red glaze"},
+        }
         cfg = BuildConfig.from_dict({"source": {"model": "mug", "n_train": 2, "n_test": 0}, "paint": paint})
         st = FamilyStore(tmp_path / "mug")
         write_config(st, cfg)
@@ -435,13 +440,12 @@ def test_a_plugin_painter_sees_the_builds_paint_settings_whole(tmp_path):
             stage(st, cfg, log=lambda *_: None)
         assert len(seen) == 1 and asdict(seen[0]) == asdict(cfg.paint) and seen[0].texture_size == 32 and seen[0].occlusion
         shape = get_model("mug").generate({})
-        paint_template(shape, analyse(shape), "oak", {"0": "red"}, painter="toy_settings", size=32, views=4, view_size=48,
-                       fill="surface", occlusion=True, steps=3, maps=False)
+        paint_template(shape, analyse(shape), "oak", {"0": "red"}, painter="toy_settings", size=32, views=4, view_size=48, fill="surface", occlusion=True, steps=3, maps=False)
         got = seen[1]
-        assert (got.texture_size, got.views, got.view_size, got.fill, got.occlusion, got.steps, got.group_prompts, got.painter) == \
-            (32, 4, 48, "surface", True, 3, {"0": "red"}, "toy_settings")
+        assert (got.texture_size, got.views, got.view_size, got.fill, got.occlusion, got.steps, got.group_prompts, got.painter) == (32, 4, 48, "surface", True, 3, {"0": "red"}, "toy_settings")
     finally:
         unregister_painter("toy_settings")
+
 
 def test_a_painter_installed_as_a_package_is_found_by_its_entry_point_once_per_import_path(tmp_path, monkeypatch):
     """An installed package's ``proctex.plugins`` entry point registers its painter; the installed

@@ -24,16 +24,26 @@ BLEND = SOFA.parent / "blend"
 
 
 def chair_like_space() -> ParamSpace:
-    space = ParamSpace((integer("Legs Type", 0, 2, 0), choice("Has Middle Support", (False, True), False),
-                        continuous("Middle Offset", 0.0, 0.5, 0.0), choice("Has Arms", (False, True), False),
-                        continuous("Arm Height", 0.1, 0.3, 0.1), choice("Has Drawers", (False, True), False),
-                        integer("Boards", 2, 6, 2)))
-    return with_conditions(space, {
-        "Has Middle Support": {"when": [["Legs Type", 0]]},
-        "Middle Offset": {"when": [["Legs Type", 0], ["Has Middle Support", True]]},
-        "Arm Height": {"when": [["Has Arms", True]]},
-        "Boards": {"unless": [["Has Drawers", True]]},
-    })
+    space = ParamSpace(
+        (
+            integer("Legs Type", 0, 2, 0),
+            choice("Has Middle Support", (False, True), False),
+            continuous("Middle Offset", 0.0, 0.5, 0.0),
+            choice("Has Arms", (False, True), False),
+            continuous("Arm Height", 0.1, 0.3, 0.1),
+            choice("Has Drawers", (False, True), False),
+            integer("Boards", 2, 6, 2),
+        )
+    )
+    return with_conditions(
+        space,
+        {
+            "Has Middle Support": {"when": [["Legs Type", 0]]},
+            "Middle Offset": {"when": [["Legs Type", 0], ["Has Middle Support", True]]},
+            "Arm Height": {"when": [["Has Arms", True]]},
+            "Boards": {"unless": [["Has Drawers", True]]},
+        },
+    )
 
 
 def test_the_real_chair_spec_reads_with_its_ranges_and_conditions():
@@ -65,8 +75,7 @@ def test_conditional_inputs_are_sampled_only_where_they_matter():
     assert len(active) > 30 and np.std([p["Middle Offset"] for p in active]) > 0.1  # it does vary where it matters
     assert len({p["Boards"] for p in rows if not p["Has Drawers"]}) == 5
     # The check fails for a space without the conditions: inactive inputs vary there.
-    plain = ParamSpace(tuple(ParamSpec.from_dict({k: v for k, v in s.to_dict().items() if k not in ("when", "unless")})
-                             for s in space.specs)).sample(400, seed=3, method="lhs")
+    plain = ParamSpace(tuple(ParamSpec.from_dict({k: v for k, v in s.to_dict().items() if k not in ("when", "unless")}) for s in space.specs)).sample(400, seed=3, method="lhs")
     assert any(p["Legs Type"] != 0 and p["Middle Offset"] != 0.0 for p in plain)
 
 
@@ -156,10 +165,17 @@ def test_keys_not_understood_are_named_and_a_near_misspelling_is_read_as_its_key
     assert edit_distance("or_dependcies", "or_dependencies") == 2 and edit_distance("rnage", "range") == 2
     assert edit_distance("", "abc") == 3 and edit_distance("abc", "abc") == 0 and edit_distance("a" * 300, "b", limit=4) == 5
     assert closest_key("tpye", ["type", "range"]) == ("type", 2)
-    spec = read_params_spec({"class_name": "bed", "clas_name": "x", "params": {"Width": {
-        "type": "float", "range": [0.5, 2.0], "or_dependcies": [["Has Back", True]], "colour": "red"},
-        "Has Back": {"type": "bool"},
-        "Depth": {"tpye": "float", "range": [1.0, 2.0]}}})
+    spec = read_params_spec(
+        {
+            "class_name": "bed",
+            "clas_name": "x",
+            "params": {
+                "Width": {"type": "float", "range": [0.5, 2.0], "or_dependcies": [["Has Back", True]], "colour": "red"},
+                "Has Back": {"type": "bool"},
+                "Depth": {"tpye": "float", "range": [1.0, 2.0]},
+            },
+        }
+    )
     notes = "\n".join(spec.notes)
     assert spec.conditions["Width"] == {"when": [["Has Back", True]]} and spec.bounds["Depth"] == [1.0, 2.0]
     assert "read key 'or_dependcies' as 'or_dependencies'" in notes and "read key 'tpye' as 'type'" in notes

@@ -46,6 +46,7 @@ def _oracle(shift: int):
         for gid, t in truth.items():
             out[gid] = f"{case.clauses[(words.index(t) + shift) % len(words)][2]}" if t in words else None
         return out
+
     return texts
 
 
@@ -56,7 +57,7 @@ def test_the_score_passes_an_oracle_and_fails_a_shifted_one():
         case = B.compose(obj, np.random.default_rng(s))
         assert 2 <= len(case.clauses) <= 4 and all(f.split()[-1] in case.prompt for _, f, _ in case.clauses)
         cols = [B.colour_of(m) for _, _, m in case.clauses]
-        assert min(B.delta_e(x, y) for i, x in enumerate(cols) for y in cols[i + 1:]) >= B.MIN_DE
+        assert min(B.delta_e(x, y) for i, x in enumerate(cols) for y in cols[i + 1 :]) >= B.MIN_DE
         shape = C.unlabelled(obj.shape)
         grouping = analyse(shape)
         truth = B.group_truth(obj.shape, grouping)

@@ -71,13 +71,16 @@ def test_the_test_fails_on_a_wrong_up_axis_and_holds_for_turned_and_scaled_shape
         assert sizes == {"seat": 1, "legs": 4}
 
 
-@pytest.mark.parametrize("prompt", [
-    "a chair with a red velvet seat and dark walnut legs",
-    "a chair with dark walnut legs and a red velvet seat",
-    "dark walnut legs, red velvet seat",
-    "a chair: legs in dark walnut, seat of red velvet",
-    "the seat made of red velvet; the legs in dark walnut",
-])
+@pytest.mark.parametrize(
+    "prompt",
+    [
+        "a chair with a red velvet seat and dark walnut legs",
+        "a chair with dark walnut legs and a red velvet seat",
+        "dark walnut legs, red velvet seat",
+        "a chair: legs in dark walnut, seat of red velvet",
+        "the seat made of red velvet; the legs in dark walnut",
+    ],
+)
 def test_materials_bind_to_their_nouns_in_any_order(chair, prompt):
     shape, grouping, role = chair
     plan = plan_parts(prompt, shape.vertices, shape.faces, grouping, "z")
@@ -107,8 +110,7 @@ def test_a_clause_with_an_unknown_word_keeps_its_own_material_as_a_guess(chair):
     assert plan.guesses == {largest_free: "antenna"} and plan.texts[largest_free] == "gold"
     assert any("'antenna' is a part word ProcTex does not know" in n and "a guess" in n for n in plan.notes)
     assert set(plan.texts.values()) == {"gold", "dark walnut"}  # whole clauses (borrowed by the unnamed groups), never mixed
-    full = plan_parts("a chair with a red velvet seat, dark walnut legs, a white back, brass arms and a gold antenna",
-                      shape.vertices, shape.faces, grouping, "z")
+    full = plan_parts("a chair with a red velvet seat, dark walnut legs, a white back, brass arms and a gold antenna", shape.vertices, shape.faces, grouping, "z")
     assert not full.guesses and "gold" not in " ".join(full.texts.values())
     assert any("'gold' ('antenna'" in n and "paints nothing" in n for n in full.notes)
     # "nothing understood" only when no word is known at all: no text for any group.
@@ -118,8 +120,7 @@ def test_a_clause_with_an_unknown_word_keeps_its_own_material_as_a_guess(chair):
 def test_words_no_part_passes_are_noted_and_one_part_shapes_keep_regions():
     table = unlabelled_table()
     grouping = analyse(table)
-    plan = plan_parts("a table with a white marble top, black steel legs and an oak shelf, velvet seat",
-                      table.vertices, table.faces, grouping, "z")
+    plan = plan_parts("a table with a white marble top, black steel legs and an oak shelf, velvet seat", table.vertices, table.faces, grouping, "z")
     sizes = {w: sorted(len(grouping.groups[g].members) for g in gids) for w, gids in plan.words.items()}
     assert sizes == {"top": [1], "legs": [4], "shelf": [1]}
     top = plan.words["top"][0]
@@ -286,15 +287,13 @@ def _bed():
     from .meshes import boxes
 
     specs = [((0.06, 0.06, 0.2), (x, y, 0.1)) for x in (-0.7, 0.7) for y in (-0.95, 0.95)]
-    specs += [((1.5, 2.0, 0.12), (0, 0, 0.26)), ((1.44, 1.94, 0.22), (0, 0, 0.43)),
-              ((1.5, 0.05, 1.1), (0, 1.03, 0.55)), ((1.5, 0.05, 0.6), (0, -1.03, 0.3))]
+    specs += [((1.5, 2.0, 0.12), (0, 0, 0.26)), ((1.44, 1.94, 0.22), (0, 0, 0.43)), ((1.5, 0.05, 1.1), (0, 1.03, 0.55)), ((1.5, 0.05, 0.6), (0, -1.03, 0.3))]
     bed = boxes(specs)
     grouping = analyse(bed)
     role = {}
     for g in grouping.groups:
         c = grouping.parts[g.representative].center
-        role["legs" if len(g.members) == 4 else "headboard" if c[1] > 1 else "footboard" if c[1] < -1 else
-             "mattress" if c[2] > 0.35 else "frame"] = g.index
+        role["legs" if len(g.members) == 4 else "headboard" if c[1] > 1 else "footboard" if c[1] < -1 else "mattress" if c[2] > 0.35 else "frame"] = g.index
     assert len(role) == 5
     return bed, grouping, role
 
@@ -319,21 +318,24 @@ def test_two_words_competing_for_one_group_are_assigned_jointly(monkeypatch):
 
 def test_a_bed_named_part_by_part_takes_each_clause_where_it_belongs():
     bed, grouping, role = _bed()
-    plan = plan_parts("a bed with a white linen mattress, a walnut headboard, an oak footboard and black metal legs",
-                      bed.vertices, bed.faces, grouping, "z")
+    plan = plan_parts("a bed with a white linen mattress, a walnut headboard, an oak footboard and black metal legs", bed.vertices, bed.faces, grouping, "z")
     assert plan.kind == "beds"
-    assert {w: plan.texts[role[w]] for w in ("mattress", "headboard", "footboard", "legs")} == {
-        "mattress": "white linen", "headboard": "walnut", "footboard": "oak", "legs": "black metal"}
+    assert {w: plan.texts[role[w]] for w in ("mattress", "headboard", "footboard", "legs")} == {"mattress": "white linen", "headboard": "walnut", "footboard": "oak", "legs": "black metal"}
     assert all(0.5 <= plan.scores[role[w]] <= 1.0 for w in ("mattress", "headboard", "footboard", "legs"))
 
 
 def test_plurals_and_compounds_name_the_same_word():
     from proctex.texture.painters.partvocab import join_compounds, word_of
 
-    for forms, word in ((("table top", "table-top", "tabletop", "tabletops", "Table Top"), "top"),
-                        (("armrest", "armrests", "arm", "arms"), "arms"), (("drawer fronts", "drawers", "drawer"), "drawers"),
-                        (("shelf", "shelves"), "shelf"), (("tyre", "tyres", "tire", "wheels"), "wheels"),
-                        (("leaves", "foliage", "canopy"), "canopy"), (("lampshade", "lamp shade", "shades"), "shade")):
+    for forms, word in (
+        (("table top", "table-top", "tabletop", "tabletops", "Table Top"), "top"),
+        (("armrest", "armrests", "arm", "arms"), "arms"),
+        (("drawer fronts", "drawers", "drawer"), "drawers"),
+        (("shelf", "shelves"), "shelf"),
+        (("tyre", "tyres", "tire", "wheels"), "wheels"),
+        (("leaves", "foliage", "canopy"), "canopy"),
+        (("lampshade", "lamp shade", "shades"), "shade"),
+    ):
         assert {word_of(f) for f in forms} == {word}, forms
     assert join_compounds(["a", "marble", "table", "top", "and", "seat", "cushions"]) == ["a", "marble", "table-top", "and", "seat-cushions"]
     table = unlabelled_table()
@@ -345,7 +347,7 @@ def test_plurals_and_compounds_name_the_same_word():
 
 
 def test_the_object_noun_chooses_the_kind_of_a_word():
-    """"handle" is a mug's loop, a cabinet's knob, a hammer's shaft: the object noun (or, without
+    """ "handle" is a mug's loop, a cabinet's knob, a hammer's shaft: the object noun (or, without
     one, the kind whose words the prompt uses most) picks the scorer; a material word ("green
     glass") names no object."""
     from tests.bench.partcorpus import make_object, unlabelled
@@ -368,8 +370,7 @@ def test_the_object_noun_chooses_the_kind_of_a_word():
     mug = next(o for o in map(make_object, range(200)) if o.noun == "mug")
     shape = unlabelled(mug.shape)
     grouping = analyse(shape)
-    handle = next(g.index for g in grouping.groups
-                  if mug.shape.label_names[mug.shape.labels[grouping.parts[g.representative].vertices[0]]] == "handle")
+    handle = next(g.index for g in grouping.groups if mug.shape.label_names[mug.shape.labels[grouping.parts[g.representative].vertices[0]]] == "handle")
     plan = plan_parts("a mug with an oak handle and a white porcelain body", shape.vertices, shape.faces, grouping, "z")
     assert plan.kind == "tableware" and plan.texts[handle] == "oak"
 
@@ -404,8 +405,7 @@ def test_a_shape_of_many_groups_is_resolved_on_its_largest_groups_only():
     assert len(grouping.groups) > MAX_GROUPS + 10  # (uniformly scaled copies share a group)
     ev = describe_groups(shape.vertices, shape.faces, grouping, "z")
     assert len(ev) == MAX_GROUPS and {e.rank for e in ev} == set(range(MAX_GROUPS))
-    plan = plan_parts("a table with a white marble top and " + ", ".join(f"red zz{i}" for i in range(300)),
-                      shape.vertices, shape.faces, grouping, "z")
+    plan = plan_parts("a table with a white marble top and " + ", ".join(f"red zz{i}" for i in range(300)), shape.vertices, shape.faces, grouping, "z")
     top = max(grouping.groups, key=lambda g: grouping.parts[g.representative].area).index
     assert plan.texts[top] == "white marble"
     assert len(plan.guesses) <= MAX_GROUPS - 1 and set(plan.guesses) <= {e.group for e in ev}
@@ -469,11 +469,19 @@ def test_a_group_given_a_word_by_hand_takes_that_words_clause_over_geometry_and_
     assert groups_of_word("antenna", PROMPT, v, f, grouping, "z", assigned={role["back"]: "antenna"}) == [role["back"]]
 
 
-@pytest.mark.parametrize("bad, message", [
-    ({"x": "legs"}, "keyed by group index"), ({"9": "legs"}, "no group 9"), ({"1": "<b>"}, "a word of letters"),
-    ({"1": 3}, "must be a string"), ({True: "legs"}, "keyed by group index"), ({"1": "a" * 49}, "at most 48"),
-    (["legs"], "must be an object"), ({str(i): "legs" for i in range(201)}, "at most 200"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ({"x": "legs"}, "keyed by group index"),
+        ({"9": "legs"}, "no group 9"),
+        ({"1": "<b>"}, "a word of letters"),
+        ({"1": 3}, "must be a string"),
+        ({True: "legs"}, "keyed by group index"),
+        ({"1": "a" * 49}, "at most 48"),
+        (["legs"], "must be an object"),
+        ({str(i): "legs" for i in range(201)}, "at most 200"),
+    ],
+)
 def test_words_given_by_hand_are_checked(chair, bad, message):
     from proctex.texture.painters.partwords import check_assignment
 

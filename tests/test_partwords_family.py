@@ -86,18 +86,21 @@ def test_parts_cli_json_png_assign_save_and_a_look_that_follows(mug, tmp_path, c
     assert not mug.exists(StoreLayout.PART_WORDS)
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--assign", "0"], "GROUP=WORD"),
-    (["--assign", "7=legs"], "no group 7"),
-    (["--assign", "0=<script>"], "a word of letters"),
-    (["--assign", "{\"0\": 3}"], "JSON object of strings"),
-    (["--assign", "x=legs"], "keyed by group index"),
-    (["--save"], "--save stores the words of --assign"),
-    (["--png", "out.jpg"], "--png must name a .png"),
-    (["--object", "Chair"], "read a .blend file"),
-    (["--size", "9"], "--size must be"),
-    (["--look", "nope"], "unknown look 'nope'"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--assign", "0"], "GROUP=WORD"),
+        (["--assign", "7=legs"], "no group 7"),
+        (["--assign", "0=<script>"], "a word of letters"),
+        (["--assign", '{"0": 3}'], "JSON object of strings"),
+        (["--assign", "x=legs"], "keyed by group index"),
+        (["--save"], "--save stores the words of --assign"),
+        (["--png", "out.jpg"], "--png must name a .png"),
+        (["--object", "Chair"], "read a .blend file"),
+        (["--size", "9"], "--size must be"),
+        (["--look", "nope"], "unknown look 'nope'"),
+    ],
+)
 def test_parts_cli_refuses_bad_input_and_writes_nothing(mug, capsys, argv, message):
     assert main(["parts", mug.base, *argv]) == 2
     assert message in capsys.readouterr().err
@@ -144,9 +147,10 @@ def test_the_service_reports_and_stores_words_and_a_new_look_follows_them(mug):
             long = await c.get("/v1/families/mug/parts", params={"prompt": "x" * 5000})
             nolook = await c.get("/v1/families/mug/parts", params={"look": "nope"})
             denied = await c.put("/v1/families/mug/parts", json={"groups": {"0": "handle"}})
-            bad = [await c.put("/v1/families/mug/parts", json=b, headers=token) for b in (
-                {"groups": {"5": "legs"}}, {"groups": {"0": "<img>"}}, {"groups": []}, {"groups": {"0": "legs"}, "x": 1},
-                {"groups": {"0": "legs"}, "replace": "yes"})]
+            bad = [
+                await c.put("/v1/families/mug/parts", json=b, headers=token)
+                for b in ({"groups": {"5": "legs"}}, {"groups": {"0": "<img>"}}, {"groups": []}, {"groups": {"0": "legs"}, "x": 1}, {"groups": {"0": "legs"}, "replace": "yes"})
+            ]
             nothing = mug.exists(StoreLayout.PART_WORDS)
             saved = await c.put("/v1/families/mug/parts", json={"groups": {"0": "handle"}}, headers=token)
             after = await c.get("/v1/families/mug/parts", params={"prompt": PROMPT})

@@ -252,8 +252,7 @@ def painted():
 
 
 def _glb(tex) -> bytes:
-    return glb_bytes(tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups],
-                     names=[g.label for g in tex.groups], up="z", pbr=tex.pbr)
+    return glb_bytes(tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups], names=[g.label for g in tex.groups], up="z", pbr=tex.pbr)
 
 
 def test_glb_carries_every_map_and_is_validator_clean(painted):
@@ -285,8 +284,7 @@ def test_glb_metallic_and_roughness_at_known_texels(painted):
 
 def test_obj_mtl_names_the_pbr_maps(painted):
     tex = painted["brushed brass"]
-    files = dict(obj_files("mug", tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group,
-                           [g.uint8() for g in tex.groups], names=["body", "handle"], pbr=tex.pbr))
+    files = dict(obj_files("mug", tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups], names=["body", "handle"], pbr=tex.pbr))
     mtl = files["mug.mtl"].decode()
     for g in (0, 1):
         for line in (f"map_Pr mug_{g}_roughness.png", f"map_Pm mug_{g}_metallic.png", f"norm mug_{g}_normal.png"):
@@ -319,8 +317,7 @@ def test_template_store_keeps_the_maps(tmp_path):
     from proctex.store.state import write_config
     from proctex.store.template import Template, load_template_shape
 
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="hammered copper",
-                                     group_prompts={"handle": "black rubber"}))
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=32, prompt="hammered copper", group_prompts={"handle": "black rubber"}))
     st = FamilyStore(tmp_path / "mug")
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint):
@@ -577,8 +574,7 @@ def test_http_serves_the_maps_and_refuses_bad_material_edits(painted_mug_root, t
     for bad in ("0.bogus.png", "9.orm.png", "0.orm", "..%2F0.png"):
         r = c.get(f"/v1/families/mug/textures/{bad}")
         assert r.status_code == 404 and "error" in r.json(), bad
-    for raw, message in (({"roughness": "nan"}, "finite"), ({"metallic": 2}, r"\[0, 1\]"), ({"roughness": True}, "number"),
-                         ({"roughness": [0.5]}, "number")):
+    for raw, message in (({"roughness": "nan"}, "finite"), ({"metallic": 2}, r"\[0, 1\]"), ({"roughness": True}, "number"), ({"roughness": [0.5]}, "number")):
         with pytest.raises(BadInput, match=message):
             parse_edit(raw)
         r = c.post("/v1/families/mug/transfer", json={"params": {}, "edits": {"0": raw}})

@@ -126,8 +126,7 @@ def test_the_other_environment_takes_other_numpy_blas_and_torch_kernels(tmp_path
 def test_slow_machine_sensitive_tests_pass_on_other_kernels():
     from .portable import other_env
 
-    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *SLOW_MACHINE_SENSITIVE],
-                         env=other_env(), cwd=ROOT, capture_output=True, text=True, timeout=1200)
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *SLOW_MACHINE_SENSITIVE], env=other_env(), cwd=ROOT, capture_output=True, text=True, timeout=1200)
     assert run.returncode == 0, run.stdout[-6000:] + run.stderr[-2000:]
     passed = re.search(r"(\d+) passed", run.stdout)
     assert passed and int(passed.group(1)) >= len(SLOW_MACHINE_SENSITIVE), run.stdout[-2000:]  # every id ran
@@ -208,8 +207,7 @@ def test_modules_that_import_torch_resolve_mkl_kernels_first():
     def forgets(source: str) -> bool:
         tree = ast.parse(source)
         imports = any(isinstance(n, ast.Import) and any(a.name == "torch" for a in n.names) for n in tree.body)
-        calls = any(isinstance(n, ast.Expr) and isinstance(n.value, ast.Call) and getattr(n.value.func, "id", None) == "resolve_vml"
-                    for n in tree.body)
+        calls = any(isinstance(n, ast.Expr) and isinstance(n.value, ast.Call) and getattr(n.value.func, "id", None) == "resolve_vml" for n in tree.body)
         return imports and not calls
 
     assert forgets("import torch\nx = torch.exp(torch.ones(3))\n")

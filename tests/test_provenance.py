@@ -32,17 +32,39 @@ def test_label_words_split_camel_case_and_drop_numbering():
     assert label_words("LSeat") == ["L", "Seat"] and label_words("") == [] and label_words("123.004") == []
 
 
-@pytest.mark.parametrize("label,bl_label,default", [
-    ("Cube.001", "Cube", True), ("Frame.006", "", True), ("Mesh Line.003", "Mesh Line", True), ("NodeGroup", "", True),
-    ("Plane", "", True), ("Seat", "", False), ("Cube Seat", "Cube", False), ("Legs.001", "", False)])
+@pytest.mark.parametrize(
+    "label,bl_label,default",
+    [
+        ("Cube.001", "Cube", True),
+        ("Frame.006", "", True),
+        ("Mesh Line.003", "Mesh Line", True),
+        ("NodeGroup", "", True),
+        ("Plane", "", True),
+        ("Seat", "", False),
+        ("Cube Seat", "Cube", False),
+        ("Legs.001", "", False),
+    ],
+)
 def test_default_names_are_told_from_an_authors(label, bl_label, default):
     assert is_default(label, bl_label) is default
 
 
-@pytest.mark.parametrize("label,computation", [
-    ("Center Z at Origin", True), ("SetToZeroZAxis", True), ("Spawn Leaves", True), ("Determine Trunk area", True),
-    ("Meshing The Curve", True), ("EverGreenBasedOnSurface", True), ("Back Rest", False), ("Dividing Boards", False),
-    ("Sliding Door", False), ("Left Arm", False), ("Legs", False)])
+@pytest.mark.parametrize(
+    "label,computation",
+    [
+        ("Center Z at Origin", True),
+        ("SetToZeroZAxis", True),
+        ("Spawn Leaves", True),
+        ("Determine Trunk area", True),
+        ("Meshing The Curve", True),
+        ("EverGreenBasedOnSurface", True),
+        ("Back Rest", False),
+        ("Dividing Boards", False),
+        ("Sliding Door", False),
+        ("Left Arm", False),
+        ("Legs", False),
+    ],
+)
 def test_labels_of_computations_are_not_part_names(label, computation):
     assert is_computation(label_words(label)) is computation
 
@@ -52,25 +74,45 @@ def test_a_producer_takes_its_most_specific_meaningful_label():
     inside out; defaults, computations and the model's own words are passed over and listed."""
     whole = model_words("Cabinet", "Geometry Nodes")
     producers = [
-        {"id": 1, "node": "Cube.003", "label": "", "type": "GeometryNodeMeshCube", "bl_label": "Cube",
-         "frames": [{"name": "Frame.002", "label": "Center Z at Origin"}, {"name": "Frame", "label": "Handles"}],
-         "groups": [{"node": "Group", "label": "", "tree": "Doors"}]},
+        {
+            "id": 1,
+            "node": "Cube.003",
+            "label": "",
+            "type": "GeometryNodeMeshCube",
+            "bl_label": "Cube",
+            "frames": [{"name": "Frame.002", "label": "Center Z at Origin"}, {"name": "Frame", "label": "Handles"}],
+            "groups": [{"node": "Group", "label": "", "tree": "Doors"}],
+        },
         {"id": 2, "node": "Knob", "label": "", "type": "GeometryNodeMeshUVSphere", "bl_label": "UV Sphere", "frames": [], "groups": []},
         {"id": 3, "node": "Cube", "label": "Top Panel", "type": "GeometryNodeMeshCube", "bl_label": "Cube", "frames": [], "groups": []},
         {"id": 4, "node": "Object Info", "type": "GeometryNodeObjectInfo", "bl_label": "Object Info", "data": "Leaf", "frames": [], "groups": []},
-        {"id": 5, "node": "Cube", "type": "GeometryNodeMeshCube", "bl_label": "Cube", "frames": [],
-         "groups": [{"node": "Group.001", "label": "", "tree": "CabinetBoardRight"}]},
-        {"id": 6, "node": "Cube", "type": "GeometryNodeMeshCube", "bl_label": "Cube", "frames": [{"name": "Frame.001", "label": ""}],
-         "groups": [{"node": "Group.002", "label": "", "tree": "Cabinet"}]},
+        {"id": 5, "node": "Cube", "type": "GeometryNodeMeshCube", "bl_label": "Cube", "frames": [], "groups": [{"node": "Group.001", "label": "", "tree": "CabinetBoardRight"}]},
+        {
+            "id": 6,
+            "node": "Cube",
+            "type": "GeometryNodeMeshCube",
+            "bl_label": "Cube",
+            "frames": [{"name": "Frame.001", "label": ""}],
+            "groups": [{"node": "Group.002", "label": "", "tree": "Cabinet"}],
+        },
         {"id": 7, "node": "Group Input", "type": "NodeGroupInput", "bl_label": "Group Input", "data": "Cabinet", "frames": [], "groups": []},
         # a group left at a default name inside a frame "Arms" of its parent tree: the frame names it
-        {"id": 8, "node": "Cube", "type": "GeometryNodeMeshCube", "bl_label": "Cube", "frames": [],
-         "groups": [{"node": "Group.004", "label": "", "tree": "NodeGroup.002", "frames": [{"name": "Frame.003", "label": "Arms"}]},
-                    {"node": "Group.005", "label": "", "tree": "Furniture", "frames": []}]},
-        "not a record", {"id": True}]
+        {
+            "id": 8,
+            "node": "Cube",
+            "type": "GeometryNodeMeshCube",
+            "bl_label": "Cube",
+            "frames": [],
+            "groups": [
+                {"node": "Group.004", "label": "", "tree": "NodeGroup.002", "frames": [{"name": "Frame.003", "label": "Arms"}]},
+                {"node": "Group.005", "label": "", "tree": "Furniture", "frames": []},
+            ],
+        },
+        "not a record",
+        {"id": True},
+    ]
     names = producer_names(producers, whole)
-    assert {i: n.name for i, n in names.items()} == {1: "Handles", 2: "Knob", 3: "Top Panel", 4: "Leaf", 5: "Board Right", 6: "", 7: "",
-                                                      8: "Arms"}
+    assert {i: n.name for i, n in names.items()} == {1: "Handles", 2: "Knob", 3: "Top Panel", 4: "Leaf", 5: "Board Right", 6: "", 7: "", 8: "Arms"}
     assert names[1].where == "frame" and ("Center Z at Origin", "labels a computation") in names[1].dropped
     assert ("Cube.003", "a default name") in names[1].dropped
     assert names[5].where == "group" and names[6].dropped[-1] == ("Cabinet", "names the whole model")
@@ -174,10 +216,8 @@ def test_provenance_tells_instances_apart_and_keeps_each_producers_own_box(blend
 
 def _objects():
     """Every handed-out object with a Geometry Nodes modifier, and the fixtures'."""
-    real = [("chair.blend", "Cube"), ("table.blend", "Cube"), ("cabinet.blend", "Cabinet"),
-            ("lowpoly_trees.blend", "Italian Cypres"), ("lowpoly_trees.blend", "Trees Set one")]
-    return [("fixture", f, o) for f, o in (("vase.blend", "Vase"), ("table.blend", "Table"), ("rack.blend", "Rack"),
-                                           ("bench.blend", "Bench"))] + [("real", f, o) for f, o in real]
+    real = [("chair.blend", "Cube"), ("table.blend", "Cube"), ("cabinet.blend", "Cabinet"), ("lowpoly_trees.blend", "Italian Cypres"), ("lowpoly_trees.blend", "Trees Set one")]
+    return [("fixture", f, o) for f, o in (("vase.blend", "Vase"), ("table.blend", "Table"), ("rack.blend", "Rack"), ("bench.blend", "Bench"))] + [("real", f, o) for f, o in real]
 
 
 @needs_bpy
@@ -249,11 +289,23 @@ def test_a_spec_listing_fewer_inputs_builds_and_its_misspelt_keys_are_named(tmp_
 
     if not (REAL / "chair.blend").is_file():
         pytest.skip("the shared .blend files are absent")
-    spec = {"class_name": "chair", "colour": "red", "params": {"Seat": {"type": "nested", "params": {
-        "Seat Height": {"type": "float", "range": [0.4, 0.8]}, "Seat Width": {"type": "float", "range": [0.4, 0.8]},
-        "Has Arms": {"type": "bool"}, "Arm Height": {"type": "float", "range": [0.1, 0.3], "or_dependcies": ["Has Arms"]},
-        "Legs Type": {"type": "int", "range": [0, 2]},
-        "Bottom Size Scale": {"type": "float", "range": [0.7, 1.0], "or_dependencies": [["Legs Type", 1]]}}}}}
+    spec = {
+        "class_name": "chair",
+        "colour": "red",
+        "params": {
+            "Seat": {
+                "type": "nested",
+                "params": {
+                    "Seat Height": {"type": "float", "range": [0.4, 0.8]},
+                    "Seat Width": {"type": "float", "range": [0.4, 0.8]},
+                    "Has Arms": {"type": "bool"},
+                    "Arm Height": {"type": "float", "range": [0.1, 0.3], "or_dependcies": ["Has Arms"]},
+                    "Legs Type": {"type": "int", "range": [0, 2]},
+                    "Bottom Size Scale": {"type": "float", "range": [0.7, 1.0], "or_dependencies": [["Legs Type", 1]]},
+                },
+            }
+        },
+    }
     path = tmp_path / "sp_small.json"
     path.write_text(json.dumps(spec))
     cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / "chair.blend"), "object": "Cube"}, "params_spec": str(path)}})
@@ -299,15 +351,21 @@ def test_params_without_a_spec_list_their_inputs_and_older_stores_vary_every_inp
 
 
 @needs_bpy
-@pytest.mark.parametrize("file,obj,prompt,expect", [
-    ("chair.blend", "Cube", "a chair with a blue leather seat, a light oak back and brass legs",
-     {"Seat": "blue", "Back": "light", "Legs": "brass"}),
-    ("table.blend", "Cube", "a table with a white marble top and black steel legs", {"Top": "light", "Legs": "dark"}),
-    # "boards" names every group whose name holds the word (the side, back and dividing boards): the
-    # shelves' geometric test takes no upright board, and without the names no board is white
-    ("cabinet.blend", "Cabinet", "a cabinet in red lacquer with white boards and black legs",
-     {"Board Right": "light", "Board Back": "light", "Board Left": "light", "Dividing Boards": "light", "Legs": "dark", "Drawers": "red"}),
-])
+@pytest.mark.parametrize(
+    "file,obj,prompt,expect",
+    [
+        ("chair.blend", "Cube", "a chair with a blue leather seat, a light oak back and brass legs", {"Seat": "blue", "Back": "light", "Legs": "brass"}),
+        ("table.blend", "Cube", "a table with a white marble top and black steel legs", {"Top": "light", "Legs": "dark"}),
+        # "boards" names every group whose name holds the word (the side, back and dividing boards): the
+        # shelves' geometric test takes no upright board, and without the names no board is white
+        (
+            "cabinet.blend",
+            "Cabinet",
+            "a cabinet in red lacquer with white boards and black legs",
+            {"Board Right": "light", "Board Back": "light", "Board Left": "light", "Dividing Boards": "light", "Legs": "dark", "Drawers": "red"},
+        ),
+    ],
+)
 def test_the_prompt_lands_on_the_parts_the_node_tree_names(file, obj, prompt, expect):
     """The handed-out chair, table and cabinet: their groups carry the node tree's names, and a prompt
     naming parts paints them; the colours are read back per named group from the painted textures."""
@@ -317,8 +375,7 @@ def test_the_prompt_lands_on_the_parts_the_node_tree_names(file, obj, prompt, ex
 
     if not (REAL / file).is_file():
         pytest.skip("the shared .blend files are absent")
-    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / file), "object": obj},
-                                            "params_spec": str(REAL / f"sp_{file.split('.')[0]}.json")}})
+    cfg = BuildConfig.from_dict({"source": {"blender": {"file": str(REAL / file), "object": obj}, "params_spec": str(REAL / f"sp_{file.split('.')[0]}.json")}})
     model = cfg.procedural_model()
     for params in model.space.sample(3, seed=5):
         shape = model.generate(params)
@@ -331,6 +388,5 @@ def test_the_prompt_lands_on_the_parts_the_node_tree_names(file, obj, prompt, ex
         assert by_name, (params, [g.label for g in grouping.groups])
         for name, colours in by_name.items():
             for r, g, b in colours:
-                ok = {"blue": b > r + 0.05, "light": (r + g + b) / 3 > 0.55, "dark": (r + g + b) / 3 < 0.3,
-                      "brass": r > b + 0.1 and g > b, "red": r > g + 0.15 and r > b + 0.15}[expect[name]]
+                ok = {"blue": b > r + 0.05, "light": (r + g + b) / 3 > 0.55, "dark": (r + g + b) / 3 < 0.3, "brass": r > b + 0.1 and g > b, "red": r > g + 0.15 and r > b + 0.15}[expect[name]]
                 assert ok, (file, name, expect[name], (r, g, b), params)

@@ -27,8 +27,16 @@ ray = pytest.importorskip("ray")
 pytestmark = [pytest.mark.ray, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
-CFG = dict(model="mug", n_train=3, n_test=2, corr_points=200, cage_iterations=40, texture_size=32, prompt="blue ceramic",
-           train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2})
+CFG = dict(
+    model="mug",
+    n_train=3,
+    n_test=2,
+    corr_points=200,
+    cage_iterations=40,
+    texture_size=32,
+    prompt="blue ceramic",
+    train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64, "shapes_per_batch": 2},
+)
 
 
 def config() -> BuildConfig:
@@ -85,8 +93,7 @@ def test_ray_build_equals_the_single_process_build(local_ray, reference, tmp_pat
     from workflows.build import build_on_ray
 
     # The store as a URI (any pyarrow.fs URI works the same way; file:// needs no credentials).
-    state = build_on_ray((tmp_path / "mug").as_uri(), config(), stages=("sample", "template", "paint", "pairs", "train"),
-                         train_workers=1, log=lambda *_: None, quiet=True)
+    state = build_on_ray((tmp_path / "mug").as_uri(), config(), stages=("sample", "template", "paint", "pairs", "train"), train_workers=1, log=lambda *_: None, quiet=True)
     st = FamilyStore(tmp_path / "mug")
     assert {k for k, v in state["stages"].items() if v["state"] == "done"} == {"sample", "template", "paint", "pairs", "train"}
     assert set(state["wall_seconds"]) == {"sample", "template", "paint", "pairs", "train"}
@@ -165,9 +172,14 @@ def test_a_killed_driver_resumes_without_redoing_work(local_ray, reference, tmp_
     cfg_file.write_text(json.dumps(CFG))
     out = tmp_path / "mug"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "workflows.cli", "build", str(cfg_file), "--out", str(out), "--ray", "--quiet",
-                             "--stages", "sample,template,paint,pairs"], cwd=ROOT, env=env, start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "workflows.cli", "build", str(cfg_file), "--out", str(out), "--ray", "--quiet", "--stages", "sample,template,paint,pairs"],
+        cwd=ROOT,
+        env=env,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     st = FamilyStore(out)
     deadline = time.time() + 240
     done_before: dict[str, int] = {}
@@ -256,8 +268,7 @@ def test_the_demo_builds_on_ray_and_leaves_a_running_ray_as_it_was(local_ray, tm
     from workflows.demo import run_demo_on_ray
 
     tiny = {k: v for k, v in CFG.items() if k in ("corr_points", "cage_iterations", "texture_size", "train")}
-    result = run_demo_on_ray(str(tmp_path / "demo"), model="mug", prompt="blue ceramic", n_train=3, n_test=2, rows=1, per_row=2,
-                             frames=3, log=lambda *_: None, quiet=True, overrides=tiny)
+    result = run_demo_on_ray(str(tmp_path / "demo"), model="mug", prompt="blue ceramic", n_train=3, n_test=2, rows=1, per_row=2, frames=3, log=lambda *_: None, quiet=True, overrides=tiny)
     s = result.summary
     assert s["ray"] is True and ray.is_initialized()
     state = json.loads((tmp_path / "demo" / "families" / "mug" / "family.json").read_text())
@@ -305,8 +316,7 @@ def _transfer(base: str, family: str, routed: bool, radius: float = 0.04) -> tup
     import urllib.request
 
     headers = {"content-type": "application/json", **({"serve_multiplexed_model_id": family} if routed else {})}
-    req = urllib.request.Request(f"{base}/v1/families/{family}/transfer", data=json.dumps({"params": {"radius": radius}}).encode(),
-                                 headers=headers, method="POST")
+    req = urllib.request.Request(f"{base}/v1/families/{family}/transfer", data=json.dumps({"params": {"radius": radius}}).encode(), headers=headers, method="POST")
     try:
         with urllib.request.urlopen(req, timeout=120) as r:
             return r.status, r.headers.get("X-ProcTex-Replica", ""), r.read()
@@ -403,8 +413,7 @@ def test_serve_holds_against_stalled_clients_and_a_replica_killed_under_load(loc
     try:
         for _ in range(40):
             s = socket.create_connection(("127.0.0.1", port), timeout=10)
-            s.sendall(b"POST /v1/families/mug/transfer HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
-                      b"Content-Length: 1000\r\n\r\n{\"params\":")
+            s.sendall(b'POST /v1/families/mug/transfer HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 1000\r\n\r\n{"params":')
             stalled.append(s)
         time.sleep(0.5)
         with urllib.request.urlopen(base + "/healthz", timeout=30) as r:

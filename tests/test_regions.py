@@ -155,8 +155,7 @@ def test_fork_as_one_part_gets_tip_and_handle_along_its_axis(shapes):
     scale = np.abs(one.vertices - center).max()
     pts = (one.vertices - center) / scale
     nrm = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
-    rough, metal, _ = sp.material(pts, nrm, np.tile([1.0, 0, 0], (len(pts), 1)), np.tile([0, 1.0, 0], (len(pts), 1)),
-                                  group=grouping.groups[0].index, label=grouping.groups[0].label)
+    rough, metal, _ = sp.material(pts, nrm, np.tile([1.0, 0, 0], (len(pts), 1)), np.tile([0, 1.0, 0], (len(pts), 1)), group=grouping.groups[0].index, label=grouping.groups[0].label)
     assert (metal[y > 0.75] > 0.99).all() and (metal[y < 0.55] < 0.01).all()
 
 
@@ -207,8 +206,7 @@ def test_hostile_prompts_stay_bounded():
 
     plan = split_regions("with red top, " * 5000 + "with blue top")
     assert plan.regions == (("top", "blue"),) and any("again" in n for n in plan.notes)
-    every = ", ".join(f"{c} {w}" for c, w in zip(["red", "blue", "green", "gold", "white", "black", "grey", "pink"],
-                                                 ["tip", "handle", "top", "bottom", "rim", "inside", "outside", "top"]))
+    every = ", ".join(f"{c} {w}" for c, w in zip(["red", "blue", "green", "gold", "white", "black", "grey", "pink"], ["tip", "handle", "top", "bottom", "rim", "inside", "outside", "top"]))
     assert len(split_regions(every).regions) <= min(MAX_REGIONS, len(REGIONS))
     shape = get_model("vase").generate(None)
     sp = SurfacePainter("with red top, " * 5000).bind(shape, analyse(shape))

@@ -117,8 +117,7 @@ def _blob_accessor(gltf: gl.GLTF2, blob: bytearray, array: np.ndarray, kind: str
         blob.append(0)
     gltf.bufferViews.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=array.nbytes))
     blob += array.tobytes()
-    gltf.accessors.append(gl.Accessor(bufferView=len(gltf.bufferViews) - 1, componentType=ctype, count=len(array), type=kind,
-                                      min=None, max=None))
+    gltf.accessors.append(gl.Accessor(bufferView=len(gltf.bufferViews) - 1, componentType=ctype, count=len(array), type=kind, min=None, max=None))
     return len(gltf.accessors) - 1
 
 
@@ -140,30 +139,33 @@ def handmade_glb(lines_only: bool = False) -> bytes:
     gltf = gl.GLTF2(scene=0, scenes=[gl.Scene(nodes=[0, 2])], buffers=[gl.Buffer()])
     blob = bytearray()
     s = np.sqrt(0.5)
-    gltf.nodes = [gl.Node(translation=[10, 0, 0], children=[1]),
-                  gl.Node(mesh=0, rotation=[0, 0, s, s], scale=[2, 2, 2]),
-                  gl.Node(mesh=1, matrix=[-1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]),
-                  gl.Node(mesh=0)]
+    gltf.nodes = [
+        gl.Node(translation=[10, 0, 0], children=[1]),
+        gl.Node(mesh=0, rotation=[0, 0, s, s], scale=[2, 2, 2]),
+        gl.Node(mesh=1, matrix=[-1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]),
+        gl.Node(mesh=0),
+    ]
     png = io.BytesIO()
     Image.fromarray(RGBA).save(png, format="PNG")
     gltf.images = [gl.Image(uri="data:image/png;base64," + base64.b64encode(png.getvalue()).decode())]
     gltf.textures = [gl.Texture(source=0)]
     gltf.materials = [
         gl.Material(name="red", pbrMetallicRoughness=gl.PbrMetallicRoughness(baseColorFactor=[1, 0, 0, 1])),
-        gl.Material(name="tex", pbrMetallicRoughness=gl.PbrMetallicRoughness(
-            baseColorFactor=[1, 0.5, 1, 1], baseColorTexture=gl.TextureInfo(index=0))),
+        gl.Material(name="tex", pbrMetallicRoughness=gl.PbrMetallicRoughness(baseColorFactor=[1, 0.5, 1, 1], baseColorTexture=gl.TextureInfo(index=0))),
     ]
     lines = gl.Primitive(attributes=gl.Attributes(POSITION=_blob_accessor(gltf, blob, TRI, gl.VEC3, gl.FLOAT)), mode=gl.LINES)
     if lines_only:
         gltf.meshes = [gl.Mesh(primitives=[lines]), gl.Mesh(primitives=[lines])]
     else:
         tri = gl.Primitive(attributes=gl.Attributes(POSITION=_blob_accessor(gltf, blob, TRI, gl.VEC3, gl.FLOAT)), material=0)
-        quad = gl.Primitive(attributes=gl.Attributes(POSITION=_blob_accessor(gltf, blob, QUAD, gl.VEC3, gl.FLOAT),
-                                                     TEXCOORD_0=_blob_accessor(gltf, blob, QUAD_ST, gl.VEC2, gl.FLOAT)),
-                            indices=_blob_accessor(gltf, blob, np.array([0, 1, 2, 0, 2, 3], np.uint16), gl.SCALAR, gl.UNSIGNED_SHORT),
-                            material=1)
-        plain = gl.Primitive(attributes=gl.Attributes(POSITION=_blob_accessor(gltf, blob, TRI, gl.VEC3, gl.FLOAT)),
-                             indices=_blob_accessor(gltf, blob, np.array([0, 1, 2], np.uint8), gl.SCALAR, gl.UNSIGNED_BYTE))
+        quad = gl.Primitive(
+            attributes=gl.Attributes(POSITION=_blob_accessor(gltf, blob, QUAD, gl.VEC3, gl.FLOAT), TEXCOORD_0=_blob_accessor(gltf, blob, QUAD_ST, gl.VEC2, gl.FLOAT)),
+            indices=_blob_accessor(gltf, blob, np.array([0, 1, 2, 0, 2, 3], np.uint16), gl.SCALAR, gl.UNSIGNED_SHORT),
+            material=1,
+        )
+        plain = gl.Primitive(
+            attributes=gl.Attributes(POSITION=_blob_accessor(gltf, blob, TRI, gl.VEC3, gl.FLOAT)), indices=_blob_accessor(gltf, blob, np.array([0, 1, 2], np.uint8), gl.SCALAR, gl.UNSIGNED_BYTE)
+        )
         gltf.meshes = [gl.Mesh(primitives=[tri, quad, lines]), gl.Mesh(primitives=[plain])]
     gltf.set_binary_blob(bytes(blob))
     return b"".join(gltf.save_to_bytes())
@@ -188,8 +190,7 @@ def test_reader_applies_node_transforms_materials_and_index_types():
     assert np.array_equal(m.corner_uv[1:3].reshape(-1, 2), QUAD[[0, 1, 2, 0, 2, 3], :2])
     assert np.array_equal(m.corner_uv[[0, 3]], np.zeros((2, 3, 2)))
     # Rendered, the untextured triangles show their material colours, exactly (headlight shading).
-    img = render_textured(m.vertices, m.faces, m.corner_uv, m.face_group, m.textures,
-                          three_quarter_camera(m.vertices, "z", 96, azimuth=0, elevation=89))
+    img = render_textured(m.vertices, m.faces, m.corner_uv, m.face_group, m.textures, three_quarter_camera(m.vertices, "z", 96, azimuth=0, elevation=89))
     px = img[object_pixels(img)].astype(int)
     red = (px[:, 1] == 0) & (px[:, 2] == 0) & (px[:, 0] > 0)
     grey = (px[:, 0] == px[:, 1]) & (px[:, 1] == px[:, 2])
@@ -212,12 +213,15 @@ def test_reader_handles_a_transformed_glb_bytes_output_and_a_gltf_json_file(tmp_
     assert np.array_equal(j.vertices, m.vertices) and all(np.array_equal(a, b) for a, b in zip(j.textures, m.textures))
 
 
-@pytest.mark.parametrize("data, message", [
-    (b"", "not a GLB"),
-    (b"solid cube\nfacet normal 0 0 1\n", "not a GLB"),
-    (b"glTF\x02\x00\x00\x00\xff\xff\x00\x00garbage", "cannot be read"),
-    (None, "no triangles"),
-])
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        (b"", "not a GLB"),
+        (b"solid cube\nfacet normal 0 0 1\n", "not a GLB"),
+        (b"glTF\x02\x00\x00\x00\xff\xff\x00\x00garbage", "cannot be read"),
+        (None, "no triangles"),
+    ],
+)
 def test_reader_rejects_bad_input(data, message, tmp_path):
     with pytest.raises(ValueError, match=message):
         read_textured_glb(handmade_glb(lines_only=True) if data is None else data)
@@ -240,8 +244,8 @@ def test_view_helpers(mug, tmp_path):
     grid = render_grid(six, 3, labels=names, pad=4)
     band = grid.shape[0] - 2 * (48 + 4) - 4
     assert grid.shape[1] == 3 * (48 + 4) + 4 and band > 0 and band % 2 == 0
-    assert np.array_equal(grid[4 + band // 2: 4 + band // 2 + 48, 4:52], six[0])  # tile below its caption
-    assert (grid[4: 4 + band // 2, 4:52] < 128).any()  # the caption is drawn
+    assert np.array_equal(grid[4 + band // 2 : 4 + band // 2 + 48, 4:52], six[0])  # tile below its caption
+    assert (grid[4 : 4 + band // 2, 4:52] < 128).any()  # the caption is drawn
     assert np.array_equal(render_grid(six, 3)[4:52, 4:52], six[0])
     frames = turntable_frames(V, F, UV, G, tex, up="z", n=4, size=40, tracer=tracer)
     assert len(frames) == 4 and not np.array_equal(frames[0], frames[1])
@@ -280,28 +284,29 @@ def test_cli_render_front_six_and_turntable(mug_glb, capsys):
     assert main(["render", str(mug_glb), "--views", "six", "--size", "64", "--up", "z", "--out", str(d / "six.png")]) == 0
     six = np.asarray(Image.open(d / "six.png"))
     assert six.shape[1] == 3 * (64 + 4) + 4 and six.shape[0] > 2 * (64 + 4) + 4
-    assert main(["render", str(mug_glb), "--views", "turntable", "--frames", "5", "--size", "32", "--up", "z",
-                 "--out", str(d / "turn.gif")]) == 0
+    assert main(["render", str(mug_glb), "--views", "turntable", "--frames", "5", "--size", "32", "--up", "z", "--out", str(d / "turn.gif")]) == 0
     with Image.open(d / "turn.gif") as gif:
         assert gif.n_frames == 5 and gif.size == (32, 32)
     assert main(["render", str(mug_glb), "--views", "turntable", "--frames", "6", "--size", "32", "--out", str(d / "sub" / "turn.png")]) == 0
     assert np.asarray(Image.open(d / "sub" / "turn.png")).shape == (2 * 36 + 4, 3 * 36 + 4, 3)
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["{missing}"], "no such file"),
-    (["{text}"], "not a GLB"),
-    (["{lines}"], "no triangles"),
-    (["{glb}", "--size", "4"], "--size"),
-    (["{glb}", "--frames", "0", "--views", "turntable"], "--frames"),
-    (["{glb}", "--views", "six", "--out", "{dir}/x.gif"], "turntable"),
-    (["{glb}", "--out", "{dir}/x.jpg"], ".png"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["{missing}"], "no such file"),
+        (["{text}"], "not a GLB"),
+        (["{lines}"], "no triangles"),
+        (["{glb}", "--size", "4"], "--size"),
+        (["{glb}", "--frames", "0", "--views", "turntable"], "--frames"),
+        (["{glb}", "--views", "six", "--out", "{dir}/x.gif"], "turntable"),
+        (["{glb}", "--out", "{dir}/x.jpg"], ".png"),
+    ],
+)
 def test_cli_render_bad_input(argv, message, mug_glb, tmp_path, capsys):
     (tmp_path / "text.glb").write_text("not a glb\n")
     (tmp_path / "lines.glb").write_bytes(handmade_glb(lines_only=True))
-    names = {"missing": tmp_path / "missing.glb", "text": tmp_path / "text.glb", "lines": tmp_path / "lines.glb",
-             "glb": mug_glb, "dir": tmp_path}
+    names = {"missing": tmp_path / "missing.glb", "text": tmp_path / "text.glb", "lines": tmp_path / "lines.glb", "glb": mug_glb, "dir": tmp_path}
     before = set(tmp_path.iterdir())
     assert main(["render"] + [a.format(**names) for a in argv]) == 2
     err = capsys.readouterr().err
@@ -320,8 +325,7 @@ def mug_family(tmp_path_factory):
     from proctex.store.state import write_config
 
     root = tmp_path_factory.mktemp("fam") / "mug"
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=64, prompt="red and white checkered fabric",
-                      group_prompts={"handle": "gold"})).validate()
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=2, n_test=0, texture_size=64, prompt="red and white checkered fabric", group_prompts={"handle": "gold"})).validate()
     st = FamilyStore(root)
     write_config(st, cfg)
     for stage in (stage_sample, stage_template, stage_paint):
@@ -331,8 +335,7 @@ def mug_family(tmp_path_factory):
 
 def test_cli_transfer_preview(mug_family, tmp_path, capsys):
     out, png = tmp_path / "t.glb", tmp_path / "previews" / "t.png"
-    assert main(["transfer", str(mug_family), "--params", '{"radius": 0.045}', "--out", str(out), "--mapper", "identity",
-                 "--preview", str(png), "--json"]) == 0
+    assert main(["transfer", str(mug_family), "--params", '{"radius": 0.045}', "--out", str(out), "--mapper", "identity", "--preview", str(png), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["preview"] == str(png) and summary["out"] == str(out)
     img = np.asarray(Image.open(png))
@@ -344,8 +347,7 @@ def test_cli_transfer_preview(mug_family, tmp_path, capsys):
     assert (np.abs(again.astype(int) - img).max(axis=-1) > 1).mean() <= 0.002
 
     baked, bpng = tmp_path / "b.glb", tmp_path / "b.png"
-    assert main(["transfer", str(mug_family), "--params", '{"radius": 0.045}', "--out", str(baked), "--mapper", "nearest",
-                 "--bake", "64", "--preview", str(bpng)]) == 0
+    assert main(["transfer", str(mug_family), "--params", '{"radius": 0.045}', "--out", str(baked), "--mapper", "nearest", "--bake", "64", "--preview", str(bpng)]) == 0
     assert f"wrote {bpng}" in capsys.readouterr().out
     bimg = np.asarray(Image.open(bpng))
     assert bimg.shape == (512, 512, 3) and red_share(bimg) > 0.15
@@ -361,8 +363,7 @@ def test_cli_transfer_preview(mug_family, tmp_path, capsys):
 
 def test_cli_paint_preview(tmp_path, capsys):
     out, png = tmp_path / "p", tmp_path / "p34.png"
-    assert main(["paint", "mug", "--prompt", "red and white checkered fabric", "--size", "64", "--out", str(out),
-                 "--preview", str(png), "--json"]) == 0
+    assert main(["paint", "mug", "--prompt", "red and white checkered fabric", "--size", "64", "--out", str(out), "--preview", str(png), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["preview"] == str(png)
     assert (out / "preview.png").is_file() and (out / "textured.glb").is_file()  # unchanged behaviour

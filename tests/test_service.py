@@ -240,8 +240,9 @@ def test_the_library_command_line_never_mentions_ray_and_the_ray_layer_adds_to_i
     from workflows.cli import build_parser as ray_parser
 
     core, full = core_parser(), ray_parser()
-    said = [(name, a.option_strings, a.help) for name, sp in core.subparsers.choices.items() for a in sp._actions
-            if re.search(r"\bray\b", " ".join(a.option_strings) + " " + (a.help or ""), flags=re.I)]
+    said = [
+        (name, a.option_strings, a.help) for name, sp in core.subparsers.choices.items() for a in sp._actions if re.search(r"\bray\b", " ".join(a.option_strings) + " " + (a.help or ""), flags=re.I)
+    ]
     said += [("command", a.dest, a.help) for a in core.subparsers._choices_actions if re.search(r"\bRay\b", a.help or "")]
     assert said == []
     options = lambda p, name: {o for a in p.subparsers.choices[name]._actions for o in a.option_strings}  # noqa: E731
@@ -301,8 +302,18 @@ def test_the_studio_page_and_its_assets_are_served_safely(root, tmp_path):
     assert r.status_code == 200 and "javascript" in r.headers["content-type"] and r.text == "console.log('studio')"
     assert c.get("/studio/style.css").headers["content-type"].startswith("text/css")
     assert c.get("/studio/sub/a.txt").text == "nested"
-    for path in ("/studio/nope.js", "/studio/", "/studio/sub", "/studio/.env", "/studio/../secret.txt", "/studio/%2e%2e/secret.txt",
-                 "/studio/..%2fsecret.txt", "/studio/sub/../../secret.txt", "/studio/%2Fetc%2Fpasswd", "/studio//etc/passwd"):
+    for path in (
+        "/studio/nope.js",
+        "/studio/",
+        "/studio/sub",
+        "/studio/.env",
+        "/studio/../secret.txt",
+        "/studio/%2e%2e/secret.txt",
+        "/studio/..%2fsecret.txt",
+        "/studio/sub/../../secret.txt",
+        "/studio/%2Fetc%2Fpasswd",
+        "/studio//etc/passwd",
+    ):
         r = c.get(path)
         assert r.status_code == 404, (path, r.status_code, r.text[:100])
         assert "outside" not in r.text and "root:" not in r.text
@@ -522,7 +533,6 @@ def test_stored_edits_need_the_token_a_json_body_and_the_current_stamp(root, tmp
     assert c.delete("/v1/families/mug/edits", headers=ok).json()["undone"][0]["hsv"][2] == 0.0  # a blackened texture comes back
 
 
-
 def test_a_change_answers_its_own_version_read_under_its_lock(root, tmp_path, monkeypatch):
     """One version value (issue 55): an edit, an undo or a new look answers the family's stamp read
     under the edit lock it was written under, so a client that conditions its next change on it is
@@ -554,8 +564,7 @@ def test_a_change_answers_its_own_version_read_under_its_lock(root, tmp_path, mo
     cat = Catalog(str(base), check_every=0)
     c = TestClient(create_app(lambda: cat, edit_token="t0ken"))
     ok = {"X-ProcTex-Token": "t0ken"}
-    for send in (lambda: c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=ok),
-                 lambda: c.delete("/v1/families/mug/edits/last", headers=ok)):
+    for send in (lambda: c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=ok), lambda: c.delete("/v1/families/mug/edits/last", headers=ok)):
         r = send()
         assert r.status_code == 200, r.text
         answered = r.json()["stamp"]
@@ -618,6 +627,7 @@ def test_the_served_snapshot_is_immutable_and_an_edited_preview_bakes_its_edit(r
     assert not np.array_equal(preview[0], plain[0]) and np.array_equal(preview[0], stored[0])
     assert all(np.array_equal(a, b) for a, b in zip(preview[1:], stored[1:]))
 
+
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     """The pure texture edit and the persisted one are the same code: equal results."""
     from proctex.fileio import encode_png
@@ -661,7 +671,7 @@ def test_linked_answers_carry_geometry_only_and_the_textures_are_cached_by_diges
     g = pygltflib.GLTF2().load_from_bytes(linked.content)
     blob = g.binary_blob()
     views = [g.accessors[a].bufferView for p in g.meshes[0].primitives for a in (p.attributes.POSITION, p.attributes.TEXCOORD_0, p.indices)]
-    assert [blob[(g.bufferViews[i].byteOffset or 0): (g.bufferViews[i].byteOffset or 0) + g.bufferViews[i].byteLength] for i in views] == geometry_full
+    assert [blob[(g.bufferViews[i].byteOffset or 0) : (g.bufferViews[i].byteOffset or 0) + g.bufferViews[i].byteLength] for i in views] == geometry_full
     assert all(im.bufferView is None and im.uri.startswith("textures/") for im in g.images)
     assert len(linked.content) < len(full.content) - sum(len(v) for v in images_full.values()) + 4096
     for im in g.images:
@@ -699,13 +709,16 @@ def test_stored_images_pickle_without_their_lock_and_decode_alike(root):
     assert back.png == textures.png and np.array_equal(back[0], textures[0])
 
 
-@pytest.mark.parametrize("path, message", [
-    ("/v1/families/%2e%2e%2f", "no route"),  # was a 307 to /v1/families/.. with an empty body
-    ("/v1/families/..%2f", "no route"),
-    ("/v1/families/mug/", "no route"),
-    ("/v1/families/mug/textures/0.normal.orm.png", "unknown group '0.normal'"),  # served the normal map
-    ("/v1/families/mug/textures/0.orm.orm.png", "unknown group '0.orm'"),
-])
+@pytest.mark.parametrize(
+    "path, message",
+    [
+        ("/v1/families/%2e%2e%2f", "no route"),  # was a 307 to /v1/families/.. with an empty body
+        ("/v1/families/..%2f", "no route"),
+        ("/v1/families/mug/", "no route"),
+        ("/v1/families/mug/textures/0.normal.orm.png", "unknown group '0.normal'"),  # served the normal map
+        ("/v1/families/mug/textures/0.orm.orm.png", "unknown group '0.orm'"),
+    ],
+)
 def test_odd_paths_answer_a_json_404_not_a_redirect_or_another_file(client, path, message):
     c, _ = client
     r = c.get(path, follow_redirects=False)

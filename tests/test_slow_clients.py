@@ -95,6 +95,7 @@ def test_uploads_beyond_the_slots_are_refused_at_once_and_health_and_small_bodie
     of idle allowed), another upload is refused after the short wait for a slot (not after the
     held body ends), and the health route and a small body are answered."""
     big = 100_000  # over Limits.small_body: an upload
+
     async def run():
         async with _client(patient_app, "192.0.2.1") as a, _client(patient_app, "192.0.2.2") as c:
             release = asyncio.Event()
@@ -123,6 +124,7 @@ def test_forty_stalled_small_bodies_hold_neither_health_nor_transfers(patient_ap
     ``max_small_bodies`` slots (held until the test lets them go); the health route and a transfer
     are answered while all 40 are still held. (That a stalled body is cut off in time is the first
     test's.)"""
+
     async def run():
         async with contextlib.AsyncExitStack() as stack:  # forty clients (one's share is client_small_bodies)
             senders = [await stack.enter_async_context(_client(patient_app, f"198.51.100.{k + 1}")) for k in range(40)]
@@ -142,8 +144,7 @@ def test_forty_stalled_small_bodies_hold_neither_health_nor_transfers(patient_ap
 
 
 def test_body_limits_are_checked():
-    for bad in (dict(body_seconds=0), dict(body_idle_seconds=float("nan")), dict(max_uploads=0), dict(body_min_rate=True),
-                dict(max_small_bodies=0), dict(small_body=-1)):
+    for bad in (dict(body_seconds=0), dict(body_idle_seconds=float("nan")), dict(max_uploads=0), dict(body_min_rate=True), dict(max_small_bodies=0), dict(small_body=-1)):
         with pytest.raises(ValueError, match="limit"):
             Limits(**bad)
 
@@ -202,6 +203,7 @@ def test_one_client_holds_its_share_of_the_slots_and_every_other_client_is_serve
     1,000 bytes and 9 of them. It holds client_small_bodies (64 of the 256) slots; its other bodies wait a
     moment and are refused (429, Retry-After), while another client's transfers and edits answer
     (before, the one client took all 256 small-body slots and every other client got 503)."""
+
     async def run():
         async with _client(patient_app, "192.0.2.1") as bad, _client(patient_app, "192.0.2.2") as good:
             release = asyncio.Event()

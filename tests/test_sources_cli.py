@@ -8,7 +8,7 @@ from proctex.cli import main
 from proctex.geometry.meshio import load_mesh
 from proctex.sources.files import FolderSource, load_generator, resolve_shape
 
-GEN = '''
+GEN = """
 import numpy as np
 from proctex.geometry import primitives as P
 
@@ -23,7 +23,7 @@ def generate(params):
     for p in parts:
         verts.append(p.vertices); faces.append(p.faces + off); off += len(p.vertices)
     return np.concatenate(verts), np.concatenate(faces)
-'''
+"""
 
 
 @pytest.fixture
@@ -216,8 +216,7 @@ def test_a_source_kind_from_one_file_builds_and_serves_a_family(tmp_path, monkey
     path.write_text(TOY_SOURCE)
     monkeypatch.setenv("PROCTEX_PLUGINS", str(path))
     try:
-        cfg = BuildConfig.from_dict({"source": {"kind": "toy_mug", "settings": {"scale": 3.0}, "n_train": 2, "n_test": 0},
-                                     "paint": {"prompt": "blue ceramic", "texture_size": 32}})
+        cfg = BuildConfig.from_dict({"source": {"kind": "toy_mug", "settings": {"scale": 3.0}, "n_train": 2, "n_test": 0}, "paint": {"prompt": "blue ceramic", "texture_size": 32}})
         st = FamilyStore(tmp_path / "fam")
         write_config(st, cfg)
         for stage in (stage_sample, stage_template, stage_paint):
@@ -229,9 +228,11 @@ def test_a_source_kind_from_one_file_builds_and_serves_a_family(tmp_path, monkey
         assert svc.describe()["source"]["kind"] == "toy_mug"
         shape = svc.shape_from_params({})
         assert np.ptp(shape.vertices, axis=0).max() == pytest.approx(3.0 * np.ptp(get_model("mug").generate().vertices, axis=0).max())
-        for bad, message in (({"kind": "toy_mug", "settings": {"scale": -1}}, "positive number"),
-                             ({"kind": "toy_nothing", "settings": {}}, "unknown source kind"),
-                             ({"kind": "toy_mug", "settings": {"scale": 1}, "model": "mug"}, "exactly one")):
+        for bad, message in (
+            ({"kind": "toy_mug", "settings": {"scale": -1}}, "positive number"),
+            ({"kind": "toy_nothing", "settings": {}}, "unknown source kind"),
+            ({"kind": "toy_mug", "settings": {"scale": 1}, "model": "mug"}, "exactly one"),
+        ):
             with pytest.raises(ValueError, match=message):
                 BuildConfig.from_dict({"source": bad})
     finally:

@@ -112,9 +112,7 @@ TRANSFER_URL = re.compile(r".*/transfer(\?.*)?$")  # the studio asks with ?textu
 
 
 def _wait_for_shape(page, at_least: int, timeout: float = 60_000) -> None:
-    page.wait_for_function(
-        "n => document.body.dataset.state === 'idle' && document.body.dataset.busy === '0' && +document.body.dataset.requests >= n",
-        arg=at_least, timeout=timeout)
+    page.wait_for_function("n => document.body.dataset.state === 'idle' && document.body.dataset.busy === '0' && +document.body.dataset.requests >= n", arg=at_least, timeout=timeout)
 
 
 def _requests(page) -> int:
@@ -122,8 +120,7 @@ def _requests(page) -> int:
 
 
 def _set_range(page, selector: str, value) -> None:
-    page.eval_on_selector(selector, "(el, v) => { el.value = String(v); el.dispatchEvent(new Event('input', {bubbles: true}));"
-                                    " el.dispatchEvent(new Event('change', {bubbles: true})); }", value)
+    page.eval_on_selector(selector, "(el, v) => { el.value = String(v); el.dispatchEvent(new Event('input', {bubbles: true})); el.dispatchEvent(new Event('change', {bubbles: true})); }", value)
 
 
 def _mean_colour(px: np.ndarray) -> np.ndarray:
@@ -207,7 +204,8 @@ def test_the_studio_textures_a_family_interactively(server, browser):
         # three round trips, as a user's hand does not outrun what it watches.
         n = _requests(page)
         step_ms = max(100, int(slider_ms / 4))
-        during = page.evaluate("""async (step) => {
+        during = page.evaluate(
+            """async (step) => {
             const el = document.querySelector('input[name=height]');
             const seen = [];
             for (let k = 0; k <= 12; k++) {
@@ -217,7 +215,9 @@ def test_the_studio_textures_a_family_interactively(server, browser):
                 seen.push(+document.body.dataset.requests);
             }
             return seen;
-        }""", step_ms)
+        }""",
+            step_ms,
+        )
         _wait_for_shape(page, n + 1)
         assert page.evaluate("window.studio.lastParams.height") == pytest.approx(0.13)
         assert during[-1] - n >= 2, f"the view did not follow the drag: completed transfers during it {during}"
@@ -228,8 +228,9 @@ def test_the_studio_textures_a_family_interactively(server, browser):
         n = _requests(page)
         _set_range(page, ".group[data-group='0'] input[type=range]", 180)
         _wait_for_shape(page, n + 1)
-        page.wait_for_function("() => [...document.querySelectorAll('.group img')].every(i => i.complete && i.naturalWidth > 0)"
-                               " && document.querySelector(\".group[data-group='0'] img\").src.includes('hue=180')")
+        page.wait_for_function(
+            "() => [...document.querySelectorAll('.group img')].every(i => i.complete && i.naturalWidth > 0) && document.querySelector(\".group[data-group='0'] img\").src.includes('hue=180')"
+        )
         page.screenshot(path=str(ARTIFACTS / "03-hue-180-body.png"))
         px2 = _canvas(page)
         c1, c2 = _mean_colour(px1), _mean_colour(px2)
@@ -303,14 +304,15 @@ def test_the_studio_textures_a_family_interactively(server, browser):
         view = shown.bufferViews[orm_image.bufferView]
         from PIL import Image
 
-        orm = np.asarray(Image.open(io.BytesIO(shown.binary_blob()[view.byteOffset: view.byteOffset + view.byteLength])).convert("RGB"))
+        orm = np.asarray(Image.open(io.BytesIO(shown.binary_blob()[view.byteOffset : view.byteOffset + view.byteLength])).convert("RGB"))
         assert orm[..., 2].mean() > 250
         assert not errors, errors
     finally:
         context.close()
     seconds = time.perf_counter() - t_start
-    (ARTIFACTS / "timings.json").write_text(json.dumps({"first_ms": first_ms, "slider_ms": slider_ms, "hue_ms": hue_ms, "drag_requests": drag_requests,
-                                                        "server_seconds": server_s, "browser_seconds": round(seconds, 2)}, indent=1))
+    (ARTIFACTS / "timings.json").write_text(
+        json.dumps({"first_ms": first_ms, "slider_ms": slider_ms, "hue_ms": hue_ms, "drag_requests": drag_requests, "server_seconds": server_s, "browser_seconds": round(seconds, 2)}, indent=1)
+    )
 
 
 def test_the_studio_uploads_a_mesh_for_families_of_meshes(server, browser, sofa_dir):
@@ -504,7 +506,8 @@ def test_the_studio_makes_a_look_from_photos_chosen_in_a_panel_and_dropped_on_a_
         _wait_for_shape(page, 1)
         page.set_input_files('.group[data-group="1"] input.photo', str(tmp_path / "red.png"))
         data = base64.b64encode((tmp_path / "green.png").read_bytes()).decode()
-        page.evaluate("""([b64, name]) => {
+        page.evaluate(
+            """([b64, name]) => {
             const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
             const dt = new DataTransfer();
             dt.items.add(new File([bytes], name, { type: 'image/png' }));
@@ -512,7 +515,9 @@ def test_the_studio_makes_a_look_from_photos_chosen_in_a_panel_and_dropped_on_a_
             const r = c.getBoundingClientRect();
             c.dispatchEvent(new DragEvent('drop', { dataTransfer: dt, clientX: r.left + r.width / 2, clientY: r.top + r.height / 2,
                                                    bubbles: true, cancelable: true }));
-        }""", [data, "green.png"])
+        }""",
+            [data, "green.png"],
+        )
         assert page.evaluate("document.body.dataset.photos") == "2"
         assert page.evaluate("document.body.dataset.selected") == "0", "the drop lands on the body in the middle of the view"
         assert "green.png" in page.evaluate("document.querySelector('.group[data-group=\"0\"] .photo-note').textContent")

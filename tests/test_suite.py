@@ -67,8 +67,7 @@ def run_suite(tmp_path: Path, case: str, *extra: str) -> subprocess.CompletedPro
     (proj / "test_tiny.py").write_text(TESTS)
 
     env = {**os.environ, "SUITE_CASE": case, "SUITE_FLAG": str(proj / "second.done"), "SUITE_NICE": str(os.nice(0))}
-    return subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "0", *extra, str(proj)], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=900)
+    return subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "0", *extra, str(proj)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
 
 
 def test_the_second_pass_runs_beside_the_first(tmp_path):
@@ -102,8 +101,7 @@ def test_bad_worker_counts_are_refused():
 
     run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "-1"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "workers must be >= 0" in run.stderr
-    run = subprocess.run([sys.executable, "-m", "tests.suite"], cwd=ROOT, capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "TEST_WORKERS": "two"})
+    run = subprocess.run([sys.executable, "-m", "tests.suite"], cwd=ROOT, capture_output=True, text=True, timeout=60, env={**os.environ, "TEST_WORKERS": "two"})
     assert run.returncode == 2 and "TEST_WORKERS" in run.stderr and "Traceback" not in run.stderr
 
 
@@ -178,13 +176,14 @@ def test_a_test_stuck_in_c_is_named_with_its_threads_and_stopped_and_the_rest_ru
     test still runs: a hang costs one test, not the suite."""
     method = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["timeout_method"]
     proj = tiny_project(tmp_path, "stuck", HANGS_IN_C, f"timeout = 20\ntimeout_method = {method}\n")
-    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "1", "-rs", str(proj)], cwd=ROOT, capture_output=True, text=True,
-                         timeout=600, env={**os.environ, "PROCTEX_TEST_STALL_S": "8"})
+    run = subprocess.run(
+        [sys.executable, "-m", "tests.suite", "--workers", "1", "-rs", str(proj)], cwd=ROOT, capture_output=True, text=True, timeout=600, env={**os.environ, "PROCTEX_TEST_STALL_S": "8"}
+    )
     out = run.stdout
     assert run.returncode == 1, out[-4000:] + run.stderr[-2000:]
     assert "test_hang.py::test_stuck_where_no_signal_reaches has run" in out and "over 8 s (PROCTEX_TEST_STALL_S)" in out, out[-4000:]
     threads = out.split("its process's threads:")[1].split("==== end of")[0]
-    assert 'line 7 in test_stuck_where_no_signal_reaches' in threads, threads  # its stack, down to the stuck line
+    assert "line 7 in test_stuck_where_no_signal_reaches" in threads, threads  # its stack, down to the stuck line
     assert "crashed while running 'test_hang.py::test_stuck_where_no_signal_reaches'" in out, out[-4000:]
     assert "1 failed, 1 passed, 1 skipped" in out and "not run again: it stopped worker process" in out, out[-4000:]
     assert out.count("crashed while running") == 1  # run once: the new worker skips it and runs the next
@@ -216,14 +215,20 @@ def test_a_test_holding_the_gil_past_the_kill_limit_is_killed_named_last_and_the
     more alone and is killed again), and the suite's last lines name it with its innermost frames.
     Without the kill the pass would wait the lock's 90 s out, twice."""
     proj = tiny_project(tmp_path, "gil", HOLDS_THE_GIL, "timeout = 5\ntimeout_method = thread\n")
-    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "1", str(proj)], cwd=ROOT, capture_output=True, text=True,
-                         timeout=600, env={**os.environ, "PROCTEX_TEST_STALL_S": "4", "PROCTEX_TEST_KILL_S": "12"})
+    run = subprocess.run(
+        [sys.executable, "-m", "tests.suite", "--workers", "1", str(proj)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "PROCTEX_TEST_STALL_S": "4", "PROCTEX_TEST_KILL_S": "12"},
+    )
     out = run.stdout
     assert run.returncode == 1, out[-4000:] + run.stderr[-2000:]
     assert "over 4 s (PROCTEX_TEST_STALL_S)" in out and "over 12 s (PROCTEX_TEST_KILL_S)" in out, out[-4000:]
     assert "crashed while running 'test_hang.py::test_stuck_in_c_holding_the_gil'" in out, out[-4000:]
     assert "1 failed, 1 passed" in out and "they failed again" in out, out[-4000:]
-    tail = out[out.rindex("they failed again"):]
+    tail = out[out.rindex("they failed again") :]
     assert tail.count("test_hang.py::test_stuck_in_c_holding_the_gil: killed (a hang the timeout could not end)") == 2, tail
     assert "test_hang.py:12 in test_stuck_in_c_holding_the_gil" in tail, tail  # the innermost frame, in the last lines
 
@@ -250,8 +255,9 @@ def test_a_test_that_hung_once_runs_again_and_a_real_failure_is_never_retried(tm
     again and the suite fails."""
     body = HANGS_ONCE + ("\ndef test_fails():\n    assert False\n" if also_fails else "")
     proj = tiny_project(tmp_path, "once", body, "timeout = 15\ntimeout_method = thread\n")
-    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "1", str(proj)], cwd=ROOT, capture_output=True, text=True,
-                         timeout=600, env={**os.environ, "SUITE_FLAG": str(proj / "hung.flag")})
+    run = subprocess.run(
+        [sys.executable, "-m", "tests.suite", "--workers", "1", str(proj)], cwd=ROOT, capture_output=True, text=True, timeout=600, env={**os.environ, "SUITE_FLAG": str(proj / "hung.flag")}
+    )
     out = run.stdout
     assert (proj / "hung.flag").exists() and "crashed while running 'test_hang.py::test_hangs_the_first_time'" in out, out[-4000:]
     if also_fails:
@@ -264,14 +270,12 @@ def test_a_test_that_hung_once_runs_again_and_a_real_failure_is_never_retried(tm
 
 def test_a_suite_past_its_budget_names_every_running_test_and_stops(tmp_path):
     proj = tiny_project(tmp_path, "budget", "import time\n\ndef test_sleeps_long():\n    time.sleep(300)\n")
-    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "0", str(proj)], cwd=ROOT, capture_output=True, text=True,
-                         timeout=600, env={**os.environ, "PROCTEX_SUITE_BUDGET_S": "15"})
+    run = subprocess.run([sys.executable, "-m", "tests.suite", "--workers", "0", str(proj)], cwd=ROOT, capture_output=True, text=True, timeout=600, env={**os.environ, "PROCTEX_SUITE_BUDGET_S": "15"})
     out = run.stdout
     assert run.returncode == 1, out[-4000:] + run.stderr[-2000:]
     assert "past its budget of 15 s (PROCTEX_SUITE_BUDGET_S): 1 test(s) running, then stopped" in out, out[-4000:]
     assert "test_hang.py::test_sleeps_long has run" in out and "line 4 in test_sleeps_long" in out, out[-4000:]
     assert "(stopped: past the suite's budget of 15 s)" in out
     assert not subprocess.run(["pgrep", "-f", str(proj)], capture_output=True).stdout, "a pass outlived the suite"
-    bad = subprocess.run([sys.executable, "-m", "tests.suite", str(proj)], cwd=ROOT, capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "PROCTEX_SUITE_BUDGET_S": "nan"})
+    bad = subprocess.run([sys.executable, "-m", "tests.suite", str(proj)], cwd=ROOT, capture_output=True, text=True, timeout=60, env={**os.environ, "PROCTEX_SUITE_BUDGET_S": "nan"})
     assert bad.returncode == 2 and "PROCTEX_SUITE_BUDGET_S" in bad.stderr and "Traceback" not in bad.stderr

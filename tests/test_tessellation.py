@@ -137,8 +137,9 @@ def test_fixed_check_fails_on_changes_and_holds_under_last_bit_noise():
     assert not fixed_mismatches(shape, ref)
     rng = np.random.default_rng(0)
     scale = np.abs(shape.vertices).max()
-    noisy = dataclasses.replace(shape, vertices=shape.vertices * (1 + 4e-16 * rng.standard_normal(shape.vertices.shape)),
-                                canonical=shape.canonical + 2e-16 * rng.standard_normal(shape.canonical.shape))
+    noisy = dataclasses.replace(
+        shape, vertices=shape.vertices * (1 + 4e-16 * rng.standard_normal(shape.vertices.shape)), canonical=shape.canonical + 2e-16 * rng.standard_normal(shape.canonical.shape)
+    )
     assert not fixed_mismatches(noisy, ref)
     for i in rng.choice(len(shape.vertices), 5, replace=False):
         for axis in range(3):
@@ -258,8 +259,7 @@ def test_canonical_check_catches_count_tied_rounding_bands(monkeypatch):
     tied to the count, as the fixed tessellation's code reads), the check above must fail."""
     rounded_box = P.rounded_box
 
-    def tied(size, center=(0.0, 0.0, 0.0), divisions=(4, 4, 4), round_lo=(0.0,) * 3, round_hi=(0.0,) * 3,
-             edge_segments=2, warp=None, middle=None):
+    def tied(size, center=(0.0, 0.0, 0.0), divisions=(4, 4, 4), round_lo=(0.0,) * 3, round_hi=(0.0,) * 3, edge_segments=2, warp=None, middle=None):
         if middle is not None:
             bands = (np.asarray(round_lo) > 0).astype(int) + (np.asarray(round_hi) > 0).astype(int)
             divisions, middle = np.asarray(middle) + edge_segments * bands, None

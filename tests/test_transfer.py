@@ -289,8 +289,7 @@ def cake_views():
 
     tpl = get_model("cake").generate({"candles": 0})
     grouping = analyse(tpl)
-    tex = paint_views(tpl, grouping, SolidViewPainter(SurfacePainter("red velvet cake"), grouping), size=128, view_size=128,
-                      n_views=6, complete_hidden=False, up="z")
+    tex = paint_views(tpl, grouping, SolidViewPainter(SurfacePainter("red velvet cake"), grouping), size=128, view_size=128, n_views=6, complete_hidden=False, up="z")
     assets = prepare_template(tpl, grouping, tex.uv.corner_uv, [g.uint8() for g in tex.groups])
     assets = replace(assets, painted=tex.painted_masks, observed=tex.observed_masks)
     return tpl, grouping, tex, assets
@@ -561,8 +560,7 @@ def test_a_third_copy_turned_about_the_centre_takes_its_siblings_map_composed_wi
     extra = next(p for p in buttons if assignment[p.index].how == "extra")
     v = shape.vertices[extra.vertices]
     f = np.searchsorted(extra.vertices, shape.faces[extra.faces])
-    slotted = [(assignment[p.index], shape.vertices[p.vertices], np.searchsorted(p.vertices, shape.faces[p.faces]))
-               for p in buttons if assignment[p.index].how == "slot"]
+    slotted = [(assignment[p.index], shape.vertices[p.vertices], np.searchsorted(p.vertices, shape.faces[p.faces])) for p in buttons if assignment[p.index].how == "slot"]
     assert copy_of_sibling(extra.index, v * [1.0, 1.0, 1.6], f, slotted) is None
     assert copy_of_sibling(extra.index, v, f[:, ::-1], slotted) is None
     twin = copy_of_sibling(extra.index, v, f, slotted)

@@ -23,8 +23,7 @@ import seamsplit as S  # noqa: E402
 
 def cube() -> tuple[np.ndarray, np.ndarray]:
     v = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
-    f = np.array([[0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3], [0, 4, 5], [0, 5, 1],
-                  [2, 3, 7], [2, 7, 6], [0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5]])
+    f = np.array([[0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6], [0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5]])
     return v, f
 
 
@@ -154,7 +153,6 @@ def test_the_methods_never_see_the_files_truth(seam_family, monkeypatch):
     seen = []
     real = apply.shape_to_glb
     monkeypatch.setattr(apply, "shape_to_glb", lambda shape, *a, **k: seen.append((shape.labels, shape.canonical)) or real(shape, *a, **k))
-    m = evaluate(FamilyStore(seam_family / "mug"), methods=("identity", "nearest"), tracked=100, view_size=32, bake_size=32,
-                 log=lambda *_: None, quiet=True)
+    m = evaluate(FamilyStore(seam_family / "mug"), methods=("identity", "nearest"), tracked=100, view_size=32, bake_size=32, log=lambda *_: None, quiet=True)
     assert m["truth"] == "canonical" and len(seen) == 4  # 2 test shapes x 2 methods
     assert all(labels is None and canonical is None for labels, canonical in seen)

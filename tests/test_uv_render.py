@@ -134,7 +134,6 @@ def test_unwrap_validates():
         unwrap(np.zeros((3, 3)), np.array([[0, 1, 5]]))
 
 
-
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="threads are counted in /proc (Linux)")
 def test_xatlas_is_built_without_threads():
     """The xatlas make setup installs starts no thread: its threaded scheduler's destructor can miss a
@@ -185,6 +184,7 @@ def test_a_threaded_xatlas_is_destroyed_only_once_its_workers_sleep(monkeypatch)
     holder = [Thing()]
     ref = weakref.ref(holder[0])
     assert U._release(holder, set()) and ref() is None
+
 
 # ------------------------------------------------------------------------------------ texel maps
 def test_texel_map_matches_reference_and_lies_on_surface():

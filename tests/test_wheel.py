@@ -54,16 +54,20 @@ def test_the_wheel_carries_what_the_tool_needs_at_run_time(wheel):
 def test_the_wheel_installs_into_a_fresh_environment_and_runs_from_it(wheel, tmp_path):
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
-    site = Path(subprocess.run([str(venv / "bin" / "python"), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                               check=True, capture_output=True, text=True, env=clean_env()).stdout.strip())
+    site = Path(
+        subprocess.run([str(venv / "bin" / "python"), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], check=True, capture_output=True, text=True, env=clean_env()).stdout.strip()
+    )
     (site / "proctex-deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")  # this environment's dependencies
-    subprocess.run([sys.executable, "-m", "pip", "--python", str(venv / "bin" / "python"), "install", "--quiet", "--no-deps", "--no-index", str(wheel)],
-                   check=True, capture_output=True, text=True, timeout=300)
+    subprocess.run(
+        [sys.executable, "-m", "pip", "--python", str(venv / "bin" / "python"), "install", "--quiet", "--no-deps", "--no-index", str(wheel)], check=True, capture_output=True, text=True, timeout=300
+    )
     run = lambda *a: subprocess.run(list(a), cwd=tmp_path, env=clean_env(), capture_output=True, text=True, timeout=300)  # noqa: E731
     r = run(str(venv / "bin" / "proctex"), "--version")
     assert r.returncode == 0 and r.stdout.strip() == f"proctex {VERSION}", r.stderr
-    probe = ("import json, proctex, workers.http as h, proctex.sources.blender as b; "
-             "print(json.dumps([proctex.__file__, str(h.STUDIO_DIST / 'index.html'), (h.STUDIO_DIST / 'index.html').is_file(), b.SERVER.is_file()]))")
+    probe = (
+        "import json, proctex, workers.http as h, proctex.sources.blender as b; "
+        "print(json.dumps([proctex.__file__, str(h.STUDIO_DIST / 'index.html'), (h.STUDIO_DIST / 'index.html').is_file(), b.SERVER.is_file()]))"
+    )
     r = run(str(venv / "bin" / "python"), "-c", probe)
     assert r.returncode == 0, r.stderr
     module, studio, studio_there, server_there = json.loads(r.stdout)

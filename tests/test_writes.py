@@ -60,8 +60,9 @@ def family(painted_mug_root, tmp_path, monkeypatch):
 def tree(folder: Path) -> dict[str, str]:
     """Every file under ``folder`` (lock files aside) by its checksum, and every folder (a failed
     write leaves no empty folder either)."""
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "folder"
-            for p in sorted(folder.rglob("*")) if (p.is_file() and ".lock" not in p.name) or p.is_dir()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "folder" for p in sorted(folder.rglob("*")) if (p.is_file() and ".lock" not in p.name) or p.is_dir()
+    }
 
 
 @pytest.mark.parametrize("room", [0, 1, 3, 5])
@@ -103,8 +104,7 @@ def test_the_service_answers_507_for_a_full_disk_and_503_for_a_tampered_texture(
     assert c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=TOKEN).status_code == 200
     edited = tree(root / "mug")
     state["room"] = 2
-    for call in (lambda: c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=TOKEN),
-                 lambda: c.delete("/v1/families/mug/edits/last", headers=TOKEN)):
+    for call in (lambda: c.post("/v1/families/mug/edits", json={"group": 0, "hue": 10}, headers=TOKEN), lambda: c.delete("/v1/families/mug/edits/last", headers=TOKEN)):
         r = call()
         assert r.status_code == 507 and "nothing was changed" in r.json()["error"], r.text
         assert tree(root / "mug") == edited
@@ -165,9 +165,13 @@ def test_nonsense_placements_are_refused_before_anything_changes(family, tmp_pat
     logo = tmp_path / "logo.png"
     logo.write_bytes(encode_png(np.zeros((8, 8, 3), np.uint8)))
     before = tree(fam)
-    for flags, message in ((["--size", "1e9,1e9"], "size must be two numbers in (0, 1]"), (["--size", "0,0.2"], "size"),
-                           (["--at", "2,0.5"], "at must be two numbers in [0, 1]"), (["--opacity", "3"], "opacity"),
-                           (["--rotation", "nan"], "rotation")):
+    for flags, message in (
+        (["--size", "1e9,1e9"], "size must be two numbers in (0, 1]"),
+        (["--size", "0,0.2"], "size"),
+        (["--at", "2,0.5"], "at must be two numbers in [0, 1]"),
+        (["--opacity", "3"], "opacity"),
+        (["--rotation", "nan"], "rotation"),
+    ):
         assert main(["edit", str(fam), "--group", "0", "--logo", str(logo), *flags]) == 2, flags
         assert message in capsys.readouterr().err, flags
     assert tree(fam) == before
@@ -256,8 +260,7 @@ def test_nonsense_numbers_and_meshes_that_cannot_be_served_get_clear_errors(fami
     def obj_text(vertices, faces):  # every digit kept, as an exporter writes a far-away mesh
         return "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist()) + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces.tolist())
 
-    for vertices, message in ((mug.vertices + 1e9, "float32 positions would collapse it"), (mug.vertices * 1e300, "from the origin"),
-                              (mug.vertices * 0 + 1.0, "no extent")):
+    for vertices, message in ((mug.vertices + 1e9, "float32 positions would collapse it"), (mug.vertices * 1e300, "from the origin"), (mug.vertices * 0 + 1.0, "no extent")):
         with pytest.raises(BadInput, match=message):
             svc.shape_from_mesh(obj_text(vertices, mug.faces).encode(), "m.obj")
     ok = svc.shape_from_mesh(obj_text(mug.vertices + 1e3, mug.faces).encode(), "m.obj")  # a kilometre away is fine
@@ -312,8 +315,11 @@ def test_the_command_line_takes_what_http_takes_and_a_refused_build_leaves_out_a
     many.write_text(json.dumps({str(k): "oak" for k in range(257)}))
     huge = tmp_path / "huge.json"
     huge.write_text(json.dumps({str(k): "oak" for k in range(100_000)}))
-    for flags, message in ((["--prompt", "x" * 201], "at most 200"), (["--prompt", "oak", "--group-prompts", str(many)], "at most 256"),
-                           (["--prompt", "oak", "--group-prompts", str(huge)], "at most 262144")):
+    for flags, message in (
+        (["--prompt", "x" * 201], "at most 200"),
+        (["--prompt", "oak", "--group-prompts", str(many)], "at most 256"),
+        (["--prompt", "oak", "--group-prompts", str(huge)], "at most 262144"),
+    ):
         assert main(["look", "add", str(fam), "big", *flags]) == 2, flags
         assert message in capsys.readouterr().err, flags
         assert tree(fam) == before
@@ -342,15 +348,14 @@ def test_files_the_tool_writes_honour_the_umask(family, tmp_path, umask, mode):
     root, _ = family
     fam = root / "mug"
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    code = ("import os, sys\nos.umask(int(sys.argv[1], 8))\nfrom proctex.cli import main\n"
-            "sys.exit(main(sys.argv[2:]))\n")
+    code = "import os, sys\nos.umask(int(sys.argv[1], 8))\nfrom proctex.cli import main\nsys.exit(main(sys.argv[2:]))\n"
     out = tmp_path / "out"
     out.mkdir()
-    for argv in (["transfer", str(fam), "--params", "{}", "--out", str(out / "x.glb"), "--preview", str(out / "x.png")],
-                 ["look", "add", str(fam), "modes", "--prompt", "oak"]):
+    for argv in (["transfer", str(fam), "--params", "{}", "--out", str(out / "x.glb"), "--preview", str(out / "x.png")], ["look", "add", str(fam), "modes", "--prompt", "oak"]):
         done = subprocess.run([sys.executable, "-c", code, oct(umask), *argv], env=env, capture_output=True, text=True, timeout=300)
         assert done.returncode == 0, done.stderr[-2000:]
     made = [out / "x.glb", out / "x.png", *sorted(p for p in (fam / "looks" / "modes").rglob("*") if p.is_file())]
     assert len(made) > 4
-    assert {str(p.relative_to(tmp_path if p.is_relative_to(tmp_path) else root)): oct(p.stat().st_mode & 0o777) for p in made} == \
-        {str(p.relative_to(tmp_path if p.is_relative_to(tmp_path) else root)): oct(mode) for p in made}
+    assert {str(p.relative_to(tmp_path if p.is_relative_to(tmp_path) else root)): oct(p.stat().st_mode & 0o777) for p in made} == {
+        str(p.relative_to(tmp_path if p.is_relative_to(tmp_path) else root)): oct(mode) for p in made
+    }

@@ -26,7 +26,8 @@ def build_wheel(scratch: Path, out: Path) -> Path:
         shutil.copytree(ROOT / name, scratch / name, ignore=ignore)
     for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy2(ROOT / name, scratch / name)
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation", str(scratch), "-w", str(out)],
-                   check=True, capture_output=True, text=True, env=clean_env(), timeout=600)
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation", str(scratch), "-w", str(out)], check=True, capture_output=True, text=True, env=clean_env(), timeout=600
+    )
     (whl,) = out.glob("proctex-*.whl")
     return whl

@@ -59,8 +59,7 @@ def is_lost_default(exc: BaseException) -> bool:
 
 def _json(status: int, payload: dict[str, Any], headers: list[tuple[bytes, bytes]] | None = None) -> Answer:
     body = json.dumps(payload).encode()
-    return {"status": status, "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
-                                          *(headers or [])], "body": body}
+    return {"status": status, "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()), *(headers or [])], "body": body}
 
 
 async def call_app(app: Callable, request: Forwarded) -> Answer:
@@ -88,10 +87,20 @@ async def call_app(app: Callable, request: Forwarded) -> Answer:
             chunks.append(bytes(message.get("body", b"")))
 
     path = request["path"]
-    scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": request["method"], "scheme": "http",
-             "path": path, "raw_path": path.encode(), "root_path": "", "query_string": request.get("query_string", b""),
-             "headers": [(bytes(k), bytes(v)) for k, v in request.get("headers", [])], "client": request.get("client"),
-             "server": ("proctex", 80)}
+    scope = {
+        "type": "http",
+        "asgi": {"version": "3.0"},
+        "http_version": "1.1",
+        "method": request["method"],
+        "scheme": "http",
+        "path": path,
+        "raw_path": path.encode(),
+        "root_path": "",
+        "query_string": request.get("query_string", b""),
+        "headers": [(bytes(k), bytes(v)) for k, v in request.get("headers", [])],
+        "client": request.get("client"),
+        "server": ("proctex", 80),
+    }
     task = asyncio.ensure_future(app(scope, receive, send))
     try:
         await asyncio.shield(task)
@@ -103,8 +112,9 @@ async def call_app(app: Callable, request: Forwarded) -> Answer:
     return {"status": status, "headers": headers, "body": b"".join(chunks)}
 
 
-def ingress_app(forward: Callable[[Forwarded, str | None], Awaitable[Answer]], limits: Limits | None = None,
-                is_lost: Callable[[BaseException], bool] = is_lost_default, retry_seconds: float = 60.0) -> Callable:
+def ingress_app(
+    forward: Callable[[Forwarded, str | None], Awaitable[Answer]], limits: Limits | None = None, is_lost: Callable[[BaseException], bool] = is_lost_default, retry_seconds: float = 60.0
+) -> Callable:
     """The ASGI app of the ingress.
 
     ``forward(request, family)`` sends a :data:`Forwarded` request to a replica (``family``: the
@@ -146,9 +156,14 @@ def ingress_app(forward: Callable[[Forwarded, str | None], Awaitable[Answer]], l
             response = error_response(exc)
             return await response(scope, receive, send)
         method, path = scope["method"], scope["path"]
-        forwarded: Forwarded = {"method": method, "path": path, "query_string": scope.get("query_string", b""),
-                                "headers": [(bytes(k), bytes(v)) for k, v in scope.get("headers", [])], "body": body,
-                                "client": scope.get("client")}
+        forwarded: Forwarded = {
+            "method": method,
+            "path": path,
+            "query_string": scope.get("query_string", b""),
+            "headers": [(bytes(k), bytes(v)) for k, v in scope.get("headers", [])],
+            "body": body,
+            "client": scope.get("client"),
+        }
         family = family_of(path)
         try:
             ans = await forward(forwarded, family)
@@ -157,17 +172,24 @@ def ingress_app(forward: Callable[[Forwarded, str | None], Awaitable[Answer]], l
                 return await answer(send, _json(500, {"error": f"internal error ({type(exc).__name__}); the request was not served"}))
             if not idempotent(method, path):
                 where = f" (GET /v1/families/{family} shows its stamp and edits)" if family else ""
-                return await answer(send, _json(503, {"error": "the replica serving this request was lost before it answered; an edit "
-                                                               f"is atomic: it landed whole or not at all{where}; not retried"},
-                                                [(b"retry-after", b"5")]))
+                return await answer(
+                    send,
+                    _json(
+                        503, {"error": f"the replica serving this request was lost before it answered; an edit is atomic: it landed whole or not at all{where}; not retried"}, [(b"retry-after", b"5")]
+                    ),
+                )
             try:
                 ans = await asyncio.wait_for(forward(forwarded, family), timeout=retry_seconds)
             except Exception as again:  # a second loss, no replica within the time, or another failure
                 lost = is_lost(again) or isinstance(again, asyncio.TimeoutError)
-                return await answer(send, _json(503 if lost else 500, {
-                    "error": ("the replica serving this request was lost and the retry failed too" if lost
-                              else f"internal error ({type(again).__name__}) on retry") + "; try again shortly"},
-                    [(b"retry-after", b"5")] if lost else None))
+                return await answer(
+                    send,
+                    _json(
+                        503 if lost else 500,
+                        {"error": ("the replica serving this request was lost and the retry failed too" if lost else f"internal error ({type(again).__name__}) on retry") + "; try again shortly"},
+                        [(b"retry-after", b"5")] if lost else None,
+                    ),
+                )
             ans = {**ans, "headers": [*ans["headers"], (b"x-proctex-retried", b"1")]}
         await answer(send, ans)
 

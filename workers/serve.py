@@ -37,8 +37,7 @@ class TransferService:
 
     max_families = 0
 
-    def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True,
-                 edit_token: str | None = None, device: str = "cpu") -> None:
+    def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True, edit_token: str | None = None, device: str = "cpu") -> None:
         self.edit_token, self.app = edit_token or None, None
         self.catalog = Catalog(root, Limits(**(limits or {})), check_every, lazy=self.max_families > 0, device=device)
         self.watchdog = Watchdog(2 * self.catalog.limits.max_seconds + 30)
@@ -54,8 +53,7 @@ class TransferService:
         """One HTTP request forwarded by the ingress, answered by the FastAPI app of
         :mod:`workers.http` in this replica (built on the first request, in the replica)."""
         if self.app is None:
-            self.app = create_app(lambda: self.catalog, watchdog=self.watchdog, edit_token=self.edit_token,
-                                  get_family=self.family if self.max_families else None, replica=_replica_name())
+            self.app = create_app(lambda: self.catalog, watchdog=self.watchdog, edit_token=self.edit_token, get_family=self.family if self.max_families else None, replica=_replica_name())
         return await call_app(self.app, request)
 
     def check_health(self) -> None:
@@ -178,14 +176,17 @@ def build_app(args: dict[str, Any]) -> Any:
     """
     if not args.get("root"):
         raise ValueError("build_app needs args['root'], the family store root")
-    options: dict[str, Any] = {"max_ongoing_requests": int(args.get("max_ongoing_requests", 16)),
-                               "ray_actor_options": {"num_cpus": float(args.get("num_cpus", 0))},
-                               # a replica being stopped (Ctrl-C, a scale-down) waits this long for its requests, not 20 s
-                               "graceful_shutdown_timeout_s": float(args.get("graceful_shutdown_timeout_s", 5.0)),
-                               "graceful_shutdown_wait_loop_s": 1.0}
+    options: dict[str, Any] = {
+        "max_ongoing_requests": int(args.get("max_ongoing_requests", 16)),
+        "ray_actor_options": {"num_cpus": float(args.get("num_cpus", 0))},
+        # a replica being stopped (Ctrl-C, a scale-down) waits this long for its requests, not 20 s
+        "graceful_shutdown_timeout_s": float(args.get("graceful_shutdown_timeout_s", 5.0)),
+        "graceful_shutdown_wait_loop_s": 1.0,
+    }
     if "min_replicas" in args or "max_replicas" in args:
         options["autoscaling_config"] = {
-            "min_replicas": int(args.get("min_replicas", 1)), "max_replicas": int(args.get("max_replicas", 2)),
+            "min_replicas": int(args.get("min_replicas", 1)),
+            "max_replicas": int(args.get("max_replicas", 2)),
             "target_ongoing_requests": float(args.get("target_ongoing_requests", 4)),
         }
     else:
@@ -198,10 +199,8 @@ def build_app(args: dict[str, Any]) -> Any:
         replicas = int(args.get("replicas", args.get("max_replicas", 1)))
         options["ray_actor_options"]["num_gpus"] = float(args.get("num_gpus", 1.0 / max(1, replicas)))
     max_families = int(args.get("max_families", 0))
-    transfer = deployment(max_families).options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)),
-                                                                limits, preload, token, device)
+    transfer = deployment(max_families).options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)), limits, preload, token, device)
     front = {"num_replicas": int(args.get("ingress_replicas", 1)), "max_ongoing_requests": int(args.get("ingress_max_ongoing_requests", 1024))}
     if front["num_replicas"] < 1 or front["max_ongoing_requests"] < 1:
         raise ValueError(f"ingress_replicas and ingress_max_ongoing_requests must be >= 1, got {front}")
-    return Ingress.options(**front, graceful_shutdown_timeout_s=options["graceful_shutdown_timeout_s"],
-                           graceful_shutdown_wait_loop_s=1.0).bind(transfer, limits, max_families > 0)
+    return Ingress.options(**front, graceful_shutdown_timeout_s=options["graceful_shutdown_timeout_s"], graceful_shutdown_wait_loop_s=1.0).bind(transfer, limits, max_families > 0)

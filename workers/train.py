@@ -186,8 +186,10 @@ def train_groups(
             os.environ.pop(HEALTH_CHECK_ENV, None)
     out = {int(g): m for g, m in checkpoint_records(result.checkpoint).items()}
     for g, m in out.items():
-        log(f"train: group {g} on {m['workers']} of {num_workers} Ray Train workers: val {(m['best_val'] or {}).get('mean', float('nan')):.4f}, "
+        log(
+            f"train: group {g} on {m['workers']} of {num_workers} Ray Train workers: val {(m['best_val'] or {}).get('mean', float('nan')):.4f}, "
             f"{m['iterations']} iterations, "
-            f"{m['seconds']:.1f}s; {serving_line(m.get('serving'))}")
+            f"{m['seconds']:.1f}s; {serving_line(m.get('serving'))}"
+        )
     log(f"train: {len(todo)} groups in {time.perf_counter() - t0:.1f}s")
     return out

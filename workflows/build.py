@@ -216,8 +216,7 @@ def ray_executor(max_in_flight: int | None = None, train_workers: int | None = N
             bar.update(len(plan.batches[i]))
             results[i] = out
 
-        _fan_out(lambda i: run_batch.remote(plan.run_batch, store.uri, cfg, plan.batches[i]), list(range(len(plan.batches))),
-                 max_in_flight or 2 * cluster_cpus(), collect)
+        _fan_out(lambda i: run_batch.remote(plan.run_batch, store.uri, cfg, plan.batches[i]), list(range(len(plan.batches))), max_in_flight or 2 * cluster_cpus(), collect)
         plan.record = plan.finish([results[i] for i in range(len(plan.batches))])
         return plan
 

@@ -29,8 +29,7 @@ def cmd_build(args: argparse.Namespace) -> int:
     stages = tuple(args.stages.split(",")) if args.stages else STAGES
     address = None if args.ray == "local" else args.ray
     log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
-    state = build_on_ray(args.out, config, address=address, stages=stages, max_in_flight=args.max_in_flight,
-                         train_workers=args.train_workers, log=log, quiet=args.quiet)
+    state = build_on_ray(args.out, config, address=address, stages=stages, max_in_flight=args.max_in_flight, train_workers=args.train_workers, log=log, quiet=args.quiet)
     done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
     walls = ", ".join(f"{k} {v:.1f}s" for k, v in state["wall_seconds"].items())
     print(f"family {args.out}: stages done: {', '.join(done)} (on Ray: {walls}){families.named_look(args)}")
@@ -160,8 +159,7 @@ def cmd_screenshot(args: argparse.Namespace) -> int:
         if not isinstance(params, dict):
             raise ValueError('--params must be a JSON object, e.g. {"seats": 2}')
     info = studio_screenshot(args.url, args.out, params=params, width=w, height=h, timeout=args.timeout)
-    print(f"wrote {args.out} ({w}x{h}): family {info['family']}, {info['requests']} transfers, last "
-          f"{info['client_ms']:.0f} ms round trip ({1000 * info['server_seconds']:.0f} ms in the service)")
+    print(f"wrote {args.out} ({w}x{h}): family {info['family']}, {info['requests']} transfers, last {info['client_ms']:.0f} ms round trip ({1000 * info['server_seconds']:.0f} ms in the service)")
     return 0
 
 
@@ -183,8 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = core.build_parser()
     sub = parser.subparsers  # type: ignore[attr-defined]
     build = sub.choices["build"]  # the library's commands, with what Ray adds to them
-    build.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
-                       help="run on Ray: a private local instance, or the cluster at ADDRESS ('auto', 'host:port')")
+    build.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS", help="run on Ray: a private local instance, or the cluster at ADDRESS ('auto', 'host:port')")
     build.add_argument("--train-workers", type=int, help="Ray Train workers per group network (--ray; default min(2, CPUs))")
     build.add_argument("--max-in-flight", type=int, help="Ray tasks submitted at a time (--ray; default 2 x CPUs)")
     build.set_defaults(func=cmd_build)
@@ -210,13 +207,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--autoscale", help="MIN,MAX replicas (autoscaling instead of a fixed count)")
     p.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
     p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i>")
-    p.add_argument("--max-families", type=int, default=0,
-                   help="multiplex: load families on demand, at most this many per replica (LRU); 0: every family, preloaded")
-    p.add_argument("--edit-token", help="allow stored edits to requests carrying this secret (header X-ProcTex-Token); "
-                                        "default $PROCTEX_EDIT_TOKEN; none: the families are read-only")
-    p.add_argument("--limit", action="append", metavar="NAME=VALUE",
-                   help="a request limit (repeatable): max_bytes, max_vertices, max_faces, max_parts, max_prompt, max_seconds, "
-                        "body_seconds, body_idle_seconds, body_min_rate, max_uploads, max_small_bodies, small_body (docs/http-api.md)")
+    p.add_argument("--max-families", type=int, default=0, help="multiplex: load families on demand, at most this many per replica (LRU); 0: every family, preloaded")
+    p.add_argument("--edit-token", help="allow stored edits to requests carrying this secret (header X-ProcTex-Token); default $PROCTEX_EDIT_TOKEN; none: the families are read-only")
+    p.add_argument(
+        "--limit",
+        action="append",
+        metavar="NAME=VALUE",
+        help="a request limit (repeatable): max_bytes, max_vertices, max_faces, max_parts, max_prompt, max_seconds, "
+        "body_seconds, body_idle_seconds, body_min_rate, max_uploads, max_small_bodies, small_body (docs/http-api.md)",
+    )
     p.set_defaults(func=cmd_serve)
     p = sub.add_parser("screenshot", help="a PNG of the web studio at URL (headless Chromium), e.g. http://127.0.0.1:8000/?family=sofa")
     p.add_argument("url", help="the studio's URL; ?family=NAME picks a family")

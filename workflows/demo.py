@@ -11,6 +11,7 @@ from proctex.store.config import BuildConfig
 
 def ray_builder(log: Callable[[str], None] = print, quiet: bool = False, address: str | None = None) -> Callable[[str, dict[str, Any]], dict[str, float]]:
     """A :data:`proctex.demo.Builder` running :func:`workflows.build.build_on_ray`."""
+
     def build(root: str, config: dict[str, Any]) -> dict[str, float]:
         from .build import build_on_ray
 

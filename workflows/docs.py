@@ -30,8 +30,7 @@ import tokenize
 import typing
 from typing import Any
 
-HEADER = ("<!-- Generated from the build config's dataclasses by `make docs` (`python -m workflows.docs`). "
-          "Do not edit by hand: change the docstrings and run `make docs`. -->")
+HEADER = "<!-- Generated from the build config's dataclasses by `make docs` (`python -m workflows.docs`). Do not edit by hand: change the docstrings and run `make docs`. -->"
 _NAME = r"(?:``)?[A-Za-z_][\w*]*(?:``)?"
 _NAMES = rf"{_NAME}(?:\s*,\s*{_NAME})*"
 _ENTRY = re.compile(rf"^({_NAMES})\s*:\s+(.*)$", re.DOTALL)
@@ -106,7 +105,7 @@ def _docstring_parts(cls: type) -> tuple[str, list[str], str]:
             j = i + 1
             while j < len(lines) and (not lines[j].strip() or len(lines[j]) - len(lines[j].lstrip()) > indent):
                 j += 1
-            return "\n".join(lines[:i]).strip(), lines[i + 1:j], "\n".join(lines[j:]).strip()
+            return "\n".join(lines[:i]).strip(), lines[i + 1 : j], "\n".join(lines[j:]).strip()
     return doc.strip(), [], ""
 
 
@@ -144,7 +143,7 @@ def _attribute_help(cls: type, field_names: list[str]) -> dict[str, str]:
         names, text, start = _split_names(m.group(1)), m.group(2), 0
         for sm in sub_entry.finditer(text):  # "...; lr: ..." or "... sample. symmetry: ..."
             if all(is_field(n) for n in _split_names(sm.group(1))):
-                pieces.append((names, text[start:sm.start()]))
+                pieces.append((names, text[start : sm.start()]))
                 names, start = _split_names(sm.group(1)), sm.end()
         pieces.append((names, text[start:]))
     out: dict[str, str] = {}
@@ -172,8 +171,7 @@ def _comment_help(cls: type) -> dict[str, str]:
         return {}
     source = textwrap.dedent("".join(lines))
     src_lines = source.splitlines()
-    comments = {tok.start[0]: tok.string for tok in tokenize.generate_tokens(io.StringIO(source).readline)
-                if tok.type == tokenize.COMMENT}
+    comments = {tok.start[0]: tok.string for tok in tokenize.generate_tokens(io.StringIO(source).readline) if tok.type == tokenize.COMMENT}
     out: dict[str, str] = {}
     for node in ast.parse(source).body[0].body:  # type: ignore[attr-defined]
         if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
@@ -202,7 +200,7 @@ def _summary_help(cls: type, field_names: list[str]) -> dict[str, str]:
         while i < len(summary) and depth:
             depth += {"(": 1, ")": -1}.get(summary[i], 0)
             i += 1
-        out[name] = _rst_to_md(summary[m.end():i - 1])
+        out[name] = _rst_to_md(summary[m.end() : i - 1])
     return out
 
 
@@ -265,9 +263,9 @@ def _section_values(root_cls: type) -> dict[str, Any]:
 
 @dataclasses.dataclass
 class Section:
-    path: tuple[str, ...]        # () for the top level, ("source",), ("cage",), ...
+    path: tuple[str, ...]  # () for the top level, ("source",), ("cage",), ...
     cls: type
-    values: dict[str, Any]       # default per field (a dataclass instance for a sub-section)
+    values: dict[str, Any]  # default per field (a dataclass instance for a sub-section)
 
 
 def sections_of(root_cls: type) -> list[Section]:
@@ -321,13 +319,15 @@ def config_reference() -> str:
     root_summary, _, _ = _docstring_parts(BuildConfig)
     lines = [HEADER, "", "# Configuration reference", ""]
     lines += [
-        ("A build config is a TOML or JSON file: `proctex build CONFIG --out STORE` (or `--config CONFIG`);"
-        " the command's flags override it, and `--preset NAME` starts from a preset under both. The"
-        f" file is read into `{BuildConfig.__module__}.{BuildConfig.__qualname__}`; each section below is a"
-        " TOML table named after its field (a JSON object under the same key), and the top-level"
-        " settings come before the first table. `family.json` in a family store keeps the resolved"
-        " config in the same shape. A `generator` source names a generator file: see"
-        " [Your own generator](cli.md#your-own-generator)."),
+        (
+            "A build config is a TOML or JSON file: `proctex build CONFIG --out STORE` (or `--config CONFIG`);"
+            " the command's flags override it, and `--preset NAME` starts from a preset under both. The"
+            f" file is read into `{BuildConfig.__module__}.{BuildConfig.__qualname__}`; each section below is a"
+            " TOML table named after its field (a JSON object under the same key), and the top-level"
+            " settings come before the first table. `family.json` in a family store keeps the resolved"
+            " config in the same shape. A `generator` source names a generator file: see"
+            " [Your own generator](cli.md#your-own-generator)."
+        ),
         "",
         _rst_to_md(root_summary.split("\n\n")[0]),
         "",
@@ -366,23 +366,24 @@ def config_reference() -> str:
     tables = {sec.path for sec in secs if sec.path}
     flat = getattr(module, "FLAT_KEYS", None)
     if flat:
-        lines += ["## Older flat keys", "",
-                  ("Configs written before the sections existed put these keys at the top level; they are still read"
-                  " and land in the setting shown (`FLAT_KEYS`)."), "",
-                  "| flat key | setting |", "|---|---|"]
+        lines += [
+            "## Older flat keys",
+            "",
+            ("Configs written before the sections existed put these keys at the top level; they are still read and land in the setting shown (`FLAT_KEYS`)."),
+            "",
+            "| flat key | setting |",
+            "|---|---|",
+        ]
         lines += [f"| `{k}` | `[{s}] {n}` |" for k, (s, n) in sorted(flat.items())]
         lines.append("")
 
     presets = getattr(module, "PRESETS", None)
     if presets:
-        lines += ["## Presets", "", ("`--preset NAME` (or `from_dict(data, preset=NAME)`) starts from these settings; the file and"
-                  " the flags lay over them (`PRESETS`)."), ""]
+        lines += ["## Presets", "", ("`--preset NAME` (or `from_dict(data, preset=NAME)`) starts from these settings; the file and the flags lay over them (`PRESETS`)."), ""]
         for name in sorted(presets):
             lines += [f"`{name}`:", "", "```toml", *_toml_document(presets[name], tables), "```", ""]
 
-    lines += ["## Every setting at its default", "",
-              ("A file with every setting at its default value (settings that are not set by default are comments;"
-              " name exactly one source):"), "", "```toml"]
+    lines += ["## Every setting at its default", "", ("A file with every setting at its default value (settings that are not set by default are comments; name exactly one source):"), "", "```toml"]
     lines += _toml_document(_defaults_tree(secs), tables)
     lines += ["```", ""]
     return "\n".join(lines)

@@ -34,9 +34,15 @@ def parse_concurrency(text: str | None, cpus: int) -> tuple[int, int]:
     return shapes, textures
 
 
-def generate_on_ray(settings: GenerateSettings, concurrency: tuple[int, int] | None = None, shape_cpus: float = 0.25,
-                    address: str | None = None, num_cpus: int | None = None, log: Callable[[str], None] = print,
-                    quiet: bool = False) -> dict[str, Any]:
+def generate_on_ray(
+    settings: GenerateSettings,
+    concurrency: tuple[int, int] | None = None,
+    shape_cpus: float = 0.25,
+    address: str | None = None,
+    num_cpus: int | None = None,
+    log: Callable[[str], None] = print,
+    quiet: bool = False,
+) -> dict[str, Any]:
     """Run ``settings`` on Ray Data (a private local Ray unless ``address`` or one is running).
 
     ``concurrency``: ``(shape actors, texture actors)``. ``shape_cpus``: the CPU share a shape actor
@@ -67,11 +73,19 @@ def generate_on_ray(settings: GenerateSettings, concurrency: tuple[int, int] | N
         ctx.enable_progress_bars = False
         ctx.verbose_stats_logs = False
         ds = ray.data.from_items(rows, override_num_blocks=max(1, min(len(rows), 4 * n_textures)))
-        ds = ds.map_batches(ShapeStage, fn_constructor_args=(settings.family, settings.out, settings.format), batch_size=settings.batch_size,
-                            batch_format="numpy", concurrency=n_shapes, num_cpus=shape_cpus)
+        ds = ds.map_batches(
+            ShapeStage, fn_constructor_args=(settings.family, settings.out, settings.format), batch_size=settings.batch_size, batch_format="numpy", concurrency=n_shapes, num_cpus=shape_cpus
+        )
         gpu = {"num_gpus": 1.0 / n_textures} if settings.device.startswith("cuda") else {}  # the texture actors share the GPU
-        ds = ds.map_batches(TextureStage, fn_constructor_args=(settings.family, settings.out, settings.format, settings.bake, settings.device, settings.textures),
-                            batch_size=settings.batch_size, batch_format="numpy", concurrency=n_textures, num_cpus=texture_cpus, **gpu)
+        ds = ds.map_batches(
+            TextureStage,
+            fn_constructor_args=(settings.family, settings.out, settings.format, settings.bake, settings.device, settings.textures),
+            batch_size=settings.batch_size,
+            batch_format="numpy",
+            concurrency=n_textures,
+            num_cpus=texture_cpus,
+            **gpu,
+        )
         tally = Tally(len(rows), settings.max_failed, quiet)
         for batch in ds.iter_batches(batch_size=None, batch_format="numpy"):
             tally.add(batch)
@@ -79,6 +93,4 @@ def generate_on_ray(settings: GenerateSettings, concurrency: tuple[int, int] | N
     finally:
         if started:
             ray.shutdown()
-    return {**summary, "seconds": round(time.perf_counter() - t0, 3), "actors": {"shapes": n_shapes, "textures": n_textures, "texture_cpus": round(texture_cpus, 3)},
-            "cpus": cpus, "pid": os.getpid()}
-
+    return {**summary, "seconds": round(time.perf_counter() - t0, 3), "actors": {"shapes": n_shapes, "textures": n_textures, "texture_cpus": round(texture_cpus, 3)}, "cpus": cpus, "pid": os.getpid()}

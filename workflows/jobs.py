@@ -66,8 +66,9 @@ def transient_reason(exc: BaseException) -> str | None:
     return None
 
 
-def retry(call: Callable[[], Any], what: str, wait_s: float | None = None, say: Callable[[str], None] = _say,
-          sleep: Callable[[float], None] = time.sleep, clock: Callable[[], float] = time.monotonic) -> Any:
+def retry(
+    call: Callable[[], Any], what: str, wait_s: float | None = None, say: Callable[[str], None] = _say, sleep: Callable[[float], None] = time.sleep, clock: Callable[[], float] = time.monotonic
+) -> Any:
     """``call()``, again while it fails for a :func:`transient_reason`, until ``wait_s`` seconds
     have passed (back-off 0.5 s doubling to 5 s). Says once what it waits for. Raises
     ``TimeoutError`` naming ``what`` and the last error when the time is up; any other error at once."""
@@ -83,8 +84,7 @@ def retry(call: Callable[[], Any], what: str, wait_s: float | None = None, say: 
                 raise
             waited = clock() - start
             if waited + delay > limit:
-                raise TimeoutError(f"{what}: {reason} did not answer within {limit:g} s "
-                                   f"(PROCTEX_CLUSTER_WAIT); last error: {str(exc).strip()[:300]}") from exc
+                raise TimeoutError(f"{what}: {reason} did not answer within {limit:g} s (PROCTEX_CLUSTER_WAIT); last error: {str(exc).strip()[:300]}") from exc
             if told != reason:
                 say(f"{what}: waiting for {reason} (up to {limit:g} s): {str(exc).strip().splitlines()[0][:160]}")
                 told = reason
@@ -112,8 +112,7 @@ def job_client(address: str, wait_s: float | None = None, say: Callable[[str], N
     return retry(lambda: JobSubmissionClient(address, headers=headers), f"connecting to {address}", wait_s, say)
 
 
-def submit_job(client_or_address: Any, entrypoint: str, wait_s: float | None = None, say: Callable[[str], None] = _say,
-               **kwargs: Any) -> str:
+def submit_job(client_or_address: Any, entrypoint: str, wait_s: float | None = None, say: Callable[[str], None] = _say, **kwargs: Any) -> str:
     """Submit ``entrypoint`` (with ``runtime_env``, ``submission_id``, ... as
     ``JobSubmissionClient.submit_job`` takes them) and return the job's id, retrying while the head
     has no job agent yet. A refused submission creates nothing (Ray answers before it asks the
@@ -148,25 +147,28 @@ def wait_for_jobs(address: str, wait_s: float | None = None, say: Callable[[str]
     limit = cluster_wait_s(wait_s)
     t0 = time.monotonic()
     client = job_client(address, limit, say)
-    job = submit_job(client, "true", max(0.0, limit - (time.monotonic() - t0)), say,
-                     submission_id=f"proctex-ready-{os.getpid()}-{time.time_ns()}", metadata={"proctex": "readiness check"})
+    job = submit_job(client, "true", max(0.0, limit - (time.monotonic() - t0)), say, submission_id=f"proctex-ready-{os.getpid()}-{time.time_ns()}", metadata={"proctex": "readiness check"})
     while True:
         status = client.get_job_status(job)
         if status.is_terminal():
             break
         if time.monotonic() - t0 > limit:
             client.stop_job(job)
-            raise TimeoutError(f"the cluster at {address} accepted a no-op job but did not run it within {limit:g} s "
-                               f"(PROCTEX_CLUSTER_WAIT; last status {status})")
+            raise TimeoutError(f"the cluster at {address} accepted a no-op job but did not run it within {limit:g} s (PROCTEX_CLUSTER_WAIT; last status {status})")
         time.sleep(0.2)
     if status != JobStatus.SUCCEEDED:
         raise RuntimeError(f"the cluster at {address} could not run a no-op job ({status}): {client.get_job_logs(job)[-500:]}")
     return time.monotonic() - t0
 
 
-def wait_for_cpus(minimum: float = 1.0, wait_s: float | None = None, say: Callable[[str], None] = _say,
-                  resources: Callable[[], dict] | None = None, sleep: Callable[[float], None] = time.sleep,
-                  clock: Callable[[], float] = time.monotonic) -> float:
+def wait_for_cpus(
+    minimum: float = 1.0,
+    wait_s: float | None = None,
+    say: Callable[[str], None] = _say,
+    resources: Callable[[], dict] | None = None,
+    sleep: Callable[[float], None] = time.sleep,
+    clock: Callable[[], float] = time.monotonic,
+) -> float:
     """In a driver connected to a cluster (``ray.init(address=...)``): wait until it has at least
     ``minimum`` CPUs (a head without CPUs of its own, worker nodes still joining). Returns the
     cluster's CPUs; raises ``TimeoutError`` after ``wait_s`` seconds (:func:`cluster_wait_s`)
@@ -182,8 +184,7 @@ def wait_for_cpus(minimum: float = 1.0, wait_s: float | None = None, say: Callab
         if cpus >= minimum:
             return cpus
         if clock() - start >= limit:
-            raise TimeoutError(f"the Ray cluster has {cpus:g} CPUs, and none more joined within {limit:g} s "
-                               f"(PROCTEX_CLUSTER_WAIT); start worker nodes, or give the head CPUs")
+            raise TimeoutError(f"the Ray cluster has {cpus:g} CPUs, and none more joined within {limit:g} s (PROCTEX_CLUSTER_WAIT); start worker nodes, or give the head CPUs")
         if not told:
             say(f"waiting for the Ray cluster's CPUs (it has {cpus:g}; up to {limit:g} s): its nodes are still joining")
             told = True

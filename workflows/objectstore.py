@@ -26,8 +26,7 @@ from pathlib import Path
 
 #: The ports ``weed mini`` opens (master, volume, filer, S3 and admin, HTTP and gRPC each); every one
 #: is given a free port so that two servers (or a test's and a user's) never collide.
-PORT_FLAGS = ("master.port", "master.port.grpc", "volume.port", "volume.port.grpc", "filer.port", "filer.port.grpc",
-              "s3.port", "s3.port.grpc", "admin.port", "admin.port.grpc")
+PORT_FLAGS = ("master.port", "master.port.grpc", "volume.port", "volume.port.grpc", "filer.port", "filer.port.grpc", "s3.port", "s3.port.grpc", "admin.port", "admin.port.grpc")
 
 
 @dataclass(frozen=True)
@@ -44,8 +43,14 @@ class LocalS3:
 
     def env(self) -> dict[str, str]:
         """The environment that points pyarrow, boto3 and ProcTex at this server."""
-        return {"AWS_ACCESS_KEY_ID": self.access_key, "AWS_SECRET_ACCESS_KEY": self.secret_key, "AWS_ENDPOINT_URL": self.endpoint,
-                "AWS_REGION": self.region, "AWS_DEFAULT_REGION": self.region, "AWS_EC2_METADATA_DISABLED": "true"}
+        return {
+            "AWS_ACCESS_KEY_ID": self.access_key,
+            "AWS_SECRET_ACCESS_KEY": self.secret_key,
+            "AWS_ENDPOINT_URL": self.endpoint,
+            "AWS_REGION": self.region,
+            "AWS_DEFAULT_REGION": self.region,
+            "AWS_EC2_METADATA_DISABLED": "true",
+        }
 
     def uri(self, prefix: str = "") -> str:
         """``s3://<bucket>/<prefix>`` (with the environment of :meth:`env`)."""
@@ -112,16 +117,16 @@ def _answers(endpoint: str, bucket: str, env: dict[str, str]) -> bool:
 
     host = endpoint.split("://", 1)[1]
     try:
-        fs = pafs.S3FileSystem(access_key=env["AWS_ACCESS_KEY_ID"], secret_key=env["AWS_SECRET_ACCESS_KEY"], endpoint_override=host,
-                               scheme="http", region=env["AWS_REGION"], connect_timeout=1, request_timeout=2)
+        fs = pafs.S3FileSystem(
+            access_key=env["AWS_ACCESS_KEY_ID"], secret_key=env["AWS_SECRET_ACCESS_KEY"], endpoint_override=host, scheme="http", region=env["AWS_REGION"], connect_timeout=1, request_timeout=2
+        )
         fs.get_file_info(pafs.FileSelector(bucket, allow_not_found=False))
         return True
     except (OSError, ValueError):
         return False
 
 
-def start_server(folder: str | os.PathLike, bucket: str = "proctex", access_key: str = "proctex", secret_key: str = "proctex-secret",
-                 timeout: float = 60.0, s3_port: int | None = None) -> LocalS3:
+def start_server(folder: str | os.PathLike, bucket: str = "proctex", access_key: str = "proctex", secret_key: str = "proctex-secret", timeout: float = 60.0, s3_port: int | None = None) -> LocalS3:
     """Start ``weed mini`` with its data in ``folder`` (created), the S3 API on ``s3_port`` (default:
     a free one) and bucket ``bucket``; return once the bucket answers. ``TimeoutError`` (the server
     stopped) when it does not within ``timeout`` seconds. The server runs in its own process group
@@ -144,9 +149,14 @@ def start_server(folder: str | os.PathLike, bucket: str = "proctex", access_key:
     endpoint = f"http://127.0.0.1:{ports[PORT_FLAGS.index('s3.port')]}"
     env = {**os.environ, "AWS_ACCESS_KEY_ID": access_key, "AWS_SECRET_ACCESS_KEY": secret_key, "S3_BUCKET": bucket, "AWS_REGION": "us-east-1"}
     log = open(folder / "weed.log", "ab")
-    proc = subprocess.Popen([weed_binary(), "mini", f"-dir={folder / 'data'}", "-ip=127.0.0.1", "-ip.bind=127.0.0.1", *flags,
-                             "-s3.port.iceberg=0", "-s3.port.lance=0", "-webdav=false", "-admin.ui=false"],
-                            stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True, cwd=folder)
+    proc = subprocess.Popen(
+        [weed_binary(), "mini", f"-dir={folder / 'data'}", "-ip=127.0.0.1", "-ip.bind=127.0.0.1", *flags, "-s3.port.iceberg=0", "-s3.port.lance=0", "-webdav=false", "-admin.ui=false"],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        env=env,
+        start_new_session=True,
+        cwd=folder,
+    )
     log.close()
     server = LocalS3(proc.pid, endpoint, bucket, access_key, secret_key, str(folder))
     deadline = time.monotonic() + timeout

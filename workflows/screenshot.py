@@ -14,9 +14,18 @@ from typing import Any
 
 #: Chromium flags for a headless, GPU-less, offline machine: SwiftShader WebGL, and none of
 #: Chromium's background network traffic (refused here, and slow to fail).
-CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                 "--ignore-gpu-blocklist", "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--no-first-run"]
+CHROMIUM_ARGS = [
+    "--headless=new",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--ignore-gpu-blocklist",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
 
 
 def chromium_path() -> str | None:
@@ -25,8 +34,7 @@ def chromium_path() -> str | None:
     return found or ("/usr/bin/chromium" if os.path.isfile("/usr/bin/chromium") else None)
 
 
-def studio_screenshot(url: str, out: str | os.PathLike, params: dict[str, Any] | None = None, width: int = 1280,
-                      height: int = 800, timeout: float = 60.0) -> dict[str, Any]:
+def studio_screenshot(url: str, out: str | os.PathLike, params: dict[str, Any] | None = None, width: int = 1280, height: int = 800, timeout: float = 60.0) -> dict[str, Any]:
     """Open the studio at ``url`` (e.g. ``http://127.0.0.1:8000/?family=sofa``), optionally set
     parameter sliders/selects (``params``), wait for the textured shape and save a PNG at ``out``.
 
@@ -56,8 +64,7 @@ def studio_screenshot(url: str, out: str | os.PathLike, params: dict[str, Any] |
             page = browser.new_page(viewport={"width": width, "height": height})
             try:
                 page.goto(url, timeout=timeout * 1000)
-                page.wait_for_function("() => (document.body.dataset.state === 'idle' && +document.body.dataset.requests >= 1)"
-                                       " || document.body.dataset.state === 'error'", timeout=timeout * 1000)
+                page.wait_for_function("() => (document.body.dataset.state === 'idle' && +document.body.dataset.requests >= 1) || document.body.dataset.state === 'error'", timeout=timeout * 1000)
             except PlaywrightError as exc:
                 raise ValueError(f"the studio at {url} did not show a shape within {timeout:g}s: {str(exc).splitlines()[0]}") from exc
             for name, value in (params or {}).items():
@@ -70,7 +77,9 @@ def studio_screenshot(url: str, out: str | os.PathLike, params: dict[str, Any] |
                         el.dispatchEvent(new Event('input', {bubbles: true}));
                         el.dispatchEvent(new Event('change', {bubbles: true}));
                         return true;
-                    }""", [name, value])
+                    }""",
+                    [name, value],
+                )
                 if not found:
                     raise ValueError(f"the studio has no control for parameter {name!r}")
                 page.wait_for_function(wait, arg=n + 1, timeout=timeout * 1000)

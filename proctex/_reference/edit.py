@@ -51,6 +51,7 @@ def place_image_reference(texture, overlay, center_uv, size_uv, rotation_deg=0.0
             r0, c0 = min(int(row), max(h - 2, 0)), min(int(col), max(w - 2, 0))
             r1, c1 = min(r0 + 1, h - 1), min(c0 + 1, w - 1)
             fr, fc = row - r0, col - c0
+
             def prem(rr, cc):
                 return np.concatenate([o[rr, cc, :3] * o[rr, cc, 3], o[rr, cc, 3:]])
 

@@ -66,12 +66,7 @@ def nnf_reference(
     r = patch // 2
     centres = []
     for i, j in np.argwhere(source):
-        n = sum(
-            1
-            for a in range(i - r, i + r + 1)
-            for b in range(j - r, j + r + 1)
-            if 0 <= a < H and 0 <= b < W and source[a, b] and labels[a, b] == labels[i, j]
-        )
+        n = sum(1 for a in range(i - r, i + r + 1) for b in range(j - r, j + r + 1) if 0 <= a < H and 0 <= b < W and source[a, b] and labels[a, b] == labels[i, j])
         if n >= share * patch * patch - 1e-9:
             centres.append((i, j))
     tg = np.argwhere(targets)

@@ -10,9 +10,7 @@ import numpy as np
 from proctex.correspond.mvc import _check_cage
 
 
-def mean_value_coordinates_reference(
-    points: np.ndarray, cage_vertices: np.ndarray, cage_faces: np.ndarray, eps: float = 1e-9
-) -> np.ndarray:
+def mean_value_coordinates_reference(points: np.ndarray, cage_vertices: np.ndarray, cage_faces: np.ndarray, eps: float = 1e-9) -> np.ndarray:
     """Slow, obviously-correct MVC: the paper's pseudo-code, one point and one triangle at a time.
 
     Args:

@@ -9,9 +9,7 @@ from proctex.texture.painters.base import REFINE
 from proctex.texture.render import Buffers
 
 
-def backproject_reference(
-    points: np.ndarray, part: int, buffers: Buffers, trimap_: np.ndarray, view: np.ndarray, plane_tol: float = 1.0
-) -> dict[int, tuple[np.ndarray, float]]:
+def backproject_reference(points: np.ndarray, part: int, buffers: Buffers, trimap_: np.ndarray, view: np.ndarray, plane_tol: float = 1.0) -> dict[int, tuple[np.ndarray, float]]:
     """Slow :func:`backproject`: one point at a time. Returns ``{index: (colour (3,), cos)}``."""
     cam = buffers.camera
     H, W = buffers.face.shape

@@ -8,9 +8,7 @@ import numpy as np
 from proctex.geometry.raster import _check
 
 
-def rasterise_reference(
-    xy: np.ndarray, height: int, width: int, depth: np.ndarray | None = None, eps: float = 1e-9
-) -> tuple[np.ndarray, np.ndarray]:
+def rasterise_reference(xy: np.ndarray, height: int, width: int, depth: np.ndarray | None = None, eps: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
     """Slow, obviously correct :func:`rasterise`: every pixel against every triangle."""
     xy, depth = _check(xy, height, width, depth)
     face = np.full((height, width), -1, dtype=np.int64)

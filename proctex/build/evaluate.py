@@ -11,8 +11,7 @@ from proctex.store.samples import samples
 from proctex.store.state import stage_done
 
 
-def evaluate_step(store: FamilyStore, config, log: Callable[[str], None] = print,
-                  methods: Sequence[str] = ("corrnet", "identity")) -> dict[str, Any] | None:
+def evaluate_step(store: FamilyStore, config, log: Callable[[str], None] = print, methods: Sequence[str] = ("corrnet", "identity")) -> dict[str, Any] | None:
     """The ``evaluate`` build stage: :func:`evaluate` on the test shapes into ``metrics.json``;
     returns the stage's record (None: done already, or too few test shapes to measure)."""
     if stage_done(store, "evaluate"):
@@ -28,6 +27,14 @@ def evaluate_step(store: FamilyStore, config, log: Callable[[str], None] = print
     metrics = evaluate(store, methods=methods, log=log, quiet=True, workers=workers)
     store.write_json(StoreLayout.METRICS, metrics)
     net = metrics["methods"]["corrnet"]
-    return {"shapes": metrics["shapes"], "tracker": metrics["tracker"], "tracked_point_variance": net["tracked_point_variance"],
-            "tracked_point_variance_realtime": net["tracked_point_variance_realtime"], "coverage": net["coverage"], "gt_error": net["gt_error"],
-            "pgt_error": net["pgt_error"], "mapped_share": net["mapped_share"], "seconds_per_shape": net["seconds_per_shape"]}
+    return {
+        "shapes": metrics["shapes"],
+        "tracker": metrics["tracker"],
+        "tracked_point_variance": net["tracked_point_variance"],
+        "tracked_point_variance_realtime": net["tracked_point_variance_realtime"],
+        "coverage": net["coverage"],
+        "gt_error": net["gt_error"],
+        "pgt_error": net["pgt_error"],
+        "mapped_share": net["mapped_share"],
+        "seconds_per_shape": net["seconds_per_shape"],
+    }

@@ -33,14 +33,22 @@ def paint_step(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
         uv = source_uv(template, grouping, template.corner_uv, resolution=config.paint.texture_size)
         for note in (n for a in uv.atlases for n in a.notes):
             log(f"paint: {note}")
-    tex = paint_with(template, grouping, config.paint, seed=config.seed, up=config.up_axis(), uv=uv,
-                     on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
+    tex = paint_with(template, grouping, config.paint, seed=config.seed, up=config.up_axis(), uv=uv, on_view=lambda k, n, st: log(f"paint: view {k + 1}/{n}, {st['texels_updated']} texels"))
 
     labels = [g.label for g in tex.groups]
     pngs, maps = encoded = encode_textures(tex)  # each image encoded once: the files, the GLB and the record share the bytes
     wheres = [StoreLayout.texture(g, label) for g, label in enumerate(labels)]
-    record = Template(template, grouping, tex.uv.corner_uv, tex.uv.face_group, StoredImages(pngs, wheres), labels,
-                      tex.painted_masks, tex.observed_masks, StoredMaps(maps, wheres) if any(m is not None for m in maps) else None)
+    record = Template(
+        template,
+        grouping,
+        tex.uv.corner_uv,
+        tex.uv.face_group,
+        StoredImages(pngs, wheres),
+        labels,
+        tex.painted_masks,
+        tex.observed_masks,
+        StoredMaps(maps, wheres) if any(m is not None for m in maps) else None,
+    )
     with tempfile.TemporaryDirectory() as tmp:
         summary = write_textured(tex, tmp, up=config.up_axis(), encoded=encoded)
         textures = {StoreLayout.texture(g, label, kind) for g, label in enumerate(labels) for kind in ("", *MAP_KINDS)}  # the record writes those

@@ -155,17 +155,31 @@ def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, 
     if pair is not None and pair["mapped"] is not None:
         write_pair_vertices(store, sid, g, **pair["mapped"])
     if pair is not None:
-        store.write_table(StoreLayout.pair(sid, g), {
-            "sx": pair["src"][:, 0], "sy": pair["src"][:, 1], "sz": pair["src"][:, 2],
-            "tx": pair["dst"][:, 0], "ty": pair["dst"][:, 1], "tz": pair["dst"][:, 2], "face": pair["face"],
-        })
+        store.write_table(
+            StoreLayout.pair(sid, g),
+            {
+                "sx": pair["src"][:, 0],
+                "sy": pair["src"][:, 1],
+                "sz": pair["src"][:, 2],
+                "tx": pair["dst"][:, 0],
+                "ty": pair["dst"][:, 1],
+                "tz": pair["dst"][:, 2],
+                "face": pair["face"],
+            },
+        )
     record = {
-        "id": sid, "split": job.row["split"], "group": g, "status": status, "error": error,
+        "id": sid,
+        "split": job.row["split"],
+        "group": g,
+        "status": status,
+        "error": error,
         "part": -1 if pair is None else int(pair["part"]),
         "residual": None if pair is None else float(pair["residual"]),
         "chamfer": None if pair is None else float(pair["chamfer"]),
-        "converged": bool(pair and pair["converged"]), "iterations": 0 if pair is None else int(pair["iterations"]),
-        "seconds": time.perf_counter() - t, "attempts": 1 + (old or {}).get("attempts", 0),
+        "converged": bool(pair and pair["converged"]),
+        "iterations": 0 if pair is None else int(pair["iterations"]),
+        "seconds": time.perf_counter() - t,
+        "attempts": 1 + (old or {}).get("attempts", 0),
         "path": StoreLayout.pair(sid, g) if pair else "",
     }
     store.write_json(rel, record)
@@ -178,13 +192,13 @@ def write_pairs_index(store: FamilyStore, jobs: list[PairJob], records: dict[tup
     for job in jobs:
         r = records.get(job.key)
         if r is not None:
-            rows.append({**r, "residual": float("nan") if r["residual"] is None else r["residual"],
-                         "chamfer": float("nan") if r["chamfer"] is None else r["chamfer"]})
+            rows.append({**r, "residual": float("nan") if r["residual"] is None else r["residual"], "chamfer": float("nan") if r["chamfer"] is None else r["chamfer"]})
     store.write_table(StoreLayout.PAIRS, pa.Table.from_pylist(rows))
 
 
-def finish_pairs_stage(store: FamilyStore, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]], log: Callable[[str], None] = print,
-                       settled: dict[int, dict[str, float]] | None = None) -> dict[str, Any] | None:
+def finish_pairs_stage(
+    store: FamilyStore, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]], log: Callable[[str], None] = print, settled: dict[int, dict[str, float]] | None = None
+) -> dict[str, Any] | None:
     """Write the index; returns the stage's record when every job is complete (skipped pairs of the
     ``settled`` groups included; the record keeps those groups and their plain maps' errors), else None."""
     write_pairs_index(store, jobs, records)
@@ -195,8 +209,7 @@ def finish_pairs_stage(store: FamilyStore, jobs: list[PairJob], records: dict[tu
         log(f"pairs: {failed} failed, {missing} not run (rerun to retry)")
         return None
     skipped = sum(r["status"] == "skipped" for r in records.values())
-    return {"pairs": len(records), "solved": len(records) - skipped, "skipped": skipped,
-            "settled": {str(g): {k: round(v, 6) for k, v in e.items()} for g, e in settled.items()}}
+    return {"pairs": len(records), "solved": len(records) - skipped, "skipped": skipped, "settled": {str(g): {k: round(v, 6) for k, v in e.items()} for g, e in settled.items()}}
 
 
 INDEX_EVERY = 5.0  # seconds between rewrites of pairs.parquet while pairs arrive
@@ -251,8 +264,7 @@ def probe_keys(config: BuildConfig, jobs: list[PairJob]) -> set[tuple[str, int]]
     return keys
 
 
-def settled_groups(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]],
-                   probes: set[tuple[str, int]]) -> dict[int, dict[str, float]]:
+def settled_groups(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]], probes: set[tuple[str, int]]) -> dict[int, dict[str, float]]:
     """Groups whose probe pairs are all complete and whose plain map already fits their held-out
     shapes (:func:`proctex.build.groupdata.plain_groups` on what is solved: the train stage decides the
     same on the same pairs), with the plain maps' held-out errors. Writes ``pairs.parquet`` from
@@ -266,12 +278,24 @@ def settled_groups(store: FamilyStore, config: BuildConfig, jobs: list[PairJob],
 def skipped_record(job: PairJob, old: dict[str, Any] | None) -> dict[str, Any]:
     """The record of a train pair not solved because its group's plain map fits."""
     sid, g = job.key
-    return {"id": sid, "split": job.row["split"], "group": g, "status": "skipped", "error": "", "part": -1, "residual": None,
-            "chamfer": None, "converged": False, "iterations": 0, "seconds": 0.0, "attempts": (old or {}).get("attempts", 0), "path": ""}
+    return {
+        "id": sid,
+        "split": job.row["split"],
+        "group": g,
+        "status": "skipped",
+        "error": "",
+        "part": -1,
+        "residual": None,
+        "chamfer": None,
+        "converged": False,
+        "iterations": 0,
+        "seconds": 0.0,
+        "attempts": (old or {}).get("attempts", 0),
+        "path": "",
+    }
 
 
-def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print,
-               splits: tuple[str, ...] = ("train", "test")) -> Plan:
+def plan_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, splits: tuple[str, ...] = ("train", "test")) -> Plan:
     """The pairs stage: a cage pair for every (shape, non-degenerate template group) not complete
     yet, one batch per shape; ``pairs.parquet`` rewritten as they arrive. ``info["solved"]``: pairs run.
 
@@ -303,8 +327,7 @@ def _done_plan() -> Plan:
     return Plan("pairs", [], run_pair_batch, finish=lambda results: None, skip="done already", info={"solved": 0})
 
 
-def plan_rest(store: FamilyStore, config: BuildConfig, log: Callable[[str], None], assets, jobs: list[PairJob],
-              records: dict[tuple[str, int], dict[str, Any]], probes: set[tuple[str, int]]) -> Plan:
+def plan_rest(store: FamilyStore, config: BuildConfig, log: Callable[[str], None], assets, jobs: list[PairJob], records: dict[tuple[str, int], dict[str, Any]], probes: set[tuple[str, int]]) -> Plan:
     """The second step of a two-step pairs stage (:func:`plan_pairs`): the train pairs of settled
     groups recorded as skipped, every other pair not complete planned (a skipped pair of a group
     that no longer settles among them)."""
@@ -316,13 +339,20 @@ def plan_rest(store: FamilyStore, config: BuildConfig, log: Callable[[str], None
             store.write_json(StoreLayout.pair_record(*job.key), records[job.key])
             skipped[job.group] = skipped.get(job.group, 0) + 1
     for g, n in skipped.items():
-        log(f"pairs: group {g}: its plain map fits its held-out shapes ({', '.join(f'{k} {v:.5f}' for k, v in settled[g].items())}): "
-            f"{n} train pairs skipped")
+        log(f"pairs: group {g}: its plain map fits its held-out shapes ({', '.join(f'{k} {v:.5f}' for k, v in settled[g].items())}): {n} train pairs skipped")
     return _pairs_plan(store, config, log, assets, jobs, records, settled)
 
 
-def _pairs_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], None], assets, jobs: list[PairJob],
-                records: dict[tuple[str, int], dict[str, Any]], settled: dict[int, dict[str, float]], only: list[PairJob] | None = None) -> Plan:
+def _pairs_plan(
+    store: FamilyStore,
+    config: BuildConfig,
+    log: Callable[[str], None],
+    assets,
+    jobs: list[PairJob],
+    records: dict[tuple[str, int], dict[str, Any]],
+    settled: dict[int, dict[str, float]],
+    only: list[PairJob] | None = None,
+) -> Plan:
     """The plan solving ``only`` (default: every job not complete with groups ``settled``), one
     batch per shape; its finish returns the stage's record once every job is complete (a first
     step's finish leaves the index to the next step, :func:`settled_groups`)."""
@@ -350,4 +380,3 @@ def _pairs_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     # side by side in process from 16 pairs on (a pair takes about a second, a worker a few to start)
     plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets, parallel=True, pool_min_jobs=16, threads=1)
     return plan
-

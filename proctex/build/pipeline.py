@@ -64,21 +64,26 @@ _PAINTED = (f"{_L.TEMPLATE}/*",)
 _PAIRS = (_L.PAIRS, _L.pair("*", "*"), _L.pair_vertices("*", "*"), _L.pair_record("*", "*"))
 
 #: The stages, in :data:`proctex.store.state.STAGES` order.
-STAGES_TABLE: Mapping[str, Stage] = {s.name: s for s in (
-    Stage("sample", plan_sample, Placement.TASKS, reads=(), writes=_SAMPLES),
-    Stage("template", lambda store, config, log: single_step("template", template_step, store, config, log), Placement.HERE,
-          reads=_SAMPLES, writes=_TEMPLATE),
-    Stage("paint", lambda store, config, log: single_step("paint", paint_step, store, config, log), Placement.HERE,
-          reads=_TEMPLATE, writes=_PAINTED),
-    Stage("pairs", plan_pairs, Placement.TASKS, reads=_SAMPLES + _PAINTED, writes=_PAIRS),
-    Stage("train", plan_train, Placement.TEAM, reads=_SAMPLES + _PAIRS, writes=(_L.model("*"),)),
-    Stage("evaluate", lambda store, config, log: single_step("evaluate", evaluate_step, store, config, log), Placement.HERE,
-          reads=_SAMPLES + _PAINTED + _PAIRS + (_L.model("*"),), writes=(_L.METRICS,)),
-)}
+STAGES_TABLE: Mapping[str, Stage] = {
+    s.name: s
+    for s in (
+        Stage("sample", plan_sample, Placement.TASKS, reads=(), writes=_SAMPLES),
+        Stage("template", lambda store, config, log: single_step("template", template_step, store, config, log), Placement.HERE, reads=_SAMPLES, writes=_TEMPLATE),
+        Stage("paint", lambda store, config, log: single_step("paint", paint_step, store, config, log), Placement.HERE, reads=_TEMPLATE, writes=_PAINTED),
+        Stage("pairs", plan_pairs, Placement.TASKS, reads=_SAMPLES + _PAINTED, writes=_PAIRS),
+        Stage("train", plan_train, Placement.TEAM, reads=_SAMPLES + _PAIRS, writes=(_L.model("*"),)),
+        Stage(
+            "evaluate",
+            lambda store, config, log: single_step("evaluate", evaluate_step, store, config, log),
+            Placement.HERE,
+            reads=_SAMPLES + _PAINTED + _PAIRS + (_L.model("*"),),
+            writes=(_L.METRICS,),
+        ),
+    )
+}
 
 
-def run_stage(store: FamilyStore, config: BuildConfig, stage: str, log: Callable[[str], None] = print,
-              executor: Executor = run_in_process, **args: Any) -> Plan:
+def run_stage(store: FamilyStore, config: BuildConfig, stage: str, log: Callable[[str], None] = print, executor: Executor = run_in_process, **args: Any) -> Plan:
     """Plan stage ``stage`` (``args``: its planner's own, e.g. the pairs' ``splits``), run its plans
     with ``executor`` at the stage's placement, and record the stage in ``family.json`` when its last
     plan returned a record (the one writer of stage records). Returns the last plan run."""
@@ -109,8 +114,7 @@ def stage_paint(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
     return run_stage(store, config, "paint", log)
 
 
-def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print,
-                splits: tuple[str, ...] = ("train", "test")) -> Plan:
+def stage_pairs(store: FamilyStore, config: BuildConfig, log: Callable[[str], None] = print, splits: tuple[str, ...] = ("train", "test")) -> Plan:
     """The pairs stage here, in its steps (:func:`run_stage`); ``splits``: the samples it pairs."""
     return run_stage(store, config, "pairs", log, splits=splits)
 
@@ -125,8 +129,7 @@ def stage_evaluate(store: FamilyStore, config: BuildConfig, log: Callable[[str],
     return run_stage(store, config, "evaluate", log)
 
 
-def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | list[str] = STAGES, log: Callable[[str], None] = print,
-          executor: Executor = run_in_process) -> dict[str, Any]:
+def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | list[str] = STAGES, log: Callable[[str], None] = print, executor: Executor = run_in_process) -> dict[str, Any]:
     """Run the build ``stages`` in :data:`proctex.store.state.STAGES` order: plan each (skipping what
     is complete) and run the plan with ``executor``. Returns the family state with ``wall_seconds``
     per stage run. ``ValueError`` for a stage name the table does not know, before any work; the

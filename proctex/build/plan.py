@@ -96,8 +96,7 @@ class Plan:
         return sum(len(b) for b in self.batches)
 
 
-def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], None] = print, workers: int = 1,
-                   min_jobs: int | None = None) -> Plan:
+def run_in_process(plan: Plan, store: Any, config: Any, log: Callable[[str], None] = print, workers: int = 1, min_jobs: int | None = None) -> Plan:
     """Run ``plan`` here, batch after batch; returns it (``info`` filled by its ``finish``). With
     ``workers`` > 1, a ``parallel`` plan of at least ``min_jobs`` jobs (None: its own
     ``pool_min_jobs``) runs its batches side by side in that many worker processes (one torch
@@ -142,7 +141,7 @@ def _collect_unit(plan: Plan, unit: list[int], out: list[Any], results: list[Any
     i = 0
     for k in unit:
         n = len(plan.batches[k])
-        results[k] = list(out[i:i + n])
+        results[k] = list(out[i : i + n])
         i += n
         if plan.collect is not None:
             plan.collect(plan.batches[k], results[k])
@@ -182,16 +181,13 @@ def _run_pooled(plan: Plan, store: Any, config: Any, units: list[list[int]], wor
 
     results: list[Any] = [None] * len(plan.batches)
     with process_pool(workers) as pool:
-        futures = {pool.submit(_pooled_batch, store.uri, config, plan.run_batch, [j for k in unit for j in plan.batches[k]]): unit
-                   for unit in units}
+        futures = {pool.submit(_pooled_batch, store.uri, config, plan.run_batch, [j for k in unit for j in plan.batches[k]]): unit for unit in units}
         for future in as_completed(futures):
             _collect_unit(plan, futures[future], future.result(), results)
     return results
 
 
-def single_step(stage: str, step: Callable[[Any, Any, Callable[[str], None]], dict[str, Any] | None], store: Any, config: Any,
-                log: Callable[[str], None]) -> Plan:
+def single_step(stage: str, step: Callable[[Any, Any, Callable[[str], None]], dict[str, Any] | None], store: Any, config: Any, log: Callable[[str], None]) -> Plan:
     """A one-step stage as a plan placed :attr:`Placement.HERE`: ``step(store, config, log)`` runs
     where the build runs and returns the stage's record (None: done already, nothing to record)."""
-    return Plan(stage, [[None]], lambda st, cfg, batch, context: [step(st, cfg, log)], finish=lambda results: results[0][0],
-                placement=Placement.HERE)
+    return Plan(stage, [[None]], lambda st, cfg, batch, context: [step(st, cfg, log)], finish=lambda results: results[0][0], placement=Placement.HERE)

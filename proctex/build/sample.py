@@ -33,23 +33,28 @@ def run_sample_job(store: FamilyStore, config: BuildConfig, job: SampleJob) -> d
     path = StoreLayout.mesh(job.id)
     store.write_bytes(path, obj_text(shape.vertices, shape.faces).encode())
     seg = segment(shape)
-    row = {"id": job.id, "split": job.split, "params": json.dumps(job.params, sort_keys=True), "mesh": path,
-           "vertices": shape.n_vertices, "faces": shape.n_faces, "parts": seg.n_parts,
-           # the part names the source gives (a node tree's frames and groups), "" where none: for reading and painting only
-           "names": json.dumps([p.label for p in seg.parts]) if shape.labels is not None else ""}
+    row = {
+        "id": job.id,
+        "split": job.split,
+        "params": json.dumps(job.params, sort_keys=True),
+        "mesh": path,
+        "vertices": shape.n_vertices,
+        "faces": shape.n_faces,
+        "parts": seg.n_parts,
+        # the part names the source gives (a node tree's frames and groups), "" where none: for reading and painting only
+        "names": json.dumps([p.label for p in seg.parts]) if shape.labels is not None else "",
+    }
     store.write_json(rel, row)
     return row
 
 
-def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]], notes: list[str] | None = None,
-                        space: list[dict] | None = None) -> dict[str, Any]:
+def finish_sample_stage(store: FamilyStore, rows: list[dict[str, Any]], notes: list[str] | None = None, space: list[dict] | None = None) -> dict[str, Any]:
     """Write ``samples.parquet`` (rows in sample order); returns the stage's record (``notes``: what
     the source said of its inputs, e.g. those held at a file's values; ``space``: the procedural
     model's parameter space, :meth:`ParamSpace.to_list`, which readers take from the record instead
     of opening the model), which the pipeline writes."""
     store.write_table(StoreLayout.SAMPLES, pa.Table.from_pylist(rows))
-    return {"samples": len(rows), "train": sum(r["split"] == "train" for r in rows), **({"notes": notes} if notes else {}),
-            **({"space": space} if space is not None else {})}
+    return {"samples": len(rows), "train": sum(r["split"] == "train" for r in rows), **({"notes": notes} if notes else {}), **({"space": space} if space is not None else {})}
 
 
 def source_notes(config: BuildConfig) -> list[str]:
@@ -89,4 +94,3 @@ def plan_sample(store: FamilyStore, config: BuildConfig, log: Callable[[str], No
         return finish_sample_stage(store, rows, notes, space)
 
     return Plan("sample", [jobs[i : i + SAMPLE_BATCH] for i in range(0, len(jobs), SAMPLE_BATCH)], run_sample_batch, finish)
-

@@ -43,8 +43,9 @@ def save_group_model(store: FamilyStore, group: int, result, cfg, data: dict[str
     return save_network(store, group, to_bytes(result.model, cfg, extra)), serving
 
 
-def fit_groups(store: FamilyStore, config: BuildConfig, groups: list[int], rank: int = 0, world: int = 1,
-               grad_hook: Callable[[Any], None] | None = None, data: dict[int, dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+def fit_groups(
+    store: FamilyStore, config: BuildConfig, groups: list[int], rank: int = 0, world: int = 1, grad_hook: Callable[[Any], None] | None = None, data: dict[int, dict[str, Any]] | None = None
+) -> list[dict[str, Any]]:
     """Train the networks of ``groups`` (together in one batched loop where
     :func:`proctex.correspond.corrnet.trains_together` says so, each keeping its own network, early
     stopping and best state; else one after another) and, on ``rank`` 0, store each; the one train
@@ -55,6 +56,7 @@ def fit_groups(store: FamilyStore, config: BuildConfig, groups: list[int], rank:
     ``train_pairs``, ``val_pairs``, ``sha256`` and ``serving`` (None off rank 0), ``workers`` (the
     team's size: 1 in process) and ``together`` (the groups trained in the same loop). ``data``:
     ``{group: group_training_data(...)}`` a caller has read already."""
+
     def load(g: int) -> dict[str, Any]:  # ``data``: groups' training data already read by the caller
         return data[g] if data and g in data else group_training_data(store, config, g, VAL_SHARE)
 
@@ -68,18 +70,24 @@ def fit_groups(store: FamilyStore, config: BuildConfig, groups: list[int], rank:
         return out
     loaded = [load(g) for g in groups]
     t = time.perf_counter()
-    results = train_together([(d["train"], d["val"]) for d in loaded], config.train, features=[d["features"] for d in loaded],
-                             rank=rank, world=world, grad_hook=grad_hook)
+    results = train_together([(d["train"], d["val"]) for d in loaded], config.train, features=[d["features"] for d in loaded], rank=rank, world=world, grad_hook=grad_hook)
     seconds = time.perf_counter() - t
     return [_group_record(store, config, g, d, r, seconds, rank, world, len(groups)) for g, d, r in zip(groups, loaded, results)]
 
 
-def _group_record(store: FamilyStore, config: BuildConfig, group: int, data: dict[str, Any], result, seconds: float, rank: int, world: int,
-                  together: int) -> dict[str, Any]:
+def _group_record(store: FamilyStore, config: BuildConfig, group: int, data: dict[str, Any], result, seconds: float, rank: int, world: int, together: int) -> dict[str, Any]:
     sha, serving = save_group_model(store, group, result, config.train, data) if rank == 0 else (None, None)
-    return {"best_val": result.best_val, "iterations": result.iterations, "seconds": round(seconds, 2),
-            "train_pairs": len(data["train"]), "val_pairs": len(data["val"]), "sha256": sha, "serving": serving, "workers": world,
-            "together": together}
+    return {
+        "best_val": result.best_val,
+        "iterations": result.iterations,
+        "seconds": round(seconds, 2),
+        "train_pairs": len(data["train"]),
+        "val_pairs": len(data["val"]),
+        "sha256": sha,
+        "serving": serving,
+        "workers": world,
+        "together": together,
+    }
 
 
 def run_train_batch(store: FamilyStore, config: BuildConfig, groups: list[int], context: Any = None) -> list[dict[str, Any]]:
@@ -114,8 +122,7 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
         for g, m in zip(batch, out):
             if m is not None and "train_pairs" in m:
                 how = f"{m['iterations']} iterations" if m["iterations"] else f"not trained (a plain map within {config.train.plain_below:g})"
-                log(f"train: group {g}: {m['train_pairs']} train / {m['val_pairs']} val pairs, val {m['best_val']}, {how}, {m['seconds']}s; "
-                    f"{serving_line(m.get('serving'))}")
+                log(f"train: group {g}: {m['train_pairs']} train / {m['val_pairs']} val pairs, val {m['best_val']}, {how}, {m['seconds']}s; {serving_line(m.get('serving'))}")
 
     # Groups whose plain map already fits (CorrNetConfig.plain_below) are settled here, before any
     # worker starts: no pool slot or Ray Train team waits on them (teams are dealt statically).
@@ -138,8 +145,5 @@ def plan_train(store: FamilyStore, config: BuildConfig, log: Callable[[str], Non
     # sofa export 209.7 -> 194.8 s on 2 cores); each worker's share trained in one batched loop where
     # that pays (Plan.merge; CorrNetConfig.together: on a GPU)
 
-    plan = Plan("train", [[g] for g in todo], run_train_batch, finish, collect, team=fit_groups, parallel=True,
-                merge=trains_together(config.train, len(todo)))
+    plan = Plan("train", [[g] for g in todo], run_train_batch, finish, collect, team=fit_groups, parallel=True, merge=trains_together(config.train, len(todo)))
     return plan
-
-

@@ -45,14 +45,17 @@ def _add_eval_flags(p: argparse.ArgumentParser) -> None:
     from proctex.store.config import TRUTHS
 
     p.add_argument("--shapes", choices=["test", "train"], default="test")
-    p.add_argument("--methods", default=",".join(default_methods()),
-                   help=f"comma-separated correspondence methods (default: {','.join(default_methods())}): {method_help()}")
+    p.add_argument("--methods", default=",".join(default_methods()), help=f"comma-separated correspondence methods (default: {','.join(default_methods())}): {method_help()}")
     p.add_argument("--limit", type=int, help="evaluate only the first N shapes")
     p.add_argument("--lpips", help="a local LPIPS (AlexNet) weights file: adds LPIPS to SSIM and PSNR")
     p.add_argument("--workers", type=int, default=0, help="processes evaluating shapes in parallel (0: one per CPU, at most 4)")
-    p.add_argument("--truth", choices=list(TRUTHS), default="auto",
-                   help="ground truth: auto (the config's; canonical coordinates for built-in models), vertex-index (the samples share one "
-                        "vertex order), canonical, or none (points tracked by the cage solver, no GT error)")
+    p.add_argument(
+        "--truth",
+        choices=list(TRUTHS),
+        default="auto",
+        help="ground truth: auto (the config's; canonical coordinates for built-in models), vertex-index (the samples share one "
+        "vertex order), canonical, or none (points tracked by the cage solver, no GT error)",
+    )
     p.add_argument("--tracked", type=int, default=5000, help="tracked template points and truth samples per shape (vertex-index: every vertex)")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
@@ -140,8 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--modifier", default="GeometryNodes", help="--blend: the Geometry Nodes modifier's name")
     p.add_argument("--parts-attribute", metavar="NAME", help="--blend: a face / point / corner attribute whose values are the parts")
     p.add_argument("--keep-uv", metavar="UVMAP", help="--blend: keep this UV map of the graph as the template's UVs")
-    p.add_argument("--params-spec", metavar="FILE.json",
-                   help="the inputs' ranges and conditions from a spec file (nested sp_<name>.json or flat {name: [low, high]})")
+    p.add_argument("--params-spec", metavar="FILE.json", help="the inputs' ranges and conditions from a spec file (nested sp_<name>.json or flat {name: [low, high]})")
     p.add_argument("config_file", nargs="?", metavar="CONFIG", help="JSON or TOML build config (same as --config)")
     p.add_argument("--config", help="JSON or TOML build config, in sections or flat keys (flags override it)")
     p.add_argument("--preset", choices=sorted(PRESETS), help="start from a named config (the config file and flags override it)")
@@ -159,10 +161,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--up", choices=["auto", "x", "y", "z"])
     p.add_argument("--painter", choices=painter_names(), help=f"template painter (default surface): {painter_help()}")
     p.add_argument("--model-dir", help="local diffusers model folder (--painter diffusion)")
-    p.add_argument("--tessellation", choices=["adaptive", "fixed"],
-                   help="built-in models: segments follow part sizes (adaptive, the default) or fixed counts")
-    p.add_argument("--truth", choices=["auto", "canonical", "vertex-index", "none"],
-                   help="what the evaluation takes as ground truth (vertex-index: the samples share one vertex order)")
+    p.add_argument("--tessellation", choices=["adaptive", "fixed"], help="built-in models: segments follow part sizes (adaptive, the default) or fixed counts")
+    p.add_argument("--truth", choices=["auto", "canonical", "vertex-index", "none"], help="what the evaluation takes as ground truth (vertex-index: the samples share one vertex order)")
     p.add_argument("--stages", help="comma-separated subset of sample,template,paint,pairs,train,evaluate")
     p.add_argument("--look", help="the name of the look the build paints (default: default); proctex look add paints more")
     p.add_argument("--workers", type=int, default=0, help="in process: processes solving cage pairs side by side (0: one per CPU, at most 4, from 16 pairs on)")
@@ -177,13 +177,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_inputs)
 
-    p = sub.add_parser("parts", help="a family's part groups and the part word each took (a PNG and JSON; --assign gives the last word), "
-                                     "or a .blend model's parts and the names its node tree gives them")
+    p = sub.add_parser(
+        "parts", help="a family's part groups and the part word each took (a PNG and JSON; --assign gives the last word), or a .blend model's parts and the names its node tree gives them"
+    )
     p.add_argument("blend", metavar="FAMILY|FILE.blend", help="a built family (folder or URI), or a .blend file")
     p.add_argument("--prompt", help="FAMILY: the prompt to read (default: the look's)")
     p.add_argument("--look", help="FAMILY: the look whose prompt and words to read (default: the build's)")
-    p.add_argument("--assign", metavar="G=WORD,...", help="FAMILY: your word per group, e.g. '3=legs,5=rest' or JSON "
-                   "{\"3\": \"legs\"} ('rest': no word; an empty word clears a stored one with --save)")
+    p.add_argument(
+        "--assign", metavar="G=WORD,...", help="FAMILY: your word per group, e.g. '3=legs,5=rest' or JSON {\"3\": \"legs\"} ('rest': no word; an empty word clears a stored one with --save)"
+    )
     p.add_argument("--save", action="store_true", help="FAMILY: store --assign in the family: every look painted afterwards follows it")
     p.add_argument("--png", metavar="FILE.png", help="FAMILY: draw the template, each group with its number, word and score")
     p.add_argument("--size", type=int, default=400, help="FAMILY: --png pixels per view (64-2048)")
@@ -221,12 +223,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params-bounds", metavar="JSON", help='narrow the sampled ranges, e.g. {"seats": [2, 3]}')
     p.add_argument("--format", choices=["glb", "obj"], default="glb")
     p.add_argument("--bake", type=int, default=0, help="give each variant its own atlas at this size (0: the template's textures)")
-    p.add_argument("--textures", choices=["embedded", "shared"], default="embedded",
-                   help="embedded: every GLB carries its textures and PBR maps; shared: written once into textures/, each GLB refers to them")
-    p.add_argument("--looks", metavar="NAMES", help="the family's looks to make every shape in, e.g. walnut,oak (or 'all'; "
-                                                  "default: the build's look); a --rows file's 'look' column names a row's look instead")
-    p.add_argument("--random-looks", type=int, default=0, metavar="N",
-                   help="first add N looks painted from prompts sampled from the painter's vocabulary (seeded by --seed), then use them too")
+    p.add_argument(
+        "--textures", choices=["embedded", "shared"], default="embedded", help="embedded: every GLB carries its textures and PBR maps; shared: written once into textures/, each GLB refers to them"
+    )
+    p.add_argument(
+        "--looks", metavar="NAMES", help="the family's looks to make every shape in, e.g. walnut,oak (or 'all'; default: the build's look); a --rows file's 'look' column names a row's look instead"
+    )
+    p.add_argument("--random-looks", type=int, default=0, metavar="N", help="first add N looks painted from prompts sampled from the painter's vocabulary (seeded by --seed), then use them too")
     p.add_argument("--max-failed", type=int, default=10, help="rows that may fail (recorded in the manifest) before the run stops")
     p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i>")
     p.add_argument("--batch-size", type=int, default=8, help="rows per batch")
@@ -239,8 +242,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output .png (or .gif with --views turntable); default: FILE with a .png suffix")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     p.add_argument("--size", type=int, default=512, help="pixels per view (square)")
-    p.add_argument("--views", choices=["front", "six", "turntable"], default="front",
-                   help="front: one 3/4 view; six: the six canonical views (3x2, labelled); turntable: --frames views around the up axis")
+    p.add_argument(
+        "--views", choices=["front", "six", "turntable"], default="front", help="front: one 3/4 view; six: the six canonical views (3x2, labelled); turntable: --frames views around the up axis"
+    )
     p.add_argument("--frames", type=int, default=24, help="turntable frames")
     p.add_argument("--fps", type=float, default=12.0, help="turntable GIF frame rate")
     p.add_argument("--up", choices=["auto", "x", "y", "z"], default="auto", help="up axis (auto: y for glTF/OBJ files, else z)")

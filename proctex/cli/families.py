@@ -36,11 +36,21 @@ def build_config_of(args: argparse.Namespace):
     config_file = args.config or args.config_file
     data: dict[str, Any] = BuildConfig.read_settings(config_file) if config_file else {}
     flags = {
-        "model": args.model, "folder": os.path.abspath(args.folder) if args.folder else None, "prompt": args.prompt,
-        "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed, "n_train": args.n_train, "n_test": args.n_test,
-        "texture_size": args.texture_size, "corr_points": args.points, "cage_iterations": args.iterations, "up": args.up,
-        "painter": args.painter, "model_dir": os.path.abspath(args.model_dir) if args.model_dir else None,
-        "tessellation": args.tessellation, "truth": args.truth,
+        "model": args.model,
+        "folder": os.path.abspath(args.folder) if args.folder else None,
+        "prompt": args.prompt,
+        "group_prompts": _group_prompts(args.group_prompts),
+        "seed": args.seed,
+        "n_train": args.n_train,
+        "n_test": args.n_test,
+        "texture_size": args.texture_size,
+        "corr_points": args.points,
+        "cage_iterations": args.iterations,
+        "up": args.up,
+        "painter": args.painter,
+        "model_dir": os.path.abspath(args.model_dir) if args.model_dir else None,
+        "tessellation": args.tessellation,
+        "truth": args.truth,
     }
     if args.blend:
         if not args.object:
@@ -71,8 +81,13 @@ def cmd_build(args: argparse.Namespace) -> int:
     config = build_config_of(args)
     check_build_look(args)
     stages = tuple(args.stages.split(",")) if args.stages else STAGES
-    state = build(FamilyStore(args.out), config, stages=stages, log=(lambda *_: None) if args.quiet else (lambda m: print(m, flush=True)),
-                  executor=local_executor(build_workers(args.workers), min_jobs=0 if args.workers else None))
+    state = build(
+        FamilyStore(args.out),
+        config,
+        stages=stages,
+        log=(lambda *_: None) if args.quiet else (lambda m: print(m, flush=True)),
+        executor=local_executor(build_workers(args.workers), min_jobs=0 if args.workers else None),
+    )
     done = [k for k, v in state.get("stages", {}).items() if v.get("state") == "done"]
     print(f"family {args.out}: stages done: {', '.join(done)}{named_look(args)}")
     return 0
@@ -147,8 +162,7 @@ def cmd_inputs(args: argparse.Namespace) -> int:
     unknown = sorted(set(spec.kinds) - {s["name"] for s in inputs}) if spec else []
     notes = list(spec.notes) if spec else []
     if args.json:
-        _print_json({"object": args.object, "modifier": args.modifier, "inputs": rows, "spec_unknown": unknown, "spec_notes": notes,
-                     "part_names": names, "provenance_error": session.provenance_error})
+        _print_json({"object": args.object, "modifier": args.modifier, "inputs": rows, "spec_unknown": unknown, "spec_notes": notes, "part_names": names, "provenance_error": session.provenance_error})
         return 0
     for r in rows:
         rng = f"[{r['min']:g}, {r['max']:g}]" if "min" in r and "max" in r else ", ".join(map(str, r.get("options", [])))
@@ -164,8 +178,7 @@ def cmd_inputs(args: argparse.Namespace) -> int:
         shown = ", ".join(names[:MAX_NAMES]) + (f" and {len(names) - MAX_NAMES} more" if len(names) > MAX_NAMES else "")
         print(f"the node tree names parts: {shown} (proctex parts shows which)")
     n = sum(r["fixed"] for r in rows)
-    print(f"{len(rows)} inputs; {len(rows) - n} vary, {n} held at the file's values"
-          + (" (give ranges with --params-spec or [source.params] to vary them)" if n else ""))
+    print(f"{len(rows)} inputs; {len(rows) - n} vary, {n} held at the file's values" + (" (give ranges with --params-spec or [source.params] to vary them)" if n else ""))
     return 0
 
 
@@ -201,12 +214,9 @@ def cmd_parts(args: argparse.Namespace) -> int:
         areas = triangle_areas(shape.vertices, shape.faces)
         total = float(areas.sum()) or 1.0
         part_area = np.bincount(face_part, weights=areas, minlength=count)
-        producers = [{"id": n.id, "name": n.name, "from": n.where, "node": n.node, "dropped": [list(d) for d in n.dropped]}
-                     for n in model.producer_names.values()]
-        parts = [{"part": i, "name": named.names[i] if named else "", "others": named.others[i] if named else [],
-                  "area_share": round(float(part_area[i] / total), 4)} for i in range(count)]
-        report = {"object": args.object, "parts": parts, "producers": producers,
-                  "covered": named.covered if named else 0.0, "provenance_error": model.session.provenance_error}
+        producers = [{"id": n.id, "name": n.name, "from": n.where, "node": n.node, "dropped": [list(d) for d in n.dropped]} for n in model.producer_names.values()]
+        parts = [{"part": i, "name": named.names[i] if named else "", "others": named.others[i] if named else [], "area_share": round(float(part_area[i] / total), 4)} for i in range(count)]
+        report = {"object": args.object, "parts": parts, "producers": producers, "covered": named.covered if named else 0.0, "provenance_error": model.session.provenance_error}
     finally:
         model.close()
     if args.json:
@@ -219,8 +229,7 @@ def cmd_parts(args: argparse.Namespace) -> int:
     for r in producers:
         dropped = "; passed over: " + ", ".join(f"{lab!r} ({why})" for lab, why in r["dropped"]) if r["dropped"] else ""
         print(f"  {r['id']:<4} {r['node']:<48} -> {r['name'] or '(no name)'}" + (f" from its {r['from']}" if r["name"] else "") + dropped)
-    print(f"{100 * report['covered']:.1f} % of the area has a producing node"
-          + (f"; provenance unavailable: {report['provenance_error']}" if report["provenance_error"] else ""))
+    print(f"{100 * report['covered']:.1f} % of the area has a producing node" + (f"; provenance unavailable: {report['provenance_error']}" if report["provenance_error"] else ""))
     return 0
 
 
@@ -282,8 +291,11 @@ def family_parts_command(args: argparse.Namespace) -> int:
         ev = row["evidence"] or {}
         facts = f"{ev.get('members', '?')}x {ev.get('form', '')}, {100 * ev.get('area_share', 0):.0f} % area, height {ev.get('height', ['?', '?'])}" if ev else "(not measured)"
         looks = ", ".join(f"{w} {s:.2f}" for w, s in row["looks_like"])
-        print(f"group {row['group']:<3} {(row['word'] or '-')[:20]:<20} {row['how']:<6} {score}  {row['text'][:40]!r:<44} {facts}"
-              + (f"; looks like {looks}" if looks else "") + (f"; rival {row['rival'][0]} {row['rival'][1]:.2f}" if row["rival"] else ""))
+        print(
+            f"group {row['group']:<3} {(row['word'] or '-')[:20]:<20} {row['how']:<6} {score}  {row['text'][:40]!r:<44} {facts}"
+            + (f"; looks like {looks}" if looks else "")
+            + (f"; rival {row['rival'][0]} {row['rival'][1]:.2f}" if row["rival"] else "")
+        )
     for note in report["notes"]:
         print(f"  {note}")
     if report["stored"]:
@@ -333,14 +345,12 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     from proctex.transfer.apply import info
 
     result = answer.result
-    summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(svc.mapper).__name__, "look": svc.look.name, "out": args.out,
-               "bytes": len(answer.data)}
+    summary = {**info(result), "load_seconds": round(t1 - t0, 3), "mapper": type(svc.mapper).__name__, "look": svc.look.name, "out": args.out, "bytes": len(answer.data)}
     preview = None
     if args.preview:  # rendered before anything is written: a failing preview leaves no GLB behind
         from proctex.texture.render import render_three_quarter
 
-        preview = encode_png(render_three_quarter(shape.vertices, shape.faces, answer.corner_uv, answer.face_group, answer.textures,
-                                                  up=config.up_axis(), size=512, maps=answer.pbr))
+        preview = encode_png(render_three_quarter(shape.vertices, shape.faces, answer.corner_uv, answer.face_group, answer.textures, up=config.up_axis(), size=512, maps=answer.pbr))
         summary["preview"] = args.preview
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write(args.out, answer.data)
@@ -352,8 +362,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     else:
         for note in result.notes:
             print(f"note: {note}")
-        print(f"transferred {shape.n_faces} faces with {summary['mapper']} in {result.seconds * 1000:.0f} ms "
-              f"(family loaded in {t1 - t0:.1f}s) -> {args.out}")
+        print(f"transferred {shape.n_faces} faces with {summary['mapper']} in {result.seconds * 1000:.0f} ms (family loaded in {t1 - t0:.1f}s) -> {args.out}")
         if args.preview:
             print(f"wrote {args.preview} (3/4 view, 512x512)")
     return 0
@@ -378,17 +387,31 @@ def generate_settings(args: argparse.Namespace):
         looks = tuple(x.strip() for x in args.looks.split(","))
         if not all(looks):
             raise ValueError(f"--looks takes look names separated by commas (or 'all'), got {args.looks[:80]!r}")
-    return GenerateSettings(args.family, args.out, n=args.n, rows=args.rows, seed=args.seed, bounds=bounds, format=args.format,
-                            bake=args.bake or None, textures=args.textures, max_failed=args.max_failed, batch_size=args.batch_size,
-                            device=args.device, looks=looks, random_looks=args.random_looks).validate()
+    return GenerateSettings(
+        args.family,
+        args.out,
+        n=args.n,
+        rows=args.rows,
+        seed=args.seed,
+        bounds=bounds,
+        format=args.format,
+        bake=args.bake or None,
+        textures=args.textures,
+        max_failed=args.max_failed,
+        batch_size=args.batch_size,
+        device=args.device,
+        looks=looks,
+        random_looks=args.random_looks,
+    ).validate()
 
 
 def print_generate_summary(args: argparse.Namespace, summary: dict[str, Any]) -> None:
     if args.json:
         _print_json(summary)
     else:
-        print(f"generated {summary['written']} variants ({summary['done_before']} done before, {summary['failed']} failed) "
-              f"in {summary['seconds']:.1f}s -> {args.out} (manifest: {summary['manifest']})")
+        print(
+            f"generated {summary['written']} variants ({summary['done_before']} done before, {summary['failed']} failed) in {summary['seconds']:.1f}s -> {args.out} (manifest: {summary['manifest']})"
+        )
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
@@ -421,9 +444,19 @@ def cmd_edit(args: argparse.Namespace) -> int:
     if args.logo is not None and not os.path.isfile(args.logo):
         raise ValueError(f"--logo {args.logo}: no such file")
     record = edit_group(
-        store, args.group, hue=args.hue, saturation=args.saturation, value=args.value, logo=args.logo,
-        at=_pair(args.at, "--at") or (0.5, 0.5), size=_pair(args.size, "--size") or (0.25, 0.25),
-        rotation=args.rotation, opacity=args.opacity, prompt=args.prompt, roughness=args.roughness, metallic=args.metallic,
+        store,
+        args.group,
+        hue=args.hue,
+        saturation=args.saturation,
+        value=args.value,
+        logo=args.logo,
+        at=_pair(args.at, "--at") or (0.5, 0.5),
+        size=_pair(args.size, "--size") or (0.25, 0.25),
+        rotation=args.rotation,
+        opacity=args.opacity,
+        prompt=args.prompt,
+        roughness=args.roughness,
+        metallic=args.metallic,
         look=args.look,
     )
     look = f" of look {args.look}" if args.look else ""
@@ -449,8 +482,16 @@ def _eval_options(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"--lpips {args.lpips!r}: no such weights file")
     if args.tracked < 10 or args.tracked > 1_000_000:
         raise ValueError(f"--tracked must be in [10, 1000000], got {args.tracked}")
-    return {"methods": methods, "split": args.shapes, "limit": args.limit, "lpips": args.lpips, "truth": args.truth, "tracked": args.tracked,
-            "workers": args.workers or default_workers(), "quiet": args.quiet or args.json}
+    return {
+        "methods": methods,
+        "split": args.shapes,
+        "limit": args.limit,
+        "lpips": args.lpips,
+        "truth": args.truth,
+        "tracked": args.tracked,
+        "workers": args.workers or default_workers(),
+        "quiet": args.quiet or args.json,
+    }
 
 
 def run_eval(store: Any, args: argparse.Namespace, options: dict[str, Any]) -> int:
@@ -538,19 +579,33 @@ def demo_arguments(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"--n-train must be >= 2 and --n-test >= 0, got {args.n_train}, {args.n_test}")
     if args.rows < 0 or args.per_row < 1 or args.frames < 1:
         raise ValueError("--rows must be >= 0, --per-row >= 1 and --frames >= 1")
-    return {"model": args.model, "prompt": args.prompt, "group_prompts": _group_prompts(args.group_prompts), "seed": args.seed,
-            "n_train": args.n_train, "n_test": args.n_test, "rows": args.rows, "per_row": args.per_row, "frames": args.frames,
-            "fresh": args.fresh, "quiet": args.quiet}
+    return {
+        "model": args.model,
+        "prompt": args.prompt,
+        "group_prompts": _group_prompts(args.group_prompts),
+        "seed": args.seed,
+        "n_train": args.n_train,
+        "n_test": args.n_test,
+        "rows": args.rows,
+        "per_row": args.per_row,
+        "frames": args.frames,
+        "fresh": args.fresh,
+        "quiet": args.quiet,
+    }
 
 
 def print_demo_outputs(result: Any) -> None:
     s = result.summary
     fam = Path(result.out) / "families" / s["model"]
-    print(f"demo done in {s['total_seconds']:.0f}s ({len(result.variants)} variants, median transfer "
-          f"{1000 * s['transfer_median_seconds']:.0f} ms). Look at:")
-    for what, where in (("report", result.report), ("contact sheet", result.contact_sheet), ("turntable", result.turntable),
-                        ("variants", f"{Path(result.out) / 'variants'}/ ({len(result.variants)} GLBs)"), ("family store", fam),
-                        ("studio", f"proctex serve {fam.parent}  ->  http://127.0.0.1:8000/")):
+    print(f"demo done in {s['total_seconds']:.0f}s ({len(result.variants)} variants, median transfer {1000 * s['transfer_median_seconds']:.0f} ms). Look at:")
+    for what, where in (
+        ("report", result.report),
+        ("contact sheet", result.contact_sheet),
+        ("turntable", result.turntable),
+        ("variants", f"{Path(result.out) / 'variants'}/ ({len(result.variants)} GLBs)"),
+        ("family store", fam),
+        ("studio", f"proctex serve {fam.parent}  ->  http://127.0.0.1:8000/"),
+    ):
         print(f"  {what:<14}{where}")
 
 
@@ -585,9 +640,12 @@ def cmd_sheet(args: argparse.Namespace) -> int:
         resolve_look(store, args.look)  # an unknown look is said before anything is written
     out = args.out or os.path.join("out", "sheets", Path(os.path.abspath(args.family)).name)
     log = (lambda *_: None) if args.quiet else (lambda m: print(m, flush=True))
-    result = finish_demo(out, args.family, {}, rows=args.rows, per_row=args.per_row, frames=args.frames, size=args.size,
-                         gif_size=args.size, seed=args.seed, log=log, quiet=args.quiet, look=args.look)
-    for what, where in (("contact sheet", result.contact_sheet), ("turntable", result.turntable), ("report", result.report),
-                        ("variants", f"{Path(result.out) / 'variants'}/ ({len(result.variants)} GLBs)")):
+    result = finish_demo(out, args.family, {}, rows=args.rows, per_row=args.per_row, frames=args.frames, size=args.size, gif_size=args.size, seed=args.seed, log=log, quiet=args.quiet, look=args.look)
+    for what, where in (
+        ("contact sheet", result.contact_sheet),
+        ("turntable", result.turntable),
+        ("report", result.report),
+        ("variants", f"{Path(result.out) / 'variants'}/ ({len(result.variants)} GLBs)"),
+    ):
         print(f"  {what:<14}{where}")
     return 0

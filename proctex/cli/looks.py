@@ -95,8 +95,7 @@ def glb_args(args: argparse.Namespace, build_paint) -> tuple:
             if not isinstance(params, dict):
                 raise ValueError(f"--params must be a JSON object of parameter values, got {type(params).__name__}")
         member = {"glb": data, "params": params}
-    paint = new_look_paint(build_paint, None, texture_size=args.texture_size,
-                           glb={"name": os.path.basename(args.from_glb)[:200], "sha256": digest(data)})
+    paint = new_look_paint(build_paint, None, texture_size=args.texture_size, glb={"name": os.path.basename(args.from_glb)[:200], "sha256": digest(data)})
     return paint, (None if member else data), member
 
 
@@ -146,8 +145,7 @@ def photo_args(args: argparse.Namespace) -> tuple[dict[str, dict], dict]:
     photos = {}
     for key, path in files.items():
         photos[key] = read_photo(path)
-        entry = {"file": path, "scale": parse_length(scales[key], args.units) if key in scales else None, "units": args.units,
-                 "normal": args.normal_strength, "roughness": args.roughness_strength}
+        entry = {"file": path, "scale": parse_length(scales[key], args.units) if key in scales else None, "units": args.units, "normal": args.normal_strength, "roughness": args.roughness_strength}
         if key in turns:
             try:
                 entry["rotate"] = float(turns[key])
@@ -166,24 +164,28 @@ def add_look_parser(sub: argparse._SubParsersAction, painters: list[str], painte
     a.add_argument("family")
     a.add_argument("name", help="the look's name (letters, digits, '.', '_', '-')")
     a.add_argument("--prompt", help="the look's words (optional with --image: then the build's prompt covers what no photo does)")
-    a.add_argument("--from", dest="from_glb", metavar="FILE.glb",
-                   help="a look from the family's template GLB painted elsewhere (Blender, Substance, ...): its textures "
-                        "resampled into the template's atlases; faces matched by position and UV. With --params or --member: "
-                        "any textured member of the family, in any UVs")
+    a.add_argument(
+        "--from",
+        dest="from_glb",
+        metavar="FILE.glb",
+        help="a look from the family's template GLB painted elsewhere (Blender, Substance, ...): its textures "
+        "resampled into the template's atlases; faces matched by position and UV. With --params or --member: "
+        "any textured member of the family, in any UVs",
+    )
     a.add_argument("--params", help="with --from: the member's parameters (JSON): the family's own shape for them")
     a.add_argument("--member", action="store_true", help="with --from: a textured member of the family without its parameters")
-    a.add_argument("--image", action="append", metavar="[PART=]FILE",
-                   help="a photo synthesised on PART (a group number, part name or part word; repeat for more); a FILE alone "
-                        "covers every group the prompt does not name (PNG, JPEG, WebP, TIFF, BMP, TGA)")
-    a.add_argument("--image-scale", action="append", metavar="PART=LENGTH",
-                   help="how much surface the photo's width spans: 0.5 (family units), 50cm, 2in (default: half the part's longest side)")
-    a.add_argument("--image-rotate", action="append", metavar="PART=DEGREES",
-                   help="turn the photo against the part's long axis (default 0: the photo's width along it)")
+    a.add_argument(
+        "--image",
+        action="append",
+        metavar="[PART=]FILE",
+        help="a photo synthesised on PART (a group number, part name or part word; repeat for more); a FILE alone covers every group the prompt does not name (PNG, JPEG, WebP, TIFF, BMP, TGA)",
+    )
+    a.add_argument("--image-scale", action="append", metavar="PART=LENGTH", help="how much surface the photo's width spans: 0.5 (family units), 50cm, 2in (default: half the part's longest side)")
+    a.add_argument("--image-rotate", action="append", metavar="PART=DEGREES", help="turn the photo against the part's long axis (default 0: the photo's width along it)")
     a.add_argument("--units", default="m", choices=["m", "cm", "mm", "in", "ft"], help="the family's units (default m)")
     a.add_argument("--normal-strength", type=float, default=1.0, help="relief from the photos: 0 flat, 1 default, up to 10")
-    a.add_argument("--roughness-strength", type=float, default=1.0,
-                   help="how far the photos' local contrast moves the prompt's roughness: 0 not at all, 1 default, up to 10")
-    a.add_argument("--group-prompts", help='JSON (inline or a file) overriding the prompt per group label or index')
+    a.add_argument("--roughness-strength", type=float, default=1.0, help="how far the photos' local contrast moves the prompt's roughness: 0 not at all, 1 default, up to 10")
+    a.add_argument("--group-prompts", help="JSON (inline or a file) overriding the prompt per group label or index")
     a.add_argument("--painter", choices=painters, help=f"default: the build's painter; {painter_help}")
     a.add_argument("--texture-size", type=int, help="default: the build's")
     a.add_argument("--force", action="store_true", help="replace a look of that name")

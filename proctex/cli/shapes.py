@@ -162,22 +162,39 @@ def cmd_paint(args: argparse.Namespace) -> int:
 
     def progress(k: int, n: int, st: dict[str, Any]) -> None:
         if not args.quiet:
-            print(f"view {k + 1}/{n} {st['camera']}: generate {st['generate']} refine {st['refine']} keep {st['keep']} px, "
-                  f"{st['texels_updated']} texels ({st['painter_s'] + st['backproject_s'] + st['render_s']:.2f}s)", flush=True)
+            print(
+                f"view {k + 1}/{n} {st['camera']}: generate {st['generate']} refine {st['refine']} keep {st['keep']} px, "
+                f"{st['texels_updated']} texels ({st['painter_s'] + st['backproject_s'] + st['render_s']:.2f}s)",
+                flush=True,
+            )
 
     t0 = time.perf_counter()
-    tex = paint_template(shape, grouping, args.prompt, group_prompts, painter=args.painter, size=args.size, seed=args.seed, up=up,
-                         views=args.views, view_size=args.view_size, model_dir=args.model_dir, device=args.device, steps=args.steps,
-                         on_view=progress, occlusion=args.occlusion)
+    tex = paint_template(
+        shape,
+        grouping,
+        args.prompt,
+        group_prompts,
+        painter=args.painter,
+        size=args.size,
+        seed=args.seed,
+        up=up,
+        views=args.views,
+        view_size=args.view_size,
+        model_dir=args.model_dir,
+        device=args.device,
+        steps=args.steps,
+        on_view=progress,
+        occlusion=args.occlusion,
+    )
     seconds = time.perf_counter() - t0
     summary = write_textured(tex, args.out, up=up, obj=args.obj)
     summary["paint_seconds"] = round(seconds, 3)
     if args.preview:
         from proctex.texture.render import render_three_quarter, save_png
 
-        image = render_three_quarter(tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group,
-                                     [g.uint8() for g in tex.groups], up=up, size=512,
-                                     maps=tex.pbr if any(m is not None for m in tex.pbr) else None)
+        image = render_three_quarter(
+            tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups], up=up, size=512, maps=tex.pbr if any(m is not None for m in tex.pbr) else None
+        )
         Path(args.preview).parent.mkdir(parents=True, exist_ok=True)
         save_png(args.preview, image)
         summary["preview"] = args.preview

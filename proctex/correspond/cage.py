@@ -157,8 +157,7 @@ class CageConfig:
         if self.prealign not in PREALIGNS:
             raise ValueError(f"prealign must be one of {', '.join(PREALIGNS)}, got {self.prealign!r}")
         if not isinstance(self.sweep, bool) or not all(isinstance(x, (int, float)) and np.isfinite(x) and x > 0 for x in (self.sweep_aspect, self.sweep_turns)):
-            raise ValueError(f"sweep must be true or false and sweep_aspect, sweep_turns positive numbers, "
-                             f"got {self.sweep!r}, {self.sweep_aspect!r}, {self.sweep_turns!r}")
+            raise ValueError(f"sweep must be true or false and sweep_aspect, sweep_turns positive numbers, got {self.sweep!r}, {self.sweep_aspect!r}, {self.sweep_turns!r}")
         weights = {k: getattr(self, k) for k in ("w_chamfer", "w_surface", "w_normal", "w_mvc", "w_smooth", "w_symmetry", "w_rest")}
         bad = [k for k, v in weights.items() if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0)]
         if bad:
@@ -206,8 +205,7 @@ def cage_divisions(size: np.ndarray, level: int = 1, elongation: int = 1) -> tup
     return tuple(int(n * m) for m in mult)  # type: ignore[return-value]
 
 
-def init_cage(points: np.ndarray, level: int = 1, margin: float = 0.1, symmetric_axes: tuple[int, ...] = (),
-              elongation: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def init_cage(points: np.ndarray, level: int = 1, margin: float = 0.1, symmetric_axes: tuple[int, ...] = (), elongation: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Subdivided, inflated axis-aligned bounding box of ``points (n, 3)``.
 
     ``symmetric_axes``: axes across whose plane through the origin the box is made symmetric;
@@ -296,8 +294,7 @@ def warm_offset(start: tuple[np.ndarray, np.ndarray], cage0: np.ndarray) -> np.n
     return out if np.isfinite(out).all() else None
 
 
-def _data_terms(xd: np.ndarray, nd: np.ndarray, template: SurfaceIndex, template_samples: np.ndarray,
-                template_sample_normals: np.ndarray, cfg: CageConfig) -> float:
+def _data_terms(xd: np.ndarray, nd: np.ndarray, template: SurfaceIndex, template_samples: np.ndarray, template_sample_normals: np.ndarray, cfg: CageConfig) -> float:
     """The surface and plane-Chamfer terms of deformed samples ``xd`` with normals ``nd`` (what a
     warm start is judged by: how well the cage fits, not how far it moved)."""
     cp, _ = template.query_oriented(xd, nd, cfg.min_dot, k=8, exact=False)
@@ -407,7 +404,7 @@ def solve_cage(
             fwd = _oriented_nn(t_tree, template_samples, template_sample_normals, xd, nd)
             chamfer = ((x - T[fwd]) ** 2).sum(1).mean() + ((T - x[bwd]) ** 2).sum(1).mean()
         smooth = ((offset[triples[:, 0]] - 2 * offset[triples[:, 1]] + offset[triples[:, 2]]) ** 2).sum(1).mean() if len(triples) else torch.zeros((), device=device, dtype=dtype)
-        rest = (offset ** 2).sum(1).mean()
+        rest = (offset**2).sum(1).mean()
         loss = cfg.w_surface * surface + cfg.w_chamfer * chamfer + cfg.w_normal * normal + cfg.w_smooth * smooth + cfg.w_rest * rest
         if pairs:
             sym = sum(((C[p] * flips[a] - C) ** 2).sum(1).mean() for a, p in pairs)
@@ -426,8 +423,14 @@ def solve_cage(
         opt.step()
         sched.step()
         history.append(value)
-        terms = {"surface": float(surface.detach()), "chamfer": float(chamfer.detach()), "normal": float(normal.detach()),
-                 "smooth": float(smooth.detach()), "rest": float(rest.detach()), "negative_mvc": float(mvc_term.detach())}
+        terms = {
+            "surface": float(surface.detach()),
+            "chamfer": float(chamfer.detach()),
+            "normal": float(normal.detach()),
+            "smooth": float(smooth.detach()),
+            "rest": float(rest.detach()),
+            "negative_mvc": float(mvc_term.detach()),
+        }
         if value < best * (1 - cfg.tol):
             improved, best, since = it > 1, value, 0
         else:
@@ -440,7 +443,15 @@ def solve_cage(
         x = (W_pts @ C).cpu().numpy()
         nrm = _tri_normals((W_tri @ C)[tf])[tidx].cpu().numpy()
     return CageResult(
-        points=x, normals=nrm, cage0=cage0, cage=C.cpu().numpy().astype(np.float64), cage_faces=cage_faces,
-        iterations=it, converged=converged, loss=(best_value if cfg.keep_best else history[-1]) if history else float("nan"), history=history,
-        terms=terms, seconds=time.perf_counter() - t0,
+        points=x,
+        normals=nrm,
+        cage0=cage0,
+        cage=C.cpu().numpy().astype(np.float64),
+        cage_faces=cage_faces,
+        iterations=it,
+        converged=converged,
+        loss=(best_value if cfg.keep_best else history[-1]) if history else float("nan"),
+        history=history,
+        terms=terms,
+        seconds=time.perf_counter() - t0,
     )

@@ -75,8 +75,9 @@ def solve_cages(
     cages: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for i, p in enumerate(problems):
         if axes:  # a symmetric cage pairs mirrored vertices per pair: the single solver
-            out[i] = solve_cage(p.points, p.tri_vertices, p.tri_faces, p.tri_index, template, template_vertex_normals,
-                                p.template_samples, p.template_sample_normals, cfg, symmetry_axes=axes, seed=p.seed)
+            out[i] = solve_cage(
+                p.points, p.tri_vertices, p.tri_faces, p.tri_index, template, template_vertex_normals, p.template_samples, p.template_sample_normals, cfg, symmetry_axes=axes, seed=p.seed
+            )
             continue
         cages[i] = init_cage(np.concatenate([p.points, p.tri_vertices]), cfg.level, cfg.margin, (), cfg.elongation)
         size = cages[i][0].max(0) - cages[i][0].min(0)
@@ -88,8 +89,7 @@ def solve_cages(
     return out  # type: ignore[return-value]
 
 
-def _solve_bucket(problems: list[CageProblem], cages: list[tuple[np.ndarray, np.ndarray]], template: SurfaceIndex,
-                  template_vertex_normals: np.ndarray, cfg: CageConfig) -> list[CageResult]:
+def _solve_bucket(problems: list[CageProblem], cages: list[tuple[np.ndarray, np.ndarray]], template: SurfaceIndex, template_vertex_normals: np.ndarray, cfg: CageConfig) -> list[CageResult]:
     """One bucket's pairs (the same cage lattice and sample counts), with their initial cages."""
     t0 = time.perf_counter()
     device = torch.device(cfg.device if (cfg.device != "cuda" or torch.cuda.is_available()) else "cpu")
@@ -170,7 +170,7 @@ def _solve_bucket(problems: list[CageProblem], cages: list[tuple[np.ndarray, np.
             smooth = ((off[:, triples[:, 0]] - 2 * off[:, triples[:, 1]] + off[:, triples[:, 2]]) ** 2).sum(-1).mean(-1)
         else:
             smooth = torch.zeros(a, device=device, dtype=dtype)
-        rest = (off ** 2).sum(-1).mean(-1)
+        rest = (off**2).sum(-1).mean(-1)
         loss = cfg.w_surface * surface + cfg.w_chamfer * chamfer + cfg.w_normal * normal + cfg.w_smooth * smooth + cfg.w_rest * rest
         values = loss.detach().cpu().numpy()
         for r, b in enumerate(active):  # the state each loss belongs to (before the step below)
@@ -193,8 +193,8 @@ def _solve_bucket(problems: list[CageProblem], cages: list[tuple[np.ndarray, np.
         m_, v_ = exp_avg[A], exp_avg_sq[A]
         m_.lerp_(g, 1 - BETA1)
         v_.mul_(BETA2).addcmul_(g, g, value=1 - BETA2)
-        step_size = lr / (1 - BETA1 ** it)
-        denom = (v_.sqrt() / math.sqrt(1 - BETA2 ** it)).add_(EPS)
+        step_size = lr / (1 - BETA1**it)
+        denom = (v_.sqrt() / math.sqrt(1 - BETA2**it)).add_(EPS)
         offset[A] = off.detach() - step_size * m_ / denom
         exp_avg[A], exp_avg_sq[A] = m_, v_
         lr *= gamma
@@ -202,8 +202,7 @@ def _solve_bucket(problems: list[CageProblem], cages: list[tuple[np.ndarray, np.
         s, c, nm, sm, rs = (t.detach().cpu().numpy() for t in (surface, chamfer, normal, smooth, rest))
         for r, b in enumerate(active):
             histories[b].append(float(values[r]))
-            terms[b] = {"surface": float(s[r]), "chamfer": float(c[r]), "normal": float(nm[r]), "smooth": float(sm[r]),
-                        "rest": float(rs[r]), "negative_mvc": float(mvc_term[b])}
+            terms[b] = {"surface": float(s[r]), "chamfer": float(c[r]), "normal": float(nm[r]), "smooth": float(sm[r]), "rest": float(rs[r]), "negative_mvc": float(mvc_term[b])}
             iterations[b] = it
             if values[r] < best[b] * (1 - cfg.tol):
                 improved[b], best[b], since[b] = it > 1, values[r], 0
@@ -225,9 +224,19 @@ def _solve_bucket(problems: list[CageProblem], cages: list[tuple[np.ndarray, np.
             xb = (W_pts[b] @ C).cpu().numpy()
             k, f = len(p.tri_vertices), len(p.tri_faces)
             nb = _tri_normals((W_tri[b, :k] @ C)[tf[b, :f]])[tidx[b]].cpu().numpy()
-            results.append(CageResult(
-                points=xb, normals=nb, cage0=cage0[b], cage=C.cpu().numpy().astype(np.float64), cage_faces=cage_faces,
-                iterations=int(iterations[b]), converged=bool(converged[b]),
-                loss=(float(best_value[b]) if cfg.keep_best else histories[b][-1]) if histories[b] else float("nan"),
-                history=histories[b], terms=terms[b], seconds=seconds))
+            results.append(
+                CageResult(
+                    points=xb,
+                    normals=nb,
+                    cage0=cage0[b],
+                    cage=C.cpu().numpy().astype(np.float64),
+                    cage_faces=cage_faces,
+                    iterations=int(iterations[b]),
+                    converged=bool(converged[b]),
+                    loss=(float(best_value[b]) if cfg.keep_best else histories[b][-1]) if histories[b] else float("nan"),
+                    history=histories[b],
+                    terms=terms[b],
+                    seconds=seconds,
+                )
+            )
     return results

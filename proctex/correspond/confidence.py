@@ -84,8 +84,7 @@ def param_features(params: Sequence[dict[str, Any]]) -> np.ndarray | None:
     return (x[:, keep] - x[:, keep].mean(axis=0)) / spread[keep]
 
 
-def neighbour_disagreement(pairs: Sequence[tuple[np.ndarray, np.ndarray]], k: int = 3, probe: int = 256,
-                           seed: int = 0, features: np.ndarray | None = None) -> list[np.ndarray]:
+def neighbour_disagreement(pairs: Sequence[tuple[np.ndarray, np.ndarray]], k: int = 3, probe: int = 256, seed: int = 0, features: np.ndarray | None = None) -> list[np.ndarray]:
     """Per pair, per source point, how far its teacher target lies from the targets the ``k``
     nearest other shapes' teachers give the nearest point of their part.
 

@@ -288,8 +288,7 @@ class ProcCorrNet(nn.Module):
         residual: output = query + decoder; frame: "uniform" or "box" (:class:`CorrNetConfig`).
     """
 
-    def __init__(self, local_hidden: int = 128, feature_dim: int = 256, decoder_hidden: int = 256, context_points: int = 512, residual: bool = True,
-                 frame: str = "uniform") -> None:
+    def __init__(self, local_hidden: int = 128, feature_dim: int = 256, decoder_hidden: int = 256, context_points: int = 512, residual: bool = True, frame: str = "uniform") -> None:
         super().__init__()
         if frame not in FRAMES:
             raise ValueError(f"frame must be one of {FRAMES}, got {frame!r}")
@@ -328,7 +327,7 @@ class ProcCorrNet(nn.Module):
 
     def _split(self, query: torch.Tensor, global_feature: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         if self.frame == "box":
-            return query / global_feature[:, None, self.feature_dim:], global_feature[:, : self.feature_dim]
+            return query / global_feature[:, None, self.feature_dim :], global_feature[:, : self.feature_dim]
         return query, global_feature
 
     def decode(self, query: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
@@ -415,9 +414,20 @@ def check_pairs(pairs: Any, what: str, allow_empty: bool = False) -> list[tuple[
 
 # ---------------------------------------------------------------------------------- train and eval
 #: oneDNN ISA limits (``ONEDNN_MAX_CPU_ISA``) under which bfloat16 products are still native.
-_ONEDNN_BF16_ISAS = ("AVX512_CORE_BF16", "AVX512_CORE_FP16", "AVX512_CORE_AMX", "AVX512_CORE_AMX_FP16",
-                     "AVX10_1_512", "AVX10_1_512_AMX", "AVX10_1_512_AMX_FP16", "AVX10_2_512",
-                     "AVX10_2_512_AMX_2", "ALL", "DEFAULT", "")
+_ONEDNN_BF16_ISAS = (
+    "AVX512_CORE_BF16",
+    "AVX512_CORE_FP16",
+    "AVX512_CORE_AMX",
+    "AVX512_CORE_AMX_FP16",
+    "AVX10_1_512",
+    "AVX10_1_512_AMX",
+    "AVX10_1_512_AMX_FP16",
+    "AVX10_2_512",
+    "AVX10_2_512_AMX_2",
+    "ALL",
+    "DEFAULT",
+    "",
+)
 
 
 def native_bfloat16(device: torch.device | str = "cpu") -> bool:

@@ -67,7 +67,7 @@ def cpd_nonrigid(
     y = torch.as_tensor(Y, device=dev)
     x = torch.as_tensor(X, device=dev)
     M, N, D = len(Y), len(X), 3
-    G = torch.exp(-torch.cdist(y, y) ** 2 / (2 * beta**2))
+    G = torch.exp(-(torch.cdist(y, y) ** 2) / (2 * beta**2))
     T = y.clone()
     Wt = torch.zeros_like(y)
     sigma2 = float((torch.cdist(x, y) ** 2).sum()) / (D * M * N)

@@ -201,8 +201,7 @@ def inside_out(normals: np.ndarray, k: np.ndarray, template_normals: np.ndarray)
     return bool(len(nrm)) and float(np.einsum("kd,kd->k", template_normals, nrm).mean()) <= INSIDE_OUT
 
 
-def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.ndarray, n_points: int, seed: int, icp_points: int = 500,
-            prealign: str = "icp") -> _Prepared:
+def prepare(src_v: np.ndarray, src_f: np.ndarray, tpl_v: np.ndarray, tpl_f: np.ndarray, n_points: int, seed: int, icp_points: int = 500, prealign: str = "icp") -> _Prepared:
     """Validate, sample the source, and pre-align it to the template.
 
     ``prealign``: "icp" (similarity ICP from the identity of the normalised frames), "box" (the
@@ -271,8 +270,9 @@ def template_symmetry_axes(vertices: np.ndarray, faces: np.ndarray, tol: float =
     return tuple(sorted(set(axes)))
 
 
-def _finish(prep: _Prepared, method: str, moved: np.ndarray, normals: np.ndarray | None, t0: float, converged: bool, iterations: int,
-            template_samples: np.ndarray, details: dict[str, Any]) -> PartCorrespondence:
+def _finish(
+    prep: _Prepared, method: str, moved: np.ndarray, normals: np.ndarray | None, t0: float, converged: bool, iterations: int, template_samples: np.ndarray, details: dict[str, Any]
+) -> PartCorrespondence:
     if normals is not None:
         hit, oriented = prep.index.query_oriented(moved, normals)
     else:
@@ -357,8 +357,9 @@ def correspond_parts(
     tpl_vn = vertex_normals(prep.index.vertices, prep.index.faces)
     axes = template_symmetry_axes(prep.index.vertices, prep.index.faces, seed=seed) if (cage and cage.symmetry) else ()
     start = (warm.details["cage0"], warm.details["cage"]) if warm is not None and "cage" in warm.details else None
-    res = solve_cage(problem.points, problem.tri_vertices, problem.tri_faces, problem.tri_index, prep.index, tpl_vn, tpl_s,
-                     problem.template_sample_normals, cage, symmetry_axes=axes, seed=seed, start=start)
+    res = solve_cage(
+        problem.points, problem.tri_vertices, problem.tri_faces, problem.tri_index, prep.index, tpl_vn, tpl_s, problem.template_sample_normals, cage, symmetry_axes=axes, seed=seed, start=start
+    )
     return _cage_finish(prep, cage, res, axes, tpl_s, t0)
 
 
@@ -381,8 +382,7 @@ def _cage_finish(prep: _Prepared, cage: CageConfig | None, res: CageResult, axes
     sweep = _sweep_candidate(prep, cage, res.points, tpl_s)
     if sweep is not None:
         moved, field = sweep
-        return _finish(prep, method, moved, None, t0, True, 0, tpl_s, {"teacher": "sweep", "sweep": field, "turns": field.source.turns,
-                                                                       "template_turns": field.template.turns})
+        return _finish(prep, method, moved, None, t0, True, 0, tpl_s, {"teacher": "sweep", "sweep": field, "turns": field.source.turns, "template_turns": field.template.turns})
     details: dict[str, Any] = {f"loss_{k}": v for k, v in res.terms.items()}
     details["symmetry_axes"] = list(axes)
     details["cage"] = res.cage
@@ -451,8 +451,7 @@ def _sweep_candidate(prep: _Prepared, cage: CageConfig | None, cage_points: np.n
         return None
     src_norm = (prep.src_v - prep.src_center) / prep.src_radius
     try:
-        field = sweep_field(src_norm, prep.src_f, tpl_chart, np.concatenate([prep.s * prep.R, prep.t[:, None]], axis=1),
-                            prep.src_center, prep.src_radius)
+        field = sweep_field(src_norm, prep.src_f, tpl_chart, np.concatenate([prep.s * prep.R, prep.t[:, None]], axis=1), prep.src_center, prep.src_radius)
     except ValueError:
         return None
     if field.source.aspect < cage.sweep_aspect or not field.source.tubular or abs(field.source.turns - tpl_chart.turns) < cage.sweep_turns:

@@ -41,8 +41,9 @@ class StackedParameters:
         return iter(self.params.values())
 
 
-def group_losses(base: ProcCorrNet, params: dict[str, torch.Tensor], buffers: dict[str, torch.Tensor], ctx: torch.Tensor,
-                 tgt: torch.Tensor, weight: torch.Tensor | None, loss: str = "mse", autocast: str = "none") -> tuple[torch.Tensor, torch.Tensor]:
+def group_losses(
+    base: ProcCorrNet, params: dict[str, torch.Tensor], buffers: dict[str, torch.Tensor], ctx: torch.Tensor, tgt: torch.Tensor, weight: torch.Tensor | None, loss: str = "mse", autocast: str = "none"
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Each group's training loss and mean distance, as :func:`proctex.correspond.training.train_step`
     computes them for one network.
 

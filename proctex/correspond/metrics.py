@@ -20,7 +20,6 @@ import numpy as np
 from proctex.geometry.surface import SurfaceIndex, face_normals, interpolate, normalised_frame
 
 
-
 @dataclass
 class GTError:
     """Ground-truth error of a correspondence: ``mean``, ``p95``, ``max`` (normalised template

@@ -66,8 +66,7 @@ class SweepField:
         return self.map_normalised((np.asarray(points, dtype=np.float64) - self.center) / self.radius)
 
 
-def sweep_field(src_vertices: np.ndarray, src_faces: np.ndarray, tpl_chart: SweepChart, align: np.ndarray,
-                center: np.ndarray, radius: float) -> SweepField:
+def sweep_field(src_vertices: np.ndarray, src_faces: np.ndarray, tpl_chart: SweepChart, align: np.ndarray, center: np.ndarray, radius: float) -> SweepField:
     """The sweep map of a source part (``src_vertices (j, 3)`` in its normalised frame,
     ``src_faces (k, 3)``) onto a template part whose chart is ``tpl_chart`` (its normalised frame).
 
@@ -84,8 +83,7 @@ def sweep_field(src_vertices: np.ndarray, src_faces: np.ndarray, tpl_chart: Swee
     b0, b1 = tpl_chart.centerline[0], tpl_chart.centerline[-1]
     flip = bool(np.linalg.norm(a0 - b1) + np.linalg.norm(a1 - b0) < np.linalg.norm(a0 - b0) + np.linalg.norm(a1 - b1))
     s_vert = np.nan_to_num(src.s, nan=0.0)
-    return SweepField(src, tpl_chart, flip, float(tpl_chart.radius / max(src.radius, 1e-300)), SurfaceIndex(src_vertices, src_faces),
-                      s_vert, np.asarray(center, dtype=np.float64), float(radius))
+    return SweepField(src, tpl_chart, flip, float(tpl_chart.radius / max(src.radius, 1e-300)), SurfaceIndex(src_vertices, src_faces), s_vert, np.asarray(center, dtype=np.float64), float(radius))
 
 
 _CHARTS: dict[tuple[int, int, bytes], SweepChart | None] = {}

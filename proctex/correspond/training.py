@@ -33,7 +33,10 @@ resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 
 def sample_batch(
-    pairs: Sequence[Pair], config: CorrNetConfig, rng: np.random.Generator, size: int | None = None,
+    pairs: Sequence[Pair],
+    config: CorrNetConfig,
+    rng: np.random.Generator,
+    size: int | None = None,
     weights: Sequence[np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One training batch: ``(context (B, N, 3), query (B, Q, 3), target (B, Q, 3), weight (B, Q))``
@@ -257,8 +260,9 @@ class GroupData:
     weights: list[np.ndarray] | None
 
     @classmethod
-    def prepare(cls, train_pairs: Sequence[Pair], val_pairs: Sequence[Pair] | None, config: CorrNetConfig,
-                weights: Sequence[np.ndarray] | None = None, features: np.ndarray | None = None) -> "GroupData":
+    def prepare(
+        cls, train_pairs: Sequence[Pair], val_pairs: Sequence[Pair] | None, config: CorrNetConfig, weights: Sequence[np.ndarray] | None = None, features: np.ndarray | None = None
+    ) -> "GroupData":
         """Check the pairs (:func:`check_pairs`) and the weights (default: the teacher's confidence
         by ``config.confidence``); ``ValueError`` names what is wrong."""
         train_pairs = check_pairs(train_pairs, "train pairs")
@@ -266,8 +270,7 @@ class GroupData:
         if weights is None and config.confidence == "neighbours":
             from .confidence import confidence_weights, neighbour_disagreement
 
-            weights = confidence_weights(neighbour_disagreement(train_pairs, k=config.confidence_neighbours, seed=config.seed,
-                                                                features=features), scale=config.confidence_scale)
+            weights = confidence_weights(neighbour_disagreement(train_pairs, k=config.confidence_neighbours, seed=config.seed, features=features), scale=config.confidence_scale)
         if weights is not None:
             weights = [np.asarray(w, dtype=np.float32) for w in weights]
             if len(weights) != len(train_pairs) or any(w.shape != (len(s),) for w, (s, _) in zip(weights, train_pairs)):
@@ -289,8 +292,7 @@ class EarlyStop:
     steps keeps the best validation state and says when patience has run out. The held-out error
     is measured in float32 whatever the training's autocast (as the serving choice measures it)."""
 
-    def __init__(self, config: CorrNetConfig, val_pairs: list[Pair], t0: float,
-                 on_eval: Callable[[dict[str, Any]], None] | None = None) -> None:
+    def __init__(self, config: CorrNetConfig, val_pairs: list[Pair], t0: float, on_eval: Callable[[dict[str, Any]], None] | None = None) -> None:
         self.config, self.val, self.t0, self.on_eval = config, val_pairs, t0, on_eval
         self.history: list[dict[str, Any]] = []
         self.window: list[float] = []
@@ -309,8 +311,7 @@ class EarlyStop:
             return
         val = eval_step(model, self.val, seed=self.config.seed)
         self.best_mean, self.best_state, self.best_val = val["mean"], copy.deepcopy(model.state_dict()), {**val, "iteration": 0}
-        self._record({"iteration": 0, "lr": learning_rate(self.config, 0), "train_error": float("nan"),
-                      "seconds": time.perf_counter() - self.t0, **{f"val_{k}": v for k, v in val.items()}})
+        self._record({"iteration": 0, "lr": learning_rate(self.config, 0), "train_error": float("nan"), "seconds": time.perf_counter() - self.t0, **{f"val_{k}": v for k, v in val.items()}})
 
     def evaluate(self, model: ProcCorrNet, step: int, lr: float) -> bool:
         """Record an evaluation after ``step`` steps; True when training should stop early."""
@@ -375,8 +376,10 @@ def plain_errors(pairs: Sequence[Pair], extent: np.ndarray) -> dict[str, float]:
     plain map's image of the source points to the cage points (the box map onto half extents
     ``extent (3,)``)."""
     extent = np.asarray(extent, dtype=np.float64)
-    return {"box": float(np.mean([np.linalg.norm(box_map(s, part_extent(s), extent) - d, axis=1).mean() for s, d in pairs])),
-            "identity": float(np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in pairs]))}
+    return {
+        "box": float(np.mean([np.linalg.norm(box_map(s, part_extent(s), extent) - d, axis=1).mean() for s, d in pairs])),
+        "identity": float(np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in pairs])),
+    }
 
 
 def plain_fit(train_pairs: Sequence[Pair], val_pairs: Sequence[Pair] | None, config: CorrNetConfig) -> dict[str, float] | None:
@@ -418,12 +421,10 @@ class ServingChoice:
     margin: float
 
     def to_dict(self) -> dict[str, Any]:
-        return {"serve": self.serve, "errors": dict(self.errors), "template_extent": [float(x) for x in self.template_extent],
-                "shapes": self.shapes, "margin": self.margin}
+        return {"serve": self.serve, "errors": dict(self.errors), "template_extent": [float(x) for x in self.template_extent], "shapes": self.shapes, "margin": self.margin}
 
 
-def choose_serving(model: ProcCorrNet, val_pairs: Sequence[Pair], extent: np.ndarray, margin: float = SERVE_MARGIN,
-                   seed: int = 0) -> ServingChoice:
+def choose_serving(model: ProcCorrNet, val_pairs: Sequence[Pair], extent: np.ndarray, margin: float = SERVE_MARGIN, seed: int = 0) -> ServingChoice:
     """Network, box map or identity for one group, from held-out pairs (never ground truth).
 
     Each candidate maps every source point of ``val_pairs`` (the network as :func:`eval_step` does);

@@ -124,8 +124,7 @@ def cotangent_laplacian(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr
     return L.tocsr(), area
 
 
-def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None, weld_tol: float = 1e-9,
-                reference: np.ndarray | None = None) -> SweepChart:
+def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None, weld_tol: float = 1e-9, reference: np.ndarray | None = None) -> SweepChart:
     """The sweep chart of a connected part mesh.
 
     Vertices split along UV seams are welded first (``weld_tol``, relative to the part's size), so
@@ -200,7 +199,7 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     wsum = np.bincount(which, weights=mass, minlength=b)
     ok = wsum > 0
     cent = np.stack([np.bincount(which, weights=mass * pos[:, j], minlength=b) for j in range(3)], axis=1)[ok] / wsum[ok, None]
-    fmid = (np.bincount(which, weights=mass * fied, minlength=b)[ok] / wsum[ok])
+    fmid = np.bincount(which, weights=mass * fied, minlength=b)[ok] / wsum[ok]
     # level sets whose centroids coincide (a symmetric part's middle) would repeat a knot
     distinct = np.concatenate([[True], np.linalg.norm(np.diff(cent, axis=0), axis=1) > 1e-9 * size])
     cent, fmid = cent[distinct], fmid[distinct]
@@ -213,7 +212,7 @@ def sweep_chart(vertices: np.ndarray, faces: np.ndarray, bins: int | None = None
     tang = np.diff(cent, axis=0)
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-300)
     weights = seg / max(seg.sum(), 1e-300)
-    align = (weights[:, None] * tang ** 2).sum(axis=0) if len(tang) else np.zeros(3)
+    align = (weights[:, None] * tang**2).sum(axis=0) if len(tang) else np.zeros(3)
     if reference is None:
         # the first of the axes that tie for the least (a straight part avoids two equally): a
         # last-bit difference between them must not turn the chart by 90 degrees

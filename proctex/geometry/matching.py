@@ -43,10 +43,7 @@ class GroupMatch:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "matched": [
-                {"shape_group": int(a), "template_group": int(b), "cost": float(self.cost[a, b]), "method": m}
-                for (a, b), m in zip(self.pairs, self.methods)
-            ],
+            "matched": [{"shape_group": int(a), "template_group": int(b), "cost": float(self.cost[a, b]), "method": m} for (a, b), m in zip(self.pairs, self.methods)],
             "added": [int(i) for i in self.added],
             "missing": [int(i) for i in self.missing],
             "threshold": self.threshold,

@@ -68,7 +68,7 @@ def _gltf_json(data: bytes, fmt: str, name: str) -> dict:
         length, kind = struct.unpack("<I4s", data[12:20])
         if kind != b"JSON" or length > min(MAX_JSON, len(data) - 20):
             raise ValueError(f"{name}: cannot read GLB file: its first chunk is not its JSON")
-        text = data[20:20 + length]
+        text = data[20 : 20 + length]
     else:
         if len(data) > MAX_JSON:
             raise ValueError(f"{name}: a glTF's JSON of over {MAX_JSON} bytes")

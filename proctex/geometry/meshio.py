@@ -121,10 +121,12 @@ def _read_obj_columns(data: str) -> tuple[np.ndarray, np.ndarray] | None:
 
     names = ["t", "a", "b", "c"]
     try:
-        table = pacsv.read_csv(pa.py_buffer(data.encode()),
-                               read_options=pacsv.ReadOptions(column_names=names, use_threads=False, block_size=1 << 22),
-                               parse_options=pacsv.ParseOptions(delimiter=" ", quote_char=False, invalid_row_handler=other_shape),
-                               convert_options=pacsv.ConvertOptions(column_types={n: pa.string() for n in names}, strings_can_be_null=False))
+        table = pacsv.read_csv(
+            pa.py_buffer(data.encode()),
+            read_options=pacsv.ReadOptions(column_names=names, use_threads=False, block_size=1 << 22),
+            parse_options=pacsv.ParseOptions(delimiter=" ", quote_char=False, invalid_row_handler=other_shape),
+            convert_options=pacsv.ConvertOptions(column_types={n: pa.string() for n in names}, strings_can_be_null=False),
+        )
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError, ValueError):
         return None
     tags = table["t"]
@@ -342,8 +344,7 @@ def position_ids(vertices: np.ndarray, tol: float) -> np.ndarray:
     tree = cKDTree(distinct)
     near = (int(tree.count_neighbors(tree, tol)) - len(distinct)) // 2  # unordered pairs, self-pairs left out
     if near > MAX_NEAR_PAIRS_PER_VERTEX * len(distinct) + 1000:
-        raise ValueError(f"{near} pairs of distinct vertices lie within {tol:g} of each other ({len(distinct)} positions): "
-                         "too many coincident vertices to weld")
+        raise ValueError(f"{near} pairs of distinct vertices lie within {tol:g} of each other ({len(distinct)} positions): too many coincident vertices to weld")
     pairs = tree.query_pairs(tol, output_type="ndarray")
     if len(pairs) == 0:
         labels = np.arange(len(distinct), dtype=np.int64)

@@ -397,8 +397,7 @@ class Grouping:
                 "mirrored": [int(m.part) for m in g.maps if m.mirrored],
                 "methods": [m.method for m in g.maps],
                 "errors": [float(m.error) for m in g.maps],
-                "maps": [{"part": int(m.part), "R": np.asarray(m.R, dtype=float).tolist(), "t": np.asarray(m.t, dtype=float).tolist(),
-                          "method": m.method, "error": float(m.error)} for m in g.maps],
+                "maps": [{"part": int(m.part), "R": np.asarray(m.R, dtype=float).tolist(), "t": np.asarray(m.t, dtype=float).tolist(), "method": m.method, "error": float(m.error)} for m in g.maps],
                 **({"label": g.label} if g.label else {}),
                 **({"names": self.names(g)} if len(self.names(g)) > 1 else {}),
             }
@@ -418,11 +417,12 @@ class Grouping:
             for g in data["groups"]:
                 if "maps" not in g:
                     raise ValueError("the stored grouping has no member maps (written by an older version)")
-                maps = [MemberMap(int(m["part"]), np.asarray(m["R"], dtype=np.float64).reshape(3, 3), np.asarray(m["t"], dtype=np.float64).reshape(3),
-                                  str(m["method"]), float(m["error"])) for m in g["maps"]]
+                maps = [
+                    MemberMap(int(m["part"]), np.asarray(m["R"], dtype=np.float64).reshape(3, 3), np.asarray(m["t"], dtype=np.float64).reshape(3), str(m["method"]), float(m["error"]))
+                    for m in g["maps"]
+                ]
                 groups.append(PartGroup(int(g["index"]), [int(i) for i in g["parts"]], maps, bool(g["degenerate"]), str(g.get("label", ""))))
-            planes = [SymmetryPlane(np.asarray(q["normal"], dtype=np.float64).reshape(3), float(q["offset"]), float(q["error"]))
-                      for q in data.get("symmetry_planes", [])]
+            planes = [SymmetryPlane(np.asarray(q["normal"], dtype=np.float64).reshape(3), float(q["offset"]), float(q["error"])) for q in data.get("symmetry_planes", [])]
         except (KeyError, TypeError) as exc:
             raise ValueError(f"malformed stored grouping ({exc.__class__.__name__}: {exc})") from exc
         n = segmentation.n_parts
@@ -502,8 +502,7 @@ def _surface_error(a: _PartGeom, b: _PartGeom, R: np.ndarray, t: np.ndarray) -> 
     return float(0.5 * (ab + ba) / max(b.info.radius, 1e-300))
 
 
-def match_part_rigid(a: _PartGeom, b: _PartGeom, planes: list[SymmetryPlane], tol: float, icp: bool = True,
-                     similar: bool = False, deformed: bool = False) -> MemberMap | None:
+def match_part_rigid(a: _PartGeom, b: _PartGeom, planes: list[SymmetryPlane], tol: float, icp: bool = True, similar: bool = False, deformed: bool = False) -> MemberMap | None:
     """Rigid (or mirrored) map of part ``a`` onto part ``b`` with surface error below ``tol``, or None.
     ``icp=False``: only the map through their shared connectivity (copies that keep their vertex
     order, as instancing makes them). ``similar``: a copy with the same connectivity may also be
@@ -616,9 +615,7 @@ def group_parts(
                 break
         if not placed:
             gi = len(groups)
-            groups.append(
-                PartGroup(gi, [g.info.index], [MemberMap(g.info.index, np.eye(3), np.zeros(3), "self", 0.0)], g.info.degenerate, g.info.label)
-            )
+            groups.append(PartGroup(gi, [g.info.index], [MemberMap(g.info.index, np.eye(3), np.zeros(3), "self", 0.0)], g.info.degenerate, g.info.label))
             part_group[g.info.index] = gi
             if not g.info.degenerate:
                 by_topo.setdefault(g.topo_key, []).append(groups[-1])
@@ -641,5 +638,3 @@ def parts_of(shape: Shape) -> Segmentation:
 def analyse(shape: Shape, **kwargs: Any) -> Grouping:
     """Segment and group a shape in one call (keyword arguments go to :func:`group_parts`)."""
     return group_parts(shape, segment(shape), **kwargs)
-
-

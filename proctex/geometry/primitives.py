@@ -76,9 +76,7 @@ def _box_edges(size: np.ndarray, edge: float, rings_per_width: float = 2.0) -> n
     return edges
 
 
-def box_divisions(
-    size: Sequence[float], edge: float, minimum: Sequence[int] | int = 1, rings_per_width: float = 2.0
-) -> tuple[int, int, int]:
+def box_divisions(size: Sequence[float], edge: float, minimum: Sequence[int] | int = 1, rings_per_width: float = 2.0) -> tuple[int, int, int]:
     """Segments (3,) of a box of ``size`` (3,) for a target ``edge`` length (m): ``max(minimum,
     round(size / edge))`` per axis, with the edge along the longest axis capped at the middle
     dimension over ``rings_per_width`` (see :func:`_box_edges`)."""
@@ -166,16 +164,11 @@ def curve_parameters(
     """
     knots = np.asarray(knots, dtype=float)
     mins = np.broadcast_to(np.asarray(minimum, dtype=int), (len(knots) - 1,))
-    counts = [
-        segment_count(polyline_length(curve(np.linspace(a, b, dense))), edge, int(m))
-        for a, b, m in zip(knots[:-1], knots[1:], mins)
-    ]
+    counts = [segment_count(polyline_length(curve(np.linspace(a, b, dense))), edge, int(m)) for a, b, m in zip(knots[:-1], knots[1:], mins)]
     return split_spans(knots, counts)
 
 
-def subdivide_profile(
-    radius: np.ndarray, height: np.ndarray, s: np.ndarray, z_bottom: float, z_top: float, edge: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def subdivide_profile(radius: np.ndarray, height: np.ndarray, s: np.ndarray, z_bottom: float, z_top: float, edge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Profile with every span cut into ``max(1, round(length / edge))`` equal pieces.
 
     The spans are pole -> first ring, ring -> ring and last ring -> pole, with the poles on the axis
@@ -337,9 +330,7 @@ def rounded_box(
     knot_hi = [1.0 - edge_segments / div[a] for a in range(3)]
 
     def _round(local: np.ndarray, canonical: np.ndarray) -> np.ndarray:
-        pos = np.stack(
-            [_graded_axis(canonical[:, a], half[a], lo[a], hi[a], knot_lo[a], knot_hi[a]) for a in range(3)], axis=1
-        )
+        pos = np.stack([_graded_axis(canonical[:, a], half[a], lo[a], hi[a], knot_lo[a], knot_hi[a]) for a in range(3)], axis=1)
         inner = np.clip(pos, -half + lo, half - hi)
         d = pos - inner
         norm = np.linalg.norm(d, axis=1, keepdims=True)

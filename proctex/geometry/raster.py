@@ -121,5 +121,3 @@ def rasterise(
         bary[pix] = lam
         start = stop
     return face.reshape(H, W), bary.reshape(H, W, 3)
-
-

@@ -26,7 +26,7 @@ def normalised_frame(points: np.ndarray) -> tuple[np.ndarray, float]:
 
 #: The grid a part's points are snapped to in their normalised frame (:func:`normalised_points`):
 #: 2^-32 of the part's half size, far below any texel or tolerance.
-FRAME_GRID = 2.0 ** -32
+FRAME_GRID = 2.0**-32
 
 
 def snap_to_frame_grid(points: np.ndarray) -> np.ndarray:
@@ -72,9 +72,7 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
 
 
-def sample_surface(
-    vertices: np.ndarray, faces: np.ndarray, n: int, seed: int | np.random.Generator = 0
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int | np.random.Generator = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Area-weighted uniform samples on a triangle mesh.
 
     Returns:
@@ -348,7 +346,7 @@ class SurfaceIndex:
 
     @property
     def backend(self) -> str:
-        """"aabb" or "proxies": what answers :meth:`query`."""
+        """ "aabb" or "proxies": what answers :meth:`query`."""
         return self._backend
 
     def query(self, points: np.ndarray, exact: bool = True, k: int | None = None) -> ClosestPoints:
@@ -417,9 +415,7 @@ class SurfaceIndex:
             todo = todo[~found]
         return out
 
-    def query_oriented(
-        self, points: np.ndarray, normals: np.ndarray, min_dot: float = 0.0, k: int = 16, exact: bool = True
-    ) -> tuple[ClosestPoints, np.ndarray]:
+    def query_oriented(self, points: np.ndarray, normals: np.ndarray, min_dot: float = 0.0, k: int = 16, exact: bool = True) -> tuple[ClosestPoints, np.ndarray]:
         """Nearest surface points whose face normal agrees with the query normal.
 
         A face is admissible for a query when ``dot(face normal, query normal) > min_dot``. The
@@ -454,7 +450,7 @@ class SurfaceIndex:
         k = int(min(k, self.n_proxies))
         while len(todo):
             cd, cand, cp, bary, d = self._candidates(pts[todo], k)
-            ok = (np.einsum("qkd,qd->qk", self.normals[cand], nrm[todo]) > min_dot)
+            ok = np.einsum("qkd,qd->qk", self.normals[cand], nrm[todo]) > min_dot
             d = np.where(ok, d, np.inf)
             best = np.argmin(d, axis=1)
             rows = np.arange(len(todo))

@@ -137,8 +137,10 @@ def resolve_truth(config, truth: str = "auto") -> str | None:
     if t == "none":
         return None
     if t == "canonical" and not canonical:
-        raise ValueError("canonical truth needs a built-in model family, a .blend model whose node tree could be read "
-                         "(canonical coordinates) or a folder whose every mesh file has a truth file beside it (<stem>.truth.npz)")
+        raise ValueError(
+            "canonical truth needs a built-in model family, a .blend model whose node tree could be read "
+            "(canonical coordinates) or a folder whose every mesh file has a truth file beside it (<stem>.truth.npz)"
+        )
     return t
 
 
@@ -201,8 +203,7 @@ class _Context:
             self.lpips = LPIPS.load(settings["lpips"])
         # The template's own six views: what every transferred shape is compared with (docs/results.md).
         tpl = transfer(self.template, self.assets, IdentityMapper(), seed=settings["seed"])
-        self.reference, _ = render_six_views(self.template.vertices, self.template.faces, tpl.corner_uv, tpl.face_group,
-                                             self.assets.textures, self.up, settings["view_size"])
+        self.reference, _ = render_six_views(self.template.vertices, self.template.faces, tpl.corner_uv, tpl.face_group, self.assets.textures, self.up, settings["view_size"])
         self.mappers: dict[str, Any] = {}
         # Parts of a kind the template lacks are painted as the service paints them (the family's
         # prompt, read on the new shape), so coverage measures the run-time path, not a gap of
@@ -236,12 +237,12 @@ class _Context:
         # map (a train shape, an older store, another part) is solved here.
         cage = SolverMapper(self.assets, "cage", n_points=self.config.corr_points, cage=_cage_config(self.config))
         seeds = {g.group: pair_seed(self.config, index, g.group) for g in self.assets.groups}
-        return locate_by_map(self.points, self.template, shape, seg, assign_parts(shape, seg, self.assets), self.assets,
-                             StoredPairMapper(self.store, sid, cage), seeds)
+        return locate_by_map(self.points, self.template, shape, seg, assign_parts(shape, seg, self.assets), self.assets, StoredPairMapper(self.store, sid, cage), seeds)
 
 
-def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: list[dict[str, Any]], sid: str = "",
-                    views: list | None = None, atlases: dict | None = None, plain=None) -> dict[str, Any]:
+def evaluate_method(
+    ctx: _Context, name: str, shape, seg, loc, samples, pairs: list[dict[str, Any]], sid: str = "", views: list | None = None, atlases: dict | None = None, plain=None
+) -> dict[str, Any]:
     """One shape with one method: transfer (timed, GLB included), bake, coverage of both, colours at
     the tracked points (real-time and baked), ground-truth and pseudo-ground-truth errors, view
     similarity with the template. A transfer that raises counts as a failed shape. ``views``: the
@@ -262,10 +263,15 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
         gt = gt_errors(shape, seg, samples, nothing, assets, ctx.truth)[0].astype(np.float32) if samples is not None else None
         pgt, pgt_groups, pgt_pairs = pgt_errors(shape, seg, nothing, assets, pairs)
         return {
-            "colours": failed, "colours_baked": failed, "gt": gt, "gt_groups": None,
-            "pgt": pgt.astype(np.float32), "pgt_groups": pgt_groups.astype(np.int32), "pgt_pairs": pgt_pairs, "sim": None,
-            "record": {"id": sid, "failed": f"{type(exc).__name__}: {exc}", "seconds": time.perf_counter() - t, "coverage": 1.0,
-                       "coverage_baked": 1.0, "parts": 0, "mapped_parts": 0, "notes": []},
+            "colours": failed,
+            "colours_baked": failed,
+            "gt": gt,
+            "gt_groups": None,
+            "pgt": pgt.astype(np.float32),
+            "pgt_groups": pgt_groups.astype(np.int32),
+            "pgt_pairs": pgt_pairs,
+            "sim": None,
+            "record": {"id": sid, "failed": f"{type(exc).__name__}: {exc}", "seconds": time.perf_counter() - t, "coverage": 1.0, "coverage_baked": 1.0, "parts": 0, "mapped_parts": 0, "notes": []},
         }
     seconds = time.perf_counter() - t
     baked = bake(shape, result, assets, size=st["bake_size"], pbr=False, atlases=atlases)  # colours are measured, not PBR maps
@@ -280,7 +286,9 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     out: dict[str, Any] = {
         "colours": colours_at(loc, result.corner_uv, result.face_group, textures).astype(np.float32),
         "colours_baked": colours_at(loc, baked.corner_uv, baked.face_group, baked.textures).astype(np.float32),
-        "gt": None, "gt_groups": None, "sim": sim,
+        "gt": None,
+        "gt_groups": None,
+        "sim": sim,
     }
     if samples is not None:
         e, g, fl = gt_errors(shape, seg, samples, result, assets, ctx.truth, flips=True)
@@ -291,14 +299,22 @@ def evaluate_method(ctx: _Context, name: str, shape, seg, loc, samples, pairs: l
     mapped = [a for a in active if a.group >= 0 and a.part not in result.direct]
     serves = getattr(mapper, "serves", None)  # what the build chose per group (network mappers only)
     out["record"] = {
-        "id": sid, "seconds": seconds, "bake_seconds": baked.seconds, "coverage": c1, "coverage_baked": c2,
-        "ssim": sim.ssim, "psnr": sim.psnr, "lpips": sim.lpips, "parts": len(active),
+        "id": sid,
+        "seconds": seconds,
+        "bake_seconds": baked.seconds,
+        "coverage": c1,
+        "coverage_baked": c2,
+        "ssim": sim.ssim,
+        "psnr": sim.psnr,
+        "lpips": sim.lpips,
+        "parts": len(active),
         "mapped_parts": len(mapped),
         # Of those, the parts a network mapped (not the box map or identity the build chose instead).
         "network_parts": len([a for a in mapped if serves(a.group) == "network"]) if serves else 0,
         "new_parts": len([a for a in active if a.how == "new"]),
         "gt_mean": float(np.nanmean(out["gt"])) if out["gt"] is not None and (~np.isnan(out["gt"])).any() else None,
-        "pgt_mean": float(e.mean()) if len(e) else None, "notes": list(result.notes),
+        "pgt_mean": float(e.mean()) if len(e) else None,
+        "notes": list(result.notes),
     }
     return out
 
@@ -317,8 +333,7 @@ def evaluate_shape(ctx: _Context, job: tuple[int, dict[str, Any]]) -> dict[str, 
     # of the sofa export's 50 test shapes on 2 workers: 68.1 -> 46.6 s, the same metrics)
     views = canonical_buffers(shape.vertices, shape.faces, ctx.up, ctx.settings["view_size"])
     atlases: dict = {}
-    return {m: evaluate_method(ctx, m, shape, seg, loc, samples, pairs, row["id"], views, atlases, plain if ctx.file_truth else None)
-            for m in ctx.settings["methods"]}
+    return {m: evaluate_method(ctx, m, shape, seg, loc, samples, pairs, row["id"], views, atlases, plain if ctx.file_truth else None) for m in ctx.settings["methods"]}
 
 
 _WORKER: dict[str, Any] = {}
@@ -385,10 +400,17 @@ def summarise_method(ctx_points, tracker: str, template_colours: np.ndarray, out
     if gts:
         e = np.concatenate(gts)
         worst = [float(np.nanmean(x)) for x in gts if (~np.isnan(x)).any()]
-        entry["gt_error"] = {**error_summary(e), "worst_shape_mean": max(worst),
-                             # the share of the measured points that have a truth (a .blend point whose
-                             # node the template lacks has none)
-                             "with_truth": float(np.mean(~np.isnan(e))) if len(e) else 0.0} if worst else None
+        entry["gt_error"] = (
+            {
+                **error_summary(e),
+                "worst_shape_mean": max(worst),
+                # the share of the measured points that have a truth (a .blend point whose
+                # node the template lacks has none)
+                "with_truth": float(np.mean(~np.isnan(e))) if len(e) else 0.0,
+            }
+            if worst
+            else None
+        )
         groups = [o["gt_groups"] for o in outs if o["gt_groups"] is not None]
         if groups and entry["gt_error"]:
             entry["gt_error"]["per_group"] = _per_group(np.concatenate([o["gt"] for o in outs if o["gt_groups"] is not None]), np.concatenate(groups))
@@ -408,8 +430,7 @@ def summarise_method(ctx_points, tracker: str, template_colours: np.ndarray, out
         entry["pgt_error"] = {**error_summary(np.concatenate(pg)), "worst_pair_mean": float(max(means)), "pairs": len(means)}
         groups = [o["pgt_groups"] for o in outs if o["pgt_groups"] is not None and len(o["pgt"])]
         if groups:
-            entry["pgt_error"]["per_group"] = _per_group(np.concatenate([o["pgt"] for o in outs if o["pgt_groups"] is not None and len(o["pgt"])]),
-                                                         np.concatenate(groups))
+            entry["pgt_error"]["per_group"] = _per_group(np.concatenate([o["pgt"] for o in outs if o["pgt_groups"] is not None and len(o["pgt"])]), np.concatenate(groups))
         flips = [o["pgt_flipped"] for o in outs if o.get("pgt_flipped") is not None and len(o["pgt_flipped"])]
         if flips:
             # Against the cage teacher, where no truth exists: points landing on a template face
@@ -474,11 +495,9 @@ def evaluate(
             check_vertex_index(load_sample(store, bad, config), n, name=f"sample {bad['id']}")
     if lpips:
         LPIPS.load(lpips)  # a bad weights file fails before any work
-    settings = {"bake_size": bake_size, "view_size": view_size, "tracked": tracked, "seed": seed, "lpips": lpips,
-                "truth": kind, "methods": list(methods), "look": resolve_look(store, look).name}
+    settings = {"bake_size": bake_size, "view_size": view_size, "tracked": tracked, "seed": seed, "lpips": lpips, "truth": kind, "methods": list(methods), "look": resolve_look(store, look).name}
     ctx = _Context(store.uri, settings)
-    log(f"evaluate: {len(jobs)} {split} shapes, {', '.join(methods)}; tracker {ctx.tracker} ({len(ctx.points)} points)"
-        + (f", ground truth {kind}" if kind else ", no ground truth"))
+    log(f"evaluate: {len(jobs)} {split} shapes, {', '.join(methods)}; tracker {ctx.tracker} ({len(ctx.points)} points)" + (f", ground truth {kind}" if kind else ", no ground truth"))
     t0 = time.perf_counter()
     bar = Progress("evaluate", len(jobs), quiet=quiet)
     outs: list[dict[str, Any]] = []
@@ -492,37 +511,53 @@ def evaluate(
         for job in jobs:
             outs.append(evaluate_shape(ctx, job))
             bar.update()
-    metrics: dict[str, Any] = {"split": split, "look": ctx.look.name, "shapes": len(jobs), "ids": [r["id"] for _, r in jobs], "tracker": ctx.tracker,
-                               "truth": kind, "tracked_points": len(ctx.points), "lpips_weights": lpips, "shortcut": sorted(shortcut_methods()),
-                               "seconds": round(time.perf_counter() - t0, 2), "methods": {}}
+    metrics: dict[str, Any] = {
+        "split": split,
+        "look": ctx.look.name,
+        "shapes": len(jobs),
+        "ids": [r["id"] for _, r in jobs],
+        "tracker": ctx.tracker,
+        "truth": kind,
+        "tracked_points": len(ctx.points),
+        "lpips_weights": lpips,
+        "shortcut": sorted(shortcut_methods()),
+        "seconds": round(time.perf_counter() - t0, 2),
+        "methods": {},
+    }
     for name in methods:
         entry = summarise_method(ctx.points, ctx.tracker, ctx.template_colours, [o[name] for o in outs])
         metrics["methods"][name] = entry
         gt, pgt = entry["gt_error"] or {}, entry["pgt_error"] or {}
-        log(f"evaluate {name}: tracked variance {entry['tracked_point_variance']:.4f} baked, {entry['tracked_point_variance_realtime']:.4f} "
+        log(
+            f"evaluate {name}: tracked variance {entry['tracked_point_variance']:.4f} baked, {entry['tracked_point_variance_realtime']:.4f} "
             f"real-time ({ctx.tracker}); "
             + (f"GT error mean {gt['mean']:.4f} max {gt['max']:.4f}; " if gt else "")
             + (f"pseudo-GT mean {pgt['mean']:.4f} max {pgt['max']:.4f}; " if pgt else "")
             + f"coverage max {entry['coverage']:.4f} (baked {entry['coverage_baked']:.4f}); mapped {entry['mapped_share']:.0%} of parts, "
             + f"by a network {entry['network_share']:.0%}; "
             + f"new parts (a kind the template lacks) {entry['new_share']:.0%}; "
-            + (f"{1000 * entry['seconds_per_shape']:.0f} ms per shape" if entry["seconds_per_shape"] is not None else "every shape failed"))
+            + (f"{1000 * entry['seconds_per_shape']:.0f} ms per shape" if entry["seconds_per_shape"] is not None else "every shape failed")
+        )
     return metrics
 
 
 def markdown_table(metrics: dict[str, Any]) -> str:
     """A Markdown table of :func:`evaluate`'s metrics, one row per method."""
+
     def f(x: Any, nd: int = 4) -> str:
         return "-" if x is None else f"{x:.{nd}f}"
 
     has_lpips = any(m.get("lpips") is not None for m in metrics["methods"].values())
     truth = metrics.get("truth") or "none"
-    lines = [f"{metrics['shapes']} {metrics['split']} shapes; tracked points: {metrics.get('tracker')} ({metrics.get('tracked_points')}); "
-             f"ground truth: {truth}; errors in the template part's normalised frame, max = over all points; "
-             f"parts of a kind the template lacks: {next(iter(metrics['methods'].values()), {}).get('new_share', 0.0):.0%}", "",
-             "| method | tracked-point variance (baked / real-time) | GT error mean / p95 / max | pseudo-GT error mean / max "
-             "| coverage (real-time / baked) | parts by a network, of parts mapped | SSIM | PSNR (dB) |" + (" LPIPS |" if has_lpips else "") + " ms per shape |",
-             "|---|---|---|---|---|---|---|---|" + ("---|" if has_lpips else "") + "---|"]
+    lines = [
+        f"{metrics['shapes']} {metrics['split']} shapes; tracked points: {metrics.get('tracker')} ({metrics.get('tracked_points')}); "
+        f"ground truth: {truth}; errors in the template part's normalised frame, max = over all points; "
+        f"parts of a kind the template lacks: {next(iter(metrics['methods'].values()), {}).get('new_share', 0.0):.0%}",
+        "",
+        "| method | tracked-point variance (baked / real-time) | GT error mean / p95 / max | pseudo-GT error mean / max "
+        "| coverage (real-time / baked) | parts by a network, of parts mapped | SSIM | PSNR (dB) |" + (" LPIPS |" if has_lpips else "") + " ms per shape |",
+        "|---|---|---|---|---|---|---|---|" + ("---|" if has_lpips else "") + "---|",
+    ]
     for name, m in metrics["methods"].items():
         pgt = m.get("pgt_error") or {}
         gt = m.get("gt_error") or {}
@@ -531,9 +566,6 @@ def markdown_table(metrics: dict[str, Any]) -> str:
         lines.append(
             f"| {name} | {f(m['tracked_point_variance'])} / {f(m['tracked_point_variance_realtime'])} | "
             f"{f(gt.get('mean'))} / {f(gt.get('p95'))} / {f(gt.get('max'))} | {f(pgt.get('mean'))} / {f(pgt.get('max'))} | "
-            f"{f(m['coverage'])} / {f(m['coverage_baked'])} | {nets} | {f(m.get('ssim'), 3)} | {f(m.get('psnr'), 1)} |"
-            + (f" {f(m.get('lpips'), 3)} |" if has_lpips else "") + f" {ms} |"
+            f"{f(m['coverage'])} / {f(m['coverage_baked'])} | {nets} | {f(m.get('ssim'), 3)} | {f(m.get('psnr'), 1)} |" + (f" {f(m.get('lpips'), 3)} |" if has_lpips else "") + f" {ms} |"
         )
     return "\n".join(lines)
-
-

@@ -298,8 +298,7 @@ def locate_vertex_index(tracked: TrackedPoints, shape: Shape, seg: Segmentation)
     return Location(face[tracked.vertex], _one_hot(corner[tracked.vertex]))
 
 
-def locate_by_map(tracked: TrackedPoints, template: Shape, shape: Shape, seg: Segmentation, assignment, assets, mapper,
-                  seed: int | dict[int, int] = 0) -> Location:
+def locate_by_map(tracked: TrackedPoints, template: Shape, shape: Shape, seg: Segmentation, assignment, assets, mapper, seed: int | dict[int, int] = 0) -> Location:
     """Locate tracked points of group representatives through a correspondence map (the cage
     tracker): per group, the shape part standing for the representative
     (:func:`proctex.transfer.assign.choose_part`) is mapped into the representative's normalised frame by
@@ -367,8 +366,7 @@ class TrackedVariance:
     tracker: str
 
     def to_dict(self) -> dict[str, Any]:
-        return {"value": self.value, "per_group": {str(k): v for k, v in self.per_group.items()}, "points": self.points,
-                "shapes": self.shapes, "missing": self.missing, "tracker": self.tracker}
+        return {"value": self.value, "per_group": {str(k): v for k, v in self.per_group.items()}, "points": self.points, "shapes": self.shapes, "missing": self.missing, "tracker": self.tracker}
 
 
 def tracked_variance(template_colours: np.ndarray, shape_colours: Sequence[np.ndarray], groups: np.ndarray, tracker: str) -> TrackedVariance:
@@ -446,8 +444,7 @@ def template_truth(template: Shape, grouping: Grouping, assets, kind: str) -> Te
                         truth.rep_canonical[(g.index, key)] = idx
             return truth
         if template.canonical is None or template.labels is None:
-            raise ValueError("canonical truth needs a template with canonical coordinates: a built-in model, or a .blend model "
-                             "whose node tree was read")
+            raise ValueError("canonical truth needs a template with canonical coordinates: a built-in model, or a .blend model whose node tree was read")
         truth = TemplateTruth(kind, n_vertices=template.n_vertices)
         for g in grouping.groups:
             if g.degenerate:
@@ -652,5 +649,4 @@ def error_summary(errors: np.ndarray) -> dict[str, Any]:
     e = e[~np.isnan(e)]
     if not len(e):
         return {}
-    return {"mean": float(e.mean()), "p95": float(np.percentile(e, 95)), "p99": float(np.percentile(e, 99)),
-            "max": float(e.max()), "points": int(len(e)), "failed": float(np.mean(e >= FAIL_ERROR))}
+    return {"mean": float(e.mean()), "p95": float(np.percentile(e, 95)), "p99": float(np.percentile(e, 99)), "max": float(e.max()), "points": int(len(e)), "failed": float(np.mean(e >= FAIL_ERROR))}

@@ -128,11 +128,7 @@ class Pumpkin(ProceduralModel):
         e2 = np.cross(axis, e1)
         coil = 0.06 * R * np.minimum(1.0, t / 0.25)
         turn = 2 * np.pi * 3.5 * t
-        return (
-            np.array([0.0, 0.0, base_z + 0.5 * p["stem_radius"]])
-            + 0.5 * R * t[:, None] * axis
-            + coil[:, None] * (np.cos(turn)[:, None] * e1 + np.sin(turn)[:, None] * e2)
-        )
+        return np.array([0.0, 0.0, base_z + 0.5 * p["stem_radius"]]) + 0.5 * R * t[:, None] * axis + coil[:, None] * (np.cos(turn)[:, None] * e1 + np.sin(turn)[:, None] * e2)
 
     def _build(self, p) -> Shape:
         e = self.target_edge
@@ -328,9 +324,7 @@ def _cake_tier(radius: float, height: float, n_theta: int = 72, e: float | None 
     top_r = (radius - edge) * np.array([1.0, 0.75, 0.5, 0.25])
     r = np.concatenate([bottom_r[:-1], np.full(8, radius), edge_r, top_r])
     z = np.concatenate([np.zeros(3), side_z, edge_z, np.full(4, height)])
-    s = np.concatenate(
-        [0.2 * np.arange(1, 4) / 4, 0.2 + 0.4 * side_t, 0.6 + 0.2 * np.arange(1, 5) / 5, 0.8 + 0.2 * np.arange(4) / 4]
-    )
+    s = np.concatenate([0.2 * np.arange(1, 4) / 4, 0.2 + 0.4 * side_t, 0.6 + 0.2 * np.arange(1, 5) / 5, 0.8 + 0.2 * np.arange(4) / 4])
     return S.revolve(r, z, s, n_theta=n_theta, radial=scallops)
 
 

@@ -70,9 +70,7 @@ def about_pivot(part: P.Part, R: np.ndarray, pivot: Sequence[float]) -> P.Part:
     return P.transform(part, R=R, t=pivot - R @ pivot)
 
 
-def tapered_cylinder(
-    height: float, r_top: float, r_bottom: float, n_theta: int = 16, n_rings: int = 6, edge: float | None = None
-) -> P.Part:
+def tapered_cylinder(height: float, r_top: float, r_bottom: float, n_theta: int = 16, n_rings: int = 6, edge: float | None = None) -> P.Part:
     """Closed tapered cylinder standing on z = 0 with flat ends, axis along z (canonical: sphere).
 
     Fixed tessellation: ``n_rings`` rings of ``n_theta`` points. With a target ``edge`` (m): points

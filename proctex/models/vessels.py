@@ -260,9 +260,7 @@ class Mug(ProceduralModel):
             floor = z[self.n_bevel] + 0.5 * (z[self.n_bevel + 1] - z[self.n_bevel])
             widest = max(self.outer_radius(p, 0.0), self.outer_radius(p, p["height"]))
             n_theta, along = P.revolve_resolution(float(widest), e, minimum=16)
-            rr, hh, s = vessel_profile_curve(
-                lambda k: self._outer(p, k), (0.0, float(self.n_bevel), K - 1.0), p["wall"], floor, along, (2, 4)
-            )
+            rr, hh, s = vessel_profile_curve(lambda k: self._outer(p, k), (0.0, float(self.n_bevel), K - 1.0), p["wall"], floor, along, (2, 4))
             return S.revolve(rr, hh, s, n_theta=n_theta)
         b = self.bevel
         ang = np.arange(self.n_bevel) * (np.pi / 2 / self.n_bevel)

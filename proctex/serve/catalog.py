@@ -64,8 +64,7 @@ class Catalog:
     on disk is noticed without a restart.
     """
 
-    def __init__(self, root: str, limits: Limits | None = None, check_every: float = 2.0, lazy: bool = False, device: str = "cpu",
-                 recheck_after: float = 5.0, recheck_max: float = 300.0) -> None:
+    def __init__(self, root: str, limits: Limits | None = None, check_every: float = 2.0, lazy: bool = False, device: str = "cpu", recheck_after: float = 5.0, recheck_max: float = 300.0) -> None:
         self.root = FamilyStore(root)
         self.limits = limits or Limits()
         self.check_every = check_every

@@ -68,8 +68,16 @@ class Editing:
                 self._repaints.move_to_end(key)
                 return self._repaints[key]
         ga = self.assets.groups[group]
-        tex, _, _ = edit_texture(self.assets.textures[group], group, ga.label, prompt=prompt, template=self.assets.shape,
-                                 rep_faces=self.assets.grouping.parts[ga.rep].faces, rep_corner_uv=ga.corner_uv, seed=self.config.seed)
+        tex, _, _ = edit_texture(
+            self.assets.textures[group],
+            group,
+            ga.label,
+            prompt=prompt,
+            template=self.assets.shape,
+            rep_faces=self.assets.grouping.parts[ga.rep].faces,
+            rep_corner_uv=ga.corner_uv,
+            seed=self.config.seed,
+        )
         with self._edit_lock:
             self.edit_stats["repaints"] += 1
             self._repaints[key] = tex
@@ -93,8 +101,7 @@ class Editing:
                 return hit
         if edit.prompt is not None:
             ga = self.assets.groups[group]
-            fresh = repaint_maps(edit.prompt, group, ga.label, self.assets.shape, self.assets.grouping.parts[ga.rep].faces, ga.corner_uv,
-                                 texture_hw(self.assets, group), seed=self.config.seed)
+            fresh = repaint_maps(edit.prompt, group, ga.label, self.assets.shape, self.assets.grouping.parts[ga.rep].faces, ga.corner_uv, texture_hw(self.assets, group), seed=self.config.seed)
             orm, normal = fresh.orm_uint8(), encode_png(fresh.normal_uint8())
         else:
             orm, normal = self.assets.pbr[group].orm, self.assets.pbr_png[group].normal
@@ -142,8 +149,18 @@ class Editing:
             raise BadInput("no edit given: send a prompt, a hue, saturation or value change, or a roughness or metallic")
         with _EDIT_LOCK:
             try:
-                return changed_edit(self.store, g, expect_stamp=expect_stamp, hue=edit.hue, saturation=edit.saturation, value=edit.value,
-                                    prompt=edit.prompt, roughness=edit.roughness, metallic=edit.metallic, look=self.look.name)
+                return changed_edit(
+                    self.store,
+                    g,
+                    expect_stamp=expect_stamp,
+                    hue=edit.hue,
+                    saturation=edit.saturation,
+                    value=edit.value,
+                    prompt=edit.prompt,
+                    roughness=edit.roughness,
+                    metallic=edit.metallic,
+                    look=self.look.name,
+                )
             except (EditConflict, StoreDamaged):
                 raise
             except ValueError as exc:

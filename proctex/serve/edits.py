@@ -29,8 +29,7 @@ from proctex.texture.uv import pad_seams, texel_map
 T = TypeVar("T")
 
 
-def repaint_maps(prompt: str, group: int, label: str | None, template: Shape, rep_faces: np.ndarray, rep_corner_uv: np.ndarray,
-                 size: tuple[int, int], seed: int = 0) -> Any:
+def repaint_maps(prompt: str, group: int, label: str | None, template: Shape, rep_faces: np.ndarray, rep_corner_uv: np.ndarray, size: tuple[int, int], seed: int = 0) -> Any:
     """The PBR maps (:class:`proctex.texture.pbr.PbrMaps`, float) of a group re-painted with ``prompt``:
     what :func:`edit_texture` does for the colour, for roughness, metalness and relief (the surface
     painter bound to the template, so the prompt's regions apply in the part's own frame)."""
@@ -66,8 +65,7 @@ def add_material_maps(store: FamilyStore, force: bool = False) -> list[int]:
             prompt = entry.get("prompt") or config.paint.prompt
             hw = png_size(files.texture_png(gi), f"group {gi}'s texture")
             maps = repaint_maps(prompt, gi, entry["label"], template, rep, uv[rep], hw, seed=config.seed)
-            files.commit(gi, maps={"orm": encode_png(maps.orm_uint8()), "normal": encode_png(maps.normal_uint8())}, occlusion=False,
-                         versioned=False, glb=(template, config.up_axis()))
+            files.commit(gi, maps={"orm": encode_png(maps.orm_uint8()), "normal": encode_png(maps.normal_uint8())}, occlusion=False, versioned=False, glb=(template, config.up_axis()))
             made.append(gi)
         return made
 
@@ -144,9 +142,13 @@ def edit_texture(
 def check_placement(at: Any, size: Any, rotation: Any, opacity: Any) -> None:
     """``ValueError`` unless an image placement is meaningful: ``at`` two UV coordinates in [0, 1],
     ``size`` two UV extents in (0, 1], ``rotation`` a finite number of degrees, ``opacity`` in [0, 1]."""
+
     def pair(name: str, v: Any, lo: float, hi: float, open_low: bool) -> None:
-        ok = isinstance(v, (tuple, list)) and len(v) == 2 and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and (lo < x if open_low else lo <= x) and x <= hi for x in v)
+        ok = (
+            isinstance(v, (tuple, list))
+            and len(v) == 2
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and (lo < x if open_low else lo <= x) and x <= hi for x in v)
+        )
         if not ok:
             raise ValueError(f"{name} must be two numbers in {'(' if open_low else '['}{lo:g}, {hi:g}] (UV units), got {str(v)[:60]}")
 
@@ -215,9 +217,22 @@ def _expect(store: FamilyStore, expect_stamp: str | None, what: str) -> None:
             raise EditConflict(f"{store.uri} changed since stamp {expect_stamp!r} (now {now!r}); reload and {what} again")
 
 
-def _edit(store: FamilyStore, group: int | str, hue: float, saturation: float, value: float, logo: str | None, at: Any, size: Any,
-          rotation: float, opacity: float, prompt: str | None, roughness: float | None, metallic: float | None,
-          look: str | None = None) -> dict[str, Any]:
+def _edit(
+    store: FamilyStore,
+    group: int | str,
+    hue: float,
+    saturation: float,
+    value: float,
+    logo: str | None,
+    at: Any,
+    size: Any,
+    rotation: float,
+    opacity: float,
+    prompt: str | None,
+    roughness: float | None,
+    metallic: float | None,
+    look: str | None = None,
+) -> dict[str, Any]:
     files = TemplateFiles(store, resolve_look(store, look))
     entry = files.group(group)
     gi = int(entry["group"])
@@ -229,8 +244,7 @@ def _edit(store: FamilyStore, group: int | str, hue: float, saturation: float, v
         grouping = files.grouping(template, config.seed)
         rep_faces = grouping.parts[grouping.groups[gi].representative].faces
         rep_uv = files.corner_uv()[rep_faces]
-    tex, painted, record = edit_texture(tex, gi, entry["label"], hue, saturation, value, prompt,
-                                        template=template, rep_faces=rep_faces, rep_corner_uv=rep_uv, seed=config.seed)
+    tex, painted, record = edit_texture(tex, gi, entry["label"], hue, saturation, value, prompt, template=template, rep_faces=rep_faces, rep_corner_uv=rep_uv, seed=config.seed)
     masks = files.painted_masks()
     if painted is not None and masks is not None:  # the whole group is painted now
         masks[f"g{gi}"] = painted
@@ -252,10 +266,14 @@ def _edit(store: FamilyStore, group: int | str, hue: float, saturation: float, v
         record["material"] = {k: v for k, v in (("roughness", roughness), ("metallic", metallic)) if v is not None}
     if len(record) == 1:
         raise ValueError("no edit given (prompt, hue/saturation/value, roughness/metallic or logo)")
-    return files.commit(gi, record, texture=encode_png(tex), maps=maps_out, masks=masks if painted is not None else None,
-                        glb=(template if template is not None else load_template_shape(store, config), config.up_axis()))
-
-
+    return files.commit(
+        gi,
+        record,
+        texture=encode_png(tex),
+        maps=maps_out,
+        masks=masks if painted is not None else None,
+        glb=(template if template is not None else load_template_shape(store, config), config.up_axis()),
+    )
 
 
 # ------------------------------------------------------------------------------ versioned edits
@@ -281,8 +299,7 @@ def edit_lock(store: FamilyStore, timeout: float = 60.0, shared: bool = False):
 
     @contextlib.contextmanager
     def both():
-        with store_lock(store, StoreLayout.BUILD_LOCK, "an edit", shared=True, busy=EditConflict, note=True), \
-                store_lock(store, StoreLayout.EDIT_LOCK, "an edit", timeout=timeout, busy=EditConflict):
+        with store_lock(store, StoreLayout.BUILD_LOCK, "an edit", shared=True, busy=EditConflict, note=True), store_lock(store, StoreLayout.EDIT_LOCK, "an edit", timeout=timeout, busy=EditConflict):
             yield
 
     return both()

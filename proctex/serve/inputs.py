@@ -79,9 +79,23 @@ class Limits:
     trusted_proxies: str = ""
 
     def __post_init__(self) -> None:
-        for name in ("max_bytes", "max_vertices", "max_faces", "max_prompt", "max_parts", "body_min_rate", "max_uploads",
-                     "max_small_bodies", "small_body", "look_texels", "look_bytes", "max_looks", "look_paints",
-                     "client_small_bodies", "client_uploads"):
+        for name in (
+            "max_bytes",
+            "max_vertices",
+            "max_faces",
+            "max_prompt",
+            "max_parts",
+            "body_min_rate",
+            "max_uploads",
+            "max_small_bodies",
+            "small_body",
+            "look_texels",
+            "look_bytes",
+            "max_looks",
+            "look_paints",
+            "client_small_bodies",
+            "client_uploads",
+        ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"limit {name} must be a positive integer, got {value!r}")
@@ -225,8 +239,7 @@ def check_extent(shape) -> None:
     if extent <= 0.0 or not np.isfinite(extent):
         raise BadInput("the mesh has no extent (every vertex at one point)")
     if extent < MIN_EXTENT_SHARE * reach:
-        raise BadInput(f"the mesh is {extent:.3g} wide but {reach:.3g} from the origin: float32 positions would collapse it; "
-                       "move it near the origin")
+        raise BadInput(f"the mesh is {extent:.3g} wide but {reach:.3g} from the origin: float32 positions would collapse it; move it near the origin")
 
 
 class Inputs:
@@ -248,8 +261,7 @@ class Inputs:
         """``shape`` if within the limits on vertices, faces (:class:`TooLarge`) and parts
         (:class:`BadInput`: every part beyond the template's is matched on its own)."""
         if shape.n_vertices > self.limits.max_vertices or shape.n_faces > self.limits.max_faces:
-            raise TooLarge(f"mesh has {shape.n_vertices} vertices and {shape.n_faces} faces; limits are "
-                           f"{self.limits.max_vertices} and {self.limits.max_faces}")
+            raise TooLarge(f"mesh has {shape.n_vertices} vertices and {shape.n_faces} faces; limits are {self.limits.max_vertices} and {self.limits.max_faces}")
         check_extent(shape)
         n_parts = parts_of(shape).n_parts if shape.n_faces else 0  # kept on the shape for the transfer
         if n_parts > self.limits.max_parts:

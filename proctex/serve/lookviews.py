@@ -21,7 +21,6 @@ from .edits import EditConflict
 from .inputs import BadInput, NotFound, TooLarge
 
 
-
 class LookViews:
     """The family's looks (``self.snapshot``, ``self.store``, ``self.config``)."""
 
@@ -74,8 +73,7 @@ class LookViews:
         member = (photos or {}).get("member") if paint.glb else None
         glb = (photos or {}).get("glb") if paint.glb and member is None else None
         try:
-            return changed_look(self.store, name, paint, force=force, log=lambda *_: None, timeout=10.0,
-                                photos=None if paint.glb else photos, glb=glb, member=member, limits=limits, budget=budget)
+            return changed_look(self.store, name, paint, force=force, log=lambda *_: None, timeout=10.0, photos=None if paint.glb else photos, glb=glb, member=member, limits=limits, budget=budget)
         except StoreBusy as exc:
             raise EditConflict(str(exc)) from exc
         except LookOverLimit as exc:

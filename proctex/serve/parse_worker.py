@@ -86,8 +86,7 @@ class MeshReader:
     def _ensure(self) -> subprocess.Popen:
         if self._proc is None or self._proc.poll() is not None:
             env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-            self._proc = subprocess.Popen([sys.executable, "-m", "proctex.serve.parse_worker", str(self.memory)],
-                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+            self._proc = subprocess.Popen([sys.executable, "-m", "proctex.serve.parse_worker", str(self.memory)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
         return self._proc
 
     def _kill(self) -> None:
@@ -97,8 +96,7 @@ class MeshReader:
             self._proc = None
             self.kills += 1
 
-    def read(self, data: bytes, name: str, groups: bool = False, seconds: float = 30.0,
-             cancelled: Callable[[], bool] = lambda: False) -> Any:
+    def read(self, data: bytes, name: str, groups: bool = False, seconds: float = 30.0, cancelled: Callable[[], bool] = lambda: False) -> Any:
         """The :class:`~proctex.geometry.shape.Shape` of ``data`` (:func:`proctex.geometry.meshio.load_mesh_bytes`
         in the reader). ``ValueError`` for a file the reader refused (its message); :class:`ReadTimeout`
         when it ran past ``seconds`` or ``cancelled()`` turned true (the reader is killed)."""

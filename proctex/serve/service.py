@@ -64,8 +64,9 @@ class FamilyService(Inputs, Texturing, Editing, LookViews):
     """One built family, loaded for transfer: :attr:`snapshot` (what was read, immutable) and the
     mapper and painter made from it; a view of another look replaces the snapshot, never mutates it."""
 
-    def __init__(self, store: FamilyStore, name: str | None = None, limits: Limits | None = None, mapper: str = "auto",
-                 device: str = "cpu", family: Family | None = None, look: str | None = None) -> None:
+    def __init__(
+        self, store: FamilyStore, name: str | None = None, limits: Limits | None = None, mapper: str = "auto", device: str = "cpu", family: Family | None = None, look: str | None = None
+    ) -> None:
         """Load the family in ``store``; ``mapper``: a :mod:`proctex.transfer.methods` name
         ("auto": the group networks where trained, the default); ``device``: where the networks and a
         cage fallback run ("cpu", "cuda", "cuda:<i>"; ``ValueError`` when CUDA is asked for and absent);
@@ -146,8 +147,7 @@ class FamilyService(Inputs, Texturing, Editing, LookViews):
         space, paint, metrics = self.space, self.paint_record, self.metrics_record
         return {
             "name": self.name,
-            "source": {**{k.name: bool(self.config.source.value(k.name)) for k in source_kinds()}, "model": self.config.source.model,
-                       "kind": self.source_kind.name},
+            "source": {**{k.name: bool(self.config.source.value(k.name)) for k in source_kinds()}, "model": self.config.source.model, "kind": self.source_kind.name},
             "inputs": ["params", "mesh"] if self.source_kind.regenerates else ["mesh"],
             # the attribute whose values are the parts: a mesh sent with it as OBJ groups keeps them apart
             "parts_attribute": self.config.source.parts_attribute,
@@ -158,16 +158,23 @@ class FamilyService(Inputs, Texturing, Editing, LookViews):
             "prompt": self.paint.prompt,
             "group_prompts": dict(self.paint.group_prompts),
             # names: every name its parts carry (a node tree's "Left Arm", "Right Arm"), untrusted text
-            "groups": [{"group": g.group, "label": g.label, "names": self.assets.grouping.names(self.assets.grouping.groups[g.group]),
-                        "degenerate": g.degenerate, "network": g.group in self.models,
-                        "material": self.assets.names[g.group] if g.group < len(self.assets.names) else None,
-                        "prompt": next((p.get("prompt") for p in paint.get("groups", []) if p.get("group") == g.group), None),
-                        "texture_size": list(texture_hw(self.assets, g.group)), **self._material_means(g.group)}
-                       for g in self.assets.groups],
+            "groups": [
+                {
+                    "group": g.group,
+                    "label": g.label,
+                    "names": self.assets.grouping.names(self.assets.grouping.groups[g.group]),
+                    "degenerate": g.degenerate,
+                    "network": g.group in self.models,
+                    "material": self.assets.names[g.group] if g.group < len(self.assets.names) else None,
+                    "prompt": next((p.get("prompt") for p in paint.get("groups", []) if p.get("group") == g.group), None),
+                    "texture_size": list(texture_hw(self.assets, g.group)),
+                    **self._material_means(g.group),
+                }
+                for g in self.assets.groups
+            ],
             "edits": len(paint.get("edits", [])),
             "stages": {k: v.get("state") for k, v in self.state.stages.items()},
             "stamp": self.stamp,
             "metrics": None if metrics is None else {k: {kk: vv for kk, vv in v.items() if kk != "per_shape"} for k, v in metrics.get("methods", {}).items()},
-            "limits": {"max_bytes": self.limits.max_bytes, "max_vertices": self.limits.max_vertices, "max_faces": self.limits.max_faces,
-                       "max_prompt": self.limits.max_prompt},
+            "limits": {"max_bytes": self.limits.max_bytes, "max_vertices": self.limits.max_vertices, "max_faces": self.limits.max_faces, "max_prompt": self.limits.max_prompt},
         }

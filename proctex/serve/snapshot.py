@@ -21,8 +21,7 @@ def texture_digests(assets: TemplateAssets) -> tuple[tuple[str, ...], tuple[tupl
     """The sha256 of every texture PNG of ``assets`` and of each group's PBR maps (ORM, normal; None
     for a group without maps): the ETags and versions of linked answers."""
     tex = tuple(hashlib.sha256(png).hexdigest() for png in assets.png)
-    maps = tuple(None if m is None else (hashlib.sha256(m.orm).hexdigest(), hashlib.sha256(m.normal).hexdigest())
-                 for m in (assets.pbr_png or [None] * len(assets.png)))
+    maps = tuple(None if m is None else (hashlib.sha256(m.orm).hexdigest(), hashlib.sha256(m.normal).hexdigest()) for m in (assets.pbr_png or [None] * len(assets.png)))
     return tex, maps
 
 
@@ -80,7 +79,17 @@ def read_snapshot(family: Family, look: str | None = None, networks: bool = True
     assets = template_assets(family.template(layout))
     tex, maps = texture_digests(assets)
     return Snapshot(
-        family=family, source_kind=source_kind(config.source), up=config.up_axis(), look=layout, paint=look_paint(store, layout, config.paint),
-        assets=assets, models=family.networks(device) if networks else {},
-        paint_record=store.read_json(layout.PAINT) if store.exists(layout.PAINT) else {}, metrics_record=family.metrics,
-        look_names=tuple(lk.name for lk in family.looks), space=family.space, texture_digests=tex, map_digests=maps)
+        family=family,
+        source_kind=source_kind(config.source),
+        up=config.up_axis(),
+        look=layout,
+        paint=look_paint(store, layout, config.paint),
+        assets=assets,
+        models=family.networks(device) if networks else {},
+        paint_record=store.read_json(layout.PAINT) if store.exists(layout.PAINT) else {},
+        metrics_record=family.metrics,
+        look_names=tuple(lk.name for lk in family.looks),
+        space=family.space,
+        texture_digests=tex,
+        map_digests=maps,
+    )

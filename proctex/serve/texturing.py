@@ -16,19 +16,18 @@ from proctex.transfer.budget import OverBudget
 from .inputs import BadInput, GroupEdit, NotFound
 
 
-
 class Texturing:
     """Texturing with the loaded family (``self.assets``, ``self.mapper``, ``self.painter``, the
     snapshot's digests; edits from :class:`proctex.serve.editing.Editing`)."""
 
-    def transfer(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None, budget: Any = None,
-                 linked: bool = False) -> tuple[bytes, dict[str, Any]]:
+    def transfer(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None, budget: Any = None, linked: bool = False) -> tuple[bytes, dict[str, Any]]:
         """Textured GLB bytes of ``shape`` and a summary (timings, notes); see :meth:`textured`."""
         answer, summary = self.textured(shape, seed, edits, budget=budget, linked=linked)
         return answer.data, summary
 
-    def textured(self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None,
-                 bake_size: int | None = None, budget: Any = None, linked: bool = False, link_base: str | None = None) -> tuple[Any, dict[str, Any]]:
+    def textured(
+        self, shape, seed: int = 0, edits: dict[int, GroupEdit] | None = None, bake_size: int | None = None, budget: Any = None, linked: bool = False, link_base: str | None = None
+    ) -> tuple[Any, dict[str, Any]]:
         """``shape`` textured by the family (:func:`proctex.transfer.apply.shape_to_glb`, a
         :class:`~proctex.transfer.apply.TexturedGLB`) and a summary (timings, notes).
 
@@ -60,14 +59,12 @@ class Texturing:
                 recoloured = {g for g, e in (edits or {}).items() if e.changes_colour}
                 uris = self.texture_uris(recoloured, link_base) if linked and not bake_size else None
                 m_uris = self.map_uris(edits, link_base) if linked and not bake_size else None
-                answer = shape_to_glb(shape, assets, self.mapper, seed=seed, painter=self.painter, up=self.up, bake_size=bake_size,
-                                      budget=budget, texture_uris=uris, map_uris=m_uris)
+                answer = shape_to_glb(shape, assets, self.mapper, seed=seed, painter=self.painter, up=self.up, bake_size=bake_size, budget=budget, texture_uris=uris, map_uris=m_uris)
             except OverBudget:
                 raise
             except ValueError as exc:
                 raise BadInput(f"cannot texture this shape: {exc}") from exc
-        summary = {**info(answer.result), "seconds": round(time.perf_counter() - t0, 4), "faces": shape.n_faces, "vertices": shape.n_vertices,
-                   "bytes": len(answer.data)}
+        summary = {**info(answer.result), "seconds": round(time.perf_counter() - t0, 4), "faces": shape.n_faces, "vertices": shape.n_vertices, "bytes": len(answer.data)}
         if edits:
             summary["edits"] = {"groups": sorted(edits), "seconds": round(t_edit, 4)}
         return answer, summary

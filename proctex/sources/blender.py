@@ -88,8 +88,7 @@ class BlenderSession:
     ``timeout`` seconds, is a ``ValueError`` (the process is killed), and the next request starts a
     fresh process that opens the file again (:attr:`restarts` counts them)."""
 
-    def __init__(self, file: str | os.PathLike, obj: str, modifier: str = "GeometryNodes", python: str | None = None,
-                 timeout: float = 120.0) -> None:
+    def __init__(self, file: str | os.PathLike, obj: str, modifier: str = "GeometryNodes", python: str | None = None, timeout: float = 120.0) -> None:
         self.file = str(Path(file).resolve())
         if not Path(self.file).is_file():
             raise ValueError(f"{file}: no such .blend file")
@@ -112,8 +111,7 @@ class BlenderSession:
         if size > SLOW_FILE_BYTES:  # a scene file can take tens of seconds to open: say so first
             print(f"blender: opening {Path(self.file).name} ({size / 1e6:.0f} MB) in a Blender process ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
-        self.proc = subprocess.Popen([self.python, str(SERVER)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                                     text=True, bufsize=1)
+        self.proc = subprocess.Popen([self.python, str(SERVER)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, bufsize=1)
         try:
             opened = self._send({"op": "open", "file": self.file, "object": self.obj, "modifier": self.modifier})
             inputs = opened["inputs"]
@@ -176,10 +174,18 @@ class BlenderSession:
                 return None
             return np.frombuffer(base64.b64decode(out[key]), dtype=dtype).reshape(shape).copy()
 
-        return Evaluated(array("vertices", np.float64, (-1, 3)), array("faces", np.int64, (m, 3)), float(out["seconds"]),
-                         [tuple(a) for a in out.get("attributes", [])], array("corner_uv", np.float64, (m, 3, 2)),
-                         array("face_parts", np.int64, (m,)), int(out.get("objects", 1)), array("face_source", np.int64, (m,)),
-                         array("face_instance", np.int64, (m,)), array("canonical", np.float64, (n, 3)))
+        return Evaluated(
+            array("vertices", np.float64, (-1, 3)),
+            array("faces", np.int64, (m, 3)),
+            float(out["seconds"]),
+            [tuple(a) for a in out.get("attributes", [])],
+            array("corner_uv", np.float64, (m, 3, 2)),
+            array("face_parts", np.int64, (m,)),
+            int(out.get("objects", 1)),
+            array("face_source", np.int64, (m,)),
+            array("face_instance", np.int64, (m,)),
+            array("canonical", np.float64, (n, 3)),
+        )
 
     def close(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
@@ -225,8 +231,7 @@ class InputPlan:
     def notes(self) -> list[str]:
         """One line per fixed input and per clamp, for the build's log and record."""
         out = [f"{name!r} {FIXED} ({value!r}): {self.why[name]}" for name, value in self.fixed.items()]
-        out += [f"{name!r}: the file's value {v!r} lies outside [{lo:g}, {hi:g}]; its default is clamped to "
-                f"{min(max(float(v), lo), hi):g}" for name, (v, lo, hi) in self.clamped.items()]
+        out += [f"{name!r}: the file's value {v!r} lies outside [{lo:g}, {hi:g}]; its default is clamped to {min(max(float(v), lo), hi):g}" for name, (v, lo, hi) in self.clamped.items()]
         return out
 
 
@@ -243,8 +248,7 @@ def file_value(s: Mapping[str, Any]) -> Any:
     return value
 
 
-def input_specs(inputs: list[dict[str, Any]], bounds: Mapping[str, Any] | None = None,
-                pins: Mapping[str, Any] | None = None, listed: Any = None) -> InputPlan:
+def input_specs(inputs: list[dict[str, Any]], bounds: Mapping[str, Any] | None = None, pins: Mapping[str, Any] | None = None, listed: Any = None) -> InputPlan:
     """The parameter space of a modifier's inputs (:class:`InputPlan`).
 
     ``bounds`` ``{name: [low, high]}`` narrow float / int ranges (within Blender's); ``pins`` fix
@@ -283,8 +287,7 @@ def input_specs(inputs: list[dict[str, Any]], bounds: Mapping[str, Any] | None =
                 unranged.append(name)
             if not vary:
                 plan.fixed[name], plan.why[name] = value, why
-                specs.append(continuous(name, value, value, value, description=FIXED) if s["type"] == "float"
-                             else integer(name, value, value, value, description=FIXED))
+                specs.append(continuous(name, value, value, value, description=FIXED) if s["type"] == "float" else integer(name, value, value, value, description=FIXED))
                 continue
             default = min(max(value, lo), hi)
             if default != value:
@@ -301,10 +304,8 @@ def input_specs(inputs: list[dict[str, Any]], bounds: Mapping[str, Any] | None =
     plan.space = ParamSpace(tuple(specs))
     if specs and all(s.name in plan.fixed for s in specs):
         could = [s["name"] for s in inputs if s["name"] not in pins and s["type"] in ("float", "int", "bool", "menu")]
-        how = ("give their ranges in a params spec (--params-spec FILE.json) or [source.params] name = [low, high]"
-               if unranged else "list them in the params spec or [source.params]")
-        raise ValueError(f"no input varies ({len(could)} held at the file's values): inputs that could vary: "
-                         f"{', '.join(repr(n) for n in could[:20])}{' ...' if len(could) > 20 else ''}; {how}")
+        how = "give their ranges in a params spec (--params-spec FILE.json) or [source.params] name = [low, high]" if unranged else "list them in the params spec or [source.params]"
+        raise ValueError(f"no input varies ({len(could)} held at the file's values): inputs that could vary: {', '.join(repr(n) for n in could[:20])}{' ...' if len(could) > 20 else ''}; {how}")
     return plan
 
 
@@ -317,9 +318,18 @@ class BlenderModel(ProceduralModel):
     as their labels; :attr:`last_names` holds the last shape's (with the other names each part
     carries and the share of its area whose faces have a producer)."""
 
-    def __init__(self, file: str | os.PathLike, obj: str, modifier: str = "GeometryNodes", bounds: Mapping[str, Any] | None = None,
-                 pins: Mapping[str, Any] | None = None, python: str | None = None, uv: str | None = None,
-                 parts: str | None = None, listed: Any = None) -> None:
+    def __init__(
+        self,
+        file: str | os.PathLike,
+        obj: str,
+        modifier: str = "GeometryNodes",
+        bounds: Mapping[str, Any] | None = None,
+        pins: Mapping[str, Any] | None = None,
+        python: str | None = None,
+        uv: str | None = None,
+        parts: str | None = None,
+        listed: Any = None,
+    ) -> None:
         from proctex.sources.provenance import model_words, producer_names
 
         super().__init__("adaptive")

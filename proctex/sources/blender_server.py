@@ -104,11 +104,9 @@ CANONICAL = "proctex_canon"
 INSTANCE = "proctex_inst"
 #: Nodes that make geometry although they take geometry in (everything with a geometry output and no
 #: geometry input makes geometry too: mesh and curve primitives, import nodes, points, text).
-MAKERS = {"GeometryNodeCurveToMesh", "GeometryNodeVolumeToMesh", "GeometryNodeFillCurve", "GeometryNodeConvexHull",
-          "GeometryNodeObjectInfo", "GeometryNodeCollectionInfo"}
+MAKERS = {"GeometryNodeCurveToMesh", "GeometryNodeVolumeToMesh", "GeometryNodeFillCurve", "GeometryNodeConvexHull", "GeometryNodeObjectInfo", "GeometryNodeCollectionInfo"}
 #: Nodes whose output holds new instances: the instance index is stored after them.
-INSTANCERS = {"GeometryNodeInstanceOnPoints", "GeometryNodeGeometryToInstance", "GeometryNodeObjectInfo",
-              "GeometryNodeCollectionInfo"}
+INSTANCERS = {"GeometryNodeInstanceOnPoints", "GeometryNodeGeometryToInstance", "GeometryNodeObjectInfo", "GeometryNodeCollectionInfo"}
 MAX_PRODUCERS = 20_000  # a tree with more producing nodes than this is evaluated without provenance
 MAX_GROUP_DEPTH = 64
 
@@ -252,8 +250,7 @@ def instrument(bpy, tree, obj) -> tuple[object, list[dict]]:
                     if sock is not None and not sock.is_linked and getattr(sock, "default_value", None) is not None:
                         data = sock.default_value.name
             pid = len(producers) + 1
-            producers.append({"id": pid, "node": node.name, "label": node.label, "type": node.bl_idname, "bl_label": node.bl_label,
-                              "frames": _frames(node), "groups": groups, "data": data})
+            producers.append({"id": pid, "node": node.name, "label": node.label, "type": node.bl_idname, "bl_label": node.bl_label, "frames": _frames(node), "groups": groups, "data": data})
             _mark(ng, node, pid)
 
     copy = tree.copy()
@@ -399,8 +396,7 @@ def main() -> int:
                     mesh.vertices.foreach_get("co", verts)
                     tris = np.empty(m * 3, dtype=np.int32)
                     mesh.loop_triangles.foreach_get("vertices", tris)
-                    extra = {"attributes": [[a.name, a.domain, a.data_type] for a in mesh.attributes
-                                            if not a.name.startswith((".", "proctex_"))], "objects": n_objects}
+                    extra = {"attributes": [[a.name, a.domain, a.data_type] for a in mesh.attributes if not a.name.startswith((".", "proctex_"))], "objects": n_objects}
                     if req.get("uv") or req.get("parts"):
                         loops = np.empty(m * 3, dtype=np.int32)
                         mesh.loop_triangles.foreach_get("loops", loops)
@@ -429,8 +425,16 @@ def main() -> int:
                 finally:
                     evaluated.to_mesh_clear()
                 v = verts.reshape(-1, 3)  # object coordinates: the object's placement in the file is not the shape
-                answer({"n": n, "m": m, "vertices": base64.b64encode(np.ascontiguousarray(v).tobytes()).decode(),
-                        "faces": base64.b64encode(tris.astype(np.int64).tobytes()).decode(), "seconds": time.perf_counter() - t0, **extra})
+                answer(
+                    {
+                        "n": n,
+                        "m": m,
+                        "vertices": base64.b64encode(np.ascontiguousarray(v).tobytes()).decode(),
+                        "faces": base64.b64encode(tris.astype(np.int64).tobytes()).decode(),
+                        "seconds": time.perf_counter() - t0,
+                        **extra,
+                    }
+                )
             else:
                 raise ValueError(f"unknown op {op!r}")
         except Exception as exc:  # one bad request: say why, keep serving

@@ -40,28 +40,81 @@ import numpy as np
 
 from proctex.texture.painters.names import MAX_WORDS, NOT_PARTS, QUALIFIERS, label_words, matchable_words, same_word
 
-__all__ = ["label_words", "matchable_words", "same_word", "QUALIFIERS", "NOT_PARTS", "ProducerName", "PartNames", "producer_names",
-           "part_names", "model_words", "is_default", "is_computation", "meaningful"]
+__all__ = [
+    "label_words",
+    "matchable_words",
+    "same_word",
+    "QUALIFIERS",
+    "NOT_PARTS",
+    "ProducerName",
+    "PartNames",
+    "producer_names",
+    "part_names",
+    "model_words",
+    "is_default",
+    "is_computation",
+    "meaningful",
+]
 
 MAX_NAME = 64
 MAX_NAMES = 16
 
 #: Verbs that start a label of a computation rather than of a part.
-VERBS = frozenset("""
+VERBS = frozenset(
+    """
 add adjust align apply bevel calculate calculating capture center centre clamp combine compute computing convert create
 delete determine determining distribute extrude fill fix flatten flip generate get instance instancing invert join make
 map merge mesh meshing mirror move normalize normalise offset place position raise randomize randomise realize realise
 remove resample rotate sample scale select separate set shift smooth snap spawn spawning split store subdivide switch
 transform translate trim
-""".split())
+""".split()
+)
 #: Prepositions that tie a step to its target ("Center Z at Origin").
 PREPOSITIONS = frozenset("at to into onto by from per via based".split())
 #: Blender's default names of nodes it makes and of objects and collections in a new file.
-DEFAULT_NAMES = frozenset({
-    "frame", "reroute", "nodegroup", "node group", "group", "geometry nodes", "geometrynodes", "group input", "group output",
-    "cube", "plane", "circle", "cylinder", "sphere", "icosphere", "uv sphere", "uvsphere", "cone", "torus", "monkey", "suzanne",
-    "empty", "camera", "light", "lamp", "text", "beziercurve", "bezier curve", "beziercircle", "nurbspath", "nurbscurve",
-    "collection", "scene", "grid", "mesh", "line", "point", "points", "curve"})
+DEFAULT_NAMES = frozenset(
+    {
+        "frame",
+        "reroute",
+        "nodegroup",
+        "node group",
+        "group",
+        "geometry nodes",
+        "geometrynodes",
+        "group input",
+        "group output",
+        "cube",
+        "plane",
+        "circle",
+        "cylinder",
+        "sphere",
+        "icosphere",
+        "uv sphere",
+        "uvsphere",
+        "cone",
+        "torus",
+        "monkey",
+        "suzanne",
+        "empty",
+        "camera",
+        "light",
+        "lamp",
+        "text",
+        "beziercurve",
+        "bezier curve",
+        "beziercircle",
+        "nurbspath",
+        "nurbscurve",
+        "collection",
+        "scene",
+        "grid",
+        "mesh",
+        "line",
+        "point",
+        "points",
+        "curve",
+    }
+)
 
 
 def is_default(label: str, bl_label: str = "") -> bool:
@@ -163,8 +216,7 @@ def producer_names(producers: Sequence[Mapping[str, Any]], whole: frozenset[str]
                 break
             if why and label.strip():
                 dropped.append((label[:MAX_NAME], why))
-        out[int(p["id"])] = ProducerName(int(p["id"]), name, where, tuple(dropped), f"{str(p.get('node', ''))[:MAX_NAME]} "
-                                                                                    f"({str(p.get('type', ''))[:48]})")
+        out[int(p["id"])] = ProducerName(int(p["id"]), name, where, tuple(dropped), f"{str(p.get('node', ''))[:MAX_NAME]} ({str(p.get('type', ''))[:48]})")
     return out
 
 
@@ -183,8 +235,7 @@ class PartNames:
     covered: float = 1.0
 
 
-def part_names(face_source: np.ndarray, face_part: np.ndarray, areas: np.ndarray, names: Mapping[int, ProducerName],
-               n_parts: int) -> PartNames:
+def part_names(face_source: np.ndarray, face_part: np.ndarray, areas: np.ndarray, names: Mapping[int, ProducerName], n_parts: int) -> PartNames:
     """Each part's name from its faces' producers, weighted by area.
 
     Args:
@@ -209,7 +260,7 @@ def part_names(face_source: np.ndarray, face_part: np.ndarray, areas: np.ndarray
     order = np.argsort(face_part, kind="stable")
     bounds = np.searchsorted(face_part[order], np.arange(n_parts + 1))
     for p in range(n_parts):
-        sel = order[bounds[p]:bounds[p + 1]]
+        sel = order[bounds[p] : bounds[p + 1]]
         weights: dict[str, float] = {}
         for lab, a in zip(label[sel].tolist(), areas[sel].tolist()):
             if lab:
@@ -217,5 +268,5 @@ def part_names(face_source: np.ndarray, face_part: np.ndarray, areas: np.ndarray
         ranked = sorted(weights, key=lambda k: (-weights[k], k))
         if ranked:
             out.names[p] = ranked[0]
-            out.others[p] = ranked[1:1 + MAX_NAMES]
+            out.others[p] = ranked[1 : 1 + MAX_NAMES]
     return out

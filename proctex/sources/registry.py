@@ -86,8 +86,7 @@ class SourceConfig:
             get_source_kind(self.kind)  # an unknown kind says which are known
         named = [k.name for k in source_kinds() if self.value(k.name)]
         if len(named) != 1:
-            raise ValueError(f"name exactly one of {', '.join(k.name for k in source_kinds())}"
-                             + (f" (got {', '.join(named)})" if named else ""))
+            raise ValueError(f"name exactly one of {', '.join(k.name for k in source_kinds())}" + (f" (got {', '.join(named)})" if named else ""))
         kind = get_source_kind(named[0])
         if kind.settings_key == "settings" and not isinstance(self.settings, dict):
             raise ValueError(f"settings of a {kind.name} source must be an object")
@@ -98,11 +97,9 @@ class SourceConfig:
             raise ValueError(f"sampling must be lhs or random, got {self.sampling!r}")
         if not isinstance(self.params, dict):
             raise ValueError("params must be an object of bounds {name: [low, high]}")
-        if not isinstance(self.conditions, dict) or not all(
-                isinstance(c, dict) and set(c) <= {"when", "unless"} for c in self.conditions.values()):
+        if not isinstance(self.conditions, dict) or not all(isinstance(c, dict) and set(c) <= {"when", "unless"} for c in self.conditions.values()):
             raise ValueError('conditions must be an object {"name": {"when": [[other, value], ...], "unless": [...]}}')
-        if self.listed is not None and not (isinstance(self.listed, list) and len(self.listed) <= 10_000
-                                            and all(isinstance(n, str) and 0 < len(n) <= 256 for n in self.listed)):
+        if self.listed is not None and not (isinstance(self.listed, list) and len(self.listed) <= 10_000 and all(isinstance(n, str) and 0 < len(n) <= 256 for n in self.listed)):
             raise ValueError("listed must be a list of input names")
         if not (isinstance(self.spec_notes, list) and len(self.spec_notes) <= 1000 and all(isinstance(n, str) for n in self.spec_notes)):
             raise ValueError("spec_notes must be a list of strings")
@@ -149,8 +146,7 @@ class ShapeSource:
     samples of a build (:meth:`sample_jobs`) and each one's shape (:meth:`shape`). The defaults are
     those of a procedural model; a folder overrides them."""
 
-    def __init__(self, kind: "SourceKind", model: ProceduralModel | None, space: ParamSpace, uv_map: str | None = None,
-                 parts_attribute: str | None = None) -> None:
+    def __init__(self, kind: "SourceKind", model: ProceduralModel | None, space: ParamSpace, uv_map: str | None = None, parts_attribute: str | None = None) -> None:
         self.kind, self.model, self.space = kind, model, space
         self.uv_map, self.parts_attribute = uv_map, parts_attribute
 
@@ -251,8 +247,11 @@ def open_source(config: SourceConfig) -> ShapeSource:
     """The open source of ``config``, one per setting per process (what makes the shapes: the kind,
     its setting, the parameter bounds, conditions and tessellation; not the sample counts)."""
     kind = source_kind(config)
-    key = json.dumps({"kind": kind.name, "value": config.value(kind.name), "params": config.params, "conditions": config.conditions,
-                      "tessellation": config.tessellation, "listed": config.listed}, sort_keys=True, default=str)
+    key = json.dumps(
+        {"kind": kind.name, "value": config.value(kind.name), "params": config.params, "conditions": config.conditions, "tessellation": config.tessellation, "listed": config.listed},
+        sort_keys=True,
+        default=str,
+    )
     with _LOCK:
         if key not in _OPEN:
             _OPEN[key] = kind.open(config)
@@ -285,8 +284,7 @@ def _open_blender(config: SourceConfig) -> ShapeSource:
 
     b = config.blender
     listed = None if config.listed is None else [*config.listed, *config.params]
-    model = BlenderModel(b["file"], b["object"], b.get("modifier", "GeometryNodes"), bounds=config.params, pins=b.get("pins"),
-                         uv=b.get("uv"), parts=b.get("parts"), listed=listed)
+    model = BlenderModel(b["file"], b["object"], b.get("modifier", "GeometryNodes"), bounds=config.params, pins=b.get("pins"), uv=b.get("uv"), parts=b.get("parts"), listed=listed)
     model.space = with_conditions(model.space, config.conditions)
     return ShapeSource(get_source_kind("blender"), model, model.space, uv_map=b.get("uv"), parts_attribute=config.parts_attribute)
 
@@ -311,8 +309,7 @@ def _check_blender(b: Any) -> None:
     from proctex.sources.blender import BLENDER_KEYS
 
     if not isinstance(b, dict) or not isinstance(b.get("file"), str) or not isinstance(b.get("object"), str):
-        raise ValueError('blender must be {"file": "x.blend", "object": "Name", "modifier": "GeometryNodes", "pins": {...}, '
-                         '"parts": "part_id", "uv": "UVMap"}')
+        raise ValueError('blender must be {"file": "x.blend", "object": "Name", "modifier": "GeometryNodes", "pins": {...}, "parts": "part_id", "uv": "UVMap"}')
     unknown = sorted(set(b) - set(BLENDER_KEYS))
     if unknown:
         raise ValueError(f"unknown blender settings {unknown}; known: {', '.join(BLENDER_KEYS)}")
@@ -326,8 +323,15 @@ def _check_blender(b: Any) -> None:
 
 
 register_source_kind(SourceKind("model", _open_model, _check_model, "a built-in procedural model (proctex models)", canonical=True))
-register_source_kind(SourceKind("folder", lambda config: FolderShapes(get_source_kind("folder"), config.folder), _check_folder,
-                                "a folder of exported meshes with their parameters (JSON beside each)", regenerates=False, default_up="y"))
+register_source_kind(
+    SourceKind(
+        "folder",
+        lambda config: FolderShapes(get_source_kind("folder"), config.folder),
+        _check_folder,
+        "a folder of exported meshes with their parameters (JSON beside each)",
+        regenerates=False,
+        default_up="y",
+    )
+)
 register_source_kind(SourceKind("generator", _open_generator, _check_generator, "your Python generator, named in a TOML/JSON file"))
-register_source_kind(SourceKind("blender", _open_blender, _check_blender, "a .blend file's Geometry Nodes modifier, evaluated by Blender",
-                                canonical=True, starts_program=True))
+register_source_kind(SourceKind("blender", _open_blender, _check_blender, "a .blend file's Geometry Nodes modifier, evaluated by Blender", canonical=True, starts_program=True))

@@ -94,8 +94,7 @@ def attach_file_truth(shape: Shape, mesh_path: str | os.PathLike, tol: float = 1
 
     loaded, report = load_mesh(mesh_path)
     if loaded.n_vertices != shape.n_vertices:
-        raise ValueError(f"{mesh_path}: loads to {loaded.n_vertices} vertices, the stored sample has {shape.n_vertices}: "
-                         "the file changed since the build")
+        raise ValueError(f"{mesh_path}: loads to {loaded.n_vertices} vertices, the stored sample has {shape.n_vertices}: the file changed since the build")
     size = float(np.ptp(loaded.vertices, axis=0).max()) if loaded.n_vertices else 1.0
     if loaded.n_vertices and np.abs(loaded.vertices - shape.vertices).max() > tol * max(size, 1e-12):
         raise ValueError(f"{mesh_path}: its vertices are not the stored sample's: the file changed since the build")
@@ -109,8 +108,9 @@ def attach_file_truth(shape: Shape, mesh_path: str | os.PathLike, tol: float = 1
     lab[stored] = labels[valid[first]]
     if (lab < 0).any():
         raise ValueError(f"{mesh_path}: {int((lab < 0).sum())} stored vertices have no vertex in the file")
-    return Shape(shape.vertices, shape.faces, canonical=can, labels=lab.astype(np.int32), label_names=names, params=shape.params,
-                 source=shape.source, corner_uv=shape.corner_uv, face_source=shape.face_source)
+    return Shape(
+        shape.vertices, shape.faces, canonical=can, labels=lab.astype(np.int32), label_names=names, params=shape.params, source=shape.source, corner_uv=shape.corner_uv, face_source=shape.face_source
+    )
 
 
 def folder_truth(folder: str | os.PathLike) -> bool:

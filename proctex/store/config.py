@@ -18,9 +18,9 @@ from proctex.texture.painting import PaintConfig
 #: Flat settings (the config format before sections, still read) -> (section, field).
 FLAT_KEYS: dict[str, tuple[str, str]] = {
     **{k: ("source", k) for k in ("model", "folder", "generator", "blender", "n_train", "n_test", "sampling", "params", "tessellation", "up")},
-    **{k: ("paint", k) for k in ("prompt", "group_prompts", "part_words", "painter", "texture_size", "views", "view_size", "paint_hidden", "fill",
-                                 "model_dir", "device", "steps", "occlusion")},
-    "cage_level": ("cage", "level"), "cage_iterations": ("cage", "iterations"),
+    **{k: ("paint", k) for k in ("prompt", "group_prompts", "part_words", "painter", "texture_size", "views", "view_size", "paint_hidden", "fill", "model_dir", "device", "steps", "occlusion")},
+    "cage_level": ("cage", "level"),
+    "cage_iterations": ("cage", "iterations"),
 }
 SECTIONS = ("source", "paint", "cage", "train")
 TOP_LEVEL = ("seed", "corr_points", "truth")
@@ -79,8 +79,7 @@ class BuildConfig:
             from proctex.sources.truthfiles import folder_truth
 
             if not (self.source.folder and folder_truth(self.source.folder)):
-                raise ValueError("truth 'canonical' needs a built-in model, a .blend model (canonical coordinates) or a folder "
-                                 "whose every mesh file has a truth file beside it (<stem>.truth.npz)")
+                raise ValueError("truth 'canonical' needs a built-in model, a .blend model (canonical coordinates) or a folder whose every mesh file has a truth file beside it (<stem>.truth.npz)")
         check_integer("seed", self.seed, 0, 2**32 - 1)
         check_integer("corr_points", self.corr_points, 100, 1_000_000)
         return self
@@ -108,9 +107,19 @@ class BuildConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """The resolved config as JSON-able sections (what ``family.json`` stores)."""
-        return json.loads(json.dumps({"seed": self.seed, "corr_points": self.corr_points, "truth": self.truth,
-                                      "source": asdict(self.source), "paint": asdict(self.paint),
-                                      "cage": asdict(self.cage), "train": self.train.to_dict()}))
+        return json.loads(
+            json.dumps(
+                {
+                    "seed": self.seed,
+                    "corr_points": self.corr_points,
+                    "truth": self.truth,
+                    "source": asdict(self.source),
+                    "paint": asdict(self.paint),
+                    "cage": asdict(self.cage),
+                    "train": self.train.to_dict(),
+                }
+            )
+        )
 
     @staticmethod
     def from_dict(data: dict[str, Any], preset: str | None = None) -> "BuildConfig":
@@ -136,8 +145,7 @@ class BuildConfig:
         except TypeError as exc:
             raise ValueError(f"bad cage settings: {exc}") from exc
         try:
-            return BuildConfig(source=SourceConfig(**nested.get("source", {})), paint=PaintConfig(**nested.get("paint", {})), cage=cage,
-                               train=CorrNetConfig.from_dict(train), **top).validate()
+            return BuildConfig(source=SourceConfig(**nested.get("source", {})), paint=PaintConfig(**nested.get("paint", {})), cage=cage, train=CorrNetConfig.from_dict(train), **top).validate()
         except TypeError as exc:
             raise ValueError(f"bad config: {exc}") from exc
 
@@ -206,10 +214,6 @@ def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-
-
-
-
 def resolve_params_spec(source: dict[str, Any]) -> dict[str, Any]:
     """A source section with its ``params_spec`` file (if any) read into ``params`` (bounds of the
     spec's float and int inputs, under the section's own), ``conditions`` (the section's own win),
@@ -243,9 +247,11 @@ def resolve_params_spec(source: dict[str, Any]) -> dict[str, Any]:
 
 
 #: Settings whose default changed after stores without them were written: their value then.
-LEGACY_SETTINGS = {"tessellation": "fixed",
-                   # the cage solver before the box pre-alignment, face normals, rest term and best iterate
-                   "cage": {"prealign": "icp", "normal_target": "vertex", "keep_best": False, "w_rest": 0.0}}
+LEGACY_SETTINGS = {
+    "tessellation": "fixed",
+    # the cage solver before the box pre-alignment, face normals, rest term and best iterate
+    "cage": {"prealign": "icp", "normal_target": "vertex", "keep_best": False, "w_rest": 0.0},
+}
 
 
 def with_legacy(settings: dict[str, Any]) -> dict[str, Any]:
@@ -293,8 +299,11 @@ PRESETS: dict[str, dict[str, Any]] = {
     # The main job (``make demo``): the sofa with one design that has to follow every cushion, arm and
     # leg; fewer shapes, points and iterations than a production build, every stage run; a few
     # minutes on 2 cores.
-    "demo": {"source": {"model": "sofa", "n_train": 10, "n_test": 3}, "paint": {"prompt": "a patchwork bohemian sofa", "texture_size": 512},
-             "corr_points": 1000, "cage": {"iterations": 200}, "train": {"iterations": 600}},
+    "demo": {
+        "source": {"model": "sofa", "n_train": 10, "n_test": 3},
+        "paint": {"prompt": "a patchwork bohemian sofa", "texture_size": 512},
+        "corr_points": 1000,
+        "cage": {"iterations": 200},
+        "train": {"iterations": 600},
+    },
 }
-
-

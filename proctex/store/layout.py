@@ -74,8 +74,13 @@ class StoreWriteError(OSError):
     def of(cls, exc: OSError, where: str) -> "StoreWriteError":
         text = str(exc)
         code = exc.errno or (errno.ENOSPC if "No space left" in text else errno.EACCES if "ermission denied" in text else errno.EIO)
-        why = {errno.ENOSPC: "no space left on the store's disk", errno.EACCES: "permission denied", errno.EPERM: "permission denied",
-               errno.EROFS: "the store is read-only", errno.EDQUOT: "over the disk quota"}.get(code, text[:200])
+        why = {
+            errno.ENOSPC: "no space left on the store's disk",
+            errno.EACCES: "permission denied",
+            errno.EPERM: "permission denied",
+            errno.EROFS: "the store is read-only",
+            errno.EDQUOT: "over the disk quota",
+        }.get(code, text[:200])
         return cls(code, f"cannot write {where}: {why}; nothing was changed")
 
 
@@ -86,8 +91,19 @@ class StoreUnreachable(OSError):
 #: Seconds an operation on an object store waits for the store to come back (``PROCTEX_STORE_WAIT``).
 STORE_WAIT = 600.0
 #: What an unreachable (or overloaded) object store says, as pyarrow and botocore word it.
-UNREACHABLE = ("NETWORK_CONNECTION", "curlCode: 7,", "curlCode: 28,", "Could not connect", "Connection refused", "Connect timeout",
-               "SERVICE_UNAVAILABLE", "SLOW_DOWN", "Could not connect to the endpoint", "Read timeout", "Connection was closed")
+UNREACHABLE = (
+    "NETWORK_CONNECTION",
+    "curlCode: 7,",
+    "curlCode: 28,",
+    "Could not connect",
+    "Connection refused",
+    "Connect timeout",
+    "SERVICE_UNAVAILABLE",
+    "SLOW_DOWN",
+    "Could not connect to the endpoint",
+    "Read timeout",
+    "Connection was closed",
+)
 
 
 def unreachable(exc: BaseException) -> bool:
@@ -137,7 +153,8 @@ def wait_for(uri: str, what: str, fn, log=None):
             if now - start >= wait:
                 raise StoreUnreachable(errno.EHOSTUNREACH, f"{uri}: the object store did not answer for {wait:.0f} s ({what}): {short}") from exc
             (log or (lambda m: print(m, file=sys.stderr, flush=True)))(
-                f"store {uri}: the object store does not answer ({short}); waiting for it to come back to {what} ({now - start:.0f} s of {wait:.0f} s)")
+                f"store {uri}: the object store does not answer ({short}); waiting for it to come back to {what} ({now - start:.0f} s of {wait:.0f} s)"
+            )
             time.sleep(delay)
             delay = min(delay * 2, 10.0)
 
@@ -361,7 +378,7 @@ class FamilyStore:
         if "://" not in self.uri:
             return full
         head, sep, query = self.uri.partition("?")
-        return f"{head.rstrip('/')}/{full[len(self.base.rstrip('/')) + 1:]}{sep}{query}"
+        return f"{head.rstrip('/')}/{full[len(self.base.rstrip('/')) + 1 :]}{sep}{query}"
 
     def _io(self, what: str, fn):
         """``fn()``; on an object store, waiting for the store while it does not answer (:func:`wait_for`)."""
@@ -473,7 +490,7 @@ class FamilyStore:
             return
         staging = f"{folder}.tmp-{uuid.uuid4().hex[:8]}"
         try:
-            self.write_all([(staging + rel[len(folder):], data) for rel, data in files])
+            self.write_all([(staging + rel[len(folder) :], data) for rel, data in files])
             if self.exists(folder):
                 self.delete(folder)
             self.fs.move(self.path(staging), self.path(folder))

@@ -86,8 +86,8 @@ def s3_client(endpoint: str | None, region: str) -> Any:
             from botocore.config import Config
 
             client = boto3.session.Session().client(
-                "s3", endpoint_url=endpoint, region_name=region,
-                config=Config(connect_timeout=5, read_timeout=15, retries={"max_attempts": 4, "mode": "standard"}, s3={"addressing_style": "path"}))
+                "s3", endpoint_url=endpoint, region_name=region, config=Config(connect_timeout=5, read_timeout=15, retries={"max_attempts": 4, "mode": "standard"}, s3={"addressing_style": "path"})
+            )
             _CLIENTS[(endpoint, region)] = client
         return client
 
@@ -179,8 +179,7 @@ def _put(t: Target, name: str, record: dict[str, Any], etag: str | None) -> str 
     cond = {"IfMatch": etag} if etag else {"IfNoneMatch": "*"}
     body = json.dumps(record).encode()
     try:
-        return wait_for(t.uri, f"write the lease {name}", lambda: t.client.put_object(
-            Bucket=t.bucket, Key=t.key(name), Body=body, ContentType="application/json", **cond)["ETag"])
+        return wait_for(t.uri, f"write the lease {name}", lambda: t.client.put_object(Bucket=t.bucket, Key=t.key(name), Body=body, ContentType="application/json", **cond)["ETag"])
     except ClientError as exc:
         if _is_precondition(exc) or (etag and _is_missing(exc)):
             return None
@@ -188,8 +187,7 @@ def _put(t: Target, name: str, record: dict[str, Any], etag: str | None) -> str 
 
 
 def _record(what: str, now: float, ttl: float, token: str) -> dict[str, Any]:
-    return {"what": what, "pid": os.getpid(), "host": socket.gethostname(), "since": time.strftime("%Y-%m-%dT%H:%M:%S"),
-            "token": token, "expires": now + ttl, "released": False}
+    return {"what": what, "pid": os.getpid(), "host": socket.gethostname(), "since": time.strftime("%Y-%m-%dT%H:%M:%S"), "token": token, "expires": now + ttl, "released": False}
 
 
 class Lease:
@@ -237,8 +235,10 @@ class Lease:
             raise LeaseLost(f"{self.t.uri}: {self.lost}; {self.what} writes no more")
         age = time.monotonic() - self.renewed_at
         if age > limit:
-            raise LeaseLost(f"{self.t.uri}: the {self.name} lease was not renewed for {age:.0f} s of its {self.ttl:.0f} s (the store did not "
-                            f"answer, or this process stalled); another process may hold it now, so {self.what} writes no more")
+            raise LeaseLost(
+                f"{self.t.uri}: the {self.name} lease was not renewed for {age:.0f} s of its {self.ttl:.0f} s (the store did not "
+                f"answer, or this process stalled); another process may hold it now, so {self.what} writes no more"
+            )
 
     def _renew_loop(self) -> None:
         while not self._stop.wait(self.ttl / 3):
@@ -290,7 +290,7 @@ def _shared_live(t: Target, name: str) -> list[LeaseState]:
     keys = [o["Key"] for page in t.client.get_paginator("list_objects_v2").paginate(Bucket=t.bucket, Prefix=folder) for o in page.get("Contents", [])]
     live = []
     for key in keys:
-        state = read_lease(t, key[len(t.prefix) + 1:] if t.prefix else key)
+        state = read_lease(t, key[len(t.prefix) + 1 :] if t.prefix else key)
         if state.live:
             live.append(state)
         elif state.etag:  # a shared holder that died: its lease goes (unless it changed meanwhile)
@@ -318,14 +318,15 @@ def check_conditional_writes(t: Target) -> None:
     with contextlib.suppress(Exception):
         t.client.delete_object(Bucket=t.bucket, Key=t.key(probe))
     if first is None or second is not None:
-        raise NoConditionalWrites(f"{t.uri}: this S3 server ignores conditional writes (If-None-Match), so a lock there would hold no one "
-                                  "out; edit families in a local folder or on a server that has them (AWS S3, SeaweedFS, MinIO)")
+        raise NoConditionalWrites(
+            f"{t.uri}: this S3 server ignores conditional writes (If-None-Match), so a lock there would hold no one "
+            "out; edit families in a local folder or on a server that has them (AWS S3, SeaweedFS, MinIO)"
+        )
     _CHECKED.add((id(t.client), t.bucket))
 
 
 @contextlib.contextmanager
-def hold(store: FamilyStore, name: str, what: str, shared: bool = False, timeout: float = 0.0,
-         busy: Callable[[str], Exception] = ValueError, ttl: float = TTL) -> Iterator[Lease]:
+def hold(store: FamilyStore, name: str, what: str, shared: bool = False, timeout: float = 0.0, busy: Callable[[str], Exception] = ValueError, ttl: float = TTL) -> Iterator[Lease]:
     """Hold lease ``name`` of an S3 store while the block runs (exclusive, or ``shared`` with other
     shared holders), waiting up to ``timeout`` s, then ``busy(message naming the holder)``."""
     t = target(store)

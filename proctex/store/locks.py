@@ -36,8 +36,7 @@ def holder(store: FamilyStore, name: str) -> str:
 
 
 @contextlib.contextmanager
-def store_lock(store: FamilyStore, name: str, what: str, shared: bool = False, timeout: float = 0.0,
-               busy: Callable[[str], Exception] = StoreBusy, note: bool | None = None) -> Iterator[bool]:
+def store_lock(store: FamilyStore, name: str, what: str, shared: bool = False, timeout: float = 0.0, busy: Callable[[str], Exception] = StoreBusy, note: bool | None = None) -> Iterator[bool]:
     """Hold lock ``name`` (a file in the store folder) while the block runs: ``shared`` with other
     shared holders, else alone; wait up to ``timeout`` seconds, then raise ``busy(message)`` naming
     the holder. ``note``: write who holds it (default: exclusive holders only; a reader writes

@@ -85,14 +85,29 @@ def look_summary(store: FamilyStore, look: LookLayout, build_paint: PaintConfig)
     paint = look_paint(store, look, build_paint)
     record = {} if look.built else store.read_json(look.RECORD)
     summary = store.read_json(look.PAINT) if store.exists(look.PAINT) else {}
-    return {"name": look.name, "built": look.built, "prompt": paint.prompt, "painter": paint.painter, "texture_size": paint.texture_size,
-            "group_prompts": dict(paint.group_prompts), "part_words": dict(paint.part_words), "edits": len(summary.get("edits", [])),
-            **{k: record[k] for k in ("made", "seconds") if k in record}}
+    return {
+        "name": look.name,
+        "built": look.built,
+        "prompt": paint.prompt,
+        "painter": paint.painter,
+        "texture_size": paint.texture_size,
+        "group_prompts": dict(paint.group_prompts),
+        "part_words": dict(paint.part_words),
+        "edits": len(summary.get("edits", [])),
+        **{k: record[k] for k in ("made", "seconds") if k in record},
+    }
 
 
-def new_look_paint(build_paint: PaintConfig, prompt: str | None, group_prompts: dict[str, str] | None = None, painter: str | None = None,
-                   texture_size: int | None = None, part_words: dict[str, str] | None = None,
-                   images: dict[str, dict[str, Any]] | None = None, glb: dict[str, Any] | None = None) -> PaintConfig:
+def new_look_paint(
+    build_paint: PaintConfig,
+    prompt: str | None,
+    group_prompts: dict[str, str] | None = None,
+    painter: str | None = None,
+    texture_size: int | None = None,
+    part_words: dict[str, str] | None = None,
+    images: dict[str, dict[str, Any]] | None = None,
+    glb: dict[str, Any] | None = None,
+) -> PaintConfig:
     """The paint settings of a new look: the build's (views, fill, ...) with ``prompt`` and, where
     given, ``painter`` and ``texture_size`` over them; group prompts only those given (the build's
     belong to its prompt); part words (the user's word per group) those given over the build's
@@ -103,8 +118,11 @@ def new_look_paint(build_paint: PaintConfig, prompt: str | None, group_prompts: 
     Checked (``ValueError``)."""
     if prompt is None and not images and not glb:
         raise ValueError("a new look needs a prompt, photos, or both (or a repainted template GLB)")
-    over: dict[str, Any] = {"prompt": build_paint.prompt if prompt is None else prompt, "group_prompts": dict(group_prompts or {}),
-                            "part_words": {**build_paint.part_words, **{str(k): v for k, v in (part_words or {}).items()}}}
+    over: dict[str, Any] = {
+        "prompt": build_paint.prompt if prompt is None else prompt,
+        "group_prompts": dict(group_prompts or {}),
+        "part_words": {**build_paint.part_words, **{str(k): v for k, v in (part_words or {}).items()}},
+    }
     if painter is not None:
         over["painter"] = painter
     if texture_size is not None:

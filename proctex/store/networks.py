@@ -49,8 +49,7 @@ def check_serving(raw: Any, where: str) -> dict[str, Any] | None:
     if raw is None:
         return None
     ext = raw.get("template_extent") if isinstance(raw, dict) else None
-    ok = isinstance(raw, dict) and raw.get("serve") in SERVING and isinstance(ext, list) and len(ext) == 3 and \
-        all(isinstance(x, (int, float)) and np.isfinite(x) and x > 0 for x in ext)
+    ok = isinstance(raw, dict) and raw.get("serve") in SERVING and isinstance(ext, list) and len(ext) == 3 and all(isinstance(x, (int, float)) and np.isfinite(x) and x > 0 for x in ext)
     if not ok:
         raise ValueError(f"{where}: damaged serving choice {str(raw)[:200]!r}")
     return raw

@@ -47,8 +47,7 @@ def shape_record(shape: Shape) -> bytes:
     source as UTF-8 JSON in a ``meta`` byte array (numeric arrays only: reading never unpickles).
     :func:`read_shape_record` gives back an equal shape (``derived`` starts empty)."""
     meta = {"label_names": list(shape.label_names), "params": shape.params, "source": shape.source}
-    arrays = {"vertices": shape.vertices, "faces": shape.faces,
-              "meta": np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8)}
+    arrays = {"vertices": shape.vertices, "faces": shape.faces, "meta": np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8)}
     arrays.update({k: getattr(shape, k) for k in _SHAPE_OPTIONAL if getattr(shape, k) is not None})
     return encode_arrays(**arrays)
 
@@ -61,8 +60,14 @@ def read_shape_record(store: FamilyStore, rel: str, expected: str | None = None)
     arrays = store.read_arrays_of(data, rel)
     try:
         meta = json.loads(arrays.pop("meta").tobytes().decode())
-        return Shape(arrays.pop("vertices"), arrays.pop("faces"), label_names=tuple(meta["label_names"]), params=dict(meta["params"]),
-                     source=str(meta["source"]), **{k: arrays[k] for k in _SHAPE_OPTIONAL if k in arrays})
+        return Shape(
+            arrays.pop("vertices"),
+            arrays.pop("faces"),
+            label_names=tuple(meta["label_names"]),
+            params=dict(meta["params"]),
+            source=str(meta["source"]),
+            **{k: arrays[k] for k in _SHAPE_OPTIONAL if k in arrays},
+        )
     except (KeyError, TypeError, ValueError, UnicodeDecodeError) as exc:
         raise StoreDamaged(f"{store.uri}: {rel} is not a shape record ({type(exc).__name__}: {str(exc)[:200]})") from exc
 
@@ -112,8 +117,7 @@ def part_digest(vertices: np.ndarray, faces: np.ndarray) -> str:
 def write_pair_vertices(store: FamilyStore, sid: str, group: int, vertices: np.ndarray, digest: str) -> None:
     """Store where a pair's correspondence sends its source part's vertices (``vertices (j, 3)``,
     float64, the template's normalised frame) for the part of :func:`part_digest` ``digest``."""
-    store.write_arrays(StoreLayout.pair_vertices(sid, group), vertices=np.asarray(vertices, dtype=np.float64),
-                       digest=np.frombuffer(digest.encode("ascii"), dtype=np.uint8))
+    store.write_arrays(StoreLayout.pair_vertices(sid, group), vertices=np.asarray(vertices, dtype=np.float64), digest=np.frombuffer(digest.encode("ascii"), dtype=np.uint8))
 
 
 def read_pair_vertices(store: FamilyStore, sid: str, group: int, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray | None:

@@ -35,8 +35,15 @@ def library_versions() -> dict[str, str]:
 
     from proctex import __version__
 
-    return {"proctex": __version__, "python": platform.python_version(), "numpy": numpy.__version__, "scipy": scipy.__version__,
-            "torch": torch.__version__, "trimesh": trimesh.__version__, "pyarrow": pa.__version__}
+    return {
+        "proctex": __version__,
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "scipy": scipy.__version__,
+        "torch": torch.__version__,
+        "trimesh": trimesh.__version__,
+        "pyarrow": pa.__version__,
+    }
 
 
 @dataclass
@@ -106,9 +113,11 @@ class FamilyState:
             old = resolved_settings(self.config)
             if {k: v for k, v in old.items() if k != "paint"} == {k: v for k, v in without_devices(new).items() if k != "paint"}:
                 # only the paint settings differ: the geometry is built; another prompt is a look
-                raise ValueError(f"{where} was built with other paint settings (prompt {old['paint'].get('prompt')!r}); its geometry, "
-                                 f"pairs and networks do not depend on them: paint it with the new ones in seconds with "
-                                 f"`proctex look add {where} NAME --prompt ...` (a new look), or use a new folder to build again")
+                raise ValueError(
+                    f"{where} was built with other paint settings (prompt {old['paint'].get('prompt')!r}); its geometry, "
+                    f"pairs and networks do not depend on them: paint it with the new ones in seconds with "
+                    f"`proctex look add {where} NAME --prompt ...` (a new look), or use a new folder to build again"
+                )
             raise ValueError(f"{where} was built with another config; use a new folder (or delete it) to change settings")
         self.config = new
         self.versions = library_versions()

@@ -189,14 +189,17 @@ class LookImages:
             labels.append(g["label"] or "")
             if g.get("orm_sha256") and g.get("normal_sha256"):  # the maps, where the paint stage made them
                 hw = png_size(pngs[-1], wheres[-1])
-                maps.append(PbrMaps(read(look.texture(g["group"], g["label"], "orm"), g["orm_sha256"], hw),
-                                    read(look.texture(g["group"], g["label"], "normal"), g["normal_sha256"], hw),
-                                    bool(g.get("occlusion", False))))
+                maps.append(
+                    PbrMaps(
+                        read(look.texture(g["group"], g["label"], "orm"), g["orm_sha256"], hw),
+                        read(look.texture(g["group"], g["label"], "normal"), g["normal_sha256"], hw),
+                        bool(g.get("occlusion", False)),
+                    )
+                )
             else:
                 maps.append(None)
         textures = StoredImages(pngs, [store.path(look.texture(g["group"], g["label"])) for g in summary["groups"]])
-        pbr = StoredMaps(maps, [store.path(look.texture(g["group"], g["label"], "")) for g in summary["groups"]]) \
-            if any(m is not None for m in maps) else None
+        pbr = StoredMaps(maps, [store.path(look.texture(g["group"], g["label"], "")) for g in summary["groups"]]) if any(m is not None for m in maps) else None
         painted = observed = None
         if store.exists(look.PAINTED):
             arrays = store.read_arrays(look.PAINTED)
@@ -246,8 +249,7 @@ class Template:
             store.write_arrays(StoreLayout.UV, corner_uv=self.corner_uv, face_group=self.face_group)
         if self.painted is not None:
             observed = self.observed if self.observed is not None else self.painted
-            store.write_arrays(look.PAINTED, **{f"g{k}": m for k, m in enumerate(self.painted)},
-                               **{f"o{k}": m for k, m in enumerate(observed)})
+            store.write_arrays(look.PAINTED, **{f"g{k}": m for k, m in enumerate(self.painted)}, **{f"o{k}": m for k, m in enumerate(observed)})
         digests: dict[int, dict[str, Any]] = {}
         for g, label in enumerate(self.labels):
             # images read from a store are written back as their stored bytes, never encoded again
@@ -291,8 +293,9 @@ class Template:
         images = LookImages.read(store, look)
         if len(images.textures) != len(grouping.groups):
             raise ValueError(f"{store.uri}: {len(images.textures)} group textures for {len(grouping.groups)} groups")
-        return cls(shape, grouping, np.asarray(uv["corner_uv"], dtype=np.float64), np.asarray(uv["face_group"], dtype=np.int64),
-                   images.textures, images.labels, images.painted, images.observed, images.pbr)
+        return cls(
+            shape, grouping, np.asarray(uv["corner_uv"], dtype=np.float64), np.asarray(uv["face_group"], dtype=np.int64), images.textures, images.labels, images.painted, images.observed, images.pbr
+        )
 
 
 def encode_textures(tex: Any) -> tuple[list[bytes], list[Any]]:
@@ -312,8 +315,7 @@ def encode_textures(tex: Any) -> tuple[list[bytes], list[Any]]:
     return pngs, maps
 
 
-def write_textured(tex: Any, out: str | Path, up: str = "z", obj: bool = False, preview_size: int = 256,
-                   encoded: tuple[list[bytes], list[Any]] | None = None) -> dict[str, Any]:
+def write_textured(tex: Any, out: str | Path, up: str = "z", obj: bool = False, preview_size: int = 256, encoded: tuple[list[bytes], list[Any]] | None = None) -> dict[str, Any]:
     """Write a painted template (:class:`proctex.texture.paint.TemplateTexture`) into the folder ``out``: the per-group PNGs, ``textured.glb``, ``preview.png`` (six views) and ``paint.json``.
 
     Every file is written atomically; returns the summary written to ``paint.json`` (with the
@@ -367,8 +369,7 @@ def load_template_shape(store: FamilyStore, config: BuildConfig | None = None, s
     if not kind.regenerates:
         return read_mesh(store, StoreLayout.TEMPLATE_MESH)
     if kind.starts_program:
-        raise ValueError(f"{store.uri}: built before ProcTex 0.16, it has no recorded template shape, and making one starts "
-                         f"{kind.summary or kind.name}: build it again (proctex build) to record it")
+        raise ValueError(f"{store.uri}: built before ProcTex 0.16, it has no recorded template shape, and making one starts {kind.summary or kind.name}: build it again (proctex build) to record it")
     params = record.get("params")
     if not isinstance(params, dict):
         raise ValueError(f"{store.uri}: the template stage has no parameters recorded (rerun the build)")
@@ -377,8 +378,7 @@ def load_template_shape(store: FamilyStore, config: BuildConfig | None = None, s
     return shape
 
 
-def load_template(store: FamilyStore, config: BuildConfig | None = None, state: FamilyState | None = None,
-                  look: LookLayout | None = None) -> Template:
+def load_template(store: FamilyStore, config: BuildConfig | None = None, state: FamilyState | None = None, look: LookLayout | None = None) -> Template:
     """The stored :class:`Template` (its mesh regenerated for model families), textured as ``look``
     (default: the build's look); ``state``: the family state, when the caller has it (else read here)."""
     state = state if state is not None else FamilyState.load(store)
@@ -458,9 +458,17 @@ class TemplateFiles:
                 pass  # an older record
         return analyse(shape, seed=seed)
 
-    def commit(self, group: int, record: dict[str, Any] | None = None, texture: bytes | None = None, maps: dict[str, bytes] | None = None,
-               masks: dict[str, np.ndarray] | None = None, occlusion: bool | None = None, versioned: bool = True,
-               glb: tuple[Shape, str] | None = None) -> dict[str, Any] | None:
+    def commit(
+        self,
+        group: int,
+        record: dict[str, Any] | None = None,
+        texture: bytes | None = None,
+        maps: dict[str, bytes] | None = None,
+        masks: dict[str, np.ndarray] | None = None,
+        occlusion: bool | None = None,
+        versioned: bool = True,
+        glb: tuple[Shape, str] | None = None,
+    ) -> dict[str, Any] | None:
         """A group's new files as one change (:meth:`FamilyStore.write_all`: everything lands, or
         nothing does and the error names the file). ``texture``: its PNG; ``maps``: PBR maps by kind;
         ``masks``: the painted masks of every group; ``record``: the edit, appended to the history;
@@ -531,9 +539,13 @@ class TemplateFiles:
             check_digest(restored[name], last.get("before") or g.get("sha256"), self.store.path(folder + name))
         writes = [(self.look.file(n), data) for n, data in restored.items() if n != PAINT_NAME]
         if glb is not None:
-            pngs = {int(e["group"]): (restored.get(os.path.basename(self.look.texture(int(e["group"]), e["label"]))),
-                                      {k: restored.get(os.path.basename(self.look.texture(int(e["group"]), e["label"], k))) for k in MAP_KINDS})
-                    for e in before["groups"]}
+            pngs = {
+                int(e["group"]): (
+                    restored.get(os.path.basename(self.look.texture(int(e["group"]), e["label"]))),
+                    {k: restored.get(os.path.basename(self.look.texture(int(e["group"]), e["label"], k))) for k in MAP_KINDS},
+                )
+                for e in before["groups"]
+            }
             writes.append((self.look.GLB, self._glb(before, {k: v for k, v in pngs.items() if v[0] is not None}, *glb)))
         writes.append((self.look.PAINT, restored[PAINT_NAME]))
         self.store.write_all(writes)
@@ -560,8 +572,7 @@ class TemplateFiles:
             pngs.append(png)
             maps.append(PbrMaps(m["orm"], m["normal"], bool(e.get("occlusion"))) if m.get("orm") and m.get("normal") else None)
         names = [e["label"] or f"group_{e['group']}" for e in summary["groups"]]
-        return glb_bytes(shape.vertices, shape.faces, uv["corner_uv"], uv["face_group"], pngs, names=names, up=up,
-                         pbr=maps if any(m is not None for m in maps) else None)
+        return glb_bytes(shape.vertices, shape.faces, uv["corner_uv"], uv["face_group"], pngs, names=names, up=up, pbr=maps if any(m is not None for m in maps) else None)
 
     def write_glb(self, shape: Shape, up: str) -> None:
         """Rewrite ``template/textured.glb`` from the template ``shape``, the UVs, the group PNGs and

@@ -42,8 +42,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["Photo", "PhotoLayer", "Exemplar", "PhotoPainter", "read_photo", "prepare", "synthesise", "tiled", "parse_length",
-           "MAX_PHOTO_PIXELS", "MAX_PHOTO_BYTES", "FORMATS", "UNITS"]
+__all__ = ["Photo", "PhotoLayer", "Exemplar", "PhotoPainter", "read_photo", "prepare", "synthesise", "tiled", "parse_length", "MAX_PHOTO_PIXELS", "MAX_PHOTO_BYTES", "FORMATS", "UNITS"]
 
 #: the most pixels a photo may have (width x height, read from its header before decoding).
 MAX_PHOTO_PIXELS = 40_000_000
@@ -97,8 +96,7 @@ class Photo:
         return buf.getvalue()
 
 
-def read_photo(source: bytes | str | Path, name: str | None = None, max_pixels: int = MAX_PHOTO_PIXELS,
-               max_bytes: int = MAX_PHOTO_BYTES, work_side: int = WORK_SIDE) -> Photo:
+def read_photo(source: bytes | str | Path, name: str | None = None, max_pixels: int = MAX_PHOTO_PIXELS, max_bytes: int = MAX_PHOTO_BYTES, work_side: int = WORK_SIDE) -> Photo:
     """Read a photo (a file path or its bytes) into a :class:`Photo`.
 
     The byte count and the pixel count (from the header, before decoding) are checked first, then the
@@ -211,8 +209,7 @@ def _resize(rgb: np.ndarray, width: int, height: int) -> np.ndarray:
     """(H, W, C) float image resampled to ``height`` x ``width`` (Lanczos, per channel)."""
     from PIL import Image
 
-    chans = [np.asarray(Image.fromarray(np.ascontiguousarray(rgb[..., c], dtype=np.float32), "F").resize((width, height), Image.LANCZOS))
-             for c in range(rgb.shape[2])]
+    chans = [np.asarray(Image.fromarray(np.ascontiguousarray(rgb[..., c], dtype=np.float32), "F").resize((width, height), Image.LANCZOS)) for c in range(rgb.shape[2])]
     return np.clip(np.stack(chans, axis=2), 0.0, 1.0).astype(np.float32)
 
 
@@ -340,8 +337,7 @@ def prepare(photo: Photo | np.ndarray, pixel: float, texel: float | None = None)
         gauss[order, c] = ranks
         lut[c] = np.interp(qs * (n - 1), np.arange(n), chans[order, c])  # the channel's quantiles (linear, as np.quantile)
     gauss[:, 4], gauss[:, 5], gauss[:, 6] = height.ravel(), hx.ravel(), hy.ravel()
-    return Exemplar(gauss.reshape(H, W, -1), lut, mean.astype(np.float32), axes.astype(np.float32),
-                    float(np.median(contrast)) + 1e-6, float(pixel))
+    return Exemplar(gauss.reshape(H, W, -1), lut, mean.astype(np.float32), axes.astype(np.float32), float(np.median(contrast)) + 1e-6, float(pixel))
 
 
 # --------------------------------------------------------------------------------------- synthesis
@@ -559,15 +555,16 @@ class PhotoPainter:
             scale = float(layer.scale) if layer.scale is not None else max(float(extent.max()), 1e-9) / 2.0
             H, W = layer.photo.rgb.shape[:2]
             area = _area(shape.vertices, shape.faces[rep.faces])
-            texel = np.sqrt(max(area, 1e-18) / (0.6 * self.texture_size ** 2))  # about 60 % of an atlas is covered
+            texel = np.sqrt(max(area, 1e-18) / (0.6 * self.texture_size**2))  # about 60 % of an atlas is covered
             ex = prepare(layer.photo, scale / W, texel)
             a = np.deg2rad(layer.rotate)
             turn = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
             self._bound[gi] = _Bound(ex, layer, centre, axes, turn, int(self.seed) * 1000003 + 7919 * gi, scale)
             how = "given" if layer.scale is not None else "half the part's longest side"
-            self._notes.append(f"group {gi}: photo {layer.photo.name!r} {W} x {H} px spans {scale:.4g} units ({how}), "
-                               f"turned {layer.rotate:g} deg, synthesised at {ex.shape[1]} x {ex.shape[0]} px"
-                               + "".join(f"; {n}" for n in layer.photo.notes))
+            self._notes.append(
+                f"group {gi}: photo {layer.photo.name!r} {W} x {H} px spans {scale:.4g} units ({how}), "
+                f"turned {layer.rotate:g} deg, synthesised at {ex.shape[1]} x {ex.shape[0]} px" + "".join(f"; {n}" for n in layer.photo.notes)
+            )
         return self
 
     # the SurfacePainter interface the paint loop and the looks use
@@ -598,7 +595,7 @@ class PhotoPainter:
         wts = np.abs(along) ** SHARP
         wts /= np.maximum(wts.sum(axis=1, keepdims=True), 1e-12)
         wts[wts < 0.01] = 0.0
-        norm = np.sqrt(np.maximum((wts ** 2).sum(axis=1), 1e-12))
+        norm = np.sqrt(np.maximum((wts**2).sum(axis=1), 1e-12))
         channels = [*(COLOUR if colour else []), *CONTRAST, 5, 6]
         vals = np.zeros((len(points), len(channels)), np.float32)
         grad = np.zeros((len(points), 3))
@@ -650,8 +647,9 @@ class PhotoPainter:
                 self._kept.pop(next(iter(self._kept)))
         return out
 
-    def material(self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray,
-                 group: int | None = None, label: str = "", blend: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def material(
+        self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray, group: int | None = None, label: str = "", blend: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(roughness (n,), metallic (n,), normal (n, 3))`` as :meth:`SurfacePainter.material`
         (``blend``: the normals the projections follow, as :meth:`paint` got them; default
         ``normals``): for a photo's group the roughness is the prompt's moved by the photo's local
@@ -674,8 +672,7 @@ class PhotoPainter:
                 _, contrast[sl], grad[sl] = self._fields(b, self._world(pts[sl]), nrm[sl], colour=False)
         else:
             contrast, grad = kept[0], kept[1].astype(np.float64)
-        rough = np.clip(np.asarray(rough, np.float32) + b.layer.roughness * 0.3 * np.tanh(2.0 * (contrast / b.ex.contrast - 1.0)),
-                        0.02, 1.0).astype(np.float32)
+        rough = np.clip(np.asarray(rough, np.float32) + b.layer.roughness * 0.3 * np.tanh(2.0 * (contrast / b.ex.contrast - 1.0)), 0.02, 1.0).astype(np.float32)
         grad = grad * (0.5 * b.layer.normal)  # heights spread half a photo pixel: the slope is dimensionless
         dt = np.einsum("kd,kd->k", grad, tan)
         db = np.einsum("kd,kd->k", grad, bit)
@@ -770,8 +767,7 @@ def _number(v: Any, what: str, lo: float, hi: float) -> float:
     return float(v)
 
 
-def layers(images: Mapping[str, Mapping[str, Any]], photos: Mapping[str, Photo] | None = None,
-           read: Any = None) -> dict[str, PhotoLayer]:
+def layers(images: Mapping[str, Mapping[str, Any]], photos: Mapping[str, Photo] | None = None, read: Any = None) -> dict[str, PhotoLayer]:
     """The :class:`PhotoLayer` of each checked ``images`` entry: its photo from ``photos`` (by key)
     or read from its file (``read(path) -> bytes``, default the file system)."""
     out = {}

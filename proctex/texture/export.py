@@ -48,6 +48,7 @@ UNTEXTURED_NAME = "untextured"
 
 # --------------------------------------------------------------------------- validation
 
+
 def _check_shape(vertices, faces, corner_uv, face_group, textures, names):
     """Validate and normalise inputs; returns (V float64, F int64, UV float64, G int64, texs, names)."""
     V = np.asarray(vertices)
@@ -77,8 +78,7 @@ def _check_shape(vertices, faces, corner_uv, face_group, textures, names):
         raise ValueError(f"face_group: expected a ({m},) integer array, got {G.dtype} {G.shape}")
     G = G.astype(np.int64)
     if G.min() < -1 or G.max() >= len(texs):
-        raise ValueError(f"face_group: values must be -1 or in [0, {len(texs)}), "
-                         f"got [{G.min()}, {G.max()}]")
+        raise ValueError(f"face_group: values must be -1 or in [0, {len(texs)}), got [{G.min()}, {G.max()}]")
     if names is None:
         names = [f"group_{g}" for g in range(len(texs))]
     else:
@@ -126,12 +126,13 @@ def _groups(face_group: np.ndarray, n_groups: int) -> list[tuple[int, np.ndarray
     """[(group, face indices)] for each non-empty group, the untextured group -1 last."""
     order = np.argsort(face_group, kind="stable")
     bounds = np.concatenate([[0], np.cumsum(np.bincount(face_group + 1, minlength=n_groups + 1))])
-    out = [(g - 1, order[bounds[g]:bounds[g + 1]]) for g in range(n_groups + 1)]
+    out = [(g - 1, order[bounds[g] : bounds[g + 1]]) for g in range(n_groups + 1)]
     out = [x for x in out if len(x[1])]
     return out[1:] + out[:1] if out[0][0] == -1 else out
 
 
 # --------------------------------------------------------------------------- geometry
+
 
 def _split_vertices(faces: np.ndarray, st: np.ndarray | None):
     """Split vertices per unique (vertex index, texcoord) pair.
@@ -166,6 +167,7 @@ def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, vid: np.ndarray) ->
 
 
 # --------------------------------------------------------------------------- GLB
+
 
 class _Blob:
     """The GLB under construction as plain JSON dicts, with a binary buffer of 4-byte aligned
@@ -223,9 +225,19 @@ def _split_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarr
 UP_ROTATIONS = {"y": None, "z": [-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)], "x": [0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)]}
 
 
-def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
-              double_sided: bool = True, up: str = "y", image_uris: list[str | None] | None = None,
-              pbr=None, pbr_uris: list[tuple[str, str] | None] | None = None) -> bytes:
+def glb_bytes(
+    vertices,
+    faces,
+    corner_uv,
+    face_group,
+    textures,
+    names=None,
+    double_sided: bool = True,
+    up: str = "y",
+    image_uris: list[str | None] | None = None,
+    pbr=None,
+    pbr_uris: list[tuple[str, str] | None] | None = None,
+) -> bytes:
     """Encode a textured shape as a GLB (glTF 2.0 binary) file.
 
     Args: see the module docstring (vertices (n, 3) float64, faces (m, 3) int64, corner_uv
@@ -265,8 +277,19 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
     node = {"mesh": 0}
     if UP_ROTATIONS[up] is not None:
         node["rotation"] = UP_ROTATIONS[up]
-    doc: dict = {"asset": {"generator": "proctex.texture.export", "version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [node],
-                 "meshes": [], "accessors": [], "bufferViews": [], "images": [], "textures": [], "samplers": [], "materials": []}
+    doc: dict = {
+        "asset": {"generator": "proctex.texture.export", "version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [node],
+        "meshes": [],
+        "accessors": [],
+        "bufferViews": [],
+        "images": [],
+        "textures": [],
+        "samplers": [],
+        "materials": [],
+    }
     blob = _Blob(doc)
     primitives = []
     for g, idx in _groups(FG, len(texs)):
@@ -278,8 +301,7 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
             st[..., 1] = 1.0 - UV[idx, :, 1]
         vid, st_split, indices = _split_vertices(f, st)
         normals = _smooth_normals(V, f, vid)
-        attrs = {"POSITION": blob.accessor(V[vid].astype(np.float32), "VEC3", ARRAY_BUFFER, minmax=True),
-                 "NORMAL": blob.accessor(normals, "VEC3", ARRAY_BUFFER)}
+        attrs = {"POSITION": blob.accessor(V[vid].astype(np.float32), "VEC3", ARRAY_BUFFER, minmax=True), "NORMAL": blob.accessor(normals, "VEC3", ARRAY_BUFFER)}
         pbr: dict = {"metallicFactor": 0.0, "roughnessFactor": ROUGHNESS}
         material: dict = {}
         if g >= 0:
@@ -311,8 +333,7 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
                 material["occlusionTexture"] = {"index": orm}
             attrs["TANGENT"] = blob.accessor(_split_tangents(V, f, UV[idx], indices, normals), "VEC4", ARRAY_BUFFER)
         doc["materials"].append({"name": name, "pbrMetallicRoughness": pbr, "doubleSided": bool(double_sided), **material})
-        primitives.append({"attributes": attrs, "material": len(doc["materials"]) - 1, "mode": 4,
-                           "indices": blob.accessor(indices.reshape(-1), "SCALAR", ELEMENT_ARRAY_BUFFER)})
+        primitives.append({"attributes": attrs, "material": len(doc["materials"]) - 1, "mode": 4, "indices": blob.accessor(indices.reshape(-1), "SCALAR", ELEMENT_ARRAY_BUFFER)})
     if doc["textures"]:
         doc["samplers"] = [{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}]  # LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE
     doc["meshes"] = [{"primitives": primitives}]
@@ -321,8 +342,8 @@ def glb_bytes(vertices, faces, corner_uv, face_group, textures, names=None,
 
 # --------------------------------------------------------------------------- files
 
-def write_glb(path, vertices, faces, corner_uv, face_group, textures, names=None,
-              double_sided: bool = True, up: str = "y", pbr=None) -> str:
+
+def write_glb(path, vertices, faces, corner_uv, face_group, textures, names=None, double_sided: bool = True, up: str = "y", pbr=None) -> str:
     """Write :func:`glb_bytes` to ``path`` atomically (temp file + ``os.replace``); returns the path."""
     data = glb_bytes(vertices, faces, corner_uv, face_group, textures, names, double_sided, up=up, pbr=pbr)
     atomic_write(Path(path), data)
@@ -420,6 +441,7 @@ def write_obj(path, vertices, faces, corner_uv, face_group, textures, names=None
 
 # --------------------------------------------------------------------------- validator
 
+
 def _validator_dir() -> Path:
     return Path(sys.prefix) / "node" / "node_modules" / "gltf-validator"
 
@@ -464,11 +486,8 @@ def validate_glb(path_or_bytes, timeout: float = 120.0) -> dict:
     script = _VALIDATE_JS % (json.dumps(str(_validator_dir())), json.dumps(base), json.dumps(uri))
     proc = subprocess.run(["node", "-e", script], input=data, capture_output=True, timeout=timeout)
     if proc.returncode != 0:
-        raise RuntimeError(f"glTF validator failed (rc {proc.returncode}): "
-                           f"{proc.stderr.decode(errors='replace')[-2000:]}")
+        raise RuntimeError(f"glTF validator failed (rc {proc.returncode}): {proc.stderr.decode(errors='replace')[-2000:]}")
     return json.loads(proc.stdout)
 
 
 # --------------------------------------------------------------------------- reader
-
-

@@ -74,8 +74,9 @@ def glb_frame(vertices: np.ndarray, up: str) -> np.ndarray:
     return v @ m[:3, :3].T + m[:3, 3]
 
 
-def match_faces(tpl_corners: np.ndarray, tpl_uv: np.ndarray, file_corners: np.ndarray, file_uv: np.ndarray,
-                position_tol: float = POSITION_TOL, uv_tol: float = UV_TOL, candidates: int = 8) -> FaceMatch:
+def match_faces(
+    tpl_corners: np.ndarray, tpl_uv: np.ndarray, file_corners: np.ndarray, file_uv: np.ndarray, position_tol: float = POSITION_TOL, uv_tol: float = UV_TOL, candidates: int = 8
+) -> FaceMatch:
     """Match template faces to a file's triangles by position and UV.
 
     Args:
@@ -165,9 +166,11 @@ def textures_from_glb(tex_shape, grouping, uv, glb, size: int, base_maps: list |
     file_corners = glb.vertices[glb.faces]
     match = match_faces(corners, uv.corner_uv, file_corners, glb.corner_uv)
     if not match.ok:
-        raise ValueError(f"the GLB does not hold the family's template: {match.missing} of its {len(shape.faces)} faces have no triangle at "
-                         f"their place and {match.uv_mismatch} have other UVs there (the template GLB painted elsewhere keeps its "
-                         f"geometry and UVs; export it again without changing them)")
+        raise ValueError(
+            f"the GLB does not hold the family's template: {match.missing} of its {len(shape.faces)} faces have no triangle at "
+            f"their place and {match.uv_mismatch} have other UVs there (the template GLB painted elsewhere keeps its "
+            f"geometry and UVs; export it again without changing them)"
+        )
     notes = []
     if match.extra:
         notes.append(f"{match.extra} triangles of the GLB are not the template's: left out")
@@ -189,6 +192,7 @@ def textures_from_glb(tex_shape, grouping, uv, glb, size: int, base_maps: list |
         normal = np.zeros((len(tf), 3))
         kept = base_maps[g.index] if base_maps is not None and base_maps[g.index] is not None else flat_maps(size, size)
         from_file = np.zeros(len(tf), dtype=bool)
+
         def read(image: np.ndarray, sel: np.ndarray) -> np.ndarray:
             # the same UVs: at the atlas's own size a texel is the file's texel at its place (exact, also
             # where a tiny face's texel centre lies off the face); at another size, resampled at the UV

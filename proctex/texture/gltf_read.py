@@ -17,14 +17,12 @@ from PIL import Image
 
 from .export import GREY, UNTEXTURED_NAME
 
-_COMPONENT_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32,
-                     5126: np.float32}
+_COMPONENT_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 #: the most pixels a texture of a read glTF may have (checked from its header before decoding): an
 #: 8192 x 8192 atlas, the largest a family paints.
 MAX_IMAGE_PIXELS = 8192 * 8192
-_MODE_NAMES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP", 4: "TRIANGLES",
-               5: "TRIANGLE_STRIP", 6: "TRIANGLE_FAN"}
+_MODE_NAMES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP", 4: "TRIANGLES", 5: "TRIANGLE_STRIP", 6: "TRIANGLE_FAN"}
 
 
 @dataclass
@@ -106,7 +104,7 @@ class _GltfReader:
         start, length = bv.byteOffset or 0, bv.byteLength or 0
         if start + length > len(data):
             raise ValueError(f"bufferView {i} ends at byte {start + length}, past its buffer ({len(data)} bytes)")
-        return data[start:start + length], bv.byteStride or 0
+        return data[start : start + length], bv.byteStride or 0
 
     def accessor(self, i: int) -> np.ndarray:
         """Accessor i as a (count, components) array (float64 when ``normalized``)."""
@@ -172,9 +170,11 @@ def _node_matrix(node: gl.Node) -> np.ndarray:
     if node.rotation is not None:
         x, y, z, w = np.asarray(node.rotation, dtype=np.float64) / (np.linalg.norm(node.rotation) or 1.0)
         r = np.eye(4)
-        r[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+        r[:3, :3] = [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
         m = r @ m
     if node.translation is not None:
         t = np.eye(4)
@@ -351,8 +351,7 @@ def _read_gltf(gltf: gl.GLTF2, rd: _GltfReader) -> TexturedMesh:
             if tc is not None:
                 acc = getattr(attrs, f"TEXCOORD_{tc}", None)
                 if acc is None:
-                    notes.append(f"{where}: material {names[g]!r} has a texture but the primitive has no "
-                                 f"TEXCOORD_{tc}; it samples the texture's bottom-left texel")
+                    notes.append(f"{where}: material {names[g]!r} has a texture but the primitive has no TEXCOORD_{tc}; it samples the texture's bottom-left texel")
                     uv = np.zeros((len(pos), 2))
                 else:
                     st = rd.accessor(acc)

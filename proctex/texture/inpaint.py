@@ -253,8 +253,7 @@ def patchmatch_fill(
         raise ValueError("source is empty: no texel to copy from")
     if not _source_centres(source, labels, patch, share).any():
         raise ValueError(
-            f"no valid source patch: no source texel has {share:.0%} of its {patch}x{patch} window in source "
-            f"of its chart ({int(source.sum())} source texels); use a smaller patch or min_source_share"
+            f"no valid source patch: no source texel has {share:.0%} of its {patch}x{patch} window in source of its chart ({int(source.sum())} source texels); use a smaller patch or min_source_share"
         )
     rng = np.random.default_rng(seed)
     penalty = _penalty(work, source)

@@ -60,8 +60,16 @@ def environment(directions: np.ndarray, up: np.ndarray, roughness: np.ndarray | 
     return base * 0.8 + box[:, None]
 
 
-def pbr_surface(buffers: Any, vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
-                textures: Sequence[np.ndarray], maps: Sequence[Any] | None = None, normals: np.ndarray | None = None) -> dict[str, np.ndarray]:
+def pbr_surface(
+    buffers: Any,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    corner_uv: np.ndarray,
+    face_group: np.ndarray,
+    textures: Sequence[np.ndarray],
+    maps: Sequence[Any] | None = None,
+    normals: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
     """Per seen pixel (``buffers.mask``): ``albedo`` (k, 3) sRGB, ``roughness`` (k,), ``metallic`` (k,),
     ``occlusion`` (k,) (1 where no map holds any) and the world ``normal`` (k, 3), bent by the normal
     maps of the groups that have them.
@@ -120,8 +128,7 @@ def _ggx(n_h: np.ndarray, n_v: np.ndarray, n_l: np.ndarray, alpha: np.ndarray) -
     return d * vis
 
 
-def shade_pbr(buffers: Any, surface: dict[str, np.ndarray], up: np.ndarray | None = None, background=(1.0, 1.0, 1.0),
-              exposure: float = 1.0) -> np.ndarray:
+def shade_pbr(buffers: Any, surface: dict[str, np.ndarray], up: np.ndarray | None = None, background=(1.0, 1.0, 1.0), exposure: float = 1.0) -> np.ndarray:
     """(H, W, 3) uint8 image of a view lit by key, fill and rim lights and the studio environment.
 
     ``surface``: :func:`pbr_surface`'s per-pixel values; ``up``: (3,) world up (default the camera's).
@@ -175,9 +182,7 @@ def shade_pbr(buffers: Any, surface: dict[str, np.ndarray], up: np.ndarray | Non
     return (np.clip(img, 0, 1) * 255).round().astype(np.uint8)
 
 
-
-def vertex_occlusion(vertices: np.ndarray, faces: np.ndarray, rays: int = 48, reach: float = 0.15, seed: int = 0,
-                     normals: np.ndarray | None = None) -> np.ndarray:
+def vertex_occlusion(vertices: np.ndarray, faces: np.ndarray, rays: int = 48, reach: float = 0.15, seed: int = 0, normals: np.ndarray | None = None) -> np.ndarray:
     """Ambient occlusion per vertex ``(n,) float64`` in [0, 1] (1: open sky): the share of
     cosine-weighted hemisphere rays around the smooth normal that leave the mesh within ``reach`` times
     the bounding-box diagonal, with a sample set fixed by ``seed`` (the same for every vertex, turned

@@ -24,8 +24,7 @@ from proctex.torch_kernels import resolve_vml
 resolve_vml()  # MKL's kernels chosen on one thread (see proctex.torch_kernels)
 
 #: (in, out, kernel, stride, padding, max-pool before) of AlexNet's convolutions, torchvision indices.
-ALEXNET = {0: (3, 64, 11, 4, 2, False), 3: (64, 192, 5, 1, 2, True), 6: (192, 384, 3, 1, 1, True), 8: (384, 256, 3, 1, 1, False),
-           10: (256, 256, 3, 1, 1, False)}
+ALEXNET = {0: (3, 64, 11, 4, 2, False), 3: (64, 192, 5, 1, 2, True), 6: (192, 384, 3, 1, 1, True), 8: (384, 256, 3, 1, 1, False), 10: (256, 256, 3, 1, 1, False)}
 SHIFT = (-0.030, -0.088, -0.188)
 SCALE = (0.458, 0.448, 0.450)
 

@@ -147,8 +147,9 @@ class TemplateTexture:
 
 
 # ------------------------------------------------------------------------------------- prompts
-def resolve_group_prompts(grouping: Grouping, prompt: str, group_prompts: Mapping[str, str] | None = None,
-                          shape: Shape | None = None, up: str = "z", part_words: Mapping[str, str] | None = None) -> dict[int, str]:
+def resolve_group_prompts(
+    grouping: Grouping, prompt: str, group_prompts: Mapping[str, str] | None = None, shape: Shape | None = None, up: str = "z", part_words: Mapping[str, str] | None = None
+) -> dict[int, str]:
     """Prompt per group id: ``group_prompts`` keyed by group label, group index (as a string) or,
     given the ``shape``, a part word (``"legs"``, ``"table top"``: the groups the word takes on that
     shape, :func:`proctex.texture.painters.partwords.groups_of_word`) overrides the global
@@ -191,8 +192,9 @@ def resolve_group_prompts(grouping: Grouping, prompt: str, group_prompts: Mappin
     return out
 
 
-def resolve_photos(grouping: Grouping, prompt: str, photos: Mapping[str, Any], shape: Shape | None = None, up: str = "z",
-                   part_words: Mapping[str, str] | None = None, named: set[int] | frozenset[int] = frozenset()) -> dict[int, Any]:
+def resolve_photos(
+    grouping: Grouping, prompt: str, photos: Mapping[str, Any], shape: Shape | None = None, up: str = "z", part_words: Mapping[str, str] | None = None, named: set[int] | frozenset[int] = frozenset()
+) -> dict[int, Any]:
     """The photo of each group: ``photos`` keyed as group prompts are (a group number, label or part
     word, :func:`resolve_group_prompts`'s rules: a number beats a label, a label a word), and ``"*"``
     for every group no key reaches and ``named`` does not hold (the groups the prompt's clauses or
@@ -368,8 +370,7 @@ def blend_normals(shape: Shape, faces: np.ndarray, texels: TexelMap, rounds: int
     return np.where(length > 1e-12, n / np.maximum(length, 1e-12), texels.normals)
 
 
-def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occlusion: bool = False, seed: int = 0,
-                        check: Any = None) -> TemplateTexture:
+def paint_material_maps(tex: TemplateTexture, painter: Any, gutter: int = 8, occlusion: bool = False, seed: int = 0, check: Any = None) -> TemplateTexture:
     """Give every group texture of ``tex`` its PBR maps (:class:`proctex.texture.pbr.PbrMaps`), in place.
 
     ``painter`` has ``material(points, normals, tangents, bitangents, group=, label=)`` (a
@@ -429,9 +430,11 @@ class SolidViewPainter:
         self.maps = {}
         if grouping is not None:
             # normals go by R's inverse transpose: R itself for a rigid map, renormalised otherwise
-            self.maps = {m.part: (np.asarray(m.R, float), np.asarray(m.t, float),
-                                  None if m.method in ("self", "topology", "icp") else np.linalg.pinv(np.asarray(m.R, float)).T)
-                         for g in grouping.groups for m in g.maps}
+            self.maps = {
+                m.part: (np.asarray(m.R, float), np.asarray(m.t, float), None if m.method in ("self", "topology", "icp") else np.linalg.pinv(np.asarray(m.R, float)).T)
+                for g in grouping.groups
+                for m in g.maps
+            }
 
     def paint_view(self, request: ViewRequest) -> np.ndarray:
         out = np.array(request.rgb, dtype=np.float32, copy=True)

@@ -67,9 +67,9 @@ class _Member:
         return self.points if self.points is not None else (texels.points - self.t) @ self.back.T
 
 
-
 #: texels past each chart's edge that a photo look paints on the surface extended (paint_surface's ``ring``)
 PHOTO_RING = 2
+
 
 def _member(shape: Shape, grouping: Grouping, g: PartGroup, m: MemberMap, texels: TexelMap) -> _Member:
     R, t = np.asarray(m.R, float), np.asarray(m.t, float)
@@ -151,9 +151,7 @@ def trimap(buffers: Buffers, uv: ShapeUV, best_images: Sequence[np.ndarray], mar
     return out
 
 
-def backproject(
-    points: np.ndarray, part: int, buffers: Buffers, trimap_: np.ndarray, view: np.ndarray, plane_tol: float = 1.0
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def backproject(points: np.ndarray, part: int, buffers: Buffers, trimap_: np.ndarray, view: np.ndarray, plane_tol: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pull painted colours onto surface points of one part (the per-component depth test).
 
     Each point is projected into the view; of the four pixels around it, those that see ``part``,
@@ -240,8 +238,17 @@ def _pull(
 
 
 def _request(
-    buffers: Buffers, tri: np.ndarray, rgb: np.ndarray, prompt: str, prompts: dict[int, str],
-    center: np.ndarray, scale: float, k: int, n: int, seed: int, labels: Mapping[int, str],
+    buffers: Buffers,
+    tri: np.ndarray,
+    rgb: np.ndarray,
+    prompt: str,
+    prompts: dict[int, str],
+    center: np.ndarray,
+    scale: float,
+    k: int,
+    n: int,
+    seed: int,
+    labels: Mapping[int, str],
 ) -> ViewRequest:
     return ViewRequest(
         prompt=prompt,
@@ -292,8 +299,14 @@ def fill_unseen(points: np.ndarray, colors: np.ndarray, seen: np.ndarray, k: int
 
 
 def fill_texture(
-    texels: TexelMap, colors: np.ndarray, seen: np.ndarray, size: int, method: str = "patchmatch",
-    seed: int = 0, notes: list[str] | None = None, group: int = 0,
+    texels: TexelMap,
+    colors: np.ndarray,
+    seen: np.ndarray,
+    size: int,
+    method: str = "patchmatch",
+    seed: int = 0,
+    notes: list[str] | None = None,
+    group: int = 0,
 ) -> np.ndarray:
     """A group texture (size, size, 3) float32 from per-texel colours where only ``seen`` ones are painted.
 
@@ -394,9 +407,15 @@ def paint_views(
         tb = time.perf_counter()
         updated = sum(_pull(s, buffers, tri, view, margin, power, plane_tol) for s in states)
         stats = {
-            "view": k, "camera": cam.name, "generate": int((tri == GENERATE).sum()), "refine": int((tri == REFINE).sum()),
-            "keep": int((tri == KEEP).sum()), "texels_updated": int(updated),
-            "render_s": round(tp - tv, 3), "painter_s": round(tb - tp, 3), "backproject_s": round(time.perf_counter() - tb, 3),
+            "view": k,
+            "camera": cam.name,
+            "generate": int((tri == GENERATE).sum()),
+            "refine": int((tri == REFINE).sum()),
+            "keep": int((tri == KEEP).sum()),
+            "texels_updated": int(updated),
+            "render_s": round(tp - tv, 3),
+            "painter_s": round(tb - tp, 3),
+            "backproject_s": round(time.perf_counter() - tb, 3),
         }
         view_stats.append(stats)
         if on_view is not None:
@@ -404,9 +423,7 @@ def paint_views(
     seen_path = {s.group.index: float((s.weight > 0).mean()) if len(s.weight) else 1.0 for s in states}
     hidden_views = 0
     if complete_hidden:
-        hidden_views = _complete_hidden(
-            shape, grouping, uv, states, painter, prompt, prompts, labels, center, scale, up, view_size, size, seed, margin, power, plane_tol, backend
-        )
+        hidden_views = _complete_hidden(shape, grouping, uv, states, painter, prompt, prompts, labels, center, scale, up, view_size, size, seed, margin, power, plane_tol, backend)
     notes: list[str] = []
     groups = []
     for s in states:
@@ -426,7 +443,24 @@ def paint_views(
 
 
 def _complete_hidden(
-    shape, grouping, uv, states, painter, prompt, prompts, labels, center, scale, up, view_size, size, seed, margin, power, plane_tol, backend,
+    shape,
+    grouping,
+    uv,
+    states,
+    painter,
+    prompt,
+    prompts,
+    labels,
+    center,
+    scale,
+    up,
+    view_size,
+    size,
+    seed,
+    margin,
+    power,
+    plane_tol,
+    backend,
     min_unseen: float = 0.05,
 ) -> int:
     """Paint groups the path left partly unseen from six views of their representative alone."""
@@ -499,9 +533,21 @@ def paint_template(
     them they are made of these arguments, so a plugin painter sees every one of them."""
     part_words = dict(part_words or {})
     if settings is None:
-        settings = PaintConfig(prompt=prompt, group_prompts={str(k): v for k, v in (group_prompts or {}).items()}, part_words=part_words,
-                               painter=painter, texture_size=size, views=views, view_size=view_size, paint_hidden=complete_hidden,
-                               fill=fill, model_dir=model_dir, device=device, steps=steps, occlusion=occlusion)
+        settings = PaintConfig(
+            prompt=prompt,
+            group_prompts={str(k): v for k, v in (group_prompts or {}).items()},
+            part_words=part_words,
+            painter=painter,
+            texture_size=size,
+            views=views,
+            view_size=view_size,
+            paint_hidden=complete_hidden,
+            fill=fill,
+            model_dir=model_dir,
+            device=device,
+            steps=steps,
+            occlusion=occlusion,
+        )
     if check is not None:
         check("planning the parts")
         seen = on_view
@@ -510,6 +556,7 @@ def paint_template(
             check(f"painting view {k + 1} of {n}")
             if seen is not None:
                 seen(k, n, stats)
+
     prompts = resolve_group_prompts(grouping, prompt, group_prompts, shape, up, part_words)  # validates the keys (labels, indices, part words)
     named = {g for g, text in prompts.items() if text != prompt}  # groups a group prompt names
     # Clauses naming parts (by label or by what the parts are) become those groups' prompts, for
@@ -533,9 +580,22 @@ def paint_template(
     if not kind.views:
         tex = paint_surface(shape, grouping, chosen, size=size, prompts=prompts, uv=uv, ring=PHOTO_RING if photos else 0, check=check)
     else:
-        tex = paint_views(shape, grouping, chosen, prompt, {str(g): t for g, t in prompts.items()}, n_views=views,
-                          view_size=view_size, size=size, up=up, seed=seed, complete_hidden=complete_hidden, fill=fill,
-                          on_view=on_view, uv=uv)
+        tex = paint_views(
+            shape,
+            grouping,
+            chosen,
+            prompt,
+            {str(g): t for g, t in prompts.items()},
+            n_views=views,
+            view_size=view_size,
+            size=size,
+            up=up,
+            seed=seed,
+            complete_hidden=complete_hidden,
+            fill=fill,
+            on_view=on_view,
+            uv=uv,
+        )
     tex.notes.extend(line for line in (f"prompt {prompt!r} parts: {n}" for n in parts.notes) if line not in tex.notes)
     if maps:
         materials = surface if surface is not None else make_painter("surface", grouping, prompt, prompts, seed=seed).bind(shape, grouping, up, parts=parts)
@@ -544,9 +604,17 @@ def paint_template(
     return tex
 
 
-def paint_with(shape: Shape, grouping: Grouping, settings: PaintConfig, seed: int = 0, up: str = "z", uv: ShapeUV | None = None,
-               on_view: Callable[[int, int, dict[str, Any]], None] | None = None, photos: Mapping[str, Any] | None = None,
-               check: Callable[[str], None] | None = None) -> TemplateTexture:
+def paint_with(
+    shape: Shape,
+    grouping: Grouping,
+    settings: PaintConfig,
+    seed: int = 0,
+    up: str = "z",
+    uv: ShapeUV | None = None,
+    on_view: Callable[[int, int, dict[str, Any]], None] | None = None,
+    photos: Mapping[str, Any] | None = None,
+    check: Callable[[str], None] | None = None,
+) -> TemplateTexture:
     """:func:`paint_template` with the paint settings as they travel (a build config's ``[paint]``
     section, :class:`proctex.texture.painting.PaintConfig`), whole. ``photos``: the
     :class:`proctex.texture.exemplar.Photo` of each ``settings.images`` key already read (the others are
@@ -557,8 +625,28 @@ def paint_with(shape: Shape, grouping: Grouping, settings: PaintConfig, seed: in
         from proctex.texture.exemplar import layers as photo_layers
 
         layers = photo_layers(s.images, photos)
-    return paint_template(shape, grouping, s.prompt, s.group_prompts, painter=s.painter, size=s.texture_size, seed=seed, up=up, views=s.views,
-                          view_size=s.view_size, complete_hidden=s.paint_hidden, fill=s.fill, model_dir=s.model_dir, device=s.device,
-                          steps=s.steps, on_view=on_view, uv=uv, occlusion=s.occlusion, part_words=s.part_words,
-                          photos=layers, under_prompt=bool((s.images.get("*") or {}).get("under_prompt", True)), check=check,
-                          settings=s)
+    return paint_template(
+        shape,
+        grouping,
+        s.prompt,
+        s.group_prompts,
+        painter=s.painter,
+        size=s.texture_size,
+        seed=seed,
+        up=up,
+        views=s.views,
+        view_size=s.view_size,
+        complete_hidden=s.paint_hidden,
+        fill=s.fill,
+        model_dir=s.model_dir,
+        device=s.device,
+        steps=s.steps,
+        on_view=on_view,
+        uv=uv,
+        occlusion=s.occlusion,
+        part_words=s.part_words,
+        photos=layers,
+        under_prompt=bool((s.images.get("*") or {}).get("under_prompt", True)),
+        check=check,
+        settings=s,
+    )

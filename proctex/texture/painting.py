@@ -149,10 +149,8 @@ class PaintConfig:
             raise ValueError(f"the prompt has {len(self.prompt)} characters (at most {MAX_PROMPT})")
         if not isinstance(self.group_prompts, dict) or not all(isinstance(v, str) for v in self.group_prompts.values()):
             raise ValueError("group_prompts must be an object of prompts {group label or index: prompt}")
-        if len(self.group_prompts) > MAX_GROUP_PROMPTS or not all(
-                len(str(k)) <= MAX_GROUP_KEY and len(v) <= MAX_PROMPT for k, v in self.group_prompts.items()):
-            raise ValueError(f"group_prompts takes at most {MAX_GROUP_PROMPTS} prompts of at most {MAX_PROMPT} characters, "
-                             f"keyed by names of at most {MAX_GROUP_KEY}")
+        if len(self.group_prompts) > MAX_GROUP_PROMPTS or not all(len(str(k)) <= MAX_GROUP_KEY and len(v) <= MAX_PROMPT for k, v in self.group_prompts.items()):
+            raise ValueError(f"group_prompts takes at most {MAX_GROUP_PROMPTS} prompts of at most {MAX_PROMPT} characters, keyed by names of at most {MAX_GROUP_KEY}")
         from proctex.texture.painters.partwords import check_assignment
 
         self.part_words = {str(k): v for k, v in check_assignment(self.part_words).items()}
@@ -175,16 +173,24 @@ class PaintConfig:
                 raise ValueError(f"a look from photos paints with the surface painter, not {self.painter!r}")
         elif self.images != {}:
             raise ValueError("images must be an object {part: photo}")
-        if not isinstance(self.glb, dict) or len(self.glb) > 8 or not all(
-                isinstance(k, str) and isinstance(v, (str, int, float, bool)) and len(str(v)) <= 400 for k, v in self.glb.items()):
+        if not isinstance(self.glb, dict) or len(self.glb) > 8 or not all(isinstance(k, str) and isinstance(v, (str, int, float, bool)) and len(str(v)) <= 400 for k, v in self.glb.items()):
             raise ValueError("glb must be a short object (the repainted template GLB's name, checksum and match counts)")
         if self.glb and self.images:
             raise ValueError("a look comes from a repainted template GLB or from photos, not both")
         return self
 
 
-def make_painter(name: str, grouping: Grouping, prompt: str, prompts: Mapping[int, str] | None = None, seed: int = 0,
-                 model_dir: str | None = None, device: str = "cpu", steps: int = 20, settings: PaintConfig | None = None) -> Any:
+def make_painter(
+    name: str,
+    grouping: Grouping,
+    prompt: str,
+    prompts: Mapping[int, str] | None = None,
+    seed: int = 0,
+    model_dir: str | None = None,
+    device: str = "cpu",
+    steps: int = 20,
+    settings: PaintConfig | None = None,
+) -> Any:
     """The painter ``name`` of the registry (:func:`get_painter`), the one place painters are made:
     "surface" (a :class:`~proctex.texture.painters.SurfacePainter`: colours at 3D points, ``prompts``
     per group index), "views" (a :class:`proctex.texture.paint.SolidViewPainter` over it, for the
@@ -220,5 +226,4 @@ def _needs_model_dir(settings: PaintConfig) -> None:
 
 register_painter(Painter("surface", _surface, summary="the solid surface painter (colours at 3D points; the default)"))
 register_painter(Painter("views", _views, views=True, summary="the multi-view loop with the offline view painter"))
-register_painter(Painter("diffusion", _diffusion, views=True, summary="the multi-view loop with a local diffusers model (model_dir)",
-                         check=_needs_model_dir))
+register_painter(Painter("diffusion", _diffusion, views=True, summary="the multi-view loop with a local diffusers model (model_dir)", check=_needs_model_dir))

@@ -32,8 +32,7 @@ def _tag(row: dict[str, Any]) -> str:
     return f"{row['group']} {word}" + (f" {score:.2f}" if isinstance(score, (int, float)) else "")
 
 
-def parts_picture(vertices: np.ndarray, faces: np.ndarray, face_group: np.ndarray, report: dict[str, Any], up: str = "z",
-                  size: int = 400) -> Image.Image:
+def parts_picture(vertices: np.ndarray, faces: np.ndarray, face_group: np.ndarray, report: dict[str, Any], up: str = "z", size: int = 400) -> Image.Image:
     """The picture (RGB): ``vertices (n, 3) float``, ``faces (m, 3) int``, ``face_group (m,) int``
     (-1: no group), ``report`` as :func:`proctex.texture.painters.partwords.parts_report` makes it,
     ``up`` the shape's up axis, ``size`` pixels per view (64-2048)."""
@@ -55,9 +54,12 @@ def parts_picture(vertices: np.ndarray, faces: np.ndarray, face_group: np.ndarra
         views.append(shade(b, albedo))
         seen.append(np.where(b.mask, b.group, -1))
     by_row = {int(row["group"]): row for row in rows}
-    legend = [f"{row['group']:>3}  {(row.get('word') or '-')[:24]:<24} {row.get('how', ''):<6} "
-              + (f"{row['score']:.2f}" if isinstance(row.get("score"), (int, float)) else "    ")
-              + f"  {str(row.get('text', ''))[:60]!r}" for row in rows[:MAX_LEGEND]]
+    legend = [
+        f"{row['group']:>3}  {(row.get('word') or '-')[:24]:<24} {row.get('how', ''):<6} "
+        + (f"{row['score']:.2f}" if isinstance(row.get("score"), (int, float)) else "    ")
+        + f"  {str(row.get('text', ''))[:60]!r}"
+        for row in rows[:MAX_LEGEND]
+    ]
     if len(rows) > MAX_LEGEND:
         legend.append(f"... and {len(rows) - MAX_LEGEND} more groups (the JSON has them all)")
     head = f"prompt: {str(report.get('prompt', ''))[:110]!r}" + (f"  (read for {report['kind']})" if report.get("kind") else "")

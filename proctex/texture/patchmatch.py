@@ -132,7 +132,7 @@ def _try(lv, tp, tgt, nnf, cost, nnf_map, cand, m):
 
 def _pm_pass(lv: _Level, tgt, nnf, cost, nnf_map, tp, rng, parity: int, radius: int) -> None:
     """One PatchMatch pass (propagation, then random search) over the targets ``tgt`` (in place)."""
-    for delta in ((-1, -lv.Wp) if parity % 2 == 0 else (1, lv.Wp)):
+    for delta in (-1, -lv.Wp) if parity % 2 == 0 else (1, lv.Wp):
         nb = nnf_map[tgt + delta]
         cand = np.where(nb >= 0, nb - delta, nnf)
         m = (nb >= 0) & (cand != nnf)

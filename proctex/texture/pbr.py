@@ -24,8 +24,20 @@ import numpy as np
 
 from .uv import TexelMap, pad_seams
 
-__all__ = ["PbrMaps", "corner_tangents", "key_tangents", "corner_normals", "vertex_normals", "texel_frames", "surface_frames", "encode_normal", "decode_normal",
-           "bake_maps", "flat_maps", "FLAT_NORMAL"]
+__all__ = [
+    "PbrMaps",
+    "corner_tangents",
+    "key_tangents",
+    "corner_normals",
+    "vertex_normals",
+    "texel_frames",
+    "surface_frames",
+    "encode_normal",
+    "decode_normal",
+    "bake_maps",
+    "flat_maps",
+    "FLAT_NORMAL",
+]
 
 #: the encoded colour of an unperturbed normal (0, 0, 1).
 FLAT_NORMAL = (0.5, 0.5, 1.0)
@@ -124,8 +136,7 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return vertex_normals(vertices, faces)[np.asarray(faces, dtype=np.int64)]
 
 
-def corner_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray,
-                    normals: np.ndarray | None = None, keys: np.ndarray | None = None) -> np.ndarray:
+def corner_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, normals: np.ndarray | None = None, keys: np.ndarray | None = None) -> np.ndarray:
     """Per-corner tangent frames ``(m, 3, 4)`` float64: unit tangent xyz (orthogonal to the corner's
     normal) and handedness w = ±1, shared by every corner of the same (vertex, UV) pair.
 
@@ -210,9 +221,9 @@ def surface_frames(face: np.ndarray, bary: np.ndarray, tangents: np.ndarray, nor
 
 
 # ---------------------------------------------------------------------------------------- baking
-def bake_maps(texels: TexelMap, vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray,
-              props, center: np.ndarray, scale: float, gutter: int = 8,
-              occlusion: np.ndarray | None = None) -> PbrMaps:
+def bake_maps(
+    texels: TexelMap, vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, props, center: np.ndarray, scale: float, gutter: int = 8, occlusion: np.ndarray | None = None
+) -> PbrMaps:
     """Bake one group's maps at its covered texels.
 
     Args:

@@ -304,8 +304,15 @@ def render_buffers(
         group[hit] = np.asarray(face_group)[f]
     shape2, shape3 = (H, W), (H, W, 3)
     return Buffers(
-        camera, face.reshape(shape2), part.reshape(shape2), group.reshape(shape2), bary.reshape(shape3),
-        depth.reshape(shape2), points.reshape(shape3), normal.reshape(shape3), cos.reshape(shape2),
+        camera,
+        face.reshape(shape2),
+        part.reshape(shape2),
+        group.reshape(shape2),
+        bary.reshape(shape3),
+        depth.reshape(shape2),
+        points.reshape(shape3),
+        normal.reshape(shape3),
+        cos.reshape(shape2),
     )
 
 
@@ -428,8 +435,7 @@ def render_textured(
 THREE_QUARTER = (-35.0, 25.0)  # azimuth, elevation (degrees) of the default 3/4 view
 
 
-def three_quarter_camera(vertices: np.ndarray, up="z", size: int = 512, azimuth: float = THREE_QUARTER[0],
-                         elevation: float = THREE_QUARTER[1], fov_deg: float = 40.0) -> Camera:
+def three_quarter_camera(vertices: np.ndarray, up="z", size: int = 512, azimuth: float = THREE_QUARTER[0], elevation: float = THREE_QUARTER[1], fov_deg: float = 40.0) -> Camera:
     """A (size x size) 3/4 view camera framing the bounding sphere of ``vertices`` (n, 3).
 
     ``up``: 'x' | 'y' | 'z' (optionally signed) or a (3,) vector; azimuth from the front, elevation
@@ -439,10 +445,19 @@ def three_quarter_camera(vertices: np.ndarray, up="z", size: int = 512, azimuth:
     return orbit_camera(c, r, up, azimuth, elevation, size, fov_deg, "three_quarter")
 
 
-def render_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
-                 textures: list[np.ndarray], cameras: list[Camera], tracer: Tracer | None = None,
-                 background=(1.0, 1.0, 1.0), maps: list | None = None, normals: np.ndarray | None = None,
-                 buffers: list[Buffers] | None = None) -> list[np.ndarray]:
+def render_views(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    corner_uv: np.ndarray,
+    face_group: np.ndarray,
+    textures: list[np.ndarray],
+    cameras: list[Camera],
+    tracer: Tracer | None = None,
+    background=(1.0, 1.0, 1.0),
+    maps: list | None = None,
+    normals: np.ndarray | None = None,
+    buffers: list[Buffers] | None = None,
+) -> list[np.ndarray]:
     """Shaded textured images, one (H, W, 3) uint8 per camera (inputs as in :func:`render_textured`).
 
     One :class:`Tracer` is built for all cameras (or ``tracer`` is reused); ``buffers``: the
@@ -451,24 +466,41 @@ def render_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray,
     if buffers is not None:
         if len(buffers) != len(cameras):
             raise ValueError(f"buffers must hold one traced view per camera: {len(buffers)} for {len(cameras)}")
-        return [render_textured(vertices, faces, corner_uv, face_group, textures, cam, None, background, maps, normals, b)
-                for cam, b in zip(cameras, buffers)]
+        return [render_textured(vertices, faces, corner_uv, face_group, textures, cam, None, background, maps, normals, b) for cam, b in zip(cameras, buffers)]
     tracer = tracer if tracer is not None else Tracer(vertices, faces)
     return [render_textured(vertices, faces, corner_uv, face_group, textures, cam, tracer, background, maps, normals) for cam in cameras]
 
 
-def render_three_quarter(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
-                         textures: list[np.ndarray], up="z", size: int = 512, tracer: Tracer | None = None,
-                         maps: list | None = None, normals: np.ndarray | None = None) -> np.ndarray:
+def render_three_quarter(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    corner_uv: np.ndarray,
+    face_group: np.ndarray,
+    textures: list[np.ndarray],
+    up="z",
+    size: int = 512,
+    tracer: Tracer | None = None,
+    maps: list | None = None,
+    normals: np.ndarray | None = None,
+) -> np.ndarray:
     """(size, size, 3) uint8 image of the textured mesh from the 3/4 view (:func:`three_quarter_camera`)."""
     cam = three_quarter_camera(vertices, up, size)
     return render_views(vertices, faces, corner_uv, face_group, textures, [cam], tracer, maps=maps, normals=normals)[0]
 
 
-def render_six_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
-                     textures: list[np.ndarray], up="z", size: int = 512,
-                     tracer: Tracer | None = None, maps: list | None = None, normals: np.ndarray | None = None,
-                     views: list[Buffers] | None = None) -> tuple[list[np.ndarray], list[str]]:
+def render_six_views(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    corner_uv: np.ndarray,
+    face_group: np.ndarray,
+    textures: list[np.ndarray],
+    up="z",
+    size: int = 512,
+    tracer: Tracer | None = None,
+    maps: list | None = None,
+    normals: np.ndarray | None = None,
+    views: list[Buffers] | None = None,
+) -> tuple[list[np.ndarray], list[str]]:
     """The six canonical views (:func:`canonical_cameras`): six (size, size, 3) uint8 images and their
     names. ``views``: those views of this mesh traced already (:func:`canonical_buffers`)."""
     c, r = bounding_sphere(vertices)
@@ -477,9 +509,20 @@ def render_six_views(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndar
     return render_views(vertices, faces, corner_uv, face_group, textures, cams, tracer, maps=maps, normals=normals, buffers=views), [cam.name for cam in cams]
 
 
-def turntable_frames(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_group: np.ndarray,
-                     textures: list[np.ndarray], up="z", n: int = 24, size: int = 512, elevation: float = 20.0,
-                     tracer: Tracer | None = None, maps: list | None = None, normals: np.ndarray | None = None) -> list[np.ndarray]:
+def turntable_frames(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    corner_uv: np.ndarray,
+    face_group: np.ndarray,
+    textures: list[np.ndarray],
+    up="z",
+    n: int = 24,
+    size: int = 512,
+    elevation: float = 20.0,
+    tracer: Tracer | None = None,
+    maps: list | None = None,
+    normals: np.ndarray | None = None,
+) -> list[np.ndarray]:
     """``n`` (size, size, 3) uint8 frames around ``up`` (:func:`turntable`), starting at the front."""
     c, r = bounding_sphere(vertices)
     cams = turntable(c, r, up, n, elevation, size)
@@ -495,8 +538,7 @@ def _font(height: int):
         return ImageFont.load_default()
 
 
-def render_grid(images: list[np.ndarray], cols: int, labels: list[str] | None = None, pad: int = 4,
-                background: int = 255) -> np.ndarray:
+def render_grid(images: list[np.ndarray], cols: int, labels: list[str] | None = None, pad: int = 4, background: int = 255) -> np.ndarray:
     """Tile equally sized (h, w, 3) uint8 images row-major into ``cols`` columns with ``pad`` pixels between.
 
     ``labels``: one caption per image, drawn centred in a band above each tile (PIL default font).
@@ -519,7 +561,7 @@ def render_grid(images: list[np.ndarray], cols: int, labels: list[str] | None = 
     out = np.full((rows * (band + h + pad) + pad, cols * (w + pad) + pad, 3), background, np.uint8)
     for k, im in enumerate(images):
         y, x = pad + (k // cols) * (band + h + pad) + band, pad + (k % cols) * (w + pad)
-        out[y:y + h, x:x + w] = im
+        out[y : y + h, x : x + w] = im
     if labels is not None:
         from PIL import Image, ImageDraw
 

@@ -178,7 +178,6 @@ def _xatlas_run(v32: np.ndarray, f32: np.ndarray, resolution: int | None, paddin
         _release(holder, workers)
 
 
-
 def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int = 1024, padding: int = 4) -> Atlas:
     """UV atlas of one part with xatlas (planar fallback when xatlas fails or returns NaN).
 
@@ -492,8 +491,7 @@ def ring_texels(texels: TexelMap, vertices: np.ndarray, faces: np.ndarray, corne
     ``corner_uv`` are those ``texels`` was made from."""
     mask = texels.mask
     if ring < 1 or not mask.any():
-        return TexelMap(texels.height, texels.width, np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
-                        np.zeros((0, 3)), np.zeros((0, 3)))
+        return TexelMap(texels.height, texels.width, np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
     H, W = texels.height, texels.width
     dist, (ri, rj) = ndimage.distance_transform_edt(~mask, return_indices=True)
     sel = (~mask) & (dist <= ring)

@@ -62,8 +62,7 @@ def check_transfer_args(seed: object = 0, bake_size: object = None) -> None:
     an integer in :data:`BAKE_SIZES` (a 100000² atlas is 10¹⁰ texels: refused before any work)."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= SEED_MAX:
         raise ValueError(f"seed must be an integer in [0, {SEED_MAX}], got {str(seed)[:40]}")
-    if bake_size is not None and (isinstance(bake_size, bool) or not isinstance(bake_size, (int, np.integer))
-                                  or not BAKE_SIZES[0] <= bake_size <= BAKE_SIZES[1]):
+    if bake_size is not None and (isinstance(bake_size, bool) or not isinstance(bake_size, (int, np.integer)) or not BAKE_SIZES[0] <= bake_size <= BAKE_SIZES[1]):
         raise ValueError(f"a bake size must be an integer in [{BAKE_SIZES[0]}, {BAKE_SIZES[1]}] texels, got {str(bake_size)[:40]}")
 
 
@@ -93,8 +92,18 @@ class TransferResult:
     direct: set[int] = field(default_factory=set)
 
 
-def transfer(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, new_size: int = 256,
-             shortcut: bool = True, budget: Budget | None = None, workers: int | None = None, up: str = "z") -> TransferResult:
+def transfer(
+    shape: Shape,
+    assets: TemplateAssets,
+    mapper: Mapper,
+    seed: int = 0,
+    painter: Any = None,
+    new_size: int = 256,
+    shortcut: bool = True,
+    budget: Budget | None = None,
+    workers: int | None = None,
+    up: str = "z",
+) -> TransferResult:
     """UVs of ``shape`` into the template textures (module docstring, steps 1-4).
 
     ``shortcut``: parts with their representative's exact connectivity take its UVs directly (exact
@@ -200,8 +209,7 @@ def _parts_pool() -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=max(1, min(2, os.cpu_count() or 1)), thread_name_prefix="proctex-parts")
 
 
-def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 256,
-                    face_texts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 256, face_texts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Atlas and texture for faces of parts no template group fits, painted by a surface painter.
 
     Points go to the painter in the shape's normalised frame, as when the template was painted.
@@ -226,8 +234,7 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
     return atlas.corner_uv, (np.clip(image, 0, 1) * 255).round().astype(np.uint8)
 
 
-def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = "y", texture_uris: list[str | None] | None = None,
-        map_uris: list[tuple[str, str] | None] | None = None) -> bytes:
+def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = "y", texture_uris: list[str | None] | None = None, map_uris: list[tuple[str, str] | None] | None = None) -> bytes:
     """Textured GLB bytes of a transferred shape (reuses the template's encoded PNGs and PBR maps:
     the maps share the textures' UVs, so nothing is recomputed); ``up``: the shape's up axis (the
     GLB stands it upright, see :func:`proctex.texture.export.glb_bytes`). ``texture_uris``: per
@@ -238,8 +245,9 @@ def glb(shape: Shape, result: TransferResult, assets: TemplateAssets, up: str = 
     uris = (list(texture_uris) + [None] * len(extra)) if texture_uris is not None else None
     maps = (list(assets.pbr_png) + [None] * len(extra)) if assets.pbr_png is not None else None
     m_uris = (list(map_uris) + [None] * len(extra)) if map_uris is not None and maps is not None else None
-    return glb_bytes(shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png + list(result.new_textures),
-                     names=assets.names + extra, up=up, image_uris=uris, pbr=maps, pbr_uris=m_uris)
+    return glb_bytes(
+        shape.vertices, shape.faces, result.corner_uv, result.face_group, assets.png + list(result.new_textures), names=assets.names + extra, up=up, image_uris=uris, pbr=maps, pbr_uris=m_uris
+    )
 
 
 # ------------------------------------------------------------------------------------------ bake
@@ -274,8 +282,7 @@ class Baked:
     pbr: list[Any] | None = None
 
 
-def bake_pbr(maps: Any, vertices: np.ndarray, faces: np.ndarray, template_uv: np.ndarray, atlas_uv: np.ndarray, tm: Any,
-             uv: np.ndarray, gutter: int, nnf: np.ndarray | None = None) -> Any:
+def bake_pbr(maps: Any, vertices: np.ndarray, faces: np.ndarray, template_uv: np.ndarray, atlas_uv: np.ndarray, tm: Any, uv: np.ndarray, gutter: int, nnf: np.ndarray | None = None) -> Any:
     """A group's template PBR maps baked into a shape's own atlas.
 
     Args:
@@ -342,8 +349,16 @@ def group_atlas(shape: Shape, faces: np.ndarray, size: int, padding: int, cache:
 
 
 def bake(
-    shape: Shape, result: TransferResult, assets: TemplateAssets, size: int = 512, gutter: int = -1, project: bool = False,
-    fill: str = "patchmatch", seed: int = 0, pbr: bool = True, atlases: dict | None = None,
+    shape: Shape,
+    result: TransferResult,
+    assets: TemplateAssets,
+    size: int = 512,
+    gutter: int = -1,
+    project: bool = False,
+    fill: str = "patchmatch",
+    seed: int = 0,
+    pbr: bool = True,
+    atlases: dict | None = None,
 ) -> Baked:
     """Give a transferred shape its own UV atlas per group and bake the template textures into it.
 
@@ -457,10 +472,7 @@ def info(result: TransferResult) -> dict[str, Any]:
         "notes": list(result.notes),
         "seconds": round(result.seconds, 4),
         "timings": {k: round(v, 4) for k, v in result.timings.items()},
-        "parts": [
-            {"part": a.part, "group": a.group, "slot": a.slot, "how": a.how, "cost": (round(a.cost, 4) if np.isfinite(a.cost) else None)}
-            for a in result.assignment
-        ],
+        "parts": [{"part": a.part, "group": a.group, "slot": a.slot, "how": a.how, "cost": (round(a.cost, 4) if np.isfinite(a.cost) else None)} for a in result.assignment],
     }
 
 
@@ -481,9 +493,19 @@ class TexturedGLB:
     pbr: list[Any] | None = None
 
 
-def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int = 0, painter: Any = None, up: str = "y",
-                 bake_size: int | None = None, shortcut: bool = True, budget: Budget | None = None,
-                 texture_uris: list[str | None] | None = None, map_uris: list[tuple[str, str] | None] | None = None) -> TexturedGLB:
+def shape_to_glb(
+    shape: Shape,
+    assets: TemplateAssets,
+    mapper: Mapper,
+    seed: int = 0,
+    painter: Any = None,
+    up: str = "y",
+    bake_size: int | None = None,
+    shortcut: bool = True,
+    budget: Budget | None = None,
+    texture_uris: list[str | None] | None = None,
+    map_uris: list[tuple[str, str] | None] | None = None,
+) -> TexturedGLB:
     """The run-time path, shape in, GLB out: :func:`transfer` with ``mapper`` (``painter`` colours
     parts of groups the template lacks), then the GLB (:func:`glb`, the template's encoded PNGs), or
     with ``bake_size`` the shape's own atlas and textures (:func:`bake`). The command line, the
@@ -498,6 +520,11 @@ def shape_to_glb(shape: Shape, assets: TemplateAssets, mapper: Mapper, seed: int
         pbr = baked.pbr if baked.pbr is not None and any(m is not None for m in baked.pbr) else None
         data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up, pbr=pbr)
         return TexturedGLB(data, result, baked.corner_uv, baked.face_group, list(baked.textures), baked, pbr)
-    return TexturedGLB(glb(shape, result, assets, up=up, texture_uris=texture_uris, map_uris=map_uris), result, result.corner_uv, result.face_group,
-                       list(assets.textures) + list(result.new_textures),
-                       pbr=None if assets.pbr is None else list(assets.pbr) + [None] * len(result.new_textures))
+    return TexturedGLB(
+        glb(shape, result, assets, up=up, texture_uris=texture_uris, map_uris=map_uris),
+        result,
+        result.corner_uv,
+        result.face_group,
+        list(assets.textures) + list(result.new_textures),
+        pbr=None if assets.pbr is None else list(assets.pbr) + [None] * len(result.new_textures),
+    )

@@ -135,8 +135,7 @@ def _placement(vertices: np.ndarray, lo: np.ndarray, size: np.ndarray) -> tuple[
     return ((plo + phi) / 2 - lo) / size, (phi - plo) / size
 
 
-def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, textures: Sequence[np.ndarray], names: Sequence[str] | None = None,
-                     pbr: Sequence[Any] | None = None) -> TemplateAssets:
+def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, textures: Sequence[np.ndarray], names: Sequence[str] | None = None, pbr: Sequence[Any] | None = None) -> TemplateAssets:
     """Build :class:`TemplateAssets` from a textured template.
 
     Args:
@@ -151,8 +150,7 @@ def prepare_template(shape: Shape, grouping: Grouping, corner_uv: np.ndarray, te
     if isinstance(textures, StoredImages):  # a store's: its PNG bytes as stored, decoded where used
         texs = textures
     else:
-        arrays = [np.ascontiguousarray(t if np.asarray(t).dtype == np.uint8 else (np.clip(t, 0, 1) * 255).round().astype(np.uint8))[..., :3]
-                  for t in textures]
+        arrays = [np.ascontiguousarray(t if np.asarray(t).dtype == np.uint8 else (np.clip(t, 0, 1) * 255).round().astype(np.uint8))[..., :3] for t in textures]
         texs = StoredImages.of_decoded(arrays, png_bytes)
     groups = []
     for g in grouping.groups:

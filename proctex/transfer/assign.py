@@ -67,8 +67,14 @@ def choose_part(assignment: Sequence[PartAssignment], group: int) -> PartAssignm
 
 
 def assign_parts(
-    shape: Shape, seg: Segmentation, assets: TemplateAssets, w_extent: float = 1.0, extra_cost: float = 0.6, extra_tol: float = 0.02,
-    box_cost: float = 1.2, budget: Budget | None = None,
+    shape: Shape,
+    seg: Segmentation,
+    assets: TemplateAssets,
+    w_extent: float = 1.0,
+    extra_cost: float = 0.6,
+    extra_tol: float = 0.02,
+    box_cost: float = 1.2,
+    budget: Budget | None = None,
 ) -> list[PartAssignment]:
     """Assign each part of a shape to a template slot (see the module docstring).
 
@@ -177,8 +183,7 @@ def assign_parts(
     return sorted(out, key=lambda a: a.part)
 
 
-def copy_of_sibling(part: int, vertices: np.ndarray, faces: np.ndarray, slotted: Sequence[tuple[PartAssignment, np.ndarray, np.ndarray]],
-                    tol: float = 0.02) -> PartAssignment | None:
+def copy_of_sibling(part: int, vertices: np.ndarray, faces: np.ndarray, slotted: Sequence[tuple[PartAssignment, np.ndarray, np.ndarray]], tol: float = 0.02) -> PartAssignment | None:
     """A part that is a rigid copy of a part of the same shape that took a slot: a procedural model
     instances one mesh several times (a third small mushroom turned about the main stem, a sixth
     candle), so within one shape the copies share their connectivity and vertex order, and the
@@ -242,8 +247,7 @@ def copy_deformed(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAsset
     return None
 
 
-def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: TemplateAssets, slot_cost: np.ndarray,
-                  tol: float = 0.02) -> tuple[int, float] | None:
+def copy_of_group(vertices: np.ndarray, candidates: Sequence[int], assets: TemplateAssets, slot_cost: np.ndarray, tol: float = 0.02) -> tuple[int, float] | None:
     """The group a part is another copy of, when it has the exact connectivity of group
     representatives (``candidates``): vertex ``i`` is then the representative's vertex ``i`` of the
     same primitive, stretched. Candidates whose representative maps onto the part by an affine map
@@ -292,9 +296,19 @@ def _half_extents(points: np.ndarray, min_extent: float) -> np.ndarray:
     return np.maximum(np.ptp(points, axis=0) / 2, min_extent)
 
 
-def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, slot_cost: np.ndarray | None = None, n: int = 300,
-              seed: int = 0, min_extent: float = 1e-3, chamfer_tol: float = 0.25, proportion_tol: float = 0.7,
-              extra_cost: float = 1.2, turn_cost: float = 0.25) -> BoxMatch | None:
+def match_box(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    assets: TemplateAssets,
+    slot_cost: np.ndarray | None = None,
+    n: int = 300,
+    seed: int = 0,
+    min_extent: float = 1e-3,
+    chamfer_tol: float = 0.25,
+    proportion_tol: float = 0.7,
+    extra_cost: float = 1.2,
+    turn_cost: float = 0.25,
+) -> BoxMatch | None:
     """The group a left-over part is another instance of, up to per-axis scale: a cake tier wider
     than the template's, a leg of another length, a stem of another height. Rigid ICP cannot align
     those; scaling each part's bounding box to the cube [-1, 1]^3 can.
@@ -345,8 +359,7 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
             the representative's samples go back by ``M``'s inverse), 90th percentiles: a part
             missing a piece of the other (a ring against a disc) shows."""
             back = M if np.allclose(M @ M.T, np.eye(3)) else np.linalg.inv(M).T  # orthogonal: M^-T = M
-            return 0.5 * float(np.percentile(rep_index.query(pts @ M.T, exact=False).distance, 90)
-                               + np.percentile(part_index.query(rep @ back, exact=False).distance, 90))
+            return 0.5 * float(np.percentile(rep_index.query(pts @ M.T, exact=False).distance, 90) + np.percentile(part_index.query(rep @ back, exact=False).distance, 90))
 
         for perm in permutations(range(3)):
             prop = float(np.abs(np.log(hp[list(perm)] / hr)).mean())
@@ -395,7 +408,12 @@ def match_box(vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, s
 
 
 def match_extra(
-    vertices: np.ndarray, faces: np.ndarray, assets: TemplateAssets, n: int = 300, seed: int = 0, groups: Sequence[int] | None = None,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    assets: TemplateAssets,
+    n: int = 300,
+    seed: int = 0,
+    groups: Sequence[int] | None = None,
     tol: float = 0.02,
 ) -> tuple[int, np.ndarray, np.ndarray, float]:
     """Best template group for a part (normalised frame) by point-to-surface ICP.

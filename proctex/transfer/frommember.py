@@ -68,9 +68,22 @@ def member_surface(shape, file_frame_vertices: np.ndarray, glb, what: str) -> tu
     return uv, np.where(ok, glb.face_group[ff], -1), ok
 
 
-def textures_from_member(template, grouping, uv, assets, member, member_uv: np.ndarray, member_material: np.ndarray,
-                         textures: list[np.ndarray], mapper, size: int, seed: int = 0, base_maps: list | None = None,
-                         gutter: int = 8, cover_tol: float = COVER_TOL):
+def textures_from_member(
+    template,
+    grouping,
+    uv,
+    assets,
+    member,
+    member_uv: np.ndarray,
+    member_material: np.ndarray,
+    textures: list[np.ndarray],
+    mapper,
+    size: int,
+    seed: int = 0,
+    base_maps: list | None = None,
+    gutter: int = 8,
+    cover_tol: float = COVER_TOL,
+):
     """The look a textured member holds, in the template's atlases.
 
     Args:
@@ -132,8 +145,7 @@ def textures_from_member(template, grouping, uv, assets, member, member_uv: np.n
         image, painted = pad_seams(image, tx.mask, gutter)
         kept = base_maps[g.index] if base_maps is not None and base_maps[g.index] is not None else flat_maps(size, size)
         pbr = PbrMaps(kept.orm.copy(), kept.normal.copy(), bool(kept.occlusion))
-        groups.append(GroupTexture(g.index, g.label, f"from a member ({report.parts[g.index]} parts, {100 * report.filled[g.index]:.1f}% filled)",
-                                   image, painted, tx, pbr=pbr))
+        groups.append(GroupTexture(g.index, g.label, f"from a member ({report.parts[g.index]} parts, {100 * report.filled[g.index]:.1f}% filled)", image, painted, tx, pbr=pbr))
     return TemplateTexture(template, grouping, uv, groups, "member", 0.0, list(report.notes)), report
 
 

@@ -91,8 +91,7 @@ class NetworkMapper:
     move by 2e-4 of the normalised frame on average, 1e-3 at most), float32 elsewhere.
     """
 
-    def __init__(self, models: dict[int, Any], context: int | None = None, fallback: Mapper | None = None, threads: int | None = 1,
-                 autocast: str = "auto", follow: bool = True) -> None:
+    def __init__(self, models: dict[int, Any], context: int | None = None, fallback: Mapper | None = None, threads: int | None = 1, autocast: str = "auto", follow: bool = True) -> None:
         from proctex.correspond.corrnet import AUTOCASTS
 
         if autocast not in AUTOCASTS + ("auto",):

@@ -119,8 +119,7 @@ def method_help() -> str:
     return "; ".join(f"{m.name}{' (' + ', '.join(m.aliases) + ')' if m.aliases else ''}: {m.summary}" for m in methods())
 
 
-def make_mapper(name: str, assets: TemplateAssets, models: dict[int, Any] | None = None, corr_points: int = 2000, cage: Any = None,
-                autocast: str = "auto") -> Mapper:
+def make_mapper(name: str, assets: TemplateAssets, models: dict[int, Any] | None = None, corr_points: int = 2000, cage: Any = None, autocast: str = "auto") -> Mapper:
     """The mapper of method ``name`` (:func:`get_method`) for ``assets``: the one place a mapper is
     chosen by name (the CLI, the service and the evaluation use it). ``models``: the family's
     networks; a method that requires them and gets none is a ``ValueError``."""
@@ -131,15 +130,30 @@ def make_mapper(name: str, assets: TemplateAssets, models: dict[int, Any] | None
 
 
 # The built-in methods, in the order ``proctex eval`` compares them.
-register(Method("auto", lambda c: NetworkMapper(c.models, autocast=c.autocast) if c.models else IdentityMapper(),
-                "the family's networks where the build chose them, else the identity (the default)", networks="optional", evaluate=False))
-register(Method("corrnet", lambda c: NetworkMapper(c.models, autocast=c.autocast),
-                "the run-time path: the networks (or box map) the build chose per group; parts with the template's connectivity take its UVs",
-                networks="required", shortcut=True, aliases=("net",)))
-register(Method("corrnet_all", lambda c: NetworkMapper(c.models, autocast=c.autocast, follow=False),
-                "the network on every part of every group it has", networks="required"))
-for _name, _summary in (("cage", "the cage solver per part at transfer time, as the build solves its pairs (seconds per part)"),
-                        ("nearest", "similarity alignment, then nearest points"),
-                        ("cpd", "coherent point drift per part")):
+register(
+    Method(
+        "auto",
+        lambda c: NetworkMapper(c.models, autocast=c.autocast) if c.models else IdentityMapper(),
+        "the family's networks where the build chose them, else the identity (the default)",
+        networks="optional",
+        evaluate=False,
+    )
+)
+register(
+    Method(
+        "corrnet",
+        lambda c: NetworkMapper(c.models, autocast=c.autocast),
+        "the run-time path: the networks (or box map) the build chose per group; parts with the template's connectivity take its UVs",
+        networks="required",
+        shortcut=True,
+        aliases=("net",),
+    )
+)
+register(Method("corrnet_all", lambda c: NetworkMapper(c.models, autocast=c.autocast, follow=False), "the network on every part of every group it has", networks="required"))
+for _name, _summary in (
+    ("cage", "the cage solver per part at transfer time, as the build solves its pairs (seconds per part)"),
+    ("nearest", "similarity alignment, then nearest points"),
+    ("cpd", "coherent point drift per part"),
+):
     register(Method(_name, lambda c, _n=_name: SolverMapper(c.assets, _n, n_points=c.corr_points, cage=c.cage), _summary, solver=True))
 register(Method("identity", lambda c: IdentityMapper(), "the normalised frames taken to coincide (the baseline)"))

@@ -92,8 +92,7 @@ def chart_lookups(assets: TemplateAssets) -> list[ChartLookup] | None:
     return assets.derived["lookups"]
 
 
-def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | ChartLookup | None = None,
-             normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | ChartLookup | None = None, normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
 
     Each face takes the template face nearest to its mapped centroid among those facing its way
@@ -115,8 +114,7 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     # The template face on the face's own side: a thin wall's inside never reads its outside. The
     # side comes from the part's own faces in the representative's frame (``normals``), which a
     # mapper's small errors cannot fold over; else from the mapped triangles.
-    normal = np.asarray(normals, dtype=np.float64) if normals is not None else np.cross(
-        tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
+    normal = np.asarray(normals, dtype=np.float64) if normals is not None else np.cross(tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
     near = assets.index.query_facing(centroid, normal, k=UV_CANDIDATES, max_k=UV_MAX_CANDIDATES).faces
     tri = assets.vertices[assets.faces[near]]
     tri_uv = assets.corner_uv[near]

@@ -46,10 +46,8 @@ def main(argv=None) -> int:
     subprocess.run([python, str(FIXTURES), str(work)], check=True, capture_output=True, timeout=300)
     results, notes = {}, {}
 
-    results["process start and file open (pumpkin.blend)"] = timeit(lambda: BlenderSession(work / "pumpkin.blend", "Pumpkin").close(),
-                                                                     repeats=5, warmup=1)
-    cases = [("vase.blend", "Vase", {}), ("pumpkin.blend", "Pumpkin", {"Resolution": 24}), ("pumpkin.blend", "Pumpkin", {"Resolution": 48}),
-             ("pumpkin.blend", "Pumpkin", {"Resolution": 96})]
+    results["process start and file open (pumpkin.blend)"] = timeit(lambda: BlenderSession(work / "pumpkin.blend", "Pumpkin").close(), repeats=5, warmup=1)
+    cases = [("vase.blend", "Vase", {}), ("pumpkin.blend", "Pumpkin", {"Resolution": 24}), ("pumpkin.blend", "Pumpkin", {"Resolution": 48}), ("pumpkin.blend", "Pumpkin", {"Resolution": 96})]
     for file, obj, pins in cases:
         model = BlenderModel(work / file, obj, pins=pins)
         draws = iter(model.space.sample(10 * args.repeats, seed=0))
@@ -66,9 +64,15 @@ def main(argv=None) -> int:
         own = own[2:]  # the warm-up calls' times out
         q1, q3 = np.percentile(own, [25, 75])
         results[f"one shape, Blender's evaluation: {label}"] = {
-            "median": float(np.median(own)), "p10": float(np.percentile(own, 10)), "p90": float(np.percentile(own, 90)),
-            "min": float(min(own)), "max": float(max(own)), "mean": float(np.mean(own)), "repeats": len(own),
-            "spread": float((q3 - q1) / np.median(own))}
+            "median": float(np.median(own)),
+            "p10": float(np.percentile(own, 10)),
+            "p90": float(np.percentile(own, 90)),
+            "min": float(min(own)),
+            "max": float(max(own)),
+            "mean": float(np.mean(own)),
+            "repeats": len(own),
+            "spread": float((q3 - q1) / np.median(own)),
+        }
         notes[f"triangles: {label}"] = int(np.median(faces))
         model.close()
 
@@ -76,10 +80,13 @@ def main(argv=None) -> int:
     from proctex.store.config import BuildConfig
     from proctex.store.layout import FamilyStore
 
-    data = {"source": {"blender": {"file": str(work / "pumpkin.blend"), "object": "Pumpkin", "uv": "UVMap", "pins": {"Resolution": 48}},
-                       "n_train": args.n_train, "n_test": args.n_test},
-            "paint": {"prompt": "an orange pumpkin with a green stem", "texture_size": 256}, "corr_points": 1000,
-            "cage": {"iterations": 100}, "train": {"iterations": 300}}
+    data = {
+        "source": {"blender": {"file": str(work / "pumpkin.blend"), "object": "Pumpkin", "uv": "UVMap", "pins": {"Resolution": 48}}, "n_train": args.n_train, "n_test": args.n_test},
+        "paint": {"prompt": "an orange pumpkin with a green stem", "texture_size": 256},
+        "corr_points": 1000,
+        "cage": {"iterations": 100},
+        "train": {"iterations": 300},
+    }
     cfg = BuildConfig.from_dict(data)
     stages = ("sample", "template", "paint", "pairs", "train", "evaluate")
     t0 = time.perf_counter()

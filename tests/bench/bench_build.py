@@ -32,8 +32,7 @@ def figures(state: dict[str, Any]) -> dict[str, Any]:
     ev = state.get("stages", {}).get("evaluate", {})
     if not ev:
         return {}
-    return {"gt_mean": (ev.get("gt_error") or {}).get("mean"), "pgt_mean": (ev.get("pgt_error") or {}).get("mean"),
-            "tracked_point_variance": ev.get("tracked_point_variance")}
+    return {"gt_mean": (ev.get("gt_error") or {}).get("mean"), "pgt_mean": (ev.get("pgt_error") or {}).get("mean"), "tracked_point_variance": ev.get("tracked_point_variance")}
 
 
 def fresh(root: str) -> None:
@@ -93,14 +92,16 @@ def main(argv=None) -> int:
     src = ap.add_mutually_exclusive_group(required=True)
     src.add_argument("--preset", help="a named build preset (demo)")
     src.add_argument("--folder", help="a folder of exports (the real sofa)")
-    ap.add_argument("--runs", default="process", help="comma-separated: process, ray (a private local Ray, its start timed), "
-                    "head (a started one-node cluster), cluster (a started head and worker node on this machine, half the CPUs each)")
-    ap.add_argument("--store", choices=("folder", "s3"), default="folder",
-                    help="where the families go: folders under --work, or a local S3 server (SeaweedFS, started and stopped here)")
+    ap.add_argument(
+        "--runs",
+        default="process",
+        help="comma-separated: process, ray (a private local Ray, its start timed), head (a started one-node cluster), cluster (a started head and worker node on this machine, half the CPUs each)",
+    )
+    ap.add_argument("--store", choices=("folder", "s3"), default="folder", help="where the families go: folders under --work, or a local S3 server (SeaweedFS, started and stopped here)")
     ap.add_argument("--workers", type=int, default=2, help="in-process worker processes")
     ap.add_argument("--cpus", type=int, default=2, help="CPUs of the local Ray")
     ap.add_argument("--repeats", type=int, default=1)
-    ap.add_argument("--set", action="append", default=[], help="a config override as JSON, e.g. '{\"train\": {\"autocast\": \"none\"}}'")
+    ap.add_argument("--set", action="append", default=[], help='a config override as JSON, e.g. \'{"train": {"autocast": "none"}}\'')
     ap.add_argument("--work", default="out/bench/build")
     ap.add_argument("--out", default="")
     args = ap.parse_args(argv)
@@ -111,8 +112,14 @@ def main(argv=None) -> int:
     for extra in args.set:
         data = merge(data, sections(json.loads(extra)))
     config = BuildConfig.from_dict(data, preset=args.preset)
-    report: dict[str, Any] = {"benchmark": "build", "preset": args.preset, "config": data, "runs": {},
-                              "machine": {"python": platform.python_version(), "cpus": os.cpu_count()}, "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+    report: dict[str, Any] = {
+        "benchmark": "build",
+        "preset": args.preset,
+        "config": data,
+        "runs": {},
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count()},
+        "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
     server = None
     if args.store == "s3":
         from workflows.objectstore import start_server

@@ -51,18 +51,15 @@ def main(argv=None) -> int:
     t = time.perf_counter()
     single = [correspond_parts(v, f, ga.vertices, ga.faces, "cage", n_points=config.corr_points, seed=s, cage=config.cage) for v, f, s in sources]
     one = (time.perf_counter() - t) / len(sources)
-    print(f"group {args.group}: {len(sources)} pairs, {config.corr_points} points; one by one {one:.3f} s a pair, "
-          f"iterations {[r.iterations for r in single]}", flush=True)
+    print(f"group {args.group}: {len(sources)} pairs, {config.corr_points} points; one by one {one:.3f} s a pair, iterations {[r.iterations for r in single]}", flush=True)
     for b in (int(x) for x in args.batch.split(",")):
         t = time.perf_counter()
         out = []
         for k in range(0, len(sources), b):
-            out += correspond_parts_batch(sources[k:k + b], ga.vertices, ga.faces, n_points=config.corr_points, cage=config.cage)
+            out += correspond_parts_batch(sources[k : k + b], ga.vertices, ga.faces, n_points=config.corr_points, cage=config.cage)
         per = (time.perf_counter() - t) / len(sources)
-        gap = [float(np.linalg.norm(o.points - s.points, axis=1).mean() / max(np.linalg.norm(s.points - s.source_points, axis=1).mean(), 1e-12))
-               for o, s in zip(out, single)]
-        print(f"  batches of {b}: {per:.3f} s a pair ({one / per:.2f}x); iterations {[r.iterations for r in out]}; "
-              f"map gap / displacement: median {np.median(gap):.3%}, max {max(gap):.3%}", flush=True)
+        gap = [float(np.linalg.norm(o.points - s.points, axis=1).mean() / max(np.linalg.norm(s.points - s.source_points, axis=1).mean(), 1e-12)) for o, s in zip(out, single)]
+        print(f"  batches of {b}: {per:.3f} s a pair ({one / per:.2f}x); iterations {[r.iterations for r in out]}; map gap / displacement: median {np.median(gap):.3%}, max {max(gap):.3%}", flush=True)
     return 0
 
 

@@ -33,14 +33,12 @@ def run(args) -> dict:
     results = {}
     for k in (lo, hi):
         cfg = CageConfig(level=args.level, iterations=k, patience=k + 1)  # no early stop: exactly k steps
-        results[f"solve, {k} iterations"] = timeit(lambda: correspond_parts(v, f, tvn, tf, method="cage", n_points=args.points, seed=0, cage=cfg),
-                                                   repeats=args.repeats)
+        results[f"solve, {k} iterations"] = timeit(lambda: correspond_parts(v, f, tvn, tf, method="cage", n_points=args.points, seed=0, cage=cfg), repeats=args.repeats)
     a, b = results[f"solve, {lo} iterations"], results[f"solve, {hi} iterations"]
     per = {q: max(b[q] - a[q], 0.0) / (hi - lo) for q in ("median", "p10", "p90", "min", "max", "mean")}
     per["p10"], per["p90"] = sorted((per["p10"], per["p90"]))  # differences of percentiles need not stay ordered
     per["min"], per["max"] = sorted((per["min"], per["max"]))
-    per.update(spread=float(np.hypot(a["spread"] * a["median"], b["spread"] * b["median"]) / (b["median"] - a["median"])) if b["median"] > a["median"] else 0.0,
-               repeats=args.repeats)
+    per.update(spread=float(np.hypot(a["spread"] * a["median"], b["spread"] * b["median"]) / (b["median"] - a["median"])) if b["median"] > a["median"] else 0.0, repeats=args.repeats)
     results["one iteration (difference / iterations)"] = per
     return report("cage_iteration", vars(args), results, args.out)
 

@@ -87,9 +87,15 @@ def measure(path: str, k: int, scale: float, neighbours: str) -> dict:
         for (_, _, e, _), di, wi in zip(pairs, d, w):
             errs.append(e), dis.append(di), wts.append(wi), pe.append(e.mean()), pd.append(di.mean())
     e, d, w = np.concatenate(errs), np.concatenate(dis), np.concatenate(wts)
-    return {"family": Path(path).name, "pairs": len(pe), "teacher_gt_mean": float(e.mean()),
-            "spearman_point": float(spearmanr(e, d)[0]), "spearman_pair": float(spearmanr(pe, pd)[0]),
-            "weighted_gt_mean": float((w * e).sum() / w.sum()), "weight_mean": float(w.mean())}
+    return {
+        "family": Path(path).name,
+        "pairs": len(pe),
+        "teacher_gt_mean": float(e.mean()),
+        "spearman_point": float(spearmanr(e, d)[0]),
+        "spearman_pair": float(spearmanr(pe, pd)[0]),
+        "weighted_gt_mean": float((w * e).sum() / w.sum()),
+        "weight_mean": float(w.mean()),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -97,16 +103,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("stores", nargs="+", help="built family folders with a truth")
     ap.add_argument("--k", type=int, default=3)
     ap.add_argument("--scale", type=float, default=1.0)
-    ap.add_argument("--neighbours", choices=["params", "shape"], default="params",
-                    help="neighbours by procedural parameters (where every shape has them) or by shape")
+    ap.add_argument("--neighbours", choices=["params", "shape"], default="params", help="neighbours by procedural parameters (where every shape has them) or by shape")
     ap.add_argument("--out", default=None, help="JSON report")
     args = ap.parse_args(argv)
     rows = [measure(s, args.k, args.scale, args.neighbours) for s in args.stores]
     print("| family | train pairs | teacher GT mean | Spearman (point / pair) | weighted GT mean | mean weight |")
     print("|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['family']} | {r['pairs']} | {r['teacher_gt_mean']:.4f} | {r['spearman_point']:.2f} / {r['spearman_pair']:.2f} "
-              f"| {r['weighted_gt_mean']:.4f} | {r['weight_mean']:.2f} |", flush=True)
+        print(
+            f"| {r['family']} | {r['pairs']} | {r['teacher_gt_mean']:.4f} | {r['spearman_point']:.2f} / {r['spearman_pair']:.2f} | {r['weighted_gt_mean']:.4f} | {r['weight_mean']:.2f} |", flush=True
+        )
     if args.out:
         Path(args.out).write_text(json.dumps(rows, indent=1))
 

@@ -18,6 +18,7 @@ import os
 import sys
 import time
 from pathlib import Path
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
 from tests.data import SOFA  # noqa: E402
 
@@ -37,8 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--chamfer", default=None, choices=("point", "plane"), help="cage Chamfer term (default: the solver's)")
     ap.add_argument("--cpd-beta", type=float, default=None)
     ap.add_argument("--cpd-lambda", type=float, default=None)
-    ap.add_argument("--cage-set", action="append", default=[], metavar="KEY=VALUE",
-                    help="a CageConfig field, e.g. w_rest=0.5 (repeatable)")
+    ap.add_argument("--cage-set", action="append", default=[], metavar="KEY=VALUE", help="a CageConfig field, e.g. w_rest=0.5 (repeatable)")
     ap.add_argument("--tessellation", default="fixed", choices=("fixed", "adaptive"))
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)

@@ -26,6 +26,7 @@ import os
 import sys
 import time
 from pathlib import Path
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
 from tests.data import SOFA  # noqa: E402
 
@@ -118,11 +119,23 @@ def load_or_build(name: str, n_train: int, n_test: int, points: int, seed: int, 
     return data
 
 
-
 # ---------------------------------------------------------------------------------------- evaluate
 SUMMARY_KEYS = (
-    "pgt_mean", "pgt_p95", "pgt_max_point", "pgt_max_shape_mean", "pgt_projected_mean", "identity_pgt_mean",
-    "gt_mean", "gt_p95", "gt_max", "cage_gt_mean", "cage_gt_p95", "cage_gt_max", "train_seconds", "predict_ms", "predict_ms_bf16",
+    "pgt_mean",
+    "pgt_p95",
+    "pgt_max_point",
+    "pgt_max_shape_mean",
+    "pgt_projected_mean",
+    "identity_pgt_mean",
+    "gt_mean",
+    "gt_p95",
+    "gt_max",
+    "cage_gt_mean",
+    "cage_gt_p95",
+    "cage_gt_max",
+    "train_seconds",
+    "predict_ms",
+    "predict_ms_bf16",
 )
 
 
@@ -185,9 +198,13 @@ def gt_errors(model, data: dict, rows: list[int], template, tgrouping, seed: int
     if has_gt:
         cage = data["cage_gt"][rows]
         out.update(
-            gt_mean=float(np.mean([g.mean for g in net])), gt_p95=float(np.mean([g.p95 for g in net])), gt_max=float(np.max([g.max for g in net])),
+            gt_mean=float(np.mean([g.mean for g in net])),
+            gt_p95=float(np.mean([g.p95 for g in net])),
+            gt_max=float(np.max([g.max for g in net])),
             gt_flipped=float(np.mean([g.flipped for g in net])),
-            cage_gt_mean=float(cage[:, 0].mean()), cage_gt_p95=float(cage[:, 1].mean()), cage_gt_max=float(cage[:, 2].max()),
+            cage_gt_mean=float(cage[:, 0].mean()),
+            cage_gt_p95=float(cage[:, 1].mean()),
+            cage_gt_max=float(cage[:, 2].max()),
         )
     return out
 
@@ -259,9 +276,16 @@ def run_group(name: str, data: dict, group: int, config, n_val: int, template, t
     pgt = eval_step(res.model, te, seed=config.seed)
     identity = float(np.mean([np.linalg.norm(s - d, axis=1).mean() for s, d in te]))
     row = {
-        "model": name, "group": group, "train_pairs": len(tr), "val_pairs": len(val), "test_pairs": len(te),
-        "train_seconds": res.seconds, "iterations": res.iterations, "stopped_early": res.stopped_early,
-        "best_iteration": res.best_val.get("iteration"), "val_mean": res.best_val.get("mean"),
+        "model": name,
+        "group": group,
+        "train_pairs": len(tr),
+        "val_pairs": len(val),
+        "test_pairs": len(te),
+        "train_seconds": res.seconds,
+        "iterations": res.iterations,
+        "stopped_early": res.stopped_early,
+        "best_iteration": res.best_val.get("iteration"),
+        "val_mean": res.best_val.get("mean"),
         **{f"pgt_{k}": v for k, v in pgt.items() if k not in ("shapes", "points")},
         "identity_pgt_mean": identity,
         **gt_errors(res.model, data, te_rows, template, tgrouping, config.seed),
@@ -272,8 +296,12 @@ def run_group(name: str, data: dict, group: int, config, n_val: int, template, t
         row.update(predict_timing(res.model, te[0][0], tv))
     if not quiet:
         gt = f" gt {row['gt_mean']:.4f} (cage {row['cage_gt_mean']:.4f})" if "gt_mean" in row else ""
-        print(f"[{name} g{group}] pgt mean {row['pgt_mean']:.4f} max_pt {row['pgt_max_point']:.4f} max_shape {row['pgt_max_shape_mean']:.4f}"
-              f" (identity {identity:.4f}){gt} train {res.seconds:.0f}s/{res.iterations} it", file=sys.stderr, flush=True)
+        print(
+            f"[{name} g{group}] pgt mean {row['pgt_mean']:.4f} max_pt {row['pgt_max_point']:.4f} max_shape {row['pgt_max_shape_mean']:.4f}"
+            f" (identity {identity:.4f}){gt} train {res.seconds:.0f}s/{res.iterations} it",
+            file=sys.stderr,
+            flush=True,
+        )
     return row
 
 

@@ -44,8 +44,17 @@ def main(argv: list[str] | None = None) -> int:
         answer, _ = svc.textured(shape)
         times.append(time.perf_counter() - t)
         digest.update(answer.data)
-    print(json.dumps({"family": args.family, "load_ms": round(1000 * statistics.median(loads)), "meshes": len(rows),
-                      "transfer_ms": round(1000 * statistics.median(times), 1) if times else None, "glb_digest": digest.hexdigest()[:16]}))
+    print(
+        json.dumps(
+            {
+                "family": args.family,
+                "load_ms": round(1000 * statistics.median(loads)),
+                "meshes": len(rows),
+                "transfer_ms": round(1000 * statistics.median(times), 1) if times else None,
+                "glb_digest": digest.hexdigest()[:16],
+            }
+        )
+    )
     return 0
 
 

@@ -53,13 +53,17 @@ def main(argv=None) -> int:
             if k == 0:
                 how.update(p["how"] for p in summary["parts"])
     result = {
-        "family": args.family, "settings": args.settings, "repeats": args.repeats,
-        "median_ms": 1000 * statistics.median(totals), "min_ms": 1000 * min(totals), "max_ms": 1000 * max(totals),
+        "family": args.family,
+        "settings": args.settings,
+        "repeats": args.repeats,
+        "median_ms": 1000 * statistics.median(totals),
+        "min_ms": 1000 * min(totals),
+        "max_ms": 1000 * max(totals),
         "stages_median_ms": {k: 1000 * statistics.median(v) for k, v in stages.items()},
-        "parts": dict(how), "parts_per_shape": sum(how.values()) / len(shapes),
+        "parts": dict(how),
+        "parts_per_shape": sum(how.values()) / len(shapes),
     }
-    print(f"{args.family}: transfer median {result['median_ms']:.0f} ms ({result['min_ms']:.0f}-{result['max_ms']:.0f}) "
-          f"over {args.settings} settings x {args.repeats}; parts {dict(how)}")
+    print(f"{args.family}: transfer median {result['median_ms']:.0f} ms ({result['min_ms']:.0f}-{result['max_ms']:.0f}) over {args.settings} settings x {args.repeats}; parts {dict(how)}")
     print("stages (median ms): " + ", ".join(f"{k} {v:.1f}" for k, v in result["stages_median_ms"].items()))
     if args.out:
         write_json(args.out, result)

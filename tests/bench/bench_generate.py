@@ -80,11 +80,11 @@ def main(argv=None) -> int:
             shutil.rmtree(out, ignore_errors=True)
         runs["speedup_steady_1_to_2"] = round(runs["ray2"]["steady_rate"] / runs["ray1"]["steady_rate"], 2)
         runs["speedup_overall_1_to_2"] = round(runs["ray2"]["rate"] / runs["ray1"]["rate"], 2)
-        print(f"{name}: 1 -> 2 CPUs {runs['speedup_steady_1_to_2']}x steady, {runs['speedup_overall_1_to_2']}x overall; cost (ms) {runs['cost']}",
-              flush=True)
+        print(f"{name}: 1 -> 2 CPUs {runs['speedup_steady_1_to_2']}x steady, {runs['speedup_overall_1_to_2']}x overall; cost (ms) {runs['cost']}", flush=True)
         families[name] = runs
-    write_json(args.out, {"benchmark": "generate", "n": args.n, "batch_size": args.batch_size, "families": families, "machine": machine(),
-                          "versions": versions(), "time": time.strftime("%Y-%m-%d %H:%M:%S")})
+    write_json(
+        args.out, {"benchmark": "generate", "n": args.n, "batch_size": args.batch_size, "families": families, "machine": machine(), "versions": versions(), "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+    )
     print(json.dumps(families, indent=1))
     return 0
 

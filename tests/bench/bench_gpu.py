@@ -50,8 +50,9 @@ def main(argv=None) -> int:
     family = args.family
     if family is None:
         family = str(Path(tempfile.mkdtemp(prefix="bench-gpu-")) / "sofa")
-        cfg = BuildConfig.from_dict({"model": "sofa", "n_train": 6, "n_test": 0, "prompt": "a patchwork bohemian sofa", "texture_size": 512,
-                                     "corr_points": 1000, "cage": {"iterations": 100}, "train": {"iterations": 100}})
+        cfg = BuildConfig.from_dict(
+            {"model": "sofa", "n_train": 6, "n_test": 0, "prompt": "a patchwork bohemian sofa", "texture_size": 512, "corr_points": 1000, "cage": {"iterations": 100}, "train": {"iterations": 100}}
+        )
         build(FamilyStore(family), cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
     store = FamilyStore(family)
     config = stored_config(store)
@@ -74,20 +75,28 @@ def main(argv=None) -> int:
     results = {}
     for device in devices:
         cage = CageConfig(iterations=100, device=device)
-        results[f"cage pair (sofa's largest part, 2,000 points, 100 iterations), {device}"] = timeit(
-            lambda: correspond_parts(sv, sf, tv, tf, n_points=2000, cage=cage), repeats=args.repeats, warmup=1)
+        results[f"cage pair (sofa's largest part, 2,000 points, 100 iterations), {device}"] = timeit(lambda: correspond_parts(sv, sf, tv, tf, n_points=2000, cage=cage), repeats=args.repeats, warmup=1)
         net = CorrNetConfig(**{**config.train.to_dict(), "device": device, "iterations": args.train_iterations})
-        results[f"ProcCorrNet training, {args.train_iterations} iterations, {device}"] = timeit(
-            lambda: train(data["train"], data["val"] or None, net), repeats=max(1, args.repeats // 2), warmup=0)
+        results[f"ProcCorrNet training, {args.train_iterations} iterations, {device}"] = timeit(lambda: train(data["train"], data["val"] or None, net), repeats=max(1, args.repeats // 2), warmup=0)
         svc = FamilyService(store, device=device)
         results[f"transfer (sofa, {shape.n_faces} faces), {device}"] = timeit(lambda: svc.textured(shape), repeats=args.repeats * 4, warmup=2)
     for key, r in results.items():
         print(f"{key}: {1000 * r['median']:.1f} ms (p10 {1000 * r['p10']:.1f}, p90 {1000 * r['p90']:.1f})", flush=True)
     if "cuda" not in devices:
         print("no CUDA device here: CPU rows only", flush=True)
-    write_json(args.out, {"benchmark": "gpu", "family": family, "devices": devices, "results": results, "machine": machine(),
-                          "versions": versions(), "gpu": torch.cuda.get_device_name(0) if "cuda" in devices else None,
-                          "time": time.strftime("%Y-%m-%d %H:%M:%S")})
+    write_json(
+        args.out,
+        {
+            "benchmark": "gpu",
+            "family": family,
+            "devices": devices,
+            "results": results,
+            "machine": machine(),
+            "versions": versions(),
+            "gpu": torch.cuda.get_device_name(0) if "cuda" in devices else None,
+            "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+        },
+    )
     return 0
 
 

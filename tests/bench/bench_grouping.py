@@ -21,8 +21,10 @@ from tests.meshes import boxes  # noqa: E402
 
 def shapes(n: int) -> dict[str, object]:
     grid = [(i % 100 * 0.5, i // 100 * 0.5, 0.0) for i in range(n)]
-    return {"5 kinds": boxes([((0.1 + 0.05 * (i % 5), 0.1, 0.1 + 0.02 * (i % 5)), c) for i, c in enumerate(grid)]),
-            "every size different": boxes([((0.1 + 0.3 * i / n, 0.1, 0.05), c) for i, c in enumerate(grid)])}
+    return {
+        "5 kinds": boxes([((0.1 + 0.05 * (i % 5), 0.1, 0.1 + 0.02 * (i % 5)), c) for i, c in enumerate(grid)]),
+        "every size different": boxes([((0.1 + 0.3 * i / n, 0.1, 0.05), c) for i, c in enumerate(grid)]),
+    }
 
 
 def run(args) -> dict:

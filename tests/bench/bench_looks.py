@@ -58,13 +58,20 @@ def main(argv=None) -> int:
         add_look(store, f"look{k}", replace(paint, prompt=prompt), log=lambda *_: None)
         looks.append(time.perf_counter() - t)
     build_total = sum(walls.values())
-    report = {"family": name, "build_stage_seconds": walls, "build_seconds": round(build_total, 2),
-              "look_seconds": [round(x, 2) for x in looks], "look_median_seconds": round(statistics.median(looks), 2),
-              "look_share_of_build": round(statistics.median(looks) / build_total, 4) if build_total else None,
-              "machine": machine(), "time": time.strftime("%Y-%m-%d %H:%M:%S")}
-    print(f"{name}: build {build_total:.1f} s ({', '.join(f'{k} {v:.1f}' for k, v in walls.items())}); "
-          f"look add {', '.join(f'{x:.2f}' for x in looks)} s (median {statistics.median(looks):.2f} s"
-          + (f", {100 * report['look_share_of_build']:.1f}% of the build)" if build_total else ")"))
+    report = {
+        "family": name,
+        "build_stage_seconds": walls,
+        "build_seconds": round(build_total, 2),
+        "look_seconds": [round(x, 2) for x in looks],
+        "look_median_seconds": round(statistics.median(looks), 2),
+        "look_share_of_build": round(statistics.median(looks) / build_total, 4) if build_total else None,
+        "machine": machine(),
+        "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
+    print(
+        f"{name}: build {build_total:.1f} s ({', '.join(f'{k} {v:.1f}' for k, v in walls.items())}); "
+        f"look add {', '.join(f'{x:.2f}' for x in looks)} s (median {statistics.median(looks):.2f} s" + (f", {100 * report['look_share_of_build']:.1f}% of the build)" if build_total else ")")
+    )
     if args.out:
         write_json(args.out, report)
     return 0

@@ -58,8 +58,7 @@ def main(argv=None) -> int:
     def request(family: str) -> float:
         params = specs[family].sample(1, seed=rng)[0]
         body = json.dumps({"params": {k: (v.item() if hasattr(v, "item") else v) for k, v in params.items()}}).encode()
-        req = urllib.request.Request(f"{base}/v1/families/{family}/transfer", data=body, method="POST",
-                                     headers={"content-type": "application/json", "serve_multiplexed_model_id": family})
+        req = urllib.request.Request(f"{base}/v1/families/{family}/transfer", data=body, method="POST", headers={"content-type": "application/json", "serve_multiplexed_model_id": family})
         t0 = time.perf_counter()
         with urllib.request.urlopen(req, timeout=300) as r:
             r.read()
@@ -81,13 +80,11 @@ def main(argv=None) -> int:
     finally:
         serve.shutdown()
         ray.shutdown()
-    summary = {k: {"median_ms": round(1000 * float(np.median(v)), 1), "p90_ms": round(1000 * float(np.percentile(v, 90)), 1), "n": len(v)}
-               for k, v in results.items()}
+    summary = {k: {"median_ms": round(1000 * float(np.median(v)), 1), "p90_ms": round(1000 * float(np.percentile(v, 90)), 1), "n": len(v)} for k, v in results.items()}
     summary["loads"] = health["loads"]
     for k, v in summary.items():
         print(k, v, flush=True)
-    write_json(args.out, {"benchmark": "multiplex", "root": args.root, "results": summary, "machine": machine(), "versions": versions(),
-                          "time": time.strftime("%Y-%m-%d %H:%M:%S")})
+    write_json(args.out, {"benchmark": "multiplex", "root": args.root, "results": summary, "machine": machine(), "versions": versions(), "time": time.strftime("%Y-%m-%d %H:%M:%S")})
     return 0
 
 

@@ -25,8 +25,7 @@ def run(args) -> dict:
     results, notes = {}, {}
     for level in (int(x) for x in args.levels.split(",")):
         cage_v, cage_f = init_cage(pts, level=level)
-        results[f"level {level} ({len(cage_v)} cage vertices), {args.points} points"] = timeit(
-            lambda: mean_value_coordinates(pts, cage_v, cage_f), repeats=args.repeats)
+        results[f"level {level} ({len(cage_v)} cage vertices), {args.points} points"] = timeit(lambda: mean_value_coordinates(pts, cage_v, cage_f), repeats=args.repeats)
         notes[f"level {level}"] = {"cage_vertices": int(len(cage_v)), "cage_faces": int(len(cage_f))}
     return report("mvc", vars(args), results, args.out, notes)
 

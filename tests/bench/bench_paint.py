@@ -71,9 +71,11 @@ def main(argv=None) -> int:
     result["texels"] = int(sum(len(g.texels.face) for g in tex.groups))
     cov = coverage(shape.vertices, shape.faces, tex.uv.corner_uv, tex.uv.face_group, tex.painted_masks, up="y")
     result["surface_coverage"] = cov.share
-    print(f"surface paint, sofa template, {len(grouping.groups)} groups at {args.size}²: {t:.2f} s "
-          f"({result['texels']} texels; uv {tex.stats['timings']['uv']:.2f} s, texel maps {tex.stats['timings']['texels']:.2f} s, "
-          f"paint {tex.stats['timings']['paint']:.2f} s); coverage {cov.share}")
+    print(
+        f"surface paint, sofa template, {len(grouping.groups)} groups at {args.size}²: {t:.2f} s "
+        f"({result['texels']} texels; uv {tex.stats['timings']['uv']:.2f} s, texel maps {tex.stats['timings']['texels']:.2f} s, "
+        f"paint {tex.stats['timings']['paint']:.2f} s); coverage {cov.share}"
+    )
 
     # The PBR maps of the same texture (roughness, metalness, relief): what they add to the paint stage.
     from proctex.texture.paint import paint_material_maps
@@ -95,8 +97,7 @@ def main(argv=None) -> int:
 
     ref = paint_surface(shape, grouping, painter, size=args.loop_size)
     t0 = time.perf_counter()
-    tv = paint_views(shape, grouping, SolidViewPainter(painter, grouping), args.prompt, {"1": "dark walnut"},
-                     n_views=args.views, view_size=args.view_size, size=args.loop_size, up="y", uv=ref.uv)
+    tv = paint_views(shape, grouping, SolidViewPainter(painter, grouping), args.prompt, {"1": "dark walnut"}, n_views=args.views, view_size=args.view_size, size=args.loop_size, up="y", uv=ref.uv)
     result["view_loop_s"] = time.perf_counter() - t0
     psnrs = {}
     for a, b in zip(ref.groups, tv.groups):
@@ -109,9 +110,10 @@ def main(argv=None) -> int:
     result["view_loop_hidden_views"] = tv.stats["hidden_views"]
     cov = coverage(shape.vertices, shape.faces, tv.uv.corner_uv, tv.uv.face_group, tv.painted_masks, up="y")
     result["view_loop_coverage"] = cov.share
-    print(f"multi-view loop ({args.views} views of {args.view_size}², {args.loop_size}² textures, + {tv.stats['hidden_views']} hidden-part views): "
-          f"{result['view_loop_s']:.1f} s; PSNR vs surface painter on seen texels: "
-          + ", ".join(f"g{k} {v:.1f} dB" for k, v in psnrs.items()) + f"; coverage {cov.share}")
+    print(
+        f"multi-view loop ({args.views} views of {args.view_size}², {args.loop_size}² textures, + {tv.stats['hidden_views']} hidden-part views): "
+        f"{result['view_loop_s']:.1f} s; PSNR vs surface painter on seen texels: " + ", ".join(f"g{k} {v:.1f} dB" for k, v in psnrs.items()) + f"; coverage {cov.share}"
+    )
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(result, indent=1))

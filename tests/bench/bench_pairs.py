@@ -32,8 +32,7 @@ def main(argv=None) -> int:
     from proctex.store.layout import FamilyStore
     from proctex.store.samples import read_pair
 
-    st, config = copy_family(args.family, args.work, ("correspondences", "pairs.parquet", "looks", "models", "metrics.json"),
-                             ("pairs", "train", "evaluate"))
+    st, config = copy_family(args.family, args.work, ("correspondences", "pairs.parquet", "looks", "models", "metrics.json"), ("pairs", "train", "evaluate"))
     t = time.perf_counter()
     plans = []
 

@@ -48,8 +48,21 @@ except ImportError:  # run as a script
     import partcorpus as C  # type: ignore[no-redef]
 
 #: materials a prompt gives its clauses (each parsed to a distinct colour)
-MATERIALS = ("red velvet", "black metal", "white linen", "walnut", "green glass", "blue fabric", "yellow plastic", "grey stone",
-             "orange leather", "brass", "pink ceramic", "purple silk", "teal plastic")
+MATERIALS = (
+    "red velvet",
+    "black metal",
+    "white linen",
+    "walnut",
+    "green glass",
+    "blue fabric",
+    "yellow plastic",
+    "grey stone",
+    "orange leather",
+    "brass",
+    "pink ceramic",
+    "purple silk",
+    "teal plastic",
+)
 MIN_DE = 25.0  # clause colours of one prompt at least this far apart (ΔE2000)
 MATCH_DE = 12.0  # a group took a clause only within this of the clause's colour
 #: painted: a group's mean painted colour took a clause within this of the clause's colour (the
@@ -103,7 +116,7 @@ def compose(obj: C.CorpusObject, rng: np.random.Generator) -> Case | None:
     parts = [f"{m} {f}" for _, f, m in clauses]
     listed = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
     style = int(rng.integers(3))
-    prompt = (f"a {obj.noun} with {listed}" if style == 0 else f"{obj.noun}: {listed}" if style == 1 else listed)
+    prompt = f"a {obj.noun} with {listed}" if style == 0 else f"{obj.noun}: {listed}" if style == 1 else listed
     return Case(obj, clauses, prompt)
 
 
@@ -230,8 +243,7 @@ class Tally:
 
     def summary(self) -> dict[str, Any]:
         tp, fp, fn = sum(self.tp.values()), sum(self.fp.values()), sum(self.fn.values())
-        return {"prompts": self.prompts, "prompt_pass": self.passed / max(self.prompts, 1),
-                "precision": tp / (tp + fp) if tp + fp else 0.0, "recall": tp / (tp + fn) if tp + fn else 0.0}
+        return {"prompts": self.prompts, "prompt_pass": self.passed / max(self.prompts, 1), "precision": tp / (tp + fp) if tp + fp else 0.0, "recall": tp / (tp + fn) if tp + fn else 0.0}
 
 
 METHODS: dict[str, Callable] = {"resolver": resolver_texts, "baseline": baseline_texts}
@@ -256,8 +268,7 @@ BUILTIN_TRUTH: dict[str, tuple[str, str, dict[str, str]]] = {
 BLEND_TRUTH: dict[str, tuple[str, str, str, dict[str, str]]] = {
     "chair.blend": ("Cube", "furniture", "chair", {"Legs": "legs", "Seat": "seat", "Back": "back", "Arms": "arms"}),
     "table.blend": ("Cube", "furniture", "table", {"Top": "top", "Legs": "legs"}),
-    "cabinet.blend": ("Cabinet", "furniture", "cabinet", {"Legs": "legs", "Board Back": "back", "Board Right": "sides",
-                                                         "Dividing Boards": "shelf", "Drawers": "drawers"}),
+    "cabinet.blend": ("Cabinet", "furniture", "cabinet", {"Legs": "legs", "Board Back": "back", "Board Right": "sides", "Dividing Boards": "shelf", "Drawers": "drawers"}),
 }
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
 from tests.data import BLENDS  # noqa: E402
@@ -354,8 +365,7 @@ def run(split: str, n: int | None = None, seed: int = 0) -> dict[str, Any]:
     :data:`BLEND_TRUTH`; "sofa": the sofa exports, :func:`sofa_objects`); the tallies and the failed prompts."""
     tallies = {m: Tally() for m in [*METHODS, PAINTED]}
     failures = []
-    objs = (builtin_objects() if split == "builtin" else blend_objects() if split == "blend" else sofa_objects() if split == "sofa"
-            else [C.make_object(s) for s in C.seeds(split)])
+    objs = builtin_objects() if split == "builtin" else blend_objects() if split == "blend" else sofa_objects() if split == "sofa" else [C.make_object(s) for s in C.seeds(split)]
     for k, obj in enumerate(objs[:n]):
         s = k if split in ("builtin", "blend", "sofa") else obj.seed
         case = compose(obj, np.random.default_rng([seed, s]))
@@ -365,11 +375,9 @@ def run(split: str, n: int | None = None, seed: int = 0) -> dict[str, Any]:
         grouping = analyse(shape)
         truth = group_truth(obj.shape, grouping)
         for name in tallies:
-            took = (taken_colours(case, painted_colours(case, shape, grouping), PAINTED_DE) if name == PAINTED
-                    else taken(case, METHODS[name](case, shape, grouping)))
+            took = taken_colours(case, painted_colours(case, shape, grouping), PAINTED_DE) if name == PAINTED else taken(case, METHODS[name](case, shape, grouping))
             if not tallies[name].add(case, truth, took) and name == "resolver":
-                failures.append({"seed": s, "noun": obj.noun, "prompt": case.prompt, "truth": {str(k): v for k, v in truth.items()},
-                                 "took": {str(k): v for k, v in took.items()}})
+                failures.append({"seed": s, "noun": obj.noun, "prompt": case.prompt, "truth": {str(k): v for k, v in truth.items()}, "took": {str(k): v for k, v in took.items()}})
     return {"tallies": tallies, "failures": failures}
 
 
@@ -413,13 +421,16 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         res = run(split, args.n)
         tallies = res["tallies"]
-        report[split] = {"summary": {m: t.summary() for m, t in tallies.items()}, "words": {m: t.word_rows() for m, t in tallies.items()},
-                         "confusion": {m: {w: dict(c) for w, c in t.confusion.items()} for m, t in tallies.items()},
-                         "kinds": {m: {k: dict(c) for k, c in t.by_kind.items()} for m, t in tallies.items()},
-                         "failures": res["failures"], "seconds": time.perf_counter() - t0}
+        report[split] = {
+            "summary": {m: t.summary() for m, t in tallies.items()},
+            "words": {m: t.word_rows() for m, t in tallies.items()},
+            "confusion": {m: {w: dict(c) for w, c in t.confusion.items()} for m, t in tallies.items()},
+            "kinds": {m: {k: dict(c) for k, c in t.by_kind.items()} for m, t in tallies.items()},
+            "failures": res["failures"],
+            "seconds": time.perf_counter() - t0,
+        }
         md += [f"## {split}", "", table(tallies), "", kind_table(tallies), ""]
-        print(f"{split}: " + "; ".join(f"{m} pass {t.summary()['prompt_pass']:.1%} P {t.summary()['precision']:.2f} R {t.summary()['recall']:.2f}"
-                                       for m, t in tallies.items()))
+        print(f"{split}: " + "; ".join(f"{m} pass {t.summary()['prompt_pass']:.1%} P {t.summary()['precision']:.2f} R {t.summary()['recall']:.2f}" for m, t in tallies.items()))
     (out / "partwords.json").write_text(json.dumps(report, indent=1))
     (out / "partwords.md").write_text("\n".join(md))
     print(f"wrote {out / 'partwords.md'}")

@@ -79,7 +79,7 @@ def stone(size: int = 256, seed: int = 2) -> np.ndarray:
     from scipy.ndimage import gaussian_filter
 
     r = np.random.default_rng(seed)
-    t = sum(gaussian_filter(r.standard_normal((size, size)), s) * s ** 0.5 for s in (1.0, 4.0, 16.0))
+    t = sum(gaussian_filter(r.standard_normal((size, size)), s) * s**0.5 for s in (1.0, 4.0, 16.0))
     veins = np.abs(gaussian_filter(r.standard_normal((size, size)), 10.0))
     t = (t - t.mean()) / t.std() * 0.12 + 0.55 - 2.0 * np.clip(0.02 - veins, 0, None) * 10
     return np.clip(t[..., None] * np.array([0.95, 0.92, 0.86]), 0, 1).astype(np.float32)
@@ -109,8 +109,7 @@ def chart_ids(faces: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def seam_ratio(views: list, albedos: list[np.ndarray], charts: np.ndarray, face_group: np.ndarray, crease: float | None = None,
-               bins: int = 10) -> dict[str, float]:
+def seam_ratio(views: list, albedos: list[np.ndarray], charts: np.ndarray, face_group: np.ndarray, crease: float | None = None, bins: int = 10) -> dict[str, float]:
     """Mean colour step (RGB, 0-1) between neighbouring pixels of one group across UV charts over the
     step inside one chart, over all views (neighbours on the surface only: not across an occluding
     edge; with ``crease``, also not across a crease sharper than that many degrees); with both means
@@ -155,10 +154,16 @@ def seam_ratio(views: list, albedos: list[np.ndarray], charts: np.ndarray, face_
         pairs = [(across_v[ka == k].mean(), inside_v[ki == k].mean()) for k in range(bins) if (ka == k).any() and (ki == k).any()]
         if pairs:
             matched = float(np.mean([p[0] for p in pairs]) / max(np.mean([p[1] for p in pairs]), 1e-12))
-    return {"across": float(across_v.mean()) if len(across_v) else float("nan"), "inside": float(inside_v.mean()),
-            "ratio": float(across_v.mean() / max(inside_v.mean(), 1e-12)) if len(across_v) else float("nan"),
-            "ratio_matched": matched, "pairs_across": int(len(across_v)), "pairs_inside": int(len(inside_v)),
-            "across_gap_median": float(np.median(ga)) if len(ga) else float("nan"), "inside_gap_median": float(np.median(gi))}
+    return {
+        "across": float(across_v.mean()) if len(across_v) else float("nan"),
+        "inside": float(inside_v.mean()),
+        "ratio": float(across_v.mean() / max(inside_v.mean(), 1e-12)) if len(across_v) else float("nan"),
+        "ratio_matched": matched,
+        "pairs_across": int(len(across_v)),
+        "pairs_inside": int(len(inside_v)),
+        "across_gap_median": float(np.median(ga)) if len(ga) else float("nan"),
+        "inside_gap_median": float(np.median(gi)),
+    }
 
 
 def repeat_peak(image: np.ndarray, mask: np.ndarray, exclude: int = 24) -> float:
@@ -176,7 +181,7 @@ def repeat_peak(image: np.ndarray, mask: np.ndarray, exclude: int = 24) -> float
     ac = np.fft.fftshift(ac)
     cy, cx = ac.shape[0] // 2, ac.shape[1] // 2
     yy, xx = np.ogrid[: ac.shape[0], : ac.shape[1]]
-    ac[(yy - cy) ** 2 + (xx - cx) ** 2 < exclude ** 2] = 0.0
+    ac[(yy - cy) ** 2 + (xx - cx) ** 2 < exclude**2] = 0.0
     return float(ac.max())
 
 
@@ -200,13 +205,11 @@ def main(argv: list[str] | None = None) -> dict:
     times: dict[str, list[float]] = {"prompt": [], "photos": []}
     for _ in range(args.repeats):
         for kind in ("prompt", "photos"):
-            paint = new_look_paint(config.paint, "a red velvet sofa with dark walnut legs" if kind == "prompt" else None,
-                                   images=images if kind == "photos" else None)
+            paint = new_look_paint(config.paint, "a red velvet sofa with dark walnut legs" if kind == "prompt" else None, images=images if kind == "photos" else None)
             t0 = time.perf_counter()
             add_look(store, f"bench-{kind}", paint, force=True, log=quiet, photos=by_key if kind == "photos" else None)
             times[kind].append(time.perf_counter() - t0)
-    report: dict = {"family": store.uri, "texture_size": config.paint.texture_size,
-                    "seconds": {k: statistics.median(v) for k, v in times.items()}, "runs": times}
+    report: dict = {"family": store.uri, "texture_size": config.paint.texture_size, "seconds": {k: statistics.median(v) for k, v in times.items()}, "runs": times}
     report["ratio_photo_to_prompt"] = report["seconds"]["photos"] / report["seconds"]["prompt"]
 
     # seams and repeats on the photo look
@@ -275,8 +278,7 @@ def main(argv: list[str] | None = None) -> dict:
             cols[sel] = E.tiled(b.ex, local[sel][:, [i, j]])
     tiled = np.zeros((size, size, 3), np.float32)
     tiled[tx.ij[:, 0], tx.ij[:, 1]] = cols
-    report["repeats"] = {"group": big, "exclude_texels": 24, "photo_widths_on_the_part": 10.0,
-                         "synthesised": repeat_peak(synth, tx.mask), "tiled": repeat_peak(tiled, tx.mask)}
+    report["repeats"] = {"group": big, "exclude_texels": 24, "photo_widths_on_the_part": 10.0, "synthesised": repeat_peak(synth, tx.mask), "tiled": repeat_peak(tiled, tx.mask)}
     for kind in ("prompt", "photos"):
         remove_look(store, f"bench-{kind}")
     text = json.dumps(report, indent=1)

@@ -59,9 +59,14 @@ def main(argv=None) -> int:
         ray.shutdown()
         runs.append({"cpus": n, "wall_seconds": state["wall_seconds"], "total_seconds": total})
         print(f"{n} CPU(s): " + ", ".join(f"{k} {v:.1f}s" for k, v in state["wall_seconds"].items()) + f"; total {total:.1f}s", flush=True)
-    report = {"benchmark": "ray_build", "config": data, "stages": list(stages), "runs": runs,
-              "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "ray": ray.__version__},
-              "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+    report = {
+        "benchmark": "ray_build",
+        "config": data,
+        "stages": list(stages),
+        "runs": runs,
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "ray": ray.__version__},
+        "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
     if len(runs) > 1:
         lo, hi = runs[0], runs[-1]
         report["speedup"] = {k: lo["wall_seconds"][k] / hi["wall_seconds"][k] for k in lo["wall_seconds"] if hi["wall_seconds"].get(k)}

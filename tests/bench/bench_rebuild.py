@@ -29,8 +29,11 @@ def figures(store) -> dict:
     c = m["methods"].get("corrnet", {})
     groups = store.read_json("family.json")["stages"].get("train", {}).get("groups", {})
     return {
-        "tracked_point_variance": c.get("tracked_point_variance"), "pgt_mean": (c.get("pgt_error") or {}).get("mean"),
-        "ssim": c.get("ssim"), "psnr": c.get("psnr"), "coverage": c.get("coverage"),
+        "tracked_point_variance": c.get("tracked_point_variance"),
+        "pgt_mean": (c.get("pgt_error") or {}).get("mean"),
+        "ssim": c.get("ssim"),
+        "psnr": c.get("psnr"),
+        "coverage": c.get("coverage"),
         "serving": {g: (r.get("serving") or {}).get("serve") for g, r in groups.items()},
         "iterations": {g: r.get("iterations") for g, r in groups.items()},
     }

@@ -39,8 +39,7 @@ def _free_port() -> int:
 
 def _multipart(name: str, data: bytes) -> tuple[bytes, str]:
     boundary = uuid.uuid4().hex
-    body = (f"--{boundary}\r\nContent-Disposition: form-data; name=\"mesh\"; filename=\"{name}\"\r\n"
-            "Content-Type: application/octet-stream\r\n\r\n").encode() + data + f"\r\n--{boundary}--\r\n".encode()
+    body = (f'--{boundary}\r\nContent-Disposition: form-data; name="mesh"; filename="{name}"\r\nContent-Type: application/octet-stream\r\n\r\n').encode() + data + f"\r\n--{boundary}--\r\n".encode()
     return body, f"multipart/form-data; boundary={boundary}"
 
 
@@ -101,21 +100,39 @@ def main(argv=None) -> int:
         wall = time.perf_counter() - t0
         lat = np.array([r[0] for r in res])
         errors = sum(r[1] != 200 for r in res)
-        levels.append({"concurrency": c, "requests": args.requests, "errors": int(errors), "rps": args.requests / wall,
-                       "p10_ms": 1000 * float(np.percentile(lat, 10)), "p25_ms": 1000 * float(np.percentile(lat, 25)), "p75_ms": 1000 * float(np.percentile(lat, 75)),
-                       "p50_ms": 1000 * float(np.percentile(lat, 50)), "p90_ms": 1000 * float(np.percentile(lat, 90)),
-                       "p99_ms": 1000 * float(np.percentile(lat, 99)), "mean_ms": 1000 * statistics.fmean(lat)})
-        print(f"concurrency {c}: p50 {levels[-1]['p50_ms']:.0f} ms, p99 {levels[-1]['p99_ms']:.0f} ms, "
-              f"{levels[-1]['rps']:.1f} req/s, {errors} errors", flush=True)
+        levels.append(
+            {
+                "concurrency": c,
+                "requests": args.requests,
+                "errors": int(errors),
+                "rps": args.requests / wall,
+                "p10_ms": 1000 * float(np.percentile(lat, 10)),
+                "p25_ms": 1000 * float(np.percentile(lat, 25)),
+                "p75_ms": 1000 * float(np.percentile(lat, 75)),
+                "p50_ms": 1000 * float(np.percentile(lat, 50)),
+                "p90_ms": 1000 * float(np.percentile(lat, 90)),
+                "p99_ms": 1000 * float(np.percentile(lat, 99)),
+                "mean_ms": 1000 * statistics.fmean(lat),
+            }
+        )
+        print(f"concurrency {c}: p50 {levels[-1]['p50_ms']:.0f} ms, p99 {levels[-1]['p99_ms']:.0f} ms, {levels[-1]['rps']:.1f} req/s, {errors} errors", flush=True)
     serve.shutdown()
     ray.shutdown()
     print(f"bytes per answer (median): {int(np.median(sizes))}", flush=True)
     best = max(levels, key=lambda lv: lv["rps"])
-    report = {"benchmark": "serve", "family": args.family, "replicas": args.replicas, "textures": args.textures,
-              "bytes_per_answer": int(np.median(sizes)), "levels": levels,
-              "saturation_rps": best["rps"], "p50_ms_at_1": levels[0]["p50_ms"], "p99_ms_at_1": levels[0]["p99_ms"],
-              "machine": {"python": platform.python_version(), "cpus": __import__("os").cpu_count(), "ray": ray.__version__},
-              "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+    report = {
+        "benchmark": "serve",
+        "family": args.family,
+        "replicas": args.replicas,
+        "textures": args.textures,
+        "bytes_per_answer": int(np.median(sizes)),
+        "levels": levels,
+        "saturation_rps": best["rps"],
+        "p50_ms_at_1": levels[0]["p50_ms"],
+        "p99_ms_at_1": levels[0]["p99_ms"],
+        "machine": {"python": platform.python_version(), "cpus": __import__("os").cpu_count(), "ray": ray.__version__},
+        "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(report, indent=1))

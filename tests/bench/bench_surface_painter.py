@@ -74,7 +74,9 @@ def main(argv: list[str] | None = None) -> int:
         med = statistics.median(times)
         spec = painter.spec
         desc = f"{spec.variant}/{spec.material}" + (f" + {spec.pattern}" if spec.pattern else "") + (f" + wear {spec.wear:.2f}" if spec.wear else "")
-        rows.append({"prompt": prompt, "median_s": med, "min_s": min(times), "times_s": times, "mpts_per_s": args.points / med / 1e6, "spec": desc, "within_budget": med * 1e6 / args.points <= BUDGET_S})
+        rows.append(
+            {"prompt": prompt, "median_s": med, "min_s": min(times), "times_s": times, "mpts_per_s": args.points / med / 1e6, "spec": desc, "within_budget": med * 1e6 / args.points <= BUDGET_S}
+        )
         print(f"{prompt!r:42s} {med:9.3f} {min(times):7.3f} {args.points / med / 1e6:7.2f}  {desc}", flush=True)
 
     slowest = max(rows, key=lambda r: r["median_s"])
@@ -83,7 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps({"points": args.points, "repeats": args.repeats, "budget_s_per_million": BUDGET_S, "machine": platform.platform(), "python": sys.version.split()[0], "rows": rows}, indent=2))
+        out.write_text(
+            json.dumps({"points": args.points, "repeats": args.repeats, "budget_s_per_million": BUDGET_S, "machine": platform.platform(), "python": sys.version.split()[0], "rows": rows}, indent=2)
+        )
     return 0
 
 

@@ -1,6 +1,6 @@
 """Texel <-> surface maps (rasterising the UV atlas): the painter's and the baker's first step.
 
-    .venv/bin/python tests/bench/bench_texel_map.py [--sizes 512,1024] [--out out/bench/texel_map.json]
+.venv/bin/python tests/bench/bench_texel_map.py [--sizes 512,1024] [--out out/bench/texel_map.json]
 """
 
 from __future__ import annotations
@@ -18,8 +18,7 @@ def run(args) -> dict:
     shape, grouping, tex, _ = template(args.model, 64)
     results = {}
     for size in (int(x) for x in args.sizes.split(",")):
-        results[f"{args.model} template, {len(shape.faces)} faces, {size}²"] = timeit(
-            lambda: texel_map(shape.vertices, shape.faces, tex.uv.corner_uv, size, size), repeats=args.repeats)
+        results[f"{args.model} template, {len(shape.faces)} faces, {size}²"] = timeit(lambda: texel_map(shape.vertices, shape.faces, tex.uv.corner_uv, size, size), repeats=args.repeats)
     return report("texel_map", vars(args), results, args.out)
 
 

@@ -56,8 +56,11 @@ def main(argv=None) -> int:
             results = train_together([(d["train"], d["val"]) for d in data], cfg)
         wall = time.perf_counter() - t
         errors = [round(r.best_val.get("mean", float("nan")), 5) for r in results]
-        print(f"{mode:8s} {threads} thread(s), seed {seed}, {cfg.autocast}: {len(groups)} groups x {args.iterations} steps in {wall:.1f} s "
-              f"({wall / len(groups) / args.iterations * 1e3:.1f} ms per group step); held-out {errors}", flush=True)
+        print(
+            f"{mode:8s} {threads} thread(s), seed {seed}, {cfg.autocast}: {len(groups)} groups x {args.iterations} steps in {wall:.1f} s "
+            f"({wall / len(groups) / args.iterations * 1e3:.1f} ms per group step); held-out {errors}",
+            flush=True,
+        )
     return 0
 
 

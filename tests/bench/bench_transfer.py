@@ -95,20 +95,30 @@ def main(argv=None) -> int:
             fp32.append(once(p, exact)[0])
     med = statistics.median(totals)
     result = {
-        "shapes": len(paths), "repeats": args.repeats, "threads": args.threads, "texture": args.texture,
-        "median_s": med, "p90_s": float(np.quantile(totals, 0.9)), "identity_median_s": statistics.median(base),
-        "float32_median_s": statistics.median(fp32), "autocast": args.autocast,
-        "network_share": 1 - statistics.median(base) / med, "stages_median_s": {k: statistics.median(v) for k, v in stages.items()},
-        "glb_bytes_median": int(statistics.median(sizes)), "trained": bool(args.family),
+        "shapes": len(paths),
+        "repeats": args.repeats,
+        "threads": args.threads,
+        "texture": args.texture,
+        "median_s": med,
+        "p90_s": float(np.quantile(totals, 0.9)),
+        "identity_median_s": statistics.median(base),
+        "float32_median_s": statistics.median(fp32),
+        "autocast": args.autocast,
+        "network_share": 1 - statistics.median(base) / med,
+        "stages_median_s": {k: statistics.median(v) for k, v in stages.items()},
+        "glb_bytes_median": int(statistics.median(sizes)),
+        "trained": bool(args.family),
     }
     _, _, _, shape, r = once(paths[0], mapper)
     t = time.perf_counter()
     bake(shape, r, assets, size=args.texture)
     result["bake_s"] = time.perf_counter() - t
-    print(f"transfer, sofa mesh file -> GLB bytes ({args.texture}² textures, {args.threads} threads, autocast {args.autocast}): median {1000 * med:.0f} ms, "
-          f"p90 {1000 * result['p90_s']:.0f} ms; float32 networks {1000 * result['float32_median_s']:.0f} ms; "
-          f"identity mapper {1000 * result['identity_median_s']:.0f} ms; "
-          f"bake into own atlas {result['bake_s']:.2f} s")
+    print(
+        f"transfer, sofa mesh file -> GLB bytes ({args.texture}² textures, {args.threads} threads, autocast {args.autocast}): median {1000 * med:.0f} ms, "
+        f"p90 {1000 * result['p90_s']:.0f} ms; float32 networks {1000 * result['float32_median_s']:.0f} ms; "
+        f"identity mapper {1000 * result['identity_median_s']:.0f} ms; "
+        f"bake into own atlas {result['bake_s']:.2f} s"
+    )
     print("stages (median ms): " + ", ".join(f"{k} {1000 * v:.1f}" for k, v in result["stages_median_s"].items()))
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

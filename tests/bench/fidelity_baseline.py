@@ -60,13 +60,17 @@ def family_config(name: str, seed: int) -> dict[str, Any]:
     if name in F.REAL:
         return {**F.real_config(name), "seed": seed}
     if name in BUILTINS:
-        return F.family_config(name, BUILTIN_SCALE["n_train"], BUILTIN_SCALE["n_test"], BUILTIN_SCALE["cage_iterations"],
-                               BUILTIN_SCALE["train_iterations"], seed)
+        return F.family_config(name, BUILTIN_SCALE["n_train"], BUILTIN_SCALE["n_test"], BUILTIN_SCALE["cage_iterations"], BUILTIN_SCALE["train_iterations"], seed)
     if name in SEAMS:  # the files of the built-in's family at this seed (24 train and 8 test shapes)
         model = name.split(".")[0]
-        return {"source": {"folder": f"{FILES}/{name}/s{seed}", "up": "y"}, "paint": {"prompt": F.PROMPTS.get(model, "painted wood")},
-                "cage": {"iterations": BUILTIN_SCALE["cage_iterations"]}, "train": {"iterations": BUILTIN_SCALE["train_iterations"]},
-                "seed": seed, "truth": "canonical"}
+        return {
+            "source": {"folder": f"{FILES}/{name}/s{seed}", "up": "y"},
+            "paint": {"prompt": F.PROMPTS.get(model, "painted wood")},
+            "cage": {"iterations": BUILTIN_SCALE["cage_iterations"]},
+            "train": {"iterations": BUILTIN_SCALE["train_iterations"]},
+            "seed": seed,
+            "truth": "canonical",
+        }
     raise ValueError(f"unknown family {name!r}; the baseline's families: {', '.join([*F.REAL, *BUILTINS, *SEAMS])}")
 
 
@@ -100,6 +104,7 @@ def _ratio(base: str) -> Callable[[dict[str, Any]], float | None]:
         if base not in ms:
             return None
         return ms["corrnet"]["tracked_point_variance"] / max(ms[base]["tracked_point_variance"], 1e-12)
+
     return get
 
 
@@ -162,8 +167,7 @@ def compare(baseline: dict[str, Any], today: dict[str, Any]) -> list[dict[str, A
             noise = max(b["spread"], t["spread"], FIGURES[name][1])
             diff = t["mean"] - b["mean"]
             verdict = "worse" if diff > noise else "better" if diff < -noise else "same"
-            rows.append({"family": fam, "figure": name, "base": b["mean"], "today": t["mean"],
-                         "ratio": (t["mean"] / b["mean"]) if b["mean"] else None, "noise": noise, "verdict": verdict})
+            rows.append({"family": fam, "figure": name, "base": b["mean"], "today": t["mean"], "ratio": (t["mean"] / b["mean"]) if b["mean"] else None, "noise": noise, "verdict": verdict})
     return rows
 
 
@@ -201,6 +205,7 @@ def readme_table(data: dict[str, Any]) -> str:
     paper's ProcCorrNet mean / max (:data:`bench_fidelity.PAPER`), and the run-time path's pseudo-GT
     mean, GT mean / p99 / max, variance with its ratios to identity and nearest, and flipped share
     against the truth / the teacher, each as the mean over the seeds ± half their spread."""
+
     def cell(entry: dict[str, Any], name: str, fmt: str, pct: bool = False) -> str:
         s = entry["figures"].get(name)
         if s is None:
@@ -209,14 +214,15 @@ def readme_table(data: dict[str, Any]) -> str:
         half = f"{k * s['spread'] / 2:{fmt}}"
         return f"{k * s['mean']:{fmt}}" + (f" ± {half}" if half.strip("0.") else "") + ("%" if pct else "")
 
-    lines = ["| family | seeds | paper mean / max | pseudo-GT mean | GT mean / p99 / max | variance (x identity, x nearest) "
-             "| flipped (truth / teacher) |", "|---|---|---|---|---|---|---|"]
+    lines = ["| family | seeds | paper mean / max | pseudo-GT mean | GT mean / p99 / max | variance (x identity, x nearest) | flipped (truth / teacher) |", "|---|---|---|---|---|---|---|"]
     for fam, e in data["families"].items():
         paper = F.PAPER.get(fam, F.PAPER.get(fam.split(".")[0]) if fam in SEAMS else None)  # a SEAMS family: its model's
-        lines.append(f"| {fam} | {len(e['seeds'])} | {'-' if not paper else f'{paper[0]:.3f} / {paper[1]:.3f}'} "
-                     f"| {cell(e, 'pgt_mean', '.4f')} | {cell(e, 'gt_mean', '.4f')} / {cell(e, 'gt_p99', '.3f')} / {cell(e, 'gt_max', '.3f')} "
-                     f"| {cell(e, 'variance', '.4f')} ({cell(e, 'x_identity', '.2f')}x, {cell(e, 'x_nearest', '.2f')}x) "
-                     f"| {cell(e, 'flipped_truth', '.2f', True)} / {cell(e, 'flipped_teacher', '.2f', True)} |")
+        lines.append(
+            f"| {fam} | {len(e['seeds'])} | {'-' if not paper else f'{paper[0]:.3f} / {paper[1]:.3f}'} "
+            f"| {cell(e, 'pgt_mean', '.4f')} | {cell(e, 'gt_mean', '.4f')} / {cell(e, 'gt_p99', '.3f')} / {cell(e, 'gt_max', '.3f')} "
+            f"| {cell(e, 'variance', '.4f')} ({cell(e, 'x_identity', '.2f')}x, {cell(e, 'x_nearest', '.2f')}x) "
+            f"| {cell(e, 'flipped_truth', '.2f', True)} / {cell(e, 'flipped_teacher', '.2f', True)} |"
+        )
     return "\n".join(lines)
 
 
@@ -246,17 +252,19 @@ def measure(families: list[str], seeds: list[int], root: Path, fresh: bool, work
             log(f"{key}:")
             t0 = time.perf_counter()
             res = F.run_family(root / fam / f"s{seed}", materialise(fam, seed, cfg, root), METHODS, workers, 5000, True)  # built by today's code, from scratch
-            per[key] = {"config": cfg, "code": code, "figures": headline(res["metrics"]["methods"]), "build_seconds": res["build_seconds"],
-                        "seconds": round(time.perf_counter() - t0, 1)}
+            per[key] = {"config": cfg, "code": code, "figures": headline(res["metrics"]["methods"]), "build_seconds": res["build_seconds"], "seconds": round(time.perf_counter() - t0, 1)}
             root.mkdir(parents=True, exist_ok=True)
             path.write_text(json.dumps({"per_seed": per}, indent=1) + "\n")
     out: dict[str, Any] = {"code": code, "made": time.strftime("%Y-%m-%d"), "methods": METHODS, "families": {}}
     for fam in families:
         runs = {str(s): per[f"{fam}/s{s}"] for s in seeds}
-        out["families"][fam] = {"config": portable_config(family_config(fam, 0)), "seeds": list(seeds),
-                                "per_seed": {s: r["figures"] for s, r in runs.items()},
-                                "figures": summarise({s: r["figures"] for s, r in runs.items()}),
-                                "seconds": round(sum(r["seconds"] for r in runs.values()), 1)}
+        out["families"][fam] = {
+            "config": portable_config(family_config(fam, 0)),
+            "seeds": list(seeds),
+            "per_seed": {s: r["figures"] for s, r in runs.items()},
+            "figures": summarise({s: r["figures"] for s, r in runs.items()}),
+            "seconds": round(sum(r["seconds"] for r in runs.values()), 1),
+        }
     return out
 
 
@@ -267,8 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     what.add_argument("--compare", metavar="FILE.json", help="measure the baseline's families again and compare")
     what.add_argument("--table", metavar="FILE.json", help="print the README's results table of a baseline")
     ap.add_argument("--against", metavar="TODAY.json", help="--compare: a record already measured (no builds)")
-    ap.add_argument("--families", default=None, help=f"--record: comma-separated (default: {','.join([*F.REAL, *BUILTINS, *SEAMS])}); "
-                                                     "--compare: a subset of the baseline's")
+    ap.add_argument("--families", default=None, help=f"--record: comma-separated (default: {','.join([*F.REAL, *BUILTINS, *SEAMS])}); --compare: a subset of the baseline's")
     ap.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="--record: build seeds (at least 3 make the noise a measurement)")
     ap.add_argument("--root", default=None, help="where the families are built (default out/fidelity_record or out/fidelity_compare)")
     ap.add_argument("--workers", type=int, default=1)
@@ -312,8 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = compare(baseline, today)
     print(compare_table(rows))
     bad = worse_families(rows)
-    print(f"baseline {baseline.get('code', '?')} ({baseline.get('made', '?')}) against {today.get('code', '?')}: "
-          + (f"WORSE: {', '.join(bad)}" if bad else "no family got worse"))
+    print(f"baseline {baseline.get('code', '?')} ({baseline.get('made', '?')}) against {today.get('code', '?')}: " + (f"WORSE: {', '.join(bad)}" if bad else "no family got worse"))
     return 1 if bad else 0
 
 

@@ -34,8 +34,16 @@ def timeit(fn: Callable[[], Any], repeats: int = 7, warmup: int = 1) -> dict[str
     a = np.asarray(t)
     med = float(np.median(a))
     q1, q3 = np.percentile(a, [25, 75])
-    return {"median": med, "p10": float(np.percentile(a, 10)), "p90": float(np.percentile(a, 90)), "min": float(a.min()),
-            "max": float(a.max()), "mean": float(a.mean()), "spread": float((q3 - q1) / med) if med > 0 else 0.0, "repeats": repeats}
+    return {
+        "median": med,
+        "p10": float(np.percentile(a, 10)),
+        "p90": float(np.percentile(a, 90)),
+        "min": float(a.min()),
+        "max": float(a.max()),
+        "mean": float(a.mean()),
+        "spread": float((q3 - q1) / med) if med > 0 else 0.0,
+        "repeats": repeats,
+    }
 
 
 def machine() -> dict[str, Any]:
@@ -49,8 +57,7 @@ def machine() -> dict[str, Any]:
         pass
     import torch
 
-    return {"platform": platform.platform(), "cpu": cpu, "cpus": os.cpu_count(), "torch_threads": torch.get_num_threads(),
-            "cuda": torch.cuda.is_available()}
+    return {"platform": platform.platform(), "cpu": cpu, "cpus": os.cpu_count(), "torch_threads": torch.get_num_threads(), "cuda": torch.cuda.is_available()}
 
 
 def versions() -> dict[str, str]:
@@ -65,14 +72,11 @@ def versions() -> dict[str, str]:
     return out
 
 
-def report(name: str, params: dict[str, Any], results: dict[str, dict[str, float]], out: str | None = None,
-           notes: dict[str, Any] | None = None) -> dict[str, Any]:
+def report(name: str, params: dict[str, Any], results: dict[str, dict[str, float]], out: str | None = None, notes: dict[str, Any] | None = None) -> dict[str, Any]:
     """The benchmark's JSON report (written to ``out`` when given) and a line per result on stdout."""
-    rep = {"benchmark": name, "params": params, "results": results, "notes": notes or {}, "machine": machine(), "versions": versions(),
-           "time": time.strftime("%Y-%m-%d %H:%M:%S")}
+    rep = {"benchmark": name, "params": params, "results": results, "notes": notes or {}, "machine": machine(), "versions": versions(), "time": time.strftime("%Y-%m-%d %H:%M:%S")}
     for key, r in results.items():
-        print(f"{name} {key}: median {fmt(r['median'])} (p10 {fmt(r['p10'])}, p90 {fmt(r['p90'])}, spread {100 * r['spread']:.0f}%, "
-              f"{r['repeats']} runs)", flush=True)
+        print(f"{name} {key}: median {fmt(r['median'])} (p10 {fmt(r['p10'])}, p90 {fmt(r['p90'])}, spread {100 * r['spread']:.0f}%, {r['repeats']} runs)", flush=True)
     if out:
         write_json(out, rep)
     return rep
@@ -117,8 +121,7 @@ def summary_table(reports: list[dict[str, Any]]) -> str:
     lines = ["| benchmark | what | median | p10 - p90 | spread | runs |", "|---|---|---|---|---|---|"]
     for rep in reports:
         for key, r in rep["results"].items():
-            lines.append(f"| {rep['benchmark']} | {key} | {fmt(r['median'])} | {fmt(r['p10'])} - {fmt(r['p90'])} | "
-                         f"{100 * r['spread']:.0f}% | {r['repeats']} |")
+            lines.append(f"| {rep['benchmark']} | {key} | {fmt(r['median'])} | {fmt(r['p10'])} - {fmt(r['p90'])} | {100 * r['spread']:.0f}% | {r['repeats']} |")
     return "\n".join(lines)
 
 

@@ -34,17 +34,49 @@ SEEDS = Path(__file__).with_name("partcorpus_seeds.json")
 #: truth word -> the forms a user writes for it (the benchmark's prompts draw from these; the
 #: resolver's own vocabulary is separate and may know more or fewer)
 FORMS: dict[str, tuple[str, ...]] = {
-    "legs": ("legs", "leg", "feet"), "seat": ("seat",), "back": ("back", "backrest"), "arms": ("arms", "armrests"),
-    "rungs": ("rungs", "stretchers"), "top": ("top", "tabletop", "table top"), "apron": ("apron", "rails"),
-    "drawers": ("drawers", "drawer fronts"), "doors": ("doors", "door"), "handles": ("handles", "knobs", "pulls"),
-    "body": ("body",), "base": ("base", "plinth", "stand"), "cushions": ("cushions", "seat cushions"),
-    "mattress": ("mattress",), "headboard": ("headboard",), "footboard": ("footboard",), "frame": ("frame", "bed frame", "side rails"),
-    "pillows": ("pillows", "pillow"), "pole": ("pole", "stem"), "shade": ("shade", "lampshade"), "arm": ("arm",),
-    "handle": ("handle",), "spout": ("spout",), "lid": ("lid",), "cup": ("cup", "bowl"), "stem": ("stem",), "foot": ("foot",),
-    "cabin": ("cabin", "cab"), "wheels": ("wheels", "tyres", "tires"), "bumpers": ("bumpers",), "walls": ("walls",),
-    "roof": ("roof",), "door": ("door",), "windows": ("windows",), "chimney": ("chimney",), "trunk": ("trunk",),
-    "canopy": ("leaves", "canopy", "foliage"), "branches": ("branches",), "pot": ("pot", "planter"), "cap": ("cap",),
-    "head": ("head",), "blade": ("blade",), "shaft": ("shaft", "handle"),
+    "legs": ("legs", "leg", "feet"),
+    "seat": ("seat",),
+    "back": ("back", "backrest"),
+    "arms": ("arms", "armrests"),
+    "rungs": ("rungs", "stretchers"),
+    "top": ("top", "tabletop", "table top"),
+    "apron": ("apron", "rails"),
+    "drawers": ("drawers", "drawer fronts"),
+    "doors": ("doors", "door"),
+    "handles": ("handles", "knobs", "pulls"),
+    "body": ("body",),
+    "base": ("base", "plinth", "stand"),
+    "cushions": ("cushions", "seat cushions"),
+    "mattress": ("mattress",),
+    "headboard": ("headboard",),
+    "footboard": ("footboard",),
+    "frame": ("frame", "bed frame", "side rails"),
+    "pillows": ("pillows", "pillow"),
+    "pole": ("pole", "stem"),
+    "shade": ("shade", "lampshade"),
+    "arm": ("arm",),
+    "handle": ("handle",),
+    "spout": ("spout",),
+    "lid": ("lid",),
+    "cup": ("cup", "bowl"),
+    "stem": ("stem",),
+    "foot": ("foot",),
+    "cabin": ("cabin", "cab"),
+    "wheels": ("wheels", "tyres", "tires"),
+    "bumpers": ("bumpers",),
+    "walls": ("walls",),
+    "roof": ("roof",),
+    "door": ("door",),
+    "windows": ("windows",),
+    "chimney": ("chimney",),
+    "trunk": ("trunk",),
+    "canopy": ("leaves", "canopy", "foliage"),
+    "branches": ("branches",),
+    "pot": ("pot", "planter"),
+    "cap": ("cap",),
+    "head": ("head",),
+    "blade": ("blade",),
+    "shaft": ("shaft", "handle"),
 }
 
 Parts = list[tuple[P.Part, str]]
@@ -131,8 +163,7 @@ def cabinet(rng) -> tuple[str, Parts]:
     w, d, h = rng.uniform(0.5, 1.2), rng.uniform(0.35, 0.6), rng.uniform(0.7, 1.9)
     on_legs = rng.random() < 0.5
     z0 = rng.uniform(0.1, 0.2) if on_legs else 0.08
-    parts = _legs((-w / 2 + 0.04, w / 2 - 0.04), (-d / 2 + 0.04, d / 2 - 0.04), 0, z0, 0.04, True) if on_legs else \
-        [(_box((-w / 2 + 0.03, -d / 2 + 0.03, 0), (w / 2 - 0.03, d / 2 - 0.03, z0)), "base")]
+    parts = _legs((-w / 2 + 0.04, w / 2 - 0.04), (-d / 2 + 0.04, d / 2 - 0.04), 0, z0, 0.04, True) if on_legs else [(_box((-w / 2 + 0.03, -d / 2 + 0.03, 0), (w / 2 - 0.03, d / 2 - 0.03, z0)), "base")]
     parts.append((_box((-w / 2, -d / 2 + 0.02, z0), (w / 2, d / 2, h - 0.03)), "body"))
     parts.append((_box((-w / 2 - 0.02, -d / 2, h - 0.03), (w / 2 + 0.02, d / 2 + 0.02, h)), "top"))
     nd = int(rng.integers(1, 3))
@@ -183,8 +214,7 @@ def bed(rng) -> tuple[str, Parts]:
 def floor_lamp(rng) -> tuple[str, Parts]:
     h, r = rng.uniform(1.3, 1.8), rng.uniform(0.15, 0.25)
     sr, sh = rng.uniform(0.18, 0.3), rng.uniform(0.2, 0.35)
-    return "lamp", [(_frustum(r, r * 0.9, 0, 0.04), "base"), (_rod((0, 0, 0.04), (0, 0, h - sh * 0.8), 0.015), "pole"),
-                    (_frustum(sr, sr * rng.uniform(0.55, 0.8), h - sh, h), "shade")]
+    return "lamp", [(_frustum(r, r * 0.9, 0, 0.04), "base"), (_rod((0, 0, 0.04), (0, 0, h - sh * 0.8), 0.015), "pole"), (_frustum(sr, sr * rng.uniform(0.55, 0.8), h - sh, h), "shade")]
 
 
 def desk_lamp(rng) -> tuple[str, Parts]:
@@ -199,8 +229,7 @@ def desk_lamp(rng) -> tuple[str, Parts]:
 def table_lamp(rng) -> tuple[str, Parts]:
     bh, _br = rng.uniform(0.2, 0.35), rng.uniform(0.06, 0.1)  # _br: drawn, so the stream stays the corpus's
     sr = rng.uniform(0.14, 0.22)
-    return "lamp", [(_ball((0, 0, bh / 2), bh / 2, squash=1.0), "base"), (_rod((0, 0, bh), (0, 0, bh + 0.12), 0.01), "pole"),
-                    (_frustum(sr, sr * 0.65, bh + 0.08, bh + 0.08 + sr * 1.2), "shade")]
+    return "lamp", [(_ball((0, 0, bh / 2), bh / 2, squash=1.0), "base"), (_rod((0, 0, bh), (0, 0, bh + 0.12), 0.01), "pole"), (_frustum(sr, sr * 0.65, bh + 0.08, bh + 0.08 + sr * 1.2), "shade")]
 
 
 # --------------------------------------------------------------------------------------- tableware
@@ -221,8 +250,7 @@ def teapot(rng) -> tuple[str, Parts]:
 
 def goblet(rng) -> tuple[str, Parts]:
     r, sh = rng.uniform(0.035, 0.05), rng.uniform(0.06, 0.1)
-    return "goblet", [(_frustum(r * 1.2, r * 1.1, 0, 0.01), "foot"), (_rod((0, 0, 0.01), (0, 0, 0.01 + sh), 0.005), "stem"),
-                      (_frustum(r * 0.5, r, 0.01 + sh, 0.01 + sh + r * 2), "cup")]
+    return "goblet", [(_frustum(r * 1.2, r * 1.1, 0, 0.01), "foot"), (_rod((0, 0, 0.01), (0, 0, 0.01 + sh), 0.005), "stem"), (_frustum(r * 0.5, r, 0.01 + sh, 0.01 + sh + r * 2), "cup")]
 
 
 # ---------------------------------------------------------------------------------------- vehicles
@@ -243,8 +271,7 @@ def car(rng) -> tuple[str, Parts]:
 def truck(rng) -> tuple[str, Parts]:
     L, w, wr = rng.uniform(5, 7), rng.uniform(2.0, 2.5), rng.uniform(0.4, 0.5)
     z = wr * 0.8
-    parts: Parts = [(_box((-w / 2, -L / 2, z), (w / 2, L / 2 - 1.8, z + rng.uniform(1.5, 2.5))), "body"),
-                    (_box((-w / 2, L / 2 - 1.7, z), (w / 2, L / 2, z + rng.uniform(1.4, 1.8))), "cabin")]
+    parts: Parts = [(_box((-w / 2, -L / 2, z), (w / 2, L / 2 - 1.8, z + rng.uniform(1.5, 2.5))), "body"), (_box((-w / 2, L / 2 - 1.7, z), (w / 2, L / 2, z + rng.uniform(1.4, 1.8))), "cabin")]
     axles = (-L * 0.35, -L * 0.1, L * 0.35) if rng.random() < 0.5 else (-L * 0.3, L * 0.35)
     for x in (-w / 2 - 0.12, w / 2 - 0.12):
         for y in axles:
@@ -267,9 +294,11 @@ def _prism_roof(lo, hi, peak: float) -> P.Part:
 def house(rng) -> tuple[str, Parts]:
     w, d, h = rng.uniform(6, 12), rng.uniform(6, 10), rng.uniform(2.6, 6.0)
     rh = rng.uniform(1.5, 3.5)
-    parts: Parts = [(_box((-w / 2, -d / 2, 0), (w / 2, d / 2, h)), "walls"),
-                    (_prism_roof((-w / 2 - 0.3, -d / 2 - 0.3, h), (w / 2 + 0.3, d / 2 + 0.3, h + rh), rh), "roof"),
-                    (_box((-0.5, -d / 2 - 0.08, 0), (0.5, -d / 2, 2.1)), "door")]
+    parts: Parts = [
+        (_box((-w / 2, -d / 2, 0), (w / 2, d / 2, h)), "walls"),
+        (_prism_roof((-w / 2 - 0.3, -d / 2 - 0.3, h), (w / 2 + 0.3, d / 2 + 0.3, h + rh), rh), "roof"),
+        (_box((-0.5, -d / 2 - 0.08, 0), (0.5, -d / 2, 2.1)), "door"),
+    ]
     nw = int(rng.integers(2, 5))
     for i in range(nw):
         x = -w / 2 + (i + 0.5) * w / nw
@@ -315,8 +344,7 @@ def mushroom(rng) -> tuple[str, Parts]:
 # ------------------------------------------------------------------------------------------- tools
 def hammer(rng) -> tuple[str, Parts]:
     L = rng.uniform(0.25, 0.4)
-    return "hammer", [(_rod((0, 0, 0), (0, 0, L), rng.uniform(0.012, 0.018)), "shaft"),
-                      (_box((-0.06, -0.015, L), (0.06, 0.015, L + 0.035)), "head")]
+    return "hammer", [(_rod((0, 0, 0), (0, 0, L), rng.uniform(0.012, 0.018)), "shaft"), (_box((-0.06, -0.015, L), (0.06, 0.015, L + 0.035)), "head")]
 
 
 def shovel(rng) -> tuple[str, Parts]:
@@ -330,8 +358,13 @@ def axe(rng) -> tuple[str, Parts]:
 
 
 KINDS: dict[str, tuple[Callable, ...]] = {
-    "furniture": (chair, table, sofa, cabinet, desk), "beds": (bed,), "lighting": (floor_lamp, desk_lamp, table_lamp),
-    "tableware": (mug, teapot, goblet), "vehicles": (car, truck), "buildings": (house,), "plants": (tree, potted_plant, mushroom),
+    "furniture": (chair, table, sofa, cabinet, desk),
+    "beds": (bed,),
+    "lighting": (floor_lamp, desk_lamp, table_lamp),
+    "tableware": (mug, teapot, goblet),
+    "vehicles": (car, truck),
+    "buildings": (house,),
+    "plants": (tree, potted_plant, mushroom),
     "tools": (hammer, shovel, axe),
 }
 

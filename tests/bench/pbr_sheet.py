@@ -54,8 +54,7 @@ def main() -> None:
         images += [flat, pbr]
         short = prompt if len(prompt) < 24 else "fork, tip and handle"
         labels += [f"{short}: colour only", f"{short}: PBR"]
-        print(f"{model:6s} {prompt!r:58s} luma spread colour-only {_spread(flat):5.1f}  PBR {_spread(pbr):5.1f}  "
-              f"(paint + maps {t_paint:.2f} s, PBR render {t_render:.2f} s)")
+        print(f"{model:6s} {prompt!r:58s} luma spread colour-only {_spread(flat):5.1f}  PBR {_spread(pbr):5.1f}  (paint + maps {t_paint:.2f} s, PBR render {t_render:.2f} s)")
     save_png(args.out, render_grid(images, 2, labels))
     print(f"wrote {args.out}")
 

@@ -67,22 +67,28 @@ def glb_with_index_count(data: bytes, count) -> bytes:
     import struct
 
     n = struct.unpack_from("<I", data, 12)[0]
-    doc = json.loads(data[20:20 + n])
+    doc = json.loads(data[20 : 20 + n])
     doc["accessors"][doc["meshes"][0]["primitives"][0]["indices"]]["count"] = count
     js = json.dumps(doc).encode()
     js += b" " * (-len(js) % 4)
-    out = data[:12] + struct.pack("<I", len(js)) + b"JSON" + js + data[20 + n:]
+    out = data[:12] + struct.pack("<I", len(js)) + b"JSON" + js + data[20 + n :]
     return out[:8] + struct.pack("<I", len(out)) + out[12:]
 
 
 def chain_gltf(depth: int) -> bytes:
     buf = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
     nodes = [{"children": [k + 1]} for k in range(depth - 1)] + [{"mesh": 0}]
-    return json.dumps({"asset": {"version": "2.0"}, "scenes": [{"nodes": [0]}], "nodes": nodes,
-                       "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-                       "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64," + base64.b64encode(buf).decode()}],
-                       "bufferViews": [{"buffer": 0, "byteLength": 36}],
-                       "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}]}).encode()
+    return json.dumps(
+        {
+            "asset": {"version": "2.0"},
+            "scenes": [{"nodes": [0]}],
+            "nodes": nodes,
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+            "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64," + base64.b64encode(buf).decode()}],
+            "bufferViews": [{"buffer": 0, "byteLength": 36}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}],
+        }
+    ).encode()
 
 
 def obj_of(vertices: np.ndarray, faces: np.ndarray) -> bytes:
@@ -145,6 +151,7 @@ async def http_cases(root: Path, rows: list) -> None:
             await asyncio.sleep(0.05)
 
     async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://probe", timeout=30) as c:
+
         async def post(body, headers=None, files=None):
             t = time.monotonic()
             if files is not None:
@@ -158,8 +165,9 @@ async def http_cases(root: Path, rows: list) -> None:
                 is_json = isinstance(r.json(), dict)
             except ValueError:
                 is_json = False
-            rows.append({"class": cls, "case": case, "expect": expect, "got": r.status_code, "seconds": round(took, 2),
-                         "json": is_json, "ok": str(r.status_code) in expect.split("/") and is_json and ok_extra})
+            rows.append(
+                {"class": cls, "case": case, "expect": expect, "got": r.status_code, "seconds": round(took, 2), "json": is_json, "ok": str(r.status_code) in expect.split("/") and is_json and ok_extra}
+            )
 
         r, t = await post(stalled(), {"content-length": "1000"})
         row("slow bodies", "Content-Length 1000, 10 bytes, then idle", "408", r, t, t < 5)
@@ -170,13 +178,13 @@ async def http_cases(root: Path, rows: list) -> None:
         # had answered (0.68 s; 2.07 s with both cores busy three times over), so the case measured
         # the race, not whether stalled bodies block anyone. What it checks: both answered while all
         # 40 were held (the seconds are reported, not judged: a loaded machine's are no verdict).
-        patient = ingress_app(forward, Limits(**{**LIMITS, "body_idle_seconds": 60.0, "body_seconds": 120.0}),
-                              is_lost=lambda exc: isinstance(exc, Lost), retry_seconds=5)
+        patient = ingress_app(forward, Limits(**{**LIMITS, "body_idle_seconds": 60.0, "body_seconds": 120.0}), is_lost=lambda exc: isinstance(exc, Lost), retry_seconds=5)
         release = asyncio.Event()
         async with httpx.AsyncClient(transport=httpx.ASGITransport(app=patient), base_url="http://probe", timeout=120) as held:
-            holders = [asyncio.create_task(held.post("/v1/families/mug/transfer", content=stalled(release=release, rest=b"}}"),
-                                                     headers={"content-type": "application/json", "content-length": "1000"}))
-                       for _ in range(40)]
+            holders = [
+                asyncio.create_task(held.post("/v1/families/mug/transfer", content=stalled(release=release, rest=b"}}"), headers={"content-type": "application/json", "content-length": "1000"}))
+                for _ in range(40)
+            ]
             await asyncio.sleep(0.2)
             t = time.monotonic()
             h = await held.get("/healthz")
@@ -185,40 +193,59 @@ async def http_cases(root: Path, rows: list) -> None:
             still = not any(x.done() for x in holders)
             release.set()
             ended = await asyncio.gather(*holders)
-        rows.append({"class": "slow bodies", "case": f"40 stalled bodies held: health ({h.status_code}) and another family's transfer",
-                     "expect": "200", "got": r.status_code, "seconds": round(t, 2), "json": False,
-                     "ok": h.status_code == 200 and r.status_code == 200 and r.content[:4] == b"glTF" and still
-                     and {x.status_code for x in ended} == {422}})
+        rows.append(
+            {
+                "class": "slow bodies",
+                "case": f"40 stalled bodies held: health ({h.status_code}) and another family's transfer",
+                "expect": "200",
+                "got": r.status_code,
+                "seconds": round(t, 2),
+                "json": False,
+                "ok": h.status_code == 200 and r.status_code == 200 and r.content[:4] == b"glTF" and still and {x.status_code for x in ended} == {422},
+            }
+        )
         big = 100_000  # over Limits.small_body: an upload, with the one upload slot of LIMITS
         holder = asyncio.create_task(post(stalled(pause=1.5), {"content-length": str(big)}))
         await asyncio.sleep(0.2)
         r, t = await post(b" " * big)
         h = await c.get("/healthz")
-        row("slow bodies", "a second upload while the one upload slot stalls (health answers: %d)" % h.status_code, "503", r, t,
-            h.status_code == 200 and r.headers.get("retry-after") == "1")
+        row("slow bodies", "a second upload while the one upload slot stalls (health answers: %d)" % h.status_code, "503", r, t, h.status_code == 200 and r.headers.get("retry-after") == "1")
         await holder
-        ply = (b"ply\nformat binary_little_endian 1.0\nelement vertex 100\nproperty float x\nproperty float y\nproperty float z\n"
-               b"element face 2000000\nproperty list uchar int vertex_indices\nend_header\n") + b"\0" * 1200
+        ply = (
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 100\nproperty float x\nproperty float y\nproperty float z\n"
+            b"element face 2000000\nproperty list uchar int vertex_indices\nend_header\n"
+        ) + b"\0" * 1200
         face = b"".join(f"v {k} {k % 7} 0\n".encode() for k in range(100)) + b"f " + b" ".join(str(1 + k % 100).encode() for k in range(100_000))
-        for case, name, data, expect in (("PLY header: 2,000,000 faces", "m.ply", ply, "413"),
-                                         ("OBJ face of 100,000 corners", "m.obj", face, "422"),
-                                         ("glTF node chain 1,000 deep", "m.gltf", chain_gltf(1000), "422"),
-                                         ("sofa-sized mug moved 1e9 away", "m.obj", obj_of(mug.vertices + 1e9, mug.faces), "422"),
-                                         ("mug scaled by 1e300", "m.obj", obj_of(mug.vertices * 1e300, mug.faces), "422"),
-                                         ("mug moved 1e3 away (served)", "m.obj", obj_of(mug.vertices + 1e3, mug.faces), "200")):
+        for case, name, data, expect in (
+            ("PLY header: 2,000,000 faces", "m.ply", ply, "413"),
+            ("OBJ face of 100,000 corners", "m.obj", face, "422"),
+            ("glTF node chain 1,000 deep", "m.gltf", chain_gltf(1000), "422"),
+            ("sofa-sized mug moved 1e9 away", "m.obj", obj_of(mug.vertices + 1e9, mug.faces), "422"),
+            ("mug scaled by 1e300", "m.obj", obj_of(mug.vertices * 1e300, mug.faces), "422"),
+            ("mug moved 1e3 away (served)", "m.obj", obj_of(mug.vertices + 1e3, mug.faces), "200"),
+        ):
             r, t = await post(None, files={"mesh": (name, data)})
             if expect == "200":
-                rows.append({"class": "bounded work", "case": case, "expect": expect, "got": r.status_code, "seconds": round(t, 2),
-                             "json": False, "ok": r.status_code == 200 and r.content[:4] == b"glTF"})
+                rows.append(
+                    {"class": "bounded work", "case": case, "expect": expect, "got": r.status_code, "seconds": round(t, 2), "json": False, "ok": r.status_code == 200 and r.content[:4] == b"glTF"}
+                )
             else:
                 row("bounded work", case, expect, r, t, t < 5)
 
         # a replica lost mid-request (Serve's proxy would say a plain-text 500; tests/test_ray.py kills a real one)
         losses[:] = ["after"]
         r, t = await post(b'{"params": {}}')
-        rows.append({"class": "lost replica", "case": "a transfer whose replica died before answering", "expect": "200 (retried)",
-                     "got": r.status_code, "seconds": round(t, 2), "json": False,
-                     "ok": r.status_code == 200 and r.content[:4] == b"glTF" and r.headers.get("x-proctex-retried") == "1"})
+        rows.append(
+            {
+                "class": "lost replica",
+                "case": "a transfer whose replica died before answering",
+                "expect": "200 (retried)",
+                "got": r.status_code,
+                "seconds": round(t, 2),
+                "json": False,
+                "ok": r.status_code == 200 and r.content[:4] == b"glTF" and r.headers.get("x-proctex-retried") == "1",
+            }
+        )
         losses[:] = ["before", "before"]
         r, t = await post(b'{"params": {}}')
         row("lost replica", "a transfer whose retry is lost too", "503", r, t, r.headers.get("retry-after") == "5")
@@ -226,8 +253,7 @@ async def http_cases(root: Path, rows: list) -> None:
         t = time.monotonic()
         r = await c.post("/v1/families/mug/edits", json={"group": 0, "hue": 5}, headers=TOKEN)
         undo = await c.delete("/v1/families/mug/edits/last", headers=TOKEN)  # it had landed: undone
-        row("lost replica", "an edit whose replica died after storing it (not retried)", "503", r, time.monotonic() - t,
-            undo.status_code == 200 and "not retried" in r.json()["error"])
+        row("lost replica", "an edit whose replica died after storing it (not retried)", "503", r, time.monotonic() - t, undo.status_code == 200 and "not retried" in r.json()["error"])
 
         # writes
         from proctex.store.layout import FamilyStore, StoreLayout
@@ -264,8 +290,7 @@ async def http_cases(root: Path, rows: list) -> None:
         (fam / rel).write_bytes(encode_png(255 - decode_png(good, rel)))
         t = time.monotonic()
         r = await c.post("/v1/families/mug/edits", json={"group": 0, "hue": 20}, headers=TOKEN)
-        row("writes", "an edit over a texture replaced outside ProcTex", "503", r, time.monotonic() - t,
-            len(st.read_json(StoreLayout.PAINT)["edits"]) == 1)
+        row("writes", "an edit over a texture replaced outside ProcTex", "503", r, time.monotonic() - t, len(st.read_json(StoreLayout.PAINT)["edits"]) == 1)
         (fam / rel).write_bytes(good)  # repaired
         await asyncio.sleep(0.4)
         t = time.monotonic()
@@ -284,8 +309,10 @@ async def http_cases(root: Path, rows: list) -> None:
         # odd paths and values
         from proctex.texture.export import glb_bytes
 
-        for case, path in (("/v1/families/%2e%2e%2f (was a 307, empty)", "/v1/families/%2e%2e%2f"),
-                           ("textures/0.normal.orm.png (served the normal map)", "/v1/families/mug/textures/0.normal.orm.png")):
+        for case, path in (
+            ("/v1/families/%2e%2e%2f (was a 307, empty)", "/v1/families/%2e%2e%2f"),
+            ("textures/0.normal.orm.png (served the normal map)", "/v1/families/mug/textures/0.normal.orm.png"),
+        ):
             t = time.monotonic()
             r = await c.get(path)
             row("odd input", case, "404", r, time.monotonic() - t)
@@ -303,8 +330,10 @@ async def http_cases(root: Path, rows: list) -> None:
         return httpx.AsyncClient(transport=httpx.ASGITransport(app=fair, client=(address, 40000)), base_url="http://probe", timeout=120)
 
     async with peer("192.0.2.1") as bad, peer("192.0.2.2") as good:
-        holders = [asyncio.create_task(bad.post("/v1/families/mug/transfer", content=stalled(release=release, rest=b"}}"),
-                                                headers={"content-type": "application/json", "content-length": "1000"})) for _ in range(260)]
+        holders = [
+            asyncio.create_task(bad.post("/v1/families/mug/transfer", content=stalled(release=release, rest=b"}}"), headers={"content-type": "application/json", "content-length": "1000"}))
+            for _ in range(260)
+        ]
         share = Limits().client_small_bodies
         deadline = time.monotonic() + 60
         while sum(h.done() for h in holders) < 260 - share and time.monotonic() < deadline:
@@ -315,13 +344,20 @@ async def http_cases(root: Path, rows: list) -> None:
         refused = [h.result() for h in holders if h.done()]
         release.set()
         await asyncio.gather(*holders)
-    rows.append({"class": "fairness", "case": f"260 stalled bodies from one client ({len(refused)} over its share of {share}: 429) and another client's transfer",
-                 "expect": "200", "got": r.status_code, "seconds": round(t, 2), "json": False,
-                 "ok": r.status_code == 200 and r.content[:4] == b"glTF" and len(refused) == 260 - share and {x.status_code for x in refused} == {429}})
+    rows.append(
+        {
+            "class": "fairness",
+            "case": f"260 stalled bodies from one client ({len(refused)} over its share of {share}: 429) and another client's transfer",
+            "expect": "200",
+            "got": r.status_code,
+            "seconds": round(t, 2),
+            "json": False,
+            "ok": r.status_code == 200 and r.content[:4] == b"glTF" and len(refused) == 260 - share and {x.status_code for x in refused} == {429},
+        }
+    )
 
     # looks under their limits (issue 54): over the time budget, over the texels; nothing written
-    for case, limits, expect in (("a look past its time budget (look_seconds 1e-6)", {"look_seconds": 1e-6}, "422"),
-                                 ("a look over its texels (look_texels 1000)", {"look_texels": 1000}, "413")):
+    for case, limits, expect in (("a look past its time budget (look_seconds 1e-6)", {"look_seconds": 1e-6}, "422"), ("a look over its texels (look_texels 1000)", {"look_texels": 1000}, "413")):
         cat2 = Catalog(str(root), Limits(**{**LIMITS, **limits}), check_every=0)
         app2 = create_app(lambda cat2=cat2: cat2, edit_token=TOKEN["X-ProcTex-Token"])
         before = tree(root / "mug2")
@@ -335,8 +371,10 @@ def store_cases(root: Path, rows: list) -> None:
     from proctex.cli import main
 
     fam = root / "mug"
-    hold = ("import sys, time\nfrom proctex.store.layout import FamilyStore\nfrom proctex.store.locks import build_lock\n"
-            "with build_lock(FamilyStore(sys.argv[1]), 'a build'):\n    print('held', flush=True)\n    time.sleep(60)\n")
+    hold = (
+        "import sys, time\nfrom proctex.store.layout import FamilyStore\nfrom proctex.store.locks import build_lock\n"
+        "with build_lock(FamilyStore(sys.argv[1]), 'a build'):\n    print('held', flush=True)\n    time.sleep(60)\n"
+    )
     proc = subprocess.Popen([sys.executable, "-c", hold, str(fam)], stdout=subprocess.PIPE, text=True)
     try:
         proc.stdout.readline()
@@ -344,40 +382,69 @@ def store_cases(root: Path, rows: list) -> None:
         t = time.monotonic()
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
             code = main(["build", "--model", "mug", "--prompt", "red", "--out", str(fam), "--n-train", "2", "--n-test", "0"])
-        rows.append({"class": "builds", "case": "a second build of a store being built", "expect": "exit 2", "got": f"exit {code}",
-                     "seconds": round(time.monotonic() - t, 2), "json": False, "ok": code == 2 and "held by a build" in err.getvalue()})
+        rows.append(
+            {
+                "class": "builds",
+                "case": "a second build of a store being built",
+                "expect": "exit 2",
+                "got": f"exit {code}",
+                "seconds": round(time.monotonic() - t, 2),
+                "json": False,
+                "ok": code == 2 and "held by a build" in err.getvalue(),
+            }
+        )
     finally:
         proc.kill()
         proc.wait()
     before = tree(fam)
-    for case, argv in (("transfer --bake -5", ["transfer", str(fam), "--params", "{}", "--out", str(root / "x.glb"), "--bake", "-5"]),
-                       ("transfer --bake 100000", ["transfer", str(fam), "--params", "{}", "--out", str(root / "x.glb"), "--bake", "100000"]),
-                       ("transfer --seed -1", ["transfer", str(fam), "--params", "{}", "--out", str(root / "x.glb"), "--seed", "-1"]),
-                       ("edit --logo L --size 1e9,1e9", ["edit", str(fam), "--group", "0", "--logo", str(root / "logo.png"), "--size", "1e9,1e9"])):
+    for case, argv in (
+        ("transfer --bake -5", ["transfer", str(fam), "--params", "{}", "--out", str(root / "x.glb"), "--bake", "-5"]),
+        ("transfer --bake 100000", ["transfer", str(fam), "--params", "{}", "--out", str(root / "x.glb"), "--bake", "100000"]),
+        ("transfer --seed -1", ["transfer", str(fam), "--params", "{}", "--out", str(root / "x.glb"), "--seed", "-1"]),
+        ("edit --logo L --size 1e9,1e9", ["edit", str(fam), "--group", "0", "--logo", str(root / "logo.png"), "--size", "1e9,1e9"]),
+    ):
         t = time.monotonic()
         with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
             code = main(argv)
-        rows.append({"class": "nonsense numbers", "case": case, "expect": "exit 2", "got": f"exit {code}", "seconds": round(time.monotonic() - t, 2),
-                     "json": False, "ok": code == 2 and tree(fam) == before and not (root / "x.glb").exists()})
+        rows.append(
+            {
+                "class": "nonsense numbers",
+                "case": case,
+                "expect": "exit 2",
+                "got": f"exit {code}",
+                "seconds": round(time.monotonic() - t, 2),
+                "json": False,
+                "ok": code == 2 and tree(fam) == before and not (root / "x.glb").exists(),
+            }
+        )
     # one set of bounds: what HTTP refuses, the command line refuses before any work (issue 54)
     huge = root / "huge.json"
     huge.write_text(json.dumps({str(k): "oak" for k in range(100_000)}))
-    for case, argv in (("look add --prompt of 201 characters", ["look", "add", str(fam), "big", "--prompt", "x" * 201]),
-                       ("look add --group-prompts of 1.5 MB", ["look", "add", str(fam), "big", "--prompt", "oak", "--group-prompts", str(huge)])):
+    for case, argv in (
+        ("look add --prompt of 201 characters", ["look", "add", str(fam), "big", "--prompt", "x" * 201]),
+        ("look add --group-prompts of 1.5 MB", ["look", "add", str(fam), "big", "--prompt", "oak", "--group-prompts", str(huge)]),
+    ):
         t = time.monotonic()
         with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
             code = main(argv)
-        rows.append({"class": "bounds", "case": case, "expect": "exit 2", "got": f"exit {code}", "seconds": round(time.monotonic() - t, 2),
-                     "json": False, "ok": code == 2 and tree(fam) == before})
+        rows.append({"class": "bounds", "case": case, "expect": "exit 2", "got": f"exit {code}", "seconds": round(time.monotonic() - t, 2), "json": False, "ok": code == 2 and tree(fam) == before})
     spec = root / "spec.json"
     spec.write_text(json.dumps({"nope": [0, 1]}))
     out = root / "refused"
     t = time.monotonic()
     with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
         code = main(["build", "--model", "mug", "--prompt", "red", "--out", str(out), "--n-train", "2", "--n-test", "0", "--params-spec", str(spec)])
-    rows.append({"class": "bounds", "case": "a build refused for its --params-spec (left family.json and locks)", "expect": "exit 2, no --out",
-                 "got": f"exit {code}" + ("" if out.exists() else ", no --out"), "seconds": round(time.monotonic() - t, 2), "json": False,
-                 "ok": code == 2 and not out.exists()})
+    rows.append(
+        {
+            "class": "bounds",
+            "case": "a build refused for its --params-spec (left family.json and locks)",
+            "expect": "exit 2, no --out",
+            "got": f"exit {code}" + ("" if out.exists() else ", no --out"),
+            "seconds": round(time.monotonic() - t, 2),
+            "json": False,
+            "ok": code == 2 and not out.exists(),
+        }
+    )
     # units: the mug uploaded in other units takes the same UVs (issue 54)
     from proctex.models import get_model
     from proctex.serve.service import FamilyService
@@ -388,8 +455,17 @@ def store_cases(root: Path, rows: list) -> None:
     t = time.monotonic()
     uvs = {s: svc.textured(svc.shape_from_mesh(obj_of(mug.vertices * s, mug.faces), "m.obj"))[0].result.corner_uv for s in (1.0, 1e-6, 1e3, 1e6)}
     moved = max(float(np.abs(uvs[s] - uvs[1.0]).max()) for s in (1e-6, 1e3, 1e6))
-    rows.append({"class": "units", "case": "the mug uploaded in mm, um or km: UVs moved at most", "expect": "<= 1e-5", "got": f"{moved:.1e}",
-                 "seconds": round(time.monotonic() - t, 2), "json": False, "ok": moved <= 1e-5})
+    rows.append(
+        {
+            "class": "units",
+            "case": "the mug uploaded in mm, um or km: UVs moved at most",
+            "expect": "<= 1e-5",
+            "got": f"{moved:.1e}",
+            "seconds": round(time.monotonic() - t, 2),
+            "json": False,
+            "ok": moved <= 1e-5,
+        }
+    )
     # files honour the umask
     import os
 
@@ -399,8 +475,17 @@ def store_cases(root: Path, rows: list) -> None:
     with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
         code = main(["transfer", str(fam), "--params", "{}", "--out", str(root / "mode.glb")])
     mode = os.stat(root / "mode.glb").st_mode & 0o777 if code == 0 else 0
-    rows.append({"class": "files", "case": f"a transfer's GLB under umask {current_umask():03o} (was 600)", "expect": f"mode {0o666 & ~current_umask():o}",
-                 "got": f"mode {mode:o}", "seconds": round(time.monotonic() - t, 2), "json": False, "ok": code == 0 and mode == 0o666 & ~current_umask()})
+    rows.append(
+        {
+            "class": "files",
+            "case": f"a transfer's GLB under umask {current_umask():03o} (was 600)",
+            "expect": f"mode {0o666 & ~current_umask():o}",
+            "got": f"mode {mode:o}",
+            "seconds": round(time.monotonic() - t, 2),
+            "json": False,
+            "ok": code == 0 and mode == 0o666 & ~current_umask(),
+        }
+    )
 
 
 def run(root: Path) -> list[dict]:

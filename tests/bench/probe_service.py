@@ -82,8 +82,14 @@ def probe_http(root: Path, n: int, seed: int) -> dict:
             plain += 1
             if len(examples) < 5:
                 examples.append(f"{kind} {method.upper()} {path[:60]}: {r.status_code} {r.text[:80]!r}")
-    return {"cases": len(cases), "statuses": dict(sorted(statuses.items())), "plain_text_errors": plain, "server_errors": statuses.get("500", 0),
-            "slowest_seconds": round(slowest, 2), "examples": examples}
+    return {
+        "cases": len(cases),
+        "statuses": dict(sorted(statuses.items())),
+        "plain_text_errors": plain,
+        "server_errors": statuses.get("500", 0),
+        "slowest_seconds": round(slowest, 2),
+        "examples": examples,
+    }
 
 
 def probe_cli(root: Path, out: Path) -> dict:
@@ -104,8 +110,7 @@ def probe_cli(root: Path, out: Path) -> dict:
         internal += "internal error" in err.getvalue()
         codes[str(code)] = codes.get(str(code), 0) + 1
     stray = [str(p) for p in out.rglob("*") if p.name.endswith(".tmp")]
-    return {"cases": len(cases), "exit_codes": dict(sorted(codes.items())), "tracebacks": tracebacks, "internal_errors": internal,
-            "stray_tmp_files": len(stray)}
+    return {"cases": len(cases), "exit_codes": dict(sorted(codes.items())), "tracebacks": tracebacks, "internal_errors": internal, "stray_tmp_files": len(stray)}
 
 
 def main(argv=None) -> int:

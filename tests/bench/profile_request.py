@@ -57,27 +57,26 @@ def main(argv=None) -> int:
         "part-count check": median_ms(lambda k: svc.check_shape(shapes[k % len(shapes)])),
         "transfer (segment, assign, map, UVs)": median_ms(lambda k: transfer(shapes[k % len(shapes)], svc.assets, svc.mapper, painter=svc.painter)),
         "GLB, textures embedded": median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], svc.assets, up=svc.up)),
-        "GLB, textures linked": median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], svc.assets, up=svc.up,
-                                                         texture_uris=svc.texture_uris(), map_uris=svc.map_uris())),
+        "GLB, textures linked": median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], svc.assets, up=svc.up, texture_uris=svc.texture_uris(), map_uris=svc.map_uris())),
     }
     if svc.assets.pbr_png is not None:  # the same GLBs without the maps: what the maps cost
         from dataclasses import replace
 
         plain = replace(svc.assets, pbr=None)
         rows["GLB, embedded, colour only"] = median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], plain, up=svc.up))
-        rows["GLB, linked, colour only"] = median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], plain, up=svc.up,
-                                                                   texture_uris=svc.texture_uris()))
-        print("bytes per GLB, embedded: with maps", len(glb(shapes[0], results[0], svc.assets, up=svc.up)), "colour only",
-              len(glb(shapes[0], results[0], plain, up=svc.up)))
+        rows["GLB, linked, colour only"] = median_ms(lambda k: glb(shapes[k % len(shapes)], results[k % len(shapes)], plain, up=svc.up, texture_uris=svc.texture_uris()))
+        print("bytes per GLB, embedded: with maps", len(glb(shapes[0], results[0], svc.assets, up=svc.up)), "colour only", len(glb(shapes[0], results[0], plain, up=svc.up)))
     for mode in ("embedded", "linked"):
         sizes: list[int] = []
 
         def request(k: int) -> None:
             boundary = uuid.uuid4().hex
-            body = (f'--{boundary}\r\nContent-Disposition: form-data; name="mesh"; filename="m.obj"\r\n'
-                    "Content-Type: application/octet-stream\r\n\r\n").encode() + datas[k % len(datas)] + f"\r\n--{boundary}--\r\n".encode()
-            answer = client.post(f"/v1/families/{args.family}/transfer?textures={mode}", content=body,
-                                 headers={"content-type": f"multipart/form-data; boundary={boundary}"})
+            body = (
+                (f'--{boundary}\r\nContent-Disposition: form-data; name="mesh"; filename="m.obj"\r\nContent-Type: application/octet-stream\r\n\r\n').encode()
+                + datas[k % len(datas)]
+                + f"\r\n--{boundary}--\r\n".encode()
+            )
+            answer = client.post(f"/v1/families/{args.family}/transfer?textures={mode}", content=body, headers={"content-type": f"multipart/form-data; boundary={boundary}"})
             if answer.status_code != 200:
                 raise SystemExit(answer.text[:500])
             sizes.append(len(answer.content))

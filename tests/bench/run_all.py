@@ -29,8 +29,12 @@ import bench_texel_map  # noqa: E402
 from harness import machine, report, summary_table, versions  # noqa: E402
 
 SUITE = {
-    "mvc": bench_mvc, "cage_iteration": bench_cage_iteration, "projection": bench_projection, "texel_map": bench_texel_map,
-    "forward": bench_forward, "bake_and_transfer": bench_bake,
+    "mvc": bench_mvc,
+    "cage_iteration": bench_cage_iteration,
+    "projection": bench_projection,
+    "texel_map": bench_texel_map,
+    "forward": bench_forward,
+    "bake_and_transfer": bench_bake,
 }
 
 
@@ -43,8 +47,9 @@ def serve_report(out: Path, requests: int) -> dict:
     from proctex.store.layout import FamilyStore
 
     root = out / "families"
-    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=0, corr_points=300, cage_iterations=40, texture_size=512, prompt="blue ceramic",
-                      train={"iterations": 60, "eval_every": 20})).validate()
+    cfg = BuildConfig.from_dict(
+        dict(model="mug", n_train=3, n_test=0, corr_points=300, cage_iterations=40, texture_size=512, prompt="blue ceramic", train={"iterations": 60, "eval_every": 20})
+    ).validate()
     build(FamilyStore(root / "mug"), cfg, stages=("sample", "template", "paint", "pairs", "train"), log=lambda *_: None)
     raw = out / "serve_raw.json"
     bench_serve.main(["--root", str(root), "--family", "mug", "--requests", str(requests), "--concurrency", "1,4", "--out", str(raw)])
@@ -53,8 +58,15 @@ def serve_report(out: Path, requests: int) -> dict:
     for lv in data["levels"]:
         q = {k: lv[f"{k}_ms"] / 1000 for k in ("p10", "p25", "p50", "p75", "p90")}
         results[f"POST transfer (JSON params -> GLB), {lv['concurrency']} client(s), {lv['rps']:.1f} req/s"] = {
-            "median": q["p50"], "p10": q["p10"], "p90": q["p90"], "min": q["p10"], "max": lv["p99_ms"] / 1000, "mean": lv["mean_ms"] / 1000,
-            "spread": (q["p75"] - q["p25"]) / q["p50"], "repeats": lv["requests"]}
+            "median": q["p50"],
+            "p10": q["p10"],
+            "p90": q["p90"],
+            "min": q["p10"],
+            "max": lv["p99_ms"] / 1000,
+            "mean": lv["mean_ms"] / 1000,
+            "spread": (q["p75"] - q["p25"]) / q["p50"],
+            "repeats": lv["requests"],
+        }
     return report("serve_request", {"family": "mug", "requests": requests, "replicas": 1}, results, str(out / "serve_request.json"))
 
 

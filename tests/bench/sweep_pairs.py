@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (tests.data)
 from tests.data import SOFA  # noqa: E402
 

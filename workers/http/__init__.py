@@ -51,7 +51,28 @@ from .errors import Busy, Forbidden, SlowBody, TooManyFromClient, Unauthorized, 
 from .looks import MAX_LOOK_BODY, MAX_LOOK_PHOTOS, MAX_LOOK_TEXTURE, parse_look, parse_photos
 from .routes.transfer import GLB_MEDIA_TYPE
 
-__all__ = ["STUDIO_DIST", "create_app", "MAX_SEED", "TransferRequest", "client_of", "json_object", "read_body", "read_json_object",
-           "read_look_request", "read_transfer_request", "Busy", "Forbidden", "SlowBody", "TooManyFromClient", "Unauthorized",
-           "UnsupportedType", "error_response", "MAX_LOOK_BODY", "MAX_LOOK_PHOTOS", "MAX_LOOK_TEXTURE", "parse_look", "parse_photos",
-           "GLB_MEDIA_TYPE"]
+__all__ = [
+    "STUDIO_DIST",
+    "create_app",
+    "MAX_SEED",
+    "TransferRequest",
+    "client_of",
+    "json_object",
+    "read_body",
+    "read_json_object",
+    "read_look_request",
+    "read_transfer_request",
+    "Busy",
+    "Forbidden",
+    "SlowBody",
+    "TooManyFromClient",
+    "Unauthorized",
+    "UnsupportedType",
+    "error_response",
+    "MAX_LOOK_BODY",
+    "MAX_LOOK_PHOTOS",
+    "MAX_LOOK_TEXTURE",
+    "parse_look",
+    "parse_photos",
+    "GLB_MEDIA_TYPE",
+]

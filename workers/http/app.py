@@ -23,9 +23,15 @@ from .routes import edits, families, health, looks, parts, studio, textures, tra
 STUDIO_DIST = Path(__file__).resolve().parent.parent / "studio" / "dist"
 
 
-def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], Any]], Awaitable[Any]] | None = None,
-               studio_dir: str | Path | None = None, watchdog: Watchdog | None = None, edit_token: str | None = None,
-               get_family: Callable[[str], Awaitable[FamilyService]] | None = None, replica: str | None = None) -> FastAPI:
+def create_app(
+    get_catalog: Callable[[], Catalog],
+    run: Callable[[Callable[[], Any]], Awaitable[Any]] | None = None,
+    studio_dir: str | Path | None = None,
+    watchdog: Watchdog | None = None,
+    edit_token: str | None = None,
+    get_family: Callable[[str], Awaitable[FamilyService]] | None = None,
+    replica: str | None = None,
+) -> FastAPI:
     """The FastAPI application over a :class:`Catalog`.
 
     ``run(fn)`` executes the blocking transfer (default: a worker thread), so the event loop keeps
@@ -51,8 +57,14 @@ def create_app(get_catalog: Callable[[], Catalog], run: Callable[[Callable[[], A
         # with an empty body; every unknown path is a JSON 404
         redirect_slashes=False,
     )
-    ctx = AppContext(get_catalog=get_catalog, run=run, watchdog=watchdog if watchdog is not None else Watchdog(2 * get_catalog().limits.max_seconds + 30),
-                     edit_token=edit_token, get_family=get_family, replica=replica)
+    ctx = AppContext(
+        get_catalog=get_catalog,
+        run=run,
+        watchdog=watchdog if watchdog is not None else Watchdog(2 * get_catalog().limits.max_seconds + 30),
+        edit_token=edit_token,
+        get_family=get_family,
+        replica=replica,
+    )
 
     @app.exception_handler(Exception)
     async def any_error(request: Request, exc: Exception):

@@ -31,8 +31,7 @@ class TransferRequest(BaseModel):
 
     params: dict[str, Any] = Field(default_factory=dict, description="parameter values (missing ones take their defaults)")
     seed: int = Field(0, ge=0, le=2**31 - 1, strict=True, description="seed (a whole number, not true or 1.0) of the network's context samples and of painting new parts")
-    edits: dict[str, Any] | None = Field(None, description='non-destructive edits: {"<group index or label>": '
-                                         '{"hue": degrees, "saturation": scale, "value": scale, "prompt": text}}')
+    edits: dict[str, Any] | None = Field(None, description='non-destructive edits: {"<group index or label>": {"hue": degrees, "saturation": scale, "value": scale, "prompt": text}}')
 
 
 def client_of(request: Request, proxies: tuple = ()) -> str:
@@ -109,8 +108,10 @@ async def read_body(request: Request, max_bytes: int, limits: Limits | None = No
                 break
             except asyncio.TimeoutError:
                 idle = wait >= limits.body_idle_seconds
-                raise SlowBody(f"request body too slow: {size} bytes in {time.monotonic() - t0:.1f} s, then "
-                               + (f"nothing for {limits.body_idle_seconds:g} s" if idle else f"past the limit of {limits.body_seconds:g} s")) from None
+                raise SlowBody(
+                    f"request body too slow: {size} bytes in {time.monotonic() - t0:.1f} s, then "
+                    + (f"nothing for {limits.body_idle_seconds:g} s" if idle else f"past the limit of {limits.body_seconds:g} s")
+                ) from None
             size += len(chunk)
             if size > max_bytes:
                 raise TooLarge(f"request body over the limit of {max_bytes} bytes")
@@ -170,8 +171,7 @@ async def read_transfer_request(request: Request, max_bytes: int, limits: Limits
     try:
         req = TransferRequest.model_validate_json(body)
     except (ValueError, RecursionError) as exc:  # pydantic ValidationError or JSON errors
-        raise BadInput(f"bad JSON body: {str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__}; "
-                       'expected {"params": {"name": value, ...}, "seed": 0}') from exc
+        raise BadInput(f'bad JSON body: {str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__}; expected {{"params": {{"name": value, ...}}, "seed": 0}}') from exc
     return "params", req.params, req.seed, req.edits
 
 
@@ -217,13 +217,12 @@ async def read_look_request(request: Request, limits: Limits | None = None) -> t
                 raise BadInput("the 'glb' file is given twice")
             photos["glb"] = (await value.read(MAX_LOOK_BODY + 1), str(value.filename or "template.glb")[:120])
         elif key.startswith("image.") and not isinstance(value, str):
-            part = key[len("image."):]
+            part = key[len("image.") :]
             if not part or len(part) > 200 or part in photos:
                 raise BadInput(f"photo fields are image.<part> (a group number, part name or word, or *), each once; got {key[:60]!r}")
             photos[part] = (await value.read(MAX_LOOK_BODY + 1), str(value.filename or part)[:120])
         else:
-            raise BadInput(f"unknown multipart field {key[:60]!r}; a photo look sends 'look' (JSON) and image.<part> files, "
-                           "a repainted template 'look' and a 'glb' file")
+            raise BadInput(f"unknown multipart field {key[:60]!r}; a photo look sends 'look' (JSON) and image.<part> files, a repainted template 'look' and a 'glb' file")
     if text is None:
-        raise BadInput("a multipart look needs a 'look' field: the look's JSON ({\"name\": ..., \"prompt\": ...})")
+        raise BadInput('a multipart look needs a \'look\' field: the look\'s JSON ({"name": ..., "prompt": ...})')
     return json_object(text, "the 'look' field must be JSON", "the 'look' field"), photos

@@ -56,8 +56,7 @@ def parse_look(body: dict[str, Any], svc: Any, files: dict[str, tuple[bytes, str
     member_params, member = body.get("params"), bool(body.get("member", False))
     if glb is not None:
         if files or set(body) - {"name", "texture_size", "force", "params", "member"}:
-            raise BadInput("a look from a GLB takes only name, texture_size, force and (a textured member of the family) params or "
-                           "member, and no photos")
+            raise BadInput("a look from a GLB takes only name, texture_size, force and (a textured member of the family) params or member, and no photos")
         if member_params is not None and not isinstance(member_params, dict):
             raise BadInput("params must be an object of the member's parameter values")
         if not isinstance(body.get("member", False), bool):
@@ -67,8 +66,7 @@ def parse_look(body: dict[str, Any], svc: Any, files: dict[str, tuple[bytes, str
         raise BadInput("params and member go with a 'glb' file (a textured member of the family)")
     unknown = set(body) - {"name", "prompt", "group_prompts", "part_words", "painter", "texture_size", "force", "images"}
     if unknown:
-        raise BadInput(f"unknown fields {sorted(unknown)[:5]}; a look takes name, prompt, group_prompts, part_words, painter, "
-                       "texture_size, force, images")
+        raise BadInput(f"unknown fields {sorted(unknown)[:5]}; a look takes name, prompt, group_prompts, part_words, painter, texture_size, force, images")
     name, prompt = body.get("name"), body.get("prompt")
     check_look_name(name)
     if (files or glb is not None) and prompt is None:
@@ -76,8 +74,7 @@ def parse_look(body: dict[str, Any], svc: Any, files: dict[str, tuple[bytes, str
     elif not isinstance(prompt, str) or not prompt.strip() or len(prompt) > svc.limits.max_prompt:
         raise BadInput(f"prompt must be text of 1 to {svc.limits.max_prompt} characters")
     prompts = body.get("group_prompts") or {}
-    if not isinstance(prompts, dict) or len(prompts) > 256 or not all(
-            isinstance(k, str) and isinstance(v, str) and len(k) <= 64 and len(v) <= svc.limits.max_prompt for k, v in prompts.items()):
+    if not isinstance(prompts, dict) or len(prompts) > 256 or not all(isinstance(k, str) and isinstance(v, str) and len(k) <= 64 and len(v) <= svc.limits.max_prompt for k, v in prompts.items()):
         raise BadInput(f"group_prompts must be an object of at most 256 prompts of at most {svc.limits.max_prompt} characters")
     size = body.get("texture_size")
     if size is not None and (isinstance(size, bool) or not isinstance(size, int) or not 16 <= size <= MAX_LOOK_TEXTURE):

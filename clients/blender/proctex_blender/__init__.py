@@ -248,10 +248,8 @@ class ProcTexSettings(bpy.types.PropertyGroup):
     status: StringProperty(name="Status", default="")
     token: StringProperty(name="Edit token", subtype="PASSWORD", description="the service's edit token (new looks need it)")
     photo_look: StringProperty(name="New look", default="photo", description="the name of the look the photo paints")
-    photo_part: StringProperty(name="Part", default="*", description="the part the photo goes on: a group number, part name or "
-                                                                       "part word, or * for every part")
-    photo_scale: StringProperty(name="Photo width", default="", description="how much surface the photo's width spans (0.5, 50cm); "
-                                                                             "empty: half the part's longest side")
+    photo_part: StringProperty(name="Part", default="*", description="the part the photo goes on: a group number, part name or part word, or * for every part")
+    photo_scale: StringProperty(name="Photo width", default="", description="how much surface the photo's width spans (0.5, 50cm); empty: half the part's longest side")
 
 
 def _fill_params(settings, description: dict[str, Any]) -> None:
@@ -320,8 +318,7 @@ def active_image(obj) -> tuple[str, bytes]:
     tree = mat.node_tree if mat is not None and mat.use_nodes else None
     if tree is None:
         raise ValueError("the active object has no material with nodes: give it an Image Texture")
-    nodes = [n for n in ([tree.nodes.active] if tree.nodes.active is not None else []) + list(tree.nodes)
-             if n.type == "TEX_IMAGE" and n.image is not None]
+    nodes = [n for n in ([tree.nodes.active] if tree.nodes.active is not None else []) + list(tree.nodes) if n.type == "TEX_IMAGE" and n.image is not None]
     if not nodes:
         raise ValueError(f"material {mat.name!r} has no Image Texture node with an image")
     img = nodes[0].image
@@ -362,8 +359,7 @@ class PROCTEX_OT_photo_look(bpy.types.Operator):
         extra = {part: {"scale": settings.photo_scale.strip()}} if settings.photo_scale.strip() else None
         url, name, token, look = settings.url, settings.family, settings.token, settings.photo_look.strip()
         settings.status = f"painting look {look} from {filename}..."
-        _start("photo_look", lambda: client.add_photo_look(url, name, token, look, {part: (filename, data)}, settings=extra),
-               url=url, family=name, scene=context.scene.name)
+        _start("photo_look", lambda: client.add_photo_look(url, name, token, look, {part: (filename, data)}, settings=extra), url=url, family=name, scene=context.scene.name)
         return {"FINISHED"}
 
 
@@ -418,8 +414,7 @@ class PROCTEX_PT_panel(bpy.types.Panel):
             col.label(text=settings.status)
 
 
-CLASSES = (ProcTexParam, ProcTexSettings, PROCTEX_OT_refresh, PROCTEX_OT_texture_selected, PROCTEX_OT_add_variant, PROCTEX_OT_photo_look,
-           PROCTEX_PT_panel)
+CLASSES = (ProcTexParam, ProcTexSettings, PROCTEX_OT_refresh, PROCTEX_OT_texture_selected, PROCTEX_OT_add_variant, PROCTEX_OT_photo_look, PROCTEX_PT_panel)
 
 
 def register() -> None:

@@ -40,8 +40,7 @@ def _family_path(name: str) -> str:
     return "/v1/families/" + urllib.parse.quote(name, safe="")
 
 
-def _call(url: str, path: str, data: bytes | None = None, headers: dict[str, str] | None = None,
-          timeout: float = 30.0) -> tuple[bytes, dict[str, str]]:
+def _call(url: str, path: str, data: bytes | None = None, headers: dict[str, str] | None = None, timeout: float = 30.0) -> tuple[bytes, dict[str, str]]:
     req = urllib.request.Request(_base(url) + path, data=data, headers=dict(headers or {}), method="POST" if data is not None else "GET")
     try:
         with urllib.request.urlopen(req, timeout=timeout) as answer:
@@ -96,8 +95,7 @@ def multipart(fields: dict[str, str], file_field: str, filename: str, content: b
     out = []
     for key, value in fields.items():
         out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{key}"\r\n\r\n{value}\r\n'.encode())
-    out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{file_field}"; filename="{filename}"\r\n'
-               f"Content-Type: application/octet-stream\r\n\r\n".encode())
+    out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{file_field}"; filename="{filename}"\r\nContent-Type: application/octet-stream\r\n\r\n'.encode())
     out.append(content)
     out.append(f"\r\n--{boundary}--\r\n".encode())
     return b"".join(out), f"multipart/form-data; boundary={boundary}"
@@ -111,16 +109,16 @@ def multipart_files(fields: dict[str, str], files: list[tuple[str, str, bytes]])
         out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{key}"\r\n\r\n{value}\r\n'.encode())
     for field, filename, content in files:
         safe = "".join(c for c in filename if c.isprintable() and c not in '"\\\r\n')[:120] or "photo"
-        out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{field}"; filename="{safe}"\r\n'
-                   f"Content-Type: application/octet-stream\r\n\r\n".encode())
+        out.append(f'--{boundary}\r\nContent-Disposition: form-data; name="{field}"; filename="{safe}"\r\nContent-Type: application/octet-stream\r\n\r\n'.encode())
         out.append(content)
         out.append(b"\r\n")
     out.append(f"--{boundary}--\r\n".encode())
     return b"".join(out), f"multipart/form-data; boundary={boundary}"
 
 
-def add_photo_look(url: str, name: str, token: str, look: str, photos: dict[str, tuple[str, bytes]], prompt: str | None = None,
-                   settings: dict[str, dict[str, Any]] | None = None, timeout: float = 120.0) -> dict[str, Any]:
+def add_photo_look(
+    url: str, name: str, token: str, look: str, photos: dict[str, tuple[str, bytes]], prompt: str | None = None, settings: dict[str, dict[str, Any]] | None = None, timeout: float = 120.0
+) -> dict[str, Any]:
     """Paint a new look of the family from photos (``POST /v1/families/{name}/looks``, multipart):
     ``photos`` part -> (file name, bytes), a part being a group number, part name or word, or ``*``
     for the rest; ``settings`` part -> ``{"scale", "rotate", "normal", "roughness"}``; ``token``
@@ -140,16 +138,14 @@ def add_photo_look(url: str, name: str, token: str, look: str, photos: dict[str,
     return _json(data).get("look") or {}
 
 
-def transfer_mesh(url: str, name: str, obj_text: bytes, seed: int = 0, timeout: float = 120.0,
-                  look: str | None = None) -> tuple[bytes, dict[str, Any]]:
+def transfer_mesh(url: str, name: str, obj_text: bytes, seed: int = 0, timeout: float = 120.0, look: str | None = None) -> tuple[bytes, dict[str, Any]]:
     """Texture a mesh (OBJ text) in the family's ``look`` (None: the build's): ``(GLB bytes, {"seconds", "notes"})``."""
     body, ctype = multipart({"seed": str(int(seed))}, "mesh", "mesh.obj", obj_text)
     data, headers = _call(url, _transfer_path(name, look), body, {"Content-Type": ctype}, timeout=timeout)
     return data, _summary(headers)
 
 
-def transfer_params(url: str, name: str, params: dict[str, Any], seed: int = 0, timeout: float = 120.0,
-                    look: str | None = None) -> tuple[bytes, dict[str, Any]]:
+def transfer_params(url: str, name: str, params: dict[str, Any], seed: int = 0, timeout: float = 120.0, look: str | None = None) -> tuple[bytes, dict[str, Any]]:
     """Texture the family's own shape for ``params`` in its ``look`` (None: the build's):
     ``(GLB bytes, {"seconds", "notes"})``."""
     body = json.dumps({"params": params, "seed": int(seed)}).encode()

@@ -57,10 +57,7 @@ __all__ = [
     "validate_request",
 ]
 
-DEFAULT_NEGATIVE_PROMPT = (
-    "shadows, shading, specular highlights, reflections, lighting, blurry, low quality, text, watermark, "
-    "signature, frame, border"
-)
+DEFAULT_NEGATIVE_PROMPT = "shadows, shading, specular highlights, reflections, lighting, blurry, low quality, text, watermark, signature, frame, border"
 
 _CONTROLNET_CLASSES = (
     "StableDiffusionControlNetInpaintPipeline",
@@ -77,9 +74,7 @@ SUPPORTED_PIPELINES = _CONTROLNET_CLASSES + _PLAIN_CLASSES + _DEPTH2IMG_CLASSES
 # --------------------------------------------------------------------------------------------------------------
 
 
-def depth_control_image(
-    depth: np.ndarray, foreground: np.ndarray | None = None, floor: float = 0.1
-) -> np.ndarray:
+def depth_control_image(depth: np.ndarray, foreground: np.ndarray | None = None, floor: float = 0.1) -> np.ndarray:
     """MiDaS-style depth conditioning image: near = bright, far = dark, background = 0.
 
     Args:
@@ -181,10 +176,7 @@ def validate_request(request: ViewRequest) -> None:
             raise ValueError(f"request.group_prompts[{k!r}] must be a str, got {type(v).__name__}")
     trimap = request.trimap
     if not isinstance(trimap, np.ndarray) or trimap.ndim != 2:
-        raise ValueError(
-            "request.trimap must be an (H, W) integer array, got "
-            + (f"shape {trimap.shape}" if isinstance(trimap, np.ndarray) else type(trimap).__name__)
-        )
+        raise ValueError("request.trimap must be an (H, W) integer array, got " + (f"shape {trimap.shape}" if isinstance(trimap, np.ndarray) else type(trimap).__name__))
     h, w = trimap.shape
     if h < 1 or w < 1:
         raise ValueError(f"request.trimap is empty: shape {trimap.shape}")
@@ -192,9 +184,7 @@ def validate_request(request: ViewRequest) -> None:
         raise ValueError(f"request.trimap must be an integer array (uint8), got dtype {trimap.dtype}")
     bad = ~np.isin(trimap, (BACKGROUND, KEEP, REFINE, GENERATE))
     if bad.any():
-        raise ValueError(
-            f"request.trimap values must be BACKGROUND/KEEP/REFINE/GENERATE (0..3), found {np.unique(trimap[bad])[:5]}"
-        )
+        raise ValueError(f"request.trimap values must be BACKGROUND/KEEP/REFINE/GENERATE (0..3), found {np.unique(trimap[bad])[:5]}")
     rgb = _check_array("rgb", request.rgb, (h, w, 3), "f", "(H, W, 3) float in [0, 1]")
     if not np.isfinite(rgb).all():
         raise ValueError("request.rgb contains NaN or inf")
@@ -227,8 +217,7 @@ def _resize_float(img: np.ndarray, size: tuple[int, int], resample: int = Image.
         return img.astype(np.float32, copy=True)
     chans = img[..., None] if img.ndim == 2 else img
     out = np.stack(
-        [np.asarray(Image.fromarray(np.ascontiguousarray(chans[..., c], np.float32)).resize((w, h), resample))
-         for c in range(chans.shape[-1])],
+        [np.asarray(Image.fromarray(np.ascontiguousarray(chans[..., c], np.float32)).resize((w, h), resample)) for c in range(chans.shape[-1])],
         axis=-1,
     )
     return out[..., 0] if img.ndim == 2 else out
@@ -266,10 +255,7 @@ def _import_diffusers():
         import diffusers  # noqa: F401
         import torch  # noqa: F401
     except ImportError as e:  # pragma: no cover - exercised only without the extra
-        raise ImportError(
-            "the diffusion view painter needs diffusers, transformers and safetensors "
-            "(pip install 'proctex[diffusion]')"
-        ) from e
+        raise ImportError("the diffusion view painter needs diffusers, transformers and safetensors (pip install 'proctex[diffusion]')") from e
     import diffusers
 
     return diffusers
@@ -284,10 +270,7 @@ def detect_pipeline(model_dir: str | Path) -> str:
         raise ValueError(f"model folder {str(model_dir)!r} is not a directory")
     index = model_dir / "model_index.json"
     if not index.is_file():
-        raise ValueError(
-            f"model folder {str(model_dir)!r} has no model_index.json: expected a diffusers pipeline folder "
-            "written by save_pretrained (e.g. a StableDiffusionControlNetInpaintPipeline)"
-        )
+        raise ValueError(f"model folder {str(model_dir)!r} has no model_index.json: expected a diffusers pipeline folder written by save_pretrained (e.g. a StableDiffusionControlNetInpaintPipeline)")
     try:
         meta = json.loads(index.read_text())
     except (OSError, json.JSONDecodeError) as e:
@@ -296,9 +279,7 @@ def detect_pipeline(model_dir: str | Path) -> str:
     if not isinstance(name, str):
         raise ValueError(f"{index} has no '_class_name' entry")
     if name not in SUPPORTED_PIPELINES:
-        raise ValueError(
-            f"unsupported pipeline class {name!r} in {index}; supported: {', '.join(SUPPORTED_PIPELINES)}"
-        )
+        raise ValueError(f"unsupported pipeline class {name!r} in {index}; supported: {', '.join(SUPPORTED_PIPELINES)}")
     return name
 
 
@@ -325,8 +306,7 @@ def _resolve_dtype(dtype: Any, device: str):
         return torch.float16 if str(device).startswith("cuda") else torch.float32
     if isinstance(dtype, torch.dtype):
         return dtype
-    names = {"float32": torch.float32, "fp32": torch.float32, "float16": torch.float16, "fp16": torch.float16,
-             "half": torch.float16, "bfloat16": torch.bfloat16, "bf16": torch.bfloat16}
+    names = {"float32": torch.float32, "fp32": torch.float32, "float16": torch.float16, "fp16": torch.float16, "half": torch.float16, "bfloat16": torch.bfloat16, "bf16": torch.bfloat16}
     if isinstance(dtype, str) and dtype.lower() in names:
         return names[dtype.lower()]
     raise ValueError(f"dtype must be None, a torch.dtype or one of {sorted(names)}, got {dtype!r}")
@@ -395,10 +375,7 @@ class DiffusionViewPainter:
         if controlnet_dir is not None:
             cdir = Path(controlnet_dir).expanduser()
             if not (cdir / "config.json").is_file():
-                raise ValueError(
-                    f"controlnet_dir {str(cdir)!r} is not a ControlNet folder (no config.json; expected "
-                    "ControlNetModel.save_pretrained output)"
-                )
+                raise ValueError(f"controlnet_dir {str(cdir)!r} is not a ControlNet folder (no config.json; expected ControlNetModel.save_pretrained output)")
         self.model_dir = Path(model_dir).expanduser()
         self.device = str(device)
         self.steps = int(steps)
@@ -434,23 +411,16 @@ class DiffusionViewPainter:
         if name in _DEPTH2IMG_CLASSES:
             if controlnet_dir is not None:
                 raise ValueError("controlnet_dir cannot be combined with a StableDiffusionDepth2ImgPipeline folder")
-            pipe = diffusers.StableDiffusionDepth2ImgPipeline.from_pretrained(
-                folder, depth_estimator=None, feature_extractor=None, **common
-            )
+            pipe = diffusers.StableDiffusionDepth2ImgPipeline.from_pretrained(folder, depth_estimator=None, feature_extractor=None, **common)
             return pipe, "depth2img"
         controlnet = None
         if controlnet_dir is not None:
             controlnet = diffusers.ControlNetModel.from_pretrained(str(Path(controlnet_dir).expanduser()), **common)
         elif name in _CONTROLNET_CLASSES and not (self.model_dir / "controlnet").is_dir():
-            raise ValueError(
-                f"{name} folder {folder!r} has no controlnet/ sub-folder; "
-                "pass controlnet_dir= a local depth ControlNet folder"
-            )
+            raise ValueError(f"{name} folder {folder!r} has no controlnet/ sub-folder; pass controlnet_dir= a local depth ControlNet folder")
         if name in _CONTROLNET_CLASSES or controlnet is not None:
             extra = {"controlnet": controlnet} if controlnet is not None else {}
-            pipe = diffusers.StableDiffusionControlNetInpaintPipeline.from_pretrained(
-                folder, **extra, **no_safety, **common
-            )
+            pipe = diffusers.StableDiffusionControlNetInpaintPipeline.from_pretrained(folder, **extra, **no_safety, **common)
             return pipe, "controlnet_inpaint"
         pipe = diffusers.StableDiffusionInpaintPipeline.from_pretrained(folder, **no_safety, **common)
         return pipe, "inpaint"
@@ -571,5 +541,3 @@ class DiffusionViewPainter:
 # --------------------------------------------------------------------------------------------------------------
 # Tiny random-weight pipelines (tests, smoke runs)
 # --------------------------------------------------------------------------------------------------------------
-
-

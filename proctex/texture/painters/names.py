@@ -9,15 +9,19 @@ import re
 MAX_WORDS = 8
 
 #: Words that qualify a part rather than name it: not matched against a prompt's part words.
-QUALIFIERS = frozenset("""
+QUALIFIERS = frozenset(
+    """
 left right front rear upper lower inner outer middle mid centre center central main small big large long short
 first second third one two three four five six seven eight nine ten single double extra new old default
-""".split())
+""".split()
+)
 #: Words that name no part: never matched against a prompt.
-NOT_PARTS = frozenset("""
+NOT_PARTS = frozenset(
+    """
 a an and of the with for rest part parts piece pieces geometry geo mesh meshes object objects shape shapes model node
 nodes group groups instance instances collection data output input thing things element elements item items
-""".split())
+""".split()
+)
 
 
 def label_words(label: str) -> list[str]:
@@ -26,7 +30,7 @@ def label_words(label: str) -> list[str]:
     ``["Cabinet", "Board", "Right"]``."""
     text = re.sub(r"\.\d+$", "", str(label)[:256])
     text = re.sub(r"(?<=[a-z])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])", " ", text)
-    return [w for w in re.findall(r"[A-Za-z]+", text) if w][:MAX_WORDS * 2]
+    return [w for w in re.findall(r"[A-Za-z]+", text) if w][: MAX_WORDS * 2]
 
 
 def matchable_words(name: str, whole: frozenset[str] = frozenset()) -> list[str]:
@@ -42,5 +46,9 @@ def same_word(a: str, b: str) -> bool:
     if a == b:
         return True
     short, long_ = sorted((a, b), key=len)
-    return long_ in (short + "s", short + "es") or (short.endswith("y") and long_ == short[:-1] + "ies") \
-        or (short.endswith("f") and long_ == short[:-1] + "ves") or (short.endswith("fe") and long_ == short[:-2] + "ves")
+    return (
+        long_ in (short + "s", short + "es")
+        or (short.endswith("y") and long_ == short[:-1] + "ies")
+        or (short.endswith("f") and long_ == short[:-1] + "ves")
+        or (short.endswith("fe") and long_ == short[:-2] + "ves")
+    )

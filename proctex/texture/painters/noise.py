@@ -365,9 +365,7 @@ def domain_warp_xyz(x, y, z, amount: float = 0.5, octaves: int = 2, seed: int = 
     ``x, y, z`` are ``(n,) float32`` in lattice units; returns three ``(n,) float32``.
     """
     a = np.float32(amount)
-    return tuple(
-        c + a * fbm_xyz(x, y, z, octaves=octaves, seed=derive_seed(seed, f"warp{k}")) for k, c in enumerate((x, y, z))
-    )  # type: ignore[return-value]
+    return tuple(c + a * fbm_xyz(x, y, z, octaves=octaves, seed=derive_seed(seed, f"warp{k}")) for k, c in enumerate((x, y, z)))  # type: ignore[return-value]
 
 
 def domain_warp(points, freq=1.0, amount: float = 0.5, octaves: int = 2, seed: int = 0) -> np.ndarray:

@@ -178,8 +178,7 @@ def evidence(vertices: np.ndarray, grouping, up: int, max_members: int = 400, ma
             axes, dirs = ext[order], vt[order]
         else:
             axes, dirs = np.zeros(3), np.eye(3)
-        rows.append((g, b, axes / longest, float(abs(dirs[0] @ axis_up)), float(abs(dirs[2] @ axis_up)),
-                     float(sum(parts[m].area for m in g.members) / total), pv, dirs[0]))
+        rows.append((g, b, axes / longest, float(abs(dirs[0] @ axis_up)), float(abs(dirs[2] @ axis_up)), float(sum(parts[m].area for m in g.members) / total), pv, dirs[0]))
     order = sorted(range(len(rows)), key=lambda i: -rows[i][5])
     rank = {rows[i][0].index: r for r, i in enumerate(order)}
     main_box = rows[order[0]][1] if rows else np.zeros((1, 2, 3))
@@ -220,12 +219,28 @@ def evidence(vertices: np.ndarray, grouping, up: int, max_members: int = 400, ma
     out = []
     for g, b, axes, long_up, thin_up, share, pv, d in rows:
         rep = b[0]
-        out.append(Evidence(
-            group=g.index, members=len(g.members), up=up, horizontal=horizontal,  # type: ignore[arg-type]
-            lo=(b[:, 0].min(0) - lo) / safe, hi=(b[:, 1].max(0) - lo) / safe, centers=((b[:, 0] + b[:, 1]) / 2 - lo) / safe,
-            extent=(rep[1] - rep[0]) / longest, shape_extent=span / longest, axes=axes, long_up=long_up, thin_up=thin_up,
-            area_share=share, rank=rank[g.index], rise=_rise(pv, d, main_mid, up, axes[0] * longest), rests_on=tuple(sorted(rests[g.index])), holds=tuple(sorted(holds[g.index])),
-            touches=tuple(sorted(touch[g.index]))))
+        out.append(
+            Evidence(
+                group=g.index,
+                members=len(g.members),
+                up=up,
+                horizontal=horizontal,  # type: ignore[arg-type]
+                lo=(b[:, 0].min(0) - lo) / safe,
+                hi=(b[:, 1].max(0) - lo) / safe,
+                centers=((b[:, 0] + b[:, 1]) / 2 - lo) / safe,
+                extent=(rep[1] - rep[0]) / longest,
+                shape_extent=span / longest,
+                axes=axes,
+                long_up=long_up,
+                thin_up=thin_up,
+                area_share=share,
+                rank=rank[g.index],
+                rise=_rise(pv, d, main_mid, up, axes[0] * longest),
+                rests_on=tuple(sorted(rests[g.index])),
+                holds=tuple(sorted(holds[g.index])),
+                touches=tuple(sorted(touch[g.index])),
+            )
+        )
     return out
 
 
@@ -392,16 +407,14 @@ def grounded(e: Evidence, all_: list[Evidence]) -> float:
 
 def legs(e, all_):
     spans = ramp(float(e.hi[e.up] - e.lo[e.up]), 0.3, 0.5) * (1 - flat_plate(e)) * (1.0 if e.holds else 0.0)  # a frame of legs in one piece
-    support = max(upright_bar(e), 0.8 * upright_plate(e) * pair_at_ends(e), 0.6 * fall(max(e.extent[a] for a in e.horizontal), 0.15, 0.3),
-                  0.7 * spans)
+    support = max(upright_bar(e), 0.8 * upright_plate(e) * pair_at_ends(e), 0.6 * fall(max(e.extent[a] for a in e.horizontal), 0.15, 0.3), 0.7 * spans)
     slab = flat_plate(e) * ramp(e.footprint(), 0.3, 0.6)
     return grounded(e, all_) * support * holds_something(e) * (1.0 if e.members >= 2 else 0.6) * (1 - slab) * not_main(e)
 
 
 def seat(e, all_):
     # a seat at the very top (a stool's) is also a top: named both, "top" takes it
-    return flat_plate(e) * ramp(e.footprint(), 0.15, 0.3) * off_floor(e) * max(band(e, 0.2, 0.7), 0.6 * at_top(e)) \
-        * largest_of(e, all_, lambda x: flat_plate(x) * off_floor(x), Evidence.footprint)
+    return flat_plate(e) * ramp(e.footprint(), 0.15, 0.3) * off_floor(e) * max(band(e, 0.2, 0.7), 0.6 * at_top(e)) * largest_of(e, all_, lambda x: flat_plate(x) * off_floor(x), Evidence.footprint)
 
 
 def cushions(e, all_):
@@ -454,8 +467,16 @@ def apron(e, all_):
 
 
 def drawers(e, all_):
-    return at_an_end(e) * off_floor(e) * fall(e.u_hi, 0.97, 1.0) * not_main(e) * fall(e.height_share(), 0.4, 0.6) \
-        * (1 - upright_bar(e)) * (1 - flat_plate(e) * ramp(e.footprint(), 0.4, 0.6)) * small(e, 0.2)
+    return (
+        at_an_end(e)
+        * off_floor(e)
+        * fall(e.u_hi, 0.97, 1.0)
+        * not_main(e)
+        * fall(e.height_share(), 0.4, 0.6)
+        * (1 - upright_bar(e))
+        * (1 - flat_plate(e) * ramp(e.footprint(), 0.4, 0.6))
+        * small(e, 0.2)
+    )
 
 
 def doors(e, all_):
@@ -473,8 +494,7 @@ def body(e, all_):
 def base(e, all_):
     """Low and wide under the rest: on the floor, on legs, or just above the floor; no wide part under it."""
     wide_below = any(x.group != e.group and x.footprint() >= 0.5 * e.footprint() and x.u_hi <= e.u_lo + 0.02 for x in all_)
-    return low(e, 0.4) * ramp(e.footprint(), 0.08, 0.2) * holds_something(e) * (1 - 0.5 * bar(e)) * (0.4 if wide_below else 1.0) \
-        * max(on_floor(e), 1.0 if e.rests_on else 0.0, fall(e.u_lo, 0.15, 0.3))
+    return low(e, 0.4) * ramp(e.footprint(), 0.08, 0.2) * holds_something(e) * (1 - 0.5 * bar(e)) * (0.4 if wide_below else 1.0) * max(on_floor(e), 1.0 if e.rests_on else 0.0, fall(e.u_lo, 0.15, 0.3))
 
 
 def lamp_base(e, all_):
@@ -500,8 +520,7 @@ def frame(e, all_):
 
 
 def mattress(e, all_):
-    return max(flat_plate(e), 0.7 * blob(e)) * ramp(e.footprint(), 0.3, 0.6) * off_floor(e) * band(e, 0.15, 0.6) * rests(e) \
-        * fall(e.height_share(), 0.4, 0.6)
+    return max(flat_plate(e), 0.7 * blob(e)) * ramp(e.footprint(), 0.3, 0.6) * off_floor(e) * band(e, 0.15, 0.6) * rests(e) * fall(e.height_share(), 0.4, 0.6)
 
 
 def headboard(e, all_):
@@ -529,8 +548,7 @@ def pole(e, all_):
 
 
 def lamp_arm(e, all_):
-    return bar(e) * fall(e.u_hi, 0.97, 1.0) * not_main(e) * (1 - 0.5 * upright_bar(e)) * (1 - 0.5 * on_floor(e) * lowest(e, all_)) \
-        * (1.0 if e.touches else 0.5)
+    return bar(e) * fall(e.u_hi, 0.97, 1.0) * not_main(e) * (1 - 0.5 * upright_bar(e)) * (1 - 0.5 * on_floor(e) * lowest(e, all_)) * (1.0 if e.touches else 0.5)
 
 
 def bulb(e, all_):
@@ -543,8 +561,7 @@ def vessel_body(e, all_):
 
 def vessel_handle(e, all_):
     """A part sticking out of the body at one side that does not rise outward (a loop, a grip)."""
-    return not_main(e) * off_floor(e) * outside_main(e, all_) * small(e, 0.15) * fall(e.u_hi, 0.95, 1.0) * (1 - 0.5 * at_top(e)) \
-        * fall(e.rise, 0.1, 0.4)
+    return not_main(e) * off_floor(e) * outside_main(e, all_) * small(e, 0.15) * fall(e.u_hi, 0.95, 1.0) * (1 - 0.5 * at_top(e)) * fall(e.rise, 0.1, 0.4)
 
 
 def spout(e, all_):
@@ -585,8 +602,7 @@ def cabin(e, all_):
     m = main_of(all_)
     at_end = max(ramp(abs(e.centers[:, a].mean() - 0.5), 0.2, 0.35) for a in e.horizontal)
     beside = at_end * (1.0 if m.group in e.touches else 0.5) * off_floor(e)
-    return not_main(e) * (1 - wheel_disc(e)) * max(above_main(e, all_), 0.8 * beside) * ramp(e.area_share, 0.05, 0.12) \
-        * fall(e.members, 1.5, 2.5)
+    return not_main(e) * (1 - wheel_disc(e)) * max(above_main(e, all_), 0.8 * beside) * ramp(e.area_share, 0.05, 0.12) * fall(e.members, 1.5, 2.5)
 
 
 def bumpers(e, all_):
@@ -642,8 +658,7 @@ def plant_stem(e, all_):
 def carried_by_bar(e: Evidence, all_: list[Evidence]) -> float:
     """It sits on an upright bar narrower than it (a cap on its stem, a shade on its pole)."""
     ids = by_id(all_)
-    return max((upright_bar(ids[x]) for x in e.touches if x in ids and ids[x].u_mid < e.u_mid and ids[x].footprint() < e.footprint()),
-               default=0.0)
+    return max((upright_bar(ids[x]) for x in e.touches if x in ids and ids[x].u_mid < e.u_mid and ids[x].footprint() < e.footprint()), default=0.0)
 
 
 def carries(e: Evidence, all_: list[Evidence]) -> float:
@@ -677,8 +692,27 @@ def blade(e, all_):
 # ------------------------------------------------------------------------------------------ table
 #: kinds of object and the nouns that name them
 KINDS: dict[str, tuple[str, ...]] = {
-    "furniture": ("chair", "armchair", "stool", "bench", "table", "desk", "sofa", "couch", "settee", "cabinet", "cupboard", "wardrobe",
-                  "dresser", "sideboard", "bookcase", "bookshelf", "nightstand", "ottoman", "loveseat"),
+    "furniture": (
+        "chair",
+        "armchair",
+        "stool",
+        "bench",
+        "table",
+        "desk",
+        "sofa",
+        "couch",
+        "settee",
+        "cabinet",
+        "cupboard",
+        "wardrobe",
+        "dresser",
+        "sideboard",
+        "bookcase",
+        "bookshelf",
+        "nightstand",
+        "ottoman",
+        "loveseat",
+    ),
     "beds": ("bed", "bunk", "cot", "crib", "daybed"),
     "lighting": ("lamp", "lantern", "chandelier", "sconce", "floorlamp", "lamps"),
     "tableware": ("mug", "cup", "teapot", "kettle", "jug", "pitcher", "goblet", "vase", "bowl", "bottle", "tankard", "chalice", "teacup"),
@@ -708,20 +742,19 @@ WORDS: dict[str, Word] = {
     "seat": _w("seat seats saddle", any=(seat, "the largest slab lying flat off the floor, at sitting height")),
     "cushions": _w("cushion cushions seat-cushions seat-cushion", any=(cushions, "soft slabs resting on the frame at mid height")),
     "back": _w("back backs backrest backrests back-rest", any=(back, "an upright panel at one end, reaching the upper part")),
-    "arms": _w("arm arms armrest armrests arm-rests", any=(arms, "a pair at both sides, off the floor"),
-               lighting=(lamp_arm, "a bar off the floor, below the top")),
-    "top": _w("top tops tabletop tabletops table-top worktop countertop desktop desk-top", any=(top, "the largest slab lying flat at the top"),
-              vehicles=(car_roof, "a slab lying flat at the top")),
-    "apron": _w("apron aprons rail rails skirt", any=(apron, "bars or boards right under the top"),
-                beds=(frame, "the frame under the mattress")),
+    "arms": _w("arm arms armrest armrests arm-rests", any=(arms, "a pair at both sides, off the floor"), lighting=(lamp_arm, "a bar off the floor, below the top")),
+    "top": _w("top tops tabletop tabletops table-top worktop countertop desktop desk-top", any=(top, "the largest slab lying flat at the top"), vehicles=(car_roof, "a slab lying flat at the top")),
+    "apron": _w("apron aprons rail rails skirt", any=(apron, "bars or boards right under the top"), beds=(frame, "the frame under the mattress")),
     "drawers": _w("drawer drawers drawer-front drawer-fronts", any=(drawers, "boxes or fronts at one end, off the floor")),
-    "doors": _w("door doors", any=(doors, "an upright panel at one end, a good part of the height"),
-                buildings=(house_door, "an upright panel on the floor, at a wall's face")),
-    "handles": _w("handle handles knob knobs pull pulls grip grips", any=(handles, "a small part sticking out at a side"),
-                  tableware=(vessel_handle, "a part sticking out of the body at one side"), tools=(shaft, "the longest bar")),
+    "doors": _w("door doors", any=(doors, "an upright panel at one end, a good part of the height"), buildings=(house_door, "an upright panel on the floor, at a wall's face")),
+    "handles": _w(
+        "handle handles knob knobs pull pulls grip grips",
+        any=(handles, "a small part sticking out at a side"),
+        tableware=(vessel_handle, "a part sticking out of the body at one side"),
+        tools=(shaft, "the longest bar"),
+    ),
     "body": _w("body bodies carcass hull", any=(body, "the main mass"), tableware=(vessel_body, "the main mass")),
-    "base": _w("base bases plinth pedestal stand", any=(base, "low and wide, under the rest"),
-               lighting=(lamp_base, "the lowest part, on the floor, holding the rest up")),
+    "base": _w("base bases plinth pedestal stand", any=(base, "low and wide, under the rest"), lighting=(lamp_base, "the lowest part, on the floor, holding the rest up")),
     "shelf": _w("shelf shelves board boards", any=(shelf, "slabs lying flat between top and bottom")),
     "sides": _w("side sides panel panels side-panels", any=(sides, "upright panels at both ends")),
     "rungs": _w("rung rungs stretcher stretchers crossbar crossbars", any=(rungs, "bars lying across, off the floor, low")),
@@ -737,9 +770,13 @@ WORDS: dict[str, Word] = {
     "spout": _w("spout spouts nozzle", any=(spout, "a bar rising out of the body at one side")),
     "lid": _w("lid lids", any=(lid, "a small part on top of the body")),
     "cup": _w("cup bowl", any=(cup, "the wide part at the top")),
-    "stem": _w("stem stems stalk", any=(stem, "an upright bar under something"), lighting=(pole, "an upright bar"),
-               plants=(lambda e, a: max(plant_stem(e, a), mushroom_stem(e, a)), "an upright bar under the top"),
-               tableware=(stem, "an upright bar between foot and cup")),
+    "stem": _w(
+        "stem stems stalk",
+        any=(stem, "an upright bar under something"),
+        lighting=(pole, "an upright bar"),
+        plants=(lambda e, a: max(plant_stem(e, a), mushroom_stem(e, a)), "an upright bar under the top"),
+        tableware=(stem, "an upright bar between foot and cup"),
+    ),
     "foot": _w("foot", any=(foot, "a wide low part on the floor"), furniture=(legs, "thin supports on the floor")),
     "wheels": _w("wheel wheels tyre tyres tire tires", any=(wheels, "round plates on edge, on the floor")),
     "cabin": _w("cabin cab cockpit", any=(cabin, "a box on top of the body or at its end")),
@@ -759,8 +796,7 @@ WORDS: dict[str, Word] = {
 }
 # words of a kind: which kinds use a word (a word with only "any" belongs to the kinds listed here)
 WORD_KINDS: dict[str, tuple[str, ...]] = {
-    "furniture": ("legs", "seat", "cushions", "back", "arms", "top", "apron", "drawers", "doors", "handles", "body", "base", "shelf",
-                  "sides", "rungs", "frame"),
+    "furniture": ("legs", "seat", "cushions", "back", "arms", "top", "apron", "drawers", "doors", "handles", "body", "base", "shelf", "sides", "rungs", "frame"),
     "beds": ("legs", "frame", "mattress", "headboard", "footboard", "pillows", "slats", "apron", "base"),
     "lighting": ("shade", "pole", "arms", "base", "bulb", "stem"),
     "tableware": ("body", "handles", "spout", "lid", "cup", "stem", "foot", "base"),

@@ -44,8 +44,22 @@ from .names import matchable_words, same_word
 from .prompt import parse_prompt
 from .regions import RegionPlan, _label_of, split_regions
 
-__all__ = ["PART_WORDS", "KINDRED", "GroupGeometry", "PartPlan", "describe_groups", "part_word", "resolve_words", "plan_parts",
-           "new_part_texts", "label_hits", "groups_of_word", "check_assignment", "REST", "parts_report"]
+__all__ = [
+    "PART_WORDS",
+    "KINDRED",
+    "GroupGeometry",
+    "PartPlan",
+    "describe_groups",
+    "part_word",
+    "resolve_words",
+    "plan_parts",
+    "new_part_texts",
+    "label_hits",
+    "groups_of_word",
+    "check_assignment",
+    "REST",
+    "parts_report",
+]
 
 GroupGeometry = V.Evidence
 #: canonical word -> its forms (the vocabulary, :data:`.partvocab.WORDS`)
@@ -158,8 +172,7 @@ class Resolved:
     weak: list[str] = field(default_factory=list)
 
 
-def resolve_words(words: list[str], geoms: list[V.Evidence], kind: str | None = None, detail: bool = False,
-                  fixed: dict[int, str] | None = None):
+def resolve_words(words: list[str], geoms: list[V.Evidence], kind: str | None = None, detail: bool = False, fixed: dict[int, str] | None = None):
     """Groups each canonical word of ``words`` takes, jointly: ``{word: (group ids, why)}`` (words
     no group passes are left out; ``detail=True`` returns a :class:`Resolved`). Every word gets its
     best group and a group its best word in one assignment problem over the scores (a group passing
@@ -208,8 +221,7 @@ def resolve_words(words: list[str], geoms: list[V.Evidence], kind: str | None = 
     return res if detail else res.words
 
 
-def groups_of_word(form: str, prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z",
-                   assigned: dict[int, str] | None = None) -> list[int]:
+def groups_of_word(form: str, prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z", assigned: dict[int, str] | None = None) -> list[int]:
     """The groups the part word ``form`` ("legs", "table top") takes on a shape, read for the kind of
     object ``prompt`` names (:func:`.partvocab.kind_of`); [] when it is no part word or no group
     passes it. ``assigned``: the user's words per group (:func:`check_assignment`), which win: a
@@ -305,8 +317,7 @@ def unknown_part_nouns(tokens: list[str]) -> list[str]:
             if len(words) < 2:
                 continue
             last = words[-1]
-            if (not re.fullmatch(r"[a-z][a-z'-]*", last) or part_word(last) or last in V.NOUNS or last in REGION_WORDS
-                    or _material_word(last) or not any(_material_word(w) for w in words[:-1])):
+            if not re.fullmatch(r"[a-z][a-z'-]*", last) or part_word(last) or last in V.NOUNS or last in REGION_WORDS or _material_word(last) or not any(_material_word(w) for w in words[:-1]):
                 continue
             if any(w in V.NOUNS or w in _OF for w in words[:-1]):  # "a cabinet in red lacquer": the object's own material
                 continue
@@ -316,8 +327,7 @@ def unknown_part_nouns(tokens: list[str]) -> list[str]:
     return list(dict.fromkeys(out))
 
 
-def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z",
-               assigned: dict[Any, str] | None = None) -> PartPlan:
+def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z", assigned: dict[Any, str] | None = None) -> PartPlan:
     """Resolve ``prompt`` against the part groups of a mesh (module docstring).
 
     Args:
@@ -365,9 +375,14 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
 
     forms = [f for w in wanted for f in PART_WORDS[w] if w in res.words or f not in REGION_WORDS] if parts_named else []
     regions = split_regions(text, labels + list(by_word) + forms + (unknown if parts_named else []))
-    plan = PartPlan(prompt, regions, words={w: gids for w, (gids, _) in res.words.items()}, kind=kind,
-                    scores={g: round(s, 3) for g, s in res.scores.items() if any(g in gids for gids, _ in res.words.values())},
-                    assigned=dict(fixed))
+    plan = PartPlan(
+        prompt,
+        regions,
+        words={w: gids for w, (gids, _) in res.words.items()},
+        kind=kind,
+        scores={g: round(s, 3) for g, s in res.scores.items() if any(g in gids for gids, _ in res.words.values())},
+        assigned=dict(fixed),
+    )
     for gid, w in sorted(fixed.items()):
         plan.notes.append(f"group {gid} was given {w!r} by hand" + (": it takes the rest of the prompt" if w == REST else ""))
     if kind and wanted:
@@ -383,16 +398,17 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
             gids = by_hand[name]
         elif name in label_groups or name in by_word:  # routed by the labels; groups given the word by hand beside them
             labs = [name] if name in label_groups else by_word[name]
-            gids = sorted({gid for lab in labs for gid in label_groups.get(lab, []) if gid not in fixed}
-                          | {g for g, w in fixed.items() if w == name or (part_word(name) is not None and part_word(w) == part_word(name))})
+            gids = sorted(
+                {gid for lab in labs for gid in label_groups.get(lab, []) if gid not in fixed}
+                | {g for g, w in fixed.items() if w == name or (part_word(name) is not None and part_word(w) == part_word(name))}
+            )
             if name not in label_groups:
                 plan.notes.append(f"{name!r} names the group(s) labelled {', '.join(repr(lab) for lab in labs)}: {', '.join(map(str, gids))}")
         elif part_word(name):
             word = part_word(name)
             gids = res.words.get(word, ([], ""))[0]
             if not gids:
-                plan.notes.append(f"{clause!r} ({name!r}) paints nothing: no part of this shape passes the test of {word!r} "
-                                  f"({V.score(word, geoms[0], geoms, kind)[1] if geoms else 'no groups'})")
+                plan.notes.append(f"{clause!r} ({name!r}) paints nothing: no part of this shape passes the test of {word!r} ({V.score(word, geoms[0], geoms, kind)[1] if geoms else 'no groups'})")
         else:
             guesses.append((name, clause))
             continue
@@ -421,8 +437,7 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
         clause_of[gid] = clause
         plan.guesses[gid] = name
         plan.routes[gid] = "guess"
-        plan.notes.append(f"{name!r} is a part word ProcTex does not know: its clause {clause!r} goes to group {gid}, "
-                          "the largest no other word took (a guess)")
+        plan.notes.append(f"{name!r} is a part word ProcTex does not know: its clause {clause!r} goes to group {gid}, the largest no other word took (a guess)")
     for t in regions.unplaced:
         plan.notes.append(f"clause {t!r} named no part of this shape; it paints nothing")
     plan.texts.update(clause_of)
@@ -444,13 +459,11 @@ def plan_parts(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: A
             near = min(clause_of, key=lambda c: (float(np.abs(key[g.index] - key[c]).sum()) if c in key else np.inf, c))
             plan.texts[g.index] = clause_of[near]
             plan.routes[g.index] = "alike"
-            plan.notes.append(f"group {g.index} is named by no clause and the rest of the prompt names no material: "
-                              f"it takes {clause_of[near]!r} from group {near}, the most alike in shape")
+            plan.notes.append(f"group {g.index} is named by no clause and the rest of the prompt names no material: it takes {clause_of[near]!r} from group {near}, the most alike in shape")
     return plan
 
 
-def _kindred_texts(others: list[Any], words: dict[str, list[int]], clause_of: dict[int, str],
-                   geoms: list[GroupGeometry]) -> dict[int, tuple[str, str, str]]:
+def _kindred_texts(others: list[Any], words: dict[str, list[int]], clause_of: dict[int, str], geoms: list[GroupGeometry]) -> dict[int, tuple[str, str, str]]:
     """``{group: (text, placed word, kindred word it passes)}`` for the groups of ``others`` that
     pass the test of a :data:`KINDRED` word whose kin the plan placed (``words``, ``clause_of``)."""
     by_id = {g.group: g for g in geoms}
@@ -505,15 +518,21 @@ def evidence_summary(e: V.Evidence, all_: list[V.Evidence]) -> dict[str, Any]:
         form = ("upright " if e.long_up >= 0.8 else "lying " if e.long_up <= 0.45 else "slanted ") + form
     elif form == "plate":
         form = ("lying " if e.thin_up >= 0.8 else "upright " if e.thin_up <= 0.45 else "slanted ") + form
-    return {"members": int(e.members), "area_share": round(float(e.area_share), 4), "rank": int(e.rank),
-            "height": [round(e.u_lo, 3), round(e.u_hi, 3)], "form": form,
-            "rests_on": [int(g) for g in e.rests_on], "holds": [int(g) for g in e.holds],
-            "corners": round(float(e.corners()), 3), "mirrored": round(float(V.mirrored(e, all_)), 3),
-            "outside": round(float(V.outside_main(e, all_)), 3)}
+    return {
+        "members": int(e.members),
+        "area_share": round(float(e.area_share), 4),
+        "rank": int(e.rank),
+        "height": [round(e.u_lo, 3), round(e.u_hi, 3)],
+        "form": form,
+        "rests_on": [int(g) for g in e.rests_on],
+        "holds": [int(g) for g in e.holds],
+        "corners": round(float(e.corners()), 3),
+        "mirrored": round(float(V.mirrored(e, all_)), 3),
+        "outside": round(float(V.outside_main(e, all_)), 3),
+    }
 
 
-def parts_report(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z",
-                 assigned: dict[Any, str] | None = None) -> dict[str, Any]:
+def parts_report(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping: Any, up: str | int = "z", assigned: dict[Any, str] | None = None) -> dict[str, Any]:
     """What the prompt's part words do on this shape, per group (JSON-ready; ``proctex parts FAMILY``,
     the studio's part panel): ``prompt``, ``kind``, ``assigned`` (the user's words), ``clauses``
     (the prompt's clauses naming parts: ``name`` as written, its ``word``, its ``text``) and ``notes``
@@ -539,9 +558,18 @@ def parts_report(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping:
         gid = g.index
         how = plan.routes.get(gid, "rest")
         word = {"hand": fixed.get(gid), "guess": plan.guesses.get(gid), "word": word_of_group.get(gid), "label": g.label}.get(how)
-        row: dict[str, Any] = {"group": gid, "label": g.label or "", "degenerate": bool(g.degenerate), "word": word or None,
-                               "how": how, "text": plan.painted_text(gid), "score": plan.scores.get(gid) if how in ("word", "hand") else None,
-                               "rival": None, "looks_like": [], "evidence": None}
+        row: dict[str, Any] = {
+            "group": gid,
+            "label": g.label or "",
+            "degenerate": bool(g.degenerate),
+            "word": word or None,
+            "how": how,
+            "text": plan.painted_text(gid),
+            "score": plan.scores.get(gid) if how in ("word", "hand") else None,
+            "rival": None,
+            "looks_like": [],
+            "evidence": None,
+        }
         if gid in fixed:  # the user's word, whether or not the prompt names it (its text says what it took)
             row.update(word=fixed[gid], how="hand", score=1.0)
         e = ev.get(gid)
@@ -555,5 +583,4 @@ def parts_report(prompt: str, vertices: np.ndarray, faces: np.ndarray, grouping:
                 row["rival"] = [w, round(s, 3)]
         rows.append(row)
     clauses = [{"name": name, "word": part_word(name) or name, "text": text} for name, text in plan.regions.parts]
-    return {"prompt": prompt, "kind": kind, "assigned": {str(k): v for k, v in sorted(fixed.items())}, "clauses": clauses, "groups": rows,
-            "notes": list(plan.notes)}
+    return {"prompt": prompt, "kind": kind, "assigned": {str(k): v for k, v in sorted(fixed.items())}, "clauses": clauses, "groups": rows, "notes": list(plan.notes)}

@@ -62,6 +62,7 @@ def base_props(spec: MaterialSpec) -> tuple[float, float]:
 # Each returns (height (n,) in normalised units, roughness change (n,) or 0). Noise names and
 # frequencies are the colour shader's, so relief and colour line up.
 
+
 def _rel_plastic(ctx, spec):
     return F32(0.0004) * ctx.noise("low", 2.5, 2), F32(0.0)
 
@@ -120,7 +121,7 @@ def _rel_ceramic(ctx, spec):
 
 def _rel_metal(ctx, spec):
     if spec.finish == "hammered":
-            return F32(0.004) * hammer_dimples(ctx), F32(0.0)
+        return F32(0.004) * hammer_dimples(ctx), F32(0.0)
     polished = spec.finish in ("polished", "glossy") or spec.variant == "chrome"
     brushed = ctx.noise("brushed", (1.0, 38.0, 38.0))
     amp = 0.00006 if polished else 0.0008

@@ -170,8 +170,7 @@ def split_regions(prompt: str, labels: Iterable[str] = ()) -> RegionPlan:
             if after_with and len(words) > 1 and words[-1] in parse_prompt(" ".join(words)).ignored:
                 unknown.append(words[-1])
                 unplaced.append(" ".join(words[:-1]))
-                notes.append(f"region {words[-1]!r} is neither a part of this shape nor a region ProcTex knows "
-                             f"({', '.join(r for r in REGIONS)}); {' '.join(words[:-1])!r} was not used")
+                notes.append(f"region {words[-1]!r} is neither a part of this shape nor a region ProcTex knows ({', '.join(r for r in REGIONS)}); {' '.join(words[:-1])!r} was not used")
             else:
                 base.append(" ".join(words))
             continue
@@ -273,8 +272,7 @@ def _smooth(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
     return t * t * (3.0 - 2.0 * t)
 
 
-def region_weight(region: str, frame: RegionFrame, points: np.ndarray, normals: np.ndarray,
-                  named: Iterable[str] = ()) -> np.ndarray:
+def region_weight(region: str, frame: RegionFrame, points: np.ndarray, normals: np.ndarray, named: Iterable[str] = ()) -> np.ndarray:
     """How much each point belongs to ``region``: ``(n,) float64`` in [0, 1].
 
     ``points``, ``normals``: (n, 3) in the shape's normalised frame. ``named``: every region the prompt

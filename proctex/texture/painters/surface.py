@@ -183,8 +183,7 @@ class SurfacePainter:
             self._layers[key] = (_Layer(parse_prompt(plan.base if plan.has_regions and plan.base else text)),)
         return self._layers[key]
 
-    def paint(self, points: np.ndarray, normals: np.ndarray, group: int | None = None, label: str = "",
-              text: str | None = None) -> np.ndarray:
+    def paint(self, points: np.ndarray, normals: np.ndarray, group: int | None = None, label: str = "", text: str | None = None) -> np.ndarray:
         """Colours of surface points.
 
         Args:
@@ -212,8 +211,9 @@ class SurfacePainter:
             out[s : s + CHUNK] = _blend(layers, p, n, lambda L, q, m: shade(Ctx(q, m, self.seed, L.spec.scale), L.spec)).T
         return out
 
-    def material(self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray,
-                 group: int | None = None, label: str = "", relief: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def material(
+        self, points: np.ndarray, normals: np.ndarray, tangents: np.ndarray, bitangents: np.ndarray, group: int | None = None, label: str = "", relief: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """PBR properties of surface points: the twin of :meth:`paint` for the other maps.
 
         Args:

@@ -76,9 +76,7 @@ def build_tiny_pipeline(out_dir: str | Path, seed: int = 0, kind: str = "control
     )
 
     def make_controlnet():
-        cn = diffusers.ControlNetModel(
-            in_channels=4, conditioning_channels=3, conditioning_embedding_out_channels=(4, 4, 4, 4), **blocks
-        )
+        cn = diffusers.ControlNetModel(in_channels=4, conditioning_channels=3, conditioning_embedding_out_channels=(4, 4, 4, 4), **blocks)
         for mod in list(cn.controlnet_down_blocks) + [cn.controlnet_mid_block]:
             mod.reset_parameters()  # default init instead of zeros, so the ControlNet residuals are not 0
         for mod in cn.controlnet_cond_embedding.modules():  # He init, zero bias: the depth image matters
@@ -139,13 +137,14 @@ def build_tiny_pipeline(out_dir: str | Path, seed: int = 0, kind: str = "control
         parts = dict(vae=vae, text_encoder=text_encoder, tokenizer=tokenizer, unet=unet, scheduler=scheduler)
         if kind == "controlnet_inpaint":
             pipe = diffusers.StableDiffusionControlNetInpaintPipeline(
-                controlnet=make_controlnet(), safety_checker=None, feature_extractor=None,
-                requires_safety_checker=False, **parts,
+                controlnet=make_controlnet(),
+                safety_checker=None,
+                feature_extractor=None,
+                requires_safety_checker=False,
+                **parts,
             )
         elif kind == "inpaint":
-            pipe = diffusers.StableDiffusionInpaintPipeline(
-                safety_checker=None, feature_extractor=None, requires_safety_checker=False, **parts
-            )
+            pipe = diffusers.StableDiffusionInpaintPipeline(safety_checker=None, feature_extractor=None, requires_safety_checker=False, **parts)
         else:
             pipe = diffusers.StableDiffusionDepth2ImgPipeline(depth_estimator=None, feature_extractor=None, **parts)
         pipe.save_pretrained(out_dir, safe_serialization=True)

@@ -254,11 +254,9 @@ RANDOM_STONES = ("marble", "granite", "slate", "sandstone", "limestone", "concre
 RANDOM_METALS = ("steel", "brass", "copper", "bronze", "gold", "silver", "iron", "chrome", "pewter")
 RANDOM_CERAMICS = ("ceramic", "porcelain", "terracotta", "glazed ceramic")
 RANDOM_TEXTILES = ("linen", "wool", "velvet", "leather", "denim", "silk", "tweed", "cotton", "canvas")
-RANDOM_COLORS = ("red", "navy", "teal", "olive", "mustard", "burgundy", "charcoal", "cream", "ivory", "forest green", "sky blue",
-                 "rust orange", "plum", "sand", "black", "white")
+RANDOM_COLORS = ("red", "navy", "teal", "olive", "mustard", "burgundy", "charcoal", "cream", "ivory", "forest green", "sky blue", "rust orange", "plum", "sand", "black", "white")
 RANDOM_PATTERNS = ("striped", "checked", "plaid", "polka dot", "floral", "patchwork")
-RANDOM_FINISHES = {"wood": ("polished", "matte", "glossy"), "stone": ("polished", "matte"), "metal": ("brushed", "polished", "hammered"),
-                   "ceramic": ("glossy", "matte")}
+RANDOM_FINISHES = {"wood": ("polished", "matte", "glossy"), "stone": ("polished", "matte"), "metal": ("brushed", "polished", "hammered"), "ceramic": ("glossy", "matte")}
 
 
 def random_prompts(n: int, seed: int = 0) -> list[str]:

@@ -18,10 +18,26 @@ def router(ctx: AppContext) -> APIRouter:
     @router.post(
         "/v1/families/{name}/edits",
         responses={404: {"description": "unknown family"}, 422: {"description": "bad edit"}},
-        openapi_extra={"requestBody": {"required": True, "content": {"application/json": {"schema": {
-            "type": "object", "required": ["group"], "properties": {
-                "group": {"type": ["integer", "string"]}, "hue": {"type": "number"}, "saturation": {"type": "number"},
-                "value": {"type": "number"}, "prompt": {"type": "string"}}}}}}},
+        openapi_extra={
+            "requestBody": {
+                "required": True,
+                "content": {
+                    "application/json": {
+                        "schema": {
+                            "type": "object",
+                            "required": ["group"],
+                            "properties": {
+                                "group": {"type": ["integer", "string"]},
+                                "hue": {"type": "number"},
+                                "saturation": {"type": "number"},
+                                "value": {"type": "number"},
+                                "prompt": {"type": "string"},
+                            },
+                        }
+                    }
+                },
+            }
+        },
     )
     async def persist_edit(name: str, request: Request, look: str | None = None):
         """Store an edit of one group texture in the family (``?look=``: of that look); every later

@@ -16,9 +16,15 @@ def router(ctx: AppContext) -> APIRouter:
     def healthz():
         cat = ctx.get_catalog()
         health = cat.health()
-        info = {"families": len(health), "unavailable": sorted(n for n, h in health.items() if h not in ("ok", "not built")),
-                "loaded": cat.loaded(), "loads": cat.loads, "replica": ctx.replica, "transfers_running": ctx.watchdog.running(),
-                "oldest_transfer_seconds": round(ctx.watchdog.oldest(), 3)}
+        info = {
+            "families": len(health),
+            "unavailable": sorted(n for n, h in health.items() if h not in ("ok", "not built")),
+            "loaded": cat.loaded(),
+            "loads": cat.loads,
+            "replica": ctx.replica,
+            "transfers_running": ctx.watchdog.running(),
+            "oldest_transfer_seconds": round(ctx.watchdog.oldest(), 3),
+        }
         if ctx.watchdog.stuck():
             return JSONResponse({"status": "stuck", **info}, status_code=503)
         return {"status": "ok", **info}

@@ -27,15 +27,39 @@ def router(ctx: AppContext) -> APIRouter:
 
     @router.post(
         "/v1/families/{name}/looks",
-        responses={404: {"description": "unknown family"}, 409: {"description": "a build or edit of the family is running"},
-                   422: {"description": "bad look"}},
-        openapi_extra={"requestBody": {"required": True, "content": {"application/json": {"schema": {
-            "type": "object", "required": ["name", "prompt"], "properties": {
-                "name": {"type": "string"}, "prompt": {"type": "string"}, "group_prompts": {"type": "object"},
-                "part_words": {"type": "object"}, "painter": {"type": "string"}, "texture_size": {"type": "integer"}, "force": {"type": "boolean"}}}},
-            "multipart/form-data": {"schema": {"type": "object", "required": ["look"], "properties": {
-                "look": {"type": "string", "description": "the look's JSON (prompt optional), with images: {part: {scale, rotate, normal, roughness}}"},
-                "image.*": {"type": "string", "format": "binary", "description": "a photo per part: fields image.<part>"}}}}}}},
+        responses={404: {"description": "unknown family"}, 409: {"description": "a build or edit of the family is running"}, 422: {"description": "bad look"}},
+        openapi_extra={
+            "requestBody": {
+                "required": True,
+                "content": {
+                    "application/json": {
+                        "schema": {
+                            "type": "object",
+                            "required": ["name", "prompt"],
+                            "properties": {
+                                "name": {"type": "string"},
+                                "prompt": {"type": "string"},
+                                "group_prompts": {"type": "object"},
+                                "part_words": {"type": "object"},
+                                "painter": {"type": "string"},
+                                "texture_size": {"type": "integer"},
+                                "force": {"type": "boolean"},
+                            },
+                        }
+                    },
+                    "multipart/form-data": {
+                        "schema": {
+                            "type": "object",
+                            "required": ["look"],
+                            "properties": {
+                                "look": {"type": "string", "description": "the look's JSON (prompt optional), with images: {part: {scale, rotate, normal, roughness}}"},
+                                "image.*": {"type": "string", "format": "binary", "description": "a photo per part: fields image.<part>"},
+                            },
+                        }
+                    },
+                },
+            }
+        },
     )
     async def add_family_look(name: str, request: Request):
         """Paint a new look of the family (the stored template with another prompt, or photos sent

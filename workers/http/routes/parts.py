@@ -26,11 +26,17 @@ def router(ctx: AppContext) -> APIRouter:
 
     @router.put(
         "/v1/families/{name}/parts",
-        responses={404: {"description": "unknown family"}, 409: {"description": "an edit of the family is running"},
-                   422: {"description": "bad words"}},
-        openapi_extra={"requestBody": {"required": True, "content": {"application/json": {"schema": {
-            "type": "object", "required": ["groups"], "properties": {
-                "groups": {"type": "object", "additionalProperties": {"type": "string"}}, "replace": {"type": "boolean"}}}}}}},
+        responses={404: {"description": "unknown family"}, 409: {"description": "an edit of the family is running"}, 422: {"description": "bad words"}},
+        openapi_extra={
+            "requestBody": {
+                "required": True,
+                "content": {
+                    "application/json": {
+                        "schema": {"type": "object", "required": ["groups"], "properties": {"groups": {"type": "object", "additionalProperties": {"type": "string"}}, "replace": {"type": "boolean"}}}
+                    }
+                },
+            }
+        },
     )
     async def store_parts(name: str, request: Request):
         """Store the user's word per group in the family (``{"groups": {"3": "legs"}}``; an empty word

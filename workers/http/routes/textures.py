@@ -18,8 +18,11 @@ def router(ctx: AppContext) -> APIRouter:
     @router.get(
         "/v1/families/{name}/textures/{file}",
         response_class=Response,
-        responses={200: {"content": {"image/png": {}}, "description": "a template group's texture as stored"},
-                   304: {"description": "not modified (If-None-Match)"}, 404: {"description": "unknown family or group"}},
+        responses={
+            200: {"content": {"image/png": {}}, "description": "a template group's texture as stored"},
+            304: {"description": "not modified (If-None-Match)"},
+            404: {"description": "unknown family or group"},
+        },
     )
     async def group_texture_file(name: str, file: str, request: Request, v: str | None = None, look: str | None = None):
         """The texture a linked GLB refers to (``<group>.png``; ``?look=``: of that look), with its
@@ -42,11 +45,11 @@ def router(ctx: AppContext) -> APIRouter:
     @router.get(
         "/v1/families/{name}/groups/{group}/texture.png",
         response_class=Response,
-        responses={200: {"content": {"image/png": {}}, "description": "the (edited) group texture"},
-                   404: {"description": "unknown family or group"}, 422: {"description": "bad edit or size"}},
+        responses={200: {"content": {"image/png": {}}, "description": "the (edited) group texture"}, 404: {"description": "unknown family or group"}, 422: {"description": "bad edit or size"}},
     )
-    async def group_texture(name: str, group: str, size: str = "128", hue: str | None = None, saturation: str | None = None,
-                            value: str | None = None, prompt: str | None = None, look: str | None = None):
+    async def group_texture(
+        name: str, group: str, size: str = "128", hue: str | None = None, saturation: str | None = None, value: str | None = None, prompt: str | None = None, look: str | None = None
+    ):
         """The group's template texture (``?look=``: of that look), edited as the query says (no
         edit: the stored one)."""
         try:

@@ -26,13 +26,19 @@ def router(ctx: AppContext) -> APIRouter:
         response_class=Response,
         responses={
             200: {"content": {GLB_MEDIA_TYPE: {}}, "description": "the textured shape (binary glTF)"},
-            404: {"description": "unknown family"}, 413: {"description": "body too large"}, 422: {"description": "bad parameters or mesh"},
+            404: {"description": "unknown family"},
+            413: {"description": "body too large"},
+            422: {"description": "bad parameters or mesh"},
         },
-        openapi_extra={"requestBody": {"required": True, "content": {
-            "application/json": {"schema": TransferRequest.model_json_schema()},
-            "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {
-                "mesh": {"type": "string", "format": "binary"}, "seed": {"type": "integer"}}}},
-        }}},
+        openapi_extra={
+            "requestBody": {
+                "required": True,
+                "content": {
+                    "application/json": {"schema": TransferRequest.model_json_schema()},
+                    "multipart/form-data": {"schema": {"type": "object", "required": ["mesh"], "properties": {"mesh": {"type": "string", "format": "binary"}, "seed": {"type": "integer"}}}},
+                },
+            }
+        },
     )
     async def transfer(name: str, request: Request, textures: str = "embedded", look: str | None = None):
         """``?textures=linked``: the GLB refers to the family's textures (``textures/<g>.png?v=...``,
@@ -63,8 +69,7 @@ def router(ctx: AppContext) -> APIRouter:
         finally:
             if token is not None:
                 ctx.watchdog.end(token)
-        headers = {"X-ProcTex-Seconds": str(summary["seconds"]), "X-ProcTex-Notes": json.dumps(summary["notes"])[:2000],
-                   "Content-Disposition": f'inline; filename="{name}.glb"', **ctx.served_by}
+        headers = {"X-ProcTex-Seconds": str(summary["seconds"]), "X-ProcTex-Notes": json.dumps(summary["notes"])[:2000], "Content-Disposition": f'inline; filename="{name}.glb"', **ctx.served_by}
         return Response(content=data, media_type=GLB_MEDIA_TYPE, headers=headers)
 
     return router
