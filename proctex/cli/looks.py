@@ -122,7 +122,7 @@ def photo_args(args: argparse.Namespace) -> tuple[dict[str, dict], dict]:
     the prompt does not name (with no ``--prompt``: every group no other photo has)."""
     import os
 
-    from proctex.texture.exemplar import parse_length, read_photo
+    from proctex.texture.photo import parse_length, read_photo
 
     files: dict[str, str] = {}
     for item in args.image or []:

@@ -24,7 +24,7 @@ def parse_photos(body: dict[str, Any], files: dict[str, tuple[bytes, str]], unde
     read by :func:`proctex.texture.exemplar.read_photo` (pixels checked from the header before
     decoding), and ``body["images"]`` (optional: part -> ``{"scale", "rotate", "normal",
     "roughness"}``), which may name only parts sent a photo."""
-    from proctex.texture.exemplar import read_photo
+    from proctex.texture.photo import read_photo
 
     settings = body.get("images") or {}
     if not isinstance(settings, dict) or not all(isinstance(v, dict) for v in settings.values()):
