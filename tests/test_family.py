@@ -920,3 +920,34 @@ def test_each_stage_writes_only_what_it_declares_and_the_pipeline_alone_records_
                 if name == "mark_stage" or (name == "mark" and isinstance(fn, ast.Attribute) and "state" in ast.unparse(fn.value).lower()):
                     markers.append(path.relative_to(package).as_posix())
     assert sorted(set(markers)) == ["build/pipeline.py", "store/state.py"], markers
+
+
+def test_a_build_reads_family_json_once(tmp_path, monkeypatch):
+    """A build holds the family's state in memory under its exclusive lock
+    (:func:`proctex.store.state.held_state`): its process reads ``family.json`` at most once (none
+    for a new folder) whatever its stages ask, writes every record through, and lets the state go
+    when it ends, also when a stage fails."""
+    import proctex.store.state as state_mod
+    from proctex.build.pipeline import build
+    from proctex.store.state import FamilyState
+
+    reads = []
+    real = FamilyStore.read_bytes
+    monkeypatch.setattr(FamilyStore, "read_bytes", lambda self, rel: (reads.append(rel) if rel == "family.json" else None) or real(self, rel))
+    cfg = BuildConfig.from_dict(dict(model="mug", n_train=3, n_test=1, corr_points=200, cage_iterations=10, texture_size=64))
+    st = FamilyStore(tmp_path / "mug")
+    build(st, cfg, stages=("sample", "template", "paint", "pairs"), log=lambda *_: None)
+    assert reads == [] and state_mod._HELD == {}
+    after = FamilyState.load(st)  # outside a build: read from the file
+    assert all(after.done(s) for s in ("sample", "template", "paint", "pairs")) and reads == ["family.json"]
+    reads.clear()
+    build(st, cfg, stages=("sample", "template", "paint", "pairs"), log=lambda *_: None)  # resumed: everything done
+    assert reads == ["family.json"]
+
+    def broken(*a, **k):
+        raise RuntimeError("a stage failed")
+
+    monkeypatch.setattr("proctex.build.pipeline._run_stages", broken)
+    with pytest.raises(RuntimeError):
+        build(st, cfg, stages=("sample",), log=lambda *_: None)
+    assert state_mod._HELD == {}

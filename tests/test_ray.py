@@ -128,8 +128,7 @@ def torch_allclose(a, b) -> bool:
 
 
 def test_a_worker_killed_during_the_cage_fan_out_does_not_stop_the_build(local_ray, reference, tmp_path):
-    from proctex.build.pairs import plan_pairs
-    from proctex.build.plan import run_steps
+    from proctex.build.pipeline import run_stage
     from workflows.build import build_on_ray, ray_executor
 
     st_root = str(tmp_path / "mug")
@@ -152,7 +151,7 @@ def test_a_worker_killed_during_the_cage_fan_out_does_not_stop_the_build(local_r
         st, quiet = FamilyStore(st_root), (lambda *_: None)
         ran = []
         execute = ray_executor(quiet=True)
-        run_steps(plan_pairs(st, config(), quiet), lambda *a: ran.append(execute(*a)) or ran[-1], st, config(), quiet)  # both steps
+        run_stage(st, config(), "pairs", quiet, lambda *a: ran.append(execute(*a)) or ran[-1])  # both steps, recorded by the pipeline
     finally:
         stop.set()
         t.join()
@@ -282,6 +281,7 @@ def test_a_group_trained_by_two_ray_train_workers_averages_their_gradients(local
     groups on two workers: a team of one each, no all-reduce)."""
     import shutil
 
+    from proctex.build.pipeline import run_stage
     from proctex.build.train import plan_train
     from proctex.store.networks import load_models
     from workflows.build import ray_executor
@@ -293,7 +293,7 @@ def test_a_group_trained_by_two_ray_train_workers_averages_their_gradients(local
     cfg = BuildConfig.from_dict({**json.loads(json.dumps(CFG)), "train": {**CFG["train"], "plain_below": 0.0}})  # trained, whatever its box map
     plan = plan_train(st, cfg, quiet)
     assert plan.batches == [[0]]
-    ray_executor(train_workers=2, quiet=True)(plan, st, cfg, quiet)
+    run_stage(st, cfg, "train", quiet, ray_executor(train_workers=2, quiet=True))  # placed as a team, recorded by the pipeline
     record = st.read_json("family.json")["stages"]["train"]
     assert record["ray"] is True and record["groups"]["0"]["workers"] == 2 and record["groups"]["0"]["sha256"]
     assert sorted(load_models(st)) == [0, 1]  # the new network's checksum is the one recorded

@@ -146,13 +146,13 @@ def test_a_folder_with_truth_files_is_measured_on_them_and_a_wrong_truth_is_caug
 def test_the_methods_never_see_the_files_truth(seam_family, monkeypatch):
     """Truth is for measuring only: every shape a method transfers in the evaluation of a folder with
     truth files has no labels and no canonical coordinates (the locating and scoring shape has both)."""
-    import proctex.transfer.apply as apply
+    import proctex.measure.evaluate as evaluation
     from proctex.measure.evaluate import evaluate
     from proctex.store.layout import FamilyStore
 
     seen = []
-    real = apply.shape_to_glb
-    monkeypatch.setattr(apply, "shape_to_glb", lambda shape, *a, **k: seen.append((shape.labels, shape.canonical)) or real(shape, *a, **k))
+    real = evaluation.shape_to_glb  # what the evaluation transfers with
+    monkeypatch.setattr(evaluation, "shape_to_glb", lambda shape, *a, **k: seen.append((shape.labels, shape.canonical)) or real(shape, *a, **k))
     m = evaluate(FamilyStore(seam_family / "mug"), methods=("identity", "nearest"), tracked=100, view_size=32, bake_size=32, log=lambda *_: None, quiet=True)
     assert m["truth"] == "canonical" and len(seen) == 4  # 2 test shapes x 2 methods
     assert all(labels is None and canonical is None for labels, canonical in seen)

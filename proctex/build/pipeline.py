@@ -29,7 +29,7 @@ from proctex.pools import shared_pool
 from proctex.store.config import BuildConfig
 from proctex.store.layout import FamilyStore, StoreLayout
 from proctex.store.locks import build_lock
-from proctex.store.state import STAGES, FamilyState, mark_stage, write_config
+from proctex.store.state import STAGES, FamilyState, held_state, mark_stage, write_config
 
 Planner = Callable[..., Plan]
 Executor = Callable[[Plan, FamilyStore, BuildConfig, Callable[[str], None]], Plan]
@@ -143,18 +143,23 @@ def build(store: FamilyStore, config: BuildConfig, stages: tuple[str, ...] | lis
     try:
         # one build (and no edit) of a store at a time, the config checked under the lock; the stages'
         # worker processes started once a build (shared_pool: a worker's start is 3-4 s on 2 cores)
-        with build_lock(store), shared_pool():
+        # family.json read once (held_state): under the exclusive lock this build is its only writer
+        with build_lock(store), shared_pool(), held_state(store):
             write_config(store, config)
-            for stage in STAGES:
-                if stage in stages:
-                    t = time.perf_counter()
-                    run_stage(store, config, stage, log, executor)
-                    walls[stage] = round(time.perf_counter() - t, 2)
-            return {**FamilyState.load(store).to_dict(), "wall_seconds": walls}
+            return _run_stages(store, config, stages, log, executor, walls)
     except ValueError:
         if fresh is not None and not walls:  # refused before its first stage ended: --out as it was
             _remove_fresh(fresh)
         raise
+
+
+def _run_stages(store: FamilyStore, config: BuildConfig, stages, log: Callable[[str], None], executor: Executor, walls: dict[str, float]) -> dict[str, Any]:
+    for stage in STAGES:
+        if stage in stages:
+            t = time.perf_counter()
+            run_stage(store, config, stage, log, executor)
+            walls[stage] = round(time.perf_counter() - t, 2)
+    return {**FamilyState.load(store).to_dict(), "wall_seconds": walls}
 
 
 def _fresh_folder(store: FamilyStore) -> tuple[str, bool] | None:

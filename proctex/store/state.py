@@ -4,12 +4,14 @@ loads it once (:meth:`FamilyState.load`) and passes it on."""
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import platform
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterator
 
 import pyarrow as pa
 
@@ -61,7 +63,12 @@ class FamilyState:
     @classmethod
     def load(cls, store: FamilyStore) -> "FamilyState":
         """The store's state, read once (an empty state where there is no ``family.json``); a file
-        that is not an object, or whose sections are not, is a ``ValueError`` naming it."""
+        that is not an object, or whose sections are not, is a ``ValueError`` naming it. Inside
+        :func:`held_state` for this store (a build, under its exclusive lock), a copy of the state
+        held in memory: the file is read once a build."""
+        held = _HELD.get(store.uri)
+        if held is not None:
+            return copy.deepcopy(held)
         if not store.exists(StoreLayout.STATE):
             return cls()
         raw = store.read_json(StoreLayout.STATE)
@@ -83,8 +90,10 @@ class FamilyState:
         return {**out, "stages": self.stages, **self.other}
 
     def save(self, store: FamilyStore) -> None:
-        """Write ``family.json`` (atomically)."""
+        """Write ``family.json`` (atomically); inside :func:`held_state`, the held state too."""
         store.write_json(StoreLayout.STATE, self.to_dict())
+        if store.uri in _HELD:
+            _HELD[store.uri] = copy.deepcopy(self)
 
     def stage(self, name: str) -> dict[str, Any]:
         """The record of stage ``name`` ({} before it ran)."""
@@ -122,6 +131,26 @@ class FamilyState:
         self.config = new
         self.versions = library_versions()
         return self
+
+
+#: The states held in memory by :func:`held_state`, per store URI (this process only).
+_HELD: dict[str, "FamilyState"] = {}
+
+
+@contextmanager
+def held_state(store: FamilyStore) -> Iterator[None]:
+    """Inside the block this process reads ``store``'s ``family.json`` once: :meth:`FamilyState.load`
+    gives copies of the state held in memory and :meth:`FamilyState.save` writes through it. For a
+    build, which holds the store's exclusive build lock (no edit or other build writes the file
+    meanwhile); the processes it starts read the file themselves. Nested blocks share the outer one."""
+    if store.uri in _HELD:
+        yield
+        return
+    _HELD[store.uri] = FamilyState.load(store)
+    try:
+        yield
+    finally:
+        _HELD.pop(store.uri, None)
 
 
 def mark_stage(store: FamilyStore, stage: str, **info: Any) -> None:
