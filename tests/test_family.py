@@ -951,3 +951,28 @@ def test_a_build_reads_family_json_once(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         build(st, cfg, stages=("sample",), log=lambda *_: None)
     assert state_mod._HELD == {}
+
+
+def test_a_pair_batch_keys_its_cached_template_on_the_planned_version(mug_family, monkeypatch):
+    """A worker (a pool process, a Ray task) keys its cached template on the family version the jobs
+    were planned at: a warm worker reads no ``family.json`` for a batch; a job planned at another
+    version loads the template again."""
+    import proctex.build.pairs as pairs
+    from proctex.build.pairs import pair_jobs, run_pair_batch
+    from proctex.store.family import Family
+
+    st, cfg = mug_family
+    jobs = pair_jobs(st, cfg)
+    assert {j.version for j in jobs} == {Family.open(st).version}
+    pairs._ASSETS.clear()
+    reads = []
+    real = FamilyStore.read_bytes
+    monkeypatch.setattr(FamilyStore, "read_bytes", lambda self, rel: (reads.append(rel) if rel == "family.json" else None) or real(self, rel))
+    first = run_pair_batch(st, cfg, jobs[:1])
+    cold = len(reads)
+    second = run_pair_batch(st, cfg, jobs[1:2])
+    assert cold >= 1 and len(reads) == cold  # warm: nothing read
+    assert first[0]["status"] == second[0]["status"] == "done"
+    other = pairs.PairJob(jobs[0].index, jobs[0].row, jobs[0].group, "another")
+    run_pair_batch(st, cfg, [other])
+    assert len(reads) > cold and list(pairs._ASSETS) == [(st.uri, "another")]

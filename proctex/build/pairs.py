@@ -91,11 +91,14 @@ def solve_pair(shape: Shape, assets, group: int, config: BuildConfig, seed: int,
 
 @dataclass
 class PairJob:
-    """One cage correspondence to solve: sample ``index`` (its ``samples.parquet`` row) and template ``group``."""
+    """One cage correspondence to solve: sample ``index`` (its ``samples.parquet`` row) and template
+    ``group``; ``version``: the family's version it was planned at (a worker keys its cached template
+    on it without reading ``family.json``; "" where unknown)."""
 
     index: int
     row: dict[str, Any]
     group: int
+    version: str = ""
 
     @property
     def key(self) -> tuple[str, int]:
@@ -106,7 +109,8 @@ def pair_jobs(store: FamilyStore, config: BuildConfig, assets=None, splits: tupl
     """Every (shape of ``splits``, non-degenerate template group) pair, in sample order."""
     assets = assets if assets is not None else load_assets(store)
     groups = [g.group for g in assets.groups if not g.degenerate]
-    return [PairJob(i, r, g) for i, r in enumerate(samples(store)) if r["split"] in splits for g in groups]
+    version = Family.open(store).version
+    return [PairJob(i, r, g, version) for i, r in enumerate(samples(store)) if r["split"] in splits for g in groups]
 
 
 def pair_records(store: FamilyStore, jobs: list[PairJob]) -> dict[tuple[str, int], dict[str, Any]]:
@@ -220,20 +224,20 @@ INDEX_EVERY = 5.0  # seconds between rewrites of pairs.parquet while pairs arriv
 _ASSETS: dict[tuple[str, str], Any] = {}
 
 
-def cached_assets(store: FamilyStore) -> Any:
-    """The store's template assets, loaded once per process and family version (:attr:`Family.version`)."""
-    state = FamilyState.load(store)
-    key = (store.uri, Family.open(store, state).version)
+def cached_assets(store: FamilyStore, version: str = "") -> Any:
+    """The store's template assets, loaded once per process and family version
+    (:attr:`Family.version`; ``version``: the one the jobs were planned at, else read here)."""
+    key = (store.uri, version or Family.open(store).version)
     if key not in _ASSETS:
         _ASSETS.clear()
-        _ASSETS[key] = load_assets(store, state)
+        _ASSETS[key] = load_assets(store)
     return _ASSETS[key]
 
 
 def run_pair_batch(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], context: Any = None) -> list[dict[str, Any]]:
     """Solve and store a batch of cage pairs (one shape's: it is loaded once) with the template
     assets ``context`` (loaded here when None); their records."""
-    assets = context if context is not None else cached_assets(store)
+    assets = context if context is not None else cached_assets(store, jobs[0].version if jobs else "")
     records, shape, shape_id = [], None, None
     for job in jobs:
         if shape_id != job.row["id"]:
