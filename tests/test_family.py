@@ -861,8 +861,8 @@ def test_loading_a_family_opens_no_shape_source_and_one_version_value(mug_family
     assert shape.n_faces > 0
 
 
-def undeclared_writes(before: set[str], after: set[str], declared: tuple[str, ...]) -> list[str]:
-    """Files in ``after`` but not in ``before`` that match none of the ``declared`` patterns
+def undeclared(before: set[str], after: set[str], declared: tuple[str, ...]) -> list[str]:
+    """Files in ``after`` but not in ``before`` (written, or read) that match none of the ``declared`` patterns
     (``family.json``, the pipeline's record, and lock files aside)."""
     import fnmatch
 
@@ -876,9 +876,10 @@ def store_files(root: Path) -> set[str]:
 
 def test_each_stage_writes_only_what_it_declares_and_the_pipeline_alone_records_it(tmp_path):
     """The stage table (:data:`proctex.build.pipeline.STAGES_TABLE`) lists the stages in build order
-    with their placement; run one by one, each stage writes only files its table entry declares
-    (the check finds a file nobody declared), and its record in ``family.json`` appears when the
-    pipeline writes it: no module of ``proctex`` but the pipeline marks a stage done."""
+    with their placement; run one by one, each stage writes only files its table entry declares and
+    reads only those it declares or wrote (the check finds a file nobody declared), and its record
+    in ``family.json`` appears when the pipeline writes it: no module of ``proctex`` but the
+    pipeline marks a stage done."""
     import ast
 
     from proctex.build.pipeline import STAGES_TABLE, run_stage
@@ -894,7 +895,7 @@ def test_each_stage_writes_only_what_it_declares_and_the_pipeline_alone_records_
         "train": Placement.TEAM,
         "evaluate": Placement.HERE,
     }
-    assert undeclared_writes({"a"}, {"a", "models/group_0.pt", "notes.txt"}, ("models/*",)) == ["notes.txt"]
+    assert undeclared({"a"}, {"a", "models/group_0.pt", "notes.txt"}, ("models/*",)) == ["notes.txt"]
 
     cfg = BuildConfig.from_dict(
         dict(model="mug", n_train=3, n_test=2, corr_points=200, cage_iterations=10, texture_size=64, train={"iterations": 20, "eval_every": 10, "context_points": 128, "query_points": 64})
@@ -902,13 +903,21 @@ def test_each_stage_writes_only_what_it_declares_and_the_pipeline_alone_records_
     root = tmp_path / "mug"
     st = FamilyStore(root)
     write_config(st, cfg)
-    for name in STAGES:
-        before = store_files(root)
-        run_stage(st, cfg, name, log=lambda *_: None)
-        after = store_files(root)
-        assert undeclared_writes(before, after, STAGES_TABLE[name].writes) == [], name
-        assert after - before, f"{name} wrote nothing"
-        assert FamilyState.load(st).done(name), name
+    reads: list[str] = []
+    real = FamilyStore.read_bytes
+    with pytest.MonkeyPatch.context() as m:  # every store read (JSON, tables, arrays) goes through read_bytes
+        m.setattr(FamilyStore, "read_bytes", lambda self, rel: reads.append(rel) or real(self, rel))
+        for name in STAGES:
+            before = store_files(root)
+            reads.clear()
+            run_stage(st, cfg, name, log=lambda *_: None)
+            after = store_files(root)
+            entry = STAGES_TABLE[name]
+            assert undeclared(before, after, entry.writes) == [], name
+            assert after - before, f"{name} wrote nothing"
+            # what it read: its declared reads, what it wrote itself, family.json
+            assert undeclared(set(), set(reads), entry.reads + entry.writes) == [], name
+            assert FamilyState.load(st).done(name), name
 
     markers = []
     package = Path(__file__).resolve().parents[1] / "proctex"
