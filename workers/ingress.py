@@ -20,11 +20,13 @@ from __future__ import annotations
 import asyncio
 import json
 import re
+import time
 from typing import Any, Awaitable, Callable
 
 from starlette.requests import Request
 
 from proctex.serve.service import Limits
+from proctex.serve.timing import server_timing
 
 #: A request as it travels from the ingress to a replica: ``method``, ``path``, ``query_string``
 #: (bytes), ``headers`` (list of (bytes, bytes)), ``body`` (bytes), ``client`` ((host, port) or None).
@@ -124,7 +126,9 @@ def ingress_app(
     failure: an idempotent request is then forwarded once more (within ``retry_seconds``: a
     replacement replica may be starting) and its answer carries ``X-ProcTex-Retried: 1``; anything
     else that goes wrong is a JSON error (503 with ``Retry-After`` for a lost replica, 500 with the
-    error's type otherwise), never plain text.
+    error's type otherwise), never plain text. A forwarded answer's ``Server-Timing`` gains
+    ``ingress-body`` (reading the body here), ``forward`` (the replica's round trip, retry
+    included) and ``ingress`` (both).
     """
     from workers.http import error_response, read_body
 
@@ -150,6 +154,7 @@ def ingress_app(
             await send({"type": "websocket.close", "code": 1003})
             return
         request = Request(scope, receive)
+        t0 = time.perf_counter()
         try:
             body = await read_body(request, limits.max_bytes, limits)
         except Exception as exc:  # too large, too slow, every upload slot taken: JSON as the replicas would answer
@@ -165,6 +170,7 @@ def ingress_app(
             "client": scope.get("client"),
         }
         family = family_of(path)
+        t_forward = time.perf_counter()
         try:
             ans = await forward(forwarded, family)
         except Exception as exc:
@@ -191,6 +197,8 @@ def ingress_app(
                     ),
                 )
             ans = {**ans, "headers": [*ans["headers"], (b"x-proctex-retried", b"1")]}
-        await answer(send, ans)
+        t_end = time.perf_counter()
+        timing = server_timing({"ingress-body": t_forward - t0, "forward": t_end - t_forward, "ingress": t_end - t0})
+        await answer(send, {**ans, "headers": [*ans["headers"], (b"server-timing", timing.encode())]})
 
     return app

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import time
 from typing import Any
 
 from ray import serve
@@ -23,6 +24,7 @@ from ray.exceptions import RayActorError
 from proctex.serve.catalog import Catalog, Watchdog
 from proctex.serve.parse_worker import READER
 from proctex.serve.service import Limits
+from proctex.serve.timing import server_timing
 from workers.http import create_app
 from workers.ingress import Answer, Forwarded, call_app, ingress_app
 
@@ -51,10 +53,14 @@ class TransferService:
 
     async def forward(self, request: Forwarded) -> Answer:
         """One HTTP request forwarded by the ingress, answered by the FastAPI app of
-        :mod:`workers.http` in this replica (built on the first request, in the replica)."""
+        :mod:`workers.http` in this replica (built on the first request, in the replica); the
+        answer's ``Server-Timing`` gains ``replica``, the app's whole run here."""
         if self.app is None:
             self.app = create_app(lambda: self.catalog, watchdog=self.watchdog, edit_token=self.edit_token, get_family=self.family if self.max_families else None, replica=_replica_name())
-        return await call_app(self.app, request)
+        t0 = time.perf_counter()
+        answer = await call_app(self.app, request)
+        answer["headers"].append((b"server-timing", server_timing({"replica": time.perf_counter() - t0}).encode()))
+        return answer
 
     def check_health(self) -> None:
         """Serve's health check: a transfer stuck far past its budget fails it, so Serve replaces

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ import numpy as np
 from proctex.geometry.meshcounts import declared_counts
 from proctex.geometry.meshio import load_mesh_bytes
 from proctex.geometry.parts import parts_of
+from proctex.serve.timing import StageClock
 from proctex.texture.painting import MAX_PROMPT
 from proctex.transfer.budget import OverBudget
 
@@ -246,24 +248,31 @@ class Inputs:
     """A loaded family's checks of what a request brings (a mixin of
     :class:`proctex.serve.service.FamilyService`: ``self.limits``, ``self.model``, ``self.assets``)."""
 
-    def shape_from_params(self, params: Any):
+    def shape_from_params(self, params: Any, clock: StageClock | None = None):
+        """The shape of new parameters, made by the family's model and checked (:meth:`check_shape`);
+        ``clock`` (:class:`~proctex.serve.timing.StageClock`) times ``generate`` and ``segment``."""
+        clock = clock or StageClock()
         if not self.source_kind.regenerates:
             raise BadInput(f"family {self.name!r} comes from a folder of meshes: send a mesh, not parameters")
         if not isinstance(params, dict):
             raise BadInput("params must be a JSON object of parameter values")
         try:
-            shape = self.model.generate(params)
+            with clock.stage("generate"):
+                shape = self.model.generate(params)
         except (ValueError, OverflowError, RecursionError) as exc:
             raise BadInput(str(exc)[:500] or type(exc).__name__) from exc
-        return self.check_shape(shape)
+        return self.check_shape(shape, clock)
 
-    def check_shape(self, shape):
+    def check_shape(self, shape, clock: StageClock | None = None):
         """``shape`` if within the limits on vertices, faces (:class:`TooLarge`) and parts
-        (:class:`BadInput`: every part beyond the template's is matched on its own)."""
+        (:class:`BadInput`: every part beyond the template's is matched on its own). Its
+        segmentation, kept on the shape for the transfer, is timed as ``segment`` on ``clock``."""
+        clock = clock or StageClock()
         if shape.n_vertices > self.limits.max_vertices or shape.n_faces > self.limits.max_faces:
             raise TooLarge(f"mesh has {shape.n_vertices} vertices and {shape.n_faces} faces; limits are {self.limits.max_vertices} and {self.limits.max_faces}")
         check_extent(shape)
-        n_parts = parts_of(shape).n_parts if shape.n_faces else 0  # kept on the shape for the transfer
+        with clock.stage("segment"):
+            n_parts = parts_of(shape).n_parts if shape.n_faces else 0  # kept on the shape for the transfer
         if n_parts > self.limits.max_parts:
             raise BadInput(f"mesh has {n_parts} parts (connected components); the limit is {self.limits.max_parts}")
         return shape
@@ -282,11 +291,14 @@ class Inputs:
         if c.triangles is not None and c.triangles > self.limits.max_faces:
             raise TooLarge(f"the upload declares {c.triangles} faces (triangles); the limit is {self.limits.max_faces}")
 
-    def shape_from_mesh(self, data: bytes, filename: str = "mesh.obj", budget: Any = None):
+    def shape_from_mesh(self, data: bytes, filename: str = "mesh.obj", budget: Any = None, clock: StageClock | None = None):
         """The shape of an uploaded mesh file, its header checked against the limits first
         (:meth:`check_declared`). With a ``budget`` (a request's) the file is read in the mesh
         reader process (:mod:`proctex.serve.parse_worker`), killed when the budget runs out or is
-        cancelled (:class:`~proctex.transfer.budget.OverBudget`); without, here."""
+        cancelled (:class:`~proctex.transfer.budget.OverBudget`); without, here. ``clock``
+        (:class:`~proctex.serve.timing.StageClock`) times ``parse`` and ``segment``."""
+        clock = clock or StageClock()
+        t_parse = time.perf_counter()
         if len(data) > self.limits.max_bytes:
             raise TooLarge(f"mesh of {len(data)} bytes is over the limit of {self.limits.max_bytes}")
         suffix = Path(filename or "mesh.obj").suffix.lower() or ".obj"
@@ -315,7 +327,8 @@ class Inputs:
         except Exception as exc:  # ValueError, or a parser crashing on garbage: the client's bad mesh
             text = str(exc).replace(name, Path(filename or "mesh").name)[:300]
             raise BadInput(f"cannot read the mesh: {text if isinstance(exc, ValueError) else exc.__class__.__name__ + ': ' + text}") from exc
-        return self.check_shape(shape)
+        clock.add("parse", time.perf_counter() - t_parse)
+        return self.check_shape(shape, clock)
 
     def group_index(self, key: Any, missing: type[ValueError] = BadInput) -> int:
         """The index of a template group given by index (int or digits) or label; ``missing`` is

@@ -510,18 +510,23 @@ def shape_to_glb(
     parts of groups the template lacks), then the GLB (:func:`glb`, the template's encoded PNGs), or
     with ``bake_size`` the shape's own atlas and textures (:func:`bake`). The command line, the
     service, the demo and the evaluation all answer with this. ``budget``: see :func:`transfer`.
-    ``texture_uris``, ``map_uris``: see :func:`glb` (not with ``bake_size``: a baked atlas is the shape's own)."""
+    ``texture_uris``, ``map_uris``: see :func:`glb` (not with ``bake_size``: a baked atlas is the shape's own).
+    The result's ``timings`` gain ``glb`` (or ``bake``: the atlas, its textures and the GLB)."""
     result = transfer(shape, assets, mapper, seed=seed, painter=painter, shortcut=shortcut, budget=budget, up=up)
     if budget is not None:
         budget.check("encoding the answer")
+    t0 = time.perf_counter()
     if bake_size:
         baked = bake(shape, result, assets, size=bake_size)
         names = assets.names + [f"new_{k}" for k in range(len(result.new_textures))]
         pbr = baked.pbr if baked.pbr is not None and any(m is not None for m in baked.pbr) else None
         data = glb_bytes(shape.vertices, shape.faces, baked.corner_uv, baked.face_group, baked.textures, names=names, up=up, pbr=pbr)
+        result.timings["bake"] = time.perf_counter() - t0
         return TexturedGLB(data, result, baked.corner_uv, baked.face_group, list(baked.textures), baked, pbr)
+    data = glb(shape, result, assets, up=up, texture_uris=texture_uris, map_uris=map_uris)
+    result.timings["glb"] = time.perf_counter() - t0
     return TexturedGLB(
-        glb(shape, result, assets, up=up, texture_uris=texture_uris, map_uris=map_uris),
+        data,
         result,
         result.corner_uv,
         result.face_group,

@@ -1,0 +1,109 @@
+"""Where a request's time goes (issue 56): the ``Server-Timing`` header of a transfer, written by
+the route, the replica and the ingress, and read back by the serving benchmark."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import shutil
+
+import pytest
+
+from proctex.serve.timing import StageClock, parse_server_timing, server_timing
+
+httpx = pytest.importorskip("httpx")
+
+from proctex.serve.catalog import Catalog  # noqa: E402
+from proctex.serve.service import Limits  # noqa: E402
+from workers.http import create_app  # noqa: E402
+from workers.ingress import call_app, ingress_app  # noqa: E402
+
+#: The route's stages of a transfer by parameters (``parse`` instead of ``generate`` for an upload).
+PARAM_STAGES = ("family", "body", "queue", "thread", "generate", "segment", "assign", "map", "uv", "glb", "app")
+
+
+def test_stages_round_trip_through_the_header_and_add_up():
+    clock = StageClock()
+    clock.add("parse", 0.0034)
+    clock.add("uv", 0.010)
+    clock.add("uv", 0.005)  # timed twice: adds up
+    with clock.stage("glb"):
+        pass
+    assert list(clock.seconds) == ["parse", "uv", "glb"]
+    back = parse_server_timing(clock.header())
+    assert list(back) == ["parse", "uv", "glb"]
+    assert back["parse"] == pytest.approx(3.4) and back["uv"] == pytest.approx(15.0) and 0 <= back["glb"] < 50
+    # several headers joined by commas (each layer appends its own): a stage named twice adds up
+    assert parse_server_timing("a;dur=1.5, b;desc=\"x\";dur=2, a;dur=0.5") == {"a": 2.0, "b": 2.0}
+
+
+@pytest.mark.parametrize("bad", ["", "a b", "x" * 33, "a,b", "é"])
+def test_a_stage_name_must_be_a_header_token(bad):
+    with pytest.raises(ValueError, match="stage name"):
+        StageClock().add(bad, 0.1)
+
+
+@pytest.mark.parametrize("seconds", [-1.0, math.inf, math.nan])
+def test_a_stage_takes_only_finite_non_negative_seconds(seconds):
+    with pytest.raises(ValueError, match="finite"):
+        StageClock().add("x", seconds)
+
+
+def test_unreadable_entries_are_left_out_and_the_work_is_bounded():
+    assert parse_server_timing("a;dur=x, b, c;dur=-1, d;dur=inf, e e;dur=1, f;dur=2") == {"f": 2.0}
+    assert server_timing({"ok": 0.001, "no good": 0.002, "neg": -1.0}) == "ok;dur=1.00"
+    assert len(parse_server_timing(", ".join(f"s{i};dur=1" for i in range(1000)))) == 64
+
+
+@pytest.fixture()
+def app(painted_mug_root, tmp_path):
+    shutil.copytree(painted_mug_root / "mug", tmp_path / "root" / "mug")
+    cat = Catalog(str(tmp_path / "root"), Limits(), check_every=0)
+    cat.get("mug")
+    return create_app(lambda: cat, replica="r1")
+
+
+def _post(app, path, **kw):
+    async def go():
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t", timeout=60) as c:
+            return await c.post(path, **kw)
+
+    return asyncio.run(go())
+
+
+def test_a_transfer_says_where_its_time_went(app, painted_mug_root):
+    r = _post(app, "/v1/families/mug/transfer", json={"params": {}})
+    assert r.status_code == 200
+    stages = parse_server_timing(r.headers["server-timing"])
+    assert set(PARAM_STAGES) <= set(stages), stages
+    # the stages are parts of the route's time: together they never exceed it (1 ms for rounding)
+    assert sum(v for k, v in stages.items() if k != "app") <= stages["app"] + 1.0
+    assert stages["app"] > 0 and stages["map"] + stages["uv"] > 0
+
+    # an upload: the mesh is parsed, not generated
+    from proctex.models import get_model
+
+    mug = get_model("mug").generate({})
+    obj = "".join(f"v {x} {y} {z}\n" for x, y, z in mug.vertices) + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mug.faces)
+    r = _post(app, "/v1/families/mug/transfer", files={"mesh": ("m.obj", obj.encode())})
+    assert r.status_code == 200
+    stages = parse_server_timing(r.headers["server-timing"])
+    assert "parse" in stages and "generate" not in stages and {"segment", "uv", "glb", "app"} <= set(stages)
+
+
+def test_the_ingress_and_the_replica_add_their_own_stages(app):
+    async def forward(request, family):
+        ans = await call_app(app, request)
+        ans["headers"].append((b"server-timing", server_timing({"replica": 0.002}).encode()))
+        return ans
+
+    front = ingress_app(forward, Limits())
+    r = _post(front, "/v1/families/mug/transfer", json={"params": {}})
+    assert r.status_code == 200
+    stages = parse_server_timing(", ".join(r.headers.get_list("server-timing")))
+    assert {"app", "replica", "ingress-body", "forward", "ingress"} <= set(stages)
+    assert stages["replica"] == 2.0
+    assert stages["forward"] >= stages["app"] and stages["ingress"] >= stages["forward"]
+    # an answer the ingress makes itself (a body too large) carries no forwarded stages
+    r = _post(ingress_app(forward, Limits(max_bytes=10)), "/v1/families/mug/transfer", content=b"x" * 100, headers={"content-type": "application/json"})
+    assert r.status_code == 413 and "app" not in parse_server_timing(r.headers.get("server-timing", ""))
