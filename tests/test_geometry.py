@@ -222,9 +222,48 @@ def test_query_facing_keeps_each_side_of_a_thin_wall():
         idx.query_facing(pts, up[:3])
     # One candidate at first: those nearer the bottom widen the search until a facing face is found.
     np.testing.assert_allclose(idx.query_facing(pts, up, k=1).points[:, 2], 0.01)
-    # ... but never beyond max_k: with one proxy allowed, each keeps its one candidate.
+    # ... but never beyond max_k: with one proxy allowed, the proxy search keeps each query's one
+    # candidate (for some points of the top that is a bottom face: its centroid is nearer) ...
     proxies = SurfaceIndex(np.asarray(slab.vertices), np.asarray(slab.faces), backend="proxies")  # the AABB is always exact
-    np.testing.assert_allclose(idx.query_facing(pts, up, k=1, max_k=1).points, proxies.query(pts, exact=False, k=1).points)
+    np.testing.assert_allclose(proxies.query_facing(pts, up, k=1, max_k=1).points, proxies.query(pts, exact=False, k=1).points)
+    assert (proxies.query_facing(pts, up, k=1, max_k=1).points[:150, 2] < 0).any()
+    # ... while the AABB tree gives every query its exact nearest face first: the top for the points
+    # nearer the top, whatever max_k; the others keep their exact nearest when no candidate faces them.
+    res = idx.query_facing(pts, up, k=1, max_k=1)
+    np.testing.assert_allclose(res.points[:150, 2], 0.01)
+    exact = idx.query(pts).points
+    assert all(np.isclose(res.points[i, 2], 0.01) or np.allclose(res.points[i], exact[i]) for i in range(150, 200))
+
+
+def test_query_facing_by_the_aabb_tree_is_the_nearest_facing_face_of_a_slow_search():
+    """On a bumpy closed surface with queries off it and normals that sometimes oppose the nearest
+    face, the AABB path answers each query whose exact nearest face faces it with that face (the
+    exact nearest, checked against a search over every face), and the others as the proxy search
+    does, keeping their exact nearest where it finds no facing face."""
+    import trimesh
+
+    from proctex.geometry.surface import SurfaceIndex, closest_point_bruteforce
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    rng = np.random.default_rng(3)
+    v = np.asarray(sphere.vertices) * rng.uniform(0.8, 1.2, (len(sphere.vertices), 1))
+    f = np.asarray(sphere.faces)
+    aabb, proxies = SurfaceIndex(v, f), SurfaceIndex(v, f, backend="proxies")
+    assert aabb.backend == "aabb"
+    pts = rng.normal(size=(300, 3))
+    pts = pts / np.linalg.norm(pts, axis=1, keepdims=True) * rng.uniform(0.7, 1.3, (300, 1))
+    nrm = pts + rng.normal(size=(300, 3)) * 0.8  # mostly outward, some not
+    got = aabb.query_facing(pts, nrm, k=4, majority=False, max_k=16)
+    nearest = aabb.query(pts)  # the exact nearest (a tie at an edge or corner: the tree's own pick)
+    np.testing.assert_allclose(nearest.distance, closest_point_bruteforce(v, f, pts).distance, atol=1e-12)
+    faces_it = np.einsum("qd,qd->q", aabb.normals[nearest.faces], nrm) > 0
+    assert 0.6 < faces_it.mean() < 1.0  # both kinds of query are there
+    np.testing.assert_array_equal(got.faces[faces_it], nearest.faces[faces_it])
+    np.testing.assert_allclose(got.points[faces_it], nearest.points[faces_it], atol=1e-12)
+    others = proxies.query_facing(pts[~faces_it], nrm[~faces_it], k=4, majority=False, max_k=16)
+    found = np.einsum("qd,qd->q", aabb.normals[others.faces], nrm[~faces_it]) > 0
+    np.testing.assert_array_equal(got.faces[~faces_it][found], others.faces[found])
+    np.testing.assert_array_equal(got.faces[~faces_it][~found], nearest.faces[~faces_it][~found])
 
 
 def test_split_by_face_parts_cuts_a_connected_mesh_along_part_boundaries():

@@ -387,9 +387,35 @@ class SurfaceIndex:
         (a mirrored member, an inside-out export): when their normals, weighted by length, mostly
         oppose the normals of their nearest faces, all are reversed first.
 
+        With libigl (the ``aabb`` backend) each query's exact nearest face comes first from the AABB
+        tree: where it faces the query's way it is the answer (the nearest facing face, exactly, and
+        3-4x cheaper than the proxies' candidates); only the other queries go through the proxy
+        search above, and one that finds no facing face keeps its exact nearest.
+
         Args: points (q, 3), normals (q, 3) (any length; zero rows mean "no side").
         """
         pts, nrm = _points_and_normals(points, normals)
+        if self._backend == "aabb" and len(pts):
+            return self._query_facing_aabb(pts, nrm, k, majority, max_k)
+        return self._query_facing_proxies(pts, nrm, k, majority, max_k)
+
+    def _query_facing_aabb(self, pts: np.ndarray, nrm: np.ndarray, k: int, majority: bool, max_k: int) -> ClosestPoints:
+        """:meth:`query_facing` by the AABB tree first, the proxies for the queries whose exact
+        nearest face does not face them."""
+        out = self._query_aabb(pts)
+        dots = np.einsum("qd,qd->q", self.normals[out.faces], nrm)
+        if majority and dots.sum() < 0:
+            nrm, dots = -nrm, -dots
+        rest = np.flatnonzero((dots <= 0) & (np.abs(nrm).sum(axis=1) > 0))
+        if len(rest):
+            sub = self._query_facing_proxies(pts[rest], nrm[rest], k, False, max_k)
+            found = np.einsum("qd,qd->q", self.normals[sub.faces], nrm[rest]) > 0
+            sel, r = rest[found], np.flatnonzero(found)
+            out.points[sel], out.faces[sel], out.bary[sel], out.distance[sel] = sub.points[r], sub.faces[r], sub.bary[r], sub.distance[r]
+        return out
+
+    def _query_facing_proxies(self, pts: np.ndarray, nrm: np.ndarray, k: int, majority: bool, max_k: int) -> ClosestPoints:
+        """:meth:`query_facing` by the proxy search alone (checked inputs)."""
         q = len(pts)
         k = int(min(max(int(k), 1), self.n_proxies))
         _, cand, cp, bary, d = self._candidates(pts, k)
