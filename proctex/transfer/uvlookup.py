@@ -13,14 +13,21 @@ from proctex.texture.inpaint import chart_labels
 from proctex.transfer.assets import GroupAssets, TemplateAssets
 
 
-def _affine_uv(target: np.ndarray, tri: np.ndarray, tri_uv: np.ndarray) -> np.ndarray:
-    """UVs (k, 2) of points (k, 3) through the affine map of triangles (k, 3, 3) with UVs (k, 3, 2)
-    (barycentrics of the point's projection on the triangle's plane, not clamped)."""
+def _affine_frames(tri: np.ndarray) -> tuple[np.ndarray, ...]:
+    """What :func:`_affine_uv` needs of triangles ``tri (k, 3, 3)``, computed once for all three
+    corners: ``(a, e1, e2, d11, d12, d22, den)``, ``den`` inf for a degenerate triangle."""
     a = tri[:, 0]
     e1, e2 = tri[:, 1] - a, tri[:, 2] - a
     d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
     den = d11 * d22 - d12 * d12
-    den = np.where(np.abs(den) > 1e-30, den, np.inf)
+    return a, e1, e2, d11, d12, d22, np.where(np.abs(den) > 1e-30, den, np.inf)
+
+
+def _affine_uv(target: np.ndarray, tri: np.ndarray | tuple, tri_uv: np.ndarray) -> np.ndarray:
+    """UVs (k, 2) of points (k, 3) through the affine map of triangles (k, 3, 3) (or their
+    :func:`_affine_frames`) with UVs (k, 3, 2) (barycentrics of the point's projection on the
+    triangle's plane, not clamped)."""
+    a, e1, e2, d11, d12, d22, den = tri if isinstance(tri, tuple) else _affine_frames(tri)
     d = target - a
     p1, p2 = (d * e1).sum(1), (d * e2).sum(1)
     l1 = (d22 * p1 - d12 * p2) / den
@@ -119,8 +126,9 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     tri = assets.vertices[assets.faces[near]]
     tri_uv = assets.corner_uv[near]
     out = np.empty((len(faces), 3, 2))
+    frames = _affine_frames(tri)
     for k in range(3):
-        out[:, k] = _affine_uv(mapped[faces[:, k]], tri, tri_uv)
+        out[:, k] = _affine_uv(mapped[faces[:, k]], frames, tri_uv)
     out = np.clip(out, 0.0, 1.0)
     if charts is not None and len(faces):
         from proctex.texture.uv import bilinear_texels
