@@ -180,6 +180,19 @@ def build_app(args: dict[str, Any]) -> Any:
     ``ingress_replicas`` (default 1) and ``ingress_max_ongoing_requests`` (default 1024): the
     :class:`Ingress` in front (bodies are read there, ``max_uploads`` at a time per ingress replica).
     """
+    transfer, limits, multiplexed = transfer_app(args)
+    front = {"num_replicas": int(args.get("ingress_replicas", 1)), "max_ongoing_requests": int(args.get("ingress_max_ongoing_requests", 1024))}
+    if front["num_replicas"] < 1 or front["max_ongoing_requests"] < 1:
+        raise ValueError(f"ingress_replicas and ingress_max_ongoing_requests must be >= 1, got {front}")
+    grace = float(args.get("graceful_shutdown_timeout_s", 5.0))
+    return Ingress.options(**front, graceful_shutdown_timeout_s=grace, graceful_shutdown_wait_loop_s=1.0).bind(transfer, limits, multiplexed)
+
+
+def transfer_app(args: dict[str, Any]) -> tuple[Any, dict[str, Any], bool]:
+    """The transfer replicas of :func:`build_app`'s ``args`` as a bound Serve application (no
+    ingress: :func:`build_app` puts :class:`Ingress` before it, :mod:`workers.front` its own HTTP
+    server), with the checked :class:`~proctex.serve.service.Limits` fields given
+    (:func:`limits_from`) and whether the families are multiplexed."""
     if not args.get("root"):
         raise ValueError("build_app needs args['root'], the family store root")
     options: dict[str, Any] = {
@@ -206,7 +219,4 @@ def build_app(args: dict[str, Any]) -> Any:
         options["ray_actor_options"]["num_gpus"] = float(args.get("num_gpus", 1.0 / max(1, replicas)))
     max_families = int(args.get("max_families", 0))
     transfer = deployment(max_families).options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)), limits, preload, token, device)
-    front = {"num_replicas": int(args.get("ingress_replicas", 1)), "max_ongoing_requests": int(args.get("ingress_max_ongoing_requests", 1024))}
-    if front["num_replicas"] < 1 or front["max_ongoing_requests"] < 1:
-        raise ValueError(f"ingress_replicas and ingress_max_ongoing_requests must be >= 1, got {front}")
-    return Ingress.options(**front, graceful_shutdown_timeout_s=options["graceful_shutdown_timeout_s"], graceful_shutdown_wait_loop_s=1.0).bind(transfer, limits, max_families > 0)
+    return transfer, limits, max_families > 0

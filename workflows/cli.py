@@ -94,23 +94,52 @@ def cmd_serve(args: argparse.Namespace) -> int:
         # Transfers are CPU-bound and serialised per replica: one replica per core pays (sofa on
         # 2 cores: 9.9 req/s with one replica, 16.4 with two); batching requests does not (bench_batching.py).
         app_args["replicas"] = args.replicas or max(1, min(4, os.cpu_count() or 1))
+    if args.http == "front":
+        port_free(args.host, args.port)  # said before Ray starts
     if args.address:
         ray.init(address=args.address, log_to_driver=False)
     else:
         from .build import start_private_ray
 
         start_private_ray()
-    serve.start(http_options={"host": args.host, "port": args.port})
-    serve.run(build_app(app_args), name="proctex", route_prefix="/")
-    print(f"serving {', '.join(names)} on http://{args.host}:{args.port} (OpenAPI: /docs); Ctrl-C stops", flush=True)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    while not stop.wait(1.0):
-        pass
+    banner = f"serving {', '.join(names)} on http://{args.host}:{args.port} (OpenAPI: /docs); Ctrl-C stops"
+    if args.http == "front":
+        from workers.front import deploy_transfer, front_app, run_until_signal, server
+
+        serve.start(proxy_location="Disabled")
+        handle, limits, multiplexed = deploy_transfer(app_args)
+        srv = server(front_app(handle, limits, multiplexed), args.host, args.port)
+        print(banner, flush=True)
+        run_until_signal(srv)  # until SIGINT or SIGTERM, finishing the requests under way
+    else:
+        serve.start(http_options={"host": args.host, "port": args.port})
+        serve.run(build_app(app_args), name="proctex", route_prefix="/")
+        print(banner, flush=True)
+        stop = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+        while not stop.wait(1.0):
+            pass
     print("stopping: Serve shuts down, then Ray", flush=True)
     shutdown_within(lambda: (serve.shutdown(), ray.shutdown()), STOP_SECONDS)
     return 0
+
+
+def port_free(host: str, port: int) -> None:
+    """``ValueError`` when ``host:port`` cannot be listened on (taken, or no such address)."""
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError as exc:
+        raise ValueError(f"--host {host!r}: {exc}") from exc
+    family, kind, proto, _, addr = infos[0]
+    with socket.socket(family, kind, proto) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError as exc:
+            raise ValueError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from exc
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
@@ -208,6 +237,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--address", help="an existing Ray cluster (default: a private local one)")
     p.add_argument("--device", default="cpu", help="where the networks run: cpu, cuda or cuda:<i>")
     p.add_argument("--max-families", type=int, default=0, help="multiplex: load families on demand, at most this many per replica (LRU); 0: every family, preloaded")
+    p.add_argument(
+        "--http",
+        choices=("front", "serve"),
+        default="front",
+        help="front (default): the ingress is the HTTP server and forwards to the transfer replicas, one hop; serve: Ray Serve's proxy before an ingress deployment (as a Serve config deploys it)",
+    )
     p.add_argument("--edit-token", help="allow stored edits to requests carrying this secret (header X-ProcTex-Token); default $PROCTEX_EDIT_TOKEN; none: the families are read-only")
     p.add_argument(
         "--limit",

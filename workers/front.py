@@ -1,0 +1,82 @@
+"""One hop: the ingress as the HTTP server itself, before the transfer replicas.
+
+Served through Ray Serve's proxy (:func:`workers.serve.build_app`), a request crosses three
+processes: Serve's proxy parses the HTTP and calls the :class:`workers.serve.Ingress` replica,
+which pulls the body back from the proxy, forwards the request to a transfer replica and streams
+the answer back through the proxy. The front here is the same ingress app
+(:func:`workers.ingress.ingress_app`: bodies read within the time bounds, per-client slots, a lost
+replica's idempotent request retried, JSON on every error) run by its own HTTP server (uvicorn) in
+the process that started Serve, forwarding through a Serve handle to the transfer replicas: one
+process and two copies of the request and answer fewer. Serve runs no proxy then; the transfer
+replicas, their health checks, replacement and multiplexing are Serve's as before.
+
+``proctex serve`` uses it by default (``--http serve`` keeps Serve's proxy and the ingress
+deployment, as a Serve config or KubeRay's RayService deploy :func:`workers.serve.build_app`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+from proctex.serve.service import Limits
+from workers.ingress import Answer, Forwarded, ingress_app
+
+
+def front_app(handle: Any, limits: Limits, multiplexed: bool = False) -> Any:
+    """The ASGI app of the front: :func:`workers.ingress.ingress_app` forwarding to the transfer
+    deployment's ``handle`` (a request about a family goes, multiplexed, to a replica holding it)."""
+    from workers.serve import lost
+
+    async def send(request: Forwarded, family: str | None) -> Answer:
+        h = handle.options(multiplexed_model_id=family) if (multiplexed and family) else handle
+        return await h.forward.remote(request)
+
+    return ingress_app(send, limits, is_lost=lost)
+
+
+def deploy_transfer(app_args: dict[str, Any], name: str = "proctex") -> tuple[Any, Limits, bool]:
+    """Deploy the transfer replicas of ``app_args`` (:func:`workers.serve.build_app`'s arguments)
+    as a Serve application with no HTTP route (Serve must be started without proxies:
+    ``serve.start(proxy_location="Disabled")``); returns ``(handle, limits, multiplexed)``."""
+    from ray import serve
+
+    from workers.serve import transfer_app
+
+    app, limits, multiplexed = transfer_app(app_args)
+    handle = serve.run(app, name=name, route_prefix=None)
+    return handle, Limits(**limits), multiplexed
+
+
+def server(app: Any, host: str, port: int) -> Any:
+    """A uvicorn server of ``app`` on ``host:port``: HTTP/1.1 (h11), no access log, a keep-alive
+    of 5 s, the client the TCP peer (forwarded headers are the app's ``trusted_proxies`` to read,
+    not uvicorn's); slow bodies are the app's to bound (:func:`workers.http.read_body`). It installs
+    no signal handlers: :func:`run_until_signal` stops it."""
+    import contextlib
+
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        @contextlib.contextmanager
+        def capture_signals(self):  # uvicorn's re-raises the signal after a graceful stop
+            yield
+
+    config = uvicorn.Config(app, host=host, port=port, http="h11", lifespan="on", access_log=False, log_level="warning", timeout_keep_alive=5, server_header=False, proxy_headers=False)
+    return Server(config)
+
+
+def run_until_signal(srv: Any) -> None:
+    """Run the server ``srv`` (:func:`server`) in this thread until SIGINT or SIGTERM: then it
+    stops taking connections, finishes the requests under way and returns."""
+    import signal
+
+    def stop(*_: Any) -> None:
+        srv.should_exit = True
+
+    old = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        asyncio.run(srv.serve())
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
