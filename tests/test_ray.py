@@ -468,6 +468,107 @@ def test_serve_holds_against_stalled_clients_and_a_replica_killed_under_load(loc
         serve.delete("proctex-kill")
 
 
+def _front(root: Path, name: str, **args):
+    """``proctex serve``'s one-hop front (workers/front.py) in a thread of this process before
+    transfer replicas of ``root`` on Serve with no proxy; returns its base URL and a stop call."""
+    import asyncio
+
+    from ray import serve
+
+    from workers.front import deploy_transfer, front_app, server
+
+    serve.shutdown()
+    serve.start(proxy_location="Disabled")
+    handle, limits, multiplexed = deploy_transfer({"root": str(root), **{k: str(v) for k, v in args.items()}}, name=name)
+    port = _free_port()
+    srv = server(front_app(handle, limits, multiplexed), "127.0.0.1", port)
+    thread = threading.Thread(target=lambda: asyncio.run(srv.serve()), daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 60
+    while not srv.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert srv.started, "the front did not start"
+
+    def stop() -> None:
+        srv.should_exit = True
+        thread.join(60)
+        serve.delete(name)
+
+    return f"http://127.0.0.1:{port}", stop
+
+
+def test_the_front_holds_against_stalled_clients_and_a_replica_killed_under_load(local_ray, reference, tmp_path):
+    """Issue 56: the same guarantees as the test above with ``proctex serve``'s one-hop front
+    instead of Serve's proxy and the ingress deployment. 40 stalled bodies are held while the health
+    route and another family's transfer are answered; 50 transfers from 10 clients with one transfer
+    replica SIGKILLed under them all answer 200 (those it held retried, and say so), never plain
+    text. Each answer says where its time went (Server-Timing), through the front."""
+    import shutil
+    import urllib.error
+    import urllib.request
+
+    from proctex.serve.timing import parse_server_timing
+
+    root = tmp_path / "families"
+    for name in ("mug", "cup"):
+        shutil.copytree(reference.base, root / name)
+    base, stop = _front(root, "proctex-front", replicas=2)
+    port = int(base.rsplit(":", 1)[1])
+    title = b"ServeReplica:proctex-front:ProcTexTransfer"
+    stalled = []
+    try:
+        for _ in range(40):
+            s = socket.create_connection(("127.0.0.1", port), timeout=10)
+            s.sendall(b'POST /v1/families/mug/transfer HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 1000\r\n\r\n{"params":')
+            stalled.append(s)
+        time.sleep(0.5)
+        with urllib.request.urlopen(base + "/healthz", timeout=30) as r:
+            assert r.status == 200
+        req = urllib.request.Request(f"{base}/v1/families/cup/transfer", data=json.dumps({"params": {"radius": 0.04}}).encode(), headers={"content-type": "application/json"}, method="POST")
+        with urllib.request.urlopen(req, timeout=120) as r:
+            assert r.status == 200 and r.read()[:4] == b"glTF"
+            stages = parse_server_timing(", ".join(r.headers.get_all("server-timing") or []))
+        assert {"ingress", "forward", "replica", "app", "uv", "glb"} <= set(stages), stages
+        for s in stalled:  # still held: nothing answered them yet
+            s.setblocking(False)
+            try:
+                got = s.recv(1)
+            except BlockingIOError:
+                got = None
+            assert got is None, "a stalled body was answered already"
+    finally:
+        for s in stalled:
+            s.close()
+    answers: list[tuple[int, str, str, bytes]] = []
+
+    def one(k: int) -> None:
+        body = json.dumps({"params": {"radius": 0.03 + 0.0004 * k}}).encode()
+        req = urllib.request.Request(f"{base}/v1/families/mug/transfer", data=body, headers={"content-type": "application/json"}, method="POST")
+        try:
+            with urllib.request.urlopen(req, timeout=180) as r:
+                answers.append((r.status, r.headers.get("content-type", ""), r.headers.get("x-proctex-retried", ""), r.read()))
+        except urllib.error.HTTPError as e:
+            answers.append((e.code, e.headers.get("content-type", ""), e.headers.get("x-proctex-retried", ""), e.read()))
+
+    try:
+        replicas = pids_running(title)
+        assert len(replicas) == 2, replicas
+        with ThreadPoolExecutor(10) as pool:
+            futures = [pool.submit(one, k) for k in range(50)]
+            while len(answers) < 4:  # both replicas busy, each holding queued requests
+                time.sleep(0.05)
+            os.kill(replicas[0], signal.SIGKILL)
+            for f in futures:
+                f.result()
+        assert not [(code, ctype, body[:80]) for code, ctype, _, body in answers if code != 200 and "json" not in ctype]
+        codes = [a[0] for a in answers]
+        retried = sum(a[2] == "1" for a in answers)
+        assert len(answers) == 50 and codes.count(200) == 50 and retried >= 1, ({c: codes.count(c) for c in set(codes)}, retried)
+        assert all(body[:4] == b"glTF" for _, _, _, body in answers)
+    finally:
+        stop()
+
+
 def test_a_private_ray_serving_a_family_listens_on_loopback_behind_its_own_token(local_ray, reference, tmp_path):
     """Every socket this test's private Ray listens on while it serves a family is on loopback, but
     the one Ray 2.60 binds to every interface with no option (a Serve replica's gRPC server, "[::]:0"),

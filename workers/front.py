@@ -17,7 +17,7 @@ deployment, as a Serve config or KubeRay's RayService deploy :func:`workers.serv
 from __future__ import annotations
 
 import asyncio
-from typing import Any
+from typing import Any, Callable
 
 from proctex.serve.service import Limits
 from workers.ingress import Answer, Forwarded, ingress_app
@@ -66,17 +66,29 @@ def server(app: Any, host: str, port: int) -> Any:
     return Server(config)
 
 
-def run_until_signal(srv: Any) -> None:
+def run_until_signal(srv: Any, on_started: Callable[[], Any] | None = None) -> None:
     """Run the server ``srv`` (:func:`server`) in this thread until SIGINT or SIGTERM: then it
-    stops taking connections, finishes the requests under way and returns."""
+    stops taking connections, finishes the requests under way and returns. ``on_started`` is
+    called once it listens. ``RuntimeError`` when it could not start (e.g. the port is taken)."""
     import signal
 
     def stop(*_: Any) -> None:
         srv.should_exit = True
 
+    async def run() -> None:
+        task = asyncio.ensure_future(srv.serve())
+        while not srv.started and not task.done():
+            await asyncio.sleep(0.02)
+        if srv.started and on_started is not None:
+            on_started()
+        await task
+
     old = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        asyncio.run(srv.serve())
+        try:
+            asyncio.run(run())
+        except SystemExit as exc:  # uvicorn exits when it cannot bind
+            raise RuntimeError(f"the HTTP server could not start on {srv.config.host}:{srv.config.port}") from exc
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)

@@ -109,8 +109,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         serve.start(proxy_location="Disabled")
         handle, limits, multiplexed = deploy_transfer(app_args)
         srv = server(front_app(handle, limits, multiplexed), args.host, args.port)
-        print(banner, flush=True)
-        run_until_signal(srv)  # until SIGINT or SIGTERM, finishing the requests under way
+        run_until_signal(srv, on_started=lambda: print(banner, flush=True))  # until SIGINT or SIGTERM, finishing the requests under way
     else:
         serve.start(http_options={"host": args.host, "port": args.port})
         serve.run(build_app(app_args), name="proctex", route_prefix="/")

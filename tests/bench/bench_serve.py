@@ -1,6 +1,6 @@
 """Benchmark: the Ray Serve transfer endpoint over HTTP on 127.0.0.1.
 
-Starts a private local Ray with Serve over a store root, warms the family up, then for each
+Starts ``proctex serve`` over a store root, warms the family up, then for each
 concurrency level sends requests from that many client threads: sofa meshes (multipart uploads of
 the inference split) for a folder family, random parameter settings for a model family. Reports
 latency p50 / p90 / p99 and requests per second per level (saturation = the best level), as JSON,
@@ -10,16 +10,24 @@ process (shape, transfer, GLB).
 
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family sofa --out out/bench_serve.json
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family chair --requests 200 --concurrency 1,2,4,8
+    .venv/bin/python tests/bench/bench_serve.py --root out/families --family sofa --http front,serve --runs 2 --replicas 2 --concurrency 1,8
+
+Each run is ``proctex serve`` in a process of its own (``--http front``: its one-hop front;
+``serve``: Ray Serve's proxy and the ingress deployment), started afresh and stopped after.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
+import signal
 import socket
 import statistics
+import subprocess
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -102,41 +110,42 @@ def in_process_ms(svc, payloads: list[tuple[bytes, str]], n: int, linked: bool) 
     return {"p50_ms": float(np.median(times)), "p10_ms": float(np.percentile(times, 10)), "p90_ms": float(np.percentile(times, 90)), "n": len(times)}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", required=True, help="store root holding family folders")
-    ap.add_argument("--family", required=True)
-    ap.add_argument("--requests", type=int, default=120, help="requests per concurrency level")
-    ap.add_argument("--concurrency", default="1,2,4,8")
-    ap.add_argument("--replicas", type=int, default=1)
-    ap.add_argument("--sofa", default=str(SOFA))
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--textures", choices=["embedded", "linked"], default="embedded", help="answers with the textures, or referring to them")
-    ap.add_argument("--out", default="")
-    args = ap.parse_args(argv)
-
-    import ray
-    from ray import serve
-
-    from proctex.serve.catalog import Catalog
-    from proctex.serve.timing import parse_server_timing
-    from workers.serve import build_app
-
-    svc = Catalog(args.root).get(args.family)
-    rng = np.random.default_rng(args.seed)
-    if svc.model is None:
-        meshes = sorted(Path(args.sofa, "inference").glob("*.obj"))
-        payloads = [_multipart(p.name, p.read_bytes()) for p in meshes]
-    else:
-        space = svc.model.space
-        payloads = [(json.dumps({"params": p}).encode(), "application/json") for p in space.sample(64, seed=args.seed)]
-    inproc = in_process_ms(svc, payloads, args.requests, args.textures == "linked")
-    print(f"in process (shape, transfer, GLB; no HTTP): median {inproc['p50_ms']:.1f} ms (p10 {inproc['p10_ms']:.1f}, p90 {inproc['p90_ms']:.1f})", flush=True)
-    ray.init(address="local", include_dashboard=False, log_to_driver=False)
+def start_server(root: str, replicas: int, http: str) -> tuple[subprocess.Popen, str]:
+    """``proctex serve ROOT`` in a process of its own (its private Ray), ``--http`` as given, on a
+    free port; returns the process and its base URL once it says it serves."""
     port = _free_port()
-    serve.start(http_options={"host": "127.0.0.1", "port": port})
-    serve.run(build_app({"root": str(Path(args.root).resolve()), "replicas": args.replicas, "max_ongoing_requests": 16}), name="bench", route_prefix="/")
-    url = f"http://127.0.0.1:{port}/v1/families/{args.family}/transfer?textures={args.textures}"
+    cmd = [sys.executable, "-m", "workflows.cli", "serve", root, "--port", str(port), "--replicas", str(replicas), "--http", http]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    lines = []
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line and proc.poll() is not None:
+            break
+        lines.append(line)
+        if line.startswith("serving "):
+            threading.Thread(target=lambda: [None for _ in proc.stdout], daemon=True).start()  # keep draining its output
+            return proc, f"http://127.0.0.1:{port}"
+    proc.kill()
+    raise SystemExit("proctex serve did not start:\n" + "".join(lines[-30:]))
+
+
+def stop_server(proc: subprocess.Popen) -> None:
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def measure(base: str, family: str, payloads: list, levels_spec: str, n: int, textures: str, seed: int) -> tuple[list[dict], int]:
+    """The concurrency levels against a server at ``base``: latency percentiles, rate and the
+    stage breakdown per level; and the median answer's bytes."""
+    from proctex.serve.timing import parse_server_timing
+
+    url = f"{base}/v1/families/{family}/transfer?textures={textures}"
+    rng = np.random.default_rng(seed)
     sizes: list[int] = []
 
     def call(i: int) -> tuple[float, int, dict[str, float]]:
@@ -156,52 +165,91 @@ def main(argv=None) -> int:
     for i in range(8):  # warm-up
         call(i)
     levels = []
-    for c in (int(x) for x in args.concurrency.split(",")):
-        order = rng.permutation(args.requests)
+    for c in (int(x) for x in levels_spec.split(",")):
+        order = rng.permutation(n)
         t0 = time.perf_counter()
         with ThreadPoolExecutor(c) as pool:
             res = list(pool.map(call, order))
         wall = time.perf_counter() - t0
         lat = np.array([r[0] for r in res])
         errors = sum(r[1] != 200 for r in res)
-        breakdown = stage_breakdown([(1000 * r[0], r[2]) for r in res if r[1] == 200])
         levels.append(
             {
                 "concurrency": c,
-                "requests": args.requests,
+                "requests": n,
                 "errors": int(errors),
-                "rps": args.requests / wall,
-                "p10_ms": 1000 * float(np.percentile(lat, 10)),
-                "p25_ms": 1000 * float(np.percentile(lat, 25)),
-                "p75_ms": 1000 * float(np.percentile(lat, 75)),
-                "p50_ms": 1000 * float(np.percentile(lat, 50)),
-                "p90_ms": 1000 * float(np.percentile(lat, 90)),
-                "p99_ms": 1000 * float(np.percentile(lat, 99)),
+                "rps": n / wall,
+                **{f"p{q}_ms": 1000 * float(np.percentile(lat, q)) for q in (10, 25, 50, 75, 90, 99)},
                 "mean_ms": 1000 * statistics.fmean(lat),
-                "stages_ms": breakdown,
+                "stages_ms": stage_breakdown([(1000 * r[0], r[2]) for r in res if r[1] == 200]),
             }
         )
-        print(f"concurrency {c}: p50 {levels[-1]['p50_ms']:.0f} ms, p99 {levels[-1]['p99_ms']:.0f} ms, {levels[-1]['rps']:.1f} req/s, {errors} errors", flush=True)
-        print("  stages (median ms): " + ", ".join(f"{k} {v:.1f}" for k, v in breakdown.items()), flush=True)
-    serve.shutdown()
-    ray.shutdown()
-    print(f"bytes per answer (median): {int(np.median(sizes))}", flush=True)
-    best = max(levels, key=lambda lv: lv["rps"])
+    return levels, int(np.median(sizes)) if sizes else 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--root", required=True, help="store root holding family folders")
+    ap.add_argument("--family", required=True)
+    ap.add_argument("--requests", type=int, default=120, help="requests per concurrency level")
+    ap.add_argument("--concurrency", default="1,2,4,8")
+    ap.add_argument("--replicas", type=int, default=1)
+    ap.add_argument("--http", default="front", help="comma-separated: front (proctex serve's default), serve (Serve's proxy and the ingress deployment)")
+    ap.add_argument("--runs", type=int, default=1, help="runs of each --http mode, alternated")
+    ap.add_argument("--sofa", default=str(SOFA))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--textures", choices=["embedded", "linked"], default="embedded", help="answers with the textures, or referring to them")
+    ap.add_argument("--out", default="")
+    args = ap.parse_args(argv)
+    modes = [m.strip() for m in args.http.split(",") if m.strip()]
+    if not modes or any(m not in ("front", "serve") for m in modes):
+        raise SystemExit(f"--http takes front and/or serve, got {args.http!r}")
+
+    import ray
+
+    from proctex.serve.catalog import Catalog
+
+    svc = Catalog(args.root).get(args.family)
+    if svc.model is None:
+        meshes = sorted(Path(args.sofa, "inference").glob("*.obj"))
+        payloads = [_multipart(p.name, p.read_bytes()) for p in meshes]
+    else:
+        space = svc.model.space
+        payloads = [(json.dumps({"params": p}).encode(), "application/json") for p in space.sample(64, seed=args.seed)]
+    inproc = in_process_ms(svc, payloads, args.requests, args.textures == "linked")
+    print(f"in process (shape, transfer, GLB; no HTTP): median {inproc['p50_ms']:.1f} ms (p10 {inproc['p10_ms']:.1f}, p90 {inproc['p90_ms']:.1f})", flush=True)
+    runs = []
+    root = str(Path(args.root).resolve())
+    for k in range(args.runs):
+        for mode in modes:
+            proc, base = start_server(root, args.replicas, mode)
+            try:
+                levels, size = measure(base, args.family, payloads, args.concurrency, args.requests, args.textures, args.seed + k)
+            finally:
+                stop_server(proc)
+            runs.append({"http": mode, "run": k, "levels": levels, "bytes_per_answer": size})
+            for lv in levels:
+                print(f"[{mode} run {k}] concurrency {lv['concurrency']}: p50 {lv['p50_ms']:.1f} ms, p99 {lv['p99_ms']:.0f} ms, {lv['rps']:.1f} req/s, {lv['errors']} errors", flush=True)
+                print("  stages (median ms): " + ", ".join(f"{s} {v:.1f}" for s, v in lv["stages_ms"].items()), flush=True)
     report = {
         "benchmark": "serve",
         "family": args.family,
         "replicas": args.replicas,
         "textures": args.textures,
-        "bytes_per_answer": int(np.median(sizes)),
-        "levels": levels,
-        "saturation_rps": best["rps"],
-        "p50_ms_at_1": levels[0]["p50_ms"],
         "in_process": inproc,
-        "http_over_in_process_at_1": levels[0]["p50_ms"] / inproc["p50_ms"],
-        "p99_ms_at_1": levels[0]["p99_ms"],
-        "machine": {"python": platform.python_version(), "cpus": __import__("os").cpu_count(), "ray": ray.__version__},
+        "runs": runs,
+        "summary": {
+            mode: {
+                "p50_ms_at_1": [r["levels"][0]["p50_ms"] for r in runs if r["http"] == mode],
+                "rps_at_max": [r["levels"][-1]["rps"] for r in runs if r["http"] == mode],
+                "http_over_in_process_at_1": [r["levels"][0]["p50_ms"] / inproc["p50_ms"] for r in runs if r["http"] == mode],
+            }
+            for mode in modes
+        },
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "ray": ray.__version__},
         "time": time.strftime("%Y-%m-%d %H:%M:%S"),
     }
+    print(json.dumps(report["summary"]), flush=True)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(report, indent=1))
