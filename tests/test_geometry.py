@@ -264,6 +264,11 @@ def test_query_facing_by_the_aabb_tree_is_the_nearest_facing_face_of_a_slow_sear
     found = np.einsum("qd,qd->q", aabb.normals[others.faces], nrm[~faces_it]) > 0
     np.testing.assert_array_equal(got.faces[~faces_it][found], others.faces[found])
     np.testing.assert_array_equal(got.faces[~faces_it][~found], nearest.faces[~faces_it][~found])
+    # an index that built its tree pickles without it (libigl's objects do not pickle) and answers the same
+    import pickle
+
+    again = pickle.loads(pickle.dumps(aabb))
+    assert again._aabb is None and np.array_equal(again.query_facing(pts, nrm, k=4, majority=False, max_k=16).faces, got.faces)
 
 
 def test_split_by_face_parts_cuts_a_connected_mesh_along_part_boundaries():

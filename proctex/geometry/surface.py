@@ -11,6 +11,8 @@ bound on the triangle size proves no other face can be closer.
 
 from __future__ import annotations
 
+import atexit
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -230,6 +232,17 @@ def _igl():
     return _IGL[0]
 
 
+#: The indexes holding a libigl AABB tree: their trees are let go at exit, before the interpreter
+#: tears the bindings down (nanobind reports instances still alive then as leaks, on stderr).
+_TREES: weakref.WeakSet = weakref.WeakSet()
+
+
+@atexit.register
+def _drop_trees() -> None:
+    for index in list(_TREES):
+        index._aabb = None
+
+
 class SurfaceIndex:
     """Exact nearest-point queries on a triangle mesh.
 
@@ -266,6 +279,11 @@ class SurfaceIndex:
         self._k = int(k)
         self._proxy: tuple | None = None  # (tree, owner, max radius), built on first use
         self.normals = face_normals(self.vertices, self.faces)
+
+    def __getstate__(self) -> dict:
+        """Pickled without the AABB tree (libigl's objects do not pickle; it is rebuilt on the
+        first query)."""
+        return {**self.__dict__, "_aabb": None}
 
     def _proxies(self) -> tuple:
         """The proxy search's structure ``(KD-tree of proxies, owning face (p,), max proxy radius)``,
@@ -337,6 +355,7 @@ class SurfaceIndex:
             tree = _igl().AABB()
             tree.init(self.vertices, self.faces)
             self._aabb = tree
+            _TREES.add(self)
         if not len(pts):
             return ClosestPoints(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
         _, face, _ = self._aabb.squared_distance(self.vertices, self.faces, np.ascontiguousarray(pts))
