@@ -185,6 +185,30 @@ def test_catalog_caches_and_reloads_a_rebuilt_family(root, tmp_path):
         cat.get("../mug")
 
 
+def test_a_held_family_is_answered_at_once_only_while_its_check_is_not_due(root, tmp_path):
+    """``Catalog.fresh`` (what an event loop may ask without a thread): the held service while its
+    stamp was checked less than ``check_every`` ago; None before the first load, once the check is
+    due, for an unknown name, and while another thread holds the catalog (it never waits)."""
+    import threading
+
+    base = tmp_path / "root"
+    shutil.copytree(root / "mug", base / "mug")
+    cat = Catalog(str(base), check_every=3600)
+    assert cat.fresh("mug") is None  # not loaded yet: get() loads it, in a thread
+    a = cat.get("mug")
+    assert cat.fresh("mug") is a and cat.fresh("cup") is None
+    held, release = threading.Event(), threading.Event()
+    t = threading.Thread(target=lambda: cat._lock.acquire() and (held.set(), release.wait(10), cat._lock.release()))
+    t.start()
+    held.wait(10)
+    assert cat.fresh("mug") is None  # another thread holds the catalog: not waited for
+    release.set()
+    t.join(10)
+    assert cat.fresh("mug") is a
+    cat.check_every = 0  # the check is due at once: the stamp must be read again, by get()
+    assert cat.fresh("mug") is None and cat.get("mug") is a
+
+
 def test_folder_families_take_meshes_only(tmp_path, sofa_dir):
     import pyarrow as pa
 

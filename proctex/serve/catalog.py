@@ -136,6 +136,19 @@ class Catalog:
             self.loads += 1
             return service
 
+    def fresh(self, name: str) -> FamilyService | None:
+        """Family ``name``'s service when it is held and its build stamp was checked less than
+        ``check_every`` ago, without waiting and without any I/O (what :meth:`get` answers at once,
+        so an event loop may ask); None otherwise (also while another thread holds the catalog:
+        ask :meth:`get` from a thread then)."""
+        if not self._lock.acquire(blocking=False):
+            return None
+        try:
+            cached = self._cache.get(name)
+            return cached[0] if cached is not None and time.monotonic() - cached[1] < self.check_every else None
+        finally:
+            self._lock.release()
+
     def loaded(self) -> list[str]:
         """The families held now, sorted."""
         with self._lock:

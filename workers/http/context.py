@@ -60,7 +60,9 @@ class AppContext:
         """Family ``name``'s service (loaded or reloaded as needed)."""
         if self.get_family is not None:
             return await self.get_family(name)
-        return await self.blocking(lambda: self.get_catalog().get(name))
+        catalog = self.get_catalog()
+        held = catalog.fresh(name)  # the common case answered here: no hop into a thread
+        return held if held is not None else await self.blocking(lambda: catalog.get(name))
 
     async def look_of(self, name: str, look: str | None) -> FamilyService:
         """The family's service textured as its ``look`` (None: the build's look)."""
