@@ -110,12 +110,13 @@ def in_process_ms(svc, payloads: list[tuple[bytes, str]], n: int, linked: bool) 
     return {"p50_ms": float(np.median(times)), "p10_ms": float(np.percentile(times, 10)), "p90_ms": float(np.percentile(times, 90)), "n": len(times)}
 
 
-def start_server(root: str, replicas: int, http: str) -> tuple[subprocess.Popen, str]:
-    """``proctex serve ROOT`` in a process of its own (its private Ray), ``--http`` as given, on a
-    free port; returns the process and its base URL once it says it serves."""
+def start_server(root: str, replicas: int, http: str, code: Path = ROOT) -> tuple[subprocess.Popen, str]:
+    """``proctex serve ROOT`` of the checkout ``code`` in a process of its own (its private Ray),
+    ``--http`` as given (``before``: no such option, the checkout's own default), on a free port;
+    returns the process and its base URL once it says it serves."""
     port = _free_port()
-    cmd = [sys.executable, "-m", "workflows.cli", "serve", root, "--port", str(port), "--replicas", str(replicas), "--http", http]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    cmd = [sys.executable, "-m", "workflows.cli", "serve", root, "--port", str(port), "--replicas", str(replicas)] + ([] if http == "before" else ["--http", http])
+    proc = subprocess.Popen(cmd, cwd=code, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONPATH": str(code)})
     lines = []
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline:
@@ -196,6 +197,7 @@ def main(argv=None) -> int:
     ap.add_argument("--replicas", type=int, default=1)
     ap.add_argument("--http", default="front", help="comma-separated: front (proctex serve's default), serve (Serve's proxy and the ingress deployment)")
     ap.add_argument("--runs", type=int, default=1, help="runs of each --http mode, alternated")
+    ap.add_argument("--before", default="", help="a checkout of older code (git worktree): its proctex serve runs too, as mode 'before', alternated with the others")
     ap.add_argument("--sofa", default=str(SOFA))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--textures", choices=["embedded", "linked"], default="embedded", help="answers with the textures, or referring to them")
@@ -204,6 +206,10 @@ def main(argv=None) -> int:
     modes = [m.strip() for m in args.http.split(",") if m.strip()]
     if not modes or any(m not in ("front", "serve") for m in modes):
         raise SystemExit(f"--http takes front and/or serve, got {args.http!r}")
+    if args.before:
+        if not Path(args.before, "workflows", "cli.py").is_file():
+            raise SystemExit(f"--before {args.before}: not a checkout of this project")
+        modes = ["before", *modes]
 
     import ray
 
@@ -222,7 +228,7 @@ def main(argv=None) -> int:
     root = str(Path(args.root).resolve())
     for k in range(args.runs):
         for mode in modes:
-            proc, base = start_server(root, args.replicas, mode)
+            proc, base = start_server(root, args.replicas, mode, Path(args.before).resolve() if mode == "before" else ROOT)
             try:
                 levels, size = measure(base, args.family, payloads, args.concurrency, args.requests, args.textures, args.seed + k)
             finally:
