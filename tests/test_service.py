@@ -234,12 +234,20 @@ def test_folder_families_take_meshes_only(tmp_path, sofa_dir):
 
 
 def test_ray_commands_reject_bad_input_before_starting_anything(tmp_path, capsys, root):
+    import socket
+
     from proctex.cli import main as core_main
     from workflows.cli import main
 
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    busy = str(taken.getsockname()[1])
     for argv, message in [
         (["serve", str(tmp_path / "empty")], "no families found"),
         (["serve", str(root), "--port", "0"], "--port"),
+        (["serve", str(root), "--port", busy], f"cannot listen on 127.0.0.1:{busy}"),  # the front's port, said before Ray starts
+        (["serve", str(root), "--host", "no.such.host.invalid"], "--host"),
         (["build", "--model", "mug", "--out", str(tmp_path / "b"), "--ray", "--n-train", "1"], "n_train"),
         (["build", "--model", "nosuch", "--out", str(tmp_path / "b"), "--ray"], "nosuch"),
         (["build", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "b"), "--ray"], "not found"),
@@ -248,6 +256,7 @@ def test_ray_commands_reject_bad_input_before_starting_anything(tmp_path, capsys
         assert main(argv) == 2, argv
         assert message in capsys.readouterr().err, argv
     assert not (tmp_path / "b").exists()
+    taken.close()
     # The library's command line has no Ray option (the Ray layer adds them): --ray is unknown there.
     with pytest.raises(SystemExit) as exc:
         core_main(["build", "--model", "mug", "--out", str(tmp_path / "c"), "--ray"])

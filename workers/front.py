@@ -17,16 +17,21 @@ deployment, as a Serve config or KubeRay's RayService deploy :func:`workers.serv
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import signal
 from typing import Any, Callable
+
+import uvicorn
+from ray import serve
 
 from proctex.serve.service import Limits
 from workers.ingress import Answer, Forwarded, ingress_app
+from workers.serve import lost, transfer_app
 
 
 def front_app(handle: Any, limits: Limits, multiplexed: bool = False) -> Any:
     """The ASGI app of the front: :func:`workers.ingress.ingress_app` forwarding to the transfer
     deployment's ``handle`` (a request about a family goes, multiplexed, to a replica holding it)."""
-    from workers.serve import lost
 
     async def send(request: Forwarded, family: str | None) -> Answer:
         h = handle.options(multiplexed_model_id=family) if (multiplexed and family) else handle
@@ -39,10 +44,6 @@ def deploy_transfer(app_args: dict[str, Any], name: str = "proctex") -> tuple[An
     """Deploy the transfer replicas of ``app_args`` (:func:`workers.serve.build_app`'s arguments)
     as a Serve application with no HTTP route (Serve must be started without proxies:
     ``serve.start(proxy_location="Disabled")``); returns ``(handle, limits, multiplexed)``."""
-    from ray import serve
-
-    from workers.serve import transfer_app
-
     app, limits, multiplexed = transfer_app(app_args)
     handle = serve.run(app, name=name, route_prefix=None)
     return handle, Limits(**limits), multiplexed
@@ -53,9 +54,6 @@ def server(app: Any, host: str, port: int) -> Any:
     of 5 s, the client the TCP peer (forwarded headers are the app's ``trusted_proxies`` to read,
     not uvicorn's); slow bodies are the app's to bound (:func:`workers.http.read_body`). It installs
     no signal handlers: :func:`run_until_signal` stops it."""
-    import contextlib
-
-    import uvicorn
 
     class Server(uvicorn.Server):
         @contextlib.contextmanager
@@ -69,8 +67,7 @@ def server(app: Any, host: str, port: int) -> Any:
 def run_until_signal(srv: Any, on_started: Callable[[], Any] | None = None) -> None:
     """Run the server ``srv`` (:func:`server`) in this thread until SIGINT or SIGTERM: then it
     stops taking connections, finishes the requests under way and returns. ``on_started`` is
-    called once it listens. ``RuntimeError`` when it could not start (e.g. the port is taken)."""
-    import signal
+    called once it listens. ``OSError`` when it could not start (e.g. the port was taken meanwhile)."""
 
     def stop(*_: Any) -> None:
         srv.should_exit = True
@@ -88,7 +85,7 @@ def run_until_signal(srv: Any, on_started: Callable[[], Any] | None = None) -> N
         try:
             asyncio.run(run())
         except SystemExit as exc:  # uvicorn exits when it cannot bind
-            raise RuntimeError(f"the HTTP server could not start on {srv.config.host}:{srv.config.port}") from exc
+            raise OSError(f"the HTTP server could not start on {srv.config.host}:{srv.config.port}") from exc
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)

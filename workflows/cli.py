@@ -103,24 +103,26 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
         start_private_ray()
     banner = f"serving {', '.join(names)} on http://{args.host}:{args.port} (OpenAPI: /docs); Ctrl-C stops"
-    if args.http == "front":
-        from workers.front import deploy_transfer, front_app, run_until_signal, server
+    try:
+        if args.http == "front":
+            from workers.front import deploy_transfer, front_app, run_until_signal, server
 
-        serve.start(proxy_location="Disabled")
-        handle, limits, multiplexed = deploy_transfer(app_args)
-        srv = server(front_app(handle, limits, multiplexed), args.host, args.port)
-        run_until_signal(srv, on_started=lambda: print(banner, flush=True))  # until SIGINT or SIGTERM, finishing the requests under way
-    else:
-        serve.start(http_options={"host": args.host, "port": args.port})
-        serve.run(build_app(app_args), name="proctex", route_prefix="/")
-        print(banner, flush=True)
-        stop = threading.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: stop.set())
-        while not stop.wait(1.0):
-            pass
-    print("stopping: Serve shuts down, then Ray", flush=True)
-    shutdown_within(lambda: (serve.shutdown(), ray.shutdown()), STOP_SECONDS)
+            serve.start(proxy_location="Disabled")
+            handle, limits, multiplexed = deploy_transfer(app_args)
+            srv = server(front_app(handle, limits, multiplexed), args.host, args.port)
+            run_until_signal(srv, on_started=lambda: print(banner, flush=True))  # until SIGINT or SIGTERM, finishing the requests under way
+        else:
+            serve.start(http_options={"host": args.host, "port": args.port})
+            serve.run(build_app(app_args), name="proctex", route_prefix="/")
+            print(banner, flush=True)
+            stop = threading.Event()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, lambda *_: stop.set())
+            while not stop.wait(1.0):
+                pass
+    finally:  # stopped, or failed to start: Serve and the private Ray go either way
+        print("stopping: Serve shuts down, then Ray", flush=True)
+        shutdown_within(lambda: (serve.shutdown(), ray.shutdown()), STOP_SECONDS)
     return 0
 
 
