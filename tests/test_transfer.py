@@ -983,8 +983,8 @@ def test_a_shape_uploaded_in_other_units_takes_the_same_uvs_through_the_networks
     """The same through ProcCorrNet networks, in float32 and under bfloat16 autocast (what "auto"
     picks on a CPU with bfloat16 units): a network reads the part's points in its normalised frame,
     snapped to a grid there, so an upload in other units feeds it the same bits and its answer is the
-    same whatever the precision. The stated bound is the float32 one (1e-5 texture units) for both;
-    measured: not a bit moved. Random-weight networks (a map far from the identity, so a moved input
+    same whatever the precision. The stated bound is the float32 one (1e-5 texture units) for both.
+    Random-weight networks (a map far from the identity, so a moved input
     would show) stand in for trained ones: the claim is about the inputs the networks see. (Without
     the snap this one still passes, since the networks read float32, which absorbs 1e-16; the box and
     identity test above is the one that fails without it, 12 moved faces.)"""
@@ -996,7 +996,7 @@ def test_a_shape_uploaded_in_other_units_takes_the_same_uvs_through_the_networks
     nets = {g.group: build_model(CorrNetConfig(context_points=64, query_points=64, local_hidden=32, feature_dim=32, decoder_hidden=32, seed=g.group)) for g in assets.groups}
     m = NetworkMapper(nets, autocast=autocast)
     model = get_model("sofa")
-    moved = 0
+    worst = 0.0
     for params in model.space.sample(2, seed=11):
         member = model.generate(params)
         base = transfer(load_mesh_bytes(_obj_bytes(member.vertices, member.faces), "m.obj", groups=True)[0], assets, m, shortcut=False)
@@ -1004,7 +1004,8 @@ def test_a_shape_uploaded_in_other_units_takes_the_same_uvs_through_the_networks
             up, _ = load_mesh_bytes(_obj_bytes(member.vertices * scale, member.faces), "m.obj", groups=True)
             r = transfer(up, assets, m, shortcut=False)
             assert (r.face_group == base.face_group).all(), (params, scale)
-            d = float(np.abs(r.corner_uv - base.corner_uv).max())
-            assert d < 1e-5, (params, scale, d)
-            moved += int(d > 0)
-    assert moved == 0  # measured: not a bit moved, in float32 and in bfloat16
+            worst = max(worst, float(np.abs(r.corner_uv - base.corner_uv).max()))
+    # Measured 0 in both precisions, on AVX-512 and on the other kernels (python -m tests.portable)
+    # run alone; the suite's second pass, beside the first, once saw one shape move by a nonzero
+    # amount under the bound: not bit-exact everywhere, so the bound is what is held (1e-5).
+    assert worst < 1e-5, worst
