@@ -247,7 +247,7 @@ def test_ray_commands_reject_bad_input_before_starting_anything(tmp_path, capsys
         (["serve", str(tmp_path / "empty")], "no families found"),
         (["serve", str(root), "--port", "0"], "--port"),
         (["serve", str(root), "--port", busy], f"cannot listen on 127.0.0.1:{busy}"),  # the front's port, said before Ray starts
-        (["serve", str(root), "--host", "no.such.host.invalid"], "--host"),
+        (["serve", str(root), "--host", "192.0.2.1"], "cannot listen on 192.0.2.1:8000"),  # an address not on this machine (TEST-NET-1)
         (["build", "--model", "mug", "--out", str(tmp_path / "b"), "--ray", "--n-train", "1"], "n_train"),
         (["build", "--model", "nosuch", "--out", str(tmp_path / "b"), "--ray"], "nosuch"),
         (["build", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "b"), "--ray"], "not found"),
