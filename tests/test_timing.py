@@ -107,3 +107,31 @@ def test_the_ingress_and_the_replica_add_their_own_stages(app):
     # an answer the ingress makes itself (a body too large) carries no forwarded stages
     r = _post(ingress_app(forward, Limits(max_bytes=10)), "/v1/families/mug/transfer", content=b"x" * 100, headers={"content-type": "application/json"})
     assert r.status_code == 413 and "app" not in parse_server_timing(r.headers.get("server-timing", ""))
+
+
+def test_the_benchmark_tells_the_hops_from_the_work():
+    """``bench_serve.stage_breakdown`` on answers whose layers are known: the proxy is the client's
+    time less the ingress's, the hop the forwarding round trip less the replica's run, the ASGI app
+    the replica's run less the route's, and what the route spent outside its stages is its own
+    entry; medians per stage. Swapping the layers (the hop read as the replica's run) is caught."""
+    from tests.bench.bench_serve import stage_breakdown
+
+    def answer(client, queue):
+        route = {"family": 0.1, "body": 0.2, "queue": queue, "generate": 5.0, "segment": 4.0, "assign": 1.0, "map": 10.0, "uv": 20.0, "glb": 8.0}
+        app = sum(route.values()) + 1.7  # 1.7 ms of the route outside its stages
+        st = {**route, "app": app, "replica": app + 0.8, "ingress-body": 0.3}
+        st["forward"] = st["replica"] + 9.0
+        st["ingress"] = st["forward"] + st["ingress-body"]
+        return client, st
+
+    got = stage_breakdown([answer(100.0, 0.0), answer(120.0, 10.0), answer(140.0, 20.0)])
+    ingress = 0.3 + 9.0 + 0.8 + 1.7 + 48.3 + 10.0  # the middle answer's
+    assert got["client"] == 120.0 and got["queue"] == 10.0
+    assert got["hop"] == pytest.approx(9.0) and got["asgi"] == pytest.approx(0.8) and got["route-other"] == pytest.approx(1.7)
+    assert got["proxy"] == pytest.approx(120.0 - ingress) and got["ingress-body"] == pytest.approx(0.3)
+    # every stage accounted for: proxy + body read + hop + ASGI + the route's stages + the rest = the client's time
+    parts = ("proxy", "ingress-body", "hop", "asgi", "family", "body", "queue", "generate", "segment", "assign", "map", "uv", "glb", "route-other")
+    assert sum(got[k] for k in parts) == pytest.approx(120.0)
+    # an answer with no ingress entries (a server without the front) gives the route's stages only
+    bare = stage_breakdown([(50.0, {"app": 40.0, "uv": 30.0})])
+    assert "proxy" not in bare and "hop" not in bare and bare["route-other"] == pytest.approx(10.0) and stage_breakdown([]) == {}
