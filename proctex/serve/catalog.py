@@ -110,9 +110,10 @@ class Catalog:
         """The service of family ``name`` (loaded or reloaded as needed)."""
         now = time.monotonic()
         with self._lock:
+            held = self._held(name, now)
+            if held is not None:
+                return held
             cached = self._cache.get(name)
-            if cached is not None and now - cached[1] < self.check_every:
-                return cached[0]
             store = self.store(name)
             try:
                 family = Family.open(store)  # read once: the version, the check and the load share it
@@ -144,10 +145,15 @@ class Catalog:
         if not self._lock.acquire(blocking=False):
             return None
         try:
-            cached = self._cache.get(name)
-            return cached[0] if cached is not None and time.monotonic() - cached[1] < self.check_every else None
+            return self._held(name, time.monotonic())
         finally:
             self._lock.release()
+
+    def _held(self, name: str, now: float) -> FamilyService | None:
+        """The held service of ``name`` whose stamp was checked less than ``check_every`` before
+        ``now`` (the lock held), else None."""
+        cached = self._cache.get(name)
+        return cached[0] if cached is not None and now - cached[1] < self.check_every else None
 
     def loaded(self) -> list[str]:
         """The families held now, sorted."""
