@@ -156,6 +156,14 @@ def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, 
         error = ""
     except (ValueError, RuntimeError) as exc:
         pair, status, error = None, "failed", str(exc)
+    return write_pair(store, job, old, pair, status, error, time.perf_counter() - t)
+
+
+def write_pair(store: FamilyStore, job: PairJob, old: dict[str, Any] | None, pair: dict[str, Any] | None, status: str, error: str, seconds: float) -> dict[str, Any]:
+    """Store one pair's outcome (:func:`pair_result` or None, its status and error): the
+    correspondence Parquet file first, then its JSON record, both atomic. Returns the record."""
+    sid, g = job.key
+    rel = StoreLayout.pair_record(sid, g)
     if pair is not None and pair["mapped"] is not None:
         write_pair_vertices(store, sid, g, **pair["mapped"])
     if pair is not None:
@@ -182,7 +190,7 @@ def run_pair_job(store: FamilyStore, config: BuildConfig, assets, job: PairJob, 
         "chamfer": None if pair is None else float(pair["chamfer"]),
         "converged": bool(pair and pair["converged"]),
         "iterations": 0 if pair is None else int(pair["iterations"]),
-        "seconds": time.perf_counter() - t,
+        "seconds": seconds,
         "attempts": 1 + (old or {}).get("attempts", 0),
         "path": StoreLayout.pair(sid, g) if pair else "",
     }
@@ -234,20 +242,78 @@ def cached_assets(store: FamilyStore, version: str = "") -> Any:
     return _ASSETS[key]
 
 
+#: Shapes per batch of a batched pairs stage (``cage.batch`` 0) where the cage solver runs on CUDA.
+CUDA_BATCH = 8
+
+
+def pair_batch_size(config: BuildConfig) -> int:
+    """Shapes whose pairs one batch solves together, template group by template group, in one
+    cage program each (:func:`proctex.correspond.dense.correspond_parts_batch`): ``cage.batch``, or
+    where that is 0, :data:`CUDA_BATCH` when the solver runs on CUDA and 1 (each pair alone, the
+    single solver) on the CPU."""
+    if config.cage.batch:
+        return int(config.cage.batch)
+    import torch
+
+    return CUDA_BATCH if config.cage.device == "cuda" and torch.cuda.is_available() else 1
+
+
 def run_pair_batch(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], context: Any = None) -> list[dict[str, Any]]:
-    """Solve and store a batch of cage pairs (one shape's: it is loaded once) with the template
-    assets ``context`` (loaded here when None); their records."""
+    """Solve and store a batch of cage pairs (one shape's, or several shapes' where
+    :func:`pair_batch_size` is over 1: each loaded once) with the template assets ``context``
+    (loaded here when None); their records, in the jobs' order."""
     assets = context if context is not None else cached_assets(store, jobs[0].version if jobs else "")
-    records, shape, shape_id = [], None, None
+    shapes: dict[str, Shape | None] = {}
     for job in jobs:
-        if shape_id != job.row["id"]:
-            shape, shape_id = None, job.row["id"]
+        if job.row["id"] not in shapes:
             try:
-                shape = load_sample(store, job.row, config)
+                shapes[job.row["id"]] = load_sample(store, job.row, config)
             except (ValueError, RuntimeError):
-                shape = None  # run_pair_job loads it again and records the failure
-        records.append(run_pair_job(store, config, assets, job, shape))
-    return records
+                shapes[job.row["id"]] = None  # run_pair_job loads it again and records the failure
+    if pair_batch_size(config) > 1:
+        return _run_batched(store, config, assets, jobs, shapes)
+    return [run_pair_job(store, config, assets, job, shapes[job.row["id"]]) for job in jobs]
+
+
+def _run_batched(store: FamilyStore, config: BuildConfig, assets, jobs: list[PairJob], shapes: dict[str, Shape | None]) -> list[dict[str, Any]]:
+    """:func:`run_pair_batch`'s pairs solved group by group in one cage program each; a pair whose
+    shape, part or batch fails is solved alone by :func:`run_pair_job` (which records its error)."""
+    from proctex.correspond.dense import correspond_parts_batch
+
+    out: dict[tuple[str, int], dict[str, Any]] = {}
+    by_group: dict[int, list[tuple[PairJob, dict[str, Any] | None, int, np.ndarray, np.ndarray]]] = {}
+    for job in jobs:
+        rel = StoreLayout.pair_record(*job.key)
+        old = store.read_json(rel) if store.exists(rel) else None
+        if pair_complete(old):
+            out[job.key] = old
+            continue
+        shape = shapes[job.row["id"]]
+        try:
+            inp = pair_input(shape, assets, job.group) if shape is not None else False
+        except (ValueError, RuntimeError):
+            inp = False
+        if inp is None:
+            out[job.key] = write_pair(store, job, old, None, "absent", "", 0.0)
+        elif inp is False:
+            out[job.key] = run_pair_job(store, config, assets, job, shape)
+        else:
+            by_group.setdefault(job.group, []).append((job, old, *inp))
+    for g, rows in by_group.items():
+        ga = assets.groups[g]
+        t = time.perf_counter()
+        try:
+            res = correspond_parts_batch([(vn, f, pair_seed(config, job.index, g)) for job, _, _, vn, f in rows], ga.vertices, ga.faces, n_points=config.corr_points, cage=config.cage)
+        except (ValueError, RuntimeError):
+            res = None  # each pair alone, each failure recorded
+        seconds = (time.perf_counter() - t) / len(rows)
+        for k, (job, old, part, vn, f) in enumerate(rows):
+            if res is None:
+                out[job.key] = run_pair_job(store, config, assets, job, shapes[job.row["id"]])
+                continue
+            keep = job.row["split"] == "test" and len(vn) <= MAX_VERTEX_MAP  # as solve_pair
+            out[job.key] = write_pair(store, job, old, pair_result(part, res[k], vn, f) if keep else pair_result(part, res[k]), "done", "", seconds)
+    return [out[job.key] for job in jobs]
 
 
 def two_step(config: BuildConfig) -> bool:
@@ -358,12 +424,15 @@ def _pairs_plan(
     only: list[PairJob] | None = None,
 ) -> Plan:
     """The plan solving ``only`` (default: every job not complete with groups ``settled``), one
-    batch per shape; its finish returns the stage's record once every job is complete (a first
+    batch per shape (per :func:`pair_batch_size` shapes); its finish returns the stage's record once every job is complete (a first
     step's finish leaves the index to the next step, :func:`settled_groups`)."""
     todo = only if only is not None else [j for j in jobs if not pair_complete(records.get(j.key), settled)]
     by_shape: dict[str, list[PairJob]] = {}
     for job in todo:
         by_shape.setdefault(job.row["id"], []).append(job)
+    per = pair_batch_size(config)
+    shaped = list(by_shape.values())
+    batches = [[j for b in shaped[k : k + per] for j in b] for k in range(0, len(shaped), per)]
     t0 = time.perf_counter()
     clock = {"solved": 0, "index": t0}
 
@@ -375,12 +444,13 @@ def _pairs_plan(
         if now - clock["index"] >= INDEX_EVERY:
             write_pairs_index(store, jobs, records)
             clock["index"] = now
-        log(f"pairs: {batch[0].row['id']} ({clock['solved']}/{len(todo)} solved, {now - t0:.0f}s)")
+        names = sorted({j.row["id"] for j in batch})
+        log(f"pairs: {names[0] if len(names) == 1 else f'{names[0]} and {len(names) - 1} more'} ({clock['solved']}/{len(todo)} solved, {now - t0:.0f}s)")
 
     def finish(results: list[list[dict[str, Any]]]) -> dict[str, Any] | None:
         plan.info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
         return finish_pairs_stage(store, jobs, records, log, settled) if only is None else None
 
     # side by side in process from 16 pairs on (a pair takes about a second, a worker a few to start)
-    plan = Plan("pairs", list(by_shape.values()), run_pair_batch, finish, collect, context=assets, parallel=True, pool_min_jobs=16, threads=1)
+    plan = Plan("pairs", batches, run_pair_batch, finish, collect, context=assets, parallel=True, pool_min_jobs=16, threads=1)
     return plan

@@ -107,6 +107,11 @@ class CageConfig:
         chamfer: "plane" (template samples to the deformed source's tangent planes) or "point"
             (point-to-point, both directions); see the module docstring.
         device, dtype: where the optimisation runs (CUDA when asked for and present).
+        batch: shapes whose pairs the build's pairs stage solves together, template group by
+            template group, in one tensor program each (:func:`proctex.correspond.dense.
+            correspond_parts_batch`: every step of every pair in the same batched products and,
+            on CUDA, matches searched on the GPU); 0: 8 where the solver runs on CUDA, 1 (each
+            pair alone) on the CPU.
     """
 
     level: int = 1
@@ -138,6 +143,7 @@ class CageConfig:
     sweep_turns: float = 0.5
     device: str = "cpu"
     dtype: str = "float64"
+    batch: int = 0
 
     def validate(self) -> "CageConfig":
         if not 0 <= int(self.level) <= 4:
@@ -166,6 +172,8 @@ class CageConfig:
             raise ValueError(f"keep_best must be a bool, got {self.keep_best!r}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be float32 or float64, got {self.dtype!r}")
+        if not isinstance(self.batch, (int, np.integer)) or isinstance(self.batch, bool) or not 0 <= int(self.batch) <= 256:
+            raise ValueError(f"cage batch must be an integer in 0..256, got {self.batch!r}")
         return self
 
 

@@ -400,14 +400,17 @@ def correspond_parts_batch(
     n_points: int = 2000,
     cage: CageConfig | None = None,
     template_points: int = 3000,
+    search: str | None = None,
 ) -> list[PartCorrespondence]:
     """:func:`correspond_parts` with method "cage" for several source parts onto one template part,
     their cage solves batched (:func:`proctex.correspond.cage_batch.solve_cages`): the same
-    correspondences, to float rounding, at less cost per pair.
+    correspondences, to float rounding, at less cost per pair (with ``search`` "host"; "device",
+    the default on CUDA, finds each step's matches on the device by another candidate search).
 
     Args:
         sources: per pair ``(vertices (j, 3), faces (k, 3), seed)`` of the source part.
         tpl_vertices, tpl_faces, n_points, cage, template_points: as :func:`correspond_parts`.
+        search: :func:`proctex.correspond.cage_batch.solve_cages`'s.
 
     Raises ``ValueError`` as :func:`correspond_parts` does, naming the pair.
     """
@@ -429,7 +432,7 @@ def correspond_parts_batch(
     if not preps:
         return []
     index = preps[0].index
-    results = solve_cages(problems, index, vertex_normals(index.vertices, index.faces), cfg)
+    results = solve_cages(problems, index, vertex_normals(index.vertices, index.faces), cfg, search=search)
     return [_cage_finish(prep, cfg, res, (), tpl_s, t0) for prep, res, tpl_s in zip(preps, results, samples)]
 
 

@@ -75,11 +75,18 @@ def group_losses(
     return value, dist.detach().mean(dim=(1, 2))
 
 
+def _adam(params: dict[str, torch.Tensor], config: CorrNetConfig) -> torch.optim.Adam:
+    """Adam over the stacked parameters; on CUDA its fused kernel (one launch a step for every
+    tensor: a step of a small network is launch-bound there), elsewhere torch's default."""
+    cuda = next(iter(params.values())).is_cuda
+    return torch.optim.Adam(params.values(), lr=config.lr, weight_decay=config.weight_decay, fused=True if cuda else None)
+
+
 def _restack(params: dict[str, torch.Tensor], optimiser: torch.optim.Adam, keep: list[int], config: CorrNetConfig) -> tuple[dict[str, torch.Tensor], torch.optim.Adam]:
     """The stack and its Adam state with only the rows ``keep`` (groups still training)."""
     index = torch.as_tensor(keep, dtype=torch.long)
     new = {k: v.detach()[index].clone().requires_grad_(True) for k, v in params.items()}
-    opt = torch.optim.Adam(new.values(), lr=config.lr, weight_decay=config.weight_decay)
+    opt = _adam(new, config)
     for (k, old), p in zip(params.items(), new.values()):
         state = optimiser.state.get(old)
         if state:
@@ -153,7 +160,17 @@ def train_together(
     per_rank = -(-config.shapes_per_batch // world)
     base = copy.deepcopy(models[0]).to("meta")
     params, buffers = torch.func.stack_module_state([models[g] for g in active])
-    optimiser = torch.optim.Adam(params.values(), lr=config.lr, weight_decay=config.weight_decay)
+    optimiser = _adam(params, config)
+    pending: list[torch.Tensor] = []  # each step's (groups,) training errors, read at evaluations
+
+    def read_pending() -> None:
+        # one read of the steps' errors since the last evaluation: no step waits for the device
+        if pending:
+            errors = torch.stack(pending).float().cpu().numpy()
+            for row, g in enumerate(active):
+                watches[g].window.extend(float(e) for e in errors[:, row])
+            pending.clear()
+
     step = 0
     while step < config.iterations and active:
         lr = learning_rate(config, step)
@@ -168,11 +185,11 @@ def train_together(
         if grad_hook is not None:
             grad_hook(StackedParameters(params))
         optimiser.step()
-        for row, g in enumerate(active):
-            watches[g].window.append(float(dist[row]))
+        pending.append(dist.detach())
         step += 1
         if step % config.eval_every and step < config.iterations:
             continue
+        read_pending()
         stopped = []
         for row, g in enumerate(active):
             _unstack(params, row, models[g])

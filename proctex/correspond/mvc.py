@@ -38,9 +38,11 @@ def _check_cage(cage_vertices: np.ndarray | torch.Tensor, cage_faces: np.ndarray
 # ------------------------------------------------------------------------------------- reference
 # ----------------------------------------------------------------------------------- vectorised
 def _mvc_chunk(x: torch.Tensor, cv: torch.Tensor, cf: torch.Tensor, eps: float) -> torch.Tensor:
-    n, V = x.shape[0], cv.shape[0]
+    """Weights of points ``x (n, 3)`` in the cage ``cv``: one ``(V, 3)`` for all, or ``(n, V, 3)``
+    a cage per point (batched pairs, :mod:`proctex.correspond.cage_batch`)."""
+    n, V = x.shape[0], cv.shape[-2]
     F = cf.shape[0]
-    diff = cv[None, :, :] - x[:, None, :]  # (n, V, 3)
+    diff = (cv if cv.ndim == 3 else cv[None, :, :]) - x[:, None, :]  # (n, V, 3)
     d = torch.sqrt((diff * diff).sum(-1) + 1e-300)  # safe norm: finite gradient at 0
     at_vertex = d < eps
     d_safe = torch.where(at_vertex, torch.ones_like(d), d)

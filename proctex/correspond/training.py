@@ -69,7 +69,7 @@ def learning_rate(config: CorrNetConfig, step: int) -> float:
     return config.lr
 
 
-def train_step(
+def step_error(
     model: ProcCorrNet,
     optimiser: torch.optim.Optimizer,
     src: torch.Tensor,
@@ -79,9 +79,10 @@ def train_step(
     autocast: str = "none",
     grad_hook: Callable[[ProcCorrNet], None] | None = None,
     weight: torch.Tensor | None = None,
-) -> float:
+) -> torch.Tensor:
     """One optimisation step; returns the batch's mean Euclidean distance (before the step,
-    unweighted).
+    unweighted) as a 0-d tensor on the model's device: reading it waits for the step, so a
+    training loop reads them at its evaluations (:func:`train_step` reads it at once).
 
     Args:
         src: (B, N, 3) points of the shapes' parts (part frames). Without ``context`` they are the
@@ -118,7 +119,22 @@ def train_step(
     if grad_hook is not None:
         grad_hook(model)
     optimiser.step()
-    return float(dist.detach().mean())
+    return dist.detach().mean()
+
+
+def train_step(
+    model: ProcCorrNet,
+    optimiser: torch.optim.Optimizer,
+    src: torch.Tensor,
+    dst: torch.Tensor,
+    context: torch.Tensor | None = None,
+    loss: str = "mse",
+    autocast: str = "none",
+    grad_hook: Callable[[ProcCorrNet], None] | None = None,
+    weight: torch.Tensor | None = None,
+) -> float:
+    """:func:`step_error`'s step and arguments, its error read as a float."""
+    return float(step_error(model, optimiser, src, dst, context, loss, autocast, grad_hook, weight))
 
 
 def _error_summary(per_shape: list[np.ndarray]) -> dict[str, float]:
@@ -228,12 +244,14 @@ def train(
         watch.start(model)
         return watch.result(model, 0)
     autocast = resolve_autocast(config.autocast, device) if dtype == torch.float32 else "none"
-    optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    # fused on CUDA: one launch a step for every tensor (a small network's step is launch-bound there)
+    optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay, fused=True if device.type == "cuda" else None)
     rng = np.random.default_rng(config.seed if world == 1 else [config.seed, rank])
     per_rank = -(-config.shapes_per_batch // world)
     if config.zero_init and config.residual:
         watch.start(model)  # the frame's own map (the box map) is a candidate like any other state
     step = 0
+    pending: list[torch.Tensor] = []  # each step's training error, read at evaluations: no step waits for the device
     while step < config.iterations:
         lr = learning_rate(config, step)
         for g in optimiser.param_groups:
@@ -241,12 +259,15 @@ def train(
         ctx, qry, tgt, wq = (torch.as_tensor(a, device=device, dtype=dtype) for a in sample_batch(data.train, config, rng, per_rank, data.weights))
         wq = wq if data.weights is not None else None
         if config.query_mode == "context":  # queries = the first Q context points: one encoder pass
-            watch.window.append(train_step(model, optimiser, ctx, tgt, None, config.loss, autocast, grad_hook, wq))
+            pending.append(step_error(model, optimiser, ctx, tgt, None, config.loss, autocast, grad_hook, wq))
         else:
-            watch.window.append(train_step(model, optimiser, qry, tgt, ctx, config.loss, autocast, grad_hook, wq))
+            pending.append(step_error(model, optimiser, qry, tgt, ctx, config.loss, autocast, grad_hook, wq))
         step += 1
-        if (step % config.eval_every == 0 or step >= config.iterations) and watch.evaluate(model, step, lr):
-            break
+        if step % config.eval_every == 0 or step >= config.iterations:
+            watch.window.extend(float(e) for e in torch.stack(pending).float().cpu().numpy())  # one read since the last evaluation
+            pending.clear()
+            if watch.evaluate(model, step, lr):
+                break
     return watch.result(model, step)
 
 

@@ -273,8 +273,9 @@ HOW_TRAINED = ("autocast", "together")
 
 
 def without_devices(data: dict[str, Any]) -> dict[str, Any]:
-    """A config dict (sections) with every device read as "cpu" and how the networks are trained
-    (:data:`HOW_TRAINED`: bfloat16 or not, groups in one loop or not) as "auto": where and how a
+    """A config dict (sections) with every device read as "cpu", how the networks are trained
+    (:data:`HOW_TRAINED`: bfloat16 or not, groups in one loop or not) as "auto" and how the cage
+    pairs are batched (``cage.batch``) as 0: where and how a
     family is built (a GPU, a CPU with bfloat16) is no part of what it is, and a family built on a
     GPU must load where there is none."""
     out = dict(data)
@@ -283,6 +284,8 @@ def without_devices(data: dict[str, Any]) -> dict[str, Any]:
             out[section] = {**out[section], "device": "cpu"}
     if isinstance(out.get("train"), dict):
         out["train"] = {**out["train"], **{k: "auto" for k in HOW_TRAINED if k in out["train"]}}
+    if isinstance(out.get("cage"), dict) and "batch" in out["cage"]:
+        out["cage"] = {**out["cage"], "batch": 0}  # pairs solved alone or batched: how, not what
     return out
 
 
