@@ -187,7 +187,9 @@ def test_the_pairs_stage_in_batches_of_shapes_stores_the_pairs_one_at_a_time_sto
 
 @pytest.mark.skipif(not CUDA, reason="no CUDA device (runs where the device tool lends a GPU)")
 def test_on_cuda_the_device_searches_agree_with_the_cpu():
-    """On a GPU: the template search and the Chamfer search give the CPU's answers (float64)."""
+    """On a GPU: the template search and the Chamfer search give the CPU's answers (float64): the
+    same distances (a query on an edge two faces share may name either: 0.5% of the faces differed
+    on an H200, at the same distance)."""
     v, f = _vase()
     index = SurfaceIndex(v, f)
     rng = np.random.default_rng(1)
@@ -196,7 +198,8 @@ def test_on_cuda_the_device_searches_agree_with_the_cpu():
     qn /= np.linalg.norm(qn, axis=1, keepdims=True)
     cpu = closest_oriented(torch.as_tensor(q), torch.as_tensor(qn), DeviceSurface.of(index, torch.device("cpu"), torch.float64), 0.0)
     gpu = closest_oriented(torch.as_tensor(q).cuda(), torch.as_tensor(qn).cuda(), DeviceSurface.of(index, torch.device("cuda"), torch.float64), 0.0)
-    assert (gpu[1].cpu().numpy() == cpu[1].numpy()).mean() >= 0.999
+    np.testing.assert_allclose(np.linalg.norm(gpu[0].cpu().numpy() - q, axis=1), np.linalg.norm(cpu[0].numpy() - q, axis=1), rtol=0, atol=1e-12)
+    assert (gpu[1].cpu().numpy() == cpu[1].numpy()).mean() >= 0.98
     pts = rng.normal(size=(2, 500, 3))
     pn = rng.normal(size=(2, 500, 3))
     args = [pts, pn, pts[:, ::-1].copy() + 0.01, pn]

@@ -242,8 +242,11 @@ def cached_assets(store: FamilyStore, version: str = "") -> Any:
     return _ASSETS[key]
 
 
-#: Shapes per batch of a batched pairs stage (``cage.batch`` 0) where the cage solver runs on CUDA.
-CUDA_BATCH = 8
+#: Shapes per batch of a batched pairs stage (``cage.batch`` 0) where the cage solver runs on CUDA:
+#: few, so the batches outnumber the workers (a pair's CPU work, its alignment and samples, is most
+#: of its time: with 8 shapes a batch the sofa export's pairs took 55.3 s on an H200 machine's 8
+#: workers, one at a time on its CPUs 31.3 s).
+CUDA_BATCH = 2
 
 
 def pair_batch_size(config: BuildConfig) -> int:

@@ -108,10 +108,10 @@ class CageConfig:
             (point-to-point, both directions); see the module docstring.
         device, dtype: where the optimisation runs (CUDA when asked for and present).
         batch: shapes whose pairs the build's pairs stage solves together, template group by
-            template group, in one tensor program each (:func:`proctex.correspond.dense.
-            correspond_parts_batch`: every step of every pair in the same batched products and,
-            on CUDA, matches searched on the GPU); 0: 8 where the solver runs on CUDA, 1 (each
-            pair alone) on the CPU.
+            template group, in one tensor program each
+            (:func:`proctex.correspond.dense.correspond_parts_batch`: every step of every pair in
+            the same batched products and, on CUDA, matches searched on the GPU); 0: 2 where the
+            solver runs on CUDA, 1 (each pair alone) on the CPU.
     """
 
     level: int = 1

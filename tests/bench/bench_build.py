@@ -60,7 +60,7 @@ def cluster(action: str, cpus: int, tmp: str, nodes: int = 2) -> None:
     subprocess.run(["bash", str(here / "cluster" / "local_cluster.sh"), *args], env=env, check=True, capture_output=True, timeout=300)
 
 
-def build_once(kind: str, root: str, config: Any, workers: int, cpus: int) -> dict[str, Any]:
+def build_once(kind: str, root: str, config: Any, workers: int, cpus: int, stages: tuple[str, ...] | None = None) -> dict[str, Any]:
     fresh(root)
     t0 = time.perf_counter()
     if kind == "process":
@@ -68,7 +68,9 @@ def build_once(kind: str, root: str, config: Any, workers: int, cpus: int) -> di
         from proctex.build.plan import local_executor
         from proctex.store.layout import FamilyStore
 
-        state = build(FamilyStore(root), config, log=lambda *_: None, executor=local_executor(workers))
+        from proctex.store.state import STAGES
+
+        state = build(FamilyStore(root), config, stages or STAGES, log=lambda *_: None, executor=local_executor(workers))
     elif kind in ("ray", "cluster", "head"):
         import ray
 
@@ -101,6 +103,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="in-process worker processes")
     ap.add_argument("--cpus", type=int, default=2, help="CPUs of the local Ray")
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--stages", default="", help="comma-separated stages to run (in process only; default: all), e.g. sample,template,paint,pairs,train")
     ap.add_argument("--set", action="append", default=[], help='a config override as JSON, e.g. \'{"train": {"autocast": "none"}}\'')
     ap.add_argument("--work", default="out/bench/build")
     ap.add_argument("--out", default="")
@@ -160,7 +163,7 @@ def run_kind(kind: str, args: Any, config: Any, server: Any) -> list[dict[str, A
     try:
         for r in range(args.repeats):
             root = server.uri(f"bench/{kind}{r}") if server is not None else str(Path(args.work) / f"{kind}{r}")
-            out = build_once(kind, root, config, args.workers, args.cpus)
+            out = build_once(kind, root, config, args.workers, args.cpus, tuple(args.stages.split(",")) if args.stages else None)
             builds.append(out)
             stages = ", ".join(f"{k} {v:.1f}s" for k, v in out["wall_seconds"].items())
             figs = ", ".join(f"{k} {v:.5g}" for k, v in out.items() if k not in ("wall_seconds", "total_seconds") and v is not None)
