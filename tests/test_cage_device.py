@@ -185,6 +185,41 @@ def test_the_pairs_stage_in_batches_of_shapes_stores_the_pairs_one_at_a_time_sto
             CageConfig(batch=bad).validate()
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_pairs_prepared_in_workers_and_solved_here_are_the_pairs_one_at_a_time(painted_mug_root, tmp_path, monkeypatch, workers):
+    """The pairs stage as it runs on CUDA (``solves_here``: workers prepare, the planning process
+    solves every group's pairs in one program, workers finish and store), forced here on the CPU:
+    in process and through a pool of 2 spawned workers (every prepared pair pickled there and back),
+    the same records and correspondences as each pair alone (to float rounding), the stage's
+    steps chained (the probe pairs, then the rest) and the stage marked done."""
+    import pyarrow.parquet as pq
+
+    import proctex.build.pairs as pairs_mod
+    from proctex.build.plan import local_executor, run_steps
+    from proctex.store.layout import FamilyStore, StoreLayout
+    from proctex.store.state import stored_config
+
+    out, logs = {}, []
+    for mode in ("alone", "here"):
+        root = tmp_path / mode
+        shutil.copytree(painted_mug_root / "mug", root)
+        st = FamilyStore(root)
+        cfg = stored_config(st)
+        cfg = dataclasses.replace(cfg, cage=dataclasses.replace(cfg.cage, iterations=30))
+        monkeypatch.setattr(pairs_mod, "solves_here", lambda config, mode=mode: mode == "here")
+        plan = run_steps(pairs_mod.plan_pairs(st, cfg, log=logs.append), local_executor(workers, min_jobs=1), st, cfg, log=logs.append)
+        assert plan.record is not None and plan.record["solved"] + plan.record["skipped"] == plan.record["pairs"]
+        rows = st.read_table(StoreLayout.PAIRS).to_pylist()
+        out[mode] = {(r["id"], r["group"]): (r, pq.read_table(root / r["path"]).to_pandas().to_numpy() if r["path"] else None) for r in rows}
+    assert any("pairs solved in one program" in m for m in logs)
+    assert out["alone"].keys() == out["here"].keys() and len(out["here"]) >= 4
+    for key, (r1, d1) in out["alone"].items():
+        r2, d2 = out["here"][key]
+        assert (r1["status"], r1["part"], r1["iterations"]) == (r2["status"], r2["part"], r2["iterations"]), key
+        if d1 is not None:
+            np.testing.assert_allclose(d2, d1, atol=1e-5)
+
+
 @pytest.mark.skipif(not CUDA, reason="no CUDA device (runs where the device tool lends a GPU)")
 def test_on_cuda_the_device_searches_agree_with_the_cpu():
     """On a GPU: the template search and the Chamfer search give the CPU's answers (float64): the

@@ -242,23 +242,25 @@ def cached_assets(store: FamilyStore, version: str = "") -> Any:
     return _ASSETS[key]
 
 
-#: Shapes per batch of a batched pairs stage (``cage.batch`` 0) where the cage solver runs on CUDA:
-#: few, so the batches outnumber the workers (a pair's CPU work, its alignment and samples, is most
-#: of its time: with 8 shapes a batch the sofa export's pairs took 55.3 s on an H200 machine's 8
-#: workers, one at a time on its CPUs 31.3 s).
-CUDA_BATCH = 2
+def solves_here(config: BuildConfig) -> bool:
+    """Whether the pairs stage prepares its pairs in the workers and solves them in the process
+    that plans it, every group's pairs in one cage program on its GPU (:func:`_prepare_plan`):
+    ``cage.batch`` 0 with the solver on CUDA, present here. Worker processes that share one GPU
+    take turns on it (a context each, time-sliced): batches solved in 8 or 16 workers took the sofa
+    export's pairs stage 48.5-55.3 s on an H200 machine, one pair at a time on its CPUs 23.6 s."""
+    if config.cage.batch or config.cage.device != "cuda":
+        return False
+    import torch
+
+    return bool(torch.cuda.is_available())
 
 
 def pair_batch_size(config: BuildConfig) -> int:
-    """Shapes whose pairs one batch solves together, template group by template group, in one
-    cage program each (:func:`proctex.correspond.dense.correspond_parts_batch`): ``cage.batch``, or
-    where that is 0, :data:`CUDA_BATCH` when the solver runs on CUDA and 1 (each pair alone, the
-    single solver) on the CPU."""
-    if config.cage.batch:
-        return int(config.cage.batch)
-    import torch
-
-    return CUDA_BATCH if config.cage.device == "cuda" and torch.cuda.is_available() else 1
+    """Shapes whose pairs one worker's batch solves together, template group by template group,
+    in one cage program each (:func:`proctex.correspond.dense.correspond_parts_batch`):
+    ``cage.batch``, else 1 (each pair alone, the single solver; :func:`solves_here` batches a
+    whole group instead)."""
+    return int(config.cage.batch) or 1
 
 
 def run_pair_batch(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], context: Any = None) -> list[dict[str, Any]]:
@@ -450,10 +452,152 @@ def _pairs_plan(
         names = sorted({j.row["id"] for j in batch})
         log(f"pairs: {names[0] if len(names) == 1 else f'{names[0]} and {len(names) - 1} more'} ({clock['solved']}/{len(todo)} solved, {now - t0:.0f}s)")
 
+    last: list[Plan] = []  # the plan whose finish this is (the last of three where pairs are solved here)
+
     def finish(results: list[list[dict[str, Any]]]) -> dict[str, Any] | None:
-        plan.info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
+        last[-1].info.update(solved=len(todo), seconds=round(time.perf_counter() - t0, 2))
         return finish_pairs_stage(store, jobs, records, log, settled) if only is None else None
 
     # side by side in process from 16 pairs on (a pair takes about a second, a worker a few to start)
+    if solves_here(config):
+        return _prepare_plan(store, config, log, assets, [j for b in shaped for j in b], shaped, collect, finish, last)
     plan = Plan("pairs", batches, run_pair_batch, finish, collect, context=assets, parallel=True, pool_min_jobs=16, threads=1)
+    last.append(plan)
     return plan
+
+
+@dataclass
+class PreparedJob:
+    """A pair prepared in a worker for the solve here (:func:`prepare_pair_batch`): its job, its
+    old record, the shape's part (index, vertices, faces) and the prepared cage pair; ``seconds``:
+    the preparation's time; ``result``: its solved cage, once solved."""
+
+    job: PairJob
+    old: dict[str, Any] | None
+    part: int
+    vertices: np.ndarray
+    faces: np.ndarray
+    pair: Any
+    seconds: float
+    result: Any = None
+
+
+def prepare_pair_batch(store: FamilyStore, config: BuildConfig, jobs: list[PairJob], context: Any = None) -> list[Any]:
+    """The CPU half of pairs solved here (:func:`solves_here`): each job's part found and its cage
+    pair prepared (:func:`proctex.correspond.dense.prepare_cage_pair`), a :class:`PreparedJob`;
+    a pair complete already, absent or failing is stored as :func:`run_pair_batch` stores it and
+    its record returned instead."""
+    from proctex.correspond.dense import prepare_cage_pair
+
+    assets = context if context is not None else cached_assets(store, jobs[0].version if jobs else "")
+    out: list[Any] = []
+    shapes: dict[str, Shape | None] = {}
+    for job in jobs:
+        rel = StoreLayout.pair_record(*job.key)
+        old = store.read_json(rel) if store.exists(rel) else None
+        if pair_complete(old):
+            out.append(old)
+            continue
+        t = time.perf_counter()
+        try:
+            if job.row["id"] not in shapes:
+                shapes[job.row["id"]] = load_sample(store, job.row, config)
+            inp = pair_input(shapes[job.row["id"]], assets, job.group)
+            if inp is None:
+                out.append(write_pair(store, job, old, None, "absent", "", time.perf_counter() - t))
+                continue
+            ga = assets.groups[job.group]
+            pair = prepare_cage_pair(inp[1], inp[2], ga.vertices, ga.faces, config.corr_points, pair_seed(config, job.index, job.group), config.cage)
+        except (ValueError, RuntimeError) as exc:
+            out.append(write_pair(store, job, old, None, "failed", str(exc), time.perf_counter() - t))
+            continue
+        out.append(PreparedJob(job, old, inp[0], inp[1], inp[2], pair, time.perf_counter() - t))
+    return out
+
+
+def finish_pair_batch(store: FamilyStore, config: BuildConfig, items: list[Any], context: Any = None) -> list[dict[str, Any]]:
+    """The last half of pairs solved here: each solved :class:`PreparedJob` finished as
+    :func:`proctex.correspond.dense.correspond_parts` finishes a pair (the sweep chart's map where
+    it fits better) and stored; one whose solve failed solved alone (:func:`run_pair_job`); a
+    record passes through."""
+    from proctex.correspond.dense import finish_cage_pair
+
+    out = []
+    for item in items:
+        if not isinstance(item, PreparedJob):
+            out.append(item)
+            continue
+        if item.result is None:
+            assets = context if context is not None else cached_assets(store, item.job.version)
+            out.append(run_pair_job(store, config, assets, item.job))
+            continue
+        t = time.perf_counter()
+        corr = finish_cage_pair(item.pair, config.cage, item.result, t)
+        keep = item.job.row["split"] == "test" and len(item.vertices) <= MAX_VERTEX_MAP  # as solve_pair
+        pair = pair_result(item.part, corr, item.vertices, item.faces) if keep else pair_result(item.part, corr)
+        out.append(write_pair(store, item.job, item.old, pair, "done", "", item.seconds + time.perf_counter() - t))
+    return out
+
+
+def solve_here(prepared: list[PreparedJob], config: BuildConfig, log: Callable[[str], None] = print) -> None:
+    """Every group's prepared pairs solved in one cage program (buckets of one lattice) on this
+    process's device; each job's ``result`` set (None where its group's solve failed: those are
+    solved alone when finished)."""
+    from proctex.correspond.dense import solve_prepared
+    from proctex.pools import torch_threads
+
+    by_group: dict[int, list[PreparedJob]] = {}
+    for item in prepared:
+        by_group.setdefault(item.job.group, []).append(item)
+    for g, items in by_group.items():
+        t = time.perf_counter()
+        try:
+            with torch_threads(1):  # a worker's one thread: on a CPU, the same bits as a pool's batch
+                results = solve_prepared([i.pair for i in items], config.cage)
+        except (ValueError, RuntimeError) as exc:  # out of device memory, say: each pair alone
+            log(f"pairs: group {g}: its {len(items)} pairs in one program failed ({exc}); solving them one by one")
+            continue
+        share = (time.perf_counter() - t) / len(items)
+        for item, res in zip(items, results):
+            item.result, item.seconds = res, item.seconds + share
+        log(f"pairs: group {g}: {len(items)} pairs solved in one program ({time.perf_counter() - t:.1f}s)")
+
+
+def _prepare_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], None], assets, todo: list[PairJob], shaped: list[list[PairJob]], collect, finish, last: list[Plan]) -> Plan:
+    """Pairs solved here (:func:`solves_here`) in three steps: the workers prepare them, one batch
+    per shape (:func:`prepare_pair_batch`); this process solves every group's in one program
+    (:func:`solve_here`); the workers finish and store them (:func:`finish_pair_batch`), whose plan
+    collects and finishes as the one-step stage does and then runs what the stage planned next."""
+
+    def prepared(results: list[list[Any]]) -> None:
+        items = [r for batch in results for r in batch if isinstance(r, PreparedJob)]
+        solve_here(items, config, log)
+        after = plan.info.pop("then", None)  # what the stage planned after this step (plan_rest)
+
+        def finishing() -> Plan:
+            nxt = Plan(
+                "pairs",
+                [r for r in results if r],
+                finish_pair_batch,
+                finish,
+                lambda b, out: collect([x.job if isinstance(x, PreparedJob) else _job_of(x, todo) for x in b], out),
+                context=assets,
+                parallel=True,
+                pool_min_jobs=16,
+                threads=1,
+            )
+            if after is not None:
+                nxt.info["then"] = after
+            last.append(nxt)
+            return nxt
+
+        plan.info["then"] = finishing
+        return None
+
+    plan = Plan("pairs", shaped, prepare_pair_batch, prepared, context=assets, parallel=True, pool_min_jobs=16, threads=1)
+    return plan
+
+
+def _job_of(record: dict[str, Any], jobs: list[PairJob]) -> PairJob:
+    """The job a stored record belongs to (by shape and group)."""
+    return next(j for j in jobs if j.key == (record["id"], record["group"]))

@@ -418,22 +418,52 @@ def correspond_parts_batch(
     if cfg.symmetry:  # symmetry axes are found per pair's seed: the single solver
         return [correspond_parts(v, f, tpl_vertices, tpl_faces, "cage", n_points, seed, cfg, template_points=template_points) for v, f, seed in sources]
     t0 = time.perf_counter()
-    preps, problems, samples = [], [], []
+    pairs = []
     for i, (src_v, src_f, seed) in enumerate(sources):
         try:
-            prep = prepare(src_v, src_f, tpl_vertices, tpl_faces, n_points, seed, prealign=cfg.prealign)
+            pairs.append(prepare_cage_pair(src_v, src_f, tpl_vertices, tpl_faces, n_points, seed, cfg, template_points))
         except ValueError as exc:
             raise ValueError(f"pair {i}: {exc}") from exc
-        rng = np.random.default_rng(seed + 1)
-        tpl_s, tpl_sf, _ = sample_surface(prep.index.vertices, prep.index.faces, template_points, seed=rng)
-        preps.append(prep)
-        samples.append(tpl_s)
-        problems.append(_cage_problem(prep, prep.aligned(prep.samples), tpl_s, tpl_sf, seed))
-    if not preps:
+    if not pairs:
         return []
-    index = preps[0].index
-    results = solve_cages(problems, index, vertex_normals(index.vertices, index.faces), cfg, search=search)
-    return [_cage_finish(prep, cfg, res, (), tpl_s, t0) for prep, res, tpl_s in zip(preps, results, samples)]
+    results = solve_prepared(pairs, cfg, search)
+    return [finish_cage_pair(pair, cfg, res, t0) for pair, res in zip(pairs, results)]
+
+
+@dataclass
+class PreparedCagePair:
+    """A cage pair ready for the solver (:func:`prepare_cage_pair`): its pre-aligned source and
+    template frames (``prep``), the solver's inputs (``problem``) and the template samples
+    ``template_samples (m, 3)`` its Chamfer figure is measured on. Picklable: a worker process
+    prepares it, another solves it."""
+
+    prep: _Prepared
+    problem: CageProblem
+    template_samples: np.ndarray
+
+
+def prepare_cage_pair(
+    src_v: np.ndarray, src_f: np.ndarray, tpl_vertices: np.ndarray, tpl_faces: np.ndarray, n_points: int, seed: int, cage: CageConfig, template_points: int = 3000
+) -> PreparedCagePair:
+    """What :func:`correspond_parts` with method "cage" does before the solver: validate, sample
+    and pre-align the source part (:func:`prepare`), sample the template. ``ValueError`` as there."""
+    prep = prepare(src_v, src_f, tpl_vertices, tpl_faces, n_points, seed, prealign=cage.prealign)
+    rng = np.random.default_rng(seed + 1)
+    tpl_s, tpl_sf, _ = sample_surface(prep.index.vertices, prep.index.faces, template_points, seed=rng)
+    return PreparedCagePair(prep, _cage_problem(prep, prep.aligned(prep.samples), tpl_s, tpl_sf, seed), tpl_s)
+
+
+def solve_prepared(pairs: Sequence[PreparedCagePair], cage: CageConfig, search: str | None = None) -> list[CageResult]:
+    """The cage solves of prepared pairs onto one template part, batched
+    (:func:`proctex.correspond.cage_batch.solve_cages`, ``search`` as there); one result per pair."""
+    index = pairs[0].prep.index
+    return solve_cages([p.problem for p in pairs], index, vertex_normals(index.vertices, index.faces), cage, search=search)
+
+
+def finish_cage_pair(pair: PreparedCagePair, cage: CageConfig, result: CageResult, t0: float) -> PartCorrespondence:
+    """A prepared pair and its solved cage as the correspondence :func:`correspond_parts` returns
+    (the sweep chart's map where that fits better); ``t0``: when its work began (``seconds``)."""
+    return _cage_finish(pair.prep, cage, result, (), pair.template_samples, t0)
 
 
 def _sweep_candidate(prep: _Prepared, cage: CageConfig | None, cage_points: np.ndarray, tpl_s: np.ndarray):
