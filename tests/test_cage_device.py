@@ -122,12 +122,12 @@ def test_mean_value_coordinates_with_a_cage_per_point_are_each_cages_own():
     np.testing.assert_allclose(recon, np.concatenate(x), atol=1e-9)
 
 
-@pytest.mark.slow  # about 20 s on 2 cores
 def test_batched_solves_with_device_searches_land_on_each_pairs_single_solve():
     """The bent boxes of the host batch's test onto one box, their matches found by the device
-    searches: each pair's map within 5% of how far it moved from its single solve's (measured 0 to
-    1%), the first loss within 2% of the single solve's, the residual within 5%; an unknown search
-    is refused."""
+    searches: each pair's map within 5% of how far it moved from its single solve's (measured 0.04,
+    0.2, 0.4 and 3.5%: the most bent box's path parts a little, as the host batch's do), the first
+    loss within 2% of the single solve's, the residual within 5% (measured at most 2.5%), on both
+    kernel sets (``python -m tests.portable``); an unknown search is refused."""
     rng = np.random.default_rng(5)
     t = box((1.0, 0.5, 0.4), divisions=(12, 6, 5))
     tv, tf = t.vertices + rng.normal(scale=2e-3, size=t.vertices.shape), t.faces
