@@ -93,3 +93,20 @@ def unlabelled_table():
     specs += [((0.05, 0.05, 0.71), (x, y, 0.355)) for x in (-0.55, 0.55) for y in (-0.3, 0.3)]
     specs.append(((1.05, 0.55, 0.02), (0, 0, 0.2)))
     return boxes(specs)
+
+
+def bent_boxes():
+    """A jittered box template ``(vertices, faces)`` and four sources ``[(vertices, faces, seed)]``:
+    boxes of other lengths and tessellations bent by 0, 0.1, 0.25 and 0.4 (``z += bend * x^2``), for
+    the batched cage solves' tests. Jittered: on exactly perpendicular faces a normal test is a tie
+    that float rounding decides either way, in a single solve as in a batch."""
+    rng = np.random.default_rng(5)
+    t = P.box((1.0, 0.5, 0.4), divisions=(12, 6, 5))
+    template = (t.vertices + rng.normal(scale=2e-3, size=t.vertices.shape), t.faces)
+    sources = []
+    for i, (bend, div) in enumerate(((0.0, (12, 6, 5)), (0.1, (10, 5, 4)), (0.25, (12, 6, 5)), (0.4, (8, 4, 4)))):
+        b = P.box((1.0 + 0.2 * i, 0.5, 0.4), divisions=div)
+        v = b.vertices + rng.normal(scale=2e-3, size=b.vertices.shape)
+        v[:, 2] += bend * v[:, 0] ** 2
+        sources.append((v, b.faces, 10 + i))
+    return template, sources

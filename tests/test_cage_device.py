@@ -18,9 +18,9 @@ from proctex.correspond.cage import CageConfig, _oriented_nn
 from proctex.correspond.cage_batch import DeviceSurface, closest_on_triangles, closest_oriented, oriented_nn
 from proctex.correspond.dense import correspond_parts, correspond_parts_batch
 from proctex.correspond.mvc import _mvc_chunk, mean_value_coordinates
-from proctex.geometry.primitives import box
 from proctex.geometry.surface import SurfaceIndex, closest_point_on_triangles
 from proctex.geometry.sweeps import revolve
+from tests.meshes import bent_boxes
 
 CUDA = torch.cuda.is_available()
 
@@ -33,6 +33,15 @@ def _vase():
     height = np.concatenate([t - 0.5, np.maximum(t[::-1] - 0.5, -0.45)])
     part = revolve(radius, height, n_theta=32)
     return part.vertices, part.faces
+
+
+def _vase_queries(n: int):
+    """The vase ``(vertices, faces)`` and ``n`` queries near it ``(n, 3)`` with random unit normals."""
+    v, f = _vase()
+    rng = np.random.default_rng(1)
+    q = v[rng.integers(0, len(v), n)] + rng.normal(scale=0.03, size=(n, 3))
+    qn = rng.normal(size=(n, 3))
+    return v, f, q, qn / np.linalg.norm(qn, axis=1, keepdims=True)
 
 
 def test_closest_points_on_triangles_agree_with_the_cpu_version_region_by_region():
@@ -64,12 +73,8 @@ def test_the_device_template_search_finds_the_nearest_admissible_face_as_the_exa
     nearest admissible face (SurfaceIndex.query_oriented, exact) for at least 99% of the queries
     (measured 99.9%: where a large face's far centroid hides a nearer edge) and never nearer than
     it (it cannot beat an exact search)."""
-    v, f = _vase()
+    v, f, q, qn = _vase_queries(3000)
     index = SurfaceIndex(v, f)
-    rng = np.random.default_rng(1)
-    q = v[rng.integers(0, len(v), 3000)] + rng.normal(scale=0.03, size=(3000, 3))
-    qn = rng.normal(size=(3000, 3))
-    qn /= np.linalg.norm(qn, axis=1, keepdims=True)
     exact, oriented = index.query_oriented(q, qn, 0.0, exact=True)
     surf = DeviceSurface.of(index, torch.device("cpu"), torch.float64)
     pts, faces, bary = closest_oriented(torch.as_tensor(q), torch.as_tensor(qn), surf, 0.0)
@@ -128,15 +133,7 @@ def test_batched_solves_with_device_searches_land_on_each_pairs_single_solve():
     0.2, 0.4 and 3.5%: the most bent box's path parts a little, as the host batch's do), the first
     loss within 2% of the single solve's, the residual within 5% (measured at most 2.5%), on both
     kernel sets (``python -m tests.portable``); an unknown search is refused."""
-    rng = np.random.default_rng(5)
-    t = box((1.0, 0.5, 0.4), divisions=(12, 6, 5))
-    tv, tf = t.vertices + rng.normal(scale=2e-3, size=t.vertices.shape), t.faces
-    sources = []
-    for i, (bend, div) in enumerate(((0.0, (12, 6, 5)), (0.1, (10, 5, 4)), (0.25, (12, 6, 5)), (0.4, (8, 4, 4)))):
-        b = box((1.0 + 0.2 * i, 0.5, 0.4), divisions=div)
-        v = b.vertices + rng.normal(scale=2e-3, size=b.vertices.shape)
-        v[:, 2] += bend * v[:, 0] ** 2
-        sources.append((v, b.faces, 10 + i))
+    (tv, tf), sources = bent_boxes()
     cfg = CageConfig(iterations=60)
     single = [correspond_parts(v, f, tv, tf, "cage", n_points=300, seed=s, cage=cfg) for v, f, s in sources]
     batch = correspond_parts_batch(sources, tv, tf, n_points=300, cage=cfg, search="device")
@@ -225,12 +222,9 @@ def test_on_cuda_the_device_searches_agree_with_the_cpu():
     """On a GPU: the template search and the Chamfer search give the CPU's answers (float64): the
     same distances (a query on an edge two faces share may name either: 0.5% of the faces differed
     on an H200, at the same distance)."""
-    v, f = _vase()
+    v, f, q, qn = _vase_queries(2000)
     index = SurfaceIndex(v, f)
     rng = np.random.default_rng(1)
-    q = v[rng.integers(0, len(v), 2000)] + rng.normal(scale=0.03, size=(2000, 3))
-    qn = rng.normal(size=(2000, 3))
-    qn /= np.linalg.norm(qn, axis=1, keepdims=True)
     cpu = closest_oriented(torch.as_tensor(q), torch.as_tensor(qn), DeviceSurface.of(index, torch.device("cpu"), torch.float64), 0.0)
     gpu = closest_oriented(torch.as_tensor(q).cuda(), torch.as_tensor(qn).cuda(), DeviceSurface.of(index, torch.device("cuda"), torch.float64), 0.0)
     np.testing.assert_allclose(np.linalg.norm(gpu[0].cpu().numpy() - q, axis=1), np.linalg.norm(cpu[0].numpy() - q, axis=1), rtol=0, atol=1e-12)

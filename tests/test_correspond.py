@@ -472,18 +472,9 @@ def test_batched_cage_solves_give_each_pair_its_single_solve():
     solve's map (within 5% of how far the pair moved: measured 0 to 1%); pairs converging early
     leave the batch; the results are in the pairs' order."""
     from proctex.correspond.dense import correspond_parts_batch
+    from tests.meshes import bent_boxes
 
-    rng = np.random.default_rng(5)
-    t = box((1.0, 0.5, 0.4), divisions=(12, 6, 5))
-    tv, tf = t.vertices + rng.normal(scale=2e-3, size=t.vertices.shape), t.faces
-    sources = []
-    for i, (bend, div) in enumerate(((0.0, (12, 6, 5)), (0.1, (10, 5, 4)), (0.25, (12, 6, 5)), (0.4, (8, 4, 4)))):
-        b = box((1.0 + 0.2 * i, 0.5, 0.4), divisions=div)
-        v = b.vertices + rng.normal(scale=2e-3, size=b.vertices.shape)
-        v[:, 2] += bend * v[:, 0] ** 2
-        sources.append((v, b.faces, 10 + i))
-    # (jittered: on exactly perpendicular faces a normal test is a tie that float rounding decides
-    # either way, in the single solve as in the batch)
+    (tv, tf), sources = bent_boxes()
     cfg = CageConfig(iterations=60)
     single = [correspond_parts(v, f, tv, tf, "cage", n_points=300, seed=s, cage=cfg) for v, f, s in sources]
     batch = correspond_parts_batch(sources, tv, tf, n_points=300, cage=cfg)
