@@ -14,7 +14,11 @@
 # DATA: the sofa export's folder (its train/ and inference/ meshes); OUT: where the figures go;
 # WORKERS: build worker processes (8); STAGES: the builds' stages (default all: the evaluation's
 # time is reported apart). Wheels the machine lacks go in ./.whl (an ignored folder): they are
-# installed into /tmp/site first.
+# installed into /tmp/site first. A CUDA image with torch, numpy, scipy, pyarrow, Pillow and
+# scikit-image lacked (2026-11, Python 3.12): trimesh, pygltflib, dataclasses-json, marshmallow,
+# typing-inspect, xatlas, libigl and embreex (`pip download --no-deps --only-binary=:all:
+# --python-version 3.12 --platform manylinux_2_28_x86_64 ... -d .whl NAME==VERSION`, the versions
+# of this checkout's environment).
 set -u
 DATA=${1:?the sofa export folder}
 OUT=${2:?an output folder}
