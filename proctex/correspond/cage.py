@@ -107,11 +107,12 @@ class CageConfig:
         chamfer: "plane" (template samples to the deformed source's tangent planes) or "point"
             (point-to-point, both directions); see the module docstring.
         device, dtype: where the optimisation runs (CUDA when asked for and present).
-        batch: shapes whose pairs the build's pairs stage solves together, template group by
-            template group, in one tensor program each
+        batch: shapes whose pairs a worker of the build's pairs stage solves together, template
+            group by template group, in one tensor program each
             (:func:`proctex.correspond.dense.correspond_parts_batch`: every step of every pair in
-            the same batched products and, on CUDA, matches searched on the GPU); 0: 2 where the
-            solver runs on CUDA, 1 (each pair alone) on the CPU.
+            the same batched products; on CUDA, matches searched on the GPU). 0: each pair alone
+            on the CPU; on CUDA, the workers prepare the pairs and the build's own process solves
+            every group's in one program on its GPU (:func:`proctex.build.pairs.solves_here`).
     """
 
     level: int = 1
