@@ -10,6 +10,11 @@ computed per pair and summed, so each pair's gradient is its own. Adam is writte
 same update as ``torch.optim.Adam``) so a pair that has converged leaves the batch: it is neither
 moved nor computed again, and its result is the one the single solver returns, to float rounding.
 
+On a GPU the matches are found there instead (``search="device"``, the default on CUDA): exact
+distances in torch to every pair's own samples (:func:`oriented_nn`) and to the template's faces
+with the nearest centroids (:func:`closest_oriented`), so a step leaves the device only for the
+pairs' figures (one read a step).
+
 Pairs whose cage lattices differ (another elongation of the box, :func:`cage_divisions`) or sample
 counts differ are solved in separate buckets; a symmetric cage (``config.symmetry``) falls back to
 the single solver per pair.
