@@ -272,6 +272,38 @@ def test_query_facing_by_the_aabb_tree_is_the_nearest_facing_face_of_a_slow_sear
     assert again._aabb is None and np.array_equal(again.query_facing(pts, nrm, k=4, majority=False, max_k=16).faces, got.faces)
 
 
+def test_facing_faces_are_the_faces_query_facing_answers():
+    """``facing_faces`` (the run time's UV lookup: faces without their closest points) names the
+    faces ``query_facing`` answers, face for face, on both backends: a bumpy sphere with normals that
+    sometimes oppose the nearest face, widening searches, a thin slab's majority reversal and its
+    refusal, zero normals; an empty query gives no faces."""
+    import trimesh
+
+    from proctex.geometry.surface import SurfaceIndex
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    rng = np.random.default_rng(3)
+    v = np.asarray(sphere.vertices) * rng.uniform(0.8, 1.2, (len(sphere.vertices), 1))
+    f = np.asarray(sphere.faces)
+    pts = rng.normal(size=(300, 3))
+    pts = pts / np.linalg.norm(pts, axis=1, keepdims=True) * rng.uniform(0.7, 1.3, (300, 1))
+    nrm = pts + rng.normal(size=(300, 3)) * 0.8
+    nrm[:20] = 0.0  # no side
+    slab = trimesh.creation.box((1.0, 1.0, 0.02)).subdivide().subdivide()
+    sp = np.column_stack([rng.uniform(-0.4, 0.4, 200), rng.uniform(-0.4, 0.4, 200), np.r_[np.full(150, 0.006), np.full(50, -0.004)]])
+    for backend in ("aabb", "proxies"):
+        idx = SurfaceIndex(v, f, backend=backend)
+        for args in ({"k": 4, "majority": False, "max_k": 16}, {"k": 1, "max_k": 1}, {}):
+            np.testing.assert_array_equal(idx.facing_faces(pts, nrm, **args), idx.query_facing(pts, nrm, **args).faces)
+        flat = SurfaceIndex(np.asarray(slab.vertices), np.asarray(slab.faces), backend=backend)
+        up = np.tile([0.0, 0.0, 1.0], (200, 1))
+        for n, majority in ((up, True), (-up, True), (-up, False)):
+            np.testing.assert_array_equal(flat.facing_faces(sp, n, majority=majority), flat.query_facing(sp, n, majority=majority).faces)
+        assert flat.facing_faces(sp[:0], up[:0]).shape == (0,)
+        with pytest.raises(ValueError, match="NaN"):
+            flat.facing_faces(sp, np.full_like(sp, np.nan))
+
+
 def test_split_by_face_parts_cuts_a_connected_mesh_along_part_boundaries():
     """One cube (one connected part) whose faces are labelled by their normal's axis: no component
     spans two labels (opposite sides share a label but not a vertex, so they stay two parts),

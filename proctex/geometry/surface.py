@@ -14,6 +14,7 @@ from __future__ import annotations
 import atexit
 import weakref
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -351,17 +352,26 @@ class SurfaceIndex:
     def _query_aabb(self, pts: np.ndarray) -> ClosestPoints:
         """Exact closest points by libigl's AABB tree: the face from the tree, the point and its
         barycentrics recomputed on that face (:func:`closest_point_on_triangles`, our convention)."""
+        self._tree()
+        if not len(pts):
+            return ClosestPoints(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+        face = self._aabb_faces(pts)
+        cp, bary = closest_point_on_triangles(pts, self._a[face], self._b[face], self._c[face])
+        return ClosestPoints(cp, face, bary, np.linalg.norm(cp - pts, axis=1))
+
+    def _tree(self) -> Any:
+        """libigl's AABB tree of this mesh, built on first use (dropped at exit and from pickles)."""
         if self._aabb is None:
             tree = _igl().AABB()
             tree.init(self.vertices, self.faces)
             self._aabb = tree
             _TREES.add(self)
-        if not len(pts):
-            return ClosestPoints(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
-        _, face, _ = self._aabb.squared_distance(self.vertices, self.faces, np.ascontiguousarray(pts))
-        face = np.asarray(face, dtype=np.int64)
-        cp, bary = closest_point_on_triangles(pts, self._a[face], self._b[face], self._c[face])
-        return ClosestPoints(cp, face, bary, np.linalg.norm(cp - pts, axis=1))
+        return self._aabb
+
+    def _aabb_faces(self, pts: np.ndarray) -> np.ndarray:
+        """(q,) int64 exact nearest face of each of ``pts (q, 3)`` (q >= 1) by libigl's AABB tree."""
+        _, face, _ = self._tree().squared_distance(self.vertices, self.faces, np.ascontiguousarray(pts))
+        return np.asarray(face, dtype=np.int64)
 
     @property
     def backend(self) -> str:
@@ -417,6 +427,24 @@ class SurfaceIndex:
         if self._backend == "aabb" and len(pts):
             return self._query_facing_aabb(pts, nrm, k, majority, max_k)
         return self._query_facing_proxies(pts, nrm, k, majority, max_k)
+
+    def facing_faces(self, points: np.ndarray, normals: np.ndarray, k: int = 8, majority: bool = True, max_k: int = 1024) -> np.ndarray:
+        """(q,) int64: the faces :meth:`query_facing` answers, without their closest points (the run
+        time's UV lookup needs only the face: with the AABB backend the tree's faces are taken as
+        they are, and only the queries it does not settle go through the proxy search)."""
+        pts, nrm = _points_and_normals(points, normals)
+        if self._backend != "aabb" or not len(pts):
+            return self._query_facing_proxies(pts, nrm, k, majority, max_k).faces
+        faces = self._aabb_faces(pts)
+        dots = np.einsum("qd,qd->q", self.normals[faces], nrm)
+        if majority and dots.sum() < 0:
+            nrm, dots = -nrm, -dots
+        rest = np.flatnonzero((dots <= 0) & (np.abs(nrm).sum(axis=1) > 0))
+        if len(rest):
+            sub = self._query_facing_proxies(pts[rest], nrm[rest], k, False, max_k).faces
+            found = np.einsum("qd,qd->q", self.normals[sub], nrm[rest]) > 0
+            faces[rest[found]] = sub[found]
+        return faces
 
     def _query_facing_aabb(self, pts: np.ndarray, nrm: np.ndarray, k: int, majority: bool, max_k: int) -> ClosestPoints:
         """:meth:`query_facing` by the AABB tree first, the proxies for the queries whose exact

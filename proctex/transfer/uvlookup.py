@@ -122,7 +122,7 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     # side comes from the part's own faces in the representative's frame (``normals``), which a
     # mapper's small errors cannot fold over; else from the mapped triangles.
     normal = np.asarray(normals, dtype=np.float64) if normals is not None else np.cross(tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
-    near = assets.index.query_facing(centroid, normal, k=UV_CANDIDATES, max_k=UV_MAX_CANDIDATES).faces
+    near = assets.index.facing_faces(centroid, normal, k=UV_CANDIDATES, max_k=UV_MAX_CANDIDATES)
     tri = assets.vertices[assets.faces[near]]
     tri_uv = assets.corner_uv[near]
     out = np.empty((len(faces), 3, 2))
