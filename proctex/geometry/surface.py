@@ -436,24 +436,27 @@ class SurfaceIndex:
         if self._backend != "aabb" or not len(pts):
             return self._query_facing_proxies(pts, nrm, k, majority, max_k).faces
         faces = self._aabb_faces(pts)
-        dots = np.einsum("qd,qd->q", self.normals[faces], nrm)
-        if majority and dots.sum() < 0:
-            nrm, dots = -nrm, -dots
-        rest = np.flatnonzero((dots <= 0) & (np.abs(nrm).sum(axis=1) > 0))
+        nrm, rest = self._not_facing(faces, nrm, majority)
         if len(rest):
             sub = self._query_facing_proxies(pts[rest], nrm[rest], k, False, max_k).faces
             found = np.einsum("qd,qd->q", self.normals[sub], nrm[rest]) > 0
             faces[rest[found]] = sub[found]
         return faces
 
+    def _not_facing(self, faces: np.ndarray, nrm: np.ndarray, majority: bool) -> tuple[np.ndarray, np.ndarray]:
+        """``(normals, rows)``: the query normals (reversed as a whole where ``majority`` and they
+        mostly oppose their ``faces (q,)``) and the rows whose face does not face them (zero normals
+        excepted): those the proxy search is asked."""
+        dots = np.einsum("qd,qd->q", self.normals[faces], nrm)
+        if majority and dots.sum() < 0:
+            nrm, dots = -nrm, -dots
+        return nrm, np.flatnonzero((dots <= 0) & (np.abs(nrm).sum(axis=1) > 0))
+
     def _query_facing_aabb(self, pts: np.ndarray, nrm: np.ndarray, k: int, majority: bool, max_k: int) -> ClosestPoints:
         """:meth:`query_facing` by the AABB tree first, the proxies for the queries whose exact
         nearest face does not face them."""
         out = self._query_aabb(pts)
-        dots = np.einsum("qd,qd->q", self.normals[out.faces], nrm)
-        if majority and dots.sum() < 0:
-            nrm, dots = -nrm, -dots
-        rest = np.flatnonzero((dots <= 0) & (np.abs(nrm).sum(axis=1) > 0))
+        nrm, rest = self._not_facing(out.faces, nrm, majority)
         if len(rest):
             sub = self._query_facing_proxies(pts[rest], nrm[rest], k, False, max_k)
             found = np.einsum("qd,qd->q", self.normals[sub.faces], nrm[rest]) > 0
