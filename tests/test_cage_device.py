@@ -64,7 +64,8 @@ def test_closest_points_on_triangles_agree_with_the_cpu_version_region_by_region
     # every region: each corner, each edge and the inside were the answer somewhere
     inside = (wb > 1e-9).all(1).sum()
     corners = [(wb[:, j] == 1).sum() for j in range(3)]
-    assert inside > 100 and min(corners) > 100
+    edges = [((wb[:, j] == 0) & ((wb > 0).sum(1) == 2)).sum() for j in range(3)]  # on the edge opposite corner j
+    assert inside > 100 and min(corners) > 100 and min(edges) > 100, (inside, corners, edges)
 
 
 def test_the_device_template_search_finds_the_nearest_admissible_face_as_the_exact_cpu_search_does():
