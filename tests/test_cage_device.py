@@ -56,6 +56,7 @@ def test_closest_points_on_triangles_agree_with_the_cpu_version_region_by_region
     p = rng.normal(scale=2.0, size=(k, 3))
     want, wb = closest_point_on_triangles(p, a, b, c)
     got, gb = closest_on_triangles(*(torch.as_tensor(x) for x in (p, a, b, c)))
+    # measured 1.3e-15 (points) and 1.6e-15 (barycentrics), natively and with AVX-512 off: bound 1e-12
     np.testing.assert_allclose(got.numpy(), want, atol=1e-12)
     # a degenerate triangle's barycentric coordinates are not unique (one in 120 took another
     # corner mix of the same point): compared on proper triangles, and as the point they give
@@ -83,14 +84,18 @@ def test_the_device_template_search_finds_the_nearest_admissible_face_as_the_exa
     assert oriented.all()
     assert (np.einsum("qd,qd->q", index.normals[faces], qn) > 0).all()  # admissible
     d_dev, d_exact = np.linalg.norm(pts - q, axis=1), np.linalg.norm(exact.points - q, axis=1)
-    assert (d_dev >= d_exact - 1e-12).all()
+    assert (d_dev >= d_exact - 1e-12).all()  # measured at least -1.3e-16, natively and with AVX-512 off
     same = np.isclose(d_dev, d_exact, rtol=0, atol=1e-12)
-    assert same.mean() >= 0.99, same.mean()
+    assert same.mean() >= 0.99, same.mean()  # measured 0.9993 (2 of 3,000) on both kernel sets
     np.testing.assert_allclose(np.einsum("kj,kjd->kd", bary, v[f[faces]]), pts, atol=1e-12)  # its barycentric coordinates
-    # a query whose every face is inadmissible (min_dot 1: none can agree) takes its plain nearest
+    # a query whose every face is inadmissible (min_dot 1: none can agree) takes the nearest of its
+    # candidate faces: never nearer than the exact nearest, and that one for 0.97 of them at least
+    # (measured 0.99: 2 of 200 had a nearer face outside the 16 nearest centroids; both kernel sets)
     plain = index.query(q[:200])
     p2, f2, _ = closest_oriented(torch.as_tensor(q[:200]), torch.as_tensor(qn[:200]), surf, 1.0)
-    assert np.isclose(np.linalg.norm(p2.numpy() - q[:200], axis=1), plain.distance, atol=1e-12).mean() >= 0.99
+    d2 = np.linalg.norm(p2.numpy() - q[:200], axis=1)
+    assert (d2 >= plain.distance - 1e-12).all()
+    assert np.isclose(d2, plain.distance, rtol=0, atol=1e-12).mean() >= 0.97
 
 
 def test_the_device_chamfer_search_is_the_kd_tree_search_of_each_pair():
@@ -123,7 +128,7 @@ def test_mean_value_coordinates_with_a_cage_per_point_are_each_cages_own():
     x = [rng.normal(scale=0.3, size=(20, 3)) for _ in range(3)]
     one = torch.cat([mean_value_coordinates(xi, ci, cf) for xi, ci in zip(x, cages)])
     per = _mvc_chunk(torch.as_tensor(np.concatenate(x)), torch.as_tensor(np.repeat(np.stack(cages), 20, axis=0)), torch.as_tensor(cf), 1e-9)
-    np.testing.assert_allclose(per.numpy(), one.numpy(), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(per.numpy(), one.numpy(), rtol=0, atol=1e-13)  # measured 0 (both kernel sets); reproduction 5e-15
     recon = np.einsum("nv,nvd->nd", per.numpy(), np.repeat(np.stack(cages), 20, axis=0))
     np.testing.assert_allclose(recon, np.concatenate(x), atol=1e-9)
 
@@ -152,7 +157,9 @@ def test_batched_solves_with_device_searches_land_on_each_pairs_single_solve():
 def test_the_pairs_stage_in_batches_of_shapes_stores_the_pairs_one_at_a_time_stores(painted_mug_root, tmp_path):
     """A mug family's pairs stage with ``cage.batch`` 3 (several shapes a batch, each group in one
     cage program) against each pair alone: the same records (status, part, iterations) and the same
-    correspondences to float rounding; a store built either way resumes under the other setting."""
+    correspondences (bit for bit here; 1e-9 allowed for the batched products' rounding). The
+    setting is how, not what: a store's config accepts another ``cage.batch`` and refuses another
+    cage weight; bad values are refused."""
     import pyarrow.parquet as pq
 
     from proctex.build.pairs import pair_batch_size, plan_pairs
@@ -176,7 +183,14 @@ def test_the_pairs_stage_in_batches_of_shapes_stores_the_pairs_one_at_a_time_sto
         r3, d3 = out[3][key]
         assert (r1["status"], r1["part"], r1["iterations"]) == (r3["status"], r3["part"], r3["iterations"]), key
         if d1 is not None:
-            np.testing.assert_allclose(d3, d1, atol=1e-5)
+            np.testing.assert_allclose(d3, d1, rtol=0, atol=1e-9)  # measured 0, natively and with AVX-512 off
+    from proctex.store.state import FamilyState
+
+    stored = stored_config(FamilyStore(painted_mug_root / "mug"))
+    state = FamilyState.load(FamilyStore(painted_mug_root / "mug"))
+    state.with_config(dataclasses.replace(stored, cage=dataclasses.replace(stored.cage, batch=5)))  # accepted: how, not what
+    with pytest.raises(ValueError, match="another config"):
+        state.with_config(dataclasses.replace(stored, cage=dataclasses.replace(stored.cage, w_rest=stored.cage.w_rest + 0.5)))
     assert CageConfig(batch=0).validate().batch == 0
     for bad in (-1, 257, 2.5, True):
         with pytest.raises(ValueError, match="batch"):
@@ -215,7 +229,7 @@ def test_pairs_prepared_in_workers_and_solved_here_are_the_pairs_one_at_a_time(p
         r2, d2 = out["here"][key]
         assert (r1["status"], r1["part"], r1["iterations"]) == (r2["status"], r2["part"], r2["iterations"]), key
         if d1 is not None:
-            np.testing.assert_allclose(d2, d1, atol=1e-5)
+            np.testing.assert_allclose(d2, d1, rtol=0, atol=1e-9)  # measured 0, natively and with AVX-512 off
 
 
 @pytest.mark.skipif(not CUDA, reason="no CUDA device (runs where the device tool lends a GPU)")
