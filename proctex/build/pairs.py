@@ -460,7 +460,7 @@ def _pairs_plan(
 
     # side by side in process from 16 pairs on (a pair takes about a second, a worker a few to start)
     if solves_here(config):
-        return _prepare_plan(store, config, log, assets, [j for b in shaped for j in b], shaped, collect, finish, last)
+        return _prepare_plan(config, log, assets, shaped, collect, finish, last)
     plan = Plan("pairs", batches, run_pair_batch, finish, collect, context=assets, parallel=True, pool_min_jobs=16, threads=1)
     last.append(plan)
     return plan
@@ -563,11 +563,13 @@ def solve_here(prepared: list[PreparedJob], config: BuildConfig, log: Callable[[
         log(f"pairs: group {g}: {len(items)} pairs solved in one program ({time.perf_counter() - t:.1f}s)")
 
 
-def _prepare_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], None], assets, todo: list[PairJob], shaped: list[list[PairJob]], collect, finish, last: list[Plan]) -> Plan:
+def _prepare_plan(config: BuildConfig, log: Callable[[str], None], assets, shaped: list[list[PairJob]], collect, finish, last: list[Plan]) -> Plan:
     """Pairs solved here (:func:`solves_here`) in three steps: the workers prepare them, one batch
     per shape (:func:`prepare_pair_batch`); this process solves every group's in one program
     (:func:`solve_here`); the workers finish and store them (:func:`finish_pair_batch`), whose plan
     collects and finishes as the one-step stage does and then runs what the stage planned next."""
+
+    by_key = {j.key: j for b in shaped for j in b}  # the job of a record that passed through (done, absent, failed)
 
     def prepared(results: list[list[Any]]) -> None:
         items = [r for batch in results for r in batch if isinstance(r, PreparedJob)]
@@ -580,7 +582,7 @@ def _prepare_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], 
                 [r for r in results if r],
                 finish_pair_batch,
                 finish,
-                lambda b, out: collect([x.job if isinstance(x, PreparedJob) else _job_of(x, todo) for x in b], out),
+                lambda b, out: collect([x.job if isinstance(x, PreparedJob) else by_key[(x["id"], x["group"])] for x in b], out),
                 context=assets,
                 parallel=True,
                 pool_min_jobs=16,
@@ -596,8 +598,3 @@ def _prepare_plan(store: FamilyStore, config: BuildConfig, log: Callable[[str], 
 
     plan = Plan("pairs", shaped, prepare_pair_batch, prepared, context=assets, parallel=True, pool_min_jobs=16, threads=1)
     return plan
-
-
-def _job_of(record: dict[str, Any], jobs: list[PairJob]) -> PairJob:
-    """The job a stored record belongs to (by shape and group)."""
-    return next(j for j in jobs if j.key == (record["id"], record["group"]))
