@@ -326,3 +326,20 @@ def test_split_by_face_parts_cuts_a_connected_mesh_along_part_boundaries():
         split_by_face_parts(f, np.zeros(3), len(v))
     with pytest.raises(ValueError, match="face indices"):
         split_by_face_parts(f, np.zeros(len(f)), 4)
+
+
+def test_row_products_are_the_bits_of_numpys_own_forms():
+    """dot3 and cross3 (the GLB's normals and tangents, the UV lookup) equal ``(a * b).sum(1)`` and
+    ``np.cross`` bit for bit, over magnitudes from 1e-12 to 1e12 and with signed zeros; a sum in
+    another order (``a2 + a1 + a0``) differs on such rows: the comparison can fail."""
+    from proctex.geometry.rowmath import cross3, dot3
+
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(20000, 3)) * 10.0 ** rng.uniform(-12, 12, (20000, 3))
+    b = rng.normal(size=(20000, 3)) * 10.0 ** rng.uniform(-12, 12, (20000, 1))
+    a[:5], b[5:10] = -0.0, 0.0
+    np.testing.assert_array_equal(dot3(a, b), (a * b).sum(1))
+    np.testing.assert_array_equal(cross3(a, b), np.cross(a, b))
+    assert cross3(a, b).dtype == np.float64 and dot3(a, b).shape == (20000,)
+    other = a[:, 2] * b[:, 2] + a[:, 1] * b[:, 1] + a[:, 0] * b[:, 0]
+    assert (other != (a * b).sum(1)).any()

@@ -1039,3 +1039,48 @@ def test_the_stages_of_parts_mapped_side_by_side_add_up_within_the_transfer(chai
     assert r.timings["map"] >= summed_pauses / 2 * 0.9
     one = transfer(shape, assets, _SlowMapper(), shortcut=False, workers=1)  # one by one: the sums are the wall time
     assert one.timings["map"] >= summed_pauses * 0.99 and sum(one.timings.values()) <= one.seconds + 1e-6
+
+
+def test_template_face_rooms_never_pass_a_face_that_reads_outside_its_chart():
+    """The run time's first coverage test (:func:`_inside_rooms` over :func:`face_rooms`): faces
+    made by moving a template triangle's UV corners (some far, into holes and across a gap) pass
+    only when the fine-sampled reference says they read only the template face's chart; it passes
+    most faces that stay near their triangle (not useless), and the one-by-one reduction over large
+    boxes agrees with the windowed one. Testing the box alone, without the corners' distance to it,
+    passes faces that leave it: the test can fail."""
+    from proctex.texture.inpaint import chart_labels
+    from proctex.transfer.uvlookup import _inside_chart, _inside_rooms, chart_lookup, face_rooms
+
+    rng = np.random.default_rng(11)
+    painted = np.ones((128, 128), bool)
+    painted[20:, 60:63] = False  # a gap: two charts
+    painted[80:90, 10:20] = False  # a hole
+    painted[40, 30] = painted[100, 100] = False
+    painted[:4], painted[:, :4] = False, False
+    charts = chart_labels(painted)
+    look = chart_lookup(charts)
+    # template triangles: a grid of UV triangles over the texture, 6 texels a side
+    g = np.linspace(0.03, 0.97, 22)
+    i, j = np.meshgrid(np.arange(21), np.arange(21), indexing="ij")
+    a = np.stack([g[i], g[j]], -1).reshape(-1, 2)
+    b = np.stack([g[i + 1], g[j]], -1).reshape(-1, 2)
+    c = np.stack([g[i], g[j + 1]], -1).reshape(-1, 2)
+    template = np.concatenate([np.stack([a, b, c], 1), np.stack([b, np.stack([g[i + 1], g[j + 1]], -1).reshape(-1, 2), c], 1)])
+    rooms = face_rooms(look, template)
+    np.testing.assert_array_equal(face_rooms(look, template, window=0).room, rooms.room)  # one by one: the same
+    assert (rooms.room >= 0).mean() > 0.5 and (rooms.room < 0).any()  # measured 0.796 (with and without AVX-512)
+    near = rng.integers(0, len(template), 3000)
+    spread = rng.choice([0.0005, 0.004, 0.02], size=(3000, 1, 1))
+    uv = np.clip(template[near] + rng.normal(0, 1, (3000, 3, 2)) * spread, 0, 1)
+    h, w = charts.shape
+    passed = _inside_rooms(uv, rooms, near, h, w)
+    truth = _reads_only_chart_reference(uv, charts, rooms.chart[near])
+    assert not (passed & ~truth).any()
+    small = spread[:, 0, 0] == 0.0005
+    assert passed[small & truth].mean() > 0.8 and (~passed & truth).any()  # measured 0.981 (with and without AVX-512)
+    # the full check passes what the rooms do not prove, where it can
+    rest = np.flatnonzero(~passed)
+    assert _inside_chart(uv[rest], look, rooms.chart[near][rest]).any()
+    # wrong: the template face's room alone, wherever the corners went
+    box_only = rooms.room[near] >= 0
+    assert (box_only & ~truth).any()

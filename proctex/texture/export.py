@@ -153,17 +153,18 @@ def _split_vertices(faces: np.ndarray, st: np.ndarray | None):
     return keys // n_st, st_split, inv.reshape(-1, 3).astype(np.uint32)
 
 
-def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, vid: np.ndarray) -> np.ndarray:
+def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, vid: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """Area-weighted unit vertex normals (s, 3) float32 for the split vertices of one primitive
     (``vid``: each split vertex's source vertex).
 
     Normals are accumulated per *source* vertex over the primitive's faces
     (:func:`proctex.texture.pbr.vertex_normals`), so texture seams do not become shading seams.
-    Vertices whose faces are all degenerate (or cancel) get +z.
+    Vertices whose faces are all degenerate (or cancel) get +z. ``normals``: the faces'
+    :func:`proctex.texture.pbr.face_normals` when the caller has them.
     """
     from .pbr import vertex_normals
 
-    return vertex_normals(vertices, faces)[vid].astype(np.float32)
+    return vertex_normals(vertices, faces, normals)[vid].astype(np.float32)
 
 
 # --------------------------------------------------------------------------- GLB
@@ -212,12 +213,13 @@ def png_bytes(image: np.ndarray | bytes) -> bytes:
     return bytes(image) if isinstance(image, (bytes, bytearray)) else encode_png(image)
 
 
-def _split_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, indices: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def _split_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, indices: np.ndarray, normals: np.ndarray, face_normals: np.ndarray | None = None) -> np.ndarray:
     """(s, 4) float32 TANGENT of each split vertex (one per (vertex, texcoord) pair, the pairs
-    :func:`proctex.texture.pbr.corner_tangents` averages over), orthogonal to its NORMAL (``normals`` (s, 3))."""
+    :func:`proctex.texture.pbr.corner_tangents` averages over), orthogonal to its NORMAL (``normals`` (s, 3));
+    ``face_normals``: the faces' :func:`proctex.texture.pbr.face_normals` when the caller has them."""
     from .pbr import key_tangents
 
-    return key_tangents(vertices, faces, corner_uv, indices.reshape(-1).astype(np.int64), normals.astype(np.float64)).astype(np.float32)
+    return key_tangents(vertices, faces, corner_uv, indices.reshape(-1).astype(np.int64), normals.astype(np.float64), face_normals).astype(np.float32)
 
 
 #: Node rotations (glTF quaternions x, y, z, w) that stand a shape with the given up axis upright in
@@ -292,15 +294,19 @@ def glb_bytes(
     }
     blob = _Blob(doc)
     primitives = []
+    from .pbr import face_normals
+
+    fn_all = face_normals(V, F)  # once for the whole shape: each primitive's normals and tangents read theirs
     for g, idx in _groups(FG, len(texs)):
         f = F[idx]
+        fn = fn_all[idx]
         st = None
         if g >= 0:
             st = np.empty((len(idx), 3, 2), np.float32)
             st[..., 0] = UV[idx, :, 0]
             st[..., 1] = 1.0 - UV[idx, :, 1]
         vid, st_split, indices = _split_vertices(f, st)
-        normals = _smooth_normals(V, f, vid)
+        normals = _smooth_normals(V, f, vid, fn)
         attrs = {"POSITION": blob.accessor(V[vid].astype(np.float32), "VEC3", ARRAY_BUFFER, minmax=True), "NORMAL": blob.accessor(normals, "VEC3", ARRAY_BUFFER)}
         pbr: dict = {"metallicFactor": 0.0, "roughnessFactor": ROUGHNESS}
         material: dict = {}
@@ -331,7 +337,7 @@ def glb_bytes(
             material["normalTexture"] = {"index": texture(material_maps.normal, mu[1], "_normal")}
             if material_maps.occlusion:
                 material["occlusionTexture"] = {"index": orm}
-            attrs["TANGENT"] = blob.accessor(_split_tangents(V, f, UV[idx], indices, normals), "VEC4", ARRAY_BUFFER)
+            attrs["TANGENT"] = blob.accessor(_split_tangents(V, f, UV[idx], indices, normals, fn), "VEC4", ARRAY_BUFFER)
         doc["materials"].append({"name": name, "pbrMetallicRoughness": pbr, "doubleSided": bool(double_sided), **material})
         primitives.append({"attributes": attrs, "material": len(doc["materials"]) - 1, "mode": 4, "indices": blob.accessor(indices.reshape(-1), "SCALAR", ELEMENT_ARRAY_BUFFER)})
     if doc["textures"]:

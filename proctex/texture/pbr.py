@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from proctex.geometry.rowmath import cross3, dot3
+
 from .uv import TexelMap, pad_seams
 
 __all__ = [
@@ -115,16 +117,22 @@ def _uv_keys(faces: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
     return key.ravel()
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m, 3) float64 unnormalised face normals (twice the area long) of ``faces (m, 3)``."""
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
+    return cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """(n, 3) float64 area-weighted smooth vertex normals over the given faces only (the GLB's
-    NORMAL); a vertex whose faces cancel, or that no face uses, gets +z."""
+    NORMAL); a vertex whose faces cancel, or that no face uses, gets +z. ``normals``: the faces'
+    :func:`face_normals` when the caller has them."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    tri = v[f]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn = face_normals(v, f) if normals is None else normals
     flat = f.reshape(-1)
     acc = np.stack([np.bincount(flat, weights=np.repeat(fn[:, k], 3), minlength=len(v)) for k in range(3)], axis=1)
-    length = np.linalg.norm(acc, axis=1)
+    length = np.sqrt(dot3(acc, acc))
     ok = length > 0
     acc[ok] /= length[ok, None]
     acc[~ok] = (0.0, 0.0, 1.0)
@@ -163,9 +171,10 @@ def corner_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarr
     return key_tangents(v, f, uv, key, key_normals)[key].reshape(m, 3, 4)
 
 
-def key_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, keys: np.ndarray, key_normals: np.ndarray) -> np.ndarray:
+def key_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, keys: np.ndarray, key_normals: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """The tangent frame ``(k, 4)`` of each (vertex, UV) pair: ``keys`` (m * 3,) gives each corner's
-    pair, ``key_normals`` (k, 3) each pair's unit normal. See :func:`corner_tangents`."""
+    pair, ``key_normals`` (k, 3) each pair's unit normal; ``normals``: the faces'
+    :func:`face_normals` when the caller has them. See :func:`corner_tangents`."""
     v, f, uv = vertices, faces, corner_uv
     tri = v[f]
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
@@ -175,24 +184,25 @@ def key_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray,
     r = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
     t = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * r[:, None]  # dP/du
     b = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * r[:, None]  # dP/dv
-    area = 0.5 * np.sqrt((np.cross(e1, e2) ** 2).sum(1))
+    fn = cross3(e1, e2) if normals is None else normals
+    area = 0.5 * np.sqrt(dot3(fn, fn))
     for a in (t, b):  # unit directions weighted by area: a stretched face must not dominate
-        length = np.sqrt((a * a).sum(1))
+        length = np.sqrt(dot3(a, a))
         a *= (area / np.where(length > 1e-30, length, 1.0))[:, None]
     n_keys = len(key_normals)
     T = np.stack([np.bincount(keys, weights=np.repeat(t[:, k], 3), minlength=n_keys) for k in range(3)], axis=1)
     B = np.stack([np.bincount(keys, weights=np.repeat(b[:, k], 3), minlength=n_keys) for k in range(3)], axis=1)
     N = key_normals
-    T -= N * (T * N).sum(1, keepdims=True)
-    length = np.sqrt((T * T).sum(1))
+    T -= N * dot3(T, N)[:, None]
+    length = np.sqrt(dot3(T, T))
     bad = length < 1e-12
     if bad.any():  # no UV extent: any direction in the tangent plane
         n = N[bad]
         helper = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
         T[bad] = helper - n * (helper * n).sum(1, keepdims=True)
-        length = np.sqrt((T * T).sum(1))
+        length = np.sqrt(dot3(T, T))
     T /= np.maximum(length, 1e-300)[:, None]
-    w = np.where((np.cross(N, T) * B).sum(1) < 0, -1.0, 1.0)
+    w = np.where(dot3(cross3(N, T), B) < 0, -1.0, 1.0)
     return np.concatenate([T, w[:, None]], axis=1)
 
 

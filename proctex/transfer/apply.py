@@ -49,7 +49,7 @@ from proctex.transfer.assets import TemplateAssets, same_topology
 from proctex.transfer.assign import PartAssignment, assign_parts, representative_part
 from proctex.transfer.budget import Budget
 from proctex.transfer.mappers import Mapper
-from proctex.transfer.uvlookup import chart_lookups, part_uvs, side_normals
+from proctex.transfer.uvlookup import chart_lookups, group_rooms, part_uvs, side_normals
 
 # ------------------------------------------------------------------------------------- transfer
 #: Bake sizes (texels per side of a shape's own atlas) and seeds a transfer takes.
@@ -137,6 +137,7 @@ def transfer(
     direct: set[int] = set()
     notes: list[str] = []
     lookups = chart_lookups(assets)  # computed once, before any part (the parts may run in threads)
+    rooms = group_rooms(assets)
     todo = [a for a in assignment if a.group >= 0]
 
     def one(a: PartAssignment) -> tuple[Any, np.ndarray, np.ndarray, bool, float, float]:
@@ -156,7 +157,7 @@ def transfer(
         if mapped.shape != vn.shape or not np.isfinite(mapped).all():
             raise ValueError(f"mapper returned {mapped.shape} (finite required) for part {a.part}, expected {vn.shape}")
         tb = time.perf_counter()
-        uv, _ = part_uvs(ga, mapped, f, None if lookups is None else lookups[a.group], normals=side_normals(vn, fo))
+        uv, _ = part_uvs(ga, mapped, f, None if lookups is None else lookups[a.group], normals=side_normals(vn, fo), rooms=None if rooms is None else rooms[a.group])
         return part, uv, mapped, False, tb - ta, time.perf_counter() - tb
 
     # Parts are independent: on a multi-core machine they run side by side (numpy and torch let go

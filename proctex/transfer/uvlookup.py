@@ -9,6 +9,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from proctex.geometry.rowmath import cross3, dot3
+
 from proctex.texture.inpaint import chart_labels
 from proctex.transfer.assets import GroupAssets, TemplateAssets
 
@@ -18,7 +20,7 @@ def _affine_frames(tri: np.ndarray) -> tuple[np.ndarray, ...]:
     corners: ``(a, e1, e2, d11, d12, d22, den)``, ``den`` inf for a degenerate triangle."""
     a = tri[:, 0]
     e1, e2 = tri[:, 1] - a, tri[:, 2] - a
-    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    d11, d12, d22 = dot3(e1, e1), dot3(e1, e2), dot3(e2, e2)
     den = d11 * d22 - d12 * d12
     return a, e1, e2, d11, d12, d22, np.where(np.abs(den) > 1e-30, den, np.inf)
 
@@ -29,7 +31,7 @@ def _affine_uv(target: np.ndarray, tri: np.ndarray | tuple, tri_uv: np.ndarray) 
     triangle's plane, not clamped)."""
     a, e1, e2, d11, d12, d22, den = tri if isinstance(tri, tuple) else _affine_frames(tri)
     d = target - a
-    p1, p2 = (d * e1).sum(1), (d * e2).sum(1)
+    p1, p2 = dot3(d, e1), dot3(d, e2)
     l1 = (d22 * p1 - d12 * p2) / den
     l2 = (d11 * p2 - d12 * p1) / den
     lam = np.stack([1 - l1 - l2, l1, l2], axis=1)
@@ -73,6 +75,23 @@ class ChartLookup:
     block_room: np.ndarray
 
 
+@dataclass(frozen=True)
+class FaceRooms:
+    """What the run time's first, cheap coverage test (:func:`_inside_rooms`) reads of one
+    template group, per template face (computed once per family version, :func:`face_rooms`).
+
+    ``chart (F,) int32``: the chart of the face's texture triangle (read at its centre, as
+    :func:`part_uvs` always read it). ``box (F, 4) float64``: the triangle's bounding box in
+    continuous texel coordinates (row min, row max, column min, column max; :func:`texel_coords`).
+    ``room (F,) int64``: the least :attr:`ChartLookup.block_room` over the first texels of every
+    bilinear lookup inside that box, or -1 when one of them reads beyond ``chart``.
+    """
+
+    chart: np.ndarray
+    box: np.ndarray
+    room: np.ndarray
+
+
 def chart_lookup(labels: np.ndarray) -> ChartLookup:
     """:class:`ChartLookup` of chart ``labels (H, W)`` (:func:`chart_labels`)."""
     from scipy import ndimage
@@ -99,7 +118,75 @@ def chart_lookups(assets: TemplateAssets) -> list[ChartLookup] | None:
     return assets.derived["lookups"]
 
 
-def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | ChartLookup | None = None, normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def group_rooms(assets: TemplateAssets) -> list[FaceRooms] | None:
+    """Per group :func:`face_rooms` of the template's faces over :func:`chart_lookups`, computed
+    once and kept on the assets (a new family version is new assets); None without painted masks."""
+    lookups = chart_lookups(assets)
+    if lookups is None:
+        return None
+    if "rooms" not in assets.derived:
+        assets.derived["rooms"] = [face_rooms(look, g.corner_uv) for look, g in zip(lookups, assets.groups)]
+    return assets.derived["rooms"]
+
+
+def face_rooms(look: ChartLookup, corner_uv: np.ndarray, window: int = 8) -> FaceRooms:
+    """:class:`FaceRooms` of a template group's faces with UVs ``corner_uv (F, 3, 2)`` over its
+    chart ``look``. Boxes spanning at most ``window`` texels a side are reduced together; larger
+    ones one by one."""
+    from proctex.texture.uv import bilinear_texels, texel_coords
+
+    uv = np.asarray(corner_uv, dtype=np.float64)
+    if uv.ndim != 3 or uv.shape[1:] != (3, 2):
+        raise ValueError(f"corner_uv must be (F, 3, 2), got {uv.shape}")
+    h, w = look.labels.shape
+    n = len(uv)
+    chart = look.labels.ravel()[bilinear_texels(uv.mean(axis=1), h, w)].max(axis=1).astype(np.int32) if n else np.zeros(0, np.int32)
+    r, c = (x.reshape(n, 3) for x in texel_coords(uv.reshape(-1, 2), h, w))
+    box = np.stack([r.min(axis=1), r.max(axis=1), c.min(axis=1), c.max(axis=1)], axis=1)
+    # the first texels of the lookups inside the box (clamped as bilinear_corner clamps)
+    lo = np.clip(np.floor(box[:, [0, 2]]), 0, [h - 1, w - 1]).astype(np.int64)
+    hi = np.clip(np.floor(box[:, [1, 3]]), 0, [h - 1, w - 1]).astype(np.int64)
+    # per texel: its room where its block is one chart, else -1 (compared with each face's chart below)
+    label = look.block_label.reshape(h, w)
+    room = np.where(label >= 0, look.block_room.reshape(h, w), -1).astype(np.int64)
+    out = np.full(n, -1, dtype=np.int64)
+    span = hi - lo + 1
+    small = np.flatnonzero((span <= window).all(axis=1))
+    if len(small):
+        k = np.arange(window)
+        rows = lo[small, 0, None] + k  # (s, window)
+        cols = lo[small, 1, None] + k
+        valid = (k < span[small, 0, None])[:, :, None] & (k < span[small, 1, None])[:, None, :]
+        ri, ci = np.minimum(rows, h - 1)[:, :, None], np.minimum(cols, w - 1)[:, None, :]
+        same = (label[ri, ci] == chart[small, None, None]) | ~valid
+        least = np.where(valid, room[ri, ci], np.iinfo(np.int64).max).min(axis=(1, 2))
+        out[small] = np.where(same.all(axis=(1, 2)), least, -1)
+    for f in np.flatnonzero(~(span <= window).all(axis=1)):
+        block = np.s_[lo[f, 0] : hi[f, 0] + 1, lo[f, 1] : hi[f, 1] + 1]
+        out[f] = room[block].min() if (label[block] == chart[f]).all() else -1
+    return FaceRooms(chart, box, out)
+
+
+def _inside_rooms(corner_uv: np.ndarray, rooms: FaceRooms, near: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(k,) bool: faces with UVs ``corner_uv (k, 3, 2)`` mapped through template faces ``near
+    (k,)`` proven to read only their template face's chart, by one test per face: each corner
+    within ``d`` texels (in each coordinate) of the template face's box, and ``ceil(d)`` at most
+    its :attr:`FaceRooms.room`. Sound: every point of the face lies within ``d`` of a point ``q`` of
+    the box (the box grown by ``d`` is convex), so its lookup's first texel is within ``ceil(d)`` of
+    ``q``'s, whose block grown by its room lies in the chart. Faces it does not prove are for
+    :func:`_inside_chart`."""
+    from proctex.texture.uv import texel_coords
+
+    k = len(corner_uv)
+    r, c = (x.reshape(k, 3) for x in texel_coords(np.asarray(corner_uv).reshape(-1, 2), height, width))
+    box = rooms.box[near]
+    d = np.maximum(np.maximum(box[:, 0:1] - r, r - box[:, 1:2]), np.maximum(box[:, 2:3] - c, c - box[:, 3:4])).max(axis=1)
+    return np.ceil(np.maximum(d, 0.0)) <= rooms.room[near]
+
+
+def part_uvs(
+    assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts: np.ndarray | ChartLookup | None = None, normals: np.ndarray | None = None, rooms: FaceRooms | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Corner UVs (k, 3, 2) of a part's faces from its mapped vertices (j, 3) (template normalised frame).
 
     Each face takes the template face nearest to its mapped centroid among those facing its way
@@ -112,7 +199,9 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
     chart; :func:`_inside_chart` proves every face inside) instead takes, per corner, the
     closest point of that template triangle: its UVs then stay in the chart (squeezed, but
     coloured). A face still reading outside the chart takes the colour at the template triangle's
-    centre (all three corners there), so real-time coverage has no unpainted pixel.
+    centre (all three corners there), so real-time coverage has no unpainted pixel. ``rooms`` (the
+    group's :func:`face_rooms`, which the run time keeps per template): most faces are proven
+    inside by one test each (:func:`_inside_rooms`), the rest by :func:`_inside_chart`.
 
     Returns (corner_uv, template face per face (k,)).
     """
@@ -135,8 +224,14 @@ def part_uvs(assets: GroupAssets, mapped: np.ndarray, faces: np.ndarray, charts:
 
         look = charts if isinstance(charts, ChartLookup) else chart_lookup(charts)
         h, w = look.labels.shape
-        target = look.labels.ravel()[bilinear_texels(tri_uv.mean(axis=1), h, w)].max(axis=1)  # the template triangle's chart
-        bad = ~_inside_chart(out, look, target)
+        if rooms is not None:  # most faces are proven by one test against their template face's room
+            target = rooms.chart[near]
+            bad = ~_inside_rooms(out, rooms, near, h, w)
+            rest = np.flatnonzero(bad)
+            bad[rest] = ~_inside_chart(out[rest], look, target[rest])
+        else:
+            target = look.labels.ravel()[bilinear_texels(tri_uv.mean(axis=1), h, w)].max(axis=1)  # the template triangle's chart
+            bad = ~_inside_chart(out, look, target)
         if bad.any():
             from proctex.geometry.surface import closest_point_on_triangles
 
@@ -157,7 +252,7 @@ def side_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(k, 3) area-weighted normals of a part's faces (``vertices (j, 3)`` in the representative's
     frame): which side of a thin wall each face is on (:func:`part_uvs`)."""
     tri = np.asarray(vertices, dtype=np.float64)[faces]
-    return np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
 
 
 @lru_cache(maxsize=64)
