@@ -116,7 +116,7 @@ def segment(shape: Shape, degenerate_eps: float = 1e-12, tiny_share: float = 1e-
         raise ValueError("cannot segment a shape with no faces")
     face_part, vertex_part, count = connected_parts(f, len(v))
     areas = triangle_areas(v, f)
-    used_pts = v[np.unique(f)]
+    used_pts = v[vertex_part >= 0]  # the vertices the faces use
     diag = float(np.linalg.norm(used_pts.max(0) - used_pts.min(0)))
     tri_eps = degenerate_eps * max(diag, 1e-300) ** 2
     part_area = np.bincount(face_part, weights=areas, minlength=count)

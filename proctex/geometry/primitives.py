@@ -20,6 +20,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from proctex.geometry.rowmath import cross3
+
 
 @dataclass
 class Part:
@@ -42,7 +44,7 @@ class Part:
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Signed volume enclosed by a closed triangle mesh (positive when normals face outward)."""
     a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
-    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+    return float(np.einsum("ij,ij->i", a, cross3(b, c)).sum() / 6.0)
 
 
 def _orient_outward(part: Part) -> Part:
@@ -262,7 +264,7 @@ def box(
     # Orient every face outward on the unwarped (convex) lattice, then check the warp kept it.
     unwarped = (canonical - 0.5) * size
     tri = unwarped[f]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n = cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     outward = np.einsum("ij,ij->i", n, tri.mean(axis=1)) > 0
     f = np.where(outward[:, None], f, f[:, ::-1])
     part = Part(local + np.asarray(center, dtype=float), f, canonical.astype(float))

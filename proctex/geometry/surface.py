@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from proctex.geometry.rowmath import cross3, dot3
 from scipy.spatial import cKDTree
 
 
@@ -53,14 +55,15 @@ def normalised_points(points: np.ndarray) -> np.ndarray:
 def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(m,) float64 areas of the triangles ``faces (m, 3)`` over ``vertices (n, 3)``."""
     tri = vertices[faces]
-    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    n = cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return 0.5 * np.sqrt(dot3(n, n))
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(m, 3) float64 unit normals (zero vectors for zero-area faces)."""
     tri = vertices[faces]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    n = cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.sqrt(dot3(n, n))[:, None]
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
