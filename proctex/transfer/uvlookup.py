@@ -68,11 +68,14 @@ class ChartLookup:
     the largest ``r`` such that the texels at offsets ``-r .. r + 1`` (rows and columns) from ``T``
     all lie in its chart: every point within ``r`` texels (in each coordinate) of a lookup whose
     first texel is ``T`` reads only that chart (0 when ``T``'s own block leaves it).
+    ``block_count (H + 1, W + 1) int32``: the summed-area table of the texels whose block lies in one
+    painted chart (``block_label > 0``): how many such blocks a box of first texels holds, in four reads.
     """
 
     labels: np.ndarray
     block_label: np.ndarray
     block_room: np.ndarray
+    block_count: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -104,7 +107,31 @@ def chart_lookup(labels: np.ndarray) -> ChartLookup:
     # over T's 2x2 block is at least r + 1.
     cheb = ndimage.distance_transform_cdt(labels > 0, metric="chessboard").astype(np.int32)
     room = np.maximum(bilinear_blocks(cheb, "min") - 1, 0)
-    return ChartLookup(labels, bilinear_blocks(labels, "same").ravel(), room.ravel())
+    same = bilinear_blocks(labels, "same")
+    count = np.zeros((labels.shape[0] + 1, labels.shape[1] + 1), dtype=np.int32)
+    count[1:, 1:] = (same > 0).astype(np.int32).cumsum(axis=0).cumsum(axis=1)
+    return ChartLookup(labels, same.ravel(), room.ravel(), count)
+
+
+def _inside_box(corner_uv: np.ndarray, look: ChartLookup, chart: np.ndarray) -> np.ndarray:
+    """(k,) bool: faces with UVs ``corner_uv (k, 3, 2)`` whose whole UV bounding box reads only chart
+    ``chart (k,)``: every 2x2 block whose first texel lies in the box (the first texel of any
+    lookup inside the face does) is one painted chart, by :attr:`ChartLookup.block_count`, and the
+    first of them is ``chart``'s. Blocks of neighbouring first texels share two texels, so uniform
+    blocks over the (connected) box are all one chart. Sound and exact for the box; a face whose box
+    reaches beyond its chart (a long diagonal face along the rim) is for the probes."""
+    from proctex.texture.uv import texel_coords
+
+    h, w = look.labels.shape
+    k = len(corner_uv)
+    r, c = (x.reshape(k, 3) for x in texel_coords(np.asarray(corner_uv).reshape(-1, 2), h, w))
+    i0 = np.clip(np.floor(r.min(axis=1)), 0, h - 1).astype(np.int64)
+    i1 = np.clip(np.floor(r.max(axis=1)), 0, h - 1).astype(np.int64) + 1
+    j0 = np.clip(np.floor(c.min(axis=1)), 0, w - 1).astype(np.int64)
+    j1 = np.clip(np.floor(c.max(axis=1)), 0, w - 1).astype(np.int64) + 1
+    sat = look.block_count
+    count = sat[i1, j1] - sat[i0, j1] - sat[i1, j0] + sat[i0, j0]
+    return (count == (i1 - i0) * (j1 - j0)) & (look.block_label[i0 * w + j0] == np.asarray(chart))
 
 
 def chart_lookups(assets: TemplateAssets) -> list[ChartLookup] | None:
@@ -284,8 +311,10 @@ def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray | ChartLookup, chart
     anywhere on the face. Sound: a face reported inside is inside; one within a texel or two of its
     chart's rim may be reported outside though every read is inside.
 
-    Every point of a triangle lies within half its longest edge ``e`` of one of its corners, edge
-    midpoints and centre. So a (sub-)triangle passes when each of those 7 probes reads its chart
+    A face whose whole UV box reads only its chart passes at once (:func:`_inside_box`; the
+    lookups built by :func:`chart_lookup` carry the count it reads). Every point of a triangle lies
+    within half its longest edge ``e`` of one of its corners, edge midpoints and centre. So a
+    (sub-)triangle passes when each of those 7 probes reads its chart
     with room ``ceil(e / 2)`` around it (:attr:`ChartLookup.block_room`), fails when a probe reads
     another chart or an unpainted texel, and is otherwise split in four, down to triangles no
     longer than ``leaf`` (<= 2) texels, which fail (within a texel of the rim: not proven). The
@@ -301,6 +330,9 @@ def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray | ChartLookup, chart
     ok = np.ones(k, dtype=bool)
     grid = np.vstack([_bary_grid(2), np.full((1, 3), 1.0 / 3.0)])  # corners, midpoints, centre
     tri, owner = np.asarray(corner_uv, dtype=np.float64), np.arange(k)
+    if look.block_count is not None and k:  # most faces: their whole box at once
+        boxed = _inside_box(tri, look, np.asarray(chart))
+        tri, owner = tri[~boxed], owner[~boxed]
     d = (tri - tri[:, [1, 2, 0]]) * np.array([w, h])
     edge = np.sqrt(np.einsum("kij,kij->ki", d, d).max(axis=1))  # texels; halved by every split
     for _ in range(int(max_level) + 1):
