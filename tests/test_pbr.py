@@ -255,6 +255,24 @@ def _glb(tex) -> bytes:
     return glb_bytes(tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, tex.uv.face_group, [g.uint8() for g in tex.groups], names=[g.label for g in tex.groups], up="z", pbr=tex.pbr)
 
 
+def test_glb_vertex_data_of_all_primitives_at_once_is_each_primitives_own(painted, monkeypatch):
+    """The GLB's split vertices, normals and tangents, computed for every primitive in one pass, are
+    the bytes of the same GLB computed primitive by primitive (the path for shapes too large for one
+    key): a textured group with maps, one without, and untextured faces (group -1)."""
+    import proctex.texture.export as ex
+
+    tex = painted["brushed brass"]
+    fg = tex.uv.face_group.copy()
+    fg[::7] = -1
+    args = (tex.shape.vertices, tex.shape.faces, tex.uv.corner_uv, fg, [g.uint8() for g in tex.groups])
+    maps = [tex.pbr[0], None]
+    together = glb_bytes(*args, up="z", pbr=maps)
+    monkeypatch.setattr(ex, "_KEY_LIMIT", 0.0)
+    apart = glb_bytes(*args, up="z", pbr=maps)
+    assert together == apart
+    assert glb_attribute(together, 0, "TANGENT").shape[1] == 4 and glb_attribute(together, 2, "NORMAL").shape[1] == 3
+
+
 def test_glb_carries_every_map_and_is_validator_clean(painted):
     for prompt, tex in painted.items():
         data = _glb(tex)

@@ -167,6 +167,70 @@ def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, vid: np.ndarray, no
     return vertex_normals(vertices, faces, normals)[vid].astype(np.float32)
 
 
+#: :func:`_primitive_arrays` combines (primitive, vertex, texcoord) into one int64 key below this.
+_KEY_LIMIT = 2.0**62
+
+
+def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list[tuple[int, np.ndarray]], tangents: list[bool]) -> list[tuple]:
+    """The vertex data of every primitive of a GLB, computed for all of them at once (a handful of
+    array passes, not a handful per primitive): per ``groups`` entry ``(g, face indices)``,
+    ``(vid (s,) int64, st (s, 2) float32 or None, indices (k, 3) uint32, normals (s, 3) float32,
+    tangents (s, 4) float32 or None)`` as :func:`_split_vertices`, :func:`_smooth_normals` and
+    :func:`_split_tangents` give them one primitive at a time, the same bits (each vertex's sums
+    take its primitive's corners in the same order); ``tangents``: per entry whether it needs them.
+    Shapes too large for one combined key are done one primitive at a time."""
+    from .pbr import face_normals, key_tangents, vertex_normals
+
+    fn_all = face_normals(V, F)
+    n, n_rows = len(V), len(groups)
+    order = np.concatenate([idx for _, idx in groups])
+    corners = F[order].reshape(-1)
+    rank = np.repeat(np.arange(n_rows), [3 * len(idx) for _, idx in groups])
+    st = np.zeros((len(order), 3, 2), np.float32)  # the untextured primitive: no texcoords (split by vertex alone)
+    textured = np.concatenate([np.full(len(idx), g >= 0) for g, idx in groups])
+    st[textured, :, 0] = UV[order[textured], :, 0]
+    st[textured, :, 1] = 1.0 - UV[order[textured], :, 1]
+    st = np.ascontiguousarray(st.reshape(-1, 2) + np.float32(0))  # -0.0 -> +0.0
+    st_keys, st_inv = np.unique(st.view(np.int64).ravel(), return_inverse=True)
+    n_st = len(st_keys)
+    if float(n_rows) * n * n_st >= _KEY_LIMIT:  # one key would overflow: primitive by primitive
+        out = []
+        for (g, idx), want in zip(groups, tangents):
+            f = F[idx]
+            s_g = None
+            if g >= 0:
+                s_g = np.empty((len(idx), 3, 2), np.float32)
+                s_g[..., 0], s_g[..., 1] = UV[idx, :, 0], 1.0 - UV[idx, :, 1]
+            vid, st_split, indices = _split_vertices(f, s_g)
+            normals = _smooth_normals(V, f, vid, fn_all[idx])
+            out.append((vid, st_split, indices, normals, _split_tangents(V, f, UV[idx], indices, normals, fn_all[idx]) if want else None))
+        return out
+    # split vertices: the unique (primitive, vertex, texcoord) triples, sorted as each primitive's own
+    keys, inv = np.unique((rank * n + corners) * n_st + st_inv.ravel(), return_inverse=True)
+    inv = inv.ravel()
+    source = keys // n_st  # primitive * n + vertex
+    vid = source % n
+    # smooth normals per (primitive, source vertex): its corners' face normals in face order
+    bin_of_split = np.concatenate([[0], np.cumsum(source[1:] != source[:-1])])
+    sums = vertex_normals(np.zeros((int(bin_of_split[-1]) + 1 if len(keys) else 0, 3)), bin_of_split[inv].reshape(-1, 3), fn_all[order])
+    normals = sums[bin_of_split].astype(np.float32)
+    starts = np.searchsorted(keys // (n * n_st), np.arange(n_rows + 1))
+    frames = None
+    if any(tangents):
+        faces_t = np.concatenate([np.full(len(idx), want) for (_, idx), want in zip(groups, tangents)])
+        rows_t = np.flatnonzero(faces_t)
+        split_t = inv.reshape(-1, 3)[rows_t]
+        frames = key_tangents(V, F[order[rows_t]], UV[order[rows_t]], split_t.reshape(-1), normals.astype(np.float64), fn_all[order[rows_t]]).astype(np.float32)
+    out, c0 = [], 0
+    for row, ((g, idx), want) in enumerate(zip(groups, tangents)):
+        a, b = starts[row], starts[row + 1]
+        indices = (inv[c0 : c0 + 3 * len(idx)] - a).reshape(-1, 3).astype(np.uint32)
+        c0 += 3 * len(idx)
+        st_split = st_keys[keys[a:b] % n_st].view(np.float32).reshape(-1, 2) if g >= 0 else None
+        out.append((vid[a:b], st_split, indices, normals[a:b], frames[a:b] if want else None))
+    return out
+
+
 # --------------------------------------------------------------------------- GLB
 
 
@@ -294,19 +358,9 @@ def glb_bytes(
     }
     blob = _Blob(doc)
     primitives = []
-    from .pbr import face_normals
-
-    fn_all = face_normals(V, F)  # once for the whole shape: each primitive's normals and tangents read theirs
-    for g, idx in _groups(FG, len(texs)):
-        f = F[idx]
-        fn = fn_all[idx]
-        st = None
-        if g >= 0:
-            st = np.empty((len(idx), 3, 2), np.float32)
-            st[..., 0] = UV[idx, :, 0]
-            st[..., 1] = 1.0 - UV[idx, :, 1]
-        vid, st_split, indices = _split_vertices(f, st)
-        normals = _smooth_normals(V, f, vid, fn)
+    groups = _groups(FG, len(texs))
+    arrays = _primitive_arrays(V, F, UV, groups, [g >= 0 and maps[g] is not None for g, _ in groups])
+    for (g, idx), (vid, st_split, indices, normals, frames) in zip(groups, arrays):
         attrs = {"POSITION": blob.accessor(V[vid].astype(np.float32), "VEC3", ARRAY_BUFFER, minmax=True), "NORMAL": blob.accessor(normals, "VEC3", ARRAY_BUFFER)}
         pbr: dict = {"metallicFactor": 0.0, "roughnessFactor": ROUGHNESS}
         material: dict = {}
@@ -337,7 +391,7 @@ def glb_bytes(
             material["normalTexture"] = {"index": texture(material_maps.normal, mu[1], "_normal")}
             if material_maps.occlusion:
                 material["occlusionTexture"] = {"index": orm}
-            attrs["TANGENT"] = blob.accessor(_split_tangents(V, f, UV[idx], indices, normals, fn), "VEC4", ARRAY_BUFFER)
+            attrs["TANGENT"] = blob.accessor(frames, "VEC4", ARRAY_BUFFER)
         doc["materials"].append({"name": name, "pbrMetallicRoughness": pbr, "doubleSided": bool(double_sided), **material})
         primitives.append({"attributes": attrs, "material": len(doc["materials"]) - 1, "mode": 4, "indices": blob.accessor(indices.reshape(-1), "SCALAR", ELEMENT_ARRAY_BUFFER)})
     if doc["textures"]:
