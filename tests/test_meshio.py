@@ -330,3 +330,36 @@ def test_obj_groups_are_parts_when_asked_and_nothing_joins_across_them():
     assert read_obj_groups("v 0 0 0\nf 1 1 1\n", 1) is None
     with pytest.raises(ValueError, match="one value per triangle"):
         client.obj_text(verts, tris, [0])
+
+
+def test_obj_groups_by_runs_answer_what_the_line_by_line_reading_answers():
+    """:func:`read_obj_groups` counts the faces between group lines in whole runs where lines end in
+    ``\\n`` or ``\\r\\n``; on files with faces before the first group, repeated and empty groups,
+    ``o`` lines, CRLF, a name with spaces, more face lines than polygons, one group only, and line
+    breaks only ``str.splitlines`` knows (the line-by-line reading then), it answers what the
+    line-by-line reading answers. A file whose group lines it missed would differ: the test can fail."""
+    from proctex.geometry.meshio import _obj_groups_by_line, _plain_breaks, read_obj_groups
+
+    def obj(*blocks: str, nl: str = "\n") -> str:
+        return nl.join(blocks) + nl
+
+    f3 = "f 1 2 3"
+    cases = [
+        obj("v 0 0 0", f3, "g seat", f3, f3, "g arm left", f3, "g seat", f3, "o empty", "g back", f3),
+        obj("g a", f3, "g b", f3, nl="\r\n"),
+        obj("o one", f3, f3),  # one group: None
+        obj("g a", f3, "g b", f3, "g c"),  # a last group with no face
+        obj("g a", f3, "g b", f3, f3),  # three face lines, two polygons asked for below
+        obj("g a", f3) + "g b\x0bf 1 2 3\n",  # a vertical tab breaks lines for splitlines only
+        "g a\rf 1 2 3\rg b\rf 1 2 3\r",  # old Mac breaks
+    ]
+    polygons = [6, 2, 2, 2, 2, 2, 2]
+    for text, n in zip(cases, polygons):
+        expected = _obj_groups_by_line(text, n)
+        got = read_obj_groups(text, n)
+        assert (got is None) == (expected is None), text
+        if expected is not None:
+            np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(read_obj_groups(cases[0], 6), [0, 1, 1, 2, 1, 3])
+    assert _plain_breaks(cases[1]) and not _plain_breaks(cases[5]) and not _plain_breaks(cases[6])
+    assert not _plain_breaks("g a\u2028f 1 2 3\n")

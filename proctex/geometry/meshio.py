@@ -25,6 +25,7 @@ import io
 import itertools
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -217,6 +218,60 @@ def read_obj_groups(data: str, n_polygons: int) -> np.ndarray | None:
     first group line are group 0's "default" group."""
     if "\ng " not in "\n" + data and "\no " not in "\n" + data:
         return None
+    if _plain_breaks(data):  # lines end in \n or \r\n: whole runs of faces at once
+        counted, groups = _obj_groups_by_runs(data, n_polygons)
+        if counted:
+            return groups
+    return _obj_groups_by_line(data, n_polygons)
+
+
+#: Line breaks other than ``\n`` and ``\r\n`` (``str.splitlines`` breaks at these too).
+_OTHER_BREAKS = re.compile("\r(?!\n)|[\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")
+
+
+def _plain_breaks(data: str) -> bool:
+    """Whether every line break of ``data`` is ``\n`` or ``\r\n`` (a scan per character kind for
+    ASCII text, the usual OBJ; :data:`_OTHER_BREAKS` otherwise)."""
+    if not data.isascii():
+        return not _OTHER_BREAKS.search(data)
+    return data.count("\r") == data.count("\r\n") and not any(c in data for c in "\x0b\x0c\x1c\x1d\x1e")
+
+
+def _group_lines(text: str) -> list[tuple[int, str]]:
+    """``(position, name)`` of every line of ``text`` (which starts with ``\n``) that starts with
+    ``g `` or ``o ``, in order; the name is the rest of the line, stripped."""
+    out = []
+    for tag in ("\ng ", "\no "):
+        at = text.find(tag)
+        while at >= 0:
+            end = text.find("\n", at + 1)
+            end = len(text) if end < 0 else end
+            out.append((at + 1, text[at + 3 : end].strip()))
+            at = text.find(tag, end)
+    return sorted(out)
+
+
+def _obj_groups_by_runs(data: str, n_polygons: int) -> tuple[bool, np.ndarray | None]:
+    """:func:`_obj_groups_by_line` for text whose lines end in ``\n`` or ``\r\n``: the faces
+    between two group lines counted in one pass each (``str.count``), not line by line. Returns
+    ``(False, None)`` when the file's face lines are not ``n_polygons`` (for the line-by-line
+    reading to answer), else ``(True, its answer)``."""
+    text = "\n" + data
+    marks = _group_lines(text)
+    bounds = [0] + [pos for pos, _ in marks] + [len(text)]
+    names = [""] + [name for _, name in marks]
+    counts = [text.count("\nf ", bounds[i], bounds[i + 1]) for i in range(len(names))]
+    if sum(counts) != n_polygons:
+        return False, None
+    ids: dict[str, int] = {}
+    runs = [ids.setdefault(name, len(ids)) for name, c in zip(names, counts) if c]
+    if len(ids) < 2:
+        return True, None
+    return True, np.repeat(np.asarray(runs, dtype=np.int64), [c for c in counts if c])
+
+
+def _obj_groups_by_line(data: str, n_polygons: int) -> np.ndarray | None:
+    """:func:`read_obj_groups` line by line (any line breaks ``str.splitlines`` knows)."""
     ids: dict[str, int] = {}
     out = np.empty(n_polygons, dtype=np.int64)
     current, k = "", 0
