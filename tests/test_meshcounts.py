@@ -156,3 +156,43 @@ def test_a_glb_whose_index_accessor_lies_is_refused_not_read_short(change, messa
     bad = _with_accessor(data, indices, **change)
     with pytest.raises(ValueError, match=f"accessor {indices} .*{message}".replace("(", r"\(").replace(")", r"\)")):
         load_mesh_bytes(bad, "m.glb")
+
+
+def test_obj_counts_by_columns_answer_what_the_line_reading_answers():
+    """The OBJ header count by array passes equals the line-by-line regex reading on random files
+    built from vertex, face (1 to 9 corners, blanks of every kind between them), comment, normal
+    and empty lines with LF or CRLF endings; files it does not take (a line starting with a blank,
+    a lone CR) are left to the line reading. A count that took ``vn`` lines for vertices, or a
+    ``\\x0b`` for a line break, would differ: the test can fail."""
+    import random
+
+    from proctex.geometry.meshcounts import _obj_counts_by_columns, _obj_counts_by_lines
+
+    rnd = random.Random(7)
+    blanks = [" ", "  ", "\t", " \t", "\x0b", "\x0c "]
+    taken = 0
+    for trial in range(300):
+        lines = []
+        for _ in range(rnd.randint(0, 40)):
+            kind = rnd.choice(["v", "f", "vn", "#", "", "o", "ff", "f\x0b"])
+            if kind == "f":
+                lines.append("f" + rnd.choice(blanks[:4]) + rnd.choice(blanks).join(str(rnd.randint(1, 9)) for _ in range(rnd.randint(1, 9))) + rnd.choice(["", " ", "\t"]))
+            elif kind == "v":
+                lines.append("v" + rnd.choice(blanks[:4]) + " ".join("0.5" for _ in range(3)))
+            else:
+                lines.append(kind + " 1 2" if kind else "")
+        if trial % 10 == 0 and lines:
+            lines[rnd.randrange(len(lines))] = " v 1 2 3"
+        text = rnd.choice(["\n", "\r\n"]).join(lines) + rnd.choice(["", "\n"])
+        if trial % 15 == 0:
+            text += "v 1 2 3\rf 1 2 3"
+        data = text.encode()
+        fast = _obj_counts_by_columns(data)
+        v, corners = _obj_counts_by_lines(data)
+        if fast is None:
+            assert " v" in text or "\r" in text.replace("\r\n", "") or not data
+            continue
+        taken += 1
+        assert fast[0] == v and list(fast[1]) == corners, text
+    assert taken > 200
+    assert _obj_counts_by_columns(b"vn 1 2 3\nv 1 2 3\nf 1\x0b2 3\n")[0] == 1

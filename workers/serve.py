@@ -29,6 +29,14 @@ from workers.http import create_app
 from workers.ingress import Answer, Forwarded, call_app, ingress_app
 
 
+#: Ray's system settings for the private Ray ``proctex serve`` starts (a cluster started elsewhere
+#: keeps its own: ``ray start --system-config``). A request and its answer travel between the front
+#: and a replica inside Ray's calls up to this size instead of through its object store: a sofa
+#: upload (220 KB in, 590 KB out) crossed a Serve handle in 11 ms, inline in 6 ms
+#: (``tests/bench/bench_serve.py`` measures the hop).
+RAY_SYSTEM_CONFIG = {"max_direct_call_object_size": 8 * 2**20}
+
+
 class TransferService:
     """One transfer replica: the catalog of families under ``root`` behind the FastAPI app, which
     answers the requests the ingress forwards (:meth:`forward`).

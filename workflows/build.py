@@ -124,14 +124,15 @@ def private_ray_env() -> dict[str, str]:
     return out
 
 
-def start_private_ray(num_cpus: int | None = None, tries: int | None = None, log: Callable[[str], None] | None = None) -> None:
+def start_private_ray(num_cpus: int | None = None, tries: int | None = None, log: Callable[[str], None] | None = None, system_config: dict[str, Any] | None = None) -> None:
     """``ray.init`` of a private local Ray (no dashboard, workers' output not copied here; loopback
     only, behind a token of its own: :func:`private_ray_env`), started
     again when its node did not come up within Ray's fixed 30 s (:data:`NODE_START_TIMEOUT`: a
     machine whose cores are busy with other work), at most ``tries`` times (default
     ``PROCTEX_RAY_START_TRIES`` or 3), saying so through ``log`` (default: stderr). The processes a
     failed start left (its GCS server, raylet, agents: this process's new descendants) are
-    stopped first. Any other failure, or the last try's, is raised as Ray raised it."""
+    stopped first. Any other failure, or the last try's, is raised as Ray raised it.
+    ``system_config``: Ray's system settings for this Ray (``ray.init``'s ``_system_config``)."""
     import signal
     import sys
 
@@ -150,7 +151,7 @@ def start_private_ray(num_cpus: int | None = None, tries: int | None = None, log
     for attempt in range(1, tries + 1):
         before = _descendants(os.getpid())
         try:
-            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, _system_config=dict(system_config) if system_config else None)
             return
         except Exception as exc:  # Ray raises a bare Exception for this one
             if NODE_START_TIMEOUT not in str(exc) or attempt == tries:

@@ -99,9 +99,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if args.address:
         ray.init(address=args.address, log_to_driver=False)
     else:
+        from workers.serve import RAY_SYSTEM_CONFIG
+
         from .build import start_private_ray
 
-        start_private_ray()
+        start_private_ray(system_config=RAY_SYSTEM_CONFIG)
     banner = f"serving {', '.join(names)} on http://{args.host}:{args.port} (OpenAPI: /docs); Ctrl-C stops"
     try:
         if args.http == "front":
