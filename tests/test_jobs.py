@@ -217,7 +217,13 @@ def test_a_private_ray_whose_node_timed_out_is_started_again_and_its_processes_s
     try:
         monkeypatch.setattr(ray, "init", fake_init(2, "timed out during startup"))
         start_private_ray(num_cpus=2, tries=3, log=said.append)
-        assert len(calls) == 3 and all(c["address"] == "local" and c["num_cpus"] == 2 for c in calls)
+        assert len(calls) == 3 and all(c["address"] == "local" and c["num_cpus"] == 2 and c["_system_config"] is None for c in calls)
+        calls.clear()
+        from workers.serve import RAY_SYSTEM_CONFIG
+
+        monkeypatch.setattr(ray, "init", fake_init(0, ""))
+        start_private_ray(system_config=RAY_SYSTEM_CONFIG)  # proctex serve's: answers inside Ray's calls
+        assert calls[-1]["_system_config"] == {"max_direct_call_object_size": 8 * 2**20}
         assert len(said) == 2 and "try 3 of 3" in said[-1] and "fixed 30 s" in said[0]
         assert all(p.wait(timeout=10) == -9 for p in left)  # killed, and only those: this process's own live on
         assert mine.poll() is None and mine.pid in _descendants(os.getpid()) and os.getpid() not in _descendants(os.getpid())
