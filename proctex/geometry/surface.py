@@ -17,9 +17,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from proctex.geometry.rowmath import cross3, dot3
-from scipy.spatial import cKDTree
 
 
 def normalised_frame(points: np.ndarray) -> tuple[np.ndarray, float]:

@@ -160,7 +160,7 @@ def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, vid: np.ndarray, no
     Normals are accumulated per *source* vertex over the primitive's faces
     (:func:`proctex.texture.pbr.vertex_normals`), so texture seams do not become shading seams.
     Vertices whose faces are all degenerate (or cancel) get +z. ``normals``: the faces'
-    :func:`proctex.texture.pbr.face_normals` when the caller has them.
+    :func:`proctex.texture.pbr.area_normals` when the caller has them.
     """
     from .pbr import vertex_normals
 
@@ -179,9 +179,9 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
     :func:`_split_tangents` give them one primitive at a time, the same bits (each vertex's sums
     take its primitive's corners in the same order); ``tangents``: per entry whether it needs them.
     Shapes too large for one combined key are done one primitive at a time."""
-    from .pbr import face_normals, key_tangents, vertex_normals
+    from .pbr import area_normals, key_tangents, vertex_normals
 
-    fn_all = face_normals(V, F)
+    fn_all = area_normals(V, F)
     n, n_rows = len(V), len(groups)
     order = np.concatenate([idx for _, idx in groups])
     corners = F[order].reshape(-1)
@@ -277,13 +277,13 @@ def png_bytes(image: np.ndarray | bytes) -> bytes:
     return bytes(image) if isinstance(image, (bytes, bytearray)) else encode_png(image)
 
 
-def _split_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, indices: np.ndarray, normals: np.ndarray, face_normals: np.ndarray | None = None) -> np.ndarray:
+def _split_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, indices: np.ndarray, normals: np.ndarray, area_normals: np.ndarray | None = None) -> np.ndarray:
     """(s, 4) float32 TANGENT of each split vertex (one per (vertex, texcoord) pair, the pairs
     :func:`proctex.texture.pbr.corner_tangents` averages over), orthogonal to its NORMAL (``normals`` (s, 3));
-    ``face_normals``: the faces' :func:`proctex.texture.pbr.face_normals` when the caller has them."""
+    ``area_normals``: the faces' :func:`proctex.texture.pbr.area_normals` when the caller has them."""
     from .pbr import key_tangents
 
-    return key_tangents(vertices, faces, corner_uv, indices.reshape(-1).astype(np.int64), normals.astype(np.float64), face_normals).astype(np.float32)
+    return key_tangents(vertices, faces, corner_uv, indices.reshape(-1).astype(np.int64), normals.astype(np.float64), area_normals).astype(np.float32)
 
 
 #: Node rotations (glTF quaternions x, y, z, w) that stand a shape with the given up axis upright in

@@ -10,7 +10,6 @@ from functools import lru_cache
 import numpy as np
 
 from proctex.geometry.rowmath import cross3, dot3
-
 from proctex.texture.inpaint import chart_labels
 from proctex.transfer.assets import GroupAssets, TemplateAssets
 
@@ -87,7 +86,8 @@ class FaceRooms:
     :func:`part_uvs` always read it). ``box (F, 4) float64``: the triangle's bounding box in
     continuous texel coordinates (row min, row max, column min, column max; :func:`texel_coords`).
     ``room (F,) int64``: the least :attr:`ChartLookup.block_room` over the first texels of every
-    bilinear lookup inside that box, or -1 when one of them reads beyond ``chart``.
+    bilinear lookup inside that box, or -1 when one of them reads beyond ``chart`` (or ``chart`` is
+    0, unpainted).
     """
 
     chart: np.ndarray
@@ -191,6 +191,7 @@ def face_rooms(look: ChartLookup, corner_uv: np.ndarray, window: int = 8) -> Fac
     for f in np.flatnonzero(~(span <= window).all(axis=1)):
         block = np.s_[lo[f, 0] : hi[f, 0] + 1, lo[f, 1] : hi[f, 1] + 1]
         out[f] = room[block].min() if (label[block] == chart[f]).all() else -1
+    out[chart <= 0] = -1  # a triangle centred on unpainted texels proves nothing
     return FaceRooms(chart, box, out)
 
 
