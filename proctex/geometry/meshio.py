@@ -216,10 +216,11 @@ def read_obj_groups(data: str, n_polygons: int) -> np.ndarray | None:
     """The OBJ group (``g`` or ``o`` line) of each of the file's ``n_polygons`` faces, as (p,) int64
     ids in order of first use, or None when the file names fewer than two groups. Faces before the
     first group line are group 0's "default" group."""
-    if "\ng " not in "\n" + data and "\no " not in "\n" + data:
+    text = "\n" + data
+    if "\ng " not in text and "\no " not in text:
         return None
     if _plain_breaks(data):  # lines end in \n or \r\n: whole runs of faces at once
-        counted, groups = _obj_groups_by_runs(data, n_polygons)
+        counted, groups = _obj_groups_by_runs(text, n_polygons)
         if counted:
             return groups
     return _obj_groups_by_line(data, n_polygons)
@@ -251,12 +252,11 @@ def _group_lines(text: str) -> list[tuple[int, str]]:
     return sorted(out)
 
 
-def _obj_groups_by_runs(data: str, n_polygons: int) -> tuple[bool, np.ndarray | None]:
-    """:func:`_obj_groups_by_line` for text whose lines end in ``\n`` or ``\r\n``: the faces
-    between two group lines counted in one pass each (``str.count``), not line by line. Returns
-    ``(False, None)`` when the file's face lines are not ``n_polygons`` (for the line-by-line
-    reading to answer), else ``(True, its answer)``."""
-    text = "\n" + data
+def _obj_groups_by_runs(text: str, n_polygons: int) -> tuple[bool, np.ndarray | None]:
+    """:func:`_obj_groups_by_line` for a file ``text`` (with a ``\n`` put before it) whose lines
+    end in ``\n`` or ``\r\n``: the faces between two group lines counted in one pass each
+    (``str.count``), not line by line. Returns ``(False, None)`` when the file's face lines are not
+    ``n_polygons`` (for the line-by-line reading to answer), else ``(True, its answer)``."""
     marks = _group_lines(text)
     bounds = [0] + [pos for pos, _ in marks] + [len(text)]
     names = [""] + [name for _, name in marks]

@@ -77,6 +77,7 @@ class FamilyService(Inputs, Texturing, Editing, LookViews):
         from proctex.serve.edits import edit_lock, read_again
         from proctex.texture.painters import SurfacePainter
         from proctex.transfer.methods import get_method, make_mapper
+        from proctex.transfer.uvlookup import group_rooms
 
         t0 = time.perf_counter()
         method = get_method(mapper)  # an unknown name fails before anything is read
@@ -98,6 +99,7 @@ class FamilyService(Inputs, Texturing, Editing, LookViews):
         cage = replace(self.config.cage, device=self.device) if self.config.cage is not None else None
         self.mapper: Any = make_mapper(mapper, self.assets, self.models, corr_points=self.config.corr_points, cage=cage)
         self.painter = SurfacePainter(self.paint.prompt, seed=self.config.seed)
+        group_rooms(self.assets)  # the UV lookup's tables of this version (~0.2 s on a sofa), made here, not in the first request
         self.load_seconds = time.perf_counter() - t0
         self.lock = threading.Lock()  # transfers share the torch models and the painter
         # Edited group textures: (group, GroupEdit) -> (uint8 texture, PNG); re-paints: (group, prompt) -> float texture.

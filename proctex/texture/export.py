@@ -194,14 +194,11 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
     st_keys, st_inv = np.unique(st.view(np.int64).ravel(), return_inverse=True)
     n_st = len(st_keys)
     if float(n_rows) * n * n_st >= _KEY_LIMIT:  # one key would overflow: primitive by primitive
-        out = []
+        out, c0 = [], 0
         for (g, idx), want in zip(groups, tangents):
             f = F[idx]
-            s_g = None
-            if g >= 0:
-                s_g = np.empty((len(idx), 3, 2), np.float32)
-                s_g[..., 0], s_g[..., 1] = UV[idx, :, 0], 1.0 - UV[idx, :, 1]
-            vid, st_split, indices = _split_vertices(f, s_g)
+            vid, st_split, indices = _split_vertices(f, st[c0 : c0 + 3 * len(idx)].reshape(-1, 3, 2) if g >= 0 else None)
+            c0 += 3 * len(idx)
             normals = _smooth_normals(V, f, vid, fn_all[idx])
             out.append((vid, st_split, indices, normals, _split_tangents(V, f, UV[idx], indices, normals, fn_all[idx]) if want else None))
         return out

@@ -113,6 +113,32 @@ def chart_lookup(labels: np.ndarray) -> ChartLookup:
     return ChartLookup(labels, same.ravel(), room.ravel(), count)
 
 
+def _texel_box(corner_uv: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(box (k, 4), lo (k, 2), hi (k, 2))`` of triangles with UVs ``corner_uv (k, 3, 2)``: the
+    bounding box in continuous texel coordinates (row min, row max, column min, column max;
+    :func:`proctex.texture.uv.texel_coords`), and the first and last of the first texels
+    (row, column; int64, clamped as :func:`proctex.texture.uv.bilinear_corner` clamps) of the
+    bilinear lookups inside it."""
+    from proctex.texture.uv import texel_coords
+
+    k = len(corner_uv)
+    r, c = (x.reshape(k, 3) for x in texel_coords(np.asarray(corner_uv, dtype=np.float64).reshape(-1, 2), height, width))
+    box = np.stack([r.min(axis=1), r.max(axis=1), c.min(axis=1), c.max(axis=1)], axis=1)
+    top = [height - 1, width - 1]
+    return box, np.clip(np.floor(box[:, [0, 2]]), 0, top).astype(np.int64), np.clip(np.floor(box[:, [1, 3]]), 0, top).astype(np.int64)
+
+
+def _triangle_chart(look: ChartLookup, tri_uv: np.ndarray) -> np.ndarray:
+    """(k,) int32: the chart a texture triangle ``tri_uv (k, 3, 2)`` belongs to, read at its centre
+    (the largest label its bilinear lookup there reads)."""
+    from proctex.texture.uv import bilinear_texels
+
+    h, w = look.labels.shape
+    if not len(tri_uv):
+        return np.zeros(0, np.int32)
+    return look.labels.ravel()[bilinear_texels(np.asarray(tri_uv).mean(axis=1), h, w)].max(axis=1).astype(np.int32)
+
+
 def _inside_box(corner_uv: np.ndarray, look: ChartLookup, chart: np.ndarray) -> np.ndarray:
     """(k,) bool: faces with UVs ``corner_uv (k, 3, 2)`` whose whole UV bounding box reads only chart
     ``chart (k,)``: every 2x2 block whose first texel lies in the box (the first texel of any
@@ -120,15 +146,9 @@ def _inside_box(corner_uv: np.ndarray, look: ChartLookup, chart: np.ndarray) -> 
     first of them is ``chart``'s. Blocks of neighbouring first texels share two texels, so uniform
     blocks over the (connected) box are all one chart. Sound and exact for the box; a face whose box
     reaches beyond its chart (a long diagonal face along the rim) is for the probes."""
-    from proctex.texture.uv import texel_coords
-
     h, w = look.labels.shape
-    k = len(corner_uv)
-    r, c = (x.reshape(k, 3) for x in texel_coords(np.asarray(corner_uv).reshape(-1, 2), h, w))
-    i0 = np.clip(np.floor(r.min(axis=1)), 0, h - 1).astype(np.int64)
-    i1 = np.clip(np.floor(r.max(axis=1)), 0, h - 1).astype(np.int64) + 1
-    j0 = np.clip(np.floor(c.min(axis=1)), 0, w - 1).astype(np.int64)
-    j1 = np.clip(np.floor(c.max(axis=1)), 0, w - 1).astype(np.int64) + 1
+    _, lo, hi = _texel_box(corner_uv, h, w)
+    (i0, j0), (i1, j1) = lo.T, (hi + 1).T
     sat = look.block_count
     count = sat[i1, j1] - sat[i0, j1] - sat[i1, j0] + sat[i0, j0]
     return (count == (i1 - i0) * (j1 - j0)) & (look.block_label[i0 * w + j0] == np.asarray(chart))
@@ -160,19 +180,13 @@ def face_rooms(look: ChartLookup, corner_uv: np.ndarray, window: int = 8) -> Fac
     """:class:`FaceRooms` of a template group's faces with UVs ``corner_uv (F, 3, 2)`` over its
     chart ``look``. Boxes spanning at most ``window`` texels a side are reduced together; larger
     ones one by one."""
-    from proctex.texture.uv import bilinear_texels, texel_coords
-
     uv = np.asarray(corner_uv, dtype=np.float64)
     if uv.ndim != 3 or uv.shape[1:] != (3, 2):
         raise ValueError(f"corner_uv must be (F, 3, 2), got {uv.shape}")
     h, w = look.labels.shape
     n = len(uv)
-    chart = look.labels.ravel()[bilinear_texels(uv.mean(axis=1), h, w)].max(axis=1).astype(np.int32) if n else np.zeros(0, np.int32)
-    r, c = (x.reshape(n, 3) for x in texel_coords(uv.reshape(-1, 2), h, w))
-    box = np.stack([r.min(axis=1), r.max(axis=1), c.min(axis=1), c.max(axis=1)], axis=1)
-    # the first texels of the lookups inside the box (clamped as bilinear_corner clamps)
-    lo = np.clip(np.floor(box[:, [0, 2]]), 0, [h - 1, w - 1]).astype(np.int64)
-    hi = np.clip(np.floor(box[:, [1, 3]]), 0, [h - 1, w - 1]).astype(np.int64)
+    chart = _triangle_chart(look, uv)
+    box, lo, hi = _texel_box(uv, h, w)
     # per texel: its room where its block is one chart, else -1 (compared with each face's chart below)
     label = look.block_label.reshape(h, w)
     room = np.where(label >= 0, look.block_room.reshape(h, w), -1).astype(np.int64)
@@ -248,8 +262,6 @@ def part_uvs(
         out[:, k] = _affine_uv(mapped[faces[:, k]], frames, tri_uv)
     out = np.clip(out, 0.0, 1.0)
     if charts is not None and len(faces):
-        from proctex.texture.uv import bilinear_texels
-
         look = charts if isinstance(charts, ChartLookup) else chart_lookup(charts)
         h, w = look.labels.shape
         if rooms is not None:  # most faces are proven by one test against their template face's room
@@ -258,7 +270,7 @@ def part_uvs(
             rest = np.flatnonzero(bad)
             bad[rest] = ~_inside_chart(out[rest], look, target[rest])
         else:
-            target = look.labels.ravel()[bilinear_texels(tri_uv.mean(axis=1), h, w)].max(axis=1)  # the template triangle's chart
+            target = _triangle_chart(look, tri_uv)  # the template triangle's chart
             bad = ~_inside_chart(out, look, target)
         if bad.any():
             from proctex.geometry.surface import closest_point_on_triangles
