@@ -525,7 +525,10 @@ class Tally:
 
 def finish(out: FamilyStore, rows: list[dict[str, Any]], space: ParamSpace | None = None) -> dict[str, Any]:
     """Write ``manifest.parquet`` (rows by index; each parameter also as a ``param.<name>`` column)
-    and return the run's summary."""
+    and return the run's summary. Every row has finished by now: a temporary still in the output is
+    a killed writer's (its row written again by the retry), and is removed."""
+    for folder in ("variants", "records", "textures"):
+        out.remove_temporaries(folder)
     rows = sorted(rows, key=lambda r: int(r["index"]))
     table = {k: [(_py(r[k])) for r in rows] for k in MANIFEST_FIELDS}
     if space is not None:

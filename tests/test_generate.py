@@ -129,6 +129,8 @@ def test_obj_output_and_a_file_uri_and_a_damaged_record_is_made_again(mug, tmp_p
         shape, _ = load_mesh(str(obj))
         assert shape.n_faces == r["faces"]
     (out / GenerateLayout.record(rows[1]["id"])).write_text("{ damaged")
+    for rel in (rows[0]["file"], GenerateLayout.record(rows[2]["id"])):  # what a writer killed before its rename leaves
+        (out / f"{rel}.tmp-0123456789ab").write_bytes(b"half a file")
     again = run_in_process(GenerateSettings(mug, uri, n=3, format="obj"), log=lambda *_: None, quiet=True)
     assert (again["written"], again["done_before"]) == (1, 2)
     assert not list(out.rglob("*.tmp-*"))

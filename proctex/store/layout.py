@@ -537,6 +537,18 @@ class FamilyStore:
             raise StoreWriteError.of(exc, final) from exc
         return final
 
+    def remove_temporaries(self, folder: str) -> int:
+        """Remove the temporaries (``*.tmp-*`` files) a writer killed between writing and renaming
+        left directly under ``folder`` (relative; missing: nothing to do). Only for a caller that
+        knows no writer of that folder is running (the end of a run that owns it). Returns how many
+        were removed; an object store, written without temporaries, has none."""
+        if not self.local:
+            return 0
+        info = self.fs.get_file_info(pafs.FileSelector(self.path(folder), allow_not_found=True))
+        stale = [i.path for i in info if i.type == pafs.FileType.File and ".tmp-" in os.path.basename(i.path)]
+        self._remove(stale)
+        return len(stale)
+
     def _remove(self, paths) -> None:
         for p in paths:
             try:
