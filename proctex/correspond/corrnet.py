@@ -49,6 +49,7 @@ from __future__ import annotations
 import math
 import os
 import pickle
+import weakref
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Sequence
@@ -532,24 +533,97 @@ def predict(
     device, dtype = _model_spec(model)
     if autocast == "auto":
         autocast = resolve_autocast(autocast, device) if dtype == torch.float32 else "none"
-    was_training = model.training
-    if was_training:  # walking every submodule costs ~0.3 ms a call: only when the mode changes
-        model.eval()
+    _resolve_autocast_for(autocast, dtype)
     out = np.empty((len(qry), 3))
-    if autocast != "none" and dtype != torch.float32:
-        raise ValueError(f"autocast {autocast!r} needs a float32 model, got {dtype}")
-    with torch.inference_mode(), _autocast(device, autocast):
-        g = model.encode(torch.as_tensor(ctx, device=device, dtype=dtype)[None])
+    with torch.inference_mode():
+        w = _inference_weights(model, autocast)
+        c = torch.as_tensor(ctx, device=device, dtype=dtype)
+        scale = c.abs().amax(dim=0, keepdim=True).clamp_min(MIN_EXTENT) if model.frame == "box" else None
+        c = c / scale if scale is not None else c
         for s in range(0, len(qry), chunk):
             rows = qry[s : s + chunk]
             n = len(rows)
             padded = np.zeros((-(-n // QUERY_BUCKET) * QUERY_BUCKET, 3), dtype=rows.dtype)
             padded[:n] = rows
-            q = torch.as_tensor(padded, device=device, dtype=dtype)[None]
-            out[s : s + n] = model.decode(q, g)[0, :n].to("cpu", torch.float64).numpy()
-    if was_training:
-        model.train(True)
+            q = torch.as_tensor(padded, device=device, dtype=dtype)
+            q = q / scale if scale is not None else q
+            if s == 0:  # the context and the first chunk through the shared point MLP in one pass
+                both = _mlp_rows(torch.cat([c, q]), w.local, last_relu=True)
+                g, local = both[: len(c)].amax(dim=0, keepdim=True), both[len(c) :]
+                g_part = F.linear(_cast(g, w), w.first_global, w.first_bias)
+            else:
+                local = _mlp_rows(q, w.local, last_relu=True)
+            h = F.linear(_cast(local, w), w.first_local) + g_part
+            y = _mlp_rows(torch.relu(h), w.decoder, last_relu=False)
+            y = y + q if model.residual else y
+            y = y * model.template_extent if model.frame == "box" else y
+            out[s : s + n] = y[:n].to("cpu", torch.float64).numpy()
     return out
+
+
+def _resolve_autocast_for(autocast: str, dtype: torch.dtype) -> None:
+    """``ValueError`` unless ``autocast`` (resolved) suits a model of ``dtype``."""
+    if autocast not in AUTOCASTS:
+        raise ValueError(f"autocast must be one of {AUTOCASTS}, got {autocast!r}")
+    if autocast != "none" and dtype != torch.float32:
+        raise ValueError(f"autocast {autocast!r} needs a float32 model, got {dtype}")
+
+
+@dataclass(frozen=True)
+class _Weights:
+    """A network's weights as :func:`predict` multiplies with them: in bfloat16, cast once, where it
+    runs under bfloat16 autocast (autocast casts every weight again in every call), else the
+    parameters themselves. ``local``/``decoder``: ``[(weight, bias)]`` of the point MLP and of the
+    decoder after its first layer; the first layer split into its local and global halves."""
+
+    key: tuple
+    compute: torch.dtype | None  # bfloat16 under autocast; None: the model's own dtype
+    local: list[tuple[torch.Tensor, torch.Tensor]]
+    first_local: torch.Tensor
+    first_global: torch.Tensor
+    first_bias: torch.Tensor
+    decoder: list[tuple[torch.Tensor, torch.Tensor]]
+
+
+_WEIGHTS: "weakref.WeakKeyDictionary[ProcCorrNet, _Weights]" = weakref.WeakKeyDictionary()
+
+
+def _inference_weights(model: ProcCorrNet, autocast: str) -> _Weights:
+    """The :class:`_Weights` of ``model`` for ``autocast``, made again only when a parameter changed
+    (each tensor's in-place version counter and storage are the key: training between predictions
+    moves them)."""
+    params = list(model.parameters())
+    key = (autocast, tuple((p.data_ptr(), p._version) for p in params))
+    have = _WEIGHTS.get(model)
+    if have is not None and have.key == key:
+        return have
+    compute = torch.bfloat16 if autocast == "bfloat16" else None
+
+    def cast(t: torch.Tensor) -> torch.Tensor:
+        t = t.detach()
+        return t.to(compute).contiguous() if compute is not None else t
+
+    def pairs(seq: nn.Sequential) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        return [(cast(m.weight), cast(m.bias)) for m in seq if isinstance(m, nn.Linear)]
+
+    first: nn.Linear = model.decoder[0]  # type: ignore[assignment]
+    F_ = model.feature_dim
+    made = _Weights(key, compute, pairs(model.local), cast(first.weight[:, :F_]), cast(first.weight[:, F_:]), cast(first.bias), pairs(model.decoder)[1:])
+    _WEIGHTS[model] = made
+    return made
+
+
+def _cast(x: torch.Tensor, w: _Weights) -> torch.Tensor:
+    return x.to(w.compute) if w.compute is not None else x
+
+
+def _mlp_rows(x: torch.Tensor, layers: list[tuple[torch.Tensor, torch.Tensor]], last_relu: bool) -> torch.Tensor:
+    """Linear layers with ReLU between them (and after the last with ``last_relu``) on rows ``x (r, d)``."""
+    for i, (weight, bias) in enumerate(layers):
+        x = F.linear(x.to(weight.dtype), weight, bias)
+        if i < len(layers) - 1 or last_relu:
+            x = torch.relu(x)
+    return x
 
 
 # ------------------------------------------------------------------------------------ persistence
