@@ -5,8 +5,9 @@ concurrency level sends requests from that many client threads: sofa meshes (mul
 the inference split) for a folder family, random parameter settings for a model family. Reports
 latency p50 / p90 / p99 and requests per second per level (saturation = the best level), as JSON,
 with where the time went per stage (the answers' Server-Timing: the proxy, the ingress, the hop to
-the replica, the route's stages) and, in the same run before Ray starts, the same requests in
-process (shape, transfer, GLB).
+the replica, the route's stages) and the same requests in process (shape, transfer, GLB): once
+before Ray starts, and again just before each run with its server idle, which that run's
+HTTP-over-in-process ratio divides by (a machine whose speed drifts moves both alike).
 
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family sofa --out out/bench_serve.json
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family chair --requests 200 --concurrency 1,2,4,8
@@ -230,10 +231,14 @@ def main(argv=None) -> int:
         for mode in modes:
             proc, base = start_server(root, args.replicas, mode, Path(args.before).resolve() if mode == "before" else ROOT)
             try:
+                # the same requests in process once more, just before this run's (its server idle):
+                # the run's HTTP-over-in-process ratio compares figures of one moment of the machine
+                here = in_process_ms(svc, payloads, args.requests, args.textures == "linked")
                 levels, size = measure(base, args.family, payloads, args.concurrency, args.requests, args.textures, args.seed + k)
             finally:
                 stop_server(proc)
-            runs.append({"http": mode, "run": k, "levels": levels, "bytes_per_answer": size})
+            runs.append({"http": mode, "run": k, "levels": levels, "bytes_per_answer": size, "in_process": here})
+            print(f"[{mode} run {k}] in process just before: median {here['p50_ms']:.1f} ms", flush=True)
             for lv in levels:
                 print(f"[{mode} run {k}] concurrency {lv['concurrency']}: p50 {lv['p50_ms']:.1f} ms, p99 {lv['p99_ms']:.0f} ms, {lv['rps']:.1f} req/s, {lv['errors']} errors", flush=True)
                 print("  stages (median ms): " + ", ".join(f"{s} {v:.1f}" for s, v in lv["stages_ms"].items()), flush=True)
@@ -248,7 +253,8 @@ def main(argv=None) -> int:
             mode: {
                 "p50_ms_at_1": [r["levels"][0]["p50_ms"] for r in runs if r["http"] == mode],
                 "rps_at_max": [r["levels"][-1]["rps"] for r in runs if r["http"] == mode],
-                "http_over_in_process_at_1": [r["levels"][0]["p50_ms"] / inproc["p50_ms"] for r in runs if r["http"] == mode],
+                "in_process_p50_ms": [r["in_process"]["p50_ms"] for r in runs if r["http"] == mode],
+                "http_over_in_process_at_1": [r["levels"][0]["p50_ms"] / r["in_process"]["p50_ms"] for r in runs if r["http"] == mode],
             }
             for mode in modes
         },
