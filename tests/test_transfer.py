@@ -679,6 +679,92 @@ def test_thin_slabs_of_other_thicknesses_match_their_group():
     assert match_box((thick - c) / np.abs(thick - c).max(), tf, assets, slot_cost=far) is None
 
 
+def test_copies_of_one_left_over_part_measure_their_box_chamfers_once(monkeypatch):
+    """Three identical treads, thicker than the template's, where the template has one: the two
+    left over are the same geometry in other places, so :func:`match_box` measures the Chamfer
+    distances for the first and reuses them for the second (the placement stays each one's own).
+    The assignment is the one measured without sharing; sharing across different geometries (one
+    memo for every part) would give the second part the first one's distances, which a shape whose
+    left-over parts differ shows."""
+    import proctex.transfer.assign as A
+    from proctex.geometry.shape import Shape
+
+    assets = _boxes_template([((1.0, 0.3, 0.02), (0, 0, 0)), ((0.05, 0.05, 1.0), (2.0, 0, 0))])  # a tread, a post
+
+    import trimesh
+
+    def shape_of(boxes):
+        """Boxes; the thick ones subdivided (no template connectivity: the box match takes them)."""
+        parts = []
+        for e, c in boxes:
+            m = trimesh.creation.box(e)
+            m = m.subdivide() if e[2] > 0.05 else m
+            m.apply_translation(c)
+            parts.append((np.asarray(m.vertices), np.asarray(m.faces)))
+        offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
+        return Shape(np.concatenate([v for v, _ in parts]), np.concatenate([f + o for (_, f), o in zip(parts, offsets)]))
+
+    measured = []
+    chamfer = A._box_chamfer
+    monkeypatch.setattr(A, "_box_chamfer", lambda *a: measured.append(1) or chamfer(*a))
+    treads = shape_of([((1.0, 0.3, 0.02), (0, 0, 0.0))] + [((1.0, 0.45, 0.07), (0, 0, z)) for z in (0.4, 0.8)] + [((0.05, 0.05, 1.0), (2.0, 0, 0.4))])
+    shared = transfer(treads, assets, IdentityMapper()).assignment
+    n_shared = len(measured)
+    measured.clear()
+    box = A.match_box
+    monkeypatch.setattr(A, "match_box", lambda *a, memo=None, **k: box(*a, **k))  # every part measured alone
+    alone = transfer(treads, assets, IdentityMapper()).assignment
+    assert [(a.part, a.group, a.how) for a in shared] == [(a.part, a.group, a.how) for a in alone]
+    for x, y in zip(shared, alone):
+        np.testing.assert_array_equal(x.R, y.R)
+        assert x.cost == y.cost
+    assert sum(a.how == "extra" for a in shared) >= 2 and 0 < n_shared <= len(measured) // 2
+    # one memo for every part: the second part (another geometry) takes the first one's distances
+    one: dict = {}
+    monkeypatch.setattr(A, "match_box", lambda *a, memo=None, **k: box(*a, memo=one, **k))
+    slab = trimesh.creation.icosphere(subdivisions=2)  # a flat ellipsoid in a thick tread's box: no box
+    slab.apply_scale((0.5, 0.225, 0.035))
+    slab.apply_translation((0, 0, 0.8))
+    base = shape_of([((1.0, 0.3, 0.02), (0, 0, 0.0)), ((1.0, 0.45, 0.07), (0, 0, 0.4)), ((0.05, 0.05, 1.0), (2.0, 0, 0.4))])
+    mixed = Shape(np.concatenate([base.vertices, slab.vertices]), np.concatenate([base.faces, np.asarray(slab.faces) + len(base.vertices)]))
+    wrong = transfer(mixed, assets, IdentityMapper()).assignment
+    monkeypatch.setattr(A, "match_box", box)
+    right = transfer(mixed, assets, IdentityMapper()).assignment
+    assert [(a.group, a.how) for a in wrong] != [(a.group, a.how) for a in right]
+
+
+def test_new_parts_paint_each_texel_once():
+    """Faces with a text of their own are painted by it and the rest by the painter's default,
+    each texel once (the colours those two calls give, no default under a text's texels)."""
+    from proctex.geometry.shape import Shape
+    from proctex.transfer.apply import paint_new_parts
+
+    v, f = _box_mesh((1.0, 0.5, 0.3), (0, 0, 0))
+    shape = Shape(v, f)
+    calls = []
+
+    class Painter:
+        def paint(self, points, normals, text=None):
+            calls.append((len(points), text))
+            base = 0.2 if text is None else 0.7
+            return np.clip(base + 0.1 * np.asarray(points)[:, :3], 0, 1)
+
+    texts = np.array([None if k % 3 else "brass" for k in range(len(f))], dtype=object)
+    uv, image = paint_new_parts(shape, np.arange(len(f)), Painter(), size=32, face_texts=texts)
+    assert {t for _, t in calls} == {None, "brass"} and len(calls) == 2
+    from proctex.texture.uv import texel_map
+
+    tm = texel_map(v, f, uv, 32)
+    assert sum(n for n, _ in calls) == len(tm.face)  # every covered texel once
+    from proctex.texture.paint import shape_frame
+
+    center, scale = shape_frame(shape)
+    brass = np.equal(texts[tm.face], "brass")
+    want = np.clip(np.where(brass[:, None], 0.7, 0.2) + 0.1 * (tm.points - center) / scale, 0, 1)
+    got = image[tm.ij[:, 0], tm.ij[:, 1]].astype(float) / 255
+    assert np.abs(got - want).max() <= 0.5 / 255 + 1e-9  # each texel the colour of its own call, rounded to 8 bits
+
+
 def _reads_only_chart_reference(uv: np.ndarray, charts: np.ndarray, chart: np.ndarray, step: float = 0.2) -> np.ndarray:
     """Slow reference of the run-time coverage check: every face sampled every ``step`` texels,
     each sample's four bilinear texels read."""

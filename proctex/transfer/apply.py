@@ -230,9 +230,14 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
     center, scale = shape_frame(shape)
     image = np.full((size, size, 3), UNPAINTED, dtype=np.float32)
     pts = (tm.points - center) / scale
-    colors = np.asarray(painter.paint(pts, tm.normals), dtype=np.float32)
-    if face_texts is not None:
+    if face_texts is None:
+        colors = np.asarray(painter.paint(pts, tm.normals), dtype=np.float32)
+    else:  # each texel painted once: by its face's text, or the painter's default where it has none
         per_texel = np.asarray(face_texts, dtype=object)[tm.face]
+        colors = np.empty((len(pts), 3), dtype=np.float32)
+        plain = np.flatnonzero(np.equal(per_texel, None))
+        if len(plain):
+            colors[plain] = painter.paint(pts[plain], tm.normals[plain])
         for text in dict.fromkeys(t for t in per_texel if t is not None):
             sel = np.flatnonzero(per_texel == text)
             colors[sel] = painter.paint(pts[sel], tm.normals[sel], text=text)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -140,6 +140,7 @@ def assign_parts(
         by_faces.setdefault(len(entry[1]).to_bytes(8, "little") + entry[2].tobytes(), []).append(entry)
     stacks: dict[bytes, np.ndarray] = {}  # ... their vertices in their normalised frames, stacked once
     fitted: dict[bytes, tuple[int, np.ndarray, np.ndarray, float]] = {}  # shape key -> match_extra's answer
+    boxed: dict[bytes, dict] = {}  # shape key -> match_box's Chamfer distances measured
     n_left = len(parts) - len(taken)
     for i, p in enumerate(parts):
         if i not in taken:
@@ -168,11 +169,11 @@ def assign_parts(
             if bent is not None:  # another of the template's copies moved vertex by vertex (a scattered set's trunks)
                 out.append(PartAssignment(p.index, bent[0], -1, bent[1], bent[3], "extra", bent[2]))
                 continue
-            box = match_box(u, f, assets, own[i], extra_cost=box_cost)
+            key = hashlib.sha1(f.tobytes() + (np.round(u, 6) + 0.0).tobytes()).digest()  # copies of one part share it
+            box = match_box(u, f, assets, own[i], extra_cost=box_cost, memo=boxed.setdefault(key, {}))
             if box is not None:  # the same primitive in other proportions (a wider tier, a longer leg)
                 out.append(PartAssignment(p.index, box.group, -1, box.A, box.score, "extra"))
                 continue
-            key = hashlib.sha1(f.tobytes() + (np.round(u, 6) + 0.0).tobytes()).digest()
             if key not in fitted:
                 fitted[key] = match_extra(u, f, assets, groups=same or None, tol=extra_tol)
             g, R, t, err = fitted[key]
@@ -308,6 +309,7 @@ def match_box(
     proportion_tol: float = 0.7,
     extra_cost: float = 1.2,
     turn_cost: float = 0.25,
+    memo: dict | None = None,
 ) -> BoxMatch | None:
     """The group a left-over part is another instance of, up to per-axis scale: a cake tier wider
     than the template's, a leg of another length, a stem of another height. Rigid ICP cannot align
@@ -335,13 +337,30 @@ def match_box(
     ``min_extent`` (normalised units: a flat part) count as that thick; thin axes are scaled like
     the others, so a thin slab matches a thin slab of another thickness. Returns ``None`` when no
     group qualifies.
+
+    ``memo``: a dict kept across calls for parts of the same geometry (within one shape: several
+    copies of a slat differ only in their placement), holding the Chamfer distances already measured
+    (the expensive part; placement is each part's own).
     """
     from itertools import permutations, product
 
     v = np.asarray(vertices, dtype=np.float64)
     hp = _half_extents(v, min_extent)
-    pts = sample_surface(v / hp, faces, n, seed=seed)[0]
-    part_index = SurfaceIndex(v / hp, np.asarray(faces))
+    memo = {} if memo is None else memo
+    part: list = []  # the part's box-scaled samples and surface, made on the first Chamfer measured
+
+    reps: dict[int, tuple] = {}  # per group its representative's box-scaled samples and surface, when first needed
+
+    def measured(ga: Any, hr: np.ndarray, key: tuple, M: np.ndarray) -> float:
+        key = (ga.group, n, seed, min_extent, *key)
+        if key not in memo:
+            if not part:
+                part.extend([sample_surface(v / hp, faces, n, seed=seed)[0], SurfaceIndex(v / hp, np.asarray(faces))])
+            if ga.group not in reps:
+                reps[ga.group] = (sample_surface(ga.vertices / hr, ga.faces, n, seed=seed)[0], SurfaceIndex(ga.vertices / hr, ga.faces))
+            memo[key] = _box_chamfer(part[0], part[1], *reps[ga.group], M)
+        return memo[key]
+
     best: BoxMatch | None = None
     for ga in assets.groups:
         if ga.degenerate:
@@ -351,15 +370,9 @@ def match_box(
         if place > extra_cost:
             continue
         hr = _half_extents(ga.vertices, min_extent)
-        rep = sample_surface(ga.vertices / hr, ga.faces, n, seed=seed)[0]
-        rep_index = SurfaceIndex(ga.vertices / hr, ga.faces)
 
-        def chamfer(M: np.ndarray) -> float:
-            """Point-to-surface both ways under ``M`` (box-scaled part -> box-scaled representative;
-            the representative's samples go back by ``M``'s inverse), 90th percentiles: a part
-            missing a piece of the other (a ring against a disc) shows."""
-            back = M if np.allclose(M @ M.T, np.eye(3)) else np.linalg.inv(M).T  # orthogonal: M^-T = M
-            return 0.5 * float(np.percentile(rep_index.query(pts @ M.T, exact=False).distance, 90) + np.percentile(part_index.query(rep @ back, exact=False).distance, 90))
+        def chamfer(M: np.ndarray, key: tuple, ga: Any = ga, hr: np.ndarray = hr) -> float:
+            return measured(ga, hr, key, M)
 
         for perm in permutations(range(3)):
             prop = float(np.abs(np.log(hp[list(perm)] / hr)).mean())
@@ -368,7 +381,7 @@ def match_box(
             for signs in product((1.0, -1.0), repeat=3):
                 P = np.zeros((3, 3))
                 P[range(3), perm] = signs  # (P b)_i = s_i b_perm(i)
-                ch = chamfer(P)
+                ch = chamfer(P, ("axes", perm, signs))
                 if ch > chamfer_tol:
                     continue
                 # Symmetric parts (a box, a cylinder) fit several ways equally well: the one
@@ -400,11 +413,20 @@ def match_box(
             prop = float(np.abs(np.log(_half_extents(v @ A.T, min_extent) / hr)).mean())
             if prop > proportion_tol:
                 continue
-            ch = chamfer(Q)
+            ch = chamfer(Q, ("slot", k))
             score = ch + prop + slot_place
             if ch <= chamfer_tol and (best is None or score < best.score):
                 best = BoxMatch(ga.group, A, ch, prop, slot_place, score)
     return best
+
+
+def _box_chamfer(pts: np.ndarray, part_index: SurfaceIndex, rep: np.ndarray, rep_index: SurfaceIndex, M: np.ndarray) -> float:
+    """:func:`match_box`'s Chamfer distance: point-to-surface both ways under ``M`` (box-scaled part
+    ``pts (n, 3)`` / ``part_index`` -> box-scaled representative ``rep (n, 3)`` / ``rep_index``; the
+    representative's samples go back by ``M``'s inverse), 90th percentiles: a part missing a piece
+    of the other (a ring against a disc) shows."""
+    back = M if np.allclose(M @ M.T, np.eye(3)) else np.linalg.inv(M).T  # orthogonal: M^-T = M
+    return 0.5 * float(np.percentile(rep_index.query(pts @ M.T, exact=False).distance, 90) + np.percentile(part_index.query(rep @ back, exact=False).distance, 90))
 
 
 def match_extra(
