@@ -661,6 +661,31 @@ def test_the_served_snapshot_is_immutable_and_an_edited_preview_bakes_its_edit(r
     assert all(np.array_equal(a, b) for a, b in zip(preview[1:], stored[1:]))
 
 
+def test_an_edited_transfer_shares_the_families_uv_tables_and_answers_as_with_its_own(root, tmp_path, monkeypatch):
+    """A per-request edit (a hue shift in the studio) textures with edited copies of the images:
+    the UV lookup's tables, made when the family loaded, are shared, not made again in the request
+    (~0.2 s on a sofa); the answer is the one tables made afresh for the edited copy give."""
+    import dataclasses
+
+    import proctex.transfer.uvlookup as U
+    from proctex.serve.service import GroupEdit
+
+    shutil.copytree(root / "mug", tmp_path / "mug")
+    svc = FamilyService(FamilyStore(tmp_path / "mug"), "mug")
+    shape = svc.shape_from_params({})
+    made = []
+    rooms = U.face_rooms
+    monkeypatch.setattr(U, "face_rooms", lambda *a, **k: made.append(1) or rooms(*a, **k))
+    edits = {0: GroupEdit(hue=120.0)}
+    shared, _ = svc.transfer(shape, edits=edits, linked=True)
+    assert not made  # loaded with the family
+    import proctex.serve.texturing as TX
+
+    monkeypatch.setattr(TX, "with_images", lambda a, t, p: dataclasses.replace(a, textures=t, pbr=p))  # a copy with no tables
+    own, _ = svc.transfer(shape, edits=edits, linked=True)
+    assert made and own == shared
+
+
 def test_edit_texture_is_what_edit_group_stores(root, tmp_path):
     """The pure texture edit and the persisted one are the same code: equal results."""
     from proctex.fileio import encode_png

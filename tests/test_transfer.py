@@ -710,6 +710,8 @@ def test_copies_of_one_left_over_part_measure_their_box_chamfers_once(monkeypatc
     treads = shape_of([((1.0, 0.3, 0.02), (0, 0, 0.0))] + [((1.0, 0.45, 0.07), (0, 0, z)) for z in (0.4, 0.8)] + [((0.05, 0.05, 1.0), (2.0, 0, 0.4))])
     shared = transfer(treads, assets, IdentityMapper()).assignment
     n_shared = len(measured)
+    again = transfer(treads, assets, IdentityMapper()).assignment  # a later request: measured before, kept with the assets
+    assert len(measured) == n_shared and [(a.group, a.cost) for a in again] == [(a.group, a.cost) for a in shared]
     measured.clear()
     box = A.match_box
     monkeypatch.setattr(A, "match_box", lambda *a, memo=None, **k: box(*a, **k))  # every part measured alone
@@ -731,6 +733,18 @@ def test_copies_of_one_left_over_part_measure_their_box_chamfers_once(monkeypatc
     monkeypatch.setattr(A, "match_box", box)
     right = transfer(mixed, assets, IdentityMapper()).assignment
     assert [(a.group, a.how) for a in wrong] != [(a.group, a.how) for a in right]
+
+
+def test_part_matches_keep_the_most_recent_geometries():
+    from proctex.transfer.assign import PartMatches
+
+    pm = PartMatches(size=2)
+    a = pm.entry(b"a")
+    a["fit"]["x"] = 1
+    pm.entry(b"b")
+    assert pm.entry(b"a") is a  # met again: the most recent now
+    pm.entry(b"c")  # drops b, the least recently met
+    assert len(pm) == 2 and pm.entry(b"a")["fit"] == {"x": 1} and pm.entry(b"b") == {"box": {}, "fit": {}}
 
 
 def test_new_parts_paint_each_texel_once():

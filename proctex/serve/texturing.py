@@ -6,11 +6,11 @@ linked answer points to instead of carrying them."""
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from typing import Any
 
 from proctex.store.layout import MAP_KINDS
 from proctex.transfer.apply import check_transfer_args, info, shape_to_glb
+from proctex.transfer.assets import with_images
 from proctex.transfer.budget import OverBudget
 
 from .inputs import BadInput, GroupEdit, NotFound
@@ -52,7 +52,7 @@ class Texturing:
             if maps is not None:
                 changed = {g: self.edited_maps(g, edit) for g, edit in edits.items() if edit.changes_maps and assets.pbr_png[g] is not None}
                 maps = maps.with_items(changed) if changed else maps
-            assets = replace(assets, textures=textures, pbr=maps)
+            assets = with_images(assets, textures, maps)  # the UV lookup's tables shared, not made again
         t_edit = time.perf_counter() - t0
         with self.lock:
             try:

@@ -93,7 +93,9 @@ class TemplateAssets:
     observed: list[np.ndarray] | None = None
     pbr: StoredMaps | None = None
     # made from the fields above when first needed (charts and run-time lookups of the painted
-    # masks, :mod:`proctex.transfer.uvlookup`); a new snapshot starts without
+    # masks, :mod:`proctex.transfer.uvlookup`; left-over part matches, :mod:`proctex.transfer.assign`);
+    # a new snapshot starts without. Nothing here depends on the images: a copy with other images
+    # of the same layout shares them (:func:`with_images`)
     derived: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -111,12 +113,21 @@ class TemplateAssets:
         return None if self.pbr is None else self.pbr.png
 
 
+def with_images(assets: TemplateAssets, textures: StoredImages, pbr: StoredMaps | None) -> TemplateAssets:
+    """``assets`` with other images of the same layout (a request's edited copies of some groups'
+    textures and maps): the geometry, the masks and what was derived from them (the UV lookup's
+    tables, left-over part matches: :attr:`TemplateAssets.derived`) shared, not made again."""
+    out = dataclasses.replace(assets, textures=textures, pbr=pbr)
+    object.__setattr__(out, "derived", assets.derived)  # frozen: set once, here
+    return out
+
+
 def with_textures(assets: TemplateAssets, textures: Sequence[np.ndarray]) -> TemplateAssets:
     """``assets`` with other (H, W, 3) uint8 group textures (encoded here, arrays and bytes together;
     e.g. a measurement's smooth colour field), everything else shared."""
     if len(textures) != len(assets.groups):
         raise ValueError(f"need one texture per group ({len(assets.groups)}), got {len(textures)}")
-    return dataclasses.replace(assets, textures=StoredImages.of_decoded([np.ascontiguousarray(t, dtype=np.uint8) for t in textures], png_bytes))
+    return with_images(assets, StoredImages.of_decoded([np.ascontiguousarray(t, dtype=np.uint8) for t in textures], png_bytes), assets.pbr)
 
 
 def texture_hw(assets: TemplateAssets, group: int) -> tuple[int, int]:

@@ -4,6 +4,7 @@ frame onto its group representative's (:func:`assign_parts`; step 2 of :mod:`pro
 from __future__ import annotations
 
 import hashlib
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -90,8 +91,10 @@ def assign_parts(
     (:func:`match_extra`, alignment error at most ``extra_tol``); otherwise it forms a group of its
     own ("new"), which :func:`proctex.transfer.apply.transfer` paints with the family's painter.
 
-    The ICP fit depends on the part's shape alone, so identical left-over parts (the same faces and
-    the same normalised vertices: copies that differ by a translation and a scale) are fitted once.
+    The box match's distances and the ICP fit depend on the part's shape alone, so identical
+    left-over parts (the same faces and the same normalised vertices: copies that differ by a
+    translation and a scale) are measured once, in this request or an earlier one
+    (:class:`PartMatches`, kept with ``assets``).
     ``budget`` (:class:`proctex.transfer.budget.Budget`) is checked before each left-over part's
     matching; past it the assignment stops with :class:`~proctex.transfer.budget.OverBudget`.
     """
@@ -139,8 +142,7 @@ def assign_parts(
     for entry in slotted:
         by_faces.setdefault(len(entry[1]).to_bytes(8, "little") + entry[2].tobytes(), []).append(entry)
     stacks: dict[bytes, np.ndarray] = {}  # ... their vertices in their normalised frames, stacked once
-    fitted: dict[bytes, tuple[int, np.ndarray, np.ndarray, float]] = {}  # shape key -> match_extra's answer
-    boxed: dict[bytes, dict] = {}  # shape key -> match_box's Chamfer distances measured
+    known = _part_matches(assets)  # what earlier left-over parts of this geometry measured (any request)
     n_left = len(parts) - len(taken)
     for i, p in enumerate(parts):
         if i not in taken:
@@ -169,19 +171,56 @@ def assign_parts(
             if bent is not None:  # another of the template's copies moved vertex by vertex (a scattered set's trunks)
                 out.append(PartAssignment(p.index, bent[0], -1, bent[1], bent[3], "extra", bent[2]))
                 continue
-            key = hashlib.sha1(f.tobytes() + (np.round(u, 6) + 0.0).tobytes()).digest()  # copies of one part share it
-            box = match_box(u, f, assets, own[i], extra_cost=box_cost, memo=boxed.setdefault(key, {}))
+            seen = known.entry(hashlib.sha1(f.tobytes() + (np.round(u, 6) + 0.0).tobytes()).digest())  # copies of one part share it
+            box = match_box(u, f, assets, own[i], extra_cost=box_cost, memo=seen["box"])
             if box is not None:  # the same primitive in other proportions (a wider tier, a longer leg)
                 out.append(PartAssignment(p.index, box.group, -1, box.A, box.score, "extra"))
                 continue
-            if key not in fitted:
-                fitted[key] = match_extra(u, f, assets, groups=same or None, tol=extra_tol)
-            g, R, t, err = fitted[key]
+            fit_key = (tuple(same), extra_tol)
+            if fit_key not in seen["fit"]:
+                seen["fit"][fit_key] = match_extra(u, f, assets, groups=same or None, tol=extra_tol)
+            g, R, t, err = seen["fit"][fit_key]
             if err <= extra_tol:
                 out.append(PartAssignment(p.index, g, -1, R, err, "extra", t))
             else:
                 out.append(PartAssignment(p.index, -1, -1, np.eye(3), err, "new"))
     return sorted(out, key=lambda a: a.part)
+
+
+class PartMatches:
+    """What :func:`assign_parts` measured for left-over parts, per part geometry (the key of a part's
+    faces and its normalised vertices to 1e-6): :func:`match_box`'s Chamfer distances and
+    :func:`match_extra`'s fits, which depend on the geometry and the template alone (placement is
+    each part's own and is not kept). Kept with the template's assets (:func:`_part_matches`), so
+    a request meeting a part geometry an earlier one met (a chair's slats, whatever their number)
+    measures nothing again; at most ``size`` geometries, the least recently met dropped first."""
+
+    def __init__(self, size: int = 512) -> None:
+        from collections import OrderedDict
+
+        self.size, self._entries, self._lock = int(size), OrderedDict(), threading.Lock()
+
+    def entry(self, key: bytes) -> dict[str, dict]:
+        """``{"box": Chamfer memo, "fit": {(groups, tol): match_extra's answer}}`` of one geometry."""
+        with self._lock:
+            if key in self._entries:
+                self._entries.move_to_end(key)
+                return self._entries[key]
+            made = self._entries[key] = {"box": {}, "fit": {}}
+            while len(self._entries) > self.size:
+                self._entries.popitem(last=False)
+            return made
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+
+def _part_matches(assets: TemplateAssets) -> PartMatches:
+    """The assets' :class:`PartMatches` (made on first use; a new snapshot of the family starts empty)."""
+    found = assets.derived.get("part_matches")
+    if found is None:
+        found = assets.derived.setdefault("part_matches", PartMatches())
+    return found
 
 
 def copy_of_sibling(part: int, vertices: np.ndarray, faces: np.ndarray, slotted: Sequence[tuple[PartAssignment, np.ndarray, np.ndarray]], tol: float = 0.02) -> PartAssignment | None:
