@@ -507,7 +507,10 @@ def predict(
     seed: int = 0,
     autocast: str = "none",
 ) -> np.ndarray:
-    """Template points for ``query_points`` of one part.
+    """Template points for ``query_points`` of one part: the modules' ``decode(query,
+    encode(context))``, computed with the weights as :func:`_inference_weights` keeps them (cast to
+    bfloat16 once under ``autocast``, as autocast would in every call) and the context and the
+    first chunk of queries through the point MLP in one pass.
 
     Args:
         context_points: (N', 3) surface samples of the part (its normalised frame); resampled to the
