@@ -171,23 +171,34 @@ def test_a_killed_driver_resumes_without_redoing_work(local_ray, reference, tmp_
     cfg_file.write_text(json.dumps(CFG))
     out = tmp_path / "mug"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "workflows.cli", "build", str(cfg_file), "--out", str(out), "--ray", "--quiet", "--stages", "sample,template,paint,pairs"],
-        cwd=ROOT,
-        env=env,
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    said = []  # what each build that ended before it could be killed said
+
+    def start() -> subprocess.Popen:
+        log = tmp_path / f"build{len(said)}.log"
+        with open(log, "wb") as sink:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "workflows.cli", "build", str(cfg_file), "--out", str(out), "--ray", "--quiet", "--stages", "sample,template,paint,pairs"],
+                cwd=ROOT,
+                env=env,
+                start_new_session=True,
+                stdout=sink,
+                stderr=subprocess.STDOUT,
+            )
+        deadline = time.time() + 240
+        while time.time() < deadline and proc.poll() is None:
+            if (out / "correspondences").exists() and len(list((out / "correspondences").glob("*.json"))) >= 3:
+                break
+            time.sleep(0.05)
+        if proc.poll() is not None:
+            said.append(f"exit {proc.poll()}: {log.read_text(errors='replace')[-1500:]}")
+        return proc
+
+    proc = start()
+    if proc.poll() is not None and proc.poll() != 0 and not (out / "correspondences").exists():
+        proc = start()  # it failed before its first pair (once seen on a loaded machine, exit 2): once more, and both logs if again
     st = FamilyStore(out)
-    deadline = time.time() + 240
     done_before: dict[str, int] = {}
-    while time.time() < deadline and proc.poll() is None:
-        recs = [p for p in (out / "correspondences").glob("*.json")] if (out / "correspondences").exists() else []
-        if len(recs) >= 3:
-            break
-        time.sleep(0.05)
-    assert proc.poll() is None, "the build finished before it could be killed"
+    assert proc.poll() is None, "the build ended before it could be killed: " + " | ".join(said)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     recs = sorted((out / "correspondences").glob("*.json"))
