@@ -245,6 +245,8 @@ def test_a_group_the_template_lacks_is_painted_without_touching_the_template():
     assert {seg.parts[a.part].label for a in new} == {"armrest"}
     G = len(assets.groups)
     assert len(r.new_textures) == 1 and r.new_textures[0].dtype == np.uint8
+    assert r.new_textures[0].shape[:2] == (128, 128)  # the family's own texture size, not finer
+    assert transfer(shape, assets, IdentityMapper(), painter=SurfacePainter("oak"), new_size=64).new_textures[0].shape[:2] == (64, 64)
     arm_faces = np.concatenate([seg.parts[a.part].faces for a in new])
     assert (r.face_group[arm_faces] == G).all()
     assert all(np.array_equal(a, b) for a, b in zip(before, assets.textures))

@@ -45,7 +45,7 @@ from proctex.texture.paint import UNPAINTED, shape_frame
 from proctex.texture.painters.partwords import new_part_texts
 from proctex.texture.pbr import PbrMaps, corner_normals, corner_tangents, decode_normal, encode_normal, flat_maps, texel_frames
 from proctex.texture.uv import bilinear_texels, pad_seams, sample_texture, texel_map, unwrap
-from proctex.transfer.assets import TemplateAssets, same_topology
+from proctex.transfer.assets import TemplateAssets, same_topology, texture_hw
 from proctex.transfer.assign import PartAssignment, assign_parts, representative_part
 from proctex.transfer.budget import Budget
 from proctex.transfer.mappers import Mapper
@@ -99,7 +99,7 @@ def transfer(
     mapper: Mapper,
     seed: int = 0,
     painter: Any = None,
-    new_size: int = 256,
+    new_size: int | None = None,
     shortcut: bool = True,
     budget: Budget | None = None,
     workers: int | None = None,
@@ -112,7 +112,8 @@ def transfer(
 
     Parts of a group the template does not have ("new") get a texture of their own, painted by
     ``painter`` (the family's surface painter; the template's textures are untouched), at
-    ``new_size``; without a painter they stay untextured (group -1) and a note says so. A painter
+    ``new_size`` texels a side (default :func:`new_texture_size`: no finer than the family's own
+    textures); without a painter they stay untextured (group -1) and a note says so. A painter
     with a ``prompt`` (the surface painter) paints each new part with what the prompt says of it,
     read on this shape (``up`` its up axis; :func:`proctex.texture.painters.partwords.new_part_texts`):
     arms the template lacked take the arms' clause, not a default.
@@ -199,7 +200,7 @@ def transfer(
             face_texts = np.concatenate([np.full(len(seg.parts[p].faces), texts.get(p), dtype=object) for p in new]) if texts else None
             for text in dict.fromkeys(texts.values()):
                 result.notes.append(f"new parts {[p for p in new if texts.get(p) == text]} painted with {text!r} (what the prompt says of them)")
-            uv, image = paint_new_parts(shape, faces, painter, new_size, face_texts)
+            uv, image = paint_new_parts(shape, faces, painter, new_texture_size(assets) if new_size is None else new_size, face_texts)
             result.corner_uv[faces] = uv
             result.face_group[faces] = len(assets.groups)
             result.new_textures.append(image)
@@ -214,6 +215,18 @@ def _parts_pool() -> ThreadPoolExecutor:
     """The process's thread pool for parts of one transfer (two workers at most: a request is a few
     parts, and replicas are what use more cores)."""
     return ThreadPoolExecutor(max_workers=max(1, min(2, os.cpu_count() or 1)), thread_name_prefix="proctex-parts")
+
+
+#: The largest texture side new parts are painted at (:func:`new_texture_size`).
+NEW_SIZE = 256
+
+
+def new_texture_size(assets: TemplateAssets) -> int:
+    """The side of the texture new parts are painted at: the family's largest group texture side, at
+    most :data:`NEW_SIZE` (a family of 128-texel textures does not paint a part it lacks at 256,
+    which costs four times the texels to rasterise and paint in the request)."""
+    sides = [max(texture_hw(assets, g)) for g in range(len(assets.groups))]
+    return int(min(NEW_SIZE, max(sides, default=NEW_SIZE)))
 
 
 def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 256, face_texts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
