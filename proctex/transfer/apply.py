@@ -229,7 +229,7 @@ def new_texture_size(assets: TemplateAssets) -> int:
     return int(min(NEW_SIZE, max(sides, default=NEW_SIZE)))
 
 
-def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 256, face_texts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = NEW_SIZE, face_texts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Atlas and texture for faces of parts no template group fits, painted by a surface painter.
 
     Points go to the painter in the shape's normalised frame, as when the template was painted.
@@ -246,14 +246,14 @@ def paint_new_parts(shape: Shape, faces: np.ndarray, painter: Any, size: int = 2
     if face_texts is None:
         colors = np.asarray(painter.paint(pts, tm.normals), dtype=np.float32)
     else:  # each texel painted once: by its face's text, or the painter's default where it has none
-        per_texel = np.asarray(face_texts, dtype=object)[tm.face]
+        texts = list(dict.fromkeys(t for t in face_texts if t is not None))
+        number = {t: k for k, t in enumerate(texts)}
+        per_texel = np.array([-1 if t is None else number[t] for t in face_texts], dtype=np.int64)[tm.face]  # -1: no text
         colors = np.empty((len(pts), 3), dtype=np.float32)
-        plain = np.flatnonzero(np.equal(per_texel, None))
-        if len(plain):
-            colors[plain] = painter.paint(pts[plain], tm.normals[plain])
-        for text in dict.fromkeys(t for t in per_texel if t is not None):
-            sel = np.flatnonzero(per_texel == text)
-            colors[sel] = painter.paint(pts[sel], tm.normals[sel], text=text)
+        for k, text in [(-1, None)] + list(enumerate(texts)):
+            sel = np.flatnonzero(per_texel == k)
+            if len(sel):
+                colors[sel] = painter.paint(pts[sel], tm.normals[sel], text=text) if text is not None else painter.paint(pts[sel], tm.normals[sel])
     image[tm.ij[:, 0], tm.ij[:, 1]] = colors
     image, _ = pad_seams(image, tm.mask, 4)
     return atlas.corner_uv, (np.clip(image, 0, 1) * 255).round().astype(np.uint8)
