@@ -553,10 +553,10 @@ def predict(
             if s == 0:  # the context and the first chunk through the shared point MLP in one pass
                 both = _mlp_rows(torch.cat([c, q]), w.local, last_relu=True)
                 g, local = both[: len(c)].amax(dim=0, keepdim=True), both[len(c) :]
-                g_part = F.linear(_cast(g, w), w.first_global, w.first_bias)
+                g_part = F.linear(g, w.first_global, w.first_bias)  # g, local: already in the weights' dtype
             else:
                 local = _mlp_rows(q, w.local, last_relu=True)
-            h = F.linear(_cast(local, w), w.first_local) + g_part
+            h = F.linear(local, w.first_local) + g_part
             y = _mlp_rows(torch.relu(h), w.decoder, last_relu=False)
             y = y + q if model.residual else y
             y = y * model.template_extent if model.frame == "box" else y
@@ -580,7 +580,6 @@ class _Weights:
     decoder after its first layer; the first layer split into its local and global halves."""
 
     key: tuple
-    compute: torch.dtype | None  # bfloat16 under autocast; None: the model's own dtype
     local: list[tuple[torch.Tensor, torch.Tensor]]
     first_local: torch.Tensor
     first_global: torch.Tensor
@@ -611,13 +610,9 @@ def _inference_weights(model: ProcCorrNet, autocast: str) -> _Weights:
 
     first: nn.Linear = model.decoder[0]  # type: ignore[assignment]
     F_ = model.feature_dim
-    made = _Weights(key, compute, pairs(model.local), cast(first.weight[:, :F_]), cast(first.weight[:, F_:]), cast(first.bias), pairs(model.decoder)[1:])
+    made = _Weights(key, pairs(model.local), cast(first.weight[:, :F_]), cast(first.weight[:, F_:]), cast(first.bias), pairs(model.decoder)[1:])
     _WEIGHTS[model] = made
     return made
-
-
-def _cast(x: torch.Tensor, w: _Weights) -> torch.Tensor:
-    return x.to(w.compute) if w.compute is not None else x
 
 
 def _mlp_rows(x: torch.Tensor, layers: list[tuple[torch.Tensor, torch.Tensor]], last_relu: bool) -> torch.Tensor:
