@@ -73,14 +73,17 @@ def test_surface_index_backends_and_bad_meshes(monkeypatch):
     import proctex.geometry.surface as surface
 
     shape = get_model("vase").generate()
-    assert SurfaceIndex(shape.vertices, shape.faces).backend == "aabb"  # libigl is a dependency
+    assert SurfaceIndex(shape.vertices, shape.faces).backend == "aabb"  # numba and libigl are dependencies
     q = shape.vertices[:50] + 0.01
+    with_bvh = SurfaceIndex(shape.vertices, shape.faces).query(q)
+    monkeypatch.setattr(surface, "_BVH", [None])  # where numba does not import: libigl's tree
     with_igl = SurfaceIndex(shape.vertices, shape.faces).query(q)
-    monkeypatch.setattr(surface, "_IGL", [None])  # where libigl does not import (Blender's Python, say)
+    np.testing.assert_allclose(with_igl.distance, with_bvh.distance, atol=1e-12)
+    monkeypatch.setattr(surface, "_IGL", [None])  # and libigl neither (Blender's Python, say)
     index = SurfaceIndex(shape.vertices, shape.faces)
     assert index.backend == "proxies"
-    np.testing.assert_allclose(index.query(q).distance, with_igl.distance, atol=1e-12)
-    with pytest.raises(ImportError, match="libigl"):
+    np.testing.assert_allclose(index.query(q).distance, with_bvh.distance, atol=1e-12)
+    with pytest.raises(ImportError, match="numba or libigl"):
         SurfaceIndex(shape.vertices, shape.faces, backend="aabb")
     monkeypatch.undo()
     with pytest.raises(ValueError, match="backend"):

@@ -601,3 +601,56 @@ def test_http_serves_the_maps_and_refuses_bad_material_edits(painted_mug_root, t
     assert ok.status_code == 200
     orm = glb_material_images(ok.content)[0]["orm"]
     assert orm[..., 2].mean() > 250
+
+
+def _messy_mesh(seed: int = 0):
+    """A sphere's faces plus degenerate ones (a point, a line), a face with no UV extent, a face
+    used twice and vertices no face uses; corner UVs with seams (per-face jitter)."""
+    import trimesh
+
+    rng = np.random.default_rng(seed)
+    s = trimesh.creation.icosphere(subdivisions=2)
+    v = np.concatenate([np.asarray(s.vertices) * rng.uniform(0.8, 1.2, (len(s.vertices), 1)), rng.normal(size=(5, 3))])
+    f = np.concatenate([np.asarray(s.faces), [[0, 0, 0], [0, 1, 1], [2, 3, 4], [2, 3, 4]]])
+    uv = rng.uniform(0, 1, (len(f), 3, 2))
+    uv[-2] = 0.5  # no UV extent
+    return v, f, uv
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("given_normals", [False, True])
+def test_compiled_vertex_data_is_the_array_forms_bit_for_bit(seed, given_normals):
+    """The GLB's normals and tangents (:mod:`proctex.texture.vertex_kernels`) against their array
+    forms, bit for bit, on a messy mesh: corner keys by (vertex, UV) pair and by vertex alone."""
+    from proctex.texture.pbr import area_normals, area_normals_arrays, key_tangents, key_tangents_arrays, vertex_normals, vertex_normals_arrays
+
+    v, f, uv = _messy_mesh(seed)
+    fn = area_normals_arrays(v, f)
+    assert np.array_equal(area_normals(v, f).view(np.int64), fn.view(np.int64))
+    given = fn if given_normals else None
+    vn = vertex_normals_arrays(v, f, given)
+    assert np.array_equal(vertex_normals(v, f, given).view(np.int64), vn.view(np.int64))
+    for keys in (np.unique(f.reshape(-1) * 10_000 + np.arange(f.size) // 3 % 7, return_inverse=True)[1].ravel(), f.reshape(-1)):
+        key_normals = np.zeros((int(keys.max()) + 1, 3))
+        key_normals[keys] = vn[f.reshape(-1)]
+        want = key_tangents_arrays(v, f, uv, keys, key_normals, given)
+        got = key_tangents(v, f, uv, keys, key_normals, given)
+        assert got.shape == want.shape and np.array_equal(got.view(np.int64), want.view(np.int64))
+
+
+def test_compiled_vertex_data_refuses_bad_input():
+    from proctex.texture import vertex_kernels as vk
+
+    v, f, uv = _messy_mesh()
+    keys = f.reshape(-1)
+    kn = np.zeros((len(v), 3))
+    with pytest.raises(ValueError, match="faces index"):
+        vk.area_normals(v, f + len(v))
+    with pytest.raises(ValueError, match="normals"):
+        vk.vertex_normals(v, f, np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="corner_uv"):
+        vk.key_tangents(v, f, uv[:, :2], keys, kn)
+    with pytest.raises(ValueError, match="keys"):
+        vk.key_tangents(v, f, uv, keys[:-1], kn)
+    with pytest.raises(ValueError, match="index"):
+        vk.key_tangents(v, f, uv, keys, kn[:3])

@@ -125,7 +125,9 @@ def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
 
     Returns:
         ``(closest (k, 3), barycentric (k, 3))``; degenerate triangles are handled (their closest
-        point lies on an edge or corner).
+        point lies on an edge or corner): an edge of zero length is no region of its own, and a
+        triangle that matches no region takes its nearest corner (the compiled form,
+        :func:`proctex.geometry.bvh.point_triangle_d2`, takes the same regions).
     """
     ab, ac, ap = b - a, c - a, p - a
     d1 = np.einsum("ij,ij->i", ab, ap)
@@ -155,11 +157,13 @@ def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
         (d1 <= 0) & (d2 <= 0),
         (d3 >= 0) & (d4 <= d3),
         (d6 >= 0) & (d5 <= d6),
-        (vc <= 0) & (d1 >= 0) & (d3 <= 0),
-        (vb <= 0) & (d2 >= 0) & (d6 <= 0),
-        (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0),
+        (vc <= 0) & (d1 >= 0) & (d3 <= 0) & (d1 - d3 != 0),
+        (vb <= 0) & (d2 >= 0) & (d6 <= 0) & (d2 - d6 != 0),
+        (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0) & (denom_bc != 0),
         ok,
     ]
+    da, db, dc = (np.einsum("ij,ij->i", x, x) for x in (ap, bp, cp))
+    corner_a, corner_b = (da <= db) & (da <= dc), db <= dc  # no region (all corners on one point or line): the nearest corner
     choices = [
         (ones, zeros, zeros),
         (zeros, ones, zeros),
@@ -169,7 +173,8 @@ def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
         (zeros, 1 - w_bc, w_bc),
         (1 - vv - ww, vv, ww),
     ]
-    bary = np.stack([np.select(conditions, [c[j] for c in choices], default=(1.0 if j == 0 else 0.0)) for j in range(3)], axis=1)
+    nearest = (corner_a.astype(float), (~corner_a & corner_b).astype(float), (~corner_a & ~corner_b).astype(float))
+    bary = np.stack([np.select(conditions, [c[j] for c in choices], default=nearest[j]) for j in range(3)], axis=1)
     closest = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
     return closest, bary
 
@@ -236,6 +241,20 @@ def _igl():
     return _IGL[0]
 
 
+_BVH: list = []
+
+
+def _bvh():
+    """The :mod:`proctex.geometry.bvh` module, or None where numba does not import."""
+    if not _BVH:
+        try:
+            from proctex.geometry import bvh
+        except ImportError:
+            bvh = None
+        _BVH.append(bvh)
+    return _BVH[0]
+
+
 #: The indexes holding a libigl AABB tree: their trees are let go at exit, before the interpreter
 #: tears the bindings down (nanobind reports instances still alive then as leaks, on stderr).
 _TREES: weakref.WeakSet = weakref.WeakSet()
@@ -255,14 +274,15 @@ class SurfaceIndex:
     proxies exactly; the result is proven nearest when the k-th proxy is farther than the best
     distance plus the largest proxy radius, otherwise ``k`` grows for those points.
 
-    Plain :meth:`query` calls go to libigl's AABB tree instead (built on the first query), exact
-    whatever ``exact`` says (exactness costs it nothing).
+    Plain :meth:`query` calls go to a tree of boxes instead (built on the first query), exact
+    whatever ``exact`` says (exactness costs it nothing): the compiled one of
+    :mod:`proctex.geometry.bvh`, or libigl's AABB tree where numba does not import.
 
     Args:
         vertices: (n, 3) float64; faces: (m, 3) int64 (m >= 1).
         k: proxies checked per query in the first round.
-        backend: "auto" (libigl's AABB tree for :meth:`query` where libigl imports, else the proxy
-            search), "aabb" (libigl, or ImportError) or "proxies" (the pure search everywhere).
+        backend: "auto" (the tree for :meth:`query` where numba or libigl imports, else the proxy
+            search), "aabb" (the tree, or ImportError) or "proxies" (the pure search everywhere).
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, k: int = 8, backend: str = "auto") -> None:
@@ -275,9 +295,11 @@ class SurfaceIndex:
         if self.vertices.ndim != 2 or self.vertices.shape[1] != 3 or self.faces.min() < 0 or self.faces.max() >= len(self.vertices):
             raise ValueError(f"SurfaceIndex needs (n, 3) vertices that the faces index, got {self.vertices.shape} for indices up to {self.faces.max()}")
         self._aabb: object | None = None
-        self._backend = backend if backend != "auto" else ("aabb" if _igl() is not None else "proxies")
-        if self._backend == "aabb" and _igl() is None:
-            raise ImportError("SurfaceIndex(backend='aabb') needs libigl (pip install libigl)")
+        self._bvh: Any = None  # the compiled tree (:meth:`_aabb_faces`), built on first use
+        tree = _bvh() is not None or _igl() is not None
+        self._backend = backend if backend != "auto" else ("aabb" if tree else "proxies")
+        if self._backend == "aabb" and not tree:
+            raise ImportError("SurfaceIndex(backend='aabb') needs numba or libigl (pip install numba)")
         tri = self.vertices[self.faces]
         self._a, self._b, self._c = tri[:, 0], tri[:, 1], tri[:, 2]
         self._k = int(k)
@@ -287,7 +309,7 @@ class SurfaceIndex:
     def __getstate__(self) -> dict:
         """Pickled without the AABB tree (libigl's objects do not pickle; it is rebuilt on the
         first query)."""
-        return {**self.__dict__, "_aabb": None}
+        return {**self.__dict__, "_aabb": None, "_bvh": None}
 
     def _proxies(self) -> tuple:
         """The proxy search's structure ``(KD-tree of proxies, owning face (p,), max proxy radius)``,
@@ -353,9 +375,8 @@ class SurfaceIndex:
         return res, sure
 
     def _query_aabb(self, pts: np.ndarray) -> ClosestPoints:
-        """Exact closest points by libigl's AABB tree: the face from the tree, the point and its
-        barycentrics recomputed on that face (:func:`closest_point_on_triangles`, our convention)."""
-        self._tree()
+        """Exact closest points by the tree (:meth:`_aabb_faces`): the face from the tree, the point
+        and its barycentrics recomputed on that face (:func:`closest_point_on_triangles`, our convention)."""
         if not len(pts):
             return ClosestPoints(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
         face = self._aabb_faces(pts)
@@ -372,7 +393,14 @@ class SurfaceIndex:
         return self._aabb
 
     def _aabb_faces(self, pts: np.ndarray) -> np.ndarray:
-        """(q,) int64 exact nearest face of each of ``pts (q, 3)`` (q >= 1) by libigl's AABB tree."""
+        """(q,) int64 exact nearest face of each of ``pts (q, 3)`` (q >= 1): by the compiled tree
+        of :mod:`proctex.geometry.bvh` (built on first use; ties to the lowest face index), which
+        lets go of the GIL, so the parts of a transfer search side by side; by libigl's AABB tree
+        where numba does not import."""
+        if _bvh() is not None:
+            if self._bvh is None:
+                self._bvh = _bvh().triangle_tree(self.vertices, self.faces)
+            return self._bvh.nearest(pts)[0]
         _, face, _ = self._tree().squared_distance(self.vertices, self.faces, np.ascontiguousarray(pts))
         return np.asarray(face, dtype=np.int64)
 

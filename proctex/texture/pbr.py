@@ -119,7 +119,15 @@ def _uv_keys(faces: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
 
 
 def area_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(m, 3) float64 unnormalised face normals (twice the area long) of ``faces (m, 3)``."""
+    """(m, 3) float64 unnormalised face normals (twice the area long) of ``faces (m, 3)``; compiled
+    (:mod:`proctex.texture.vertex_kernels`), the same bits as :func:`area_normals_arrays`."""
+    from .vertex_kernels import area_normals as compiled
+
+    return compiled(vertices, faces)
+
+
+def area_normals_arrays(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """:func:`area_normals` in array operations (the compiled form's reference)."""
     tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
     return cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
 
@@ -127,10 +135,18 @@ def area_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """(n, 3) float64 area-weighted smooth vertex normals over the given faces only (the GLB's
     NORMAL); a vertex whose faces cancel, or that no face uses, gets +z. ``normals``: the faces'
-    :func:`area_normals` when the caller has them."""
+    :func:`area_normals` when the caller has them. Compiled (:mod:`proctex.texture.vertex_kernels`),
+    the same bits as :func:`vertex_normals_arrays`."""
+    from .vertex_kernels import vertex_normals as compiled
+
+    return compiled(vertices, faces, normals)
+
+
+def vertex_normals_arrays(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+    """:func:`vertex_normals` in array operations (the compiled form's reference)."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    fn = area_normals(v, f) if normals is None else normals
+    fn = area_normals_arrays(v, f) if normals is None else normals
     flat = f.reshape(-1)
     acc = np.stack([np.bincount(flat, weights=np.repeat(fn[:, k], 3), minlength=len(v)) for k in range(3)], axis=1)
     length = np.sqrt(dot3(acc, acc))
@@ -175,7 +191,15 @@ def corner_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarr
 def key_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, keys: np.ndarray, key_normals: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """The tangent frame ``(k, 4)`` of each (vertex, UV) pair: ``keys`` (m * 3,) gives each corner's
     pair, ``key_normals`` (k, 3) each pair's unit normal; ``normals``: the faces'
-    :func:`area_normals` when the caller has them. See :func:`corner_tangents`."""
+    :func:`area_normals` when the caller has them. See :func:`corner_tangents`. Compiled
+    (:mod:`proctex.texture.vertex_kernels`), the same bits as :func:`key_tangents_arrays`."""
+    from .vertex_kernels import key_tangents as compiled
+
+    return compiled(vertices, faces, corner_uv, keys, key_normals, normals)
+
+
+def key_tangents_arrays(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, keys: np.ndarray, key_normals: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+    """:func:`key_tangents` in array operations: the reference its compiled form is checked against."""
     v, f, uv = vertices, faces, corner_uv
     tri = v[f]
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]

@@ -1,0 +1,144 @@
+"""Compiled (numba) kernels of the GLB's vertex data: :func:`key_tangents`, :func:`area_normals`
+and :func:`vertex_normals` in a pass or two over the faces instead of some forty array passes, the
+same bits as their array forms in :mod:`proctex.texture.pbr` (the references ``tests/test_pbr.py``
+compares them with): the same operations in the same order, each sum taking its corners in corner
+order as ``np.bincount`` does. Imported on first use (numba's import and, on a machine's
+first run, its compilation, which it caches on disk, are not paid by commands that write no GLB).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _key_tangents(v, f, uv, keys, key_normals, normals, has_normals):
+    m = f.shape[0]
+    n_keys = key_normals.shape[0]
+    T = np.zeros((n_keys, 3))
+    B = np.zeros((n_keys, 3))
+    for i in range(m):
+        i0, i1, i2 = f[i, 0], f[i, 1], f[i, 2]
+        e1x, e1y, e1z = v[i1, 0] - v[i0, 0], v[i1, 1] - v[i0, 1], v[i1, 2] - v[i0, 2]
+        e2x, e2y, e2z = v[i2, 0] - v[i0, 0], v[i2, 1] - v[i0, 1], v[i2, 2] - v[i0, 2]
+        d1u, d1v = uv[i, 1, 0] - uv[i, 0, 0], uv[i, 1, 1] - uv[i, 0, 1]
+        d2u, d2v = uv[i, 2, 0] - uv[i, 0, 0], uv[i, 2, 1] - uv[i, 0, 1]
+        det = d1u * d2v - d2u * d1v
+        r = 1.0 / det if abs(det) > 1e-20 else 0.0
+        tx, ty, tz = (e1x * d2v - e2x * d1v) * r, (e1y * d2v - e2y * d1v) * r, (e1z * d2v - e2z * d1v) * r
+        bx, by, bz = (e2x * d1u - e1x * d2u) * r, (e2y * d1u - e1y * d2u) * r, (e2z * d1u - e1z * d2u) * r
+        if has_normals:
+            nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        else:
+            nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        area = 0.5 * np.sqrt(nx * nx + ny * ny + nz * nz)
+        length = np.sqrt(tx * tx + ty * ty + tz * tz)
+        s = area / (length if length > 1e-30 else 1.0)
+        tx, ty, tz = tx * s, ty * s, tz * s
+        length = np.sqrt(bx * bx + by * by + bz * bz)
+        s = area / (length if length > 1e-30 else 1.0)
+        bx, by, bz = bx * s, by * s, bz * s
+        for c in range(3):
+            k = keys[3 * i + c]
+            T[k, 0] += tx
+            T[k, 1] += ty
+            T[k, 2] += tz
+            B[k, 0] += bx
+            B[k, 1] += by
+            B[k, 2] += bz
+    out = np.empty((n_keys, 4))
+    for k in range(n_keys):
+        nx, ny, nz = key_normals[k, 0], key_normals[k, 1], key_normals[k, 2]
+        d = T[k, 0] * nx + T[k, 1] * ny + T[k, 2] * nz
+        tx, ty, tz = T[k, 0] - nx * d, T[k, 1] - ny * d, T[k, 2] - nz * d
+        length = np.sqrt(tx * tx + ty * ty + tz * tz)
+        if length < 1e-12:  # no UV extent: any direction in the tangent plane
+            if abs(nx) < 0.9:
+                hx, hy, hz = 1.0, 0.0, 0.0
+            else:
+                hx, hy, hz = 0.0, 1.0, 0.0
+            d = hx * nx + hy * ny + hz * nz
+            tx, ty, tz = hx - nx * d, hy - ny * d, hz - nz * d
+            length = np.sqrt(tx * tx + ty * ty + tz * tz)
+        length = max(length, 1e-300)
+        tx, ty, tz = tx / length, ty / length, tz / length
+        cx, cy, cz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+        out[k, 0], out[k, 1], out[k, 2] = tx, ty, tz
+        out[k, 3] = -1.0 if cx * B[k, 0] + cy * B[k, 1] + cz * B[k, 2] < 0 else 1.0
+    return out
+
+
+def key_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, keys: np.ndarray, key_normals: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+    """:func:`proctex.texture.pbr.key_tangents` compiled: ``(k, 4)`` float64 tangent frames of the
+    (vertex, UV) pairs, the same bits as the array form. Checked inputs: ``vertices (n, 3)``,
+    ``faces (m, 3)`` indexing them, ``corner_uv (m, 3, 2)``, ``keys (3m,)`` in ``[0, k)``,
+    ``key_normals (k, 3)``, ``normals (m, 3)`` or None."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    uv = np.ascontiguousarray(corner_uv, dtype=np.float64)
+    key = np.ascontiguousarray(keys, dtype=np.int64).reshape(-1)
+    kn = np.ascontiguousarray(key_normals, dtype=np.float64)
+    fn = np.zeros((0, 3)) if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
+    m = len(f)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or uv.shape != (m, 3, 2) or kn.ndim != 2 or kn.shape[1] != 3:
+        raise ValueError(f"vertices (n, 3), faces (m, 3), corner_uv (m, 3, 2), key_normals (k, 3) expected, got {v.shape}, {f.shape}, {uv.shape}, {kn.shape}")
+    if key.shape != (3 * m,) or (normals is not None and fn.shape != (m, 3)):
+        raise ValueError(f"keys ({3 * m},) and normals ({m}, 3) expected, got {key.shape} and {fn.shape}")
+    if m and (f.min() < 0 or f.max() >= len(v) or key.min() < 0 or key.max() >= len(kn)):
+        raise ValueError("faces must index the vertices and keys the key normals")
+    return _key_tangents(v, f, uv, key, kn, fn, normals is not None)
+
+
+@njit(cache=True, nogil=True)
+def _area_normals(v, f):
+    m = f.shape[0]
+    out = np.empty((m, 3))
+    for i in range(m):
+        i0, i1, i2 = f[i, 0], f[i, 1], f[i, 2]
+        e1x, e1y, e1z = v[i1, 0] - v[i0, 0], v[i1, 1] - v[i0, 1], v[i1, 2] - v[i0, 2]
+        e2x, e2y, e2z = v[i2, 0] - v[i0, 0], v[i2, 1] - v[i0, 1], v[i2, 2] - v[i0, 2]
+        out[i, 0], out[i, 1], out[i, 2] = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _vertex_normals(n, f, fn):
+    acc = np.zeros((n, 3))
+    for i in range(f.shape[0]):
+        for c in range(3):
+            k = f[i, c]
+            acc[k, 0] += fn[i, 0]
+            acc[k, 1] += fn[i, 1]
+            acc[k, 2] += fn[i, 2]
+    for k in range(n):
+        length = np.sqrt(acc[k, 0] * acc[k, 0] + acc[k, 1] * acc[k, 1] + acc[k, 2] * acc[k, 2])
+        if length > 0:
+            acc[k, 0], acc[k, 1], acc[k, 2] = acc[k, 0] / length, acc[k, 1] / length, acc[k, 2] / length
+        else:
+            acc[k, 0], acc[k, 1], acc[k, 2] = 0.0, 0.0, 1.0
+    return acc
+
+
+def _mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"vertices (n, 3) and faces (m, 3) expected, got {v.shape} and {f.shape}")
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        raise ValueError(f"faces index vertices 0..{len(v) - 1}, got {f.min()}..{f.max()}")
+    return v, f
+
+
+def area_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """:func:`proctex.texture.pbr.area_normals` compiled: (m, 3) float64, the same bits."""
+    return _area_normals(*_mesh(vertices, faces))
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+    """:func:`proctex.texture.pbr.vertex_normals` compiled: (n, 3) float64, the same bits."""
+    v, f = _mesh(vertices, faces)
+    fn = _area_normals(v, f) if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
+    if fn.shape != (len(f), 3):
+        raise ValueError(f"normals ({len(f)}, 3) expected, got {fn.shape}")
+    return _vertex_normals(len(v), f, fn)
