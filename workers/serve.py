@@ -25,6 +25,7 @@ from proctex.serve.catalog import Catalog, Watchdog
 from proctex.serve.parse_worker import READER
 from proctex.serve.service import Limits
 from proctex.serve.timing import server_timing
+from proctex.transfer.apply import warm_kernels
 from workers.http import create_app
 from workers.ingress import Answer, Forwarded, call_app, ingress_app
 
@@ -52,6 +53,7 @@ class TransferService:
         self.catalog = Catalog(root, Limits(**(limits or {})), check_every, lazy=self.max_families > 0, device=device)
         self.watchdog = Watchdog(2 * self.catalog.limits.max_seconds + 30)
         READER.warm()  # the mesh reader process, started before the first upload needs it
+        warm_kernels()  # the transfer's compiled kernels, loaded before the first request needs them
         if preload and not self.max_families:
             for name in self.catalog.names():
                 try:

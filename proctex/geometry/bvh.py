@@ -5,8 +5,9 @@ part of a few thousand triangles, where a call into libigl's tree cost about a m
 (measured on the demo family's parts: 8.7 ms of a 34 ms transfer; this tree: see
 ``tests/bench/bench_transfer.py``).
 
-The tree splits the triangles at the median of their centroids along the longest axis of the
-centroids' box, down to :data:`LEAF` triangles; a query walks it nearest box first and skips a box
+The tree splits the triangles by the binned surface-area heuristic (:func:`_sah_split`; the median
+of their centroids along their longest axis where no bin separates them), down to :data:`LEAF`
+triangles; a query walks it nearest box first and skips a box
 farther than the best triangle so far. Ties go to the lowest face index, so the answer is exactly
 the brute-force ``argmin`` of :func:`point_triangle_d2` over all faces (``tests/test_geometry.py``).
 The kernels release the GIL (parts of one transfer run side by side in threads) and are cached on
@@ -95,6 +96,78 @@ def point_triangle_d2(points, a, b, c):
     return out
 
 
+#: Bins per axis of the surface-area heuristic (:func:`_sah_split`).
+BINS = 16
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _half_area(lo, hi):
+    dx, dy, dz = max(hi[0] - lo[0], 0.0), max(hi[1] - lo[1], 0.0), max(hi[2] - lo[2], 0.0)
+    return dx * dy + dy * dz + dz * dx
+
+
+@njit(cache=True, nogil=True)
+def _sah_split(lo_t, hi_t, cen, perm, s, e, cmin, cmax):
+    """Partition ``perm[s:e]`` at the binned surface-area heuristic's best plane (the split whose
+    children's areas times their triangle counts sum least, over :data:`BINS` bins of the centroids
+    on each axis) and return the first index of the right child (``s`` or ``e``: no split found)."""
+    best_cost, best_axis, best_bin = np.inf, -1, -1
+    blo = np.empty((BINS, 3))
+    bhi = np.empty((BINS, 3))
+    cnt = np.zeros(BINS, np.int64)
+    right_area = np.empty(BINS)
+    right_cnt = np.zeros(BINS, np.int64)
+    box_lo = np.empty(3)
+    box_hi = np.empty(3)
+    for axis in range(3):
+        extent = cmax[axis] - cmin[axis]
+        if not extent > 0.0:
+            continue
+        blo[:] = np.inf
+        bhi[:] = -np.inf
+        cnt[:] = 0
+        for j in range(s, e):
+            f = perm[j]
+            k = min(int(BINS * (cen[f, axis] - cmin[axis]) / extent), BINS - 1)
+            cnt[k] += 1
+            for d in range(3):
+                blo[k, d] = min(blo[k, d], lo_t[f, d])
+                bhi[k, d] = max(bhi[k, d], hi_t[f, d])
+        box_lo[:] = np.inf
+        box_hi[:] = -np.inf
+        n_right = 0
+        for k in range(BINS - 1, 0, -1):  # right_area[k]: bins k.. together
+            n_right += cnt[k]
+            for d in range(3):
+                box_lo[d] = min(box_lo[d], blo[k, d])
+                box_hi[d] = max(box_hi[d], bhi[k, d])
+            right_area[k], right_cnt[k] = _half_area(box_lo, box_hi), n_right
+        box_lo[:] = np.inf
+        box_hi[:] = -np.inf
+        n_left = 0
+        for k in range(BINS - 1):  # split between bins k and k + 1
+            n_left += cnt[k]
+            for d in range(3):
+                box_lo[d] = min(box_lo[d], blo[k, d])
+                box_hi[d] = max(box_hi[d], bhi[k, d])
+            if n_left == 0 or right_cnt[k + 1] == 0:
+                continue
+            cost = _half_area(box_lo, box_hi) * n_left + right_area[k + 1] * right_cnt[k + 1]
+            if cost < best_cost:
+                best_cost, best_axis, best_bin = cost, axis, k
+    if best_axis < 0:
+        return s
+    extent = cmax[best_axis] - cmin[best_axis]
+    i, j = s, e - 1
+    while i <= j:  # left: bins up to best_bin
+        if min(int(BINS * (cen[perm[i], best_axis] - cmin[best_axis]) / extent), BINS - 1) <= best_bin:
+            i += 1
+        else:
+            perm[i], perm[j] = perm[j], perm[i]
+            j -= 1
+    return i
+
+
 @njit(cache=True, nogil=True)
 def _build(lo_t, hi_t, cen, leaf):
     """The tree over triangles with boxes ``lo_t, hi_t (m, 3)`` and centroids ``cen (m, 3)``:
@@ -134,12 +207,14 @@ def _build(lo_t, hi_t, cen, leaf):
         start[node], count[node] = s, e - s
         if e - s <= leaf or not cmax[axis] > cmin[axis] or sp + 2 > stack.shape[0]:
             continue
-        keys = np.empty(e - s)
-        for j in range(s, e):
-            keys[j - s] = cen[perm[j], axis]
-        order = np.argsort(keys, kind="mergesort")
-        perm[s:e] = perm[s:e][order]
-        mid = (s + e) // 2
+        mid = _sah_split(lo_t, hi_t, cen, perm, s, e, cmin, cmax)
+        if mid <= s or mid >= e:  # no binned split separates them: the median along the longest axis
+            keys = np.empty(e - s)
+            for j in range(s, e):
+                keys[j - s] = cen[perm[j], axis]
+            order = np.argsort(keys, kind="mergesort")
+            perm[s:e] = perm[s:e][order]
+            mid = (s + e) // 2
         left[node], right[node] = n, n + 1
         stack[sp, 0], stack[sp, 1], stack[sp, 2] = n, s, mid
         stack[sp + 1, 0], stack[sp + 1, 1], stack[sp + 1, 2] = n + 1, mid, e
@@ -173,7 +248,7 @@ def _box_d2(lo, hi, node, px, py, pz):
 
 
 @njit(cache=True, nogil=True)
-def _nearest(points, a, b, c, lo, hi, left, right, start, count, perm):
+def _nearest(points, a, b, c, lo, hi, left, right, start, count, perm, slot):
     """(q,) int64 nearest face of each point, ties to the lowest index; (q,) its squared distance."""
     q = points.shape[0]
     face = np.empty(q, np.int64)
@@ -183,8 +258,8 @@ def _nearest(points, a, b, c, lo, hi, left, right, start, count, perm):
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         best, bf = np.inf, -1
         if i > 0:  # the previous point's face bounds the search (neighbouring queries land near each other)
-            f = face[i - 1]
-            best, bf = _d2(a[f, 0], a[f, 1], a[f, 2], b[f, 0], b[f, 1], b[f, 2], c[f, 0], c[f, 1], c[f, 2], px, py, pz), f
+            j = slot[face[i - 1]]
+            best, bf = _d2(a[j, 0], a[j, 1], a[j, 2], b[j, 0], b[j, 1], b[j, 2], c[j, 0], c[j, 1], c[j, 2], px, py, pz), perm[j]
         stack[0] = 0
         sp = 1
         while sp > 0:
@@ -193,9 +268,9 @@ def _nearest(points, a, b, c, lo, hi, left, right, start, count, perm):
             if _box_d2(lo, hi, node, px, py, pz) > best:
                 continue
             if left[node] < 0:
-                for j in range(start[node], start[node] + count[node]):
+                for j in range(start[node], start[node] + count[node]):  # a, b, c in leaf order
                     f = perm[j]
-                    d = _d2(a[f, 0], a[f, 1], a[f, 2], b[f, 0], b[f, 1], b[f, 2], c[f, 0], c[f, 1], c[f, 2], px, py, pz)
+                    d = _d2(a[j, 0], a[j, 1], a[j, 2], b[j, 0], b[j, 1], b[j, 2], c[j, 0], c[j, 1], c[j, 2], px, py, pz)
                     if bf < 0 or d < best or (d == best and f < bf):
                         best, bf = d, f
                 continue
@@ -223,7 +298,7 @@ def _nearest(points, a, b, c, lo, hi, left, right, start, count, perm):
 class TriangleTree:
     """A triangle mesh's tree (:func:`triangle_tree`) for :meth:`nearest` queries."""
 
-    a: np.ndarray  #: (m, 3) float64 first corners
+    a: np.ndarray  #: (m, 3) float64 first corners, in leaf order (``a[j]`` is face ``perm[j]``'s)
     b: np.ndarray
     c: np.ndarray
     lo: np.ndarray  #: (n, 3) node boxes
@@ -233,6 +308,7 @@ class TriangleTree:
     start: np.ndarray  #: (n,) int64 a leaf's range of ``perm``
     count: np.ndarray
     perm: np.ndarray  #: (m,) int64 faces in leaf order
+    slot: np.ndarray  #: (m,) int64 each face's place in leaf order (``perm[slot[f]] == f``)
 
     def nearest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(face (q,) int64, squared distance (q,) float64)``: the nearest face of each of
@@ -245,7 +321,7 @@ class TriangleTree:
             raise ValueError("points must be finite")
         if not len(self.a):
             raise ValueError("a tree of no faces has no nearest face")
-        return _nearest(pts, self.a, self.b, self.c, self.lo, self.hi, self.left, self.right, self.start, self.count, self.perm)
+        return _nearest(pts, self.a, self.b, self.c, self.lo, self.hi, self.left, self.right, self.start, self.count, self.perm, self.slot)
 
 
 def triangle_tree(vertices: np.ndarray, faces: np.ndarray, leaf: int = LEAF) -> TriangleTree:
@@ -262,6 +338,16 @@ def triangle_tree(vertices: np.ndarray, faces: np.ndarray, leaf: int = LEAF) -> 
     if int(leaf) < 1:
         raise ValueError(f"leaf must be >= 1, got {leaf}")
     tri = v[f.astype(np.int64)]
-    a, b, c = (np.ascontiguousarray(tri[:, k]) for k in range(3))
-    parts = _build(tri.min(axis=1), tri.max(axis=1), tri.mean(axis=1), int(leaf))
-    return TriangleTree(a, b, c, *parts)
+    lo, hi, left, right, start, count, perm = _build(tri.min(axis=1), tri.max(axis=1), tri.mean(axis=1), int(leaf))
+    slot = np.empty_like(perm)
+    slot[perm] = np.arange(len(perm))
+    a, b, c = (np.ascontiguousarray(tri[perm, k]) for k in range(3))
+    return TriangleTree(a, b, c, lo, hi, left, right, start, count, perm, slot)
+
+
+def warm() -> None:
+    """Compile (or load from numba's cache) the tree's kernels on a tetrahedron: a process that
+    serves calls this at start, so no request pays it."""
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    tree = triangle_tree(v, np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]))
+    tree.nearest(np.array([[0.2, 0.2, 0.2]]))

@@ -142,3 +142,15 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray 
     if fn.shape != (len(f), 3):
         raise ValueError(f"normals ({len(f)}, 3) expected, got {fn.shape}")
     return _vertex_normals(len(v), f, fn)
+
+
+def warm() -> None:
+    """Compile (or load from numba's cache) these kernels on a tetrahedron (see
+    :func:`proctex.geometry.bvh.warm`)."""
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    f = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
+    uv = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), (4, 1, 1))
+    fn = area_normals(v, f)
+    vn = vertex_normals(v, f, fn)
+    key_tangents(v, f, uv, f.reshape(-1), vn, fn)
+    key_tangents(v, f, uv, f.reshape(-1), vn, None)

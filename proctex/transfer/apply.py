@@ -210,6 +210,20 @@ def transfer(
     return result
 
 
+def warm_kernels() -> None:
+    """Compile, or load from numba's cache, the compiled kernels a transfer runs (the UV lookup's
+    tree, the GLB's normals and tangents): a serving process calls this at start so that its
+    first request does not pay it (seconds on a machine's first run, a fraction of one after).
+    Nothing where numba does not import (the array forms and libigl answer then)."""
+    try:
+        from proctex.geometry import bvh
+        from proctex.texture import vertex_kernels
+    except ImportError:
+        return
+    bvh.warm()
+    vertex_kernels.warm()
+
+
 @lru_cache(maxsize=1)
 def _parts_pool() -> ThreadPoolExecutor:
     """The process's thread pool for parts of one transfer (two workers at most: a request is a few
