@@ -1222,3 +1222,26 @@ def test_a_faces_uv_box_is_proven_by_four_reads_of_the_block_count():
     assert not (fast & ~_reads_only_chart_reference(uv, charts, chart)).any()
     corners_only = (look.block_label[bilinear_corner(uv.reshape(-1, 2), h, w)].reshape(-1, 3) == chart[:, None]).all(axis=1)
     assert (corners_only & ~slow).any()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_compiled_corner_uvs_are_the_array_form_bit_for_bit(seed):
+    """The UV lookup's affine maps (:mod:`proctex.transfer.uv_kernels`) against their array form,
+    bit for bit: template triangles of every shape (slivers, a degenerate one: its map gives every
+    corner its first corner's UV), mapped points inside, outside and far beyond them (clipped)."""
+    from proctex.transfer.uv_kernels import affine_corner_uvs
+    from proctex.transfer.uvlookup import affine_corner_uvs_arrays
+
+    rng = np.random.default_rng(seed)
+    tv = rng.normal(size=(40, 3))
+    tv[5] = tv[6] = tv[7]  # one triangle that is a point
+    tf = np.concatenate([rng.integers(0, 40, (30, 3)), [[5, 6, 7]]])
+    tuv = rng.uniform(0, 1, (len(tf), 3, 2))
+    mapped = np.concatenate([rng.normal(size=(50, 3)), rng.normal(size=(10, 3)) * 1e6])
+    faces = rng.integers(0, 60, (80, 3))
+    near = np.concatenate([rng.integers(0, len(tf), 79), [len(tf) - 1]])
+    got = affine_corner_uvs(mapped, faces, tv, tf, tuv, near)
+    want = affine_corner_uvs_arrays(mapped, faces, tv, tf, tuv, near)
+    assert got.shape == (80, 3, 2) and np.array_equal(got, want)
+    assert got.min() >= 0.0 and got.max() <= 1.0
+    np.testing.assert_array_equal(got[-1], np.repeat(tuv[-1][:1], 3, axis=0))

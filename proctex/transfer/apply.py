@@ -212,16 +212,18 @@ def transfer(
 
 def warm_kernels() -> None:
     """Compile, or load from numba's cache, the compiled kernels a transfer runs (the UV lookup's
-    tree, the GLB's normals and tangents): a serving process calls this at start so that its
+    tree and affine maps, the GLB's normals and tangents): a serving process calls this at start so that its
     first request does not pay it (seconds on a machine's first run, a fraction of one after).
     Nothing where numba does not import (the array forms and libigl answer then)."""
     try:
         from proctex.geometry import bvh
         from proctex.texture import vertex_kernels
+        from proctex.transfer import uv_kernels
     except ImportError:
         return
     bvh.warm()
     vertex_kernels.warm()
+    uv_kernels.warm()
 
 
 @lru_cache(maxsize=1)

@@ -37,6 +37,30 @@ def _affine_uv(target: np.ndarray, tri: np.ndarray | tuple, tri_uv: np.ndarray) 
     return np.einsum("ij,ijk->ik", lam, tri_uv)
 
 
+def affine_corner_uvs_arrays(mapped: np.ndarray, faces: np.ndarray, vertices: np.ndarray, template_faces: np.ndarray, corner_uv: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """(k, 3, 2) corner UVs of a part's faces ``faces (k, 3)`` over its mapped vertices ``mapped (j,
+    3)``: each corner through the affine map of its face's template triangle ``near (k,)`` (a face of
+    ``template_faces`` over ``vertices``, with UVs ``corner_uv``), clipped to [0, 1]. The array form
+    of :func:`affine_corner_uvs` (compiled, the same operations in the same order)."""
+    tri = vertices[template_faces[near]]
+    tri_uv = corner_uv[near]
+    out = np.empty((len(faces), 3, 2))
+    frames = _affine_frames(tri)
+    for k in range(3):
+        out[:, k] = _affine_uv(mapped[faces[:, k]], frames, tri_uv)
+    return np.clip(out, 0.0, 1.0)
+
+
+def affine_corner_uvs(mapped: np.ndarray, faces: np.ndarray, vertices: np.ndarray, template_faces: np.ndarray, corner_uv: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """:func:`affine_corner_uvs_arrays` by the compiled kernel of :mod:`proctex.transfer.uv_kernels`
+    (one pass over the faces), or in arrays where numba does not import."""
+    try:
+        from proctex.transfer.uv_kernels import affine_corner_uvs as compiled
+    except ImportError:
+        return affine_corner_uvs_arrays(mapped, faces, vertices, template_faces, corner_uv, near)
+    return compiled(mapped, faces, vertices, template_faces, corner_uv, near)
+
+
 def template_charts(assets: TemplateAssets) -> list[np.ndarray] | None:
     """Per group :func:`chart_labels` of the template's painted masks (computed once, kept on the
     assets); None when the assets carry no painted masks."""
@@ -254,13 +278,7 @@ def part_uvs(
     # mapper's small errors cannot fold over; else from the mapped triangles.
     normal = np.asarray(normals, dtype=np.float64) if normals is not None else np.cross(tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
     near = assets.index.facing_faces(centroid, normal, k=UV_CANDIDATES, max_k=UV_MAX_CANDIDATES)
-    tri = assets.vertices[assets.faces[near]]
-    tri_uv = assets.corner_uv[near]
-    out = np.empty((len(faces), 3, 2))
-    frames = _affine_frames(tri)
-    for k in range(3):
-        out[:, k] = _affine_uv(mapped[faces[:, k]], frames, tri_uv)
-    out = np.clip(out, 0.0, 1.0)
+    out = affine_corner_uvs(mapped, faces, assets.vertices, assets.faces, assets.corner_uv, near)
     if charts is not None and len(faces):
         look = charts if isinstance(charts, ChartLookup) else chart_lookup(charts)
         h, w = look.labels.shape
@@ -270,21 +288,22 @@ def part_uvs(
             rest = np.flatnonzero(bad)
             bad[rest] = ~_inside_chart(out[rest], look, target[rest])
         else:
-            target = _triangle_chart(look, tri_uv)  # the template triangle's chart
+            target = _triangle_chart(look, assets.corner_uv[near])  # the template triangle's chart
             bad = ~_inside_chart(out, look, target)
         if bad.any():
             from proctex.geometry.surface import closest_point_on_triangles
 
             fi = np.flatnonzero(bad)
-            t = tri[fi]
+            t = assets.vertices[assets.faces[near[fi]]]
+            t_uv = assets.corner_uv[near[fi]]
             for k in range(3):
                 _, bary = closest_point_on_triangles(mapped[faces[fi, k]], t[:, 0], t[:, 1], t[:, 2])
-                out[fi, k] = np.einsum("ij,ijk->ik", bary, tri_uv[fi])
+                out[fi, k] = np.einsum("ij,ijk->ik", bary, t_uv)
             # Still reading outside the chart somewhere (a probe on unpainted texels: a sliver
             # template triangle on the chart's rim): the face takes the colour at its template
             # triangle's centre, so no visible pixel is unpainted.
             still = ~_inside_chart(out[fi], look, target[fi])
-            out[fi[still]] = tri_uv[fi[still]].mean(axis=1)[:, None]
+            out[fi[still]] = t_uv[still].mean(axis=1)[:, None]
     return out, near
 
 

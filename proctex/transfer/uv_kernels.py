@@ -1,0 +1,61 @@
+"""Compiled (numba) kernel of the run time's UV lookup (:func:`proctex.transfer.uvlookup.part_uvs`):
+each face's three corner UVs through its template triangle's affine map, clipped to [0, 1], in one
+pass over the faces instead of some thirty array passes; the same operations in the same order as
+the array form (:func:`proctex.transfer.uvlookup.affine_corner_uvs_arrays`, which
+``tests/test_transfer.py`` compares it with). Imported on first use, as
+:mod:`proctex.texture.vertex_kernels` is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _corner_uvs(mapped, faces, tv, tf, tuv, near):
+    k = faces.shape[0]
+    out = np.empty((k, 3, 2))
+    for i in range(k):
+        t = near[i]
+        ia, ib, ic = tf[t, 0], tf[t, 1], tf[t, 2]
+        ax, ay, az = tv[ia, 0], tv[ia, 1], tv[ia, 2]
+        e1x, e1y, e1z = tv[ib, 0] - ax, tv[ib, 1] - ay, tv[ib, 2] - az
+        e2x, e2y, e2z = tv[ic, 0] - ax, tv[ic, 1] - ay, tv[ic, 2] - az
+        d11 = e1x * e1x + e1y * e1y + e1z * e1z
+        d12 = e1x * e2x + e1y * e2y + e1z * e2z
+        d22 = e2x * e2x + e2y * e2y + e2z * e2z
+        den = d11 * d22 - d12 * d12
+        if not abs(den) > 1e-30:
+            den = np.inf
+        for c in range(3):
+            p = faces[i, c]
+            dx, dy, dz = mapped[p, 0] - ax, mapped[p, 1] - ay, mapped[p, 2] - az
+            p1 = dx * e1x + dy * e1y + dz * e1z
+            p2 = dx * e2x + dy * e2y + dz * e2z
+            l1 = (d22 * p1 - d12 * p2) / den
+            l2 = (d11 * p2 - d12 * p1) / den
+            l0 = 1 - l1 - l2
+            for j in range(2):
+                u = l0 * tuv[t, 0, j] + l1 * tuv[t, 1, j] + l2 * tuv[t, 2, j]
+                out[i, c, j] = min(max(u, 0.0), 1.0)
+    return out
+
+
+def affine_corner_uvs(mapped: np.ndarray, faces: np.ndarray, vertices: np.ndarray, template_faces: np.ndarray, corner_uv: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """(k, 3, 2) corner UVs of a part's faces: see :func:`proctex.transfer.uvlookup.affine_corner_uvs_arrays`."""
+    return _corner_uvs(
+        np.ascontiguousarray(mapped, dtype=np.float64),
+        np.ascontiguousarray(faces, dtype=np.int64),
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        np.ascontiguousarray(template_faces, dtype=np.int64),
+        np.ascontiguousarray(corner_uv, dtype=np.float64),
+        np.ascontiguousarray(near, dtype=np.int64),
+    )
+
+
+def warm() -> None:
+    """Compile (or load from numba's cache) the kernel on one triangle (see :func:`proctex.geometry.bvh.warm`)."""
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    f = np.array([[0, 1, 2]])
+    affine_corner_uvs(v, f, v, f, np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]]), np.zeros(1, np.int64))
