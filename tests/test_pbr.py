@@ -654,3 +654,18 @@ def test_compiled_vertex_data_refuses_bad_input():
         vk.key_tangents(v, f, uv, keys[:-1], kn)
     with pytest.raises(ValueError, match="index"):
         vk.key_tangents(v, f, uv, keys, kn[:3])
+
+
+def test_without_numba_the_array_forms_answer(monkeypatch):
+    """Where numba does not import, the GLB's normals and tangents come from the array forms: the
+    same bits as the compiled kernels."""
+    import sys
+
+    v, f, uv = _messy_mesh(2)
+    from proctex.texture.pbr import area_normals, key_tangents, vertex_normals
+
+    want = (area_normals(v, f), vertex_normals(v, f), key_tangents(v, f, uv, f.reshape(-1), vertex_normals(v, f)))
+    monkeypatch.setitem(sys.modules, "proctex.texture.vertex_kernels", None)  # its import raises ImportError
+    got = (area_normals(v, f), vertex_normals(v, f), key_tangents(v, f, uv, f.reshape(-1), vertex_normals(v, f)))
+    for g, w in zip(got, want):
+        assert np.array_equal(g.view(np.int64), w.view(np.int64))

@@ -1245,3 +1245,17 @@ def test_compiled_corner_uvs_are_the_array_form_bit_for_bit(seed):
     assert got.shape == (80, 3, 2) and np.array_equal(got, want)
     assert got.min() >= 0.0 and got.max() <= 1.0
     np.testing.assert_array_equal(got[-1], np.repeat(tuv[-1][:1], 3, axis=0))
+
+
+def test_face_centroids_are_numpys_mean_and_answer_without_numba(monkeypatch):
+    import sys
+
+    from proctex.transfer.uvlookup import face_centroids
+
+    rng = np.random.default_rng(4)
+    pts = rng.normal(size=(30, 3)) * np.array([1e-8, 1.0, 1e8])
+    faces = rng.integers(0, 30, (50, 3))
+    want = pts[faces].mean(axis=1)
+    assert np.array_equal(face_centroids(pts, faces), want)
+    monkeypatch.setitem(sys.modules, "proctex.transfer.uv_kernels", None)
+    assert np.array_equal(face_centroids(pts, faces), want)

@@ -120,9 +120,11 @@ def _uv_keys(faces: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
 
 def area_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(m, 3) float64 unnormalised face normals (twice the area long) of ``faces (m, 3)``; compiled
-    (:mod:`proctex.texture.vertex_kernels`), the same bits as :func:`area_normals_arrays`."""
-    from .vertex_kernels import area_normals as compiled
-
+    (:mod:`proctex.texture.vertex_kernels`), the same bits as :func:`area_normals_arrays` (which answers where numba does not import)."""
+    try:
+        from .vertex_kernels import area_normals as compiled
+    except ImportError:  # no numba: the array form
+        compiled = area_normals_arrays
     return compiled(vertices, faces)
 
 
@@ -136,9 +138,11 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray 
     """(n, 3) float64 area-weighted smooth vertex normals over the given faces only (the GLB's
     NORMAL); a vertex whose faces cancel, or that no face uses, gets +z. ``normals``: the faces'
     :func:`area_normals` when the caller has them. Compiled (:mod:`proctex.texture.vertex_kernels`),
-    the same bits as :func:`vertex_normals_arrays`."""
-    from .vertex_kernels import vertex_normals as compiled
-
+    the same bits as :func:`vertex_normals_arrays` (which answers where numba does not import)."""
+    try:
+        from .vertex_kernels import vertex_normals as compiled
+    except ImportError:  # no numba: the array form
+        compiled = vertex_normals_arrays
     return compiled(vertices, faces, normals)
 
 
@@ -192,9 +196,11 @@ def key_tangents(vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray,
     """The tangent frame ``(k, 4)`` of each (vertex, UV) pair: ``keys`` (m * 3,) gives each corner's
     pair, ``key_normals`` (k, 3) each pair's unit normal; ``normals``: the faces'
     :func:`area_normals` when the caller has them. See :func:`corner_tangents`. Compiled
-    (:mod:`proctex.texture.vertex_kernels`), the same bits as :func:`key_tangents_arrays`."""
-    from .vertex_kernels import key_tangents as compiled
-
+    (:mod:`proctex.texture.vertex_kernels`), the same bits as :func:`key_tangents_arrays` (which answers where numba does not import)."""
+    try:
+        from .vertex_kernels import key_tangents as compiled
+    except ImportError:  # no numba: the array form
+        compiled = key_tangents_arrays
     return compiled(vertices, faces, corner_uv, keys, key_normals, normals)
 
 

@@ -1,8 +1,8 @@
-"""Compiled (numba) kernel of the run time's UV lookup (:func:`proctex.transfer.uvlookup.part_uvs`):
+"""Compiled (numba) kernels of the run time's UV lookup (:func:`proctex.transfer.uvlookup.part_uvs`):
 each face's three corner UVs through its template triangle's affine map, clipped to [0, 1], in one
-pass over the faces instead of some thirty array passes; the same operations in the same order as
-the array form (:func:`proctex.transfer.uvlookup.affine_corner_uvs_arrays`, which
-``tests/test_transfer.py`` compares it with). Imported on first use, as
+pass over the faces instead of some thirty array passes, and the faces' centroids; the same
+operations in the same order as the array forms (:func:`proctex.transfer.uvlookup.affine_corner_uvs_arrays`,
+``points[faces].mean(axis=1)``, which ``tests/test_transfer.py`` compares them with). Imported on first use, as
 :mod:`proctex.texture.vertex_kernels` is.
 """
 
@@ -42,6 +42,23 @@ def _corner_uvs(mapped, faces, tv, tf, tuv, near):
     return out
 
 
+@njit(cache=True, nogil=True)
+def _centroids(points, faces):
+    k = faces.shape[0]
+    out = np.empty((k, 3))
+    for i in range(k):
+        a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
+        for d in range(3):
+            out[i, d] = (points[a, d] + points[b, d] + points[c, d]) / 3.0
+    return out
+
+
+def face_centroids(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k, 3) centroids of faces ``(k, 3)`` over ``points (j, 3)``: ``points[faces].mean(axis=1)``,
+    the same bits (NumPy's mean adds the three corners in order, then divides by 3)."""
+    return _centroids(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64))
+
+
 def affine_corner_uvs(mapped: np.ndarray, faces: np.ndarray, vertices: np.ndarray, template_faces: np.ndarray, corner_uv: np.ndarray, near: np.ndarray) -> np.ndarray:
     """(k, 3, 2) corner UVs of a part's faces: see :func:`proctex.transfer.uvlookup.affine_corner_uvs_arrays`."""
     return _corner_uvs(
@@ -59,3 +76,4 @@ def warm() -> None:
     v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
     f = np.array([[0, 1, 2]])
     affine_corner_uvs(v, f, v, f, np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]]), np.zeros(1, np.int64))
+    face_centroids(v, f)

@@ -9,8 +9,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from proctex.geometry.rowmath import cross3, dot3
+from proctex.geometry.rowmath import dot3
 from proctex.texture.inpaint import chart_labels
+from proctex.texture.pbr import area_normals
 from proctex.transfer.assets import GroupAssets, TemplateAssets
 
 
@@ -271,12 +272,11 @@ def part_uvs(
 
     Returns (corner_uv, template face per face (k,)).
     """
-    tri_mapped = mapped[faces]
-    centroid = tri_mapped.mean(axis=1)
+    centroid = face_centroids(mapped, faces)
     # The template face on the face's own side: a thin wall's inside never reads its outside. The
     # side comes from the part's own faces in the representative's frame (``normals``), which a
     # mapper's small errors cannot fold over; else from the mapped triangles.
-    normal = np.asarray(normals, dtype=np.float64) if normals is not None else np.cross(tri_mapped[:, 1] - tri_mapped[:, 0], tri_mapped[:, 2] - tri_mapped[:, 0])
+    normal = np.asarray(normals, dtype=np.float64) if normals is not None else side_normals(mapped, faces)
     near = assets.index.facing_faces(centroid, normal, k=UV_CANDIDATES, max_k=UV_MAX_CANDIDATES)
     out = affine_corner_uvs(mapped, faces, assets.vertices, assets.faces, assets.corner_uv, near)
     if charts is not None and len(faces):
@@ -309,9 +309,20 @@ def part_uvs(
 
 def side_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(k, 3) area-weighted normals of a part's faces (``vertices (j, 3)`` in the representative's
-    frame): which side of a thin wall each face is on (:func:`part_uvs`)."""
-    tri = np.asarray(vertices, dtype=np.float64)[faces]
-    return cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    frame): which side of a thin wall each face is on (:func:`part_uvs`); the faces'
+    :func:`proctex.texture.pbr.area_normals` (compiled where numba imports)."""
+    return area_normals(vertices, faces)
+
+
+def face_centroids(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k, 3) centroids of ``faces (k, 3)`` over ``points (j, 3)``: compiled
+    (:func:`proctex.transfer.uv_kernels.face_centroids`), or ``points[faces].mean(axis=1)`` (the
+    same bits) where numba does not import."""
+    try:
+        from proctex.transfer.uv_kernels import face_centroids as compiled
+    except ImportError:
+        return np.asarray(points, dtype=np.float64)[faces].mean(axis=1)
+    return compiled(points, faces)
 
 
 @lru_cache(maxsize=64)
