@@ -346,3 +346,12 @@ def test_row_products_are_the_bits_of_numpys_own_forms():
     assert cross3(a, b).dtype == np.float64 and dot3(a, b).shape == (20000,)
     other = a[:, 2] * b[:, 2] + a[:, 1] * b[:, 1] + a[:, 0] * b[:, 0]
     assert (other != (a * b).sum(1)).any()
+
+
+def test_bounds_are_the_column_minima_and_maxima():
+    from proctex.geometry.rowmath import bounds
+
+    rng = np.random.default_rng(5)
+    for a in (rng.normal(size=(1000, 3)), rng.normal(size=(7, 2)).astype(np.float32), rng.integers(-9, 9, (50, 4)), np.array([[0.0, -0.0, 1e308]])):
+        lo, hi = bounds(a)
+        assert np.array_equal(lo, a.min(axis=0)) and np.array_equal(hi, a.max(axis=0)) and lo.dtype == a.dtype

@@ -19,12 +19,12 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from proctex.geometry.rowmath import cross3, dot3
+from proctex.geometry.rowmath import bounds, cross3, dot3
 
 
 def normalised_frame(points: np.ndarray) -> tuple[np.ndarray, float]:
     """``(centre (3,), L∞ radius)`` of ``points (n, 3)``: the normalised part frame (docs/correspondence.md)."""
-    lo, hi = points.min(0), points.max(0)
+    lo, hi = bounds(points)
     center = (lo + hi) / 2
     return center, float(np.abs(points - center).max())
 

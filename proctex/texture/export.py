@@ -39,6 +39,7 @@ from typing import Sequence
 import numpy as np
 
 from proctex.fileio import atomic_write, encode_png
+from proctex.geometry.rowmath import bounds
 
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 GREY = [0.5, 0.5, 0.5, 1.0]
@@ -252,7 +253,8 @@ class _Blob:
         ctype = 5125 if array.dtype == np.uint32 else 5126  # UNSIGNED_INT, FLOAT
         acc = {"bufferView": self.view(array.tobytes(), target), "componentType": ctype, "count": len(array), "type": kind}
         if minmax:
-            acc["min"], acc["max"] = array.min(axis=0).tolist(), array.max(axis=0).tolist()
+            lo, hi = bounds(array)
+            acc["min"], acc["max"] = lo.tolist(), hi.tolist()
         self.doc["accessors"].append(acc)
         return len(self.doc["accessors"]) - 1
 

@@ -10,6 +10,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from proctex.geometry.rowmath import bounds
 from proctex.geometry.parts import Grouping, part_mesh, surface_moments
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, normalised_frame, sample_surface
@@ -137,12 +138,12 @@ def texture_hw(assets: TemplateAssets, group: int) -> tuple[int, int]:
 
 
 def _box(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    lo, hi = bounds(vertices)
     return lo, np.maximum(hi - lo, 1e-12)
 
 
 def _placement(vertices: np.ndarray, lo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    plo, phi = vertices.min(axis=0), vertices.max(axis=0)
+    plo, phi = bounds(vertices)
     return ((plo + phi) / 2 - lo) / size, (phi - plo) / size
 
 
