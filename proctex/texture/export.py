@@ -185,12 +185,15 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
     fn_all = area_normals(V, F)
     n, n_rows = len(V), len(groups)
     order = np.concatenate([idx for _, idx in groups])
-    corners = F[order].reshape(-1)
+    f_o, uv_o, fn_o = F[order], UV[order], fn_all[order]  # the faces in primitive order, gathered once
+    corners = f_o.reshape(-1)
     rank = np.repeat(np.arange(n_rows), [3 * len(idx) for _, idx in groups])
-    st = np.zeros((len(order), 3, 2), np.float32)  # the untextured primitive: no texcoords (split by vertex alone)
+    st = np.empty((len(order), 3, 2), np.float32)
+    st[:, :, 0] = uv_o[:, :, 0]
+    st[:, :, 1] = 1.0 - uv_o[:, :, 1]
     textured = np.concatenate([np.full(len(idx), g >= 0) for g, idx in groups])
-    st[textured, :, 0] = UV[order[textured], :, 0]
-    st[textured, :, 1] = 1.0 - UV[order[textured], :, 1]
+    if not textured.all():
+        st[~textured] = 0.0  # the untextured primitive: no texcoords (split by vertex alone)
     st = np.ascontiguousarray(st.reshape(-1, 2) + np.float32(0))  # -0.0 -> +0.0
     st_keys, st_inv = np.unique(st.view(np.int64).ravel(), return_inverse=True)
     n_st = len(st_keys)
@@ -210,15 +213,17 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
     vid = source % n
     # smooth normals per (primitive, source vertex): its corners' face normals in face order
     bin_of_split = np.concatenate([[0], np.cumsum(source[1:] != source[:-1])])
-    sums = vertex_normals(np.zeros((int(bin_of_split[-1]) + 1 if len(keys) else 0, 3)), bin_of_split[inv].reshape(-1, 3), fn_all[order])
+    sums = vertex_normals(np.zeros((int(bin_of_split[-1]) + 1 if len(keys) else 0, 3)), bin_of_split[inv].reshape(-1, 3), fn_o)
     normals = sums[bin_of_split].astype(np.float32)
     starts = np.searchsorted(keys // (n * n_st), np.arange(n_rows + 1))
     frames = None
     if any(tangents):
-        faces_t = np.concatenate([np.full(len(idx), want) for (_, idx), want in zip(groups, tangents)])
-        rows_t = np.flatnonzero(faces_t)
-        split_t = inv.reshape(-1, 3)[rows_t]
-        frames = key_tangents(V, F[order[rows_t]], UV[order[rows_t]], split_t.reshape(-1), normals.astype(np.float64), fn_all[order[rows_t]]).astype(np.float32)
+        if all(tangents):  # every face: the gathered arrays as they are
+            frames = key_tangents(V, f_o, uv_o, inv, normals.astype(np.float64), fn_o).astype(np.float32)
+        else:
+            rows_t = np.flatnonzero(np.concatenate([np.full(len(idx), want) for (_, idx), want in zip(groups, tangents)]))
+            split_t = inv.reshape(-1, 3)[rows_t]
+            frames = key_tangents(V, f_o[rows_t], uv_o[rows_t], split_t.reshape(-1), normals.astype(np.float64), fn_o[rows_t]).astype(np.float32)
     out, c0 = [], 0
     for row, ((g, idx), want) in enumerate(zip(groups, tangents)):
         a, b = starts[row], starts[row + 1]
