@@ -1259,3 +1259,27 @@ def test_face_centroids_are_numpys_mean_and_answer_without_numba(monkeypatch):
     assert np.array_equal(face_centroids(pts, faces), want)
     monkeypatch.setitem(sys.modules, "proctex.transfer.uv_kernels", None)
     assert np.array_equal(face_centroids(pts, faces), want)
+
+
+def test_compiled_room_proof_is_the_array_form():
+    """The one-test proof that a face reads only its chart, compiled, against its array form: UVs on
+    the texel grid (distances exactly whole texels, the ``ceil`` at its edges) and anywhere."""
+    from proctex.transfer.uv_kernels import inside_rooms
+    from proctex.transfer.uvlookup import FaceRooms, _inside_rooms_arrays
+
+    rng = np.random.default_rng(11)
+    h, w = 32, 48
+    lo = rng.uniform(0, 20, (60, 2))
+    box = np.column_stack([lo[:, 0], lo[:, 0] + rng.uniform(0, 6, 60), lo[:, 1], lo[:, 1] + rng.uniform(0, 6, 60)])
+    box[:20] = np.round(box[:20])
+    rooms = FaceRooms(np.zeros(60, np.int32), box, rng.integers(-1, 4, 60))
+    near = rng.integers(0, 60, 600)
+    # corners in texel coordinates around each face's box: whole texels beyond it (ceil's edges), or anywhere near
+    r = box[near, 0, None] + rng.integers(-3, 9, (600, 3)).astype(float)
+    q = box[near, 2, None] + rng.integers(-3, 9, (600, 3)).astype(float)
+    r[300:] += rng.uniform(-1, 1, (300, 3))
+    q[300:] += rng.uniform(-1, 1, (300, 3))
+    uv = np.stack([(q + 0.5) / w, 1.0 - (r + 0.5) / h], axis=2)
+    want = _inside_rooms_arrays(uv, rooms, near, h, w)
+    assert want.any() and not want.all()  # both answers occur
+    np.testing.assert_array_equal(inside_rooms(uv, rooms.box, rooms.room, near, h, w), want)

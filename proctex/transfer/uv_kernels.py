@@ -1,6 +1,7 @@
 """Compiled (numba) kernels of the run time's UV lookup (:func:`proctex.transfer.uvlookup.part_uvs`):
 each face's three corner UVs through its template triangle's affine map, clipped to [0, 1], in one
-pass over the faces instead of some thirty array passes, and the faces' centroids; the same
+pass over the faces instead of some thirty array passes, the faces' centroids and the one-test
+proof that a face reads only its chart (:func:`inside_rooms`); the same
 operations in the same order as the array forms (:func:`proctex.transfer.uvlookup.affine_corner_uvs_arrays`,
 ``points[faces].mean(axis=1)``, which ``tests/test_transfer.py`` compares them with). Imported on first use, as
 :mod:`proctex.texture.vertex_kernels` is.
@@ -59,6 +60,34 @@ def face_centroids(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return _centroids(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64))
 
 
+@njit(cache=True, nogil=True)
+def _rooms_inside(corner_uv, box, room, near, height, width):
+    k = corner_uv.shape[0]
+    out = np.empty(k, np.bool_)
+    for i in range(k):
+        t = near[i]
+        d = -np.inf
+        for c in range(3):
+            r = (1.0 - corner_uv[i, c, 1]) * height - 0.5
+            q = corner_uv[i, c, 0] * width - 0.5
+            d = max(d, max(max(box[t, 0] - r, r - box[t, 1]), max(box[t, 2] - q, q - box[t, 3])))
+        out[i] = np.ceil(max(d, 0.0)) <= room[t]
+    return out
+
+
+def inside_rooms(corner_uv: np.ndarray, box: np.ndarray, room: np.ndarray, near: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(k,) bool: :func:`proctex.transfer.uvlookup._inside_rooms` in one pass (``box (F, 4)`` and
+    ``room (F,)`` of the template faces, :class:`~proctex.transfer.uvlookup.FaceRooms`); finite UVs."""
+    return _rooms_inside(
+        np.ascontiguousarray(corner_uv, dtype=np.float64),
+        np.ascontiguousarray(box, dtype=np.float64),
+        np.ascontiguousarray(room, dtype=np.int64),
+        np.ascontiguousarray(near, dtype=np.int64),
+        float(height),
+        float(width),
+    )
+
+
 def affine_corner_uvs(mapped: np.ndarray, faces: np.ndarray, vertices: np.ndarray, template_faces: np.ndarray, corner_uv: np.ndarray, near: np.ndarray) -> np.ndarray:
     """(k, 3, 2) corner UVs of a part's faces: see :func:`proctex.transfer.uvlookup.affine_corner_uvs_arrays`."""
     return _corner_uvs(
@@ -77,3 +106,4 @@ def warm() -> None:
     f = np.array([[0, 1, 2]])
     affine_corner_uvs(v, f, v, f, np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]]), np.zeros(1, np.int64))
     face_centroids(v, f)
+    inside_rooms(np.zeros((1, 3, 2)), np.zeros((1, 4)), np.zeros(1, np.int64), np.zeros(1, np.int64), 4, 4)

@@ -242,6 +242,15 @@ def _inside_rooms(corner_uv: np.ndarray, rooms: FaceRooms, near: np.ndarray, hei
     the box (the box grown by ``d`` is convex), so its lookup's first texel is within ``ceil(d)`` of
     ``q``'s, whose block grown by its room lies in the chart. Faces it does not prove are for
     :func:`_inside_chart`."""
+    try:
+        from proctex.transfer.uv_kernels import inside_rooms
+    except ImportError:
+        return _inside_rooms_arrays(corner_uv, rooms, near, height, width)
+    return inside_rooms(corner_uv, rooms.box, rooms.room, near, height, width)
+
+
+def _inside_rooms_arrays(corner_uv: np.ndarray, rooms: FaceRooms, near: np.ndarray, height: int, width: int) -> np.ndarray:
+    """:func:`_inside_rooms` in array operations (the compiled kernel's reference and fallback)."""
     from proctex.texture.uv import texel_coords
 
     k = len(corner_uv)
