@@ -1283,3 +1283,23 @@ def test_compiled_room_proof_is_the_array_form():
     want = _inside_rooms_arrays(uv, rooms, near, h, w)
     assert want.any() and not want.all()  # both answers occur
     np.testing.assert_array_equal(inside_rooms(uv, rooms.box, rooms.room, near, h, w), want)
+
+
+def test_disoccluded_count_is_the_array_forms(monkeypatch):
+    """The dis-occlusion note's count, compiled and in arrays (numba hidden), against the texels
+    :func:`disoccluded_texels` names at each face's corner mean; UVs on texel centres and edges."""
+    import sys
+
+    from proctex.transfer.apply import disoccluded_count, disoccluded_texels
+
+    rng = np.random.default_rng(12)
+    observed = rng.uniform(size=(16, 24)) < 0.7
+    corner = rng.uniform(0, 1, (500, 3, 2))
+    corner[:100] = np.round(corner[:100] * 48) / 48  # on texel edges and centres
+    corner[100:110] = [0.0, 1.0]  # the clamped corner of the texture
+    group = rng.integers(-1, 3, 500)
+    want = [int(disoccluded_texels(corner[group == g].mean(axis=1), observed).sum()) for g in range(3)]
+    assert 0 < min(want)
+    assert [disoccluded_count(corner, group, g, observed) for g in range(3)] == want
+    monkeypatch.setitem(sys.modules, "proctex.transfer.uv_kernels", None)
+    assert [disoccluded_count(corner, group, g, observed) for g in range(3)] == want

@@ -184,11 +184,9 @@ def transfer(
     timings["uv"] = t_uv * share
     if assets.observed is not None:  # faces reading template texels the painter never painted
         for g in np.unique(face_group[face_group >= 0]):
-            sel = np.flatnonzero(face_group == g)
-            c = corner[sel]
-            dis = disoccluded_texels((c[:, 0] + c[:, 1] + c[:, 2]) / 3, assets.observed[g])  # the corners' mean, 5x faster than .mean(axis=1)
-            if dis.any():
-                notes.append(f"group {g}: {int(dis.sum())} faces show surface the template never showed (dis-occlusion; bake to fill it)")
+            n_dis = disoccluded_count(corner, face_group, int(g), assets.observed[g])
+            if n_dis:
+                notes.append(f"group {g}: {n_dis} faces show surface the template never showed (dis-occlusion; bake to fill it)")
     result = TransferResult(corner, face_group, assignment, points, time.perf_counter() - t0, timings, notes=notes, direct=direct)
     new = [a.part for a in assignment if a.how == "new"]
     if new:
@@ -357,6 +355,19 @@ def bake_pbr(maps: Any, vertices: np.ndarray, faces: np.ndarray, template_uv: np
     orm, _ = pad_seams(orm, tm.mask, gutter)
     normal, _ = pad_seams(normal, tm.mask, gutter)
     return PbrMaps(orm.astype(np.float32), normal.astype(np.float32), maps.occlusion)
+
+
+def disoccluded_count(corner_uv: np.ndarray, face_group: np.ndarray, group: int, observed: np.ndarray) -> int:
+    """How many faces of ``group`` read a texel outside ``observed`` at the centre of their UVs
+    (:func:`disoccluded_texels` of their corner means): compiled
+    (:func:`proctex.transfer.uv_kernels.disoccluded_faces`, one pass, nothing gathered), or in
+    arrays where numba does not import."""
+    try:
+        from proctex.transfer.uv_kernels import disoccluded_faces
+    except ImportError:
+        c = corner_uv[np.flatnonzero(face_group == group)]
+        return int(disoccluded_texels((c[:, 0] + c[:, 1] + c[:, 2]) / 3, observed).sum())  # the corners' mean, as .mean(axis=1) adds them
+    return disoccluded_faces(corner_uv, face_group, group, observed)
 
 
 def disoccluded_texels(uv: np.ndarray, observed: np.ndarray) -> np.ndarray:

@@ -88,6 +88,30 @@ def inside_rooms(corner_uv: np.ndarray, box: np.ndarray, room: np.ndarray, near:
     )
 
 
+@njit(cache=True, nogil=True)
+def _disoccluded(corner_uv, face_group, group, observed):
+    h, w = observed.shape
+    n = 0
+    for i in range(corner_uv.shape[0]):
+        if face_group[i] != group:
+            continue
+        u = (corner_uv[i, 0, 0] + corner_uv[i, 1, 0] + corner_uv[i, 2, 0]) / 3
+        v = (corner_uv[i, 0, 1] + corner_uv[i, 1, 1] + corner_uv[i, 2, 1]) / 3
+        i0 = min(max(int(np.floor((1.0 - v) * h - 0.5)), 0), h - 1)
+        j0 = min(max(int(np.floor(u * w - 0.5)), 0), w - 1)
+        i1, j1 = min(i0 + 1, h - 1), min(j0 + 1, w - 1)
+        if not (observed[i0, j0] and observed[i0, j1] and observed[i1, j0] and observed[i1, j1]):
+            n += 1
+    return n
+
+
+def disoccluded_faces(corner_uv: np.ndarray, face_group: np.ndarray, group: int, observed: np.ndarray) -> int:
+    """How many faces of ``group`` (``face_group (k,)``) read, at the centre of their UVs
+    ``corner_uv (k, 3, 2)`` (finite), a texel outside ``observed (H, W)`` bool: the count of
+    :func:`proctex.transfer.apply.disoccluded_texels` over those faces' corner means, in one pass."""
+    return int(_disoccluded(np.ascontiguousarray(corner_uv, dtype=np.float64), np.ascontiguousarray(face_group, dtype=np.int64), int(group), np.ascontiguousarray(observed, dtype=np.bool_)))
+
+
 def affine_corner_uvs(mapped: np.ndarray, faces: np.ndarray, vertices: np.ndarray, template_faces: np.ndarray, corner_uv: np.ndarray, near: np.ndarray) -> np.ndarray:
     """(k, 3, 2) corner UVs of a part's faces: see :func:`proctex.transfer.uvlookup.affine_corner_uvs_arrays`."""
     return _corner_uvs(
@@ -106,4 +130,5 @@ def warm() -> None:
     f = np.array([[0, 1, 2]])
     affine_corner_uvs(v, f, v, f, np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]]), np.zeros(1, np.int64))
     face_centroids(v, f)
+    disoccluded_faces(np.zeros((1, 3, 2)), np.zeros(1, np.int64), 0, np.ones((2, 2), bool))
     inside_rooms(np.zeros((1, 3, 2)), np.zeros((1, 4)), np.zeros(1, np.int64), np.zeros(1, np.int64), 4, 4)

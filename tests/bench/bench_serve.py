@@ -101,14 +101,22 @@ def in_process_ms(svc, payloads: list[tuple[bytes, str]], n: int, linked: bool) 
         data = rest[: rest.rindex(b"\r\n--")]
         return svc.check_shape(load_mesh_bytes(data, "upload.obj", groups=True)[0])
 
-    times = []
+    times, shaping, texturing = [], [], []
     for i in range(n + 4):
         body, ctype = payloads[i % len(payloads)]
         t = time.perf_counter()
-        svc.transfer(shape_of(body, ctype), linked=linked)
+        shape = shape_of(body, ctype)
+        t_shape = time.perf_counter()
+        _, summary = svc.transfer(shape, linked=linked)
         if i >= 4:  # the first few warm the caches
             times.append(1000 * (time.perf_counter() - t))
-    return {"p50_ms": float(np.median(times)), "p10_ms": float(np.percentile(times, 10)), "p90_ms": float(np.percentile(times, 90)), "n": len(times)}
+            shaping.append(1000 * (t_shape - t))
+            texturing.append(1000 * summary["seconds"])
+    out = {"p50_ms": float(np.median(times)), "p10_ms": float(np.percentile(times, 10)), "p90_ms": float(np.percentile(times, 90)), "n": len(times)}
+    # apart: the shape (generated, or the upload parsed) and its texturing (the transfer and the GLB)
+    out["shape_p50_ms"] = float(np.median(shaping))
+    out.update({f"transfer_{q}_ms": float(np.percentile(texturing, int(q[1:]))) for q in ("p10", "p50", "p90")})
+    return out
 
 
 def start_server(root: str, replicas: int, http: str, code: Path = ROOT) -> tuple[subprocess.Popen, str]:
@@ -203,6 +211,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--textures", choices=["embedded", "linked"], default="embedded", help="answers with the textures, or referring to them")
     ap.add_argument("--out", default="")
+    ap.add_argument("--in-process-only", action="store_true", help="the in-process figures alone (--requests of them), no server")
     args = ap.parse_args(argv)
     modes = [m.strip() for m in args.http.split(",") if m.strip()]
     if not modes or any(m not in ("front", "serve") for m in modes):
@@ -225,6 +234,15 @@ def main(argv=None) -> int:
         payloads = [(json.dumps({"params": p}).encode(), "application/json") for p in space.sample(64, seed=args.seed)]
     inproc = in_process_ms(svc, payloads, args.requests, args.textures == "linked")
     print(f"in process (shape, transfer, GLB; no HTTP): median {inproc['p50_ms']:.1f} ms (p10 {inproc['p10_ms']:.1f}, p90 {inproc['p90_ms']:.1f})", flush=True)
+    print(
+        f"  of which the shape {inproc['shape_p50_ms']:.1f} ms; the transfer and GLB: median {inproc['transfer_p50_ms']:.1f} ms (p10 {inproc['transfer_p10_ms']:.1f}, p90 {inproc['transfer_p90_ms']:.1f})",
+        flush=True,
+    )
+    if args.in_process_only:
+        if args.out:
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.out).write_text(json.dumps({"benchmark": "serve", "family": args.family, "in_process": inproc}, indent=1))
+        return 0
     runs = []
     root = str(Path(args.root).resolve())
     for k in range(args.runs):
