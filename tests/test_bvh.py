@@ -121,3 +121,20 @@ def test_bad_input_is_a_clear_error():
     with pytest.raises(ValueError, match="no faces"):
         triangle_tree(v, np.zeros((0, 3), np.int64)).nearest(np.zeros((1, 3)))
     assert len(tree.nearest(np.zeros((0, 3)))[0]) == 0
+
+
+def test_an_index_answers_every_finite_query_beside_non_finite_ones():
+    """A diverged solve's NaN or inf point gets face 0 from ``SurfaceIndex``; the others their own."""
+    from proctex.geometry.surface import SurfaceIndex
+
+    v, f, q = _meshes()["slab"]
+    index = SurfaceIndex(v, f)
+    want = index.query(q[:20]).faces
+    bad = q[:20].copy()
+    bad[3] = np.nan
+    bad[7, 1] = np.inf
+    got = index._aabb_faces(bad)
+    keep = np.ones(20, bool)
+    keep[[3, 7]] = False
+    np.testing.assert_array_equal(got[keep], want[keep])
+    assert got[3] == got[7] == 0

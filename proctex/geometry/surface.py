@@ -396,11 +396,19 @@ class SurfaceIndex:
         """(q,) int64 exact nearest face of each of ``pts (q, 3)`` (q >= 1): by the compiled tree
         of :mod:`proctex.geometry.bvh` (built on first use; ties to the lowest face index), which
         lets go of the GIL, so the parts of a transfer search side by side; by libigl's AABB tree
-        where numba does not import."""
+        where numba does not import. A query that is not finite (a diverged solve's point) gets
+        face 0, as it got some face from libigl, instead of stopping the others."""
         if _bvh() is not None:
             if self._bvh is None:
                 self._bvh = _bvh().triangle_tree(self.vertices, self.faces)
-            return self._bvh.nearest(pts)[0]
+            pts = np.ascontiguousarray(pts, dtype=np.float64)
+            finite = np.isfinite(pts).all(axis=1)
+            if finite.all():
+                return self._bvh.nearest(pts)[0]
+            faces = np.zeros(len(pts), dtype=np.int64)
+            if finite.any():
+                faces[finite] = self._bvh.nearest(pts[finite])[0]
+            return faces
         _, face, _ = self._tree().squared_distance(self.vertices, self.faces, np.ascontiguousarray(pts))
         return np.asarray(face, dtype=np.int64)
 
