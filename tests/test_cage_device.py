@@ -137,16 +137,18 @@ def test_batched_solves_with_device_searches_land_on_each_pairs_single_solve():
     """The bent boxes of the host batch's test onto one box, their matches found by the device
     searches: each pair's map within 5% of how far it moved from its single solve's (measured 0.04,
     0.2, 0.4 and 3.5%: the most bent box's path parts a little, as the host batch's do), the first
-    loss within 2% of the single solve's, the residual within 5% (measured at most 2.5%), on both
+    loss within 4% of the single solve's, the residual within 5% (measured at most 2.5%), on both
     kernel sets (``python -m tests.portable``); an unknown search is refused."""
     (tv, tf), sources = bent_boxes()
     cfg = CageConfig(iterations=60)
     single = [correspond_parts(v, f, tv, tf, "cage", n_points=300, seed=s, cage=cfg) for v, f, s in sources]
     batch = correspond_parts_batch(sources, tv, tf, n_points=300, cage=cfg, search="device")
     for a, b in zip(single, batch):
-        # the start's loss within 2% (measured 0 to 1.2%): where the CPU's candidate search settles
-        # on a farther face (4 of the 1,200 first matches here) the device's is the exact nearest
-        assert b.details["history"][0] == pytest.approx(a.details["history"][0], rel=0.02)
+        # the start's loss within 4% (measured 0, 0, 1.9 and 2.4%, 3.1% with AVX-512 off; 0 to 1.2%
+        # while libigl's tree broke the CPU's ties): where the CPU's candidate search settles on a farther face the device's is
+        # the exact nearest, and where the nearest face of all is a tie at an edge the CPU's tree takes
+        # the lowest index, whose normal decides whether the candidate search is asked at all
+        assert b.details["history"][0] == pytest.approx(a.details["history"][0], rel=0.04)
         moved = np.linalg.norm(a.points - a.source_points, axis=1).mean()
         assert np.linalg.norm(b.points - a.points, axis=1).mean() <= 0.05 * moved + 1e-12
         assert b.residual == pytest.approx(a.residual, rel=0.05)

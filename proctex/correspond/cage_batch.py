@@ -323,7 +323,7 @@ def closest_on_triangles(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c: t
 
     Returns:
         ``(closest (..., 3), barycentric (..., 3))`` in ``p``'s dtype; degenerate triangles take an
-        edge's or a corner's point.
+        edge's or a corner's point (a zero-length edge is no region; no region: the nearest corner).
     """
     ab, ac, ap = b - a, c - a, p - a
     d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
@@ -347,12 +347,15 @@ def closest_on_triangles(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c: t
         ((d1 <= 0) & (d2 <= 0), (one, zero, zero)),
         ((d3 >= 0) & (d4 <= d3), (zero, one, zero)),
         ((d6 >= 0) & (d5 <= d6), (zero, zero, one)),
-        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), (1 - v_ab, v_ab, zero)),
-        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), (1 - w_ac, zero, w_ac)),
-        ((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), (zero, 1 - w_bc, w_bc)),
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0) & (d1 - d3 != 0), (1 - v_ab, v_ab, zero)),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0) & (d2 - d6 != 0), (1 - w_ac, zero, w_ac)),
+        ((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0) & ((d4 - d3) + (d5 - d6) != 0), (zero, 1 - w_bc, w_bc)),
         (denom != 0, (1 - vv - ww, vv, ww)),
     ]
-    bary = [one, zero, zero]
+    # no region (all corners on one point or line): the nearest corner
+    da, db, dc = (ap * ap).sum(-1), (bp * bp).sum(-1), (cp * cp).sum(-1)
+    near_a, near_b = (da <= db) & (da <= dc), db <= dc
+    bary = [near_a.to(d1.dtype), (~near_a & near_b).to(d1.dtype), (~near_a & ~near_b).to(d1.dtype)]
     for cond, choice in reversed(regions):
         bary = [torch.where(cond, ch, old) for ch, old in zip(choice, bary)]
     w = torch.stack(bary, -1)

@@ -24,6 +24,12 @@ from numba import njit
 #: Triangles per leaf of the tree.
 LEAF = 4
 
+#: A box is skipped when farther than the best squared distance so far times this: a box's distance
+#: and a triangle's are computed differently and may round a few ulps apart, and a box holding a
+#: triangle exactly as near as the best must be opened for the tie to go to the lowest index
+#: whatever the walk's order (the previous query's face, the split planes) found first.
+SLACK = 1.0 + 1e-9
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _d2(ax, ay, az, bx, by, bz, cx, cy, cz, px, py, pz):
@@ -265,7 +271,7 @@ def _nearest(points, a, b, c, lo, hi, left, right, start, count, perm, slot):
         while sp > 0:
             sp -= 1
             node = stack[sp]
-            if _box_d2(lo, hi, node, px, py, pz) > best:
+            if _box_d2(lo, hi, node, px, py, pz) > best * SLACK:
                 continue
             if left[node] < 0:
                 for j in range(start[node], start[node] + count[node]):  # a, b, c in leaf order
@@ -277,17 +283,17 @@ def _nearest(points, a, b, c, lo, hi, left, right, start, count, perm, slot):
             ln, rn = left[node], right[node]
             dl, dr = _box_d2(lo, hi, ln, px, py, pz), _box_d2(lo, hi, rn, px, py, pz)
             if dl <= dr:  # the nearer child is popped first
-                if dr <= best:
+                if dr <= best * SLACK:
                     stack[sp] = rn
                     sp += 1
-                if dl <= best:
+                if dl <= best * SLACK:
                     stack[sp] = ln
                     sp += 1
             else:
-                if dl <= best:
+                if dl <= best * SLACK:
                     stack[sp] = ln
                     sp += 1
-                if dr <= best:
+                if dr <= best * SLACK:
                     stack[sp] = rn
                     sp += 1
         face[i], dist[i] = bf, best
