@@ -327,7 +327,12 @@ class TriangleTree:
             raise ValueError("points must be finite")
         if not len(self.a):
             raise ValueError("a tree of no faces has no nearest face")
-        return _nearest(pts, self.a, self.b, self.c, self.lo, self.hi, self.left, self.right, self.start, self.count, self.perm, self.slot)
+        return self.walk(pts)
+
+    def walk(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`nearest` for points its caller has checked: (q, 3) C-ordered float64, finite, and a
+        tree with faces (``SurfaceIndex`` checks them once for its own queries)."""
+        return _nearest(points, self.a, self.b, self.c, self.lo, self.hi, self.left, self.right, self.start, self.count, self.perm, self.slot)
 
 
 def triangle_tree(vertices: np.ndarray, faces: np.ndarray, leaf: int = LEAF) -> TriangleTree:

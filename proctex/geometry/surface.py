@@ -403,11 +403,11 @@ class SurfaceIndex:
                 self._bvh = _bvh().triangle_tree(self.vertices, self.faces)
             pts = np.ascontiguousarray(pts, dtype=np.float64)
             finite = np.isfinite(pts).all(axis=1)
-            if finite.all():
-                return self._bvh.nearest(pts)[0]
+            if finite.all():  # checked here once: the tree's walk takes them as they are
+                return self._bvh.walk(pts)[0]
             faces = np.zeros(len(pts), dtype=np.int64)
             if finite.any():
-                faces[finite] = self._bvh.nearest(pts[finite])[0]
+                faces[finite] = self._bvh.walk(np.ascontiguousarray(pts[finite]))[0]
             return faces
         _, face, _ = self._tree().squared_distance(self.vertices, self.faces, np.ascontiguousarray(pts))
         return np.asarray(face, dtype=np.int64)

@@ -152,5 +152,4 @@ def warm() -> None:
     uv = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), (4, 1, 1))
     fn = area_normals(v, f)
     vn = vertex_normals(v, f, fn)
-    key_tangents(v, f, uv, f.reshape(-1), vn, fn)
-    key_tangents(v, f, uv, f.reshape(-1), vn, None)
+    key_tangents(v, f, uv, f.reshape(-1), vn, fn)  # one signature with the faces' normals given or not
