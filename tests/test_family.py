@@ -485,8 +485,8 @@ def test_bad_configs_are_clear_errors():
 @pytest.mark.slow  # 10-40 s (issue 49: the fast tests run twice in make test)
 def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
     """The build is plans run by an executor: one that runs the batches backwards, without the
-    in-process context and with one torch thread (as a Ray worker does), stores the same family; a
-    rerun plans nothing."""
+    in-process context (as a Ray worker does) but with the plan's torch threads, stores the same
+    family; a rerun plans nothing."""
     from proctex.build.pipeline import build
     from proctex.build.plan import Placement, run_in_process
     from proctex.pools import torch_threads
@@ -510,7 +510,7 @@ def test_the_same_plans_run_by_another_executor_build_the_same_family(tmp_path):
         if plan.skip or plan.placement is Placement.HERE:
             return run_in_process(plan, store, config, log)
         ran.append((plan.stage, plan.n_jobs, plan.placement.value))
-        with torch_threads(1):  # one torch thread, as a Ray task runs (workers/tasks.py): 1 and 2 threads may round apart
+        with torch_threads(plan.threads):  # the plan's torch threads, as run_in_process and a Ray task set them: 1 and 2 threads may round apart
             out = {i: plan.run_batch(store, config, plan.batches[i], None) for i in reversed(range(len(plan.batches)))}
         for i in reversed(range(len(plan.batches))):
             plan.collect(plan.batches[i], out[i]) if plan.collect else None
