@@ -669,3 +669,58 @@ def test_without_numba_the_array_forms_answer(monkeypatch):
     got = (area_normals(v, f), vertex_normals(v, f), key_tangents(v, f, uv, f.reshape(-1), vertex_normals(v, f)))
     for g, w in zip(got, want):
         assert np.array_equal(g.view(np.int64), w.view(np.int64))
+
+
+def _unique_pairs(source: np.ndarray, value: np.ndarray, n_sources: int):
+    """The reference of :func:`proctex.texture.vertex_kernels.split_pairs`: ``np.unique`` of the
+    values' ranks combined with the sources into one key, as the GLB's array form sorts them."""
+    v_keys, v_inv = np.unique(value, return_inverse=True)
+    keys, inv = np.unique(source * len(v_keys) + v_inv.ravel(), return_inverse=True)
+    return keys // len(v_keys), v_keys[keys % len(v_keys)], inv.ravel()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_split_pairs_are_np_unique_of_the_pairs(seed):
+    """The GLB's split vertices (the compiled counting sort) against ``np.unique``: the same pairs
+    in the same order and the same inverse, on sources with one corner, with dozens (the sort past
+    the insertion sort's 16), equal and negative values (texcoord bits compared as signed
+    integers), sources no corner uses, and none at all."""
+    from proctex.texture.vertex_kernels import split_pairs
+
+    rng = np.random.default_rng(seed)
+    n_sources = 50
+    source = np.concatenate([rng.integers(0, 40, 300), np.full(40, 45), [49]])  # 45: 40 corners, 49: one
+    value = rng.integers(-4, 5, len(source)) * (1 << 40) + rng.integers(0, 2, len(source))  # many ties, both signs
+    value[source == 45] = rng.permutation(np.repeat(rng.integers(-(1 << 62), 1 << 62, 8), 5))
+    order = rng.permutation(len(source))
+    source, value = source[order], value[order]
+    got, want = split_pairs(source, value, n_sources), _unique_pairs(source, value, n_sources)
+    for g, w in zip(got, want):
+        assert g.dtype == np.int64 and np.array_equal(g, w)
+    assert len(got[0]) < len(source)  # ties merged: the test has pairs in common
+    empty = split_pairs(np.zeros(0, np.int64), np.zeros(0, np.int64), 3)
+    assert all(len(x) == 0 for x in empty)
+    with pytest.raises(ValueError, match="lie in"):
+        split_pairs(np.array([3]), np.array([0]), 3)
+    with pytest.raises(ValueError, match="one entry per corner"):
+        split_pairs(np.array([0, 1]), np.array([0]), 3)
+
+
+def test_a_glb_is_the_same_bytes_without_the_compiled_split(monkeypatch):
+    """The GLB of a messy shape (seams, degenerate and repeated faces, an untextured group,
+    -0.0 texcoords) is the same bytes whether its split vertices come from the compiled kernel
+    or from ``np.unique`` (numba hidden); a GLB whose texcoords differ is not (the comparison
+    sees the split)."""
+    import sys
+
+    v, f, uv = _messy_mesh(3)
+    uv[:4] = -0.0
+    group = np.arange(len(f)) % 3 - 1  # groups -1, 0, 1
+    tex = [np.full((8, 8, 3), 90 * g, np.uint8) for g in (1, 2)]
+    fast = glb_bytes(v, f, uv, group, tex)
+    monkeypatch.setitem(sys.modules, "proctex.texture.vertex_kernels", None)  # its import raises ImportError
+    slow = glb_bytes(v, f, uv, group, tex)
+    assert fast == slow
+    moved = uv.copy()
+    moved[5, 0, 0] += 1e-3
+    assert glb_bytes(v, f, moved, group, tex) != slow

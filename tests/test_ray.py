@@ -580,6 +580,45 @@ def test_the_front_holds_against_stalled_clients_and_a_replica_killed_under_load
         stop()
 
 
+def test_the_fronts_handle_routes_on_the_servers_loop_and_serve_stops_after_it(local_ray, reference, tmp_path):
+    """The front's handle (workers.front.on_this_loop) is a handle of its own whose router runs on
+    the server's event loop, not on Serve's router thread; it answers, and after the front has
+    stopped (its loop closed) ``serve.shutdown`` still stops Serve: Serve's cached handle was left
+    alone (initialising that one on the front's loop made ``serve.shutdown`` raise "Event loop is
+    closed")."""
+    import asyncio
+    import shutil
+    import urllib.request
+
+    from ray import serve
+
+    from workers.front import on_this_loop
+
+    root = tmp_path / "families"
+    shutil.copytree(reference.base, root / "mug")
+    base, stop = _front(root, "proctex-front-loop", replicas=1)
+    try:
+        req = urllib.request.Request(f"{base}/v1/families/mug/transfer", data=json.dumps({"params": {"radius": 0.04}}).encode(), headers={"content-type": "application/json"}, method="POST")
+        with urllib.request.urlopen(req, timeout=120) as r:
+            assert r.status == 200 and r.read()[:4] == b"glTF"
+        handle = serve.get_deployment_handle("ProcTexTransfer", "proctex-front-loop")
+
+        async def one_call() -> tuple:
+            own = on_this_loop(handle)
+            try:
+                answer = await own.forward.remote({"method": "GET", "path": "/healthz", "headers": [], "body": b""})
+            finally:
+                await own.shutdown_async()
+            return own, answer
+
+        own, answer = asyncio.run(one_call())
+        assert own is not handle and own.init_options._run_router_in_separate_loop is False
+        assert answer["status"] == 200
+    finally:
+        stop()
+    serve.shutdown()  # raised "Event loop is closed" when the front had taken over Serve's cached handle
+
+
 def test_a_private_ray_serving_a_family_listens_on_loopback_behind_its_own_token(local_ray, reference, tmp_path):
     """Every socket this test's private Ray listens on while it serves a family is on loopback, but
     the one Ray 2.60 binds to every interface with no option (a Serve replica's gRPC server, "[::]:0"),

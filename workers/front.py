@@ -33,11 +33,36 @@ def front_app(handle: Any, limits: Limits, multiplexed: bool = False) -> Any:
     """The ASGI app of the front: :func:`workers.ingress.ingress_app` forwarding to the transfer
     deployment's ``handle`` (a request about a family goes, multiplexed, to a replica holding it)."""
 
+    routed: list[Any] = []
+
     async def send(request: Forwarded, family: str | None) -> Answer:
-        h = handle.options(multiplexed_model_id=family) if (multiplexed and family) else handle
+        if not routed:  # the first request, on the server's event loop: a handle routing on it
+            routed.append(on_this_loop(handle))
+        base = routed[0]
+        h = base.options(multiplexed_model_id=family) if (multiplexed and family) else base
         return await h.forward.remote(request)
 
-    return ingress_app(send, limits, is_lost=lost)
+    async def stop() -> None:  # the server stops: the router's tasks end on its loop, before the loop closes
+        if routed and routed[0] is not handle:
+            await routed[0].shutdown_async()
+
+    return ingress_app(send, limits, is_lost=lost, on_shutdown=stop)
+
+
+def on_this_loop(handle: Any) -> Any:
+    """A handle to ``handle``'s deployment whose router runs on the running event loop (the front's
+    server's), not on a loop of its own in another thread (Serve's default for a handle outside a
+    replica): each call and its answer then cross no thread. It is a new handle (Serve's own cache
+    keeps ``handle``, which ``serve.shutdown`` stops after this loop has closed); its owner stops it
+    with ``shutdown_async`` on this loop. Where the option is missing (another Ray), ``handle``."""
+    try:
+        from ray.serve.handle import DeploymentHandle
+
+        own = DeploymentHandle(handle.deployment_id.name, handle.deployment_id.app_name)
+        own._init(_run_router_in_separate_loop=False)
+    except (RuntimeError, TypeError, AttributeError, ImportError):  # a Ray without the option: Serve's default router
+        return handle
+    return own
 
 
 def deploy_transfer(app_args: dict[str, Any], name: str = "proctex") -> tuple[Any, Limits, bool]:

@@ -115,7 +115,11 @@ async def call_app(app: Callable, request: Forwarded) -> Answer:
 
 
 def ingress_app(
-    forward: Callable[[Forwarded, str | None], Awaitable[Answer]], limits: Limits | None = None, is_lost: Callable[[BaseException], bool] = is_lost_default, retry_seconds: float = 60.0
+    forward: Callable[[Forwarded, str | None], Awaitable[Answer]],
+    limits: Limits | None = None,
+    is_lost: Callable[[BaseException], bool] = is_lost_default,
+    retry_seconds: float = 60.0,
+    on_shutdown: Callable[[], Awaitable[None]] | None = None,
 ) -> Callable:
     """The ASGI app of the ingress.
 
@@ -128,7 +132,8 @@ def ingress_app(
     else that goes wrong is a JSON error (503 with ``Retry-After`` for a lost replica, 500 with the
     error's type otherwise), never plain text. A forwarded answer's ``Server-Timing`` gains
     ``ingress-body`` (reading the body here), ``forward`` (the replica's round trip, retry
-    included) and ``ingress`` (both).
+    included) and ``ingress`` (both). ``on_shutdown``: awaited when the server running the app
+    stops (ASGI lifespan), before its event loop closes.
     """
     from workers.http import error_response, read_body
 
@@ -144,6 +149,8 @@ def ingress_app(
             if message["type"] == "lifespan.startup":
                 await send({"type": "lifespan.startup.complete"})
             elif message["type"] == "lifespan.shutdown":
+                if on_shutdown is not None:
+                    await on_shutdown()
                 await send({"type": "lifespan.shutdown.complete"})
                 return
 

@@ -195,9 +195,13 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
     if not textured.all():
         st[~textured] = 0.0  # the untextured primitive: no texcoords (split by vertex alone)
     st = np.ascontiguousarray(st.reshape(-1, 2) + np.float32(0))  # -0.0 -> +0.0
-    st_keys, st_inv = np.unique(st.view(np.int64).ravel(), return_inverse=True)
-    n_st = len(st_keys)
-    if float(n_rows) * n * n_st >= _KEY_LIMIT:  # one key would overflow: primitive by primitive
+    pairs = _split_pairs(rank * n + corners, st.view(np.int64).ravel(), n_rows * n)
+    if pairs is not None:  # compiled: the pairs sorted by (primitive, vertex, texcoord bits) without a full sort
+        source, st_bits, inv = pairs
+    else:
+        st_keys, st_inv = np.unique(st.view(np.int64).ravel(), return_inverse=True)
+        n_st = len(st_keys)
+    if pairs is None and float(n_rows) * n * n_st >= _KEY_LIMIT:  # one key would overflow: primitive by primitive
         out, c0 = [], 0
         for (g, idx), want in zip(groups, tangents):
             f = F[idx]
@@ -206,16 +210,16 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
             normals = _smooth_normals(V, f, vid, fn_all[idx])
             out.append((vid, st_split, indices, normals, _split_tangents(V, f, UV[idx], indices, normals, fn_all[idx]) if want else None))
         return out
-    # split vertices: the unique (primitive, vertex, texcoord) triples, sorted as each primitive's own
-    keys, inv = np.unique((rank * n + corners) * n_st + st_inv.ravel(), return_inverse=True)
-    inv = inv.ravel()
-    source = keys // n_st  # primitive * n + vertex
+    if pairs is None:  # split vertices: the unique (primitive, vertex, texcoord) triples, sorted as each primitive's own
+        keys, inv = np.unique((rank * n + corners) * n_st + st_inv.ravel(), return_inverse=True)
+        inv = inv.ravel()
+        source, st_bits = keys // n_st, st_keys[keys % n_st]  # primitive * n + vertex; texcoord bits
     vid = source % n
     # smooth normals per (primitive, source vertex): its corners' face normals in face order
     bin_of_split = np.concatenate([[0], np.cumsum(source[1:] != source[:-1])])
-    sums = vertex_normals(np.zeros((int(bin_of_split[-1]) + 1 if len(keys) else 0, 3)), bin_of_split[inv].reshape(-1, 3), fn_o)
+    sums = vertex_normals(np.zeros((int(bin_of_split[-1]) + 1 if len(source) else 0, 3)), bin_of_split[inv].reshape(-1, 3), fn_o)
     normals = sums[bin_of_split].astype(np.float32)
-    starts = np.searchsorted(keys // (n * n_st), np.arange(n_rows + 1))
+    starts = np.searchsorted(source // n, np.arange(n_rows + 1))
     frames = None
     if any(tangents):
         if all(tangents):  # every face: the gathered arrays as they are
@@ -229,9 +233,20 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
         a, b = starts[row], starts[row + 1]
         indices = (inv[c0 : c0 + 3 * len(idx)] - a).reshape(-1, 3).astype(np.uint32)
         c0 += 3 * len(idx)
-        st_split = st_keys[keys[a:b] % n_st].view(np.float32).reshape(-1, 2) if g >= 0 else None
+        st_split = st_bits[a:b].view(np.float32).reshape(-1, 2) if g >= 0 else None
         out.append((vid[a:b], st_split, indices, normals[a:b], frames[a:b] if want else None))
     return out
+
+
+def _split_pairs(source: np.ndarray, bits: np.ndarray, n_sources: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """:func:`proctex.texture.vertex_kernels.split_pairs` of the corners' ``(primitive * n + vertex,
+    texcoord bits)``, or None where numba does not import (:func:`_primitive_arrays` then sorts
+    combined keys with ``np.unique``: the same pairs in the same order)."""
+    try:
+        from .vertex_kernels import split_pairs
+    except ImportError:
+        return None
+    return split_pairs(source, bits, n_sources)
 
 
 # --------------------------------------------------------------------------- GLB

@@ -1,5 +1,5 @@
-"""Compiled (numba) kernels of the GLB's vertex data: :func:`key_tangents`, :func:`area_normals`
-and :func:`vertex_normals` in a pass or two over the faces instead of some forty array passes, the
+"""Compiled (numba) kernels of the GLB's vertex data: :func:`key_tangents`, :func:`area_normals`,
+:func:`vertex_normals` and :func:`split_pairs` (the split vertices) in a pass or two over the faces instead of some forty array passes, the
 same bits as their array forms in :mod:`proctex.texture.pbr` (the references ``tests/test_pbr.py``
 compares them with): the same operations in the same order, each sum taking its corners in corner
 order as ``np.bincount`` does. Imported on first use (numba's import and, on a machine's
@@ -144,6 +144,63 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray 
     return _vertex_normals(len(v), f, fn)
 
 
+@njit(cache=True, nogil=True)
+def _split_pairs(source, value, n_sources):
+    n = len(source)
+    start = np.zeros(n_sources + 1, np.int64)
+    for i in range(n):
+        start[source[i] + 1] += 1
+    for s in range(n_sources):
+        start[s + 1] += start[s]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):  # corners bucketed by source, in corner order within a bucket
+        order[fill[source[i]]] = i
+        fill[source[i]] += 1
+    inv = np.empty(n, np.int64)
+    pair_source = np.empty(n, np.int64)
+    pair_value = np.empty(n, np.int64)
+    u = 0
+    for s in range(n_sources):
+        a, b = start[s], start[s + 1]
+        if b - a > 16:  # a vertex on many faces of one primitive: a real sort
+            rows = order[a:b]
+            order[a:b] = rows[np.argsort(value[rows], kind="mergesort")]
+        else:  # the usual handful of corners: insertion sort by value
+            for j in range(a + 1, b):
+                c = order[j]
+                k = j - 1
+                while k >= a and value[order[k]] > value[c]:
+                    order[k + 1] = order[k]
+                    k -= 1
+                order[k + 1] = c
+        for j in range(a, b):
+            c = order[j]
+            if j == a or value[c] != value[order[j - 1]]:
+                pair_source[u] = s
+                pair_value[u] = value[c]
+                u += 1
+            inv[c] = u - 1
+    return pair_source[:u].copy(), pair_value[:u].copy(), inv
+
+
+def split_pairs(source: np.ndarray, value: np.ndarray, n_sources: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct ``(source, value)`` pairs of the corners, sorted by source then value (as
+    ``np.unique`` sorts them), and each corner's pair: a counting sort by ``source`` and a few
+    comparisons per source instead of two full sorts.
+
+    Args: source (N,) int64 in ``[0, n_sources)``; value (N,) int64 (compared as signed integers:
+    the bits of a texcoord pair). Returns ``(pair_source (U,), pair_value (U,), inverse (N,))``,
+    all int64; ``ValueError`` for a source out of range or arrays of other lengths."""
+    src = np.ascontiguousarray(source, dtype=np.int64).reshape(-1)
+    val = np.ascontiguousarray(value, dtype=np.int64).reshape(-1)
+    if len(src) != len(val):
+        raise ValueError(f"source and value must have one entry per corner, got {len(src)} and {len(val)}")
+    if len(src) and (src.min() < 0 or src.max() >= n_sources):
+        raise ValueError(f"sources must lie in [0, {n_sources}), got [{src.min()}, {src.max()}]")
+    return _split_pairs(src, val, int(n_sources))
+
+
 def warm() -> None:
     """Compile (or load from numba's cache) these kernels on a tetrahedron (see
     :func:`proctex.geometry.bvh.warm`)."""
@@ -153,3 +210,4 @@ def warm() -> None:
     fn = area_normals(v, f)
     vn = vertex_normals(v, f, fn)
     key_tangents(v, f, uv, f.reshape(-1), vn, fn)  # one signature with the faces' normals given or not
+    split_pairs(f.reshape(-1), np.zeros(12, np.int64), 4)
