@@ -7,6 +7,7 @@ import asyncio
 import math
 import shutil
 
+import numpy as np
 import pytest
 
 from proctex.serve.timing import StageClock, parse_server_timing, server_timing
@@ -135,3 +136,25 @@ def test_the_benchmark_tells_the_hops_from_the_work():
     # an answer with no ingress entries (a server without the front) gives the route's stages only
     bare = stage_breakdown([(50.0, {"app": 40.0, "uv": 30.0})])
     assert "proxy" not in bare and "hop" not in bare and bare["route-other"] == pytest.approx(10.0) and stage_breakdown([]) == {}
+
+
+def test_the_paired_ratio_sees_the_server_and_not_the_machines_drift():
+    """``bench_serve.paired_ratio`` on requests timed in pairs: a server that adds a quarter to each
+    request reads 1.25x however the machine's speed drifts through the run (each in-process time
+    from 20 to 40 ms), where dividing by an in-process median taken before the run reads 1.78x;
+    a server slower by 10 ms more per request reads higher (the bound it must meet can fail)."""
+    from tests.bench.bench_serve import paired_ratio
+
+    here = list(np.linspace(20.0, 40.0, 81))  # the machine slows down through the run
+    http = [1.25 * t for t in here]
+    got = paired_ratio(http, here)
+    assert got["median_ratio"] == pytest.approx(1.25) and got["ratio_of_medians"] == pytest.approx(1.25)
+    assert got["http_p50_ms"] == pytest.approx(37.5) and got["in_process_p50_ms"] == pytest.approx(30.0)
+    before_the_run = float(np.median(here[:10]))  # an in-process figure of the run's first minutes
+    assert float(np.median(http)) / before_the_run == pytest.approx(37.5 / 21.125)  # 1.78x: what the unpaired ratio reads
+    slower = paired_ratio([h + 10.0 for h in http], here)
+    assert slower["ratio_of_medians"] > 1.5 and slower["median_ratio"] > 1.5
+    with pytest.raises(ValueError, match="pairs"):
+        paired_ratio([1.0, 2.0], [1.0])
+    with pytest.raises(ValueError, match="pairs"):
+        paired_ratio([], [])

@@ -6,8 +6,9 @@ the inference split) for a folder family, random parameter settings for a model 
 latency p50 / p90 / p99 and requests per second per level (saturation = the best level), as JSON,
 with where the time went per stage (the answers' Server-Timing: the proxy, the ingress, the hop to
 the replica, the route's stages) and the same requests in process (shape, transfer, GLB): once
-before Ray starts, and again just before each run with its server idle, which that run's
-HTTP-over-in-process ratio divides by (a machine whose speed drifts moves both alike).
+before Ray starts, again just before each run with its server idle, and, at 1 client, each request
+in process right after its HTTP answer: that run's paired HTTP-over-in-process ratio
+(:func:`paired_ratio`; a machine whose speed drifts moves both halves of a pair alike).
 
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family sofa --out out/bench_serve.json
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family chair --requests 200 --concurrency 1,2,4,8
@@ -89,29 +90,49 @@ def stage_breakdown(answers: list[tuple[float, dict[str, float]]]) -> dict[str, 
     return {k: float(np.median(v)) for k, v in rows.items()}
 
 
-def in_process_ms(svc, payloads: list[tuple[bytes, str]], n: int, linked: bool) -> dict[str, float]:
-    """The same requests in this process with no HTTP: the shape (generated from the parameters, or
-    the upload parsed here), the transfer and the GLB, as the route does them; medians of ``n``."""
+def one_in_process(svc, body: bytes, ctype: str, linked: bool) -> tuple[float, float, float]:
+    """One request (a JSON or multipart ``body``) in this process with no HTTP, as the route does
+    it: ``(total, shape, transfer and GLB)`` in ms, the shape generated from the parameters or the
+    upload parsed here."""
     from proctex.geometry.meshio import load_mesh_bytes
 
-    def shape_of(body: bytes, ctype: str):
-        if ctype == "application/json":
-            return svc.shape_from_params(json.loads(body)["params"])
-        head, _, rest = body.partition(b"\r\n\r\n")
-        data = rest[: rest.rindex(b"\r\n--")]
-        return svc.check_shape(load_mesh_bytes(data, "upload.obj", groups=True)[0])
+    t = time.perf_counter()
+    if ctype == "application/json":
+        shape = svc.shape_from_params(json.loads(body)["params"])
+    else:
+        _, _, rest = body.partition(b"\r\n\r\n")
+        shape = svc.check_shape(load_mesh_bytes(rest[: rest.rindex(b"\r\n--")], "upload.obj", groups=True)[0])
+    t_shape = time.perf_counter()
+    _, summary = svc.transfer(shape, linked=linked)
+    return 1000 * (time.perf_counter() - t), 1000 * (t_shape - t), 1000 * summary["seconds"]
 
+
+def paired_ratio(http_ms: list[float], in_process_ms: list[float]) -> dict[str, float]:
+    """HTTP over in process for requests timed in pairs (each request over HTTP, then the same
+    request in process at once): the ratio of the two medians and the median of the per-request
+    ratios. A drift of the machine's speed within the run moves both halves of a pair alike, which
+    the ratio of figures taken minutes apart does not. ``ValueError`` for no pairs or lists of
+    other lengths."""
+    if not http_ms or len(http_ms) != len(in_process_ms):
+        raise ValueError(f"paired_ratio needs pairs, got {len(http_ms)} and {len(in_process_ms)} figures")
+    h, p = np.asarray(http_ms, dtype=float), np.asarray(in_process_ms, dtype=float)
+    return {
+        "http_p50_ms": float(np.median(h)),
+        "in_process_p50_ms": float(np.median(p)),
+        "ratio_of_medians": float(np.median(h) / np.median(p)),
+        "median_ratio": float(np.median(h / p)),
+    }
+
+
+def in_process_ms(svc, payloads: list[tuple[bytes, str]], n: int, linked: bool) -> dict[str, float]:
+    """The same requests in this process with no HTTP (:func:`one_in_process`); medians of ``n``."""
     times, shaping, texturing = [], [], []
     for i in range(n + 4):
-        body, ctype = payloads[i % len(payloads)]
-        t = time.perf_counter()
-        shape = shape_of(body, ctype)
-        t_shape = time.perf_counter()
-        _, summary = svc.transfer(shape, linked=linked)
+        total, shape_ms, texture_ms = one_in_process(svc, *payloads[i % len(payloads)], linked)
         if i >= 4:  # the first few warm the caches
-            times.append(1000 * (time.perf_counter() - t))
-            shaping.append(1000 * (t_shape - t))
-            texturing.append(1000 * summary["seconds"])
+            times.append(total)
+            shaping.append(shape_ms)
+            texturing.append(texture_ms)
     out = {"p50_ms": float(np.median(times)), "p10_ms": float(np.percentile(times, 10)), "p90_ms": float(np.percentile(times, 90)), "n": len(times)}
     # apart: the shape (generated, or the upload parsed) and its texturing (the transfer and the GLB)
     out["shape_p50_ms"] = float(np.median(shaping))
@@ -149,9 +170,11 @@ def stop_server(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
-def measure(base: str, family: str, payloads: list, levels_spec: str, n: int, textures: str, seed: int) -> tuple[list[dict], int]:
+def measure(base: str, family: str, payloads: list, levels_spec: str, n: int, textures: str, seed: int, svc=None) -> tuple[list[dict], int]:
     """The concurrency levels against a server at ``base``: latency percentiles, rate and the
-    stage breakdown per level; and the median answer's bytes."""
+    stage breakdown per level; and the median answer's bytes. With the family's service ``svc``,
+    the level of 1 client also times each request in this process right after its HTTP answer
+    (the server idle meanwhile): its ``paired`` figures (:func:`paired_ratio`)."""
     from proctex.serve.timing import parse_server_timing
 
     url = f"{base}/v1/families/{family}/transfer?textures={textures}"
@@ -177,9 +200,18 @@ def measure(base: str, family: str, payloads: list, levels_spec: str, n: int, te
     levels = []
     for c in (int(x) for x in levels_spec.split(",")):
         order = rng.permutation(n)
+        paired: list[float] = []
         t0 = time.perf_counter()
-        with ThreadPoolExecutor(c) as pool:
-            res = list(pool.map(call, order))
+        if c == 1 and svc is not None:  # each request over HTTP, then the same in process at once
+            res = []
+            for i in order:
+                res.append(call(i))
+                t_here = time.perf_counter()
+                paired.append(one_in_process(svc, *payloads[i % len(payloads)], textures == "linked")[0])
+                t0 += time.perf_counter() - t_here  # the rate counts the HTTP requests' time alone
+        else:
+            with ThreadPoolExecutor(c) as pool:
+                res = list(pool.map(call, order))
         wall = time.perf_counter() - t0
         lat = np.array([r[0] for r in res])
         errors = sum(r[1] != 200 for r in res)
@@ -194,6 +226,8 @@ def measure(base: str, family: str, payloads: list, levels_spec: str, n: int, te
                 "stages_ms": stage_breakdown([(1000 * r[0], r[2]) for r in res if r[1] == 200]),
             }
         )
+        if paired:
+            levels[-1]["paired"] = paired_ratio([1000 * r[0] for r in res], paired)
     return levels, int(np.median(sizes)) if sizes else 0
 
 
@@ -252,7 +286,7 @@ def main(argv=None) -> int:
                 # the same requests in process once more, just before this run's (its server idle):
                 # the run's HTTP-over-in-process ratio compares figures of one moment of the machine
                 here = in_process_ms(svc, payloads, args.requests, args.textures == "linked")
-                levels, size = measure(base, args.family, payloads, args.concurrency, args.requests, args.textures, args.seed + k)
+                levels, size = measure(base, args.family, payloads, args.concurrency, args.requests, args.textures, args.seed + k, svc)
             finally:
                 stop_server(proc)
             runs.append({"http": mode, "run": k, "levels": levels, "bytes_per_answer": size, "in_process": here})
@@ -260,6 +294,12 @@ def main(argv=None) -> int:
             for lv in levels:
                 print(f"[{mode} run {k}] concurrency {lv['concurrency']}: p50 {lv['p50_ms']:.1f} ms, p99 {lv['p99_ms']:.0f} ms, {lv['rps']:.1f} req/s, {lv['errors']} errors", flush=True)
                 print("  stages (median ms): " + ", ".join(f"{s} {v:.1f}" for s, v in lv["stages_ms"].items()), flush=True)
+                if "paired" in lv:
+                    pr = lv["paired"]
+                    print(
+                        f"  paired with in process: {pr['http_p50_ms']:.1f} / {pr['in_process_p50_ms']:.1f} ms, ratio of medians {pr['ratio_of_medians']:.2f}x, median ratio {pr['median_ratio']:.2f}x",
+                        flush=True,
+                    )
     report = {
         "benchmark": "serve",
         "family": args.family,
@@ -273,6 +313,7 @@ def main(argv=None) -> int:
                 "rps_at_max": [r["levels"][-1]["rps"] for r in runs if r["http"] == mode],
                 "in_process_p50_ms": [r["in_process"]["p50_ms"] for r in runs if r["http"] == mode],
                 "http_over_in_process_at_1": [r["levels"][0]["p50_ms"] / r["in_process"]["p50_ms"] for r in runs if r["http"] == mode],
+                "paired_ratio_at_1": [r["levels"][0]["paired"]["ratio_of_medians"] for r in runs if r["http"] == mode and "paired" in r["levels"][0]],
             }
             for mode in modes
         },
