@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import signal
 from typing import Any, Callable
 
@@ -101,8 +102,10 @@ def run_until_signal(srv: Any, on_started: Callable[[], Any] | None = None) -> N
         task = asyncio.ensure_future(srv.serve())
         while not srv.started and not task.done():
             await asyncio.sleep(0.02)
-        if srv.started and on_started is not None:
-            on_started()
+        if srv.started:
+            gc.freeze()  # what start-up made (Ray, Serve, the app) stays out of the collector's passes
+            if on_started is not None:
+                on_started()
         await task
 
     old = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}

@@ -14,6 +14,7 @@ the replica, so one replica overlaps request parsing, encoding and I/O with the 
 from __future__ import annotations
 
 import asyncio
+import gc
 import os
 import time
 from typing import Any
@@ -67,6 +68,7 @@ class TransferService:
                     self.catalog.get(name)
                 except Exception:  # not built yet, or damaged: reported per request (503) and in /v1/families
                     pass
+        gc.freeze()  # the families and modules loaded so far stay out of the collector's passes
 
     async def forward(self, request: Forwarded) -> Answer:
         """One HTTP request forwarded by the ingress, answered by the FastAPI app of
