@@ -297,3 +297,27 @@ def test_a_shapes_segmentation_is_a_declared_field_a_new_shape_starts_without():
     assert parts_of(shape) is not seg
     (field,) = [f for f in fields(Shape) if f.name == "derived"]
     assert (field.init, field.compare, field.repr) == (False, False, False) and "derived=" not in repr(shape)
+
+
+def test_a_parts_local_faces_are_the_searched_ones_and_read_only():
+    """``segment`` gives each part its faces in local vertex indices (``PartInfo.local``, what
+    ``part_mesh`` returns): on a shape whose vertices are shuffled, with unreferenced vertices and
+    a part of one triangle, they equal the faces found by search in the part's sorted vertices, and
+    they are read-only (a caller writing into them would change every later transfer's part)."""
+    from proctex.geometry.parts import part_mesh
+
+    rng = np.random.default_rng(0)
+    a, b = P.box((1.0, 0.6, 0.8), divisions=(2, 2, 2)), P.box((0.2, 0.2, 1.0), center=(3.0, 0, 0), divisions=(1, 1, 3))
+    v = np.concatenate([a.vertices, b.vertices, [[9.0, 9, 9], [9, 10, 9], [10, 9, 9]], rng.normal(size=(4, 3))])
+    f = np.concatenate([a.faces, b.faces + len(a.vertices), [len(a.vertices) + len(b.vertices) + np.arange(3)]])
+    perm = rng.permutation(len(v))  # vertices shuffled: parts' vertices interleave in index order
+    inv = np.argsort(perm)
+    shape = Shape(v[perm], inv[f])
+    seg = segment(shape)
+    assert len(seg.parts) == 3
+    for part in seg.parts:
+        verts, local = part_mesh(shape, part)
+        assert np.array_equal(local, np.searchsorted(part.vertices, shape.faces[part.faces]))
+        assert np.array_equal(verts[local], shape.vertices[shape.faces[part.faces]])
+        with pytest.raises(ValueError, match="read-only"):
+            local[0, 0] = 0

@@ -45,6 +45,8 @@ class PartInfo:
         tiny: area below ``tiny_share`` of the shape's total area (and not degenerate).
         center: (3,) bounding-box centre; radius: L∞ radius around it (> 0 unless a single point).
         label: semantic label when the shape carries labels (majority of its vertices), else "".
+        local: (k, 3) int64 read-only: the faces in local vertex indices (vertex i is
+            ``vertices[i]``), as :func:`segment` made them (:func:`part_mesh` returns them), or None.
     """
 
     index: int
@@ -56,6 +58,7 @@ class PartInfo:
     center: np.ndarray
     radius: float
     label: str = ""
+    local: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def n_faces(self) -> int:
@@ -129,6 +132,11 @@ def segment(shape: Shape, degenerate_eps: float = 1e-12, tiny_share: float = 1e-
     n_unref = int((vertex_part < 0).sum())
     vert_splits = np.split(vert_order[n_unref:], np.cumsum(np.bincount(vertex_part[vertex_part >= 0], minlength=count))[:-1])
     parts = []
+    rank = np.zeros(len(v), np.int64)  # each used vertex's place in its part's sorted vertices
+    part_vertices = [np.sort(vs) for vs in vert_splits]
+    for vs in part_vertices:
+        rank[vs] = np.arange(len(vs))
+    local_faces = rank[f]
     for i in range(count):
         center, radius = normalised_frame(v[vert_splits[i]])
         degenerate = bool(part_max_tri[i] <= tri_eps)
@@ -139,16 +147,22 @@ def segment(shape: Shape, degenerate_eps: float = 1e-12, tiny_share: float = 1e-
             PartInfo(
                 index=i,
                 faces=face_splits[i],
-                vertices=np.sort(vert_splits[i]),
+                vertices=part_vertices[i],
                 area=float(part_area[i]),
                 degenerate=degenerate,
                 tiny=bool(not degenerate and part_area[i] < tiny_share * total),
                 center=center,
                 radius=radius,
                 label=label,
+                local=_read_only(local_faces[face_splits[i]]),
             )
         )
     return Segmentation(face_part, vertex_part, parts)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 def kind_groups(shape: Shape, segmentation: Segmentation | None = None, tol: float = 0.15) -> Grouping:
@@ -185,8 +199,10 @@ def part_kinds(shape: Shape, segmentation: Segmentation | None = None, tol: floa
 
 
 def part_mesh(shape: Shape, part: PartInfo) -> tuple[np.ndarray, np.ndarray]:
-    """Local ``(vertices (j, 3), faces (k, 3))`` of a part; local vertex i is ``part.vertices[i]``."""
-    local = np.searchsorted(part.vertices, shape.faces[part.faces])
+    """Local ``(vertices (j, 3), faces (k, 3))`` of a part; local vertex i is ``part.vertices[i]``.
+    The faces are the part's own read-only :attr:`PartInfo.local` where :func:`segment` made them,
+    else found here."""
+    local = part.local if part.local is not None else np.searchsorted(part.vertices, shape.faces[part.faces])
     return shape.vertices[part.vertices], local
 
 
