@@ -41,8 +41,8 @@ RAY_SYSTEM_CONFIG = {"max_direct_call_object_size": 8 * 2**20}
 #: The transfer replicas' environment: Serve runs their methods on the replica's own event loop, not
 #: on a second loop in a thread of its own, so a forwarded request and its answer cross no thread
 #: inside the replica (the transfer itself runs in a worker thread either way). With the front's
-#: handle routing on its own loop too (:func:`workers.front.on_this_loop`), a demo transfer over
-#: HTTP answered 52.3 / 52.5 ms at p50 against 56.0 / 59.0 ms (``tests/bench/bench_serve.py``).
+#: handle routing on its own loop too (:func:`workers.front.on_this_loop`), a bare handle round trip
+#: on 2 cores took 3.0 / 3.9 ms for answers of 1 KB / 850 KB, against 4.6 / 4.9 ms with Serve's threads.
 REPLICA_ENV = {"RAY_SERVE_RUN_USER_CODE_IN_SEPARATE_THREAD": "0"}
 
 
