@@ -321,3 +321,70 @@ def test_a_parts_local_faces_are_the_searched_ones_and_read_only():
         assert np.array_equal(verts[local], shape.vertices[shape.faces[part.faces]])
         with pytest.raises(ValueError, match="read-only"):
             local[0, 0] = 0
+
+
+def _component_soup(seed: int):
+    """Faces over shuffled vertices: parts touching at a shared vertex (one part), a chain whose
+    faces come in no particular order, degenerate faces ([v, v, v], [v, v, w]), faces used twice,
+    vertices no face uses, and a random soup of 300 faces over 400 vertices."""
+    rng = np.random.default_rng(seed)
+    chain = np.array([[0, 1, 2], [5, 6, 7], [2, 3, 4], [4, 5, 8], [9, 9, 9], [10, 10, 11], [12, 13, 14], [14, 15, 12], [12, 13, 14]])
+    soup = rng.integers(20, 420, (300, 3))
+    f = np.concatenate([chain, soup])[rng.permutation(len(chain) + 300)]
+    perm = rng.permutation(430)
+    return perm[f], 430
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_components_and_areas_are_the_array_forms(seed, monkeypatch):
+    """``connected_parts`` (union-find, compiled) against scipy's components: the same parts
+    numbered the same way (by first face), the same vertex parts (-1 unreferenced) and count, on a
+    soup with touching parts, degenerate and repeated faces and unused vertices; ``triangle_areas``
+    bit for bit; and with numba hidden the array forms answer. A plausible wrong numbering (parts
+    in order of their smallest vertex) differs on the soup."""
+    import sys
+
+    from proctex.geometry.parts import connected_parts, connected_parts_arrays
+    from proctex.geometry.surface import triangle_areas, triangle_areas_arrays
+
+    f, n = _component_soup(seed)
+    got, want = connected_parts(f, n), connected_parts_arrays(f, n)
+    assert got[2] == want[2] and np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    assert got[0].dtype == np.int64 and got[1].dtype == np.int64 and (got[1] == -1).sum() > 0
+    by_vertex = np.unique(np.array([f[got[0] == p].min() for p in range(got[2])]), return_inverse=True)[1]
+    assert not np.array_equal(by_vertex[got[0]], got[0])  # the numbering the test would catch
+    v = np.random.default_rng(seed).normal(size=(n, 3)) * 10.0 ** np.random.default_rng(seed).integers(-6, 6, (n, 1))
+    assert np.array_equal(triangle_areas(v, f).view(np.int64), triangle_areas_arrays(v, f).view(np.int64))
+    monkeypatch.setitem(sys.modules, "proctex.geometry.mesh_kernels", None)  # its import raises ImportError
+    hidden = connected_parts(f, n)
+    assert hidden[2] == want[2] and np.array_equal(hidden[0], want[0]) and np.array_equal(triangle_areas(v, f), triangle_areas_arrays(v, f))
+
+
+def test_compiled_components_refuse_bad_faces():
+    from proctex.geometry.mesh_kernels import connected_parts, triangle_areas
+
+    with pytest.raises(ValueError, match="index vertices"):
+        connected_parts(np.array([[0, 1, 5]]), 5)
+    with pytest.raises(ValueError, match=r"\(m, 3\)"):
+        connected_parts(np.array([0, 1, 2]), 5)
+    with pytest.raises(ValueError, match="index vertices"):
+        triangle_areas(np.zeros((3, 3)), np.array([[0, 1, -1]]))
+    assert connected_parts(np.zeros((0, 3), np.int64), 3)[2] == 0
+
+
+def test_a_part_is_degenerate_exactly_when_its_largest_triangle_is_below_the_bound():
+    """``segment``'s per-part largest triangle (one pass over the faces in part order) against a
+    loop over the parts: degenerate parts and real ones, with
+    the same flags, areas and part order (a point, a line and a triangle 1e-7 across are degenerate)."""
+    from proctex.geometry.surface import triangle_areas_arrays
+
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5], [6, 5, 5], [7, 5, 5], [9, 9, 9], [2, 2, 2], [3, 2, 2], [2, 3, 2 + 1e-9], [4, 4, 4], [4, 4, 4 + 1e-7], [4, 4 + 1e-7, 4]])
+    f = np.array([[3, 4, 5], [0, 1, 2], [6, 6, 6], [7, 8, 9], [10, 11, 12], [4, 5, 3]])
+    shape = Shape(v, f)
+    seg = segment(shape)
+    areas = triangle_areas_arrays(v, f)
+    diag = float(np.linalg.norm(v.max(0) - v.min(0)))
+    for part in seg.parts:
+        assert part.degenerate == bool(areas[part.faces].max() <= 1e-12 * diag**2)
+        assert part.area == pytest.approx(areas[part.faces].sum())
+    assert [p.degenerate for p in seg.parts] == [True, False, True, False, True]  # a line, a triangle, a point, a triangle, one 1e-7 across

@@ -83,8 +83,19 @@ def connected_parts(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.
 
     Returns:
         ``(face_part (m,) int64, vertex_part (n,) int64 with -1 for unreferenced, count)``; parts are
-        numbered in order of their first face.
+        numbered in order of their first face. Compiled (:mod:`proctex.geometry.mesh_kernels`:
+        union-find in one pass), the same answer as :func:`connected_parts_arrays` (a sparse
+        graph's components), which answers where numba does not import.
     """
+    try:
+        from .mesh_kernels import connected_parts as compiled
+    except ImportError:
+        return connected_parts_arrays(faces, n_vertices)
+    return compiled(faces, n_vertices)
+
+
+def connected_parts_arrays(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`connected_parts` by scipy's connected components (the compiled form's reference)."""
     faces = np.asarray(faces, dtype=np.int64)
     m = len(faces)
     if m == 0:
@@ -123,11 +134,12 @@ def segment(shape: Shape, degenerate_eps: float = 1e-12, tiny_share: float = 1e-
     diag = float(np.linalg.norm(used_pts.max(0) - used_pts.min(0)))
     tri_eps = degenerate_eps * max(diag, 1e-300) ** 2
     part_area = np.bincount(face_part, weights=areas, minlength=count)
-    part_max_tri = np.zeros(count)
-    np.maximum.at(part_max_tri, face_part, areas)
     total = part_area.sum()
     face_order = np.argsort(face_part, kind="stable")
-    face_splits = np.split(face_order, np.cumsum(np.bincount(face_part, minlength=count))[:-1])
+    face_ends = np.cumsum(np.bincount(face_part, minlength=count))
+    face_splits = np.split(face_order, face_ends[:-1])
+    # every part has a face: its largest triangle by one pass over the faces in part order
+    part_max_tri = np.maximum(np.maximum.reduceat(areas[face_order], np.concatenate([[0], face_ends[:-1]])), 0.0)
     vert_order = np.argsort(vertex_part, kind="stable")
     n_unref = int((vertex_part < 0).sum())
     vert_splits = np.split(vert_order[n_unref:], np.cumsum(np.bincount(vertex_part[vertex_part >= 0], minlength=count))[:-1])

@@ -53,7 +53,18 @@ def normalised_points(points: np.ndarray) -> np.ndarray:
 
 
 def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(m,) float64 areas of the triangles ``faces (m, 3)`` over ``vertices (n, 3)``."""
+    """(m,) float64 areas of the triangles ``faces (m, 3)`` over ``vertices (n, 3)``: compiled
+    (:mod:`proctex.geometry.mesh_kernels`), the same bits as :func:`triangle_areas_arrays`, which
+    answers where numba does not import."""
+    try:
+        from .mesh_kernels import triangle_areas as compiled
+    except ImportError:
+        return triangle_areas_arrays(vertices, faces)
+    return compiled(vertices, faces)
+
+
+def triangle_areas_arrays(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """:func:`triangle_areas` in array operations (the compiled form's reference)."""
     tri = vertices[faces]
     n = cross3(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     return 0.5 * np.sqrt(dot3(n, n))
