@@ -709,8 +709,8 @@ def test_split_pairs_are_np_unique_of_the_pairs(seed):
 def test_a_glb_is_the_same_bytes_without_the_compiled_split(monkeypatch):
     """The GLB of a messy shape (seams, degenerate and repeated faces, an untextured group,
     -0.0 texcoords) is the same bytes whether its split vertices come from the compiled kernel
-    or from ``np.unique`` (numba hidden); a GLB whose texcoords differ is not (the comparison
-    sees the split)."""
+    or from ``np.unique`` (numba hidden, or 50,000 unused vertices); a GLB whose texcoords differ
+    is not (the comparison sees the split)."""
     import sys
 
     v, f, uv = _messy_mesh(3)
@@ -718,6 +718,8 @@ def test_a_glb_is_the_same_bytes_without_the_compiled_split(monkeypatch):
     group = np.arange(len(f)) % 3 - 1  # groups -1, 0, 1
     tex = [np.full((8, 8, 3), 90 * g, np.uint8) for g in (1, 2)]
     fast = glb_bytes(v, f, uv, group, tex)
+    unused = np.concatenate([v, np.ones((50_000, 3))])  # vertices far outnumbering the corners: the sorting path
+    assert glb_bytes(unused, f, uv, group, tex) == fast
     monkeypatch.setitem(sys.modules, "proctex.texture.vertex_kernels", None)  # its import raises ImportError
     slow = glb_bytes(v, f, uv, group, tex)
     assert fast == slow

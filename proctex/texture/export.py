@@ -240,8 +240,12 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
 
 def _split_pairs(source: np.ndarray, bits: np.ndarray, n_sources: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """:func:`proctex.texture.vertex_kernels.split_pairs` of the corners' ``(primitive * n + vertex,
-    texcoord bits)``, or None where numba does not import (:func:`_primitive_arrays` then sorts
-    combined keys with ``np.unique``: the same pairs in the same order)."""
+    texcoord bits)``, or None where numba does not import or the sources far outnumber the corners
+    (a counting sort's table of every (primitive, vertex) would then cost more than sorting the
+    corners): :func:`_primitive_arrays` then sorts combined keys with ``np.unique``, the same pairs
+    in the same order."""
+    if n_sources > 8 * len(source) + 4096:
+        return None
     try:
         from .vertex_kernels import split_pairs
     except ImportError:

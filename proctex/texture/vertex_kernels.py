@@ -1,6 +1,7 @@
 """Compiled (numba) kernels of the GLB's vertex data: :func:`key_tangents`, :func:`area_normals`,
-:func:`vertex_normals` and :func:`split_pairs` (the split vertices) in a pass or two over the faces instead of some forty array passes, the
-same bits as their array forms in :mod:`proctex.texture.pbr` (the references ``tests/test_pbr.py``
+:func:`vertex_normals` and :func:`split_pairs` (the split vertices) in a pass or two over the faces
+instead of some forty array passes or two sorts, the same bits as their array forms in
+:mod:`proctex.texture.pbr` and :mod:`proctex.texture.export` (the references ``tests/test_pbr.py``
 compares them with): the same operations in the same order, each sum taking its corners in corner
 order as ``np.bincount`` does. Imported on first use (numba's import and, on a machine's
 first run, its compilation, which it caches on disk, are not paid by commands that write no GLB).
