@@ -77,16 +77,21 @@ def _triangle_areas(v, f):
     return out
 
 
-def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(m,) float64 areas of ``faces (m, 3)`` over ``vertices (n, 3)`` (``ValueError`` for faces
-    indexing past them)."""
+def checked_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices (n, 3) float64, faces (m, 3) int64)``, C-ordered, as the compiled kernels take
+    them; ``ValueError`` for other shapes or faces indexing past the vertices."""
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"vertices and faces must be (n, 3) and (m, 3), got {v.shape} and {f.shape}")
+        raise ValueError(f"vertices (n, 3) and faces (m, 3) expected, got {v.shape} and {f.shape}")
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
-        raise ValueError(f"faces index vertices in [0, {len(v)}), got [{f.min()}, {f.max()}]")
-    return _triangle_areas(v, f)
+        raise ValueError(f"faces index vertices 0..{len(v) - 1}, got {f.min()}..{f.max()}")
+    return v, f
+
+
+def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) float64 areas of ``faces (m, 3)`` over ``vertices (n, 3)`` (:func:`checked_mesh`)."""
+    return _triangle_areas(*checked_mesh(vertices, faces))
 
 
 def warm() -> None:

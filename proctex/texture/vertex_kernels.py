@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from proctex.geometry.mesh_kernels import checked_mesh
+
 
 @njit(cache=True, nogil=True)
 def _key_tangents(v, f, uv, keys, key_normals, normals, has_normals):
@@ -121,24 +123,14 @@ def _vertex_normals(n, f, fn):
     return acc
 
 
-def _mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    v = np.ascontiguousarray(vertices, dtype=np.float64)
-    f = np.ascontiguousarray(faces, dtype=np.int64)
-    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"vertices (n, 3) and faces (m, 3) expected, got {v.shape} and {f.shape}")
-    if len(f) and (f.min() < 0 or f.max() >= len(v)):
-        raise ValueError(f"faces index vertices 0..{len(v) - 1}, got {f.min()}..{f.max()}")
-    return v, f
-
-
 def area_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """:func:`proctex.texture.pbr.area_normals` compiled: (m, 3) float64, the same bits."""
-    return _area_normals(*_mesh(vertices, faces))
+    return _area_normals(*checked_mesh(vertices, faces))
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """:func:`proctex.texture.pbr.vertex_normals` compiled: (n, 3) float64, the same bits."""
-    v, f = _mesh(vertices, faces)
+    v, f = checked_mesh(vertices, faces)
     fn = _area_normals(v, f) if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
     if fn.shape != (len(f), 3):
         raise ValueError(f"normals ({len(f)}, 3) expected, got {fn.shape}")
