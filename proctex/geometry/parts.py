@@ -144,9 +144,8 @@ def segment(shape: Shape, degenerate_eps: float = 1e-12, tiny_share: float = 1e-
     n_unref = int((vertex_part < 0).sum())
     vert_splits = np.split(vert_order[n_unref:], np.cumsum(np.bincount(vertex_part[vertex_part >= 0], minlength=count))[:-1])
     parts = []
-    rank = np.zeros(len(v), np.int64)  # each used vertex's place in its part's sorted vertices
-    part_vertices = [np.sort(vs) for vs in vert_splits]
-    for vs in part_vertices:
+    rank = np.zeros(len(v), np.int64)  # each used vertex's place in its part's vertices
+    for vs in vert_splits:  # sorted already: a stable argsort keeps each part's vertices in index order
         rank[vs] = np.arange(len(vs))
     local_faces = rank[f]
     for i in range(count):
@@ -159,7 +158,7 @@ def segment(shape: Shape, degenerate_eps: float = 1e-12, tiny_share: float = 1e-
             PartInfo(
                 index=i,
                 faces=face_splits[i],
-                vertices=part_vertices[i],
+                vertices=vert_splits[i],
                 area=float(part_area[i]),
                 degenerate=degenerate,
                 tiny=bool(not degenerate and part_area[i] < tiny_share * total),

@@ -6,9 +6,9 @@ the inference split) for a folder family, random parameter settings for a model 
 latency p50 / p90 / p99 and requests per second per level (saturation = the best level), as JSON,
 with where the time went per stage (the answers' Server-Timing: the proxy, the ingress, the hop to
 the replica, the route's stages) and the same requests in process (shape, transfer, GLB): once
-before Ray starts, again just before each run with its server idle, and, at 1 client, each request
-in process right after its HTTP answer: that run's paired HTTP-over-in-process ratio
-(:func:`paired_ratio`; a machine whose speed drifts moves both halves of a pair alike).
+before Ray starts, and, at 1 client, each request in process right after its HTTP answer: that
+run's paired HTTP-over-in-process ratio (:func:`paired_ratio`; a machine whose speed drifts moves
+both halves of a pair alike, which a figure taken minutes before the run does not).
 
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family sofa --out out/bench_serve.json
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family chair --requests 200 --concurrency 1,2,4,8
@@ -283,14 +283,10 @@ def main(argv=None) -> int:
         for mode in modes:
             proc, base = start_server(root, args.replicas, mode, Path(args.before).resolve() if mode == "before" else ROOT)
             try:
-                # the same requests in process once more, just before this run's (its server idle):
-                # the run's HTTP-over-in-process ratio compares figures of one moment of the machine
-                here = in_process_ms(svc, payloads, args.requests, args.textures == "linked")
                 levels, size = measure(base, args.family, payloads, args.concurrency, args.requests, args.textures, args.seed + k, svc)
             finally:
                 stop_server(proc)
-            runs.append({"http": mode, "run": k, "levels": levels, "bytes_per_answer": size, "in_process": here})
-            print(f"[{mode} run {k}] in process just before: median {here['p50_ms']:.1f} ms", flush=True)
+            runs.append({"http": mode, "run": k, "levels": levels, "bytes_per_answer": size})
             for lv in levels:
                 print(f"[{mode} run {k}] concurrency {lv['concurrency']}: p50 {lv['p50_ms']:.1f} ms, p99 {lv['p99_ms']:.0f} ms, {lv['rps']:.1f} req/s, {lv['errors']} errors", flush=True)
                 print("  stages (median ms): " + ", ".join(f"{s} {v:.1f}" for s, v in lv["stages_ms"].items()), flush=True)
@@ -311,9 +307,8 @@ def main(argv=None) -> int:
             mode: {
                 "p50_ms_at_1": [r["levels"][0]["p50_ms"] for r in runs if r["http"] == mode],
                 "rps_at_max": [r["levels"][-1]["rps"] for r in runs if r["http"] == mode],
-                "in_process_p50_ms": [r["in_process"]["p50_ms"] for r in runs if r["http"] == mode],
-                "http_over_in_process_at_1": [r["levels"][0]["p50_ms"] / r["in_process"]["p50_ms"] for r in runs if r["http"] == mode],
-                "paired_ratio_at_1": [r["levels"][0]["paired"]["ratio_of_medians"] for r in runs if r["http"] == mode and "paired" in r["levels"][0]],
+                "in_process_p50_ms": [lv["paired"]["in_process_p50_ms"] for r in runs if r["http"] == mode for lv in r["levels"] if "paired" in lv],
+                "paired_ratio_at_1": [lv["paired"]["ratio_of_medians"] for r in runs if r["http"] == mode for lv in r["levels"] if "paired" in lv],
             }
             for mode in modes
         },
