@@ -196,3 +196,47 @@ def test_obj_counts_by_columns_answer_what_the_line_reading_answers():
         assert fast[0] == v and list(fast[1]) == corners, text
     assert taken > 200
     assert _obj_counts_by_columns(b"vn 1 2 3\nv 1 2 3\nf 1\x0b2 3\n")[0] == 1
+
+
+def test_the_compiled_obj_count_answers_what_the_line_reading_answers(sofa_dir):
+    """The compiled count of a plain OBJ (:func:`proctex.geometry.obj_kernels.plain_counts`, the
+    first thing an OBJ upload meets) gives the line reading's vertices, triangles and largest face
+    on every sofa export and on random files of vertex, face (1 to 9 corners, one or more spaces
+    between them, a trailing space), comment, normal, group and empty lines, LF or CRLF, and
+    declines (None) a file with a tab, a ``\x0b``, a lone CR, a line starting with a blank or an
+    unknown tag. A count that took ``vn`` lines for vertices, or counted a face's spaces instead of
+    its corners, would differ: the test can fail."""
+    import random
+
+    from proctex.geometry.meshcounts import _obj_counts, _obj_counts_by_lines
+    from proctex.geometry.obj_kernels import plain_counts
+
+    def by_lines(data: bytes) -> tuple[int, int, int]:
+        v, corners = _obj_counts_by_lines(data)
+        return v, sum(max(c - 2, 0) for c in corners), max(corners, default=3)
+
+    rnd = random.Random(8)
+    datas = [f.read_bytes() for f in sorted(sofa_dir.rglob("*.obj"))[:10]]
+    for trial in range(300):
+        lines = []
+        for _ in range(rnd.randint(0, 40)):
+            kind = rnd.choice(["v", "f", "f", "vn", "#", "", "o", "g"])
+            if kind == "f":
+                lines.append("f " + rnd.choice([" ", "  "]).join(str(rnd.randint(1, 9)) for _ in range(rnd.randint(1, 9))) + rnd.choice(["", " "]))
+            elif kind == "v":
+                lines.append("v 0.5 0.5 0.5")
+            else:
+                lines.append(kind + " 1 2" if kind else "")
+        if trial % 5 == 0 and lines:
+            lines[rnd.randrange(len(lines))] = rnd.choice([" v 1 2 3", "f 1\t2 3", "f 1\x0b2 3", "x 1", "v 1 2\r3"])
+        datas.append((rnd.choice(["\n", "\r\n"]).join(lines) + rnd.choice(["", "\n"])).encode())
+    taken = 0
+    for data in datas:
+        fast = plain_counts(data)
+        if fast is None:
+            assert any(c in data for c in (b" v", b"\t", b"\x0b", b"x 1", b"2\r3")), data
+            continue
+        taken += 1
+        assert fast == by_lines(data) == _obj_counts(data), data
+    assert taken > 200
+    assert plain_counts(b"vn 1 2 3\nv 1 2 3\nf 1  2 3 \n") == (1, 1, 3)

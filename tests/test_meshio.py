@@ -363,3 +363,150 @@ def test_obj_groups_by_runs_answer_what_the_line_by_line_reading_answers():
     np.testing.assert_array_equal(read_obj_groups(cases[0], 6), [0, 1, 1, 2, 1, 3])
     assert _plain_breaks(cases[1]) and not _plain_breaks(cases[5]) and not _plain_breaks(cases[6])
     assert not _plain_breaks("g a\u2028f 1 2 3\n")
+
+
+def _numbers(rnd) -> str:
+    """A random decimal as exporters and people write them: fixed, scientific, integers, signs,
+    leading zeros, negative zero, and lengths at and past the compiled reader's exact range."""
+    kind = rnd.randrange(9) if rnd.random() < 0.05 else rnd.choice([0, 2, 3, 8])  # the edges (17 digits, 2**53, 10**22) now and then
+    x = rnd.uniform(-1, 1) * 10 ** rnd.randint(-8, 8)
+    if kind == 0:
+        return f"{x:.6f}"
+    if kind == 1:
+        return repr(x)
+    if kind == 2:
+        return f"{x:.{rnd.randint(0, 12)}e}".replace("e+0", "e").replace("e-0", "e-")
+    if kind == 3:
+        return str(rnd.randint(-(10**6), 10**6))
+    if kind == 4:
+        return rnd.choice(["-0.000000", "0", "-0", "00.5", "1.", ".5", "-.25", "1E5", "2e+3", "1e22", "1e23", "1e-22", "1e-23"])
+    if kind == 5:
+        return str(rnd.randint(10**15, 10**19)) + rnd.choice(["", ".0", ".5"])  # about 2**53 and past 18 digits
+    if kind == 6:
+        return "0." + "".join(rnd.choice("0123456789") for _ in range(rnd.randint(10, 20)))
+    if kind == 7:
+        return f"{x:.17g}"
+    return f"{x:.3f}"
+
+
+def _random_obj(rnd, plain: bool) -> str:
+    """A random OBJ: triangles with ``a``, ``a/b``, ``a//c``, ``a/b/c`` corners, group lines
+    (repeated, empty-named, spaced), comments, ``vt``/``vn``/``s``/``usemtl`` lines, empty lines, LF
+    or CRLF; unless ``plain``, one line of a kind the compiled reader declines (a quad, a tab, a
+    relative index, an extra column, a non-ASCII name, a lone CR, a bare tag, ``nan``)."""
+    n_v = rnd.randint(3, 12)
+    lines = [f"v {_numbers(rnd)} {_numbers(rnd)} {_numbers(rnd)}" for _ in range(n_v)]
+    for _ in range(rnd.randint(1, 20)):
+        kind = rnd.randrange(6)
+        if kind < 3:
+            c = [rnd.randint(1, n_v) for _ in range(3)]
+            form = rnd.choice(["{}", "{}/1", "{}//2", "{}/3/4"])
+            lines.append("f " + " ".join(form.format(i) for i in c))
+        elif kind == 3:
+            lines.append(rnd.choice(["g seat", "o arm left", "g ", "g seat", "o  back  ", "g x"]))
+        elif kind == 4:
+            lines.append(rnd.choice(["# note", "vt 0.5 0.5", "vn 0 0 1", "s off", "usemtl m", "", "l 1 2"]))
+        else:
+            lines.insert(rnd.randrange(len(lines)), f"v {_numbers(rnd)} {_numbers(rnd)} {_numbers(rnd)}")
+    if not plain:
+        odd = rnd.choice(["f 1 2 3 1", "f\t1 2 3", "f -1 -2 -3", "v 1 2 3 4", "g s\u00e9at", "v 1\r2 3", "v", "v nan 0 0", "f 1 2 0", "v 1  2 3", "vx 1 2 3", "p 1"])
+        lines.insert(rnd.randrange(len(lines) + 1), odd)
+    nl = rnd.choice(["\n", "\r\n"])
+    return nl.join(lines) + rnd.choice(["", nl])
+
+
+def test_the_compiled_obj_reader_agrees_with_the_other_readers_or_declines(sofa_dir):
+    """The compiled reader of plain OBJ (:mod:`proctex.geometry.obj_kernels`, every OBJ upload)
+    gives the other readers' exact vertex bits, faces and groups on every sofa export and on 600
+    random files of plain and odd lines, and declines (None) what it does not take, which those
+    readers then answer as before. The random numbers include the edges of its exact range (2**53,
+    18 digits, 10**22); a reader that multiplied by an inexact 10**-k instead of dividing by an
+    exact 10**k would differ on them: the test can fail (checked below)."""
+    import random
+
+    from proctex.geometry.meshio import plain_obj_groups, read_obj_groups
+    from proctex.geometry.obj_kernels import read_plain
+
+    rnd = random.Random(11)
+    texts = [f.read_text() for f in sorted(sofa_dir.rglob("*.obj"))[:20]] + [_random_obj(rnd, plain=i % 3 != 0) for i in range(600)]
+    taken = declined = 0
+    taken_texts: list[str] = []
+    for text in texts:
+        got = read_plain(text.encode())
+        try:
+            v, polys = read_obj(text)
+        except ValueError:  # a file the others refuse (face index 0) is never taken
+            assert got is None, text
+            declined += 1
+            continue
+        if got is None:
+            declined += 1
+            continue
+        taken += 1
+        taken_texts.append(text)
+        gv, gf, fg, names = got
+        assert gv.dtype == np.float64 and gf.dtype == np.int64
+        assert np.array_equal(gv.view(np.int64), np.asarray(v, dtype=np.float64).view(np.int64)), text
+        assert np.array_equal(gf, np.asarray(polys)), text
+        expected = read_obj_groups(text, len(polys))
+        mine = plain_obj_groups(fg, names)
+        assert (mine is None) == (expected is None), text
+        if expected is not None:
+            np.testing.assert_array_equal(mine, expected)
+    assert taken > 250 and declined > 150  # 301 and 319 with this seed
+    for odd in (
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 1\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1.0000000000000000001 0\nf 1 2 3\n",
+        "o s\xe9at\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+        "v 0 0 1e23\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    ):
+        assert read_plain(odd.encode()) is None
+        assert len(read_obj(odd)[0]) == 3  # the other readers still answer
+    # The wrong method (times an inexact 10.0**-k) gives other bits on numbers of the taken files.
+    from decimal import Decimal
+
+    def times_inexact(token: str) -> float:
+        sign, digits, exp = Decimal(token).as_tuple()
+        m = float(int("".join(map(str, digits)) or "0"))
+        return (-1.0 if sign else 1.0) * m * 10.0**exp
+
+    tokens = [t for text in taken_texts for line in text.splitlines() if line.startswith("v ") for t in line.split()[1:]]
+    assert sum(times_inexact(t) != float(t) for t in tokens) > 100  # 1,050 of 7,467
+
+
+def test_a_plain_obj_loads_the_same_with_and_without_the_compiled_reader(sofa_dir, monkeypatch):
+    """``load_mesh_bytes`` of sofa exports and of a grouped upload gives the same shape (bits,
+    faces, parts) through the compiled reader as through the others (numba missing), and the
+    header counts agree."""
+    import sys
+
+    import proctex.geometry.meshio as meshio
+    from proctex.geometry.meshcounts import declared_counts
+    from proctex.geometry.parts import segment
+
+    grouped = b"g a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\ng b\nf 2 4 3\ng a\nf 1 3 4\n"
+    datas = [f.read_bytes() for f in sorted(sofa_dir.rglob("*.obj"))[:6]] + [grouped]
+    fast = [meshio.load_mesh_bytes(d, "m.obj", groups=True)[0] for d in datas]
+    counted = [declared_counts(d, "obj") for d in datas]
+    monkeypatch.setitem(sys.modules, "proctex.geometry.obj_kernels", None)  # its import raises ImportError
+    assert meshio._read_plain_obj(datas[0]) is None
+    assert [declared_counts(d, "obj") for d in datas] == counted  # by the array passes now
+    slow = [meshio.load_mesh_bytes(d, "m.obj", groups=True)[0] for d in datas]
+    for a, b in zip(fast, slow):
+        assert np.array_equal(a.vertices.view(np.int64), b.vertices.view(np.int64)) and np.array_equal(a.faces, b.faces)
+        assert segment(a).n_parts == segment(b).n_parts
+    assert segment(fast[-1]).n_parts == 2 and fast[-1].n_faces == 3
+
+
+def test_the_boundary_check_answers_what_counting_answers():
+    """:func:`proctex.geometry.meshio._has_single` (one sort) says whether a value occurs once, as
+    ``np.unique``'s counts do, on random keys with and without singles and on tiny arrays."""
+    from proctex.geometry.meshio import _has_single
+
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        keys = rng.integers(0, rng.integers(1, 40), size=rng.integers(0, 60))
+        if trial % 2:
+            keys = np.concatenate([keys, keys])  # every value twice at least: no single
+        _, counts = np.unique(keys, return_counts=True)
+        assert _has_single(keys) == bool((counts == 1).any())

@@ -198,6 +198,33 @@ def test_uploads_are_read_in_a_process_that_is_killed_past_the_budget(painted_mu
     assert err.value.cancelled
 
 
+def test_a_reader_that_never_takes_the_upload_cannot_hold_the_request_past_its_deadline():
+    """The upload's way into the reader counts against the deadline: a reader process stuck before
+    reading its input (here one that only sleeps) leaves a 1 MB upload in a full pipe, and the
+    read still ends in :class:`ReadTimeout` at its deadline, the stuck process killed. Before, the
+    send blocked until the reader took it, outside the deadline (a stuck reader held the request
+    for good)."""
+    import subprocess
+    import sys
+    import time
+
+    from proctex.serve.parse_worker import MeshReader, ReadTimeout
+
+    reader = MeshReader()
+    stuck = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    reader._proc = stuck  # the reader the next read finds running
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(ReadTimeout, match="ran past 0.5 s"):
+            reader.read(b"v 0 0 0\n" * 131_072, "big.obj", seconds=0.5)
+        assert time.monotonic() - t0 < 20  # not the sleeper's 60 s (a bound, not a timing: 0.5 s expected)
+        assert stuck.poll() is not None and reader.kills == 1
+    finally:
+        stuck.kill()
+        stuck.wait()
+        reader.close()
+
+
 def test_one_client_holds_its_share_of_the_slots_and_every_other_client_is_served(patient_app):
     """The attack of issue 54: one client opens 260 connections that each send a header declaring
     1,000 bytes and 9 of them. It holds client_small_bodies (64 of the 256) slots; its other bodies wait a

@@ -39,13 +39,10 @@ def declared_counts(data: bytes, fmt: str, name: str = "mesh") -> DeclaredCounts
     :data:`MAX_CORNERS` corners, a node cycle, or a node tree past :data:`MAX_NODE_DEPTH` /
     :data:`MAX_NODES`."""
     if fmt == "obj":
-        fast = _obj_counts_by_columns(data)
-        vertices, corners = fast if fast is not None else _obj_counts_by_lines(data)
-        corners = np.asarray(corners, dtype=np.int64)
-        largest = int(corners.max()) if len(corners) else 3
+        vertices, triangles, largest = _obj_counts(data)
         if largest > MAX_CORNERS:
             raise ValueError(f"{name}: a face of {largest} corners (at most {MAX_CORNERS})")
-        return DeclaredCounts(vertices, int(np.maximum(corners - 2, 0).sum()), corners=largest)
+        return DeclaredCounts(vertices, triangles, corners=largest)
     if fmt == "ply":
         end = data.find(b"end_header", 0, 65536)
         if not data.startswith(b"ply") or end < 0:
@@ -62,6 +59,24 @@ def declared_counts(data: bytes, fmt: str, name: str = "mesh") -> DeclaredCounts
     if fmt in ("glb", "gltf"):
         return _gltf_counts(_gltf_json(data, fmt, name), name)
     return DeclaredCounts(None, None)
+
+
+def _obj_counts(data: bytes) -> tuple[int, int, int]:
+    """``(vertex lines, triangles, corners of the largest face (3 without faces))`` of an OBJ: by
+    the compiled scan of a plain file (:func:`proctex.geometry.obj_kernels.plain_counts`), else by
+    array passes or lines."""
+    try:
+        from .obj_kernels import plain_counts
+
+        fast = plain_counts(data)
+    except ImportError:
+        fast = None
+    if fast is not None:
+        return fast
+    counted = _obj_counts_by_columns(data)
+    vertices, corners = counted if counted is not None else _obj_counts_by_lines(data)
+    corners = np.asarray(corners, dtype=np.int64)
+    return vertices, int(np.maximum(corners - 2, 0).sum()), int(corners.max()) if len(corners) else 3
 
 
 def _obj_counts_by_lines(data: bytes) -> tuple[int, list[int]]:

@@ -286,6 +286,32 @@ def _obj_groups_by_line(data: str, n_polygons: int) -> np.ndarray | None:
     return out
 
 
+def _read_plain_obj(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]] | None:
+    """:func:`proctex.geometry.obj_kernels.read_plain` of an OBJ's bytes (the compiled reader of the
+    plain OBJ exporters write), None for any other file or where numba does not import (the
+    readers here answer then)."""
+    try:
+        from .obj_kernels import read_plain
+    except ImportError:
+        return None
+    return read_plain(data)
+
+
+def plain_obj_groups(face_group: np.ndarray, names: list[str]) -> np.ndarray | None:
+    """:func:`read_obj_groups` from what the compiled reader found: ``face_group (m,) int64`` the
+    ordinal of the ``o`` / ``g`` line before each face (-1 before the first, non-decreasing: faces
+    are in file order) and ``names`` those lines' names. Group ids in order of first use, faces
+    before any group line in the "" group; None when fewer than two are used."""
+    segment = np.asarray(face_group, dtype=np.int64) + 1
+    used = np.unique(segment)
+    every = [""] + list(names)
+    ids: dict[str, int] = {}
+    lut = np.array([ids.setdefault(every[s], len(ids)) for s in used.tolist()], dtype=np.int64)
+    if len(ids) < 2:
+        return None
+    return lut[np.searchsorted(used, segment)]
+
+
 def _read_with_trimesh(data: bytes, fmt: str, path: str) -> tuple[np.ndarray, list[np.ndarray]]:
     """Vertices and triangle blocks of a file's bytes via trimesh, without any processing (no
     merging/reordering); ``path`` names it in errors."""
@@ -449,6 +475,19 @@ def _pair_around_edge(vertices: np.ndarray, faces: np.ndarray, he_face: np.ndarr
     return pairs
 
 
+def _has_single(keys: np.ndarray) -> bool:
+    """Whether some value occurs exactly once in ``keys (h,)`` (a boundary edge among the
+    half-edges' keys): one sort, without the inverse and counts that stitching itself needs."""
+    s = np.sort(keys)
+    if len(s) < 2:
+        return len(s) == 1
+    differs = s[1:] != s[:-1]
+    alone = np.ones(len(s), dtype=bool)
+    alone[1:] &= differs
+    alone[:-1] &= differs
+    return bool(alone.any())
+
+
 def stitch_split_edges(vertices: np.ndarray, faces: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
     """Weld map for vertices split along seams (or a triangle soup).
 
@@ -469,10 +508,11 @@ def stitch_split_edges(vertices: np.ndarray, faces: np.ndarray, tol: float) -> t
     he_a = faces.reshape(-1)
     he_b = np.roll(faces, -1, axis=1).reshape(-1)
     lo, hi = np.minimum(he_a, he_b), np.maximum(he_a, he_b)
-    _, inv, counts = np.unique(lo * n + hi, return_inverse=True, return_counts=True)
-    boundary = counts[inv] == 1
-    if not boundary.any():  # closed by index already (most exports): nothing to stitch, no position search
+    edge_key = lo * n + hi
+    if not _has_single(edge_key):  # closed by index already (most exports): nothing to stitch, no position search
         return np.arange(n, dtype=np.int64), 0
+    _, inv, counts = np.unique(edge_key, return_inverse=True, return_counts=True)
+    boundary = counts[inv] == 1
     pid = position_ids(vertices, tol)
     he_f = np.repeat(np.arange(len(faces)), 3)
     pa, pb = pid[he_a], pid[he_b]
@@ -635,14 +675,23 @@ def load_mesh_bytes(
         raise ValueError(f"{name}: the file is empty")
     report = LoadReport(path=name, format=fmt, connectivity=connectivity)
     if fmt == "obj":
-        text = bytes(data).decode("utf-8", errors="replace")
-        vertices, polygons = read_obj(text, name)
+        plain = _read_plain_obj(data)
+        if plain is not None:
+            vertices, polygons, face_group, names = plain
+        else:
+            text = bytes(data).decode("utf-8", errors="replace")
+            vertices, polygons = read_obj(text, name)
         if len(vertices) == 0:
             raise ValueError(f"{name}: the file has no vertices")
         if len(polygons) == 0:
             raise ValueError(f"{name}: the file has no faces")
         faces: Any = polygons
-        group = read_obj_groups(text, len(polygons)) if groups else None
+        if not groups:
+            group = None
+        elif plain is not None:
+            group = plain_obj_groups(face_group, names)
+        else:
+            group = read_obj_groups(text, len(polygons))
         if group is not None:
             tri, _ = triangulate(list(polygons)) if not isinstance(polygons, np.ndarray) else (polygons, 0)
             lengths = np.full(len(polygons), 3) if isinstance(polygons, np.ndarray) else np.fromiter(map(len, polygons), np.int64, len(polygons))

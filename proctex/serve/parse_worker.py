@@ -54,6 +54,13 @@ def _serve(memory: int) -> None:  # pragma: no cover - runs in the worker proces
     sys.stdout = sys.stderr  # a stray print must not corrupt the answers
     from proctex.geometry.meshio import load_mesh_bytes
 
+    try:  # the compiled OBJ reader, loaded before the first upload waits on it
+        from proctex.geometry.obj_kernels import warm
+
+        warm()
+    except ImportError:
+        pass
+
     while True:
         head = inp.read(HEADER.size)
         if len(head) < HEADER.size:
@@ -99,23 +106,40 @@ class MeshReader:
     def read(self, data: bytes, name: str, groups: bool = False, seconds: float = 30.0, cancelled: Callable[[], bool] = lambda: False) -> Any:
         """The :class:`~proctex.geometry.shape.Shape` of ``data`` (:func:`proctex.geometry.meshio.load_mesh_bytes`
         in the reader). ``ValueError`` for a file the reader refused (its message); :class:`ReadTimeout`
-        when it ran past ``seconds`` or ``cancelled()`` turned true (the reader is killed)."""
+        when it ran past ``seconds`` or ``cancelled()`` turned true (the reader is killed). The
+        seconds count from the call: a reader's start and the upload's way through the pipe (which
+        waits on the reader taking it) are in them."""
         if cancelled():
             raise ReadTimeout("the request was cancelled")
         with self._lock:
-            proc = self._ensure()
-            try:
-                _send(proc.stdin, {"data": data, "name": name, "groups": groups})
-            except (BrokenPipeError, OSError):
-                self._kill()
-                raise ValueError("the mesh reader could not take the upload; try again") from None
             t0 = time.monotonic()
-            fd = proc.stdout.fileno()
-            while True:
+            proc = self._ensure()
+
+            def stop_if_over() -> None:
                 gone = cancelled()
                 if gone or time.monotonic() - t0 > seconds:
                     self._kill()
                     raise ReadTimeout("the request was cancelled" if gone else f"reading the mesh ran past {seconds:g} s")
+
+            blob = pickle.dumps({"data": data, "name": name, "groups": groups}, protocol=pickle.HIGHEST_PROTOCOL)
+            message = memoryview(HEADER.pack(len(blob)) + blob)
+            fd = proc.stdin.fileno()
+            os.set_blocking(fd, False)  # an upload larger than the pipe waits on the reader (its start)
+            try:
+                while len(message):
+                    stop_if_over()
+                    _, ready, _ = select.select([], [fd], [], 0.05)
+                    if ready:
+                        try:
+                            message = message[os.write(fd, message) :]
+                        except BlockingIOError:
+                            pass
+            except (BrokenPipeError, OSError):
+                self._kill()
+                raise ValueError("the mesh reader could not take the upload; try again") from None
+            fd = proc.stdout.fileno()
+            while True:
+                stop_if_over()
                 ready, _, _ = select.select([fd], [], [], 0.05)
                 if ready:
                     break

@@ -210,18 +210,19 @@ def transfer(
 
 
 def warm_kernels() -> None:
-    """Compile, or load from numba's cache, the compiled kernels a transfer runs (the shape's
-    segmentation, the UV lookup's tree and affine maps, the GLB's normals and tangents): a serving process calls this at start so that its
+    """Compile, or load from numba's cache, the compiled kernels a transfer runs (an OBJ upload's
+    reading and header count, the shape's segmentation, the UV lookup's tree and affine maps, the GLB's normals and tangents): a serving process calls this at start so that its
     first request does not pay it (seconds on a machine's first run, a fraction of one after).
     Nothing where numba does not import (the array forms and libigl answer then)."""
     try:
-        from proctex.geometry import bvh, mesh_kernels
+        from proctex.geometry import bvh, mesh_kernels, obj_kernels
         from proctex.texture import vertex_kernels
         from proctex.transfer import uv_kernels
     except ImportError:
         return
     bvh.warm()
     mesh_kernels.warm()
+    obj_kernels.warm()
     vertex_kernels.warm()
     uv_kernels.warm()
 
