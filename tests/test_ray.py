@@ -490,9 +490,9 @@ def _front(root: Path, name: str, **args):
 
     serve.shutdown()
     serve.start(proxy_location="Disabled")
-    handle, limits, multiplexed = deploy_transfer({"root": str(root), **{k: str(v) for k, v in args.items()}}, name=name)
+    deployed = deploy_transfer({"root": str(root), **{k: str(v) for k, v in args.items()}}, name=name)
     port = _free_port()
-    srv = server(front_app(handle, limits, multiplexed), "127.0.0.1", port)
+    srv = server(front_app(*deployed), "127.0.0.1", port)
     thread = threading.Thread(target=lambda: asyncio.run(srv.serve()), daemon=True)
     thread.start()
     deadline = time.monotonic() + 60
@@ -513,7 +513,9 @@ def test_the_front_holds_against_stalled_clients_and_a_replica_killed_under_load
     instead of Serve's proxy and the ingress deployment. 40 stalled bodies are held while the health
     route and another family's transfer are answered; 50 transfers from 10 clients with one transfer
     replica SIGKILLed under them all answer 200 (those it held retried, and say so), never plain
-    text. Each answer says where its time went (Server-Timing), through the front."""
+    text. Each answer says where its time went (Server-Timing), through the front, and which way
+    it came from the replica: the side channel (``workers.sidechannel``), whose lost replica is
+    what the retries answer here."""
     import shutil
     import urllib.error
     import urllib.request
@@ -539,6 +541,7 @@ def test_the_front_holds_against_stalled_clients_and_a_replica_killed_under_load
         with urllib.request.urlopen(req, timeout=120) as r:
             assert r.status == 200 and r.read()[:4] == b"glTF"
             stages = parse_server_timing(", ".join(r.headers.get_all("server-timing") or []))
+            assert r.headers.get("x-proctex-hop") == "side-channel"  # the replicas listen on this node
         assert {"ingress", "forward", "replica", "app", "uv", "glb"} <= set(stages), stages
         for s in stalled:  # still held: nothing answered them yet
             s.setblocking(False)
@@ -551,6 +554,7 @@ def test_the_front_holds_against_stalled_clients_and_a_replica_killed_under_load
         for s in stalled:
             s.close()
     answers: list[tuple[int, str, str, bytes]] = []
+    hops: list[str] = []
 
     def one(k: int) -> None:
         body = json.dumps({"params": {"radius": 0.03 + 0.0004 * k}}).encode()
@@ -558,6 +562,7 @@ def test_the_front_holds_against_stalled_clients_and_a_replica_killed_under_load
         try:
             with urllib.request.urlopen(req, timeout=180) as r:
                 answers.append((r.status, r.headers.get("content-type", ""), r.headers.get("x-proctex-retried", ""), r.read()))
+                hops.append(r.headers.get("x-proctex-hop", ""))
         except urllib.error.HTTPError as e:
             answers.append((e.code, e.headers.get("content-type", ""), e.headers.get("x-proctex-retried", ""), e.read()))
 
@@ -576,6 +581,7 @@ def test_the_front_holds_against_stalled_clients_and_a_replica_killed_under_load
         retried = sum(a[2] == "1" for a in answers)
         assert len(answers) == 50 and codes.count(200) == 50 and retried >= 1, ({c: codes.count(c) for c in set(codes)}, retried)
         assert all(body[:4] == b"glTF" for _, _, _, body in answers)
+        assert set(hops) == {"side-channel"}, hops  # the retries too: the live replica's socket
     finally:
         stop()
 

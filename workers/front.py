@@ -19,8 +19,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import gc
+import shutil
 import signal
-from typing import Any, Callable
+import tempfile
+from typing import Any, Callable, NamedTuple
 
 import uvicorn
 from ray import serve
@@ -28,26 +30,51 @@ from ray import serve
 from proctex.serve.service import Limits
 from workers.ingress import Answer, Forwarded, ingress_app
 from workers.serve import lost, transfer_app
+from workers.sidechannel import SideChannel, Unreachable
 
 
-def front_app(handle: Any, limits: Limits, multiplexed: bool = False) -> Any:
+def front_app(handle: Any, limits: Limits, multiplexed: bool = False, sockets: str | None = None) -> Any:
     """The ASGI app of the front: :func:`workers.ingress.ingress_app` forwarding to the transfer
-    deployment's ``handle`` (a request about a family goes, multiplexed, to a replica holding it)."""
+    deployment's ``handle`` (a request about a family goes, multiplexed, to a replica holding it).
+    ``sockets``: the directory of the replicas' side channel (:mod:`workers.sidechannel`; not
+    multiplexed): a request goes there to a replica on this node, through the handle where none
+    takes it; the directory is removed when the server stops. Each answer says which way it came
+    (``X-ProcTex-Hop: side-channel`` or ``serve-handle``)."""
 
     routed: list[Any] = []
+    side: list[SideChannel] = []
 
     async def send(request: Forwarded, family: str | None) -> Answer:
+        if sockets and not multiplexed:
+            if not side:
+                import ray
+
+                side.append(SideChannel(sockets, ray.get_runtime_context().get_node_id()))
+            try:
+                return _via(await side[0].send(request), b"side-channel")
+            except Unreachable:  # nothing was sent: Serve's router knows the replicas
+                pass
         if not routed:  # the first request, on the server's event loop: a handle routing on it
             routed.append(on_this_loop(handle))
         base = routed[0]
         h = base.options(multiplexed_model_id=family) if (multiplexed and family) else base
-        return await h.forward.remote(request)
+        return _via(await h.forward.remote(request), b"serve-handle")
 
     async def stop() -> None:  # the server stops: the router's tasks end on its loop, before the loop closes
+        if side:
+            side[0].close()
+        if sockets:
+            shutil.rmtree(sockets, ignore_errors=True)
         if routed and routed[0] is not handle:
             await routed[0].shutdown_async()
 
     return ingress_app(send, limits, is_lost=lost, on_shutdown=stop)
+
+
+def _via(answer: Answer, hop: bytes) -> Answer:
+    """``answer`` saying (``X-ProcTex-Hop``) which way it came from the replica."""
+    answer["headers"] = [*answer.get("headers", []), (b"x-proctex-hop", hop)]
+    return answer
 
 
 def on_this_loop(handle: Any) -> Any:
@@ -66,13 +93,32 @@ def on_this_loop(handle: Any) -> Any:
     return own
 
 
-def deploy_transfer(app_args: dict[str, Any], name: str = "proctex") -> tuple[Any, Limits, bool]:
+class Deployed(NamedTuple):
+    """What :func:`deploy_transfer` started: :func:`front_app`'s arguments."""
+
+    handle: Any
+    limits: Limits
+    multiplexed: bool
+    sockets: str | None
+
+
+def deploy_transfer(app_args: dict[str, Any], name: str = "proctex", side_channel: bool = True) -> Deployed:
     """Deploy the transfer replicas of ``app_args`` (:func:`workers.serve.build_app`'s arguments)
     as a Serve application with no HTTP route (Serve must be started without proxies:
-    ``serve.start(proxy_location="Disabled")``); returns ``(handle, limits, multiplexed)``."""
-    app, limits, multiplexed = transfer_app(app_args)
-    handle = serve.run(app, name=name, route_prefix=None)
-    return handle, Limits(**limits), multiplexed
+    ``serve.start(proxy_location="Disabled")``). With ``side_channel`` (and not multiplexed) the
+    replicas listen in a new private directory (:mod:`workers.sidechannel`)."""
+    app, limits, multiplexed = transfer_app(app_args)  # the arguments checked before a directory is made
+    sockets = None
+    if side_channel and not multiplexed:
+        sockets = tempfile.mkdtemp(prefix="proctex-")  # mode 0700: only this user connects
+        app, limits, multiplexed = transfer_app(app_args, sockets=sockets)
+    try:
+        handle = serve.run(app, name=name, route_prefix=None)
+    except BaseException:
+        if sockets:
+            shutil.rmtree(sockets, ignore_errors=True)
+        raise
+    return Deployed(handle, Limits(**limits), multiplexed, sockets)
 
 
 def server(app: Any, host: str, port: int) -> Any:

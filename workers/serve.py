@@ -29,6 +29,7 @@ from proctex.serve.timing import server_timing
 from proctex.transfer.apply import warm_kernels
 from workers.http import create_app
 from workers.ingress import Answer, Forwarded, call_app, ingress_app
+from workers.sidechannel import ReplicaLost
 
 
 #: Ray's system settings for the private Ray ``proctex serve`` starts (a cluster started elsewhere
@@ -56,8 +57,10 @@ class TransferService:
 
     max_families = 0
 
-    def __init__(self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True, edit_token: str | None = None, device: str = "cpu") -> None:
-        self.edit_token, self.app = edit_token or None, None
+    def __init__(
+        self, root: str, check_every: float = 2.0, limits: dict[str, Any] | None = None, preload: bool = True, edit_token: str | None = None, device: str = "cpu", sockets: str | None = None
+    ) -> None:
+        self.edit_token, self.app, self.side = edit_token or None, None, None
         self.catalog = Catalog(root, Limits(**(limits or {})), check_every, lazy=self.max_families > 0, device=device)
         self.watchdog = Watchdog(2 * self.catalog.limits.max_seconds + 30)
         READER.warm()  # the mesh reader process, started before the first upload needs it
@@ -69,6 +72,17 @@ class TransferService:
                 except Exception:  # not built yet, or damaged: reported per request (503) and in /v1/families
                     pass
         gc.freeze()  # the families and modules loaded so far stay out of the collector's passes
+        if sockets:  # the front's side channel (workers.sidechannel), on this replica's event loop
+            try:
+                loop = asyncio.get_running_loop()
+            except RuntimeError:  # built outside a replica (tests): no loop to listen on
+                loop = None
+            if loop is not None:
+                import ray
+
+                from workers.sidechannel import listen
+
+                self.side = loop.create_task(listen(sockets, ray.get_runtime_context().get_node_id(), self.forward))
 
     async def forward(self, request: Forwarded) -> Answer:
         """One HTTP request forwarded by the ingress, answered by the FastAPI app of
@@ -139,10 +153,11 @@ def deployment(max_families: int = 0, name: str = "ProcTexTransfer"):
 
 def lost(exc: BaseException) -> bool:
     """Whether a failed handle call means the replica was lost (its actor died or cannot be
-    reached), looking through the errors that wrap it (``RayTaskError``, Serve's own)."""
+    reached), looking through the errors that wrap it (``RayTaskError``, Serve's own); also a
+    side channel's replica lost mid-request (:class:`workers.sidechannel.ReplicaLost`)."""
     seen = 0
     while exc is not None and seen < 8:
-        if isinstance(exc, RayActorError):
+        if isinstance(exc, (RayActorError, ReplicaLost)):
             return True
         exc, seen = (getattr(exc, "cause", None) or exc.__cause__), seen + 1
     return False
@@ -207,11 +222,12 @@ def build_app(args: dict[str, Any]) -> Any:
     return Ingress.options(**front, graceful_shutdown_timeout_s=grace, graceful_shutdown_wait_loop_s=1.0).bind(transfer, limits, multiplexed)
 
 
-def transfer_app(args: dict[str, Any]) -> tuple[Any, dict[str, Any], bool]:
+def transfer_app(args: dict[str, Any], sockets: str | None = None) -> tuple[Any, dict[str, Any], bool]:
     """The transfer replicas of :func:`build_app`'s ``args`` as a bound Serve application (no
     ingress: :func:`build_app` puts :class:`Ingress` before it, :mod:`workers.front` its own HTTP
     server), with the checked :class:`~proctex.serve.service.Limits` fields given
-    (:func:`limits_from`) and whether the families are multiplexed."""
+    (:func:`limits_from`) and whether the families are multiplexed. ``sockets``: a directory where
+    each replica listens for the front's side channel (:mod:`workers.sidechannel`)."""
     if not args.get("root"):
         raise ValueError("build_app needs args['root'], the family store root")
     options: dict[str, Any] = {
@@ -237,5 +253,5 @@ def transfer_app(args: dict[str, Any]) -> tuple[Any, dict[str, Any], bool]:
         replicas = int(args.get("replicas", args.get("max_replicas", 1)))
         options["ray_actor_options"]["num_gpus"] = float(args.get("num_gpus", 1.0 / max(1, replicas)))
     max_families = int(args.get("max_families", 0))
-    transfer = deployment(max_families).options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)), limits, preload, token, device)
+    transfer = deployment(max_families).options(**options).bind(str(args["root"]), float(args.get("check_every", 2.0)), limits, preload, token, device, sockets)
     return transfer, limits, max_families > 0

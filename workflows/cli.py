@@ -110,8 +110,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             from workers.front import deploy_transfer, front_app, run_until_signal, server
 
             serve.start(proxy_location="Disabled")
-            handle, limits, multiplexed = deploy_transfer(app_args)
-            srv = server(front_app(handle, limits, multiplexed), args.host, args.port)
+            srv = server(front_app(*deploy_transfer(app_args)), args.host, args.port)
             run_until_signal(srv, on_started=lambda: print(banner, flush=True))  # until SIGINT or SIGTERM, finishing the requests under way
         else:
             serve.start(http_options={"host": args.host, "port": args.port})
