@@ -165,3 +165,15 @@ def test_no_replica_is_unreachable_and_other_nodes_sockets_are_not_taken(tmp_pat
             await SideChannel(str(tmp_path / "missing"), NODE).send({"body": b"x"})
 
     asyncio.run(run())
+
+
+def test_the_side_channel_is_taken_only_where_serve_need_not_see_the_requests():
+    """Fixed replicas holding every family take the side channel; multiplexed families (Serve
+    routes by the family) and autoscaled replicas (Serve scales by the requests it sees) keep the
+    handle."""
+    from workers.front import takes_side_channel
+
+    assert takes_side_channel({"root": "r", "replicas": "2"}, multiplexed=False)
+    assert not takes_side_channel({"root": "r", "replicas": "2"}, multiplexed=True)
+    assert not takes_side_channel({"root": "r", "min_replicas": "1"}, multiplexed=False)
+    assert not takes_side_channel({"root": "r", "max_replicas": "4"}, multiplexed=False)

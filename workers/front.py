@@ -29,7 +29,7 @@ from ray import serve
 
 from proctex.serve.service import Limits
 from workers.ingress import Answer, Forwarded, ingress_app
-from workers.serve import lost, transfer_app
+from workers.serve import autoscaled, lost, transfer_app
 from workers.sidechannel import SideChannel, Unreachable
 
 
@@ -93,6 +93,13 @@ def on_this_loop(handle: Any) -> Any:
     return own
 
 
+def takes_side_channel(app_args: dict[str, Any], multiplexed: bool) -> bool:
+    """Whether transfer replicas deployed from ``app_args`` can be reached by the side channel:
+    not when multiplexed (Serve's router knows which replica holds a family) nor when they
+    autoscale (Serve scales by the requests under way through its handles)."""
+    return not multiplexed and not autoscaled(app_args)
+
+
 class Deployed(NamedTuple):
     """What :func:`deploy_transfer` started: :func:`front_app`'s arguments."""
 
@@ -105,11 +112,13 @@ class Deployed(NamedTuple):
 def deploy_transfer(app_args: dict[str, Any], name: str = "proctex", side_channel: bool = True) -> Deployed:
     """Deploy the transfer replicas of ``app_args`` (:func:`workers.serve.build_app`'s arguments)
     as a Serve application with no HTTP route (Serve must be started without proxies:
-    ``serve.start(proxy_location="Disabled")``). With ``side_channel`` (and not multiplexed) the
-    replicas listen in a new private directory (:mod:`workers.sidechannel`)."""
+    ``serve.start(proxy_location="Disabled")``). With ``side_channel`` the replicas listen in a new
+    private directory (:mod:`workers.sidechannel`), unless the families are multiplexed (Serve's
+    router knows which replica holds a family) or the replicas autoscale (Serve counts the
+    requests under way through its handles to scale)."""
     app, limits, multiplexed = transfer_app(app_args)  # the arguments checked before a directory is made
     sockets = None
-    if side_channel and not multiplexed:
+    if side_channel and takes_side_channel(app_args, multiplexed):
         sockets = tempfile.mkdtemp(prefix="proctex-")  # mode 0700: only this user connects
         app, limits, multiplexed = transfer_app(app_args, sockets=sockets)
     try:

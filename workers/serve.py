@@ -222,6 +222,12 @@ def build_app(args: dict[str, Any]) -> Any:
     return Ingress.options(**front, graceful_shutdown_timeout_s=grace, graceful_shutdown_wait_loop_s=1.0).bind(transfer, limits, multiplexed)
 
 
+def autoscaled(args: dict[str, Any]) -> bool:
+    """Whether :func:`build_app`'s ``args`` ask for autoscaled transfer replicas (``min_replicas`` or
+    ``max_replicas``) rather than a fixed count."""
+    return "min_replicas" in args or "max_replicas" in args
+
+
 def transfer_app(args: dict[str, Any], sockets: str | None = None) -> tuple[Any, dict[str, Any], bool]:
     """The transfer replicas of :func:`build_app`'s ``args`` as a bound Serve application (no
     ingress: :func:`build_app` puts :class:`Ingress` before it, :mod:`workers.front` its own HTTP
@@ -237,7 +243,7 @@ def transfer_app(args: dict[str, Any], sockets: str | None = None) -> tuple[Any,
         "graceful_shutdown_timeout_s": float(args.get("graceful_shutdown_timeout_s", 5.0)),
         "graceful_shutdown_wait_loop_s": 1.0,
     }
-    if "min_replicas" in args or "max_replicas" in args:
+    if autoscaled(args):
         options["autoscaling_config"] = {
             "min_replicas": int(args.get("min_replicas", 1)),
             "max_replicas": int(args.get("max_replicas", 2)),
