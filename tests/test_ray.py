@@ -514,8 +514,8 @@ def test_the_front_holds_against_stalled_clients_and_a_replica_killed_under_load
     route and another family's transfer are answered; 50 transfers from 10 clients with one transfer
     replica SIGKILLed under them all answer 200 (those it held retried, and say so), never plain
     text. Each answer says where its time went (Server-Timing), through the front, and which way
-    it came from the replica: the side channel (``workers.sidechannel``), whose lost replica is
-    what the retries answer here."""
+    it came from the replica: the side channel (``workers.sidechannel``) while both replicas
+    listen, the Serve handle while one does."""
     import shutil
     import urllib.error
     import urllib.request
@@ -579,9 +579,10 @@ def test_the_front_holds_against_stalled_clients_and_a_replica_killed_under_load
         assert not [(code, ctype, body[:80]) for code, ctype, _, body in answers if code != 200 and "json" not in ctype]
         codes = [a[0] for a in answers]
         retried = sum(a[2] == "1" for a in answers)
-        assert len(answers) == 50 and codes.count(200) == 50 and retried >= 1, ({c: codes.count(c) for c in set(codes)}, retried)
+        assert len(answers) == 50 and codes.count(200) == 50 and retried >= 1, ({c: codes.count(c) for c in set(codes)}, retried, [body[:200] for code, _, _, body in answers if code != 200])
         assert all(body[:4] == b"glTF" for _, _, _, body in answers)
-        assert set(hops) == {"side-channel"}, hops  # the retries too: the live replica's socket
+        # the side channel until the kill; then the handle while 1 of 2 replicas listens
+        assert hops.count("side-channel") >= 4 and set(hops) <= {"side-channel", "serve-handle"}, hops
     finally:
         stop()
 

@@ -113,9 +113,10 @@ asyncio.run(main())
 def test_a_replica_killed_under_a_request_is_lost_and_its_stale_socket_is_passed_over(tmp_path):
     """A replica process SIGKILLed while it holds a request: the front's send raises
     :class:`ReplicaLost`, which :func:`workers.serve.lost` counts as lost (the ingress retries an
-    idempotent request). Its socket file stays behind; the next send finds nobody listening there,
-    removes it and raises :class:`Unreachable` (nothing sent: the front takes the handle), as it
-    does with no replica at all."""
+    idempotent request), and its socket is never tried again (a dying process's socket can still
+    take a connection and reset it: the retry would be lost too). Its file stays behind; a front
+    that did not see the loss finds nobody listening there, removes it and raises
+    :class:`Unreachable` (nothing sent: the front takes the handle), as with no replica at all."""
     from workers.serve import lost
 
     root = Path(__file__).resolve().parents[1]
@@ -132,12 +133,16 @@ def test_a_replica_killed_under_a_request_is_lost_and_its_stale_socket_is_passed
             os.kill(proc.pid, signal.SIGKILL)
             with pytest.raises(ReplicaLost) as err:
                 await asyncio.wait_for(task, 30)
-            assert lost(err.value) and side.lost == 1
+            assert lost(err.value) and side.lost == 1 and side.departed == 1
             assert sock.exists()  # left behind by the killed process
-            with pytest.raises(Unreachable):
+            with pytest.raises(Unreachable):  # never tried again (a dying socket may still take one)
                 await side.send({"body": b"again"})
-            assert not sock.exists()  # stale: removed
+            assert sock.exists() and side.lost == 1
             side.close()
+            fresh = SideChannel(str(tmp_path), NODE)  # knows nothing of it: finds nobody listening
+            with pytest.raises(Unreachable):
+                await fresh.send({"body": b"again"})
+            assert not sock.exists()  # stale: removed
 
         asyncio.run(run())
     finally:
@@ -177,3 +182,55 @@ def test_the_side_channel_is_taken_only_where_serve_need_not_see_the_requests():
     assert not takes_side_channel({"root": "r", "replicas": "2"}, multiplexed=True)
     assert not takes_side_channel({"root": "r", "min_replicas": "1"}, multiplexed=False)
     assert not takes_side_channel({"root": "r", "max_replicas": "4"}, multiplexed=False)
+
+
+def test_the_side_channel_waits_for_every_replica_on_its_node(tmp_path):
+    """With the deployment's count of replicas given, the side channel takes requests only while
+    that many listen on this node (some elsewhere: the handle's router spreads the requests over
+    all of them); once the second replica listens, requests go to both (fewest under way first).
+    When the second is lost under a request, the first takes the rest: a replica of this node found
+    dead still counts (the handle's router would not know yet, and could send the retry to it)."""
+
+    async def run():
+        first = await listen(str(tmp_path), NODE, _echo)
+        side = SideChannel(str(tmp_path), NODE, replicas=2)
+        try:
+            with pytest.raises(Unreachable, match="1 of 2"):
+                await side.send({"body": b"x"})
+            # a second replica (listen() names its socket by this process's pid, taken already)
+            second = await asyncio.start_unix_server(_answer, path=str(tmp_path / f"{NODE[:16]}.1.sock"))
+            try:
+                answers = await asyncio.gather(*(side.send({"body": b"y"}) for _ in range(4)))
+                assert [a["body"] for a in answers] == [b"yy"] * 4
+                assert len(side.idle) == 2  # both replicas served
+                for _ in range(40):  # the second replica lost under a request (picked at random among the idle)
+                    try:
+                        await side.send({"body": b"die"})
+                    except ReplicaLost:
+                        break
+                assert side.lost == 1 and side.departed == 1
+                for _ in range(4):  # the first takes every request now: 1 of 2 listens, the other died here
+                    assert (await side.send({"body": b"z"}))["body"] == b"zz"
+            finally:
+                second.close()
+                await second.wait_closed()
+        finally:
+            side.close()
+            first.close()
+            await first.wait_closed()
+
+    async def _answer(reader, writer):
+        from workers.sidechannel import _read_message, _write_message
+
+        while True:
+            try:
+                request = await _read_message(reader)
+            except asyncio.IncompleteReadError:
+                break
+            if request["body"] == b"die":
+                break  # the connection closes under the request, as a killed replica's does
+            _write_message(writer, ("ok", await _echo(request)))
+            await writer.drain()
+        writer.close()
+
+    asyncio.run(run())

@@ -33,12 +33,12 @@ from workers.serve import autoscaled, lost, transfer_app
 from workers.sidechannel import SideChannel, Unreachable
 
 
-def front_app(handle: Any, limits: Limits, multiplexed: bool = False, sockets: str | None = None) -> Any:
+def front_app(handle: Any, limits: Limits, multiplexed: bool = False, sockets: str | None = None, replicas: int = 0) -> Any:
     """The ASGI app of the front: :func:`workers.ingress.ingress_app` forwarding to the transfer
     deployment's ``handle`` (a request about a family goes, multiplexed, to a replica holding it).
     ``sockets``: the directory of the replicas' side channel (:mod:`workers.sidechannel`; not
-    multiplexed): a request goes there to a replica on this node, through the handle where none
-    takes it; the directory is removed when the server stops. Each answer says which way it came
+    multiplexed): a request goes there to a replica on this node while all ``replicas`` listen
+    on it, else through the handle (some run on other nodes, none listens yet); the directory is removed when the server stops. Each answer says which way it came
     (``X-ProcTex-Hop: side-channel`` or ``serve-handle``)."""
 
     routed: list[Any] = []
@@ -49,7 +49,7 @@ def front_app(handle: Any, limits: Limits, multiplexed: bool = False, sockets: s
             if not side:
                 import ray
 
-                side.append(SideChannel(sockets, ray.get_runtime_context().get_node_id()))
+                side.append(SideChannel(sockets, ray.get_runtime_context().get_node_id(), replicas))
             try:
                 return _via(await side[0].send(request), b"side-channel")
             except Unreachable:  # nothing was sent: Serve's router knows the replicas
@@ -107,6 +107,7 @@ class Deployed(NamedTuple):
     limits: Limits
     multiplexed: bool
     sockets: str | None
+    replicas: int
 
 
 def deploy_transfer(app_args: dict[str, Any], name: str = "proctex", side_channel: bool = True) -> Deployed:
@@ -127,7 +128,7 @@ def deploy_transfer(app_args: dict[str, Any], name: str = "proctex", side_channe
         if sockets:
             shutil.rmtree(sockets, ignore_errors=True)
         raise
-    return Deployed(handle, Limits(**limits), multiplexed, sockets)
+    return Deployed(handle, Limits(**limits), multiplexed, sockets, int(app_args.get("replicas", 1)))
 
 
 def server(app: Any, host: str, port: int) -> Any:

@@ -106,22 +106,39 @@ async def listen(directory: str, node: str, forward: Callable[[Any], Awaitable[A
     return await asyncio.start_unix_server(connection, path=str(path), limit=1 << 20)
 
 
+def _identity(path: Path) -> tuple[str, int]:
+    """``(path, inode)`` of a socket file (inode -1 when it is gone): a replica started later
+    with the same pid makes a new file, another inode."""
+    try:
+        return str(path), os.stat(path).st_ino
+    except OSError:
+        return str(path), -1
+
+
 class SideChannel:
     """The front's side: sends forwarded requests to the replicas listening in ``directory`` on
-    node ``node`` (:func:`listen`). Use it from one event loop."""
+    node ``node`` (:func:`listen`). Use it from one event loop. With ``replicas`` (the
+    deployment's count) it takes requests only while that many sockets are on this node: where
+    some replicas run on other nodes, every request goes through the handle, whose router
+    spreads them over all (the side channel would leave the other nodes' replicas idle). A replica
+    of this node found dead still counts until its replacement listens: its requests go to the
+    others here (the handle's router would not know yet that it died, and could send a retry to
+    it)."""
 
-    def __init__(self, directory: str, node: str) -> None:
-        self.directory, self.prefix = Path(directory), node[:16] + "."
+    def __init__(self, directory: str, node: str, replicas: int = 0) -> None:
+        self.directory, self.prefix, self.replicas = Path(directory), node[:16] + ".", int(replicas)
         self.idle: dict[str, list[tuple[asyncio.StreamReader, asyncio.StreamWriter]]] = {}
         self.busy: dict[str, int] = {}
         self.paths: list[str] = []
         self.scanned = float("-inf")
         self.sent = self.lost = 0
+        self.departed = 0  # replicas of this node found dead since all listened (their replacements come)
+        self.dead: set[tuple[str, int]] = set()  # sockets whose replica was lost under a request
 
     def _scan(self, force: bool = False) -> list[str]:
         if force or time.monotonic() - self.scanned > RESCAN_SECONDS:
             try:
-                self.paths = sorted(str(p) for p in self.directory.glob(self.prefix + "*.sock"))
+                self.paths = sorted(str(p) for p in self.directory.glob(self.prefix + "*.sock") if _identity(p) not in self.dead)
             except OSError:
                 self.paths = []
             self.scanned = time.monotonic()
@@ -145,7 +162,15 @@ class SideChannel:
         tried: set[str] = set()
         forced = False
         while True:
-            paths = [p for p in self._scan(force=forced) if p not in tried]
+            found = self._scan(force=forced)
+            if len(found) >= self.replicas:
+                self.departed = 0  # every replica listens (again): the count holds as given
+            elif len(found) + self.departed < self.replicas:
+                if not forced:
+                    forced = True
+                    continue
+                raise Unreachable(f"{len(found)} of {self.replicas} transfer replicas listen on this node")
+            paths = [p for p in found if p not in tried]
             if not paths:
                 if not forced:  # none known: look again before giving up (a replica may have come)
                     forced = True
@@ -163,6 +188,7 @@ class SideChannel:
                 return path, reader, writer
             except (ConnectionRefusedError, FileNotFoundError):
                 self._forget(path, stale=True)  # its replica died: nobody listens there
+                self.departed += 1  # still this node's: the others take its requests until it is replaced
             except OSError:
                 self._forget(path, stale=False)
             tried.add(path)
@@ -183,6 +209,9 @@ class SideChannel:
             done = True
         except (asyncio.IncompleteReadError, ConnectionError, OSError, ValueError, pickle.UnpicklingError) as exc:
             self.lost += 1
+            # never again: a dying process's socket may still take a connection (and reset it)
+            self.dead.add(_identity(Path(path)))
+            self.departed += 1
             self._forget(path, stale=False)
             raise ReplicaLost(f"the transfer replica's side channel failed: {type(exc).__name__}") from exc
         finally:
