@@ -35,6 +35,24 @@ _POW10 = np.array([10.0**k for k in range(23)])
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _digits(buf, i, stop, mant, sig):
+    """``(next index, mantissa, significant digits, digits read)`` after the decimal digits at
+    ``buf[i:stop]``, each appended to ``mant`` (leading zeros are not significant); it stops at
+    the 19th significant digit (``sig`` > 18: too long for an exact read)."""
+    n = 0
+    while i < stop and 48 <= buf[i] <= 57:
+        d = buf[i] - 48
+        if sig > 0 or d != 0:
+            sig += 1
+            if sig > 18:
+                return i, mant, sig, n
+            mant = mant * 10 + d
+        n += 1
+        i += 1
+    return i, mant, sig, n
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _number(buf, i, stop, pow10):
     """``(value, next index, ok)`` of the decimal number at ``buf[i:stop]`` ending at a space, a
     line break or ``stop``; ok is False for anything but ``-?digits[.digits][(e|E)[+-]digits]`` whose value is
@@ -43,48 +61,21 @@ def _number(buf, i, stop, pow10):
     if i < stop and buf[i] == 45:  # -
         neg = True
         i += 1
-    mant = np.int64(0)
-    sig = 0
-    digits = 0
-    scale = 0
-    while i < stop and 48 <= buf[i] <= 57:
-        d = buf[i] - 48
-        if sig > 0 or d != 0:
-            sig += 1
-            if sig > 18:
-                return 0.0, i, False
-            mant = mant * 10 + d
-        digits += 1
-        i += 1
-    if i < stop and buf[i] == 46:  # .
-        i += 1
-        while i < stop and 48 <= buf[i] <= 57:
-            d = buf[i] - 48
-            if sig > 0 or d != 0:
-                sig += 1
-                if sig > 18:
-                    return 0.0, i, False
-                mant = mant * 10 + d
-            scale -= 1
-            digits += 1
-            i += 1
-    if digits == 0:
+    i, mant, sig, whole = _digits(buf, i, stop, np.int64(0), 0)
+    frac = 0
+    if sig <= 18 and i < stop and buf[i] == 46:  # .
+        i, mant, sig, frac = _digits(buf, i + 1, stop, mant, sig)
+    if sig > 18 or whole + frac == 0:
         return 0.0, i, False
+    scale = -frac
     if i < stop and (buf[i] == 101 or buf[i] == 69):  # e E
         i += 1
         eneg = False
         if i < stop and (buf[i] == 43 or buf[i] == 45):
             eneg = buf[i] == 45
             i += 1
-        e = 0
-        ed = 0
-        while i < stop and 48 <= buf[i] <= 57:
-            e = e * 10 + (buf[i] - 48)
-            ed += 1
-            if ed > 4:
-                return 0.0, i, False
-            i += 1
-        if ed == 0:
+        i, e, _, ed = _digits(buf, i, stop, np.int64(0), 0)
+        if ed == 0 or ed > 4:
             return 0.0, i, False
         scale += -e if eneg else e
     if i < stop and buf[i] != 32 and buf[i] != 10 and buf[i] != 13:
@@ -101,30 +92,19 @@ def _number(buf, i, stop, pow10):
 @njit(cache=True, nogil=True, inline="always")
 def _index(buf, i, stop):
     """``(vertex index, next index, ok)`` of a face corner ``a``, ``a/b``, ``a//c`` or ``a/b/c``
-    (digits, ``a`` >= 1, at most 18 digits) at ``buf[i:stop]`` ending at a space, a line break or
+    (digits, ``a`` >= 1, at most 18 significant digits each) at ``buf[i:stop]`` ending at a space, a line break or
     ``stop``."""
-    v = np.int64(0)
-    nd = 0
-    while i < stop and 48 <= buf[i] <= 57:
-        v = v * 10 + (buf[i] - 48)
-        nd += 1
-        if nd > 18:
-            return 0, i, False
-        i += 1
-    if nd == 0 or v < 1:
+    i, v, sig, nd = _digits(buf, i, stop, np.int64(0), 0)
+    if sig > 18 or nd == 0 or v < 1:
         return 0, i, False
     slashes = 0
     while i < stop and buf[i] == 47:  # /
         slashes += 1
         if slashes > 2:
             return 0, i, False
-        i += 1
-        k = 0
-        while i < stop and 48 <= buf[i] <= 57:
-            k += 1
-            if k > 18:
-                return 0, i, False
-            i += 1
+        i, _, sig, k = _digits(buf, i + 1, stop, np.int64(0), 0)
+        if sig > 18:
+            return 0, i, False
         if k == 0 and not (slashes == 1 and i < stop and buf[i] == 47):
             return 0, i, False  # "a/" or "a//" with nothing after; "a//c" passes through here
     if i < stop and buf[i] != 32 and buf[i] != 10 and buf[i] != 13:
