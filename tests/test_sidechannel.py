@@ -139,6 +139,7 @@ def test_a_replica_killed_under_a_request_is_lost_and_its_stale_socket_is_passed
                 await side.send({"body": b"again"})
             assert sock.exists() and side.lost == 1
             side.close()
+            await asyncio.to_thread(proc.wait, 30)  # gone for good (while it exits, its socket may take one more)
             fresh = SideChannel(str(tmp_path), NODE)  # knows nothing of it: finds nobody listening
             with pytest.raises(Unreachable):
                 await fresh.send({"body": b"again"})

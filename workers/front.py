@@ -38,8 +38,9 @@ def front_app(handle: Any, limits: Limits, multiplexed: bool = False, sockets: s
     deployment's ``handle`` (a request about a family goes, multiplexed, to a replica holding it).
     ``sockets``: the directory of the replicas' side channel (:mod:`workers.sidechannel`; not
     multiplexed): a request goes there to a replica on this node while all ``replicas`` listen
-    on it, else through the handle (some run on other nodes, none listens yet); the directory is removed when the server stops. Each answer says which way it came
-    (``X-ProcTex-Hop: side-channel`` or ``serve-handle``)."""
+    on it, else through the handle (some run on other nodes, none listens yet); the directory is
+    removed when the server stops. Each answer says which way it came (``X-ProcTex-Hop:
+    side-channel`` or ``serve-handle``)."""
 
     routed: list[Any] = []
     side: list[SideChannel] = []
@@ -110,17 +111,18 @@ class Deployed(NamedTuple):
     replicas: int
 
 
-def deploy_transfer(app_args: dict[str, Any], name: str = "proctex", side_channel: bool = True) -> Deployed:
+def deploy_transfer(app_args: dict[str, Any], name: str = "proctex") -> Deployed:
     """Deploy the transfer replicas of ``app_args`` (:func:`workers.serve.build_app`'s arguments)
     as a Serve application with no HTTP route (Serve must be started without proxies:
-    ``serve.start(proxy_location="Disabled")``). With ``side_channel`` the replicas listen in a new
-    private directory (:mod:`workers.sidechannel`), unless the families are multiplexed (Serve's
-    router knows which replica holds a family) or the replicas autoscale (Serve counts the
-    requests under way through its handles to scale)."""
+    ``serve.start(proxy_location="Disabled")``). The replicas listen for the side channel in a new
+    private directory (:mod:`workers.sidechannel`), unless the families are multiplexed or the
+    replicas autoscale (:func:`takes_side_channel`) or no directory can be made (the handle then)."""
     app, limits, multiplexed = transfer_app(app_args)  # the arguments checked before a directory is made
     sockets = None
-    if side_channel and takes_side_channel(app_args, multiplexed):
-        sockets = tempfile.mkdtemp(prefix="proctex-")  # mode 0700: only this user connects
+    if takes_side_channel(app_args, multiplexed):
+        with contextlib.suppress(OSError):  # no writable temporary directory: the handle only
+            sockets = tempfile.mkdtemp(prefix="proctex-")  # mode 0700: only this user connects
+    if sockets:
         app, limits, multiplexed = transfer_app(app_args, sockets=sockets)
     try:
         handle = serve.run(app, name=name, route_prefix=None)

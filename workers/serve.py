@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import gc
+import logging
 import os
 import time
 from typing import Any
@@ -29,7 +30,7 @@ from proctex.serve.timing import server_timing
 from proctex.transfer.apply import warm_kernels
 from workers.http import create_app
 from workers.ingress import Answer, Forwarded, call_app, ingress_app
-from workers.sidechannel import ReplicaLost
+from workers.sidechannel import ReplicaLost, listen
 
 
 #: Ray's system settings for the private Ray ``proctex serve`` starts (a cluster started elsewhere
@@ -80,9 +81,7 @@ class TransferService:
             if loop is not None:
                 import ray
 
-                from workers.sidechannel import listen
-
-                self.side = loop.create_task(listen(sockets, ray.get_runtime_context().get_node_id(), self.forward))
+                self.side = loop.create_task(_listen(sockets, ray.get_runtime_context().get_node_id(), self.forward))
 
     async def forward(self, request: Forwarded) -> Answer:
         """One HTTP request forwarded by the ingress, answered by the FastAPI app of
@@ -149,6 +148,16 @@ def deployment(max_families: int = 0, name: str = "ProcTexTransfer"):
         MultiplexedTransferService.max_families = max_families
         cls = MultiplexedTransferService
     return serve.deployment(name=name, ray_actor_options={"num_cpus": 0}, max_ongoing_requests=16, health_check_period_s=10)(cls)
+
+
+async def _listen(sockets: str, node: str, forward: Any) -> Any:
+    """:func:`workers.sidechannel.listen`, or None with a warning where the socket cannot be made
+    (the front then sends this replica's requests through the handle: it waits for every replica)."""
+    try:
+        return await listen(sockets, node, forward)
+    except OSError as exc:
+        logging.getLogger("ray.serve").warning("the side channel is off for this replica: %s", exc)
+        return None
 
 
 def lost(exc: BaseException) -> bool:

@@ -159,6 +159,8 @@ class SideChannel:
         return random.choice([p for p in paths if self.busy.get(p, 0) == least])
 
     async def _connect(self) -> tuple[str, asyncio.StreamReader, asyncio.StreamWriter]:
+        """A connection to the replica with the fewest requests under way (counted from here on:
+        the caller takes one off when done); :class:`Unreachable` when none takes it."""
         tried: set[str] = set()
         forced = False
         while True:
@@ -181,15 +183,19 @@ class SideChannel:
             while pool:
                 reader, writer = pool.pop()
                 if not reader.at_eof() and not writer.is_closing():
+                    self.busy[path] = self.busy.get(path, 0) + 1
                     return path, reader, writer
                 writer.close()
+            self.busy[path] = self.busy.get(path, 0) + 1  # counted while connecting: the next pick sees it
             try:
                 reader, writer = await asyncio.open_unix_connection(path, limit=1 << 20)
                 return path, reader, writer
             except (ConnectionRefusedError, FileNotFoundError):
+                self.busy[path] -= 1
                 self._forget(path, stale=True)  # its replica died: nobody listens there
                 self.departed += 1  # still this node's: the others take its requests until it is replaced
             except OSError:
+                self.busy[path] -= 1
                 self._forget(path, stale=False)
             tried.add(path)
             forced = True
@@ -198,8 +204,7 @@ class SideChannel:
         """The replica's answer to ``request``; :class:`Unreachable` when no replica took it
         (nothing was sent), :class:`ReplicaLost` when the replica's connection failed after it
         was sent, ``RuntimeError`` for an error the replica raised."""
-        path, reader, writer = await self._connect()
-        self.busy[path] = self.busy.get(path, 0) + 1
+        path, reader, writer = await self._connect()  # counted busy there
         done = False
         try:
             _write_message(writer, request)
