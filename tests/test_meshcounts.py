@@ -237,6 +237,6 @@ def test_the_compiled_obj_count_answers_what_the_line_reading_answers(sofa_dir):
             assert any(c in data for c in (b" v", b"\t", b"\x0b", b"x 1", b"2\r3")), data
             continue
         taken += 1
-        assert fast == by_lines(data) == _obj_counts(data), data
+        assert fast == by_lines(data) == _obj_counts(data), data  # integer counts: exact on any CPU (also under tests.portable)
     assert taken > 200
     assert plain_counts(b"vn 1 2 3\nv 1 2 3\nf 1  2 3 \n") == (1, 1, 3)

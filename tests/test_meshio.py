@@ -446,6 +446,8 @@ def test_the_compiled_obj_reader_agrees_with_the_other_readers_or_declines(sofa_
         taken_texts.append(text)
         gv, gf, fg, names = got
         assert gv.dtype == np.float64 and gf.dtype == np.int64
+        # margin: none, bit-equal natively and under tests.portable (AVX-512 off): the reader only
+        # adds integers and makes one correctly rounded multiplication or division per number
         assert np.array_equal(gv.view(np.int64), np.asarray(v, dtype=np.float64).view(np.int64)), text
         assert np.array_equal(gf, np.asarray(polys)), text
         expected = read_obj_groups(text, len(polys))
@@ -493,6 +495,7 @@ def test_a_plain_obj_loads_the_same_with_and_without_the_compiled_reader(sofa_di
     assert [declared_counts(d, "obj") for d in datas] == counted  # by the array passes now
     slow = [meshio.load_mesh_bytes(d, "m.obj", groups=True)[0] for d in datas]
     for a, b in zip(fast, slow):
+        # margin: none, bit-equal natively and under tests.portable (AVX-512 off)
         assert np.array_equal(a.vertices.view(np.int64), b.vertices.view(np.int64)) and np.array_equal(a.faces, b.faces)
         assert segment(a).n_parts == segment(b).n_parts
     assert segment(fast[-1]).n_parts == 2 and fast[-1].n_faces == 3
