@@ -172,7 +172,7 @@ def _scan(buf, count_corners):
 
 @njit(cache=True, nogil=True)
 def _parse(buf, nv, nf, ng, pow10):
-    """``(status, vertices (nv, 3) float64, faces (nf, 3) int64 1-based, face_group (nf,) int64
+    """``(status, vertices (nv, 3) float64, faces (nf, 3) int64 0-based, face_group (nf,) int64
     ordinal of the group line before each face or -1, group_span (ng, 2) int64 byte range of each
     group line's name)`` of a buffer :func:`_scan` passed; status 1 when a ``v`` or ``f`` line is not
     plain, else 0."""
@@ -206,7 +206,7 @@ def _parse(buf, nv, nf, ng, pow10):
                 x, j, ok = _index(buf, j, n)
                 if not ok or (k < 2 and (j >= n or buf[j] != 32)):
                     return 1, v, f, fg, span
-                f[kf, k] = x
+                f[kf, k] = x - 1  # 0-based
                 j += 1
             j -= 1
             if not _at_end(buf, j):
@@ -252,9 +252,8 @@ def read_plain(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]] | N
     status, v, f, fg, span = _parse(buf, nv, nf, ng, _POW10)
     if status != PLAIN:
         return None
-    raw = bytes(buf)
-    names = [raw[s:e].decode("ascii").strip() for s, e in span.tolist()]
-    return v, f - 1, fg, names
+    names = [buf[s:e].tobytes().decode("ascii").strip() for s, e in span.tolist()]
+    return v, f, fg, names
 
 
 def warm() -> None:
