@@ -3,6 +3,7 @@ stopping, determinism, config validation and persistence."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pickle
 
@@ -110,13 +111,35 @@ def test_predict_decodes_in_row_buckets_and_a_row_does_not_depend_on_the_others(
     q = rng.uniform(-1, 1, (1000, 3))
     rows = []
     mlp = cn._mlp_rows
-    monkeypatch.setattr(cn, "_mlp_rows", lambda x, layers, last_relu: (rows.append(len(x)) if not last_relu else None) or mlp(x, layers, last_relu))  # the decoder's rows
+    monkeypatch.setattr(cn, "_mlp_rows", lambda x, layers, last_relu, **kw: (rows.append(len(x)) if not last_relu else None) or mlp(x, layers, last_relu, **kw))  # the decoder's rows
     for autocast in ("none", "bfloat16"):
         whole = cn.predict(m, ctx, q, autocast=autocast)
         for n in (1, 37, 64, 65, 500):
             np.testing.assert_allclose(cn.predict(m, ctx, q[:n], autocast=autocast), whole[:n], atol=1e-6, rtol=0)
     assert rows and all(r % cn.QUERY_BUCKET == 0 for r in rows) and {1024, 64, 128, 512} <= set(rows)
     assert np.abs(whole).max() > 0.1  # not a network answering zeros
+
+
+def test_fused_layers_give_the_plain_layers_bits_or_are_not_used(monkeypatch):
+    """bfloat16 prediction on a CPU with native bfloat16 runs each layer and its ReLU in one oneDNN
+    pass (:func:`cn._fused_linear`) only where a probe found the same bits as the plain layers
+    (exact: 0 apart, natively; with oneDNN held at AVX2 bfloat16 is not native and the plain layers
+    run). The answers are equal bit for bit; a fused operator that differs (here: one that drops
+    the ReLU) is found by the probe and not used."""
+    m = cn.build_model(CorrNetConfig(context_points=64, query_points=64, zero_init=False))
+    rng = np.random.default_rng(7)
+    ctx, q = rng.uniform(-1, 1, (64, 3)), rng.uniform(-1, 1, (1500, 3))
+    fused = cn.predict(m, ctx, q, autocast="bfloat16")
+    w = cn._inference_weights(m, "bfloat16")
+    if not cn.native_bfloat16("cpu") or cn._fused_linear() is None:
+        assert not w.fused
+        pytest.skip("no native bfloat16 or no oneDNN fused linear here: the plain layers run")
+    assert w.fused
+    cn._WEIGHTS[m] = dataclasses.replace(w, fused=False)
+    np.testing.assert_array_equal(fused, cn.predict(m, ctx, q, autocast="bfloat16"))
+    op = cn._fused_linear()
+    monkeypatch.setattr(cn, "_fused_linear", lambda: lambda x, weight, bias, attr, scalars, algo: op(x, weight, bias, "none", scalars, algo))
+    assert not cn._fuses_exactly(w.local + w.decoder)
 
 
 @pytest.mark.parametrize("frame,residual,dtype", [("box", True, "float32"), ("uniform", True, "float32"), ("box", False, "float32"), ("uniform", True, "float64")])

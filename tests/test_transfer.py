@@ -854,6 +854,41 @@ def test_run_time_coverage_check_never_passes_a_face_that_reads_outside_its_char
         _inside_chart(uv, look, chart, leaf=3.0)
 
 
+def test_the_compiled_coverage_check_answers_as_the_array_form():
+    """:func:`proctex.transfer.uv_kernels.inside_chart` (depth first, one face at a time) gives
+    exactly the answers of :func:`_inside_chart_arrays` (level by level) on random faces over a
+    chart with a gap, a hole and scattered unpainted texels, with and without the box table, for
+    every number of splits allowed: integers and IEEE sums in the same order, so equal on every CPU
+    (margin none). Hundreds of faces are settled only after one to four splits, so a kernel that
+    split into other children, stopped a level early or late, or left out a probe's room differs."""
+    pytest.importorskip("numba")
+    from proctex.texture.inpaint import chart_labels
+    from proctex.transfer import uv_kernels
+    from proctex.transfer.uvlookup import ChartLookup, _inside_chart, _inside_chart_arrays, _probe_grid, chart_lookup
+
+    rng = np.random.default_rng(11)
+    painted = np.ones((96, 80), bool)
+    painted[10:, 40:42] = False  # a gap
+    painted[60:70, 5:15] = False  # a hole
+    painted[:3], painted[:, :3] = False, False
+    holes = rng.integers(3, 96, (40, 2))
+    painted[holes[:, 0], np.minimum(holes[:, 1], 79)] = False  # scattered unpainted texels
+    look = chart_lookup(chart_labels(painted))
+    n = 20000
+    centre = rng.uniform(0.0, 1.0, (n, 1, 2))
+    uv = np.clip(centre + rng.normal(0, 1, (n, 3, 2)) * rng.choice([0.01, 0.03, 0.06], size=(n, 1, 1)), 0, 1)
+    chart = np.where(rng.uniform(size=n) < 0.05, 2, 1).astype(np.int32)  # a few faces of another chart: all outside
+    grid = _probe_grid()
+    settled = []
+    for max_level in range(7):
+        for count in (look.block_count, None):
+            arrays = _inside_chart_arrays(uv, ChartLookup(look.labels, look.block_label, look.block_room, count), chart, grid, 2.0, max_level)
+            np.testing.assert_array_equal(uv_kernels.inside_chart(uv, chart, look.block_label, look.block_room, count, grid, 96, 80, 2.0, max_level), arrays)
+        settled.append(int(arrays.sum()))
+    assert 0.2 < settled[0] / n < 0.8 and settled[4] - settled[0] > 200, settled  # many faces each way; hundreds settle only after splits
+    np.testing.assert_array_equal(_inside_chart(uv, look, chart), _inside_chart_arrays(uv, look, chart, grid, 2.0, 12))
+
+
 def test_bilinear_blocks_answer_for_the_four_texels_a_bilinear_lookup_reads():
     """One read of a 2x2-block map at :func:`bilinear_corner` equals reducing over the four
     :func:`bilinear_texels`, at the clamped rim and outside [0, 1] too."""

@@ -89,6 +89,112 @@ def inside_rooms(corner_uv: np.ndarray, box: np.ndarray, room: np.ndarray, near:
 
 
 @njit(cache=True, nogil=True)
+def _first_texel(u, v, height, width):
+    """Row-major index of the first texel a bilinear lookup at ``(u, v)`` reads
+    (:func:`proctex.texture.uv.bilinear_corner`)."""
+    i0 = min(max(np.floor((1.0 - v) * height - 0.5), 0.0), height - 1.0)
+    j0 = min(max(np.floor(u * width - 0.5), 0.0), width - 1.0)
+    return int(i0) * int(width) + int(j0)
+
+
+@njit(cache=True, nogil=True)
+def _chart_inside(tri, chart, block_label, block_room, block_count, use_count, grid, height, width, leaf, max_level):
+    k = tri.shape[0]
+    w = int(width)
+    ok = np.ones(k, np.bool_)
+    cap = 4 * (max_level + 2)
+    stack = np.empty((cap, 3, 2))
+    depth = np.empty(cap, np.int64)
+    size = np.empty(cap)
+    for i in range(k):
+        c = chart[i]
+        if use_count:  # the whole UV box at once (uvlookup._inside_box)
+            rmin, rmax, cmin, cmax = np.inf, -np.inf, np.inf, -np.inf
+            for q in range(3):
+                r = (1.0 - tri[i, q, 1]) * height - 0.5
+                col = tri[i, q, 0] * width - 0.5
+                rmin, rmax, cmin, cmax = min(rmin, r), max(rmax, r), min(cmin, col), max(cmax, col)
+            i0 = int(min(max(np.floor(rmin), 0.0), height - 1.0))
+            j0 = int(min(max(np.floor(cmin), 0.0), width - 1.0))
+            i1 = int(min(max(np.floor(rmax), 0.0), height - 1.0)) + 1
+            j1 = int(min(max(np.floor(cmax), 0.0), width - 1.0)) + 1
+            count = block_count[i1, j1] - block_count[i0, j1] - block_count[i1, j0] + block_count[i0, j0]
+            if count == (i1 - i0) * (j1 - j0) and block_label[i0 * w + j0] == c:
+                continue
+        e2 = 0.0
+        for q in range(3):
+            dx = (tri[i, q, 0] - tri[i, (q + 1) % 3, 0]) * width
+            dy = (tri[i, q, 1] - tri[i, (q + 1) % 3, 1]) * height
+            e2 = max(e2, dx * dx + dy * dy)
+        stack[0] = tri[i]
+        depth[0], size[0] = 0, np.sqrt(e2)
+        sp = 1
+        while sp > 0:  # the sub-triangles, depth first; the face fails at its first failing one
+            sp -= 1
+            a0, a1 = stack[sp, 0, 0], stack[sp, 0, 1]
+            b0, b1 = stack[sp, 1, 0], stack[sp, 1, 1]
+            c0, c1 = stack[sp, 2, 0], stack[sp, 2, 1]
+            level, edge = depth[sp], size[sp]
+            inside = True
+            least = np.iinfo(np.int64).max
+            for j in range(grid.shape[0]):
+                u = (grid[j, 0] * a0 + grid[j, 1] * b0) + grid[j, 2] * c0
+                v = (grid[j, 0] * a1 + grid[j, 1] * b1) + grid[j, 2] * c1
+                t = _first_texel(u, v, height, width)
+                if block_label[t] != c:
+                    inside = False
+                least = min(least, np.int64(block_room[t]))
+            if not inside:
+                ok[i] = False
+                break
+            if least >= np.ceil(edge / 2):
+                continue
+            if edge <= leaf or level >= max_level:  # at the rim, or not settled within max_level splits
+                ok[i] = False
+                break
+            ab0, ab1 = (a0 + b0) / 2, (a1 + b1) / 2
+            bc0, bc1 = (b0 + c0) / 2, (b1 + c1) / 2
+            ca0, ca1 = (c0 + a0) / 2, (c1 + a1) / 2
+            for child in range(4):  # uvlookup._subdivide's children
+                if child == 0:
+                    p = (a0, a1, ab0, ab1, ca0, ca1)
+                elif child == 1:
+                    p = (ab0, ab1, b0, b1, bc0, bc1)
+                elif child == 2:
+                    p = (ca0, ca1, bc0, bc1, c0, c1)
+                else:
+                    p = (ab0, ab1, bc0, bc1, ca0, ca1)
+                stack[sp, 0, 0], stack[sp, 0, 1], stack[sp, 1, 0], stack[sp, 1, 1], stack[sp, 2, 0], stack[sp, 2, 1] = p
+                depth[sp], size[sp] = level + 1, edge / 2
+                sp += 1
+    return ok
+
+
+def inside_chart(
+    corner_uv: np.ndarray, chart: np.ndarray, block_label: np.ndarray, block_room: np.ndarray, block_count: np.ndarray | None, grid: np.ndarray, height: int, width: int, leaf: float, max_level: int
+) -> np.ndarray:
+    """(k,) bool: :func:`proctex.transfer.uvlookup._inside_chart` of faces with finite UVs
+    ``corner_uv (k, 3, 2)`` and charts ``chart (k,)`` over a :class:`~proctex.transfer.uvlookup.ChartLookup`'s
+    arrays, in one pass: each face's box test, then its sub-triangles depth first (the array form
+    goes level by level; a face fails when any of its sub-triangles fails either way), the probes
+    ``grid (p, 3)`` barycentric, summed in the same order."""
+    count = np.zeros((1, 1), np.int32) if block_count is None else np.ascontiguousarray(block_count, dtype=np.int32)
+    return _chart_inside(
+        np.ascontiguousarray(corner_uv, dtype=np.float64),
+        np.ascontiguousarray(chart, dtype=np.int64),
+        np.ascontiguousarray(block_label, dtype=np.int32),
+        np.ascontiguousarray(block_room, dtype=np.int32),
+        count,
+        block_count is not None,
+        np.ascontiguousarray(grid, dtype=np.float64),
+        float(height),
+        float(width),
+        float(leaf),
+        int(max_level),
+    )
+
+
+@njit(cache=True, nogil=True)
 def _disoccluded(corner_uv, face_group, group, observed):
     h, w = observed.shape
     n = 0
@@ -132,3 +238,6 @@ def warm() -> None:
     face_centroids(v, f)
     disoccluded_faces(np.zeros((1, 3, 2)), np.zeros(1, np.int64), 0, np.ones((2, 2), bool))
     inside_rooms(np.zeros((1, 3, 2)), np.zeros((1, 4)), np.zeros(1, np.int64), np.zeros(1, np.int64), 4, 4)
+    tri = np.array([[[0.1, 0.1], [0.9, 0.1], [0.1, 0.9]]])
+    for count in (None, np.zeros((5, 5), np.int32)):
+        inside_chart(tri, np.ones(1, np.int64), np.ones(16, np.int32), np.zeros(16, np.int32), count, np.full((1, 3), 1.0 / 3.0), 4, 4, 2.0, 2)

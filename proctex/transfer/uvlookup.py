@@ -371,26 +371,50 @@ def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray | ChartLookup, chart
     another chart or an unpainted texel, and is otherwise split in four, down to triangles no
     longer than ``leaf`` (<= 2) texels, which fail (within a texel of the rim: not proven). The
     work grows with the length of rim a face runs along, not with its area; a face not settled
-    after ``max_level`` splits is reported outside."""
-    from proctex.texture.uv import bilinear_corner
-
+    after ``max_level`` splits is reported outside. Compiled where numba imports
+    (:func:`proctex.transfer.uv_kernels.inside_chart`, the same answers as
+    :func:`_inside_chart_arrays`)."""
     if not 0 < leaf <= 2.0:
         raise ValueError(f"leaf must be in (0, 2] texels, got {leaf}")
     look = charts if isinstance(charts, ChartLookup) else chart_lookup(charts)
     h, w = look.labels.shape
+    grid = _probe_grid()
+    try:
+        from proctex.transfer.uv_kernels import inside_chart
+    except ImportError:
+        return _inside_chart_arrays(corner_uv, look, chart, grid, leaf, max_level)
+    return inside_chart(corner_uv, chart, look.block_label, look.block_room, look.block_count, grid, h, w, leaf, max_level)
+
+
+@lru_cache(maxsize=1)
+def _probe_grid() -> np.ndarray:
+    """(7, 3) barycentric probes of :func:`_inside_chart`: the corners, the edge midpoints, the centre."""
+    grid = np.vstack([_bary_grid(2), np.full((1, 3), 1.0 / 3.0)])
+    grid.flags.writeable = False
+    return grid
+
+
+def _inside_chart_arrays(corner_uv: np.ndarray, look: ChartLookup, chart: np.ndarray, grid: np.ndarray, leaf: float, max_level: int) -> np.ndarray:
+    """:func:`_inside_chart` in array operations, level by level over all open sub-triangles (the
+    compiled kernel's reference and fallback: the same probes, summed in the same order)."""
+    from proctex.texture.uv import bilinear_corner
+
+    h, w = look.labels.shape
     k = len(corner_uv)
     ok = np.ones(k, dtype=bool)
-    grid = np.vstack([_bary_grid(2), np.full((1, 3), 1.0 / 3.0)])  # corners, midpoints, centre
     tri, owner = np.asarray(corner_uv, dtype=np.float64), np.arange(k)
     if look.block_count is not None and k:  # most faces: their whole box at once
         boxed = _inside_box(tri, look, np.asarray(chart))
         tri, owner = tri[~boxed], owner[~boxed]
     d = (tri - tri[:, [1, 2, 0]]) * np.array([w, h])
-    edge = np.sqrt(np.einsum("kij,kij->ki", d, d).max(axis=1))  # texels; halved by every split
+    edge = np.sqrt((d[:, :, 0] * d[:, :, 0] + d[:, :, 1] * d[:, :, 1]).max(axis=1))  # texels; halved by every split
     for _ in range(int(max_level) + 1):
         if not len(tri):
             break
-        idx = bilinear_corner(np.matmul(grid[None], tri).reshape(-1, 2), h, w).reshape(len(tri), -1)  # (n, 7)
+        probes = (grid[None, :, 0, None] * tri[:, None, 0] + grid[None, :, 1, None] * tri[:, None, 1]) + grid[None, :, 2, None] * tri[
+            :, None, 2
+        ]  # (n, 7, 2), not a matrix product (whose sums a BLAS may fuse)
+        idx = bilinear_corner(probes.reshape(-1, 2), h, w).reshape(len(tri), -1)  # (n, 7)
         inside = (look.block_label[idx] == np.asarray(chart)[owner][:, None]).all(axis=1)
         ok[owner[~inside]] = False
         settled = look.block_room[idx].min(axis=1) >= np.ceil(edge / 2)
