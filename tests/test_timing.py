@@ -159,3 +159,26 @@ def test_the_paired_ratio_sees_the_server_and_not_the_machines_drift():
         paired_ratio([1.0, 2.0], [1.0])
     with pytest.raises(ValueError, match="pairs"):
         paired_ratio([], [])
+
+
+def test_alternated_in_process_figures_see_the_code_and_not_the_machines_drift():
+    """``bench_serve.alternated_figures`` on turns of two checkouts taken in turn while the machine
+    slows down 2x over the run: the newer code, 0.8x the older's time at every moment, is 0.8x by
+    its paired ratio (exact here), while the medians of a run of the old code first and the new code
+    after (what two separate runs give) say it is slower."""
+    from tests.bench.bench_serve import BLOCK, alternated_figures
+
+    drift = np.linspace(1.0, 2.0, 20)
+    rows = {"before": [], "after": []}
+    turns = {"before": [], "after": []}
+    for k, d in enumerate(drift):
+        for mode, scale in (("before", 20.0), ("after", 16.0)):
+            block = [[10.0 + scale * d, 10.0, scale * d] for _ in range(BLOCK)]
+            rows[mode] += block
+            turns[mode].append(float(np.median([r[2] for r in block])))
+    fig = alternated_figures(rows, turns)
+    assert "paired" not in fig["before"] and fig["after"]["paired"]["turns"] == 20
+    assert fig["after"]["paired"]["ratio_of_medians"] == pytest.approx(0.8) and fig["after"]["paired"]["median_ratio"] == pytest.approx(0.8)
+    separate = np.median([16.0 * d for d in drift[10:]]) / np.median([20.0 * d for d in drift[:10]])  # old first, new after
+    assert separate > 1.0
+    assert fig["before"]["transfer_p50_ms"] == pytest.approx(20.0 * np.median(drift)) and fig["after"]["n"] == 20 * BLOCK

@@ -143,7 +143,11 @@ def _box(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _placement(vertices: np.ndarray, lo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    plo, phi = bounds(vertices)
+    return _place(*bounds(vertices), lo, size)
+
+
+def _place(plo: np.ndarray, phi: np.ndarray, lo: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre, extents) of boxes ``plo, phi (..., 3)`` relative to the box ``lo, size (3,)``."""
     return ((plo + phi) / 2 - lo) / size, (phi - plo) / size
 
 

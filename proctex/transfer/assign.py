@@ -13,9 +13,10 @@ from scipy.optimize import linear_sum_assignment
 
 from proctex.geometry.align import affine_fit, umeyama_batch
 from proctex.geometry.parts import DEFORMED_SHARED, Segmentation, part_mesh, shared_faces
+from proctex.geometry.rowmath import bounds
 from proctex.geometry.shape import Shape
 from proctex.geometry.surface import SurfaceIndex, normalised_points, sample_surface, snap_to_frame_grid
-from proctex.transfer.assets import TemplateAssets, _box, _placement, same_topology
+from proctex.transfer.assets import TemplateAssets, _box, _place, same_topology
 from proctex.transfer.budget import Budget
 
 
@@ -106,10 +107,11 @@ def assign_parts(
     sc = np.array([s.center for s in assets.slots])
     se = np.array([s.extents for s in assets.slots])
 
+    part_bounds = [bounds(shape.vertices[p.vertices]) for p in parts]  # once: placed in two boxes below
+    plo, phi = np.array([b[0] for b in part_bounds]), np.array([b[1] for b in part_bounds])
+
     def placement_cost(lo: np.ndarray, size: np.ndarray) -> np.ndarray:
-        desc = [_placement(shape.vertices[p.vertices], lo, size) for p in parts]
-        pc = np.array([d[0] for d in desc])
-        pe = np.array([d[1] for d in desc])
+        pc, pe = _place(plo, phi, lo, size)
         loge = np.abs(np.log(np.maximum(pe[:, None], 1e-6) / np.maximum(se[None], 1e-6))).mean(axis=2)
         return np.linalg.norm(pc[:, None] - sc[None], axis=2) + w_extent * loge
 

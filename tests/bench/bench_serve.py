@@ -140,6 +140,90 @@ def in_process_ms(svc, payloads: list[tuple[bytes, str]], n: int, linked: bool) 
     return out
 
 
+#: Requests per turn when two checkouts' in-process figures are alternated (:func:`alternated_in_process`).
+BLOCK = 10
+
+
+def payloads_of(svc, sofa: str, seed: int) -> list[tuple[bytes, str]]:
+    """The requests a run sends: the sofa export's inference meshes as uploads for a folder family,
+    64 random parameter settings (``seed``) for a model family."""
+    if svc.model is None:
+        return [_multipart(p.name, p.read_bytes()) for p in sorted(Path(sofa, "inference").glob("*.obj"))]
+    return [(json.dumps({"params": p}).encode(), "application/json") for p in svc.model.space.sample(64, seed=seed)]
+
+
+def in_process_worker(args) -> int:
+    """``--in-process-worker``: the requests in process with the code of the checkout ``--code``
+    (first on the import path), :data:`BLOCK` at a time each time a line arrives on stdin, each
+    block's ``[total, shape, transfer and GLB]`` ms as a JSON line on stdout; "ready" once the
+    family is loaded and warm. Ends at end of input."""
+    sys.path.insert(0, str(Path(args.code).resolve()))
+    from proctex.serve.catalog import Catalog
+
+    svc = Catalog(args.root).get(args.family)
+    payloads = payloads_of(svc, args.sofa, args.seed)
+    linked = args.textures == "linked"
+    for i in range(4):  # the first few warm the caches
+        one_in_process(svc, *payloads[i % len(payloads)], linked)
+    print("ready", flush=True)
+    i = 0
+    for _ in sys.stdin:
+        block = []
+        for _ in range(BLOCK):
+            block.append(one_in_process(svc, *payloads[i % len(payloads)], linked))
+            i += 1
+        print(json.dumps(block), flush=True)
+    return 0
+
+
+def alternated_in_process(args, checkouts: dict[str, Path]) -> dict[str, dict]:
+    """The in-process figures of each checkout (``{mode: checkout}``), each in a process of its own
+    started once, taking turns of :data:`BLOCK` requests until each made ``--requests``: the
+    machine's drift within the run reaches every checkout alike (a figure taken minutes apart does
+    not). Per checkout its medians and spread (as :func:`in_process_ms`), and per mode after the
+    first its ``paired`` ratio over the first's (:func:`paired_ratio` of the turns' medians)."""
+    procs = {}
+    for mode, code in checkouts.items():
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--in-process-worker", "--code", str(code), "--root", args.root, "--family", args.family, "--sofa", args.sofa]
+        cmd += ["--seed", str(args.seed), "--textures", args.textures]
+        procs[mode] = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(code)})
+    try:
+        for mode, proc in procs.items():
+            if proc.stdout.readline().strip() != "ready":
+                raise SystemExit(f"the in-process worker of {mode} ({checkouts[mode]}) did not start")
+        rows: dict[str, list[list[float]]] = {mode: [] for mode in procs}
+        turns: dict[str, list[float]] = {mode: [] for mode in procs}
+        for _ in range(-(-args.requests // BLOCK)):
+            for mode, proc in procs.items():
+                proc.stdin.write("go\n")
+                proc.stdin.flush()
+                block = json.loads(proc.stdout.readline())
+                rows[mode] += block
+                turns[mode].append(float(np.median([r[2] for r in block])))
+    finally:
+        for proc in procs.values():
+            proc.stdin.close()
+            proc.wait(timeout=60)
+    return alternated_figures(rows, turns)
+
+
+def alternated_figures(rows: dict[str, list[list[float]]], turns: dict[str, list[float]]) -> dict[str, dict]:
+    """:func:`alternated_in_process`'s figures from each mode's requests ``[total, shape, transfer
+    and GLB]`` ms and its turns' medians (the same number of turns per mode, taken in turn): per
+    mode its medians and spread, and after the first mode its ``paired`` ratio over the first."""
+    out = {}
+    first = next(iter(rows))
+    for mode, got in rows.items():
+        times, shaping, texturing = (np.array([r[k] for r in got]) for k in range(3))
+        fig = {"p50_ms": float(np.median(times)), "p10_ms": float(np.percentile(times, 10)), "p90_ms": float(np.percentile(times, 90)), "n": len(times), "shape_p50_ms": float(np.median(shaping))}
+        fig.update({f"transfer_{q}_ms": float(np.percentile(texturing, int(q[1:]))) for q in ("p10", "p50", "p90")})
+        if mode != first:  # this checkout's turns over the first's, turn by turn
+            pr = paired_ratio(turns[mode], turns[first])
+            fig["paired"] = {"ratio_of_medians": pr["ratio_of_medians"], "median_ratio": pr["median_ratio"], "turns": len(turns[mode])}
+        out[mode] = fig
+    return out
+
+
 def start_server(root: str, replicas: int, http: str, code: Path = ROOT) -> tuple[subprocess.Popen, str]:
     """``proctex serve ROOT`` of the checkout ``code`` in a process of its own (its private Ray),
     ``--http`` as given (``before``: no such option, the checkout's own default), on a free port;
@@ -245,8 +329,12 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--textures", choices=["embedded", "linked"], default="embedded", help="answers with the textures, or referring to them")
     ap.add_argument("--out", default="")
-    ap.add_argument("--in-process-only", action="store_true", help="the in-process figures alone (--requests of them), no server")
+    ap.add_argument("--in-process-only", action="store_true", help="the in-process figures alone (--requests of them), no server; with --before, both checkouts' alternated")
+    ap.add_argument("--in-process-worker", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--code", default=str(ROOT), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.in_process_worker:
+        return in_process_worker(args)
     modes = [m.strip() for m in args.http.split(",") if m.strip()]
     if not modes or any(m not in ("front", "serve") for m in modes):
         raise SystemExit(f"--http takes front and/or serve, got {args.http!r}")
@@ -255,17 +343,26 @@ def main(argv=None) -> int:
             raise SystemExit(f"--before {args.before}: not a checkout of this project")
         modes = ["before", *modes]
 
+    if args.in_process_only and args.before:
+        figures = alternated_in_process(args, {"before": Path(args.before).resolve(), "after": ROOT})
+        for mode, fig in figures.items():
+            print(
+                f"[{mode}] in process: the transfer and GLB median {fig['transfer_p50_ms']:.1f} ms (p10 {fig['transfer_p10_ms']:.1f}, p90 {fig['transfer_p90_ms']:.1f}), with the shape {fig['p50_ms']:.1f} ms",
+                flush=True,
+            )
+            if "paired" in fig:
+                print(f"  after over before, turn by turn: ratio of medians {fig['paired']['ratio_of_medians']:.3f}x, median ratio {fig['paired']['median_ratio']:.3f}x", flush=True)
+        if args.out:
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.out).write_text(json.dumps({"benchmark": "serve", "family": args.family, "in_process_alternated": figures}, indent=1))
+        return 0
+
     import ray
 
     from proctex.serve.catalog import Catalog
 
     svc = Catalog(args.root).get(args.family)
-    if svc.model is None:
-        meshes = sorted(Path(args.sofa, "inference").glob("*.obj"))
-        payloads = [_multipart(p.name, p.read_bytes()) for p in meshes]
-    else:
-        space = svc.model.space
-        payloads = [(json.dumps({"params": p}).encode(), "application/json") for p in space.sample(64, seed=args.seed)]
+    payloads = payloads_of(svc, args.sofa, args.seed)
     inproc = in_process_ms(svc, payloads, args.requests, args.textures == "linked")
     print(f"in process (shape, transfer, GLB; no HTTP): median {inproc['p50_ms']:.1f} ms (p10 {inproc['p10_ms']:.1f}, p90 {inproc['p90_ms']:.1f})", flush=True)
     print(
