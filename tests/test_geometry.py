@@ -275,6 +275,38 @@ def test_query_facing_by_the_aabb_tree_is_the_nearest_facing_face_of_a_slow_sear
     assert again._aabb is None and np.array_equal(again.query_facing(pts, nrm, k=4, majority=False, max_k=16).faces, got.faces)
 
 
+def test_the_rows_not_facing_their_faces_are_the_same_compiled_or_in_arrays(monkeypatch):
+    """``SurfaceIndex._not_facing`` (which queries the run time's UV lookup sends on to the proxy
+    search) gives the same normals and rows from the compiled :func:`proctex.geometry.bvh.facing_dots`
+    as from array operations (the dot products summed x, y, then z both ways: exact, margin none),
+    with zero normals left out and the majority reversal: a pass that kept the zero normals, or took
+    each face's own index as its normal's, would name other rows."""
+    pytest.importorskip("numba")
+    import trimesh
+
+    from proctex.geometry import surface
+    from proctex.geometry.surface import SurfaceIndex
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    idx = SurfaceIndex(np.asarray(sphere.vertices), np.asarray(sphere.faces), backend="aabb")
+    rng = np.random.default_rng(5)
+    faces = rng.integers(0, len(sphere.faces), 500)
+    nrm = idx.normals[faces] + rng.normal(size=(500, 3)) * 1.2
+    nrm[:30] = 0.0
+    for majority, sign in ((False, 1.0), (True, 1.0), (True, -1.0)):
+        compiled = idx._not_facing(faces, sign * nrm, majority)
+        monkeypatch.setattr(surface, "_BVH", [None])
+        arrays = idx._not_facing(faces, sign * nrm, majority)
+        monkeypatch.undo()
+        np.testing.assert_array_equal(compiled[0], arrays[0])
+        np.testing.assert_array_equal(compiled[1], arrays[1])
+        assert 30 < len(compiled[1]) < 470 and not np.isin(np.arange(30), compiled[1]).any()
+    dots, zero = surface._bvh().facing_dots(idx.normals, faces, nrm)
+    assert zero[:30].all() and not zero[30:].any()
+    assert (dots[30:] > 0).any() and (dots[30:] < 0).any()
+    assert not np.array_equal(np.flatnonzero((dots <= 0) & ~zero), np.flatnonzero(dots <= 0))  # the zero normals matter
+
+
 def test_facing_faces_are_the_faces_query_facing_answers():
     """``facing_faces`` (the run time's UV lookup: faces without their closest points) names the
     faces ``query_facing`` answers, face for face, on both backends: a bumpy sphere with normals that

@@ -300,6 +300,25 @@ def _nearest(points, a, b, c, lo, hi, left, right, start, count, perm, slot):
     return face, dist
 
 
+@njit(cache=True, nogil=True)
+def _facing_dots(normals, faces, nrm):
+    q = faces.shape[0]
+    dots = np.empty(q)
+    zero = np.empty(q, np.bool_)
+    for i in range(q):
+        f = faces[i]
+        dots[i] = (normals[f, 0] * nrm[i, 0] + normals[f, 1] * nrm[i, 1]) + normals[f, 2] * nrm[i, 2]
+        zero[i] = nrm[i, 0] == 0.0 and nrm[i, 1] == 0.0 and nrm[i, 2] == 0.0
+    return dots, zero
+
+
+def facing_dots(normals: np.ndarray, faces: np.ndarray, query_normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(dots (q,) float64, zero (q,) bool)``: each query normal ``query_normals (q, 3)`` against
+    the normal of its face ``faces (q,)`` among ``normals (m, 3)`` (summed x, y, then z), and
+    whether the query's normal is zero; one pass, nothing gathered. Checked inputs."""
+    return _facing_dots(np.ascontiguousarray(normals, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64), np.ascontiguousarray(query_normals, dtype=np.float64))
+
+
 @dataclass(frozen=True)
 class TriangleTree:
     """A triangle mesh's tree (:func:`triangle_tree`) for :meth:`nearest` queries."""
@@ -362,3 +381,4 @@ def warm() -> None:
     v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
     tree = triangle_tree(v, np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]))
     tree.nearest(np.array([[0.2, 0.2, 0.2]]))
+    facing_dots(np.eye(3), np.zeros(1, np.int64), np.ones((1, 3)))

@@ -403,16 +403,19 @@ class SurfaceIndex:
             _TREES.add(self)
         return self._aabb
 
-    def _aabb_faces(self, pts: np.ndarray) -> np.ndarray:
+    def _aabb_faces(self, pts: np.ndarray, finite: bool = False) -> np.ndarray:
         """(q,) int64 exact nearest face of each of ``pts (q, 3)`` (q >= 1): by the compiled tree
         of :mod:`proctex.geometry.bvh` (built on first use; ties to the lowest face index), which
         lets go of the GIL, so the parts of a transfer search side by side; by libigl's AABB tree
         where numba does not import. A query that is not finite (a diverged solve's point) gets
-        face 0, as it got some face from libigl, instead of stopping the others."""
+        face 0, as it got some face from libigl, instead of stopping the others; ``finite``: the
+        caller checked every query finite already."""
         if _bvh() is not None:
             if self._bvh is None:
                 self._bvh = _bvh().triangle_tree(self.vertices, self.faces)
             pts = np.ascontiguousarray(pts, dtype=np.float64)
+            if finite:
+                return self._bvh.walk(pts)[0]
             finite = np.isfinite(pts).all(axis=1)
             if finite.all():  # checked here once: the tree's walk takes them as they are
                 return self._bvh.walk(pts)[0]
@@ -485,7 +488,7 @@ class SurfaceIndex:
         pts, nrm = _points_and_normals(points, normals)
         if self._backend != "aabb" or not len(pts):
             return self._query_facing_proxies(pts, nrm, k, majority, max_k).faces
-        faces = self._aabb_faces(pts)
+        faces = self._aabb_faces(pts, finite=True)  # _points_and_normals checked them
         nrm, rest = self._not_facing(faces, nrm, majority)
         if len(rest):
             sub = self._query_facing_proxies(pts[rest], nrm[rest], k, False, max_k).faces
@@ -497,10 +500,14 @@ class SurfaceIndex:
         """``(normals, rows)``: the query normals (reversed as a whole where ``majority`` and they
         mostly oppose their ``faces (q,)``) and the rows whose face does not face them (zero normals
         excepted): those the proxy search is asked."""
-        dots = np.einsum("qd,qd->q", self.normals[faces], nrm)
+        if _bvh() is not None:  # compiled: one pass
+            dots, zero = _bvh().facing_dots(self.normals, faces, nrm)
+        else:
+            fn = self.normals[faces]
+            dots, zero = (fn[:, 0] * nrm[:, 0] + fn[:, 1] * nrm[:, 1]) + fn[:, 2] * nrm[:, 2], ~(np.abs(nrm).sum(axis=1) > 0)
         if majority and dots.sum() < 0:
             nrm, dots = -nrm, -dots
-        return nrm, np.flatnonzero((dots <= 0) & (np.abs(nrm).sum(axis=1) > 0))
+        return nrm, np.flatnonzero((dots <= 0) & ~zero)
 
     def _query_facing_aabb(self, pts: np.ndarray, nrm: np.ndarray, k: int, majority: bool, max_k: int) -> ClosestPoints:
         """:meth:`query_facing` by the AABB tree first, the proxies for the queries whose exact

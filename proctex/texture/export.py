@@ -263,7 +263,9 @@ class _Blob:
     def __init__(self, doc: dict):
         self.doc, self.parts, self.offset = doc, [], 0
 
-    def view(self, data: bytes, target: int | None = None) -> int:
+    def view(self, data: bytes | memoryview, target: int | None = None) -> int:
+        """A bufferView of ``data`` (bytes, or a byte view of an array the blob then keeps, copied
+        once, into the file, by :meth:`to_bytes`)."""
         view = {"buffer": 0, "byteOffset": self.offset, "byteLength": len(data)}
         if target is not None:
             view["target"] = target
@@ -275,7 +277,8 @@ class _Blob:
 
     def accessor(self, array: np.ndarray, kind: str, target: int, minmax: bool = False) -> int:
         ctype = 5125 if array.dtype == np.uint32 else 5126  # UNSIGNED_INT, FLOAT
-        acc = {"bufferView": self.view(array.tobytes(), target), "componentType": ctype, "count": len(array), "type": kind}
+        data = memoryview(np.ascontiguousarray(array)).cast("B")  # the array's bytes, not a copy of them
+        acc = {"bufferView": self.view(data, target), "componentType": ctype, "count": len(array), "type": kind}
         if minmax:
             lo, hi = bounds(array)
             acc["min"], acc["max"] = lo.tolist(), hi.tolist()
@@ -285,14 +288,13 @@ class _Blob:
     def to_bytes(self) -> bytes:
         """The GLB file: header, JSON chunk (space-padded), BIN chunk (zero-padded)."""
         doc = {k: v for k, v in self.doc.items() if v != []}
-        binary = b"".join(self.parts)
-        doc["buffers"] = [{"byteLength": len(binary)}]
+        n_binary = self.offset  # every view is padded to 4 bytes: the BIN chunk needs no more
+        doc["buffers"] = [{"byteLength": n_binary}]
         text = json.dumps(doc, separators=(",", ":")).encode()
         text += b" " * (-len(text) % 4)
-        binary += b"\0" * (-len(binary) % 4)
-        total = 12 + 8 + len(text) + 8 + len(binary)
+        total = 12 + 8 + len(text) + 8 + n_binary
         header = b"glTF" + (2).to_bytes(4, "little") + total.to_bytes(4, "little")
-        return b"".join([header, len(text).to_bytes(4, "little"), b"JSON", text, len(binary).to_bytes(4, "little"), b"BIN\0", binary])
+        return b"".join([header, len(text).to_bytes(4, "little"), b"JSON", text, n_binary.to_bytes(4, "little"), b"BIN\0", *self.parts])  # one copy of the data
 
 
 def png_bytes(image: np.ndarray | bytes) -> bytes:

@@ -183,7 +183,7 @@ def transfer(
     timings["map"] = t_map * share
     timings["uv"] = t_uv * share
     if assets.observed is not None:  # faces reading template texels the painter never painted
-        for g in np.unique(face_group[face_group >= 0]):
+        for g in sorted({a.group for a in todo}):  # the groups of the textured faces (np.unique of them, without a sort of every face)
             n_dis = disoccluded_count(corner, face_group, int(g), assets.observed[g])
             if n_dis:
                 notes.append(f"group {g}: {n_dis} faces show surface the template never showed (dis-occlusion; bake to fill it)")
