@@ -185,17 +185,20 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
     fn_all = area_normals(V, F)
     n, n_rows = len(V), len(groups)
     order = np.concatenate([idx for _, idx in groups])
-    f_o, uv_o, fn_o = F[order], UV[order], fn_all[order]  # the faces in primitive order, gathered once
-    corners = f_o.reshape(-1)
-    rank = np.repeat(np.arange(n_rows), [3 * len(idx) for _, idx in groups])
-    st = np.empty((len(order), 3, 2), np.float32)
-    st[:, :, 0] = uv_o[:, :, 0]
-    st[:, :, 1] = 1.0 - uv_o[:, :, 1]
-    textured = np.concatenate([np.full(len(idx), g >= 0) for g, idx in groups])
-    if not textured.all():
-        st[~textured] = 0.0  # the untextured primitive: no texcoords (split by vertex alone)
-    st = np.ascontiguousarray(st.reshape(-1, 2) + np.float32(0))  # -0.0 -> +0.0
-    pairs = _split_pairs(rank * n + corners, st.view(np.int64).ravel(), n_rows * n)
+    gathered = _gather_corners(F, UV, fn_all, order, [(len(idx), g >= 0) for g, idx in groups], n)
+    if gathered is not None:  # compiled: the gathers, keys and texcoords below in one pass
+        f_o, uv_o, fn_o, keys, st = gathered
+    else:
+        f_o, uv_o, fn_o = F[order], UV[order], fn_all[order]  # the faces in primitive order, gathered once
+        keys = np.repeat(np.arange(n_rows), [3 * len(idx) for _, idx in groups]) * n + f_o.reshape(-1)  # primitive * n + vertex
+        st = np.empty((len(order), 3, 2), np.float32)
+        st[:, :, 0] = uv_o[:, :, 0]
+        st[:, :, 1] = 1.0 - uv_o[:, :, 1]
+        textured = np.concatenate([np.full(len(idx), g >= 0) for g, idx in groups])
+        if not textured.all():
+            st[~textured] = 0.0  # the untextured primitive: no texcoords (split by vertex alone)
+        st = np.ascontiguousarray(st.reshape(-1, 2) + np.float32(0))  # -0.0 -> +0.0
+    pairs = _split_pairs(keys, st.view(np.int64).ravel(), n_rows * n)
     if pairs is not None:  # compiled: the pairs sorted by (primitive, vertex, texcoord bits) without a full sort
         source, st_bits, inv = pairs
     else:
@@ -211,9 +214,9 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
             out.append((vid, st_split, indices, normals, _split_tangents(V, f, UV[idx], indices, normals, fn_all[idx]) if want else None))
         return out
     if pairs is None:  # split vertices: the unique (primitive, vertex, texcoord) triples, sorted as each primitive's own
-        keys, inv = np.unique((rank * n + corners) * n_st + st_inv.ravel(), return_inverse=True)
+        triples, inv = np.unique(keys * n_st + st_inv.ravel(), return_inverse=True)
         inv = inv.ravel()
-        source, st_bits = keys // n_st, st_keys[keys % n_st]  # primitive * n + vertex; texcoord bits
+        source, st_bits = triples // n_st, st_keys[triples % n_st]  # primitive * n + vertex; texcoord bits
     vid = source % n
     # smooth normals per (primitive, source vertex): its corners' face normals in face order
     bin_of_split = np.concatenate([[0], np.cumsum(source[1:] != source[:-1])])
@@ -236,6 +239,17 @@ def _primitive_arrays(V: np.ndarray, F: np.ndarray, UV: np.ndarray, groups: list
         st_split = st_bits[a:b].view(np.float32).reshape(-1, 2) if g >= 0 else None
         out.append((vid[a:b], st_split, indices, normals[a:b], frames[a:b] if want else None))
     return out
+
+
+def _gather_corners(F: np.ndarray, UV: np.ndarray, fn: np.ndarray, order: np.ndarray, rows: list[tuple[int, bool]], n: int) -> tuple | None:
+    """:func:`proctex.texture.vertex_kernels.gather_corners` of the faces ``order`` (the primitives'
+    faces one after the other, ``rows``: per primitive its face count and whether it is textured),
+    or None where numba does not import (:func:`_primitive_arrays` gathers them in arrays then)."""
+    try:
+        from .vertex_kernels import gather_corners
+    except ImportError:
+        return None
+    return gather_corners(F, UV, fn, order, np.array([r[0] for r in rows], np.int64), np.array([r[1] for r in rows], np.bool_), n)
 
 
 def _split_pairs(source: np.ndarray, bits: np.ndarray, n_sources: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

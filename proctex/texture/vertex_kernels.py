@@ -1,10 +1,11 @@
 """Compiled (numba) kernels of the GLB's vertex data: :func:`key_tangents`, :func:`area_normals`,
-:func:`vertex_normals` and :func:`split_pairs` (the split vertices) in a pass or two over the faces
-instead of some forty array passes or two sorts, the same bits as their array forms in
-:mod:`proctex.texture.pbr` and :mod:`proctex.texture.export` (the references ``tests/test_pbr.py``
-compares them with): the same operations in the same order, each sum taking its corners in corner
-order as ``np.bincount`` does. Imported on first use (numba's import and, on a machine's
-first run, its compilation, which it caches on disk, are not paid by commands that write no GLB).
+:func:`vertex_normals`, :func:`split_pairs` (the split vertices) and :func:`gather_corners` in a
+pass or two over the faces instead of some forty array passes or two sorts, the same bits as their
+array forms in :mod:`proctex.texture.pbr` and :mod:`proctex.texture.export` (the references
+``tests/test_pbr.py`` compares them with): the same operations in the same order, each sum taking
+its corners in corner order as ``np.bincount`` does. Imported on first use (numba's import and, on
+a machine's first run, its compilation, which it caches on disk, are not paid by commands that
+write no GLB).
 """
 
 from __future__ import annotations
@@ -138,6 +139,54 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray 
 
 
 @njit(cache=True, nogil=True)
+def _gather_corners(F, UV, fn, order, row_faces, row_textured, n):
+    k = order.shape[0]
+    f_o = np.empty((k, 3), np.int64)
+    uv_o = np.empty((k, 3, 2))
+    fn_o = np.empty((k, 3))
+    keys = np.empty(3 * k, np.int64)
+    st = np.empty((3 * k, 2), np.float32)
+    zero = np.float32(0.0)
+    i = 0
+    for row in range(row_faces.shape[0]):
+        for _ in range(row_faces[row]):
+            o = order[i]
+            for c in range(3):
+                v = F[o, c]
+                f_o[i, c] = v
+                keys[3 * i + c] = row * n + v
+                u, w = UV[o, c, 0], UV[o, c, 1]
+                uv_o[i, c, 0], uv_o[i, c, 1] = u, w
+                if row_textured[row]:  # stored texcoords: v flipped, in float32, -0.0 made +0.0
+                    st[3 * i + c, 0], st[3 * i + c, 1] = np.float32(u) + zero, np.float32(1.0 - w) + zero
+                else:
+                    st[3 * i + c, 0], st[3 * i + c, 1] = zero, zero
+            fn_o[i, 0], fn_o[i, 1], fn_o[i, 2] = fn[o, 0], fn[o, 1], fn[o, 2]
+            i += 1
+    return f_o, uv_o, fn_o, keys, st
+
+
+def gather_corners(faces: np.ndarray, corner_uv: np.ndarray, normals: np.ndarray, order: np.ndarray, row_faces: np.ndarray, row_textured: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
+    """The faces ``order (k,)`` of a GLB's primitives one after the other (``row_faces (r,)`` of
+    them per primitive, ``row_textured (r,)`` whether it has texcoords) in one pass: ``(faces (k, 3)
+    int64, corner_uv (k, 3, 2), normals (k, 3) float64`` gathered, ``keys (3k,) int64`` each
+    corner's ``primitive * n + vertex``, ``st (3k, 2) float32`` its stored texcoord ``(u, 1 - v)``
+    (+0.0 for an untextured primitive's and for -0.0)``)``: the same values as the array form in
+    :func:`proctex.texture.export._primitive_arrays`. Checked inputs (``sum(row_faces) == k``)."""
+    if int(np.sum(row_faces)) != len(order):
+        raise ValueError(f"row_faces must add up to the {len(order)} faces, got {int(np.sum(row_faces))}")
+    return _gather_corners(
+        np.ascontiguousarray(faces, dtype=np.int64),
+        np.ascontiguousarray(corner_uv, dtype=np.float64),
+        np.ascontiguousarray(normals, dtype=np.float64),
+        np.ascontiguousarray(order, dtype=np.int64),
+        np.ascontiguousarray(row_faces, dtype=np.int64),
+        np.ascontiguousarray(row_textured, dtype=np.bool_),
+        int(n),
+    )
+
+
+@njit(cache=True, nogil=True)
 def _split_pairs(source, value, n_sources):
     n = len(source)
     start = np.zeros(n_sources + 1, np.int64)
@@ -204,3 +253,4 @@ def warm() -> None:
     vn = vertex_normals(v, f, fn)
     key_tangents(v, f, uv, f.reshape(-1), vn, fn)  # one signature with the faces' normals given or not
     split_pairs(f.reshape(-1), np.zeros(12, np.int64), 4)
+    gather_corners(f, uv, fn, np.arange(4), np.array([3, 1]), np.array([True, False]), 4)
