@@ -378,3 +378,21 @@ def test_large_mesh_is_vectorised():
     tex = [np.zeros((2, 2, 3), np.uint8)] * 4
     gltf, _ = parse(ex.glb_bytes(V, F, UV, G, tex))  # its time is a benchmark figure (README), not asserted here
     assert sum(gltf.accessors[p.indices].count for p in gltf.meshes[0].primitives) == 3 * len(F)
+
+
+def test_the_glb_blob_copies_array_bytes_once_and_exactly():
+    """``_Blob`` keeps a byte view of each accessor's array (no copy of its own) and writes the file
+    in one join: the binary chunk is each array's ``tobytes()`` in order, 4-byte aligned, for empty,
+    non-contiguous and uint32 arrays alike (a view of a strided array's memory would give other
+    bytes for the second)."""
+    blob = ex._Blob({"bufferViews": [], "accessors": []})
+    arrays = [np.zeros((0, 3), np.float32), np.arange(12, dtype=np.float32).reshape(4, 3)[:, ::2], np.arange(9, dtype=np.uint32).reshape(3, 3), np.arange(3, dtype=np.float32)]
+    for a in arrays:
+        blob.accessor(a, "VEC3", 34962)
+    data = blob.to_bytes()
+    doc = gl.GLTF2.load_from_bytes(data)
+    binary = doc.binary_blob()
+    assert len(binary) == blob.offset and blob.offset % 4 == 0
+    for a, view in zip(arrays, doc.bufferViews):
+        assert binary[view.byteOffset : view.byteOffset + view.byteLength] == np.ascontiguousarray(a).tobytes()
+    assert [v.byteLength for v in doc.bufferViews] == [0, 32, 36, 12]

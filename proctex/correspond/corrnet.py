@@ -638,13 +638,12 @@ def _fused_linear() -> Any:
 
 
 def _fuses_exactly(layers: list[tuple[torch.Tensor, torch.Tensor]]) -> bool:
-    """Whether :func:`_fused_linear` runs these bfloat16 CPU ``layers`` and gives, on a probe of
+    """Whether :func:`_fused_linear` runs these bfloat16 CPU ``layers`` and gives, on probes of
     :data:`QUERY_BUCKET` and of 16 times as many rows through each, the same bits as ``F.linear``
-    (and then ``torch.relu``): a
-    ReLU applied to the rounded output is the rounded ReLU, so where both take oneDNN's product the
-    answers are equal (measured on AMX cores: equal on every row of the demo family's predictions).
-    A CPU or build where they differ, or where the fused operator refuses bfloat16 (oneDNN held
-    below AVX-512), keeps the plain layers."""
+    (and then ``torch.relu``): a ReLU applied to the rounded output is the rounded ReLU, so where
+    both take oneDNN's product the answers are equal (measured on AMX cores: equal on every row of
+    the demo family's predictions). A CPU or build where they differ, or where the fused operator
+    refuses bfloat16 (oneDNN held below AVX-512), keeps the plain layers."""
     op = _fused_linear()
     if op is None or not native_bfloat16("cpu"):
         return False

@@ -403,18 +403,18 @@ class SurfaceIndex:
             _TREES.add(self)
         return self._aabb
 
-    def _aabb_faces(self, pts: np.ndarray, finite: bool = False) -> np.ndarray:
+    def _aabb_faces(self, pts: np.ndarray, checked: bool = False) -> np.ndarray:
         """(q,) int64 exact nearest face of each of ``pts (q, 3)`` (q >= 1): by the compiled tree
         of :mod:`proctex.geometry.bvh` (built on first use; ties to the lowest face index), which
         lets go of the GIL, so the parts of a transfer search side by side; by libigl's AABB tree
         where numba does not import. A query that is not finite (a diverged solve's point) gets
-        face 0, as it got some face from libigl, instead of stopping the others; ``finite``: the
-        caller checked every query finite already."""
+        face 0, as it got some face from libigl, instead of stopping the others; ``checked``: the
+        caller found every query finite already."""
         if _bvh() is not None:
             if self._bvh is None:
                 self._bvh = _bvh().triangle_tree(self.vertices, self.faces)
             pts = np.ascontiguousarray(pts, dtype=np.float64)
-            if finite:
+            if checked:
                 return self._bvh.walk(pts)[0]
             finite = np.isfinite(pts).all(axis=1)
             if finite.all():  # checked here once: the tree's walk takes them as they are
@@ -488,7 +488,7 @@ class SurfaceIndex:
         pts, nrm = _points_and_normals(points, normals)
         if self._backend != "aabb" or not len(pts):
             return self._query_facing_proxies(pts, nrm, k, majority, max_k).faces
-        faces = self._aabb_faces(pts, finite=True)  # _points_and_normals checked them
+        faces = self._aabb_faces(pts, checked=True)  # _points_and_normals checked them
         nrm, rest = self._not_facing(faces, nrm, majority)
         if len(rest):
             sub = self._query_facing_proxies(pts[rest], nrm[rest], k, False, max_k).faces

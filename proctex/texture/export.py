@@ -291,7 +291,7 @@ class _Blob:
 
     def accessor(self, array: np.ndarray, kind: str, target: int, minmax: bool = False) -> int:
         ctype = 5125 if array.dtype == np.uint32 else 5126  # UNSIGNED_INT, FLOAT
-        data = memoryview(np.ascontiguousarray(array)).cast("B")  # the array's bytes, not a copy of them
+        data = memoryview(np.ascontiguousarray(array).reshape(-1).view(np.uint8))  # the array's bytes, not a copy of them (empty too)
         acc = {"bufferView": self.view(data, target), "componentType": ctype, "count": len(array), "type": kind}
         if minmax:
             lo, hi = bounds(array)

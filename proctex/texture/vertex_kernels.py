@@ -168,10 +168,11 @@ def _gather_corners(F, UV, fn, order, row_faces, row_textured, n):
 
 def gather_corners(faces: np.ndarray, corner_uv: np.ndarray, normals: np.ndarray, order: np.ndarray, row_faces: np.ndarray, row_textured: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
     """The faces ``order (k,)`` of a GLB's primitives one after the other (``row_faces (r,)`` of
-    them per primitive, ``row_textured (r,)`` whether it has texcoords) in one pass: ``(faces (k, 3)
-    int64, corner_uv (k, 3, 2), normals (k, 3) float64`` gathered, ``keys (3k,) int64`` each
-    corner's ``primitive * n + vertex``, ``st (3k, 2) float32`` its stored texcoord ``(u, 1 - v)``
-    (+0.0 for an untextured primitive's and for -0.0)``)``: the same values as the array form in
+    them per primitive, ``row_textured (r,)`` whether it has texcoords), in one pass:
+    ``(faces (k, 3) int64, corner_uv (k, 3, 2), normals (k, 3), keys (3k,) int64, st (3k, 2)
+    float32)``, the first three gathered from ``faces``, ``corner_uv`` and ``normals``, ``keys``
+    each corner's ``primitive * n + vertex`` and ``st`` its stored texcoord ``(u, 1 - v)`` (+0.0 for
+    an untextured primitive's corners, and for -0.0): the same values as the array form in
     :func:`proctex.texture.export._primitive_arrays`. Checked inputs (``sum(row_faces) == k``)."""
     if int(np.sum(row_faces)) != len(order):
         raise ValueError(f"row_faces must add up to the {len(order)} faces, got {int(np.sum(row_faces))}")
