@@ -934,9 +934,10 @@ def test_make_mapper_is_the_one_place_a_mapper_is_chosen_by_name():
 
 
 def test_parts_mapped_side_by_side_give_the_same_result_and_leave_torch_threads_alone(chair):
-    """The per-part work runs in a small thread pool: the result equals the one-by-one run exactly,
-    for a mapper that solves per part (cage) and for networks, and torch's thread count is what it
-    was (the networks' mapper sets it while any part is inside)."""
+    """The per-part work runs in a small thread pool (the parts a network maps in one piece:
+    :func:`proctex.transfer.apply.part_chunks`): the result equals the one-by-one run exactly, for a
+    mapper that solves per part (cage) and for networks, and torch's thread count is what it was
+    (the networks' mapper sets it while any part is inside)."""
     import torch
 
     from proctex.correspond.corrnet import CorrNetConfig, build_model
@@ -954,6 +955,26 @@ def test_parts_mapped_side_by_side_give_the_same_result_and_leave_torch_threads_
         assert np.array_equal(one.corner_uv, many.corner_uv) and np.array_equal(one.face_group, many.face_group)
         assert one.points.keys() == many.points.keys() and all(np.array_equal(one.points[k], many.points[k]) for k in one.points)
         assert torch.get_num_threads() == before
+
+
+def test_the_parts_a_network_maps_are_one_piece_of_the_pools_work():
+    """:func:`proctex.transfer.apply.part_chunks`: the parts a network maps go to one thread
+    together, first; every other part is a piece of its own, in order; every part is in exactly
+    one piece (a mapper without ``serves``, e.g. the solvers', gives one piece per part), and where
+    networks map every part they are two pieces, so both threads work."""
+    from types import SimpleNamespace
+
+    from proctex.transfer.apply import part_chunks
+
+    todo = [SimpleNamespace(group=g) for g in (0, 3, 1, 3, 2, 5)]
+    mapper = SimpleNamespace(serves=lambda g: {3: "network", 5: "identity"}.get(g, "box"))
+    chunks = part_chunks(todo, mapper)
+    assert chunks == [[1, 3], [0], [2], [4], [5]]
+    assert sorted(i for c in chunks for i in c) == list(range(len(todo)))
+    assert part_chunks(todo, object()) == [[i] for i in range(len(todo))]
+    assert part_chunks([], mapper) == []
+    every = SimpleNamespace(serves=lambda g: "network")  # networks map every part: two pieces, one per thread
+    assert part_chunks(todo, every) == [[0, 1, 2], [3, 4, 5]] and part_chunks(todo[:1], every) == [[0]]
 
 
 def _match_extra_reference(u, f, assets, n=300, seed=0):

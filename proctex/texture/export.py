@@ -51,24 +51,26 @@ UNTEXTURED_NAME = "untextured"
 
 
 def _check_shape(vertices, faces, corner_uv, face_group, textures, names):
-    """Validate and normalise inputs; returns (V float64, F int64, UV float64, G int64, texs, names)."""
+    """Validate and normalise inputs; returns (V float64, F int64, UV float64, G int64, texs, names),
+    the caller's arrays themselves where they have those dtypes (the GLB and OBJ writers only read
+    them)."""
     V = np.asarray(vertices)
     if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] == 0 or V.dtype.kind not in "iuf":
         raise ValueError(f"vertices: expected a non-empty (n, 3) float array, got {V.dtype} {V.shape}")
-    V = V.astype(np.float64)
+    V = V.astype(np.float64, copy=False)  # read only below: no copy of a float64 array
     if not np.isfinite(V).all():
         raise ValueError("vertices: contains NaN or inf")
     F = np.asarray(faces)
     if F.ndim != 2 or F.shape[1] != 3 or F.shape[0] == 0 or F.dtype.kind not in "iu":
         raise ValueError(f"faces: expected a non-empty (m, 3) integer array, got {F.dtype} {F.shape}")
-    F = F.astype(np.int64)
+    F = F.astype(np.int64, copy=False)
     if F.min() < 0 or F.max() >= len(V):
         raise ValueError(f"faces: indices must be in [0, {len(V)}), got [{F.min()}, {F.max()}]")
     m = len(F)
     UV = np.asarray(corner_uv)
     if UV.shape != (m, 3, 2) or UV.dtype.kind not in "iuf":
         raise ValueError(f"corner_uv: expected a ({m}, 3, 2) float array, got {UV.dtype} {UV.shape}")
-    UV = UV.astype(np.float64)
+    UV = UV.astype(np.float64, copy=False)
     if not np.isfinite(UV).all():
         raise ValueError("corner_uv: contains NaN or inf")
     if isinstance(textures, np.ndarray) or not isinstance(textures, Sequence):
@@ -77,7 +79,7 @@ def _check_shape(vertices, faces, corner_uv, face_group, textures, names):
     G = np.asarray(face_group)
     if G.shape != (m,) or G.dtype.kind not in "iu":
         raise ValueError(f"face_group: expected a ({m},) integer array, got {G.dtype} {G.shape}")
-    G = G.astype(np.int64)
+    G = G.astype(np.int64, copy=False)
     if G.min() < -1 or G.max() >= len(texs):
         raise ValueError(f"face_group: values must be -1 or in [0, {len(texs)}), got [{G.min()}, {G.max()}]")
     if names is None:
