@@ -122,7 +122,7 @@ def transfer(
     or cancelled, the transfer stops with :class:`~proctex.transfer.budget.OverBudget`.
 
     ``workers``: 1 maps the parts one after the other; otherwise they share a small thread pool
-    (:func:`_parts_pool`). The result is the same either way.
+    (:func:`_parts_pool`), in the pieces :func:`part_chunks` makes. The result is the same either way.
     """
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
