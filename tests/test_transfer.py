@@ -852,6 +852,9 @@ def test_run_time_coverage_check_never_passes_a_face_that_reads_outside_its_char
     assert (old & ~truth).any()
     with pytest.raises(ValueError, match="leaf"):
         _inside_chart(uv, look, chart, leaf=3.0)
+    for bad in (-1, 65, 2.5, True):
+        with pytest.raises(ValueError, match="max_level"):
+            _inside_chart(uv, look, chart, max_level=bad)
 
 
 def test_the_compiled_coverage_check_answers_as_the_array_form():

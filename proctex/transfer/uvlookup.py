@@ -376,6 +376,8 @@ def _inside_chart(corner_uv: np.ndarray, charts: np.ndarray | ChartLookup, chart
     :func:`_inside_chart_arrays`)."""
     if not 0 < leaf <= 2.0:
         raise ValueError(f"leaf must be in (0, 2] texels, got {leaf}")
+    if isinstance(max_level, bool) or not isinstance(max_level, (int, np.integer)) or not 0 <= max_level <= 64:
+        raise ValueError(f"max_level must be an integer in [0, 64], got {max_level!r}")
     look = charts if isinstance(charts, ChartLookup) else chart_lookup(charts)
     h, w = look.labels.shape
     grid = _probe_grid()
