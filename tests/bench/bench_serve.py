@@ -13,6 +13,10 @@ both halves of a pair alike, which a figure taken minutes before the run does no
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family sofa --out out/bench_serve.json
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family chair --requests 200 --concurrency 1,2,4,8
     .venv/bin/python tests/bench/bench_serve.py --root out/families --family sofa --http front,serve --runs 2 --replicas 2 --concurrency 1,8
+    .venv/bin/python tests/bench/bench_serve.py --root out/families --family sofa --in-process-only --before ../before --requests 100
+
+The last: the in-process figures alone, of this checkout and an older one taking turns of
+:data:`BLOCK` requests, each in a process of its own (:func:`alternated_in_process`).
 
 Each run is ``proctex serve`` in a process of its own (``--http front``: its one-hop front;
 ``serve``: Ray Serve's proxy and the ingress deployment), started afresh and stopped after.
@@ -197,7 +201,10 @@ def alternated_in_process(args, checkouts: dict[str, Path]) -> dict[str, dict]:
             for mode, proc in procs.items():
                 proc.stdin.write("go\n")
                 proc.stdin.flush()
-                block = json.loads(proc.stdout.readline())
+                line = proc.stdout.readline()
+                if not line:
+                    raise SystemExit(f"the in-process worker of {mode} ({checkouts[mode]}) stopped (exit status {proc.wait(timeout=60)})")
+                block = json.loads(line)
                 rows[mode] += block
                 turns[mode].append(float(np.median([r[2] for r in block])))
     finally:
