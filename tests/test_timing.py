@@ -178,7 +178,8 @@ def test_alternated_in_process_figures_see_the_code_and_not_the_machines_drift()
             turns[mode].append(float(np.median([r[2] for r in block])))
     fig = alternated_figures(rows, turns)
     assert "paired" not in fig["before"] and fig["after"]["paired"]["turns"] == 20
+    # Synthetic times, the same on every CPU: 0.8 up to float rounding (approx's 1e-6 relative).
     assert fig["after"]["paired"]["ratio_of_medians"] == pytest.approx(0.8) and fig["after"]["paired"]["median_ratio"] == pytest.approx(0.8)
     separate = np.median([16.0 * d for d in drift[10:]]) / np.median([20.0 * d for d in drift[:10]])  # old first, new after
-    assert separate > 1.0
+    assert separate > 1.1  # 1.140: two runs one after the other call the faster code slower
     assert fig["before"]["transfer_p50_ms"] == pytest.approx(20.0 * np.median(drift)) and fig["after"]["n"] == 20 * BLOCK

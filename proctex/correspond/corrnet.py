@@ -638,23 +638,35 @@ def _fused_linear() -> Any:
 
 
 def _fuses_exactly(layers: list[tuple[torch.Tensor, torch.Tensor]]) -> bool:
-    """Whether :func:`_fused_linear` runs these bfloat16 CPU ``layers`` and gives, on probes of
-    :data:`QUERY_BUCKET` and of 16 times as many rows through each, the same bits as ``F.linear``
-    (and then ``torch.relu``): a ReLU applied to the rounded output is the rounded ReLU, so where
-    both take oneDNN's product the answers are equal (measured on AMX cores: equal on every row of
-    the demo family's predictions). A CPU or build where they differ, or where the fused operator
-    refuses bfloat16 (oneDNN held below AVX-512), keeps the plain layers."""
+    """Whether :func:`_fused_linear` runs bfloat16 CPU layers of these ``layers``' shapes and gives,
+    on probes of :data:`QUERY_BUCKET` and of 16 times as many rows through each (:func:`_fuses_shapes`,
+    once per process for each set of shapes), the same bits as ``F.linear`` and then ``torch.relu``:
+    a ReLU applied to the rounded output is the rounded ReLU, so where both take oneDNN's product
+    the answers are equal (measured on AMX cores: equal on every row of the demo family's
+    predictions). A CPU or build where they differ, or where the fused operator refuses bfloat16
+    (oneDNN held below AVX-512), keeps the plain layers."""
     op = _fused_linear()
     if op is None or not native_bfloat16("cpu"):
         return False
+    if any(w.dtype != torch.bfloat16 or w.device.type != "cpu" or b is None or b.shape != w.shape[:1] for w, b in layers):
+        return False
+    return _fuses_shapes(op, tuple(tuple(w.shape) for w, _ in layers))
+
+
+@lru_cache(maxsize=64)
+def _fuses_shapes(op: Any, shapes: tuple[tuple[int, int], ...]) -> bool:
+    """:func:`_fuses_exactly` for bfloat16 layers of weight ``shapes``, probed once per process
+    with seeded random weights (which kernel oneDNN runs, and so the bits, follows the shapes and
+    the CPU, not the values): a network made again after training steps, or another network of
+    the same shapes, does not probe again."""
     gen = torch.Generator().manual_seed(0)
     try:
         with torch.inference_mode():
-            for weight, bias in layers:
-                if weight.dtype != torch.bfloat16 or weight.device.type != "cpu":
-                    return False
+            for out, inp in shapes:
+                weight = torch.randn(out, inp, generator=gen).to(torch.bfloat16)
+                bias = torch.randn(out, generator=gen).to(torch.bfloat16)
                 for rows in (QUERY_BUCKET, 16 * QUERY_BUCKET):  # oneDNN may choose its kernel by the row count
-                    x = torch.randn(rows, weight.shape[1], generator=gen).to(weight.dtype)
+                    x = torch.randn(rows, inp, generator=gen).to(torch.bfloat16)
                     plain = F.linear(x, weight, bias)
                     if not (torch.equal(op(x, weight, bias, "none", [], ""), plain) and torch.equal(op(x, weight, bias, "relu", [], ""), torch.relu(plain))):
                         return False

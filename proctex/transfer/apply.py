@@ -166,8 +166,8 @@ def transfer(
     pool = _parts_pool() if len(todo) > 1 and workers != 1 else None
     t_parts = time.perf_counter()
     if pool is not None:
-        chunks = part_chunks(todo, mapper)
-        done = dict(zip((i for chunk in chunks for i in chunk), (o for out in pool.map(lambda chunk: [one(todo[i]) for i in chunk], chunks) for o in out)))
+        pieces = pool.map(lambda chunk: [(i, one(todo[i])) for i in chunk], part_chunks(todo, mapper))
+        done = dict(pair for piece in pieces for pair in piece)
         outcomes = [done[i] for i in range(len(todo))]
     else:
         outcomes = [one(a) for a in todo]

@@ -203,8 +203,8 @@ def _disoccluded(corner_uv, face_group, group, observed):
             continue
         u = (corner_uv[i, 0, 0] + corner_uv[i, 1, 0] + corner_uv[i, 2, 0]) / 3
         v = (corner_uv[i, 0, 1] + corner_uv[i, 1, 1] + corner_uv[i, 2, 1]) / 3
-        i0 = min(max(int(np.floor((1.0 - v) * h - 0.5)), 0), h - 1)
-        j0 = min(max(int(np.floor(u * w - 0.5)), 0), w - 1)
+        t = _first_texel(u, v, float(h), float(w))
+        i0, j0 = t // w, t % w
         i1, j1 = min(i0 + 1, h - 1), min(j0 + 1, w - 1)
         if not (observed[i0, j0] and observed[i0, j1] and observed[i1, j0] and observed[i1, j1]):
             n += 1
